@@ -1,0 +1,270 @@
+"""What the engine needs from the hardware: small interfaces, shared by real and sim devices.
+
+The engine talks only to these. ``sim_backends`` implements them over a virtual
+participant; ``drivers.stg4002``, ``drivers.caio``, ``drivers.nidaq``,
+``drivers.leptrino`` and ``drivers.estop_switch`` implement them over vendor libraries.
+
+Time base: the stimulator's start is the trigger. An acquisition started with
+``triggered=True`` waits for it, so sample index 0 of the acquisition is stimulation onset
+(hardware trigger / sync line, never host clock guesses).
+
+Safety: a stimulator only accepts a :class:`CheckedWaveform`, whose constructor refuses any
+sample above the ceiling it carries, so a waveform over its ceiling cannot exist. Drivers
+check it once more against the device range just before sending.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+
+class CurrentLimitError(ValueError):
+    """A stimulation current would exceed its ceiling (nothing was sent)."""
+
+
+# -- stimulator ---------------------------------------------------------------------
+@dataclass(frozen=True)
+class StimulatorCapabilities:
+    """What a stimulator can do, as reported by the device (or the simulator)."""
+
+    n_channels: int
+    max_current_mA: float
+    """Largest carrier amplitude the device can deliver on a channel."""
+    resolution_mA: float
+    """Smallest current step of the device's DAC."""
+    output_rate_Hz: float
+    """Sample rate at which the device renders waveforms (carrier included)."""
+    model: str = ""
+    serial: str = ""
+    firmware: str = ""
+
+
+class StimulatorState(enum.Enum):
+    DISCONNECTED = "disconnected"
+    IDLE = "idle"
+    LOADED = "loaded"
+    ARMED = "armed"
+    RUNNING = "running"
+    STOPPED = "stopped"
+    ERROR = "error"
+
+
+@dataclass(frozen=True)
+class StimulatorStatus:
+    state: StimulatorState
+    output_active: bool
+    """True while any channel may be delivering current."""
+    error: str = ""
+    sample_index: int = -1
+    """Envelope sample being rendered, when the device reports it (-1 if unknown)."""
+
+
+@dataclass(frozen=True, eq=False)
+class CheckedWaveform:
+    """One trial's stimulation, proven within its current ceilings by construction.
+
+    The carrier (a sine at ``carrier_Hz``) is rendered on the stimulator side; this holds
+    its amplitude envelope per channel, sampled at ``fs_Hz``.
+
+    Parameters
+    ----------
+    I_ext_mA, I_flex_mA : array_like
+        Carrier amplitude envelopes of the extensor and flexor channels, mA, >= 0.
+    fs_Hz : float
+        Envelope sample rate.
+    carrier_Hz : float
+        Sine carrier frequency.
+    ceiling_ext_mA, ceiling_flex_mA : float
+        The ceilings this waveform was checked against.
+
+    Raises
+    ------
+    CurrentLimitError
+        If any sample is negative, not finite, or above its channel's ceiling.
+    """
+
+    I_ext_mA: np.ndarray
+    I_flex_mA: np.ndarray
+    fs_Hz: float
+    carrier_Hz: float
+    ceiling_ext_mA: float
+    ceiling_flex_mA: float
+
+    def __post_init__(self):
+        for name, ceiling in (("I_ext_mA", self.ceiling_ext_mA),
+                              ("I_flex_mA", self.ceiling_flex_mA)):
+            arr = np.array(getattr(self, name), dtype=np.float64, copy=True)
+            if arr.ndim != 1:
+                raise CurrentLimitError(f"{name} must be 1-D, got shape {arr.shape}")
+            if not np.isfinite(ceiling) or ceiling < 0:
+                raise CurrentLimitError(f"ceiling for {name} must be a finite number >= 0, "
+                                        f"got {ceiling!r}")
+            if arr.size and not np.all(np.isfinite(arr)):
+                raise CurrentLimitError(f"{name} holds non-finite samples (NaN or inf)")
+            if arr.size and arr.min() < 0:
+                raise CurrentLimitError(f"{name} holds negative amplitudes (min "
+                                        f"{arr.min():.3f} mA); amplitudes must be >= 0")
+            if arr.size and arr.max() > ceiling:
+                k = int(np.argmax(arr))
+                raise CurrentLimitError(
+                    f"{name} sample {k} = {arr[k]:.3f} mA exceeds the ceiling "
+                    f"{ceiling:.3f} mA; nothing was sent to the stimulator")
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        if len(self.I_ext_mA) != len(self.I_flex_mA):
+            raise CurrentLimitError("I_ext_mA and I_flex_mA must have the same length, got "
+                                    f"{len(self.I_ext_mA)} and {len(self.I_flex_mA)}")
+        if not self.fs_Hz > 0:
+            raise CurrentLimitError(f"fs_Hz must be > 0, got {self.fs_Hz!r}")
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.I_ext_mA)
+
+    @property
+    def duration_s(self) -> float:
+        return self.n_samples / self.fs_Hz
+
+
+@runtime_checkable
+class Stimulator(Protocol):
+    """A current-controlled stimulator with (at least) an extensor and a flexor channel."""
+
+    def connect(self) -> None: ...
+
+    def capabilities(self) -> StimulatorCapabilities: ...
+
+    def load(self, waveform: CheckedWaveform) -> None:
+        """Send one trial's waveform to the device (does not start it)."""
+
+    def arm(self) -> None:
+        """Make ready to start on :meth:`start`."""
+
+    def start(self) -> None:
+        """Start output (hardware-timed); emits the trigger / sync the acquisition uses."""
+
+    def stop_now(self) -> None:
+        """Output to zero immediately. Thread-safe, idempotent, never raises."""
+
+    def status(self) -> StimulatorStatus: ...
+
+    def disconnect(self) -> None: ...
+
+
+# -- force acquisition --------------------------------------------------------------
+@dataclass(frozen=True)
+class AcquisitionFlags:
+    overrun: bool = False
+    """Samples were lost (buffer overflow)."""
+    over_range: bool = False
+    """The sensor or converter saturated."""
+    sensor_fault: bool = False
+    """The sensor or converter reported an error."""
+    detail: str = ""
+
+    @property
+    def any(self) -> bool:
+        return self.overrun or self.over_range or self.sensor_fault
+
+
+@dataclass(frozen=True, eq=False)
+class ForceChunk:
+    """A block of consecutive samples from the force chain.
+
+    ``start_index`` counts samples from the trigger (stimulation onset), so sample
+    ``start_index + k`` was taken at ``(start_index + k) / fs_Hz`` s after onset.
+    """
+
+    start_index: int
+    force_N: np.ndarray
+    """Endpoint force along the extension axis, extension positive."""
+    wrench: np.ndarray | None = None
+    """(n, 6) Fx, Fy, Fz, Mx, My, Mz in the sensor frame, if the chain provides it."""
+    sync: np.ndarray | None = None
+    """The stimulator's sync line as recorded by the A/D, if wired."""
+    flags: AcquisitionFlags = field(default_factory=AcquisitionFlags)
+
+    @property
+    def n(self) -> int:
+        return len(self.force_N)
+
+
+@runtime_checkable
+class ForceAcquisition(Protocol):
+    """A hardware-timed force measurement chain (sensor + A/D)."""
+
+    def configure(self, fs_Hz: float) -> float:
+        """Set the sampling rate; return the rate the hardware will really use."""
+
+    def start(self, n_samples: int | None = None, *, triggered: bool = True) -> None:
+        """Start acquiring ``n_samples`` (None: until stopped). With ``triggered`` the
+        first sample is taken at the stimulator's start trigger."""
+
+    def read(self, timeout_s: float) -> ForceChunk | None:
+        """The next chunk, or None if none arrived within ``timeout_s``."""
+
+    def stop(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+# -- emergency stop ----------------------------------------------------------------
+@runtime_checkable
+class EStopInput(Protocol):
+    """A hardware emergency-stop switch read by the host. Fail-safe: a disconnected or
+    unreadable switch reads as pressed."""
+
+    def is_pressed(self) -> bool: ...
+
+    def close(self) -> None: ...
+
+
+# -- time ------------------------------------------------------------------------
+@runtime_checkable
+class Clock(Protocol):
+    """The engine's notion of time: real (hardware, GUI) or as fast as possible (sim)."""
+
+    def monotonic_s(self) -> float: ...
+
+    def sleep(self, duration_s: float) -> None: ...
+
+
+class RealClock:
+    """Wall-clock time (``time.monotonic`` / ``time.sleep``)."""
+
+    def monotonic_s(self) -> float:
+        import time
+        return time.monotonic()
+
+    def sleep(self, duration_s: float) -> None:
+        import time
+        if duration_s > 0:
+            time.sleep(duration_s)
+
+
+@dataclass
+class RigDevices:
+    """The devices of one rig, as a backend builds them for the engine."""
+
+    stimulator: Stimulator
+    acquisition: ForceAcquisition
+    estop: EStopInput | None
+    clock: Clock
+    backend: str
+    """``sim`` or a description of the hardware chain (stored in the session file)."""
+    extensor_channel: int = 1
+    flexor_channel: int = 2
+
+    def close(self) -> None:
+        """Output to zero, then release every device (never raises)."""
+        for step in (self.stimulator.stop_now, self.acquisition.stop,
+                     self.acquisition.close, self.stimulator.disconnect,
+                     *( [self.estop.close] if self.estop is not None else [])):
+            try:
+                step()
+            except Exception:  # shutting down: keep going, output is already zero
+                pass

@@ -1,0 +1,660 @@
+"""Read, write and validate session files (``shared/spec/session-file-v1.md``).
+
+One HDF5 file holds one session. This module is the only place that knows the layout: the
+rig writes through :class:`SessionWriter`, the analysis reads through :func:`read_session`,
+and ``nmsid validate`` calls :func:`validate_session`.
+
+Every write opens the file, changes it and closes it again, so that the file on disk is
+complete between writes. Crash recovery (a journal of completed trials) is layered on top
+by ``rig.session_log``.
+
+Examples
+--------
+>>> import tempfile, os, numpy as np
+>>> path = os.path.join(tempfile.mkdtemp(), "P01.h5")
+>>> w = SessionWriter.create(path, participant="P01")
+>>> w.write_calibration(Calibration(1.0, 9.0, 1.5, 10.0, 0.5, 5.0))
+>>> n = 100
+>>> name = w.append_trial(Trial(sE=0.5, repeat=1, fs_Hz=2000.0, rE=np.full(n, 0.5),
+...     I_ext_mA=np.full(n, 3.0), I_flex_mA=np.full(n, 3.0), force_N=np.zeros(n)))
+>>> name
+'t001'
+>>> read_session(path).trials[0].sE
+0.5
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FORMAT = "nmsid-session"
+FORMAT_VERSION = 1
+PARTICIPANT_PATTERN = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+TRIAL_NAME_PATTERN = re.compile(r"^t(\d{3,})$")
+
+ROOT_ATTRS = ("format", "format_version", "participant", "created_utc", "software")
+CALIBRATION_ATTRS = ("Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA", "Fmin_N", "Fmax_N")
+TRIAL_FLOAT_ATTRS = ("sE", "fs_Hz", "steady_s", "chirp_s", "chirp_f0_Hz", "chirp_f1_Hz",
+                     "carrier_Hz")
+TRIAL_STR_ATTRS = ("status", "abort_reason", "started_utc")
+TRIAL_DATASETS = ("rE", "I_ext_mA", "I_flex_mA", "force_N")
+STATUSES = ("completed", "aborted")
+
+
+def software_id() -> str:
+    """The writer's name and version, as stored in the ``software`` root attribute."""
+    try:
+        from importlib.metadata import version
+        return f"nmsid {version('nmsid')}"
+    except Exception:  # not installed (running from a source tree)
+        return "nmsid (source tree)"
+
+
+def utc_now() -> str:
+    """The current time as ISO 8601 UTC with a ``Z`` suffix (second resolution)."""
+    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+class SessionFileError(ValueError):
+    """A session file is missing, unreadable or breaks the contract.
+
+    The message names the file and the item, and says what would be valid.
+    """
+
+    def __init__(self, path: str | os.PathLike, problem: str):
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
+class SessionExistsError(FileExistsError):
+    """Refused to create a session file where a file already exists (never overwrite)."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = str(path)
+        super().__init__(
+            f"{self.path}: a file already exists here; nmsid never overwrites a session "
+            "file. Choose another --out path, or resume it with --resume.")
+
+
+@dataclass
+class Calibration:
+    """Currents at which each muscle alone produced ``Fmin_N`` / ``Fmax_N``."""
+
+    Iemin_mA: float
+    Iemax_mA: float
+    Ifmin_mA: float
+    Ifmax_mA: float
+    Fmin_N: float = 0.5
+    Fmax_N: float = 5.0
+    ramps: dict[str, np.ndarray] = field(default_factory=dict)
+    """Optional datasets stored under ``/calibration`` (e.g. ``ext_I_mA``, ``ext_force_N``)."""
+
+    def problems(self) -> list[str]:
+        """Every way these values break the contract (empty when valid)."""
+        out = []
+        for name in CALIBRATION_ATTRS:
+            value = getattr(self, name)
+            if not np.isfinite(value):
+                out.append(f"/calibration attribute {name} = {value!r} is not a finite number")
+        if not (self.Iemax_mA > self.Iemin_mA >= 0):
+            out.append(f"/calibration needs Iemax_mA > Iemin_mA >= 0, got Iemin_mA="
+                       f"{self.Iemin_mA:g}, Iemax_mA={self.Iemax_mA:g}")
+        if not (self.Ifmax_mA > self.Ifmin_mA >= 0):
+            out.append(f"/calibration needs Ifmax_mA > Ifmin_mA >= 0, got Ifmin_mA="
+                       f"{self.Ifmin_mA:g}, Ifmax_mA={self.Ifmax_mA:g}")
+        return out
+
+
+@dataclass
+class Trial:
+    """One trial: its settings (attributes) and its sampled signals (datasets)."""
+
+    sE: float
+    repeat: int
+    fs_Hz: float
+    rE: np.ndarray
+    I_ext_mA: np.ndarray
+    I_flex_mA: np.ndarray
+    force_N: np.ndarray
+    status: str = "completed"
+    abort_reason: str = ""
+    steady_s: float = 5.0
+    chirp_s: float = 10.0
+    chirp_f0_Hz: float = 1.0
+    chirp_f1_Hz: float = 10.0
+    carrier_Hz: float = 1000.0
+    started_utc: str = ""
+    wrench: np.ndarray | None = None
+    sync: np.ndarray | None = None
+    name: str = ""
+    """``t001``, ``t002``, ... ; set by the writer and the reader."""
+    extra_attrs: dict[str, Any] = field(default_factory=dict)
+    """Attributes beyond the contract (e.g. ``index_in_schedule``, ``cumulative_stim_s``)."""
+
+    @property
+    def n_samples(self) -> int:
+        return int(len(self.force_N))
+
+    @property
+    def completed(self) -> bool:
+        return self.status == "completed"
+
+    @property
+    def t_s(self) -> np.ndarray:
+        """Sample times in s after stimulation onset."""
+        return np.arange(self.n_samples) / self.fs_Hz
+
+
+@dataclass
+class Event:
+    """One entry of the session's event log."""
+
+    utc: str
+    kind: str
+    detail: str = ""
+
+
+@dataclass
+class Session:
+    """Everything a session file holds, as read by :func:`read_session`."""
+
+    path: str
+    participant: str
+    created_utc: str
+    software: str
+    calibration: Calibration
+    trials: list[Trial]
+    events: list[Event] = field(default_factory=list)
+    config_json: str = ""
+    seed: int | None = None
+    backend: str = ""
+    attrs: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def config(self) -> dict:
+        """The protocol configuration stored with the session (empty if none)."""
+        if not self.config_json:
+            return {}
+        try:
+            return json.loads(self.config_json)
+        except json.JSONDecodeError:
+            return {}
+
+    def completed_trials(self) -> list[Trial]:
+        return [t for t in self.trials if t.completed]
+
+    def sE_levels(self) -> list[float]:
+        """The distinct sE values of completed trials, ascending."""
+        return sorted({round(float(t.sE), 10) for t in self.completed_trials()})
+
+
+def _h5py():
+    import h5py
+    return h5py
+
+
+def _as_str(value: Any) -> str:
+    if isinstance(value, bytes):
+        return value.decode("utf-8", errors="replace")
+    if isinstance(value, np.ndarray) and value.shape == ():
+        return _as_str(value[()])
+    return str(value)
+
+
+def _as_float(value: Any) -> float:
+    arr = np.asarray(value)
+    if arr.size != 1:
+        raise TypeError("not a scalar")
+    return float(arr.reshape(()))
+
+
+class SessionWriter:
+    """Write a session file incrementally; every call leaves a complete file on disk.
+
+    Use :meth:`create` for a new session (refuses an existing path) and :meth:`open`
+    to continue one (``--resume``).
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+
+    # -- creation -----------------------------------------------------------------
+    @classmethod
+    def create(cls, path: str | os.PathLike, participant: str, *,
+               created_utc: str | None = None, software: str | None = None,
+               config_json: str | None = None, seed: int | None = None,
+               backend: str | None = None, extra_attrs: dict | None = None) -> SessionWriter:
+        """Create a new session file with its root attributes and empty groups.
+
+        Raises
+        ------
+        SessionExistsError
+            If anything exists at ``path``.
+        ValueError
+            If ``participant`` is not ``[A-Za-z0-9_-]{1,64}``.
+        """
+        path = Path(path)
+        if not PARTICIPANT_PATTERN.match(participant or ""):
+            raise ValueError(
+                f"participant code {participant!r} is not valid: use 1 to 64 letters, "
+                "digits, '_' or '-' (a code, never a name)")
+        if path.exists():
+            raise SessionExistsError(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        h5py = _h5py()
+        str_dt = h5py.string_dtype("utf-8")
+        # mode "x": fails if the file appears between the check and the open.
+        try:
+            f = h5py.File(path, "x")
+        except (FileExistsError, OSError) as exc:
+            if path.exists():
+                raise SessionExistsError(path) from exc
+            raise
+        with f:
+            f.attrs.create("format", FORMAT, dtype=str_dt)
+            f.attrs["format_version"] = np.int64(FORMAT_VERSION)
+            f.attrs.create("participant", participant, dtype=str_dt)
+            f.attrs.create("created_utc", created_utc or utc_now(), dtype=str_dt)
+            f.attrs.create("software", software or software_id(), dtype=str_dt)
+            if config_json is not None:
+                f.attrs.create("config_json", config_json, dtype=str_dt)
+            if seed is not None:
+                f.attrs["seed"] = np.int64(seed)
+            if backend is not None:
+                f.attrs.create("backend", backend, dtype=str_dt)
+            for key, value in (extra_attrs or {}).items():
+                _set_attr(f.attrs, key, value)
+            f.create_group("calibration")
+            f.create_group("trials")
+            f.create_group("events")
+        return cls(path)
+
+    @classmethod
+    def open(cls, path: str | os.PathLike) -> SessionWriter:
+        """Continue writing an existing session file (checks that it is one)."""
+        path = Path(path)
+        if not path.exists():
+            raise SessionFileError(path, "no such file")
+        with _open_read(path) as f:
+            if _as_str(f.attrs.get("format", "")) != FORMAT:
+                raise SessionFileError(path, "is not an nmsid session file "
+                                             f"(root attribute format != {FORMAT!r})")
+        return cls(path)
+
+    # -- writing ------------------------------------------------------------------
+    def write_calibration(self, cal: Calibration) -> None:
+        """Store the calibration (attributes and optional ramp datasets)."""
+        problems = cal.problems()
+        if problems:
+            raise ValueError(f"{self.path}: refusing to write calibration: " + "; ".join(problems))
+        with _h5py().File(self.path, "a") as f:
+            g = f.require_group("calibration")
+            for name in CALIBRATION_ATTRS:
+                g.attrs[name] = float(getattr(cal, name))
+            for name, data in cal.ramps.items():
+                if name in g:
+                    del g[name]
+                g.create_dataset(name, data=np.asarray(data, dtype=float))
+
+    def next_trial_name(self) -> str:
+        with _open_read(self.path) as f:
+            n = len([k for k in f.get("trials", {}) if TRIAL_NAME_PATTERN.match(k)])
+        return f"t{n + 1:03d}"
+
+    def append_trial(self, trial: Trial) -> str:
+        """Append one trial as the next ``tNNN`` group and return its name."""
+        _check_trial(trial, self.path)
+        h5py = _h5py()
+        str_dt = h5py.string_dtype("utf-8")
+        with h5py.File(self.path, "a") as f:
+            trials = f.require_group("trials")
+            n = len([k for k in trials if TRIAL_NAME_PATTERN.match(k)])
+            name = f"t{n + 1:03d}"
+            g = trials.create_group(name)
+            for key in TRIAL_FLOAT_ATTRS:
+                g.attrs[key] = float(getattr(trial, key))
+            g.attrs["repeat"] = np.int64(trial.repeat)
+            for key in TRIAL_STR_ATTRS:
+                g.attrs.create(key, getattr(trial, key) or "", dtype=str_dt)
+            for key, value in trial.extra_attrs.items():
+                _set_attr(g.attrs, key, value)
+            for key in TRIAL_DATASETS:
+                g.create_dataset(key, data=np.asarray(getattr(trial, key), dtype=np.float64))
+            if trial.wrench is not None:
+                g.create_dataset("wrench", data=np.asarray(trial.wrench, dtype=np.float64))
+            if trial.sync is not None:
+                g.create_dataset("sync", data=np.asarray(trial.sync, dtype=np.float64))
+            f.flush()
+        trial.name = name
+        return name
+
+    def append_events(self, events: list[Event]) -> None:
+        """Append events to ``/events`` (one sub-group per event, ``e0001``, ...)."""
+        if not events:
+            return
+        h5py = _h5py()
+        str_dt = h5py.string_dtype("utf-8")
+        with h5py.File(self.path, "a") as f:
+            g = f.require_group("events")
+            n = len(g)
+            for i, ev in enumerate(events):
+                e = g.create_group(f"e{n + i + 1:05d}")
+                e.attrs.create("utc", ev.utc, dtype=str_dt)
+                e.attrs.create("kind", ev.kind, dtype=str_dt)
+                e.attrs.create("detail", ev.detail, dtype=str_dt)
+
+    def set_root_attrs(self, **attrs: Any) -> None:
+        """Add or update optional root attributes (never the required ones)."""
+        with _h5py().File(self.path, "a") as f:
+            for key, value in attrs.items():
+                if key in ROOT_ATTRS:
+                    raise ValueError(f"{self.path}: root attribute {key!r} is fixed at creation")
+                _set_attr(f.attrs, key, value)
+
+
+def _set_attr(attrs, key: str, value: Any) -> None:
+    if isinstance(value, str):
+        attrs.create(key, value, dtype=_h5py().string_dtype("utf-8"))
+    elif isinstance(value, (dict, list)):
+        attrs.create(key, json.dumps(value), dtype=_h5py().string_dtype("utf-8"))
+    else:
+        attrs[key] = value
+
+
+def _check_trial(trial: Trial, path) -> None:
+    n = len(trial.force_N)
+    for key in TRIAL_DATASETS:
+        arr = np.asarray(getattr(trial, key))
+        if arr.ndim != 1 or len(arr) != n:
+            raise ValueError(f"{path}: trial dataset {key} must be 1-D with {n} samples "
+                             f"(as force_N), got shape {arr.shape}")
+    if trial.wrench is not None and np.asarray(trial.wrench).shape != (n, 6):
+        raise ValueError(f"{path}: trial dataset wrench must have shape ({n}, 6), "
+                         f"got {np.asarray(trial.wrench).shape}")
+    if trial.status not in STATUSES:
+        raise ValueError(f"{path}: trial status {trial.status!r} is not one of {STATUSES}")
+    if not (trial.fs_Hz > 0):
+        raise ValueError(f"{path}: trial fs_Hz must be > 0, got {trial.fs_Hz!r}")
+
+
+class _open_read:
+    """``with _open_read(path) as f``: open read-only, turning h5py errors into a
+    :class:`SessionFileError` that names the file."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.f = None
+
+    def __enter__(self):
+        if not self.path.exists():
+            raise SessionFileError(self.path, "no such file")
+        try:
+            self.f = _h5py().File(self.path, "r")
+        except OSError as exc:
+            raise SessionFileError(
+                self.path, f"cannot be opened as HDF5 ({exc}); if a session was running "
+                "when the computer or program stopped, run `nmsid recover` on it") from None
+        return self.f
+
+    def __exit__(self, *exc):
+        if self.f is not None:
+            self.f.close()
+        return False
+
+
+# -- reading ----------------------------------------------------------------------
+def read_session(path: str | os.PathLike, *, load_data: bool = True) -> Session:
+    """Read a whole session file.
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.h5`` file.
+    load_data : bool
+        If False, trial datasets are left empty (fast listing of attributes).
+
+    Raises
+    ------
+    SessionFileError
+        If the file is missing, not HDF5, or lacks a required item; the message names
+        the file and the item.
+    """
+    path = Path(path)
+    problems = validate_session(path, fatal_only=True)
+    if problems:
+        raise SessionFileError(path, problems[0] + (
+            f" (and {len(problems) - 1} more problem(s); run `nmsid validate {path}`)"
+            if len(problems) > 1 else ""))
+    with _open_read(path) as f:
+        a = f.attrs
+        cal_g = f["calibration"]
+        cal = Calibration(**{k: _as_float(cal_g.attrs[k]) for k in CALIBRATION_ATTRS},
+                          ramps={k: np.asarray(cal_g[k][()]) for k in cal_g
+                                 if isinstance(cal_g[k], _h5py().Dataset)} if load_data else {})
+        trials = [_read_trial(f["trials"][name], name, load_data)
+                  for name in _trial_names(f["trials"])]
+        events = _read_events(f["events"]) if "events" in f else []
+        known = set(ROOT_ATTRS) | {"config_json", "seed", "backend"}
+        seed = a.get("seed")
+        return Session(
+            path=str(path),
+            participant=_as_str(a["participant"]),
+            created_utc=_as_str(a["created_utc"]),
+            software=_as_str(a["software"]),
+            calibration=cal,
+            trials=trials,
+            events=events,
+            config_json=_as_str(a.get("config_json", "")),
+            seed=int(np.asarray(seed)) if seed is not None else None,
+            backend=_as_str(a.get("backend", "")),
+            attrs={k: a[k] for k in a if k not in known},
+        )
+
+
+def _trial_names(group) -> list[str]:
+    names = [k for k in group if TRIAL_NAME_PATTERN.match(k)]
+    return sorted(names, key=lambda k: int(TRIAL_NAME_PATTERN.match(k).group(1)))
+
+
+def _read_trial(g, name: str, load_data: bool) -> Trial:
+    a = g.attrs
+    kw: dict[str, Any] = {k: _as_float(a[k]) for k in TRIAL_FLOAT_ATTRS}
+    kw.update({k: _as_str(a[k]) for k in TRIAL_STR_ATTRS})
+    kw["repeat"] = int(np.asarray(a["repeat"]))
+    for key in TRIAL_DATASETS:
+        kw[key] = np.asarray(g[key][()], dtype=np.float64) if load_data else np.empty(0)
+    if load_data:
+        kw["wrench"] = np.asarray(g["wrench"][()]) if "wrench" in g else None
+        kw["sync"] = np.asarray(g["sync"][()]) if "sync" in g else None
+    known = set(TRIAL_FLOAT_ATTRS) | set(TRIAL_STR_ATTRS) | {"repeat"}
+    extra = {k: (_as_str(a[k]) if isinstance(a[k], (str, bytes)) else a[k])
+             for k in a if k not in known}
+    return Trial(name=name, extra_attrs=extra, **kw)
+
+
+def _read_events(g) -> list[Event]:
+    out = []
+    for key in sorted(g):
+        e = g[key]
+        if isinstance(e, _h5py().Group):
+            out.append(Event(_as_str(e.attrs.get("utc", "")), _as_str(e.attrs.get("kind", "")),
+                             _as_str(e.attrs.get("detail", ""))))
+    return out
+
+
+# -- validation -------------------------------------------------------------------
+def validate_session(path: str | os.PathLike, *, fatal_only: bool = False) -> list[str]:
+    """Check a file against the session-file contract.
+
+    Parameters
+    ----------
+    path : path-like
+        The file to check.
+    fatal_only : bool
+        Only report problems that prevent reading (missing items, wrong types), not
+        inconsistent values.
+
+    Returns
+    -------
+    list of str
+        One human-readable line per violation, each naming the item; empty if valid.
+    """
+    path = Path(path)
+    if not path.exists():
+        return ["no such file"]
+    try:
+        f = _h5py().File(path, "r")
+    except OSError as exc:
+        return [f"cannot be opened as HDF5 ({exc}); if it was being written when a program "
+                "stopped, try `nmsid recover`"]
+    out: list[str] = []
+    with f:
+        _validate_root(f, out, fatal_only)
+        if "calibration" not in f or not isinstance(f["calibration"], _h5py().Group):
+            out.append("missing required group /calibration")
+        else:
+            _validate_calibration(f["calibration"], out, fatal_only)
+        if "trials" not in f or not isinstance(f["trials"], _h5py().Group):
+            out.append("missing required group /trials")
+        else:
+            _validate_trials(f["trials"], out, fatal_only)
+    return out
+
+
+def _validate_root(f, out: list[str], fatal_only: bool) -> None:
+    a = f.attrs
+    for name in ROOT_ATTRS:
+        if name not in a:
+            out.append(f"missing required root attribute {name!r}")
+    if "format" in a and _as_str(a["format"]) != FORMAT:
+        out.append(f"root attribute format is {_as_str(a['format'])!r}, expected {FORMAT!r}")
+    if "format_version" in a:
+        try:
+            v = int(np.asarray(a["format_version"]))
+        except (TypeError, ValueError):
+            v = None
+        if v != FORMAT_VERSION:
+            out.append(f"root attribute format_version is {a['format_version']!r}, this reader "
+                       f"knows version {FORMAT_VERSION}")
+    if not fatal_only and "participant" in a:
+        p = _as_str(a["participant"])
+        if not PARTICIPANT_PATTERN.match(p):
+            out.append(f"root attribute participant {p!r} is not [A-Za-z0-9_-]{{1,64}}")
+    if not fatal_only and "created_utc" in a and not _is_utc(_as_str(a["created_utc"])):
+        out.append(f"root attribute created_utc {_as_str(a['created_utc'])!r} is not ISO 8601 "
+                   "UTC like 2026-11-22T01:30:00Z")
+
+
+def _is_utc(text: str) -> bool:
+    try:
+        t = _dt.datetime.fromisoformat(text.replace("Z", "+00:00"))
+    except ValueError:
+        return False
+    return t.utcoffset() == _dt.timedelta(0)
+
+
+def _validate_calibration(g, out: list[str], fatal_only: bool) -> None:
+    values = {}
+    for name in CALIBRATION_ATTRS:
+        if name not in g.attrs:
+            out.append(f"missing required attribute /calibration/{name}")
+            continue
+        try:
+            values[name] = _as_float(g.attrs[name])
+        except (TypeError, ValueError):
+            out.append(f"/calibration attribute {name} is not a number: {g.attrs[name]!r}")
+    if not fatal_only and len(values) == len(CALIBRATION_ATTRS):
+        out.extend(Calibration(**values).problems())
+
+
+def _validate_trials(g, out: list[str], fatal_only: bool) -> None:
+    h5py = _h5py()
+    names = _trial_names(g)
+    others = [k for k in g if k not in names]
+    if others and not fatal_only:
+        out.append(f"/trials holds {others} which are not named t001, t002, ...")
+    if not fatal_only:
+        expected = [f"t{i + 1:03d}" for i in range(len(names))]
+        if names != expected:
+            out.append(f"/trials groups must be numbered t001, t002, ... without gaps; found "
+                       f"{names[:5]}{'...' if len(names) > 5 else ''}")
+    for name in names:
+        t = g[name]
+        where = f"/trials/{name}"
+        if not isinstance(t, h5py.Group):
+            out.append(f"{where} is not a group")
+            continue
+        for key in TRIAL_FLOAT_ATTRS:
+            if key not in t.attrs:
+                out.append(f"missing required attribute {where}/{key}")
+            else:
+                try:
+                    _as_float(t.attrs[key])
+                except (TypeError, ValueError):
+                    out.append(f"{where} attribute {key} is not a number: {t.attrs[key]!r}")
+        if "repeat" not in t.attrs:
+            out.append(f"missing required attribute {where}/repeat")
+        for key in TRIAL_STR_ATTRS:
+            if key not in t.attrs:
+                out.append(f"missing required attribute {where}/{key}")
+        lengths = {}
+        for key in TRIAL_DATASETS:
+            if key not in t:
+                out.append(f"missing required dataset {where}/{key}")
+                continue
+            d = t[key]
+            if not isinstance(d, h5py.Dataset) or d.ndim != 1:
+                out.append(f"{where}/{key} must be a 1-D dataset, got "
+                           f"{getattr(d, 'shape', 'a group')}")
+                continue
+            if not np.issubdtype(d.dtype, np.floating):
+                out.append(f"{where}/{key} must be float64, got {d.dtype}")
+            lengths[key] = d.shape[0]
+        if len(set(lengths.values())) > 1:
+            out.append(f"{where} datasets differ in length: "
+                       + ", ".join(f"{k}={v}" for k, v in lengths.items())
+                       + " (all must have the same N)")
+        if fatal_only:
+            continue
+        status = _as_str(t.attrs.get("status", "completed"))
+        if "status" in t.attrs and status not in STATUSES:
+            out.append(f"{where} status {status!r} is not 'completed' or 'aborted'")
+        if status == "completed" and _as_str(t.attrs.get("abort_reason", "")):
+            out.append(f"{where} is completed but has a non-empty abort_reason")
+        if status == "aborted" and "abort_reason" in t.attrs and \
+                not _as_str(t.attrs["abort_reason"]):
+            out.append(f"{where} is aborted but abort_reason is empty (say why)")
+        try:
+            if "sE" in t.attrs and not 0 < _as_float(t.attrs["sE"]) <= 1:
+                out.append(f"{where} sE = {_as_float(t.attrs['sE']):g} is outside (0, 1]")
+            if "fs_Hz" in t.attrs and not _as_float(t.attrs["fs_Hz"]) > 0:
+                out.append(f"{where} fs_Hz must be > 0")
+        except (TypeError, ValueError):
+            pass
+        if "repeat" in t.attrs:
+            try:
+                if int(np.asarray(t.attrs["repeat"])) < 1:
+                    out.append(f"{where} repeat must be 1, 2, 3, ...")
+            except (TypeError, ValueError):
+                out.append(f"{where} repeat is not an integer: {t.attrs['repeat']!r}")
+        if "started_utc" in t.attrs and _as_str(t.attrs["started_utc"]) and \
+                not _is_utc(_as_str(t.attrs["started_utc"])):
+            out.append(f"{where} started_utc {_as_str(t.attrs['started_utc'])!r} is not ISO "
+                       "8601 UTC")
+        if "wrench" in t and lengths:
+            n = next(iter(lengths.values()))
+            if t["wrench"].shape != (n, 6):
+                out.append(f"{where}/wrench must have shape ({n}, 6), got {t['wrench'].shape}")
+        if "sync" in t and lengths:
+            n = next(iter(lengths.values()))
+            if t["sync"].shape != (n,):
+                out.append(f"{where}/sync must have shape ({n},), got {t['sync'].shape}")
