@@ -543,7 +543,8 @@ def _validate_root(f, out: list[str], fatal_only: bool) -> None:
         except (TypeError, ValueError):
             v = None
         if v != FORMAT_VERSION:
-            out.append(f"root attribute format_version is {a['format_version']!r}, this reader "
+            shown = v if v is not None else _as_str(a["format_version"])
+            out.append(f"root attribute format_version is {shown}, this reader "
                        f"knows version {FORMAT_VERSION}")
     if not fatal_only and "participant" in a:
         p = _as_str(a["participant"])
