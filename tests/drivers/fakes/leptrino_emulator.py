@@ -1,0 +1,252 @@
+"""An emulated Leptrino 6-axis force sensor on a real pseudo-terminal.
+
+The emulator owns the master side of an ``os.openpty()`` pair and runs in a thread; the
+driver opens the slave side (``emulator.port``) with pyserial exactly as it opens the
+sensor's virtual COM port. Its byte codec is written independently of
+``drivers.leptrino_protocol`` (so a shared mistake cannot pass unnoticed): frames are
+``DLE STX LEN TERM CMD RES DATA DLE ETX BCC`` with DLE doubled inside and BCC = XOR of the
+unstuffed payload and ETX; a command with a bad BCC is answered ``DLE NAK``.
+
+Faults, settable from a test while it runs: ``nak_next`` (answer the next N commands with
+NAK), ``corrupt_every`` (every Nth data frame gets a wrong BCC), ``garbage_every`` (random
+bytes between frames), ``fragment`` (write in 1..7-byte pieces with pauses, so the driver
+sees partial reads), ``error_result`` (answer a command with an error result code),
+``status_fn`` (status byte per record), :meth:`stall` (stop streaming but stay
+connected) and :meth:`unplug` (close the master side: the driver's port errors out).
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import select
+import struct
+import threading
+import time
+import tty
+
+DLE, STX, ETX, NAK = 0x10, 0x02, 0x03, 0x15
+
+
+def _frame(payload: bytes) -> bytes:
+    check = ETX
+    out = bytearray([DLE, STX])
+    for b in payload:
+        check ^= b
+        out.append(b)
+        if b == DLE:
+            out.append(b)
+    out += bytes([DLE, ETX, check])
+    return bytes(out)
+
+
+class LeptrinoEmulator:
+    """Emulated sensor. Use as a context manager; ``port`` is the path to open."""
+
+    def __init__(self, *, rate_Hz: float = 1200.0, rated=(500.0, 500.0, 1000.0, 10.0, 10.0, 10.0),
+                 wrench_fn=None, model: str = "PFS080YA501G6", serial: str = "LT000042",
+                 firmware: str = "1.07", seed: int = 0):
+        self.rate_Hz = rate_Hz
+        self.rated = tuple(float(r) for r in rated)
+        self.wrench_fn = wrench_fn or (lambda t: (2.0, -1.0, 0.5, 0.01, 0.0, -0.02))
+        self.status_fn = lambda t: 0
+        self.model, self.serial, self.firmware = model, serial, firmware
+        self.rng = random.Random(seed)
+        self.nak_next = 0
+        self.corrupt_every = 0
+        self.garbage_every = 0
+        self.fragment = False
+        self.error_result: dict[int, int] = {}
+        self.ack_start = False
+        self.commands: list[int] = []
+        self.bad_commands = 0
+        self.frames_sent = 0
+        self.frames_dropped = 0
+        self._streaming = False
+        self._stalled = False
+        self._t0 = 0.0
+        self._stream_sent = 0
+        self._out = bytearray()
+        self._rx = bytearray()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        os.set_blocking(self.master, False)
+        self.port = os.ttyname(self.slave)
+        self._thread = threading.Thread(target=self._run, name="leptrino-emulator",
+                                        daemon=True)
+        self._unplugged = False
+
+    # -- control ----------------------------------------------------------------------
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        self._stop.set()
+        self._thread.join(timeout=2)
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def stall(self):
+        self._stalled = True
+
+    def unplug(self):
+        """Like pulling the USB cable: the master side goes away."""
+        self._unplugged = True
+        self._stop.set()
+        self._thread.join(timeout=2)
+        os.close(self.master)
+        os.close(self.slave)
+        self.master = self.slave = -1
+
+    @property
+    def streaming(self) -> bool:
+        return self._streaming
+
+    # -- protocol -------------------------------------------------------------------
+    def _run(self):
+        while not self._stop.is_set():
+            try:
+                ready, _, _ = select.select([self.master], [], [], 0.002)
+            except (OSError, ValueError):
+                return
+            if ready:
+                try:
+                    data = os.read(self.master, 4096)
+                except BlockingIOError:
+                    data = b""
+                except OSError:
+                    return
+                self._receive(data)
+            self._stream()
+            self._flush()
+
+    def _receive(self, data: bytes):
+        self._rx += data
+        while True:
+            start = self._rx.find(bytes([DLE, STX]))
+            if start < 0:
+                self._rx.clear()
+                return
+            del self._rx[:start]
+            # find the terminating DLE ETX (not a doubled DLE)
+            i, payload, end = 2, bytearray(), None
+            while i < len(self._rx):
+                b = self._rx[i]
+                if b == DLE:
+                    if i + 1 >= len(self._rx):
+                        break
+                    nxt = self._rx[i + 1]
+                    if nxt == DLE:
+                        payload.append(DLE)
+                        i += 2
+                        continue
+                    if nxt == ETX:
+                        end = i + 2
+                        break
+                    # lone DLE (e.g. DLE STX restart): drop the broken frame, resync
+                    self.bad_commands += 1
+                    del self._rx[:i]
+                    payload = None
+                    break
+                payload.append(b)
+                i += 1
+            if payload is None:
+                continue
+            if end is None or end >= len(self._rx):
+                return  # incomplete
+            check = self._rx[end]
+            del self._rx[:end + 1]
+            expected = ETX
+            for b in payload:
+                expected ^= b
+            if check != expected or len(payload) < 4 or payload[0] != len(payload):
+                self.bad_commands += 1
+                self._send(bytes([DLE, NAK]))
+                continue
+            self._command(payload[2])
+
+    def _command(self, cmd: int):
+        self.commands.append(cmd)
+        if self.nak_next > 0:
+            self.nak_next -= 1
+            self._send(bytes([DLE, NAK]))
+            return
+        result = self.error_result.get(cmd, 0)
+        if result:
+            self._send(_frame(bytes([4, 0xFF, cmd, result])))
+            return
+        if cmd == 0x2A:
+            data = (self.model.encode().ljust(16, b"\0") + self.serial.encode().ljust(8, b"\0")
+                    + self.firmware.encode().ljust(4, b"\0")
+                    + f"{self.rate_Hz:.0f}Hz".encode().ljust(6, b"\0"))
+            self._send(_frame(bytes([4 + len(data), 0xFF, cmd, 0]) + data))
+        elif cmd == 0x2B:
+            data = struct.pack("<6f", *self.rated)
+            self._send(_frame(bytes([4 + len(data), 0xFF, cmd, 0]) + data))
+        elif cmd == 0x30:
+            self._send(self._record(time.monotonic() - self._t0, cmd))
+        elif cmd == 0x32:
+            with self._lock:
+                self._streaming, self._stalled = True, False
+                self._t0, self._stream_sent = time.monotonic(), 0
+            if self.ack_start:
+                self._send(_frame(bytes([4, 0xFF, cmd, 0])))
+        elif cmd == 0x33:
+            with self._lock:
+                self._streaming = False
+            self._send(_frame(bytes([4, 0xFF, cmd, 0])))
+        else:
+            self._send(_frame(bytes([4, 0xFF, cmd, 0x02])))  # undefined command
+
+    def _record(self, t: float, cmd: int = 0x32) -> bytes:
+        wrench = self.wrench_fn(t)
+        raw = [max(-32768, min(32767, int(round(w / r * 10000.0))))
+               for w, r in zip(wrench, self.rated)]
+        status = int(self.status_fn(t)) & 0xFF
+        data = struct.pack("<6hhBB", *raw, 2500, status, 0)
+        return _frame(bytes([4 + len(data), 0xFF, cmd, 0]) + data)
+
+    def _stream(self):
+        with self._lock:
+            if not self._streaming or self._stalled:
+                return
+            due = int((time.monotonic() - self._t0) * self.rate_Hz) - self._stream_sent
+            for _ in range(max(0, min(due, 2000))):
+                t = self._stream_sent / self.rate_Hz
+                frame = bytearray(self._record(t))
+                self._stream_sent += 1
+                self.frames_sent += 1
+                if self.corrupt_every and self.frames_sent % self.corrupt_every == 0:
+                    frame[-1] ^= 0x5A
+                if self.garbage_every and self.frames_sent % self.garbage_every == 0:
+                    self._send(bytes(self.rng.randrange(256) for _ in range(self.rng.randint(1, 9))))
+                self._send(bytes(frame))
+
+    def _send(self, data: bytes):
+        if len(self._out) > 256 * 1024:
+            self.frames_dropped += 1
+            return
+        self._out += data
+
+    def _flush(self):
+        while self._out:
+            n = self.rng.randint(1, 7) if self.fragment else len(self._out)
+            try:
+                written = os.write(self.master, bytes(self._out[:n]))
+            except BlockingIOError:
+                return
+            except OSError:
+                self._out.clear()
+                return
+            del self._out[:written]
+            if self.fragment:
+                time.sleep(0.00005 if self.rng.random() < 0.2 else 0)
