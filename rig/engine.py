@@ -1,0 +1,809 @@
+"""The protocol engine: runs calibration and the trial schedule on a rig, safely, logged.
+
+The engine executes the pure protocols (:mod:`protocols`) through the device interfaces
+(:mod:`drivers.interfaces`). Every waveform passes :func:`rig.safety.check_waveform`;
+every output start passes the :class:`rig.safety.Interlock` gate; every trip stops output
+first, in the tripping thread. Every trial is written through :class:`rig.session_log.
+SessionLog` (journal first, then HDF5).
+
+Threads: :meth:`Engine.run` blocks (the GUI calls it in a worker thread); the commands
+(:meth:`estop`, :meth:`pause`, ...) are thread-safe and callable from any thread. The
+E-stop acts in the calling thread (output to zero, latch); the other commands are queued
+and executed by the engine thread at its next check (between chunks, during rests and
+waits). Observer callbacks run in the engine thread.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+import queue
+import secrets
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from drivers.interfaces import RigDevices
+from protocols.calibration import (Muscle, check_calibration, make_calibration,
+                                   manual_calibration, ramp_currents_mA, require_thresholds,
+                                   settled_mean_N, detect_thresholds, step_envelopes)
+from protocols.config import Config, ConfigError, PausePolicy, config_from_json
+from protocols.errors import CalibrationError
+from protocols.schedule import (PlannedTrial, TrialStatus, make_schedule, schedule_from_json,
+                                schedule_to_json)
+from protocols.waveforms import trial_waveform
+from rig.safety import Interlock, InterlockTripped, Trip, check_waveform
+from rig.session_file import Calibration, Event, Trial, utc_now
+from rig.session_log import SessionLog, journal_dir, load_trial_npz, utc_now_ms
+from rig.states import State, StateMachine
+
+log = logging.getLogger(__name__)
+
+#: Longest engine wait between command checks, in real seconds (waits for the operator).
+WAIT_SLICE_S = 0.02
+#: Rest is slept in slices of this many engine-clock seconds, checking commands between.
+REST_SLICE_S = 0.05
+#: Real-time backstop of the stall rule, for clocks that do not advance while a read
+#: waits: at least this many real seconds and 10 stall timeouts.
+STALL_BACKSTOP_S = 1.0
+
+
+class TripPolicy(enum.Enum):
+    """What the engine does after an interlock trip (output is already zero, latched)."""
+
+    WAIT_FOR_REARM = "wait"
+    """Wait in ``tripped`` until the operator re-arms (GUI) or aborts."""
+    END_SESSION = "end"
+    """End the run (headless: nobody is there to re-arm); resume later."""
+
+
+class _Cmd(enum.Enum):
+    PAUSE = "pause"
+    RESUME = "resume"
+    ABORT = "abort"
+    SKIP = "skip"
+    RERUN = "rerun"
+    REARM = "rearm"
+    CONFIRM = "confirm"
+    NOTE = "note"
+    TRIPPED = "tripped"
+
+
+class _EndRun(Exception):
+    """Internal: leave the run loop (abort, or trip under END_SESSION)."""
+
+
+class EngineObserver:
+    """Receives the engine's progress; every method is a no-op here. Called from the
+    engine thread: keep them quick (hand data to the GUI thread, do not draw here)."""
+
+    def on_state(self, old: State, new: State, reason: str) -> None: ...
+
+    def on_event(self, event: Event) -> None: ...
+
+    def on_calibration_step(self, muscle: str, current_mA: float, force_N: float) -> None: ...
+
+    def on_calibration_result(self, calibration: Calibration) -> None: ...
+
+    def on_trial_started(self, index: int, planned: PlannedTrial) -> None: ...
+
+    def on_chunk(self, index: int, start_index: int, force_N: np.ndarray, rE: np.ndarray,
+                 I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> None: ...
+
+    def on_trial_finished(self, index: int, trial: Trial) -> None: ...
+
+    def on_level_completed(self, sE: float, trials: list[Trial]) -> None: ...
+
+    def on_finished(self, path: str) -> None: ...
+
+
+@dataclass
+class RunSummary:
+    """How a run ended."""
+
+    path: Path
+    final_state: State
+    ended_by: str
+    """``schedule complete``, ``aborted by operator``, ``interlock: <rule>: <detail>``,
+    or ``error: ...``."""
+    n_completed: int
+    n_aborted: int
+    n_pending: int
+    calibration: Calibration | None
+    journal_removed: bool
+    engine_time_s: float
+    trip: Trip | None = None
+    completed_names: list[str] = field(default_factory=list)
+
+    @property
+    def complete(self) -> bool:
+        """Every planned trial completed."""
+        return self.n_pending == 0 and self.n_aborted == 0
+
+
+class Engine:
+    """Runs one session.
+
+    Parameters
+    ----------
+    config : protocols.config.Config or None
+        The validated configuration (ignored with ``resume``: the session's stored one is
+        used). A missing seed is drawn now and recorded.
+    devices : drivers.interfaces.RigDevices
+    session_path : path-like
+        The HDF5 file to write (must not exist), or to continue with ``resume``.
+    resume : bool
+        Continue the session in ``session_path``: recover it first if needed, skip its
+        completed trials and re-run its aborted ones.
+    observer : EngineObserver, optional
+    trip_policy : TripPolicy
+        ``WAIT_FOR_REARM`` (default, an operator is present) or ``END_SESSION``.
+    """
+
+    def __init__(self, config: Config | None, devices: RigDevices, session_path, *,
+                 resume: bool = False, observer: EngineObserver | None = None,
+                 trip_policy: TripPolicy = TripPolicy.WAIT_FOR_REARM):
+        self.devices = devices
+        self.clock = devices.clock
+        self.path = Path(session_path)
+        self.observer = observer or EngineObserver()
+        self.trip_policy = trip_policy
+        self.resume_mode = resume
+        self.recovery = None
+        self._log: SessionLog | None = None
+        self._cmds: queue.SimpleQueue = queue.SimpleQueue()
+        self._wake = threading.Event()
+        self._sm = StateMachine(self._on_transition)
+        self._pending_events: list[tuple[str, str, str]] = []
+        self._trials_this_run: dict[int, Trial] = {}
+        self._levels_reported: set[float] = set()
+        self._ran = False
+        # operator flags (engine thread only)
+        self._pause_req = self._resume_req = self._abort_req = False
+        self._skip_req = self._rearm_req = False
+        self._confirmed: Calibration | None = None
+        self._rerun_first: list[int] = []
+        self.calibration: Calibration | None = None
+        if resume:
+            self._log, self.recovery = SessionLog.resume(self.path)
+            header = self._log.header
+            self.config = config_from_json(header["config_json"], source=f"{self.path} "
+                                           "(stored configuration)")
+            self.seed = header.get("seed")
+            self.schedule = schedule_from_json(header["extra_attrs"]["schedule_json"])
+            self.calibration = self._log.calibration
+            self._restore_statuses()
+        else:
+            if config is None:
+                raise ValueError("Engine needs a configuration for a new session")
+            if self.path.exists() or journal_dir(self.path).exists():
+                from rig.session_file import SessionExistsError
+                raise SessionExistsError(self.path)
+            seed = config.seed if config.seed is not None else secrets.randbelow(2 ** 31)
+            self.config = config.replace(seed=seed) if config.seed is None else config
+            self.seed = seed
+            p = self.config.protocol
+            self.schedule = make_schedule(p.sE_levels, p.repeats, p.randomisation, seed)
+        self.interlock = Interlock(self.config.interlock, devices.stimulator,
+                                   estop_input=devices.estop, on_trip=self._on_trip)
+
+    # -- public state ----------------------------------------------------------------
+    @property
+    def state(self) -> State:
+        return self._sm.state
+
+    def interlock_status(self) -> dict[str, tuple[bool, str]]:
+        """Rule name -> (ok, detail), plus ``latch``."""
+        return self.interlock.status()
+
+    # -- commands (any thread) ---------------------------------------------------------
+    def estop(self, reason: str = "operator E-stop") -> None:
+        """Output to zero now, in the calling thread, and latch the interlock."""
+        self.interlock.estop(reason)
+        self._wake.set()
+
+    def _put(self, cmd: _Cmd, arg=None) -> None:
+        self._cmds.put((cmd, arg))
+        self._wake.set()
+
+    def rearm(self) -> None:
+        self._put(_Cmd.REARM)
+
+    def pause(self) -> None:
+        self._put(_Cmd.PAUSE)
+
+    def resume(self) -> None:
+        self._put(_Cmd.RESUME)
+
+    def abort(self) -> None:
+        self._put(_Cmd.ABORT)
+
+    def skip_trial(self) -> None:
+        self._put(_Cmd.SKIP)
+
+    def rerun(self, schedule_index: int) -> None:
+        self._put(_Cmd.RERUN, int(schedule_index))
+
+    def confirm_calibration(self, calibration: Calibration) -> None:
+        self._put(_Cmd.CONFIRM, calibration)
+
+    def add_note(self, text: str) -> None:
+        self._put(_Cmd.NOTE, str(text))
+
+    # -- internals: events, transitions, commands ---------------------------------------
+    def _event(self, kind: str, detail: str = "") -> None:
+        if self._log is None:
+            self._pending_events.append((utc_now_ms(), kind, detail))
+            return
+        ev = self._log.event(kind, detail)
+        try:
+            self.observer.on_event(ev)
+        except Exception:
+            log.exception("observer.on_event failed")
+
+    def _on_transition(self, old: State, new: State, reason: str) -> None:
+        self._event("state", f"{old.value} -> {new.value}" + (f": {reason}" if reason else ""))
+        self._notify("on_state", old, new, reason)
+
+    def _notify(self, name: str, *args) -> None:
+        try:
+            getattr(self.observer, name)(*args)
+        except Exception:  # a broken observer must not stop the session
+            log.exception("observer.%s failed", name)
+
+    def _on_trip(self, trip: Trip) -> None:
+        # any thread: hand it to the engine thread
+        self._put(_Cmd.TRIPPED, trip)
+
+    def _poll(self) -> None:
+        while True:
+            try:
+                cmd, arg = self._cmds.get_nowait()
+            except queue.Empty:
+                break
+            if cmd is _Cmd.TRIPPED:
+                self._event("interlock_trip", f"{arg.rule}: {arg.detail}")
+            elif cmd is _Cmd.PAUSE:
+                self._pause_req, self._resume_req = True, False
+                self._event("pause_requested", f"policy: {self.config.protocol.pause_policy.value}")
+            elif cmd is _Cmd.RESUME:
+                self._resume_req = True
+            elif cmd is _Cmd.ABORT:
+                self._abort_req = True
+                self._event("abort_requested", "operator")
+            elif cmd is _Cmd.SKIP:
+                self._skip_req = True
+            elif cmd is _Cmd.REARM:
+                self._rearm_req = True
+            elif cmd is _Cmd.CONFIRM:
+                self._confirmed = arg
+            elif cmd is _Cmd.NOTE:
+                self._event("note", arg)
+            elif cmd is _Cmd.RERUN:
+                self._queue_rerun(arg)
+
+    def _queue_rerun(self, index: int) -> None:
+        if not 0 <= index < len(self.schedule):
+            self._event("rerun_refused", f"no schedule index {index}")
+            return
+        pt = self.schedule[index]
+        if pt.status is not TrialStatus.ABORTED:
+            self._event("rerun_refused", f"schedule index {index} is {pt.status.value}, "
+                                         "only aborted trials are re-run")
+            return
+        pt.status, pt.reason = TrialStatus.PENDING, ""
+        self._rerun_first.append(index)
+        self._event("rerun_queued", f"schedule index {index} (sE {pt.sE:g}, repeat "
+                                    f"{pt.repeat})")
+
+    def _wait_operator(self, until, what: str) -> None:
+        """Wait (real time, output off) until ``until()`` is true; abort ends the run."""
+        log.info("waiting for the operator: %s", what)
+        while True:
+            self._poll()
+            if self._abort_req:
+                raise _EndRun("aborted by operator")
+            if until():
+                return
+            self._wake.wait(WAIT_SLICE_S)
+            self._wake.clear()
+
+    # -- the run -----------------------------------------------------------------------
+    def run(self) -> RunSummary:
+        """Calibrate (unless known), then run the schedule. Blocks until done.
+
+        Raises
+        ------
+        ConfigError
+            If the configuration does not fit the devices (before anything is stimulated).
+        CalibrationError
+            If calibration failed and no operator can enter the currents.
+        """
+        if self._ran:
+            raise RuntimeError("an Engine runs once; make a new one to resume")
+        self._ran = True
+        t0 = self.clock.monotonic_s()
+        ended_by = "schedule complete"
+        journal_removed = False
+        error: BaseException | None = None
+        try:
+            self._setup()
+            self._calibrate()
+            self._run_schedule()
+        except _EndRun as exc:
+            ended_by = str(exc)
+        except BaseException as exc:  # includes KeyboardInterrupt: still leave output zero
+            error = exc
+            ended_by = f"error: {type(exc).__name__}: {exc}"
+            self.interlock.trip("engine", ended_by)
+        finally:
+            self._stop_output()
+            self.interlock.stop_watcher()
+            try:
+                self.devices.acquisition.stop()
+            except Exception:
+                log.exception("acquisition.stop() failed")
+            if self.state is not State.FINISHED:
+                self._sm.to(State.FINISHED, ended_by)
+            if self._log is not None:
+                self._event("session_end", ended_by)
+                if error is None:
+                    journal_removed = self._log.finish()
+                else:
+                    if self._log.calibration is not None:
+                        self._log.flush_events()
+                    self._log.close()
+            self._notify("on_finished", str(self.path))
+        summary = self._summary(ended_by, journal_removed, self.clock.monotonic_s() - t0)
+        if error is not None:
+            raise error
+        return summary
+
+    def _summary(self, ended_by: str, journal_removed: bool, dt: float) -> RunSummary:
+        st = [t.status for t in self.schedule]
+        return RunSummary(
+            path=self.path, final_state=self.state, ended_by=ended_by,
+            n_completed=st.count(TrialStatus.DONE), n_aborted=st.count(TrialStatus.ABORTED),
+            n_pending=st.count(TrialStatus.PENDING) + st.count(TrialStatus.RUNNING),
+            calibration=self.calibration, journal_removed=journal_removed,
+            engine_time_s=dt, trip=self.interlock.trip_info,
+            completed_names=[t.name for t in self._trials_this_run.values() if t.completed])
+
+    def _stop_output(self) -> None:
+        try:
+            self.devices.stimulator.stop_now()
+        except Exception:
+            log.exception("stimulator.stop_now() failed")
+
+    def _setup(self) -> None:
+        stim, acq = self.devices.stimulator, self.devices.acquisition
+        stim.connect()
+        caps = stim.capabilities()
+        cfg, p = self.config, self.config.protocol
+        cfg.check_device(caps.max_current_mA, caps.model or "stimulator")
+        if caps.n_channels < 2:
+            raise ConfigError(cfg.source, "stimulator", caps.n_channels,
+                              "a stimulator with at least 2 channels (extensor, flexor)")
+        if caps.output_rate_Hz < 2 * p.carrier_Hz:
+            raise ConfigError(cfg.source, "protocol.carrier_Hz", p.carrier_Hz,
+                              f"below half the stimulator's output rate "
+                              f"({caps.output_rate_Hz:g} Hz)")
+        actual = acq.configure(p.fs_Hz)
+        if not math.isclose(actual, p.fs_Hz, rel_tol=1e-6):
+            raise ConfigError(cfg.source, "protocol.fs_Hz", p.fs_Hz,
+                              f"a rate the acquisition supports (it would use {actual:g} Hz)")
+        self.caps = caps
+        if self._log is None:
+            self._log = SessionLog.create(
+                self.path, participant=cfg.participant, config_json=cfg.to_json(),
+                seed=self.seed, backend=self.devices.backend,
+                schedule_json=schedule_to_json(self.schedule))
+        for utc, kind, detail in self._pending_events:
+            self._log.event(kind, detail, utc=utc)
+        self._pending_events.clear()
+        self._event("session_start" if not self.resume_mode else "session_resume",
+                    f"participant {cfg.participant}, seed {self.seed}, backend "
+                    f"{self.devices.backend}, stimulator {caps.model} max "
+                    f"{caps.max_current_mA:g} mA")
+        if self.recovery is not None and self.recovery.action != "none":
+            self._event("recovered", self.recovery.summary())
+        self.interlock.start_watcher()
+
+    def _restore_statuses(self) -> None:
+        done = set()
+        for meta in self._log.trials:
+            idx = (meta.get("extra_attrs") or {}).get("schedule_index")
+            if idx is not None and meta["status"] == "completed":
+                done.add(int(idx))
+        for pt in self.schedule:
+            if pt.index in done:
+                pt.status = TrialStatus.DONE
+            pt.attempts = sum(1 for m in self._log.trials
+                              if (m.get("extra_attrs") or {}).get("schedule_index") == pt.index)
+        self._levels_reported = {round(pt.sE, 9) for pt in self.schedule
+                                 if all(q.status is TrialStatus.DONE for q in self.schedule
+                                        if round(q.sE, 9) == round(pt.sE, 9))}
+
+    # -- trips, pauses ---------------------------------------------------------------
+    def _check_interrupts(self, *, calibrating: bool = False) -> bool:
+        """Between steps: handle abort, trip and pause. Returns True if the caller must
+        redo its step (after re-arm / resume)."""
+        self._poll()
+        if self._abort_req:
+            raise _EndRun("aborted by operator")
+        redo = False
+        if self.interlock.latched:
+            self._handle_trip(calibrating)
+            redo = True
+        if self._pause_req:
+            self._handle_pause(calibrating)
+            redo = True
+        return redo
+
+    def _handle_trip(self, calibrating: bool) -> None:
+        trip = self.interlock.trip_info
+        reason = f"{trip.rule}: {trip.detail}" if trip else "interlock latched"
+        self._poll()
+        self._sm.to(State.TRIPPED, reason)
+        if self.trip_policy is TripPolicy.END_SESSION:
+            raise _EndRun(f"interlock: {reason}")
+        self._rearm_req = False
+        while True:
+            self._wait_operator(lambda: self._rearm_req, "re-arm after " + reason)
+            self._rearm_req = False
+            try:
+                self.interlock.rearm()
+            except InterlockTripped as exc:
+                self._event("rearm_refused", str(exc))
+                continue
+            break
+        self._event("rearmed", f"operator re-armed after {reason}")
+        self._sm.to(State.CALIBRATING if calibrating else State.ARMED, "re-armed")
+
+    def _handle_pause(self, calibrating: bool) -> None:
+        self._stop_output()
+        self._sm.to(State.PAUSED, "operator")
+        self._resume_req = False
+        self._wait_operator(lambda: self._resume_req or self.interlock.latched, "resume")
+        self._pause_req = self._resume_req = False
+        if self.interlock.latched:
+            self._handle_trip(calibrating)
+            return
+        self._sm.to(State.CALIBRATING if calibrating else State.ARMED, "resumed")
+        self._event("resumed", "operator")
+
+    # -- stimulation of one block (a calibration step or a trial) ------------------------
+    def _stimulate(self, checked, *, n: int, on_samples=None, watch_commands: bool = False
+                   ) -> tuple[int, np.ndarray, np.ndarray | None, np.ndarray | None, str]:
+        """Run one loaded waveform with hardware-timed acquisition.
+
+        Returns (received, force_N, wrench, sync, abort_reason); abort_reason is empty when
+        every sample arrived.
+        """
+        stim, acq = self.devices.stimulator, self.devices.acquisition
+        force = np.zeros(n)
+        wrench = sync = None
+        received = 0
+        reason = ""
+        stim.load(checked)
+        stim.arm()
+        acq.start(n, triggered=True)  # sample 0 = the stimulator's start trigger
+        stall_limit_real = max(STALL_BACKSTOP_S, 10 * self.interlock.stall.timeout_s)
+        try:
+            self.interlock.stall.start(self.clock.monotonic_s())
+            self.interlock.start_output()
+            last_real = time.monotonic()
+            read_timeout = min(0.05, self.interlock.stall.timeout_s / 2)
+            while received < n:
+                chunk = acq.read(read_timeout)
+                now = self.clock.monotonic_s()
+                if chunk is not None and chunk.n:
+                    last_real = time.monotonic()
+                    trip = self.interlock.check_chunk(chunk, now, expected_index=received)
+                    k0 = chunk.start_index
+                    lo, hi = max(k0, received), min(k0 + chunk.n, n)
+                    if hi > lo:
+                        seg = slice(lo - k0, hi - k0)
+                        force[lo:hi] = chunk.force_N[seg]
+                        if chunk.wrench is not None:
+                            if wrench is None:
+                                wrench = np.zeros((n, 6))
+                            wrench[lo:hi] = np.asarray(chunk.wrench)[seg]
+                        if chunk.sync is not None:
+                            if sync is None:
+                                sync = np.zeros(n)
+                            sync[lo:hi] = np.asarray(chunk.sync)[seg]
+                        if lo > received:  # a gap (only without trip_on_overrun): NaN-fill
+                            force[received:lo] = np.nan
+                        received = hi
+                        if on_samples is not None:
+                            on_samples(lo, hi, force[lo:hi])
+                    if trip is not None:
+                        reason = f"{trip.rule}: {trip.detail}"
+                        break
+                else:
+                    trip = self.interlock.check_stall(now)
+                    if trip is None and time.monotonic() - last_real > stall_limit_real:
+                        trip = self.interlock.trip(
+                            "sensor_stream", f"no force samples for "
+                            f"{time.monotonic() - last_real:.1f} s (real time)")
+                    if trip is not None:
+                        reason = f"{trip.rule}: {trip.detail}"
+                        break
+                trip = self.interlock.check_stimulator()
+                if trip is not None:
+                    reason = f"{trip.rule}: {trip.detail}"
+                    break
+                if self.interlock.latched:
+                    t = self.interlock.trip_info
+                    reason = f"{t.rule}: {t.detail}" if t else "interlock latched"
+                    break
+                self._poll()
+                if self._abort_req:
+                    reason = "session aborted by operator"
+                    break
+                if watch_commands:
+                    if self._skip_req:
+                        self._skip_req = False
+                        reason = "skipped by operator"
+                        break
+                    if self._pause_req and \
+                            self.config.protocol.pause_policy is PausePolicy.ABORT:
+                        reason = "paused by operator (pause policy: abort)"
+                        break
+        except InterlockTripped as exc:
+            reason = str(exc)
+        finally:
+            self._stop_output()
+            self.interlock.stall.stop()
+            try:
+                acq.stop()
+            except Exception:
+                log.exception("acquisition.stop() failed")
+        return received, force, wrench, sync, reason
+
+    def _checked(self, I_ext_mA, I_flex_mA):
+        c = self.config.calibration
+        return check_waveform(I_ext_mA, I_flex_mA, fs_Hz=self.config.protocol.fs_Hz,
+                              carrier_Hz=self.config.protocol.carrier_Hz,
+                              ceiling_ext_mA=c.ceiling_ext_mA, ceiling_flex_mA=c.ceiling_flex_mA,
+                              device_max_mA=self.caps.max_current_mA)
+
+    # -- calibration -------------------------------------------------------------------
+    def _calibrate(self) -> None:
+        c = self.config.calibration
+        if self.calibration is not None:  # resumed session
+            self._event("calibration", "from the session file (resume)")
+            self._notify("on_calibration_result", self.calibration)
+            return
+        if c.manual is not None:
+            cal = manual_calibration(c.manual, c)
+            self._event("calibration", "entered by hand in the configuration")
+        else:
+            self._sm.to(State.CALIBRATING, "ramps")
+            try:
+                cal = self._ramps()
+            except CalibrationError as exc:
+                self._event("calibration_failed", str(exc))
+                if not c.confirm:
+                    raise
+                cal = None
+        if cal is not None:
+            self._notify("on_calibration_result", cal)
+        if c.confirm:
+            self._confirmed = None
+            while True:
+                self._wait_operator(lambda: self._confirmed is not None, "confirm calibration")
+                candidate, self._confirmed = self._confirmed, None
+                try:
+                    check_calibration(candidate, c)
+                except CalibrationError as exc:
+                    self._event("calibration_refused", str(exc))
+                    continue
+                if cal is not None and not candidate.ramps:
+                    candidate.ramps = dict(cal.ramps)  # keep the measured ramps
+                cal = candidate
+                break
+            self._event("calibration_confirmed", _cal_text(cal))
+        self._skip_req = False  # a skip pressed during calibration means nothing
+        self.calibration = cal
+        self._log.write_calibration(cal)
+        self._event("calibration", _cal_text(cal))
+        self._sm.to(State.ARMED, "calibrated")
+
+    def _ramps(self) -> Calibration:
+        c = self.config.calibration
+        found, ramps = {}, {}
+        for muscle in (Muscle.EXTENSOR, Muscle.FLEXOR):
+            while True:
+                try:
+                    th, cur, frc, base = self._ramp(muscle)
+                    break
+                except _RedoRamp:
+                    continue
+            ramps[f"{muscle.prefix}_I_mA"] = np.asarray(cur)
+            ramps[f"{muscle.prefix}_force_N"] = np.asarray(frc)
+            ramps[f"{muscle.prefix}_baseline_N"] = np.asarray([base])
+            found[muscle] = th
+            self._event("calibration_ramp", f"{muscle.value}: Imin {th[0]:g} mA, Imax "
+                                            f"{th[1]:g} mA ({len(cur)} steps)")
+        return make_calibration(found[Muscle.EXTENSOR], found[Muscle.FLEXOR], c, ramps)
+
+    def _ramp(self, muscle: Muscle):
+        c = self.config.calibration
+        fs = self.config.protocol.fs_Hz
+        n_base = max(1, int(round(c.baseline_s * fs)))
+        if self._check_interrupts(calibrating=True):
+            raise _RedoRamp
+        zeros = np.zeros(n_base)
+        got, f, _, _, reason = self._stimulate(self._checked(zeros, zeros), n=n_base)
+        if reason:
+            self._check_interrupts(calibrating=True)
+            raise _RedoRamp
+        baseline = float(np.mean(f[:got]))
+        cur, frc = [], []
+        for I in ramp_currents_mA(c, muscle):
+            if self._check_interrupts(calibrating=True):
+                raise _RedoRamp
+            ext, flex = step_envelopes(c, muscle, float(I), fs)
+            n = len(ext)
+            got, f, _, _, reason = self._stimulate(self._checked(ext, flex), n=n)
+            if reason:
+                self._event("calibration_step_aborted", f"{muscle.value} at {I:g} mA: {reason}")
+                self._check_interrupts(calibrating=True)
+                raise _RedoRamp
+            force = settled_mean_N(f[:got], c.settle_fraction) - baseline
+            cur.append(float(I))
+            frc.append(force)
+            self._notify("on_calibration_step", muscle.value, float(I), force)
+            if abs(force) >= c.force_ceiling_N:
+                self._event("calibration_force_ceiling",
+                            f"{muscle.value} at {I:g} mA: {force:.2f} N >= ceiling "
+                            f"{c.force_ceiling_N:g} N; ramp stopped")
+                break
+            if detect_thresholds(cur, frc, muscle, c.Fmin_N, c.Fmax_N).complete:
+                break
+        return require_thresholds(cur, frc, muscle, c), cur, frc, baseline
+
+    # -- the schedule --------------------------------------------------------------------
+    def _next_trial(self) -> PlannedTrial | None:
+        while self._rerun_first:
+            i = self._rerun_first.pop(0)
+            if self.schedule[i].status is TrialStatus.PENDING:
+                return self.schedule[i]
+        for pt in self.schedule:
+            if pt.status is TrialStatus.PENDING:
+                return pt
+        return None
+
+    def _run_schedule(self) -> None:
+        if self.resume_mode:  # re-run what an earlier run aborted, in schedule order
+            for pt in self.schedule:
+                if pt.status is TrialStatus.ABORTED:
+                    pt.status, pt.reason = TrialStatus.PENDING, ""
+        while True:
+            self._check_interrupts()
+            if self._skip_req:  # skip between trials: the next pending trial is not run
+                self._skip_req = False
+                nxt = self._next_trial()
+                if nxt is not None:
+                    nxt.status, nxt.reason = TrialStatus.ABORTED, "skipped by operator (not run)"
+                    self._event("trial_skipped", f"schedule index {nxt.index} (sE "
+                                                 f"{nxt.sE:g}, repeat {nxt.repeat})")
+                continue
+            planned = self._next_trial()
+            if planned is None:
+                return
+            self._sm.to(State.ARMED, f"next trial {planned.index}")
+            self._run_trial(planned)
+            if self.state is State.STIMULATING and not (
+                    self.interlock.latched or self._pause_req or self._abort_req):
+                self._sm.to(State.RESTING, "trial ended")
+                self._rest()
+
+    def _rest(self) -> None:
+        remaining = self.config.protocol.rest_s
+        if not any(pt.status is TrialStatus.PENDING for pt in self.schedule):
+            return
+        while remaining > 1e-12:
+            dt = min(REST_SLICE_S, remaining)
+            self.clock.sleep(dt)
+            remaining -= dt
+            self._poll()
+            if self._abort_req or self.interlock.latched or self._pause_req or self._skip_req:
+                return
+
+    def _run_trial(self, planned: PlannedTrial) -> None:
+        p = self.config.protocol
+        wf = trial_waveform(p, planned.sE, self.calibration)
+        try:
+            checked = self._checked(wf.I_ext_mA, wf.I_flex_mA)
+        except ValueError as exc:  # CurrentLimitError: never sent
+            self.interlock.trip("waveform", str(exc))
+            planned.status, planned.reason = TrialStatus.ABORTED, f"waveform refused: {exc}"
+            return
+        n = checked.n_samples
+        planned.status, planned.reason = TrialStatus.RUNNING, ""
+        planned.attempts += 1
+        started = utc_now()
+        meta = Trial(sE=planned.sE, repeat=planned.repeat, fs_Hz=p.fs_Hz, rE=np.empty(0),
+                     I_ext_mA=np.empty(0), I_flex_mA=np.empty(0), force_N=np.empty(0),
+                     steady_s=p.steady_s, chirp_s=p.chirp_s, chirp_f0_Hz=p.chirp_f0_Hz,
+                     chirp_f1_Hz=p.chirp_f1_Hz, carrier_Hz=p.carrier_Hz, started_utc=started,
+                     extra_attrs={"schedule_index": planned.index,
+                                  "attempt": planned.attempts})
+        self._log.begin_trial(meta)
+        self._event("trial_start", f"schedule index {planned.index}: sE {planned.sE:g}, "
+                                   f"repeat {planned.repeat}, attempt {planned.attempts}")
+        self._notify("on_trial_started", planned.index, planned)
+        self._sm.to(State.STIMULATING, f"trial {planned.index}")
+        rE, Ie, If = wf.rE, checked.I_ext_mA, checked.I_flex_mA
+
+        def on_samples(lo, hi, force_seg):
+            self._log.append_chunk(force_N=force_seg, rE=rE[lo:hi], I_ext_mA=Ie[lo:hi],
+                                   I_flex_mA=If[lo:hi])
+            self._notify("on_chunk", planned.index, lo, force_seg, rE[lo:hi], Ie[lo:hi],
+                         If[lo:hi])
+
+        got, force, wrench, sync, reason = self._stimulate(checked, n=n, on_samples=on_samples,
+                                                           watch_commands=True)
+        trial = Trial(sE=planned.sE, repeat=planned.repeat, fs_Hz=p.fs_Hz, rE=rE[:got].copy(),
+                      I_ext_mA=np.array(Ie[:got]), I_flex_mA=np.array(If[:got]),
+                      force_N=force[:got], status="aborted" if reason else "completed",
+                      abort_reason=reason, steady_s=p.steady_s, chirp_s=p.chirp_s,
+                      chirp_f0_Hz=p.chirp_f0_Hz, chirp_f1_Hz=p.chirp_f1_Hz,
+                      carrier_Hz=p.carrier_Hz, started_utc=started,
+                      wrench=None if wrench is None else wrench[:got],
+                      sync=None if sync is None else sync[:got],
+                      extra_attrs=dict(meta.extra_attrs))
+        self._poll()  # log the trip event (if any) before the trial's own event
+        name = self._log.end_trial(trial)
+        planned.status = TrialStatus.ABORTED if reason else TrialStatus.DONE
+        planned.reason = reason
+        self._trials_this_run[planned.index] = trial
+        self._event("trial_aborted" if reason else "trial_completed",
+                    f"{name}: schedule index {planned.index}, sE {planned.sE:g}, repeat "
+                    f"{planned.repeat}, {got} samples" + (f"; reason: {reason}" if reason
+                                                          else ""))
+        self._notify("on_trial_finished", planned.index, trial)
+        if not reason:
+            self._maybe_level_completed(planned.sE)
+
+    def _maybe_level_completed(self, sE: float) -> None:
+        key = round(sE, 9)
+        entries = [pt for pt in self.schedule if round(pt.sE, 9) == key]
+        if key in self._levels_reported or not all(pt.status is TrialStatus.DONE
+                                                   for pt in entries):
+            return
+        self._levels_reported.add(key)
+        trials = []
+        for pt in entries:
+            t = self._trials_this_run.get(pt.index)
+            if t is None:
+                t = self._load_completed(pt.index)
+            if t is not None:
+                trials.append(t)
+        self._notify("on_level_completed", sE, trials)
+
+    def _load_completed(self, index: int) -> Trial | None:
+        jdir = journal_dir(self.path)
+        for i, meta in enumerate(self._log.trials):
+            if (meta.get("extra_attrs") or {}).get("schedule_index") == index and \
+                    meta["status"] == "completed":
+                p = jdir / f"trial-{i + 1:04d}.npz"
+                if p.exists():
+                    return load_trial_npz(p)
+        return None
+
+
+class _RedoRamp(Exception):
+    """Internal: a ramp was interrupted (trip / pause); run it again from the start."""
+
+
+def _cal_text(cal: Calibration) -> str:
+    return (f"Iemin {cal.Iemin_mA:g} mA, Iemax {cal.Iemax_mA:g} mA, Ifmin {cal.Ifmin_mA:g} "
+            f"mA, Ifmax {cal.Ifmax_mA:g} mA (Fmin {cal.Fmin_N:g} N, Fmax {cal.Fmax_N:g} N)")

@@ -1,0 +1,419 @@
+"""The safety interlock, independent of the protocol code.
+
+* :func:`check_waveform` is the only way to build the
+  :class:`drivers.interfaces.CheckedWaveform` a stimulator accepts: the envelopes are
+  checked against ``min(protocol ceiling, device maximum)`` per channel, so a waveform
+  above its ceiling cannot reach a stimulator.
+* Rule objects watch the force stream, the acquisition flags, the stimulator status and
+  the E-stop; each validates its thresholds in ``__init__`` and says why it tripped.
+* :class:`Interlock` executes a trip: ``stimulator.stop_now()`` FIRST, in the tripping
+  thread, then latches (no output can start until :meth:`Interlock.rearm`), then reports
+  the trip (logging + the engine's callback, which writes the event and aborts the trial).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from drivers.interfaces import (CheckedWaveform, CurrentLimitError, ForceChunk,
+                                StimulatorState, StimulatorStatus)
+
+log = logging.getLogger(__name__)
+
+
+class InterlockTripped(RuntimeError):
+    """Output was refused or stopped because the interlock is latched."""
+
+
+def _utc_ms() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+
+
+# -- the only path to the stimulator ---------------------------------------------------
+def effective_ceilings(ceiling_ext_mA: float, ceiling_flex_mA: float,
+                       device_max_mA: float) -> tuple[float, float]:
+    """Per-channel ceilings: the protocol's, never above what the device allows."""
+    for name, v in (("ceiling_ext_mA", ceiling_ext_mA), ("ceiling_flex_mA", ceiling_flex_mA),
+                    ("device_max_mA", device_max_mA)):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            raise CurrentLimitError(f"{name} must be a finite number >= 0, got {v!r}")
+    return min(ceiling_ext_mA, device_max_mA), min(ceiling_flex_mA, device_max_mA)
+
+
+def check_waveform(I_ext_mA, I_flex_mA, *, fs_Hz: float, carrier_Hz: float,
+                   ceiling_ext_mA: float, ceiling_flex_mA: float,
+                   device_max_mA: float) -> CheckedWaveform:
+    """Build the stimulator's waveform, checked against the effective ceilings.
+
+    Parameters
+    ----------
+    I_ext_mA, I_flex_mA : array_like
+        Carrier amplitude envelopes, mA.
+    fs_Hz, carrier_Hz : float
+        Envelope sample rate and carrier frequency.
+    ceiling_ext_mA, ceiling_flex_mA : float
+        Protocol ceilings per channel (configuration).
+    device_max_mA : float
+        The stimulator's maximum current (its capabilities).
+
+    Returns
+    -------
+    CheckedWaveform
+
+    Raises
+    ------
+    CurrentLimitError
+        If any sample is negative, not finite or above ``min(ceiling, device_max_mA)``;
+        nothing is sent.
+    """
+    ce, cf = effective_ceilings(ceiling_ext_mA, ceiling_flex_mA, device_max_mA)
+    return CheckedWaveform(I_ext_mA=np.asarray(I_ext_mA, dtype=float),
+                           I_flex_mA=np.asarray(I_flex_mA, dtype=float),
+                           fs_Hz=float(fs_Hz), carrier_Hz=float(carrier_Hz),
+                           ceiling_ext_mA=ce, ceiling_flex_mA=cf)
+
+
+# -- rules ---------------------------------------------------------------------------
+class Rule:
+    """An interlock rule: a name, its last verdict and why."""
+
+    name = "rule"
+
+    def __init__(self):
+        self.ok = True
+        self.detail = "ok"
+
+    def _verdict(self, reason: str | None) -> str | None:
+        if reason is None:
+            return None
+        self.ok, self.detail = False, reason
+        return reason
+
+    def reset(self) -> None:
+        self.ok, self.detail = True, "ok"
+
+    def status(self) -> tuple[bool, str]:
+        return self.ok, self.detail
+
+
+class ForceLimitRule(Rule):
+    """Trip when |force| exceeds ``limit_N`` (or is not finite)."""
+
+    name = "force_limit"
+
+    def __init__(self, limit_N: float):
+        super().__init__()
+        if not (math.isfinite(limit_N) and limit_N > 0):
+            raise ValueError(f"force limit must be a finite number > 0 N, got {limit_N!r}")
+        self.limit_N = float(limit_N)
+        self.detail = f"ok (limit {self.limit_N:g} N)"
+
+    def check(self, chunk: ForceChunk) -> str | None:
+        f = np.asarray(chunk.force_N, dtype=float)
+        if f.size == 0:
+            return None
+        bad = ~np.isfinite(f)
+        if bad.any():
+            k = int(np.argmax(bad))
+            return self._verdict(f"force sample {chunk.start_index + k} is not finite "
+                                 f"({f[k]!r}): sensor fault")
+        a = np.abs(f)
+        k = int(np.argmax(a))
+        if a[k] > self.limit_N:
+            return self._verdict(f"force {f[k]:.2f} N at sample {chunk.start_index + k} is "
+                                 f"beyond the limit +/-{self.limit_N:g} N")
+        return None
+
+    def reset(self) -> None:
+        self.ok, self.detail = True, f"ok (limit {self.limit_N:g} N)"
+
+
+class StallRule(Rule):
+    """Trip when no samples arrived for ``timeout_s`` (on the engine's clock)."""
+
+    name = "sensor_stream"
+
+    def __init__(self, timeout_s: float):
+        super().__init__()
+        if not (math.isfinite(timeout_s) and timeout_s > 0):
+            raise ValueError(f"stall timeout must be a finite number > 0 s, got {timeout_s!r}")
+        self.timeout_s = float(timeout_s)
+        self._last_s: float | None = None
+
+    def start(self, now_s: float) -> None:
+        """Begin watching (acquisition started at ``now_s``)."""
+        self._last_s = now_s
+
+    def stop(self) -> None:
+        self._last_s = None
+
+    def feed(self, now_s: float) -> None:
+        self._last_s = now_s
+
+    def check(self, now_s: float) -> str | None:
+        if self._last_s is None:
+            return None
+        gap = now_s - self._last_s
+        if gap > self.timeout_s:
+            return self._verdict(f"no force samples for {gap * 1000:.0f} ms (limit "
+                                 f"{self.timeout_s * 1000:.0f} ms): stream stalled")
+        return None
+
+
+class AcquisitionFlagsRule(Rule):
+    """Trip on the acquisition's overrun / over-range / sensor-fault flags, and on a gap
+    in the sample indices (samples lost without a flag)."""
+
+    name = "acquisition"
+
+    def __init__(self, overrun: bool = True, over_range: bool = True,
+                 sensor_fault: bool = True):
+        super().__init__()
+        self.overrun, self.over_range, self.sensor_fault = overrun, over_range, sensor_fault
+
+    def check(self, chunk: ForceChunk, expected_index: int | None = None) -> str | None:
+        fl = chunk.flags
+        what = []
+        if fl.overrun and self.overrun:
+            what.append("overrun (samples lost)")
+        if fl.over_range and self.over_range:
+            what.append("over-range (sensor or converter saturated)")
+        if fl.sensor_fault and self.sensor_fault:
+            what.append("sensor fault")
+        if what:
+            return self._verdict("acquisition reported " + ", ".join(what)
+                                 + (f": {fl.detail}" if fl.detail else "")
+                                 + f" at sample {chunk.start_index}")
+        if expected_index is not None and chunk.start_index != expected_index and \
+                self.overrun:
+            return self._verdict(f"sample index jumped from {expected_index} to "
+                                 f"{chunk.start_index}: samples lost")
+        return None
+
+
+class StimulatorRule(Rule):
+    """Trip when the stimulator reports an error, a disconnect, or cannot be asked."""
+
+    name = "stimulator"
+
+    def check(self, status_fn: Callable[[], StimulatorStatus]) -> str | None:
+        try:
+            st = status_fn()
+        except Exception as exc:  # a driver that cannot answer is a fault
+            return self._verdict(f"stimulator status unavailable ({type(exc).__name__}: "
+                                 f"{exc}): disconnected?")
+        if st.state is StimulatorState.ERROR or st.error:
+            return self._verdict(f"stimulator error: {st.error or st.state.value}")
+        if st.state is StimulatorState.DISCONNECTED:
+            return self._verdict("stimulator disconnected")
+        return None
+
+
+class EStopRule(Rule):
+    """The emergency stop: a software press (any thread) or the hardware switch."""
+
+    name = "estop"
+
+    def __init__(self, has_switch: bool):
+        super().__init__()
+        self.has_switch = has_switch
+        self.detail = "ok (switch released)" if has_switch else "ok (no hardware switch)"
+        self.switch_pressed = False
+
+    def reset(self) -> None:
+        super().reset()
+        self.detail = "ok (switch released)" if self.has_switch else "ok (no hardware switch)"
+
+
+@dataclass(frozen=True)
+class Trip:
+    """One interlock trip: which rule, why, when."""
+
+    rule: str
+    detail: str
+    utc: str
+    perf_s: float
+    """``time.perf_counter()`` right after the stimulator was told to stop."""
+
+
+# -- the interlock ---------------------------------------------------------------------
+class Interlock:
+    """Trips, latches and re-arms; the gate through which output starts.
+
+    Parameters
+    ----------
+    cfg : protocols.config.InterlockConfig
+        Thresholds.
+    stimulator : drivers.interfaces.Stimulator
+    estop_input : drivers.interfaces.EStopInput, optional
+        The hardware switch; polled by :meth:`start_watcher` at ``cfg.estop_poll_Hz``.
+    on_trip : callable(Trip), optional
+        Called once per latching trip, in the tripping thread, after output is zero.
+    """
+
+    def __init__(self, cfg, stimulator, *, estop_input=None,
+                 on_trip: Callable[[Trip], None] | None = None):
+        self.cfg = cfg
+        self.stimulator = stimulator
+        self.estop_input = estop_input
+        self.on_trip = on_trip
+        self.force = ForceLimitRule(cfg.force_limit_N)
+        self.stall = StallRule(cfg.stall_timeout_s)
+        self.flags = AcquisitionFlagsRule(cfg.trip_on_overrun, cfg.trip_on_over_range,
+                                          cfg.trip_on_sensor_fault)
+        self.stim = StimulatorRule()
+        self.estop_rule = EStopRule(estop_input is not None)
+        self.rules: dict[str, Rule] = {r.name: r for r in (
+            self.force, self.stall, self.flags, self.stim, self.estop_rule)}
+        self._lock = threading.Lock()
+        self._latched = threading.Event()
+        self._trip: Trip | None = None
+        self._watcher: threading.Thread | None = None
+        self._watch_stop = threading.Event()
+
+    # -- state ---------------------------------------------------------------------
+    @property
+    def latched(self) -> bool:
+        return self._latched.is_set()
+
+    @property
+    def trip_info(self) -> Trip | None:
+        """The trip that latched the interlock (None when clear)."""
+        return self._trip
+
+    def status(self) -> dict[str, tuple[bool, str]]:
+        """Rule name -> (ok, detail)."""
+        out = {name: r.status() for name, r in self.rules.items()}
+        t = self._trip
+        out["latch"] = (t is None, "clear" if t is None else f"latched by {t.rule}: {t.detail}")
+        return out
+
+    # -- tripping ------------------------------------------------------------------
+    def _stop_output(self) -> None:
+        try:
+            self.stimulator.stop_now()
+        except Exception:  # the interface says never raises; be sure anyway
+            log.exception("stimulator.stop_now() raised")
+
+    def trip(self, rule: str, detail: str) -> Trip:
+        """Output to zero (first, in this thread), latch, report. Thread-safe.
+
+        Returns the trip that latched the interlock (the first one if already latched).
+        """
+        self._stop_output()
+        perf = time.perf_counter()
+        with self._lock:
+            first = self._trip is None
+            if first:
+                self._trip = Trip(rule, detail, _utc_ms(), perf)
+                self._latched.set()
+            # a start() racing this trip finished before we took the lock: stop again
+            self._stop_output()
+            trip = self._trip
+        if rule in self.rules and self.rules[rule].ok:
+            self.rules[rule]._verdict(detail)
+        if first:
+            log.warning("interlock tripped by %s: %s", rule, detail)
+            if self.on_trip is not None:
+                try:
+                    self.on_trip(trip)
+                except Exception:
+                    log.exception("interlock on_trip callback failed")
+        else:
+            log.info("interlock already latched (%s); also: %s: %s", trip.rule, rule, detail)
+        return trip
+
+    def estop(self, reason: str = "operator E-stop") -> Trip:
+        """The E-stop: callable from any thread."""
+        return self.trip(self.estop_rule.name, reason)
+
+    def rearm(self) -> None:
+        """Clear the latch (the operator's explicit decision).
+
+        Raises
+        ------
+        InterlockTripped
+            If the hardware E-stop switch is still pressed.
+        """
+        if self.estop_input is not None and self._switch_pressed():
+            raise InterlockTripped("cannot re-arm: the hardware E-stop switch is still "
+                                   "pressed (release it first)")
+        with self._lock:
+            self._trip = None
+            self._latched.clear()
+            for r in self.rules.values():
+                r.reset()
+        log.info("interlock re-armed")
+
+    # -- the gate --------------------------------------------------------------------
+    def start_output(self) -> None:
+        """Start the loaded waveform, unless latched (atomic with respect to trips).
+
+        Raises
+        ------
+        InterlockTripped
+        """
+        with self._lock:
+            if self._trip is not None:
+                raise InterlockTripped(f"output refused: interlock latched by "
+                                       f"{self._trip.rule}: {self._trip.detail}")
+            self.stimulator.start()
+
+    # -- checks the engine calls -----------------------------------------------------
+    def check_chunk(self, chunk: ForceChunk, now_s: float,
+                    expected_index: int | None = None) -> Trip | None:
+        self.stall.feed(now_s)
+        for rule, reason in ((self.flags.name, self.flags.check(chunk, expected_index)),
+                             (self.force.name, self.force.check(chunk))):
+            if reason:
+                return self.trip(rule, reason)
+        return None
+
+    def check_stall(self, now_s: float) -> Trip | None:
+        reason = self.stall.check(now_s)
+        return self.trip(self.stall.name, reason) if reason else None
+
+    def check_stimulator(self) -> Trip | None:
+        reason = self.stim.check(self.stimulator.status)
+        return self.trip(self.stim.name, reason) if reason else None
+
+    # -- the hardware switch ---------------------------------------------------------
+    def _switch_pressed(self) -> bool:
+        try:
+            return bool(self.estop_input.is_pressed())
+        except Exception:  # fail-safe: an unreadable switch reads as pressed
+            return True
+
+    def start_watcher(self) -> None:
+        """Poll the hardware switch in a daemon thread (no-op without a switch)."""
+        if self.estop_input is None or self._watcher is not None:
+            return
+        self._watch_stop.clear()
+        period_s = 1.0 / self.cfg.estop_poll_Hz
+        self._watcher = threading.Thread(target=self._watch, args=(period_s,),
+                                         name="nmsid-estop-watcher", daemon=True)
+        self._watcher.start()
+
+    def _watch(self, period_s: float) -> None:
+        was_pressed = False
+        while not self._watch_stop.is_set():
+            pressed = self._switch_pressed()
+            self.estop_rule.switch_pressed = pressed
+            if pressed and not was_pressed:
+                self.trip(self.estop_rule.name, "hardware E-stop switch pressed")
+            was_pressed = pressed
+            time.sleep(period_s)
+
+    def stop_watcher(self) -> None:
+        self._watch_stop.set()
+        if self._watcher is not None:
+            self._watcher.join(timeout=1.0)
+            self._watcher = None
