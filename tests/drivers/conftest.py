@@ -22,3 +22,25 @@ def leptrino_emulator():
     for emu in emulators:
         if emu.master != -1:
             emu.close()
+
+
+@pytest.fixture
+def fake_mcs(monkeypatch):
+    """Fake pythonnet + McsUsbNet in ``sys.modules`` (undone after the test)."""
+    import sys
+
+    mod = load_fake("fake_mcs_usb")
+    bench = load_fake("bench").FakeBench(speed=1.0)
+    mods: dict = {}
+
+    def setup(hardware=None, bench=bench):
+        mods.clear()
+        mod.install(bench=bench, hardware=hardware, modules=mods)
+        for name, m in mods.items():
+            monkeypatch.setitem(sys.modules, name, m)
+        return mod.registry()
+
+    setup.module = mod
+    setup.bench = bench
+    setup()
+    return setup

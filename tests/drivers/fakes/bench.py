@@ -1,0 +1,97 @@
+"""The fake bench: one clock and one simple participant shared by the fake devices.
+
+The fake stimulator (``fake_mcs_usb``) plays what was downloaded to it on this clock; the
+fake A/D converters (``fake_caio``, ``fake_nidaqmx``) sample, on the same clock, the sync
+line and the analog outputs of a fake force sensor whose force follows what the fake
+stimulator really outputs: each channel's delivered current is demodulated (peak of |I|
+over the last carrier period), mapped through a recruitment curve, and the extensor minus
+flexor activation drives a second-order system (Kp, wn, zeta) plus sensor noise.
+
+``speed`` > 1 runs the bench faster than wall time (the drivers get ``bench.now`` as
+their clock), so a 15 s trial takes 15 / speed s of a test.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+from scipy import signal
+
+
+class ForceModel:
+    """Endpoint force (N, extension positive) from the delivered carrier amplitudes."""
+
+    def __init__(self, fs_Hz: float, *, Kp_N: float = 8.0, wn_rad_s: float = 14.0,
+                 zeta: float = 0.8, I_min_mA=(2.0, 2.0), I_max_mA=(10.0, 10.0),
+                 noise_N: float = 0.02, seed: int = 0):
+        self.I_min = np.asarray(I_min_mA, float)
+        self.I_max = np.asarray(I_max_mA, float)
+        self.noise_N = noise_N
+        self.rng = np.random.default_rng(seed)
+        num, den = [Kp_N * wn_rad_s ** 2], [1.0, 2 * zeta * wn_rad_s, wn_rad_s ** 2]
+        self.b, self.a, _ = signal.cont2discrete((num, den), 1.0 / fs_Hz, method="bilinear")
+        self.b = np.ravel(self.b)
+        self.zi = np.zeros(max(len(self.a), len(self.b)) - 1)
+
+    def activation(self, I_mA: np.ndarray, muscle: int) -> np.ndarray:
+        return np.clip((I_mA - self.I_min[muscle]) / (self.I_max[muscle] - self.I_min[muscle]),
+                       0.0, 1.0)
+
+    def step(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> np.ndarray:
+        drive = self.activation(I_ext_mA, 0) - self.activation(I_flex_mA, 1)
+        y, self.zi = signal.lfilter(self.b, self.a, drive, zi=self.zi)
+        return y + self.noise_N * self.rng.standard_normal(len(y))
+
+
+class FakeBench:
+    """Shared clock + wiring between the fake stimulator and the fake A/D."""
+
+    def __init__(self, *, speed: float = 1.0, seed: int = 0, force_model=None,
+                 sync_high_V: float = 3.3):
+        self.speed = float(speed)
+        self.seed = seed
+        self._t0 = time.monotonic()
+        self.lock = threading.RLock()
+        self.stimulator = None          # the fake CStg200xDownloadNet that is connected
+        self.force_model = force_model  # built by the A/D when it knows its rate
+        self.sync_high_V = sync_high_V
+        self.extensor_channel = 0        # 0-based STG channels the sensor "feels"
+        self.flexor_channel = 1
+        self.sync_out = 0
+
+    def now(self) -> float:
+        return (time.monotonic() - self._t0) * self.speed
+
+    def sleep(self, duration_s: float) -> None:
+        if duration_s > 0:
+            time.sleep(duration_s / self.speed)
+
+    # -- what the A/D sees ------------------------------------------------------------
+    def trigger_time(self) -> float | None:
+        """Bench time of the last sync rising edge (stimulation onset), if any."""
+        stg = self.stimulator
+        return None if stg is None else stg.started_at
+
+    def envelopes_mA(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        stg = self.stimulator
+        if stg is None:
+            z = np.zeros(len(t))
+            return z, z
+        return (stg.envelope_at(self.extensor_channel, t) / 1e6,
+                stg.envelope_at(self.flexor_channel, t) / 1e6)
+
+    def sync_V(self, t: np.ndarray) -> np.ndarray:
+        stg = self.stimulator
+        if stg is None:
+            return np.zeros(len(t))
+        return stg.sync_at(self.sync_out, t) * self.sync_high_V
+
+    def force_N(self, t: np.ndarray, fs_Hz: float) -> np.ndarray:
+        """Force at consecutive sample times ``t`` (call in time order)."""
+        with self.lock:
+            if self.force_model is None:
+                self.force_model = ForceModel(fs_Hz, seed=self.seed)
+            I_ext, I_flex = self.envelopes_mA(t)
+            return self.force_model.step(I_ext, I_flex)
