@@ -1,0 +1,47 @@
+"""``nmsid gui``: the operator window (registration only; Qt is imported when it runs)."""
+
+from __future__ import annotations
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "gui", help="operator window: set up, calibrate, run and watch a session with a "
+        "big E-STOP (docs/gui.md)")
+    p.add_argument("--backend", choices=("sim", "hw"), default="sim",
+                   help="simulated rig (default) or the hardware chain")
+    p.add_argument("--config", metavar="FILE", help="protocol configuration (TOML); "
+                   "default: built-in (15 sE x 3 repeats)")
+    p.add_argument("--hw-config", metavar="FILE", help="hardware chain configuration "
+                   "(with --backend hw)")
+    p.add_argument("--participant", metavar="P", help="participant code "
+                   "([A-Za-z0-9_-]{1,64})")
+    p.add_argument("--out", metavar="FILE", help="session file to write (never "
+                   "overwritten; an unfinished one can be resumed); default "
+                   "sessions/<participant>.h5")
+    p.add_argument("--seed", type=int, metavar="N", help="schedule randomisation seed "
+                   "(default: drawn and recorded)")
+    p.add_argument("--fast", action="store_true", help="run the simulator as fast as "
+                   "possible instead of in real time")
+    p.add_argument("--script", metavar="SCRIPT", help="drive the window from a script "
+                   "file, or 'demo' for the built-in one (docs/gui.md)")
+    p.add_argument("--screenshot", metavar="PATH", help="after the scripted run, save a "
+                   "PNG of the window here and quit")
+    p.set_defaults(handler="rig.cli_gui:run")
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from rig.gui.app import GuiOptions, run_gui
+
+    options = GuiOptions(
+        backend=args.backend,
+        config=Path(args.config) if args.config else None,
+        hw_config=Path(args.hw_config) if args.hw_config else None,
+        participant=args.participant,
+        out=Path(args.out) if args.out else None,
+        seed=args.seed,
+        realtime=not args.fast,
+        script=args.script,
+        screenshot=Path(args.screenshot) if args.screenshot else None)
+    return run_gui(options)

@@ -1,0 +1,23 @@
+"""The GUI's two calls into ``analysis``: per-level identification and model selection.
+
+Both run in worker threads of the panels. They adapt the analysis package's result
+objects to what the panels draw, so the panels do not depend on its classes.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from rig.gui.results_panel import ModelFit, ParameterSelection, SelectionView
+
+
+def identify_level(trials):
+    """Identify one sE level from its completed trials (``analysis.identify``)."""
+    from analysis.identify import identify_level as _identify, IdentifySettings
+    return _identify([t for t in trials if getattr(t, "completed", True)],
+                     IdentifySettings())
+
+
+def select_models(session_path: Path) -> SelectionView:
+    """Model selection of a finished session, as the results panel shows it."""
+    raise ImportError("analysis model selection is not wired in yet", name="analysis")

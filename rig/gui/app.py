@@ -1,0 +1,95 @@
+"""Start the operator GUI: the QApplication, the window, an optional scripted run."""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class GuiOptions:
+    """What ``nmsid gui`` was asked to do (see ``rig.cli_gui``)."""
+
+    backend: str = "sim"
+    config: Path | None = None
+    hw_config: Path | None = None
+    participant: str | None = None
+    out: Path | None = None
+    seed: int | None = None
+    realtime: bool = True
+    script: str | None = None
+    screenshot: Path | None = None
+
+
+def _application():
+    from PySide6.QtWidgets import QApplication
+    app = QApplication.instance()
+    if app is None:
+        app = QApplication(sys.argv[:1])
+        app.setApplicationName("nmsid")
+    return app
+
+
+def build_window(options: GuiOptions, **window_kwargs):
+    """Create the main window with the setup form filled from ``options``."""
+    import pyqtgraph as pg
+    pg.setConfigOptions(antialias=False, foreground="k")
+    from rig.gui.main_window import MainWindow
+    window = MainWindow(**window_kwargs)
+    values = {"backend": options.backend, "realtime": options.realtime}
+    if options.participant:
+        values["participant"] = options.participant
+    if options.config:
+        values["config"] = options.config
+    if options.hw_config:
+        values["hw_config"] = options.hw_config
+    if options.out:
+        values["output"] = options.out
+    if options.seed is not None:
+        values["seed"] = options.seed
+    window.setup_panel.set_values(**values)
+    return window
+
+
+def run_gui(options: GuiOptions) -> int:
+    """Show the window and run the Qt event loop; returns the exit code.
+
+    With ``options.script`` the script runs once the window is shown; with
+    ``options.screenshot`` the window is saved as PNG after the script and the
+    application quits. Exit code 1 if the script failed.
+    """
+    from rig.gui.script import ScriptRunner, load_script
+    if options.screenshot is not None and options.script is None:
+        raise ValueError("--screenshot saves the window after a scripted run; give "
+                         "--script FILE (or --script demo) too")
+    if options.backend not in ("sim", "hw"):
+        raise ValueError(f"--backend {options.backend!r} is not valid: use sim or hw")
+    steps = load_script(options.script) if options.script else None
+    if os.environ.get("QT_QPA_PLATFORM") is None and not os.environ.get("DISPLAY") \
+            and not os.environ.get("WAYLAND_DISPLAY") and sys.platform.startswith("linux"):
+        log.warning("no display found; using the offscreen Qt platform")
+        os.environ["QT_QPA_PLATFORM"] = "offscreen"
+    app = _application()
+    window = build_window(options)
+    window.show()
+    result = {"code": 0}
+    if steps is not None:
+        runner = ScriptRunner(window, steps, screenshot=options.screenshot, parent=window)
+
+        def done(ok: bool, message: str) -> None:
+            print(("nmsid gui: " if ok else "nmsid gui: error: ") + message,
+                  file=sys.stdout if ok else sys.stderr)
+            result["code"] = 0 if ok else 1
+            if options.screenshot is not None or runner.quit_requested or not ok \
+                    and os.environ.get("QT_QPA_PLATFORM") == "offscreen":
+                window.close()
+                app.quit()
+        runner.finished.connect(done)
+        runner.start()
+    app.exec()
+    return result["code"]

@@ -1,0 +1,311 @@
+"""The operator's window: one place to run a whole session.
+
+Layout: the safety strip (E-STOP, interlock lights, state, trip banner, RE-ARM) across the
+top, always visible; under it, tabs (Setup, Calibration, Live trial, Identification,
+Results) on the left and the schedule and the event log on the right.
+
+Threads: the engine runs in the controller's worker thread; its notifications arrive as
+queued signals (slots below run in the GUI thread); chunks go to the live buffer that the
+plot timer reads. Identification and model selection run in worker pools. The methods
+``start_session``, ``confirm_calibration``, ``press_estop``, ``rearm``, ``pause``,
+``resume``, ``skip``, ``rerun``, ``add_note`` and ``save_screenshot`` are the Python API a
+script or a test uses to drive the window as an operator would.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Callable
+
+from PySide6.QtCore import Qt, QTimer
+
+import rig.gui.qt_compat  # noqa: F401  (before any signal is emitted)
+from PySide6.QtWidgets import (QLabel, QMainWindow, QSplitter, QTabWidget, QVBoxLayout,
+                               QWidget)
+
+from rig.gui.calibration_panel import CalibrationPanel
+from rig.gui.event_log import EventLog
+from rig.gui.identification_panel import IdentificationPanel
+from rig.gui.live_buffer import LiveBuffer
+from rig.gui.live_plots import LivePlots
+from rig.gui.observer import EngineSignals
+from rig.gui.results_panel import ResultsPanel
+from rig.gui.safety_panel import SafetyPanel, install_estop_shortcuts
+from rig.gui.schedule_panel import SchedulePanel, planned_fields, status_name
+from rig.gui.session_controller import DevicesFactory, SessionController
+from rig.gui.setup_panel import SessionRequest, SetupPanel
+from rig.states import State
+
+log = logging.getLogger(__name__)
+
+INTERLOCK_POLL_MS = 200
+LIVE_WINDOW_S = 10.0
+
+
+class Tab:
+    SETUP, CALIBRATION, LIVE, IDENTIFICATION, RESULTS = range(5)
+
+
+class MainWindow(QMainWindow):
+    """The operator GUI.
+
+    Parameters
+    ----------
+    devices_factory : callable, optional
+        ``(request, config) -> RigDevices``; default: simulator or hardware per request.
+    engine_factory : callable, optional
+        Replaces ``rig.engine.Engine`` (tests).
+    config_transform : callable, optional
+        ``config -> config`` applied after loading (tests shorten the protocol).
+    identify : callable, optional
+        ``identify(trials) -> result`` for the running identification; default
+        :func:`rig.gui.analysis_hooks.identify_level`.
+    select_models : callable, optional
+        ``select_models(session_path) -> ModelSelection``; default
+        :func:`rig.gui.analysis_hooks.select_models`.
+    auto_tabs : bool
+        Switch to the tab that matters when the state changes (calibration, live trial,
+        results).
+    live_window_s : float
+        Length of the rolling force window, s.
+    """
+
+    def __init__(self, devices_factory: DevicesFactory | None = None,
+                 engine_factory: Callable | None = None,
+                 config_transform: Callable | None = None,
+                 identify: Callable | None = None, select_models: Callable | None = None,
+                 auto_tabs: bool = True, live_window_s: float = LIVE_WINDOW_S):
+        super().__init__()
+        from rig.gui import analysis_hooks
+        self.setWindowTitle("nmsid - FES identification session")
+        self.auto_tabs = auto_tabs
+        self.config_transform = config_transform
+        self.state = State.IDLE
+        self.trip_reason = ""
+        self.current_index = -1
+        self.run_result = None
+        self.run_error: BaseException | None = None
+        self.session_finished = False
+
+        self.buffer = LiveBuffer(window_s=live_window_s)
+        self.signals = EngineSignals()
+        self.controller = SessionController(self.signals, self.buffer,
+                                            devices_factory=devices_factory,
+                                            engine_factory=engine_factory)
+
+        self.safety = SafetyPanel(on_estop=self.press_estop, on_rearm=self.rearm)
+        self.setup_panel = SetupPanel(on_start=self._start_request)
+        self.calibration_panel = CalibrationPanel(on_confirm=self._confirm_calibration)
+        self.live = LivePlots(self.buffer)
+        self.identification = IdentificationPanel(
+            identify=identify if identify is not None else analysis_hooks.identify_level)
+        self.results = ResultsPanel(
+            select_models=select_models if select_models is not None
+            else analysis_hooks.select_models)
+        self.schedule_panel = SchedulePanel(on_pause=self.pause, on_resume=self.resume,
+                                            on_skip=self.skip, on_rerun=self.rerun)
+        self.event_log = EventLog(on_note=self.add_note)
+
+        self.tabs = QTabWidget()
+        self.tabs.addTab(self.setup_panel, "1 Setup")
+        self.tabs.addTab(self.calibration_panel, "2 Calibration")
+        self.tabs.addTab(self.live, "3 Live trial")
+        self.tabs.addTab(self.identification, "4 Identification")
+        self.tabs.addTab(self.results, "5 Results")
+        self.tabs.setFocusPolicy(Qt.FocusPolicy.NoFocus)
+
+        right = QSplitter(Qt.Orientation.Vertical)
+        sched_box = QWidget()
+        sl = QVBoxLayout(sched_box)
+        sl.setContentsMargins(0, 0, 0, 0)
+        sl.addWidget(QLabel("<b>Schedule</b>"))
+        sl.addWidget(self.schedule_panel)
+        log_box = QWidget()
+        ll = QVBoxLayout(log_box)
+        ll.setContentsMargins(0, 0, 0, 0)
+        ll.addWidget(QLabel("<b>Event log</b>"))
+        ll.addWidget(self.event_log)
+        right.addWidget(sched_box)
+        right.addWidget(log_box)
+        right.setSizes([520, 300])
+        body = QSplitter(Qt.Orientation.Horizontal)
+        body.addWidget(self.tabs)
+        body.addWidget(right)
+        body.setStretchFactor(0, 3)
+        body.setStretchFactor(1, 2)
+        body.setSizes([960, 560])
+        central = QWidget()
+        lay = QVBoxLayout(central)
+        lay.addWidget(self.safety)
+        lay.addWidget(body, 1)
+        self.setCentralWidget(central)
+        self.resize(1560, 980)
+        self.shortcuts = install_estop_shortcuts(self, self.press_estop)
+
+        q = Qt.ConnectionType.QueuedConnection
+        s = self.signals
+        s.state_changed.connect(self._on_state, q)
+        s.event.connect(self.event_log.append, q)
+        s.calibration_step.connect(self.calibration_panel.add_step, q)
+        s.calibration_result.connect(self._on_calibration_result, q)
+        s.trial_started.connect(self._on_trial_started, q)
+        s.trial_finished.connect(self._on_trial_finished, q)
+        s.level_completed.connect(self._on_level_completed, q)
+        s.finished.connect(self._on_finished, q)
+        s.run_ended.connect(self._on_run_ended, q)
+
+        self.interlock_timer = QTimer(self)
+        self.interlock_timer.setInterval(INTERLOCK_POLL_MS)
+        self.interlock_timer.timeout.connect(self._poll_engine)
+        self.interlock_timer.start()
+
+    # -- operator API -------------------------------------------------------------------
+    def start_session(self, resume: bool = False, **values) -> None:
+        """Fill the setup form (participant, backend, config, hw_config, output, seed,
+        realtime) and press Start (or Resume)."""
+        self.setup_panel.set_values(**values)
+        self.setup_panel._start(resume=resume)
+
+    def _start_request(self, request: SessionRequest) -> None:
+        from rig.gui.session_controller import load_session_config
+        config = load_session_config(request)
+        if self.config_transform is not None:
+            config = self.config_transform(config)
+        self.controller.start(request, config=config)
+        p = config.protocol
+        self.schedule_panel.set_timing(p.trial_s, p.rest_s)
+        self.setup_panel.setEnabled(False)
+        self.event_log.append(f"session {request.participant}: "
+                              f"{'resuming' if request.resume else 'writing'} "
+                              f"{request.output_path} ({request.backend.value})")
+        self.setWindowTitle(f"nmsid - {request.participant} - {request.output_path}")
+        self._refresh_schedule()
+        self._switch(Tab.CALIBRATION)
+
+    def confirm_calibration(self, **currents_mA: float) -> None:
+        """Optionally edit the currents (Iemin_mA=..., ...), then press Confirm."""
+        if currents_mA:
+            self.calibration_panel.set_values(**currents_mA)
+        self.calibration_panel.confirm()
+
+    def _confirm_calibration(self, calibration) -> None:
+        self.controller.confirm_calibration(calibration)
+
+    def press_estop(self) -> None:
+        """The E-STOP button, Space or Escape: stop output now and latch the interlock."""
+        engaged = self.controller.estop("operator E-stop (GUI)")
+        if not engaged:
+            self.event_log.append("E-STOP pressed (no session running; output is off)")
+
+    def rearm(self) -> None:
+        self.controller.rearm()
+
+    def pause(self) -> None:
+        self.controller.pause()
+
+    def resume(self) -> None:
+        self.controller.resume()
+
+    def skip(self) -> None:
+        self.controller.skip_trial()
+
+    def rerun(self, schedule_index: int | None = None) -> None:
+        """Re-run an aborted trial (the first aborted one if no index is given)."""
+        if schedule_index is None:
+            aborted = self.schedule_panel.aborted_indices()
+            if not aborted:
+                raise ValueError("no aborted trial to re-run")
+            schedule_index = aborted[0]
+        self.controller.rerun(schedule_index)
+
+    def add_note(self, text: str) -> None:
+        if self.controller.engine is None:
+            self.event_log.append(f"note (not saved: no session running): {text}")
+            return
+        self.controller.add_note(text)
+
+    def save_screenshot(self, path: str | Path) -> Path:
+        """Save a PNG of the whole window (``QWidget.grab``)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if not self.grab().save(str(path), "PNG"):
+            raise OSError(f"{path}: could not save the screenshot (is the folder writable?)")
+        return path
+
+    # -- engine notifications (GUI thread) -------------------------------------------
+    def _on_state(self, old, new, reason: str) -> None:
+        self.state = new
+        name = getattr(new, "value", str(new))
+        if new is State.TRIPPED:
+            self.trip_reason = reason
+        self.safety.set_state(name, reason)
+        self.schedule_panel.set_state(name)
+        self._refresh_schedule()
+        if new is State.CALIBRATING:
+            self._switch(Tab.CALIBRATION)
+        elif new is State.STIMULATING:
+            self._switch(Tab.LIVE)
+
+    def _on_calibration_result(self, calibration) -> None:
+        self.calibration_panel.set_result(calibration)
+        self._switch(Tab.CALIBRATION)
+
+    def _on_trial_started(self, index: int, planned) -> None:
+        self.current_index = index
+        sE, repeat, _, _ = planned_fields(planned)
+        self.live.set_title(f"Trial {index + 1}: sE = {sE:.2f}, repeat {repeat}")
+        self._refresh_schedule()
+
+    def _on_trial_finished(self, index: int, trial) -> None:
+        status = getattr(trial, "status", "")
+        reason = getattr(trial, "abort_reason", "")
+        sE, repeat = getattr(trial, "sE", float("nan")), getattr(trial, "repeat", 0)
+        self.live.set_title(f"Trial {index + 1}: sE = {sE:.2f}, repeat {repeat}: {status}"
+                            + (f" ({reason})" if reason else ""))
+        self._refresh_schedule()
+
+    def _on_level_completed(self, sE: float, trials: list) -> None:
+        self.identification.submit_level(sE, trials)
+
+    def _on_finished(self, path: str) -> None:
+        self.session_finished = True
+        self._refresh_schedule()
+        self.results.run(path)
+        self._switch(Tab.RESULTS)
+
+    def _on_run_ended(self, summary, error) -> None:
+        self.run_result, self.run_error = summary, error
+        if error is not None:
+            self.event_log.append(f"ENGINE STOPPED WITH AN ERROR: {error}")
+            self.safety.banner.setText(f"Engine error: {error}. Output is off.")
+            self.safety.banner.setVisible(True)
+        self._poll_engine()
+        self._refresh_schedule()
+
+    def _poll_engine(self) -> None:
+        if self.controller.engine is None:
+            return
+        try:
+            self.safety.set_interlock(self.controller.interlock_status())
+        except Exception:  # a display problem must never stop the GUI
+            log.exception("reading the interlock status")
+
+    def _refresh_schedule(self) -> None:
+        sched = self.controller.schedule()
+        if sched:
+            self.schedule_panel.set_schedule(sched, self.current_index)
+
+    def _switch(self, tab: int) -> None:
+        if self.auto_tabs:
+            self.tabs.setCurrentIndex(tab)
+
+    # -- queries for scripts and tests --------------------------------------------------
+    def trial_statuses(self) -> list[str]:
+        return [status_name(getattr(p, "status", "")) for p in self.controller.schedule()]
+
+    def closeEvent(self, event) -> None:  # noqa: N802
+        self.controller.shutdown()
+        self.identification.shutdown()
+        self.results.shutdown()
+        super().closeEvent(event)

@@ -1,0 +1,362 @@
+"""Scripted runs: drive the window from a text file as an operator would.
+
+A script is one command per line (``#`` starts a comment; arguments are shell-quoted)::
+
+    start participant=DEMO output=sessions/DEMO.h5   # fill the setup form, press Start
+    confirm-calibration                # accept the detected currents (or Iemin_mA=2.5 ...)
+    wait-trial 1 running               # schedule index 1 (0-based) is running
+    wait-trial-time 0.5                # the running trial is at least 0.5 s in
+    estop                              # press E-STOP
+    wait tripped                       # engine state
+    rearm
+    rerun                              # the first aborted trial (or: rerun 1)
+    note "electrode re-taped"
+    wait-finished                      # session over and results shown
+    tab results                        # show a tab: setup, calibration, live,
+                                       #   identification, results
+    screenshot docs/gui-screenshot.png
+    quit
+
+Every wait takes an optional last argument, a timeout in s (default 600). The runner
+polls from a Qt timer, so the window stays live while a script waits. ``demo`` names a
+built-in script (:data:`DEMO_SCRIPT`).
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import shlex
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from PySide6.QtCore import QObject, QTimer, Signal
+
+log = logging.getLogger(__name__)
+
+DEFAULT_TIMEOUT_S = 600.0
+POLL_MS = 20
+
+
+class Command(enum.Enum):
+    START = "start"
+    CONFIRM_CALIBRATION = "confirm-calibration"
+    WAIT = "wait"
+    WAIT_TRIAL = "wait-trial"
+    WAIT_TRIAL_TIME = "wait-trial-time"
+    WAIT_FINISHED = "wait-finished"
+    SLEEP = "sleep"
+    ESTOP = "estop"
+    REARM = "rearm"
+    PAUSE = "pause"
+    RESUME = "resume"
+    SKIP = "skip"
+    RERUN = "rerun"
+    NOTE = "note"
+    TAB = "tab"
+    SCREENSHOT = "screenshot"
+    QUIT = "quit"
+
+
+TAB_NAMES = {"setup": 0, "calibration": 1, "live": 2, "identification": 3, "results": 4}
+STATES = ("idle", "calibrating", "armed", "stimulating", "resting", "paused", "tripped",
+          "finished")
+
+DEMO_SCRIPT = """\
+# nmsid gui --script demo: a whole session with an E-stop, re-arm and re-run.
+start
+confirm-calibration
+wait-trial 1 running
+wait-trial-time 1.0
+estop
+wait tripped
+note "demo: E-stop pressed during trial 2, participant fine, re-arming"
+rearm
+rerun
+wait-finished
+tab results
+"""
+
+
+class ScriptError(ValueError):
+    """A script line is not understood (names the line) or a wait timed out."""
+
+
+@dataclass(frozen=True)
+class Step:
+    command: Command
+    args: tuple[str, ...] = ()
+    kwargs: dict = field(default_factory=dict)
+    line: int = 0
+    text: str = ""
+
+
+def _split_kwargs(words: list[str]) -> tuple[tuple[str, ...], dict]:
+    args, kwargs = [], {}
+    for w in words:
+        if "=" in w and not w.startswith("="):
+            k, v = w.split("=", 1)
+            kwargs[k] = v
+        else:
+            args.append(w)
+    return tuple(args), kwargs
+
+
+def parse_script(text: str, source: str = "script") -> list[Step]:
+    """Parse a script into steps.
+
+    Raises
+    ------
+    ScriptError
+        Naming the source, the line and what is valid.
+    """
+    steps = []
+    for n, raw in enumerate(text.splitlines(), start=1):
+        try:
+            words = shlex.split(raw, comments=True)
+        except ValueError as exc:
+            raise ScriptError(f"{source}:{n}: cannot parse {raw.strip()!r}: {exc}") from None
+        if not words:
+            continue
+        try:
+            cmd = Command(words[0].lower())
+        except ValueError:
+            raise ScriptError(f"{source}:{n}: unknown command {words[0]!r}; known: "
+                              + ", ".join(c.value for c in Command)) from None
+        if cmd is Command.NOTE:
+            args, kwargs = (" ".join(words[1:]),), {}
+        else:
+            args, kwargs = _split_kwargs(words[1:])
+        _check(cmd, args, kwargs, f"{source}:{n}")
+        steps.append(Step(cmd, args, kwargs, n, raw.strip()))
+    return steps
+
+
+def _check(cmd: Command, args, kwargs, where: str) -> None:
+    def need(lo, hi):
+        if not lo <= len(args) <= hi:
+            raise ScriptError(f"{where}: {cmd.value} takes {lo}..{hi} arguments, got "
+                              f"{len(args)}")
+
+    def number(text, what):
+        try:
+            return float(text)
+        except ValueError:
+            raise ScriptError(f"{where}: {cmd.value}: {what} must be a number, got "
+                              f"{text!r}") from None
+    if cmd is Command.WAIT:
+        need(1, 2)
+        if args[0].lower() not in STATES:
+            raise ScriptError(f"{where}: wait: unknown state {args[0]!r}; states: "
+                              + ", ".join(STATES))
+    elif cmd is Command.WAIT_TRIAL:
+        need(2, 3)
+        number(args[0], "the schedule index")
+        if args[1] not in ("pending", "running", "done", "aborted"):
+            raise ScriptError(f"{where}: wait-trial: status must be pending, running, done "
+                              f"or aborted, got {args[1]!r}")
+    elif cmd in (Command.WAIT_TRIAL_TIME, Command.SLEEP):
+        need(1, 2)
+    elif cmd is Command.WAIT_FINISHED:
+        need(0, 1)
+    elif cmd is Command.RERUN:
+        need(0, 1)
+    elif cmd is Command.TAB:
+        need(1, 1)
+        if args[0] not in TAB_NAMES:
+            raise ScriptError(f"{where}: tab: unknown tab {args[0]!r}; tabs: "
+                              + ", ".join(TAB_NAMES))
+    elif cmd is Command.SCREENSHOT:
+        need(1, 1)
+    elif cmd is Command.NOTE:
+        if not args[0]:
+            raise ScriptError(f"{where}: note needs a text")
+    elif cmd is Command.START:
+        need(0, 0)
+        known = {"participant", "backend", "config", "hw_config", "output", "seed",
+                 "realtime", "resume"}
+        bad = set(kwargs) - known
+        if bad:
+            raise ScriptError(f"{where}: start: unknown setting(s) {sorted(bad)}; known: "
+                              + ", ".join(sorted(known)))
+    elif cmd is Command.CONFIRM_CALIBRATION:
+        need(0, 0)
+        bad = set(kwargs) - {"Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA"}
+        if bad:
+            raise ScriptError(f"{where}: confirm-calibration: unknown field(s) {sorted(bad)}")
+        for k, v in kwargs.items():
+            number(v, k)
+    else:
+        need(0, 0)
+    for a in args[1:] if cmd in (Command.WAIT, Command.WAIT_TRIAL_TIME, Command.SLEEP) else ():
+        number(a, "the timeout / duration")
+
+
+def load_script(name_or_path: str) -> list[Step]:
+    """A built-in script by name (``demo``) or a script file."""
+    if name_or_path == "demo":
+        return parse_script(DEMO_SCRIPT, "demo")
+    path = Path(name_or_path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise OSError(f"{path}: cannot read the GUI script ({exc.strerror}); give a script "
+                      "file or 'demo'") from None
+    return parse_script(text, str(path))
+
+
+class ScriptRunner(QObject):
+    """Runs steps against a :class:`~rig.gui.main_window.MainWindow` from a Qt timer.
+
+    Signals
+    -------
+    finished(ok: bool, message: str)
+        After the last step, a failed step or a timeout.
+    """
+
+    finished = Signal(bool, str)
+
+    def __init__(self, window, steps: list[Step], *, screenshot: str | Path | None = None,
+                 parent: QObject | None = None):
+        super().__init__(parent)
+        self.window = window
+        self.steps = list(steps)
+        self.screenshot = screenshot
+        self.pos = 0
+        self.done = False
+        self.ok: bool | None = None
+        self.message = ""
+        self.quit_requested = False
+        self._waiting: Step | None = None
+        self._deadline = 0.0
+        self._sleep_until = 0.0
+        self.timer = QTimer(self)
+        self.timer.setInterval(POLL_MS)
+        self.timer.timeout.connect(self._tick)
+
+    def start(self) -> None:
+        self.timer.start()
+
+    # -- stepping ---------------------------------------------------------------------
+    def _tick(self) -> None:
+        try:
+            while not self.done:
+                if self._waiting is not None:
+                    if not self._poll(self._waiting):
+                        if time.monotonic() > self._deadline:
+                            raise ScriptError(f"line {self._waiting.line}: "
+                                              f"{self._waiting.text!r} timed out")
+                        return
+                    self._waiting = None
+                if self.pos >= len(self.steps):
+                    self._finish(True, "script completed")
+                    return
+                step = self.steps[self.pos]
+                self.pos += 1
+                log.info("script line %d: %s", step.line, step.text)
+                if self._execute(step):
+                    self._waiting = step
+                    self._deadline = time.monotonic() + _timeout(step)
+        except Exception as exc:  # report, stop the script, leave the window usable
+            log.exception("GUI script failed")
+            self._finish(False, f"GUI script failed: {exc}")
+
+    def _finish(self, ok: bool, message: str) -> None:
+        self.timer.stop()
+        if self.screenshot is not None:
+            try:
+                self.window.save_screenshot(self.screenshot)
+                message += f"; screenshot saved to {self.screenshot}"
+            except OSError as exc:
+                ok, message = False, f"{message}; {exc}"
+        self.done, self.ok, self.message = True, ok, message
+        self.finished.emit(ok, message)
+
+    def _execute(self, step: Step) -> bool:
+        """Do the step; return True if it must then be waited for."""
+        w = self.window
+        c = step.command
+        if c is Command.START:
+            kw = dict(step.kwargs)
+            resume = kw.pop("resume", "false").lower() in ("1", "true", "yes")
+            if "seed" in kw:
+                kw["seed"] = int(kw["seed"])
+            if "realtime" in kw:
+                kw["realtime"] = kw["realtime"].lower() in ("1", "true", "yes")
+            w.start_session(resume=resume, **kw)
+            if w.controller.engine is None:
+                raise ScriptError(f"line {step.line}: the session did not start: "
+                                  f"{w.setup_panel.message.text()}")
+            return False
+        if c is Command.CONFIRM_CALIBRATION:
+            return True  # waits until the calibration result is shown, then confirms
+        if c in (Command.WAIT, Command.WAIT_TRIAL, Command.WAIT_TRIAL_TIME,
+                 Command.WAIT_FINISHED):
+            return True
+        if c is Command.SLEEP:
+            self._sleep_until = time.monotonic() + float(step.args[0])
+            return True
+        if c is Command.ESTOP:
+            w.press_estop()
+        elif c is Command.REARM:
+            w.rearm()
+        elif c is Command.PAUSE:
+            w.pause()
+        elif c is Command.RESUME:
+            w.resume()
+        elif c is Command.SKIP:
+            w.skip()
+        elif c is Command.RERUN:
+            w.rerun(int(step.args[0]) if step.args else None)
+        elif c is Command.NOTE:
+            w.add_note(step.args[0])
+        elif c is Command.TAB:
+            w.tabs.setCurrentIndex(TAB_NAMES[step.args[0]])
+        elif c is Command.SCREENSHOT:
+            w.save_screenshot(step.args[0])
+        elif c is Command.QUIT:
+            self.quit_requested = True
+            self.pos = len(self.steps)
+        return False
+
+    def _poll(self, step: Step) -> bool:
+        w = self.window
+        c = step.command
+        if c is Command.CONFIRM_CALIBRATION:
+            if not w.calibration_panel.confirm_button.isEnabled():
+                return False
+            w.confirm_calibration(**{k: float(v) for k, v in step.kwargs.items()})
+            return True
+        if c is Command.SLEEP:
+            return time.monotonic() >= self._sleep_until
+        if c is Command.WAIT:
+            state = w.state
+            return getattr(state, "value", state) == step.args[0].lower()
+        if c is Command.WAIT_TRIAL:
+            statuses = w.trial_statuses()
+            i = int(float(step.args[0]))
+            return i < len(statuses) and statuses[i] == step.args[1]
+        if c is Command.WAIT_TRIAL_TIME:
+            snap = w.buffer.snapshot()
+            return (w.state is not None and getattr(w.state, "value", "") == "stimulating"
+                    and snap.n > 0 and snap.t_s[-1] >= float(step.args[0]))
+        if c is Command.WAIT_FINISHED:
+            if w.run_error is not None:
+                raise ScriptError(f"the engine stopped with an error: {w.run_error}")
+            return (w.controller.thread is not None and not w.controller.running
+                    and w.run_result is not None and not w.results.busy
+                    and w.identification.pending == 0)
+        return True
+
+
+def _timeout(step: Step) -> float:
+    if step.command is Command.SLEEP:
+        return float(step.args[0]) + DEFAULT_TIMEOUT_S
+    if step.command is Command.WAIT_TRIAL and len(step.args) > 2:
+        return float(step.args[2])
+    if step.command in (Command.WAIT, Command.WAIT_TRIAL_TIME) and len(step.args) > 1:
+        return float(step.args[1])
+    if step.command is Command.WAIT_FINISHED and step.args:
+        return float(step.args[0])
+    return DEFAULT_TIMEOUT_S

@@ -1,0 +1,206 @@
+"""Runs one session's engine in a worker thread and relays operator commands to it.
+
+The controller owns the engine, its devices and the thread that runs ``engine.run()``.
+Every operator command (E-stop, re-arm, pause, ...) is a direct call of the engine's
+thread-safe command methods; none waits for the engine thread. The engine's notifications
+arrive through :class:`~rig.gui.observer.QtEngineObserver` as queued Qt signals.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+from pathlib import Path
+from typing import Callable
+
+from PySide6.QtCore import QObject, Qt, Signal
+
+from rig.gui.live_buffer import LiveBuffer
+from rig.gui.observer import EngineSignals, QtEngineObserver
+from rig.gui.setup_panel import Backend, SessionRequest
+
+log = logging.getLogger(__name__)
+
+#: ``devices_factory(request, config) -> RigDevices``; tests and the bench pass their own.
+DevicesFactory = Callable[[SessionRequest, object], object]
+
+
+def default_devices(request: SessionRequest, config) -> object:
+    """Build the rig the request names: the simulator or the hardware chain."""
+    if request.backend is Backend.SIM:
+        from sim_backends import make_sim_rig
+        return make_sim_rig(realtime=request.realtime,
+                            seed=request.seed if request.seed is not None else 0)
+    from drivers import build_rig  # the hardware chain from its configuration file
+    if request.hw_config_path is None:
+        raise ValueError("--backend hw needs a hardware configuration file (--hw-config "
+                         "FILE, or 'Hardware configuration' on the setup panel)")
+    return build_rig(request.hw_config_path)
+
+
+def load_session_config(request: SessionRequest, *, confirm_calibration: bool = True):
+    """The validated protocol configuration for ``request``.
+
+    The GUI always asks the operator to confirm the calibration
+    (``calibration.confirm = true``) unless ``confirm_calibration`` is False.
+    """
+    from protocols.config import load_config
+    overrides = {"participant": request.participant, "seed": request.seed}
+    cfg = load_config(request.config_path, overrides=overrides)
+    if confirm_calibration and not cfg.calibration.confirm:
+        cfg = cfg.replace(calibration=dataclasses.replace(cfg.calibration, confirm=True))
+    return cfg
+
+
+class _RunRelay(QObject):
+    run_ended = Signal(object, object)
+
+
+class SessionController(QObject):
+    """One session: configuration, devices, engine and its worker thread.
+
+    Parameters
+    ----------
+    signals : EngineSignals
+        Where the engine's notifications are emitted (connected by the window).
+    buffer : LiveBuffer
+        Filled with the running trial's samples.
+    devices_factory : callable, optional
+        ``(request, config) -> RigDevices``; default :func:`default_devices`.
+    engine_factory : callable, optional
+        ``(config, devices, path, resume=..., observer=...) -> Engine``; default
+        ``rig.engine.Engine``.
+    """
+
+    def __init__(self, signals: EngineSignals, buffer: LiveBuffer,
+                 devices_factory: DevicesFactory | None = None,
+                 engine_factory: Callable | None = None, parent: QObject | None = None):
+        super().__init__(parent)
+        self.signals = signals
+        self.buffer = buffer
+        self.devices_factory = devices_factory or default_devices
+        self.engine_factory = engine_factory
+        self.engine = None
+        self.devices = None
+        self.config = None
+        self.request: SessionRequest | None = None
+        self.observer: QtEngineObserver | None = None
+        self.thread: threading.Thread | None = None
+        self.summary = None
+        self.error: BaseException | None = None
+        self._relay = _RunRelay()
+        self._relay.run_ended.connect(self.signals.run_ended,
+                                      Qt.ConnectionType.QueuedConnection)
+
+    # -- lifecycle --------------------------------------------------------------------
+    @property
+    def running(self) -> bool:
+        return self.thread is not None and self.thread.is_alive()
+
+    def start(self, request: SessionRequest, config=None) -> None:
+        """Build config, devices and engine, then run the engine in a worker thread.
+
+        Raises
+        ------
+        ValueError, OSError
+            On a bad configuration, an output file that may not be used, or a device
+            that cannot be opened (nothing is stimulated in that case).
+        """
+        if self.running:
+            raise RuntimeError("a session is already running in this window")
+        self.request = request
+        self.config = config if config is not None else load_session_config(request)
+        self.buffer.fs_Hz = float(self.config.protocol.fs_Hz)
+        self.observer = QtEngineObserver(self.signals, self.buffer)
+        self.devices = self.devices_factory(request, self.config)
+        if self.engine_factory is not None:
+            factory = self.engine_factory
+        else:
+            from rig.engine import Engine as factory
+        try:
+            self.engine = factory(self.config, self.devices, request.output_path,
+                                  resume=request.resume, observer=self.observer)
+        except BaseException:
+            self.devices.close()
+            self.devices = None
+            raise
+        self.summary, self.error = None, None
+        self.thread = threading.Thread(target=self._run, name="nmsid-engine", daemon=True)
+        self.thread.start()
+        log.info("session started: %s -> %s", request.participant, request.output_path)
+
+    def _run(self) -> None:
+        summary, error = None, None
+        try:
+            summary = self.engine.run()
+        except BaseException as exc:  # reported to the operator; output is already off
+            log.exception("engine run ended with an error")
+            error = exc
+        finally:
+            try:
+                self.devices.close()
+            except Exception:  # close() never raises by contract; be sure anyway
+                log.exception("closing devices")
+        self.summary, self.error = summary, error
+        self._relay.run_ended.emit(summary, error)
+
+    def shutdown(self, timeout_s: float = 5.0) -> None:
+        """E-stop and abort a running session, then wait for its thread (window closing)."""
+        if self.engine is not None and self.running:
+            self.engine.estop("operator closed the GUI window")
+            self.engine.abort()
+        if self.thread is not None:
+            self.thread.join(timeout_s)
+
+    # -- operator commands (GUI thread; each returns at once) --------------------------
+    def estop(self, reason: str = "operator E-stop (GUI)") -> bool:
+        """E-stop the engine; with no engine running, make sure the stimulator is off."""
+        if self.engine is not None:
+            self.engine.estop(reason)
+            return True
+        if self.devices is not None:
+            self.devices.stimulator.stop_now()
+        return False
+
+    def _call(self, name: str, *args) -> None:
+        if self.engine is None:
+            raise RuntimeError(f"cannot {name.replace('_', ' ')}: no session is running")
+        getattr(self.engine, name)(*args)
+
+    def rearm(self) -> None:
+        self._call("rearm")
+
+    def pause(self) -> None:
+        self._call("pause")
+
+    def resume(self) -> None:
+        self._call("resume")
+
+    def skip_trial(self) -> None:
+        self._call("skip_trial")
+
+    def rerun(self, schedule_index: int) -> None:
+        self._call("rerun", int(schedule_index))
+
+    def confirm_calibration(self, calibration) -> None:
+        self._call("confirm_calibration", calibration)
+
+    def add_note(self, text: str) -> None:
+        self._call("add_note", text)
+
+    # -- queries ----------------------------------------------------------------------
+    def state(self):
+        return None if self.engine is None else self.engine.state
+
+    def schedule(self) -> list:
+        return [] if self.engine is None else list(self.engine.schedule)
+
+    def interlock_status(self) -> dict:
+        if self.engine is None:
+            return {}
+        return dict(self.engine.interlock_status())
+
+    @property
+    def session_path(self) -> Path | None:
+        return None if self.request is None else Path(self.request.output_path)

@@ -1,0 +1,274 @@
+"""Session setup: participant code, backend, configuration, output file; start or resume.
+
+The output file is never overwritten. If it exists and is an unfinished session, the
+panel offers to resume it (the engine skips completed trials and re-runs aborted ones);
+if it is finished or not a session file, Start is refused with the reason.
+"""
+
+from __future__ import annotations
+
+import enum
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from PySide6.QtWidgets import (QCheckBox, QComboBox, QFileDialog, QFormLayout, QGroupBox,
+                               QHBoxLayout, QLabel, QLineEdit, QPushButton, QSpinBox,
+                               QVBoxLayout, QWidget)
+
+from rig.gui.theme import Colour
+from rig.session_file import PARTICIPANT_PATTERN
+
+
+class Backend(enum.Enum):
+    SIM = "sim"
+    HW = "hw"
+
+
+class OutputState(enum.Enum):
+    """What is at the chosen output path."""
+
+    NEW = "new"                  # nothing there: a new session
+    UNFINISHED = "unfinished"    # a session with trials still to run: can be resumed
+    FINISHED = "finished"        # a complete session: refused
+    INVALID = "invalid"          # something that is not a readable session: refused
+
+
+@dataclass(frozen=True)
+class SessionRequest:
+    """What the operator asked for on the setup panel."""
+
+    participant: str
+    backend: Backend
+    output_path: Path
+    config_path: Path | None = None
+    hw_config_path: Path | None = None
+    seed: int | None = None
+    realtime: bool = True
+    resume: bool = False
+
+
+@dataclass(frozen=True)
+class OutputCheck:
+    state: OutputState
+    message: str
+    n_completed: int = 0
+    n_planned: int = 0
+
+
+def check_output(path: str | os.PathLike) -> OutputCheck:
+    """Say whether ``path`` is free, resumable, finished or unusable."""
+    path = Path(path)
+    if not path.exists():
+        return OutputCheck(OutputState.NEW, f"{path} will be created.")
+    from rig.session_file import SessionWriter, read_session
+    try:
+        session = read_session(path, load_data=False)
+    except (ValueError, OSError) as exc:
+        try:  # a session file that stopped before its calibration was written
+            SessionWriter.open(path)
+        except (ValueError, OSError):
+            return OutputCheck(OutputState.INVALID,
+                               f"{path} exists and is not a readable session file ({exc}); "
+                               "choose another output file (or run `nmsid recover` on it).")
+        return OutputCheck(OutputState.UNFINISHED,
+                           f"{path} holds a session that stopped before its calibration "
+                           "was saved. Press Resume to continue it, or choose another "
+                           "output file.")
+    done = {(round(float(t.sE), 6), t.repeat) for t in session.trials if t.completed}
+    planned = 0
+    try:
+        from protocols.config import config_from_json
+        cfg = config_from_json(session.config_json) if session.config_json else None
+        if cfg is not None:
+            planned = len(cfg.protocol.sE_levels) * cfg.protocol.repeats
+    except (ValueError, ImportError):
+        planned = 0
+    finished_attr = session.attrs.get("finished_utc")
+    if (planned and len(done) >= planned) or (finished_attr and not planned):
+        return OutputCheck(OutputState.FINISHED,
+                           f"{path} holds a finished session ({len(done)} completed trials); "
+                           "nmsid never overwrites a session file: choose another output "
+                           "file.", len(done), planned)
+    return OutputCheck(OutputState.UNFINISHED,
+                       f"{path} holds an unfinished session of {session.participant} "
+                       f"({len(done)}" + (f" of {planned}" if planned else "") +
+                       " trials completed). Press Resume to continue it, or choose "
+                       "another output file.", len(done), planned)
+
+
+class SetupPanel(QWidget):
+    """The form shown before a session starts.
+
+    Parameters
+    ----------
+    on_start : callable
+        Called with a :class:`SessionRequest` when the operator presses Start or Resume.
+    """
+
+    def __init__(self, on_start: Callable[[SessionRequest], None],
+                 parent: QWidget | None = None):
+        super().__init__(parent)
+        self._on_start = on_start
+        self.participant = QLineEdit("P01")
+        self.participant.setMaxLength(64)
+        self.backend = QComboBox()
+        self.backend.addItem("Simulated rig (sim)", Backend.SIM)
+        self.backend.addItem("Hardware (hw)", Backend.HW)
+        self.config_path = QLineEdit()
+        self.config_path.setPlaceholderText("built-in defaults (15 sE x 3 repeats)")
+        self.hw_config_path = QLineEdit()
+        self.hw_config_path.setPlaceholderText("hardware chain configuration (hw only)")
+        self.output_path = QLineEdit()
+        self.seed = QSpinBox()
+        self.seed.setRange(-1, 2**31 - 1)
+        self.seed.setSpecialValueText("random (recorded)")
+        self.seed.setValue(-1)
+        self.realtime = QCheckBox("pace the simulator in real time")
+        self.realtime.setChecked(True)
+        self.message = QLabel("")
+        self.message.setWordWrap(True)
+        self.start_button = QPushButton("Start new session")
+        self.resume_button = QPushButton("Resume session")
+        self.start_button.setMinimumHeight(40)
+        self.resume_button.setMinimumHeight(40)
+        self.resume_button.setVisible(False)
+        self.start_button.clicked.connect(lambda: self._start(resume=False))
+        self.resume_button.clicked.connect(lambda: self._start(resume=True))
+        self._out_touched = False
+        self.participant.textChanged.connect(self._participant_changed)
+        self.output_path.textEdited.connect(self._output_edited)
+        self.output_path.textChanged.connect(lambda _: self.refresh())
+        self.backend.currentIndexChanged.connect(lambda _: self.refresh())
+
+        box = QGroupBox("New session")
+        form = QFormLayout(box)
+        form.addRow("Participant code", self.participant)
+        form.addRow("Rig", self.backend)
+        form.addRow("Configuration (TOML)", self._with_browse(self.config_path, "toml"))
+        form.addRow("Hardware configuration", self._with_browse(self.hw_config_path, "toml"))
+        form.addRow("Output file (.h5)", self._with_browse(self.output_path, "h5", save=True))
+        form.addRow("Schedule seed", self.seed)
+        form.addRow("", self.realtime)
+        buttons = QHBoxLayout()
+        buttons.addWidget(self.start_button)
+        buttons.addWidget(self.resume_button)
+        lay = QVBoxLayout(self)
+        lay.addWidget(box)
+        lay.addWidget(self.message)
+        lay.addLayout(buttons)
+        lay.addStretch(1)
+        self._participant_changed(self.participant.text())
+
+    def _with_browse(self, edit: QLineEdit, ext: str, save: bool = False) -> QWidget:
+        w = QWidget()
+        row = QHBoxLayout(w)
+        row.setContentsMargins(0, 0, 0, 0)
+        row.addWidget(edit, 1)
+        b = QPushButton("Browse...")
+
+        def browse():
+            if save:
+                path, _ = QFileDialog.getSaveFileName(self, "Session file", edit.text(),
+                                                      f"*.{ext}", options=QFileDialog.Option.DontConfirmOverwrite)
+            else:
+                path, _ = QFileDialog.getOpenFileName(self, "Open", edit.text(), f"*.{ext}")
+            if path:
+                if save:
+                    self._out_touched = True
+                edit.setText(path)
+        b.clicked.connect(browse)
+        row.addWidget(b)
+        return w
+
+    def _participant_changed(self, text: str) -> None:
+        if not self._out_touched:
+            self.output_path.setText(str(Path("sessions") / f"{text or 'P01'}.h5"))
+        self.refresh()
+
+    def _output_edited(self, _text: str) -> None:
+        self._out_touched = True
+
+    # -- state ------------------------------------------------------------------------
+    def set_values(self, *, participant: str | None = None, backend: str | None = None,
+                   config: str | os.PathLike | None = None,
+                   hw_config: str | os.PathLike | None = None,
+                   output: str | os.PathLike | None = None, seed: int | None = None,
+                   realtime: bool | None = None) -> None:
+        """Fill the form (from the command line, a script or a test)."""
+        if participant is not None:
+            self.participant.setText(participant)
+        if backend is not None:
+            self.backend.setCurrentIndex(self.backend.findData(Backend(backend)))
+        if config is not None:
+            self.config_path.setText(str(config))
+        if hw_config is not None:
+            self.hw_config_path.setText(str(hw_config))
+        if output is not None:
+            self._out_touched = True
+            self.output_path.setText(str(output))
+        if seed is not None:
+            self.seed.setValue(int(seed))
+        if realtime is not None:
+            self.realtime.setChecked(bool(realtime))
+        self.refresh()
+
+    def refresh(self) -> OutputCheck | None:
+        """Re-check the participant code and the output file; enable the buttons."""
+        code = self.participant.text()
+        self.realtime.setEnabled(self.backend.currentData() == Backend.SIM)
+        self.hw_config_path.setEnabled(self.backend.currentData() == Backend.HW)
+        if not PARTICIPANT_PATTERN.match(code):
+            self._show(f"Participant code {code!r} is not valid: use 1 to 64 letters, digits, "
+                       "'_' or '-' (a code, never a name).", error=True)
+            self.start_button.setEnabled(False)
+            self.resume_button.setVisible(False)
+            return None
+        out = self.output_path.text().strip()
+        if not out:
+            self._show("Choose an output file.", error=True)
+            self.start_button.setEnabled(False)
+            return None
+        check = check_output(out)
+        self.start_button.setEnabled(check.state == OutputState.NEW)
+        self.resume_button.setVisible(check.state == OutputState.UNFINISHED)
+        self._show(check.message, error=check.state in (OutputState.FINISHED,
+                                                         OutputState.INVALID))
+        return check
+
+    def _show(self, text: str, error: bool = False) -> None:
+        self.message.setText(text)
+        self.message.setStyleSheet(f"color: {Colour.FAULT};" if error else "")
+
+    def request(self, resume: bool = False) -> SessionRequest:
+        """The request the form describes (raises ValueError naming a bad field)."""
+        code = self.participant.text()
+        if not PARTICIPANT_PATTERN.match(code):
+            raise ValueError(f"participant code {code!r} is not [A-Za-z0-9_-]{{1,64}}")
+        cfg = self.config_path.text().strip()
+        hw = self.hw_config_path.text().strip()
+        out = self.output_path.text().strip()
+        if not out:
+            raise ValueError("no output file chosen")
+        return SessionRequest(
+            participant=code, backend=self.backend.currentData(), output_path=Path(out),
+            config_path=Path(cfg) if cfg else None, hw_config_path=Path(hw) if hw else None,
+            seed=None if self.seed.value() < 0 else int(self.seed.value()),
+            realtime=self.realtime.isChecked(), resume=resume)
+
+    def _start(self, resume: bool) -> None:
+        check = self.refresh()
+        if check is None:
+            return
+        if resume and check.state != OutputState.UNFINISHED:
+            self._show("Nothing to resume at this output file.", error=True)
+            return
+        if not resume and check.state != OutputState.NEW:
+            self._show(check.message, error=True)
+            return
+        try:
+            req = self.request(resume=resume)
+            self._on_start(req)
+        except (ValueError, OSError) as exc:
+            self._show(str(exc), error=True)

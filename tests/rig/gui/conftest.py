@@ -1,0 +1,67 @@
+"""Shared fixtures for the GUI tests: offscreen Qt, short protocols, window builders."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+from pathlib import Path
+
+os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+
+import pytest  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+
+
+def _load_fake_engine():
+    spec = importlib.util.spec_from_file_location("gui_fake_engine", HERE / "fake_engine.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["gui_fake_engine"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+fake_engine = _load_fake_engine()
+
+
+class FakeLevelResult:
+    def __init__(self, sE):
+        self.Kp, self.wn_rad_s, self.zeta, self.fit_pct = 2 * sE, 10 + sE, 0.5, 90.0
+
+
+def fake_identify(trials):
+    return FakeLevelResult(float(trials[0].sE))
+
+
+def short_config(cfg, levels=(0.4, 0.6), repeats=2, steady_s=0.2, chirp_s=0.6, rest_s=0.0):
+    """A shortened protocol: few levels, short chirp, no rest."""
+    import dataclasses
+    p = dataclasses.replace(cfg.protocol, sE_levels=tuple(levels), repeats=repeats,
+                            steady_s=steady_s, chirp_s=chirp_s, rest_s=rest_s)
+    return cfg.replace(protocol=p)
+
+
+@pytest.fixture
+def fake_window(qtbot):
+    """A window over the fake engine (no devices) with fake identification."""
+    from rig.gui.main_window import MainWindow
+
+    w = MainWindow(devices_factory=lambda req, cfg: _NoDevices(),
+                   engine_factory=fake_engine.FakeEngine,
+                   config_transform=short_config, identify=fake_identify,
+                   select_models=None)
+    qtbot.addWidget(w)
+    w.show()
+    yield w
+    w.controller.shutdown(timeout_s=2.0)
+
+
+class _NoDevices:
+    class stimulator:  # noqa: N801
+        @staticmethod
+        def stop_now():
+            pass
+
+    def close(self):
+        pass

@@ -1,0 +1,75 @@
+"""The window's own logic over a stand-in engine that follows the contract."""
+
+from __future__ import annotations
+
+from PySide6.QtCore import Qt
+
+from rig.session_file import read_session, validate_session
+from rig.states import State
+
+
+def test_session_through_window_with_estop_rearm_rerun(fake_window, qtbot, tmp_path):
+    w = fake_window
+    out = tmp_path / "F01.h5"
+    w.start_session(participant="F01", output=out)
+    assert w.controller.engine is not None, w.setup_panel.message.text()
+    qtbot.waitUntil(lambda: w.calibration_panel.confirm_button.isEnabled(), timeout=5000)
+    assert w.calibration_panel.current_values()["Iemax_mA"] == 7.5
+    w.confirm_calibration(Iemax_mA=8.0)
+    qtbot.waitUntil(lambda: w.trial_statuses()[1:2] == ["running"], timeout=10000)
+    qtbot.waitUntil(lambda: w.buffer.snapshot().n > 0, timeout=5000)
+    w.safety.estop_button.click()
+    qtbot.waitUntil(lambda: w.state is State.TRIPPED, timeout=5000)
+    assert w.controller.engine.output_mA == 0.0
+    assert w.safety.rearm_button.isEnabled()
+    assert w.safety.banner.isVisible() and "TRIPPED" in w.safety.banner.text()
+    assert w.trial_statuses()[1] == "aborted"
+    w.add_note("electrode checked")
+    w.safety.rearm_button.click()
+    qtbot.waitUntil(lambda: w.state is not State.TRIPPED, timeout=5000)
+    qtbot.waitUntil(lambda: w.schedule_panel.rerun_button.isEnabled(), timeout=5000)
+    w.schedule_panel.rerun_button.click()
+    qtbot.waitUntil(lambda: w.run_result is not None, timeout=20000)
+    assert w.run_error is None
+    assert w.trial_statuses() == ["done"] * 4
+    assert validate_session(out) == []
+    s = read_session(out)
+    assert s.calibration.Iemax_mA == 8.0
+    assert [t.status for t in s.trials].count("aborted") == 1
+    assert any(e.kind == "note" and e.detail == "electrode checked" for e in s.events)
+    qtbot.waitUntil(lambda: len(w.identification.points) == 2, timeout=5000)
+    assert [p.sE for p in w.identification.points] == [0.4, 0.6]
+    assert w.live.frames_drawn > 0
+
+
+def test_escape_and_space_estop_even_with_rearm_focused(fake_window, qtbot, tmp_path):
+    w = fake_window
+    calls = []
+    w.controller.estop = lambda reason="": calls.append(reason) or True
+    w.activateWindow()
+    qtbot.waitUntil(lambda: w.isActiveWindow(), timeout=2000)
+    qtbot.keyClick(w.schedule_panel.table, Qt.Key.Key_Escape)
+    qtbot.keyClick(w.tabs, Qt.Key.Key_Space)
+    assert len(calls) == 2
+    # the E-STOP button is never disabled
+    w.safety.estop_button.setEnabled(False)
+    w.setEnabled(True)
+    assert w.safety.estop_button.isEnabled()
+
+
+def test_refuses_existing_finished_file_and_offers_resume(fake_window, tmp_path):
+    from rig.session_file import SessionWriter
+    w = fake_window
+    out = tmp_path / "R01.h5"
+    SessionWriter.create(out, "R01")
+    w.setup_panel.set_values(participant="R01", output=out)
+    assert not w.setup_panel.start_button.isEnabled()
+    assert w.setup_panel.resume_button.isVisible() or "unfinished" in \
+        w.setup_panel.message.text()
+    w.start_session()
+    assert w.controller.engine is None
+    bad = tmp_path / "junk.h5"
+    bad.write_text("not hdf5")
+    w.setup_panel.set_values(output=bad)
+    assert "not a readable session" in w.setup_panel.message.text()
+    assert not w.setup_panel.resume_button.isVisible()
