@@ -27,8 +27,8 @@ Layout of the TOML file (every key optional; unknown keys are refused)::
     baseline_s = 0.5               # zero-current recording that tares the force sensor
     Fmin_N = 0.5
     Fmax_N = 5.0
-    ceiling_ext_mA = 30.0
-    ceiling_flex_mA = 30.0
+    ceiling_ext_mA = 16.0              # the STG4002's full range; lower it per participant
+    ceiling_flex_mA = 16.0
     force_ceiling_N = 10.0         # a ramp step above this ends the ramp
     confirm = false                # wait for the operator to confirm / edit the result
 
@@ -107,8 +107,8 @@ class CalibrationConfig:
     baseline_s: float = 0.5
     Fmin_N: float = 0.5
     Fmax_N: float = 5.0
-    ceiling_ext_mA: float = 30.0
-    ceiling_flex_mA: float = 30.0
+    ceiling_ext_mA: float = 16.0
+    ceiling_flex_mA: float = 16.0
     force_ceiling_N: float = 10.0
     confirm: bool = False
     manual: ManualCurrents | None = None
