@@ -95,3 +95,29 @@ class FakeBench:
                 self.force_model = ForceModel(fs_Hz, seed=self.seed)
             I_ext, I_flex = self.envelopes_mA(t)
             return self.force_model.step(I_ext, I_flex)
+
+
+def sensor_wiring(bench: FakeBench, channels: dict, volts_per_unit: dict, offset_V=None,
+                  direction=(1.0, 0.0, 0.0), sync_channel=None, noise_V: float = 0.0,
+                  seed: int = 1) -> dict:
+    """A/D wiring of the fake sensor: ``{channel: fn(t, force_N) -> volts}``.
+
+    The sensor frame force is ``force_N * direction`` (moments 0); each wired axis puts out
+    ``value * volts_per_unit[axis] + offset_V[axis]``; the sync channel carries the fake
+    stimulator's sync output.
+    """
+    axes = ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+    offset_V = offset_V or {}
+    rng = np.random.default_rng(seed)
+    wiring = {}
+    for axis, ch in channels.items():
+        i = axes.index(axis)
+        comp = d[i] if i < 3 else 0.0
+
+        def fn(t, force, comp=comp, k=volts_per_unit[axis], o=offset_V.get(axis, 0.0)):
+            return force * comp * k + o + noise_V * rng.standard_normal(len(t))
+        wiring[ch] = fn
+    if sync_channel is not None:
+        wiring[sync_channel] = lambda t, force: bench.sync_V(t)
+    return wiring

@@ -1,0 +1,329 @@
+"""Contec AI-1608AY-USB through Contec's CAIO library (caio.dll / libcaio.so) via ctypes.
+
+Prototypes, constants and the call sequence follow Contec's API-AIO headers and samples
+(``caio.h`` "API-AIO(WDM) Definition File"; Contec's ``caio.py`` for Linux, whose ctypes
+``argtypes`` this module copies; Contec's C / VB samples: ``AioSetAiMemoryType(Id, 0)``
+FIFO, ``AioSetAiClockType(Id, 0)`` internal clock, ``AioSetAiSamplingClock(Id, usec)``,
+``AioSetAiStartTrigger(Id, 0)`` software / ``(Id, 1)`` external trigger rising edge,
+``AioSetAiStopTrigger(Id, 0)`` after ``AioSetAiStopTimes`` samples / ``(Id, 4)`` by
+command, then ``AioResetAiMemory``, ``AioStartAi``, a polling loop on ``AioGetAiStatus`` /
+``AioGetAiSamplingCount`` / ``AioGetAiSamplingDataEx``, ``AioStopAi``, ``AioExit``).
+
+Acquisition: channels 0 .. n-1 are scanned (the sensor's analog force / moment outputs
+and the stimulator's sync line, as the hardware config maps them), FIFO memory, internal
+clock of 500 us (2000 Hz); with ``triggered=True`` conversion starts on the rising edge of
+the stimulator's sync output wired to the external start-trigger input, so sample 0 is
+stimulation onset. Reads are chunked by what :func:`AioGetAiSamplingCount` reports.
+
+Status bits -> :class:`~drivers.interfaces.AcquisitionFlags`: ``AIS_OFERR`` (FIFO
+overflow, samples lost) and ``AIS_SCERR`` (sampling clock error: conversions missed)
+-> ``overrun``; ``AIS_AIERR`` (A/D conversion error) and ``AIS_DRVERR`` -> ``sensor_fault``;
+a sensor voltage at the edge of the range -> ``over_range``. A failed vendor call during a
+read becomes ``sensor_fault`` (never an exception into the engine's loop).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import sys
+import time
+from ctypes import POINTER, c_char_p, c_float, c_long, c_short
+
+import numpy as np
+
+from drivers.analog_force import AnalogCalibration, convert_block
+from drivers.errors import DeviceError, DeviceNotFound, VendorLibraryMissing
+from drivers.interfaces import AcquisitionFlags, ForceChunk
+
+log = logging.getLogger(__name__)
+
+# Status bits (caio.h, "Analog Input Status")
+AIS_BUSY = 0x00000001
+AIS_START_TRG = 0x00000002
+AIS_DATA_NUM = 0x00000010
+AIS_OFERR = 0x00010000
+AIS_SCERR = 0x00020000
+AIS_AIERR = 0x00040000
+AIS_DRVERR = 0x00080000
+
+RANGES_V = {"PM10": (0, 10.0), "PM5": (1, 5.0), "PM25": (2, 2.5), "PM125": (3, 1.25),
+            "PM1": (4, 1.0)}
+"""Bipolar input ranges (caio.h ``PM10`` = 0 ...): name -> (code, +/- volts)."""
+INPUT_METHODS = {"single_ended": 0, "differential": 1}
+MEMORY_FIFO = 0
+CLOCK_INTERNAL = 0
+START_SOFTWARE = 0
+START_EXTERNAL_RISING = 1
+STOP_AFTER_TIMES = 0
+STOP_BY_COMMAND = 4
+
+_PROTOTYPES = {
+    "AioInit": [c_char_p, POINTER(c_short)],
+    "AioExit": [c_short],
+    "AioResetDevice": [c_short],
+    "AioGetErrorString": [c_long, c_char_p],
+    "AioGetAiMaxChannels": [c_short, POINTER(c_short)],
+    "AioSetAiInputMethod": [c_short, c_short],
+    "AioSetAiChannels": [c_short, c_short],
+    "AioSetAiRangeAll": [c_short, c_short],
+    "AioSetAiMemoryType": [c_short, c_short],
+    "AioSetAiClockType": [c_short, c_short],
+    "AioSetAiSamplingClock": [c_short, c_float],
+    "AioGetAiSamplingClock": [c_short, POINTER(c_float)],
+    "AioSetAiStartTrigger": [c_short, c_short],
+    "AioSetAiStopTrigger": [c_short, c_short],
+    "AioSetAiStopTimes": [c_short, c_long],
+    "AioResetAiMemory": [c_short],
+    "AioStartAi": [c_short],
+    "AioStopAi": [c_short],
+    "AioGetAiStatus": [c_short, POINTER(c_long)],
+    "AioGetAiSamplingCount": [c_short, POINTER(c_long)],
+    "AioGetAiSamplingDataEx": [c_short, POINTER(c_long), POINTER(c_float)],
+}
+
+
+def load_caio(path: str = "") -> object:
+    """Load caio.dll (Windows) or libcaio.so (Linux) and declare the prototypes used.
+
+    Raises
+    ------
+    VendorLibraryMissing
+        If the library cannot be loaded (one line saying how to install it).
+    """
+    name = path or ("caio.dll" if sys.platform.startswith("win") else "libcaio.so")
+    try:
+        lib = ctypes.WinDLL(name) if sys.platform.startswith("win") else ctypes.CDLL(name)
+    except OSError:
+        raise VendorLibraryMissing(
+            f"the Contec CAIO library ({name})", "the Contec AI-1608AY-USB",
+            "install Contec's API-AIO(WDM) (Windows) or API-AIO(LNX) (Linux) driver, or "
+            "set acquisition.caio.library to its path") from None
+    return declare(lib)
+
+
+def declare(lib) -> object:
+    """Set ``argtypes`` / ``restype`` of every function used (as Contec's caio.py does)."""
+    for func, argtypes in _PROTOTYPES.items():
+        f = getattr(lib, func)
+        f.argtypes = argtypes
+        f.restype = c_long
+    return lib
+
+
+class CaioAcquisition:
+    """:class:`~drivers.interfaces.ForceAcquisition` over a Contec AI-1608AY-USB.
+
+    Parameters
+    ----------
+    calibration : AnalogCalibration
+        Channel map and volts-to-newtons calibration.
+    device_name : str
+        The CAIO device name set in Contec's device manager (e.g. ``AIO000``).
+    ai_range : str
+        Input range name (``PM10`` = +/-10 V, ...).
+    input_method : str
+        ``single_ended``, ``differential`` or empty (leave the device's setting).
+    library : str
+        Path of caio.dll / libcaio.so; empty for the system's.
+    lib : object, optional
+        An already loaded library (tests pass the fake here).
+    max_chunk : int
+        Most samples (per channel) fetched per read.
+    poll_s : float
+        Status polling interval while waiting for samples.
+    """
+
+    def __init__(self, calibration: AnalogCalibration, *, device_name: str = "AIO000",
+                 ai_range: str = "PM10", input_method: str = "", library: str = "",
+                 lib=None, max_chunk: int = 4000, poll_s: float = 0.005):
+        if ai_range not in RANGES_V:
+            raise ValueError(f"acquisition.caio.range {ai_range!r} is not one of "
+                             f"{sorted(RANGES_V)}")
+        if input_method and input_method not in INPUT_METHODS:
+            raise ValueError(f"acquisition.caio.input_method {input_method!r} is not one of "
+                             f"{sorted(INPUT_METHODS)} (or empty)")
+        self.cal = calibration
+        self.device_name = device_name
+        self.range_code, self.range_V = RANGES_V[ai_range]
+        self.input_method = input_method
+        self.library = library
+        self._lib = lib
+        self.max_chunk = max_chunk
+        self.poll_s = poll_s
+        self._id = c_short(-1)
+        self._open = False
+        self._fs_Hz = 0.0
+        self._running = False
+        self._index = 0
+        self._remaining: int | None = None
+        self._buf = None
+        self._fault = ""
+        self.max_channels = 0
+
+    # -- vendor calls -----------------------------------------------------------------
+    @property
+    def lib(self):
+        if self._lib is None:
+            self._lib = load_caio(self.library)
+        return self._lib
+
+    def _error_text(self, code: int) -> str:
+        buf = ctypes.create_string_buffer(256)
+        try:
+            self.lib.AioGetErrorString(c_long(code), buf)
+            return buf.value.decode("ascii", errors="replace") or "no description"
+        except Exception:
+            return "no description"
+
+    def _call(self, func: str, *args) -> None:
+        ret = getattr(self.lib, func)(*args)
+        if ret != 0:
+            raise DeviceError(f"{func} on Contec {self.device_name!r} failed with error "
+                              f"{ret}: {self._error_text(ret)}")
+
+    # -- lifecycle ------------------------------------------------------------------
+    def open(self) -> None:
+        if self._open:
+            return
+        ret = self.lib.AioInit(self.device_name.encode("ascii"), ctypes.byref(self._id))
+        if ret != 0:
+            raise DeviceNotFound(f"Contec device {self.device_name!r} not found (AioInit "
+                                 f"error {ret}: {self._error_text(ret)}); check the device "
+                                 "name in Contec's device manager and "
+                                 "acquisition.caio.device_name")
+        self._open = True
+        try:
+            self._call("AioResetDevice", self._id)
+            maxch = c_short(0)
+            self._call("AioGetAiMaxChannels", self._id, ctypes.byref(maxch))
+            self.max_channels = maxch.value
+            if self.input_method:
+                self._call("AioSetAiInputMethod", self._id,
+                           c_short(INPUT_METHODS[self.input_method]))
+            if self.cal.n_channels > self.max_channels:
+                raise DeviceError(f"the channel map needs {self.cal.n_channels} channels, "
+                                  f"{self.device_name!r} has {self.max_channels}")
+            self._call("AioSetAiChannels", self._id, c_short(self.cal.n_channels))
+            self._call("AioSetAiRangeAll", self._id, c_short(self.range_code))
+            self._call("AioSetAiMemoryType", self._id, c_short(MEMORY_FIFO))
+            self._call("AioSetAiClockType", self._id, c_short(CLOCK_INTERNAL))
+        except Exception:
+            self.close()
+            raise
+
+    def configure(self, fs_Hz: float) -> float:
+        """Set the sampling clock to ``1e6 / fs_Hz`` us; return the rate the device uses."""
+        if not fs_Hz > 0:
+            raise ValueError(f"fs_Hz must be > 0, got {fs_Hz!r}")
+        self.open()
+        self._call("AioSetAiSamplingClock", self._id, c_float(1e6 / fs_Hz))
+        actual = c_float(0.0)
+        self._call("AioGetAiSamplingClock", self._id, ctypes.byref(actual))
+        self._fs_Hz = 1e6 / actual.value if actual.value > 0 else fs_Hz
+        return self._fs_Hz
+
+    def start(self, n_samples: int | None = None, *, triggered: bool = True) -> None:
+        if not self._fs_Hz:
+            raise DeviceError("configure(fs_Hz) must be called before start()")
+        self._call("AioSetAiStartTrigger", self._id,
+                   c_short(START_EXTERNAL_RISING if triggered else START_SOFTWARE))
+        if n_samples is None:
+            self._call("AioSetAiStopTrigger", self._id, c_short(STOP_BY_COMMAND))
+        else:
+            self._call("AioSetAiStopTrigger", self._id, c_short(STOP_AFTER_TIMES))
+            self._call("AioSetAiStopTimes", self._id, c_long(int(n_samples)))
+        self._call("AioResetAiMemory", self._id)
+        self._index = 0
+        self._remaining = n_samples
+        self._fault = ""
+        self._buf = (c_float * (self.max_chunk * self.cal.n_channels))()
+        self._call("AioStartAi", self._id)
+        self._running = True
+
+    def read(self, timeout_s: float) -> ForceChunk | None:
+        if not self._running:
+            return None
+        deadline = time.monotonic() + timeout_s
+        while True:
+            status, count = c_long(0), c_long(0)
+            try:
+                self._call("AioGetAiStatus", self._id, ctypes.byref(status))
+                self._call("AioGetAiSamplingCount", self._id, ctypes.byref(count))
+                flags = self._flags(status.value)
+                if count.value > 0:
+                    n = c_long(min(count.value, self.max_chunk))
+                    self._call("AioGetAiSamplingDataEx", self._id, ctypes.byref(n), self._buf)
+                    return self._chunk(n.value, flags)
+            except DeviceError as exc:
+                self._fault = str(exc)
+                log.error("%s", exc)
+                return self._empty(AcquisitionFlags(sensor_fault=True, detail=self._fault))
+            if flags.any:
+                return self._empty(flags)
+            if not status.value & AIS_BUSY:
+                return None  # finished (or stopped) and drained
+            now = time.monotonic()
+            if now >= deadline:
+                return None
+            time.sleep(min(self.poll_s, deadline - now))
+
+    def _flags(self, status: int) -> AcquisitionFlags:
+        details = []
+        if status & AIS_OFERR:
+            details.append("FIFO overflow (AIS_OFERR): samples lost")
+        if status & AIS_SCERR:
+            details.append("sampling clock error (AIS_SCERR): conversions missed")
+        if status & AIS_AIERR:
+            details.append("A/D conversion error (AIS_AIERR)")
+        if status & AIS_DRVERR:
+            details.append("driver error (AIS_DRVERR)")
+        return AcquisitionFlags(overrun=bool(status & (AIS_OFERR | AIS_SCERR)),
+                                sensor_fault=bool(status & (AIS_AIERR | AIS_DRVERR)),
+                                detail="; ".join(details))
+
+    def _chunk(self, n: int, flags: AcquisitionFlags) -> ForceChunk:
+        volts = np.ctypeslib.as_array(self._buf)[:n * self.cal.n_channels].astype(np.float64)
+        block = convert_block(volts.reshape(n, self.cal.n_channels), self.cal, self.range_V)
+        if block.saturated:
+            flags = AcquisitionFlags(overrun=flags.overrun, over_range=True,
+                                     sensor_fault=flags.sensor_fault,
+                                     detail="; ".join(filter(None, [flags.detail,
+                                         f"sensor output at the edge of +/-{self.range_V:g} V"])))
+        chunk = ForceChunk(start_index=self._index, force_N=block.force_N,
+                           wrench=block.wrench, sync=block.sync_V, flags=flags)
+        self._index += n
+        if self._remaining is not None:
+            self._remaining = max(0, self._remaining - n)
+        return chunk
+
+    def _empty(self, flags: AcquisitionFlags) -> ForceChunk:
+        return ForceChunk(start_index=self._index, force_N=np.zeros(0),
+                          wrench=np.zeros((0, 6)) if self.cal.full_wrench else None,
+                          sync=np.zeros(0) if self.cal.sync_channel is not None else None,
+                          flags=flags)
+
+    def stop(self) -> None:
+        if self._running and self._open:
+            self._running = False
+            try:
+                self._call("AioStopAi", self._id)
+            except DeviceError as exc:
+                log.warning("%s", exc)
+
+    def close(self) -> None:
+        try:
+            self.stop()
+        finally:
+            if self._open:
+                self._open = False
+                try:
+                    self._call("AioExit", self._id)
+                except DeviceError as exc:
+                    log.warning("%s", exc)
+
+    def describe(self) -> dict:
+        return {"device": self.device_name, "max_channels": self.max_channels,
+                "scanned_channels": self.cal.n_channels, "range_V": self.range_V,
+                "fs_Hz": self._fs_Hz}
+

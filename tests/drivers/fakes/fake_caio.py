@@ -1,0 +1,313 @@
+"""A fake of Contec's CAIO library (caio.dll / libcaio.so) with ctypes calling conventions.
+
+``FakeCaioLibrary`` has the vendor's function names; each is a callable with settable
+``argtypes`` / ``restype`` like a ctypes foreign function, and it refuses to run until
+``argtypes`` is declared. Arguments are converted with ``argtype.from_param`` exactly as
+ctypes does (so passing a Python int where ``POINTER(c_long)`` is declared fails the same
+way), then output parameters (``byref`` objects, arrays) are written in place. Return
+value: 0 on success, a CAIO-style error code otherwise (``AioGetErrorString`` describes
+it).
+
+The fake device samples, on the :class:`bench.FakeBench` clock, the A/D channels wired by
+``wiring`` (``{channel: callable(t_array, force_N_array) -> volts}``) into a FIFO of
+``fifo_samples`` scans; an external start trigger waits for the fake stimulator's sync
+edge; a FIFO that overflows sets ``AIS_OFERR`` and loses samples; ``inject_status`` adds
+status bits (clock error, conversion error) from the next poll on.
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+
+AIS_BUSY, AIS_START_TRG, AIS_DATA_NUM = 0x1, 0x2, 0x10
+AIS_OFERR, AIS_SCERR, AIS_AIERR, AIS_DRVERR = 0x10000, 0x20000, 0x40000, 0x80000
+
+ERRORS = {
+    10001: "Invalid device name",
+    10200: "Invalid ID",
+    11140: "Invalid number of channels",
+    11180: "Invalid range",
+    11200: "Invalid sampling clock",
+    20003: "Device is running",
+}
+
+
+def _target(arg):
+    """The ctypes object an output argument refers to (byref / pointer / array)."""
+    if isinstance(arg, ctypes.Array):
+        return arg
+    obj = getattr(arg, "_obj", None)  # byref() -> CArgObject
+    if obj is not None:
+        return obj
+    if isinstance(arg, ctypes._Pointer):
+        return arg.contents
+    raise TypeError(f"not an output argument: {arg!r}")
+
+
+class _Func:
+    def __init__(self, name, impl, log):
+        self.__name__ = name
+        self._impl = impl
+        self._log = log
+        self.argtypes = None
+        self.restype = ctypes.c_int
+
+    def __call__(self, *args):
+        if self.argtypes is None:
+            raise RuntimeError(f"{self.__name__}: argtypes not declared (the driver must "
+                               "declare prototypes as Contec's caio.py does)")
+        if len(args) != len(self.argtypes):
+            raise TypeError(f"{self.__name__}: this function takes {len(self.argtypes)} "
+                            f"arguments ({len(args)} given)")
+        for i, (a, t) in enumerate(zip(args, self.argtypes)):
+            try:
+                t.from_param(a)
+            except TypeError as exc:
+                raise ctypes.ArgumentError(f"argument {i + 1}: {exc}") from None
+        self._log.append((self.__name__, *[_plain(a) for a in args]))
+        return self._impl(*args)
+
+
+def _plain(a):
+    if isinstance(a, (int, float, bytes)):
+        return a
+    if isinstance(a, (ctypes.c_short, ctypes.c_long, ctypes.c_float)):
+        return a.value
+    return type(a).__name__
+
+
+def _val(a):
+    return a.value if hasattr(a, "value") else a
+
+
+class FakeCaioLibrary:
+    """Fake CAIO with one AI-1608AY-USB named ``device_name``."""
+
+    def __init__(self, bench, *, device_name="AIO000", max_channels=16, fifo_samples=4096,
+                 wiring=None, range_V=10.0, resolution_bits=16):
+        self.bench = bench
+        self.device_name = device_name
+        self.max_channels = max_channels
+        self.fifo_samples = fifo_samples
+        self.wiring = wiring or {}
+        self.calls: list[tuple] = []
+        self.plugged = True
+        self.inject_status = 0
+        self.range_V = range_V
+        self.lsb_V = 2 * range_V / 2 ** resolution_bits
+        self._ids: set[int] = set()
+        self.channels = 1
+        self.range_code = 0
+        self.memory_type = self.clock_type = None
+        self.clock_us = 1000.0
+        self.start_trigger = 0
+        self.stop_trigger = 4
+        self.stop_times = 0
+        self.running = False
+        self._fifo = np.zeros((0, 1))
+        self._t_first: float | None = None
+        self._t_start_call = 0.0
+        self._generated = 0
+        self._status_err = 0
+        for name in ("AioInit", "AioExit", "AioResetDevice", "AioGetErrorString",
+                     "AioGetAiMaxChannels", "AioSetAiInputMethod", "AioSetAiChannels",
+                     "AioSetAiRangeAll", "AioSetAiMemoryType", "AioSetAiClockType",
+                     "AioSetAiSamplingClock", "AioGetAiSamplingClock", "AioSetAiStartTrigger",
+                     "AioSetAiStopTrigger", "AioSetAiStopTimes", "AioResetAiMemory",
+                     "AioStartAi", "AioStopAi", "AioGetAiStatus", "AioGetAiSamplingCount",
+                     "AioGetAiSamplingDataEx"):
+            setattr(self, name, _Func(name, getattr(self, "_" + name), self.calls))
+
+    # -- helpers --------------------------------------------------------------------
+    def _check_id(self, id_):
+        if not self.plugged:
+            return 10200
+        return 0 if _val(id_) in self._ids else 10200
+
+    def _advance(self):
+        """Convert the samples that are due on the bench clock into the FIFO."""
+        if not self.running:
+            return
+        now = self.bench.now()
+        if self._t_first is None:
+            if self.start_trigger == 0:
+                self._t_first = self._t_start_call
+            else:
+                t_trig = self.bench.trigger_time()
+                if t_trig is None or t_trig < self._t_start_call:
+                    return
+                self._t_first = t_trig
+        fs = 1e6 / self.clock_us
+        due = int(np.floor((now - self._t_first) * fs)) + 1
+        if self.stop_trigger == 0:
+            due = min(due, self.stop_times)
+        new = due - self._generated
+        if new <= 0:
+            return
+        t = self._t_first + (self._generated + np.arange(new)) / fs
+        force = self.bench.force_N(t, fs)
+        scan = np.zeros((new, self.channels))
+        for ch, fn in self.wiring.items():
+            if ch < self.channels:
+                scan[:, ch] = fn(t, force)
+        scan = np.clip(np.round(scan / self.lsb_V) * self.lsb_V, -self.range_V,
+                       self.range_V - self.lsb_V)
+        self._generated = due
+        room = self.fifo_samples - len(self._fifo)
+        if new > room:
+            self._status_err |= AIS_OFERR
+            scan = scan[:max(room, 0)]
+        self._fifo = np.vstack([self._fifo, scan]) if len(self._fifo) else scan
+        if self.stop_trigger == 0 and self._generated >= self.stop_times:
+            self.running = False
+
+    # -- common ---------------------------------------------------------------------
+    def _AioInit(self, name, id_ptr):
+        if not self.plugged or name.decode() != self.device_name:
+            return 10001
+        new_id = len(self._ids)
+        self._ids.add(new_id)
+        _target(id_ptr).value = new_id
+        return 0
+
+    def _AioExit(self, id_):
+        err = self._check_id(id_)
+        self._ids.discard(_val(id_))
+        return err
+
+    def _AioResetDevice(self, id_):
+        err = self._check_id(id_)
+        if not err:
+            self.running = False
+            self._fifo = np.zeros((0, self.channels))
+            self._status_err = 0
+        return err
+
+    def _AioGetErrorString(self, code, buf):
+        text = ERRORS.get(_val(code), "Unknown error").encode()
+        ctypes.memmove(buf, text + b"\0", len(text) + 1)
+        return 0
+
+    # -- analog input -------------------------------------------------------------------
+    def _AioGetAiMaxChannels(self, id_, ptr):
+        err = self._check_id(id_)
+        if not err:
+            _target(ptr).value = self.max_channels
+        return err
+
+    def _AioSetAiInputMethod(self, id_, method):
+        return self._check_id(id_) or (0 if _val(method) in (0, 1) else 11140)
+
+    def _AioSetAiChannels(self, id_, n):
+        err = self._check_id(id_)
+        if err:
+            return err
+        if not 1 <= _val(n) <= self.max_channels:
+            return 11140
+        self.channels = _val(n)
+        self._fifo = np.zeros((0, self.channels))
+        return 0
+
+    def _AioSetAiRangeAll(self, id_, code):
+        err = self._check_id(id_)
+        if err:
+            return err
+        if _val(code) != 0:
+            return 11180  # the fake models the +/-10 V range only
+        self.range_code = 0
+        return 0
+
+    def _AioSetAiMemoryType(self, id_, kind):
+        self.memory_type = _val(kind)
+        return self._check_id(id_)
+
+    def _AioSetAiClockType(self, id_, kind):
+        self.clock_type = _val(kind)
+        return self._check_id(id_)
+
+    def _AioSetAiSamplingClock(self, id_, usec):
+        err = self._check_id(id_)
+        if err:
+            return err
+        if not 10.0 <= _val(usec) <= 1e6:
+            return 11200
+        self.clock_us = round(_val(usec) * 4) / 4  # 0.25 us clock granularity
+        return 0
+
+    def _AioGetAiSamplingClock(self, id_, ptr):
+        err = self._check_id(id_)
+        if not err:
+            _target(ptr).value = self.clock_us
+        return err
+
+    def _AioSetAiStartTrigger(self, id_, trig):
+        self.start_trigger = _val(trig)
+        return self._check_id(id_)
+
+    def _AioSetAiStopTrigger(self, id_, trig):
+        self.stop_trigger = _val(trig)
+        return self._check_id(id_)
+
+    def _AioSetAiStopTimes(self, id_, times):
+        self.stop_times = _val(times)
+        return self._check_id(id_)
+
+    def _AioResetAiMemory(self, id_):
+        self._fifo = np.zeros((0, self.channels))
+        self._status_err = 0
+        return self._check_id(id_)
+
+    def _AioStartAi(self, id_):
+        err = self._check_id(id_)
+        if err:
+            return err
+        if self.running:
+            return 20003
+        self.running = True
+        self._t_start_call = self.bench.now()
+        self._t_first = None
+        self._generated = 0
+        return 0
+
+    def _AioStopAi(self, id_):
+        self._advance()
+        self.running = False
+        return self._check_id(id_)
+
+    def _AioGetAiStatus(self, id_, ptr):
+        err = self._check_id(id_)
+        if err:
+            return err
+        self._advance()
+        status = self._status_err | self.inject_status
+        if self.running:
+            status |= AIS_BUSY
+            if self._t_first is None:
+                status |= AIS_START_TRG
+        _target(ptr).value = status
+        return 0
+
+    def _AioGetAiSamplingCount(self, id_, ptr):
+        err = self._check_id(id_)
+        if err:
+            return err
+        self._advance()
+        _target(ptr).value = len(self._fifo)
+        return 0
+
+    def _AioGetAiSamplingDataEx(self, id_, n_ptr, data):
+        err = self._check_id(id_)
+        if err:
+            return err
+        n_obj = _target(n_ptr)
+        n = min(n_obj.value, len(self._fifo))
+        out = _target(data)
+        if n * self.channels > len(out):
+            return 11140
+        flat = self._fifo[:n].ravel()  # interleaved: ch0, ch1, ... of scan 0, then scan 1
+        out[:len(flat)] = flat.astype(np.float32).tolist()
+        self._fifo = self._fifo[n:]
+        n_obj.value = n
+        return 0
