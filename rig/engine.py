@@ -165,7 +165,7 @@ class Engine:
         # operator flags (engine thread only)
         self._pause_req = self._resume_req = self._abort_req = False
         self._skip_req = self._rearm_req = False
-        self._confirmed: Calibration | None = None
+        self._confirmations: list[Calibration] = []
         self._rerun_first: list[int] = []
         self.calibration: Calibration | None = None
         if resume:
@@ -280,7 +280,7 @@ class Engine:
             elif cmd is _Cmd.REARM:
                 self._rearm_req = True
             elif cmd is _Cmd.CONFIRM:
-                self._confirmed = arg
+                self._confirmations.append(arg)
             elif cmd is _Cmd.NOTE:
                 self._event("note", arg)
             elif cmd is _Cmd.RERUN:
@@ -595,10 +595,10 @@ class Engine:
         if cal is not None:
             self._notify("on_calibration_result", cal)
         if c.confirm:
-            self._confirmed = None
+            self._confirmations.clear()
             while True:
-                self._wait_operator(lambda: self._confirmed is not None, "confirm calibration")
-                candidate, self._confirmed = self._confirmed, None
+                self._wait_operator(lambda: bool(self._confirmations), "confirm calibration")
+                candidate = self._confirmations.pop(0)
                 try:
                     check_calibration(candidate, c)
                 except CalibrationError as exc:

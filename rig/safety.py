@@ -403,13 +403,13 @@ class Interlock:
         self._watcher.start()
 
     def _watch(self, period_s: float) -> None:
-        was_pressed = False
+        # level-triggered: a pressed (or unreadable) switch keeps the interlock latched
         while not self._watch_stop.is_set():
             pressed = self._switch_pressed()
             self.estop_rule.switch_pressed = pressed
-            if pressed and not was_pressed:
-                self.trip(self.estop_rule.name, "hardware E-stop switch pressed")
-            was_pressed = pressed
+            if pressed and not self._latched.is_set():
+                self.trip(self.estop_rule.name, "hardware E-stop switch pressed (or "
+                                                "unreadable)")
             time.sleep(period_s)
 
     def stop_watcher(self) -> None:

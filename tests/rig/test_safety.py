@@ -1,0 +1,156 @@
+"""The interlock: the waveform gate, the rules, trip -> output zero first -> latch."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from drivers.interfaces import (AcquisitionFlags, CurrentLimitError, ForceChunk,
+                                StimulatorState, StimulatorStatus)
+from protocols.config import InterlockConfig
+from rig.safety import (AcquisitionFlagsRule, ForceLimitRule, Interlock, InterlockTripped,
+                        StallRule, check_waveform)
+
+
+class Stim:
+    def __init__(self):
+        self.log = []
+        self.state = StimulatorState.IDLE
+        self.err = ""
+
+    def start(self):
+        self.log.append("start")
+
+    def stop_now(self):
+        self.log.append("stop")
+
+    def status(self):
+        return StimulatorStatus(StimulatorState.ERROR if self.err else self.state, False,
+                                self.err)
+
+
+def test_check_waveform_uses_the_lower_ceiling():
+    w = check_waveform([1.0, 9.0], [2.0, 3.0], fs_Hz=2000, carrier_Hz=1000,
+                       ceiling_ext_mA=10, ceiling_flex_mA=20, device_max_mA=16)
+    assert (w.ceiling_ext_mA, w.ceiling_flex_mA) == (10, 16)
+    with pytest.raises(CurrentLimitError, match="exceeds the ceiling 16"):
+        check_waveform([1.0], [16.5], fs_Hz=2000, carrier_Hz=1000, ceiling_ext_mA=10,
+                       ceiling_flex_mA=20, device_max_mA=16)
+    with pytest.raises(CurrentLimitError):
+        check_waveform([np.nan], [1.0], fs_Hz=2000, carrier_Hz=1000, ceiling_ext_mA=10,
+                       ceiling_flex_mA=20, device_max_mA=16)
+    with pytest.raises(CurrentLimitError):
+        check_waveform([1.0], [1.0], fs_Hz=2000, carrier_Hz=1000, ceiling_ext_mA=-1,
+                       ceiling_flex_mA=20, device_max_mA=16)
+
+
+def test_rules_validate_thresholds_and_say_why():
+    with pytest.raises(ValueError):
+        ForceLimitRule(0)
+    with pytest.raises(ValueError):
+        StallRule(float("nan"))
+    r = ForceLimitRule(10)
+    assert r.check(ForceChunk(100, np.array([1.0, -12.0]))).startswith("force -12.00 N at "
+                                                                      "sample 101")
+    assert "not finite" in ForceLimitRule(10).check(ForceChunk(0, np.array([np.nan])))
+    s = StallRule(0.1)
+    s.start(1.0)
+    assert s.check(1.05) is None
+    assert "no force samples for 150 ms" in s.check(1.15)
+    f = AcquisitionFlagsRule()
+    assert "over-range" in f.check(ForceChunk(0, np.zeros(2), flags=AcquisitionFlags(
+        over_range=True)))
+    assert "jumped" in AcquisitionFlagsRule().check(ForceChunk(50, np.zeros(2)),
+                                                    expected_index=40)
+    assert AcquisitionFlagsRule(over_range=False).check(
+        ForceChunk(0, np.zeros(2), flags=AcquisitionFlags(over_range=True))) is None
+
+
+def test_trip_stops_first_latches_and_reports_once():
+    stim = Stim()
+    trips = []
+
+    def on_trip(t):
+        trips.append(t)
+        assert stim.log and stim.log[0] == "stop"  # output zero before anyone hears of it
+
+    il = Interlock(InterlockConfig(), stim, on_trip=on_trip)
+    il.start_output()
+    t = il.trip("force_limit", "too much")
+    assert stim.log[:2] == ["start", "stop"] and il.latched
+    il.estop("second")
+    assert len(trips) == 1 and il.trip_info.rule == "force_limit"
+    with pytest.raises(InterlockTripped, match="force_limit"):
+        il.start_output()
+    assert stim.log.count("start") == 1
+    st = il.status()
+    assert st["latch"][0] is False and st["force_limit"] == (False, "too much")
+    il.rearm()
+    assert not il.latched and il.status()["latch"] == (True, "clear")
+    il.start_output()
+    assert t.rule == "force_limit"
+
+
+def test_stimulator_rule_and_disconnect():
+    stim = Stim()
+    il = Interlock(InterlockConfig(), stim)
+    assert il.check_stimulator() is None
+    stim.err = "overcurrent"
+    assert "overcurrent" in il.check_stimulator().detail
+
+    class Broken(Stim):
+        def status(self):
+            raise OSError("USB gone")
+    il2 = Interlock(InterlockConfig(), Broken())
+    assert "disconnected" in il2.check_stimulator().detail
+
+
+class Switch:
+    def __init__(self):
+        self.pressed = False
+        self.broken = False
+
+    def is_pressed(self):
+        if self.broken:
+            raise OSError("cable")
+        return self.pressed
+
+    def close(self):
+        pass
+
+
+def _wait(cond, timeout=2.0):
+    t0 = time.monotonic()
+    while not cond():
+        if time.monotonic() - t0 > timeout:
+            return False
+        time.sleep(0.001)
+    return True
+
+
+def test_hardware_switch_watcher_trips_and_blocks_rearm():
+    stim, sw = Stim(), Switch()
+    il = Interlock(InterlockConfig(), stim, estop_input=sw)
+    il.start_watcher()
+    try:
+        sw.pressed = True
+        assert _wait(lambda: il.latched)
+        assert il.trip_info.rule == "estop" and "switch" in il.trip_info.detail
+        with pytest.raises(InterlockTripped, match="still pressed"):
+            il.rearm()
+        sw.pressed = False
+        il.rearm()
+        sw.broken = True  # fail-safe: unreadable switch reads as pressed
+        assert _wait(lambda: il.latched)
+    finally:
+        il.stop_watcher()
+
+
+def test_estop_from_another_thread():
+    stim = Stim()
+    il = Interlock(InterlockConfig(), stim)
+    th = threading.Thread(target=il.estop, args=("GUI button",))
+    th.start()
+    th.join()
+    assert il.latched and stim.log[0] == "stop" and il.trip_info.detail == "GUI button"
