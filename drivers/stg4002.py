@@ -161,6 +161,8 @@ class Stg4002Stimulator:
         self._t_start: float | None = None
         self._last_poll: tuple[int, bool] | None = None
         self._error = ""
+        self._stop_error = ""
+        """A failed SendStop: the output may still be on; cleared only by connect()."""
         self.last_loaded: dict[int, RenderedChannel] = {}
 
     # -- connection -------------------------------------------------------------------
@@ -194,6 +196,7 @@ class Stg4002Stimulator:
                                  "stimulator.serial in the hardware config to choose one")
         else:
             entry = entries[0]
+        self._error = self._stop_error = ""
         dev = api.CStg200xDownloadNet()
         dev.Stg200xPollStatusEvent += self._on_poll
         status = dev.Connect(entry)
@@ -314,6 +317,7 @@ class Stg4002Stimulator:
                 self._error = f"download failed: {exc}"
                 raise DeviceError(f"STG download failed: {exc}") from exc
         self.last_loaded = rendered
+        self._error = ""  # a fresh, complete download clears an earlier fault
         self._duration_s = n_ticks / caps.output_rate_Hz
         self._fs_Hz = waveform.fs_Hz
         self._t_start = None
@@ -363,7 +367,7 @@ class Stg4002Stimulator:
         try:
             dev.SendStop(self._u32(1))
         except Exception as exc:  # never raise from the safety path
-            self._error = f"SendStop failed: {exc}"
+            self._stop_error = f"SendStop failed: {exc}"
             log.error("STG SendStop failed: %s", exc)
         finally:
             if got:
@@ -393,8 +397,9 @@ class Stg4002Stimulator:
             else:
                 index = int(elapsed * self._fs_Hz)
         return StimulatorStatus(state=state,
-                                output_active=state is StimulatorState.RUNNING,
-                                error=self._error, sample_index=index)
+                                output_active=state is StimulatorState.RUNNING
+                                or bool(self._stop_error),
+                                error=self._stop_error or self._error, sample_index=index)
 
     def disconnect(self) -> None:
         dev, self._dev = self._dev, None

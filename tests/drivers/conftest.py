@@ -44,3 +44,23 @@ def fake_mcs(monkeypatch):
     setup.bench = bench
     setup()
     return setup
+
+
+@pytest.fixture
+def fake_nidaqmx(monkeypatch):
+    """Fake nidaqmx in ``sys.modules``; call with (bench, wiring, di_lines)."""
+    import sys
+
+    mod = load_fake("fake_nidaqmx")
+
+    def setup(bench=None, **kw):
+        mods: dict = {}
+        mod.install(bench=bench, modules=mods, **kw)
+        for name, m in mods.items():
+            monkeypatch.setitem(sys.modules, name, m)
+        return mod.state()
+
+    setup.module = mod
+    yield setup
+    for task in mod.state().tasks:
+        task.close()

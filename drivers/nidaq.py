@@ -1,0 +1,235 @@
+"""NI DAQ (any DAQmx device with analog inputs) through nidaqmx, as the alternative A/D.
+
+Uses the documented nidaqmx-python API: ``nidaqmx.Task``,
+``task.ai_channels.add_ai_voltage_chan(physical_channel, terminal_config=..., min_val,
+max_val)``, ``task.timing.cfg_samp_clk_timing(rate, sample_mode=AcquisitionType.CONTINUOUS,
+samps_per_chan=buffer)``, ``task.timing.samp_clk_rate`` (the rate really used),
+``task.triggers.start_trigger.cfg_dig_edge_start_trig(source, trigger_edge=Edge.RISING)`` /
+``disable_start_trig()``, ``task.register_every_n_samples_acquired_into_buffer_event(n,
+callback)`` with ``callback(task_handle, every_n_samples_event_type, number_of_samples,
+callback_data) -> 0``, and
+``nidaqmx.stream_readers.AnalogMultiChannelReader(task.in_stream).read_many_sample(data,
+number_of_samples_per_channel=n, timeout=...)`` into a (channels, n) float64 array.
+
+Acquisition: continuous, hardware-timed at ``fs_Hz`` (2000 Hz), started by the rising edge
+of the stimulator's sync output on a PFI line (``start_trigger``), so sample 0 is
+stimulation onset; the sync is also recorded on an analog channel. The driver's callback
+(NI's thread) reads every ``fs_Hz / reads_per_s`` samples (about 10 reads a second) into a
+queue; :meth:`NidaqAcquisition.read` takes chunks from it. A read error from DAQmx (buffer
+overwritten -200279, onboard overflow -200361, ...) becomes ``overrun`` with the DAQmx
+message; any other failure in the callback becomes ``sensor_fault``.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+from types import SimpleNamespace
+
+import numpy as np
+
+from drivers.analog_force import AnalogCalibration, convert_block
+from drivers.errors import DeviceError, DeviceNotFound, VendorLibraryMissing
+from drivers.interfaces import AcquisitionFlags, ForceChunk
+
+log = logging.getLogger(__name__)
+
+OVERRUN_CODES = {-200279, -200361, -200010, -200141, -200222}
+"""DAQmx errors that mean samples were lost (buffer overwritten / overflow)."""
+TERMINAL_CONFIGS = ("DEFAULT", "RSE", "NRSE", "DIFF", "PSEUDO_DIFF")
+
+
+def load_nidaqmx() -> SimpleNamespace:
+    """Import nidaqmx lazily; one clear line if it is missing."""
+    try:
+        import nidaqmx  # noqa: PLC0415
+        from nidaqmx import constants, errors, stream_readers  # noqa: PLC0415
+    except ImportError:
+        raise VendorLibraryMissing(
+            "the Python package nidaqmx", "the NI DAQ acquisition",
+            "install it with: pip install 'nmsid[nidaq]' and install NI-DAQmx "
+            "(python -m nidaqmx installdriver)") from None
+    return SimpleNamespace(nidaqmx=nidaqmx, constants=constants, errors=errors,
+                           stream_readers=stream_readers)
+
+
+class NidaqAcquisition:
+    """:class:`~drivers.interfaces.ForceAcquisition` over an NI DAQmx device.
+
+    Parameters
+    ----------
+    calibration : AnalogCalibration
+        A/D channel index k is ``<device>/ai<k>``.
+    device : str
+        DAQmx device name (``Dev1``).
+    start_trigger : str
+        Terminal carrying the stimulator's sync (``/Dev1/PFI0``).
+    terminal_config : str
+        One of ``DEFAULT``, ``RSE``, ``NRSE``, ``DIFF``, ``PSEUDO_DIFF``.
+    range_V : float
+        Symmetric input range (``min_val = -range_V``, ``max_val = range_V``).
+    reads_per_s : float
+        Callback rate (every ``fs_Hz / reads_per_s`` samples).
+    api : namespace, optional
+        The loaded nidaqmx names (tests pass the fake).
+    """
+
+    def __init__(self, calibration: AnalogCalibration, *, device: str = "Dev1",
+                 start_trigger: str = "/Dev1/PFI0", terminal_config: str = "DIFF",
+                 range_V: float = 10.0, reads_per_s: float = 10.0, buffer_s: float = 5.0,
+                 api=None):
+        if terminal_config not in TERMINAL_CONFIGS:
+            raise ValueError(f"acquisition.nidaq.terminal_config {terminal_config!r} is not "
+                             f"one of {TERMINAL_CONFIGS}")
+        if not range_V > 0:
+            raise ValueError(f"acquisition.nidaq.range_V must be > 0, got {range_V!r}")
+        self.cal = calibration
+        self.device = device
+        self.start_trigger = start_trigger
+        self.terminal_config = terminal_config
+        self.range_V = float(range_V)
+        self.reads_per_s = reads_per_s
+        self.buffer_s = buffer_s
+        self._api = api
+        self._task = None
+        self._reader = None
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._fs_Hz = 0.0
+        self._n_block = 0
+        self._running = False
+        self._index = 0
+        self._remaining: int | None = None
+        self._generation = 0
+
+    @property
+    def api(self):
+        if self._api is None:
+            self._api = load_nidaqmx()
+        return self._api
+
+    def _channels(self) -> list[str]:
+        return [f"{self.device}/ai{k}" for k in range(self.cal.n_channels)]
+
+    def configure(self, fs_Hz: float) -> float:
+        """Build the task (channels, continuous timing, callback); return the real rate."""
+        if not fs_Hz > 0:
+            raise ValueError(f"fs_Hz must be > 0, got {fs_Hz!r}")
+        self.close()
+        api = self.api
+        c = api.constants
+        try:
+            task = api.nidaqmx.Task("nmsid-force")
+        except api.errors.DaqError as exc:
+            raise DeviceError(f"DAQmx could not create a task: {exc}") from None
+        try:
+            for name in self._channels():
+                task.ai_channels.add_ai_voltage_chan(
+                    name, terminal_config=getattr(c.TerminalConfiguration, self.terminal_config),
+                    min_val=-self.range_V, max_val=self.range_V)
+            task.timing.cfg_samp_clk_timing(
+                fs_Hz, sample_mode=c.AcquisitionType.CONTINUOUS,
+                samps_per_chan=int(max(fs_Hz * self.buffer_s, 1000)))
+            self._fs_Hz = float(task.timing.samp_clk_rate)
+            self._n_block = max(1, int(round(self._fs_Hz / self.reads_per_s)))
+            self._reader = api.stream_readers.AnalogMultiChannelReader(task.in_stream)
+            task.register_every_n_samples_acquired_into_buffer_event(self._n_block,
+                                                                     self._on_samples)
+        except api.errors.DaqError as exc:
+            task.close()
+            raise DeviceNotFound(f"NI DAQ {self.device!r}: {exc} (check acquisition.nidaq "
+                                 "device and channels in NI MAX)") from None
+        self._task = task
+        return self._fs_Hz
+
+    def _on_samples(self, task_handle, every_n_samples_event_type, number_of_samples,
+                    callback_data):
+        """DAQmx callback (NI's thread): read one block into the queue. Must return 0."""
+        gen = self._generation
+        data = np.zeros((self.cal.n_channels, number_of_samples))
+        try:
+            self._reader.read_many_sample(data, number_of_samples_per_channel=number_of_samples,
+                                          timeout=0.0)
+            self._queue.put((gen, data, None))
+        except Exception as exc:  # DaqReadError and anything else: reported, never raised
+            code = getattr(exc, "error_code", None)
+            self._queue.put((gen, None, (code, str(exc).splitlines()[0] if str(exc) else
+                                         type(exc).__name__)))
+        return 0
+
+    def start(self, n_samples: int | None = None, *, triggered: bool = True) -> None:
+        if self._task is None:
+            raise DeviceError("configure(fs_Hz) must be called before start()")
+        api = self.api
+        trig = self._task.triggers.start_trigger
+        if triggered:
+            trig.cfg_dig_edge_start_trig(self.start_trigger,
+                                         trigger_edge=api.constants.Edge.RISING)
+        else:
+            trig.disable_start_trig()
+        self._generation += 1
+        self._index = 0
+        self._remaining = n_samples
+        try:
+            self._task.start()
+        except api.errors.DaqError as exc:
+            raise DeviceError(f"NI DAQ {self.device!r} did not start: {exc}") from None
+        self._running = True
+
+    def read(self, timeout_s: float) -> ForceChunk | None:
+        if not self._running:
+            return None
+        while True:
+            try:
+                gen, data, err = self._queue.get(timeout=max(timeout_s, 0.0))
+            except queue.Empty:
+                return None
+            if gen == self._generation:
+                break  # blocks of an earlier trial are dropped
+        if err is not None:
+            code, text = err
+            overrun = code in OVERRUN_CODES
+            return ForceChunk(start_index=self._index, force_N=np.zeros(0),
+                              wrench=np.zeros((0, 6)) if self.cal.full_wrench else None,
+                              sync=np.zeros(0) if self.cal.sync_channel is not None else None,
+                              flags=AcquisitionFlags(overrun=overrun, sensor_fault=not overrun,
+                                                     detail=f"DAQmx error {code}: {text}"))
+        if self._remaining is not None:
+            data = data[:, :self._remaining]
+            self._remaining -= data.shape[1]
+        n = data.shape[1]
+        block = convert_block(data.T, self.cal, self.range_V)
+        flags = AcquisitionFlags(over_range=block.saturated,
+                                 detail=f"sensor output at the edge of +/-{self.range_V:g} V"
+                                 if block.saturated else "")
+        chunk = ForceChunk(start_index=self._index, force_N=block.force_N, wrench=block.wrench,
+                           sync=block.sync_V, flags=flags)
+        self._index += n
+        return chunk
+
+    def stop(self) -> None:
+        if self._task is not None and self._running:
+            self._running = False
+            try:
+                self._task.stop()
+            except Exception as exc:
+                log.warning("NI DAQ stop failed: %s", exc)
+
+    def close(self) -> None:
+        task, self._task = self._task, None
+        self._running = False
+        if task is not None:
+            try:
+                task.close()
+            except Exception as exc:
+                log.warning("NI DAQ close failed: %s", exc)
+
+    def describe(self) -> dict:
+        info = {"device": self.device, "channels": self._channels(),
+                "start_trigger": self.start_trigger, "fs_Hz": self._fs_Hz,
+                "samples_per_read": self._n_block}
+        try:
+            dev = self.api.nidaqmx.system.System.local().devices[self.device]
+            info.update(product=str(dev.product_type), serial=str(dev.serial_num))
+        except Exception as exc:
+            info["product"] = f"unknown ({exc})"
+        return info

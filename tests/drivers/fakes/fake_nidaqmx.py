@@ -1,0 +1,297 @@
+"""A fake ``nidaqmx`` package: the calls ``drivers.nidaq`` and ``drivers.estop_switch`` make.
+
+Modules ``nidaqmx``, ``nidaqmx.constants``, ``nidaqmx.errors``, ``nidaqmx.stream_readers``,
+``nidaqmx.system`` with: ``Task(name)`` (context manager, ``ai_channels.add_ai_voltage_chan``,
+``di_channels.add_di_chan``, ``timing.cfg_samp_clk_timing``, ``timing.samp_clk_rate``,
+``triggers.start_trigger.cfg_dig_edge_start_trig`` / ``disable_start_trig``,
+``register_every_n_samples_acquired_into_buffer_event``, ``start``, ``stop``, ``close``,
+``read`` for digital lines, ``in_stream``); ``AnalogMultiChannelReader.read_many_sample``
+(fills a C-contiguous float64 (channels, n) array, like the real one checks);
+``AcquisitionType``, ``Edge``, ``TerminalConfiguration``, ``READ_ALL_AVAILABLE``;
+``DaqError`` / ``DaqReadError`` with ``error_code``; ``system.System.local().devices``.
+
+Like DAQmx, the callback runs on a separate thread once per ``n`` acquired samples; the
+acquisition is hardware-timed on the :class:`bench.FakeBench` clock and, with a digital
+edge start trigger, starts at the fake stimulator's sync edge. ``inject_read_error`` makes
+the next read fail (e.g. -200279, samples overwritten).
+"""
+
+from __future__ import annotations
+
+import enum
+import sys
+import threading
+import types
+
+import numpy as np
+
+
+class DaqError(Exception):
+    def __init__(self, message, error_code, task_name=""):
+        super().__init__(message)
+        self.error_code = error_code
+
+
+class DaqReadError(DaqError):
+    pass
+
+
+class AcquisitionType(enum.Enum):
+    FINITE = 10178
+    CONTINUOUS = 10123
+    HW_TIMED_SINGLE_POINT = 12522
+
+
+class Edge(enum.Enum):
+    RISING = 10280
+    FALLING = 10171
+
+
+class TerminalConfiguration(enum.Enum):
+    DEFAULT = -1
+    RSE = 10083
+    NRSE = 10078
+    DIFF = 10106
+    PSEUDO_DIFF = 12529
+
+
+READ_ALL_AVAILABLE = -1
+
+
+class _Devices:
+    def __init__(self, state):
+        self.state = state
+
+    def __getitem__(self, name):
+        if name not in self.state.devices:
+            raise DaqError(f"Device identifier is invalid: {name}", -200220)
+        return types.SimpleNamespace(name=name, **self.state.devices[name])
+
+    def __iter__(self):
+        return iter(self[n] for n in self.state.devices)
+
+
+class _State:
+    bench = None
+    devices: dict = {}
+    wiring: dict = {}
+    di_lines: dict = {}
+    tasks: list = []
+    inject_read_error: int | None = None
+
+
+class _Channels:
+    def __init__(self, task, kind):
+        self.task, self.kind, self.names = task, kind, []
+
+    def add_ai_voltage_chan(self, physical_channel, name_to_assign_to_channel="",
+                            terminal_config=TerminalConfiguration.DEFAULT, min_val=-5.0,
+                            max_val=5.0, **kw):
+        self._check(physical_channel)
+        if not isinstance(terminal_config, TerminalConfiguration):
+            raise TypeError("terminal_config must be a TerminalConfiguration")
+        if not min_val < max_val:
+            raise DaqError("min_val must be below max_val", -200082)
+        self.names.append(physical_channel)
+        self.task.range_V = max(abs(min_val), abs(max_val))
+
+    def add_di_chan(self, lines, name_to_assign_to_lines="", **kw):
+        self._check(lines)
+        self.names.append(lines)
+
+    def _check(self, name):
+        dev = name.split("/")[0]
+        if dev not in _State.devices:
+            raise DaqError(f"Device identifier is invalid: {dev}", -200220)
+
+
+class _Timing:
+    def __init__(self, task):
+        self.task = task
+        self.samp_clk_rate = 0.0
+
+    def cfg_samp_clk_timing(self, rate, source="", active_edge=Edge.RISING,
+                            sample_mode=AcquisitionType.FINITE, samps_per_chan=1000):
+        if not isinstance(sample_mode, AcquisitionType):
+            raise TypeError("sample_mode must be an AcquisitionType")
+        if not 0 < rate <= 250_000:
+            raise DaqError(f"sample clock rate {rate} is out of range", -200077)
+        base = 20e6  # timebase divisor like an M/X series board
+        self.samp_clk_rate = base / round(base / rate)
+        self.task.mode = sample_mode
+        self.task.buffer = int(samps_per_chan)
+
+
+class _StartTrigger:
+    def __init__(self):
+        self.source = None
+
+    def cfg_dig_edge_start_trig(self, trigger_source, trigger_edge=Edge.RISING):
+        if not isinstance(trigger_edge, Edge):
+            raise TypeError("trigger_edge must be an Edge")
+        self.source = trigger_source
+
+    def disable_start_trig(self):
+        self.source = None
+
+
+class Task:
+    def __init__(self, new_task_name=""):
+        self.name = new_task_name
+        self.ai_channels = _Channels(self, "ai")
+        self.di_channels = _Channels(self, "di")
+        self.timing = _Timing(self)
+        self.triggers = types.SimpleNamespace(start_trigger=_StartTrigger())
+        self.in_stream = types.SimpleNamespace(task=self)
+        self.range_V = 10.0
+        self.mode = AcquisitionType.FINITE
+        self.buffer = 1000
+        self.callback = None
+        self.n_every = 0
+        self.running = False
+        self.closed = False
+        self._thread = None
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._data = np.zeros((0, 0))
+        _State.tasks.append(self)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def register_every_n_samples_acquired_into_buffer_event(self, sample_interval, callback_method):
+        if self.running:
+            raise DaqError("cannot register an event while the task runs", -200986)
+        self.n_every, self.callback = int(sample_interval), callback_method
+
+    def start(self):
+        if self.closed:
+            raise DaqError("task closed", -200088)
+        self.running = True
+        if not self.ai_channels.names:
+            return
+        self._stop.clear()
+        self._t_call = _State.bench.now()
+        self._t_first = None
+        self._generated = 0
+        self._data = np.zeros((len(self.ai_channels.names), 0))
+        self._thread = threading.Thread(target=self._acquire, daemon=True)
+        self._thread.start()
+
+    def _acquire(self):
+        bench, fs = _State.bench, self.timing.samp_clk_rate
+        while not self._stop.is_set():
+            bench.sleep(self.n_every / fs / 4)
+            now = bench.now()
+            if self._t_first is None:
+                src = self.triggers.start_trigger.source
+                if src is None:
+                    self._t_first = self._t_call
+                else:
+                    t = bench.trigger_time()
+                    if t is None or t < self._t_call:
+                        continue
+                    self._t_first = t
+            due = int(np.floor((now - self._t_first) * fs)) + 1
+            new = due - self._generated
+            if new <= 0:
+                continue
+            t = self._t_first + (self._generated + np.arange(new)) / fs
+            force = bench.force_N(t, fs)
+            block = np.zeros((len(self.ai_channels.names), new))
+            for i, name in enumerate(self.ai_channels.names):
+                k = int(name.rsplit("ai", 1)[1])
+                fn = _State.wiring.get(k)
+                if fn is not None:
+                    block[i] = np.clip(fn(t, force), -self.range_V, self.range_V)
+            self._generated = due
+            with self._lock:
+                self._data = np.concatenate([self._data, block], axis=1)
+            while self.callback is not None and self._data.shape[1] >= self.n_every \
+                    and not self._stop.is_set():
+                self.callback(0, 1, self.n_every, None)
+
+    def stop(self):
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=2)
+        self.running = False
+
+    def close(self):
+        self.stop()
+        self.closed = True
+
+    def read(self, number_of_samples_per_channel=-1, timeout=10.0):
+        line = self.di_channels.names[0]
+        value = _State.di_lines.get(line)
+        if value is None:
+            raise DaqError(f"physical channel {line} does not exist", -200170)
+        if isinstance(value, Exception):
+            raise value
+        return bool(value)
+
+    def _take(self, n):
+        with self._lock:
+            if _State.inject_read_error is not None:
+                code, _State.inject_read_error = _State.inject_read_error, None
+                self._data = self._data[:, n:]
+                raise DaqReadError("The application is not able to keep up with the "
+                                   "acquisition. Attempted to read samples that are no "
+                                   "longer available.", code)
+            out = self._data[:, :n]
+            self._data = self._data[:, n:]
+            return out
+
+
+class AnalogMultiChannelReader:
+    def __init__(self, task_in_stream):
+        self.task = task_in_stream.task
+
+    def read_many_sample(self, data, number_of_samples_per_channel=READ_ALL_AVAILABLE,
+                         timeout=10.0):
+        if not isinstance(data, np.ndarray) or data.dtype != np.float64 \
+                or not data.flags["C_CONTIGUOUS"]:
+            raise DaqError("data must be a C-contiguous numpy float64 array", -200229)
+        n = number_of_samples_per_channel
+        if data.shape != (len(self.task.ai_channels.names), n):
+            raise DaqError(f"read array has shape {data.shape}, expected "
+                           f"({len(self.task.ai_channels.names)}, {n})", -200229)
+        block = self.task._take(n)
+        data[:, :block.shape[1]] = block
+        return block.shape[1]
+
+
+def install(bench=None, devices=None, wiring=None, di_lines=None, modules=None) -> dict:
+    _State.bench = bench
+    _State.devices = devices if devices is not None else {
+        "Dev1": {"product_type": "USB-6212", "serial_num": 0x1A2B3C}}
+    _State.wiring = wiring or {}
+    _State.di_lines = di_lines if di_lines is not None else {}
+    _State.tasks = []
+    _State.inject_read_error = None
+    root = types.ModuleType("nidaqmx")
+    constants = types.ModuleType("nidaqmx.constants")
+    for c in (AcquisitionType, Edge, TerminalConfiguration):
+        setattr(constants, c.__name__, c)
+    constants.READ_ALL_AVAILABLE = READ_ALL_AVAILABLE
+    errors = types.ModuleType("nidaqmx.errors")
+    errors.DaqError, errors.DaqReadError = DaqError, DaqReadError
+    readers = types.ModuleType("nidaqmx.stream_readers")
+    readers.AnalogMultiChannelReader = AnalogMultiChannelReader
+    system = types.ModuleType("nidaqmx.system")
+    system.System = types.SimpleNamespace(
+        local=lambda: types.SimpleNamespace(devices=_Devices(_State)))
+    root.Task = Task
+    root.constants, root.errors, root.stream_readers, root.system = constants, errors, readers, system
+    root.DaqError = DaqError
+    mods = {"nidaqmx": root, "nidaqmx.constants": constants, "nidaqmx.errors": errors,
+            "nidaqmx.stream_readers": readers, "nidaqmx.system": system}
+    (sys.modules if modules is None else modules).update(mods)
+    return mods
+
+
+def state() -> type[_State]:
+    return _State
