@@ -1,0 +1,24 @@
+"""Exceptions of the identification and model-selection module.
+
+Every exception subclasses a builtin so that the ``nmsid`` command turns it into one line.
+Messages name the file, setting or value and say what would be valid.
+"""
+
+from __future__ import annotations
+
+
+class SettingError(ValueError):
+    """An identification setting has a value that cannot be used (message names it)."""
+
+
+class IdentificationError(ValueError):
+    """A level or session cannot be identified (no usable trial, too few samples, ...)."""
+
+
+class TwinFileError(ValueError):
+    """A twin file is missing, unreadable or breaks ``docs/twin-file.md``."""
+
+    def __init__(self, path, problem: str):
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")

@@ -1,0 +1,243 @@
+"""Identify the second-order model of each sE level of a session.
+
+Two entry points, both safe to call from a GUI thread or a headless run:
+
+* :func:`identify_level` - the completed repeats of one sE (the GUI calls it after each
+  level); aborted or broken repeats are skipped with a reason;
+* :func:`identify_session` - every level of a session file, one row per sE plus a list of
+  human-readable problems. Nothing in a level's data stops the other levels.
+
+Both use :mod:`analysis.preprocess` and :mod:`analysis.second_order`, which the gap
+diagnosis reuses.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from analysis.errors import IdentificationError
+from analysis.preprocess import LevelData, preprocess_trials
+from analysis.second_order import SecondOrderFit, fit_second_order
+from analysis.settings import IdentificationSettings
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class LevelResult:
+    """Identification of one sE level."""
+
+    sE: float
+    fit: SecondOrderFit | None
+    data: LevelData | None
+    n_trials: int
+    trial_names: list[str] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        """True when parameters were estimated (converged or not: see ``fit.converged``)."""
+        return self.fit is not None
+
+    def row(self, participant: str = "") -> dict:
+        """The ``parameters.csv`` row of this level (NaN where nothing was estimated)."""
+        f = self.fit
+        nan = float("nan")
+        return {
+            "participant": participant, "sE": self.sE,
+            "Kp": f.Kp if f else nan, "wn_rad_s": f.wn_rad_s if f else nan,
+            "zeta": f.zeta if f else nan, "fit_pct": f.fit_pct if f else nan,
+            "n_trials": self.n_trials,
+            "Kp_se": f.Kp_se if f else nan, "wn_se": f.wn_se if f else nan,
+            "zeta_se": f.zeta_se if f else nan,
+            "converged": bool(f.converged) if f else False,
+            "resid_whiteness_pass": bool(f.residual_tests.whiteness_pass) if f else False,
+            "resid_independence_pass": bool(f.residual_tests.independence_pass) if f else False,
+            "baseline_N": self.data.baseline_N if self.data else nan,
+        }
+
+
+@dataclass
+class SessionResult:
+    """Identification of every sE level of one session."""
+
+    participant: str
+    source: str
+    levels: list[LevelResult]
+    problems: list[str]
+    settings: IdentificationSettings
+    calibration: dict = field(default_factory=dict)
+
+    def rows(self) -> list[dict]:
+        return [lv.row(self.participant) for lv in self.levels]
+
+    def parameter(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """(sE, values) of one parameter over the levels that were identified."""
+        pairs = [(lv.sE, getattr(lv.fit, name)) for lv in self.levels if lv.fit is not None]
+        if not pairs:
+            return np.empty(0), np.empty(0)
+        x, y = zip(*pairs)
+        return np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+
+
+def _describe(trial) -> str:
+    return f"trial {trial.name or '?'} (sE={trial.sE:g}, repeat {trial.repeat})"
+
+
+def usable_trials(trials, settings: IdentificationSettings | None = None):
+    """Split trials into those that can be averaged and reasons for the others.
+
+    Returns
+    -------
+    usable : list of Trial
+    problems : list of str
+        One message per skipped trial, naming it and saying why.
+    """
+    s = settings or IdentificationSettings()
+    usable, problems = [], []
+    for tr in trials:
+        if not tr.completed:
+            reason = tr.abort_reason or "no reason recorded"
+            problems.append(f"{_describe(tr)} was aborted ({reason}); skipped")
+            continue
+        bad = {}
+        for key in ("force_N", "rE"):
+            arr = np.asarray(getattr(tr, key), dtype=float)
+            n_bad = int(np.sum(~np.isfinite(arr)))
+            if n_bad:
+                bad[key] = n_bad
+        if bad:
+            what = ", ".join(f"{v} non-finite sample(s) in {k}" for k, v in bad.items())
+            problems.append(f"{_describe(tr)} has {what}; skipped")
+            continue
+        start = s.window_start_s if s.window_start_s is not None else tr.steady_s
+        if tr.n_samples / tr.fs_Hz <= start + 1.0:
+            problems.append(f"{_describe(tr)} is only {tr.n_samples / tr.fs_Hz:.2f} s long, "
+                            f"ending before the window (from {start:g} s) has 1 s of data; "
+                            "skipped")
+            continue
+        usable.append(tr)
+    return usable, problems
+
+
+def identify_level(trials, settings: IdentificationSettings | None = None) -> LevelResult:
+    """Identify the second-order model from the repeats of one sE level.
+
+    Parameters
+    ----------
+    trials : sequence of rig.session_file.Trial
+        The trials run at this sE (aborted ones are skipped and reported).
+    settings : IdentificationSettings, optional
+
+    Returns
+    -------
+    LevelResult
+        ``fit`` is None when nothing could be estimated; ``problems`` says why, and notes
+        a single repeat, a fit that did not converge, or failed residual tests.
+
+    Raises
+    ------
+    ValueError
+        If ``trials`` is empty or mixes sE values (a programming error of the caller).
+    """
+    s = settings or IdentificationSettings()
+    trials = list(trials)
+    if not trials:
+        raise ValueError("identify_level needs at least one trial")
+    levels = {round(float(t.sE), 9) for t in trials}
+    if len(levels) > 1:
+        raise ValueError(f"identify_level got trials of several sE values {sorted(levels)}; "
+                         "pass the trials of one level")
+    sE = float(trials[0].sE)
+    usable, problems = usable_trials(trials, s)
+    names = [t.name for t in usable]
+    if not usable:
+        problems.append(f"sE={sE:g}: no usable trial; level not identified")
+        return LevelResult(sE, None, None, 0, names, problems)
+    if len(usable) == 1:
+        problems.append(f"sE={sE:g}: only one usable repeat ({usable[0].name}); "
+                        "parameters rest on a single trial")
+    lengths = {t.n_samples for t in usable}
+    if len(lengths) > 1:
+        problems.append(f"sE={sE:g}: repeats differ in length ({sorted(lengths)} samples); "
+                        "averaged over the common part")
+    try:
+        data = preprocess_trials(usable, s)
+        fit = fit_second_order(data.u, data.y_N, data.fs_Hz, s, band_Hz=data.band_Hz,
+                               t0_s=float(data.t_s[0]))
+    except IdentificationError as exc:
+        problems.append(f"sE={sE:g}: {exc}; level not identified")
+        return LevelResult(sE, None, None, len(usable), names, problems)
+    if not fit.converged:
+        problems.append(f"sE={sE:g}: fit did not converge ({fit.message}); parameters "
+                        "reported but flagged")
+    for note in fit.notes:
+        problems.append(f"sE={sE:g}: {note}")
+    if not math.isfinite(fit.fit_pct) or fit.fit_pct < 50:
+        problems.append(f"sE={sE:g}: poor fit ({fit.fit_pct:.1f} %); check the force signal")
+    return LevelResult(sE, fit, data, len(usable), names, problems)
+
+
+def identify_session(session, settings: IdentificationSettings | None = None,
+                     progress=None) -> SessionResult:
+    """Identify every sE level of a session.
+
+    Parameters
+    ----------
+    session : path-like or rig.session_file.Session
+        A session file (read with ``read_session``) or an already-read session.
+    settings : IdentificationSettings, optional
+    progress : callable(sE, LevelResult), optional
+        Called after each level (e.g. to update a GUI).
+
+    Returns
+    -------
+    SessionResult
+
+    Raises
+    ------
+    rig.session_file.SessionFileError
+        If the file cannot be read as a session (the message names the file and item).
+    """
+    from rig.session_file import read_session
+
+    s = settings or IdentificationSettings()
+    if isinstance(session, (str, os.PathLike)):
+        session = read_session(session)
+    problems: list[str] = []
+    groups: dict[float, list] = {}
+    for tr in session.trials:
+        groups.setdefault(round(float(tr.sE), 9), []).append(tr)
+    if not groups:
+        problems.append(f"{session.path}: the session holds no trials; nothing to identify")
+    completed = Counter(round(float(t.sE), 9) for t in session.trials if t.completed)
+    expected = max(completed.values()) if completed else 0
+    levels = []
+    for key in sorted(groups):
+        lv = identify_level(groups[key], s)
+        n_done = completed.get(key, 0)
+        if expected > 1 and n_done < expected:
+            lv.problems.insert(0, f"sE={key:g}: {n_done} of {expected} repeats completed")
+        levels.append(lv)
+        problems.extend(lv.problems)
+        if progress is not None:
+            progress(lv.sE, lv)
+    config = session.config
+    planned = config.get("sE_levels") if isinstance(config, dict) else None
+    if isinstance(planned, list):
+        missing = sorted({round(float(x), 9) for x in planned} - set(groups))
+        for m in missing:
+            problems.append(f"sE={m:g}: planned but no trial in the file (session incomplete?)")
+    for p in problems:
+        logger.info("%s: %s", session.participant, p)
+    cal = session.calibration
+    cal_dict = {k: float(getattr(cal, k)) for k in
+                ("Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA", "Fmin_N", "Fmax_N")}
+    return SessionResult(participant=session.participant, source=str(session.path),
+                         levels=levels, problems=problems, settings=s, calibration=cal_dict)

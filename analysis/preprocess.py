@@ -1,0 +1,219 @@
+"""Trials of one sE level -> the windowed, detrended, filtered (t, u, y) that is fitted.
+
+The paper's order: detrend the raw force (linear), keep t >= steady_s, Savitzky-Golay
+(order 3, 41 samples), Butterworth low-pass 25 Hz, average the repeats. Every step is
+linear, so averaging the detrended repeats first and filtering the average once gives the
+same numbers as filtering each repeat, at a third of the cost. The filters run on the
+whole trial and the window is cut afterwards (``IdentificationSettings.filter_whole_trial``);
+rE gets the same filters as the force (``prefilter_input``), so G is untouched by them.
+Finally the data are decimated to ``fit_fs_Hz`` (after the low-pass nothing is lost) and
+the input's window mean is removed: u = rE - mean(rE over the window).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import butter, savgol_filter, sosfilt, sosfilt_zi, sosfiltfilt
+
+from analysis.errors import IdentificationError
+from analysis.thin_lstsq import dot
+from analysis.settings import IdentificationSettings
+
+
+@dataclass
+class LevelData:
+    """The preprocessed signals of one sE level, ready for :func:`fit_second_order`."""
+
+    sE: float
+    t_s: np.ndarray
+    """Sample times in s after stimulation onset."""
+    u: np.ndarray
+    """rE minus its mean over the window (dimensionless)."""
+    y_N: np.ndarray
+    """Detrended, filtered force averaged over the repeats, in N."""
+    fs_Hz: float
+    """Rate of ``t_s``/``u``/``y_N`` (after decimation)."""
+    raw_fs_Hz: float
+    n_trials: int
+    trial_names: list[str] = field(default_factory=list)
+    band_Hz: tuple[float, float] = (1.0, 10.0)
+    """Chirp band (f0, f1) of the trials."""
+    rE_mean: float = 0.5
+    """Mean of rE over the window (removed from u)."""
+    baseline_N: float = float("nan")
+    """Mean raw force (not detrended) over the second half of the lead-in, where
+    rE = 0.5 and the force has settled: the force at rE = 0.5 for this sE."""
+
+
+def linear_detrend(x: np.ndarray) -> np.ndarray:
+    """Subtract the least-squares straight line (same as ``scipy.signal.detrend``, type
+    'linear', without its LAPACK call).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> bool(np.allclose(linear_detrend(3.0 + 0.5 * np.arange(7.0)), 0.0))
+    True
+    """
+    x = np.asarray(x, dtype=float)
+    n = len(x)
+    if n < 2:
+        return x - x.mean()
+    k = np.arange(n, dtype=float) - (n - 1) / 2.0
+    slope = dot(k, x) / dot(k, k)
+    return x - x.mean() - slope * k
+
+
+def lowpass_sos(fs_Hz: float, settings: IdentificationSettings) -> np.ndarray | None:
+    """Second-order sections of the Butterworth low-pass (None when disabled)."""
+    if settings.lowpass_Hz is None:
+        return None
+    if settings.lowpass_Hz >= fs_Hz / 2:
+        raise IdentificationError(
+            f"lowpass_Hz = {settings.lowpass_Hz:g} is not below the Nyquist frequency "
+            f"{fs_Hz / 2:g} Hz of the data; choose a lower cut-off or None")
+    return butter(settings.butter_order, settings.lowpass_Hz, fs=fs_Hz, output="sos")
+
+
+def smooth_and_lowpass(x: np.ndarray, fs_Hz: float,
+                       settings: IdentificationSettings) -> np.ndarray:
+    """Savitzky-Golay smoothing then Butterworth low-pass along the last axis.
+
+    Parameters
+    ----------
+    x : ndarray
+        Signal(s), samples along the last axis.
+    fs_Hz : float
+        Sampling rate.
+    settings : IdentificationSettings
+        ``savgol_window``, ``savgol_order``, ``lowpass_Hz``, ``butter_order``,
+        ``zero_phase``.
+
+    Returns
+    -------
+    ndarray
+        Filtered signal(s), same shape.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> t = np.arange(2000) / 2000.0
+    >>> x = 0.3 + 2 * t                      # a straight line passes both filters
+    >>> y = smooth_and_lowpass(x, 2000.0, IdentificationSettings())
+    >>> bool(np.allclose(y, x, atol=1e-9))
+    True
+    """
+    y = np.asarray(x, dtype=float)
+    n = y.shape[-1]
+    if settings.savgol_window is not None:
+        if n < settings.savgol_window:
+            raise IdentificationError(f"only {n} samples; the Savitzky-Golay window needs "
+                                      f"{settings.savgol_window}")
+        y = savgol_filter(y, settings.savgol_window, settings.savgol_order, axis=-1)
+    sos = lowpass_sos(fs_Hz, settings)
+    if sos is not None:
+        if settings.zero_phase:
+            # pad by odd reflection long enough (3 / cut-off) for the start-up transient
+            # of the filter to die out inside the padding: lines then pass exactly
+            padlen = min(int(math.ceil(3.0 * fs_Hz / settings.lowpass_Hz)), n - 1)
+            y = sosfiltfilt(sos, y, axis=-1, padlen=padlen)
+        else:
+            zi = sosfilt_zi(sos)
+            zi = zi.reshape(zi.shape[:1] + (1,) * (y.ndim - 1) + zi.shape[1:]) \
+                if y.ndim > 1 else zi
+            first = y[..., :1] if y.ndim > 1 else y[0]
+            y, _ = sosfilt(sos, y, axis=-1, zi=zi * first)
+    return y
+
+
+def window_indices(n_samples: int, fs_Hz: float, steady_s: float, chirp_s: float,
+                   settings: IdentificationSettings) -> tuple[int, int]:
+    """First and one-past-last raw sample index of the analysed window."""
+    start = settings.window_start_s if settings.window_start_s is not None else steady_s
+    end = settings.window_end_s if settings.window_end_s is not None else steady_s + chirp_s
+    i0 = int(math.ceil(start * fs_Hz - 1e-9))
+    i1 = min(n_samples, int(math.floor(end * fs_Hz + 1e-9)))
+    return i0, i1
+
+
+def preprocess_trials(trials, settings: IdentificationSettings | None = None) -> LevelData:
+    """Detrend, average, filter, window and decimate the repeats of one sE level.
+
+    Parameters
+    ----------
+    trials : sequence of rig.session_file.Trial
+        Completed trials of the same sE with finite data (see
+        ``analysis.identify.usable_trials``). Trials of different lengths are cut to the
+        shortest (all start at stimulation onset).
+    settings : IdentificationSettings, optional
+
+    Returns
+    -------
+    LevelData
+
+    Raises
+    ------
+    IdentificationError
+        No trials, different sampling rates, or a window too short to fit.
+    """
+    s = settings or IdentificationSettings()
+    trials = list(trials)
+    if not trials:
+        raise IdentificationError("no trials to preprocess")
+    first = trials[0]
+    fs = float(first.fs_Hz)
+    for tr in trials[1:]:
+        if not math.isclose(tr.fs_Hz, fs, rel_tol=1e-9):
+            raise IdentificationError(
+                f"trials {first.name} and {tr.name} of sE={first.sE:g} were sampled at "
+                f"different rates ({fs:g} and {tr.fs_Hz:g} Hz); cannot average them")
+    n = min(len(tr.force_N) for tr in trials)
+    force = np.empty((len(trials), n))
+    for k, tr in enumerate(trials):
+        f = np.asarray(tr.force_N, dtype=float)
+        force[k] = (linear_detrend(f) if s.detrend else f)[:n]
+    rE = np.vstack([np.asarray(tr.rE, dtype=float)[:n] for tr in trials])
+    lead = slice(int(first.steady_s * fs / 2), int(first.steady_s * fs))
+    baseline = float(np.mean([np.mean(tr.force_N[lead]) for tr in trials])) \
+        if lead.stop > lead.start and n >= lead.stop else float("nan")
+    y = force.mean(axis=0)
+    r = rE.mean(axis=0)
+    i0, i1 = window_indices(n, fs, first.steady_s, first.chirp_s, s)
+    trim = s.edge_trim_samples(fs)
+    if s.filter_whole_trial:
+        i1 = min(i1, n - trim)            # the end of the record is a filter edge
+    q = max(1, int(math.floor(fs / s.fit_fs_Hz + 1e-9))) if s.fit_fs_Hz else 1
+    usable_len = (i1 - i0) - (0 if s.filter_whole_trial else 2 * trim)
+    if usable_len // q < 60:
+        raise IdentificationError(
+            f"the window {i0 / fs:g}-{i1 / fs:g} s of sE={first.sE:g} holds "
+            f"{max(usable_len, 0)} usable samples ({max(usable_len, 0) // q} at the fit rate); the trials "
+            f"are {n / fs:g} s long - too short to fit")
+    if s.filter_whole_trial:
+        both = smooth_and_lowpass(np.vstack([y, r]), fs, s) if s.prefilter_input else None
+        if both is not None:
+            y, r = both[0], both[1]
+        else:
+            y = smooth_and_lowpass(y, fs, s)
+        y, r = y[i0:i1], r[i0:i1]
+    else:
+        y, r = y[i0:i1], r[i0:i1]
+        if s.prefilter_input:
+            both = smooth_and_lowpass(np.vstack([y, r]), fs, s)
+            y, r = both[0], both[1]
+        else:
+            y = smooth_and_lowpass(y, fs, s)
+        y, r = y[trim:len(y) - trim], r[trim:len(r) - trim]   # both ends are filter edges
+        i0 += trim
+    y = np.ascontiguousarray(y[::q])
+    r = np.ascontiguousarray(r[::q])
+    t = (i0 + q * np.arange(len(y))) / fs
+    r_mean = float(np.mean(r))
+    return LevelData(sE=float(first.sE), t_s=t, u=r - r_mean, y_N=y, fs_Hz=fs / q,
+                     raw_fs_Hz=fs, n_trials=len(trials),
+                     trial_names=[tr.name for tr in trials],
+                     band_Hz=(float(first.chirp_f0_Hz), float(first.chirp_f1_Hz)),
+                     rE_mean=r_mean, baseline_N=baseline)

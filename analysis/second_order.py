@@ -1,0 +1,379 @@
+"""Continuous-time output-error fit of G(s) = Kp wn^2 / (s^2 + 2 zeta wn s + wn^2).
+
+What MATLAB's ``tfest`` does for this model, done in closed form where possible:
+
+1. a start from simplified refined instrumental variables (:mod:`analysis.initial_estimate`);
+2. prediction-error minimisation of ||y - yhat||^2 (output error: the model is simulated
+   from the input alone), with the initial state, an output offset and (by default) an
+   output ramp estimated along with Kp, wn and zeta.
+
+The model output is linear in Kp, the initial state (as the first two free-response
+samples), offset and ramp, so those are solved exactly by least squares for every (wn,
+zeta) - variable projection (Golub & Pereyra 2003; Kaufman's Jacobian) - and a
+Levenberg-Marquardt search runs over ln wn and ln zeta only. The simulation is the exact
+triangle-hold discretisation run by ``lfilter`` (:mod:`analysis.discretize`); its
+sensitivities are obtained by filtering too (derivatives of the difference equation), so
+one iteration costs a handful of ``lfilter`` passes and no ``lsim``.
+
+Standard errors come from the Jacobian at the optimum, scaled by the noise level of the
+residual (see :class:`analysis.settings.NoiseLevel`). They assume the model structure is
+right and the noise is stationary; the effective number of independent samples is not the
+number of samples once the data are low-passed, which is why the default noise level is
+the residual PSD over the chirp band rather than RSS/(N - p).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import lfilter
+
+from analysis.discretize import foh_coefficients_with_derivatives, smooth_hold_input
+from analysis.errors import IdentificationError
+from analysis.initial_estimate import StartEstimate, srivc_start
+from analysis.residual_tests import ResidualTests, residual_tests
+from analysis.settings import IdentificationSettings, InputHold, NoiseLevel
+from analysis.thin_lstsq import cross, gram, lstsq_rows, orthonormalise, project_out
+
+logger = logging.getLogger(__name__)
+
+#: Lower bound of (ln wn, ln zeta) during the search: wn > 1e-3 rad/s, zeta > 1e-3.
+_P_LOW = math.log(1e-3)
+
+#: Fewest samples a fit accepts (7 parameters and the residual tests need more).
+MIN_SAMPLES = 50
+
+
+@dataclass
+class SecondOrderFit:
+    """Result of :func:`fit_second_order`. Units: Kp in N per unit rE, wn in rad/s."""
+
+    Kp: float
+    wn_rad_s: float
+    zeta: float
+    Kp_se: float
+    wn_se: float
+    zeta_se: float
+    fit_pct: float
+    """100 (1 - ||y - yhat|| / ||y - mean y||), as MATLAB's ``compare``/``tfest`` report."""
+    converged: bool
+    message: str
+    iterations: int
+    t_s: np.ndarray
+    y_N: np.ndarray
+    """The data that were fitted (preprocessed force)."""
+    y_fit_N: np.ndarray
+    """Model output: simulated response + free response of the initial state + offset
+    (+ ramp)."""
+    fs_Hz: float
+    offset_N: float
+    """Estimated output offset at the window's centre."""
+    trend_N_per_s: float
+    initial_output_N: tuple[float, float]
+    """First two samples of the free (initial-state) response."""
+    noise_sd_N: float
+    """Standard deviation of the equivalent white noise at ``fs_Hz`` behind the standard
+    errors."""
+    covariance: np.ndarray
+    """Covariance of (Kp, wn_rad_s, zeta)."""
+    residual_tests: ResidualTests
+    start: StartEstimate | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def residual_N(self) -> np.ndarray:
+        return self.y_N - self.y_fit_N
+
+    @property
+    def n_samples(self) -> int:
+        return int(len(self.y_N))
+
+
+def _shift(x: np.ndarray, k: int) -> np.ndarray:
+    out = np.zeros_like(x)
+    out[k:] = x[:len(x) - k]
+    return out
+
+
+class _Problem:
+    """Variable-projection pieces of the output-error problem for fixed data."""
+
+    def __init__(self, v: np.ndarray, y: np.ndarray, dt_s: float, trend: bool):
+        self.v = v
+        self.y = y
+        self.dt_s = dt_s
+        self.n = len(y)
+        self.tau = np.linspace(-1.0, 1.0, self.n)
+        self.trend = trend
+        self.impulse = np.zeros(self.n)
+        self.impulse[0] = 1.0
+        #: upper bound of (ln wn, ln zeta): wn below 10x the Nyquist frequency, zeta < 1000
+        self.p_high = np.array([math.log(10 * math.pi / dt_s), math.log(1000.0)])
+
+    def evaluate(self, p: np.ndarray, jacobian: bool):
+        """Cost, linear parameters and (optionally) the full and reduced Jacobians at p.
+
+        Regressors are rows of (m, n) arrays (see :mod:`analysis.thin_lstsq`).
+        """
+        num, den, dnum, dden = foh_coefficients_with_derivatives(p[0], p[1], self.dt_s)
+        v = self.v
+        h = lfilter([1.0], den, self.impulse)
+        w = lfilter([1.0], den, v)
+        h1 = _shift(h, 1)
+        s0 = w - v[0] * h - v[1] * h1
+        s1 = _shift(w, 1) - v[0] * h1
+        s2 = _shift(w, 2)
+        basis = np.empty((5 if self.trend else 4, self.n))
+        basis[0] = num[0] * s0 + num[1] * s1 + num[2] * s2     # forced response, Kp = 1
+        basis[1] = h + den[1] * h1                              # free response, y_0 = 1
+        basis[2] = h1                                           # free response, y_1 = 1
+        basis[3] = 1.0
+        if self.trend:
+            basis[4] = self.tau
+        coef, q, r = lstsq_rows(basis, self.y)
+        y_fit = _combine(coef, basis)
+        resid = self.y - y_fit
+        out = {"cost": float(resid @ resid), "coef": coef, "y_fit": y_fit, "resid": resid,
+               "basis": basis, "r": r}
+        if not jacobian:
+            return out
+        kp, y0, y1 = coef[0], coef[1], coef[2]
+        y_dyn = kp * basis[0] + y0 * basis[1] + y1 * h1
+        qf = lfilter([1.0], den, y_dyn)
+        r1 = _shift(qf, 1) - y0 * h1
+        r2 = _shift(qf, 2)
+        jp = np.empty((2, self.n))
+        for j in range(2):
+            jp[j] = (kp * (dnum[j, 0] * s0 + dnum[j, 1] * s1 + dnum[j, 2] * s2)
+                     - dden[j, 1] * r1 - dden[j, 2] * r2)
+        out["jp"] = jp
+        out["j_reduced"] = np.array([project_out(q, row) for row in jp])
+        return out
+
+
+def _combine(coef: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    out = coef[0] * rows[0]
+    for c, row in zip(coef[1:], rows[1:]):
+        out = out + c * row
+    return out
+
+
+def _levenberg_marquardt(problem: _Problem, p0: np.ndarray, max_iter: int, tol: float):
+    """Minimise the projected cost over p = (ln wn, ln zeta)."""
+    p = np.array(p0, dtype=float)
+    ev = problem.evaluate(p, jacobian=True)
+    lam = 1e-3
+    message = "iteration limit reached"
+    converged = False
+    it = 0
+    for it in range(1, max_iter + 1):
+        jr, r = ev["j_reduced"], ev["resid"]
+        a = gram(jr)
+        g = cross(jr, r[None, :])[:, 0]
+        diag = np.maximum(np.diag(a), 1e-300)
+        improved = False
+        while lam < 1e12:
+            try:
+                step = np.linalg.solve(a + lam * np.diag(diag), g)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            trial_p = p + step
+            if np.all((trial_p > _P_LOW) & (trial_p < problem.p_high)):
+                trial = problem.evaluate(trial_p, jacobian=True)
+                if np.isfinite(trial["cost"]) and trial["cost"] <= ev["cost"]:
+                    improved = True
+                    break
+            lam *= 10
+        if not improved:
+            converged = ev["cost"] <= 1e-28 * max(problem.y @ problem.y, 1e-300) \
+                or bool(np.max(np.abs(g)) <= 1e-12 * max(ev["cost"], 1e-300))
+            message = ("converged (no further decrease)" if converged else
+                       "stopped: no step decreases the cost (flat or ill-conditioned)")
+            # a minimum where no step helps is a converged fit when the gradient vanishes
+            if not converged:
+                grad_rel = np.max(np.abs(g)) / max(ev["cost"], 1e-300)
+                converged = grad_rel < 1e-6
+                if converged:
+                    message = "converged (no further decrease, gradient ~ 0)"
+            break
+        decrease = ev["cost"] - trial["cost"]
+        p = trial_p
+        ev = trial
+        lam = max(lam / 10, 1e-12)
+        if np.max(np.abs(step)) < 1e-10 or decrease <= tol * ev["cost"] and \
+                np.max(np.abs(step)) < math.sqrt(tol):
+            converged = True
+            message = f"converged after {it} iteration(s)"
+            break
+    return p, ev, converged, message, it
+
+
+def _noise_variance(resid: np.ndarray, fs_Hz: float, n_params: int, level: NoiseLevel,
+                    band_Hz: tuple[float, float] | None) -> float:
+    n = len(resid)
+    white = float(resid @ resid) / max(n - n_params, 1)
+    if level is NoiseLevel.WHITE or n < 64:
+        return white
+    nperseg = int(min(n, 2 ** int(round(math.log2(max(fs_Hz * 2.0, 64))))))
+    f, pxx = _welch(resid, fs_Hz, nperseg)
+    lo, hi = band_Hz if band_Hz else (0.0, fs_Hz / 2)
+    sel = (f >= lo) & (f <= hi)
+    if sel.sum() < 2:
+        return white
+    return float(np.mean(pxx[sel]) * fs_Hz / 2.0)
+
+
+def _welch(x: np.ndarray, fs_Hz: float, nperseg: int) -> tuple[np.ndarray, np.ndarray]:
+    """One-sided PSD by Welch's method (Hann window, 50 % overlap, mean removed per
+    segment); the same as ``scipy.signal.welch`` defaults, without its overhead."""
+    step = nperseg // 2
+    starts = range(0, len(x) - nperseg + 1, step)
+    win = np.hanning(nperseg + 1)[:-1]       # periodic Hann, as scipy's 'hann'
+    segs = np.array([x[i:i + nperseg] for i in starts])
+    segs = (segs - segs.mean(axis=1, keepdims=True)) * win
+    spec = np.abs(np.fft.rfft(segs, axis=1)) ** 2
+    pxx = spec.mean(axis=0) / (fs_Hz * np.sum(win ** 2))
+    pxx[1:-1 if nperseg % 2 == 0 else None] *= 2.0
+    return np.fft.rfftfreq(nperseg, 1.0 / fs_Hz), pxx
+
+
+def _grid_starts(fs_Hz: float) -> list[tuple[float, float]]:
+    wn_max = min(2 * math.pi * fs_Hz / 5, 2000.0)
+    wns = np.geomspace(1.0, wn_max, 24)
+    zetas = (0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 3.0)
+    return [(float(w), z) for w in wns for z in zetas]
+
+
+def fit_second_order(u: np.ndarray, y: np.ndarray, fs_Hz: float,
+                     settings: IdentificationSettings | None = None, *,
+                     band_Hz: tuple[float, float] | None = None,
+                     start: tuple[float, float] | None = None,
+                     t0_s: float = 0.0) -> SecondOrderFit:
+    """Fit the second-order output-error model from input ``u`` to output ``y``.
+
+    Parameters
+    ----------
+    u : ndarray
+        Input (rE with its window mean removed; dimensionless), uniformly sampled.
+    y : ndarray
+        Output (force in N), same length.
+    fs_Hz : float
+        Sampling rate in Hz.
+    settings : IdentificationSettings, optional
+        Uses ``input_hold``, ``estimate_trend``, ``max_iterations``, ``tolerance``,
+        ``retry_below_fit_pct``, ``noise_level``, ``resid_lags``, ``resid_confidence``.
+    band_Hz : (float, float), optional
+        Band of the excitation (the chirp's f0, f1) for the noise level of the standard
+        errors; default the whole band.
+    start : (wn_rad_s, zeta), optional
+        Starting point; default the instrumental-variable estimate.
+    t0_s : float
+        Time of the first sample (only stored in the result's ``t_s``).
+
+    Returns
+    -------
+    SecondOrderFit
+
+    Raises
+    ------
+    IdentificationError
+        If the data are too short, of different lengths, or not finite.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from scipy.signal import lsim
+    >>> t = np.arange(0, 4, 1e-3)
+    >>> u = np.sin(2 * np.pi * (1 + t) * t)
+    >>> y = lsim(([5 * 400.0], [1, 2 * 0.3 * 20, 400.0]), u, t)[1]
+    >>> s = IdentificationSettings(input_hold="linear", estimate_trend=False)
+    >>> f = fit_second_order(u, y, 1000.0, s)
+    >>> round(f.Kp, 6), round(f.wn_rad_s, 6), round(f.zeta, 6)
+    (5.0, 20.0, 0.3)
+    """
+    s = settings or IdentificationSettings()
+    u = np.asarray(u, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if u.shape != y.shape or u.ndim != 1:
+        raise IdentificationError(f"input and output must be 1-D of equal length, got "
+                                  f"{u.shape} and {y.shape}")
+    if len(y) < MIN_SAMPLES:
+        raise IdentificationError(f"only {len(y)} samples to fit; need at least {MIN_SAMPLES}")
+    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(y))):
+        raise IdentificationError("input or output contains NaN or infinite samples")
+    if not fs_Hz > 0:
+        raise IdentificationError(f"fs_Hz = {fs_Hz!r} must be > 0")
+    dt = 1.0 / fs_Hz
+    v = smooth_hold_input(u) if s.input_hold is InputHold.SMOOTH else u
+    problem = _Problem(v, y, dt, s.estimate_trend)
+    notes: list[str] = []
+
+    start_est = None
+    if start is None:
+        start_est = srivc_start(v, y, dt, trend=s.estimate_trend)
+        starts = [(start_est.wn_rad_s, start_est.zeta)] if start_est else []
+        if not start_est:
+            notes.append("instrumental-variable start failed; started from a grid")
+    else:
+        starts = [tuple(start)]
+
+    def run(wn_z):
+        p0 = np.log(np.array(wn_z, dtype=float))
+        return _levenberg_marquardt(problem, p0, s.max_iterations, s.tolerance)
+
+    y_var = float(np.sum((y - y.mean()) ** 2))
+
+    def fit_pct(ev):
+        return 100.0 * (1.0 - math.sqrt(ev["cost"] / y_var)) if y_var > 0 else float("nan")
+
+    best = run(starts[0]) if starts else None
+    if best is None or not best[2] or fit_pct(best[1]) < s.retry_below_fit_pct:
+        grid = _grid_starts(fs_Hz)
+        costs = [problem.evaluate(np.log(np.array(g)), jacobian=False)["cost"] for g in grid]
+        for idx in np.argsort(costs)[:3]:
+            cand = run(grid[idx])
+            if best is None or (cand[2], -cand[1]["cost"]) > (best[2], -best[1]["cost"]):
+                best = cand
+        notes.append("grid restart used (start did not converge or fit below "
+                     f"{s.retry_below_fit_pct:g} %)")
+    p, ev, converged, message, iterations = best
+    wn, zeta = math.exp(p[0]), math.exp(p[1])
+    coef = ev["coef"]
+    if wn > math.pi * fs_Hz:
+        converged = False
+        message = (f"wn = {wn:.3g} rad/s is above the Nyquist frequency of the fit rate "
+                   f"({math.pi * fs_Hz:.3g} rad/s): the data do not determine it")
+
+    # covariance of (ln wn, ln zeta, Kp, y0, y1, c0[, c1]) from the full Jacobian
+    jac_rows = np.vstack([ev["jp"], ev["basis"]])
+    n_par = len(jac_rows)
+    sigma2 = _noise_variance(ev["resid"], fs_Hz, n_par, s.noise_level, band_Hz)
+    _, r_full = orthonormalise(jac_rows)
+    if np.any(np.diag(r_full) == 0):
+        cov_full = np.full((n_par, n_par), np.nan)
+        notes.append("singular Jacobian: standard errors unavailable")
+    else:
+        r_inv = np.linalg.inv(r_full)
+        cov_full = sigma2 * (r_inv @ r_inv.T)
+    # map to (Kp, wn, zeta)
+    g = np.zeros((3, n_par))
+    g[0, 2] = 1.0
+    g[1, 0] = wn
+    g[2, 1] = zeta
+    cov = g @ cov_full @ g.T
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    n = len(y)
+    trend = float(coef[4]) * 2.0 / ((n - 1) * dt) if s.estimate_trend else 0.0
+    tests = residual_tests(ev["resid"], u, s.resid_lags, s.resid_confidence)
+    return SecondOrderFit(
+        Kp=float(coef[0]), wn_rad_s=wn, zeta=zeta, Kp_se=float(se[0]), wn_se=float(se[1]),
+        zeta_se=float(se[2]), fit_pct=fit_pct(ev), converged=bool(converged),
+        message=message, iterations=int(iterations), t_s=t0_s + np.arange(n) * dt,
+        y_N=y, y_fit_N=ev["y_fit"], fs_Hz=float(fs_Hz), offset_N=float(coef[3]),
+        trend_N_per_s=trend, initial_output_N=(float(coef[1]), float(coef[2])),
+        noise_sd_N=math.sqrt(sigma2), covariance=cov, residual_tests=tests,
+        start=start_est, notes=notes)
