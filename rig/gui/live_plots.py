@@ -9,14 +9,20 @@ peak downsampling keep each redraw cheap at 2 kHz.
 
 from __future__ import annotations
 
+import math
+import time
+
+import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import QTimer
+from PySide6.QtCore import Qt, QTimer
 from PySide6.QtWidgets import QLabel, QVBoxLayout, QWidget
 
 from rig.gui.live_buffer import LiveBuffer, LiveSnapshot
 from rig.gui.theme import Colour
 
 MAX_FPS = 30.0
+#: Frames a late redraw may catch up on the absolute schedule.
+MAX_LAG_FRAMES = 3
 
 
 class LivePlots(QWidget):
@@ -52,26 +58,52 @@ class LivePlots(QWidget):
         self.re_plot.setYRange(-0.05, 1.05)
         self.i_plot.addLegend(offset=(10, 5))
         for p in (self.force_plot, self.re_plot, self.i_plot):
-            p.showGrid(x=True, y=True, alpha=0.3)
+            p.showGrid(x=True, y=True, alpha=0.25)
             p.setClipToView(True)
             p.setDownsampling(auto=True, mode="peak")
-            p.setMouseEnabled(x=False, y=True)
+            p.setMouseEnabled(x=False, y=False)
+            p.enableAutoRange(x=False, y=False)
+            p.hideButtons()
+            for name in ("left", "bottom"):
+                # axes (with their grid) are redrawn only when their range changes
+                p.getAxis(name).setCacheMode(
+                    pg.QtWidgets.QGraphicsItem.CacheMode.DeviceCoordinateCache)
+        self._x0 = None
+        self._y_ranges: dict[int, tuple[float, float]] = {}
         self.re_plot.setXLink(self.force_plot)
         self.i_plot.setXLink(self.force_plot)
-        self.force_curve = self.force_plot.plot(pen=pg.mkPen(Colour.FORCE, width=1.5))
-        self.re_curve = self.re_plot.plot(pen=pg.mkPen(Colour.RE, width=1.5))
-        self.iext_curve = self.i_plot.plot(pen=pg.mkPen(Colour.I_EXT, width=1.5),
+        self.force_curve = self.force_plot.plot(pen=pg.mkPen(Colour.FORCE, width=1))
+        self.re_curve = self.re_plot.plot(pen=pg.mkPen(Colour.RE, width=1))
+        self.iext_curve = self.i_plot.plot(pen=pg.mkPen(Colour.I_EXT, width=1),
                                            name="I_ext")
-        self.iflex_curve = self.i_plot.plot(pen=pg.mkPen(Colour.I_FLEX, width=1.5),
+        self.iflex_curve = self.i_plot.plot(pen=pg.mkPen(Colour.I_FLEX, width=1),
                                             name="I_flex")
         lay = QVBoxLayout(self)
         lay.setContentsMargins(0, 0, 0, 0)
         lay.addWidget(self.title)
         lay.addWidget(self.graphics, 1)
+        self.period_s = 1.0 / max_fps
+        self._next_due = time.perf_counter()
         self.timer = QTimer(self)
-        self.timer.setInterval(max(1, int(round(1000.0 / max_fps))))
-        self.timer.timeout.connect(self.redraw)
-        self.timer.start()
+        self.timer.setSingleShot(True)
+        self.timer.setTimerType(Qt.TimerType.PreciseTimer)
+        self.timer.timeout.connect(self._tick)
+        self.timer.start(0)
+
+    def _tick(self) -> None:
+        """Frames on an absolute schedule (``period_s`` apart): never more than
+        ``max_fps`` frames in any second (+1), and a frame delayed by a busy moment is made
+        up (up to ``MAX_LAG_FRAMES``) instead of lost."""
+        now = time.perf_counter()
+        if now >= self._next_due:
+            try:
+                self.redraw()
+            finally:
+                self._next_due += self.period_s
+                if self._next_due < now - MAX_LAG_FRAMES * self.period_s:
+                    self._next_due = now  # after a long stall: do not burst
+        delay_ms = max(0, math.ceil((self._next_due - time.perf_counter()) * 1000.0))
+        self.timer.start(delay_ms)
 
     def set_title(self, text: str) -> None:
         self.title.setText(text)
@@ -92,7 +124,38 @@ class LivePlots(QWidget):
         self.iext_curve.setData(t, snap.I_ext_mA * 1e-3)
         self.iflex_curve.setData(t, snap.I_flex_mA * 1e-3)
         if snap.n:
-            window_s = self.buffer.capacity / self.buffer.fs_Hz
-            t1 = max(float(t[-1]), window_s)
-            self.force_plot.setXRange(t1 - window_s, t1, padding=0)
+            self._follow_x(float(t[0]), float(t[-1]))
+            self._fit_y(self.force_plot, snap.force_N)
+            self._fit_y(self.i_plot, np.concatenate((snap.I_ext_mA, snap.I_flex_mA)) * 1e-3)
         self.frames_drawn += 1
+
+    def _follow_x(self, t_first: float, t_last: float) -> None:
+        """Scroll the time axis in pages of half a window, not every frame: each range
+        change re-renders the axes, which costs more than drawing the curves."""
+        window_s = self.buffer.capacity / self.buffer.fs_Hz
+        page = window_s / 2
+        x0 = self._x0
+        if x0 is None or t_last > x0 + window_s or t_last < x0 or t_first < x0 - window_s:
+            x0 = max(0.0, page * np.floor((t_last - window_s) / page + 1)) \
+                if t_last > window_s else 0.0
+            self._x0 = x0
+            self.force_plot.setXRange(x0, x0 + window_s, padding=0)
+
+    def _fit_y(self, plot, y: np.ndarray) -> None:
+        """Grow the y range when the data leave it; shrink it only when the data use
+        less than a third of it (few axis re-renders)."""
+        finite = y[np.isfinite(y)]
+        if not finite.size:
+            return
+        lo, hi = float(finite.min()), float(finite.max())
+        span = max(hi - lo, 1e-3)
+        cur = self._y_ranges.get(id(plot))
+        if cur is None or lo < cur[0] or hi > cur[1] or span < (cur[1] - cur[0]) / 3:
+            new = (lo - 0.15 * span, hi + 0.15 * span)
+            self._y_ranges[id(plot)] = new
+            plot.setYRange(*new, padding=0)
+
+    def reset_view(self) -> None:
+        """Start the next trial's plots at t = 0 with fresh ranges."""
+        self._x0 = None
+        self._y_ranges.clear()

@@ -271,17 +271,26 @@ class MainWindow(QMainWindow):
     def _on_finished(self, path: str) -> None:
         self.session_finished = True
         self._refresh_schedule()
-        self.results.run(path)
-        self._switch(Tab.RESULTS)
 
     def _on_run_ended(self, summary, error) -> None:
         self.run_result, self.run_error = summary, error
+        self._poll_engine()
+        self._refresh_schedule()
         if error is not None:
             self.event_log.append(f"ENGINE STOPPED WITH AN ERROR: {error}")
             self.safety.banner.setText(f"Engine error: {error}. Output is off.")
+            self.safety.banner.setStyleSheet("background: #d00000; color: white; "
+                                             "font-weight: bold; padding: 6px;")
             self.safety.banner.setVisible(True)
-        self._poll_engine()
-        self._refresh_schedule()
+            return
+        ended_by = getattr(summary, "ended_by", "")
+        n_done = getattr(summary, "n_completed", 0)
+        self.event_log.append(f"session ended: {ended_by} ({n_done} trials completed, "
+                              f"{getattr(summary, 'n_aborted', 0)} aborted, "
+                              f"{getattr(summary, 'n_pending', 0)} not run)")
+        if n_done and self.controller.session_path is not None:
+            self.results.run(self.controller.session_path)
+            self._switch(Tab.RESULTS)
 
     def _poll_engine(self) -> None:
         if self.controller.engine is None:

@@ -16,10 +16,7 @@ from PySide6.QtCore import QObject, Signal
 
 import rig.gui.qt_compat  # noqa: F401  (before any signal is emitted)
 
-try:
-    from rig.engine import EngineObserver
-except ImportError:  # TEMP until rig.engine lands
-    EngineObserver = object
+from rig.engine import EngineObserver
 from rig.gui.live_buffer import LiveBuffer
 
 log = logging.getLogger(__name__)

@@ -174,7 +174,7 @@ class SchedulePanel(QWidget):
 
     def _selection_changed(self) -> None:
         state = getattr(self, "_state", "idle")
-        ok_state = state in ("armed", "stimulating", "resting", "paused", "finished")
+        ok_state = state in ("armed", "stimulating", "resting", "paused", "tripped")
         self.rerun_button.setEnabled(ok_state and bool(self.aborted_indices()))
 
     def _rerun_clicked(self) -> None:

@@ -8,6 +8,7 @@ if it is finished or not a session file, Start is refused with the reason.
 from __future__ import annotations
 
 import enum
+import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,9 +59,21 @@ class OutputCheck:
 
 
 def check_output(path: str | os.PathLike) -> OutputCheck:
-    """Say whether ``path`` is free, resumable, finished or unusable."""
+    """Say whether ``path`` is free, resumable, finished or unusable.
+
+    A session is unfinished if its crash journal (``<file>.journal``) is still there
+    (the engine removes it when a run ends cleanly) or if trials of its stored schedule
+    are not completed; the engine's resume recovers the journal and re-runs the rest.
+    """
+    from rig.session_log import journal_dir
     path = Path(path)
+    jdir = journal_dir(path)
     if not path.exists():
+        if jdir.is_dir():
+            return OutputCheck(OutputState.UNFINISHED,
+                               f"{path} was being written when the program stopped (its "
+                               "journal is there). Press Resume to recover and continue it, "
+                               "or choose another output file.")
         return OutputCheck(OutputState.NEW, f"{path} will be created.")
     from rig.session_file import SessionWriter, read_session
     try:
@@ -69,6 +82,10 @@ def check_output(path: str | os.PathLike) -> OutputCheck:
         try:  # a session file that stopped before its calibration was written
             SessionWriter.open(path)
         except (ValueError, OSError):
+            if jdir.is_dir():
+                return OutputCheck(OutputState.UNFINISHED,
+                                   f"{path} is damaged but its journal is there. Press "
+                                   "Resume to recover and continue it.")
             return OutputCheck(OutputState.INVALID,
                                f"{path} exists and is not a readable session file ({exc}); "
                                "choose another output file (or run `nmsid recover` on it).")
@@ -76,17 +93,10 @@ def check_output(path: str | os.PathLike) -> OutputCheck:
                            f"{path} holds a session that stopped before its calibration "
                            "was saved. Press Resume to continue it, or choose another "
                            "output file.")
-    done = {(round(float(t.sE), 6), t.repeat) for t in session.trials if t.completed}
-    planned = 0
-    try:
-        from protocols.config import config_from_json
-        cfg = config_from_json(session.config_json) if session.config_json else None
-        if cfg is not None:
-            planned = len(cfg.protocol.sE_levels) * cfg.protocol.repeats
-    except (ValueError, ImportError):
-        planned = 0
-    finished_attr = session.attrs.get("finished_utc")
-    if (planned and len(done) >= planned) or (finished_attr and not planned):
+    done = {int(t.extra_attrs["schedule_index"]) if "schedule_index" in t.extra_attrs
+            else (round(float(t.sE), 6), t.repeat) for t in session.trials if t.completed}
+    planned = _planned_count(session)
+    if not jdir.is_dir() and planned and len(done) >= planned:
         return OutputCheck(OutputState.FINISHED,
                            f"{path} holds a finished session ({len(done)} completed trials); "
                            "nmsid never overwrites a session file: choose another output "
@@ -94,8 +104,27 @@ def check_output(path: str | os.PathLike) -> OutputCheck:
     return OutputCheck(OutputState.UNFINISHED,
                        f"{path} holds an unfinished session of {session.participant} "
                        f"({len(done)}" + (f" of {planned}" if planned else "") +
-                       " trials completed). Press Resume to continue it, or choose "
-                       "another output file.", len(done), planned)
+                       " trials completed). Press Resume to continue it (completed trials "
+                       "are kept, aborted ones re-run), or choose another output file.",
+                       len(done), planned)
+
+
+def _planned_count(session) -> int:
+    """Number of planned trials of a stored session (0 if unknown)."""
+    text = session.attrs.get("schedule_json")
+    if text is not None:
+        try:
+            return len(json.loads(text if isinstance(text, str) else bytes(text).decode()))
+        except (ValueError, TypeError):
+            pass
+    try:
+        from protocols.config import config_from_json
+        if session.config_json:
+            cfg = config_from_json(session.config_json)
+            return len(cfg.protocol.sE_levels) * cfg.protocol.repeats
+    except ValueError:
+        pass
+    return 0
 
 
 class SetupPanel(QWidget):
