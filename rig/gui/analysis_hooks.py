@@ -12,10 +12,21 @@ from rig.gui.results_panel import ModelFit, ParameterSelection, SelectionView
 
 
 def identify_level(trials):
-    """Identify one sE level from its completed trials (``analysis.identify``)."""
-    from analysis.identify import identify_level as _identify, IdentifySettings
-    return _identify([t for t in trials if getattr(t, "completed", True)],
-                     IdentifySettings())
+    """Identify one sE level from its trials (``analysis.identify.identify_level``).
+
+    Returns the fitted second-order model (attributes ``Kp``, ``wn_rad_s``, ``zeta``,
+    ``fit_pct``).
+
+    Raises
+    ------
+    ValueError
+        If nothing could be estimated; the message lists the analysis' reasons.
+    """
+    from analysis.identify import identify_level as _identify
+    result = _identify(list(trials))
+    if result.fit is None:
+        raise ValueError("; ".join(result.problems) or "no parameters estimated")
+    return result.fit
 
 
 def select_models(session_path: Path) -> SelectionView:

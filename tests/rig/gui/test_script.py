@@ -1,0 +1,76 @@
+"""Parsing of GUI scripts and the command line around them."""
+
+from __future__ import annotations
+
+import pytest
+
+from rig.gui.script import (DEMO_SCRIPT, Command, ScriptError, load_script, parse_script)
+
+
+def test_parses_commands_arguments_and_comments():
+    steps = parse_script("""
+        # comment line
+        start participant=P07 output="my dir/P07.h5"   # trailing comment
+        confirm-calibration Iemin_mA=2.5
+        wait-trial 1 running 30
+        estop
+        note "electrode re-taped, ok"
+        wait tripped 5
+        rerun 1
+        tab results
+        screenshot out.png
+    """, "s.txt")
+    cmds = [s.command for s in steps]
+    assert cmds == [Command.START, Command.CONFIRM_CALIBRATION, Command.WAIT_TRIAL,
+                    Command.ESTOP, Command.NOTE, Command.WAIT, Command.RERUN, Command.TAB,
+                    Command.SCREENSHOT]
+    assert steps[0].kwargs == {"participant": "P07", "output": "my dir/P07.h5"}
+    assert steps[1].kwargs == {"Iemin_mA": "2.5"}
+    assert steps[4].args == ("electrode re-taped, ok",)
+    assert steps[2].line == 5
+
+
+@pytest.mark.parametrize("text, message", [
+    ("launch", "unknown command 'launch'"),
+    ("wait sleeping", "unknown state 'sleeping'"),
+    ("wait-trial 1 finished", "status must be pending, running, done or aborted"),
+    ("tab plots", "unknown tab 'plots'"),
+    ("start colour=red", "unknown setting"),
+    ("confirm-calibration Iemin_mA=lots", "must be a number"),
+    ("note", "needs a text"),
+    ("estop now", "takes 0..0 arguments"),
+    ('note "unclosed', "cannot parse"),
+])
+def test_refuses_bad_lines_naming_the_line(text, message):
+    with pytest.raises(ScriptError, match=message) as info:
+        parse_script("estop\n" + text, "bad.txt")
+    assert "bad.txt:2" in str(info.value)
+
+
+def test_demo_script_is_valid_and_file_errors_name_the_file(tmp_path):
+    assert parse_script(DEMO_SCRIPT, "demo")
+    assert load_script("demo")
+    with pytest.raises(OSError, match="missing.txt"):
+        load_script(str(tmp_path / "missing.txt"))
+
+
+def test_cli_registers_gui_with_its_options():
+    import argparse
+
+    from rig import cli_gui
+    parser = argparse.ArgumentParser()
+    sub = parser.add_subparsers()
+    cli_gui.register(sub)
+    args = parser.parse_args(["gui", "--backend", "sim", "--participant", "P01", "--out",
+                              "x.h5", "--script", "demo", "--screenshot", "s.png", "--fast"])
+    assert args.handler == "rig.cli_gui:run"
+    assert (args.backend, args.participant, args.out, args.script, args.screenshot,
+            args.fast) == ("sim", "P01", "x.h5", "demo", "s.png", True)
+
+
+def test_screenshot_without_script_is_refused():
+    from pathlib import Path
+
+    from rig.gui.app import GuiOptions, run_gui
+    with pytest.raises(ValueError, match="--script"):
+        run_gui(GuiOptions(screenshot=Path("x.png")))
