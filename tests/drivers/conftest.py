@@ -64,3 +64,49 @@ def fake_nidaqmx(monkeypatch):
     yield setup
     for task in mod.state().tasks:
         task.close()
+
+
+_VENDOR_MODULES = ("clr", "System", "Mcs", "Mcs.Usb", "nidaqmx", "nidaqmx.constants",
+                   "nidaqmx.errors", "nidaqmx.stream_readers", "nidaqmx.system")
+
+
+@pytest.fixture(autouse=True)
+def _restore_vendor_modules():
+    """Fake mode installs fake vendor modules process-wide: undo it after each test."""
+    import sys
+
+    saved = {name: sys.modules.get(name) for name in _VENDOR_MODULES}
+    yield
+    for name, mod in saved.items():
+        if mod is None:
+            sys.modules.pop(name, None)
+        else:
+            sys.modules[name] = mod
+
+
+@pytest.fixture
+def write_hw_config():
+    """Factory writing a fake-mode hardware config (end-to-end and probe tests)."""
+    return _write_hw_config
+
+
+def _write_hw_config(path, *, kind="caio", speed=10.0, fake=True, estop="serial",
+                    fs_Hz=2000.0):
+    """A fake-mode hardware config for the end-to-end and probe tests."""
+    lines = ["[rig]", f"fake = {'true' if fake else 'false'}", f"fake_speed = {speed}",
+             "[stimulator]", "ceiling_ext_mA = 16.0", "ceiling_flex_mA = 16.0",
+             "[acquisition]", f'kind = "{kind}"', f"fs_Hz = {fs_Hz}"]
+    if kind == "leptrino":
+        lines += ["[acquisition.leptrino]", 'port = "COM5"', "sync_on_external_input = true"]
+    else:
+        lines += ["[sensor]", "sync_channel = 6", "[sensor.channels]",
+                  *[f"{a} = {i}" for i, a in enumerate(("Fx", "Fy", "Fz", "Mx", "My", "Mz"))],
+                  "[sensor.rated]", "Fx = 500.0", "Fy = 500.0", "Fz = 1000.0", "Mx = 10.0",
+                  "My = 10.0", "Mz = 10.0", "[sensor.rated_output_V]",
+                  *[f"{a} = 10.0" for a in ("Fx", "Fy", "Fz", "Mx", "My", "Mz")]]
+    if estop == "serial":
+        lines += ["[estop]", 'kind = "serial"', 'port = "COM7"', 'line = "CTS"']
+    elif estop == "nidaq":
+        lines += ["[estop]", 'kind = "nidaq"', 'line = "Dev1/port0/line0"']
+    path.write_text("\n".join(lines) + "\n")
+    return path

@@ -1,0 +1,237 @@
+"""Build the rig's devices from the hardware configuration: ``make_hw_rig(path)``.
+
+``nmsid run --backend hw --hw-config FILE`` calls :func:`make_hw_rig`; ``nmsid probe``
+calls :func:`build_devices`. Devices are created but not connected (the engine connects the
+stimulator and configures the acquisition in its set-up); the E-stop switch is opened at
+once so that a wrong port fails before the session starts.
+
+With ``fake = true`` in ``[rig]`` (or ``NMSID_HW_FAKE=1``) the same drivers run against the
+faithful fakes of ``tests/drivers/fakes`` (McsUsbNet, CAIO, nidaqmx, a Leptrino emulator on
+a pseudo-terminal, a ``loop://`` serial E-stop), coupled through a simulated force model.
+For testing the software only: never with a participant.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.caio import CaioAcquisition
+from drivers.estop_switch import NidaqEStop, SerialEStop
+from drivers.fake_hardware import fake_requested, load_fake
+from drivers.hw_config import HardwareConfig, load_hw_config
+from drivers.interfaces import RealClock, RigDevices
+from drivers.leptrino import LeptrinoAcquisition, LeptrinoSensor, _serial_module
+from drivers.nidaq import NidaqAcquisition
+from drivers.stg4002 import DEFAULT_DLL, Stg4002Stimulator
+
+log = logging.getLogger(__name__)
+
+
+class BenchClock:
+    """The fake bench's clock as a :class:`drivers.interfaces.Clock` (fake mode only)."""
+
+    def __init__(self, bench):
+        self.bench = bench
+
+    def monotonic_s(self) -> float:
+        return self.bench.now()
+
+    def sleep(self, duration_s: float) -> None:
+        self.bench.sleep(duration_s)
+
+
+@dataclass
+class FakeStack:
+    """What fake mode set up (kept alive with the devices; closed with them)."""
+
+    bench: object
+    emulator: object = None
+
+    def close(self) -> None:
+        if self.emulator is not None:
+            self.emulator.close()
+            self.emulator = None
+
+
+class _OwningAcquisition:
+    """Delegates to an acquisition and closes the fake stack after it."""
+
+    def __init__(self, inner, stack: FakeStack):
+        self._inner, self._stack = inner, stack
+
+    def __getattr__(self, name):
+        return getattr(self._inner, name)
+
+    def configure(self, fs_Hz):
+        return self._inner.configure(fs_Hz)
+
+    def start(self, n_samples=None, *, triggered=True):
+        return self._inner.start(n_samples, triggered=triggered)
+
+    def read(self, timeout_s):
+        return self._inner.read(timeout_s)
+
+    def stop(self):
+        return self._inner.stop()
+
+    def close(self):
+        try:
+            self._inner.close()
+        finally:
+            self._stack.close()
+
+
+def make_hw_rig(hw_config_path) -> RigDevices:
+    """The devices of the rig described by ``hw_config_path`` (see docs/hardware.md).
+
+    Raises
+    ------
+    HardwareConfigError, FileNotFoundError
+        For a bad or missing configuration (one line naming the setting).
+    VendorLibraryMissing, DeviceNotFound
+        When a device or its library is missing (also one line).
+    """
+    cfg = load_hw_config(hw_config_path)
+    return build_devices(cfg)
+
+
+def build_devices(cfg: HardwareConfig) -> RigDevices:
+    fake = fake_requested(cfg.fake)
+    if fake and not cfg.fake:
+        cfg = _with_fake(cfg)
+    stack = _install_fakes(cfg) if fake else None
+    clock = BenchClock(stack.bench) if stack is not None else RealClock()
+    s = cfg.stimulator
+    stim = Stg4002Stimulator(
+        ceiling_ext_mA=s.ceiling_ext_mA, ceiling_flex_mA=s.ceiling_flex_mA,
+        extensor_channel=s.extensor_channel, flexor_channel=s.flexor_channel,
+        sync_out=s.sync_out, serial=s.serial, dll_path=s.dll_path or DEFAULT_DLL,
+        clock=clock.monotonic_s if stack is not None else None)
+    acq = _acquisition(cfg, stack)
+    # load every vendor library now: a missing one is reported (one line) before any port
+    # is opened or anything else is tried
+    _ = stim.api
+    inner = getattr(acq, "_inner", acq)
+    if isinstance(inner, CaioAcquisition):
+        _ = inner.lib
+    elif isinstance(inner, NidaqAcquisition):
+        _ = inner.api
+    if cfg.acquisition.kind == "leptrino" or cfg.estop.kind == "serial":
+        _serial_module()
+    estop = _estop(cfg, stack)
+    if estop is None:
+        log.warning("no hardware E-stop switch configured ([estop] kind = \"none\"): only "
+                    "the software E-stop and the stimulator's power switch remain")
+    else:
+        try:
+            estop.open()
+        except Exception:
+            acq.close()
+            raise
+    return RigDevices(stimulator=stim, acquisition=acq, estop=estop, clock=clock,
+                      backend=cfg.describe(), extensor_channel=s.extensor_channel,
+                      flexor_channel=s.flexor_channel)
+
+
+def _with_fake(cfg: HardwareConfig) -> HardwareConfig:
+    from dataclasses import replace
+    return replace(cfg, fake=True)
+
+
+def _acquisition(cfg: HardwareConfig, stack: FakeStack | None):
+    a = cfg.acquisition
+    if a.kind == "caio":
+        lib = None
+        if stack is not None:
+            from drivers.caio import declare
+            lib = declare(load_fake("fake_caio").FakeCaioLibrary(
+                stack.bench, device_name=a.caio["device_name"],
+                wiring=_fake_wiring(cfg, stack.bench)))
+        return _own(CaioAcquisition(cfg.calibration, lib=lib, **a.caio), stack)
+    if a.kind == "nidaq":
+        return _own(NidaqAcquisition(cfg.calibration, **a.nidaq), stack)
+    port = a.leptrino["port"]
+    if stack is not None:
+        port = stack.emulator.port
+    sensor = LeptrinoSensor(port, baudrate=a.leptrino["baudrate"])
+    return _own(LeptrinoAcquisition(sensor, extension_direction=cfg.extension_direction,
+                                    sync_on_external_input=a.leptrino["sync_on_external_input"]),
+                stack)
+
+
+def _own(acq, stack):
+    return acq if stack is None else _OwningAcquisition(acq, stack)
+
+
+def _estop(cfg: HardwareConfig, stack: FakeStack | None):
+    e = cfg.estop
+    if e.kind == "serial":
+        return SerialEStop("loop://" if stack is not None else e.port, line=e.line)
+    if e.kind == "nidaq":
+        return NidaqEStop(e.line, released_level=e.released_level)
+    return None
+
+
+# -- fake mode ---------------------------------------------------------------------------
+def _fake_wiring(cfg: HardwareConfig, bench) -> dict:
+    """Fake sensor outputs consistent with the configured calibration (fake mode only)."""
+    cal = cfg.calibration
+    d = cal.direction
+    if cal.matrix is None:
+        return load_fake("bench").sensor_wiring(
+            bench, cal.channels, {a: cal.volts_per_unit(a) for a in cal.channels},
+            offset_V=dict(cal.offset_V), direction=tuple(d), sync_channel=cal.sync_channel,
+            noise_V=0.0005)
+    minv = np.linalg.inv(np.asarray(cal.matrix, dtype=float))
+    axes = ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
+    wiring = {}
+    for axis, ch in cal.channels.items():
+        gain = float(minv[axes.index(axis), :3] @ d)
+        off = cal.offset_V.get(axis, 0.0)
+        wiring[ch] = lambda t, force, g=gain, o=off: force * g + o
+    wiring[cal.sync_channel] = lambda t, force: bench.sync_V(t)
+    return wiring
+
+
+def _install_fakes(cfg: HardwareConfig) -> FakeStack:
+    """Put the fake vendor modules in place and wire the fake bench (fake mode only)."""
+    log.warning("FAKE hardware: %s runs against the fakes in tests/drivers/fakes, "
+                "no device is used", cfg.source)
+    bench = load_fake("bench").FakeBench(speed=cfg.fake_speed)
+    s = cfg.stimulator
+    bench.extensor_channel = s.extensor_channel - 1
+    bench.flexor_channel = s.flexor_channel - 1
+    bench.sync_out = s.sync_out - 1
+    mcs = load_fake("fake_mcs_usb")
+    mcs.install(bench=bench, hardware=[mcs.FakeStgHardware(serial=s.serial or "4002-0001")])
+    stack = FakeStack(bench=bench)
+    a = cfg.acquisition
+    if a.kind == "nidaq" or cfg.estop.kind == "nidaq":
+        wiring = _fake_wiring(cfg, bench) if a.kind == "nidaq" else {}
+        dev = a.nidaq["device"]
+        load_fake("fake_nidaqmx").install(
+            bench=bench, devices={dev: {"product_type": "USB-6212", "serial_num": 0x1A2B3C}},
+            wiring=wiring,
+            di_lines={cfg.estop.line: cfg.estop.released_level} if cfg.estop.kind == "nidaq"
+            else {})
+    if a.kind == "leptrino":
+        emu_mod = load_fake("leptrino_emulator")
+        d = np.asarray(cfg.extension_direction, float)
+        d = d / np.linalg.norm(d)
+        state = {"rate": 1200.0}
+
+        def wrench(t):
+            f = float(bench.force_N(np.array([bench.now()]), state["rate"])[0])
+            return (*(f * d), 0.0, 0.0, 0.0)
+
+        def status(t):
+            return 0x20 if float(bench.sync_V(np.array([bench.now()]))[0]) > 1.0 else 0
+
+        emu = emu_mod.LeptrinoEmulator(wrench_fn=wrench)
+        emu.status_fn = status
+        emu.__enter__()
+        stack.emulator = emu
+    return stack

@@ -1,0 +1,113 @@
+"""make_hw_rig and nmsid probe in fake mode; one clear line without the vendor libraries."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+
+from drivers.caio import CaioAcquisition
+from drivers.estop_switch import NidaqEStop, SerialEStop
+from drivers.hardware import make_hw_rig
+from drivers.interfaces import ForceAcquisition, RigDevices, Stimulator
+from drivers.leptrino import LeptrinoAcquisition
+from drivers.nidaq import NidaqAcquisition
+from drivers.stg4002 import Stg4002Stimulator
+from rig.cli import main
+
+
+@pytest.mark.parametrize("kind, estop, inner, estop_cls", [
+    ("caio", "serial", CaioAcquisition, SerialEStop),
+    ("nidaq", "nidaq", NidaqAcquisition, NidaqEStop),
+    ("leptrino", "none", LeptrinoAcquisition, type(None))])
+def test_make_hw_rig_in_fake_mode(write_hw_config, tmp_path, kind, estop, inner, estop_cls):
+    fs = 1200.0 if kind == "leptrino" else 2000.0
+    devices = make_hw_rig(write_hw_config(tmp_path / "hw.toml", kind=kind, estop=estop,
+                                          fs_Hz=fs))
+    try:
+        assert isinstance(devices, RigDevices) and "[FAKE devices]" in devices.backend
+        assert isinstance(devices.stimulator, Stg4002Stimulator)
+        assert isinstance(devices.stimulator, Stimulator)
+        assert isinstance(devices.acquisition, ForceAcquisition)
+        assert isinstance(devices.acquisition._inner, inner)
+        assert isinstance(devices.estop, estop_cls)
+        if devices.estop is not None:
+            assert devices.estop.is_pressed() is False
+        assert devices.acquisition.configure(fs) == fs
+    finally:
+        devices.close()
+
+
+def test_env_var_turns_on_fake_mode(write_hw_config, tmp_path, monkeypatch):
+    monkeypatch.setenv("NMSID_HW_FAKE", "1")
+    devices = make_hw_rig(write_hw_config(tmp_path / "hw.toml", fake=False))
+    try:
+        assert "[FAKE devices]" in devices.backend
+    finally:
+        devices.close()
+
+
+@pytest.mark.parametrize("kind", ["caio", "nidaq", "leptrino"])
+def test_probe_against_fakes(write_hw_config, tmp_path, capsys, kind):
+    fs = 1200.0 if kind == "leptrino" else 2000.0
+    path = write_hw_config(tmp_path / "hw.toml", kind=kind, fs_Hz=fs,
+                           estop="nidaq" if kind == "nidaq" else "serial")
+    assert main(["probe", "--hw-config", str(path), "--samples", "30"]) == 0
+    out = capsys.readouterr().out
+    assert "serial: 4002-0001" in out and "range_mA: {1: 16.0, 2: 16.0}" in out
+    assert "30 samples: force mean" in out or "samples: force mean" in out
+    assert "E-stop switch: released" in out and "probe: OK" in out
+    if kind == "leptrino":
+        assert "sensor: PFS080YA501G6" in out
+
+
+def test_probe_never_stimulates(write_hw_config, tmp_path, capsys):
+    from drivers.fake_hardware import load_fake
+    path = write_hw_config(tmp_path / "hw.toml")
+    assert main(["probe", "--hw-config", str(path)]) == 0
+    calls = [c[0] for dev in load_fake("fake_mcs_usb").registry().devices for c in dev.calls]
+    assert "Connect" in calls
+    assert "PrepareAndSendData" not in calls and "SendStart" not in calls
+
+
+@pytest.mark.parametrize("kind, missing, text", [
+    ("caio", "clr", "pythonnet"),
+    ("nidaq", "nidaqmx", "nidaqmx")])
+def test_missing_vendor_library_is_one_line_exit_2(write_hw_config, tmp_path, capsys, monkeypatch, kind,
+                                                    missing, text):
+    from drivers.fake_hardware import load_fake
+    if kind == "nidaq":  # pythonnet present (fake), nidaqmx absent
+        mods = {}
+        load_fake("fake_mcs_usb").install(modules=mods)
+        for name, m in mods.items():
+            monkeypatch.setitem(sys.modules, name, m)
+    monkeypatch.setitem(sys.modules, missing, None)
+    path = write_hw_config(tmp_path / "hw.toml", kind=kind, fake=False, estop="none")
+    assert main(["probe", "--hw-config", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and text in err and "install" in err
+    assert main(["run", "--backend", "hw", "--hw-config", str(path), "--out",
+                 str(tmp_path / "s.h5")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and text in err
+
+
+def test_missing_caio_library_is_one_line(write_hw_config, tmp_path, capsys, monkeypatch):
+    from drivers.fake_hardware import load_fake
+    mods = {}
+    load_fake("fake_mcs_usb").install(modules=mods)
+    for name, m in mods.items():
+        monkeypatch.setitem(sys.modules, name, m)
+    path = write_hw_config(tmp_path / "hw.toml", fake=False, estop="none")
+    assert main(["probe", "--hw-config", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "CAIO" in err and "API-AIO" in err
+
+
+def test_bad_config_is_one_line(write_hw_config, tmp_path, capsys):
+    bad = tmp_path / "hw.toml"
+    bad.write_text('[acquisition]\nkind = "leptrino"\nfs_Hz = 2000.0\n'
+                   '[acquisition.leptrino]\nport = "COM5"\n')
+    assert main(["probe", "--hw-config", str(bad)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "acquisition.fs_Hz" in err
