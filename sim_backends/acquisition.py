@@ -1,0 +1,131 @@
+"""A simulated hardware-timed force acquisition (six-axis sensor + A/D) and E-stop switch."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from drivers.interfaces import ForceChunk
+from sim_backends.errors import DeviceStateError, SimConfigError
+from sim_backends.world import SimWorld
+
+#: Largest real-time wait slice while a read blocks (keeps reads responsive).
+_WAIT_SLICE_S = 0.005
+
+
+class SimForceAcquisition:
+    """Delivers the virtual participant's force in chunks, aligned to the stimulator trigger.
+
+    On the fast clock a read returns at once and moves the clock to the time the chunk's
+    last sample was taken; in real time it blocks until then (at most ``timeout_s``).
+    The force of each chunk is simulated when it is read, from the stimulator output as it
+    is at that moment, with the participant's state carried over.
+    """
+
+    def __init__(self, world: SimWorld):
+        self._w = world
+        self._closed = False
+        self.fs_Hz = world.fs_Hz
+
+    def configure(self, fs_Hz: float) -> float:
+        if not (np.isfinite(fs_Hz) and 100.0 <= fs_Hz <= 20_000.0):
+            raise SimConfigError(f"acquisition rate {fs_Hz!r} Hz is not supported by the "
+                                 "simulated A/D; valid: 100-20000 Hz")
+        self._w.set_fs(float(fs_Hz))
+        self.fs_Hz = self._w.fs_Hz
+        return self.fs_Hz
+
+    def start(self, n_samples: int | None = None, *, triggered: bool = True) -> None:
+        if self._closed:
+            raise DeviceStateError("start() on a closed acquisition")
+        if n_samples is not None and int(n_samples) < 0:
+            raise SimConfigError(f"n_samples must be >= 0 or None, got {n_samples!r}")
+        with self._w.lock:
+            if self._w.acq is not None:
+                raise DeviceStateError("start() while acquiring; stop() first")
+            self._w.start_acquisition(None if n_samples is None else int(n_samples),
+                                      triggered)
+
+    def read(self, timeout_s: float) -> ForceChunk | None:
+        w = self._w
+        clock = w.clock
+        realtime = getattr(clock, "realtime", True)
+        deadline = clock.monotonic_s() + max(0.0, float(timeout_s))
+        while True:
+            with w.lock:
+                acq = w.acq
+                if acq is None:
+                    raise DeviceStateError("read() before start()")
+                w.update()
+                due = None
+                if not acq.waiting and not acq.done:
+                    Na, Nb = w.next_range(acq)
+                    sf = w.stall_at(Na)
+                    if sf is not None and not acq.stalled:
+                        w.start_stall(acq, sf)
+                    if acq.stalled:
+                        if acq.stall_end_s is not None and clock.monotonic_s() >= acq.stall_end_s:
+                            acq.stalled = False
+                            sf.done = True
+                            continue
+                    else:
+                        due = w.due_time(acq, Nb)
+                        if not realtime:
+                            clock.advance_to(due)
+                        if clock.monotonic_s() >= due - 1e-12:
+                            force, wrench, sync, flags, k0 = w.acquire(acq, Na, Nb)
+                            return ForceChunk(start_index=k0, force_N=force,
+                                              wrench=wrench, sync=sync, flags=flags)
+            # nothing to hand over yet
+            now = clock.monotonic_s()
+            if not realtime:
+                clock.sleep(max(0.0, deadline - now))
+                return None
+            if now >= deadline:
+                return None
+            wake = deadline if due is None else min(deadline, due)
+            time.sleep(max(0.0, min(_WAIT_SLICE_S, wake - now)))
+
+    def stop(self) -> None:
+        with self._w.lock:
+            self._w.stop_acquisition()
+
+    def close(self) -> None:
+        self.stop()
+        self._closed = True
+
+
+class SimEStop:
+    """The hardware E-stop switch: pressed by the fault script or by :meth:`press`.
+
+    Latching, like a mushroom switch: it stays pressed until :meth:`release`.
+    """
+
+    def __init__(self, world: SimWorld):
+        self._w = world
+        self._closed = False
+
+    def is_pressed(self) -> bool:
+        if self._closed:
+            return True   # fail-safe: an unreadable switch reads as pressed
+        with self._w.lock:
+            self._w.update()
+            return self._w.estop_pressed
+
+    def press(self) -> None:
+        with self._w.lock:
+            self._w.estop_pressed = True
+            self._w.estop_pressed_at_s = self._w.now()
+
+    def release(self) -> None:
+        with self._w.lock:
+            self._w.estop_pressed = False
+
+    @property
+    def pressed_at_s(self) -> float | None:
+        """Clock time of the latest press."""
+        return self._w.estop_pressed_at_s
+
+    def close(self) -> None:
+        self._closed = True

@@ -1,0 +1,120 @@
+"""The simulated rig: :func:`make_sim_rig` builds the devices the engine drives."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from drivers.interfaces import RigDevices
+from sim_backends.acquisition import SimEStop, SimForceAcquisition
+from sim_backends.clocks import FastClock, SimRealClock
+from sim_backends.errors import SimConfigError
+from sim_backends.faults import Fault, FaultScript
+from sim_backends.participant import VirtualParticipant, default_participant
+from sim_backends.stimulator import SimStimulator
+from sim_backends.world import SimWorld
+
+FAST_CHUNK_S = 0.1
+"""Chunk length on the fast clock (long chunks: fewer calls, faster sessions)."""
+REALTIME_CHUNK_S = 0.02
+"""Chunk length in real time (short chunks: latency measurements mean something)."""
+
+
+@dataclass
+class SimRig(RigDevices):
+    """The simulated devices plus what tests need to look inside.
+
+    ``participant``: the virtual participant; ``world``: the shared time base and the
+    stimulator's history (``world.records``, ``world.output_zero``, ``world.stop_calls``);
+    ``faults``: the fault script and its ``fired`` log.
+    """
+
+    participant: VirtualParticipant | None = None
+    world: SimWorld | None = None
+    faults: FaultScript = field(default_factory=FaultScript)
+
+    @property
+    def max_sent_mA(self) -> tuple[float, float]:
+        """Largest current ever loaded per channel (extensor, flexor), mA."""
+        return tuple(self.world.max_sent_mA)
+
+    @property
+    def max_delivered_mA(self) -> tuple[float, float]:
+        """Largest current ever output per channel (extensor, flexor), mA."""
+        return tuple(self.world.max_delivered_mA)
+
+    @property
+    def output_zero_events(self):
+        """Every time the output became zero by ``stop_now`` or a stimulator fault."""
+        return list(self.world.output_zero)
+
+    @property
+    def run_records(self):
+        """One record per stimulator start: trigger time and sample, end, reason, peaks."""
+        return list(self.world.records)
+
+    @property
+    def cumulative_stim_s(self) -> float:
+        """Stimulation time the participant has received since the rig was made, s."""
+        return self.world.sim.cumulative_stim_s
+
+    def true_parameters(self, sE: float, calibration=None):
+        """Shortcut for ``participant.true_parameters``."""
+        return self.participant.true_parameters(sE, calibration)
+
+
+def make_sim_rig(participant: VirtualParticipant | None = None, *, realtime: bool = False,
+                 faults: FaultScript | list[Fault] | None = None, seed: int = 0,
+                 fs_Hz: float = 2000.0, chunk_s: float | None = None,
+                 connect: bool = False) -> SimRig:
+    """Build a simulated rig.
+
+    Parameters
+    ----------
+    participant : VirtualParticipant, optional
+        Who is on the rig; default :func:`~sim_backends.participant.default_participant`
+        with ``seed``.
+    realtime : bool
+        False: :class:`FastClock` (virtual time, as fast as possible). True: real time.
+    faults : FaultScript or list of Fault, optional
+        Faults to inject.
+    seed : int
+        Seed of the default participant (ignored when ``participant`` is given: its own
+        ``seed`` sets its noise).
+    fs_Hz : float
+        Acquisition rate (the paper: 2000 Hz).
+    chunk_s : float, optional
+        Acquisition chunk length; default 0.1 s on the fast clock, 0.02 s in real time.
+    connect : bool
+        Connect the stimulator already (the engine normally does it).
+
+    Returns
+    -------
+    SimRig
+        A :class:`drivers.interfaces.RigDevices` with ``backend="sim"``.
+
+    Examples
+    --------
+    >>> rig = make_sim_rig()
+    >>> rig.backend, rig.stimulator.capabilities().max_current_mA
+    ('sim', 16.0)
+    """
+    if participant is None:
+        participant = default_participant(seed=seed)
+    if not isinstance(participant, VirtualParticipant):
+        raise SimConfigError(f"participant must be a VirtualParticipant, got "
+                             f"{type(participant).__name__}")
+    if isinstance(faults, (list, tuple)):
+        faults = FaultScript(list(faults))
+    script = faults if faults is not None else FaultScript()
+    clock = SimRealClock() if realtime else FastClock()
+    if chunk_s is None:
+        chunk_s = REALTIME_CHUNK_S if realtime else FAST_CHUNK_S
+    if not 0 < chunk_s <= 1.0:
+        raise SimConfigError(f"chunk_s must be in (0, 1] s, got {chunk_s!r}")
+    world = SimWorld(participant, clock, script, fs_Hz=fs_Hz, chunk_s=chunk_s)
+    stim = SimStimulator(world)
+    if connect:
+        stim.connect()
+    return SimRig(stimulator=stim, acquisition=SimForceAcquisition(world),
+                  estop=SimEStop(world), clock=clock, backend="sim",
+                  participant=participant, world=world, faults=script)

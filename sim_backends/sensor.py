@@ -1,0 +1,208 @@
+"""The simulated force chain: six-axis sensor + A/D, with noise, offset, drift and mains.
+
+Every term is a function of the absolute sample index of the rig's time base (sample 0 =
+the first stimulation onset of the session), so the same seed gives the same samples
+whatever the chunking (fast clock: long chunks; real time: short chunks).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim_backends.errors import SimConfigError
+
+NOISE_BLOCK = 4096
+"""White noise is drawn in blocks of this many samples, each from its own seeded stream,
+so any sample range can be generated without replaying the stream from the start."""
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """Measurement chain settings.
+
+    Parameters
+    ----------
+    noise_N : float
+        RMS of white measurement noise, N (the paper's rig: about 0.02-0.06 N).
+    offset_N : float
+        Constant offset of the force reading, N.
+    drift_N_per_s : float
+        Slow linear drift of the reading, N per second of session time.
+    mains_N : float
+        Amplitude of the mains pick-up, N.
+    mains_Hz : float
+        Mains frequency (50 Hz in Japan east / Europe).
+    mains_phase_rad : float
+        Phase of the pick-up at sample 0.
+    range_N : float
+        Full scale of the force axes; beyond it the chain flags over-range and saturates
+        (the sensor of the paper, Leptrino PFS080YA501G6, is rated 500 N).
+    axis : tuple of 3 float
+        Unit vector of the extension direction in the sensor frame.
+    lever_arm_m : tuple of 3 float
+        Point of force application relative to the sensor origin, m (gives the moments).
+    cross_noise_N : float
+        RMS of noise on the force components orthogonal to the axis, N.
+    """
+
+    noise_N: float = 0.04
+    offset_N: float = 0.15
+    drift_N_per_s: float = 2e-4
+    mains_N: float = 0.03
+    mains_Hz: float = 50.0
+    mains_phase_rad: float = 0.0
+    range_N: float = 500.0
+    axis: tuple[float, float, float] = (0.0, -0.9962, 0.0872)
+    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.04)
+    cross_noise_N: float = 0.02
+
+    def __post_init__(self):
+        for name in ("noise_N", "mains_N", "range_N", "cross_noise_N"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise SimConfigError(f"sensor {name} must be finite and >= 0, got {v!r}")
+        if not self.range_N > 0:
+            raise SimConfigError(f"sensor range_N must be > 0, got {self.range_N!r}")
+        axis = np.asarray(self.axis, dtype=float)
+        if axis.shape != (3,) or not np.linalg.norm(axis) > 0:
+            raise SimConfigError(f"sensor axis must be a non-zero 3-vector, got {self.axis!r}")
+        object.__setattr__(self, "axis", tuple(axis / np.linalg.norm(axis)))
+
+    @classmethod
+    def ideal(cls) -> SensorModel:
+        """A noiseless, offset-free, drift-free chain (for closed-form tests)."""
+        return cls(noise_N=0.0, offset_N=0.0, drift_N_per_s=0.0, mains_N=0.0,
+                   cross_noise_N=0.0)
+
+
+def block_normal(seed: int, stream: int, n0: int, n: int, width: int = 1) -> np.ndarray:
+    """Standard normal samples for absolute indices ``n0 .. n0+n-1`` of a seeded stream.
+
+    Chunk-independent: the result for a range equals the corresponding slice of the
+    result for any larger range.
+    """
+    if n <= 0:
+        return np.zeros((0, width)) if width > 1 else np.zeros(0)
+    b0, b1 = n0 // NOISE_BLOCK, (n0 + n - 1) // NOISE_BLOCK
+    parts = []
+    for b in range(b0, b1 + 1):
+        rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, int(stream), int(b)])
+        parts.append(rng.standard_normal((NOISE_BLOCK, width)))
+    blk = np.concatenate(parts) if len(parts) > 1 else parts[0]
+    off = n0 - b0 * NOISE_BLOCK
+    out = blk[off:off + n]
+    return out[:, 0] if width == 1 else out
+
+
+class SensorState:
+    """The chain's seeded noise (cached per block) and its measurement function."""
+
+    def __init__(self, model: SensorModel, seed: int, fs_Hz: float):
+        self.model = model
+        self.seed = int(seed)
+        self.fs_Hz = float(fs_Hz)
+        self._blocks: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        axis = np.asarray(model.axis)
+        r = np.asarray(model.lever_arm_m, dtype=float)
+        # two unit vectors orthogonal to the axis carry the cross-axis noise
+        helper = np.eye(3)[int(np.argmin(np.abs(axis)))]
+        v1 = np.cross(axis, helper)
+        v1 /= np.linalg.norm(v1)
+        v2 = np.cross(axis, v1)
+        self._w_axis = np.concatenate([axis, np.cross(r, axis)])
+        self._w_cross = np.vstack([np.concatenate([v, np.cross(r, v)]) for v in (v1, v2)])
+
+    def _block(self, b: int) -> tuple[np.ndarray, np.ndarray]:
+        blk = self._blocks.get(b)
+        if blk is None:
+            z = block_normal(self.seed, 1, b * NOISE_BLOCK, NOISE_BLOCK, 3)
+            m = self.model
+            noise = z[:, 0] * m.noise_N
+            # RMS cross_noise_N on each of the two orthogonal force directions
+            cross = (z[:, 1:] * m.cross_noise_N) @ self._w_cross
+            blk = (noise, cross)
+            if len(self._blocks) >= 4:
+                self._blocks.pop(min(self._blocks))
+            self._blocks[b] = blk
+        return blk
+
+    def _noise(self, n0: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        b0, b1 = n0 // NOISE_BLOCK, (n0 + n - 1) // NOISE_BLOCK
+        off = n0 - b0 * NOISE_BLOCK
+        if b0 == b1:
+            f, w = self._block(b0)
+            return f[off:off + n], w[off:off + n]
+        parts = [self._block(b) for b in range(b0, b1 + 1)]
+        f = np.concatenate([p[0] for p in parts])
+        w = np.vstack([p[1] for p in parts])
+        return f[off:off + n], w[off:off + n]
+
+    def measure(self, true_force_N: np.ndarray, n0: int
+                ) -> tuple[np.ndarray, np.ndarray, bool]:
+        """Reading of the chain for the true endpoint force of samples ``n0 ...``.
+
+        Returns
+        -------
+        force_N : ndarray
+            The force along the extension axis as the chain reports it.
+        wrench : ndarray, shape (n, 6)
+            Fx, Fy, Fz, Mx, My, Mz in the sensor frame (the force along ``axis`` plus
+            noise orthogonal to it, and their moments about the sensor origin); its force
+            projected on ``axis`` is ``force_N``.
+        over_range : bool
+            True if any force component exceeded ``range_N`` (the reading saturates).
+        """
+        m = self.model
+        n = true_force_N.size
+        f = np.array(true_force_N, dtype=float)
+        if n == 0:
+            return f, np.zeros((0, 6)), False
+        if m.offset_N or m.drift_N_per_s or m.mains_N:
+            t = (n0 + np.arange(n)) * (1.0 / self.fs_Hz)
+            if m.drift_N_per_s:
+                f += m.offset_N + m.drift_N_per_s * t
+            elif m.offset_N:
+                f += m.offset_N
+            if m.mains_N:
+                f += m.mains_N * np.sin((2 * np.pi * m.mains_Hz) * t + m.mains_phase_rad)
+        noise, cross = self._noise(n0, n) if (m.noise_N or m.cross_noise_N) else (None, None)
+        if m.noise_N:
+            f += noise
+        wrench = f[:, None] * self._w_axis[None, :]
+        if m.cross_noise_N:
+            wrench += cross
+        over = bool(np.abs(wrench[:, :3]).max() > m.range_N)
+        if over:
+            axis = np.asarray(m.axis)
+            forces = np.clip(wrench[:, :3], -m.range_N, m.range_N)
+            f = forces @ axis
+            wrench = np.hstack([forces, np.cross(np.asarray(m.lever_arm_m)[None, :], forces)])
+        return f, wrench, over
+
+
+@dataclass(frozen=True)
+class BaselineWander:
+    """Band-limited wander: a sum of ``n_components`` sinusoids with log-uniform
+    frequencies in [corner/10, corner] and random phases, RMS ``amplitude_N``."""
+
+    amplitude_N: float
+    corner_Hz: float
+    seed: int
+    n_components: int = 8
+
+    def __post_init__(self):
+        rng = np.random.default_rng([int(self.seed) & 0xFFFFFFFF, 77])
+        f = self.corner_Hz * 10 ** rng.uniform(-1.0, 0.0, self.n_components)
+        ph = rng.uniform(0, 2 * np.pi, self.n_components)
+        a = np.full(self.n_components, self.amplitude_N * math.sqrt(2.0 / self.n_components))
+        object.__setattr__(self, "_f", f)
+        object.__setattr__(self, "_ph", ph)
+        object.__setattr__(self, "_a", a)
+
+    def __call__(self, t_s: np.ndarray) -> np.ndarray:
+        t = np.asarray(t_s, dtype=float)
+        return (self._a[:, None] * np.sin(2 * np.pi * self._f[:, None] * t[None, :]
+                                          + self._ph[:, None])).sum(axis=0)

@@ -1,0 +1,217 @@
+"""Chunk-by-chunk simulation of a virtual participant and its force chain, with state.
+
+:class:`ParticipantSimulator` turns the currents really delivered on each channel (one
+value per acquisition sample, absolute sample indices of the rig's time base) into the
+true endpoint force and the force chain's reading. Filter states, the dead-time line and
+cumulative stimulation carry over from chunk to chunk and from trial to trial (the
+participant keeps its state through rests), so the result does not depend on chunking.
+
+Co-activation is sensed once per chunk: the median of ``max(u_e, 0) + max(u_f, 0)`` over
+the chunk's stimulated samples, rounded to ``SE_RESOLUTION``; a change smaller than that
+(the stimulator's 1 uA quantisation) keeps the previous value, so a trial at constant sE
+has constant parameters. Without stimulation the parameters of the last co-activation are
+kept (the force relaxes with the dynamics it had: an E-stop gives a smooth decay).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim_backends.effects import (ActivationDynamics, BaselineDrift, DeadTime, Fatigue,
+                                  FlexorExtensorAsymmetry)
+from sim_backends.filters import (DelayLine, StatefulFilter, first_order_zoh,
+                                  second_order_zoh)
+from sim_backends.participant import OperatingPoint, VirtualParticipant
+from sim_backends.sensor import BaselineWander, SensorState
+
+SE_RESOLUTION = 1e-3
+"""Resolution of the sensed co-activation (parameters are evaluated on this grid)."""
+
+QUIET_SKIP_SAMPLES = 20000
+"""In a gap without stimulation, after this many samples (10 s at 2 kHz) the dynamics have
+decayed to nothing (slowest pole >= 1 / s); the rest of the gap is skipped."""
+
+
+@dataclass
+class SimulatedBlock:
+    """The outcome of one simulated sample range."""
+
+    n0: int
+    true_force_N: np.ndarray
+    """Endpoint force the participant produces (no sensor terms)."""
+    force_N: np.ndarray
+    """The chain's reading along the extension axis."""
+    wrench: np.ndarray
+    over_range: bool
+    sE: float
+    """Co-activation used for the dynamics of this block."""
+    cumulative_stim_s: float
+    """Cumulative stimulation at the end of the block."""
+
+
+class ParticipantSimulator:
+    """Stateful simulation of one participant at ``fs_Hz``."""
+
+    def __init__(self, participant: VirtualParticipant, fs_Hz: float = 2000.0):
+        self.p = participant
+        self.fs_Hz = float(fs_Hz)
+        self.cursor = 0
+        """Next absolute sample index to simulate."""
+        self.stim_samples = 0
+        """Samples with current on either channel since the session began."""
+        self._op: OperatingPoint | None = None
+        self._s_raw: float | None = None
+        self._ops: dict[float, OperatingPoint] = {}
+        self._asym: FlexorExtensorAsymmetry | None = participant.effect(
+            "flexor_extensor_asymmetry")
+        act: ActivationDynamics | None = participant.effect("activation_dynamics")
+        self._act_coeffs = first_order_zoh(act.tau_s, self.fs_Hz) if act and act.tau_s > 0 \
+            else None
+        n_paths = 2 if self._asym is not None else 1
+        self._act = [StatefulFilter(1) for _ in range(n_paths)] if self._act_coeffs else []
+        for f in self._act:
+            f.set_coefficients(*self._act_coeffs)
+        self._dyn = [StatefulFilter(2) for _ in range(n_paths)]
+        dead: DeadTime | None = participant.effect("dead_time")
+        self._delay = DelayLine(dead.L_s * self.fs_Hz) if dead and dead.L_s > 0 else None
+        self._fatigue: Fatigue | None = participant.effect("fatigue")
+        drift: BaselineDrift | None = participant.effect("baseline_drift")
+        self._wander = BaselineWander(drift.amplitude_N, drift.corner_Hz, participant.seed) \
+            if drift and drift.amplitude_N > 0 else None
+        self.sensor = SensorState(participant.sensor, participant.seed, self.fs_Hz)
+        self._set_op(self._sense_default())
+
+    # -- co-activation -------------------------------------------------------------------
+    def _sense_default(self) -> float:
+        return self.p.sE_range[0]
+
+    def _operating_point(self, s: float) -> OperatingPoint:
+        op = self._ops.get(s)
+        if op is None:
+            op = self.p.operating_point(s)
+            self._ops[s] = op
+        return op
+
+    def _set_op(self, s: float) -> None:
+        op = self._operating_point(s)
+        self._op = op
+        b, a = second_order_zoh(op.wn_rad_s, op.zeta, self.fs_Hz)
+        self._dyn[0].set_coefficients(b, a)
+        if self._asym is not None:
+            b2, a2 = second_order_zoh(op.wn_rad_s * self._asym.wn_ratio,
+                                      op.zeta * self._asym.zeta_ratio, self.fs_Hz)
+            self._dyn[1].set_coefficients(b2, a2)
+
+    def _sense(self, I_e: np.ndarray, I_f: np.ndarray, on: np.ndarray) -> None:
+        idx = np.flatnonzero(on)
+        if idx.size == 0:
+            return
+        if idx.size > 7:  # a few samples spread over the chunk suffice for the median
+            idx = idx[::(idx.size + 6) // 7]
+        cal = self.p.calibration
+        u_e = (I_e[idx] - cal.Iemin_mA) * (1.0 / (cal.Iemax_mA - cal.Iemin_mA))
+        u_f = (I_f[idx] - cal.Ifmin_mA) * (1.0 / (cal.Ifmax_mA - cal.Ifmin_mA))
+        s_raw = float(np.median(np.maximum(u_e, 0.0) + np.maximum(u_f, 0.0)))
+        if self._s_raw is not None and abs(s_raw - self._s_raw) < SE_RESOLUTION:
+            return
+        s = round(round(s_raw / SE_RESOLUTION) * SE_RESOLUTION, 9)
+        if s <= 0:
+            s = SE_RESOLUTION
+        self._s_raw = s_raw
+        if s != self._op.sE:
+            self._set_op(s)
+
+    @property
+    def operating_point(self) -> OperatingPoint:
+        return self._op
+
+    # -- simulation ----------------------------------------------------------------------
+    def simulate(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray, *,
+                 spike_N: np.ndarray | None = None) -> SimulatedBlock:
+        """Simulate the next ``len(I_ext_mA)`` samples from the cursor.
+
+        Parameters
+        ----------
+        I_ext_mA, I_flex_mA : ndarray
+            Carrier amplitudes really delivered, one per sample (0 when output is off).
+        spike_N : ndarray, optional
+            Added to the reading (fault injection: an electrical spike on the chain).
+        """
+        I_e = np.asarray(I_ext_mA, dtype=float)
+        I_f = np.asarray(I_flex_mA, dtype=float)
+        n = I_e.size
+        n0 = self.cursor
+        on = (I_e > 0) | (I_f > 0)
+        self._sense(I_e, I_f, on)
+        op = self._op
+        f_e, f_f = self.p.muscle_forces_N(I_e, I_f, op)
+        if self._asym is None:
+            d = f_e - f_f
+            if self._act:
+                d = self._act[0](d)
+            y = self._dyn[0](d)
+        else:
+            if self._act:
+                f_e, f_f = self._act[0](f_e), self._act[1](f_f)
+            y = self._dyn[0](f_e) - self._dyn[1](f_f)
+        if self._delay is not None:
+            y = self._delay(y)
+        c_prev = self.stim_samples
+        if n:
+            c_samples = c_prev + np.cumsum(on)
+            self.stim_samples = int(c_samples[-1])
+        if self._fatigue is not None and n:
+            y = y * self._fatigue.gain(c_samples / self.fs_Hz)
+        if self._wander is not None:
+            y = y + self._wander((n0 + np.arange(n)) / self.fs_Hz)
+        force, wrench, over = self.sensor.measure(y if spike_N is None else y + spike_N, n0)
+        self.cursor = n0 + n
+        return SimulatedBlock(n0, y, force, wrench, over, op.sE,
+                              self.stim_samples / self.fs_Hz)
+
+    def advance_quiet(self, n: int) -> None:
+        """Let ``n`` samples pass without stimulation (a rest), without measuring them."""
+        if n <= 0:
+            return
+        todo = min(n, QUIET_SKIP_SAMPLES)
+        z = np.zeros(min(todo, 4000))
+        done = 0
+        while done < todo:
+            m = min(z.size, todo - done)
+            self._filter_only(z[:m])
+            done += m
+        self.cursor += n - todo
+        if n > todo:
+            for f in (*self._act, *self._dyn):
+                f.reset()
+
+    def _filter_only(self, d: np.ndarray) -> None:
+        if self._asym is None:
+            x = self._act[0](d) if self._act else d
+            y = self._dyn[0](x)
+        else:
+            xs = [f(d) for f in self._act] if self._act else [d, d]
+            y = self._dyn[0](xs[0]) - self._dyn[1](xs[1])
+        if self._delay is not None:
+            self._delay(y)
+        self.cursor += d.size
+
+    def snapshot(self) -> tuple:
+        """The simulator's whole state, to continue exactly from here later."""
+        return (self.cursor, self.stim_samples, self._op, self._s_raw,
+                [f.state() for f in (*self._act, *self._dyn)],
+                None if self._delay is None else self._delay.state())
+
+    def restore(self, snap: tuple) -> None:
+        """Return to a :meth:`snapshot` (the sensor noise depends only on sample indices)."""
+        self.cursor, self.stim_samples, self._op, self._s_raw, filt, delay = snap
+        for f, st in zip((*self._act, *self._dyn), filt):
+            f.restore(st)
+        if self._delay is not None:
+            self._delay.restore(delay)
+
+    @property
+    def cumulative_stim_s(self) -> float:
+        return self.stim_samples / self.fs_Hz
