@@ -202,7 +202,7 @@ class _RecordingObserverMixin:
 
 def bench_sim_gui() -> Row | None:
     try:
-        from sim_backends import make_sim_rig  # noqa: F401
+        from sim_backends.rig import make_sim_rig  # noqa: F401
     except ImportError:
         return None
     from rig.gui.main_window import MainWindow, Tab
@@ -260,7 +260,7 @@ def _max_gap_within_trials(records) -> float:
 
 def bench_sim_headless() -> Row | None:
     try:
-        from sim_backends import make_sim_rig
+        from sim_backends.rig import make_sim_rig
     except ImportError:
         return None
     from protocols.config import load_config

@@ -111,6 +111,24 @@ class CalibrationPanel(QWidget):
         self.curves[key].setData(xy[:, 0], xy[:, 1])
         self.status.setText(f"Ramping {key}: {current_mA:.1f} mA -> {force_N:.2f} N")
 
+    def reset(self) -> None:
+        """Forget the previous session's ramps and values."""
+        self.detected = None
+        self.points = {"ext": [], "flex": []}
+        for curve in self.curves.values():
+            curve.setData([], [])
+        for line in self.lines.values():
+            line.setVisible(False)
+        self.set_awaiting(False)
+        self.status.setStyleSheet("")
+        self.status.setText("Waiting for the engine to start the calibration ramp.")
+
+    def set_known(self, calibration: Calibration) -> None:
+        """Show a calibration the engine already has (resumed session): nothing to confirm."""
+        self.set_result(calibration)
+        self.set_awaiting(False)
+        self.status.setText("Calibration taken from the session file (resumed session).")
+
     def set_result(self, calibration: Calibration) -> None:
         """The engine's detected currents: mark them and offer them for confirmation."""
         self.detected = calibration

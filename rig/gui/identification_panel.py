@@ -115,6 +115,15 @@ class IdentificationPanel(QWidget):
         lay.addWidget(self.status)
         lay.addWidget(self.graphics, 1)
 
+    def reset(self) -> None:
+        """Forget the previous session's points."""
+        self.points = []
+        self.errors = []
+        for attr, _, _ in PARAMETERS:
+            self.scatter[attr].setData([], [])
+            self.bad_scatter[attr].setData([], [])
+        self.status.setText("Parameters appear here as each sE level completes.")
+
     # -- feeding ----------------------------------------------------------------------
     def submit_level(self, sE: float, trials: list) -> Future | None:
         """Identify one completed level in the worker thread."""

@@ -87,6 +87,7 @@ class MainWindow(QMainWindow):
         self.run_result = None
         self.run_error: BaseException | None = None
         self.session_finished = False
+        self._calibration_known = False
 
         self.buffer = LiveBuffer(window_s=live_window_s)
         self.signals = EngineSignals()
@@ -172,8 +173,12 @@ class MainWindow(QMainWindow):
         config = load_session_config(request)
         if self.config_transform is not None:
             config = self.config_transform(config)
+        self._reset_for_session()
         self.controller.start(request, config=config)
-        p = config.protocol
+        engine = self.controller.engine
+        self._calibration_known = bool(request.resume and
+                                       getattr(engine, "calibration", None) is not None)
+        p = getattr(engine, "config", config).protocol
         self.schedule_panel.set_timing(p.trial_s, p.rest_s)
         self.setup_panel.setEnabled(False)
         self.event_log.append(f"session {request.participant}: "
@@ -182,6 +187,18 @@ class MainWindow(QMainWindow):
         self.setWindowTitle(f"nmsid - {request.participant} - {request.output_path}")
         self._refresh_schedule()
         self._switch(Tab.CALIBRATION)
+
+    def _reset_for_session(self) -> None:
+        self.state = State.IDLE
+        self.trip_reason = ""
+        self.current_index = -1
+        self.run_result = self.run_error = None
+        self.session_finished = False
+        self.calibration_panel.reset()
+        self.identification.reset()
+        self.results.reset()
+        self.buffer.start_trial(-1)
+        self.live.reset_view()
 
     def confirm_calibration(self, **currents_mA: float) -> None:
         """Optionally edit the currents (Iemin_mA=..., ...), then press Confirm."""
@@ -242,13 +259,20 @@ class MainWindow(QMainWindow):
         self.safety.set_state(name, reason)
         self.schedule_panel.set_state(name)
         self._refresh_schedule()
+        self._poll_engine()
         if new is State.CALIBRATING:
             self._switch(Tab.CALIBRATION)
         elif new is State.STIMULATING:
             self._switch(Tab.LIVE)
 
     def _on_calibration_result(self, calibration) -> None:
+        if self._calibration_known:
+            self.calibration_panel.set_known(calibration)
+            return
         self.calibration_panel.set_result(calibration)
+        confirm = getattr(getattr(self.controller.config, "calibration", None), "confirm",
+                          True)
+        self.calibration_panel.set_awaiting(bool(confirm))
         self._switch(Tab.CALIBRATION)
 
     def _on_trial_started(self, index: int, planned) -> None:
@@ -276,6 +300,7 @@ class MainWindow(QMainWindow):
         self.run_result, self.run_error = summary, error
         self._poll_engine()
         self._refresh_schedule()
+        self.setup_panel.new_session()
         if error is not None:
             self.event_log.append(f"ENGINE STOPPED WITH AN ERROR: {error}")
             self.safety.banner.setText(f"Engine error: {error}. Output is off.")

@@ -128,6 +128,17 @@ class ResultsPanel(QWidget):
         lay.addWidget(self.table)
         lay.addWidget(self.graphics, 1)
 
+    def reset(self) -> None:
+        """Forget the previous session's results."""
+        self.view = None
+        self.error = ""
+        self.saved = []
+        self.table.setRowCount(0)
+        self.graphics.clear()
+        self.plots = {}
+        self.status.setStyleSheet("")
+        self.status.setText("Model selection appears here when the session finishes.")
+
     def run(self, session_path: str | Path) -> None:
         """Start the model selection of a finished session (worker thread)."""
         self._session_path = Path(session_path)

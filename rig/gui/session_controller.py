@@ -29,8 +29,8 @@ DevicesFactory = Callable[[SessionRequest, object], object]
 def default_devices(request: SessionRequest, config) -> object:
     """Build the rig the request names: the simulator or the hardware chain."""
     if request.backend is Backend.SIM:
-        from sim_backends import make_sim_rig
-        return make_sim_rig(realtime=request.realtime,
+        from sim_backends.rig import make_sim_rig
+        return make_sim_rig(realtime=request.realtime, fs_Hz=config.protocol.fs_Hz,
                             seed=request.seed if request.seed is not None else 0)
     from drivers import build_rig  # the hardware chain from its configuration file
     if request.hw_config_path is None:

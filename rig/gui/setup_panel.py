@@ -127,6 +127,13 @@ def _planned_count(session) -> int:
     return 0
 
 
+def default_output(participant: str, outdir: str | os.PathLike = "sessions") -> Path:
+    """``sessions/<participant>-<UTC time>.h5`` (the name ``nmsid run`` uses)."""
+    import datetime as dt
+    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    return Path(outdir) / f"{participant}-{stamp}.h5"
+
+
 class SetupPanel(QWidget):
     """The form shown before a session starts.
 
@@ -213,8 +220,14 @@ class SetupPanel(QWidget):
 
     def _participant_changed(self, text: str) -> None:
         if not self._out_touched:
-            self.output_path.setText(str(Path("sessions") / f"{text or 'P01'}.h5"))
+            self.output_path.setText(str(default_output(text or "P01")))
         self.refresh()
+
+    def new_session(self) -> None:
+        """Make the form ready for the next session (a fresh default output file)."""
+        self._out_touched = False
+        self._participant_changed(self.participant.text())
+        self.setEnabled(True)
 
     def _output_edited(self, _text: str) -> None:
         self._out_touched = True

@@ -65,3 +65,35 @@ class _NoDevices:
 
     def close(self):
         pass
+
+
+def sim_short_config(cfg):
+    """The real protocol, shortened for a real-time simulated session of ~15 s."""
+    import dataclasses
+    p = dataclasses.replace(cfg.protocol, sE_levels=(0.4, 0.7), repeats=2, steady_s=0.5,
+                            chirp_s=1.6, rest_s=0.1)
+    c = dataclasses.replace(cfg.calibration, hold_s=0.15, baseline_s=0.2)
+    return cfg.replace(protocol=p, calibration=c)
+
+
+@pytest.fixture
+def sim_window(qtbot):
+    """A window over the real engine and the real-time simulated rig; ``w.rigs`` holds
+    the simulated rigs it built (to look inside the simulator)."""
+    from rig.gui.main_window import MainWindow
+    from sim_backends.rig import make_sim_rig
+
+    rigs = []
+
+    def devices(request, config):
+        rig = make_sim_rig(realtime=True, seed=request.seed or 0,
+                           fs_Hz=config.protocol.fs_Hz)
+        rigs.append(rig)
+        return rig
+
+    w = MainWindow(devices_factory=devices, config_transform=sim_short_config)
+    w.rigs = rigs
+    qtbot.addWidget(w)
+    w.show()
+    yield w
+    w.controller.shutdown(timeout_s=5.0)

@@ -1,0 +1,114 @@
+"""A complete simulated session driven through the GUI: the real engine, the real-time
+simulated rig, a shortened schedule (2 sE x 2 repeats, 0.5 s lead-in + 1.6 s chirp).
+
+start -> calibrate (confirm an edited value) -> E-stop mid-trial (trial aborted, output
+zero, interlock latched, stimulation stays off) -> re-arm -> re-run -> finish; the file is
+valid and complete.
+"""
+
+from __future__ import annotations
+
+from rig.session_file import read_session, validate_session
+from rig.states import State
+
+
+def test_complete_session_with_estop_rearm_rerun(sim_window, qtbot, tmp_path):
+    w = sim_window
+    out = tmp_path / "G01.h5"
+    w.start_session(participant="G01", output=out, backend="sim", seed=5, realtime=True)
+    assert w.controller.engine is not None, w.setup_panel.message.text()
+    engine = w.controller.engine
+    rig = w.rigs[0]
+
+    # -- calibration: the ramps are drawn, the detected currents offered, one edited
+    qtbot.waitUntil(lambda: w.calibration_panel.confirm_button.isEnabled(), timeout=30000)
+    assert w.state is State.CALIBRATING
+    assert len(w.calibration_panel.points["ext"]) >= 2
+    assert len(w.calibration_panel.points["flex"]) >= 2
+    detected = w.calibration_panel.current_values()
+    assert w.calibration_panel.lines["Iemax_mA"].value() == detected["Iemax_mA"]
+    assert rig.run_records and not any(r.trial is not None for r in rig.run_records), \
+        "no trial may run before the operator confirms the calibration"
+    edited_Iemax = detected["Iemax_mA"] + 0.5
+    w.confirm_calibration(Iemax_mA=edited_Iemax)
+
+    # -- E-stop in the middle of the second trial
+    qtbot.waitUntil(lambda: w.trial_statuses()[1:2] == ["running"], timeout=30000)
+    qtbot.waitUntil(lambda: w.buffer.snapshot().n > 0 and w.buffer.snapshot().t_s[-1] > 0.6
+                    and w.buffer.snapshot().trial_index == 1, timeout=10000)
+    qtbot.keyClick(w.tabs, " ")  # Space: the application-wide E-stop key
+    qtbot.waitUntil(lambda: w.state is State.TRIPPED, timeout=5000)
+    assert w.trial_statuses()[1] == "aborted"
+    assert "estop" in engine.schedule[1].reason
+    assert not rig.stimulator.status().output_active
+    assert rig.output_zero_events, "the stimulator output was set to zero"
+    assert engine.interlock.latched
+    assert w.safety.lights["Interlock latch"].ok is False
+    assert w.safety.banner.isVisible() and "estop" in w.safety.banner.text()
+    assert w.safety.rearm_button.isEnabled()
+    n_runs = len(rig.run_records)
+    qtbot.wait(400)  # latched: nothing starts until the operator re-arms
+    assert len(rig.run_records) == n_runs and w.state is State.TRIPPED
+    w.add_note("E-stop test: participant fine")
+
+    # -- re-arm, re-run the aborted trial, finish
+    w.safety.rearm_button.click()
+    qtbot.waitUntil(lambda: w.state is not State.TRIPPED, timeout=5000)
+    qtbot.waitUntil(lambda: w.schedule_panel.rerun_button.isEnabled(), timeout=5000)
+    w.schedule_panel.rerun_button.click()
+    qtbot.waitUntil(lambda: w.run_result is not None or w.run_error is not None,
+                    timeout=60000)
+    assert w.run_error is None
+    assert w.run_result.complete and w.state is State.FINISHED
+    assert w.trial_statuses() == ["done"] * 4
+    assert w.schedule_panel.progress.value() == 4
+
+    # -- the file: valid, complete, the abort and the note recorded
+    assert validate_session(out) == []
+    s = read_session(out)
+    assert s.calibration.Iemax_mA == edited_Iemax
+    done = {int(t.extra_attrs["schedule_index"]) for t in s.trials if t.completed}
+    assert done == {0, 1, 2, 3}
+    aborted = [t for t in s.trials if not t.completed]
+    assert len(aborted) == 1 and "estop" in aborted[0].abort_reason
+    assert 0 < aborted[0].n_samples < s.completed_trials()[0].n_samples
+    kinds = [e.kind for e in s.events]
+    assert "interlock_trip" in kinds and "rearmed" in kinds
+    assert any(e.kind == "note" and "participant fine" in e.detail for e in s.events)
+    assert any("participant fine" in line for line in w.event_log.lines)
+
+    # -- running identification: one point per level, computed off the GUI thread
+    qtbot.waitUntil(lambda: w.identification.pending == 0, timeout=30000)
+    assert sorted(round(p.sE, 2) for p in w.identification.points) == [0.4, 0.7]
+    assert all(p.Kp > 0 and p.wn_rad_s > 0 for p in w.identification.points)
+    assert w.live.frames_drawn > 10
+
+
+def test_unfinished_session_is_resumed_and_finished(sim_window, qtbot, tmp_path):
+    w = sim_window
+    out = tmp_path / "G02.h5"
+    w.start_session(participant="G02", output=out, backend="sim", seed=2, realtime=True)
+    qtbot.waitUntil(lambda: w.calibration_panel.confirm_button.isEnabled(), timeout=30000)
+    w.confirm_calibration()
+    qtbot.waitUntil(lambda: "done" in w.trial_statuses(), timeout=30000)
+    w.controller.engine.abort()  # the operator stops the session early
+    qtbot.waitUntil(lambda: w.run_result is not None, timeout=10000)
+    assert not w.run_result.complete
+    n_before = sum(t.completed for t in read_session(out).trials)
+
+    # the setup panel is ready again; the unfinished file is refused for a new session
+    # (never overwritten) and offered for resume
+    assert w.setup_panel.isEnabled()
+    w.setup_panel.set_values(participant="G02", output=out)
+    assert not w.setup_panel.start_button.isEnabled()
+    assert not w.setup_panel.resume_button.isHidden()
+    w.setup_panel.resume_button.click()
+    assert w.controller.engine is not None and w.controller.engine.resume_mode
+    qtbot.waitUntil(lambda: w.run_result is not None, timeout=60000)
+    assert w.run_error is None and w.run_result.complete
+    assert not w.calibration_panel.confirm_button.isEnabled()  # known from the file
+    assert validate_session(out) == []
+    s = read_session(out)
+    assert sum(t.completed for t in s.trials) == 4 > n_before
+    assert {int(t.extra_attrs["schedule_index"]) for t in s.trials if t.completed} == \
+        {0, 1, 2, 3}
