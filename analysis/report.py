@@ -1,0 +1,131 @@
+"""Tables and files of an identification run: ``parameters.csv``, ``model_selection.json``,
+paper-like text tables and the problems list.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+from analysis.model_selection import AVERAGE_LABEL, SelectionResult
+from analysis.settings import PARAMETER_NAMES
+
+PARAMETER_COLUMNS = ("participant", "sE", "Kp", "wn_rad_s", "zeta", "fit_pct", "n_trials",
+                     "Kp_se", "wn_se", "zeta_se", "converged", "resid_whiteness_pass",
+                     "resid_independence_pass", "baseline_N")
+MODEL_TITLES = {"linear": "Linear", "quadratic": "Quadratic", "exponential": "Exponential"}
+PARAMETER_TITLES = {"Kp": "Kp (N)", "wn_rad_s": "wn (rad/s)", "zeta": "zeta"}
+
+
+def _fmt(value, digits: int = 6) -> str:
+    if isinstance(value, bool):
+        return "1" if value else "0"
+    if isinstance(value, float):
+        return "" if not math.isfinite(value) else f"{value:.{digits}g}"
+    return str(value)
+
+
+def write_parameters_csv(session_results, path: str | Path) -> Path:
+    """One row per participant and sE (columns ``PARAMETER_COLUMNS``; empty = not
+    identified; flags are 1/0)."""
+    path = Path(path)
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(PARAMETER_COLUMNS)
+        for res in session_results:
+            for row in res.rows():
+                w.writerow([_fmt(row[c], 8 if c in ("Kp", "wn_rad_s", "zeta") else 6)
+                            for c in PARAMETER_COLUMNS])
+    return path
+
+
+def _json_safe(obj):
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    return obj
+
+
+def write_model_selection_json(selection: SelectionResult, path: str | Path,
+                               extra: dict | None = None) -> Path:
+    """The whole selection (every comparison, point, fit, AICc, trend, sum) as JSON."""
+    data = selection.to_dict()
+    if extra:
+        data.update(extra)
+    Path(path).write_text(json.dumps(_json_safe(data), indent=2) + "\n", encoding="utf-8")
+    return Path(path)
+
+
+def parameter_table(session_result) -> str:
+    """The identified parameters of one session as aligned text."""
+    head = (f"{'sE':>5} {'Kp (N)':>9} {'+-':>7} {'wn (rad/s)':>10} {'+-':>7} {'zeta':>7} "
+            f"{'+-':>7} {'fit %':>6} {'n':>2}  flags")
+    lines = [f"participant {session_result.participant}  ({session_result.source})", head]
+    for lv in session_result.levels:
+        f = lv.fit
+        if f is None:
+            lines.append(f"{lv.sE:5.2f}  not identified")
+            continue
+        flags = []
+        if not f.converged:
+            flags.append("not converged")
+        if not f.residual_tests.independence_pass:
+            flags.append("resid-input corr")
+        lines.append(f"{lv.sE:5.2f} {f.Kp:9.4f} {f.Kp_se:7.4f} {f.wn_rad_s:10.3f} "
+                     f"{f.wn_se:7.3f} {f.zeta:7.4f} {f.zeta_se:7.4f} {f.fit_pct:6.2f} "
+                     f"{lv.n_trials:2d}  {', '.join(flags)}")
+    return "\n".join(lines)
+
+
+def selection_tables(selection: SelectionResult) -> str:
+    """The paper's Tables 1-9 for this run: per parameter, AICc per participant x model,
+    the selected model with its trend, and the AICc sums."""
+    models = selection.settings.models
+    labels = [AVERAGE_LABEL] + selection.participants
+    out = []
+    for name in PARAMETER_NAMES:
+        title = PARAMETER_TITLES[name]
+        out.append(f"== {title}: AICc per participant and model ==")
+        out.append(f"{'participant':<14}" + "".join(f"{MODEL_TITLES[m]:>13}" for m in models))
+        for label in labels:
+            c = selection.comparison(name, label)
+            if c is None:
+                continue
+            cells = []
+            for m in models:
+                f = c.fits.get(m)
+                cells.append(f"{f.aicc:13.4g}" if f is not None and f.selectable
+                             else f"{'n/a':>13}")
+            out.append(f"{label:<14}" + "".join(cells))
+        out.append("")
+        out.append(f"== {title}: selected model and trend ==")
+        for label in labels:
+            c = selection.comparison(name, label)
+            if c is None:
+                continue
+            removed = sum(1 for p in c.points if not p.used and p.note.startswith("IQR"))
+            extra = f"  [{removed} IQR outlier(s) removed]" if removed else ""
+            if c.selected is None:
+                out.append(f"{label:<14}no model selectable{extra}")
+            else:
+                out.append(f"{label:<14}{MODEL_TITLES[c.selected]:<12} {c.trend.text}{extra}")
+        out.append("")
+        out.append(f"== {title}: sum of AICc across participants ==")
+        for m in models:
+            n = selection.aicc_sum_counts[name][m]
+            total = selection.aicc_sums[name][m]
+            note = "" if n == len(selection.participants) else \
+                f"  (over {n} of {len(selection.participants)} participants)"
+            out.append(f"{MODEL_TITLES[m]:<14}{total:13.4g}{note}")
+        out.append("")
+    return "\n".join(out)
+
+
+def write_text(text: str, path: str | Path) -> Path:
+    Path(path).write_text(text.rstrip("\n") + "\n", encoding="utf-8")
+    return Path(path)

@@ -1,0 +1,148 @@
+"""The headless identification run: session files -> parameters, model selection, twin,
+tables and figures in one output folder (what ``nmsid identify`` does).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from analysis.errors import IdentificationError
+from analysis.identify import SessionResult, identify_session
+from analysis.model_selection import AVERAGE_LABEL, SelectionResult, select_models
+from analysis.report import (parameter_table, selection_tables, write_model_selection_json,
+                             write_parameters_csv, write_text)
+from analysis.settings import PARAMETER_NAMES, IdentificationSettings
+from analysis.twin import Twin, twin_from_selection
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class RunOutputs:
+    """What a run produced."""
+
+    sessions: list[SessionResult]
+    selection: SelectionResult
+    files: list[Path] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+    twins: dict[str, Twin] = field(default_factory=dict)
+    tables_text: str = ""
+
+
+def _safe_name(label: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in label)
+
+
+def run_identification(sessions, out_dir: str | os.PathLike,
+                       settings: IdentificationSettings | None = None, *,
+                       figures: bool = True) -> RunOutputs:
+    """Identify one or several sessions and write every output into ``out_dir``.
+
+    Parameters
+    ----------
+    sessions : sequence of path-like or rig.session_file.Session
+        One session: that participant's analysis. Several: also the group analysis
+        (participant averages, AICc sums).
+    out_dir : path-like
+        Created if missing. Receives ``parameters.csv``, ``model_selection.json``,
+        ``tables.txt``, ``problems.txt``, ``twin.json`` (the participant's, or the group
+        average's; plus ``twin_<participant>.json`` each in a group run) and, unless
+        ``figures`` is False, ``fit_<participant>.png`` and ``figure_<parameter>.png``.
+    settings : IdentificationSettings, optional
+    figures : bool
+        Draw the figures (needs matplotlib).
+
+    Returns
+    -------
+    RunOutputs
+
+    Raises
+    ------
+    IdentificationError
+        If no session could be read at all (each unreadable file is otherwise reported
+        and skipped).
+    """
+    s = settings or IdentificationSettings()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    results: list[SessionResult] = []
+    problems: list[str] = []
+    for src in sessions:
+        try:
+            res = identify_session(src, s)
+        except (ValueError, OSError) as exc:
+            problems.append(f"{src}: {exc}; session skipped")
+            continue
+        results.append(res)
+        problems.extend(f"{res.participant}: {p}" for p in res.problems)
+    if not results:
+        raise IdentificationError("no session could be analysed: " + " | ".join(problems))
+    files = [write_parameters_csv(results, out / "parameters.csv")]
+    selection = select_models(results, s)
+    problems.extend(selection.problems)
+    files.append(write_model_selection_json(
+        selection, out / "model_selection.json",
+        extra={"sources": [r.source for r in results]}))
+
+    twins: dict[str, Twin] = {}
+    group = len(results) > 1
+    baselines = {}
+    for label, res in zip(selection.participants, results):
+        vals = [lv.data.baseline_N for lv in res.levels if lv.data is not None]
+        baselines[label] = float(np.nanmean(vals)) if vals and np.any(np.isfinite(vals)) \
+            else 0.0
+    targets = [(label, res) for label, res in zip(selection.participants, results)]
+    for label, res in targets:
+        try:
+            twins[label] = twin_from_selection(selection, label, baseline_N=baselines[label],
+                                               calibration=res.calibration,
+                                               source=[res.source])
+        except ValueError as exc:
+            problems.append(f"twin not written: {exc}")
+    if group:
+        try:
+            twins[AVERAGE_LABEL] = twin_from_selection(
+                selection, AVERAGE_LABEL, baseline_N=float(np.mean(list(baselines.values()))),
+                source=[r.source for r in results])
+        except ValueError as exc:
+            problems.append(f"twin not written: {exc}")
+        for label in selection.participants:
+            if label in twins:
+                path = out / f"twin_{_safe_name(label)}.json"
+                twins[label].save(path)
+                files.append(path)
+        main_twin = twins.get(AVERAGE_LABEL)
+    else:
+        main_twin = twins.get(selection.participants[0])
+    if main_twin is not None:
+        main_twin.save(out / "twin.json")
+        files.append(out / "twin.json")
+
+    text = "\n\n".join(parameter_table(r) for r in results) + "\n\n" + \
+        selection_tables(selection)
+    files.append(write_text(text, out / "tables.txt"))
+    files.append(write_text("\n".join(problems) if problems else "no problems",
+                            out / "problems.txt"))
+    if figures:
+        from analysis.figures import plot_level_fits, plot_parameter_curves
+        for label, res in zip(selection.participants, results):
+            files.append(plot_level_fits(res, out / f"fit_{_safe_name(label)}.png"))
+        for name in PARAMETER_NAMES:
+            files.append(plot_parameter_curves(selection, name, out / f"figure_{name}.png",
+                                               AVERAGE_LABEL))
+    return RunOutputs(results, selection, files, problems, twins, text)
+
+
+def summary_line(outputs: RunOutputs) -> str:
+    n_levels = sum(len(r.levels) for r in outputs.sessions)
+    n_ok = sum(1 for r in outputs.sessions for lv in r.levels if lv.fit is not None)
+    worst = min((lv.fit.fit_pct for r in outputs.sessions for lv in r.levels
+                 if lv.fit is not None and math.isfinite(lv.fit.fit_pct)), default=float("nan"))
+    return (f"{len(outputs.sessions)} session(s), {n_ok}/{n_levels} levels identified, "
+            f"lowest fit {worst:.1f} %, {len(outputs.problems)} problem(s)")
