@@ -24,7 +24,8 @@ Layout of the TOML file (every key optional; unknown keys are refused)::
     step_mA = 0.5
     hold_s = 1.0                   # stimulation time per ramp step
     settle_fraction = 0.5          # first part of each hold ignored before averaging force
-    baseline_s = 0.5               # zero-current recording that tares the force sensor
+    baseline_s = 1.0               # zero-current recording that tares the force (settled part)
+    rest_s = 2.0                   # output off before each ramp's baseline (force settles)
     Fmin_N = 0.5
     Fmax_N = 5.0
     ceiling_ext_mA = 16.0              # the STG4002's full range; lower it per participant
@@ -104,7 +105,8 @@ class CalibrationConfig:
     step_mA: float = 0.5
     hold_s: float = 1.0
     settle_fraction: float = 0.5
-    baseline_s: float = 0.5
+    baseline_s: float = 1.0
+    rest_s: float = 2.0
     Fmin_N: float = 0.5
     Fmax_N: float = 5.0
     ceiling_ext_mA: float = 16.0
@@ -452,6 +454,7 @@ def _validate_calibration(c: CalibrationConfig, src: str) -> None:
     _positive(src, "calibration.step_mA", c.step_mA)
     _positive(src, "calibration.hold_s", c.hold_s)
     _positive(src, "calibration.baseline_s", c.baseline_s)
+    _positive(src, "calibration.rest_s", c.rest_s, allow_zero=True)
     if not 0 <= c.settle_fraction < 1:
         raise ConfigError(src, "calibration.settle_fraction", c.settle_fraction,
                           "a fraction in [0, 1)")

@@ -639,12 +639,13 @@ class Engine:
         n_base = max(1, int(round(c.baseline_s * fs)))
         if self._check_interrupts(calibrating=True):
             raise _RedoRamp
+        self._sleep_checking(c.rest_s)  # output off: the force settles before the tare
         zeros = np.zeros(n_base)
         got, f, _, _, reason = self._stimulate(self._checked(zeros, zeros), n=n_base)
         if reason:
             self._check_interrupts(calibrating=True)
             raise _RedoRamp
-        baseline = float(np.mean(f[:got]))
+        baseline = settled_mean_N(f[:got], c.settle_fraction)
         cur, frc = [], []
         for I in ramp_currents_mA(c, muscle):
             if self._check_interrupts(calibrating=True):
@@ -706,9 +707,12 @@ class Engine:
                 self._rest()
 
     def _rest(self) -> None:
-        remaining = self.config.protocol.rest_s
-        if not any(pt.status is TrialStatus.PENDING for pt in self.schedule):
-            return
+        if any(pt.status is TrialStatus.PENDING for pt in self.schedule):
+            self._sleep_checking(self.config.protocol.rest_s)
+
+    def _sleep_checking(self, duration_s: float) -> None:
+        """Sleep on the engine clock in slices, returning early on a command or trip."""
+        remaining = duration_s
         while remaining > 1e-12:
             dt = min(REST_SLICE_S, remaining)
             self.clock.sleep(dt)
