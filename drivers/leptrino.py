@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -222,17 +221,6 @@ class LeptrinoSensor:
     def stop_continuous(self) -> None:
         """Command 0x33, then drain until its reply (records still in flight are dropped)."""
         self.request(Command.STOP_CONTINUOUS)
-
-
-@dataclass(frozen=True)
-class LeptrinoCalibration:
-    """How records become the endpoint force.
-
-    ``extension_direction`` is the unit vector, in the sensor frame, along which force is
-    counted as extension (positive).
-    """
-
-    extension_direction: tuple[float, float, float] = (1.0, 0.0, 0.0)
 
 
 class LeptrinoAcquisition:

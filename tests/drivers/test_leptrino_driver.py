@@ -216,3 +216,46 @@ def test_unplugged_port_reads_as_sensor_fault_and_close_is_safe(leptrino_emulato
 def test_port_that_cannot_be_opened():
     with pytest.raises(DeviceNotFound, match="/dev/does-not-exist.*acquisition.leptrino.port"):
         LeptrinoSensor("/dev/does-not-exist").open()
+
+
+def test_nak_and_error_results_while_streaming_are_sensor_faults(leptrino_emulator):
+    emu = leptrino_emulator(rated=RATED)
+    emu.ack_start = True  # a bare acknowledgement of 0x32 must be tolerated
+    sensor, acq = make_acq(emu)
+    acq.connect()
+    acq.start(None, triggered=False)
+    first = collect(acq, 50)
+    assert first and not any(c.flags.any for c in first)
+    emu.inject(bytes([0x10, 0x15]))
+    chunks = collect(acq, 50)
+    assert any(c.flags.sensor_fault and "NAK" in c.flags.detail for c in chunks)
+    emu.data_result = 0x04
+    deadline = time.monotonic() + 2
+    flagged = None
+    while time.monotonic() < deadline and flagged is None:
+        c = acq.read(0.05)
+        if c is not None and "error result" in c.flags.detail:
+            flagged = c
+    assert flagged is not None and flagged.flags.sensor_fault
+    acq.close()
+
+
+def test_invalid_rated_values_are_refused(leptrino_emulator):
+    emu = leptrino_emulator(rated=(500.0, 0.0, 1000.0, 10.0, 10.0, 10.0))
+    sensor = LeptrinoSensor(emu.port, reply_timeout_s=0.3)
+    sensor.open()
+    with pytest.raises(ProtocolError, match="invalid rated values"):
+        sensor.rated_values()
+    sensor.close()
+
+
+def test_max_samples_are_respected(leptrino_emulator):
+    emu = leptrino_emulator(rated=RATED)
+    sensor, acq = make_acq(emu)
+    acq.connect()
+    acq.start(37, triggered=False)
+    chunks = collect(acq, 37)
+    time.sleep(0.05)
+    extra = acq.read(0.02)
+    assert sum(c.n for c in chunks) == 37 and (extra is None or extra.n == 0)
+    acq.close()

@@ -11,7 +11,9 @@ Faults, settable from a test while it runs: ``nak_next`` (answer the next N comm
 NAK), ``corrupt_every`` (every Nth data frame gets a wrong BCC), ``garbage_every`` (random
 bytes between frames), ``fragment`` (write in 1..7-byte pieces with pauses, so the driver
 sees partial reads), ``error_result`` (answer a command with an error result code),
-``status_fn`` (status byte per record), :meth:`stall` (stop streaming but stay
+``status_fn`` (status byte per record), ``data_result`` (result code in data frames),
+``ack_start`` (acknowledge 0x32 with a bare header), :meth:`inject` (raw bytes, e.g. a
+spontaneous ``DLE NAK``), :meth:`stall` (stop streaming but stay
 connected) and :meth:`unplug` (close the master side: the driver's port errors out).
 """
 
@@ -58,6 +60,7 @@ class LeptrinoEmulator:
         self.fragment = False
         self.error_result: dict[int, int] = {}
         self.ack_start = False
+        self.data_result = 0
         self.commands: list[int] = []
         self.bad_commands = 0
         self.frames_sent = 0
@@ -94,6 +97,10 @@ class LeptrinoEmulator:
                 os.close(fd)
             except OSError:
                 pass
+
+    def inject(self, data: bytes):
+        with self._lock:
+            self._send(bytes(data))
 
     def stall(self):
         self._stalled = True
@@ -213,7 +220,7 @@ class LeptrinoEmulator:
                for w, r in zip(wrench, self.rated)]
         status = int(self.status_fn(t)) & 0xFF
         data = struct.pack("<6hhBB", *raw, 2500, status, 0)
-        return _frame(bytes([4 + len(data), 0xFF, cmd, 0]) + data)
+        return _frame(bytes([4 + len(data), 0xFF, cmd, self.data_result]) + data)
 
     def _stream(self):
         with self._lock:
