@@ -8,7 +8,6 @@ follows rE, and the sync recorded with each trial is high from sample 0 (onset).
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from drivers.fake_hardware import load_fake
 from drivers.hardware import make_hw_rig

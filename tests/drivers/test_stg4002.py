@@ -217,3 +217,26 @@ def test_rendered_never_exceeds_ceiling_and_demodulates_to_envelope(ceiling, res
     samples = ch.expand()
     assert samples[-1] == 0
     demodulation_check(samples[:-1].astype(float), env, ceiling, res)
+
+
+def test_last_check_refuses_a_rendered_point_above_the_ceiling():
+    from drivers.stg_waveform import RenderedChannel, check_rendered
+    ok = RenderedChannel(np.array([0, 4_000_000, -4_000_000, 0], dtype=np.int32),
+                         np.array([20, 20, 20, 20], dtype=np.uint64), 20)
+    check_rendered(ok, 4.0, "extensor")
+    with pytest.raises(CurrentLimitError, match="extensor: rendered point 1 = 4.0000 mA "
+                                                "exceeds the ceiling 3.9990 mA"):
+        check_rendered(ok, 3.999, "extensor")
+    not_ending = RenderedChannel(np.array([0, 1000], dtype=np.int32),
+                                 np.array([20, 20], dtype=np.uint64), 20)
+    with pytest.raises(CurrentLimitError, match="does not end at 0 nA"):
+        check_rendered(not_ending, 4.0, "flexor")
+
+
+def test_quantisation_is_toward_zero_exactly_at_the_ceiling():
+    # envelope exactly at a ceiling that is not a multiple of the resolution
+    env = np.full(40, 7.3333)
+    samples = render_channel(env, FS, FC, RATE, 500).expand()
+    assert np.abs(samples).max() <= 7.3333e6
+    peak_sin = np.abs(np.sin(2 * np.pi * FC * np.arange(50) / RATE)).max()  # off-grid peak
+    assert np.abs(samples).max() >= 7.3333e6 * peak_sin - 500
