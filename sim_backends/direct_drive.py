@@ -67,3 +67,32 @@ def run_waveform(rig, wf: CheckedWaveform, n: int | None = None, *, timeout_s: f
     for c in chunks:
         force[c.start_index:c.start_index + c.n] = c.force_N[:max(0, min(c.n, n - c.start_index))]
     return force, chunks
+
+
+def ramp_thresholds(rig, muscle: str, step_mA: float = 0.5, hold_s: float = 1.0,
+                    ceiling_mA: float = 16.0) -> tuple[float | None, float | None]:
+    """A plain calibration ramp through the devices (independent of ``protocols``).
+
+    Each step is held ``hold_s``; its force is the mean of the hold's second half minus
+    the mean of a zero-current hold run first. Returns (Imin, Imax): the first steps whose
+    force (sign-corrected: the flexor pulls) reaches the participant's Fmin / Fmax.
+    """
+    fs = rig.acquisition.fs_Hz
+    cal = rig.participant.calibration
+    n = int(round(hold_s * fs))
+    zero = np.zeros(n)
+    base, _ = run_waveform(rig, waveform(zero, zero, fs))
+    baseline = float(np.mean(base[n // 2:]))
+    sign = 1.0 if muscle == "ext" else -1.0
+    imin = imax = None
+    for k in range(1, int(ceiling_mA / step_mA + 1e-9) + 1):
+        on = np.full(n, k * step_mA)
+        wf = waveform(on, zero, fs) if muscle == "ext" else waveform(zero, on, fs)
+        force, _ = run_waveform(rig, wf)
+        f = sign * (float(np.mean(force[n // 2:])) - baseline)
+        if imin is None and f >= cal.Fmin_N:
+            imin = k * step_mA
+        if f >= cal.Fmax_N:
+            imax = k * step_mA
+            break
+    return imin, imax

@@ -38,6 +38,28 @@ def second_order_zoh(wn_rad_s: float, zeta: float, fs_Hz: float
     return b, a
 
 
+@lru_cache(maxsize=4096)
+def dynamics_zoh(wn_rad_s: float, zeta: float, tau_s: float, fs_Hz: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """ZOH discretisation of the muscle path: second order, with an extra first-order
+    activation lag ``1 / (tau s + 1)`` in cascade when ``tau_s > 0``.
+
+    The cascade is discretised as one system (the lag's output is continuous, not held),
+    so it is exact for the stimulator's staircase input.
+    """
+    if tau_s <= 0:
+        return second_order_zoh(wn_rad_s, zeta, fs_Hz)
+    num = [wn_rad_s ** 2]
+    den = np.polymul([tau_s, 1.0], [1.0, 2.0 * zeta * wn_rad_s, wn_rad_s ** 2])
+    b, a, _ = signal.cont2discrete((num, den), 1.0 / fs_Hz, method="zoh")
+    b = np.atleast_1d(np.squeeze(b)).astype(float)
+    a = np.asarray(a, dtype=float)
+    b, a = b / a[0], a / a[0]
+    b.setflags(write=False)
+    a.setflags(write=False)
+    return b, a
+
+
 @lru_cache(maxsize=256)
 def first_order_zoh(tau_s: float, fs_Hz: float) -> tuple[np.ndarray, np.ndarray]:
     """ZOH discretisation of ``1 / (tau s + 1)``."""

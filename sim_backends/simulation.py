@@ -21,8 +21,7 @@ import numpy as np
 
 from sim_backends.effects import (ActivationDynamics, BaselineDrift, DeadTime, Fatigue,
                                   FlexorExtensorAsymmetry)
-from sim_backends.filters import (DelayLine, StatefulFilter, first_order_zoh,
-                                  second_order_zoh)
+from sim_backends.filters import DelayLine, StatefulFilter, dynamics_zoh
 from sim_backends.participant import OperatingPoint, VirtualParticipant
 from sim_backends.sensor import BaselineWander, SensorState
 
@@ -67,13 +66,10 @@ class ParticipantSimulator:
         self._asym: FlexorExtensorAsymmetry | None = participant.effect(
             "flexor_extensor_asymmetry")
         act: ActivationDynamics | None = participant.effect("activation_dynamics")
-        self._act_coeffs = first_order_zoh(act.tau_s, self.fs_Hz) if act and act.tau_s > 0 \
-            else None
+        self._tau_s = act.tau_s if act is not None else 0.0
         n_paths = 2 if self._asym is not None else 1
-        self._act = [StatefulFilter(1) for _ in range(n_paths)] if self._act_coeffs else []
-        for f in self._act:
-            f.set_coefficients(*self._act_coeffs)
-        self._dyn = [StatefulFilter(2) for _ in range(n_paths)]
+        # one filter per muscle path: activation lag (if any) and dynamics in cascade
+        self._dyn = [StatefulFilter(3 if self._tau_s > 0 else 2) for _ in range(n_paths)]
         dead: DeadTime | None = participant.effect("dead_time")
         self._delay = DelayLine(dead.L_s * self.fs_Hz) if dead and dead.L_s > 0 else None
         self._fatigue: Fatigue | None = participant.effect("fatigue")
@@ -97,11 +93,11 @@ class ParticipantSimulator:
     def _set_op(self, s: float) -> None:
         op = self._operating_point(s)
         self._op = op
-        b, a = second_order_zoh(op.wn_rad_s, op.zeta, self.fs_Hz)
+        b, a = dynamics_zoh(op.wn_rad_s, op.zeta, self._tau_s, self.fs_Hz)
         self._dyn[0].set_coefficients(b, a)
         if self._asym is not None:
-            b2, a2 = second_order_zoh(op.wn_rad_s * self._asym.wn_ratio,
-                                      op.zeta * self._asym.zeta_ratio, self.fs_Hz)
+            b2, a2 = dynamics_zoh(op.wn_rad_s * self._asym.wn_ratio,
+                                  op.zeta * self._asym.zeta_ratio, self._tau_s, self.fs_Hz)
             self._dyn[1].set_coefficients(b2, a2)
 
     def _sense(self, I_e: np.ndarray, I_f: np.ndarray, on: np.ndarray) -> None:
@@ -148,13 +144,8 @@ class ParticipantSimulator:
         op = self._op
         f_e, f_f = self.p.muscle_forces_N(I_e, I_f, op)
         if self._asym is None:
-            d = f_e - f_f
-            if self._act:
-                d = self._act[0](d)
-            y = self._dyn[0](d)
+            y = self._dyn[0](f_e - f_f)
         else:
-            if self._act:
-                f_e, f_f = self._act[0](f_e), self._act[1](f_f)
             y = self._dyn[0](f_e) - self._dyn[1](f_f)
         if self._delay is not None:
             y = self._delay(y)
@@ -184,16 +175,14 @@ class ParticipantSimulator:
             done += m
         self.cursor += n - todo
         if n > todo:
-            for f in (*self._act, *self._dyn):
+            for f in self._dyn:
                 f.reset()
 
     def _filter_only(self, d: np.ndarray) -> None:
         if self._asym is None:
-            x = self._act[0](d) if self._act else d
-            y = self._dyn[0](x)
+            y = self._dyn[0](d)
         else:
-            xs = [f(d) for f in self._act] if self._act else [d, d]
-            y = self._dyn[0](xs[0]) - self._dyn[1](xs[1])
+            y = self._dyn[0](d) - self._dyn[1](d)
         if self._delay is not None:
             self._delay(y)
         self.cursor += d.size
@@ -201,13 +190,13 @@ class ParticipantSimulator:
     def snapshot(self) -> tuple:
         """The simulator's whole state, to continue exactly from here later."""
         return (self.cursor, self.stim_samples, self._op, self._s_raw,
-                [f.state() for f in (*self._act, *self._dyn)],
+                [f.state() for f in self._dyn],
                 None if self._delay is None else self._delay.state())
 
     def restore(self, snap: tuple) -> None:
         """Return to a :meth:`snapshot` (the sensor noise depends only on sample indices)."""
         self.cursor, self.stim_samples, self._op, self._s_raw, filt, delay = snap
-        for f, st in zip((*self._act, *self._dyn), filt):
+        for f, st in zip(self._dyn, filt):
             f.restore(st)
         if self._delay is not None:
             self._delay.restore(delay)

@@ -1,0 +1,127 @@
+"""A seeded population of virtual participants that differ the way the paper's ten do.
+
+The paper (Hori et al.) found, over sE in 0.3-1.0: Kp increasing for everyone, best fitted
+by linear (4 of 10), exponential (5) or concave quadratic (1) models; wn and zeta with an
+extremum for some participants and monotonic (extremum outside the range) for others,
+with linear, exponential or quadratic best fits. The generator draws:
+
+* Kp: family linear / exponential / concave quadratic (weights 0.4 / 0.5 / 0.1), Kp(0.3) in
+  1.5-4 N and Kp(1.0) in 6-14 N per unit rE;
+* wn and zeta: a quadratic with its extremum (a peak, the paper's convex-upward shape) at
+  sE_peak in 0.0-1.4 - inside the range for about half - or a linear / exponential trend
+  (weights 0.6 / 0.2 / 0.2), wn in 10-50 rad/s, zeta in 0.3-1.0 over the range, and
+  ``zeta wn >= 8 1/s`` so that a 1 s calibration step settles;
+* calibration currents on the 0.5 mA grid (Imin 1-4 mA, span 4.5-9 mA);
+* sensor noise 0.02-0.06 N RMS, offset, slow drift and mains pick-up of different sizes.
+
+Examples
+--------
+>>> pop = make_population(3, seed=1)
+>>> [p.code for p in pop]
+['S01', 'S02', 'S03']
+>>> make_population(3, seed=1)[2] == pop[2]
+True
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sim_backends.curves import CurveModel, ParameterCurve
+from sim_backends.errors import SimConfigError
+from sim_backends.participant import ReferenceCalibration, VirtualParticipant
+from sim_backends.sensor import SensorModel
+
+SE_LO, SE_HI = 0.30, 1.00
+_GRID = np.linspace(SE_LO, SE_HI, 15)
+
+
+def _kp_curve(rng: np.random.Generator) -> ParameterCurve:
+    k_lo = rng.uniform(1.5, 4.0)
+    k_hi = rng.uniform(6.0, 14.0)
+    family = rng.choice(["linear", "exponential", "quadratic"], p=[0.4, 0.5, 0.1])
+    if family == "exponential":
+        b = math.log(k_hi / k_lo) / (SE_HI - SE_LO)
+        return ParameterCurve(CurveModel.EXPONENTIAL, (k_hi * math.exp(-b * SE_HI), b))
+    if family == "linear":
+        b = (k_hi - k_lo) / (SE_HI - SE_LO)
+        return ParameterCurve(CurveModel.LINEAR, (k_lo - b * SE_LO, b))
+    # concave quadratic through both ends, bulging above the chord at mid-range
+    mid = 0.5 * (SE_LO + SE_HI)
+    bulge = rng.uniform(0.05, 0.2) * (k_hi - k_lo)
+    A = np.array([[1, SE_LO, SE_LO ** 2], [1, SE_HI, SE_HI ** 2], [1, mid, mid ** 2]])
+    y = np.array([k_lo, k_hi, 0.5 * (k_lo + k_hi) + bulge])
+    return ParameterCurve(CurveModel.QUADRATIC, tuple(np.linalg.solve(A, y)))
+
+
+def _trend_curve(rng: np.random.Generator, lo: float, hi: float) -> ParameterCurve:
+    """A curve within [lo, hi] over the sE range: peaked quadratic or monotonic trend."""
+    family = rng.choice(["quadratic", "linear", "exponential"], p=[0.6, 0.2, 0.2])
+    span = hi - lo
+    if family == "quadratic":
+        s_peak = rng.uniform(0.0, 1.4)
+        peak = rng.uniform(lo + 0.45 * span, hi - 0.05 * span)
+        far = max((SE_LO - s_peak) ** 2, (SE_HI - s_peak) ** 2)
+        c_max = (peak - (lo + 0.05 * span)) / far
+        c = rng.uniform(0.3, 1.0) * c_max
+        # peak - c (s - s_peak)^2 = a + b s + c2 s^2
+        return ParameterCurve(CurveModel.QUADRATIC,
+                              (peak - c * s_peak ** 2, 2 * c * s_peak, -c))
+    v_lo = rng.uniform(lo + 0.05 * span, hi - 0.05 * span)
+    v_hi = rng.uniform(lo + 0.05 * span, hi - 0.05 * span)
+    if family == "linear":
+        b = (v_hi - v_lo) / (SE_HI - SE_LO)
+        return ParameterCurve(CurveModel.LINEAR, (v_lo - b * SE_LO, b))
+    b = math.log(v_hi / v_lo) / (SE_HI - SE_LO)
+    return ParameterCurve(CurveModel.EXPONENTIAL, (v_hi * math.exp(-b * SE_HI), b))
+
+
+def _calibration(rng: np.random.Generator) -> ReferenceCalibration:
+    def pair():
+        imin = 0.5 * rng.integers(2, 9)          # 1.0 .. 4.0 mA
+        span = 0.5 * rng.integers(9, 19)         # 4.5 .. 9.0 mA
+        return float(imin), float(imin + span)
+    (emin, emax), (fmin, fmax) = pair(), pair()
+    return ReferenceCalibration(emin, emax, fmin, fmax)
+
+
+def _sensor(rng: np.random.Generator) -> SensorModel:
+    return SensorModel(noise_N=rng.uniform(0.02, 0.06), offset_N=rng.uniform(-0.5, 0.5),
+                       drift_N_per_s=rng.uniform(-5e-4, 5e-4),
+                       mains_N=rng.uniform(0.005, 0.05),
+                       mains_phase_rad=rng.uniform(0, 2 * np.pi),
+                       cross_noise_N=rng.uniform(0.01, 0.03))
+
+
+def make_participant(rng: np.random.Generator, code: str, seed: int) -> VirtualParticipant:
+    """One random participant (resampled until its curves meet the population's ranges)."""
+    for _ in range(200):
+        Kp = _kp_curve(rng)
+        wn = _trend_curve(rng, 10.0, 50.0)
+        zeta = _trend_curve(rng, 0.3, 1.0)
+        kp, w, z = Kp(_GRID), wn(_GRID), zeta(_GRID)
+        if not (np.all(np.diff(kp) > 0) and w.min() >= 10 and w.max() <= 50
+                and z.min() >= 0.3 and z.max() <= 1.0 and (w * z).min() >= 8.0):
+            continue
+        return VirtualParticipant(code=code, Kp=Kp, wn_rad_s=wn, zeta=zeta,
+                                  calibration=_calibration(rng), sE_range=(SE_LO, SE_HI),
+                                  sensor=_sensor(rng), seed=seed)
+    raise SimConfigError("could not draw a participant within the population's ranges")
+
+
+def make_population(n: int, seed: int = 0) -> list[VirtualParticipant]:
+    """``n`` participants, reproducible from ``seed``; codes ``S01``, ``S02``, ...
+
+    Participant i depends only on (seed, i), so ``make_population(5, s)[:3] ==
+    make_population(3, s)``.
+    """
+    if int(n) != n or n < 0:
+        raise SimConfigError(f"n must be an integer >= 0, got {n!r}")
+    out = []
+    for i in range(int(n)):
+        rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, i, 4242])
+        p_seed = int(rng.integers(0, 2 ** 31 - 1))
+        out.append(make_participant(rng, f"S{i + 1:02d}", p_seed))
+    return out
