@@ -461,6 +461,14 @@ class Engine:
                 self._event("rearm_refused", str(exc))
                 continue
             break
+        if trip is not None and trip.rule == self.interlock.stim.name:
+            try:  # a stimulator that reported an error or vanished must reconnect
+                self.devices.stimulator.connect()
+                self._event("stimulator_reconnected", "after " + reason)
+            except Exception as exc:
+                self.interlock.trip(self.interlock.stim.name,
+                                    f"reconnect failed ({type(exc).__name__}: {exc})")
+                return self._handle_trip(calibrating)
         self._event("rearmed", f"operator re-armed after {reason}")
         self._sm.to(State.CALIBRATING if calibrating else State.ARMED, "re-armed")
 
@@ -489,9 +497,19 @@ class Engine:
         wrench = sync = None
         received = 0
         reason = ""
-        stim.load(checked)
-        stim.arm()
-        acq.start(n, triggered=True)  # sample 0 = the stimulator's start trigger
+        try:
+            stim.load(checked)
+            stim.arm()
+        except Exception as exc:  # a driver fault before any output: trip, nothing started
+            trip = self.interlock.trip(self.interlock.stim.name, f"stimulator refused the "
+                                       f"waveform ({type(exc).__name__}: {exc})")
+            return 0, force, None, None, f"{trip.rule}: {trip.detail}"
+        try:
+            acq.start(n, triggered=True)  # sample 0 = the stimulator's start trigger
+        except Exception as exc:
+            trip = self.interlock.trip(self.interlock.flags.name, f"acquisition could not "
+                                       f"start ({type(exc).__name__}: {exc})")
+            return 0, force, None, None, f"{trip.rule}: {trip.detail}"
         stall_limit_real = max(STALL_BACKSTOP_S, 10 * self.interlock.stall.timeout_s)
         try:
             self.interlock.stall.start(self.clock.monotonic_s())
@@ -499,7 +517,13 @@ class Engine:
             last_real = time.monotonic()
             read_timeout = min(0.05, self.interlock.stall.timeout_s / 2)
             while received < n:
-                chunk = acq.read(read_timeout)
+                try:
+                    chunk = acq.read(read_timeout)
+                except Exception as exc:  # the force chain failed: a sensor fault
+                    trip = self.interlock.trip(self.interlock.flags.name, f"acquisition read "
+                                               f"failed ({type(exc).__name__}: {exc})")
+                    reason = f"{trip.rule}: {trip.detail}"
+                    break
                 now = self.clock.monotonic_s()
                 if chunk is not None and chunk.n:
                     last_real = time.monotonic()
@@ -534,7 +558,7 @@ class Engine:
                     if trip is not None:
                         reason = f"{trip.rule}: {trip.detail}"
                         break
-                trip = self.interlock.check_stimulator()
+                trip = self.interlock.check_stimulator() or self.interlock.check_switch()
                 if trip is not None:
                     reason = f"{trip.rule}: {trip.detail}"
                     break
@@ -557,6 +581,10 @@ class Engine:
                         break
         except InterlockTripped as exc:
             reason = str(exc)
+        except Exception as exc:  # a driver raised mid-run: a fault like any other
+            trip = self.interlock.trip(self.interlock.stim.name,
+                                       f"device error ({type(exc).__name__}: {exc})")
+            reason = f"{trip.rule}: {trip.detail}"
         finally:
             self._stop_output()
             self.interlock.stall.stop()

@@ -385,6 +385,17 @@ class Interlock:
         reason = self.stim.check(self.stimulator.status)
         return self.trip(self.stim.name, reason) if reason else None
 
+    def check_switch(self) -> Trip | None:
+        """Read the hardware switch now (the engine does it once per chunk, besides the
+        watcher thread, so a press is also seen on the engine's own clock)."""
+        if self.estop_input is None or not self._switch_pressed():
+            return None
+        self.estop_rule.switch_pressed = True
+        if self._latched.is_set():
+            return self._trip
+        return self.trip(self.estop_rule.name, "hardware E-stop switch pressed (or "
+                                               "unreadable)")
+
     # -- the hardware switch ---------------------------------------------------------
     def _switch_pressed(self) -> bool:
         try:
