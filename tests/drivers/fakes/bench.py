@@ -17,7 +17,6 @@ import threading
 import time
 
 import numpy as np
-from scipy import signal
 
 
 class ForceModel:
@@ -30,10 +29,13 @@ class ForceModel:
         self.I_max = np.asarray(I_max_mA, float)
         self.noise_N = noise_N
         self.rng = np.random.default_rng(seed)
-        num, den = [Kp_N * wn_rad_s ** 2], [1.0, 2 * zeta * wn_rad_s, wn_rad_s ** 2]
-        self.b, self.a, _ = signal.cont2discrete((num, den), 1.0 / fs_Hz, method="bilinear")
-        self.b = np.ravel(self.b)
-        self.zi = np.zeros(max(len(self.a), len(self.b)) - 1)
+        # bilinear (Tustin) discretisation of Kp wn^2 / (s^2 + 2 zeta wn s + wn^2)
+        c = 2.0 * fs_Hz
+        a0 = c * c + 2 * zeta * wn_rad_s * c + wn_rad_s ** 2
+        self.b = np.array([1.0, 2.0, 1.0]) * Kp_N * wn_rad_s ** 2 / a0
+        self.a = np.array([1.0, (2 * wn_rad_s ** 2 - 2 * c * c) / a0,
+                           (c * c - 2 * zeta * wn_rad_s * c + wn_rad_s ** 2) / a0])
+        self.zi = np.zeros(2)
 
     def activation(self, I_mA: np.ndarray, muscle: int) -> np.ndarray:
         return np.clip((I_mA - self.I_min[muscle]) / (self.I_max[muscle] - self.I_min[muscle]),
@@ -41,7 +43,16 @@ class ForceModel:
 
     def step(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> np.ndarray:
         drive = self.activation(I_ext_mA, 0) - self.activation(I_flex_mA, 1)
-        y, self.zi = signal.lfilter(self.b, self.a, drive, zi=self.zi)
+        b0, b1, b2 = self.b
+        _, a1, a2 = self.a
+        z0, z1 = self.zi
+        y = np.empty(len(drive))
+        for k, x in enumerate(drive.tolist()):  # direct form II transposed
+            out = b0 * x + z0
+            z0 = b1 * x - a1 * out + z1
+            z1 = b2 * x - a2 * out
+            y[k] = out
+        self.zi = np.array([z0, z1])
         return y + self.noise_N * self.rng.standard_normal(len(y))
 
 

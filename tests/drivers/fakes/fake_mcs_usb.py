@@ -25,7 +25,6 @@ import sys
 import types
 
 import numpy as np
-from scipy.ndimage import maximum_filter1d
 
 
 # -- System ------------------------------------------------------------------------
@@ -296,8 +295,9 @@ class CStg200xDownloadNet:
             self.channel_data[ch] = (values.copy(), durations.copy())
             self._expanded[ch] = np.repeat(values, durations.astype(np.int64) // self.TICK_US)
             # demodulated envelope: peak |I| over the last carrier period (1 ms = 50 ticks)
-            self._envelope[ch] = maximum_filter1d(np.abs(self._expanded[ch]), 50,
-                                                  origin=24, mode="nearest")
+            mag = np.abs(self._expanded[ch])
+            padded = np.concatenate([np.full(49, mag[0] if len(mag) else 0), mag])
+            self._envelope[ch] = np.lib.stride_tricks.sliding_window_view(padded, 50).max(axis=1)
         elif destination is STG_DestinationEnumNet.syncoutdata:
             if ch >= self.hw.n_sync:
                 raise ValueError(f"no sync output {ch}")
