@@ -267,8 +267,9 @@ class Stg4002Stimulator:
         """
         if self._dev is None:
             raise DeviceError("the STG is not connected; call connect() first")
-        if self._state in (StimulatorState.RUNNING, StimulatorState.ARMED):
-            raise DeviceError(f"cannot load a trial while the STG is {self._state.value}")
+        state = self.status().state  # a finished trial turns RUNNING into STOPPED here
+        if state is StimulatorState.RUNNING:
+            raise DeviceError("cannot load a trial while the STG is running; stop it first")
         caps = self.capabilities()
         plan = ((self.ext_ch, waveform.I_ext_mA, waveform.ceiling_ext_mA, "extensor"),
                 (self.flex_ch, waveform.I_flex_mA, waveform.ceiling_flex_mA, "flexor"))

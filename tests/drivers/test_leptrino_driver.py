@@ -259,3 +259,26 @@ def test_max_samples_are_respected(leptrino_emulator):
     extra = acq.read(0.02)
     assert sum(c.n for c in chunks) == 37 and (extra is None or extra.n == 0)
     acq.close()
+
+
+def test_corrupt_reply_frame_is_retried_then_reported(leptrino_emulator):
+    emu = leptrino_emulator(rated=RATED)
+    sensor = LeptrinoSensor(emu.port, reply_timeout_s=0.3, retries=3)
+    sensor.open()
+    emu.corrupt_replies = 1
+    assert sensor.product_info().serial == "LT000042"
+    assert sensor.corrupt_frames == 1 and emu.commands.count(Command.PRODUCT_INFO) == 2
+    emu.corrupt_replies = 3
+    with pytest.raises(ProtocolError, match="PRODUCT_INFO.*corrupt reply: BCC mismatch"):
+        sensor.product_info()
+    sensor.close()
+
+
+def test_unplugged_during_a_command_raises_an_oserror(leptrino_emulator):
+    emu = leptrino_emulator(rated=RATED)
+    sensor = LeptrinoSensor(emu.port, reply_timeout_s=0.3)
+    sensor.open()
+    emu.unplug()
+    with pytest.raises(OSError):  # SerialException / ProtocolError: one line in the CLI
+        sensor.product_info()
+    sensor.close()

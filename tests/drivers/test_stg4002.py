@@ -240,3 +240,18 @@ def test_quantisation_is_toward_zero_exactly_at_the_ceiling():
     assert np.abs(samples).max() <= 7.3333e6
     peak_sin = np.abs(np.sin(2 * np.pi * FC * np.arange(50) / RATE)).max()  # off-grid peak
     assert np.abs(samples).max() >= 7.3333e6 * peak_sin - 500
+
+
+def test_next_trial_loads_after_the_previous_one_ended(fake_mcs):
+    fake_mcs()
+    bench = fake_mcs.bench
+    st_ = stim(clock=bench.now)
+    st_.connect()
+    st_.load(waveform(seconds=0.02))
+    st_.arm()
+    st_.start()
+    with pytest.raises(DeviceError, match="running"):
+        st_.load(waveform(seconds=0.02))
+    bench.sleep(0.05)
+    st_.load(waveform(seconds=0.02))  # ended on its own: no stop_now needed
+    assert st_.status().state is StimulatorState.LOADED

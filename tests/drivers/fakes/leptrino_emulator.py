@@ -12,7 +12,8 @@ NAK), ``corrupt_every`` (every Nth data frame gets a wrong BCC), ``garbage_every
 bytes between frames), ``fragment`` (write in 1..7-byte pieces with pauses, so the driver
 sees partial reads), ``error_result`` (answer a command with an error result code),
 ``status_fn`` (status byte per record), ``data_result`` (result code in data frames),
-``ack_start`` (acknowledge 0x32 with a bare header), :meth:`inject` (raw bytes, e.g. a
+``ack_start`` (acknowledge 0x32 with a bare header), ``corrupt_replies`` (break the BCC
+of the next N command replies), :meth:`inject` (raw bytes, e.g. a
 spontaneous ``DLE NAK``), :meth:`stall` (stop streaming but stay
 connected) and :meth:`unplug` (close the master side: the driver's port errors out).
 """
@@ -61,6 +62,7 @@ class LeptrinoEmulator:
         self.error_result: dict[int, int] = {}
         self.ack_start = False
         self.data_result = 0
+        self.corrupt_replies = 0
         self.commands: list[int] = []
         self.bad_commands = 0
         self.frames_sent = 0
@@ -195,10 +197,10 @@ class LeptrinoEmulator:
             data = (self.model.encode().ljust(16, b"\0") + self.serial.encode().ljust(8, b"\0")
                     + self.firmware.encode().ljust(4, b"\0")
                     + f"{self.rate_Hz:.0f}Hz".encode().ljust(6, b"\0"))
-            self._send(_frame(bytes([4 + len(data), 0xFF, cmd, 0]) + data))
+            self._reply(_frame(bytes([4 + len(data), 0xFF, cmd, 0]) + data))
         elif cmd == 0x2B:
             data = struct.pack("<6f", *self.rated)
-            self._send(_frame(bytes([4 + len(data), 0xFF, cmd, 0]) + data))
+            self._reply(_frame(bytes([4 + len(data), 0xFF, cmd, 0]) + data))
         elif cmd == 0x30:
             self._send(self._record(time.monotonic() - self._t0, cmd))
         elif cmd == 0x32:
@@ -210,7 +212,7 @@ class LeptrinoEmulator:
         elif cmd == 0x33:
             with self._lock:
                 self._streaming = False
-            self._send(_frame(bytes([4, 0xFF, cmd, 0])))
+            self._reply(_frame(bytes([4, 0xFF, cmd, 0])))
         else:
             self._send(_frame(bytes([4, 0xFF, cmd, 0x02])))  # undefined command
 
@@ -237,6 +239,12 @@ class LeptrinoEmulator:
                 if self.garbage_every and self.frames_sent % self.garbage_every == 0:
                     self._send(bytes(self.rng.randrange(256) for _ in range(self.rng.randint(1, 9))))
                 self._send(bytes(frame))
+
+    def _reply(self, frame: bytes):
+        if self.corrupt_replies > 0:
+            self.corrupt_replies -= 1
+            frame = frame[:-1] + bytes([frame[-1] ^ 0xA5])
+        self._send(frame)
 
     def _send(self, data: bytes):
         if len(self._out) > 256 * 1024:
