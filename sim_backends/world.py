@@ -513,6 +513,11 @@ class SimWorld:
                 if acq.n_samples is not None:
                     Nb = min(Nb, acq.N0 + acq.n_samples)
                 Na = min(Na, Nb)
+                flags["overrun"] = True
+                details.append(f"simulated overrun: {lost} samples lost")
+                sf.done = True
+                if not any(ff.fault is sf.fault for ff in self.script.fired):
+                    self._log_fired(sf.fault, sf.t_s, sf.N)
         blk = self._ensure(acq, Na, Nb)
         for sf in self._sample:
             if sf.done or sf.N >= max(Nb, Na + 1) or sf.N_end <= Na:

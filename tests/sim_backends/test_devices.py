@@ -1,0 +1,192 @@
+"""The simulated devices: interface behaviour, safety, clocks and state across chunks."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drivers.errors import DeviceRangeError
+from drivers.interfaces import CheckedWaveform, StimulatorState
+from sim_backends import make_sim_rig
+from sim_backends.direct_drive import currents_for, run_waveform, waveform
+from sim_backends.errors import DeviceStateError
+from sim_backends.faults import Fault, FaultKind
+from sim_backends.participant import default_participant
+from sim_backends.sensor import SensorModel
+from sim_backends.simulation import ParticipantSimulator
+
+FS = 2000.0
+
+
+def _step_trial(p, n_s=1.0, sE=0.6, level=0.9):
+    rE = np.full(int(n_s * FS), level)
+    return currents_for(p.calibration, sE, rE)
+
+
+def _offline(p, I_e, I_f, n_stop=None, n_total=None):
+    """Reference: the participant simulated in one block, output zero from n_stop."""
+    n_total = n_total or I_e.size
+    e = np.zeros(n_total)
+    f = np.zeros(n_total)
+    m = min(I_e.size, n_total if n_stop is None else n_stop)
+    q = lambda x: np.minimum(np.floor(x * 1000 + 1e-6) / 1000, x)  # noqa: E731
+    e[:m], f[:m] = q(I_e[:m]), q(I_f[:m])
+    return ParticipantSimulator(p, FS).simulate(e, f).force_N
+
+
+def test_stop_now_from_another_thread_zeroes_output_in_real_time():
+    p = default_participant(sensor=SensorModel.ideal())
+    rig = make_sim_rig(p, realtime=True)
+    rig.stimulator.connect()
+    I_e, I_f = _step_trial(p, n_s=0.8)
+    timer = threading.Timer(0.3, rig.stimulator.stop_now)
+    stim, acq = rig.stimulator, rig.acquisition
+    stim.load(waveform(I_e, I_f))
+    stim.arm()
+    acq.start(I_e.size, triggered=True)
+    stim.start()
+    timer.start()
+    chunks = []
+    t_wall = time.monotonic()
+    while sum(c.n for c in chunks) < I_e.size and time.monotonic() - t_wall < 5:
+        c = acq.read(0.05)
+        if c is not None:
+            chunks.append(c)
+    acq.stop()
+    timer.join()
+    force = np.concatenate([c.force_N for c in chunks])
+    sync = np.concatenate([c.sync for c in chunks])
+    zero = rig.output_zero_events
+    assert len(zero) == 1 and zero[0].reason == "stop_now"
+    n_stop = zero[0].sample_index
+    assert abs(n_stop - 0.3 * FS) < 0.1 * FS               # when the other thread asked
+    assert np.all(sync[n_stop:] == 0) and np.all(sync[:n_stop] > 0)
+    # force decays from the state it had, as if the currents had stopped at n_stop
+    assert np.max(np.abs(force - _offline(p, I_e, I_f, n_stop))) < 1e-9
+    assert stim.status().state is StimulatorState.STOPPED
+    assert not stim.status().output_active
+    stim.stop_now()                                          # idempotent
+    stim.disconnect()
+    stim.stop_now()                                          # never raises
+    assert len(rig.output_zero_events) == 1
+
+
+def test_estop_mid_trial_gives_a_decaying_force_with_continuous_state():
+    p = default_participant(sensor=SensorModel.ideal())
+    rig = make_sim_rig(p, faults=[Fault(FaultKind.ESTOP, trial=0, at_s=0.45)])
+    rig.stimulator.connect()
+    I_e, I_f = _step_trial(p, n_s=1.5)
+
+    def watch(r, chunk):
+        if r.estop.is_pressed():
+            r.stimulator.stop_now()
+        return False
+    force, chunks = run_waveform(rig, waveform(I_e, I_f), on_chunk=watch)
+    n_stop = rig.output_zero_events[0].sample_index
+    assert n_stop == 1000                      # first chunk boundary after 0.45 s (0.1 s chunks)
+    assert rig.faults.fired[0].fault.kind is FaultKind.ESTOP
+    assert rig.faults.fired[0].scheduled_clock_s == pytest.approx(0.45)
+    assert np.max(np.abs(force - _offline(p, I_e, I_f, n_stop))) < 1e-9
+    tail = np.abs(force[-200:])
+    assert tail.max() < 0.01 * np.abs(force[:n_stop]).max()   # decayed
+
+
+def test_fast_and_real_time_clocks_give_identical_samples():
+    p = default_participant(seed=7)              # noise, mains, drift, offset all on
+    I_e, I_f = _step_trial(p, n_s=0.6)
+    out = []
+    for realtime in (False, True):
+        rig = make_sim_rig(p, realtime=realtime)
+        rig.stimulator.connect()
+        force, chunks = run_waveform(rig, waveform(I_e, I_f))
+        out.append((force, np.concatenate([c.wrench for c in chunks]), len(chunks)))
+    assert out[0][2] < out[1][2]                 # the chunking differs ...
+    assert np.array_equal(out[0][0], out[1][0])  # ... the samples do not
+    assert np.array_equal(out[0][1], out[1][1])
+
+
+def test_real_time_reads_block_until_samples_are_due():
+    rig = make_sim_rig(default_participant(), realtime=True)
+    rig.stimulator.connect()
+    p = rig.participant
+    I_e, I_f = _step_trial(p, n_s=0.3)
+    t0 = time.monotonic()
+    force, chunks = run_waveform(rig, waveform(I_e, I_f))
+    elapsed = time.monotonic() - t0
+    assert 0.28 <= elapsed < 1.0
+    assert all(c.n <= 40 for c in chunks)        # 20 ms chunks in real time
+
+
+def test_chunking_and_back_to_back_trials_do_not_change_the_samples():
+    p = default_participant(seed=3)
+    I_e, I_f = _step_trial(p, n_s=1.0)
+    ref_rig = make_sim_rig(p, connect=True)
+    both = np.concatenate([I_e, I_e]), np.concatenate([I_f, I_f])
+    ref, _ = run_waveform(ref_rig, waveform(*both))
+    for chunk_s in (0.1, 0.0135):
+        rig = make_sim_rig(p, chunk_s=chunk_s, connect=True)
+        a, _ = run_waveform(rig, waveform(I_e, I_f))
+        b, _ = run_waveform(rig, waveform(I_e, I_f))      # state carries over, no rest
+        assert np.array_equal(np.concatenate([a, b]), ref)
+
+
+def test_load_validation_and_state_errors():
+    rig = make_sim_rig()
+    stim = rig.stimulator
+    n = 200
+    ok = waveform(np.full(n, 3.0), np.full(n, 3.0))
+    with pytest.raises(DeviceStateError, match="connect"):
+        stim.load(ok)
+    stim.connect()
+    with pytest.raises(TypeError, match="CheckedWaveform"):
+        stim.load(np.zeros(n))
+    too_high = CheckedWaveform(np.full(n, 17.0), np.zeros(n), FS, 1000.0, 30.0, 30.0)
+    with pytest.raises(DeviceRangeError, match="16 mA"):
+        stim.load(too_high)
+    with pytest.raises(DeviceStateError, match="arm"):
+        stim.start()
+    stim.load(ok)
+    stim.arm()
+    rig.acquisition.start(n)
+    stim.start()
+    assert stim.status().output_active
+    with pytest.raises(DeviceStateError, match="running"):
+        stim.load(ok)
+    with pytest.raises(DeviceStateError, match="stop"):
+        rig.acquisition.start(n)
+    rig.close()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(0.0, 16.0, allow_subnormal=False), min_size=1, max_size=50),
+       st.floats(0.0, 16.0))
+def test_delivered_current_is_never_above_the_request_or_ceiling(levels, ceiling):
+    arr = np.minimum(np.asarray(levels), ceiling)
+    rig = make_sim_rig(participant=default_participant(sensor=SensorModel.ideal()),
+                       connect=True)
+    wf = CheckedWaveform(arr, arr[::-1].copy(), FS, 1000.0, ceiling, ceiling)
+    run_waveform(rig, wf)
+    assert max(rig.max_delivered_mA) <= ceiling
+    assert max(rig.max_sent_mA) <= ceiling
+    assert rig.max_sent_mA[0] >= arr.max() - 0.001
+
+
+def test_acquisition_takes_a_trigger_fired_before_it_started_and_free_runs():
+    p = default_participant(sensor=SensorModel.ideal())
+    rig = make_sim_rig(p, connect=True)
+    I_e, I_f = _step_trial(p, n_s=0.5)
+    rig.stimulator.load(waveform(I_e, I_f))
+    rig.stimulator.arm()
+    rig.stimulator.start()                       # trigger first ...
+    rig.acquisition.start(I_e.size)              # ... then a triggered acquisition
+    c = rig.acquisition.read(0.05)
+    assert c.start_index == 0
+    rig.acquisition.stop()
+    rig.acquisition.start(300, triggered=False)  # free-running: starts now
+    c = rig.acquisition.read(0.05)
+    assert c.start_index == 0 and c.n == 200
+    assert rig.acquisition.read(1.0).n == 100
+    assert rig.acquisition.read(0.05) is None     # all 300 delivered
