@@ -111,3 +111,15 @@ def test_bad_config_is_one_line(write_hw_config, tmp_path, capsys):
     assert main(["probe", "--hw-config", str(bad)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "acquisition.fs_Hz" in err
+
+
+def test_importing_drivers_needs_no_vendor_library():
+    import subprocess
+    code = ("import sys\n"
+            "for m in ('clr', 'System', 'nidaqmx', 'serial'): sys.modules[m] = None\n"
+            "import drivers, drivers.hardware, drivers.cli_probe, drivers.stg4002, "
+            "drivers.caio, drivers.nidaq, drivers.leptrino, drivers.estop_switch\n"
+            "print('ok')\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
