@@ -83,6 +83,10 @@ def trend_of(model: str, coefficients, sE_min: float, sE_max: float) -> Trend:
     rng = f"{sE_min:g}-{sE_max:g}"
     if model == "linear" or model == "exponential":
         slope = c[1] if model == "linear" else c[0] * c[1]
+        ends = np.abs(evaluate_curve(model, c, [sE_min, sE_max]))
+        change = abs(float(np.diff(evaluate_curve(model, c, [sE_min, sE_max]))[0]))
+        if change <= 1e-9 * max(float(ends.max()), 1e-300):
+            slope = 0.0                      # flat to rounding over the tested range
         direction = "increasing" if slope > 0 else "decreasing" if slope < 0 else "constant"
         text = direction
         if model == "exponential" and slope != 0:
