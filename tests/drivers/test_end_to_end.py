@@ -140,3 +140,30 @@ def test_nmsid_run_backend_hw_against_fakes(tmp_path, write_hw_config, capsys):
                "--out", str(out), "--no-identify", "--quiet"])
     assert rc == 0, capsys.readouterr()
     assert validate_session(out) == []
+
+
+def test_sensor_unplugged_mid_trial_aborts_it_and_stops_output(tmp_path, write_hw_config):
+    import threading
+    import time
+
+    devices = make_hw_rig(write_hw_config(tmp_path / "hw.toml", kind="leptrino", speed=1.0,
+                                          fs_Hz=1200.0, estop="none"))
+    cfg = config_from_dict({
+        "participant": "HW04", "seed": 1,
+        "protocol": {"sE_levels": [0.7], "repeats": 1, "steady_s": 1.0, "chirp_s": 1.0,
+                     "rest_s": 0.0, "fs_Hz": 1200.0},
+        "calibration": {"manual": {"Iemin_mA": 2.5, "Iemax_mA": 7.0, "Ifmin_mA": 2.5,
+                                   "Ifmax_mA": 7.0}}})
+    emulator = devices.acquisition._stack.emulator
+    threading.Thread(target=lambda: (time.sleep(0.8), emulator.unplug()), daemon=True).start()
+    path = tmp_path / "s.h5"
+    try:
+        summary = Engine(cfg, devices, path, trip_policy=TripPolicy.END_SESSION).run()
+    finally:
+        devices.close()
+    assert summary.n_completed == 0
+    s = read_session(path)
+    assert s.trials and s.trials[0].status == "aborted" and s.trials[0].abort_reason
+    assert 0 < len(s.trials[0].force_N) < 2400  # the samples before the fault are kept
+    stg = load_fake("fake_mcs_usb").registry().devices[-1]
+    assert stg.stopped_at is not None
