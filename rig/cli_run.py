@@ -197,27 +197,18 @@ def _seed_from_code(code: str) -> int:
 
 
 def _identify(path) -> None:
+    """Run the identification on the new file into ``<file stem>-analysis/``."""
     out = path.with_name(path.stem + "-analysis")
     try:
-        from analysis.identify import identify_session
+        from analysis.run import run_identification, summary_line
     except ImportError as exc:
-        print(f"identification skipped: analysis.identify is not available ({exc})",
-              flush=True)
+        print(f"identification skipped: analysis.run is not available ({exc})", flush=True)
         return
-    result = identify_session(str(path))
-    writer = None
-    try:
-        from analysis import report as _report
-        writer = getattr(_report, "write_report", None)
-    except ImportError:
-        pass
-    out.mkdir(parents=True, exist_ok=True)
-    if writer is not None:
-        writer(result, out)
+    outputs = run_identification([path], out)
+    if outputs.tables_text:
+        print(outputs.tables_text, flush=True)
+    print(summary_line(outputs), flush=True)
     print(f"identification written to {out}", flush=True)
-    table = getattr(result, "table", None)
-    if callable(table):
-        print(table(), flush=True)
 
 
 class _Progress:
