@@ -90,7 +90,8 @@ def block_normal(seed: int, stream: int, n0: int, n: int, width: int = 1) -> np.
     parts = []
     for b in range(b0, b1 + 1):
         rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, int(stream), int(b)])
-        parts.append(rng.standard_normal((NOISE_BLOCK, width)))
+        parts.append(rng.standard_normal((NOISE_BLOCK, width), dtype=np.float32)
+                     .astype(np.float64))
     blk = np.concatenate(parts) if len(parts) > 1 else parts[0]
     off = n0 - b0 * NOISE_BLOCK
     out = blk[off:off + n]
@@ -135,10 +136,17 @@ class SensorState:
         if b0 == b1:
             f, w = self._block(b0)
             return f[off:off + n], w[off:off + n]
-        parts = [self._block(b) for b in range(b0, b1 + 1)]
-        f = np.concatenate([p[0] for p in parts])
-        w = np.vstack([p[1] for p in parts])
-        return f[off:off + n], w[off:off + n]
+        f_out = np.empty(n)
+        w_out = np.empty((n, 6))
+        k = 0
+        for b in range(b0, b1 + 1):
+            f, w = self._block(b)
+            lo = off if b == b0 else 0
+            m = min(NOISE_BLOCK - lo, n - k)
+            f_out[k:k + m] = f[lo:lo + m]
+            w_out[k:k + m] = w[lo:lo + m]
+            k += m
+        return f_out, w_out
 
     def measure(self, true_force_N: np.ndarray, n0: int
                 ) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -171,10 +179,12 @@ class SensorState:
         noise, cross = self._noise(n0, n) if (m.noise_N or m.cross_noise_N) else (None, None)
         if m.noise_N:
             f += noise
-        wrench = f[:, None] * self._w_axis[None, :]
+        wrench = np.multiply.outer(f, self._w_axis)
         if m.cross_noise_N:
             wrench += cross
-        over = bool(np.abs(wrench[:, :3]).max() > m.range_N)
+        # the cross-axis noise is tiny: only a reading near full scale needs the full check
+        over = bool(np.abs(f).max() > 0.9 * m.range_N
+                    and np.abs(wrench[:, :3]).max() > m.range_N)
         if over:
             axis = np.asarray(m.axis)
             forces = np.clip(wrench[:, :3], -m.range_N, m.range_N)

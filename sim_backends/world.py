@@ -115,6 +115,8 @@ class _Block:
     force_N: np.ndarray
     wrench: np.ndarray
     over: np.ndarray | None
+    peak_e: float
+    peak_f: float
 
 
 @dataclass
@@ -490,10 +492,17 @@ class SimWorld:
         rng = self.participant.sensor.range_N
         over = np.abs(out.wrench[:, :3]).max(axis=1) >= rng if \
             np.abs(out.force_N).max(initial=0.0) >= rng * 0.5 else None
-        self._blk = _Block(Na, N1, snap, I_e, I_f, spike, sync, out.force_N, out.wrench, over)
+        for arr in (sync, out.force_N, out.wrench):
+            arr.setflags(write=False)      # chunks are views of these: read-only
+        self._blk = _Block(Na, N1, snap, I_e, I_f, spike, sync, out.force_N, out.wrench, over,
+                           float(I_e.max(initial=0.0)), float(I_f.max(initial=0.0)))
         return self._blk
 
-    def _count_delivered(self, I_e: np.ndarray, I_f: np.ndarray) -> None:
+    def _count_delivered(self, I_e: np.ndarray, I_f: np.ndarray,
+                         peaks: tuple[float, float] | None = None) -> None:
+        if peaks is not None and peaks[0] <= self.max_delivered_mA[0] \
+                and peaks[1] <= self.max_delivered_mA[1]:
+            return   # nothing in this block can raise the record
         if I_e.size:
             self.max_delivered_mA[0] = max(self.max_delivered_mA[0], float(I_e.max()))
             self.max_delivered_mA[1] = max(self.max_delivered_mA[1], float(I_f.max()))
@@ -542,10 +551,10 @@ class SimWorld:
             flags["over_range"] = True
             details.append(f"force beyond the sensor's range "
                            f"{self.participant.sensor.range_N:g} N")
-        self._count_delivered(blk.I_e[a:b], blk.I_f[a:b])
+        self._count_delivered(blk.I_e[a:b], blk.I_f[a:b], (blk.peak_e, blk.peak_f))
         self.committed = max(self.committed, Nb)
         acq.next_k = Nb - acq.N0
-        return (blk.force_N[a:b].copy(), blk.wrench[a:b].copy(), blk.sync[a:b].copy(),
+        return (blk.force_N[a:b], blk.wrench[a:b], blk.sync[a:b],
                 AcquisitionFlags(detail="; ".join(details), **flags), Na - acq.N0)
 
     def start_stall(self, acq: AcqRun, sf: _SampleFault) -> None:
