@@ -109,9 +109,16 @@ class SimEStop:
     def is_pressed(self) -> bool:
         if self._closed:
             return True   # fail-safe: an unreadable switch reads as pressed
-        with self._w.lock:
-            self._w.update()
-            return self._w.estop_pressed
+        w = self._w
+        if w.estop_pressed:
+            return True
+        # lock-free in the common case: a poll never waits for a simulation in progress
+        now = w.clock.monotonic_s()
+        if not any(t <= now for t in w.estop_due_s):
+            return False
+        with w.lock:
+            w.update()
+            return w.estop_pressed
 
     def press(self) -> None:
         with self._w.lock:
@@ -120,7 +127,10 @@ class SimEStop:
 
     def release(self) -> None:
         with self._w.lock:
+            self._w.update()
             self._w.estop_pressed = False
+            now = self._w.now()
+            self._w.estop_due_s = [t for t in self._w.estop_due_s if t > now]
 
     @property
     def pressed_at_s(self) -> float | None:

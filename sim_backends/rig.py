@@ -17,6 +17,10 @@ FAST_CHUNK_S = 0.1
 """Chunk length on the fast clock (long chunks: fewer calls, faster sessions)."""
 REALTIME_CHUNK_S = 0.02
 """Chunk length in real time (short chunks: latency measurements mean something)."""
+FAST_BLOCK_S = 15.0
+"""Simulated ahead per step on the fast clock (a whole trial: fewest calls)."""
+REALTIME_BLOCK_S = 1.0
+"""Simulated ahead per step in real time (keeps the simulation lock held briefly)."""
 
 
 @dataclass
@@ -111,7 +115,8 @@ def make_sim_rig(participant: VirtualParticipant | None = None, *, realtime: boo
         chunk_s = REALTIME_CHUNK_S if realtime else FAST_CHUNK_S
     if not 0 < chunk_s <= 1.0:
         raise SimConfigError(f"chunk_s must be in (0, 1] s, got {chunk_s!r}")
-    world = SimWorld(participant, clock, script, fs_Hz=fs_Hz, chunk_s=chunk_s)
+    world = SimWorld(participant, clock, script, fs_Hz=fs_Hz, chunk_s=chunk_s,
+                     block_s=REALTIME_BLOCK_S if realtime else FAST_BLOCK_S)
     stim = SimStimulator(world)
     if connect:
         stim.connect()

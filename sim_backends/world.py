@@ -177,9 +177,13 @@ class SimWorld:
         self.estop_pressed_at_s: float | None = None
         self._timed: list[tuple[Fault, float]] = []   # (fault, clock time) for time faults
         self._sample: list[_SampleFault] = []
+        self.estop_due_s: list[float] = []
+        """Clock times of scheduled E-stop presses (read without the lock)."""
         for f in self.script.faults:
             if f.session_s is not None:
                 self._timed.append((f, self.t_origin_s + f.session_s))
+                if f.kind is FaultKind.ESTOP:
+                    self.estop_due_s.append(self.t_origin_s + f.session_s)
 
     # -- time base -----------------------------------------------------------------------
     def now(self) -> float:
@@ -259,6 +263,8 @@ class SimWorld:
                 continue  # fired at load
             else:
                 self._timed.append((f, t))
+                if f.kind is FaultKind.ESTOP:
+                    self.estop_due_s = self.estop_due_s + [t]
 
     def _add_sample_fault(self, f: Fault, t_s: float, N: int) -> None:
         if f.kind is FaultKind.FORCE_SPIKE:

@@ -96,7 +96,7 @@ def test_estop_mid_trial_gives_a_decaying_force_with_continuous_state():
 
 def test_fast_and_real_time_clocks_give_identical_samples():
     p = default_participant(seed=7)              # noise, mains, drift, offset all on
-    I_e, I_f = _step_trial(p, n_s=0.6)
+    I_e, I_f = _step_trial(p, n_s=1.3)           # longer than a real-time block (1 s)
     out = []
     for realtime in (False, True):
         rig = make_sim_rig(p, realtime=realtime)
