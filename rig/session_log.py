@@ -34,6 +34,7 @@ import json
 import logging
 import os
 import re
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -257,9 +258,27 @@ class RecoveryReport:
         return text
 
 
-def _same_trial(a: dict, b: Trial) -> bool:
-    return (abs(float(a["sE"]) - float(b.sE)) < 1e-9 and int(a["repeat"]) == int(b.repeat)
-            and a["status"] == b.status)
+def _same_trial(a: Trial, b: Trial) -> bool:
+    """The journal's trial and the file's are the same, sample for sample."""
+    return (abs(float(a.sE) - float(b.sE)) < 1e-12 and int(a.repeat) == int(b.repeat)
+            and a.status == b.status
+            and all(np.array_equal(getattr(a, k), getattr(b, k), equal_nan=True)
+                    for k in ("rE", "I_ext_mA", "I_flex_mA", "force_N")))
+
+
+def _read_fully(path: Path):
+    """(Session, []) if the file validates AND every dataset reads back; else (None,
+    problems). A file cut short by a kill can pass the structural checks and still fail
+    when its data are read."""
+    if not path.exists():
+        return None, ["no such file"]
+    problems = validate_session(path)
+    if problems:
+        return None, problems
+    try:
+        return read_session(path), []
+    except Exception as exc:  # h5py raises KeyError / OSError / RuntimeError on damage
+        return None, [f"data unreadable ({type(exc).__name__}: {exc})"]
 
 
 def _unique_aside(path: Path, tag: str) -> Path:
@@ -291,12 +310,13 @@ def recover(path: str | os.PathLike) -> RecoveryReport:
     path = Path(path)
     jdir = journal_dir(path)
     if not jdir.is_dir():
-        problems = validate_session(path)
-        if not problems:
-            n = len(read_session(path, load_data=False).trials)
-            return RecoveryReport(str(path), "none", n_trials=n)
+        s, problems = _read_fully(path)
+        if s is not None:
+            return RecoveryReport(str(path), "none", n_trials=len(s.trials))
         raise SessionFileError(path, f"{problems[0]}; and there is no journal "
                                      f"({jdir.name}) to recover it from")
+    if not (jdir / "header.json").exists():  # nothing was ever journaled in it
+        return RecoveryReport(str(path), "no-calibration")
     jc = read_journal(jdir)
     report = RecoveryReport(str(path), "none")
     # 1. the trial in progress becomes an aborted trial of the journal
@@ -325,12 +345,12 @@ def recover(path: str | os.PathLike) -> RecoveryReport:
         return report
     metas = jc.trial_metas()
     report.n_trials = len(metas)
-    problems = validate_session(path) if path.exists() else ["no such file"]
+    s, problems = _read_fully(path)
     report.problems_before = problems
-    if not problems:
-        s = read_session(path, load_data=False)
+    if s is not None:
         prefix_ok = (len(s.trials) <= len(metas) and len(s.events) <= len(jc.events)
-                     and all(_same_trial(m, t) for m, t in zip(metas, s.trials)))
+                     and all(_same_trial(load_trial_npz(p), t)
+                             for p, t in zip(jc.trial_files, s.trials)))
         if prefix_ok:
             w = SessionWriter.open(path)
             for p in jc.trial_files[len(s.trials):]:
@@ -416,14 +436,23 @@ class SessionLog:
         if jdir.exists():
             raise SessionExistsError(jdir)
         path.parent.mkdir(parents=True, exist_ok=True)
-        jdir.mkdir()
         header = {"participant": participant, "created_utc": created_utc or utc_now(),
                   "software": software_id(), "config_json": config_json,
                   "seed": None if seed is None else int(seed), "backend": backend,
                   "extra_attrs": {"schedule_json": schedule_json},
                   "file": path.name}
-        _write_durable(jdir / "header.json",
+        # the journal appears complete with its header or not at all: build it aside
+        tmp = jdir.with_name(f"{jdir.name}.tmp-{os.getpid()}")
+        if tmp.exists():
+            shutil.rmtree(tmp)
+        tmp.mkdir()
+        _write_durable(tmp / "header.json",
                        lambda fh: fh.write(json.dumps(header, indent=1).encode("utf-8")))
+        if jdir.exists():
+            shutil.rmtree(tmp)
+            raise SessionExistsError(jdir)
+        os.rename(tmp, jdir)
+        _fsync_dir(jdir.parent)
         return cls(path, header)
 
     @classmethod
@@ -541,17 +570,17 @@ class SessionLog:
         self.close()
         if self._writer is None:
             return False
-        problems = validate_session(self.path)
-        if problems:
+        s, problems = _read_fully(self.path)
+        if s is None:
             log.error("%s: not removing the journal, the file has problems: %s", self.path,
                       problems[0])
             return False
-        n = len(read_session(self.path, load_data=False).trials)
-        if n != len(self.trials):
-            log.error("%s: file holds %d trials, journal %d; journal kept", self.path, n,
-                      len(self.trials))
+        files = read_journal(self.jdir).trial_files
+        if len(s.trials) != len(files) or not all(
+                _same_trial(load_trial_npz(p), t) for p, t in zip(files, s.trials)):
+            log.error("%s: file and journal differ (%d / %d trials); journal kept", self.path,
+                      len(s.trials), len(files))
             return False
-        import shutil
         shutil.rmtree(self.jdir, ignore_errors=True)
         return True
 
