@@ -83,7 +83,7 @@ def poles_to_continuous(den: np.ndarray, dt_s: float) -> tuple[float, float] | N
 
 
 def srivc_start(v: np.ndarray, y: np.ndarray, dt_s: float, *, trend: bool = True,
-                iterations: int = 10) -> StartEstimate | None:
+                iterations: int = 6) -> StartEstimate | None:
     """Steiglitz-McBride instrumental-variable estimate of a second-order model.
 
     Parameters

@@ -12,11 +12,13 @@ the input's window mean is removed: u = rE - mean(rE over the window).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import butter, savgol_filter, sosfilt, sosfilt_zi, sosfiltfilt
+from scipy.ndimage import convolve1d
+from scipy.signal import butter, savgol_coeffs, sosfilt, sosfilt_zi, sosfiltfilt
 
 from analysis.errors import IdentificationError
 from analysis.thin_lstsq import dot
@@ -67,6 +69,16 @@ def linear_detrend(x: np.ndarray) -> np.ndarray:
     return x - x.mean() - slope * k
 
 
+@functools.lru_cache(maxsize=32)
+def _butter_sos(order: int, cutoff_Hz: float, fs_Hz: float) -> np.ndarray:
+    return butter(order, cutoff_Hz, fs=fs_Hz, output="sos")
+
+
+@functools.lru_cache(maxsize=32)
+def _savgol_taps(window: int, order: int) -> np.ndarray:
+    return savgol_coeffs(window, order)
+
+
 def lowpass_sos(fs_Hz: float, settings: IdentificationSettings) -> np.ndarray | None:
     """Second-order sections of the Butterworth low-pass (None when disabled)."""
     if settings.lowpass_Hz is None:
@@ -75,7 +87,7 @@ def lowpass_sos(fs_Hz: float, settings: IdentificationSettings) -> np.ndarray | 
         raise IdentificationError(
             f"lowpass_Hz = {settings.lowpass_Hz:g} is not below the Nyquist frequency "
             f"{fs_Hz / 2:g} Hz of the data; choose a lower cut-off or None")
-    return butter(settings.butter_order, settings.lowpass_Hz, fs=fs_Hz, output="sos")
+    return _butter_sos(settings.butter_order, float(settings.lowpass_Hz), float(fs_Hz))
 
 
 def smooth_and_lowpass(x: np.ndarray, fs_Hz: float,
@@ -112,7 +124,15 @@ def smooth_and_lowpass(x: np.ndarray, fs_Hz: float,
         if n < settings.savgol_window:
             raise IdentificationError(f"only {n} samples; the Savitzky-Golay window needs "
                                       f"{settings.savgol_window}")
-        y = savgol_filter(y, settings.savgol_window, settings.savgol_order, axis=-1)
+        # same interior values as savgol_filter (the edges, where savgol_filter fits a
+        # polynomial, are never analysed: they lie before the window or are trimmed)
+        # the ends are padded by odd (point) reflection, which keeps straight lines exact
+        taps = _savgol_taps(settings.savgol_window, settings.savgol_order)
+        half = settings.savgol_window // 2
+        first, last = y[..., :1], y[..., -1:]
+        padded = np.concatenate([2 * first - y[..., half:0:-1], y,
+                                 2 * last - y[..., -2:-half - 2:-1]], axis=-1)
+        y = convolve1d(padded, taps, axis=-1, mode="constant")[..., half:half + n]
     sos = lowpass_sos(fs_Hz, settings)
     if sos is not None:
         if settings.zero_phase:
@@ -193,12 +213,17 @@ def preprocess_trials(trials, settings: IdentificationSettings | None = None) ->
             f"{max(usable_len, 0)} usable samples ({max(usable_len, 0) // q} at the fit rate); the trials "
             f"are {n / fs:g} s long - too short to fit")
     if s.filter_whole_trial:
+        # the filters' memory is far shorter than the lead-in: start them a settling time
+        # (10 / lowpass_Hz, at least 0.5 s) before the window instead of at onset
+        settle = max(0.5, 10.0 / s.lowpass_Hz if s.lowpass_Hz else 0.0)
+        j0 = max(0, i0 - int(settle * fs))
+        y, r = y[j0:], r[j0:]
         both = smooth_and_lowpass(np.vstack([y, r]), fs, s) if s.prefilter_input else None
         if both is not None:
             y, r = both[0], both[1]
         else:
             y = smooth_and_lowpass(y, fs, s)
-        y, r = y[i0:i1], r[i0:i1]
+        y, r = y[i0 - j0:i1 - j0], r[i0 - j0:i1 - j0]
     else:
         y, r = y[i0:i1], r[i0:i1]
         if s.prefilter_input:

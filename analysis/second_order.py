@@ -36,7 +36,8 @@ from analysis.errors import IdentificationError
 from analysis.initial_estimate import StartEstimate, srivc_start
 from analysis.residual_tests import ResidualTests, residual_tests
 from analysis.settings import IdentificationSettings, InputHold, NoiseLevel
-from analysis.thin_lstsq import cross, gram, lstsq_rows, orthonormalise, project_out
+from analysis.thin_lstsq import (cross, dot, gram, orthonormalise, project_out,
+                                 solve_triangular_upper)
 
 logger = logging.getLogger(__name__)
 
@@ -110,6 +111,10 @@ class _Problem:
         self.trend = trend
         self.impulse = np.zeros(self.n)
         self.impulse[0] = 1.0
+        # the offset (and ramp) rows do not depend on the parameters: orthonormalise once
+        fixed = [np.ones(self.n)] + ([self.tau] if trend else [])
+        self.fixed_rows = np.vstack(fixed)
+        self.fixed_q, self.fixed_r = orthonormalise(self.fixed_rows)
         #: upper bound of (ln wn, ln zeta): wn below 10x the Nyquist frequency, zeta < 1000
         self.p_high = np.array([math.log(10 * math.pi / dt_s), math.log(1000.0)])
 
@@ -133,11 +138,11 @@ class _Problem:
         basis[3] = 1.0
         if self.trend:
             basis[4] = self.tau
-        coef, q, r = lstsq_rows(basis, self.y)
+        coef, q, r = _lstsq_with_fixed(basis, self.y, self.fixed_q, self.fixed_r)
         y_fit = _combine(coef, basis)
         resid = self.y - y_fit
-        out = {"cost": float(resid @ resid), "coef": coef, "y_fit": y_fit, "resid": resid,
-               "basis": basis, "r": r}
+        out = {"cost": dot(resid, resid), "coef": coef, "y_fit": y_fit, "resid": resid,
+               "basis": basis}
         if not jacobian:
             return out
         kp, y0, y1 = coef[0], coef[1], coef[2]
@@ -152,6 +157,41 @@ class _Problem:
         out["jp"] = jp
         out["j_reduced"] = np.array([project_out(q, row) for row in jp])
         return out
+
+
+def _lstsq_with_fixed(basis: np.ndarray, y: np.ndarray, fixed_q: np.ndarray,
+                      fixed_r: np.ndarray):
+    """``lstsq_rows`` for rows [3 varying, fixed...] reusing the fixed rows' factors.
+
+    The varying rows are orthogonalised against the (already orthonormal) fixed ones and
+    then among themselves; coefficients come from one triangular solve in the original
+    order.
+    """
+    nv = len(basis) - len(fixed_q)
+    nf = len(fixed_q)
+    # order [fixed, varying] for the factorisation
+    q = np.empty_like(basis)
+    q[:nf] = fixed_q
+    r = np.zeros((len(basis), len(basis)))
+    r[:nf, :nf] = fixed_r
+    for k in range(nv):
+        col = nf + k
+        v = basis[k].copy()
+        for _ in range(2):
+            for j in range(col):
+                c = dot(q[j], v)
+                r[j, col] += c
+                v -= c * q[j]
+        nrm = math.sqrt(dot(v, v))
+        if nrm <= 1e-13 * max(math.sqrt(dot(basis[k], basis[k])), 1e-300):
+            q[col] = 0.0
+        else:
+            q[col] = v / nrm
+            r[col, col] = nrm
+    qty = np.array([dot(row, y) for row in q])
+    c = solve_triangular_upper(r, qty)
+    coef = np.concatenate([c[nf:], c[:nf]])          # back to [varying, fixed] order
+    return coef, q, r
 
 
 def _combine(coef: np.ndarray, rows: np.ndarray) -> np.ndarray:

@@ -100,7 +100,8 @@ class IdentificationSettings:
     """Filter the whole detrended trial and cut the window afterwards (True), instead of
     cutting first as the paper's wording orders it (False). Inside the window the result is
     the same; cutting afterwards keeps the filters' start-up transients out of the
-    window (before the window rE is constant and the force at rest)."""
+    window (before the window rE is constant and the force at rest). The filters start
+    max(0.5 s, 10 / lowpass_Hz) before the window: their memory is far shorter."""
     edge_trim_s: float | None = None
     """Data dropped where the window meets an edge of the filtered record (the end of the
     trial; also the window start when ``filter_whole_trial`` is False). Zero-phase
