@@ -190,3 +190,71 @@ def test_acquisition_takes_a_trigger_fired_before_it_started_and_free_runs():
     assert c.start_index == 0 and c.n == 200
     assert rig.acquisition.read(1.0).n == 100
     assert rig.acquisition.read(0.05) is None     # all 300 delivered
+
+
+def test_concurrent_stop_now_calls_while_reading_on_the_fast_clock():
+    p = default_participant(sensor=SensorModel.ideal())
+    rig = make_sim_rig(p, connect=True)
+    I_e, I_f = _step_trial(p, n_s=20.0)
+    errors = []
+    started = threading.Event()
+
+    def stopper():
+        started.wait()
+        try:
+            for _ in range(50):
+                rig.stimulator.stop_now()
+                time.sleep(0)
+        except Exception as exc:  # stop_now must never raise
+            errors.append(exc)
+
+    def on_chunk(r, c):
+        started.set()
+        return False
+    threads = [threading.Thread(target=stopper) for _ in range(3)]
+    for th in threads:
+        th.start()
+    force, chunks = run_waveform(rig, waveform(I_e, I_f), on_chunk=on_chunk)
+    for th in threads:
+        th.join()
+    assert not errors
+    zero = rig.output_zero_events
+    assert len(zero) == 1
+    sync = np.concatenate([c.sync for c in chunks])
+    n_stop = zero[0].sample_index
+    assert np.all(sync[n_stop:] == 0) and np.all(sync[:n_stop] > 0)
+    assert np.max(np.abs(force - _offline(p, I_e, I_f, n_stop))) < 1e-9
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.sampled_from(list(FaultKind)), st.floats(0.0, 0.9), st.integers(0, 1))
+def test_after_any_fault_and_a_stop_the_output_is_zero(kind, at_s, trial):
+    """An engine-like loop stops on any fault it can see; from then on nothing is output."""
+    from sim_backends.errors import StimulatorFault
+    p = default_participant(sensor=SensorModel.ideal())
+    rig = make_sim_rig(p, faults=[Fault(kind, trial=trial, at_s=at_s, amplitude_N=80.0)],
+                       connect=True)
+    I_e, I_f = _step_trial(p, n_s=1.0)
+    stops = []
+
+    def watch(r, c):
+        st_ = r.stimulator.status()
+        seen = (c is None or c.flags.any or np.abs(c.force_N).max() > 50
+                or r.estop.is_pressed() or st_.state is StimulatorState.ERROR)
+        if seen and not stops:
+            stops.append(r.world.sample_at(r.clock.monotonic_s()))   # "now" on the rig
+            r.stimulator.stop_now()
+        return False
+    for _ in range(2):
+        try:
+            run_waveform(rig, waveform(I_e, I_f), on_chunk=watch, max_reads=60)
+        except StimulatorFault:
+            stops.append(-1)
+            break
+    status = rig.stimulator.status()
+    assert not status.output_active
+    rig.clock.sleep(0.5)
+    assert not rig.world.output_active_at(rig.clock.monotonic_s())
+    for rec in rig.run_records:
+        if stops and stops[0] >= 0 and rec.N_trigger < stops[0] < rec.N_trigger + rec.n_planned:
+            assert rec.N_end is not None and rec.N_end <= stops[0]
