@@ -1,0 +1,157 @@
+"""One call for the whole job: read sessions, diagnose each, write the outputs.
+
+A single session writes its report straight into ``out_dir``; several sessions get one
+sub-folder each (named after the file) and a top-level ``gap_report.json`` that lists them
+and the effect most of them point to.
+
+The *simulation under test* is by default the nominal twin fitted on the training trials.
+With ``twin`` (a twin file) or ``sim_session`` (a simulated session, trials matched by sE
+and repeat) the 'where' part is also computed for that simulation: every trial is then
+held out, since nothing of it was fitted on this session. The candidate search ('which'
+and 'how far') always works from the nominal model fitted by cross-validation.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from analysis.gap.data import GapData, PreprocessSettings, load_session, prepare_trials
+from analysis.gap.diagnose import CandidateResult, Diagnosis, GapSettings, diagnose
+from analysis.gap.errors import GapInputError
+from analysis.gap.localize import by_location, frequency_view
+from analysis.gap.models import NOMINAL, nuisance_basis
+from analysis.gap.report import _clean, write_outputs
+
+log = logging.getLogger(__name__)
+
+__all__ = ["GapSettings", "run_gap", "external_predictions"]
+
+
+def external_predictions(data: GapData, *, twin=None, sim_session=None) -> np.ndarray:
+    """(n_trials, n_eval) force predicted by an external simulation, pre-processed like the
+    measurement.
+
+    Raises
+    ------
+    GapInputError
+        A trial has no counterpart in the simulated session, or the twin cannot be read.
+    """
+    from rig.session_file import read_session
+
+    meas = read_session(data.path)
+    by_name = {t.name: t for t in meas.trials}
+    preds = []
+    if sim_session is not None:
+        sim = read_session(sim_session)
+        table = {(round(t.sE, 6), t.repeat): t for t in sim.trials if t.completed}
+        sim_trials = []
+        for info in data.trials:
+            t = table.get((round(info.sE, 6), info.repeat))
+            if t is None:
+                raise GapInputError(f"{sim_session}: no completed trial with sE = {info.sE:g}"
+                                    f", repeat {info.repeat} to compare with {info.name}")
+            sim_trials.append(t)
+        sim_data = prepare_trials(sim_trials, path=str(sim_session), settings=data.settings)
+        n = min(sim_data.y_N.shape[1], data.y_N.shape[1])
+        if n < data.y_N.shape[1]:
+            raise GapInputError(f"{sim_session}: simulated trials are shorter than the "
+                                "measured ones")
+        return sim_data.y_N[:, :n]
+    from analysis.twin import Twin
+    try:
+        tw = Twin.load(twin)
+    except (OSError, ValueError) as exc:
+        raise GapInputError(f"{twin}: cannot be used as the simulation under test ({exc})"
+                            ) from None
+    if tw.effects:
+        log.warning("%s has effects %s; the 'where' view simulates its nominal part only",
+                    twin, [e.get("name") for e in tw.effects])
+    trials = []
+    for info in data.trials:
+        t = by_name[info.name]
+        force = tw.simulate(t.rE, t.sE, t.fs_Hz)
+        trials.append(_with_force(t, force))
+    sim_data = prepare_trials(trials, path=str(twin), settings=data.settings)
+    return sim_data.y_N
+    del preds
+
+
+def _with_force(trial, force):
+    from dataclasses import replace
+    return replace(trial, force_N=np.asarray(force, float))
+
+
+def _under_test(diag: Diagnosis, pred: np.ndarray, label: str) -> dict:
+    d = diag.data
+    Q = nuisance_basis(d.t_eval_s, 0.0)
+    r = d.y_N - pred
+    r = r - (r @ Q) @ Q.T
+    res = CandidateResult(candidate=NOMINAL, fold_fits=[], heldout_resid=r,
+                          heldout_nrmse_pct=100 * float(np.sqrt(np.sum(r ** 2) /
+                                                                np.sum(diag.reference ** 2))),
+                          insample_nrmse_pct=float("nan"))
+    saved = diag.tested
+    diag.tested = np.ones(d.n_trials, dtype=bool)
+    try:
+        out = {"source": label, "nrmse_pct": res.heldout_nrmse_pct,
+               "localization": by_location(diag, res), "frequency": frequency_view(diag, res)}
+    finally:
+        diag.tested = saved
+    return out
+
+
+def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None,
+            sim_session=None, plots: bool = True,
+            preprocess: PreprocessSettings | None = None) -> dict:
+    """Diagnose each session and write the outputs.
+
+    Parameters
+    ----------
+    sessions : list of path-like
+    out_dir : path-like
+    settings : GapSettings, optional
+    twin, sim_session : path-like, optional
+        An external simulation under test (see module).
+    plots : bool
+        Write the PNG figures.
+
+    Returns
+    -------
+    dict
+        ``{"sessions": [report, ...], "report": path of the top-level JSON}``.
+    """
+    from rig.session_file import read_session
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    reports = []
+    multi = len(sessions) > 1
+    for path in sessions:
+        data = load_session(path, preprocess)
+        diag = diagnose(data, settings)
+        cal = read_session(path, load_data=False).calibration
+        target = out / Path(path).stem if multi else out
+        report = write_outputs(diag, target, cal, plots=plots)
+        if twin is not None or sim_session is not None:
+            pred = external_predictions(data, twin=twin, sim_session=sim_session)
+            report["simulation_under_test"] = _clean(
+                _under_test(diag, pred, str(twin or sim_session)))
+            (target / "gap_report.json").write_text(json.dumps(report, indent=1) + "\n",
+                                                    encoding="utf-8")
+        reports.append(report)
+    top = out / "gap_report.json"
+    if multi:
+        votes = Counter(r["best_effect"] for r in reports)
+        summary = {"format": "nmsid-gap-report-group", "format_version": 1,
+                   "best_effect": votes.most_common(1)[0][0],
+                   "votes": dict(votes),
+                   "sessions": [{"session": r["session"], "best_effect": r["best_effect"],
+                                 "heldout": r["heldout"],
+                                 "folder": Path(r["session"]).stem} for r in reports]}
+        top.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+    return {"sessions": reports, "report": str(top)}

@@ -1,0 +1,295 @@
+"""Session files -> the arrays the gap diagnosis works on.
+
+Per completed trial the force is pre-processed as the paper does (Savitzky-Golay order 3,
+window 41, then a zero-phase Butterworth low-pass at 25 Hz), the analysis window
+(t >= steady_s) is cut and decimated to ``fs_eval_Hz`` (100 Hz: the force has nothing above
+25 Hz left, so nothing aliases). The offset and the linear trend (the paper's detrend) are
+not subtracted here: every model carries them as per-trial nuisance terms, so that the
+nominal and the augmented models are scored on the same footing.
+
+The commanded drive ``rE - 0.5`` goes through the same filter chain as the force, so that
+the model's output and the measurement see the same (tiny) filter gain; the simulation runs
+at ``fs_sim_Hz`` (500 Hz: a first-order-hold discretisation there is exact to 0.2 % in gain
+at 10 Hz) from ``lead_s`` before the window, so that any transient of a delay or lag has
+settled when the window starts.
+
+Cumulative stimulation time is taken from the trial attribute ``cumulative_stim_s`` when a
+writer stored it, otherwise it is the summed length of all earlier trials (completed or
+aborted: an aborted trial stimulated too), in file order ``t001, t002, ...``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import signal
+
+from analysis.gap.discretize import fractional_delay
+from analysis.gap.errors import GapInputError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class PreprocessSettings:
+    """How force and drive are filtered and resampled (defaults: the paper's, see module)."""
+
+    savgol_window: int = 41
+    savgol_order: int = 3
+    lowpass_Hz: float = 25.0
+    lowpass_order: int = 4
+    fs_eval_Hz: float = 100.0
+    fs_sim_Hz: float = 500.0
+    lead_s: float = 1.0
+    input_hold_samples: float = 0.5
+    """The stimulator holds each commanded sample for one sample period (zero-order hold,
+    ``rig.session_file``: sample k is applied from k / fs_Hz on), which delays the
+    effective input by half a sample against the commanded samples; the model includes
+    this so that a rig's own sampling is not reported as dead time."""
+
+
+@dataclass
+class TrialInfo:
+    """Where one completed trial sits in its session."""
+
+    name: str
+    order: int
+    """1-based position among all trials of the file (aborted ones included)."""
+    sE: float
+    repeat: int
+    level: int
+    """Index into :attr:`GapData.sE_levels`."""
+    cum_stim_s: float
+    """Cumulative stimulation time at the start of the analysis window, s."""
+
+
+@dataclass
+class GapData:
+    """One session, ready for fitting: every array has one row per completed trial."""
+
+    path: str
+    participant: str
+    settings: PreprocessSettings
+    fs_raw_Hz: float
+    sE_levels: np.ndarray
+    trials: list[TrialInfo]
+    y_N: np.ndarray
+    """(n_trials, n_eval) filtered force in the window at ``fs_eval_Hz``."""
+    drive_raw: np.ndarray
+    """(n_trials, n_raw) filtered ``rE - 0.5`` at the raw rate, from ``lead_s`` before the
+    window (used for delays)."""
+    drive_sim: np.ndarray
+    """(n_trials, n_sim) filtered ``rE - 0.5`` at ``fs_sim_Hz``."""
+    rE_sim: np.ndarray
+    """(n_trials, n_sim) unfiltered commanded rE at ``fs_sim_Hz`` (recruitment models)."""
+    d_eval: np.ndarray
+    """(n_trials, n_eval) commanded deviation ``rE - 0.5`` at the evaluation samples."""
+    t_eval_s: np.ndarray
+    """(n_eval,) time since the chirp started."""
+    f_inst_Hz: np.ndarray
+    """(n_eval,) instantaneous chirp frequency (time maps to frequency)."""
+    phase_eval_rad: np.ndarray
+    """(n_eval,) chirp phase."""
+    chirp_f0_Hz: float
+    chirp_f1_Hz: float
+    chirp_s: float
+    steady_s: float
+    n_lead_sim: int
+    sim_step: int
+    """Evaluation sample k is simulation sample ``n_lead_sim + k * sim_step``."""
+    skipped: list[str] = field(default_factory=list)
+
+    @property
+    def n_trials(self) -> int:
+        return len(self.trials)
+
+    @property
+    def level(self) -> np.ndarray:
+        return np.array([t.level for t in self.trials], dtype=int)
+
+    @property
+    def repeat(self) -> np.ndarray:
+        return np.array([t.repeat for t in self.trials], dtype=int)
+
+    @property
+    def cum_stim_s(self) -> np.ndarray:
+        return np.array([t.cum_stim_s for t in self.trials], dtype=float)
+
+    @property
+    def order(self) -> np.ndarray:
+        return np.array([t.order for t in self.trials], dtype=int)
+
+    @property
+    def fs_sim_Hz(self) -> float:
+        return self.fs_raw_Hz / self.raw_per_sim
+
+    @property
+    def raw_per_sim(self) -> int:
+        return int(round(self.fs_raw_Hz / self.settings.fs_sim_Hz))
+
+    @property
+    def fs_eval_Hz(self) -> float:
+        return self.fs_sim_Hz / self.sim_step
+
+    def subset(self, rows) -> GapData:
+        """The same session restricted to some trials (rows in this object's order)."""
+        rows = np.asarray(rows, dtype=int)
+        return GapData(
+            path=self.path, participant=self.participant, settings=self.settings,
+            fs_raw_Hz=self.fs_raw_Hz, sE_levels=self.sE_levels,
+            trials=[self.trials[i] for i in rows], y_N=self.y_N[rows],
+            drive_raw=self.drive_raw[rows], drive_sim=self.drive_sim[rows],
+            rE_sim=self.rE_sim[rows], d_eval=self.d_eval[rows], t_eval_s=self.t_eval_s,
+            f_inst_Hz=self.f_inst_Hz, phase_eval_rad=self.phase_eval_rad,
+            chirp_f0_Hz=self.chirp_f0_Hz, chirp_f1_Hz=self.chirp_f1_Hz,
+            chirp_s=self.chirp_s, steady_s=self.steady_s, n_lead_sim=self.n_lead_sim,
+            sim_step=self.sim_step, skipped=self.skipped)
+
+
+def _filter_chain(x: np.ndarray, fs_Hz: float, s: PreprocessSettings) -> np.ndarray:
+    """Savitzky-Golay then zero-phase Butterworth low-pass, along the last axis."""
+    win = s.savgol_window
+    if x.shape[-1] > win:
+        x = signal.savgol_filter(x, win, s.savgol_order, axis=-1)
+    sos = signal.butter(s.lowpass_order, s.lowpass_Hz, fs=fs_Hz, output="sos")
+    return signal.sosfiltfilt(sos, x, axis=-1)
+
+
+def chirp_frequency_Hz(t_s, f0_Hz: float, f1_Hz: float, T_s: float) -> np.ndarray:
+    """Instantaneous frequency of the exponential chirp (``protocols.waveforms``)."""
+    try:
+        from protocols.waveforms import chirp_frequency_Hz as impl
+    except ImportError:  # pragma: no cover - protocols is part of nmsid
+        t = np.asarray(t_s, dtype=float)
+        return f0_Hz * np.power(f1_Hz / f0_Hz, t / T_s)
+    return impl(t_s, f0_Hz, f1_Hz, T_s)
+
+
+def chirp_phase_rad(t_s, f0_Hz: float, f1_Hz: float, T_s: float) -> np.ndarray:
+    """Phase of the exponential chirp (``protocols.waveforms``)."""
+    try:
+        from protocols.waveforms import chirp_phase_rad as impl
+    except ImportError:  # pragma: no cover
+        t = np.asarray(t_s, dtype=float)
+        k = f1_Hz / f0_Hz
+        return 2 * np.pi * f0_Hz * T_s / math.log(k) * (np.power(k, t / T_s) - 1.0)
+    return impl(t_s, f0_Hz, f1_Hz, T_s)
+
+
+def load_session(path, settings: PreprocessSettings | None = None) -> GapData:
+    """Read one session file and pre-process its completed trials.
+
+    Parameters
+    ----------
+    path : path-like
+        An ``nmsid-session`` HDF5 file.
+    settings : PreprocessSettings, optional
+
+    Raises
+    ------
+    GapInputError
+        No usable trials, mixed sampling rates or chirp settings, or a window too short.
+    """
+    from rig.session_file import read_session
+
+    s = settings or PreprocessSettings()
+    session = read_session(path)
+    return prepare_trials(session.trials, path=str(path), participant=session.participant,
+                          settings=s)
+
+
+def _cumulative_stim(trials) -> list[float]:
+    out, total = [], 0.0
+    for t in trials:
+        stored = t.extra_attrs.get("cumulative_stim_s") if t.extra_attrs else None
+        try:
+            stored = float(np.asarray(stored)) if stored is not None else None
+        except (TypeError, ValueError):
+            stored = None
+        out.append(stored if stored is not None and np.isfinite(stored) else total)
+        total += t.n_samples / t.fs_Hz
+    return out
+
+
+def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
+                   settings: PreprocessSettings | None = None) -> GapData:
+    """Pre-process a list of :class:`rig.session_file.Trial` (file order) for the diagnosis.
+
+    See :func:`load_session`.
+    """
+    s = settings or PreprocessSettings()
+    cum = _cumulative_stim(trials)
+    usable, skipped = [], []
+    for k, t in enumerate(trials):
+        if not t.completed:
+            skipped.append(f"{t.name or k + 1}: aborted ({t.abort_reason or 'no reason'})")
+            continue
+        if not (np.all(np.isfinite(t.force_N)) and np.all(np.isfinite(t.rE))):
+            skipped.append(f"{t.name or k + 1}: NaN or infinite samples")
+            continue
+        usable.append((k, t))
+    if not usable:
+        raise GapInputError(f"{path}: no completed trial with finite force and rE; the gap "
+                            "diagnosis needs completed trials of at least two repeats per sE")
+    first = usable[0][1]
+    keys = ("fs_Hz", "steady_s", "chirp_s", "chirp_f0_Hz", "chirp_f1_Hz")
+    for _, t in usable:
+        for key in keys:
+            if not math.isclose(getattr(t, key), getattr(first, key), rel_tol=1e-9):
+                raise GapInputError(
+                    f"{path}: trial {t.name} has {key} = {getattr(t, key)!r} but trial "
+                    f"{first.name} has {getattr(first, key)!r}; one diagnosis needs one "
+                    "protocol (split the file or run the sessions separately)")
+    fs = float(first.fs_Hz)
+    raw_per_sim = int(round(fs / s.fs_sim_Hz))
+    fs_sim = fs / raw_per_sim
+    sim_step = int(round(fs_sim / s.fs_eval_Hz))
+    if raw_per_sim < 1 or sim_step < 1 or fs < 4 * s.lowpass_Hz:
+        raise GapInputError(f"{path}: fs_Hz = {fs:g} is too low for the gap diagnosis "
+                            f"(needs at least {4 * s.lowpass_Hz:g} Hz)")
+    i_win = int(round(first.steady_s * fs))
+    lead = min(int(round(s.lead_s * fs_sim)) * raw_per_sim, i_win)
+    lead -= lead % raw_per_sim
+    n_min = min(t.n_samples for _, t in usable)
+    n_win_raw = n_min - i_win
+    step_raw = raw_per_sim * sim_step
+    n_eval = n_win_raw // step_raw
+    if n_eval * step_raw / fs < 2.0:
+        raise GapInputError(f"{path}: the analysis window (t >= steady_s = "
+                            f"{first.steady_s:g} s) is shorter than 2 s")
+    n_raw_used = lead + n_eval * step_raw
+    rows_y, rows_draw = [], []
+    for _, t in usable:
+        force = _filter_chain(np.asarray(t.force_N, float)[:n_min], fs, s)
+        rows_y.append(force[i_win: i_win + n_eval * step_raw: step_raw])
+        seg = slice(i_win - lead, i_win - lead + n_raw_used)
+        rows_draw.append(np.asarray(t.rE, float)[:n_min])
+    rE_full = fractional_delay(np.vstack(rows_draw) - 0.5, s.input_hold_samples) + 0.5
+    drive_full = _filter_chain(rE_full - 0.5, fs, s)
+    seg = slice(i_win - lead, i_win - lead + n_raw_used)
+    drive_raw = drive_full[:, seg]
+    rE_raw = rE_full[:, seg]
+    levels = np.array(sorted({round(float(t.sE), 10) for _, t in usable}))
+    infos = []
+    for k, t in usable:
+        level = int(np.argmin(np.abs(levels - float(t.sE))))
+        infos.append(TrialInfo(name=t.name or f"t{k + 1:03d}", order=k + 1, sE=float(t.sE),
+                               repeat=int(t.repeat), level=level,
+                               cum_stim_s=cum[k] + first.steady_s))
+    t_eval = np.arange(n_eval) * step_raw / fs
+    d_eval = rE_raw[:, lead::step_raw][:, :n_eval] - 0.5
+    return GapData(
+        path=path, participant=participant, settings=s, fs_raw_Hz=fs, sE_levels=levels,
+        trials=infos, y_N=np.vstack(rows_y), drive_raw=drive_raw,
+        drive_sim=drive_raw[:, ::raw_per_sim].copy(), rE_sim=rE_raw[:, ::raw_per_sim].copy(),
+        d_eval=d_eval, t_eval_s=t_eval,
+        f_inst_Hz=chirp_frequency_Hz(t_eval, first.chirp_f0_Hz, first.chirp_f1_Hz,
+                                     first.chirp_s),
+        phase_eval_rad=chirp_phase_rad(t_eval, first.chirp_f0_Hz, first.chirp_f1_Hz,
+                                       first.chirp_s),
+        chirp_f0_Hz=float(first.chirp_f0_Hz), chirp_f1_Hz=float(first.chirp_f1_Hz),
+        chirp_s=float(first.chirp_s), steady_s=float(first.steady_s),
+        n_lead_sim=lead // raw_per_sim, sim_step=sim_step, skipped=skipped)

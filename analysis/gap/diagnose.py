@@ -1,0 +1,338 @@
+"""Which unmodelled effect explains the sim-to-real gap, and how far adding it shrinks it.
+
+For one session: every candidate (and the nominal model) is fitted on the training trials
+of each cross-validation fold (:mod:`analysis.gap.crossval`) and predicts the held-out
+repeat. Candidates are ranked by their held-out NRMSE and by an information criterion
+computed with the *effective* number of independent samples.
+
+Effective samples. The force is low-passed at 25 Hz and evaluated at 100 Hz, and a model's
+misfit is smooth, so neighbouring residual samples are far from independent. With ``N``
+residual samples, ``N_eff = N nu`` where ``nu = 1 / (1 + 2 sum_k rho_k)`` from the
+residual's autocorrelation (summed while it stays above 0.05, the "initial positive
+sequence"), capped at the analysis bandwidth ``2 B / fs_eval``. ``nu`` is taken from the
+augmented model's residual (the better model's residual is the closer one to the noise).
+The criterion is ``dIC = N_eff ln(RSS_aug / RSS_nom) + 2 dk`` on the training trials
+(averaged over folds); ``dk`` counts the shared parameters, and for ``baseline_drift`` the
+baseline coefficients of every trial.
+
+Decision. A candidate is *supported* when ``dIC < -ic_margin`` and its held-out NRMSE is
+at least ``min_shrink_pct`` % below the nominal's. The winner is the supported candidate
+with the lowest held-out NRMSE; when two are within ``tie_pct`` % of each other, the lower
+``dIC`` decides. ``none`` when nothing is supported.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from analysis.gap.crossval import Fold, repeat_folds
+from analysis.gap.data import GapData
+from analysis.gap.effects import CANDIDATES, Effect
+from analysis.gap.errors import GapInputError
+from analysis.gap.fit import ModelFit, fit_model, predict
+from analysis.gap.models import NOMINAL, Candidate, candidate, n_drift_columns
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class GapSettings:
+    """Settings of the diagnosis (defaults documented in ``docs/gap.md``)."""
+
+    candidates: tuple[Effect, ...] = CANDIDATES
+    drift_corners_Hz: tuple[float, ...] = (0.1, 0.2, 0.35, 0.5)
+    """Baseline bandwidths tried for ``baseline_drift`` (below the 1 Hz chirp start)."""
+    ic_margin: float = 10.0
+    """dIC must be below minus this (about 'very strong' evidence on the AIC scale)."""
+    min_shrink_pct: float = 10.0
+    """Held-out NRMSE must fall by at least this share (relative) for an effect to count."""
+    tie_pct: float = 3.0
+    """Held-out NRMSEs within this relative difference are a tie, settled by dIC."""
+    try_pairs: bool = True
+    """Also fit the winner together with each other supported effect."""
+    max_iter: int = 25
+    bands_Hz: tuple[float, ...] = (1.0, 1.5, 2.2, 3.3, 5.0, 7.5, 10.0)
+    deviation_edges: tuple[float, ...] = (-0.5, -0.25, 0.0, 0.25, 0.5)
+
+
+@dataclass
+class CandidateResult:
+    """One model family scored on one session."""
+
+    candidate: Candidate
+    fold_fits: list[ModelFit]
+    heldout_resid: np.ndarray
+    """(n_trials, n_eval) held-out residual (NaN rows: trials never held out)."""
+    heldout_nrmse_pct: float
+    insample_nrmse_pct: float
+    delta_ic: float = 0.0
+    delta_k: int = 0
+    nu: float = float("nan")
+    shrink_pct: float = 0.0
+    supported: bool = False
+    params: dict = field(default_factory=dict)
+    fit_s: float = 0.0
+
+    @property
+    def label(self) -> str:
+        return self.candidate.label
+
+
+@dataclass
+class Diagnosis:
+    """Everything the report needs about one session."""
+
+    data: GapData
+    settings: GapSettings
+    folds: list[Fold]
+    reference: np.ndarray
+    """(n_trials, n_eval) measured force with offset and trend removed (NRMSE reference)."""
+    tested: np.ndarray
+    """(n_trials,) bool: trial was held out in some fold."""
+    nominal: CandidateResult
+    candidates: list[CandidateResult]
+    pairs: list[CandidateResult]
+    best: CandidateResult | None
+    best_pair: CandidateResult | None
+    full_fit: ModelFit
+    """The winner (or nominal) fitted on all trials: what the twin file holds."""
+    nominal_full: ModelFit
+    noise_floor_nrmse_pct: float
+    elapsed_s: float = 0.0
+
+    @property
+    def best_effect(self) -> Effect:
+        return self.best.candidate.effect if self.best is not None else Effect.NONE
+
+
+def effective_fraction(resid: np.ndarray, fs_eval_Hz: float, bandwidth_Hz: float,
+                       max_lag: int = 100) -> float:
+    """``nu = N_eff / N`` from the mean autocorrelation of residual rows (see module)."""
+    r = resid - resid.mean(axis=1, keepdims=True)
+    n = r.shape[1]
+    lags = min(max_lag, n - 1)
+    f = np.fft.rfft(r, 2 * n, axis=1)
+    ac = np.fft.irfft(np.abs(f) ** 2, axis=1)[:, :lags + 1].sum(axis=0)
+    if ac[0] <= 0:
+        return min(1.0, 2 * bandwidth_Hz / fs_eval_Hz)
+    rho = ac[1:] / ac[0]
+    s = 0.0
+    for v in rho:
+        if v < 0.05:
+            break
+        s += v
+    return float(min(1.0 / (1.0 + 2.0 * s), 2 * bandwidth_Hz / fs_eval_Hz))
+
+
+def _nrmse(resid: np.ndarray, ref: np.ndarray) -> float:
+    den = float(np.sum(ref ** 2))
+    return 100.0 * float(np.sqrt(np.sum(resid ** 2) / den)) if den > 0 else float("nan")
+
+
+def noise_floor_pct(data: GapData, reference: np.ndarray) -> float:
+    """Repeat-to-repeat scatter: half the variance of differences between repeats of the
+    same sE (after offset and trend), as an NRMSE. No model can predict a held-out repeat
+    better than this on average."""
+    num, den = 0.0, 0.0
+    for j in np.unique(data.level):
+        rows = np.flatnonzero(data.level == j)
+        if len(rows) < 2:
+            continue
+        for a in range(len(rows)):
+            for b in range(a + 1, len(rows)):
+                d = reference[rows[a]] - reference[rows[b]]
+                num += 0.5 * float(np.sum(d ** 2))
+                den += 0.5 * float(np.sum(reference[rows[a]] ** 2 + reference[rows[b]] ** 2))
+    return 100.0 * np.sqrt(num / den) if den > 0 else float("nan")
+
+
+class _Runner:
+    def __init__(self, data: GapData, settings: GapSettings):
+        self.data = data
+        self.s = settings
+        self.folds = repeat_folds(data)
+        if not self.folds:
+            raise GapInputError(
+                f"{data.path}: cross-validation needs at least two repeats of some sE "
+                f"level; found repeats {sorted(set(data.repeat.tolist()))}")
+        self.train = [data.subset(f.train) for f in self.folds]
+        self.test = [data.subset(f.test) for f in self.folds]
+        self.bandwidth = data.settings.lowpass_Hz
+
+    def score(self, cand: Candidate, fits: list[ModelFit], nominal: CandidateResult | None
+              ) -> CandidateResult:
+        d = self.data
+        resid = np.full_like(d.y_N, np.nan)
+        ins_num = ins_den = 0.0
+        for fold, tr, te, fit in zip(self.folds, self.train, self.test, fits):
+            r, _, _ = predict(fit, te)
+            resid[fold.test] = r
+            ins_num += fit.rss
+            ins_den += float(np.sum(_ref_of(tr) ** 2))
+        tested = ~np.isnan(resid[:, 0])
+        res = CandidateResult(
+            candidate=cand, fold_fits=fits, heldout_resid=resid,
+            heldout_nrmse_pct=_nrmse(resid[tested], self.reference[tested]),
+            insample_nrmse_pct=100.0 * np.sqrt(ins_num / ins_den),
+            params=_mean_params(fits))
+        if nominal is not None:
+            dic, dk, nus = [], [], []
+            for fit, nom_fit, tr in zip(fits, nominal.fold_fits, self.train):
+                r_aug, _, _ = predict(fit, tr)
+                nu = effective_fraction(r_aug, d.fs_eval_Hz, self.bandwidth)
+                k = cand.n_shared()
+                if Effect.BASELINE_DRIFT in cand.effects:
+                    k += n_drift_columns(d.t_eval_s, fit.corner_Hz) * tr.n_trials
+                n_eff = nu * fit.n_samples
+                dic.append(n_eff * np.log(fit.rss / nom_fit.rss) + 2 * k)
+                dk.append(k)
+                nus.append(nu)
+            res.delta_ic = float(np.mean(dic))
+            res.delta_k = int(round(np.mean(dk)))
+            res.nu = float(np.mean(nus))
+            res.shrink_pct = 100.0 * (1 - res.heldout_nrmse_pct / nominal.heldout_nrmse_pct)
+            res.supported = bool(res.delta_ic < -self.s.ic_margin
+                                 and res.shrink_pct >= self.s.min_shrink_pct)
+        return res
+
+    def drift_fits(self, nominal_fits: list[ModelFit]) -> list[ModelFit]:
+        """Per fold: the baseline bandwidth with the lowest training IC."""
+        out = []
+        d = self.data
+        for tr, nom in zip(self.train, nominal_fits):
+            r_nom, _, _ = predict(nom, tr)
+            best, best_ic = nom, 0.0
+            for fc in self.s.drift_corners_Hz:
+                fit = fit_model(tr, candidate(Effect.BASELINE_DRIFT), start=nom,
+                                corner_Hz=fc, max_iter=self.s.max_iter)
+                r_aug, _, _ = predict(fit, tr)
+                nu = effective_fraction(r_aug, d.fs_eval_Hz, self.bandwidth)
+                k = n_drift_columns(d.t_eval_s, fc) * tr.n_trials
+                ic = nu * fit.n_samples * np.log(fit.rss / nom.rss) + 2 * k
+                if ic < best_ic:
+                    best, best_ic = fit, ic
+            if best is nom:  # nothing better: the smallest bandwidth (scored as is)
+                best = fit_model(tr, candidate(Effect.BASELINE_DRIFT), start=nom,
+                                 corner_Hz=self.s.drift_corners_Hz[0],
+                                 max_iter=self.s.max_iter)
+            out.append(best)
+        return out
+
+
+def _ref_of(data: GapData) -> np.ndarray:
+    from analysis.gap.models import nuisance_basis
+    Q = nuisance_basis(data.t_eval_s, 0.0)
+    return data.y_N - (data.y_N @ Q) @ Q.T
+
+
+def _mean_params(fits: list[ModelFit]) -> dict:
+    keys = fits[0].params.keys()
+    return {k: float(np.mean([f.params[k] for f in fits])) for k in keys}
+
+
+def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
+    """Run the whole diagnosis of one session.
+
+    Parameters
+    ----------
+    data : GapData
+        From :func:`analysis.gap.data.load_session`.
+    settings : GapSettings, optional
+
+    Returns
+    -------
+    Diagnosis
+    """
+    t0 = time.perf_counter()
+    s = settings or GapSettings()
+    run = _Runner(data, s)
+    run.reference = _ref_of(data)
+    nom_fits = [fit_model(tr, NOMINAL, max_iter=s.max_iter) for tr in run.train]
+    nominal = run.score(NOMINAL, nom_fits, None)
+    results = []
+    for e in s.candidates:
+        t1 = time.perf_counter()
+        cand = candidate(e)
+        if e is Effect.BASELINE_DRIFT:
+            fits = run.drift_fits(nom_fits)
+        else:
+            fits = [fit_model(tr, cand, start=nf, max_iter=s.max_iter)
+                    for tr, nf in zip(run.train, nom_fits)]
+        res = run.score(cand, fits, nominal)
+        res.fit_s = time.perf_counter() - t1
+        log.info("%s: held-out NRMSE %.3f %% (nominal %.3f %%), dIC %.1f, %.1f s",
+                 e.value, res.heldout_nrmse_pct, nominal.heldout_nrmse_pct, res.delta_ic,
+                 res.fit_s)
+        results.append(res)
+    best = _choose(results, s)
+    pairs: list[CandidateResult] = []
+    best_pair = None
+    if best is not None and s.try_pairs:
+        for other in results:
+            if other is best or not other.supported:
+                continue
+            effs = sorted({best.candidate.effect, other.candidate.effect},
+                          key=lambda e: CANDIDATES.index(e))
+            cand = candidate(*effs)
+            fits = []
+            for k, tr in enumerate(run.train):
+                fb = best.fold_fits[k] if best.candidate.effects == (effs[0],) else \
+                    other.fold_fits[k]
+                p0 = np.concatenate([_fold_p(best, other, e, k) for e in effs])
+                fits.append(fit_model(tr, cand, start=fb, p_start=p0,
+                                      corner_Hz=max(best.fold_fits[k].corner_Hz,
+                                                    other.fold_fits[k].corner_Hz),
+                                      max_iter=s.max_iter))
+            res = run.score(cand, fits, nominal)
+            # a pair must beat the single winner, not only the nominal model
+            rel = 100.0 * (1 - res.heldout_nrmse_pct / best.heldout_nrmse_pct)
+            res.supported = res.supported and rel >= s.min_shrink_pct and \
+                res.delta_ic < best.delta_ic - s.ic_margin
+            pairs.append(res)
+        good = [p for p in pairs if p.supported]
+        best_pair = min(good, key=lambda r: r.heldout_nrmse_pct) if good else None
+    final = best_pair or best
+    full_cand = final.candidate if final is not None else NOMINAL
+    nominal_full = fit_model(data, NOMINAL, max_iter=s.max_iter)
+    if final is None:
+        full = nominal_full
+    else:
+        p0 = np.mean([f.p_shared for f in final.fold_fits], axis=0) \
+            if full_cand.n_shared() else None
+        corner = float(np.median([f.corner_Hz for f in final.fold_fits]))
+        full = fit_model(data, full_cand, start=nominal_full, p_start=p0, corner_Hz=corner,
+                         max_iter=s.max_iter)
+    tested = ~np.isnan(nominal.heldout_resid[:, 0])
+    return Diagnosis(data=data, settings=s, folds=run.folds, reference=run.reference,
+                     tested=tested, nominal=nominal, candidates=results, pairs=pairs,
+                     best=best, best_pair=best_pair, full_fit=full, nominal_full=nominal_full,
+                     noise_floor_nrmse_pct=noise_floor_pct(data, run.reference),
+                     elapsed_s=time.perf_counter() - t0)
+
+
+def _fold_p(best: CandidateResult, other: CandidateResult, effect: Effect, k: int):
+    for r in (best, other):
+        if r.candidate.effects == (effect,):
+            return r.fold_fits[k].p_shared
+    return np.zeros(0)
+
+
+def _choose(results: list[CandidateResult], s: GapSettings) -> CandidateResult | None:
+    good = sorted((r for r in results if r.supported), key=lambda r: r.heldout_nrmse_pct)
+    if not good:
+        return None
+    best = good[0]
+    for r in good[1:]:
+        if r.heldout_nrmse_pct <= best.heldout_nrmse_pct * (1 + s.tie_pct / 100) and \
+                r.delta_ic < best.delta_ic:
+            best = r
+    return best
+
+
+def ranking(diag: Diagnosis) -> list[CandidateResult]:
+    """Candidates (singles and pairs) by held-out NRMSE, best first."""
+    return sorted(diag.candidates + diag.pairs, key=lambda r: r.heldout_nrmse_pct)

@@ -1,0 +1,149 @@
+"""Where the simulation misses: the held-out gap broken down by location.
+
+Every figure here is computed on held-out predictions only (each trial predicted by the
+fold that did not train on it). Locations: sE level, chirp frequency band (the
+instantaneous chirp frequency maps each time sample to a frequency), the trial's position
+in the session (order and cumulative stimulation), and the sign and size of the commanded
+deviation ``rE - 0.5``; in the frequency domain, the transfer-function error (gain and
+phase of measured over simulated, window by window along the chirp, with the coherence of
+the measurement as the noise floor), the residual's harmonics of the chirp frequency (2f,
+3f, against a non-harmonic 1.5f as the noise reference) and the residual's power below the
+chirp band.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from analysis.gap.diagnose import CandidateResult, Diagnosis
+from analysis.gap.harmonics import local_harmonics
+
+HARMONIC_ORDERS = (1, 1.5, 2, 3)
+
+
+def _nrmse(r: np.ndarray, ref: np.ndarray) -> float:
+    den = float(np.sum(ref ** 2))
+    return 100.0 * float(np.sqrt(np.sum(r ** 2) / den)) if den > 0 else float("nan")
+
+
+def by_location(diag: Diagnosis, res: CandidateResult) -> dict:
+    """Held-out NRMSE (%) and residual power (N^2) of one model at every location."""
+    d = diag.data
+    ok = diag.tested
+    r = res.heldout_resid
+    ref = diag.reference
+    lev = d.level
+    out: dict = {"sE": [], "band": [], "position": [], "deviation": []}
+    for j, sE in enumerate(d.sE_levels):
+        rows = np.flatnonzero(ok & (lev == j))
+        if len(rows):
+            out["sE"].append({"sE": float(sE), "nrmse_pct": _nrmse(r[rows], ref[rows]),
+                              "residual_power_N2": float(np.mean(r[rows] ** 2)),
+                              "n_trials": int(len(rows))})
+    edges = diag.settings.bands_Hz
+    f = d.f_inst_Hz
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (f >= lo) & (f < hi if hi < edges[-1] else f <= hi)
+        if np.any(m):
+            out["band"].append({"f_lo_Hz": lo, "f_hi_Hz": hi,
+                                "nrmse_pct": _nrmse(r[ok][:, m], ref[ok][:, m]),
+                                "residual_power_N2": float(np.mean(r[ok][:, m] ** 2))})
+    for i in np.flatnonzero(ok):
+        t = d.trials[i]
+        out["position"].append({"trial": t.name, "order": t.order, "sE": t.sE,
+                                "repeat": t.repeat, "cum_stim_s": t.cum_stim_s,
+                                "nrmse_pct": _nrmse(r[i], ref[i]),
+                                "residual_power_N2": float(np.mean(r[i] ** 2))})
+    dev = d.d_eval
+    e = diag.settings.deviation_edges
+    for lo, hi in zip(e[:-1], e[1:]):
+        m = ok[:, None] & (dev >= lo) & ((dev < hi) if hi < e[-1] else (dev <= hi))
+        if np.any(m):
+            out["deviation"].append({"d_lo": lo, "d_hi": hi,
+                                     "nrmse_pct": _nrmse(r[m], ref[m]),
+                                     "residual_rms_N": float(np.sqrt(np.mean(r[m] ** 2))),
+                                     "residual_mean_N": float(np.mean(r[m]))})
+    return out
+
+
+def trial_gain_ratios(diag: Diagnosis, res: CandidateResult) -> np.ndarray:
+    """Per trial: least-squares scale of the measured force on the model's held-out
+    prediction (1 = right gain; a fall with cumulative stimulation is fatigue)."""
+    pred = diag.reference - res.heldout_resid
+    num = np.sum(pred * diag.reference, axis=1)
+    den = np.sum(pred * pred, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(diag.tested & (den > 0), num / den, np.nan)
+
+
+def frequency_view(diag: Diagnosis, res: CandidateResult) -> dict:
+    """Transfer-function error and residual harmonics along the chirp (medians over the
+    held-out trials)."""
+    d = diag.data
+    ok = diag.tested
+    ref = diag.reference[ok]
+    pred = ref - res.heldout_resid[ok]
+    args = (d.phase_eval_rad, d.f_inst_Hz, d.t_eval_s)
+    hm = local_harmonics(ref, *args, orders=HARMONIC_ORDERS)
+    hp = local_harmonics(pred, *args, orders=(1,))
+    hr = local_harmonics(res.heldout_resid[ok], *args, orders=HARMONIC_ORDERS)
+    ratio = hm.amplitude[:, :, 0] / hp.amplitude[:, :, 0]
+    fund = np.abs(hm.amplitude[:, :, 0])
+    rel = np.abs(hr.amplitude) / fund[:, :, None]
+    return {
+        "f_Hz": hm.f_Hz.tolist(),
+        "gain_error_dB": np.median(20 * np.log10(np.abs(ratio)), axis=0).tolist(),
+        "phase_error_deg": np.degrees(np.angle(np.median(ratio / np.abs(ratio), axis=0))
+                                      ).tolist(),
+        "coherence": np.median(hm.coherence, axis=0).tolist(),
+        "residual_harmonic_pct": {
+            f"{o:g}f": (100 * np.median(rel[:, :, k], axis=0)).tolist()
+            for k, o in enumerate(HARMONIC_ORDERS)},
+        "measured_harmonic_pct": {
+            f"{o:g}f": (100 * np.median(np.abs(hm.amplitude[:, :, k]) / fund, axis=0)).tolist()
+            for k, o in enumerate(HARMONIC_ORDERS) if o != 1},
+    }
+
+
+def residual_spectrum(diag: Diagnosis, res: CandidateResult) -> dict:
+    """Mean periodogram of the held-out residual (offset and trend removed), and the share
+    of its power below the chirp band against what white noise would put there."""
+    d = diag.data
+    r = res.heldout_resid[diag.tested]
+    n = r.shape[1]
+    win = np.hanning(n)
+    P = np.mean(np.abs(np.fft.rfft(r * win, axis=1)) ** 2, axis=0)
+    f = np.fft.rfftfreq(n, 1.0 / d.fs_eval_Hz)
+    band = d.settings.lowpass_Hz
+    low = (f > 0) & (f < d.chirp_f0_Hz)
+    inband = (f > 0) & (f <= band)
+    share = float(P[low].sum() / P[inband].sum()) if P[inband].sum() > 0 else float("nan")
+    white = float(low.sum() / inband.sum())
+    return {"f_Hz": f.tolist(), "power": P.tolist(), "low_share": share,
+            "low_share_if_white": white, "low_excess": share / white if white else None}
+
+
+def localization(diag: Diagnosis) -> dict:
+    """Everything above for the nominal model and (if any) the winner, plus per-location
+    tables for every candidate (how far each shrinks the gap where)."""
+    out = {"nominal": by_location(diag, diag.nominal)}
+    final = diag.best_pair or diag.best
+    if final is not None:
+        out["augmented"] = by_location(diag, final)
+        out["augmented_effect"] = final.label
+    out["candidates"] = {r.label: by_location(diag, r) for r in diag.candidates + diag.pairs}
+    g = trial_gain_ratios(diag, diag.nominal)
+    ok = np.isfinite(g)
+    c = diag.data.cum_stim_s
+    slope = float(np.polyfit(c[ok], g[ok], 1)[0]) if ok.sum() >= 3 else float("nan")
+    # within-sE deviations only (the per-sE gains absorb between-level differences)
+    out["gain_vs_stimulation"] = {
+        "cum_stim_s": c[ok].tolist(), "gain_ratio": g[ok].tolist(),
+        "slope_per_100s": 100 * slope,
+        "correlation": float(np.corrcoef(c[ok], g[ok])[0, 1]) if ok.sum() >= 3 else None}
+    out["frequency"] = {"nominal": frequency_view(diag, diag.nominal)}
+    out["spectrum"] = {"nominal": residual_spectrum(diag, diag.nominal)}
+    if final is not None:
+        out["frequency"]["augmented"] = frequency_view(diag, final)
+        out["spectrum"]["augmented"] = residual_spectrum(diag, final)
+    return out

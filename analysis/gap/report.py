@@ -1,0 +1,293 @@
+"""Outputs of ``nmsid gap``: ``gap_report.json``, ``report.html`` with its figures, and the
+augmented ``twin.json``."""
+
+from __future__ import annotations
+
+import html
+import json
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+
+from analysis.gap.diagnose import Diagnosis, ranking
+from analysis.gap.effects import Effect
+from analysis.gap.evidence import confusable_pairs, explain, signatures
+from analysis.gap.fit import Problem
+from analysis.gap.localize import localization
+from analysis.gap.models import kumaraswamy, nuisance_basis
+from analysis.gap.twin_out import (effect_entries, fatigue_loss_pct, nonlinearity_index_pct,
+                                   twin_dict, write_twin)
+
+log = logging.getLogger(__name__)
+
+
+def canonical_asymmetry(wn_ratio: float, zeta_ratio: float) -> tuple[float, float, bool]:
+    """Orientation convention for the asymmetry ratios.
+
+    With linear recruitment the net response to ``rE - 0.5`` is the *mean* of the two
+    muscles' responses, so the chirp window cannot tell which muscle is the faster one:
+    ``(wn, zeta, rho_w, rho_z)`` and ``(wn rho_w, zeta rho_z, 1/rho_w, 1/rho_z)`` predict
+    the same force. We report the orientation with ``wn_ratio >= 1`` (flexor the faster);
+    returns the ratios and whether they were flipped.
+    """
+    if wn_ratio < 1.0:
+        return 1.0 / wn_ratio, 1.0 / zeta_ratio, True
+    return wn_ratio, zeta_ratio, False
+
+
+def _drift_amplitude(diag: Diagnosis) -> tuple[float, float]:
+    """RMS of the fitted non-linear baseline in the window, and the same corrected for the
+    part of a flat-spectrum wander below ``corner_Hz`` that offset and trend absorb."""
+    fit = diag.full_fit
+    d = diag.data
+    prob = Problem(d, fit.candidate, fit.corner_Hz)
+    lev = prob.levels
+    x = prob.unit_response(fit.wn_rad_s[lev], fit.zeta[lev], fit.p_shared)
+    raw = d.y_N - fit.Kp[d.level][:, None] * x
+    Qd = nuisance_basis(d.t_eval_s, fit.corner_Hz)
+    Q0 = nuisance_basis(d.t_eval_s, 0.0)
+    base = (raw @ Qd) @ Qd.T - (raw @ Q0) @ Q0.T
+    rms = float(np.sqrt(np.mean(base ** 2)))
+    t = d.t_eval_s
+    shares = []
+    for f in np.linspace(fit.corner_Hz / 50, fit.corner_Hz, 50):
+        for s in (np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t)):
+            shares.append(float(np.sum((s - Q0 @ (Q0.T @ s)) ** 2) / np.sum(s ** 2)))
+    frac = max(float(np.mean(shares)), 1e-3)
+    return rms, rms / math.sqrt(frac)
+
+
+def final_params(diag: Diagnosis) -> dict:
+    """The final (all-trial) fit's effect parameters, in our terms plus derived figures
+    (loss %, nonlinearity index, canonical asymmetry, drift amplitude)."""
+    fit = diag.full_fit
+    p = dict(fit.params)
+    effs = fit.candidate.effects
+    if Effect.FATIGUE in effs:
+        p["gain_loss_pct"] = fatigue_loss_pct(p["rate_per_s"])
+    if Effect.RECRUITMENT_NONLINEARITY in effs:
+        a, b = p["a"], p["b"]
+        p["nonlinearity_index_pct"] = nonlinearity_index_pct(
+            lambda I: kumaraswamy(I, a, b), diag.data.sE_levels)
+    if Effect.FLEXOR_EXTENSOR_ASYMMETRY in effs:
+        wr, zr, flipped = canonical_asymmetry(p["wn_ratio"], p["zeta_ratio"])
+        p["wn_ratio"], p["zeta_ratio"] = wr, zr
+        p["orientation_flipped"] = flipped
+    if Effect.BASELINE_DRIFT in effs:
+        p["window_nonlinear_rms_N"], p["amplitude_N"] = _drift_amplitude(diag)
+    return p
+
+
+def _level_params(diag: Diagnosis):
+    fit = diag.full_fit
+    Kp, wn, zeta = fit.Kp.copy(), fit.wn_rad_s.copy(), fit.zeta.copy()
+    if Effect.FLEXOR_EXTENSOR_ASYMMETRY in fit.candidate.effects:
+        wr = fit.params["wn_ratio"]
+        if wr < 1.0:  # flip to the reported orientation: the other muscle is "extensor"
+            wn = wn * wr
+            zeta = zeta * fit.params["zeta_ratio"]
+    return Kp, wn, zeta
+
+
+def _row(r) -> dict:
+    params = dict(r.params)
+    if "rate_per_s" in params:
+        params["gain_loss_pct"] = fatigue_loss_pct(params["rate_per_s"])
+    return {"effect": r.label, "params": params,
+            "heldout_nrmse_pct": r.heldout_nrmse_pct,
+            "insample_nrmse_pct": r.insample_nrmse_pct,
+            "delta_ic": r.delta_ic, "delta_k": r.delta_k, "n_eff_fraction": r.nu,
+            "shrink_pct": r.shrink_pct, "supported": r.supported, "fit_s": r.fit_s}
+
+
+def _clean(obj):
+    """JSON-safe (NaN -> None, numpy -> Python)."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.ndarray):
+        return _clean(obj.tolist())
+    return obj
+
+
+def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | None]:
+    """(gap_report dict, localization dict, twin dict or None)."""
+    loc = localization(diag)
+    sig = signatures(diag, loc)
+    final = diag.best_pair or diag.best
+    fp = final_params(diag)
+    nom = diag.nominal
+    aug_pct = final.heldout_nrmse_pct if final else nom.heldout_nrmse_pct
+    twin = None
+    if calibration is not None:
+        Kp, wn, zeta = _level_params(diag)
+        effects = effect_entries(fp, diag.full_fit.candidate.effects, diag.data.sE_levels) \
+            if final else []
+        twin = twin_dict(participant=diag.data.participant or "unknown",
+                         source=[diag.data.path], calibration=calibration,
+                         sE_levels=diag.data.sE_levels, Kp=Kp, wn_rad_s=wn, zeta=zeta,
+                         effects=effects)
+    in_aug = final.insample_nrmse_pct if final else nom.insample_nrmse_pct
+    report = {
+        "format": "nmsid-gap-report", "format_version": 1,
+        "session": diag.data.path, "participant": diag.data.participant,
+        "n_trials": diag.data.n_trials, "skipped_trials": diag.data.skipped,
+        "folds": [{"held_out_repeat": f.held_out_repeat, "n_train": len(f.train),
+                   "n_test": len(f.test)} for f in diag.folds],
+        "best_effect": diag.best_effect.value,
+        "best_pair": [e.value for e in diag.best_pair.candidate.effects]
+        if diag.best_pair else None,
+        "best_params": fp,
+        "ranking": [_row(r) for r in ranking(diag)],
+        "heldout": {"nominal_nrmse_pct": nom.heldout_nrmse_pct,
+                    "augmented_nrmse_pct": aug_pct,
+                    "shrink_pct": 100.0 * (1 - aug_pct / nom.heldout_nrmse_pct),
+                    "nominal_fit_pct": 100 - nom.heldout_nrmse_pct,
+                    "augmented_fit_pct": 100 - aug_pct,
+                    "noise_floor_nrmse_pct": diag.noise_floor_nrmse_pct},
+        "insample": {"nominal_nrmse_pct": nom.insample_nrmse_pct,
+                     "augmented_nrmse_pct": in_aug},
+        "localization": {k: v for k, v in loc.items() if k not in ("frequency", "spectrum")},
+        "frequency": loc["frequency"],
+        "low_frequency": {k: {kk: vv for kk, vv in v.items() if kk not in ("f_Hz", "power")}
+                          for k, v in loc["spectrum"].items()},
+        "evidence": {"summary": explain(diag, sig), "signatures": sig,
+                     "confusable_pairs": confusable_pairs(diag, sig)},
+        "settings": {k: (list(v) if isinstance(v, tuple) else v)
+                     for k, v in vars(diag.settings).items() if k != "candidates"},
+        "elapsed_s": diag.elapsed_s,
+    }
+    report["settings"]["candidates"] = [e.value for e in diag.settings.candidates]
+    return _clean(report), loc, twin
+
+
+def write_outputs(diag: Diagnosis, out_dir, calibration=None, *, plots: bool = True) -> dict:
+    """Write ``gap_report.json``, ``twin.json`` (if a calibration is known), the figures and
+    ``report.html`` into ``out_dir``; returns the report dict."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    report, loc, twin = build_report(diag, calibration)
+    if twin is not None:
+        write_twin(out / "twin.json", twin)
+        report["twin_file"] = "twin.json"
+    figures = []
+    if plots:
+        figures = _figures(diag, report, loc, out)
+    report["figures"] = figures
+    (out / "gap_report.json").write_text(json.dumps(report, indent=1) + "\n",
+                                         encoding="utf-8")
+    (out / "report.html").write_text(_html(report, figures), encoding="utf-8")
+    return report
+
+
+def _figures(diag: Diagnosis, report: dict, loc: dict, out: Path) -> list[str]:
+    from analysis.gap import plots
+    names = []
+    plots.plot_where(loc, out / "where.png", diag.noise_floor_nrmse_pct)
+    names.append("where.png")
+    plots.plot_frequency(loc, out / "frequency.png")
+    names.append("frequency.png")
+    plots.plot_spectrum_and_gain(loc, out / "drift_fatigue.png", diag.data.chirp_f0_Hz)
+    names.append("drift_fatigue.png")
+    plots.plot_ranking(report["ranking"], diag.nominal.heldout_nrmse_pct,
+                       diag.noise_floor_nrmse_pct, out / "ranking.png")
+    names.append("ranking.png")
+    ok = np.flatnonzero(diag.tested)
+    if len(ok):
+        r_nom = diag.nominal.heldout_resid[ok]
+        i = ok[int(np.argmax(np.sum(r_nom ** 2, axis=1)))]
+        final = diag.best_pair or diag.best
+        ref = diag.reference[i]
+        plots.plot_example(diag.data.t_eval_s, ref, ref - diag.nominal.heldout_resid[i],
+                           ref - final.heldout_resid[i] if final else None,
+                           f"held-out trial {diag.data.trials[i].name} (sE "
+                           f"{diag.data.trials[i].sE:g}): worst nominal fit", out / "example.png")
+        names.append("example.png")
+    return names
+
+
+def _table(rows: list[dict], cols: list[tuple[str, str, str]]) -> str:
+    head = "".join(f"<th>{html.escape(c[1])}</th>" for c in cols)
+    body = []
+    for r in rows:
+        cells = []
+        for key, _, fmt in cols:
+            v = r.get(key)
+            cells.append(f"<td>{html.escape(fmt.format(v) if v is not None and fmt else str(v))}"
+                         "</td>")
+        body.append("<tr>" + "".join(cells) + "</tr>")
+    return f"<table><tr>{head}</tr>{''.join(body)}</table>"
+
+
+def _html(report: dict, figures: list[str]) -> str:
+    h = report["heldout"]
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>nmsid gap report</title>",
+        "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}"
+        "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:2px 6px;"
+        "font-size:90%}</style></head><body>",
+        f"<h1>Sim-to-real gap: {html.escape(str(report['participant']))}</h1>",
+        f"<p>Session <code>{html.escape(str(report['session']))}</code>, "
+        f"{report['n_trials']} trials, {len(report['folds'])}-fold cross-validation by "
+        "repeat (held-out figures never come from trials used in fitting).</p>",
+        f"<h2>Verdict: <code>{html.escape(report['best_effect'])}</code>"
+        + (f" (pair: {html.escape(' + '.join(report['best_pair']))})"
+           if report.get("best_pair") else "") + "</h2><ul>",
+    ]
+    parts += [f"<li>{html.escape(line)}</li>" for line in report["evidence"]["summary"]]
+    parts.append("</ul>")
+    parts.append(
+        f"<p>Held-out NRMSE: nominal {h['nominal_nrmse_pct']:.3g} %, augmented "
+        f"{h['augmented_nrmse_pct']:.3g} % (shrink {h['shrink_pct']:.0f} %); repeat-to-repeat "
+        f"noise floor {h['noise_floor_nrmse_pct']:.3g} %. In-sample: nominal "
+        f"{report['insample']['nominal_nrmse_pct']:.3g} %, augmented "
+        f"{report['insample']['augmented_nrmse_pct']:.3g} %.</p>")
+    parts.append("<h2>Which: ranking</h2>")
+    rows = [dict(r, params=json.dumps({k: (round(v, 5) if isinstance(v, float) else v)
+                                       for k, v in r["params"].items()}))
+            for r in report["ranking"]]
+    parts.append(_table(rows, [("effect", "candidate", ""), ("params", "fitted params", ""),
+                               ("heldout_nrmse_pct", "held-out NRMSE %", "{:.3f}"),
+                               ("shrink_pct", "shrink %", "{:.1f}"),
+                               ("delta_ic", "dIC (N_eff)", "{:.1f}"),
+                               ("n_eff_fraction", "N_eff/N", "{:.3f}"),
+                               ("supported", "supported", "")]))
+    for name in figures:
+        parts.append(f"<h3>{html.escape(name)}</h3><img src='{html.escape(name)}' "
+                     "style='max-width:100%'>")
+    parts.append("<h2>Where: held-out NRMSE by location</h2>")
+    loc = report["localization"]
+    for key, label, cols in (
+            ("sE", "by sE", [("sE", "sE", "{:.2f}"), ("nrmse_pct", "NRMSE %", "{:.3f}"),
+                             ("residual_power_N2", "residual power N^2", "{:.3g}")]),
+            ("band", "by chirp band", [("f_lo_Hz", "from Hz", "{:g}"),
+                                       ("f_hi_Hz", "to Hz", "{:g}"),
+                                       ("nrmse_pct", "NRMSE %", "{:.3f}"),
+                                       ("residual_power_N2", "residual power N^2", "{:.3g}")]),
+            ("deviation", "by rE - 0.5", [("d_lo", "from", "{:+.2f}"), ("d_hi", "to", "{:+.2f}"),
+                                          ("nrmse_pct", "NRMSE %", "{:.3f}"),
+                                          ("residual_mean_N", "mean residual N", "{:+.4f}")])):
+        parts.append(f"<h3>{label}</h3><table><tr><td>nominal"
+                     f"{_table(loc['nominal'][key], cols)}</td>")
+        if "augmented" in loc:
+            parts.append(f"<td>augmented{_table(loc['augmented'][key], cols)}</td>")
+        parts.append("</tr></table>")
+    parts.append("<h2>Confusable pairs</h2><pre>"
+                 + html.escape(json.dumps(report["evidence"]["confusable_pairs"], indent=1))
+                 + "</pre>")
+    if report.get("twin_file"):
+        parts.append("<p>The augmented model is in <code>twin.json</code>; run it with "
+                     "<code>sim_backends.participant_from_twin</code> (or <code>nmsid run "
+                     "--backend sim</code> with that participant).</p>")
+    parts.append("</body></html>")
+    return "\n".join(parts)
