@@ -5,9 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from drivers.interfaces import RigDevices
-from sim_backends.acquisition import SimEStop, SimForceAcquisition
+from sim_backends.acquisition import SimForceAcquisition
 from sim_backends.clocks import FastClock, SimRealClock
 from sim_backends.errors import SimConfigError
+from sim_backends.estop import SimEStop
 from sim_backends.faults import Fault, FaultScript
 from sim_backends.participant import VirtualParticipant, default_participant
 from sim_backends.stimulator import SimStimulator

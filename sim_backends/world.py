@@ -19,7 +19,7 @@ import logging
 import math
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -27,7 +27,6 @@ from sim_backends.faults import (SENSOR_KINDS, STIM_KINDS, Fault, FaultKind, Fau
                                  FiredFault)
 from sim_backends.participant import VirtualParticipant
 from sim_backends.simulation import ParticipantSimulator
-
 
 log = logging.getLogger(__name__)
 
