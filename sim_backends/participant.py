@@ -49,9 +49,11 @@ from sim_backends.effects import (EFFECT_TYPES, Fatigue, RecruitmentNonlinearity
 from sim_backends.errors import SimConfigError
 from sim_backends.sensor import SensorModel
 
-#: Tolerance below Imin (in normalised units) still counted as "at Imin" (delivered
-#: currents are quantised, float rounding of the engine's inversion of eqs. 1-4).
-COACTIVE_TOL = 1e-6
+#: A muscle within this much below its Imin still counts as recruited (co-activated
+#: regime): the stimulator's 1 uA quantisation and float rounding in the inversion of
+#: eqs. 1-4 can put rE = 0 / 1 a hair below Imin. Far below a ramp step, so a
+#: single-muscle ramp (antagonist at 0 mA) is never mistaken for co-activation.
+COACTIVE_TOL_MA = 0.05
 
 
 class TrueParameters(NamedTuple):
@@ -247,7 +249,8 @@ class VirtualParticipant:
             current = lo_c + share * sE * (hi_c - lo_c)
             u[m] = (current - ref.imin_mA(m)) / ref.span_mA(m)
             spans[m] = (hi_c - lo_c) / ref.span_mA(m)
-        if min(u.values()) < -COACTIVE_TOL:
+        if u["ext"] * ref.span_mA("ext") < -COACTIVE_TOL_MA or \
+                u["flex"] * ref.span_mA("flex") < -COACTIVE_TOL_MA:
             raise SimConfigError(
                 f"with calibration {calibration!r} a muscle is below its Imin at rE = 0.5, "
                 f"sE = {sE:g}: the participant is not co-activated, no second-order truth")
@@ -323,9 +326,11 @@ class VirtualParticipant:
 
         ``op`` gives the co-activation parameters (the chunk's sE).
         """
+        cal = self.calibration
         u_e = self.normalised("ext", I_ext_mA)
         u_f = self.normalised("flex", I_flex_mA)
-        co = (u_e >= -COACTIVE_TOL) & (u_f >= -COACTIVE_TOL)
+        co = ((u_e >= -COACTIVE_TOL_MA / cal.span_mA("ext"))
+              & (u_f >= -COACTIVE_TOL_MA / cal.span_mA("flex")))
         rec: RecruitmentNonlinearity | None = self.effect("recruitment_nonlinearity")
         Fmin = self.calibration.Fmin_N
         if np.all(co):

@@ -166,3 +166,22 @@ def test_single_muscle_recruitment_is_piecewise_linear_threshold_to_saturation()
         inside = (I > cal.imin_mA(m)) & (I < cal.imin_mA(m) + cal.span_mA(m))
         assert np.allclose(np.diff(f)[inside[:-1] & inside[1:]] / (I[1] - I[0]), slope)
         assert f[-1] == pytest.approx(f.max()) and np.ptp(f[-50:]) == 0   # saturated
+
+
+def test_rounding_below_imin_at_rE_0_or_1_does_not_change_regime(ideal_participant):
+    """rE = 1 puts the flexor exactly at Ifmin; a current a few uA below (rounding in a
+    waveform generator) must not switch the muscle to its single-muscle recruitment."""
+    p = ideal_participant
+    sE = 0.7
+    rE = np.full(int(1.0 * FS), 1.0)
+    I_e, I_f = currents_for(p.calibration, sE, rE)
+    clean, _ = _run_currents(p, I_e, I_f)
+    I_f2 = I_f.copy()
+    I_f2[::3] -= 0.004                      # 4 uA below Imin on every third sample
+    rough, _ = _run_currents(p, I_e, I_f2)
+    assert np.max(np.abs(rough - clean)) < 2e-3
+
+
+def _run_currents(p, I_e, I_f):
+    rig = make_sim_rig(p, connect=True)
+    return run_waveform(rig, waveform(I_e, I_f))
