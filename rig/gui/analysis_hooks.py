@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from rig.gui.results_panel import ModelFit, ParameterSelection, SelectionView
 
 
@@ -29,6 +31,47 @@ def identify_level(trials):
     return result.fit
 
 
+#: Parameter -> (label, units, the paper's figure).
+PARAMETERS = {"Kp": ("Kp", "N", "Figure 4"), "wn_rad_s": ("wn", "rad/s", "Figure 5"),
+              "zeta": ("zeta", "", "Figure 6")}
+
+
+def analysis_dir(session_path: Path) -> Path:
+    """``<file stem>-analysis/`` beside the session file (where ``nmsid run`` writes)."""
+    session_path = Path(session_path)
+    return session_path.with_name(session_path.stem + "-analysis")
+
+
 def select_models(session_path: Path) -> SelectionView:
-    """Model selection of a finished session, as the results panel shows it."""
-    raise ImportError("analysis model selection is not wired in yet", name="analysis")
+    """Identify the finished session, select the parameter curves, write the report.
+
+    Runs ``analysis.run.run_identification`` into :func:`analysis_dir` (parameters.csv,
+    model_selection.json, tables.txt, twin.json, the figures) and returns what the results
+    panel shows: per parameter, the identified values against sE, the AICc of each
+    candidate curve and the selected one.
+    """
+    from analysis.run import run_identification
+    out = analysis_dir(session_path)
+    outputs = run_identification([Path(session_path)], out, figures=True)
+    label = outputs.selection.participants[0]
+    params = []
+    for name, (title, units, figure) in PARAMETERS.items():
+        comp = outputs.selection.comparison(name, label)
+        if comp is None:
+            continue
+        used = [(p.sE, p.value) for p in comp.points if p.used]
+        excluded = [(p.sE, p.value) for p in comp.points if not p.used
+                    and p.value == p.value]
+        fits = [ModelFit(m, float(f.aicc) if f.selectable else float("nan"),
+                         tuple(float(c) for c in f.coefficients))
+                for m, f in comp.fits.items()]
+        params.append(ParameterSelection(
+            name=title, units=units,
+            sE=np.array([a for a, _ in used]), values=np.array([b for _, b in used]),
+            fits=fits, selected=comp.selected or "-", figure=figure,
+            trend=comp.trend.text if comp.trend is not None else "",
+            excluded_sE=np.array([a for a, _ in excluded]),
+            excluded_values=np.array([b for _, b in excluded])))
+    note = (f"{len(outputs.problems)} problem(s): see problems.txt. "
+            if outputs.problems else "")
+    return SelectionView(params, saved=[out], note=note, tables_text=outputs.tables_text)

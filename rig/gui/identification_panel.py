@@ -91,13 +91,14 @@ class IdentificationPanel(QWidget):
         self._relay.done.connect(self._on_done, Qt.ConnectionType.QueuedConnection)
         self.status = QLabel("Parameters appear here as each sE level completes.")
         self.status.setWordWrap(True)
+        self.status.setStyleSheet("font-weight: bold;")
         self.graphics = pg.GraphicsLayoutWidget()
         self.graphics.setBackground("w")
         self.plots = {}
         self.scatter = {}
         self.bad_scatter = {}
         for k, (attr, label, units) in enumerate(PARAMETERS):
-            p = self.graphics.addPlot(row=k // 2, col=k % 2)
+            p = self.graphics.addPlot(row=0, col=k)
             p.setLabel("left", f"{label}" + (f" ({units})" if units else ""))
             p.setLabel("bottom", "sE")
             p.showGrid(x=True, y=True, alpha=0.3)

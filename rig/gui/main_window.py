@@ -44,7 +44,7 @@ LIVE_WINDOW_S = 10.0
 
 
 class Tab:
-    SETUP, CALIBRATION, LIVE, IDENTIFICATION, RESULTS = range(5)
+    SETUP, CALIBRATION, LIVE, RESULTS = range(4)
 
 
 class MainWindow(QMainWindow):
@@ -111,9 +111,16 @@ class MainWindow(QMainWindow):
         self.tabs = QTabWidget()
         self.tabs.addTab(self.setup_panel, "1 Setup")
         self.tabs.addTab(self.calibration_panel, "2 Calibration")
-        self.tabs.addTab(self.live, "3 Live trial")
-        self.tabs.addTab(self.identification, "4 Identification")
-        self.tabs.addTab(self.results, "5 Results")
+        # the running identification sits under the live plots: the operator sees the
+        # parameter curves grow (and a bad fit) without leaving the trial view
+        live_split = QSplitter(Qt.Orientation.Vertical)
+        live_split.addWidget(self.live)
+        live_split.addWidget(self.identification)
+        live_split.setStretchFactor(0, 3)
+        live_split.setStretchFactor(1, 1)
+        live_split.setSizes([600, 250])
+        self.tabs.addTab(live_split, "3 Live trial + identification")
+        self.tabs.addTab(self.results, "4 Results")
         self.tabs.setFocusPolicy(Qt.FocusPolicy.NoFocus)
 
         right = QSplitter(Qt.Orientation.Vertical)

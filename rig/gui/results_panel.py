@@ -5,8 +5,8 @@ thread (``select_models(session_path) -> SelectionView``) and then shows, per pa
 (Kp, wn, zeta), the AICc of the linear, quadratic and exponential models with the selected
 one marked (the paper's Tables 1, 4, 7 for one participant) and the identified values
 against sE with the fitted curves (Figures 4-6). The same tables are written beside the
-session file as CSV, with a PNG of the panel; the analysis' own report (if any) is written
-there by the hook.
+session file (``<stem>-analysis/``) as CSV with a PNG of the panel, beside the analysis'
+own report (tables, twin, figures) that the hook writes there.
 """
 
 from __future__ import annotations
@@ -22,8 +22,9 @@ from typing import Callable
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import QObject, Qt, Signal
-from PySide6.QtWidgets import (QAbstractItemView, QHeaderView, QLabel, QTableWidget,
-                               QTableWidgetItem, QVBoxLayout, QWidget)
+from PySide6.QtWidgets import (QAbstractItemView, QHeaderView, QLabel, QPlainTextEdit,
+                               QTableWidget, QTableWidgetItem, QTabWidget, QVBoxLayout,
+                               QWidget)
 
 from rig.gui.theme import Colour
 
@@ -73,6 +74,11 @@ class ParameterSelection:
     selected: str
     figure: str = ""
     """The paper's figure this corresponds to (``Figure 4``)."""
+    trend: str = ""
+    """The selected curve's shape in words (``increasing, convex``)."""
+    excluded_sE: np.ndarray = field(default_factory=lambda: np.empty(0))
+    excluded_values: np.ndarray = field(default_factory=lambda: np.empty(0))
+    """Points left out of the comparison (IQR outliers), drawn hollow."""
 
 
 @dataclass
@@ -82,6 +88,8 @@ class SelectionView:
     parameters: list[ParameterSelection]
     saved: list[Path] = field(default_factory=list)
     note: str = ""
+    tables_text: str = ""
+    """The analysis' tables as text (the paper's Tables 1-9 for this session)."""
 
 
 class _Relay(QObject):
@@ -113,7 +121,7 @@ class ResultsPanel(QWidget):
         self.table = QTableWidget(0, 6)
         self.table.setHorizontalHeaderLabels(
             ("parameter", "AICc linear", "AICc quadratic", "AICc exponential", "selected",
-             "selected curve"))
+             "selected curve (trend)"))
         self.table.verticalHeader().setVisible(False)
         self.table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
         self.table.setFocusPolicy(Qt.FocusPolicy.NoFocus)
@@ -122,11 +130,18 @@ class ResultsPanel(QWidget):
         self.graphics = pg.GraphicsLayoutWidget()
         self.graphics.setBackground("w")
         self.plots = {}
+        self.tables_text = QPlainTextEdit()
+        self.tables_text.setReadOnly(True)
+        self.tables_text.setStyleSheet("font-family: monospace; font-size: 11px;")
+        self.views = QTabWidget()
+        self.views.addTab(self.graphics, "Figures 4-6: parameters vs sE")
+        self.views.addTab(self.tables_text, "Tables")
+        self.views.setFocusPolicy(Qt.FocusPolicy.NoFocus)
         lay = QVBoxLayout(self)
         lay.setContentsMargins(0, 0, 0, 0)
         lay.addWidget(self.status)
         lay.addWidget(self.table)
-        lay.addWidget(self.graphics, 1)
+        lay.addWidget(self.views, 1)
 
     def reset(self) -> None:
         """Forget the previous session's results."""
@@ -134,6 +149,7 @@ class ResultsPanel(QWidget):
         self.error = ""
         self.saved = []
         self.table.setRowCount(0)
+        self.tables_text.setPlainText("")
         self.graphics.clear()
         self.plots = {}
         self.status.setStyleSheet("")
@@ -179,6 +195,7 @@ class ResultsPanel(QWidget):
     def show_view(self, view: SelectionView) -> None:
         """Fill the table and draw the figures."""
         self.view = view
+        self.tables_text.setPlainText(view.tables_text)
         self.table.setRowCount(len(view.parameters))
         self.graphics.clear()
         self.plots = {}
@@ -188,7 +205,8 @@ class ResultsPanel(QWidget):
             cells = [f"{par.name}" + (f" ({par.units})" if par.units else "")]
             cells += [f"{aicc[m]:.2f}" if m in aicc and math.isfinite(aicc[m]) else "-"
                       for m in ("linear", "quadratic", "exponential")]
-            cells += [par.selected, _curve_text(sel) if sel else "-"]
+            cells += [par.selected, (_curve_text(sel) if sel else "-")
+                      + (f"  ({par.trend})" if par.trend else "")]
             for col, text in enumerate(cells):
                 item = QTableWidgetItem(text)
                 if col in (1, 2, 3) and ("linear", "quadratic", "exponential")[col - 1] \
@@ -206,6 +224,10 @@ class ResultsPanel(QWidget):
             legend = p.addLegend(offset=(5, 5))
             p.plot(par.sE, par.values, pen=None, symbol="o", symbolSize=8,
                    symbolBrush="k", name="identified")
+            if len(par.excluded_sE):
+                p.plot(par.excluded_sE, par.excluded_values, pen=None, symbol="o",
+                       symbolSize=8, symbolBrush=None, symbolPen=pg.mkPen("k"),
+                       name="outlier (IQR)")
             if len(par.sE):
                 grid = np.linspace(float(np.min(par.sE)), float(np.max(par.sE)), 100)
                 for fit in par.fits:
@@ -223,11 +245,13 @@ class ResultsPanel(QWidget):
             self.plots[par.name] = p
 
     def save_beside(self, session_path: Path) -> list[Path]:
-        """Write the table (CSV) and a PNG of this panel next to the session file."""
+        """Write the table (CSV) and a PNG of this panel into ``<stem>-analysis/`` next to
+        the session file (where the analysis writes its report)."""
         if self.view is None:
             return []
-        stem = session_path.with_suffix("")
-        csv_path = Path(f"{stem}_model_selection.csv")
+        out = session_path.with_name(session_path.stem + "-analysis")
+        out.mkdir(parents=True, exist_ok=True)
+        csv_path = out / "gui_model_selection.csv"
         with open(csv_path, "w", newline="", encoding="utf-8") as fh:
             w = csv.writer(fh)
             w.writerow(["parameter", "units", "model", "AICc", "selected", "coefficients"])
@@ -236,12 +260,13 @@ class ResultsPanel(QWidget):
                     w.writerow([par.name, par.units, fit.model, f"{fit.aicc:.6g}",
                                 int(fit.model == par.selected),
                                 " ".join(f"{c:.6g}" for c in fit.coefficients)])
-        png_path = Path(f"{stem}_model_selection.png")
-        self.grab().save(str(png_path), "PNG")
+        png_path = out / "gui_model_selection.png"
+        if not self.grab().save(str(png_path), "PNG"):
+            raise OSError(f"{png_path}: could not write the PNG")
         return [csv_path, png_path]
 
-    def shutdown(self) -> None:
-        self._pool.shutdown(wait=False, cancel_futures=True)
+    def shutdown(self, wait: bool = False) -> None:
+        self._pool.shutdown(wait=wait, cancel_futures=True)
 
 
 def _curve_text(fit: ModelFit) -> str:

@@ -12,8 +12,8 @@ A script is one command per line (``#`` starts a comment; arguments are shell-qu
     rerun                              # the first aborted trial (or: rerun 1)
     note "electrode re-taped"
     wait-finished                      # session over and results shown
-    tab results                        # show a tab: setup, calibration, live,
-                                       #   identification, results
+    tab results                        # show a tab: setup, calibration, live
+                                       #   (= identification), results
     screenshot docs/gui-screenshot.png
     quit
 
@@ -59,7 +59,7 @@ class Command(enum.Enum):
     QUIT = "quit"
 
 
-TAB_NAMES = {"setup": 0, "calibration": 1, "live": 2, "identification": 3, "results": 4}
+TAB_NAMES = {"setup": 0, "calibration": 1, "live": 2, "identification": 2, "results": 3}
 STATES = ("idle", "calibrating", "armed", "stimulating", "resting", "paused", "tripped",
           "finished")
 
@@ -68,14 +68,14 @@ DEMO_SCRIPT = """\
 start
 confirm-calibration
 wait-trial 1 running
-wait-trial-time 1.0
+wait-trial-time 3.0
 estop
 wait tripped
-note "demo: E-stop pressed during trial 2, participant fine, re-arming"
+note "demo: E-stop pressed during trial 2; participant fine; re-arming"
 rearm
 rerun
 wait-finished
-tab results
+tab live
 """
 
 

@@ -34,7 +34,13 @@ def fake_identify(trials):
     return FakeLevelResult(float(trials[0].sE))
 
 
-def short_config(cfg, levels=(0.4, 0.6), repeats=2, steady_s=0.2, chirp_s=0.6, rest_s=0.0):
+def no_model_selection(session_path):
+    """Stand-in for the end-of-session model selection (tested on its own)."""
+    from rig.gui.results_panel import SelectionView
+    return SelectionView([], note="model selection skipped in this test")
+
+
+def short_config(cfg, levels=(0.4, 0.6), repeats=1, steady_s=0.2, chirp_s=1.0, rest_s=0.0):
     """A shortened protocol: few levels, short chirp, no rest."""
     import dataclasses
     p = dataclasses.replace(cfg.protocol, sE_levels=tuple(levels), repeats=repeats,
@@ -50,7 +56,7 @@ def fake_window(qtbot):
     w = MainWindow(devices_factory=lambda req, cfg: _NoDevices(),
                    engine_factory=fake_engine.FakeEngine,
                    config_transform=short_config, identify=fake_identify,
-                   select_models=None)
+                   select_models=no_model_selection)
     qtbot.addWidget(w)
     w.show()
     yield w
@@ -71,29 +77,72 @@ def sim_short_config(cfg):
     """The real protocol, shortened for a real-time simulated session of ~15 s."""
     import dataclasses
     p = dataclasses.replace(cfg.protocol, sE_levels=(0.4, 0.7), repeats=2, steady_s=0.5,
-                            chirp_s=1.6, rest_s=0.1)
+                            chirp_s=1.2, rest_s=0.1)
     c = dataclasses.replace(cfg.calibration, hold_s=0.15, baseline_s=0.2)
     return cfg.replace(protocol=p, calibration=c)
 
 
-@pytest.fixture
-def sim_window(qtbot):
-    """A window over the real engine and the real-time simulated rig; ``w.rigs`` holds
-    the simulated rigs it built (to look inside the simulator)."""
+def _sim_window(qtbot, realtime: bool, config_transform, select_models=None):
     from rig.gui.main_window import MainWindow
     from sim_backends.rig import make_sim_rig
 
     rigs = []
 
     def devices(request, config):
-        rig = make_sim_rig(realtime=True, seed=request.seed or 0,
+        rig = make_sim_rig(realtime=realtime, seed=request.seed or 0,
                            fs_Hz=config.protocol.fs_Hz)
         rigs.append(rig)
         return rig
 
-    w = MainWindow(devices_factory=devices, config_transform=sim_short_config)
+    w = MainWindow(devices_factory=devices, config_transform=config_transform,
+                   select_models=select_models)
     w.rigs = rigs
     qtbot.addWidget(w)
     w.show()
+    return w
+
+
+@pytest.fixture
+def sim_window(qtbot):
+    """A window over the real engine and the real-time simulated rig; ``w.rigs`` holds
+    the simulated rigs it built (to look inside the simulator)."""
+    w = _sim_window(qtbot, True, sim_short_config, select_models=no_model_selection)
     yield w
     w.controller.shutdown(timeout_s=5.0)
+    w.results.shutdown(wait=True)
+
+
+def sim_levels_config(cfg):
+    """Six sE levels, one repeat each (enough points for AICc model selection)."""
+    import dataclasses
+    p = dataclasses.replace(cfg.protocol, sE_levels=(0.3, 0.45, 0.6, 0.75, 0.9, 1.0),
+                            repeats=1, steady_s=1.0, chirp_s=4.0, rest_s=0.0)
+    return cfg.replace(protocol=p)
+
+
+@pytest.fixture
+def fast_sim_window(qtbot):
+    """A window over the real engine and the simulated rig on its fast clock."""
+    w = _sim_window(qtbot, False, sim_levels_config)
+    yield w
+    w.controller.shutdown(timeout_s=5.0)
+    w.results.shutdown(wait=True)
+
+
+def sim_manual_config(cfg):
+    """:func:`sim_short_config` with the four currents entered by hand (no ramps)."""
+    import dataclasses
+
+    from protocols.config import ManualCurrents
+    cfg = sim_short_config(cfg)
+    c = dataclasses.replace(cfg.calibration, manual=ManualCurrents(2.0, 9.0, 1.0, 8.0))
+    return cfg.replace(calibration=c)
+
+
+@pytest.fixture
+def sim_window_manual(qtbot):
+    """As ``sim_window``, with hand-entered calibration currents."""
+    w = _sim_window(qtbot, True, sim_manual_config, select_models=no_model_selection)
+    yield w
+    w.controller.shutdown(timeout_s=5.0)
+    w.results.shutdown(wait=True)

@@ -24,8 +24,8 @@ class FakeSummary:
 
 
 class FakeEngine:
-    chunk_n = 100          # samples per chunk
-    chunk_period_s = 0.01  # wall time per chunk (fs 2000 -> 5x real time)
+    chunk_n = 50           # samples per chunk
+    chunk_period_s = 0.02  # wall time per chunk (fs 2000 -> 1.25x real time)
 
     def __init__(self, config, devices, session_path, *, resume=False, observer=None):
         self.config = config

@@ -157,8 +157,8 @@ def test_results_panel_shows_tables_and_saves_beside_the_session(qtbot, tmp_path
     assert p.table.item(0, 1).text() == "-10.00" and p.table.item(0, 4).text() == "linear"
     assert p.table.item(0, 1).font().bold()
     names = sorted(x.name for x in p.saved)
-    assert names == ["S01_model_selection.csv", "S01_model_selection.png"]
-    rows = (tmp_path / "S01_model_selection.csv").read_text().splitlines()
+    assert names == ["gui_model_selection.csv", "gui_model_selection.png"]
+    rows = (tmp_path / "S01-analysis" / "gui_model_selection.csv").read_text().splitlines()
     assert rows[0].startswith("parameter,units,model,AICc,selected")
     assert len(rows) == 4
     p.shutdown()

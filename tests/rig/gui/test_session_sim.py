@@ -84,8 +84,8 @@ def test_complete_session_with_estop_rearm_rerun(sim_window, qtbot, tmp_path):
     assert w.live.frames_drawn > 10
 
 
-def test_unfinished_session_is_resumed_and_finished(sim_window, qtbot, tmp_path):
-    w = sim_window
+def test_unfinished_session_is_resumed_and_finished(sim_window_manual, qtbot, tmp_path):
+    w = sim_window_manual
     out = tmp_path / "G02.h5"
     w.start_session(participant="G02", output=out, backend="sim", seed=2, realtime=True)
     qtbot.waitUntil(lambda: w.calibration_panel.confirm_button.isEnabled(), timeout=30000)
@@ -112,3 +112,32 @@ def test_unfinished_session_is_resumed_and_finished(sim_window, qtbot, tmp_path)
     assert sum(t.completed for t in s.trials) == 4 > n_before
     assert {int(t.extra_attrs["schedule_index"]) for t in s.trials if t.completed} == \
         {0, 1, 2, 3}
+
+
+def test_fast_session_shows_model_selection_and_saves_it(fast_sim_window, qtbot, tmp_path):
+    """Six sE levels on the simulator's fast clock: identification per level, then the
+    model selection (AICc table, Figures 4-6) in the window and written beside the file."""
+    w = fast_sim_window
+    out = tmp_path / "G03.h5"
+    w.start_session(participant="G03", output=out, backend="sim", seed=4, realtime=False)
+    qtbot.waitUntil(lambda: w.calibration_panel.confirm_button.isEnabled(), timeout=30000)
+    w.confirm_calibration()
+    qtbot.waitUntil(lambda: w.run_result is not None, timeout=60000)
+    assert w.run_error is None and w.run_result.complete
+    qtbot.waitUntil(lambda: w.identification.pending == 0 and not w.results.busy,
+                    timeout=60000)
+    assert len(w.identification.points) == 6
+    assert w.results.error == "", w.results.error
+    assert w.tabs.currentWidget() is w.results
+    table = w.results.table
+    assert [table.item(r, 0).text().split()[0] for r in range(table.rowCount())] == \
+        ["Kp", "wn", "zeta"]
+    for r in range(3):
+        assert table.item(r, 4).text() in ("linear", "quadratic", "exponential")
+    assert set(w.results.plots) == {"Kp", "wn", "zeta"}
+    analysis = tmp_path / "G03-analysis"
+    for name in ("model_selection.json", "tables.txt", "gui_model_selection.png",
+                 "gui_model_selection.csv", "figure_Kp.png"):
+        assert (analysis / name).exists(), name
+    assert "AICc" in w.results.tables_text.toPlainText()
+    assert validate_session(out) == []
