@@ -157,7 +157,7 @@ class VirtualParticipant:
     wn_rad_s: ParameterCurve = field(default_factory=lambda: ParameterCurve(
         CurveModel.QUADRATIC, (10.0, 40.0, -25.0)))
     zeta: ParameterCurve = field(default_factory=lambda: ParameterCurve(
-        CurveModel.LINEAR, (0.4, 0.3)))
+        CurveModel.QUADRATIC, (0.1585, 0.91, -0.35)))
     calibration: ReferenceCalibration = field(default_factory=lambda: ReferenceCalibration(
         2.0, 9.5, 1.5, 8.0))
     offset_N: ParameterCurve = field(default_factory=lambda: ParameterCurve.constant(0.0))
@@ -370,6 +370,9 @@ class VirtualParticipant:
 
 
 def default_participant(seed: int = 0, **changes) -> VirtualParticipant:
-    """The nominal participant: Kp exponential (about 2.4 -> 9 N), wn with a peak at
-    sE = 0.8 inside the range, zeta rising linearly; no effects."""
+    """The nominal participant, shaped like the paper's findings: Kp rising exponentially
+    (2.4 -> 9.0 N per unit rE over sE 0.3 -> 1.0), wn with its peak inside the range
+    (26 rad/s at sE = 0.8), zeta with its peak outside it (at sE = 1.3: rising 0.40 ->
+    0.72 over the range); calibration 2.0 / 9.5 mA (extensor), 1.5 / 8.0 mA (flexor);
+    no effects."""
     return replace(VirtualParticipant(seed=seed), **changes)
