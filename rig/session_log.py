@@ -35,6 +35,7 @@ import logging
 import os
 import re
 import shutil
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -266,6 +267,15 @@ def _same_trial(a: Trial, b: Trial) -> bool:
                     for k in ("rE", "I_ext_mA", "I_flex_mA", "force_N")))
 
 
+def _digest(trial: Trial) -> int:
+    """CRC-32 of a trial's four sample arrays (as float64)."""
+    crc = 0
+    for k in ("rE", "I_ext_mA", "I_flex_mA", "force_N"):
+        crc = zlib.crc32(np.ascontiguousarray(getattr(trial, k), dtype=np.float64).tobytes(),
+                         crc)
+    return crc
+
+
 def _read_fully(path: Path):
     """(Session, []) if the file validates AND every dataset reads back; else (None,
     problems). A file cut short by a kill can pass the structural checks and still fail
@@ -416,6 +426,8 @@ class SessionLog:
         self.events: list[Event] = list(events or [])
         self._events_in_h5 = len(self.events) if calibration is not None else 0
         self.trials: list[dict] = list(trials or [])
+        self._digests: list[int] = []
+        """CRC of the samples of each trial written by this process."""
         """Metadata of every trial written (journal order = file order)."""
         self._writer: SessionWriter | None = (SessionWriter(self.path)
                                               if calibration is not None else None)
@@ -490,7 +502,6 @@ class SessionLog:
         """Copy the events not yet in the HDF5 file to it (once the file exists)."""
         if self._writer is None or self._events_in_h5 >= len(self.events):
             return
-        os.fsync(self._ev_fh.fileno())
         self._writer.append_events(self.events[self._events_in_h5:])
         self._events_in_h5 = len(self.events)
 
@@ -513,19 +524,24 @@ class SessionLog:
         pmeta = trial_meta(meta)
         pmeta["columns"] = list(columns)
         pmeta["seq"] = len(self.trials) + 1
-        _write_durable(self.jdir / "partial.json",
-                       lambda fh: fh.write(json.dumps(pmeta).encode("utf-8")))
+        # empty the stream BEFORE the new metadata names it: a kill in between leaves the
+        # previous trial's metadata (already journaled, so ignored) over an empty stream
         self._partial_cols = tuple(columns)
         self._partial_fd = os.open(self.jdir / "partial.f64",
                                    os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_APPEND, 0o644)
+        tmp = self.jdir / "partial.json.tmp"
+        tmp.write_text(json.dumps(pmeta), encoding="utf-8")
+        os.replace(tmp, self.jdir / "partial.json")  # atomic; no fsync: a kill keeps it
 
     def append_chunk(self, **columns: np.ndarray) -> None:
         """Append samples of the trial in progress (one write, whole rows)."""
         if self._partial_fd is None:
             return
-        rows = np.column_stack([np.asarray(columns[c], dtype=np.float64)
-                                for c in self._partial_cols])
-        os.write(self._partial_fd, rows.tobytes())
+        first = columns[self._partial_cols[0]]
+        rows = np.empty((len(first), len(self._partial_cols)), dtype=np.float64)
+        for j, c in enumerate(self._partial_cols):
+            rows[:, j] = columns[c]
+        os.write(self._partial_fd, rows.data)
 
     def _close_partial(self) -> None:
         if self._partial_fd is not None:
@@ -543,9 +559,10 @@ class SessionLog:
         seq = len(self.trials) + 1
         trial.name = f"t{seq:03d}"
         _save_trial_npz(self.jdir / f"trial-{seq:04d}.npz", trial)
-        for name in ("partial.json", "partial.f64"):
-            (self.jdir / name).unlink(missing_ok=True)
+        # partial.json / partial.f64 stay: their seq now names a journaled trial, which
+        # recovery ignores; the next begin_trial reuses them
         self.trials.append(trial_meta(trial))
+        self._digests.append(_digest(trial))
         name = self._writer.append_trial(trial)
         self.flush_events()
         return name
@@ -576,8 +593,11 @@ class SessionLog:
                       problems[0])
             return False
         files = read_journal(self.jdir).trial_files
-        if len(s.trials) != len(files) or not all(
-                _same_trial(load_trial_npz(p), t) for p, t in zip(files, s.trials)):
+        digests = list(self._digests)
+        if len(digests) < len(files):  # trials journaled before this process (resume)
+            digests = [_digest(load_trial_npz(p)) for p in files[:len(files) - len(digests)]] \
+                + digests
+        if len(s.trials) != len(files) or [_digest(t) for t in s.trials] != digests:
             log.error("%s: file and journal differ (%d / %d trials); journal kept", self.path,
                       len(s.trials), len(files))
             return False

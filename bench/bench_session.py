@@ -1,0 +1,79 @@
+"""A whole simulated session, headless, on the fast clock: time and accuracy.
+
+For a few virtual participants: calibration ramps + the 45-trial schedule through the
+engine (interlock, journal, HDF5), the file checked with ``validate_session``, then the
+identification (``analysis.identify.identify_session``) compared with the participant's
+truth ``participant.true_parameters(sE, calibration)`` at every sE. Goal: the session
+under 10 s, every parameter within 2 % at every sE.
+
+    python bench/bench_session.py
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from protocols.config import config_from_dict  # noqa: E402
+from rig.engine import Engine, TripPolicy  # noqa: E402
+from rig.session_file import read_session, validate_session  # noqa: E402
+from sim_backends import make_sim_rig  # noqa: E402
+
+
+def _one(seed: int, tmp: Path) -> dict:
+    from analysis.identify import identify_session
+
+    rig = make_sim_rig(seed=seed)
+    cfg = config_from_dict({"participant": f"B{seed:02d}", "seed": seed,
+                            "protocol": {"rest_s": 0.0}})
+    path = tmp / f"B{seed:02d}.h5"
+    t0 = time.perf_counter()
+    summary = Engine(cfg, rig, path, trip_policy=TripPolicy.END_SESSION).run()
+    t_session = time.perf_counter() - t0
+    valid = validate_session(path) == []
+    t1 = time.perf_counter()
+    result = identify_session(path)
+    t_ident = time.perf_counter() - t1
+    cal = read_session(path, load_data=False).calibration
+    ref = rig.participant.calibration
+    cal_ok = (cal.Iemin_mA, cal.Iemax_mA, cal.Ifmin_mA, cal.Ifmax_mA) == (
+        ref.Iemin_mA, ref.Iemax_mA, ref.Ifmin_mA, ref.Ifmax_mA)
+    worst = {"Kp": 0.0, "wn_rad_s": 0.0, "zeta": 0.0}
+    for lv in result.levels:
+        truth = rig.participant.true_parameters(lv.sE, cal)._asdict()
+        for name in worst:
+            got = getattr(lv.fit, name) if lv.fit is not None else np.nan
+            worst[name] = max(worst[name], abs(got / truth[name] - 1) * 100)
+    return {"seed": seed, "trials": summary.n_completed, "session_s": t_session,
+            "valid": valid, "cal_ok": cal_ok, "identify_s": t_ident, "levels":
+            len(result.levels), **{f"err_{k}": v for k, v in worst.items()}}
+
+
+def main(seeds=(0, 1, 2)) -> None:
+    logging.disable(logging.WARNING)
+    tmp = Path(tempfile.mkdtemp(prefix="nmsid-bench-session-"))
+    print("Full simulated session (calibration + 45 trials), fast clock; identification vs "
+          "truth (max |error| over the 15 sE levels)")
+    head = (f"{'seed':>4s} {'trials':>6s} {'session s':>9s} {'goal':>6s} {'valid':>5s} "
+            f"{'cal=ref':>7s} {'identify s':>10s} {'Kp %':>6s} {'wn %':>6s} {'zeta %':>6s} "
+            f"{'goal':>5s}")
+    print(head)
+    for seed in seeds:
+        r = _one(seed, tmp)
+        print(f"{r['seed']:4d} {r['trials']:6d} {r['session_s']:9.2f} {'< 10':>6s} "
+              f"{str(r['valid']):>5s} {str(r['cal_ok']):>7s} {r['identify_s']:10.2f} "
+              f"{r['err_Kp']:6.2f} {r['err_wn_rad_s']:6.2f} {r['err_zeta']:6.2f} "
+              f"{'< 2':>5s}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
