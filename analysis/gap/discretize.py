@@ -2,9 +2,11 @@
 
 The first-order hold (the input is taken as linear between samples) is exact for a
 piecewise-linear input and, unlike a zero-order hold, adds no half-sample delay, which would
-otherwise look like dead time. The transfer function comes from the discrete state space
-through the matrix-determinant lemma: for a single input and output,
-``C adj(zI - A) b = det(zI - A + b C) - det(zI - A)``.
+otherwise look like dead time. The models used in fitting (:func:`second_order_tf`,
+:func:`lagged_second_order_tf`, :func:`parallel_tf`) are computed in closed form from their
+poles, vectorised over sE levels (a matrix exponential per level would cost more than the
+simulation itself); :func:`foh_tf` is the general state-space route, kept as the reference
+the tests compare against.
 """
 
 from __future__ import annotations
@@ -52,137 +54,6 @@ def foh_tf(A: np.ndarray, B: np.ndarray, C: np.ndarray, dt_s: float
     den = np.real(np.poly(ad))
     num = np.real(np.poly(ad - np.outer(bd, C))) - den + dd * den
     return num, den
-
-
-def _charpoly(M: np.ndarray) -> np.ndarray:
-    """Characteristic polynomials of a stack of square matrices, (..., n + 1)."""
-    n = M.shape[-1]
-    if n == 1:
-        return np.stack([np.ones(M.shape[:-2]), -M[..., 0, 0]], axis=-1)
-    if n == 2:
-        tr = M[..., 0, 0] + M[..., 1, 1]
-        det = M[..., 0, 0] * M[..., 1, 1] - M[..., 0, 1] * M[..., 1, 0]
-        return np.stack([np.ones_like(tr), -tr, det], axis=-1)
-    roots = np.linalg.eigvals(M)
-    c = np.zeros(M.shape[:-2] + (n + 1,), dtype=complex)
-    c[..., 0] = 1.0
-    for k in range(n):
-        c[..., 1:k + 2] = c[..., 1:k + 2] - roots[..., k, None] * c[..., 0:k + 1]
-    return c.real
-
-
-def foh_tf_batch(A: np.ndarray, B: np.ndarray, C: np.ndarray, dt_s: float
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`foh_tf` for a stack of models: ``A`` (m, n, n), ``B`` and ``C`` (m, n).
-
-    Returns ``b, a`` of shape (m, n + 1).
-    """
-    m, n = A.shape[0], A.shape[1]
-    em = np.zeros((m, n + 2, n + 2))
-    em[:, :n, :n] = A * dt_s
-    em[:, :n, n] = B * dt_s
-    em[:, n, n + 1] = 1.0
-    ms = linalg.expm(em)
-    ad = ms[:, :n, :n]
-    m12 = ms[:, :n, n]
-    m13 = ms[:, :n, n + 1]
-    bd = m12 - m13 + np.einsum("mij,mj->mi", ad, m13)
-    dd = np.einsum("mi,mi->m", C, m13)
-    den = _charpoly(ad)
-    num = _charpoly(ad - bd[:, :, None] * C[:, None, :]) - den + dd[:, None] * den
-    return num, den
-
-
-def second_order_ss(wn_rad_s: float, zeta: float):
-    """Unit-DC-gain ``wn^2 / (s^2 + 2 zeta wn s + wn^2)`` as (A, B, C)."""
-    A = np.array([[0.0, 1.0], [-wn_rad_s ** 2, -2.0 * zeta * wn_rad_s]])
-    B = np.array([0.0, wn_rad_s ** 2])
-    C = np.array([1.0, 0.0])
-    return A, B, C
-
-
-def lagged_second_order_ss(wn_rad_s: float, zeta: float, tau_s: float):
-    """``1 / (tau s + 1)`` activation lag in front of the unit-gain second-order system."""
-    A = np.array([[-1.0 / tau_s, 0.0, 0.0],
-                  [0.0, 0.0, 1.0],
-                  [wn_rad_s ** 2, -wn_rad_s ** 2, -2.0 * zeta * wn_rad_s]])
-    B = np.array([1.0 / tau_s, 0.0, 0.0])
-    C = np.array([0.0, 1.0, 0.0])
-    return A, B, C
-
-
-def mixed_second_order_ss(wn_rad_s: float, zeta: float, wn2_rad_s: float, zeta2: float,
-                          weight2: float = 0.5):
-    """``(1 - w) G(wn, zeta) + w G(wn2, zeta2)``: two muscles with their own dynamics."""
-    A = np.zeros((4, 4))
-    A[:2, :2] = second_order_ss(wn_rad_s, zeta)[0]
-    A[2:, 2:] = second_order_ss(wn2_rad_s, zeta2)[0]
-    B = np.array([0.0, wn_rad_s ** 2, 0.0, wn2_rad_s ** 2])
-    C = np.array([1.0 - weight2, 0.0, weight2, 0.0])
-    return A, B, C
-
-
-def second_order_batch(wn_rad_s: np.ndarray, zeta: np.ndarray):
-    """Stacked :func:`second_order_ss`."""
-    m = len(wn_rad_s)
-    A = np.zeros((m, 2, 2))
-    A[:, 0, 1] = 1.0
-    A[:, 1, 0] = -wn_rad_s ** 2
-    A[:, 1, 1] = -2.0 * zeta * wn_rad_s
-    B = np.zeros((m, 2))
-    B[:, 1] = wn_rad_s ** 2
-    C = np.zeros((m, 2))
-    C[:, 0] = 1.0
-    return A, B, C
-
-
-def lagged_second_order_batch(wn_rad_s: np.ndarray, zeta: np.ndarray, tau_s: float):
-    """Stacked :func:`lagged_second_order_ss`."""
-    m = len(wn_rad_s)
-    A = np.zeros((m, 3, 3))
-    A[:, 0, 0] = -1.0 / tau_s
-    A[:, 1, 2] = 1.0
-    A[:, 2, 0] = wn_rad_s ** 2
-    A[:, 2, 1] = -wn_rad_s ** 2
-    A[:, 2, 2] = -2.0 * zeta * wn_rad_s
-    B = np.zeros((m, 3))
-    B[:, 0] = 1.0 / tau_s
-    C = np.zeros((m, 3))
-    C[:, 1] = 1.0
-    return A, B, C
-
-
-def mixed_second_order_tf(wn_rad_s, zeta, wn2_rad_s, zeta2, dt_s: float,
-                          weight2: float = 0.5):
-    """FOH difference equations of ``(1 - w) G1 + w G2`` (stacked, exact: the FOH is linear
-    in the system, so a parallel connection discretises term by term)."""
-    b1, a1 = foh_tf_batch(*second_order_batch(np.asarray(wn_rad_s), np.asarray(zeta)), dt_s)
-    b2, a2 = foh_tf_batch(*second_order_batch(np.asarray(wn2_rad_s), np.asarray(zeta2)),
-                          dt_s)
-    m = b1.shape[0]
-    num = np.zeros((m, 5))
-    den = np.zeros((m, 5))
-    for i in range(3):
-        for k in range(3):
-            num[:, i + k] += (1 - weight2) * b1[:, i] * a2[:, k] + weight2 * b2[:, i] * a1[:, k]
-            den[:, i + k] += a1[:, i] * a2[:, k]
-    return num, den
-
-
-def mixed_second_order_batch(wn_rad_s: np.ndarray, zeta: np.ndarray, wn2_rad_s: np.ndarray,
-                             zeta2: np.ndarray, weight2: float = 0.5):
-    """Stacked :func:`mixed_second_order_ss`."""
-    m = len(wn_rad_s)
-    A1, B1, _ = second_order_batch(wn_rad_s, zeta)
-    A2, B2, _ = second_order_batch(wn2_rad_s, zeta2)
-    A = np.zeros((m, 4, 4))
-    A[:, :2, :2] = A1
-    A[:, 2:, 2:] = A2
-    B = np.concatenate([B1, B2], axis=1)
-    C = np.zeros((m, 4))
-    C[:, 0] = 1.0 - weight2
-    C[:, 2] = weight2
-    return A, B, C
 
 
 def fractional_delay(x: np.ndarray, delay_samples: float) -> np.ndarray:
@@ -283,3 +154,16 @@ def lagged_second_order_tf(wn_rad_s, zeta, tau_s: float, dt_s: float):
     P = np.concatenate([second_order_poles(wn, zeta),
                         np.full((len(wn), 1), -1.0 / tau_s, complex)], axis=1)
     return foh_allpole(wn ** 2 / tau_s, P, dt_s)
+
+
+def parallel_tf(b1, a1, b2, a2, weight2: float = 0.5):
+    """Stacked ``(1 - w) b1/a1 + w b2/a2`` as one difference equation."""
+    m = b1.shape[0]
+    n1, n2 = a1.shape[1], a2.shape[1]
+    num = np.zeros((m, n1 + n2 - 1))
+    den = np.zeros((m, n1 + n2 - 1))
+    for i in range(n1):
+        for k in range(n2):
+            num[:, i + k] += (1 - weight2) * b1[:, i] * a2[:, k] + weight2 * b2[:, k] * a1[:, i]
+            den[:, i + k] += a1[:, i] * a2[:, k]
+    return num, den

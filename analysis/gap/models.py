@@ -37,7 +37,7 @@ import numpy as np
 from scipy import signal
 
 from analysis.gap.data import GapData
-from analysis.gap.discretize import (fractional_delay, lagged_second_order_tf,
+from analysis.gap.discretize import (fractional_delay, lagged_second_order_tf, parallel_tf,
                                      second_order_tf)
 from analysis.gap.effects import Effect
 
@@ -214,19 +214,6 @@ def recruitment_excess(data: GapData, a: float, b: float) -> np.ndarray:
     rE = data.rE_sim
     x = (kumaraswamy(rE * sE, a, b) - kumaraswamy((1 - rE) * sE, a, b)) / (2 * sE)
     return signal.sosfiltfilt(_lowpass_sos(data), x - (rE - 0.5), axis=-1)
-
-
-def parallel_tf(b1, a1, b2, a2, weight2: float = 0.5):
-    """Stacked ``(1 - w) b1/a1 + w b2/a2`` as one difference equation."""
-    m = b1.shape[0]
-    n1, n2 = a1.shape[1], a2.shape[1]
-    num = np.zeros((m, n1 + n2 - 1))
-    den = np.zeros((m, n1 + n2 - 1))
-    for i in range(n1):
-        for k in range(n2):
-            num[:, i + k] += (1 - weight2) * b1[:, i] * a2[:, k] + weight2 * b2[:, k] * a1[:, i]
-            den[:, i + k] += a1[:, i] * a2[:, k]
-    return num, den
 
 
 def _lowpass_sos(data: GapData):

@@ -1,7 +1,8 @@
 """Small synthetic sessions with known answers for the gap-diagnosis tests.
 
-The generator here is deliberately independent of ``analysis.gap`` (``scipy.signal.lsim``
-at the raw 2 kHz rate, its own chirp), so the tests do not check the code against itself.
+The generator here is deliberately independent of ``analysis.gap`` (scipy's zero-order-hold
+discretisation at the raw 2 kHz rate, an integer-sample dead time, its own chirp), so the
+tests do not check the code against itself.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ def rE_chirp(fs=FS, steady_s=STEADY_S, chirp_s=CHIRP_S, f0=1.0, f1=10.0):
     return np.where(t >= steady_s, 0.5 + 0.5 * np.sin(phase), 0.5)
 
 
-def true_params(sE):
+def _true_params(sE):
     Kp = 1.2 * np.exp(1.5 * sE)
     wn = 30 + 35 * sE - 15 * sE ** 2
     zeta = 0.45 + 0.35 * sE
@@ -48,12 +49,15 @@ def write_session(path, *, levels=(0.3, 0.5, 0.7, 0.9, 1.0), repeats=3, seed=0,
     rE = rE_chirp()
     t = np.arange(len(rE)) / FS
     for sE, rep in order:
-        Kp, wn, zeta = true_params(sE)
-        sys = signal.lti([Kp * wn ** 2], [1, 2 * zeta * wn, wn ** 2])
+        Kp, wn, zeta = _true_params(sE)
+        # exact for the stimulator's zero-order hold (each sample held for 1/FS)
+        b, a, _ = signal.cont2discrete(([Kp * wn ** 2], [1, 2 * zeta * wn, wn ** 2]),
+                                       1 / FS, method="zoh")
         u = rE - 0.5
         if dead_time_s > 0:
-            u = np.interp(t - dead_time_s, t, u, left=0.0)
-        _, y, _ = signal.lsim(sys, u, t, interp=False)  # the stimulator holds each sample
+            k = int(round(dead_time_s * FS))
+            u = np.concatenate([np.zeros(k), u[:-k]])
+        y = signal.lfilter(np.ravel(b), a, u)
         noise = noise_N * rng.standard_normal(len(t)) + 0.03 * np.sin(2 * np.pi * 50 * t)
         force = y + noise + 0.3 * rng.standard_normal() + 0.01 * rng.standard_normal() * t
         I_e = 2.0 + rE * sE * 7.0
@@ -73,3 +77,15 @@ def nominal_session(tmp_path_factory):
 def dead_time_session(tmp_path_factory):
     return write_session(tmp_path_factory.mktemp("gap") / "dead.h5", seed=2,
                          dead_time_s=0.030)
+
+
+@pytest.fixture(scope="session")
+def true_params():
+    """(Kp, wn, zeta) of the synthetic participant at sE."""
+    return _true_params
+
+
+@pytest.fixture(scope="session")
+def write_synthetic():
+    """The session writer, for tests that need their own variant."""
+    return write_session

@@ -1,0 +1,78 @@
+"""End to end on sessions with known answers (small: 5 sE x 3 repeats)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from analysis.gap.api import run_gap
+from analysis.gap.data import load_session
+from analysis.gap.diagnose import GapSettings, diagnose, effective_fraction
+
+REQUIRED = ("best_effect", "ranking", "heldout", "localization")
+
+
+@pytest.fixture(scope="module")
+def dead_report(dead_time_session, tmp_path_factory):
+    out = tmp_path_factory.mktemp("gap_dead")
+    run_gap([dead_time_session], out, plots=True)
+    return out, json.loads((out / "gap_report.json").read_text())
+
+
+def test_dead_time_session_is_diagnosed_as_dead_time(dead_report):
+    _, rep = dead_report
+    assert rep["best_effect"] == "dead_time"
+    assert rep["best_params"]["L_s"] == pytest.approx(0.030, rel=0.15)
+    assert rep["heldout"]["shrink_pct"] >= 50
+
+
+def test_report_has_the_keys_and_files(dead_report):
+    out, rep = dead_report
+    for key in REQUIRED:
+        assert key in rep
+    for row in rep["ranking"]:
+        assert {"effect", "params", "heldout_nrmse_pct", "delta_ic"} <= set(row)
+    assert {"nominal_nrmse_pct", "augmented_nrmse_pct", "shrink_pct"} <= set(rep["heldout"])
+    loc = rep["localization"]
+    for key in ("sE", "band", "position", "deviation"):
+        assert loc["nominal"][key] and loc["augmented"][key]
+    for name in ("report.html", "twin.json", "where.png", "frequency.png"):
+        assert (out / name).stat().st_size > 0
+
+
+def test_twin_file_runs_in_the_simulator(dead_report):
+    from sim_backends import participant_from_twin
+    out, _ = dead_report
+    twin = json.loads((out / "twin.json").read_text())
+    p = participant_from_twin(twin)
+    assert p.effect_truth()[0]["name"] == "dead_time"
+    assert p.effect_truth()[0]["params"]["L_s"] == pytest.approx(0.030, rel=0.15)
+
+
+def test_nominal_session_is_none(nominal_session):
+    diag = diagnose(load_session(nominal_session), GapSettings(try_pairs=False))
+    assert diag.best is None
+    assert diag.nominal.heldout_nrmse_pct < 2.0
+
+
+def test_heldout_trials_never_fitted(nominal_session):
+    """Changing a held-out trial's force changes no training fit of its fold."""
+    data = load_session(nominal_session)
+    diag = diagnose(data, GapSettings(candidates=(), try_pairs=False))
+    fold = diag.folds[0]
+    data2 = load_session(nominal_session)
+    data2.y_N[fold.test] += np.random.default_rng(0).standard_normal(
+        data2.y_N[fold.test].shape)
+    diag2 = diagnose(data2, GapSettings(candidates=(), try_pairs=False))
+    a, b = diag.nominal.fold_fits[0], diag2.nominal.fold_fits[0]
+    np.testing.assert_array_equal(a.wn_rad_s, b.wn_rad_s)
+    np.testing.assert_array_equal(a.Kp, b.Kp)
+    assert diag2.nominal.heldout_nrmse_pct > diag.nominal.heldout_nrmse_pct
+
+
+def test_effective_fraction_of_white_and_smooth_noise():
+    rng = np.random.default_rng(1)
+    white = rng.standard_normal((20, 1000))
+    assert effective_fraction(white, 100.0, 25.0) == pytest.approx(0.5)  # bandwidth cap
+    smooth = np.cumsum(rng.standard_normal((20, 1000)), axis=1)
+    assert effective_fraction(smooth, 100.0, 25.0) < 0.05

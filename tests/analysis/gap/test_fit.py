@@ -1,0 +1,53 @@
+"""The joint output-error fit recovers known parameters; the fatigue law is the same for
+training and held-out trials."""
+
+import numpy as np
+import pytest
+
+from analysis.gap.data import load_session
+from analysis.gap.effects import Effect
+from analysis.gap.fit import fit_model, predict
+from analysis.gap.models import NOMINAL, candidate, kumaraswamy
+
+
+def test_nominal_fit_recovers_parameters(nominal_session, true_params):
+    data = load_session(nominal_session)
+    fit = fit_model(data, NOMINAL)
+    for j, sE in enumerate(data.sE_levels):
+        Kp, wn, zeta = true_params(sE)
+        assert fit.Kp[j] == pytest.approx(Kp, rel=0.01)
+        assert fit.wn_rad_s[j] == pytest.approx(wn, rel=0.01)
+        assert fit.zeta[j] == pytest.approx(zeta, rel=0.01)
+
+
+def test_dead_time_fit_recovers_delay(dead_time_session):
+    data = load_session(dead_time_session)
+    nom = fit_model(data, NOMINAL)
+    fit = fit_model(data, candidate(Effect.DEAD_TIME), start=nom)
+    assert fit.params["L_s"] == pytest.approx(0.030, rel=0.05)
+    assert fit.rss < 0.01 * nom.rss
+
+
+def test_fatigue_gain_is_anchored_at_session_start(nominal_session):
+    data = load_session(nominal_session)
+    cand = candidate(Effect.FATIGUE)
+    p = np.array([1.0])  # 1e-3 per s
+    full = cand.gain(data, p)
+    part = cand.gain(data.subset([3, 7]), p)
+    np.testing.assert_allclose(part, full[[3, 7]])
+
+
+def test_kumaraswamy_identity_and_ends():
+    I = np.linspace(0, 1, 11)
+    np.testing.assert_allclose(kumaraswamy(I, 1.0, 1.0), I)
+    for a, b in ((0.5, 2.0), (2.5, 3.0)):
+        h = kumaraswamy(I, a, b)
+        assert h[0] == 0 and h[-1] == pytest.approx(1.0) and np.all(np.diff(h) >= 0)
+
+
+def test_predict_uses_only_the_trials_given(nominal_session):
+    data = load_session(nominal_session)
+    fit = fit_model(data.subset(np.flatnonzero(data.repeat != 1)), NOMINAL)
+    r, pred, ref = predict(fit, data.subset(np.flatnonzero(data.repeat == 1)))
+    assert r.shape == ref.shape == (5, data.y_N.shape[1])
+    assert 100 * np.sqrt(np.sum(r ** 2) / np.sum(ref ** 2)) < 2.0
