@@ -95,3 +95,37 @@ def test_run_then_identify(tmp_path, capsys):
     rows = (analysis / "parameters.csv").read_text().splitlines()
     assert len(rows) == 4
     assert np.isfinite(float(rows[1].split(",")[2]))
+
+
+def test_ctrl_c_is_an_estop_and_leaves_a_valid_file(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('participant = "CC"\n[protocol]\nsE_levels = [0.5, 0.7]\nrepeats = 1\n'
+                   'steady_s = 1.0\nchirp_s = 2.0\n[calibration]\nmanual = {Iemin_mA = 2.0, '
+                   'Iemax_mA = 9.5, Ifmin_mA = 1.5, Ifmax_mA = 8.0}\n')
+    out = tmp_path / "cc.h5"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rig.cli", "run", "--backend", "sim", "--realtime", "--config",
+         str(cfg), "--out", str(out), "--no-identify"], stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, cwd=str(Path(__file__).resolve().parents[2]),
+        env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    partial = journal_dir(out) / "partial.json"
+    t0 = time.monotonic()
+    while not partial.exists() and proc.poll() is None and time.monotonic() - t0 < 60:
+        time.sleep(0.01)
+    time.sleep(0.6)  # into the first trial (real time)
+    proc.send_signal(signal.SIGINT)
+    text = proc.communicate(timeout=60)[0].decode()
+    assert proc.returncode == 1, text
+    assert "E-stop" in text and "--resume" in text
+    assert validate_session(out) == [] and not journal_dir(out).exists()
+    s = read_session(out)
+    assert len(s.trials) == 1 and s.trials[0].abort_reason.startswith("estop: Ctrl+C")
+    assert 600 <= s.trials[0].n_samples < 6000
+    assert any(e.kind == "interlock_trip" for e in s.events)

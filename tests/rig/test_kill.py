@@ -3,7 +3,7 @@
 Every trial the process reported completed before the kill must be in the recovered file,
 bit for bit (CRC of its force samples, as printed), and the file must validate. Most kills
 hit forked children of this test process (``rig.cli.main`` runs in the child exactly as
-the ``nmsid`` command would, without paying the interpreter start-up each time); three
+the ``nmsid`` command would, without paying the interpreter start-up each time); two
 kill a genuine ``python -m rig.cli run`` subprocess.
 """
 
@@ -163,7 +163,7 @@ def test_sigkill_a_real_nmsid_process(tmp_path):
     cfg.write_text(CONFIG)
     rng = np.random.default_rng(7)
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    for k in range(3):
+    for k in range(2):
         path = tmp_path / f"r{k}.h5"
         log = tmp_path / f"r{k}.txt"
         with open(log, "wb") as fh:
