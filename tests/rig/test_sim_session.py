@@ -176,3 +176,34 @@ def test_sim_stimulator_never_receives_above_ceiling(tmp_path, data):
     assert sent_e <= ce + 1e-9 and sent_f <= cf + 1e-9
     assert out_e <= ce + 1e-9 and out_f <= cf + 1e-9
     assert not rig.world.output_active_at(rig.clock.monotonic_s())
+
+
+@given(kind=st.sampled_from([k for k in FaultKind]), trial=st.integers(0, 2),
+       at_s=st.floats(0.0, 1.45), seed=st.integers(0, 30))
+@settings(max_examples=15, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+def test_after_any_sim_fault_output_is_zero(tmp_path, kind, trial, at_s, seed):
+    extra = {"duration_s": 0.3} if kind is FaultKind.SENSOR_STALL else {}
+    if kind is FaultKind.OVERRUN:
+        extra = {"lost_s": 0.02}
+    rig = make_sim_rig(seed=seed, faults=[Fault(kind, trial=trial, at_s=at_s, **extra)])
+    seen = []
+
+    class Obs(EngineObserver):
+        def on_state(self, old, new, reason):
+            if new is State.TRIPPED:
+                seen.append(rig.world.output_active_at(rig.clock.monotonic_s()))
+    path = tmp_path / f"a{next(_n)}.h5"
+    s = Engine(_short(), rig, path, observer=Obs(), trip_policy=TripPolicy.END_SESSION).run()
+    assert not rig.world.output_active_at(rig.clock.monotonic_s())
+    assert validate_session(path) == []
+    sess = read_session(path)
+    if rig.faults.fired:  # it took effect (a fault late in a trial may miss its window)
+        assert seen == [False]
+        assert s.ended_by.startswith("interlock: ")
+        bad = [t for t in sess.trials if not t.completed]
+        assert len(bad) == 1 and bad[0].abort_reason
+        assert any(e.kind == "interlock_trip" for e in sess.events)
+        assert all(t.n_samples == 3000 for t in sess.trials if t.completed)
+    else:
+        assert s.complete
