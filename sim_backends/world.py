@@ -19,126 +19,23 @@ import logging
 import math
 import threading
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.interfaces import AcquisitionFlags
 from sim_backends.faults import (SENSOR_KINDS, STIM_KINDS, Fault, FaultKind, FaultScript,
                                  FiredFault)
 from sim_backends.participant import VirtualParticipant
+from sim_backends.run_records import (AcqRun, OutputZero, RunRecord, StimRun, SimBlock,
+                                      SampleFault)
 from sim_backends.simulation import ParticipantSimulator
 
 log = logging.getLogger(__name__)
 
+_NO_FLAGS = AcquisitionFlags()
+
 SYNC_HIGH_V = 5.0
 """Level of the stimulator's sync output while a waveform runs (TTL)."""
-
-
-@dataclass
-class StimRun:
-    """One start of the stimulator (a calibration step or a trial)."""
-
-    index: int
-    trial: int | None
-    """Trial index (runs delivering current on both channels), None for one-muscle runs."""
-    I_ext_mA: np.ndarray
-    """Delivered (quantised) envelope, at ``fs_env_Hz``."""
-    I_flex_mA: np.ndarray
-    fs_env_Hz: float
-    t_trigger_s: float
-    N_trigger: int
-    n_out: int
-    """Acquisition samples the waveform lasts."""
-    N_stop: int | None = None
-    stop_reason: str = ""
-    bound: bool = False
-    """An acquisition took this run's trigger as its sample 0."""
-
-    @property
-    def N_end(self) -> int:
-        """First absolute sample with the output at zero."""
-        end = self.N_trigger + self.n_out
-        return end if self.N_stop is None else max(self.N_trigger, min(end, self.N_stop))
-
-    @property
-    def duration_s(self) -> float:
-        return self.I_ext_mA.size / self.fs_env_Hz
-
-
-@dataclass
-class RunRecord:
-    """What the stimulator did in one run (kept for the whole session, without envelopes)."""
-
-    index: int
-    trial: int | None
-    t_trigger_s: float
-    N_trigger: int
-    n_planned: int
-    N_end: int | None = None
-    stop_reason: str = ""
-    max_ext_mA: float = 0.0
-    max_flex_mA: float = 0.0
-
-
-@dataclass
-class OutputZero:
-    """The instant the stimulator output became zero other than by the waveform's end."""
-
-    reason: str
-    clock_s: float
-    perf_counter_s: float
-    sample_index: int | None
-    run_index: int | None
-
-
-@dataclass
-class _SampleFault:
-    fault: Fault
-    t_s: float
-    N: int
-    N_end: int
-    done: bool = False
-
-
-@dataclass
-class _Block:
-    """Samples simulated ahead of the acquisition, and how to undo them."""
-
-    N0: int
-    N1: int
-    snapshot: tuple
-    I_e: np.ndarray
-    I_f: np.ndarray
-    spike: np.ndarray | None
-    sync: np.ndarray
-    force_N: np.ndarray
-    wrench: np.ndarray
-    over: np.ndarray | None
-    peak_e: float
-    peak_f: float
-
-
-@dataclass
-class AcqRun:
-    """One acquisition from ``start`` to ``stop``."""
-
-    triggered: bool
-    n_samples: int | None
-    t_start_s: float
-    N0: int | None = None
-    t0_s: float | None = None
-    next_k: int = 0
-    run_index: int | None = None
-    stall_end_s: float | None = None
-    stalled: bool = False
-
-    @property
-    def waiting(self) -> bool:
-        return self.N0 is None
-
-    @property
-    def done(self) -> bool:
-        return self.n_samples is not None and self.next_k >= self.n_samples
 
 
 class SimWorld:
@@ -152,7 +49,7 @@ class SimWorld:
         self.block_n = max(1, int(round(block_s * fs_Hz)))
         self.committed = 0
         """First absolute sample not yet final (everything before was handed out)."""
-        self._blk: _Block | None = None
+        self._blk: SimBlock | None = None
         self.participant = participant
         self.clock = clock
         self.fs_Hz = float(fs_Hz)
@@ -175,7 +72,7 @@ class SimWorld:
         self.estop_pressed = False
         self.estop_pressed_at_s: float | None = None
         self._timed: list[tuple[Fault, float]] = []   # (fault, clock time) for time faults
-        self._sample: list[_SampleFault] = []
+        self._sample: list[SampleFault] = []
         self.estop_due_s: list[float] = []
         """Clock times of scheduled E-stop presses (read without the lock)."""
         for f in self.script.faults:
@@ -271,7 +168,7 @@ class SimWorld:
         else:
             dur = f.duration_s if f.duration_s is not None else 0.0
         n_dur = max(1, int(round(dur * self.fs_Hz)))
-        self._sample.append(_SampleFault(f, t_s, N, N + n_dur))
+        self._sample.append(SampleFault(f, t_s, N, N + n_dur))
         if f.kind is FaultKind.FORCE_SPIKE:
             self.invalidate()
 
@@ -427,7 +324,7 @@ class SimWorld:
                     Nb = edge
         return Na, Nb
 
-    def stall_at(self, Na: int) -> _SampleFault | None:
+    def stall_at(self, Na: int) -> SampleFault | None:
         for sf in self._sample:
             if sf.fault.kind is FaultKind.SENSOR_STALL and not sf.done and sf.N <= Na:
                 return sf
@@ -470,7 +367,7 @@ class SimWorld:
             self.sim.advance_quiet(gap)
         self.committed = max(self.committed, N)
 
-    def _ensure(self, acq: AcqRun, Na: int, Nb: int) -> _Block:
+    def _ensure(self, acq: AcqRun, Na: int, Nb: int) -> SimBlock:
         """A valid simulated block covering [Na, Nb)."""
         blk = self._blk
         if blk is not None and blk.N0 <= Na and Nb <= blk.N1:
@@ -499,7 +396,7 @@ class SimWorld:
             np.abs(out.force_N).max(initial=0.0) >= rng * 0.5 else None
         for arr in (sync, out.force_N, out.wrench):
             arr.setflags(write=False)      # chunks are views of these: read-only
-        self._blk = _Block(Na, N1, snap, I_e, I_f, spike, sync, out.force_N, out.wrench, over,
+        self._blk = SimBlock(Na, N1, snap, I_e, I_f, spike, sync, out.force_N, out.wrench, over,
                            float(I_e.max(initial=0.0)), float(I_f.max(initial=0.0)))
         return self._blk
 
@@ -514,11 +411,11 @@ class SimWorld:
 
     def acquire(self, acq: AcqRun, Na: int, Nb: int):
         """Hand out [Na, Nb): (force_N, wrench, sync, flags, start_index)."""
-        from drivers.interfaces import AcquisitionFlags
         self.update()
         flags = {"overrun": False, "over_range": False, "sensor_fault": False}
         details = []
-        for sf in self._sample:
+        pending = [sf for sf in self._sample if not sf.done]
+        for sf in pending:
             if (not sf.done and sf.fault.kind is FaultKind.OVERRUN and Na <= sf.N < Nb
                     and sf.fault.lost_s > 0):
                 lost = int(round(sf.fault.lost_s * self.fs_Hz))
@@ -533,7 +430,7 @@ class SimWorld:
                 if not any(ff.fault is sf.fault for ff in self.script.fired):
                     self._log_fired(sf.fault, sf.t_s, sf.N)
         blk = self._ensure(acq, Na, Nb)
-        for sf in self._sample:
+        for sf in pending:
             if sf.done or sf.N >= max(Nb, Na + 1) or sf.N_end <= Na:
                 continue
             kind = sf.fault.kind
@@ -559,10 +456,10 @@ class SimWorld:
         self._count_delivered(blk.I_e[a:b], blk.I_f[a:b], (blk.peak_e, blk.peak_f))
         self.committed = max(self.committed, Nb)
         acq.next_k = Nb - acq.N0
-        return (blk.force_N[a:b], blk.wrench[a:b], blk.sync[a:b],
-                AcquisitionFlags(detail="; ".join(details), **flags), Na - acq.N0)
+        fl = AcquisitionFlags(detail="; ".join(details), **flags) if details else _NO_FLAGS
+        return blk.force_N[a:b], blk.wrench[a:b], blk.sync[a:b], fl, Na - acq.N0
 
-    def start_stall(self, acq: AcqRun, sf: _SampleFault) -> None:
+    def start_stall(self, acq: AcqRun, sf: SampleFault) -> None:
         if not any(ff.fault is sf.fault for ff in self.script.fired):
             self._log_fired(sf.fault, sf.t_s, sf.N)
         acq.stalled = True
