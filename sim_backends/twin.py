@@ -72,7 +72,9 @@ def participant_from_twin(path_or_dict, *, sensor: SensorModel | None = None, se
     path_or_dict : path or dict
         The twin file (or its parsed content).
     sensor : SensorModel, optional
-        Force chain; default :class:`SensorModel` (the paper-like noise).
+        Force chain; default :class:`SensorModel` with its offset and drift at zero (the
+        twin's ``offset_N`` already holds the offset measured in the session it came
+        from), noise and mains pick-up as usual.
     seed : int
         Seeds the sensor noise and the baseline wander.
     code : str, optional
@@ -125,7 +127,9 @@ def participant_from_twin(path_or_dict, *, sensor: SensorModel | None = None, se
         code=code or str(twin.get("participant", "TWIN")), Kp=curves["Kp"],
         wn_rad_s=curves["wn_rad_s"], zeta=curves["zeta"], calibration=reference,
         offset_N=offset, sE_range=sE_range, effects=tuple(eff),
-        sensor=sensor if sensor is not None else SensorModel(), seed=seed)
+        sensor=sensor if sensor is not None else SensorModel(offset_N=0.0,
+                                                             drift_N_per_s=0.0),
+        seed=seed)
 
 
 def write_twin(participant: VirtualParticipant, path) -> None:
