@@ -171,7 +171,7 @@ def identify_level(trials, settings: IdentificationSettings | None = None) -> Le
         data = preprocess_trials(usable, s)
         fit = fit_second_order(data.u, data.y_N, data.fs_Hz, s, band_Hz=data.band_Hz,
                                t0_s=float(data.t_s[0]))
-    except IdentificationError as exc:
+    except (IdentificationError, np.linalg.LinAlgError, ArithmeticError) as exc:
         problems.append(f"sE={sE:g}: {exc}; level not identified")
         return LevelResult(sE, None, None, len(usable), names, problems)
     if not fit.converged:

@@ -85,3 +85,25 @@ def test_empty_session_reports(tmp_path):
     w.write_calibration(Calibration(1, 2, 1, 2))
     res = identify_session(p)
     assert res.levels == [] and "no trials" in res.problems[0]
+
+
+def test_non_converging_fit_is_reported(small_session):
+    from analysis.settings import IdentificationSettings
+    s = read_session(small_session[0])
+    level = [t for t in s.trials if t.sE == 0.6]
+    res = identify_level(level, IdentificationSettings(max_iterations=1))
+    assert res.fit is not None and not res.fit.converged
+    assert any("did not converge" in p for p in res.problems)
+
+
+def test_too_few_levels_and_single_repeats_still_give_outputs(synthetic, tmp_path):
+    from analysis.run import run_identification
+    path = tmp_path / "three.h5"
+    synthetic.write_synthetic_session(path, seed=3, sE_levels=(0.3, 0.6, 0.9), repeats=1)
+    out = run_identification([path], tmp_path / "out", figures=False)
+    text = "\n".join(out.problems)
+    assert "only one usable repeat" in text
+    assert "no model is selectable" in text and "twin not written" in text
+    assert (tmp_path / "out" / "parameters.csv").exists()
+    assert not (tmp_path / "out" / "twin.json").exists()
+    assert all(lv.fit is not None for lv in out.sessions[0].levels)
