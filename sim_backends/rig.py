@@ -62,6 +62,11 @@ class SimRig(RigDevices):
         """Stimulation time the participant has received since the rig was made, s."""
         return self.world.sim.cumulative_stim_s
 
+    def add_fault(self, fault: Fault) -> None:
+        """Schedule a fault after the rig was made (``session_s`` counts from the rig's
+        creation; a ``trial`` / ``run`` index must not have started yet)."""
+        self.world.add_fault(fault)
+
     def true_parameters(self, sE: float, calibration=None):
         """Shortcut for ``participant.true_parameters``."""
         return self.participant.true_parameters(sE, calibration)

@@ -76,10 +76,20 @@ class SimWorld:
         self.estop_due_s: list[float] = []
         """Clock times of scheduled E-stop presses (read without the lock)."""
         for f in self.script.faults:
-            if f.session_s is not None:
-                self._timed.append((f, self.t_origin_s + f.session_s))
-                if f.kind is FaultKind.ESTOP:
-                    self.estop_due_s.append(self.t_origin_s + f.session_s)
+            self._schedule_session_fault(f)
+
+    def _schedule_session_fault(self, f: Fault) -> None:
+        if f.session_s is not None:
+            self._timed.append((f, self.t_origin_s + f.session_s))
+            if f.kind is FaultKind.ESTOP:
+                self.estop_due_s = self.estop_due_s + [self.t_origin_s + f.session_s]
+
+    def add_fault(self, f: Fault) -> None:
+        """Schedule one more fault (session time, or a trial / run not started yet)."""
+        with self.lock:
+            self.script.faults.append(f)
+            self._schedule_session_fault(f)
+            self._resolve_session_sensor_faults()
 
     # -- time base -----------------------------------------------------------------------
     def now(self) -> float:

@@ -185,3 +185,14 @@ def test_fault_validation():
     with pytest.raises(SimConfigError, match="duration_s"):
         Fault(FaultKind.SENSOR_STALL, trial=0, duration_s=-1)
     assert Fault("estop", trial=0).kind is FaultKind.ESTOP
+
+
+def test_faults_can_be_added_after_the_rig_was_made():
+    p = _p()
+    rig = make_sim_rig(p, connect=True)
+    run_waveform(rig, _trial_wf(p, n_s=0.5))
+    rig.add_fault(Fault(FaultKind.ESTOP, session_s=rig.clock.monotonic_s() + 0.2))
+    rig.add_fault(Fault(FaultKind.FORCE_SPIKE, trial=1, at_s=0.1, amplitude_N=25.0))
+    assert not rig.estop.is_pressed()
+    force, _ = run_waveform(rig, _trial_wf(p, n_s=0.5))
+    assert rig.estop.is_pressed() and force[200] > 20
