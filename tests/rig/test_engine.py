@@ -274,3 +274,28 @@ def test_failed_calibration_stops_before_any_trial(tmp_path, fake_rig, small_con
         eng.run()
     assert rig.stimulator.output_active is False
     assert all(w.n_samples <= 400 for w in rig.stimulator.received)  # only ramp steps
+
+
+def test_notes_status_and_commands_from_other_threads(tmp_path, fake_rig, small_config):
+    rig = fake_rig()
+    obs = Recorder()
+    eng = Engine(small_config(), rig, tmp_path / "s.h5", observer=obs)
+    st = eng.interlock_status()
+    assert {"force_limit", "sensor_stream", "acquisition", "stimulator", "estop",
+            "latch"} <= set(st) and all(ok for ok, _ in st.values())
+
+    def started(index, planned):
+        if index == 0:
+            t = threading.Thread(target=eng.add_note, args=("participant said: tingling",))
+            t.start()
+            t.join()
+            eng.rerun(99)   # refused: no such trial
+            eng.rerun(3)    # refused: pending, not aborted
+    obs.hooks = {"started": started}
+    eng.run()
+    ev = read_session(tmp_path / "s.h5").events
+    assert any(e.kind == "note" and e.detail == "participant said: tingling" for e in ev)
+    assert [e.kind for e in ev].count("rerun_refused") == 2
+    # the state events tell the whole story, in order, all legal
+    states = [e.detail.split(":")[0] for e in ev if e.kind == "state"]
+    assert states[0] == "idle -> calibrating" and states[-1].endswith("-> finished")
