@@ -55,6 +55,16 @@ from sim_backends.sensor import SensorModel
 #: single-muscle ramp (antagonist at 0 mA) is never mistaken for co-activation.
 COACTIVE_TOL_MA = 0.05
 
+SE_RESOLUTION = 1e-3
+"""Resolution of the co-activation the simulated muscles sense (their parameters are
+evaluated on this grid of sE)."""
+
+
+def sensed_sE(sE: float) -> float:
+    """sE as the simulated participant senses it (rounded to ``SE_RESOLUTION``, > 0)."""
+    s = round(round(float(sE) / SE_RESOLUTION) * SE_RESOLUTION, 9)
+    return s if s > 0 else SE_RESOLUTION
+
 
 class TrueParameters(NamedTuple):
     """What the identification should recover at one sE."""
@@ -238,8 +248,8 @@ class VirtualParticipant:
             :meth:`effect_truth`.
         """
         if calibration is None or self.calibration.matches(calibration):
-            op = self.operating_point(sE)
-            return TrueParameters(op.Kp, op.wn_rad_s, op.zeta)
+            op = self.operating_point(sensed_sE(sE))
+            return TrueParameters(2.0 * op.k_N * sE, op.wn_rad_s, op.zeta)
         ref = self.calibration
         spans = {}
         u = {}
@@ -254,8 +264,7 @@ class VirtualParticipant:
             raise SimConfigError(
                 f"with calibration {calibration!r} a muscle is below its Imin at rE = 0.5, "
                 f"sE = {sE:g}: the participant is not co-activated, no second-order truth")
-        s = u["ext"] + u["flex"]
-        op = self.operating_point(s)
+        op = self.operating_point(sensed_sE(u["ext"] + u["flex"]))
         Kp = op.k_N * sE * (spans["ext"] + spans["flex"])
         return TrueParameters(Kp, op.wn_rad_s, op.zeta)
 

@@ -22,11 +22,10 @@ import numpy as np
 from sim_backends.effects import (ActivationDynamics, BaselineDrift, DeadTime, Fatigue,
                                   FlexorExtensorAsymmetry)
 from sim_backends.filters import DelayLine, StatefulFilter, dynamics_zoh
-from sim_backends.participant import OperatingPoint, VirtualParticipant
+from sim_backends.participant import (SE_RESOLUTION, OperatingPoint, VirtualParticipant,
+                                      sensed_sE)
 from sim_backends.sensor import BaselineWander, SensorState
 
-SE_RESOLUTION = 1e-3
-"""Resolution of the sensed co-activation (parameters are evaluated on this grid)."""
 
 QUIET_SKIP_SAMPLES = 20000
 """In a gap without stimulation, after this many samples (10 s at 2 kHz) the dynamics have
@@ -112,9 +111,7 @@ class ParticipantSimulator:
         s_raw = float(np.median(np.maximum(u_e, 0.0) + np.maximum(u_f, 0.0)))
         if self._s_raw is not None and abs(s_raw - self._s_raw) < SE_RESOLUTION:
             return
-        s = round(round(s_raw / SE_RESOLUTION) * SE_RESOLUTION, 9)
-        if s <= 0:
-            s = SE_RESOLUTION
+        s = sensed_sE(s_raw)
         self._s_raw = s_raw
         if s != self._op.sE:
             self._set_op(s)

@@ -185,3 +185,15 @@ def test_rounding_below_imin_at_rE_0_or_1_does_not_change_regime(ideal_participa
 def _run_currents(p, I_e, I_f):
     rig = make_sim_rig(p, connect=True)
     return run_waveform(rig, waveform(I_e, I_f))
+
+
+def test_truth_holds_for_an_sE_off_the_protocol_grid(ideal_participant):
+    p = ideal_participant
+    sE = 0.4567891
+    n0 = int(1 * FS)
+    rE = np.full(int(4 * FS), 0.5)
+    rE[n0:] = 0.75
+    force, _ = _run(p, sE, rE)
+    Kp, wn, zeta = p.true_parameters(sE)
+    expected = _step_response(np.arange(rE.size - n0) / FS, Kp * 0.25, wn, zeta)
+    assert np.max(np.abs(force[n0:] - expected)) < 5e-4
