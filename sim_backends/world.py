@@ -23,6 +23,7 @@ import time
 import numpy as np
 
 from drivers.interfaces import AcquisitionFlags
+from sim_backends.errors import DeviceStateError
 from sim_backends.faults import (SENSOR_KINDS, STIM_KINDS, Fault, FaultKind, FaultScript,
                                  FiredFault)
 from sim_backends.participant import VirtualParticipant
@@ -104,16 +105,18 @@ class SimWorld:
 
     def set_fs(self, fs_Hz: float) -> None:
         with self.lock:
+            if fs_Hz == self.fs_Hz:
+                return
             if self.anchor is not None:
-                raise RuntimeError("the sampling rate can only change before the first "
-                                   "acquisition or stimulation")
-            if fs_Hz != self.fs_Hz:
-                chunk_s = self.chunk_n / self.fs_Hz
-                self.fs_Hz = float(fs_Hz)
-                block_s = self.block_n / self.fs_Hz
-                self.chunk_n = max(1, int(round(chunk_s * self.fs_Hz)))
-                self.block_n = max(1, int(round(block_s * self.fs_Hz)))
-                self.sim = ParticipantSimulator(self.participant, self.fs_Hz)
+                raise DeviceStateError(
+                    f"the sampling rate can only change before the first acquisition or "
+                    f"stimulation (running at {self.fs_Hz:g} Hz, asked {fs_Hz:g} Hz)")
+            chunk_s = self.chunk_n / self.fs_Hz
+            block_s = self.block_n / self.fs_Hz
+            self.fs_Hz = float(fs_Hz)
+            self.chunk_n = max(1, int(round(chunk_s * self.fs_Hz)))
+            self.block_n = max(1, int(round(block_s * self.fs_Hz)))
+            self.sim = ParticipantSimulator(self.participant, self.fs_Hz)
 
     # -- faults --------------------------------------------------------------------------
     def _log_fired(self, fault: Fault, t_s: float, N: int | None) -> None:

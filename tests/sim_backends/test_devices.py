@@ -258,3 +258,15 @@ def test_after_any_fault_and_a_stop_the_output_is_zero(kind, at_s, trial):
     for rec in rig.run_records:
         if stops and stops[0] >= 0 and rec.N_trigger < stops[0] < rec.N_trigger + rec.n_planned:
             assert rec.N_end is not None and rec.N_end <= stops[0]
+
+
+def test_configure_rate_before_first_use_only():
+    rig = make_sim_rig(default_participant(sensor=SensorModel.ideal()), connect=True)
+    assert rig.acquisition.configure(1000.0) == 1000.0
+    p = rig.participant
+    I_e, I_f = currents_for(p.calibration, 0.6, np.full(1000, 0.9))
+    force, chunks = run_waveform(rig, waveform(I_e, I_f, fs_Hz=1000.0))
+    assert chunks[0].n == 100 and not np.isnan(force).any()     # 0.1 s chunks at 1 kHz
+    assert rig.acquisition.configure(1000.0) == 1000.0            # same rate: fine
+    with pytest.raises(DeviceStateError, match="1000 Hz"):
+        rig.acquisition.configure(2000.0)
