@@ -6,7 +6,7 @@ extremum for some participants and monotonic (extremum outside the range) for ot
 with linear, exponential or quadratic best fits. The generator draws:
 
 * Kp: family linear / exponential / concave quadratic (weights 0.4 / 0.5 / 0.1), Kp(0.3) in
-  1.5-4 N and Kp(1.0) in 6-14 N per unit rE;
+  2-4 N and Kp(1.0) in 6-14 N per unit rE;
 * wn and zeta: a quadratic with its extremum (a peak, the paper's convex-upward shape) at
   sE_peak in 0.0-1.4 - inside the range for about half - or a linear / exponential trend
   (weights 0.6 / 0.2 / 0.2), wn in 10-50 rad/s, zeta in 0.3-1.0 over the range, and
@@ -39,7 +39,7 @@ _GRID = np.linspace(SE_LO, SE_HI, 15)
 
 
 def _kp_curve(rng: np.random.Generator) -> ParameterCurve:
-    k_lo = rng.uniform(1.5, 4.0)
+    k_lo = rng.uniform(2.0, 4.0)
     k_hi = rng.uniform(6.0, 14.0)
     family = rng.choice(["linear", "exponential", "quadratic"], p=[0.4, 0.5, 0.1])
     if family == "exponential":

@@ -130,7 +130,7 @@ def test_population_is_reproducible_and_varied():
         kp = p.Kp(grid)
         wn = p.wn_rad_s(grid)
         z = p.zeta(grid)
-        assert np.all(np.diff(kp) > 0) and 1.0 < kp.min() and kp.max() < 15
+        assert np.all(np.diff(kp) > 0) and 2.0 <= kp.min() and kp.max() <= 15
         assert 10 <= wn.min() and wn.max() <= 50 and 0.3 <= z.min() and z.max() <= 1.0
         inside_peaks += int(0 < np.argmax(wn) < 14)
         assert 0.02 <= p.sensor.noise_N <= 0.06
