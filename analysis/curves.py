@@ -169,8 +169,10 @@ def fit_exponential(x, y) -> tuple[list[float], list[str]]:
         sign = 1.0 if y[0] > 0 else -1.0
         slope = np.polyfit(x, np.log(sign * y), 1)[0]
         starts.append(float(np.clip(slope, -b_max, b_max)))
-    grid = np.linspace(-b_max / 5, b_max / 5, 201)
-    costs = [_exp_projected(x, y, b)[1] for b in grid]
+    grid = np.linspace(-b_max / 5, b_max / 5, 81)
+    e = np.exp(np.outer(grid, x))                       # all grid points at once
+    a_grid = (e * y).sum(axis=1) / (e * e).sum(axis=1)
+    costs = ((y - a_grid[:, None] * e) ** 2).sum(axis=1)
     starts.append(float(grid[int(np.argmin(costs))]))
     best_b, best_cost = None, math.inf
     for b in starts:

@@ -36,8 +36,7 @@ from analysis.errors import IdentificationError
 from analysis.initial_estimate import StartEstimate, srivc_start
 from analysis.residual_tests import ResidualTests, residual_tests
 from analysis.settings import IdentificationSettings, InputHold, NoiseLevel
-from analysis.thin_lstsq import (cross, dot, gram, orthonormalise, project_out,
-                                 solve_triangular_upper)
+from analysis.thin_lstsq import cross, dot, gram, lstsq_rows, orthonormalise, project_out
 
 logger = logging.getLogger(__name__)
 
@@ -111,10 +110,6 @@ class _Problem:
         self.trend = trend
         self.impulse = np.zeros(self.n)
         self.impulse[0] = 1.0
-        # the offset (and ramp) rows do not depend on the parameters: orthonormalise once
-        fixed = [np.ones(self.n)] + ([self.tau] if trend else [])
-        self.fixed_rows = np.vstack(fixed)
-        self.fixed_q, self.fixed_r = orthonormalise(self.fixed_rows)
         #: upper bound of (ln wn, ln zeta): wn below 10x the Nyquist frequency, zeta < 1000
         self.p_high = np.array([math.log(10 * math.pi / dt_s), math.log(1000.0)])
 
@@ -138,8 +133,8 @@ class _Problem:
         basis[3] = 1.0
         if self.trend:
             basis[4] = self.tau
-        coef, q, r = _lstsq_with_fixed(basis, self.y, self.fixed_q, self.fixed_r)
-        y_fit = _combine(coef, basis)
+        coef, q, _ = lstsq_rows(basis, self.y)
+        y_fit = coef @ basis
         resid = self.y - y_fit
         out = {"cost": dot(resid, resid), "coef": coef, "y_fit": y_fit, "resid": resid,
                "basis": basis}
@@ -155,50 +150,8 @@ class _Problem:
             jp[j] = (kp * (dnum[j, 0] * s0 + dnum[j, 1] * s1 + dnum[j, 2] * s2)
                      - dden[j, 1] * r1 - dden[j, 2] * r2)
         out["jp"] = jp
-        out["j_reduced"] = np.array([project_out(q, row) for row in jp])
+        out["j_reduced"] = jp - (jp @ q.T) @ q
         return out
-
-
-def _lstsq_with_fixed(basis: np.ndarray, y: np.ndarray, fixed_q: np.ndarray,
-                      fixed_r: np.ndarray):
-    """``lstsq_rows`` for rows [3 varying, fixed...] reusing the fixed rows' factors.
-
-    The varying rows are orthogonalised against the (already orthonormal) fixed ones and
-    then among themselves; coefficients come from one triangular solve in the original
-    order.
-    """
-    nv = len(basis) - len(fixed_q)
-    nf = len(fixed_q)
-    # order [fixed, varying] for the factorisation
-    q = np.empty_like(basis)
-    q[:nf] = fixed_q
-    r = np.zeros((len(basis), len(basis)))
-    r[:nf, :nf] = fixed_r
-    for k in range(nv):
-        col = nf + k
-        v = basis[k].copy()
-        for _ in range(2):
-            for j in range(col):
-                c = dot(q[j], v)
-                r[j, col] += c
-                v -= c * q[j]
-        nrm = math.sqrt(dot(v, v))
-        if nrm <= 1e-13 * max(math.sqrt(dot(basis[k], basis[k])), 1e-300):
-            q[col] = 0.0
-        else:
-            q[col] = v / nrm
-            r[col, col] = nrm
-    qty = np.array([dot(row, y) for row in q])
-    c = solve_triangular_upper(r, qty)
-    coef = np.concatenate([c[nf:], c[:nf]])          # back to [varying, fixed] order
-    return coef, q, r
-
-
-def _combine(coef: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    out = coef[0] * rows[0]
-    for c, row in zip(coef[1:], rows[1:]):
-        out = out + c * row
-    return out
 
 
 def _levenberg_marquardt(problem: _Problem, p0: np.ndarray, max_iter: int, tol: float):
@@ -229,16 +182,16 @@ def _levenberg_marquardt(problem: _Problem, p0: np.ndarray, max_iter: int, tol: 
                     break
             lam *= 10
         if not improved:
-            converged = ev["cost"] <= 1e-28 * max(problem.y @ problem.y, 1e-300) \
-                or bool(np.max(np.abs(g)) <= 1e-12 * max(ev["cost"], 1e-300))
-            message = ("converged (no further decrease)" if converged else
+            # no step lowers the cost: a minimum if a full Gauss-Newton step could not
+            # gain more than rounding does
+            try:
+                gain = float(g @ np.linalg.solve(a, g))
+            except np.linalg.LinAlgError:
+                gain = math.inf
+            converged = gain <= max(tol, 1e-12) * ev["cost"] or \
+                ev["cost"] <= 1e-28 * max(dot(problem.y, problem.y), 1e-300)
+            message = ("converged (at a minimum to rounding)" if converged else
                        "stopped: no step decreases the cost (flat or ill-conditioned)")
-            # a minimum where no step helps is a converged fit when the gradient vanishes
-            if not converged:
-                grad_rel = np.max(np.abs(g)) / max(ev["cost"], 1e-300)
-                converged = grad_rel < 1e-6
-                if converged:
-                    message = "converged (no further decrease, gradient ~ 0)"
             break
         decrease = ev["cost"] - trial["cost"]
         p = trial_p

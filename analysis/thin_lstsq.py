@@ -1,11 +1,13 @@
-"""Least squares for a few long signals, without multithreaded BLAS.
+"""Least squares for a few long signals, fast on a small shared machine.
 
-The fitter solves many small problems: 2000-20000 samples, 2-7 regressors. Dense LAPACK
-(``lstsq``, ``qr``, ``A.T @ A``) hands such shapes to a threaded BLAS, which on a small
-machine shared by other processes can be 10-100x slower than the arithmetic needs. Here
-the regressors are the *rows* of a C-contiguous array and everything is one-dimensional
-dot products: modified Gram-Schmidt with one re-orthogonalisation ("twice is enough",
-Giraud et al. 2005), as accurate as Householder QR for these well-scaled problems.
+The fitter solves many small problems: 2000-20000 samples, 2-7 regressors. LAPACK's
+``lstsq``/``qr`` on such tall matrices hand them to a threaded BLAS that, on a 2-core
+machine shared with other processes, can be 10-100x slower than the arithmetic needs.
+Here the regressors are the *rows* of a C-contiguous array; the only large operation is
+the short-and-wide product ``rows @ other.T`` (fast on every BLAS), and the factorisation
+is CholeskyQR2 (Fukaya et al. 2014: Cholesky QR applied twice, as accurate as Householder
+QR for condition numbers up to ~1e8), with modified Gram-Schmidt twice as the fallback for
+(nearly) dependent rows.
 """
 
 from __future__ import annotations
@@ -24,22 +26,8 @@ def dot(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.multiply(a, b).sum())
 
 
-def orthonormalise(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """QR of the transposed rows: ``rows.T = Q.T @ R`` with orthonormal rows of Q.
-
-    Parameters
-    ----------
-    rows : ndarray (m, n)
-        m regressors of n samples each (m small).
-
-    Returns
-    -------
-    q : ndarray (m, n)
-        Orthonormal rows spanning the same space (a zero row where a regressor is
-        linearly dependent on the previous ones).
-    r : ndarray (m, m)
-        Upper triangular, ``rows[k] = sum_j r[j, k] q[j]``.
-    """
+def _mgs(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Modified Gram-Schmidt, twice ("twice is enough"); zero rows for dependent ones."""
     m, _ = rows.shape
     q = np.array(rows, dtype=float, order="C", copy=True)
     r = np.zeros((m, m))
@@ -60,12 +48,43 @@ def orthonormalise(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return q, r
 
 
+def orthonormalise(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """QR of the transposed rows: ``rows.T = Q.T @ R`` with orthonormal rows of Q.
+
+    Parameters
+    ----------
+    rows : ndarray (m, n)
+        m regressors of n samples each (m small).
+
+    Returns
+    -------
+    q : ndarray (m, n)
+        Orthonormal rows spanning the same space (a zero row where a regressor is
+        linearly dependent on the previous ones).
+    r : ndarray (m, m)
+        Upper triangular, ``rows[k] = sum_j r[j, k] q[j]``.
+    """
+    a = np.ascontiguousarray(rows, dtype=float)
+    try:
+        # (m x m) inverses times the wide matrix: LAPACK's solve with n right-hand sides
+        # would go through a threaded triangular solve
+        l1 = np.linalg.cholesky(a @ a.T)
+        q1 = np.linalg.inv(l1) @ a
+        l2 = np.linalg.cholesky(q1 @ q1.T)
+        q = np.linalg.inv(l2) @ q1
+        r = (l1 @ l2).T
+        if np.all(np.isfinite(q)) and np.min(np.abs(np.diag(r))) > \
+                1e-7 * np.max(np.abs(np.diag(r))):
+            return q, r
+    except np.linalg.LinAlgError:
+        pass
+    return _mgs(a)
+
+
 def project_out(q: np.ndarray, x: np.ndarray) -> np.ndarray:
     """x minus its projection on the span of the orthonormal rows q."""
-    out = np.array(x, dtype=float, copy=True)
-    for row in q:
-        out -= dot(row, out) * row
-    return out
+    x = np.asarray(x, dtype=float)
+    return x - (q @ x) @ q
 
 
 def solve_triangular_upper(r: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -88,20 +107,15 @@ def lstsq_rows(rows: np.ndarray, y: np.ndarray):
     q, r : the factors of :func:`orthonormalise` (for projections and covariances)
     """
     q, r = orthonormalise(rows)
-    qty = np.array([dot(row, y) for row in q])
-    return solve_triangular_upper(r, qty), q, r
+    return solve_triangular_upper(r, q @ y), q, r
 
 
 def gram(rows: np.ndarray) -> np.ndarray:
-    """rows @ rows.T by one-dimensional dot products."""
-    m = len(rows)
-    g = np.empty((m, m))
-    for i in range(m):
-        for j in range(i, m):
-            g[i, j] = g[j, i] = dot(rows[i], rows[j])
-    return g
+    """rows @ rows.T."""
+    rows = np.ascontiguousarray(rows)
+    return rows @ rows.T
 
 
 def cross(rows_a: np.ndarray, rows_b: np.ndarray) -> np.ndarray:
-    """rows_a @ rows_b.T by one-dimensional dot products."""
-    return np.array([[dot(a, b) for b in rows_b] for a in rows_a])
+    """rows_a @ rows_b.T."""
+    return np.ascontiguousarray(rows_a) @ np.ascontiguousarray(rows_b).T
