@@ -8,8 +8,6 @@ cleanly and the file stays valid; ``--resume FILE`` continues it.
 
 from __future__ import annotations
 
-import argparse
-
 
 class BackendUnavailable(RuntimeError):
     """The requested backend cannot be built (a missing module or function)."""

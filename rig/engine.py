@@ -21,25 +21,27 @@ import math
 import queue
 import secrets
 import threading
-import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from drivers.interfaces import RigDevices
-from protocols.calibration import (Muscle, check_calibration, make_calibration,
-                                   manual_calibration, ramp_currents_mA, require_thresholds,
-                                   settled_mean_N, detect_thresholds, step_envelopes)
+from protocols.calibration import (Muscle, check_calibration, detect_thresholds,
+                                   make_calibration, manual_calibration, ramp_currents_mA,
+                                   require_thresholds, settled_mean_N, step_envelopes)
 from protocols.config import Config, ConfigError, PausePolicy, config_from_json
 from protocols.errors import CalibrationError
 from protocols.schedule import (PlannedTrial, TrialStatus, make_schedule, schedule_from_json,
                                 schedule_to_json)
 from protocols.waveforms import trial_waveform
+from rig.observer import EngineObserver, RunSummary, TripPolicy
 from rig.safety import Interlock, InterlockTripped, Trip, check_waveform
-from rig.session_file import Calibration, Event, Trial, utc_now
+from rig.session_file import Calibration, Trial, utc_now
 from rig.session_log import SessionLog, journal_dir, load_trial_npz, utc_now_ms
 from rig.states import State, StateMachine
+from rig.stimulation import BlockResult, run_block
+
+__all__ = ["Engine", "EngineObserver", "RunSummary", "TripPolicy"]
 
 log = logging.getLogger(__name__)
 
@@ -47,18 +49,6 @@ log = logging.getLogger(__name__)
 WAIT_SLICE_S = 0.02
 #: Rest is slept in slices of this many engine-clock seconds, checking commands between.
 REST_SLICE_S = 0.05
-#: Real-time backstop of the stall rule, for clocks that do not advance while a read
-#: waits: at least this many real seconds and 10 stall timeouts.
-STALL_BACKSTOP_S = 1.0
-
-
-class TripPolicy(enum.Enum):
-    """What the engine does after an interlock trip (output is already zero, latched)."""
-
-    WAIT_FOR_REARM = "wait"
-    """Wait in ``tripped`` until the operator re-arms (GUI) or aborts."""
-    END_SESSION = "end"
-    """End the run (headless: nobody is there to re-arm); resume later."""
 
 
 class _Cmd(enum.Enum):
@@ -75,54 +65,6 @@ class _Cmd(enum.Enum):
 
 class _EndRun(Exception):
     """Internal: leave the run loop (abort, or trip under END_SESSION)."""
-
-
-class EngineObserver:
-    """Receives the engine's progress; every method is a no-op here. Called from the
-    engine thread: keep them quick (hand data to the GUI thread, do not draw here)."""
-
-    def on_state(self, old: State, new: State, reason: str) -> None: ...
-
-    def on_event(self, event: Event) -> None: ...
-
-    def on_calibration_step(self, muscle: str, current_mA: float, force_N: float) -> None: ...
-
-    def on_calibration_result(self, calibration: Calibration) -> None: ...
-
-    def on_trial_started(self, index: int, planned: PlannedTrial) -> None: ...
-
-    def on_chunk(self, index: int, start_index: int, force_N: np.ndarray, rE: np.ndarray,
-                 I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> None: ...
-
-    def on_trial_finished(self, index: int, trial: Trial) -> None: ...
-
-    def on_level_completed(self, sE: float, trials: list[Trial]) -> None: ...
-
-    def on_finished(self, path: str) -> None: ...
-
-
-@dataclass
-class RunSummary:
-    """How a run ended."""
-
-    path: Path
-    final_state: State
-    ended_by: str
-    """``schedule complete``, ``aborted by operator``, ``interlock: <rule>: <detail>``,
-    or ``error: ...``."""
-    n_completed: int
-    n_aborted: int
-    n_pending: int
-    calibration: Calibration | None
-    journal_removed: bool
-    engine_time_s: float
-    trip: Trip | None = None
-    completed_names: list[str] = field(default_factory=list)
-
-    @property
-    def complete(self) -> bool:
-        """Every planned trial completed."""
-        return self.n_pending == 0 and self.n_aborted == 0
 
 
 class Engine:
@@ -486,113 +428,24 @@ class Engine:
 
     # -- stimulation of one block (a calibration step or a trial) ------------------------
     def _stimulate(self, checked, *, n: int, on_samples=None, watch_commands: bool = False
-                   ) -> tuple[int, np.ndarray, np.ndarray | None, np.ndarray | None, str]:
-        """Run one loaded waveform with hardware-timed acquisition.
+                   ) -> BlockResult:
+        """Run one block (:func:`rig.stimulation.run_block`); operator commands stop it."""
 
-        Returns (received, force_N, wrench, sync, abort_reason); abort_reason is empty when
-        every sample arrived.
-        """
-        stim, acq = self.devices.stimulator, self.devices.acquisition
-        force = np.zeros(n)
-        wrench = sync = None
-        received = 0
-        reason = ""
-        try:
-            stim.load(checked)
-            stim.arm()
-        except Exception as exc:  # a driver fault before any output: trip, nothing started
-            trip = self.interlock.trip(self.interlock.stim.name, f"stimulator refused the "
-                                       f"waveform ({type(exc).__name__}: {exc})")
-            return 0, force, None, None, f"{trip.rule}: {trip.detail}"
-        try:
-            acq.start(n, triggered=True)  # sample 0 = the stimulator's start trigger
-        except Exception as exc:
-            trip = self.interlock.trip(self.interlock.flags.name, f"acquisition could not "
-                                       f"start ({type(exc).__name__}: {exc})")
-            return 0, force, None, None, f"{trip.rule}: {trip.detail}"
-        stall_limit_real = max(STALL_BACKSTOP_S, 10 * self.interlock.stall.timeout_s)
-        try:
-            self.interlock.stall.start(self.clock.monotonic_s())
-            self.interlock.start_output()
-            last_real = time.monotonic()
-            read_timeout = min(0.05, self.interlock.stall.timeout_s / 2)
-            while received < n:
-                try:
-                    chunk = acq.read(read_timeout)
-                except Exception as exc:  # the force chain failed: a sensor fault
-                    trip = self.interlock.trip(self.interlock.flags.name, f"acquisition read "
-                                               f"failed ({type(exc).__name__}: {exc})")
-                    reason = f"{trip.rule}: {trip.detail}"
-                    break
-                now = self.clock.monotonic_s()
-                if chunk is not None and chunk.n:
-                    last_real = time.monotonic()
-                    trip = self.interlock.check_chunk(chunk, now, expected_index=received)
-                    k0 = chunk.start_index
-                    lo, hi = max(k0, received), min(k0 + chunk.n, n)
-                    if hi > lo:
-                        seg = slice(lo - k0, hi - k0)
-                        force[lo:hi] = chunk.force_N[seg]
-                        if chunk.wrench is not None:
-                            if wrench is None:
-                                wrench = np.zeros((n, 6))
-                            wrench[lo:hi] = np.asarray(chunk.wrench)[seg]
-                        if chunk.sync is not None:
-                            if sync is None:
-                                sync = np.zeros(n)
-                            sync[lo:hi] = np.asarray(chunk.sync)[seg]
-                        if lo > received:  # a gap (only without trip_on_overrun): NaN-fill
-                            force[received:lo] = np.nan
-                        received = hi
-                        if on_samples is not None:
-                            on_samples(lo, hi, force[lo:hi])
-                    if trip is not None:
-                        reason = f"{trip.rule}: {trip.detail}"
-                        break
-                else:
-                    trip = self.interlock.check_stall(now)
-                    if trip is None and time.monotonic() - last_real > stall_limit_real:
-                        trip = self.interlock.trip(
-                            "sensor_stream", f"no force samples for "
-                            f"{time.monotonic() - last_real:.1f} s (real time)")
-                    if trip is not None:
-                        reason = f"{trip.rule}: {trip.detail}"
-                        break
-                trip = self.interlock.check_stimulator() or self.interlock.check_switch()
-                if trip is not None:
-                    reason = f"{trip.rule}: {trip.detail}"
-                    break
-                if self.interlock.latched:
-                    t = self.interlock.trip_info
-                    reason = f"{t.rule}: {t.detail}" if t else "interlock latched"
-                    break
-                self._poll()
-                if self._abort_req:
-                    reason = "session aborted by operator"
-                    break
-                if watch_commands:
-                    if self._skip_req:
-                        self._skip_req = False
-                        reason = "skipped by operator"
-                        break
-                    if self._pause_req and \
-                            self.config.protocol.pause_policy is PausePolicy.ABORT:
-                        reason = "paused by operator (pause policy: abort)"
-                        break
-        except InterlockTripped as exc:
-            reason = str(exc)
-        except Exception as exc:  # a driver raised mid-run: a fault like any other
-            trip = self.interlock.trip(self.interlock.stim.name,
-                                       f"device error ({type(exc).__name__}: {exc})")
-            reason = f"{trip.rule}: {trip.detail}"
-        finally:
-            self._stop_output()
-            self.interlock.stall.stop()
-            try:
-                acq.stop()
-            except Exception:
-                log.exception("acquisition.stop() failed")
-        return received, force, wrench, sync, reason
+        def should_stop() -> str:
+            self._poll()
+            if self._abort_req:
+                return "session aborted by operator"
+            if watch_commands:
+                if self._skip_req:
+                    self._skip_req = False
+                    return "skipped by operator"
+                if self._pause_req and \
+                        self.config.protocol.pause_policy is PausePolicy.ABORT:
+                    return "paused by operator (pause policy: abort)"
+            return ""
+
+        return run_block(self.devices, self.interlock, checked, n, on_samples=on_samples,
+                         should_stop=should_stop)
 
     def _checked(self, I_ext_mA, I_flex_mA):
         c = self.config.calibration
@@ -669,23 +522,24 @@ class Engine:
             raise _RedoRamp
         self._sleep_checking(c.rest_s)  # output off: the force settles before the tare
         zeros = np.zeros(n_base)
-        got, f, _, _, reason = self._stimulate(self._checked(zeros, zeros), n=n_base)
-        if reason:
+        blk = self._stimulate(self._checked(zeros, zeros), n=n_base)
+        if blk.abort_reason:
             self._check_interrupts(calibrating=True)
             raise _RedoRamp
-        baseline = settled_mean_N(f[:got], c.settle_fraction)
+        baseline = settled_mean_N(blk.force_N[:blk.received], c.settle_fraction)
         cur, frc = [], []
         for I in ramp_currents_mA(c, muscle):
             if self._check_interrupts(calibrating=True):
                 raise _RedoRamp
             ext, flex = step_envelopes(c, muscle, float(I), fs)
             n = len(ext)
-            got, f, _, _, reason = self._stimulate(self._checked(ext, flex), n=n)
-            if reason:
-                self._event("calibration_step_aborted", f"{muscle.value} at {I:g} mA: {reason}")
+            blk = self._stimulate(self._checked(ext, flex), n=n)
+            if blk.abort_reason:
+                self._event("calibration_step_aborted",
+                            f"{muscle.value} at {I:g} mA: {blk.abort_reason}")
                 self._check_interrupts(calibrating=True)
                 raise _RedoRamp
-            force = settled_mean_N(f[:got], c.settle_fraction) - baseline
+            force = settled_mean_N(blk.force_N[:blk.received], c.settle_fraction) - baseline
             cur.append(float(I))
             frc.append(force)
             self._notify("on_calibration_step", muscle.value, float(I), force)
@@ -781,8 +635,9 @@ class Engine:
             self._notify("on_chunk", planned.index, lo, force_seg, rE[lo:hi], Ie[lo:hi],
                          If[lo:hi])
 
-        got, force, wrench, sync, reason = self._stimulate(checked, n=n, on_samples=on_samples,
-                                                           watch_commands=True)
+        blk = self._stimulate(checked, n=n, on_samples=on_samples, watch_commands=True)
+        got, force, wrench, sync, reason = (blk.received, blk.force_N, blk.wrench, blk.sync,
+                                            blk.abort_reason)
         trial = Trial(sE=planned.sE, repeat=planned.repeat, fs_Hz=p.fs_Hz, rE=rE[:got].copy(),
                       I_ext_mA=np.array(Ie[:got]), I_flex_mA=np.array(If[:got]),
                       force_N=force[:got], status="aborted" if reason else "completed",

@@ -1,0 +1,73 @@
+"""What the engine tells the outside world: the observer interface, the run summary, and
+the policy after a trip. (Re-exported by :mod:`rig.engine`.)"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from protocols.schedule import PlannedTrial
+from rig.safety import Trip
+from rig.session_file import Calibration, Event, Trial
+from rig.states import State
+
+
+class TripPolicy(enum.Enum):
+    """What the engine does after an interlock trip (output is already zero, latched)."""
+
+    WAIT_FOR_REARM = "wait"
+    """Wait in ``tripped`` until the operator re-arms (GUI) or aborts."""
+    END_SESSION = "end"
+    """End the run (headless: nobody is there to re-arm); resume later."""
+
+
+
+class EngineObserver:
+    """Receives the engine's progress; every method is a no-op here. Called from the
+    engine thread: keep them quick (hand data to the GUI thread, do not draw here)."""
+
+    def on_state(self, old: State, new: State, reason: str) -> None: ...
+
+    def on_event(self, event: Event) -> None: ...
+
+    def on_calibration_step(self, muscle: str, current_mA: float, force_N: float) -> None: ...
+
+    def on_calibration_result(self, calibration: Calibration) -> None: ...
+
+    def on_trial_started(self, index: int, planned: PlannedTrial) -> None: ...
+
+    def on_chunk(self, index: int, start_index: int, force_N: np.ndarray, rE: np.ndarray,
+                 I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> None: ...
+
+    def on_trial_finished(self, index: int, trial: Trial) -> None: ...
+
+    def on_level_completed(self, sE: float, trials: list[Trial]) -> None: ...
+
+    def on_finished(self, path: str) -> None: ...
+
+
+@dataclass
+class RunSummary:
+    """How a run ended."""
+
+    path: Path
+    final_state: State
+    ended_by: str
+    """``schedule complete``, ``aborted by operator``, ``interlock: <rule>: <detail>``,
+    or ``error: ...``."""
+    n_completed: int
+    n_aborted: int
+    n_pending: int
+    calibration: Calibration | None
+    journal_removed: bool
+    engine_time_s: float
+    trip: Trip | None = None
+    completed_names: list[str] = field(default_factory=list)
+
+    @property
+    def complete(self) -> bool:
+        """Every planned trial completed."""
+        return self.n_pending == 0 and self.n_aborted == 0

@@ -1,0 +1,159 @@
+"""One block of stimulation with hardware-timed acquisition, watched by the interlock.
+
+:func:`run_block` loads a checked waveform, starts the acquisition (triggered, so sample 0
+is stimulation onset), starts output through the interlock's gate, and collects the force
+chunk by chunk, checking every interlock rule after each chunk and asking the caller
+whether to stop (operator commands). Output goes to zero in a ``finally`` on every exit
+path. The engine uses it for calibration steps and for trials.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from rig.safety import Interlock, InterlockTripped
+
+log = logging.getLogger(__name__)
+
+#: Real-time backstop of the stall rule, for clocks that do not advance while a read
+#: waits: at least this many real seconds and 10 stall timeouts.
+STALL_BACKSTOP_S = 1.0
+
+
+@dataclass(eq=False)
+class BlockResult:
+    """What one block recorded."""
+
+    received: int
+    """Samples received from onset (all of them unless aborted)."""
+    force_N: np.ndarray
+    """Length n; samples at and after ``received`` are zero (not recorded)."""
+    wrench: np.ndarray | None
+    sync: np.ndarray | None
+    abort_reason: str
+    """Empty when every sample arrived."""
+
+
+def _reason(trip) -> str:
+    return f"{trip.rule}: {trip.detail}"
+
+
+def run_block(devices, interlock: Interlock, checked, n: int, *,
+              on_samples: Callable[[int, int, np.ndarray], None] | None = None,
+              should_stop: Callable[[], str] | None = None) -> BlockResult:
+    """Stimulate ``checked`` and record ``n`` samples of force.
+
+    Parameters
+    ----------
+    devices : drivers.interfaces.RigDevices
+    interlock : rig.safety.Interlock
+    checked : drivers.interfaces.CheckedWaveform
+    n : int
+        Samples to record (the waveform's length).
+    on_samples : callable(lo, hi, force_N), optional
+        Called with each new run of samples ``[lo, hi)``.
+    should_stop : callable() -> str, optional
+        Asked after every chunk; a non-empty answer stops the block with that reason.
+
+    Returns
+    -------
+    BlockResult
+    """
+    stim, acq, clock = devices.stimulator, devices.acquisition, devices.clock
+    force = np.zeros(n)
+    wrench = sync = None
+    received = 0
+    try:
+        stim.load(checked)
+        stim.arm()
+    except Exception as exc:  # a driver fault before any output: trip, nothing started
+        trip = interlock.trip(interlock.stim.name, f"stimulator refused the waveform "
+                                                   f"({type(exc).__name__}: {exc})")
+        return BlockResult(0, force, None, None, _reason(trip))
+    try:
+        acq.start(n, triggered=True)  # sample 0 = the stimulator's start trigger
+    except Exception as exc:
+        trip = interlock.trip(interlock.flags.name, f"acquisition could not start "
+                                                    f"({type(exc).__name__}: {exc})")
+        return BlockResult(0, force, None, None, _reason(trip))
+    stall_limit_real = max(STALL_BACKSTOP_S, 10 * interlock.stall.timeout_s)
+    read_timeout = min(0.05, interlock.stall.timeout_s / 2)
+    reason = ""
+    try:
+        interlock.stall.start(clock.monotonic_s())
+        interlock.start_output()
+        last_real = time.monotonic()
+        while received < n:
+            try:
+                chunk = acq.read(read_timeout)
+            except Exception as exc:  # the force chain failed: a sensor fault
+                reason = _reason(interlock.trip(interlock.flags.name, f"acquisition read "
+                                                f"failed ({type(exc).__name__}: {exc})"))
+                break
+            now = clock.monotonic_s()
+            if chunk is not None and chunk.n:
+                last_real = time.monotonic()
+                trip = interlock.check_chunk(chunk, now, expected_index=received)
+                k0 = chunk.start_index
+                lo, hi = max(k0, received), min(k0 + chunk.n, n)
+                if hi > lo:
+                    seg = slice(lo - k0, hi - k0)
+                    force[lo:hi] = chunk.force_N[seg]
+                    if chunk.wrench is not None:
+                        if wrench is None:
+                            wrench = np.zeros((n, 6))
+                        wrench[lo:hi] = np.asarray(chunk.wrench)[seg]
+                    if chunk.sync is not None:
+                        if sync is None:
+                            sync = np.zeros(n)
+                        sync[lo:hi] = np.asarray(chunk.sync)[seg]
+                    if lo > received:  # a gap (only without trip_on_overrun): NaN-fill
+                        force[received:lo] = np.nan
+                    received = hi
+                    if on_samples is not None:
+                        on_samples(lo, hi, force[lo:hi])
+                if trip is not None:
+                    reason = _reason(trip)
+                    break
+            else:
+                trip = interlock.check_stall(now)
+                gap_real = time.monotonic() - last_real
+                if trip is None and gap_real > stall_limit_real:
+                    trip = interlock.trip(interlock.stall.name, f"no force samples for "
+                                                                f"{gap_real:.1f} s (real time)")
+                if trip is not None:
+                    reason = _reason(trip)
+                    break
+            trip = interlock.check_stimulator() or interlock.check_switch()
+            if trip is not None:
+                reason = _reason(trip)
+                break
+            if interlock.latched:  # an E-stop from another thread
+                t = interlock.trip_info
+                reason = _reason(t) if t else "interlock latched"
+                break
+            if should_stop is not None:
+                reason = should_stop()
+                if reason:
+                    break
+    except InterlockTripped as exc:
+        reason = str(exc)
+    except Exception as exc:  # a driver raised mid-run: a fault like any other
+        reason = _reason(interlock.trip(interlock.stim.name, f"device error "
+                                        f"({type(exc).__name__}: {exc})"))
+    finally:
+        try:
+            stim.stop_now()
+        except Exception:
+            log.exception("stimulator.stop_now() failed")
+        interlock.stall.stop()
+        try:
+            acq.stop()
+        except Exception:
+            log.exception("acquisition.stop() failed")
+    return BlockResult(received, force, wrench, sync, reason)
