@@ -622,7 +622,10 @@ def _journal_from_file(path: Path, jdir: Path) -> None:
         raise SessionFileError(path, problems[0] + "; and there is no journal to recover "
                                                    "from")
     s = read_session(path)
-    jdir.mkdir()
+    final, jdir = jdir, jdir.with_name(f"{jdir.name}.tmp-{os.getpid()}")
+    if jdir.exists():
+        shutil.rmtree(jdir)
+    jdir.mkdir()  # built aside, renamed when complete: a kill leaves no half journal
     extra = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in s.attrs.items()
              if k == "schedule_json"}
     header = {"participant": s.participant, "created_utc": s.created_utc,
@@ -639,3 +642,5 @@ def _journal_from_file(path: Path, jdir: Path) -> None:
             fh.write(json.dumps({"utc": ev.utc, "kind": ev.kind, "detail": ev.detail}) + "\n")
         fh.flush()
         os.fsync(fh.fileno())
+    os.rename(jdir, final)
+    _fsync_dir(final.parent)
