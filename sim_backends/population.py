@@ -5,12 +5,15 @@ by linear (4 of 10), exponential (5) or concave quadratic (1) models; wn and zet
 extremum for some participants and monotonic (extremum outside the range) for others,
 with linear, exponential or quadratic best fits. The generator draws:
 
-* Kp: family linear / exponential / concave quadratic (weights 0.4 / 0.5 / 0.1), Kp(0.3) in
-  2-4 N and Kp(1.0) in 6-14 N per unit rE;
-* wn and zeta: a quadratic with its extremum (a peak, the paper's convex-upward shape) at
-  sE_peak in 0.0-1.4 - inside the range for about half - or a linear / exponential trend
-  (weights 0.6 / 0.2 / 0.2), wn in 10-50 rad/s, zeta in 0.3-1.0 over the range, and
-  ``zeta wn >= 8 1/s`` so that a 1 s calibration step settles;
+* curve families dealt out in the paper's proportions (every ten consecutive participants:
+  Kp 4 linear / 5 exponential / 1 concave quadratic; wn 2 / 3 / 5 quadratic; zeta 4 / 4 /
+  2 quadratic), in a seeded order;
+* Kp increasing, Kp(0.3) in 2-4 N and Kp(1.0) in 6-14 N per unit rE;
+* wn and zeta: a quadratic has its extremum (mostly a peak, the paper's convex-upward
+  shape; sometimes a trough) inside the range 3 times in 5, else outside it (it then
+  looks monotonic); linear and exponential ones are monotonic; wn in 10-50 rad/s, zeta in
+  0.3-1.0 over the range, and ``zeta wn >= 8 1/s`` so that a 1 s calibration step
+  settles;
 * calibration currents on the 0.5 mA grid (Imin 1-4 mA, span 4.5-9 mA);
 * sensor noise 0.02-0.06 N RMS, offset, slow drift and mains pick-up of different sizes.
 
@@ -38,10 +41,16 @@ SE_LO, SE_HI = 0.30, 1.00
 _GRID = np.linspace(SE_LO, SE_HI, 15)
 
 
-def _kp_curve(rng: np.random.Generator) -> ParameterCurve:
+# The best-fitting families of the paper's ten participants (Tables 2, 5, 8); a population
+# deals them out in a seeded order, so any ten consecutive participants have these counts.
+KP_FAMILIES = ("quadratic",) + ("linear",) * 4 + ("exponential",) * 5
+WN_FAMILIES = ("linear",) * 2 + ("exponential",) * 3 + ("quadratic",) * 5
+ZETA_FAMILIES = ("quadratic",) * 2 + ("exponential",) * 4 + ("linear",) * 4
+
+
+def _kp_curve(rng: np.random.Generator, family: str) -> ParameterCurve:
     k_lo = rng.uniform(2.0, 4.0)
     k_hi = rng.uniform(6.0, 14.0)
-    family = rng.choice(["linear", "exponential", "quadratic"], p=[0.4, 0.5, 0.1])
     if family == "exponential":
         b = math.log(k_hi / k_lo) / (SE_HI - SE_LO)
         return ParameterCurve(CurveModel.EXPONENTIAL, (k_hi * math.exp(-b * SE_HI), b))
@@ -56,19 +65,29 @@ def _kp_curve(rng: np.random.Generator) -> ParameterCurve:
     return ParameterCurve(CurveModel.QUADRATIC, tuple(np.linalg.solve(A, y)))
 
 
-def _trend_curve(rng: np.random.Generator, lo: float, hi: float) -> ParameterCurve:
-    """A curve within [lo, hi] over the sE range: peaked quadratic or monotonic trend."""
-    family = rng.choice(["quadratic", "linear", "exponential"], p=[0.6, 0.2, 0.2])
+def _trend_curve(rng: np.random.Generator, lo: float, hi: float, family: str
+                 ) -> ParameterCurve:
+    """A curve within [lo, hi] over the sE range.
+
+    quadratic: an extremum (a peak 4 times in 5, else a trough) at sE_x, inside the range
+    (0.4-0.9) 3 times in 5, else outside it (0.0-0.2 or 1.1-1.4: the curve looks
+    monotonic); linear / exponential: a monotonic trend.
+    """
     span = hi - lo
     if family == "quadratic":
-        s_peak = rng.uniform(0.0, 1.4)
-        peak = rng.uniform(lo + 0.45 * span, hi - 0.05 * span)
-        far = max((SE_LO - s_peak) ** 2, (SE_HI - s_peak) ** 2)
-        c_max = (peak - (lo + 0.05 * span)) / far
-        c = rng.uniform(0.3, 1.0) * c_max
-        # peak - c (s - s_peak)^2 = a + b s + c2 s^2
-        return ParameterCurve(CurveModel.QUADRATIC,
-                              (peak - c * s_peak ** 2, 2 * c * s_peak, -c))
+        if rng.uniform() < 0.6:
+            s_x = rng.uniform(0.4, 0.9)
+        else:
+            s_x = rng.uniform(0.0, 0.2) if rng.uniform() < 0.5 else rng.uniform(1.1, 1.4)
+        far = max((SE_LO - s_x) ** 2, (SE_HI - s_x) ** 2)
+        if rng.uniform() < 0.8:     # peak: x_x - c (s - s_x)^2
+            x_x = rng.uniform(lo + 0.45 * span, hi - 0.05 * span)
+            c = -rng.uniform(0.3, 1.0) * (x_x - (lo + 0.05 * span)) / far
+        else:                       # trough: x_x + c (s - s_x)^2
+            x_x = rng.uniform(lo + 0.05 * span, hi - 0.45 * span)
+            c = rng.uniform(0.3, 1.0) * ((hi - 0.05 * span) - x_x) / far
+        # x_x + c (s - s_x)^2 = a + b s + c s^2
+        return ParameterCurve(CurveModel.QUADRATIC, (x_x + c * s_x ** 2, -2 * c * s_x, c))
     v_lo = rng.uniform(lo + 0.05 * span, hi - 0.05 * span)
     v_hi = rng.uniform(lo + 0.05 * span, hi - 0.05 * span)
     if family == "linear":
@@ -95,12 +114,15 @@ def _sensor(rng: np.random.Generator) -> SensorModel:
                        cross_noise_N=rng.uniform(0.01, 0.03))
 
 
-def make_participant(rng: np.random.Generator, code: str, seed: int) -> VirtualParticipant:
-    """One random participant (resampled until its curves meet the population's ranges)."""
-    for _ in range(200):
-        Kp = _kp_curve(rng)
-        wn = _trend_curve(rng, 10.0, 50.0)
-        zeta = _trend_curve(rng, 0.3, 1.0)
+def make_participant(rng: np.random.Generator, code: str, seed: int,
+                     families: tuple[str, str, str] = ("exponential", "quadratic",
+                                                       "quadratic")) -> VirtualParticipant:
+    """One random participant with curve families (Kp, wn, zeta), resampled until its
+    curves meet the population's ranges."""
+    for _ in range(500):
+        Kp = _kp_curve(rng, families[0])
+        wn = _trend_curve(rng, 10.0, 50.0, families[1])
+        zeta = _trend_curve(rng, 0.3, 1.0, families[2])
         kp, w, z = Kp(_GRID), wn(_GRID), zeta(_GRID)
         if not (np.all(np.diff(kp) > 0) and w.min() >= 10 and w.max() <= 50
                 and z.min() >= 0.3 and z.max() <= 1.0 and (w * z).min() >= 8.0):
@@ -119,9 +141,13 @@ def make_population(n: int, seed: int = 0) -> list[VirtualParticipant]:
     """
     if int(n) != n or n < 0:
         raise SimConfigError(f"n must be an integer >= 0, got {n!r}")
+    deal = np.random.default_rng([int(seed) & 0xFFFFFFFF, 777])
+    orders = [deal.permutation(10) for _ in range(3)]
     out = []
     for i in range(int(n)):
         rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, i, 4242])
         p_seed = int(rng.integers(0, 2 ** 31 - 1))
-        out.append(make_participant(rng, f"S{i + 1:02d}", p_seed))
+        families = tuple(table[order[i % 10]] for table, order in
+                         zip((KP_FAMILIES, WN_FAMILIES, ZETA_FAMILIES), orders))
+        out.append(make_participant(rng, f"S{i + 1:02d}", p_seed, families))
     return out
