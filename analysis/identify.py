@@ -217,7 +217,12 @@ def identify_session(session, settings: IdentificationSettings | None = None,
     if not groups:
         problems.append(f"{session.path}: the session holds no trials; nothing to identify")
     completed = Counter(round(float(t.sE), 9) for t in session.trials if t.completed)
-    expected = max(completed.values()) if completed else 0
+    config = session.config if isinstance(session.config, dict) else {}
+    protocol = config.get("protocol") if isinstance(config.get("protocol"), dict) else config
+    planned = protocol.get("sE_levels")
+    planned_repeats = protocol.get("repeats")
+    expected = int(planned_repeats) if isinstance(planned_repeats, int) and planned_repeats > 0 \
+        else (max(completed.values()) if completed else 0)
     levels = []
     for key in sorted(groups):
         lv = identify_level(groups[key], s)
@@ -228,8 +233,6 @@ def identify_session(session, settings: IdentificationSettings | None = None,
         problems.extend(lv.problems)
         if progress is not None:
             progress(lv.sE, lv)
-    config = session.config
-    planned = config.get("sE_levels") if isinstance(config, dict) else None
     if isinstance(planned, list):
         missing = sorted({round(float(x), 9) for x in planned} - set(groups))
         for m in missing:

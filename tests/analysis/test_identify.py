@@ -107,3 +107,20 @@ def test_too_few_levels_and_single_repeats_still_give_outputs(synthetic, tmp_pat
     assert (tmp_path / "out" / "parameters.csv").exists()
     assert not (tmp_path / "out" / "twin.json").exists()
     assert all(lv.fit is not None for lv in out.sessions[0].levels)
+
+
+def test_planned_levels_and_repeats_from_the_stored_protocol(small_session, tmp_path):
+    import json
+    from rig.session_file import Calibration
+    src = read_session(small_session[0])
+    p = tmp_path / "planned.h5"
+    cfg = {"protocol": {"sE_levels": [0.3, 0.45, 0.5], "repeats": 3}}
+    w = SessionWriter.create(p, participant="P5", config_json=json.dumps(cfg))
+    w.write_calibration(Calibration(1, 2, 1, 2))
+    for tr in src.trials:
+        if tr.sE in (0.3, 0.45):
+            w.append_trial(tr)
+    res = identify_session(p)
+    text = "\n".join(res.problems)
+    assert "sE=0.5: planned but no trial in the file" in text
+    assert "sE=0.3: 2 of 3 repeats completed" in text
