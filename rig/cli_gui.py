@@ -16,8 +16,8 @@ def register(sub) -> None:
     p.add_argument("--participant", metavar="P", help="participant code "
                    "([A-Za-z0-9_-]{1,64})")
     p.add_argument("--out", metavar="FILE", help="session file to write (never "
-                   "overwritten; an unfinished one can be resumed); default "
-                   "sessions/<participant>.h5")
+                   "overwritten; an unfinished one is offered for resume); default "
+                   "sessions/<participant>-<UTC time>.h5")
     p.add_argument("--seed", type=int, metavar="N", help="schedule randomisation seed "
                    "(default: drawn and recorded)")
     p.add_argument("--fast", action="store_true", help="run the simulator as fast as "

@@ -92,4 +92,17 @@ def run_gui(options: GuiOptions) -> int:
         runner.finished.connect(done)
         runner.start()
     app.exec()
+    _dispose(app, window)
     return result["code"]
+
+
+def _dispose(app, window) -> None:
+    """Destroy the window's Qt objects while the QApplication still exists (otherwise
+    Python's finalisation may delete them in an order that crashes Qt at exit)."""
+    import gc
+    window.close()
+    window.deleteLater()
+    app.processEvents()
+    app.sendPostedEvents(None, 0)
+    del window
+    gc.collect()

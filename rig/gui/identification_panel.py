@@ -100,6 +100,7 @@ class IdentificationPanel(QWidget):
         for k, (attr, label, units) in enumerate(PARAMETERS):
             p = self.graphics.addPlot(row=0, col=k)
             p.setLabel("left", f"{label}" + (f" ({units})" if units else ""))
+            p.getAxis("left").enableAutoSIPrefix(False)
             p.setLabel("bottom", "sE")
             p.showGrid(x=True, y=True, alpha=0.3)
             p.setXRange(0.25, 1.05)

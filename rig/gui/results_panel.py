@@ -220,6 +220,7 @@ class ResultsPanel(QWidget):
                                             f"{par.name} vs sE")
             p.setLabel("bottom", "sE")
             p.setLabel("left", par.name + (f" ({par.units})" if par.units else ""))
+            p.getAxis("left").enableAutoSIPrefix(False)
             p.showGrid(x=True, y=True, alpha=0.3)
             legend = p.addLegend(offset=(5, 5))
             p.plot(par.sE, par.values, pen=None, symbol="o", symbolSize=8,

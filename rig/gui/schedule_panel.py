@@ -18,7 +18,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLab
 
 from rig.gui.theme import Colour
 
-COLUMNS = ("#", "sE", "repeat", "status", "reason")
+COLUMNS = ("#", "sE", "repeat", "status", "runs", "reason")
 
 
 def status_name(value) -> str:
@@ -33,6 +33,11 @@ def planned_fields(planned) -> tuple[float, int, str, str]:
     status = status_name(getattr(planned, "status", "pending"))
     reason = str(getattr(planned, "reason", "") or getattr(planned, "abort_reason", "") or "")
     return sE, repeat, status, reason
+
+
+def planned_attempts(planned) -> int:
+    """How many times the trial was started (re-runs count)."""
+    return int(getattr(planned, "attempts", 0) or 0)
 
 
 def format_duration(seconds: float) -> str:
@@ -118,6 +123,7 @@ class SchedulePanel(QWidget):
         if current_index is not None:
             self.current_index = current_index
         rows = [planned_fields(p) for p in schedule]
+        attempts = [planned_attempts(p) for p in schedule]
         if self.table.rowCount() != len(rows):
             self.table.setRowCount(len(rows))
         bold = QFont()
@@ -130,7 +136,8 @@ class SchedulePanel(QWidget):
             else:
                 shown = status
             self.statuses.append(shown)
-            values = (str(i + 1), f"{sE:.2f}", str(repeat), shown, reason)
+            runs = str(attempts[i]) if attempts[i] else ""
+            values = (str(i + 1), f"{sE:.2f}", str(repeat), shown, runs, reason)
             colour = QColor(Colour.STATUS.get(shown, "#ffffff"))
             for col, text in enumerate(values):
                 item = self.table.item(i, col)

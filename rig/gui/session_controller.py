@@ -32,11 +32,12 @@ def default_devices(request: SessionRequest, config) -> object:
         from sim_backends.rig import make_sim_rig
         return make_sim_rig(realtime=request.realtime, fs_Hz=config.protocol.fs_Hz,
                             seed=request.seed if request.seed is not None else 0)
-    from drivers import build_rig  # the hardware chain from its configuration file
     if request.hw_config_path is None:
         raise ValueError("--backend hw needs a hardware configuration file (--hw-config "
-                         "FILE, or 'Hardware configuration' on the setup panel)")
-    return build_rig(request.hw_config_path)
+                         "FILE, or 'Hardware configuration' on the setup panel; see "
+                         "docs/hardware.md)")
+    from drivers.hardware import make_hw_rig  # the hardware chain from its configuration
+    return make_hw_rig(request.hw_config_path)
 
 
 def load_session_config(request: SessionRequest, *, confirm_calibration: bool = True):
