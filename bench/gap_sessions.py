@@ -53,6 +53,7 @@ def simulate_session(participant, path, *, seed: int = 0, rest_s: float = 20.0,
     rE = chirp_rE()
     for planned in schedule:
         sE = planned.sE
+        t_session_s = sim.cursor / FS_HZ
         I_e = cal.Iemin_mA + rE * sE * (cal.Iemax_mA - cal.Iemin_mA)
         I_f = cal.Ifmin_mA + (1.0 - rE) * sE * (cal.Ifmax_mA - cal.Ifmin_mA)
         block = sim.simulate(I_e, I_f)
@@ -60,6 +61,7 @@ def simulate_session(participant, path, *, seed: int = 0, rest_s: float = 20.0,
                              I_ext_mA=I_e, I_flex_mA=I_f, force_N=block.force_N,
                              steady_s=STEADY_S, chirp_s=CHIRP_S,
                              extra_attrs={"cumulative_stim_s":
-                                          block.cumulative_stim_s - len(rE) / FS_HZ}))
+                                          block.cumulative_stim_s - len(rE) / FS_HZ,
+                                          "t_session_s": t_session_s}))
         sim.advance_quiet(int(rest_s * FS_HZ))
     return str(path)

@@ -17,10 +17,10 @@ and translated to the twin file's names (``docs/twin-file.md``) only when writte
   integrated log-slope, so the reported loss over ``reference_stim_s`` matches both).
 - ``recruitment_nonlinearity``: each muscle's normalised intensity ``I`` (``I_e = rE sE``,
   ``I_f = (1 - rE) sE``) becomes activation ``h(I)`` through a monotone recruitment curve
-  before the dynamics; net drive ``(h(I_e) - h(I_f)) / (2 sE)``. Our ``h`` is the
-  two-parameter Kumaraswamy distribution function ``1 - (1 - I^a)^b`` (a cumulative
-  distribution of motor-unit thresholds: convex, concave or S-shaped; ``a = b = 1`` is
-  linear).
+  before the dynamics; net drive ``(h(I_e) - h(I_f)) / (2 sE)``. Our ``h`` is a monotone
+  cubic through knots at I = 0, 0.2, ..., 1 (four free increments): a family-free
+  cumulative distribution of motor-unit thresholds, convex, concave, S-shaped or with a
+  threshold and a saturation.
 - ``flexor_extensor_asymmetry``: the flexor's dynamics have ``wn * rho_w`` and
   ``zeta * rho_z``; with linear recruitment the net response to ``rE - 0.5`` is the mean
   of the two second-order systems.
@@ -37,7 +37,7 @@ import numpy as np
 from scipy import signal
 
 from analysis.gap.data import GapData
-from analysis.gap.discretize import (fractional_delay, lagged_second_order_tf, parallel_tf,
+from analysis.gap.discretize import (foh_compensate, fractional_delay, lagged_second_order_tf, parallel_tf,
                                      second_order_tf)
 from analysis.gap.effects import Effect
 
@@ -80,9 +80,10 @@ _SHARED = {
                                                        0.06, 0.09, 0.13)]),
     Effect.FATIGUE: (1, [(-5.0, 5.0)], [[v] for v in (-0.3, 0.0, 0.3, 0.7, 1.2)]),
     Effect.RECRUITMENT_NONLINEARITY: (
-        2, [(np.log(0.15), np.log(6.0))] * 2,
-        [[np.log(a), np.log(b)] for a in (0.5, 0.8, 1.0, 1.5, 2.5)
-         for b in (0.5, 0.8, 1.0, 1.5, 2.5)]),
+        4, [(-4.0, 4.0)] * 4,
+        [[0.0, 0.0, 0.0, 0.0]] + [list(v) for v in (
+            np.log([1, 2, 3, 4, 5.0])[1:] * s for s in (-1.0, 1.0))]
+        + [[1.0, 1.5, 1.0, 0.0], [-1.0, -1.5, -1.0, 0.0], [0.5, 1.0, 0.5, -0.5]]),
     Effect.FLEXOR_EXTENSOR_ASYMMETRY: (
         2, [(np.log(0.2), np.log(5.0))] * 2,
         [[np.log(r), np.log(z)] for r in (0.4, 0.6, 0.8, 1.25, 1.7, 2.5)
@@ -153,7 +154,8 @@ class Candidate:
             elif e is Effect.FATIGUE:
                 out["rate_per_s"] = float(q[0] * 1e-3)
             elif e is Effect.RECRUITMENT_NONLINEARITY:
-                out["a"], out["b"] = float(np.exp(q[0])), float(np.exp(q[1]))
+                out.update({f"h_{k:.1f}": float(v) for k, v in
+                            zip(RECRUITMENT_KNOTS[1:-1], recruitment_knot_values(q)[1:-1])})
             elif e is Effect.FLEXOR_EXTENSOR_ASYMMETRY:
                 out["wn_ratio"], out["zeta_ratio"] = float(np.exp(q[0])), float(np.exp(q[1]))
         return out
@@ -185,8 +187,8 @@ class Candidate:
         sl = self._slices()
         u = data.drive_sim
         if Effect.RECRUITMENT_NONLINEARITY in sl:
-            a, b = np.exp(p[sl[Effect.RECRUITMENT_NONLINEARITY]])
-            u = u + recruitment_excess(data, float(a), float(b))
+            h = recruitment_curve(p[sl[Effect.RECRUITMENT_NONLINEARITY]])
+            u = u + recruitment_excess(data, h)
         if Effect.DEAD_TIME in sl:
             u = fractional_delay(u, float(np.exp(p[sl[Effect.DEAD_TIME]][0]))
                                  * data.fs_sim_Hz)
@@ -204,16 +206,44 @@ class Candidate:
         return None
 
 
-def recruitment_excess(data: GapData, a: float, b: float) -> np.ndarray:
-    """Net drive of the Kumaraswamy recruitment minus the linear drive, low-passed.
+def recruitment_excess(data: GapData, h) -> np.ndarray:
+    """Net drive of the recruitment curve ``h`` minus the linear drive, low-passed.
 
-    The linear part keeps the force's own filter chain (so ``a = b = 1`` is exactly the
-    nominal model); the excess gets the same zero-phase low-pass at the simulation rate.
+    The linear part keeps the force's own filter chain (so the identity curve is exactly
+    the nominal model); the excess gets the same zero-phase low-pass at the simulation
+    rate.
     """
     sE = np.array([t.sE for t in data.trials])[:, None]
     rE = data.rE_sim
-    x = (kumaraswamy(rE * sE, a, b) - kumaraswamy((1 - rE) * sE, a, b)) / (2 * sE)
-    return signal.sosfiltfilt(_lowpass_sos(data), x - (rE - 0.5), axis=-1)
+    x = (h(rE * sE) - h((1 - rE) * sE)) / (2 * sE)
+    return foh_compensate(signal.sosfiltfilt(_lowpass_sos(data), x - (rE - 0.5), axis=-1))
+
+
+#: Knots of our recruitment curve (normalised intensity).
+RECRUITMENT_KNOTS = np.array([0.0, 0.2, 0.4, 0.6, 0.8, 1.0])
+
+
+def recruitment_knot_values(q: np.ndarray) -> np.ndarray:
+    """Curve values at :data:`RECRUITMENT_KNOTS` from the unconstrained parameters: the five
+    increments are ``softmax([0, q])`` (positive, summing to 1), so the curve rises
+    monotonically from 0 to 1; ``q = 0`` gives the identity."""
+    z = np.concatenate([[0.0], np.asarray(q, float)])
+    w = np.exp(z - z.max())
+    w /= w.sum()
+    return np.concatenate([[0.0], np.cumsum(w)])
+
+
+def recruitment_curve(q: np.ndarray):
+    """Our recruitment curve ``h(I)``: a monotone cubic (PCHIP) through the knot values,
+    identity-slope continuation outside [0, 1]."""
+    from scipy.interpolate import PchipInterpolator
+    f = PchipInterpolator(RECRUITMENT_KNOTS, recruitment_knot_values(q))
+
+    def h(I):
+        x = np.asarray(I, float)
+        xin = np.clip(x, 0.0, 1.0)
+        return f(xin) + (x - xin)
+    return h
 
 
 def _lowpass_sos(data: GapData):

@@ -16,7 +16,7 @@ from analysis.gap.effects import Effect
 from analysis.gap.evidence import confusable_pairs, explain, signatures
 from analysis.gap.fit import Problem
 from analysis.gap.localize import localization
-from analysis.gap.models import kumaraswamy, nuisance_basis
+from analysis.gap.models import nuisance_basis, recruitment_curve
 from analysis.gap.twin_out import (effect_entries, fatigue_loss_pct, nonlinearity_index_pct,
                                    twin_dict, write_twin)
 
@@ -68,9 +68,10 @@ def final_params(diag: Diagnosis) -> dict:
     if Effect.FATIGUE in effs:
         p["gain_loss_pct"] = fatigue_loss_pct(p["rate_per_s"])
     if Effect.RECRUITMENT_NONLINEARITY in effs:
-        a, b = p["a"], p["b"]
-        p["nonlinearity_index_pct"] = nonlinearity_index_pct(
-            lambda I: kumaraswamy(I, a, b), diag.data.sE_levels)
+        h = recruitment_curve(fit.candidate.sub(fit.p_shared,
+                                                Effect.RECRUITMENT_NONLINEARITY))
+        p["nonlinearity_index_pct"] = nonlinearity_index_pct(h, diag.data.sE_levels)
+        p["_curve"] = h
     if Effect.FLEXOR_EXTENSOR_ASYMMETRY in effs:
         wr, zr, flipped = canonical_asymmetry(p["wn_ratio"], p["zeta_ratio"])
         p["wn_ratio"], p["zeta_ratio"] = wr, zr
@@ -129,10 +130,13 @@ def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | 
     nom = diag.nominal
     aug_pct = final.heldout_nrmse_pct if final else nom.heldout_nrmse_pct
     twin = None
-    if calibration is not None:
+    if calibration is None:
+        fp.pop("_curve", None)
+    else:
         Kp, wn, zeta = _level_params(diag)
         effects = effect_entries(fp, diag.full_fit.candidate.effects, diag.data.sE_levels) \
             if final else []
+        fp.pop("_curve", None)
         twin = twin_dict(participant=diag.data.participant or "unknown",
                          source=[diag.data.path], calibration=calibration,
                          sE_levels=diag.data.sE_levels, Kp=Kp, wn_rad_s=wn, zeta=zeta,

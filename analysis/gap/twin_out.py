@@ -9,7 +9,7 @@ effect(s) are translated from this package's own parameterisation to the simulat
   ``gain_loss_pct = 100 (1 - exp(-lambda c_ref))`` with ``reference_stim_s = c_ref`` (675 s);
 - ``flexor_extensor_asymmetry``: ``wn_ratio``, ``zeta_ratio`` (orientation convention:
   see :func:`canonical_asymmetry`);
-- ``recruitment_nonlinearity``: our Kumaraswamy curve is projected onto the closest of the
+- ``recruitment_nonlinearity``: our knot curve is projected onto the closest of the
   simulator's documented shapes (power, sigmoid, threshold_saturation) by least squares on
   the net static map over the tested sE range (what the data constrain);
 - ``baseline_drift``: ``amplitude_N`` (RMS of the fitted slow baseline) and ``corner_Hz``.
@@ -25,7 +25,7 @@ import numpy as np
 from scipy import optimize
 
 from analysis.gap.effects import Effect
-from analysis.gap.models import REFERENCE_STIM_S, kumaraswamy
+from analysis.gap.models import REFERENCE_STIM_S
 
 
 def fatigue_loss_pct(rate_per_s: float, reference_stim_s: float = REFERENCE_STIM_S) -> float:
@@ -62,9 +62,9 @@ def _sim_h(params: dict):
     return RecruitmentNonlinearity(**params).h
 
 
-def project_recruitment(a: float, b: float, sE_levels) -> dict:
-    """The simulator-shape parameters whose net static map is closest to ours."""
-    target = net_static_map(lambda I: kumaraswamy(I, a, b), sE_levels)
+def project_recruitment(h, sE_levels) -> dict:
+    """The simulator-shape parameters whose net static map is closest to our curve ``h``."""
+    target = net_static_map(h, sE_levels)
     best, best_cost = None, np.inf
     trials = [
         ("power", ["gamma"], [[0.5], [1.5], [2.5], [3.5]], [(0.1, 10.0)]),
@@ -110,7 +110,7 @@ def effect_entries(params: dict, effects, sE_levels) -> list[dict]:
                 "reference_stim_s": REFERENCE_STIM_S}})
         elif e is Effect.RECRUITMENT_NONLINEARITY:
             out.append({"name": e.value, "params": project_recruitment(
-                params["a"], params["b"], sE_levels)})
+                params["_curve"], sE_levels)})
         elif e is Effect.BASELINE_DRIFT:
             out.append({"name": e.value, "params": {
                 "amplitude_N": params.get("amplitude_N", 0.0),

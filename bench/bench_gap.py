@@ -1,0 +1,245 @@
+"""Benchmark of ``nmsid gap`` on simulated sessions whose effect is withheld.
+
+For each of 7 classes (``none`` and the six effects) and each seed, a participant of
+``sim_backends.make_population`` runs the 45-trial protocol with one effect switched on at
+a random, lab-relevant magnitude (see ``MAGNITUDES``; shapes vary: fatigue exponential and
+linear, recruitment sigmoid / threshold-saturation / power, drift of different bandwidths,
+asymmetry faster and slower flexor, sE blocks and full randomisation). The diagnosis gets
+the file only. Printed: confusion matrix, % correct, ``none`` controls, main-parameter
+recovery of each correct find, held-out shrink, and time per session.
+
+Main parameters (what the chirp at constant sE can identify):
+dead_time ``L_s``; activation_dynamics ``tau_s``; fatigue ``gain_loss_pct`` over 675 s;
+recruitment_nonlinearity the nonlinearity index (RMS departure of the net static map from
+a line, ``analysis.gap.twin_out.nonlinearity_index_pct``: the curve's family and e.g.
+``gamma`` are not identifiable from its shape alone); baseline_drift the RMS of the wander's
+non-linear part inside each analysis window (offset and trend of a trial cannot be told
+from the sensor's own); flexor_extensor_asymmetry ``wn_ratio`` in the orientation
+``>= 1`` (which muscle is faster is not identifiable from the chirp window).
+
+    python bench/bench_gap.py [--seeds 5] [--jobs 2] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+if str(HERE) not in sys.path:
+    sys.path.insert(0, str(HERE))
+
+CLASSES = ("none", "dead_time", "activation_dynamics", "fatigue",
+           "recruitment_nonlinearity", "baseline_drift", "flexor_extensor_asymmetry")
+
+MAGNITUDES = {
+    "dead_time": "L_s uniform 8-40 ms",
+    "activation_dynamics": "tau_s uniform 8-40 ms",
+    "fatigue": "gain_loss_pct uniform 15-40 % over 675 s; exponential and linear",
+    "recruitment_nonlinearity": "sigmoid slope 7-12, midpoint 0.4-0.6; threshold 0.08-0.15, "
+                                "saturation 0.7-0.85; power gamma 2.8-3.5 or 0.4-0.6",
+    "baseline_drift": "amplitude_N 0.1-0.4 N, corner_Hz 0.1-0.5",
+    "flexor_extensor_asymmetry": "wn_ratio 1.3-1.8 or its inverse, zeta_ratio 0.7-1.4",
+}
+
+
+def draw_effect(cls: str, seed: int) -> dict | None:
+    """The effect of one case (twin-file form), shape varied with the seed."""
+    rng = np.random.default_rng([seed, CLASSES.index(cls), 99])
+    if cls == "none":
+        return None
+    if cls == "dead_time":
+        return {"name": cls, "params": {"L_s": float(rng.uniform(0.008, 0.040))}}
+    if cls == "activation_dynamics":
+        return {"name": cls, "params": {"tau_s": float(rng.uniform(0.008, 0.040))}}
+    if cls == "fatigue":
+        return {"name": cls, "params": {"shape": ("exponential", "linear")[seed % 2],
+                                        "gain_loss_pct": float(rng.uniform(15, 40)),
+                                        "reference_stim_s": 675.0}}
+    if cls == "recruitment_nonlinearity":
+        kind = seed % 3
+        if kind == 0:
+            return {"name": cls, "params": {"shape": "sigmoid",
+                                            "slope": float(rng.uniform(7, 12)),
+                                            "midpoint": float(rng.uniform(0.4, 0.6))}}
+        if kind == 1:
+            return {"name": cls, "params": {"shape": "threshold_saturation",
+                                            "threshold": float(rng.uniform(0.08, 0.15)),
+                                            "saturation": float(rng.uniform(0.7, 0.85))}}
+        g = float(rng.uniform(2.8, 3.5)) if seed % 2 else float(rng.uniform(0.4, 0.6))
+        return {"name": cls, "params": {"shape": "power", "gamma": g}}
+    if cls == "baseline_drift":
+        return {"name": cls, "params": {"amplitude_N": float(rng.uniform(0.1, 0.4)),
+                                        "corner_Hz": float(rng.uniform(0.1, 0.5))}}
+    if cls == "flexor_extensor_asymmetry":
+        r = float(rng.uniform(1.3, 1.8))
+        return {"name": cls, "params": {"wn_ratio": r if seed % 2 else 1 / r,
+                                        "zeta_ratio": float(rng.uniform(0.7, 1.4))}}
+    raise ValueError(cls)
+
+
+def true_main(effect: dict, participant, path: str) -> float | None:
+    """The main parameter's true value (as defined in the module docstring)."""
+    from analysis.gap.twin_out import nonlinearity_index_pct
+    name, p = effect["name"], effect["params"]
+    if name == "dead_time":
+        return p["L_s"]
+    if name == "activation_dynamics":
+        return p["tau_s"]
+    if name == "fatigue":
+        return p["gain_loss_pct"]
+    if name == "recruitment_nonlinearity":
+        from sim_backends.effects import RecruitmentNonlinearity
+        return nonlinearity_index_pct(RecruitmentNonlinearity(**p).h,
+                                      np.linspace(0.3, 1.0, 15))
+    if name == "flexor_extensor_asymmetry":
+        return max(p["wn_ratio"], 1 / p["wn_ratio"])
+    if name == "baseline_drift":
+        return _true_window_drift(p, participant, path)
+    return None
+
+
+def _true_window_drift(p: dict, participant, path: str) -> float:
+    """RMS of the wander's non-linear part in each trial's analysis window (the wander is
+    a function of session time; trial start times are stored by the generator)."""
+    from analysis.gap.data import load_session
+    from analysis.gap.models import nuisance_basis
+    from rig.session_file import read_session
+    from sim_backends.sensor import BaselineWander
+    wander = BaselineWander(p["amplitude_N"], p["corner_Hz"], participant.seed)
+    data = load_session(path)
+    sess = read_session(path, load_data=False)
+    start = {t.name: float(t.extra_attrs["t_session_s"]) for t in sess.trials}
+    Q = nuisance_basis(data.t_eval_s, 0.0)
+    rows = []
+    for info in data.trials:
+        w = wander(start[info.name] + data.steady_s + data.t_eval_s)
+        rows.append(w - Q @ (Q.T @ w))
+    return float(np.sqrt(np.mean(np.square(rows))))
+
+
+def estimated_main(name: str, params: dict) -> float | None:
+    if name == "dead_time":
+        return params["L_s"]
+    if name == "activation_dynamics":
+        return params["tau_s"]
+    if name == "fatigue":
+        return params["gain_loss_pct"]
+    if name == "recruitment_nonlinearity":
+        return params["nonlinearity_index_pct"]
+    if name == "flexor_extensor_asymmetry":
+        return params["wn_ratio"]
+    if name == "baseline_drift":
+        return params["window_nonlinear_rms_N"]
+    return None
+
+
+def run_case(args) -> dict:
+    cls, seed, workdir = args
+    from gap_sessions import simulate_session
+    from protocols.config import Randomisation
+
+    from analysis.gap.data import load_session
+    from analysis.gap.diagnose import diagnose
+    from analysis.gap.report import final_params
+    from sim_backends import make_population
+
+    participant = make_population(seed + 1, seed=2026)[seed]
+    effect = draw_effect(cls, seed)
+    if effect is not None:
+        participant = participant.with_effects(effect)
+    path = os.path.join(workdir, f"{cls}_{seed}.h5")
+    t0 = time.perf_counter()
+    simulate_session(participant, path, seed=seed,
+                     randomisation=(Randomisation.BLOCKS, Randomisation.FULL)[seed % 2])
+    t_sim = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    diag = diagnose(load_session(path))
+    found = diag.best_effect.value
+    params = final_params(diag) if diag.best is not None else {}
+    params.pop("_curve", None)
+    t_gap = time.perf_counter() - t0
+    out = {"class": cls, "seed": seed, "found": found, "effect": effect, "t_gap_s": t_gap,
+           "t_sim_s": t_sim, "nominal_pct": diag.nominal.heldout_nrmse_pct,
+           "floor_pct": diag.noise_floor_nrmse_pct,
+           "best_pair": diag.best_pair.label if diag.best_pair else None}
+    if diag.best is not None:
+        out["shrink_pct"] = diag.best.shrink_pct
+        out["augmented_pct"] = diag.best.heldout_nrmse_pct
+    if effect is not None and found == cls:
+        t = true_main(effect, participant, path)
+        e = estimated_main(found, params)
+        out["true_main"], out["est_main"] = t, e
+        out["main_err_pct"] = 100 * (e - t) / t if t else None
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--classes", nargs="*", default=list(CLASSES))
+    args = ap.parse_args(argv if argv is not None else [])
+    cases = [(c, s) for s in range(args.seeds) for c in args.classes]
+    with tempfile.TemporaryDirectory() as work:
+        jobs = [(c, s, work) for c, s in cases]
+        if args.jobs > 1:
+            with ProcessPoolExecutor(args.jobs) as ex:
+                results = list(ex.map(run_case, jobs))
+        else:
+            results = [run_case(j) for j in jobs]
+    report(results, args.classes)
+
+
+def report(results: list[dict], classes) -> None:
+    print("Effect magnitudes (drawn per case):")
+    for k, v in MAGNITUDES.items():
+        print(f"  {k:27s} {v}")
+    cols = list(CLASSES)
+    short = {c: c[:8] for c in cols}
+    print("\nConfusion matrix (rows: true class, columns: diagnosed)")
+    print(f"{'':27s}" + "".join(f"{short[c]:>10s}" for c in cols))
+    for c in classes:
+        row = [sum(1 for r in results if r["class"] == c and r["found"] == k) for k in cols]
+        print(f"{c:27s}" + "".join(f"{v:10d}" for v in row))
+    n_ok = sum(r["class"] == r["found"] for r in results)
+    print(f"\ncorrect: {n_ok}/{len(results)} = {100 * n_ok / len(results):.1f} % (target >= 90 %)")
+    nones = [r for r in results if r["class"] == "none"]
+    print(f"none controls reported none: {sum(r['found'] == 'none' for r in nones)}/{len(nones)}")
+    print("\nPer case (correct finds: main parameter true / estimated / error; held-out shrink)")
+    print(f"{'class':27s}{'seed':>5s}{'found':>27s}{'true':>10s}{'est':>10s}{'err %':>8s}"
+          f"{'nom %':>8s}{'aug %':>8s}{'shrink %':>9s}{'floor %':>8s}{'gap s':>7s}")
+    for r in results:
+        fmt = (lambda v: f"{v:10.4g}" if isinstance(v, float) else f"{'-':>10s}")
+        print(f"{r['class']:27s}{r['seed']:5d}{r['found']:>27s}{fmt(r.get('true_main'))}"
+              f"{fmt(r.get('est_main'))}"
+              + (f"{r['main_err_pct']:8.1f}" if r.get("main_err_pct") is not None else
+                 f"{'-':>8s}")
+              + f"{r['nominal_pct']:8.3f}"
+              + (f"{r['augmented_pct']:8.3f}{r['shrink_pct']:9.1f}" if "shrink_pct" in r
+                 else f"{'-':>8s}{'-':>9s}")
+              + f"{r['floor_pct']:8.3f}{r['t_gap_s']:7.1f}")
+    found = [r for r in results if r["class"] == r["found"] and r["class"] != "none"]
+    errs = [abs(r["main_err_pct"]) for r in found if r.get("main_err_pct") is not None]
+    shr = [r["shrink_pct"] for r in found]
+    if errs:
+        print(f"\nmain parameter within 15 %: {sum(e <= 15 for e in errs)}/{len(errs)}; "
+              f"median |error| {np.median(errs):.1f} %, max {max(errs):.1f} %")
+    if shr:
+        print(f"held-out shrink >= 50 % for correct finds: {sum(s >= 50 for s in shr)}/"
+              f"{len(shr)}; median {np.median(shr):.0f} %, min {min(shr):.0f} %")
+    t = [r["t_gap_s"] for r in results]
+    print(f"time per 45-trial session (diagnosis): median {np.median(t):.1f} s, max "
+          f"{max(t):.1f} s (2-core machine, jobs in parallel); simulation median "
+          f"{np.median([r['t_sim_s'] for r in results]):.1f} s")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
