@@ -36,9 +36,9 @@ def _one(seed: int, tmp: Path) -> dict:
     cfg = config_from_dict({"participant": f"B{seed:02d}", "seed": seed,
                             "protocol": {"rest_s": 0.0}})
     path = tmp / f"B{seed:02d}.h5"
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     summary = Engine(cfg, rig, path, trip_policy=TripPolicy.END_SESSION).run()
-    t_session = time.perf_counter() - t0
+    t_session, cpu_session = time.perf_counter() - t0, time.process_time() - c0
     valid = validate_session(path) == []
     t1 = time.perf_counter()
     result = identify_session(path)
@@ -54,6 +54,7 @@ def _one(seed: int, tmp: Path) -> dict:
             got = getattr(lv.fit, name) if lv.fit is not None else np.nan
             worst[name] = max(worst[name], abs(got / truth[name] - 1) * 100)
     return {"seed": seed, "trials": summary.n_completed, "session_s": t_session,
+            "cpu_s": cpu_session,
             "valid": valid, "cal_ok": cal_ok, "identify_s": t_ident, "levels":
             len(result.levels), **{f"err_{k}": v for k, v in worst.items()}}
 
@@ -63,13 +64,21 @@ def main(seeds=(0, 1, 2)) -> None:
     tmp = Path(tempfile.mkdtemp(prefix="nmsid-bench-session-"))
     print("Full simulated session (calibration + 45 trials), fast clock; identification vs "
           "truth (max |error| over the 15 sE levels)")
-    head = (f"{'seed':>4s} {'trials':>6s} {'session s':>9s} {'goal':>6s} {'valid':>5s} "
+    try:
+        import os
+        print(f"machine load (1 min): {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; "
+              "'session s' is wall time, 'cpu s' the process's CPU time (all threads)")
+    except (AttributeError, OSError):
+        pass
+    head = (f"{'seed':>4s} {'trials':>6s} {'session s':>9s} {'cpu s':>6s} {'goal':>6s} "
+            f"{'valid':>5s} "
             f"{'cal=ref':>7s} {'identify s':>10s} {'Kp %':>6s} {'wn %':>6s} {'zeta %':>6s} "
             f"{'goal':>5s}")
     print(head)
     for seed in seeds:
         r = _one(seed, tmp)
-        print(f"{r['seed']:4d} {r['trials']:6d} {r['session_s']:9.2f} {'< 10':>6s} "
+        print(f"{r['seed']:4d} {r['trials']:6d} {r['session_s']:9.2f} {r['cpu_s']:6.2f} "
+              f"{'< 10':>6s} "
               f"{str(r['valid']):>5s} {str(r['cal_ok']):>7s} {r['identify_s']:10.2f} "
               f"{r['err_Kp']:6.2f} {r['err_wn_rad_s']:6.2f} {r['err_zeta']:6.2f} "
               f"{'< 2':>5s}", flush=True)
