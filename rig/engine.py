@@ -153,27 +153,42 @@ class Engine:
         self._wake.set()
 
     def rearm(self) -> None:
+        """Clear the latch after a trip (refused, with an event, while the hardware
+        switch is pressed); the session continues with the next pending trial."""
         self._put(_Cmd.REARM)
 
     def pause(self) -> None:
+        """Pause: the running trial finishes or is aborted (``protocol.pause_policy``),
+        then output stays off until :meth:`resume`."""
         self._put(_Cmd.PAUSE)
 
     def resume(self) -> None:
+        """Leave ``paused``."""
         self._put(_Cmd.RESUME)
 
     def abort(self) -> None:
+        """End the session: the running trial is aborted, output off, file closed cleanly
+        (it can be resumed later)."""
         self._put(_Cmd.ABORT)
 
     def skip_trial(self) -> None:
+        """Abort the running trial ("skipped by operator"), or between trials mark the
+        next pending one aborted without running it."""
         self._put(_Cmd.SKIP)
 
     def rerun(self, schedule_index: int) -> None:
+        """Put an aborted trial back to pending; it runs next (refused, with an event,
+        for a trial that is not aborted)."""
         self._put(_Cmd.RERUN, int(schedule_index))
 
     def confirm_calibration(self, calibration: Calibration) -> None:
+        """The operator's calibration (the measured one, or edited values); used when
+        ``calibration.confirm`` is set. Refused (event ``calibration_refused``) if it
+        breaks the contract or a current ceiling; the engine then keeps waiting."""
         self._put(_Cmd.CONFIRM, calibration)
 
     def add_note(self, text: str) -> None:
+        """An operator note, written to the session's events (kind ``note``)."""
         self._put(_Cmd.NOTE, str(text))
 
     # -- internals: events, transitions, commands ---------------------------------------
