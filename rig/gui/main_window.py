@@ -173,7 +173,7 @@ class MainWindow(QMainWindow):
         """Fill the setup form (participant, backend, config, hw_config, output, seed,
         realtime) and press Start (or Resume)."""
         self.setup_panel.set_values(**values)
-        self.setup_panel._start(resume=resume)
+        self.setup_panel.press_start(resume=resume)
 
     def _start_request(self, request: SessionRequest) -> None:
         from rig.gui.session_controller import load_session_config

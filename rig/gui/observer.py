@@ -10,7 +10,6 @@ here touches a widget or waits for the GUI.
 from __future__ import annotations
 
 import logging
-import time
 
 from PySide6.QtCore import QObject, Signal
 
@@ -50,9 +49,6 @@ class QtEngineObserver(EngineObserver):
     def __init__(self, signals: EngineSignals, buffer: LiveBuffer):
         self.signals = signals
         self.buffer = buffer
-        self.chunk_wall_s: list[float] = []
-        """``time.perf_counter()`` when each chunk reached the observer (for the bench)."""
-        self.record_chunk_times = False
 
     def on_state(self, old, new, reason="") -> None:
         self.signals.state_changed.emit(old, new, str(reason or ""))
@@ -72,8 +68,6 @@ class QtEngineObserver(EngineObserver):
         self.signals.trial_started.emit(int(index), planned)
 
     def on_chunk(self, index, start_index, force_N, rE, I_ext_mA, I_flex_mA) -> None:
-        if self.record_chunk_times:
-            self.chunk_wall_s.append(time.perf_counter())
         self.buffer.append(index, start_index, force_N, rE, I_ext_mA, I_flex_mA)
 
     def on_trial_finished(self, index, trial) -> None:

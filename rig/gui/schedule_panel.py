@@ -165,7 +165,7 @@ class SchedulePanel(QWidget):
     def set_state(self, state: str) -> None:
         """Enable the controls that make sense in the engine state."""
         self._state = state
-        running = state in ("armed", "stimulating", "resting")
+        running = state in ("calibrating", "armed", "stimulating", "resting")
         self.pause_button.setEnabled(running)
         self.resume_button.setEnabled(state == "paused")
         self.skip_button.setEnabled(state in ("armed", "stimulating", "resting", "paused"))

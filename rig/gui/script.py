@@ -189,8 +189,12 @@ def _check(cmd: Command, args, kwargs, where: str) -> None:
             number(v, k)
     else:
         need(0, 0)
-    for a in args[1:] if cmd in (Command.WAIT, Command.WAIT_TRIAL_TIME, Command.SLEEP) else ():
-        number(a, "the timeout / duration")
+    if cmd in (Command.WAIT_TRIAL_TIME, Command.SLEEP, Command.WAIT_FINISHED, Command.RERUN):
+        for a in args:
+            number(a, "the number")
+    if cmd in (Command.WAIT, Command.WAIT_TRIAL):
+        for a in args[1 if cmd is Command.WAIT else 2:]:
+            number(a, "the timeout")
 
 
 def load_script(name_or_path: str) -> list[Step]:

@@ -170,8 +170,8 @@ class SetupPanel(QWidget):
         self.start_button.setMinimumHeight(40)
         self.resume_button.setMinimumHeight(40)
         self.resume_button.setVisible(False)
-        self.start_button.clicked.connect(lambda: self._start(resume=False))
-        self.resume_button.clicked.connect(lambda: self._start(resume=True))
+        self.start_button.clicked.connect(lambda: self.press_start(resume=False))
+        self.resume_button.clicked.connect(lambda: self.press_start(resume=True))
         self._out_touched = False
         self.participant.textChanged.connect(self._participant_changed)
         self.output_path.textEdited.connect(self._output_edited)
@@ -299,7 +299,9 @@ class SetupPanel(QWidget):
             seed=None if self.seed.value() < 0 else int(self.seed.value()),
             realtime=self.realtime.isChecked(), resume=resume)
 
-    def _start(self, resume: bool) -> None:
+    def press_start(self, resume: bool = False) -> None:
+        """Press Start (or Resume): check the form, then hand the request on. Problems
+        are shown on the panel, never raised."""
         check = self.refresh()
         if check is None:
             return
