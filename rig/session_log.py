@@ -326,6 +326,9 @@ def recover(path: str | os.PathLike) -> RecoveryReport:
         raise SessionFileError(path, f"{problems[0]}; and there is no journal "
                                      f"({jdir.name}) to recover it from")
     if not (jdir / "header.json").exists():  # nothing was ever journaled in it
+        s, _ = _read_fully(path)
+        if s is not None:
+            return RecoveryReport(str(path), "none", n_trials=len(s.trials))
         return RecoveryReport(str(path), "no-calibration")
     jc = read_journal(jdir)
     report = RecoveryReport(str(path), "none")
@@ -601,7 +604,10 @@ class SessionLog:
             log.error("%s: file and journal differ (%d / %d trials); journal kept", self.path,
                       len(s.trials), len(files))
             return False
-        shutil.rmtree(self.jdir, ignore_errors=True)
+        # rename first (atomic), then delete: a kill never leaves half a journal behind
+        gone = self.jdir.with_name(f"{self.jdir.name}.done-{os.getpid()}")
+        os.rename(self.jdir, gone)
+        shutil.rmtree(gone, ignore_errors=True)
         return True
 
     def close(self) -> None:
