@@ -481,6 +481,8 @@ class SessionLog:
         path = Path(path)
         jdir = journal_dir(path)
         report = None
+        if jdir.is_dir() and not (jdir / "header.json").exists():
+            os.rename(jdir, _unique_aside(jdir, "headerless"))  # keep it, but aside
         if jdir.is_dir():
             report = recover(path)
         elif path.exists():
