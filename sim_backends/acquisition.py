@@ -23,10 +23,12 @@ class SimForceAcquisition:
     is at that moment, with the participant's state carried over.
     """
 
-    def __init__(self, world: SimWorld):
+    def __init__(self, world: SimWorld, buffer_s: float = 10.0):
         self._w = world
         self._closed = False
         self.fs_Hz = world.fs_Hz
+        self.buffer_s = float(buffer_s)
+        """Real time: samples older than this when read are lost (FIFO overflow)."""
 
     def configure(self, fs_Hz: float) -> float:
         if not (np.isfinite(fs_Hz) and 100.0 <= fs_Hz <= 20_000.0):
@@ -68,8 +70,17 @@ class SimForceAcquisition:
                         if acq.stall_end_s is not None and clock.monotonic_s() >= acq.stall_end_s:
                             acq.stalled = False
                             sf.done = True
+                            lost = int(round(min(sf.fault.lost_s, sf.fault.duration_s)
+                                             * w.fs_Hz))
+                            if lost:   # a dropout: the stalled samples never arrive
+                                acq.next_k += lost
+                                acq.lost_detail = (f"sensor dropout: {lost} samples lost "
+                                                   "(simulated)")
                             continue
                     else:
+                        if realtime:
+                            self._check_buffer(acq, clock.monotonic_s())
+                            Na, Nb = w.next_range(acq)
                         due = w.due_time(acq, Nb)
                         if not realtime:
                             clock.advance_to(due)
@@ -86,6 +97,22 @@ class SimForceAcquisition:
                 return None
             wake = deadline if due is None else min(deadline, due)
             time.sleep(max(0.0, min(_WAIT_SLICE_S, wake - now)))
+
+    def _check_buffer(self, acq, now_s: float) -> None:
+        """A host that reads too late loses the oldest samples (the device's buffer holds
+        ``buffer_s``), like a hardware FIFO overflow."""
+        w = self._w
+        lag_s = now_s - w.due_time(acq, acq.N0 + acq.next_k + 1)
+        if lag_s <= self.buffer_s:
+            return
+        keep_from = acq.N0 + int((now_s - self.buffer_s - acq.t0_s) * w.fs_Hz)
+        if acq.n_samples is not None:
+            keep_from = min(keep_from, acq.N0 + acq.n_samples)
+        lost = keep_from - (acq.N0 + acq.next_k)
+        if lost > 0:
+            acq.next_k += lost
+            acq.lost_detail = (f"acquisition buffer overflow: the host read {lag_s:.1f} s "
+                               f"late, {lost} samples lost (simulated)")
 
     def stop(self) -> None:
         with self._w.lock:

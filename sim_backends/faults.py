@@ -32,7 +32,9 @@ from sim_backends.errors import SimConfigError
 class FaultKind(enum.Enum):
     SENSOR_STALL = "sensor_stall"
     """No chunks arrive for ``duration_s`` (None: until the acquisition is stopped); the
-    samples are buffered and delivered afterwards (a stalled stream, then a backlog)."""
+    samples are buffered and delivered afterwards (a stalled stream, then a backlog), or,
+    with ``lost_s``, the first ``lost_s`` of them never arrive (a dropout: the next chunk's
+    ``start_index`` jumps and it carries ``flags.overrun``)."""
     SENSOR_FAULT = "sensor_fault"
     """Chunks over ``duration_s`` (default: the one chunk at the time) carry
     ``flags.sensor_fault``."""

@@ -107,6 +107,9 @@ class AcqRun:
     run_index: int | None = None
     stall_end_s: float | None = None
     stalled: bool = False
+    lost_detail: str = ""
+    """Set when samples were skipped (dropout, buffer overflow): the next chunk carries
+    ``flags.overrun`` with this detail."""
 
     @property
     def waiting(self) -> bool:

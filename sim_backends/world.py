@@ -427,6 +427,10 @@ class SimWorld:
         self.update()
         flags = {"overrun": False, "over_range": False, "sensor_fault": False}
         details = []
+        if acq.lost_detail:
+            flags["overrun"] = True
+            details.append(acq.lost_detail)
+            acq.lost_detail = ""
         pending = [sf for sf in self._sample if not sf.done]
         for sf in pending:
             if (not sf.done and sf.fault.kind is FaultKind.OVERRUN and Na <= sf.N < Nb

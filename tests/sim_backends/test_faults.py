@@ -196,3 +196,34 @@ def test_faults_can_be_added_after_the_rig_was_made():
     assert not rig.estop.is_pressed()
     force, _ = run_waveform(rig, _trial_wf(p, n_s=0.5))
     assert rig.estop.is_pressed() and force[200] > 20
+
+
+def test_dropout_loses_the_stalled_samples_and_flags_the_next_chunk():
+    p = _p()
+    rig = make_sim_rig(p, faults=[Fault(FaultKind.SENSOR_STALL, trial=0, at_s=0.5,
+                                        duration_s=0.2, lost_s=0.2)], connect=True)
+    wf = _trial_wf(p, n_s=1.5)
+    force, chunks = run_waveform(rig, wf)
+    flagged = [c for c in chunks if c.flags.overrun]
+    assert [c.start_index for c in flagged] == [1400] and "dropout" in flagged[0].flags.detail
+    assert np.isnan(force[1000:1400]).all() and not np.isnan(force[1400:]).any()
+    assert np.allclose(force[1400:], _reference(p, wf)[1400:], atol=1e-12)
+
+
+def test_a_host_reading_too_late_overflows_the_buffer_in_real_time():
+    import time
+    p = _p()
+    rig = make_sim_rig(p, realtime=True, connect=True)
+    rig.acquisition.buffer_s = 0.2
+    wf = _trial_wf(p, n_s=0.8)
+    stim, acq = rig.stimulator, rig.acquisition
+    stim.load(wf)
+    stim.arm()
+    acq.start(wf.n_samples)
+    stim.start()
+    time.sleep(0.5)                              # the host is busy elsewhere
+    c = acq.read(0.1)
+    assert c.flags.overrun and "overflow" in c.flags.detail
+    assert c.start_index >= int(0.25 * FS)       # the oldest samples are gone
+    acq.stop()
+    stim.stop_now()
