@@ -197,3 +197,15 @@ def test_truth_holds_for_an_sE_off_the_protocol_grid(ideal_participant):
     Kp, wn, zeta = p.true_parameters(sE)
     expected = _step_response(np.arange(rE.size - n0) / FS, Kp * 0.25, wn, zeta)
     assert np.max(np.abs(force[n0:] - expected)) < 5e-4
+
+
+def test_population_families_come_in_the_papers_proportions():
+    from collections import Counter
+    pop = make_population(20, seed=8)
+    for block in (pop[:10], pop[10:]):
+        assert Counter(p.Kp.model.value for p in block) == {"linear": 4, "exponential": 5,
+                                                            "quadratic": 1}
+        assert Counter(p.wn_rad_s.model.value for p in block) == {
+            "linear": 2, "exponential": 3, "quadratic": 5}
+        assert Counter(p.zeta.model.value for p in block) == {
+            "quadratic": 2, "exponential": 4, "linear": 4}
