@@ -50,7 +50,9 @@ class SimRig(RigDevices):
     @property
     def output_zero_events(self):
         """Every time the output became zero by ``stop_now`` or a stimulator fault."""
-        return list(self.world.output_zero)
+        with self.world.lock:
+            self.world.update()      # a stop requested a moment ago is recorded now
+            return list(self.world.output_zero)
 
     @property
     def run_records(self):

@@ -185,4 +185,6 @@ class SimStimulator:
     @property
     def output_zero_events(self):
         """When the output became zero by ``stop_now`` or a fault (clock and perf_counter)."""
-        return list(self._w.output_zero)
+        with self._w.lock:
+            self._w.update()
+            return list(self._w.output_zero)

@@ -271,3 +271,17 @@ def test_configure_rate_before_first_use_only():
     assert rig.acquisition.configure(1000.0) == 1000.0            # same rate: fine
     with pytest.raises(DeviceStateError, match="1000 Hz"):
         rig.acquisition.configure(2000.0)
+
+
+def test_a_stop_is_recorded_even_if_no_device_call_follows():
+    p = default_participant(sensor=SensorModel.ideal())
+    rig = make_sim_rig(p, connect=True)
+    I_e, I_f = _step_trial(p, n_s=1.0)
+    rig.stimulator.load(waveform(I_e, I_f))
+    rig.stimulator.arm()
+    rig.acquisition.start(I_e.size)
+    rig.stimulator.start()
+    rig.acquisition.read(0.05)
+    rig.stimulator.stop_now()
+    ev = rig.output_zero_events
+    assert len(ev) == 1 and ev[0].sample_index == 200
