@@ -36,7 +36,7 @@ from analysis.errors import IdentificationError
 from analysis.initial_estimate import StartEstimate, srivc_start
 from analysis.residual_tests import ResidualTests, residual_tests
 from analysis.settings import IdentificationSettings, InputHold, NoiseLevel
-from analysis.thin_lstsq import cross, dot, gram, lstsq_rows, orthonormalise, project_out
+from analysis.thin_lstsq import cross, dot, gram, lstsq_rows, orthonormalise
 
 logger = logging.getLogger(__name__)
 
