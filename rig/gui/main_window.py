@@ -8,7 +8,7 @@ Threads: the engine runs in the controller's worker thread; its notifications ar
 queued signals (slots below run in the GUI thread); chunks go to the live buffer that the
 plot timer reads. Identification and model selection run in worker pools. The methods
 ``start_session``, ``confirm_calibration``, ``press_estop``, ``rearm``, ``pause``,
-``resume``, ``skip``, ``rerun``, ``add_note`` and ``save_screenshot`` are the Python API a
+``resume``, ``skip``, ``rerun``, ``end_session``, ``add_note`` and ``save_screenshot`` are the Python API a
 script or a test uses to drive the window as an operator would.
 """
 
@@ -105,7 +105,8 @@ class MainWindow(QMainWindow):
             select_models=select_models if select_models is not None
             else analysis_hooks.select_models)
         self.schedule_panel = SchedulePanel(on_pause=self.pause, on_resume=self.resume,
-                                            on_skip=self.skip, on_rerun=self.rerun)
+                                            on_skip=self.skip, on_rerun=self.rerun,
+                                            on_end=self.end_session)
         self.event_log = EventLog(on_note=self.add_note)
 
         self.tabs = QTabWidget()
@@ -242,6 +243,11 @@ class MainWindow(QMainWindow):
                 raise ValueError("no aborted trial to re-run")
             schedule_index = aborted[0]
         self.controller.rerun(schedule_index)
+
+    def end_session(self) -> None:
+        """End the session early: the engine stops output and finishes; the file keeps
+        everything recorded and can be resumed later."""
+        self.controller.abort()
 
     def add_note(self, text: str) -> None:
         if self.controller.engine is None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Callable, Sequence
 
-from PySide6.QtCore import Qt
+from PySide6.QtCore import Qt, QTimer
 from PySide6.QtGui import QBrush, QColor, QFont
 from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLabel,
                                QProgressBar, QPushButton, QTableWidget, QTableWidgetItem,
@@ -19,6 +19,9 @@ from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLab
 from rig.gui.theme import Colour
 
 COLUMNS = ("#", "sE", "repeat", "status", "runs", "reason")
+END_TEXT = "End session"
+#: The second click of End session must come within this time, ms.
+END_CONFIRM_MS = 4000
 
 
 def status_name(value) -> str:
@@ -59,13 +62,18 @@ class SchedulePanel(QWidget):
         Called with no argument when the operator presses the button.
     on_rerun : callable
         Called with the schedule index of the selected aborted trial.
+    on_end : callable, optional
+        Called when the operator ends the session early (two clicks within
+        ``END_CONFIRM_MS``).
     """
 
     def __init__(self, on_pause: Callable[[], None], on_resume: Callable[[], None],
                  on_skip: Callable[[], None], on_rerun: Callable[[int], None],
+                 on_end: Callable[[], None] | None = None,
                  parent: QWidget | None = None):
         super().__init__(parent)
         self._on_rerun = on_rerun
+        self._on_end = on_end
         self.trial_s = 15.0
         self.rest_s = 60.0
         self.current_index = -1
@@ -93,16 +101,26 @@ class SchedulePanel(QWidget):
         self.rerun_button = QPushButton("Re-run aborted")
         self.rerun_button.setToolTip("Re-run the selected aborted trial (or the first "
                                      "aborted one if none is selected)")
-        for b in (self.pause_button, self.resume_button, self.skip_button, self.rerun_button):
+        self.end_button = QPushButton(END_TEXT)
+        self.end_button.setToolTip("End the session now (output off); press twice. The "
+                                   "file keeps everything and can be resumed later.")
+        self._end_armed = False
+        self._end_timer = QTimer(self)
+        self._end_timer.setSingleShot(True)
+        self._end_timer.timeout.connect(self._disarm_end)
+        for b in (self.pause_button, self.resume_button, self.skip_button, self.rerun_button,
+                  self.end_button):
             b.setFocusPolicy(Qt.FocusPolicy.NoFocus)
             b.setEnabled(False)
         self.pause_button.clicked.connect(on_pause)
         self.resume_button.clicked.connect(on_resume)
         self.skip_button.clicked.connect(on_skip)
         self.rerun_button.clicked.connect(self._rerun_clicked)
+        self.end_button.clicked.connect(self._end_clicked)
 
         controls = QHBoxLayout()
-        for b in (self.pause_button, self.resume_button, self.skip_button, self.rerun_button):
+        for b in (self.pause_button, self.resume_button, self.skip_button, self.rerun_button,
+                  self.end_button):
             controls.addWidget(b)
         lay = QVBoxLayout(self)
         lay.setContentsMargins(0, 0, 0, 0)
@@ -169,7 +187,29 @@ class SchedulePanel(QWidget):
         self.pause_button.setEnabled(running)
         self.resume_button.setEnabled(state == "paused")
         self.skip_button.setEnabled(state in ("armed", "stimulating", "resting", "paused"))
+        self.end_button.setEnabled(self._on_end is not None and state not in
+                                   ("idle", "finished"))
+        if state == "finished":
+            self._disarm_end()
         self._selection_changed()
+
+    # -- ending early ---------------------------------------------------------------------
+    def _end_clicked(self) -> None:
+        if not self._end_armed:
+            self._end_armed = True
+            self.end_button.setText("Click again to END")
+            self.end_button.setStyleSheet("background: #e08000; color: white;")
+            self._end_timer.start(END_CONFIRM_MS)
+            return
+        self._disarm_end()
+        if self._on_end is not None:
+            self._on_end()
+
+    def _disarm_end(self) -> None:
+        self._end_armed = False
+        self._end_timer.stop()
+        self.end_button.setText(END_TEXT)
+        self.end_button.setStyleSheet("")
 
     # -- re-run -----------------------------------------------------------------------
     def aborted_indices(self) -> list[int]:

@@ -10,6 +10,7 @@ A script is one command per line (``#`` starts a comment; arguments are shell-qu
     wait tripped                       # engine state
     rearm
     rerun                              # the first aborted trial (or: rerun 1)
+    end-session                        # end early (the file can be resumed later)
     note "electrode re-taped"
     wait-finished                      # session over and results shown
     tab results                        # show a tab: setup, calibration, live
@@ -53,6 +54,7 @@ class Command(enum.Enum):
     RESUME = "resume"
     SKIP = "skip"
     RERUN = "rerun"
+    END_SESSION = "end-session"
     NOTE = "note"
     TAB = "tab"
     SCREENSHOT = "screenshot"
@@ -313,6 +315,8 @@ class ScriptRunner(QObject):
             w.skip()
         elif c is Command.RERUN:
             w.rerun(int(step.args[0]) if step.args else None)
+        elif c is Command.END_SESSION:
+            w.end_session()
         elif c is Command.NOTE:
             w.add_note(step.args[0])
         elif c is Command.TAB:

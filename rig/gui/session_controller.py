@@ -181,6 +181,9 @@ class SessionController(QObject):
     def skip_trial(self) -> None:
         self._call("skip_trial")
 
+    def abort(self) -> None:
+        self._call("abort")
+
     def rerun(self, schedule_index: int) -> None:
         self._call("rerun", int(schedule_index))
 

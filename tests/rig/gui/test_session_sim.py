@@ -84,19 +84,44 @@ def test_complete_session_with_estop_rearm_rerun(sim_window, qtbot, tmp_path):
     assert w.live.frames_drawn > 10
 
 
-def test_unfinished_session_is_resumed_and_finished(sim_window_manual, qtbot, tmp_path):
+def test_pause_resume_skip_end_then_resume_the_file(sim_window_manual, qtbot, tmp_path):
     w = sim_window_manual
     out = tmp_path / "G02.h5"
+    sp = w.schedule_panel
     w.start_session(participant="G02", output=out, backend="sim", seed=2, realtime=True)
     qtbot.waitUntil(lambda: w.calibration_panel.confirm_button.isEnabled(), timeout=30000)
-    w.confirm_calibration()
-    qtbot.waitUntil(lambda: "done" in w.trial_statuses(), timeout=30000)
-    w.controller.engine.abort()  # the operator stops the session early
+    w.confirm_calibration()  # hand-entered currents: confirmed as they are
+    rig = w.rigs[0]
+
+    # Pause during trial 0: policy "finish" lets it complete, then holds with output off
+    qtbot.waitUntil(lambda: w.trial_statuses()[:1] == ["running"], timeout=30000)
+    qtbot.waitUntil(lambda: sp.pause_button.isEnabled(), timeout=5000)
+    sp.pause_button.click()
+    qtbot.waitUntil(lambda: w.state is State.PAUSED, timeout=10000)
+    assert w.trial_statuses()[0] == "done"
+    assert not rig.stimulator.status().output_active
+    n_runs = len(rig.run_records)
+    qtbot.wait(300)
+    assert len(rig.run_records) == n_runs and w.state is State.PAUSED
+    assert sp.resume_button.isEnabled() and not sp.pause_button.isEnabled()
+    sp.resume_button.click()
+
+    # Skip the running trial 1: aborted "skipped by operator"
+    qtbot.waitUntil(lambda: w.trial_statuses()[1:2] == ["running"], timeout=10000)
+    sp.skip_button.click()
+    qtbot.waitUntil(lambda: w.trial_statuses()[1:2] == ["aborted"], timeout=10000)
+    assert "skipped" in w.controller.engine.schedule[1].reason
+
+    # End the session early: two clicks
+    qtbot.waitUntil(lambda: sp.end_button.isEnabled(), timeout=5000)
+    sp.end_button.click()
+    assert w.run_result is None and sp.end_button.text() != "End session"
+    sp.end_button.click()
     qtbot.waitUntil(lambda: w.run_result is not None, timeout=10000)
     assert not w.run_result.complete
     n_before = sum(t.completed for t in read_session(out).trials)
 
-    # the setup panel is ready again; the unfinished file is refused for a new session
+    # the set-up panel is ready again; the unfinished file is refused for a new session
     # (never overwritten) and offered for resume
     assert w.setup_panel.isEnabled()
     w.setup_panel.set_values(participant="G02", output=out)
@@ -112,6 +137,7 @@ def test_unfinished_session_is_resumed_and_finished(sim_window_manual, qtbot, tm
     assert sum(t.completed for t in s.trials) == 4 > n_before
     assert {int(t.extra_attrs["schedule_index"]) for t in s.trials if t.completed} == \
         {0, 1, 2, 3}
+    assert any("skipped" in t.abort_reason for t in s.trials if not t.completed)
 
 
 def test_fast_session_shows_model_selection_and_saves_it(fast_sim_window, qtbot, tmp_path):
