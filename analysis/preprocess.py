@@ -205,6 +205,7 @@ def preprocess_trials(trials, settings: IdentificationSettings | None = None) ->
     trim = s.edge_trim_samples(fs)
     if s.filter_whole_trial:
         i1 = min(i1, n - trim)            # the end of the record is a filter edge
+        i0 = max(i0, trim)                # so is its start, if the window starts there
     q = max(1, int(math.floor(fs / s.fit_fs_Hz + 1e-9))) if s.fit_fs_Hz else 1
     usable_len = (i1 - i0) - (0 if s.filter_whole_trial else 2 * trim)
     if usable_len // q < 60:

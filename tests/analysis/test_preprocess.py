@@ -94,3 +94,16 @@ def test_settings_are_validated_with_named_values():
     s = IdentificationSettings(input_hold="linear")
     assert s.as_dict()["input_hold"] == "linear"
     assert window_indices(30000, FS, 5.0, 10.0, s) == (10000, 30000)
+
+
+def test_no_lead_in_and_other_rates_still_recover_the_model(synthetic):
+    """A trial without lead-in (the window starts at the first sample) at 1000 Hz."""
+    from analysis.second_order import fit_second_order
+    fs = 1000.0
+    rE, y = synthetic.exact_response(6.0, 25.0, 0.5, fs, 8000, 0.0, 8.0, 1.0, 10.0)
+    tr = Trial(sE=0.5, repeat=1, fs_Hz=fs, rE=rE, I_ext_mA=rE, I_flex_mA=rE,
+               force_N=y + 0.4, name="t001", steady_s=0.0, chirp_s=8.0)
+    d = preprocess_trials([tr])
+    assert d.t_s[0] > 0.1 and d.fs_Hz == 200.0
+    f = fit_second_order(d.u, d.y_N, d.fs_Hz)
+    assert (f.Kp, f.wn_rad_s, f.zeta) == pytest.approx((6.0, 25.0, 0.5), rel=2e-5)
