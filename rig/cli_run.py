@@ -96,11 +96,17 @@ def run(args) -> int:
             config = config.with_protocol(rest_s=0.0)
         path = Path(args.out) if args.out else _free_path(Path(args.outdir or "sessions"),
                                                           config.participant)
-    devices = _make_devices(args, config)
+    stored = _stored_attrs(path) if args.resume else {}
+    sim_seed = None
+    if args.backend == "sim":
+        sim_seed = (args.sim_seed if args.sim_seed is not None else
+                    stored.get("sim_seed", _seed_from_code(config.participant)))
+    devices = _make_devices(args, config, sim_seed)
     progress = _Progress(quiet=args.quiet)
     try:
         engine = Engine(config, devices, path, resume=bool(args.resume), observer=progress,
-                        trip_policy=TripPolicy.END_SESSION)
+                        trip_policy=TripPolicy.END_SESSION,
+                        extra_attrs={} if sim_seed is None else {"sim_seed": int(sim_seed)})
         progress.total = len(engine.schedule)
         progress.done = sum(1 for t in engine.schedule if t.status.value == "done")
         if engine.recovery is not None and engine.recovery.action != "none":
@@ -143,6 +149,19 @@ def run(args) -> int:
     return 0 if s.ended_by == "schedule complete" else 1
 
 
+def _stored_attrs(path) -> dict:
+    """Extra root attributes of a session (journal header first, else the file)."""
+    import json
+
+    from rig.session_log import journal_dir
+
+    j = journal_dir(path) / "header.json"
+    if j.exists():
+        return dict(json.loads(j.read_text()).get("extra_attrs") or {})
+    from rig.session_file import read_session
+    return dict(read_session(path, load_data=False).attrs)
+
+
 def _stored_config(path):
     import json
 
@@ -169,7 +188,7 @@ def _free_path(outdir, participant: str):
     raise FileExistsError(f"{outdir}: no free session file name for {participant}-{stamp}")
 
 
-def _make_devices(args, config):
+def _make_devices(args, config, sim_seed):
     if args.backend == "hw":
         if not args.hw_config:
             raise ValueError("--backend hw needs --hw-config FILE (the rig's hardware "
@@ -185,8 +204,7 @@ def _make_devices(args, config):
     except ImportError as exc:
         raise BackendUnavailable(f"the simulated rig is not available in this build "
                                  f"(sim_backends.make_sim_rig: {exc})") from None
-    seed = args.sim_seed if args.sim_seed is not None else _seed_from_code(config.participant)
-    return make_sim_rig(seed=seed, realtime=args.realtime)
+    return make_sim_rig(seed=int(sim_seed), realtime=args.realtime)
 
 
 def _seed_from_code(code: str) -> int:

@@ -84,17 +84,21 @@ class Engine:
     observer : EngineObserver, optional
     trip_policy : TripPolicy
         ``WAIT_FOR_REARM`` (default, an operator is present) or ``END_SESSION``.
+    extra_attrs : dict, optional
+        Additional root attributes of a new session file (e.g. ``sim_seed``).
     """
 
     def __init__(self, config: Config | None, devices: RigDevices, session_path, *,
                  resume: bool = False, observer: EngineObserver | None = None,
-                 trip_policy: TripPolicy = TripPolicy.WAIT_FOR_REARM):
+                 trip_policy: TripPolicy = TripPolicy.WAIT_FOR_REARM,
+                 extra_attrs: dict | None = None):
         self.devices = devices
         self.clock = devices.clock
         self.path = Path(session_path)
         self.observer = observer or EngineObserver()
         self.trip_policy = trip_policy
         self.resume_mode = resume
+        self.extra_attrs = dict(extra_attrs or {})
         self.recovery = None
         self._log: SessionLog | None = None
         self._cmds: queue.SimpleQueue = queue.SimpleQueue()
@@ -358,7 +362,7 @@ class Engine:
             self._log = SessionLog.create(
                 self.path, participant=cfg.participant, config_json=cfg.to_json(),
                 seed=self.seed, backend=self.devices.backend,
-                schedule_json=schedule_to_json(self.schedule))
+                schedule_json=schedule_to_json(self.schedule), extra_attrs=self.extra_attrs)
         for utc, kind, detail in self._pending_events:
             self._log.event(kind, detail, utc=utc)
         self._pending_events.clear()

@@ -442,7 +442,8 @@ class SessionLog:
     @classmethod
     def create(cls, path: str | os.PathLike, *, participant: str, config_json: str,
                seed: int | None, backend: str, schedule_json: str,
-               created_utc: str | None = None) -> SessionLog:
+               created_utc: str | None = None, extra_attrs: dict | None = None
+               ) -> SessionLog:
         """Start a new session at ``path`` (refused if the file or its journal exists)."""
         path = Path(path)
         jdir = journal_dir(path)
@@ -454,7 +455,7 @@ class SessionLog:
         header = {"participant": participant, "created_utc": created_utc or utc_now(),
                   "software": software_id(), "config_json": config_json,
                   "seed": None if seed is None else int(seed), "backend": backend,
-                  "extra_attrs": {"schedule_json": schedule_json},
+                  "extra_attrs": {**(extra_attrs or {}), "schedule_json": schedule_json},
                   "file": path.name}
         # the journal appears complete with its header or not at all: build it aside
         tmp = jdir.with_name(f"{jdir.name}.tmp-{os.getpid()}")
@@ -634,8 +635,8 @@ def _journal_from_file(path: Path, jdir: Path) -> None:
     if jdir.exists():
         shutil.rmtree(jdir)
     jdir.mkdir()  # built aside, renamed when complete: a kill leaves no half journal
-    extra = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in s.attrs.items()
-             if k == "schedule_json"}
+    extra = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in s.attrs.items()}
+    extra = json.loads(json.dumps(extra, default=_json_default))
     header = {"participant": s.participant, "created_utc": s.created_utc,
               "software": s.software, "config_json": s.config_json, "seed": s.seed,
               "backend": s.backend, "extra_attrs": extra, "file": path.name}

@@ -130,3 +130,24 @@ def test_ctrl_c_is_an_estop_and_leaves_a_valid_file(tmp_path):
     assert len(s.trials) == 1 and s.trials[0].abort_reason.startswith("estop: Ctrl+C")
     assert 400 <= s.trials[0].n_samples < 6000
     assert any(e.kind == "interlock_trip" for e in s.events)
+
+
+def test_resume_uses_the_stored_virtual_participant(tmp_path, short_toml, monkeypatch,
+                                                    capsys):
+    import rig.cli_run as cli_run
+
+    out = tmp_path / "s.h5"
+    assert main(["run", "--backend", "sim", "--config", str(short_toml), "--out", str(out),
+                 "--sim-seed", "9", "--no-identify", "--quiet"]) == 0
+    assert int(read_session(out, load_data=False).attrs["sim_seed"]) == 9
+    seen = []
+    real = cli_run._make_devices
+
+    def spy(args, config, sim_seed):
+        seen.append(sim_seed)
+        return real(args, config, sim_seed)
+    monkeypatch.setattr(cli_run, "_make_devices", spy)
+    assert main(["run", "--backend", "sim", "--resume", str(out), "--no-identify"]) == 0
+    assert seen == [9]
+    assert "4 completed, 0 aborted, 0 not run" in capsys.readouterr().out
+    assert validate_session(out) == [] and not journal_dir(out).exists()
