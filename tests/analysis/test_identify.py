@@ -124,3 +124,18 @@ def test_planned_levels_and_repeats_from_the_stored_protocol(small_session, tmp_
     text = "\n".join(res.problems)
     assert "sE=0.5: planned but no trial in the file" in text
     assert "sE=0.3: 2 of 3 repeats completed" in text
+
+
+@pytest.mark.parametrize("params", [(14.0, 55.0, 0.22), (3.0, 9.0, 1.15)])
+def test_noise_free_chirp_through_the_whole_pipeline(synthetic, params):
+    """Paper protocol, drift and offset, no noise: detrend + filters + decimation + fit
+    recover the parameters to a few 1e-6."""
+    from rig.session_file import Trial
+    fs, n = 2000.0, 30000
+    rE, y = synthetic.exact_response(*params, fs, n, 5.0, 10.0, 1.0, 10.0)
+    t = np.arange(n) / fs
+    trials = [Trial(sE=0.5, repeat=k + 1, fs_Hz=fs, rE=rE, I_ext_mA=rE, I_flex_mA=rE,
+                    force_N=y + 0.5 * k - 0.3 + 0.02 * (k - 1) * t, name=f"t00{k + 1}")
+              for k in range(3)]
+    f = identify_level(trials).fit
+    assert (f.Kp, f.wn_rad_s, f.zeta) == pytest.approx(params, rel=5e-6)
