@@ -28,392 +28,27 @@ finish.
 
 from __future__ import annotations
 
-import dataclasses
-import datetime as _dt
 import json
 import logging
 import os
-import re
 import shutil
-import zlib
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from rig.journal import (PARTIAL_ABORT_REASON, PARTIAL_COLUMNS, JournalContents,  # noqa: F401
+                         trial_digest, fsync_dir, json_default, save_calibration,
+                         save_trial_npz, write_durable, journal_dir, load_trial_npz,
+                         read_journal, trial_meta, utc_now_ms)
+from rig.recovery import (RecoveryReport, create_from_header, read_fully,  # noqa: F401
+                          unique_aside, recover)
 from rig.session_file import (Calibration, Event, SessionExistsError, SessionFileError,
                               SessionWriter, Trial, read_session, software_id, utc_now,
                               validate_session)
 
 log = logging.getLogger(__name__)
 
-PARTIAL_ABORT_REASON = "process ended during trial"
-_TRIAL_FILE = re.compile(r"^trial-(\d{4,})\.npz$")
-_TRIAL_META_FIELDS = [f.name for f in dataclasses.fields(Trial)
-                      if f.name not in ("rE", "I_ext_mA", "I_flex_mA", "force_N", "wrench",
-                                        "sync")]
-_CAL_FIELDS = ("Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA", "Fmin_N", "Fmax_N")
-PARTIAL_COLUMNS = ("force_N", "rE", "I_ext_mA", "I_flex_mA")
 
-
-def utc_now_ms() -> str:
-    """The current time as ISO 8601 UTC with milliseconds (event time stamps)."""
-    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
-
-
-def journal_dir(path: str | os.PathLike) -> Path:
-    """The journal directory of a session file: ``<file>.journal``."""
-    p = Path(path)
-    return p.with_name(p.name + ".journal")
-
-
-# -- durable small writes ----------------------------------------------------------------
-def _fsync_dir(d: Path) -> None:
-    try:
-        fd = os.open(d, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def _write_durable(target: Path, write) -> None:
-    """Write via ``write(fileobj)`` to a temp file, fsync, rename onto ``target``."""
-    tmp = target.with_name(target.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        write(fh)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, target)
-    _fsync_dir(target.parent)
-
-
-def _json_default(obj):
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, bytes):
-        return obj.decode("utf-8", "replace")
-    raise TypeError(f"not JSON-able: {type(obj).__name__}")
-
-
-def trial_meta(trial: Trial) -> dict[str, Any]:
-    """A trial's attributes as a JSON-able dict (no sample arrays)."""
-    return json.loads(json.dumps({k: getattr(trial, k) for k in _TRIAL_META_FIELDS},
-                                 default=_json_default))
-
-
-def _save_trial_npz(target: Path, trial: Trial) -> None:
-    arrays = {k: np.asarray(getattr(trial, k), dtype=np.float64)
-              for k in ("rE", "I_ext_mA", "I_flex_mA", "force_N")}
-    if trial.wrench is not None:
-        arrays["wrench"] = np.asarray(trial.wrench, dtype=np.float64)
-    if trial.sync is not None:
-        arrays["sync"] = np.asarray(trial.sync, dtype=np.float64)
-    meta = np.array(json.dumps(trial_meta(trial)))
-    _write_durable(target, lambda fh: np.savez(fh, __meta__=meta, **arrays))
-
-
-def load_trial_npz(path: Path) -> Trial:
-    with np.load(path, allow_pickle=False) as z:
-        meta = json.loads(str(z["__meta__"]))
-        arrays = {k: np.array(z[k]) for k in z.files if k != "__meta__"}
-    kw = {k: v for k, v in meta.items() if k in _TRIAL_META_FIELDS}
-    return Trial(**kw, **{k: arrays.get(k) for k in ("rE", "I_ext_mA", "I_flex_mA",
-                                                       "force_N", "wrench", "sync")})
-
-
-def _save_calibration(target: Path, cal: Calibration) -> None:
-    meta = np.array(json.dumps({k: float(getattr(cal, k)) for k in _CAL_FIELDS}))
-    ramps = {f"ramp__{k}": np.asarray(v, dtype=float) for k, v in cal.ramps.items()}
-    _write_durable(target, lambda fh: np.savez(fh, __meta__=meta, **ramps))
-
-
-def _load_calibration(path: Path) -> Calibration:
-    with np.load(path, allow_pickle=False) as z:
-        meta = json.loads(str(z["__meta__"]))
-        ramps = {k[len("ramp__"):]: np.array(z[k]) for k in z.files if k.startswith("ramp__")}
-    return Calibration(**meta, ramps=ramps)
-
-
-# -- the journal ---------------------------------------------------------------------
-@dataclass
-class JournalContents:
-    """What a journal directory holds."""
-
-    header: dict[str, Any]
-    calibration: Calibration | None
-    events: list[Event]
-    trial_files: list[Path]
-    partial_meta: dict[str, Any] | None = None
-    partial_path: Path | None = None
-
-    def trial_metas(self) -> list[dict[str, Any]]:
-        out = []
-        for p in self.trial_files:
-            with np.load(p, allow_pickle=False) as z:
-                out.append(json.loads(str(z["__meta__"])))
-        return out
-
-
-def read_journal(jdir: Path) -> JournalContents:
-    """Read a journal directory (tolerating a torn last event line).
-
-    Raises
-    ------
-    SessionFileError
-        If the header is missing or unreadable.
-    """
-    header_path = jdir / "header.json"
-    try:
-        header = json.loads(header_path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise SessionFileError(jdir, f"journal header unreadable ({exc})") from None
-    cal = None
-    if (jdir / "calibration.npz").exists():
-        cal = _load_calibration(jdir / "calibration.npz")
-    events = []
-    ev_path = jdir / "events.jsonl"
-    if ev_path.exists():
-        for line in ev_path.read_text(encoding="utf-8", errors="replace").splitlines():
-            try:
-                d = json.loads(line)
-                events.append(Event(d["utc"], d["kind"], d.get("detail", "")))
-            except (json.JSONDecodeError, KeyError, TypeError):
-                continue  # a line torn by a kill
-    files = sorted((p for p in jdir.iterdir() if _TRIAL_FILE.match(p.name)),
-                   key=lambda p: int(_TRIAL_FILE.match(p.name).group(1)))
-    for i, p in enumerate(files):
-        if int(_TRIAL_FILE.match(p.name).group(1)) != i + 1:
-            raise SessionFileError(jdir, f"journal trial files are not numbered 1, 2, ... "
-                                         f"(found {p.name} at position {i + 1})")
-    pmeta = None
-    if (jdir / "partial.json").exists():
-        try:
-            pmeta = json.loads((jdir / "partial.json").read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError):
-            pmeta = None
-    return JournalContents(header, cal, events, files, pmeta,
-                           jdir / "partial.f64" if pmeta is not None else None)
-
-
-def _partial_trial(jc: JournalContents) -> Trial:
-    meta = dict(jc.partial_meta)
-    columns = meta.pop("columns")
-    meta.pop("seq", None)
-    n_cols = len(columns)
-    raw = b""
-    if jc.partial_path is not None and jc.partial_path.exists():
-        raw = jc.partial_path.read_bytes()
-    row = 8 * n_cols
-    n = len(raw) // row
-    data = np.frombuffer(raw[: n * row], dtype=np.float64).reshape(n, n_cols)
-    cols = {c: data[:, i].copy() for i, c in enumerate(columns)}
-    wrench = None
-    if all(f"wrench{k}" in cols for k in range(6)):
-        wrench = np.column_stack([cols[f"wrench{k}"] for k in range(6)])
-    kw = {k: v for k, v in meta.items() if k in _TRIAL_META_FIELDS}
-    kw["status"] = "aborted"
-    kw["abort_reason"] = PARTIAL_ABORT_REASON
-    return Trial(**kw, rE=cols["rE"], I_ext_mA=cols["I_ext_mA"], I_flex_mA=cols["I_flex_mA"],
-                 force_N=cols["force_N"], wrench=wrench, sync=cols.get("sync"))
-
-
-# -- recovery --------------------------------------------------------------------------
-@dataclass
-class RecoveryReport:
-    """What :func:`recover` did."""
-
-    path: str
-    action: str
-    """``none`` (file already complete), ``appended`` (missing items added to a good
-    file), ``rebuilt`` (a new file from the journal), ``no-calibration`` (the session ended
-    before calibration finished: there is no session file to make)."""
-    n_trials: int = 0
-    n_appended: int = 0
-    partial_recovered: bool = False
-    partial_samples: int = 0
-    damaged_kept_at: str = ""
-    problems_before: list[str] = field(default_factory=list)
-
-    def summary(self) -> str:
-        if self.action == "none":
-            return f"{self.path}: complete ({self.n_trials} trials); nothing to recover"
-        if self.action == "no-calibration":
-            return (f"{self.path}: the session ended before calibration finished; there is no "
-                    "data to recover (resume it to start again)")
-        text = {"appended": f"{self.n_appended} trial(s) missing from the file were appended",
-                "rebuilt": "rebuilt from the journal"}[self.action]
-        text = f"{self.path}: {text}; {self.n_trials} trials in the file"
-        if self.partial_recovered:
-            text += (f"; the trial in progress was kept as aborted ({self.partial_samples} "
-                     "samples)")
-        if self.damaged_kept_at:
-            text += f"; the damaged file was kept as {self.damaged_kept_at}"
-        return text
-
-
-def _same_trial(a: Trial, b: Trial) -> bool:
-    """The journal's trial and the file's are the same, sample for sample."""
-    return (abs(float(a.sE) - float(b.sE)) < 1e-12 and int(a.repeat) == int(b.repeat)
-            and a.status == b.status
-            and all(np.array_equal(getattr(a, k), getattr(b, k), equal_nan=True)
-                    for k in ("rE", "I_ext_mA", "I_flex_mA", "force_N")))
-
-
-def _digest(trial: Trial) -> int:
-    """CRC-32 of a trial's four sample arrays (as float64)."""
-    crc = 0
-    for k in ("rE", "I_ext_mA", "I_flex_mA", "force_N"):
-        crc = zlib.crc32(np.ascontiguousarray(getattr(trial, k), dtype=np.float64).tobytes(),
-                         crc)
-    return crc
-
-
-def _read_fully(path: Path):
-    """(Session, []) if the file validates AND every dataset reads back; else (None,
-    problems). A file cut short by a kill can pass the structural checks and still fail
-    when its data are read."""
-    if not path.exists():
-        return None, ["no such file"]
-    problems = validate_session(path)
-    if problems:
-        return None, problems
-    try:
-        return read_session(path), []
-    except Exception as exc:  # h5py raises KeyError / OSError / RuntimeError on damage
-        return None, [f"data unreadable ({type(exc).__name__}: {exc})"]
-
-
-def _unique_aside(path: Path, tag: str) -> Path:
-    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-    for k in range(1000):
-        cand = path.with_name(f"{path.name}.{tag}-{stamp}" + (f"-{k}" if k else ""))
-        if not cand.exists():
-            return cand
-    raise OSError(f"{path}: cannot find a free name to keep the damaged file aside")
-
-
-def recover(path: str | os.PathLike) -> RecoveryReport:
-    """Bring a session file in line with its journal after a crash.
-
-    Parameters
-    ----------
-    path : path-like
-        The session file (it may be missing, damaged, or complete).
-
-    Returns
-    -------
-    RecoveryReport
-
-    Raises
-    ------
-    SessionFileError
-        If the file is damaged and there is no journal to rebuild it from.
-    """
-    path = Path(path)
-    jdir = journal_dir(path)
-    if not jdir.is_dir():
-        s, problems = _read_fully(path)
-        if s is not None:
-            return RecoveryReport(str(path), "none", n_trials=len(s.trials))
-        raise SessionFileError(path, f"{problems[0]}; and there is no journal "
-                                     f"({jdir.name}) to recover it from")
-    if not (jdir / "header.json").exists():  # nothing was ever journaled in it
-        s, _ = _read_fully(path)
-        if s is not None:
-            return RecoveryReport(str(path), "none", n_trials=len(s.trials))
-        return RecoveryReport(str(path), "no-calibration")
-    jc = read_journal(jdir)
-    report = RecoveryReport(str(path), "none")
-    # 1. the trial in progress becomes an aborted trial of the journal
-    if jc.partial_meta is not None:
-        seq = int(jc.partial_meta.get("seq", len(jc.trial_files) + 1))
-        target = jdir / f"trial-{seq:04d}.npz"
-        if seq == len(jc.trial_files) + 1 and not target.exists():
-            trial = _partial_trial(jc)
-            _save_trial_npz(target, trial)
-            report.partial_recovered = True
-            report.partial_samples = trial.n_samples
-            _append_event_line(jdir, Event(utc_now(), "recovered",
-                                           f"trial {seq} (schedule index "
-                                           f"{trial.extra_attrs.get('schedule_index', '?')}) "
-                                           f"kept as aborted: {PARTIAL_ABORT_REASON}, "
-                                           f"{trial.n_samples} samples"))
-        for name in ("partial.json", "partial.f64"):
-            (jdir / name).unlink(missing_ok=True)
-        jc = read_journal(jdir)
-    if jc.calibration is None:
-        if path.exists() and validate_session(path):
-            aside = _unique_aside(path, "damaged")
-            os.replace(path, aside)
-            report.damaged_kept_at = str(aside)
-        report.action = "no-calibration"
-        return report
-    metas = jc.trial_metas()
-    report.n_trials = len(metas)
-    s, problems = _read_fully(path)
-    report.problems_before = problems
-    if s is not None:
-        prefix_ok = (len(s.trials) <= len(metas) and len(s.events) <= len(jc.events)
-                     and all(_same_trial(load_trial_npz(p), t)
-                             for p, t in zip(jc.trial_files, s.trials)))
-        if prefix_ok:
-            w = SessionWriter.open(path)
-            for p in jc.trial_files[len(s.trials):]:
-                w.append_trial(load_trial_npz(p))
-                report.n_appended += 1
-            w.append_events(jc.events[len(s.events):])
-            report.action = "appended" if report.n_appended or report.partial_recovered \
-                else "none"
-            return report
-    # rebuild from the journal into a new file, then swap it in
-    tmp = path.with_name(path.name + f".recovering-{os.getpid()}")
-    if tmp.exists():
-        tmp.unlink()
-    _build_from_journal(tmp, jc)
-    if path.exists():
-        aside = _unique_aside(path, "damaged")
-        os.replace(path, aside)
-        report.damaged_kept_at = str(aside)
-    os.replace(tmp, path)
-    _fsync_dir(path.parent)
-    report.action = "rebuilt"
-    log.warning("%s", report.summary())
-    return report
-
-
-def _create_from_header(path: Path, header: dict) -> SessionWriter:
-    return SessionWriter.create(
-        path, participant=header["participant"], created_utc=header["created_utc"],
-        software=header.get("software"), config_json=header.get("config_json"),
-        seed=header.get("seed"), backend=header.get("backend"),
-        extra_attrs=header.get("extra_attrs") or {})
-
-
-def _build_from_journal(path: Path, jc: JournalContents) -> None:
-    w = _create_from_header(path, jc.header)
-    w.write_calibration(jc.calibration)
-    for p in jc.trial_files:
-        w.append_trial(load_trial_npz(p))
-    w.append_events(jc.events)
-    with open(path, "rb+") as fh:
-        os.fsync(fh.fileno())
-
-
-def _append_event_line(jdir: Path, ev: Event) -> None:
-    with open(jdir / "events.jsonl", "a", encoding="utf-8") as fh:
-        fh.write(json.dumps({"utc": ev.utc, "kind": ev.kind, "detail": ev.detail}) + "\n")
-        fh.flush()
-
-
-# -- the logger the engine uses ----------------------------------------------------------
 class SessionLog:
     """Write one session: journal first, then the HDF5 file.
 
@@ -462,13 +97,13 @@ class SessionLog:
         if tmp.exists():
             shutil.rmtree(tmp)
         tmp.mkdir()
-        _write_durable(tmp / "header.json",
+        write_durable(tmp / "header.json",
                        lambda fh: fh.write(json.dumps(header, indent=1).encode("utf-8")))
         if jdir.exists():
             shutil.rmtree(tmp)
             raise SessionExistsError(jdir)
         os.rename(tmp, jdir)
-        _fsync_dir(jdir.parent)
+        fsync_dir(jdir.parent)
         return cls(path, header)
 
     @classmethod
@@ -483,7 +118,7 @@ class SessionLog:
         jdir = journal_dir(path)
         report = None
         if jdir.is_dir() and not (jdir / "header.json").exists():
-            os.rename(jdir, _unique_aside(jdir, "headerless"))  # keep it, but aside
+            os.rename(jdir, unique_aside(jdir, "headerless"))  # keep it, but aside
         if jdir.is_dir():
             report = recover(path)
         elif path.exists():
@@ -518,9 +153,9 @@ class SessionLog:
         problems = cal.problems()
         if problems:
             raise ValueError(f"{self.path}: refusing calibration: " + "; ".join(problems))
-        _save_calibration(self.jdir / "calibration.npz", cal)
+        save_calibration(self.jdir / "calibration.npz", cal)
         self.calibration = cal
-        self._writer = _create_from_header(self.path, self.header)
+        self._writer = create_from_header(self.path, self.header)
         self._writer.write_calibration(cal)
         self.flush_events()
 
@@ -564,11 +199,11 @@ class SessionLog:
         self._close_partial()
         seq = len(self.trials) + 1
         trial.name = f"t{seq:03d}"
-        _save_trial_npz(self.jdir / f"trial-{seq:04d}.npz", trial)
+        save_trial_npz(self.jdir / f"trial-{seq:04d}.npz", trial)
         # partial.json / partial.f64 stay: their seq now names a journaled trial, which
         # recovery ignores; the next begin_trial reuses them
         self.trials.append(trial_meta(trial))
-        self._digests.append(_digest(trial))
+        self._digests.append(trial_digest(trial))
         name = self._writer.append_trial(trial)
         self.flush_events()
         return name
@@ -593,7 +228,7 @@ class SessionLog:
         self.close()
         if self._writer is None:
             return False
-        s, problems = _read_fully(self.path)
+        s, problems = read_fully(self.path)
         if s is None:
             log.error("%s: not removing the journal, the file has problems: %s", self.path,
                       problems[0])
@@ -601,9 +236,9 @@ class SessionLog:
         files = read_journal(self.jdir).trial_files
         digests = list(self._digests)
         if len(digests) < len(files):  # trials journaled before this process (resume)
-            digests = [_digest(load_trial_npz(p)) for p in files[:len(files) - len(digests)]] \
+            digests = [trial_digest(load_trial_npz(p)) for p in files[:len(files) - len(digests)]] \
                 + digests
-        if len(s.trials) != len(files) or [_digest(t) for t in s.trials] != digests:
+        if len(s.trials) != len(files) or [trial_digest(t) for t in s.trials] != digests:
             log.error("%s: file and journal differ (%d / %d trials); journal kept", self.path,
                       len(s.trials), len(files))
             return False
@@ -636,20 +271,20 @@ def _journal_from_file(path: Path, jdir: Path) -> None:
         shutil.rmtree(jdir)
     jdir.mkdir()  # built aside, renamed when complete: a kill leaves no half journal
     extra = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in s.attrs.items()}
-    extra = json.loads(json.dumps(extra, default=_json_default))
+    extra = json.loads(json.dumps(extra, default=json_default))
     header = {"participant": s.participant, "created_utc": s.created_utc,
               "software": s.software, "config_json": s.config_json, "seed": s.seed,
               "backend": s.backend, "extra_attrs": extra, "file": path.name}
-    _write_durable(jdir / "header.json",
+    write_durable(jdir / "header.json",
                    lambda fh: fh.write(json.dumps(header, indent=1,
-                                                  default=_json_default).encode("utf-8")))
-    _save_calibration(jdir / "calibration.npz", s.calibration)
+                                                  default=json_default).encode("utf-8")))
+    save_calibration(jdir / "calibration.npz", s.calibration)
     for i, t in enumerate(s.trials):
-        _save_trial_npz(jdir / f"trial-{i + 1:04d}.npz", t)
+        save_trial_npz(jdir / f"trial-{i + 1:04d}.npz", t)
     with open(jdir / "events.jsonl", "w", encoding="utf-8") as fh:
         for ev in s.events:
             fh.write(json.dumps({"utc": ev.utc, "kind": ev.kind, "detail": ev.detail}) + "\n")
         fh.flush()
         os.fsync(fh.fileno())
     os.rename(jdir, final)
-    _fsync_dir(final.parent)
+    fsync_dir(final.parent)
