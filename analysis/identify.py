@@ -176,7 +176,7 @@ def identify_level(trials, settings: IdentificationSettings | None = None) -> Le
         return LevelResult(sE, None, None, len(usable), names, problems)
     if not fit.converged:
         problems.append(f"sE={sE:g}: fit did not converge ({fit.message}); parameters "
-                        "reported but flagged")
+                        "reported but flagged, and left out of the model selection")
     for note in fit.notes:
         problems.append(f"sE={sE:g}: {note}")
     if not math.isfinite(fit.fit_pct) or fit.fit_pct < 50:

@@ -145,10 +145,15 @@ class ParticipantParameters:
 
 
 def participant_parameters(session_result) -> ParticipantParameters:
-    """Collect the parameters of an ``analysis.identify.SessionResult``."""
+    """Collect the parameters of an ``analysis.identify.SessionResult``.
+
+    Levels whose fit did not converge are left out (NaN): their numbers are where the
+    search stopped, not estimates.
+    """
     sE = np.array([lv.sE for lv in session_result.levels], dtype=float)
-    values = {name: np.array([getattr(lv.fit, name) if lv.fit is not None else np.nan
-                              for lv in session_result.levels], dtype=float)
+    usable = [lv.fit is not None and lv.fit.converged for lv in session_result.levels]
+    values = {name: np.array([getattr(lv.fit, name) if ok else np.nan
+                              for lv, ok in zip(session_result.levels, usable)], dtype=float)
               for name in PARAMETER_NAMES}
     return ParticipantParameters(session_result.participant, sE, values)
 

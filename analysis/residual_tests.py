@@ -44,17 +44,20 @@ class ResidualTests:
     """No autocorrelation at lags 1..M outside the family-wise bound."""
     independence_pass: bool
     """No cross-correlation at lags -M..M outside the family-wise bound."""
-    family_factor: float = 1.0
-    """z_fw / z: the verdicts' bounds are the per-lag bounds times this factor."""
+    autocorrelation_verdict_bound: float = float("nan")
+    """Family-wise bound used for ``whiteness_pass``."""
+    cross_correlation_verdict_bound: float = float("nan")
+    """Family-wise bound used for ``independence_pass``."""
 
     def summary(self) -> str:
         """One line: both verdicts and the worst excursion of each."""
         worst_a = float(np.max(np.abs(self.autocorrelation[1:]))) if len(self.lags) > 1 else 0.0
         worst_c = float(np.max(np.abs(self.cross_correlation)))
         return (f"whiteness {'pass' if self.whiteness_pass else 'fail'} (max |r_e| "
-                f"{worst_a:.3f} vs bound {self.autocorrelation_bound:.3f}); input "
+                f"{worst_a:.3f}, per-lag bound {self.autocorrelation_bound:.3f}); input "
                 f"independence {'pass' if self.independence_pass else 'fail'} (max |r_eu| "
-                f"{worst_c:.3f} vs bound {self.cross_correlation_bound:.3f})")
+                f"{worst_c:.3f}, per-lag bound {self.cross_correlation_bound:.3f}); verdicts "
+                f"at the family-wise {self.confidence:.0%} level")
 
 
 def _normalised_xcorr(a: np.ndarray, b: np.ndarray, max_lag: int) -> np.ndarray:
@@ -119,4 +122,5 @@ def residual_tests(residual: np.ndarray, u: np.ndarray, max_lag: int = 25,
         cross_correlation_bound=cross_bound, confidence=confidence,
         whiteness_pass=bool(np.all(np.abs(auto[1:]) <= auto_bound * z_auto / z)),
         independence_pass=bool(np.all(np.abs(r_eu) <= cross_bound * z_cross / z)),
-        family_factor=z_auto / z)
+        autocorrelation_verdict_bound=auto_bound * z_auto / z,
+        cross_correlation_verdict_bound=cross_bound * z_cross / z)
