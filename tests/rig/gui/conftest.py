@@ -82,7 +82,7 @@ def sim_short_config(cfg):
     return cfg.replace(protocol=p, calibration=c)
 
 
-def _sim_window(qtbot, realtime: bool, config_transform, select_models=None):
+def _sim_window(qtbot, realtime: bool, config_transform, select_models=None, faults=None):
     from rig.gui.main_window import MainWindow
     from sim_backends.rig import make_sim_rig
 
@@ -90,7 +90,7 @@ def _sim_window(qtbot, realtime: bool, config_transform, select_models=None):
 
     def devices(request, config):
         rig = make_sim_rig(realtime=realtime, seed=request.seed or 0,
-                           fs_Hz=config.protocol.fs_Hz)
+                           fs_Hz=config.protocol.fs_Hz, faults=faults)
         rigs.append(rig)
         return rig
 
@@ -122,8 +122,11 @@ def sim_levels_config(cfg):
 
 @pytest.fixture
 def fast_sim_window(qtbot):
-    """A window over the real engine and the simulated rig on its fast clock."""
-    w = _sim_window(qtbot, False, sim_levels_config)
+    """A window over the real engine and the simulated rig on its fast clock, with a
+    100 N force spike 1 s into the second trial (the force-limit rule must trip)."""
+    from sim_backends.faults import Fault, FaultKind
+    spike = Fault(FaultKind.FORCE_SPIKE, trial=1, at_s=1.0, amplitude_N=100.0)
+    w = _sim_window(qtbot, False, sim_levels_config, faults=[spike])
     yield w
     w.controller.shutdown(timeout_s=5.0)
     w.results.shutdown(wait=True)

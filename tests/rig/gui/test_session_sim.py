@@ -140,14 +140,28 @@ def test_pause_resume_skip_end_then_resume_the_file(sim_window_manual, qtbot, tm
     assert any("skipped" in t.abort_reason for t in s.trials if not t.completed)
 
 
-def test_fast_session_shows_model_selection_and_saves_it(fast_sim_window, qtbot, tmp_path):
-    """Six sE levels on the simulator's fast clock: identification per level, then the
-    model selection (AICc table, Figures 4-6) in the window and written beside the file."""
+def test_fault_trip_then_model_selection_on_the_fast_clock(fast_sim_window, qtbot,
+                                                            tmp_path):
+    """Six sE levels on the simulator's fast clock. A force spike trips the force-limit
+    rule: the GUI shows the rule and the reason, stays tripped until re-armed; the trial
+    is re-run. At the end: identification per level, then the model selection (AICc
+    table, Figures 4-6) in the window and written beside the file."""
     w = fast_sim_window
     out = tmp_path / "G03.h5"
     w.start_session(participant="G03", output=out, backend="sim", seed=4, realtime=False)
     qtbot.waitUntil(lambda: w.calibration_panel.confirm_button.isEnabled(), timeout=30000)
     w.confirm_calibration()
+    qtbot.waitUntil(lambda: w.state is State.TRIPPED, timeout=30000)
+    assert w.trial_statuses()[1] == "aborted"
+    assert "force_limit" in w.controller.engine.schedule[1].reason
+    assert "force_limit" in w.safety.banner.text()
+    assert w.safety.lights["Force limit"].ok is False
+    assert w.safety.lights["Interlock latch"].ok is False
+    assert not w.rigs[0].stimulator.status().output_active
+    qtbot.wait(200)
+    assert w.state is State.TRIPPED  # latched: the fast clock does not run on
+    w.rerun(1)  # queue the re-run, then re-arm
+    w.rearm()
     qtbot.waitUntil(lambda: w.run_result is not None, timeout=60000)
     assert w.run_error is None and w.run_result.complete
     qtbot.waitUntil(lambda: w.identification.pending == 0 and not w.results.busy,
@@ -167,3 +181,6 @@ def test_fast_session_shows_model_selection_and_saves_it(fast_sim_window, qtbot,
         assert (analysis / name).exists(), name
     assert "AICc" in w.results.tables_text.toPlainText()
     assert validate_session(out) == []
+    s = read_session(out)
+    assert [t.abort_reason.split(":")[0] for t in s.trials if not t.completed] == \
+        ["force_limit"]

@@ -52,6 +52,24 @@ def test_escape_and_space_estop_even_with_rearm_focused(fake_window, qtbot, tmp_
     qtbot.keyClick(w.schedule_panel.table, Qt.Key.Key_Escape)
     qtbot.keyClick(w.tabs, Qt.Key.Key_Space)
     assert len(calls) == 2
+    # a focused button never takes Space for itself: Confirm is not pressed, E-stop is
+    confirmed = []
+    w.calibration_panel._on_confirm = confirmed.append
+    w.calibration_panel.set_awaiting(True)
+    w.tabs.setCurrentIndex(1)
+    w.calibration_panel.confirm_button.setFocus()
+    qtbot.waitUntil(lambda: w.calibration_panel.confirm_button.hasFocus(), timeout=2000)
+    qtbot.keyClick(w.calibration_panel.confirm_button, Qt.Key.Key_Space)
+    assert len(calls) == 3 and not confirmed
+    for b in (w.safety.rearm_button, w.schedule_panel.rerun_button,
+              w.schedule_panel.end_button):
+        assert b.focusPolicy() == Qt.FocusPolicy.NoFocus
+    # typing a note: Space types a space, Escape still stops
+    w.event_log.note.setFocus()
+    qtbot.keyClicks(w.event_log.note, "a b")
+    assert w.event_log.note.text() == "a b" and len(calls) == 3
+    qtbot.keyClick(w.event_log.note, Qt.Key.Key_Escape)
+    assert len(calls) == 4
     # the E-STOP button is never disabled
     w.safety.estop_button.setEnabled(False)
     w.setEnabled(True)
