@@ -127,7 +127,7 @@ class IdentificationSettings:
     """Iteration limit of the prediction-error (Gauss-Newton / Levenberg-Marquardt) search."""
     tolerance: float = 1e-10
     """Stop when the relative cost decrease and the relative step are below this."""
-    retry_below_fit_pct: float = 80.0
+    retry_below_fit_pct: float = 70.0
     """If the fit from the instrumental-variable start ends below this fit percent (or does
     not converge), also start from a coarse grid of (wn, zeta) and keep the best."""
     noise_level: NoiseLevel = NoiseLevel.BAND_PSD

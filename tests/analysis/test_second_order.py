@@ -138,3 +138,16 @@ def test_residual_tests_detect_unmodelled_dynamics():
     ok = residual_tests(rng.standard_normal(3000), u)
     assert ok.whiteness_pass and ok.independence_pass
     assert "whiteness pass" in ok.summary()
+
+
+@pytest.mark.parametrize("start", [(300.0, 0.02), (5.0, 2.0), (1000.0, 0.01)])
+def test_far_starts_converge_to_the_truth(start):
+    """Variable projection leaves only (wn, zeta) to search: far starts still converge."""
+    fs = 200.0
+    t = np.arange(2000) / fs
+    u = 0.5 * np.sin(2 * np.pi * (1 + 0.45 * t) * t)
+    from scipy.signal import lsim
+    y = lsim(([5 * 900.0], [1, 2 * 0.4 * 30, 900.0]), u, t)[1]     # piecewise-linear u
+    f = fit_second_order(u, y, fs, LINEAR, start=start)
+    assert f.converged
+    assert (f.Kp, f.wn_rad_s, f.zeta) == pytest.approx((5.0, 30.0, 0.4), rel=1e-6)
