@@ -43,14 +43,11 @@ def external_predictions(data: GapData, *, twin=None, sim_session=None) -> np.nd
     """
     from rig.session_file import read_session
 
-    meas = read_session(data.path)
-    by_name = {t.name: t for t in meas.trials}
-    preds = []
     if sim_session is not None:
         sim = read_session(sim_session)
         table = {(round(t.sE, 6), t.repeat): t for t in sim.trials if t.completed}
         sim_trials = []
-        for info in data.trials:
+        for info in data.trials:  # in the measured file's order
             t = table.get((round(info.sE, 6), info.repeat))
             if t is None:
                 raise GapInputError(f"{sim_session}: no completed trial with sE = {info.sE:g}"
@@ -63,6 +60,7 @@ def external_predictions(data: GapData, *, twin=None, sim_session=None) -> np.nd
                                 "measured ones")
         return sim_data.y_N[:, :n]
     from analysis.twin import Twin
+    by_name = {t.name: t for t in read_session(data.path).trials}
     try:
         tw = Twin.load(twin)
     except (OSError, ValueError) as exc:
@@ -78,7 +76,6 @@ def external_predictions(data: GapData, *, twin=None, sim_session=None) -> np.nd
         trials.append(_with_force(t, force))
     sim_data = prepare_trials(trials, path=str(twin), settings=data.settings)
     return sim_data.y_N
-    del preds
 
 
 def _with_force(trial, force):

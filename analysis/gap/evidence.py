@@ -22,6 +22,9 @@ import numpy as np
 
 from analysis.gap.diagnose import Diagnosis
 from analysis.gap.effects import Effect
+from analysis.gap.fit import Problem
+from analysis.gap.harmonics import local_harmonics
+from analysis.gap.models import NOMINAL
 
 CONFUSABLE = (
     (Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS),
@@ -53,14 +56,41 @@ def phase_shape(freq: dict) -> dict:
             "max_abs_phase_error_deg": float(np.max(np.abs(ph))) if len(ph) else None}
 
 
+def effect_footprint(diag: Diagnosis) -> dict | None:
+    """The winning effect's own footprint on the transfer function: measured force over
+    the second-order model with the *augmented* fit's per-sE parameters but without the
+    effect. A dead time leaves a phase line ``-360 f L`` and 0 dB; an extra lag an
+    arctangent with its roll-off; an asymmetry the shape of the second muscle."""
+    fit = diag.full_fit
+    if not fit.candidate.effects:
+        return None
+    d = diag.data
+    prob = Problem(d, NOMINAL)
+    lev = prob.levels
+    x = prob.unit_response(fit.wn_rad_s[lev], fit.zeta[lev], np.zeros(0))
+    pred = prob.project(fit.Kp[d.level][:, None] * x)
+    args = (d.phase_eval_rad, d.f_inst_Hz, d.t_eval_s)
+    hm = local_harmonics(diag.reference, *args, orders=(1,))
+    hp = local_harmonics(pred, *args, orders=(1,))
+    ratio = hm.amplitude[:, :, 0] / hp.amplitude[:, :, 0]
+    view = {"f_Hz": hm.f_Hz.tolist(),
+            "gain_error_dB": np.median(20 * np.log10(np.abs(ratio)), axis=0).tolist(),
+            "phase_error_deg": np.degrees(np.angle(np.median(ratio / np.abs(ratio), axis=0))
+                                          ).tolist()}
+    view.update(phase_shape(view))
+    return view
+
+
 def signatures(diag: Diagnosis, loc: dict) -> dict:
-    """Every signature, from the nominal model's held-out residual."""
+    """Every signature, from the nominal model's held-out residual (and the winner's
+    footprint)."""
     fn = loc["frequency"]["nominal"]
     h = fn["residual_harmonic_pct"]
     gs = loc["gain_vs_stimulation"]
     sp = loc["spectrum"]["nominal"]
     return {
         "transfer_function": phase_shape(fn),
+        "effect_footprint": effect_footprint(diag),
         "gain_vs_stimulation": {"slope_per_100s": gs["slope_per_100s"],
                                 "correlation": gs["correlation"]},
         "harmonics": {"median_2f_pct": float(np.median(h["2f"])),
@@ -87,17 +117,21 @@ def explain(diag: Diagnosis, sig: dict) -> list[str]:
     lines.append(f"{final.label}: held-out NRMSE {nom.heldout_nrmse_pct:.3g} % -> "
                  f"{final.heldout_nrmse_pct:.3g} % ({final.shrink_pct:.0f} % smaller), dIC "
                  f"{final.delta_ic:.0f} (N_eff = {final.nu:.2f} N).")
-    tf = sig["transfer_function"]
+    tf = sig["effect_footprint"] or sig["transfer_function"]
     e = diag.best_effect
     if e is Effect.DEAD_TIME:
-        lines.append(f"signature: phase error linear in frequency (R^2 {tf['r2_linear_phase']:.2f}"
-                     f" vs {tf['r2_atan_phase']:.2f} for an arctangent), gain error at the top "
-                     f"of the band {tf['gain_error_at_top_dB']:.2f} dB (a lag would roll off "
+        lines.append(f"signature: the effect's footprint on the transfer function is a phase "
+                     f"line (R^2 {tf['r2_linear_phase']:.3f} vs {tf['r2_atan_phase']:.3f} for "
+                     f"an arctangent; slope = {1000 * tf['dead_time_equivalent_s']:.1f} ms) with "
+                     f"a gain error of {tf['gain_error_at_top_dB']:.2f} dB at the top of the "
+                     f"band (a lag with that phase would roll off "
                      f"{tf['gain_rolloff_expected_for_lag_dB']:.2f} dB).")
     elif e is Effect.ACTIVATION_DYNAMICS:
-        lines.append(f"signature: arctangent-shaped phase error (R^2 {tf['r2_atan_phase']:.2f} vs "
-                     f"{tf['r2_linear_phase']:.2f} for a line) with a gain roll-off of "
-                     f"{tf['gain_error_at_top_dB']:.2f} dB at the top of the band.")
+        lines.append(f"signature: the footprint's phase is an arctangent (R^2 "
+                     f"{tf['r2_atan_phase']:.3f} vs {tf['r2_linear_phase']:.3f} for a line; tau "
+                     f"= {1000 * tf['lag_equivalent_s']:.1f} ms) with a gain roll-off of "
+                     f"{tf['gain_error_at_top_dB']:.2f} dB at the top of the band (expected "
+                     f"{tf['gain_rolloff_expected_for_lag_dB']:.2f} dB).")
     elif e is Effect.FATIGUE:
         g = sig["gain_vs_stimulation"]
         lines.append(f"signature: trial gain changes by {g['slope_per_100s']:+.4f} per 100 s of "
@@ -144,7 +178,7 @@ def confusable_pairs(diag: Diagnosis, sig: dict) -> list[dict]:
                 "delta_ic": [ra.delta_ic, rb.delta_ic],
                 "preferred": pref.value if (ra.supported or rb.supported) else "neither"}
         if {a, b} == {Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS}:
-            tf = sig["transfer_function"]
+            tf = sig["effect_footprint"] or sig["transfer_function"]
             item["phase_shape"] = {"r2_linear": tf["r2_linear_phase"],
                                    "r2_atan": tf["r2_atan_phase"],
                                    "gain_error_at_top_dB": tf["gain_error_at_top_dB"]}

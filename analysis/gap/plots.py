@@ -67,12 +67,16 @@ def plot_frequency(loc: dict, path: Path) -> None:
     plt = _plt()
     fr = loc["frequency"]
     fig, axes = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
-    for key, color in (("nominal", "0.4"), ("augmented", "tab:blue")):
+    labels = {"nominal": "nominal (held out)", "augmented": "augmented (held out)",
+              "footprint": "effect footprint: measured / augmented fit without the effect"}
+    for key, color in (("nominal", "0.4"), ("augmented", "tab:blue"),
+                       ("footprint", "tab:orange")):
         if key not in fr:
             continue
         v = fr[key]
-        axes[0].semilogx(v["f_Hz"], v["gain_error_dB"], "o-", color=color, label=key)
-        axes[1].semilogx(v["f_Hz"], v["phase_error_deg"], "o-", color=color, label=key)
+        axes[0].semilogx(v["f_Hz"], v["gain_error_dB"], "o-", color=color, label=labels[key])
+        axes[1].semilogx(v["f_Hz"], v["phase_error_deg"], "o-", color=color,
+                         label=labels[key])
     axes[0].set_ylabel("gain error (dB)\nmeasured / simulated")
     axes[1].set_ylabel("phase error (deg)")
     ax2 = axes[0].twinx()

@@ -125,6 +125,9 @@ def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | 
     """(gap_report dict, localization dict, twin dict or None)."""
     loc = localization(diag)
     sig = signatures(diag, loc)
+    if sig["effect_footprint"] is not None:
+        loc["frequency"]["footprint"] = {k: sig["effect_footprint"][k] for k in
+                                         ("f_Hz", "gain_error_dB", "phase_error_deg")}
     final = diag.best_pair or diag.best
     fp = final_params(diag)
     nom = diag.nominal

@@ -5,7 +5,6 @@ import json
 import numpy as np
 import pytest
 
-from analysis.gap.api import run_gap
 from analysis.gap.data import load_session
 from analysis.gap.diagnose import GapSettings, diagnose, effective_fraction
 
@@ -14,8 +13,10 @@ REQUIRED = ("best_effect", "ranking", "heldout", "localization")
 
 @pytest.fixture(scope="module")
 def dead_report(dead_time_session, tmp_path_factory):
+    """``nmsid gap`` through the command line (figures included)."""
+    from rig.cli import main
     out = tmp_path_factory.mktemp("gap_dead")
-    run_gap([dead_time_session], out, plots=True)
+    assert main(["gap", str(dead_time_session), "--out", str(out)]) == 0
     return out, json.loads((out / "gap_report.json").read_text())
 
 
@@ -24,6 +25,24 @@ def test_dead_time_session_is_diagnosed_as_dead_time(dead_report):
     assert rep["best_effect"] == "dead_time"
     assert rep["best_params"]["L_s"] == pytest.approx(0.030, rel=0.15)
     assert rep["heldout"]["shrink_pct"] >= 50
+
+
+def test_dead_time_footprint_is_a_phase_line(dead_report):
+    """Told apart from a lag: linear phase, no gain roll-off."""
+    _, rep = dead_report
+    fp = rep["evidence"]["signatures"]["effect_footprint"]
+    assert fp["r2_linear_phase"] > 0.99 > fp["r2_atan_phase"]
+    assert abs(fp["gain_error_at_top_dB"]) < 0.5
+    assert fp["dead_time_equivalent_s"] == pytest.approx(0.030, rel=0.1)
+    by = {r["effect"]: r for r in rep["ranking"]}
+    assert by["dead_time"]["heldout_nrmse_pct"] < 0.2 * by["activation_dynamics"][
+        "heldout_nrmse_pct"]
+
+
+def test_cli_refuses_a_missing_file(tmp_path, capsys):
+    from rig.cli import main
+    assert main(["gap", str(tmp_path / "nope.h5"), "--out", str(tmp_path / "o")]) == 2
+    assert "nope.h5" in capsys.readouterr().err
 
 
 def test_report_has_the_keys_and_files(dead_report):
@@ -76,3 +95,18 @@ def test_effective_fraction_of_white_and_smooth_noise():
     assert effective_fraction(white, 100.0, 25.0) == pytest.approx(0.5)  # bandwidth cap
     smooth = np.cumsum(rng.standard_normal((20, 1000)), axis=1)
     assert effective_fraction(smooth, 100.0, 25.0) < 0.05
+
+
+def test_external_simulation_under_test(dead_report, dead_time_session):
+    """--sim-session matches trials by sE and repeat; --twin simulates the twin's nominal
+    part (its dead time is not applied by that view, so the gap is large)."""
+    from analysis.gap.api import external_predictions
+    out, _ = dead_report
+    data = load_session(dead_time_session)
+    same = external_predictions(data, sim_session=dead_time_session)
+    np.testing.assert_allclose(same, data.y_N)
+    pred = external_predictions(data, twin=out / "twin.json")
+    assert pred.shape == data.y_N.shape
+    r = (data.y_N - pred) - (data.y_N - pred).mean(axis=1, keepdims=True)
+    ref = data.y_N - data.y_N.mean(axis=1, keepdims=True)
+    assert np.sqrt(np.sum(r ** 2) / np.sum(ref ** 2)) > 0.05
