@@ -184,6 +184,23 @@ def identify_level(trials, settings: IdentificationSettings | None = None) -> Le
     return LevelResult(sE, fit, data, len(usable), names, problems)
 
 
+#: The datasets the identification needs; the others (currents, wrench, sync) are not read
+#: when ``read_session`` can skip them.
+NEEDED_DATASETS = ("rE", "force_N")
+
+
+def _read_for_identification(path, read_session):
+    """Read a session, loading only rE and force_N when the reader supports it."""
+    import inspect
+    try:
+        accepts = "datasets" in inspect.signature(read_session).parameters
+    except (TypeError, ValueError):
+        accepts = False
+    if accepts:
+        return read_session(path, datasets=NEEDED_DATASETS)
+    return read_session(path)
+
+
 def identify_session(session, settings: IdentificationSettings | None = None,
                      progress=None) -> SessionResult:
     """Identify every sE level of a session.
@@ -209,7 +226,7 @@ def identify_session(session, settings: IdentificationSettings | None = None,
 
     s = settings or IdentificationSettings()
     if isinstance(session, (str, os.PathLike)):
-        session = read_session(session)
+        session = _read_for_identification(session, read_session)
     problems: list[str] = []
     groups: dict[float, list] = {}
     for tr in session.trials:
