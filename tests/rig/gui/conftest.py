@@ -149,3 +149,20 @@ def sim_window_manual(qtbot):
     yield w
     w.controller.shutdown(timeout_s=5.0)
     w.results.shutdown(wait=True)
+
+
+@pytest.fixture
+def make_sim_window(qtbot):
+    """``make_sim_window(config_transform, realtime=False, faults=None)`` -> a window over
+    the real engine and the simulator, closed after the test."""
+    made = []
+
+    def make(config_transform=sim_levels_config, realtime=False, faults=None):
+        w = _sim_window(qtbot, realtime, config_transform, select_models=no_model_selection,
+                        faults=faults)
+        made.append(w)
+        return w
+    yield make
+    for w in made:
+        w.controller.shutdown(timeout_s=5.0)
+        w.results.shutdown(wait=True)

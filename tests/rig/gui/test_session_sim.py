@@ -184,3 +184,31 @@ def test_fault_trip_then_model_selection_on_the_fast_clock(fast_sim_window, qtbo
     s = read_session(out)
     assert [t.abort_reason.split(":")[0] for t in s.trials if not t.completed] == \
         ["force_limit"]
+
+
+def test_bad_configuration_is_refused_before_anything_runs(fast_sim_window, tmp_path):
+    w = fast_sim_window
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text("[protocol]\nchirp_f1_Hz = 5000.0\n")
+    w.start_session(participant="G04", output=tmp_path / "G04.h5", config=cfg)
+    assert w.controller.engine is None and not w.rigs
+    assert "protocol.chirp_f1_Hz" in w.setup_panel.message.text()
+    assert not (tmp_path / "G04.h5").exists()
+
+
+def test_engine_error_is_shown_and_output_stays_off(make_sim_window, qtbot, tmp_path):
+    """A ceiling above what the (simulated) stimulator can deliver is refused by the
+    engine before anything is stimulated; the window shows the error."""
+    import dataclasses
+
+    def too_high(cfg):
+        return cfg.replace(calibration=dataclasses.replace(cfg.calibration,
+                                                           ceiling_ext_mA=40.0))
+    w = make_sim_window(too_high)
+    w.start_session(participant="G05", output=tmp_path / "G05.h5")
+    qtbot.waitUntil(lambda: w.run_result is not None or w.run_error is not None,
+                    timeout=20000)
+    assert isinstance(w.run_error, ValueError)
+    assert "ceiling_ext_mA" in w.safety.banner.text()
+    assert not w.rigs[0].run_records  # nothing was ever started
+    assert w.state is State.FINISHED
