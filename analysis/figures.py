@@ -43,6 +43,7 @@ def plot_level_fits(session_result, path: str | Path) -> Path:
         f = lv.fit
         ax.plot(f.t_s, f.y_N, lw=0.8, color="0.3", label="measured")
         ax.plot(f.t_s, f.y_fit_N, lw=0.8, color="tab:red", label="fitted")
+        ax.plot(f.t_s, f.residual_N, lw=0.6, color="tab:blue", label="residual")
         ax.set_title(f"sE = {lv.sE:.2f}: Kp {f.Kp:.3g} N, wn {f.wn_rad_s:.3g} rad/s, "
                      f"zeta {f.zeta:.3g}, fit {f.fit_pct:.1f} %", fontsize=8)
         ax.tick_params(labelsize=7)
