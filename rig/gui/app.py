@@ -72,7 +72,11 @@ def run_gui(options: GuiOptions) -> int:
     steps = load_script(options.script) if options.script else None
     if os.environ.get("QT_QPA_PLATFORM") is None and not os.environ.get("DISPLAY") \
             and not os.environ.get("WAYLAND_DISPLAY") and sys.platform.startswith("linux"):
-        log.warning("no display found; using the offscreen Qt platform")
+        if steps is None:
+            raise OSError("no display found (DISPLAY and WAYLAND_DISPLAY are unset): "
+                          "nmsid gui needs a screen; to run it without one give --script "
+                          "(and --screenshot), or use `nmsid run` for a headless session")
+        log.warning("no display found; running the script on the offscreen Qt platform")
         os.environ["QT_QPA_PLATFORM"] = "offscreen"
     app = _application()
     window = build_window(options)

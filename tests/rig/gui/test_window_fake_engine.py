@@ -92,3 +92,42 @@ def test_refuses_existing_finished_file_and_offers_resume(fake_window, tmp_path)
     w.setup_panel.set_values(output=bad)
     assert "not a readable session" in w.setup_panel.message.text()
     assert not w.setup_panel.resume_button.isVisible()
+
+
+def test_script_runner_drives_a_session_and_saves_a_screenshot(fake_window, qtbot, tmp_path):
+    from rig.gui.script import ScriptRunner, parse_script
+    out, shot = tmp_path / "S01.h5", tmp_path / "shots" / "end.png"
+    steps = parse_script(f"""
+        start participant=S01 output={out}
+        confirm-calibration Iemin_mA=2.5
+        wait-trial 1 running 20
+        wait-trial-time 0.3 20
+        estop
+        wait tripped 10
+        note "scripted note"
+        rerun
+        rearm
+        wait-finished 30
+        tab results
+        screenshot {tmp_path / 'mid.png'}
+    """, "test-script")
+    runner = ScriptRunner(fake_window, steps, screenshot=shot)
+    with qtbot.waitSignal(runner.finished, timeout=60000) as sig:
+        runner.start()
+    ok, message = sig.args
+    assert ok, message
+    assert shot.exists() and (tmp_path / "mid.png").exists()
+    assert validate_session(out) == []
+    s = read_session(out)
+    assert s.calibration.Iemin_mA == 2.5
+    assert any(e.kind == "note" and e.detail == "scripted note" for e in s.events)
+    assert fake_window.tabs.currentWidget() is fake_window.results
+
+
+def test_script_failure_names_the_line(fake_window, qtbot):
+    from rig.gui.script import ScriptRunner, parse_script
+    runner = ScriptRunner(fake_window, parse_script("rearm\n", "s"))
+    with qtbot.waitSignal(runner.finished, timeout=5000) as sig:
+        runner.start()
+    ok, message = sig.args
+    assert not ok and "no session is running" in message
