@@ -55,8 +55,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"{s['session']}: best_effect = {s['best_effect']}"
               + (f" (pair {' + '.join(s['best_pair'])})" if s.get("best_pair") else "")
               + f"; held-out NRMSE {h['nominal_nrmse_pct']:.3g} % -> "
-              f"{h['augmented_nrmse_pct']:.3g} % (shrink {h['shrink_pct']:.0f} %), noise floor "
-              f"{h['noise_floor_nrmse_pct']:.3g} %  [{s['elapsed_s']:.1f} s]")
+              f"{h['augmented_nrmse_pct']:.3g} % (shrink {h['shrink_pct']:.0f} %); noise floor "
+              f"{h['noise_floor_nrmse_pct']:.3g} % between repeats, "
+              + (f"{h['sensor_floor_nrmse_pct']:.3g} %" if h.get("sensor_floor_nrmse_pct")
+                 is not None else "n/a")
+              + f" in the steady lead-in  [{s['elapsed_s']:.1f} s]")
         for line in s["evidence"]["summary"]:
             print(f"  {line}")
     print(f"report: {summary['report']}")

@@ -105,6 +105,10 @@ class GapData:
     sim_step: int
     """Evaluation sample k is simulation sample ``n_lead_sim + k * sim_step``."""
     skipped: list[str] = field(default_factory=list)
+    steady_noise_N2: np.ndarray | None = None
+    """(n_trials,) mean square of the filtered force in the steady lead-in (rE = 0.5, last
+    3 s before the chirp but 0.3 s) after offset and trend: the sensor's noise floor, free
+    of any model error (NaN if the lead-in is shorter than 1 s)."""
 
     @property
     def n_trials(self) -> int:
@@ -150,7 +154,8 @@ class GapData:
             f_inst_Hz=self.f_inst_Hz, phase_eval_rad=self.phase_eval_rad,
             chirp_f0_Hz=self.chirp_f0_Hz, chirp_f1_Hz=self.chirp_f1_Hz,
             chirp_s=self.chirp_s, steady_s=self.steady_s, n_lead_sim=self.n_lead_sim,
-            sim_step=self.sim_step, skipped=self.skipped)
+            sim_step=self.sim_step, skipped=self.skipped,
+            steady_noise_N2=None if self.steady_noise_N2 is None else self.steady_noise_N2[rows])
 
 
 def _filter_chain(x: np.ndarray, fs_Hz: float, s: PreprocessSettings) -> np.ndarray:
@@ -265,10 +270,19 @@ def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
         raise GapInputError(f"{path}: the analysis window (t >= steady_s = "
                             f"{first.steady_s:g} s) is shorter than 2 s")
     n_raw_used = lead + n_eval * step_raw
-    rows_y, rows_draw = [], []
+    rows_y, rows_draw, steady = [], [], []
+    a_st = int(round(max(0.5, first.steady_s - 3.3) * fs))
+    b_st = int(round((first.steady_s - 0.3) * fs))
     for _, t in usable:
         force = _filter_chain(np.asarray(t.force_N, float)[:n_min], fs, s)
         rows_y.append(force[i_win: i_win + n_eval * step_raw: step_raw])
+        if b_st - a_st >= fs:
+            seg = force[a_st:b_st:step_raw]
+            tt = np.arange(len(seg), dtype=float)
+            res = seg - np.polyval(np.polyfit(tt, seg, 1), tt)
+            steady.append(float(np.mean(res ** 2)))
+        else:
+            steady.append(float("nan"))
         seg = slice(i_win - lead, i_win - lead + n_raw_used)
         rows_draw.append(np.asarray(t.rE, float)[:n_min])
     rE_full = fractional_delay(np.vstack(rows_draw) - 0.5, s.input_hold_samples) + 0.5
@@ -296,4 +310,5 @@ def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
                                        first.chirp_s),
         chirp_f0_Hz=float(first.chirp_f0_Hz), chirp_f1_Hz=float(first.chirp_f1_Hz),
         chirp_s=float(first.chirp_s), steady_s=float(first.steady_s),
-        n_lead_sim=lead // raw_per_sim, sim_step=sim_step, skipped=skipped)
+        n_lead_sim=lead // raw_per_sim, sim_step=sim_step, skipped=skipped,
+        steady_noise_N2=np.array(steady))

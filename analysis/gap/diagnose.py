@@ -102,7 +102,17 @@ class Diagnosis:
     """The winner (or nominal) fitted on all trials: what the twin file holds."""
     nominal_full: ModelFit
     noise_floor_nrmse_pct: float
+    sensor_floor_nrmse_pct: float = float("nan")
+    """Noise in the steady lead-in (no stimulation change, no model involved) as an NRMSE
+    of the held-out trials: the part of any model's error that is measurement noise."""
     elapsed_s: float = 0.0
+
+    def excess_pct(self, nrmse_pct: float) -> float:
+        """The gap beyond measurement noise: ``sqrt(NRMSE^2 - sensor floor^2)``."""
+        f = self.sensor_floor_nrmse_pct
+        if not np.isfinite(f):
+            return nrmse_pct
+        return float(np.sqrt(max(nrmse_pct ** 2 - f ** 2, 0.0)))
 
     @property
     def best_effect(self) -> Effect:
@@ -308,10 +318,15 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
         full = fit_model(data, full_cand, start=nominal_full, p_start=p0, corner_Hz=corner,
                          max_iter=s.max_iter)
     tested = ~np.isnan(nominal.heldout_resid[:, 0])
+    sensor = float("nan")
+    if data.steady_noise_N2 is not None and np.any(np.isfinite(data.steady_noise_N2[tested])):
+        sensor = 100.0 * float(np.sqrt(np.nanmean(data.steady_noise_N2[tested])
+                                       / np.mean(run.reference[tested] ** 2)))
     return Diagnosis(data=data, settings=s, folds=run.folds, reference=run.reference,
                      tested=tested, nominal=nominal, candidates=results, pairs=pairs,
                      best=best, best_pair=best_pair, full_fit=full, nominal_full=nominal_full,
                      noise_floor_nrmse_pct=noise_floor_pct(data, run.reference),
+                     sensor_floor_nrmse_pct=sensor,
                      elapsed_s=time.perf_counter() - t0)
 
 

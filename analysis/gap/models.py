@@ -18,7 +18,7 @@ and translated to the twin file's names (``docs/twin-file.md``) only when writte
 - ``recruitment_nonlinearity``: each muscle's normalised intensity ``I`` (``I_e = rE sE``,
   ``I_f = (1 - rE) sE``) becomes activation ``h(I)`` through a monotone recruitment curve
   before the dynamics; net drive ``(h(I_e) - h(I_f)) / (2 sE)``. Our ``h`` is a monotone
-  cubic through knots at I = 0, 0.2, ..., 1 (four free increments): a family-free
+  cubic through knots at I = 0, 0.1, 0.25, ..., 0.85, 1 (five free increments): a family-free
   cumulative distribution of motor-unit thresholds, convex, concave, S-shaped or with a
   threshold and a saturation.
 - ``flexor_extensor_asymmetry``: the flexor's dynamics have ``wn * rho_w`` and
@@ -79,11 +79,7 @@ _SHARED = {
                                  [[np.log(v)] for v in (0.003, 0.008, 0.015, 0.025, 0.04,
                                                        0.06, 0.09, 0.13)]),
     Effect.FATIGUE: (1, [(-5.0, 5.0)], [[v] for v in (-0.3, 0.0, 0.3, 0.7, 1.2)]),
-    Effect.RECRUITMENT_NONLINEARITY: (
-        4, [(-4.0, 4.0)] * 4,
-        [[0.0, 0.0, 0.0, 0.0]] + [list(v) for v in (
-            np.log([1, 2, 3, 4, 5.0])[1:] * s for s in (-1.0, 1.0))]
-        + [[1.0, 1.5, 1.0, 0.0], [-1.0, -1.5, -1.0, 0.0], [0.5, 1.0, 0.5, -0.5]]),
+    Effect.RECRUITMENT_NONLINEARITY: None,  # filled in below (depends on the knots)
     Effect.FLEXOR_EXTENSOR_ASYMMETRY: (
         2, [(np.log(0.2), np.log(5.0))] * 2,
         [[np.log(r), np.log(z)] for r in (0.4, 0.6, 0.8, 1.25, 1.7, 2.5)
@@ -154,7 +150,7 @@ class Candidate:
             elif e is Effect.FATIGUE:
                 out["rate_per_s"] = float(q[0] * 1e-3)
             elif e is Effect.RECRUITMENT_NONLINEARITY:
-                out.update({f"h_{k:.1f}": float(v) for k, v in
+                out.update({f"h_{k:.2f}": float(v) for k, v in
                             zip(RECRUITMENT_KNOTS[1:-1], recruitment_knot_values(q)[1:-1])})
             elif e is Effect.FLEXOR_EXTENSOR_ASYMMETRY:
                 out["wn_ratio"], out["zeta_ratio"] = float(np.exp(q[0])), float(np.exp(q[1]))
@@ -220,17 +216,34 @@ def recruitment_excess(data: GapData, h) -> np.ndarray:
 
 
 #: Knots of our recruitment curve (normalised intensity).
-RECRUITMENT_KNOTS = np.array([0.0, 0.2, 0.4, 0.6, 0.8, 1.0])
+RECRUITMENT_KNOTS = np.array([0.0, 0.1, 0.25, 0.45, 0.65, 0.85, 1.0])
 
 
 def recruitment_knot_values(q: np.ndarray) -> np.ndarray:
-    """Curve values at :data:`RECRUITMENT_KNOTS` from the unconstrained parameters: the five
-    increments are ``softmax([0, q])`` (positive, summing to 1), so the curve rises
-    monotonically from 0 to 1; ``q = 0`` gives the identity."""
+    """Curve values at :data:`RECRUITMENT_KNOTS` from the unconstrained parameters ``q``
+    (one per knot increment but the first): increments ``dk_i exp(z_i)`` normalised to sum
+    to 1 with ``z = [0, q]``, so the curve rises monotonically from 0 to 1; ``q = 0`` is the
+    identity."""
     z = np.concatenate([[0.0], np.asarray(q, float)])
-    w = np.exp(z - z.max())
+    w = np.diff(RECRUITMENT_KNOTS) * np.exp(z - z.max())
     w /= w.sum()
     return np.concatenate([[0.0], np.cumsum(w)])
+
+
+def _recruitment_start(h) -> list[float]:
+    """``q`` of the knot curve through a given shape (for the starting grid)."""
+    inc = np.maximum(np.diff(h(RECRUITMENT_KNOTS)), 1e-4) / np.diff(RECRUITMENT_KNOTS)
+    z = np.clip(np.log(inc / inc[0]), -4.0, 4.0)
+    return z[1:].tolist()
+
+
+def _recruitment_grid() -> list[list[float]]:
+    """Identity, convex, concave and S-shaped starts (generic shapes, not any simulator's)."""
+    shapes = [lambda I: I, lambda I: I ** 2, lambda I: np.sqrt(I),
+              lambda I: 3 * I ** 2 - 2 * I ** 3,
+              lambda I: np.clip((I - 0.1) / 0.7, 0, 1) * 0.98 + 0.02 * I,
+              lambda I: 1 - (1 - I) ** 2]
+    return [_recruitment_start(h) for h in shapes]
 
 
 def recruitment_curve(q: np.ndarray):
@@ -250,6 +263,10 @@ def _lowpass_sos(data: GapData):
     s = data.settings
     return signal.butter(s.lowpass_order, s.lowpass_Hz, fs=data.fs_sim_Hz, output="sos")
 
+
+_SHARED[Effect.RECRUITMENT_NONLINEARITY] = (
+    len(RECRUITMENT_KNOTS) - 2, [(-4.0, 4.0)] * (len(RECRUITMENT_KNOTS) - 2),
+    _recruitment_grid())
 
 NOMINAL = Candidate(())
 

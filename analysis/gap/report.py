@@ -92,6 +92,11 @@ def _level_params(diag: Diagnosis):
     return Kp, wn, zeta
 
 
+def _excess_shrink(diag: Diagnosis, nom_pct: float, aug_pct: float) -> float:
+    e0 = diag.excess_pct(nom_pct)
+    return 100.0 * (1 - diag.excess_pct(aug_pct) / e0) if e0 > 0 else float("nan")
+
+
 def _row(r) -> dict:
     params = dict(r.params)
     if "rate_per_s" in params:
@@ -161,7 +166,11 @@ def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | 
                     "shrink_pct": 100.0 * (1 - aug_pct / nom.heldout_nrmse_pct),
                     "nominal_fit_pct": 100 - nom.heldout_nrmse_pct,
                     "augmented_fit_pct": 100 - aug_pct,
-                    "noise_floor_nrmse_pct": diag.noise_floor_nrmse_pct},
+                    "noise_floor_nrmse_pct": diag.noise_floor_nrmse_pct,
+                    "sensor_floor_nrmse_pct": diag.sensor_floor_nrmse_pct,
+                    "nominal_excess_pct": diag.excess_pct(nom.heldout_nrmse_pct),
+                    "augmented_excess_pct": diag.excess_pct(aug_pct),
+                    "excess_shrink_pct": _excess_shrink(diag, nom.heldout_nrmse_pct, aug_pct)},
         "insample": {"nominal_nrmse_pct": nom.insample_nrmse_pct,
                      "augmented_nrmse_pct": in_aug},
         "localization": {k: v for k, v in loc.items() if k not in ("frequency", "spectrum")},
@@ -236,6 +245,10 @@ def _table(rows: list[dict], cols: list[tuple[str, str, str]]) -> str:
     return f"<table><tr>{head}</tr>{''.join(body)}</table>"
 
 
+def _fmt(v, spec: str = ".3g") -> str:
+    return "n/a" if v is None else format(v, spec)
+
+
 def _html(report: dict, figures: list[str]) -> str:
     h = report["heldout"]
     parts = [
@@ -256,7 +269,9 @@ def _html(report: dict, figures: list[str]) -> str:
     parts.append(
         f"<p>Held-out NRMSE: nominal {h['nominal_nrmse_pct']:.3g} %, augmented "
         f"{h['augmented_nrmse_pct']:.3g} % (shrink {h['shrink_pct']:.0f} %); repeat-to-repeat "
-        f"noise floor {h['noise_floor_nrmse_pct']:.3g} %. In-sample: nominal "
+        f"noise floor {h['noise_floor_nrmse_pct']:.3g} %, sensor noise in the steady lead-in "
+        f"{_fmt(h['sensor_floor_nrmse_pct'])} %; the gap beyond sensor noise shrinks "
+        f"{_fmt(h['excess_shrink_pct'], '.0f')} %. In-sample: nominal "
         f"{report['insample']['nominal_nrmse_pct']:.3g} %, augmented "
         f"{report['insample']['augmented_nrmse_pct']:.3g} %.</p>")
     parts.append("<h2>Which: ranking</h2>")
