@@ -299,3 +299,38 @@ def test_notes_status_and_commands_from_other_threads(tmp_path, fake_rig, small_
     # the state events tell the whole story, in order, all legal
     states = [e.detail.split(":")[0] for e in ev if e.kind == "state"]
     assert states[0] == "idle -> calibrating" and states[-1].endswith("-> finished")
+
+
+def test_estop_while_paused_then_abort_while_tripped(tmp_path, fake_rig, small_config):
+    rig = fake_rig()
+    obs = Recorder()
+    eng = Engine(small_config(), rig, tmp_path / "s.h5", observer=obs)
+
+    def chunk(index, start):
+        if index == 1 and start == 200:
+            eng.pause()
+
+    def state(old, new, reason):
+        if new is State.PAUSED:
+            threading.Thread(target=eng.estop, args=("while paused",)).start()
+        if new is State.TRIPPED:
+            eng.abort()
+    obs.hooks = {"chunk": chunk, "state": state}
+    s = eng.run()
+    assert s.ended_by == "aborted by operator" and eng.state is State.FINISHED
+    assert s.trip is not None and s.trip.detail == "while paused"
+    moves = [(c[1], c[2]) for c in obs.kinds("state")]
+    assert (State.STIMULATING, State.PAUSED) in moves
+    assert (State.PAUSED, State.TRIPPED) in moves and moves[-1][1] is State.FINISHED
+    sess = read_session(tmp_path / "s.h5")
+    assert [t.status for t in sess.trials] == ["completed", "completed"]  # pause = finish
+    assert rig.stimulator.output_active is False and validate_session(tmp_path / "s.h5") == []
+
+
+def test_estop_before_run_blocks_all_output(tmp_path, fake_rig, small_config):
+    rig = fake_rig()
+    eng = Engine(small_config(), rig, tmp_path / "s.h5", trip_policy=TripPolicy.END_SESSION)
+    eng.estop("before start")
+    s = eng.run()
+    assert s.ended_by == "interlock: estop: before start"
+    assert rig.stimulator.started == 0 and s.n_completed == 0
