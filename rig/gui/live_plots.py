@@ -105,8 +105,21 @@ class LivePlots(QWidget):
         delay_ms = max(0, math.ceil((self._next_due - time.perf_counter()) * 1000.0))
         self.timer.start(delay_ms)
 
-    def set_title(self, text: str) -> None:
+    def set_title(self, text: str, duration_s: float | None = None) -> None:
+        """Title of the trial shown; with ``duration_s`` the elapsed time is appended
+        (updated every half second while samples arrive)."""
+        self._title = text
+        self._duration_s = duration_s
+        self._shown_half_s = None
         self.title.setText(text)
+
+    def _update_elapsed(self, t_last: float) -> None:
+        if getattr(self, "_duration_s", None) is None:
+            return
+        half = int(t_last * 2)
+        if half != self._shown_half_s:
+            self._shown_half_s = half
+            self.title.setText(f"{self._title}   {half / 2:.1f} / {self._duration_s:.1f} s")
 
     def redraw(self) -> None:
         """Draw the latest snapshot if the buffer changed since the last frame."""
@@ -124,6 +137,7 @@ class LivePlots(QWidget):
         self.iext_curve.setData(t, snap.I_ext_mA * 1e-3)
         self.iflex_curve.setData(t, snap.I_flex_mA * 1e-3)
         if snap.n:
+            self._update_elapsed(float(t[-1]))
             self._follow_x(float(t[0]), float(t[-1]))
             self._fit_y(self.force_plot, snap.force_N)
             self._fit_y(self.i_plot, np.concatenate((snap.I_ext_mA, snap.I_flex_mA)) * 1e-3)

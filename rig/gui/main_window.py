@@ -291,7 +291,9 @@ class MainWindow(QMainWindow):
     def _on_trial_started(self, index: int, planned) -> None:
         self.current_index = index
         sE, repeat, _, _ = planned_fields(planned)
-        self.live.set_title(f"Trial {index + 1}: sE = {sE:.2f}, repeat {repeat}")
+        p = getattr(self.controller.engine, "config", self.controller.config).protocol
+        self.live.set_title(f"Trial {index + 1}: sE = {sE:.2f}, repeat {repeat}",
+                            duration_s=p.trial_s)
         self._refresh_schedule()
 
     def _on_trial_finished(self, index: int, trial) -> None:
