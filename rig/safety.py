@@ -370,7 +370,8 @@ class Interlock:
     # -- checks the engine calls -----------------------------------------------------
     def check_chunk(self, chunk: ForceChunk, now_s: float,
                     expected_index: int | None = None) -> Trip | None:
-        self.stall.feed(now_s)
+        if chunk.n:
+            self.stall.feed(now_s)
         for rule, reason in ((self.flags.name, self.flags.check(chunk, expected_index)),
                              (self.force.name, self.force.check(chunk))):
             if reason:

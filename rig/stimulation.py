@@ -96,8 +96,10 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
                                                 f"failed ({type(exc).__name__}: {exc})"))
                 break
             now = clock.monotonic_s()
-            if chunk is not None and chunk.n:
-                last_real = time.monotonic()
+            if chunk is not None and (chunk.n or chunk.flags.any):
+                # an empty chunk may still carry flags (overrun, sensor fault): check them
+                if chunk.n:
+                    last_real = time.monotonic()
                 trip = interlock.check_chunk(chunk, now, expected_index=received)
                 k0 = chunk.start_index
                 lo, hi = max(k0, received), min(k0 + chunk.n, n)
@@ -120,7 +122,7 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
                 if trip is not None:
                     reason = _reason(trip)
                     break
-            else:
+            if chunk is None or not chunk.n:
                 trip = interlock.check_stall(now)
                 gap_real = time.monotonic() - last_real
                 if trip is None and gap_real > stall_limit_real:

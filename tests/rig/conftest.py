@@ -120,6 +120,11 @@ class FakeAcquisition:
                     f[k - lo] = 1000.0
                 if name == "stim_error":
                     self.stim.error = "injected error"
+                if name == "empty_fault":  # no samples, only a flag (e.g. a CAIO error)
+                    self.clock.sleep(timeout_s)
+                    return ForceChunk(start_index=lo, force_N=np.zeros(0),
+                                      flags=AcquisitionFlags(sensor_fault=True,
+                                                             detail="A/D error 7"))
                 if name == "estop":
                     threading.Thread(target=self.estop_fn).start()
                     import time

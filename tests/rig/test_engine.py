@@ -192,6 +192,7 @@ def test_abort_and_skip(tmp_path, fake_rig, small_config):
     ("over_range", "acquisition: acquisition reported over-range"),
     ("spike", "force_limit: force 1000.00 N"),
     ("stim_error", "stimulator: stimulator error: injected error"),
+    ("empty_fault", "acquisition: acquisition reported sensor fault: A/D error 7"),
 ])
 def test_faults_abort_the_trial_with_reason_and_keep_completed(tmp_path, fake_rig,
                                                               small_config, fault, words):
