@@ -179,7 +179,7 @@ class MainWindow(QMainWindow):
     def _start_request(self, request: SessionRequest) -> None:
         from rig.gui.session_controller import load_session_config
         config = load_session_config(request)
-        if self.config_transform is not None:
+        if self.config_transform is not None and not request.resume:
             config = self.config_transform(config)
         self._reset_for_session()
         self.controller.start(request, config=config)

@@ -43,10 +43,21 @@ def default_devices(request: SessionRequest, config) -> object:
 def load_session_config(request: SessionRequest, *, confirm_calibration: bool = True):
     """The validated protocol configuration for ``request``.
 
-    The GUI always asks the operator to confirm the calibration
-    (``calibration.confirm = true``) unless ``confirm_calibration`` is False.
+    A resumed session keeps the configuration stored in its file (the engine uses that
+    one; the form's configuration file is not read). Otherwise the GUI always asks the
+    operator to confirm the calibration (``calibration.confirm = true``) unless
+    ``confirm_calibration`` is False.
     """
-    from protocols.config import load_config
+    from protocols.config import config_from_json, load_config
+    if request.resume:
+        from rig.session_file import read_session
+        try:
+            stored = read_session(request.output_path, load_data=False).config_json
+        except (ValueError, OSError):
+            stored = ""  # damaged file: the engine recovers it from its journal
+        if stored:
+            return config_from_json(stored, source=f"{request.output_path} (stored "
+                                                   "configuration)")
     overrides = {"participant": request.participant, "seed": request.seed}
     cfg = load_config(request.config_path, overrides=overrides)
     if confirm_calibration and not cfg.calibration.confirm:
@@ -156,13 +167,21 @@ class SessionController(QObject):
 
     # -- operator commands (GUI thread; each returns at once) --------------------------
     def estop(self, reason: str = "operator E-stop (GUI)") -> bool:
-        """E-stop the engine; with no engine running, make sure the stimulator is off."""
+        """E-stop the engine (output to zero in this thread, latch); with no engine,
+        make sure the stimulator is off. Never raises: if the engine's E-stop failed,
+        the stimulator is stopped directly."""
         if self.engine is not None:
-            self.engine.estop(reason)
-            return True
+            try:
+                self.engine.estop(reason)
+                return True
+            except Exception:
+                log.exception("engine.estop failed; stopping the stimulator directly")
         if self.devices is not None:
-            self.devices.stimulator.stop_now()
-        return False
+            try:
+                self.devices.stimulator.stop_now()
+            except Exception:
+                log.exception("stimulator.stop_now failed")
+        return self.engine is not None
 
     def _call(self, name: str, *args) -> None:
         if self.engine is None:

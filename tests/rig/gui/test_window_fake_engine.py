@@ -131,3 +131,28 @@ def test_script_failure_names_the_line(fake_window, qtbot):
         runner.start()
     ok, message = sig.args
     assert not ok and "no session is running" in message
+
+
+def test_estop_stops_the_stimulator_even_if_the_engine_call_fails(fake_window):
+    from rig.gui.session_controller import SessionController
+
+    stopped = []
+
+    class Broken:
+        def estop(self, reason):
+            raise RuntimeError("engine broken")
+
+    class Devices:
+        class stimulator:  # noqa: N801
+            @staticmethod
+            def stop_now():
+                stopped.append(True)
+
+    c = fake_window.controller
+    assert isinstance(c, SessionController)
+    c.engine, c.devices = Broken(), Devices()
+    try:
+        fake_window.press_estop()
+    finally:
+        c.engine = c.devices = None
+    assert stopped == [True]
