@@ -78,7 +78,7 @@ def sim_short_config(cfg):
     import dataclasses
     p = dataclasses.replace(cfg.protocol, sE_levels=(0.4, 0.7), repeats=2, steady_s=0.5,
                             chirp_s=1.2, rest_s=0.1)
-    c = dataclasses.replace(cfg.calibration, hold_s=0.15, baseline_s=0.2)
+    c = dataclasses.replace(cfg.calibration, hold_s=0.15, baseline_s=0.2, step_mA=1.0)
     return cfg.replace(protocol=p, calibration=c)
 
 
