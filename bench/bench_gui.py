@@ -17,7 +17,6 @@ Goals (issue 5): >= 30 frames per second; no chunk delayed by more than 50 ms.
 from __future__ import annotations
 
 import os
-import statistics
 import tempfile
 import threading
 import time
@@ -198,11 +197,6 @@ def _lateness(records) -> tuple[np.ndarray, list[float]]:
     return late - min(0.0, float(late.min())), walls
 
 
-class _RecordingObserverMixin:
-    def _record(self, index, start_index, force_N):
-        self.records.append((time.perf_counter(), index, start_index, len(force_N)))
-
-
 def bench_sim_gui() -> Row | None:
     try:
         from sim_backends.rig import make_sim_rig  # noqa: F401
@@ -236,7 +230,7 @@ def bench_sim_gui() -> Row | None:
         w.close()
     finally:
         QtEngineObserver.on_chunk = orig_on_chunk
-    late, walls = _lateness(records)
+    late, _ = _lateness(records)
     red = _redraw_ms(redraws)
     spans = _trial_spans(records)
     fps = sum(_rate(paints.times, a, b) * (b - a) for a, b in spans) / sum(b - a for a, b in spans)
