@@ -13,7 +13,7 @@ from drivers.fake_hardware import load_fake
 from drivers.hardware import make_hw_rig
 from protocols.config import config_from_dict
 from rig.cli import main
-from rig.engine import Engine, TripPolicy
+from rig.engine import Engine, EngineObserver, TripPolicy
 from rig.session_file import read_session, validate_session
 
 
@@ -109,14 +109,17 @@ def test_estop_switch_pressed_mid_session_stops_output(tmp_path, write_hw_config
     devices = make_hw_rig(write_hw_config(tmp_path / "hw.toml", kind="caio", speed=4.0))
     path = tmp_path / "s.h5"
     manual = {"manual": {"Iemin_mA": 2.5, "Iemax_mA": 7.0, "Ifmin_mA": 2.5, "Ifmax_mA": 7.0}}
-    engine = Engine(small_config(**manual), devices, path, trip_policy=TripPolicy.END_SESSION)
-    import threading
 
-    def press():
-        import time
-        time.sleep(0.2)
-        devices.estop._ser.rts = False   # the NC switch opens the loop
-    threading.Thread(target=press, daemon=True).start()
+    class PressMidTrial(EngineObserver):
+        """Open the switch loop once the first trial is under way (not on a wall-clock
+        timer, which a loaded machine could fire before any trial)."""
+
+        def on_chunk(self, index, start_index, force_N, *rest):
+            if start_index + len(force_N) >= 400:
+                devices.estop._ser.rts = False   # the NC switch opens the loop
+
+    engine = Engine(small_config(**manual), devices, path, trip_policy=TripPolicy.END_SESSION,
+                    observer=PressMidTrial())
     try:
         summary = engine.run()
     finally:
@@ -143,9 +146,6 @@ def test_nmsid_run_backend_hw_against_fakes(tmp_path, write_hw_config, capsys):
 
 
 def test_sensor_unplugged_mid_trial_aborts_it_and_stops_output(tmp_path, write_hw_config):
-    import threading
-    import time
-
     devices = make_hw_rig(write_hw_config(tmp_path / "hw.toml", kind="leptrino", speed=1.0,
                                           fs_Hz=1200.0, estop="none"))
     cfg = config_from_dict({
@@ -155,10 +155,23 @@ def test_sensor_unplugged_mid_trial_aborts_it_and_stops_output(tmp_path, write_h
         "calibration": {"manual": {"Iemin_mA": 2.5, "Iemax_mA": 7.0, "Ifmin_mA": 2.5,
                                    "Ifmax_mA": 7.0}}})
     emulator = devices.acquisition._stack.emulator
-    threading.Thread(target=lambda: (time.sleep(0.8), emulator.unplug()), daemon=True).start()
+
+    class UnplugMidTrial(EngineObserver):
+        """Pull the cable once the trial has recorded some samples (not on a wall-clock
+        timer, which a loaded machine would fire before the trial starts)."""
+
+        def __init__(self):
+            self.pulled = False
+
+        def on_chunk(self, index, start_index, force_N, *rest):
+            if not self.pulled and start_index + len(force_N) >= 600:
+                self.pulled = True
+                emulator.unplug()
+
     path = tmp_path / "s.h5"
     try:
-        summary = Engine(cfg, devices, path, trip_policy=TripPolicy.END_SESSION).run()
+        summary = Engine(cfg, devices, path, trip_policy=TripPolicy.END_SESSION,
+                         observer=UnplugMidTrial()).run()
     finally:
         devices.close()
     assert summary.n_completed == 0
