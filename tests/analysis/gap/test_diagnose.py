@@ -110,3 +110,10 @@ def test_external_simulation_under_test(dead_report, dead_time_session):
     r = (data.y_N - pred) - (data.y_N - pred).mean(axis=1, keepdims=True)
     ref = data.y_N - data.y_N.mean(axis=1, keepdims=True)
     assert np.sqrt(np.sum(r ** 2) / np.sum(ref ** 2)) > 0.05
+
+
+def test_single_repeat_is_refused_with_a_clear_message(write_synthetic, tmp_path):
+    from analysis.gap.errors import GapInputError
+    path = write_synthetic(tmp_path / "one.h5", levels=(0.3, 0.6), repeats=1)
+    with pytest.raises(GapInputError, match="two repeats"):
+        diagnose(load_session(path))
