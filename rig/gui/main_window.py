@@ -291,9 +291,9 @@ class MainWindow(QMainWindow):
     def _on_trial_started(self, index: int, planned) -> None:
         self.current_index = index
         sE, repeat, _, _ = planned_fields(planned)
-        p = getattr(self.controller.engine, "config", self.controller.config).protocol
+        cfg = getattr(self.controller.engine, "config", None) or self.controller.config
         self.live.set_title(f"Trial {index + 1}: sE = {sE:.2f}, repeat {repeat}",
-                            duration_s=p.trial_s)
+                            duration_s=cfg.protocol.trial_s if cfg is not None else None)
         self._refresh_schedule()
 
     def _on_trial_finished(self, index: int, trial) -> None:
