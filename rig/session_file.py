@@ -412,7 +412,8 @@ class _open_read:
 
 
 # -- reading ----------------------------------------------------------------------
-def read_session(path: str | os.PathLike, *, load_data: bool = True) -> Session:
+def read_session(path: str | os.PathLike, *, load_data: bool = True,
+                 datasets: tuple[str, ...] | None = None) -> Session:
     """Read a whole session file.
 
     Parameters
@@ -421,6 +422,9 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True) -> Session:
         The ``.h5`` file.
     load_data : bool
         If False, trial datasets are left empty (fast listing of attributes).
+    datasets : tuple of str, optional
+        Read only these trial datasets (e.g. ``("rE", "force_N")``); the others are left
+        empty (``wrench`` / ``sync`` None). Default: all.
 
     Raises
     ------
@@ -429,18 +433,21 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True) -> Session:
         the file and the item.
     """
     path = Path(path)
-    problems = validate_session(path, fatal_only=True)
-    if problems:
-        raise SessionFileError(path, problems[0] + (
-            f" (and {len(problems) - 1} more problem(s); run `nmsid validate {path}`)"
-            if len(problems) > 1 else ""))
     with _open_read(path) as f:
+        problems = _problems(f, fatal_only=True)
+        if problems:
+            raise SessionFileError(path, problems[0] + (
+                f" (and {len(problems) - 1} more problem(s); run `nmsid validate {path}`)"
+                if len(problems) > 1 else ""))
+        wanted = (set(TRIAL_DATASETS) | {"wrench", "sync"}) if datasets is None else set(datasets)
+        if not load_data:
+            wanted = set()
         a = f.attrs
         cal_g = f["calibration"]
         cal = Calibration(**{k: _as_float(cal_g.attrs[k]) for k in CALIBRATION_ATTRS},
                           ramps={k: np.asarray(cal_g[k][()]) for k in cal_g
                                  if isinstance(cal_g[k], _h5py().Dataset)} if load_data else {})
-        trials = [_read_trial(f["trials"][name], name, load_data)
+        trials = [_read_trial(f["trials"][name], name, wanted)
                   for name in _trial_names(f["trials"])]
         events = _read_events(f["events"]) if "events" in f else []
         known = set(ROOT_ATTRS) | {"config_json", "seed", "backend"}
@@ -465,16 +472,16 @@ def _trial_names(group) -> list[str]:
     return sorted(names, key=lambda k: int(TRIAL_NAME_PATTERN.match(k).group(1)))
 
 
-def _read_trial(g, name: str, load_data: bool) -> Trial:
+def _read_trial(g, name: str, wanted: set[str]) -> Trial:
     a = g.attrs
     kw: dict[str, Any] = {k: _as_float(a[k]) for k in TRIAL_FLOAT_ATTRS}
     kw.update({k: _as_str(a[k]) for k in TRIAL_STR_ATTRS})
     kw["repeat"] = int(np.asarray(a["repeat"]))
     for key in TRIAL_DATASETS:
-        kw[key] = np.asarray(g[key][()], dtype=np.float64) if load_data else np.empty(0)
-    if load_data:
-        kw["wrench"] = np.asarray(g["wrench"][()]) if "wrench" in g else None
-        kw["sync"] = np.asarray(g["sync"][()]) if "sync" in g else None
+        kw[key] = (np.asarray(g[key][()], dtype=np.float64) if key in wanted
+                   else np.empty(0))
+    for key in ("wrench", "sync"):
+        kw[key] = np.asarray(g[key][()]) if key in wanted and key in g else None
     known = set(TRIAL_FLOAT_ATTRS) | set(TRIAL_STR_ATTRS) | {"repeat"}
     extra = {k: (_as_str(a[k]) if isinstance(a[k], (str, bytes)) else a[k])
              for k in a if k not in known}
@@ -516,17 +523,22 @@ def validate_session(path: str | os.PathLike, *, fatal_only: bool = False) -> li
     except OSError as exc:
         return [f"cannot be opened as HDF5 ({exc}); if it was being written when a program "
                 "stopped, try `nmsid recover`"]
-    out: list[str] = []
     with f:
-        _validate_root(f, out, fatal_only)
-        if "calibration" not in f or not isinstance(f["calibration"], _h5py().Group):
-            out.append("missing required group /calibration")
-        else:
-            _validate_calibration(f["calibration"], out, fatal_only)
-        if "trials" not in f or not isinstance(f["trials"], _h5py().Group):
-            out.append("missing required group /trials")
-        else:
-            _validate_trials(f["trials"], out, fatal_only)
+        return _problems(f, fatal_only)
+
+
+def _problems(f, fatal_only: bool) -> list[str]:
+    """The contract violations of an open file (see :func:`validate_session`)."""
+    out: list[str] = []
+    _validate_root(f, out, fatal_only)
+    if "calibration" not in f or not isinstance(f["calibration"], _h5py().Group):
+        out.append("missing required group /calibration")
+    else:
+        _validate_calibration(f["calibration"], out, fatal_only)
+    if "trials" not in f or not isinstance(f["trials"], _h5py().Group):
+        out.append("missing required group /trials")
+    else:
+        _validate_trials(f["trials"], out, fatal_only)
     return out
 
 

@@ -164,3 +164,12 @@ def test_reader_ignores_unknown_items(session_path):
     s = read_session(session_path)
     assert s.trials[0].extra_attrs["lab_note"] == "hi"
     assert validate_session(session_path) == []
+
+
+def test_reading_only_some_datasets(session_path):
+    s = read_session(session_path, datasets=("rE", "force_N"))
+    t = s.trials[0]
+    assert t.n_samples == 200 and len(t.rE) == 200
+    assert t.I_ext_mA.size == 0 and t.wrench is None and t.sync is None
+    listing = read_session(session_path, load_data=False)
+    assert listing.trials[1].status == "aborted" and listing.trials[0].force_N.size == 0
