@@ -20,11 +20,13 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/nmsid run --backend sim --participant DEMO --outdir sessions
 
+# One BLAS thread per process: the suite runs on two pytest workers over two cores, and
+# small matrix operations get slower, not faster, with threads competing for them.
 test: $(STAMP)
-	QT_QPA_PLATFORM=offscreen $(PY) -m pytest -q -n 2
+	QT_QPA_PLATFORM=offscreen OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n 2
 
 bench: $(STAMP)
-	QT_QPA_PLATFORM=offscreen $(PY) bench/run.py
+	QT_QPA_PLATFORM=offscreen OPENBLAS_NUM_THREADS=1 $(PY) bench/run.py
 
 gui: $(STAMP)
 	$(VENV)/bin/nmsid gui --backend sim
