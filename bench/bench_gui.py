@@ -48,6 +48,8 @@ class Row(NamedTuple):
     late_ms_max: float
     cpu_pct: float
     """Process CPU time / wall time over the run (all threads), percent of one core."""
+    n_late_50: int = 0
+    """Chunks handled more than 50 ms late."""
 
 
 def _app():
@@ -169,7 +171,8 @@ def bench_synthetic() -> Row:
     t0, t1 = handled[0], handled[-1]
     return Row("synthetic 2 kHz + GUI", dt, len(handled), _rate(paints.times, t0, t1),
                _rate([t for t, _ in redraws], t0, t1), float(np.median(red)), float(red.max()),
-               _gap_stats(handled), float(np.percentile(late, 99)), float(late.max()), cpu)
+               _gap_stats(handled), float(np.percentile(late, 99)), float(late.max()), cpu,
+               int(np.sum(late > 50)))
 
 
 def _short_config(cfg):
@@ -238,7 +241,7 @@ def bench_sim_gui() -> Row | None:
         sum(b - a for a, b in spans)
     return Row("sim session + GUI", dt, len(records), fps, rps,
                float(np.median(red)), float(red.max()), _max_gap_within_trials(records),
-               float(np.percentile(late, 99)), float(late.max()), cpu)
+               float(np.percentile(late, 99)), float(late.max()), cpu, int(np.sum(late > 50)))
 
 
 def _trial_spans(records) -> list[tuple[float, float]]:
@@ -286,7 +289,7 @@ def bench_sim_headless() -> Row | None:
     nan = float("nan")
     return Row("sim session headless", dt, len(records), nan, nan, nan, nan,
                _max_gap_within_trials(records), float(np.percentile(late, 99)),
-               float(late.max()), cpu)
+               float(late.max()), cpu, int(np.sum(late > 50)))
 
 
 def main() -> None:
@@ -302,14 +305,14 @@ def main() -> None:
             print(f"({fn.__name__}: sim_backends.make_sim_rig not available, skipped)")
     head = (f"{'scenario':24s} {'s':>6s} {'chunks':>7s} {'fps':>6s} {'redraw/s':>9s} "
             f"{'redraw p50 ms':>13s} {'redraw max ms':>13s} {'max gap ms':>10s} "
-            f"{'late p99 ms':>11s} {'late max ms':>11s} {'CPU %':>6s}")
+            f"{'late p99 ms':>11s} {'late max ms':>11s} {'>50 ms':>6s} {'CPU %':>6s}")
     print(head)
     print("-" * len(head))
     for r in rows:
         print(f"{r.scenario:24s} {r.seconds:6.1f} {r.chunks:7d} {r.fps:6.1f} "
               f"{r.redraws_per_s:9.1f} {r.redraw_ms_p50:13.2f} {r.redraw_ms_max:13.2f} "
               f"{r.gap_ms_max:10.1f} {r.late_ms_p99:11.1f} {r.late_ms_max:11.1f} "
-              f"{r.cpu_pct:6.0f}")
+              f"{r.n_late_50:6d} {r.cpu_pct:6.0f}")
     print(f"machine: {os.cpu_count()} cores, 1-min load average {load0:.1f} at start, "
           f"{os.getloadavg()[0]:.1f} at end (other processes compete for the cores); "
           f"fps is capped at 30 by design")
