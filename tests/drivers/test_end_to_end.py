@@ -17,11 +17,17 @@ from rig.engine import Engine, EngineObserver, TripPolicy
 from rig.session_file import read_session, validate_session
 
 
+#: The fakes run in real time; on a loaded 2-core machine a chunk can come 100+ ms late,
+#: which the default 100 ms stall rule would rightly trip on. These tests are about the
+#: data path, not stall detection (tested in tests/rig), so they allow 2 s.
+RELAXED_INTERLOCK = {"stall_timeout_s": 2.0}
+
+
 def small_config(**calibration):
     cal = {"hold_s": 0.2, "baseline_s": 0.1, "ceiling_ext_mA": 15.0, "ceiling_flex_mA": 15.0}
     cal.update(calibration)
     return config_from_dict({
-        "participant": "HW01", "seed": 3,
+        "participant": "HW01", "seed": 3, "interlock": RELAXED_INTERLOCK,
         "protocol": {"sE_levels": [0.5, 0.9], "repeats": 1, "steady_s": 0.5, "chirp_s": 1.0,
                      "rest_s": 0.0},
         "calibration": cal})
@@ -91,7 +97,7 @@ def test_session_on_fake_leptrino_usb(tmp_path, write_hw_config):
     devices = make_hw_rig(write_hw_config(tmp_path / "hw.toml", kind="leptrino", speed=1.0,
                                           fs_Hz=1200.0))
     cfg = config_from_dict({
-        "participant": "HW02", "seed": 1,
+        "participant": "HW02", "seed": 1, "interlock": RELAXED_INTERLOCK,
         "protocol": {"sE_levels": [0.7], "repeats": 1, "steady_s": 0.5, "chirp_s": 1.0,
                      "rest_s": 0.0, "fs_Hz": 1200.0},
         "calibration": {"manual": {"Iemin_mA": 2.5, "Iemax_mA": 7.0, "Ifmin_mA": 2.5,
@@ -137,7 +143,8 @@ def test_nmsid_run_backend_hw_against_fakes(tmp_path, write_hw_config, capsys):
     proto = tmp_path / "p.toml"
     proto.write_text('participant = "HW03"\nseed = 5\n[protocol]\nsE_levels = [0.6]\n'
                      'repeats = 1\nsteady_s = 0.5\nchirp_s = 1.0\nrest_s = 0.0\n'
-                     '[calibration]\nhold_s = 0.2\nbaseline_s = 0.1\n')
+                     '[calibration]\nhold_s = 0.2\nbaseline_s = 0.1\n'
+                     '[interlock]\nstall_timeout_s = 2.0\n')
     out = tmp_path / "run.h5"
     rc = main(["run", "--backend", "hw", "--hw-config", str(hw), "--config", str(proto),
                "--out", str(out), "--no-identify", "--quiet"])
@@ -149,7 +156,7 @@ def test_sensor_unplugged_mid_trial_aborts_it_and_stops_output(tmp_path, write_h
     devices = make_hw_rig(write_hw_config(tmp_path / "hw.toml", kind="leptrino", speed=1.0,
                                           fs_Hz=1200.0, estop="none"))
     cfg = config_from_dict({
-        "participant": "HW04", "seed": 1,
+        "participant": "HW04", "seed": 1, "interlock": RELAXED_INTERLOCK,
         "protocol": {"sE_levels": [0.7], "repeats": 1, "steady_s": 1.0, "chirp_s": 1.0,
                      "rest_s": 0.0, "fs_Hz": 1200.0},
         "calibration": {"manual": {"Iemin_mA": 2.5, "Iemax_mA": 7.0, "Ifmin_mA": 2.5,
