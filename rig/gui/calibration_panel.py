@@ -149,6 +149,13 @@ class CalibrationPanel(QWidget):
                             "edit if needed, then press Confirm calibration.")
         self.set_awaiting(True)
 
+    def refused(self, reason: str) -> None:
+        """The engine refused the confirmed values (e.g. above a ceiling); ask again."""
+        self.set_awaiting(True)
+        self.status.setText(f"Refused by the engine: {reason}. Correct the values and "
+                            "confirm again.")
+        self.status.setStyleSheet(f"color: {Colour.FAULT};")
+
     def set_awaiting(self, awaiting: bool) -> None:
         """Enable the fields and Confirm button while the engine waits for them."""
         self.confirm_button.setEnabled(awaiting)

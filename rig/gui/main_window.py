@@ -155,7 +155,7 @@ class MainWindow(QMainWindow):
         q = Qt.ConnectionType.QueuedConnection
         s = self.signals
         s.state_changed.connect(self._on_state, q)
-        s.event.connect(self.event_log.append, q)
+        s.event.connect(self._on_event, q)
         s.calibration_step.connect(self.calibration_panel.add_step, q)
         s.calibration_result.connect(self._on_calibration_result, q)
         s.trial_started.connect(self._on_trial_started, q)
@@ -277,6 +277,13 @@ class MainWindow(QMainWindow):
             self._switch(Tab.CALIBRATION)
         elif new is State.STIMULATING:
             self._switch(Tab.LIVE)
+
+    def _on_event(self, event) -> None:
+        self.event_log.append(event)
+        if getattr(event, "kind", "") == "calibration_refused":
+            # the engine still waits: let the operator correct the values
+            self.calibration_panel.refused(str(getattr(event, "detail", "")))
+            self._switch(Tab.CALIBRATION)
 
     def _on_calibration_result(self, calibration) -> None:
         if self._calibration_known:

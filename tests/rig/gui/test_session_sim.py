@@ -212,3 +212,23 @@ def test_engine_error_is_shown_and_output_stays_off(make_sim_window, qtbot, tmp_
     assert "ceiling_ext_mA" in w.safety.banner.text()
     assert not w.rigs[0].run_records  # nothing was ever started
     assert w.state is State.FINISHED
+
+
+def test_calibration_above_the_ceiling_is_refused_and_asked_again(make_sim_window, qtbot,
+                                                                  tmp_path):
+    w = make_sim_window()
+    out = tmp_path / "G06.h5"
+    w.start_session(participant="G06", output=out, realtime=False)
+    panel = w.calibration_panel
+    qtbot.waitUntil(lambda: panel.confirm_button.isEnabled(), timeout=30000)
+    ceiling = w.controller.config.calibration.ceiling_ext_mA
+    w.confirm_calibration(Iemax_mA=ceiling + 5)
+    qtbot.waitUntil(lambda: panel.confirm_button.isEnabled(), timeout=10000)
+    assert "above the extensor ceiling" in panel.status.text()
+    assert not w.rigs[0].run_records or all(r.trial is None for r in w.rigs[0].run_records)
+    w.confirm_calibration(Iemax_mA=ceiling - 1)
+    qtbot.waitUntil(lambda: w.run_result is not None, timeout=60000)
+    assert w.run_result.complete
+    assert read_session(out).calibration.Iemax_mA == ceiling - 1
+    cal_cfg = w.controller.config.calibration
+    assert max(w.rigs[0].max_sent_mA) <= max(cal_cfg.ceiling_ext_mA, cal_cfg.ceiling_flex_mA)
