@@ -53,7 +53,8 @@ class GapSettings:
     tie_pct: float = 3.0
     """Held-out NRMSEs within this relative difference are a tie, settled by dIC."""
     try_pairs: bool = True
-    """Also fit the winner together with each other supported effect."""
+    """Also try the winner together with each other effect (screened on the first fold,
+    cross-validated when the second effect adds beyond the winner)."""
     max_iter: int = 25
     bands_Hz: tuple[float, ...] = (1.0, 1.5, 2.2, 3.3, 5.0, 7.5, 10.0)
     deviation_edges: tuple[float, ...] = (-0.5, -0.25, 0.0, 0.25, 0.5)
@@ -284,20 +285,31 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
     best_pair = None
     if best is not None and s.try_pairs:
         for other in results:
-            if other is best or not other.supported:
+            if other is best:
                 continue
             effs = sorted({best.candidate.effect, other.candidate.effect},
                           key=lambda e: CANDIDATES.index(e))
             cand = candidate(*effs)
-            fits = []
-            for k, tr in enumerate(run.train):
-                fb = best.fold_fits[k] if best.candidate.effects == (effs[0],) else \
-                    other.fold_fits[k]
+
+            def pair_fit(k, max_iter, other=other, effs=effs, cand=cand):
                 p0 = np.concatenate([_fold_p(best, other, e, k) for e in effs])
-                fits.append(fit_model(tr, cand, start=fb, p_start=p0,
-                                      corner_Hz=max(best.fold_fits[k].corner_Hz,
-                                                    other.fold_fits[k].corner_Hz),
-                                      max_iter=s.max_iter))
+                return fit_model(run.train[k], cand, start=best.fold_fits[k], p_start=p0,
+                                 corner_Hz=max(best.fold_fits[k].corner_Hz,
+                                               other.fold_fits[k].corner_Hz),
+                                 max_iter=max_iter)
+
+            # screen on the first fold: does the second effect add beyond the winner?
+            screen = pair_fit(0, 10)
+            r_aug, _, _ = predict(screen, run.train[0])
+            nu = effective_fraction(r_aug, data.fs_eval_Hz, run.bandwidth)
+            dk = cand.n_shared() - best.candidate.n_shared()
+            if Effect.BASELINE_DRIFT in effs and best.candidate.effect is not \
+                    Effect.BASELINE_DRIFT:
+                dk += n_drift_columns(data.t_eval_s, screen.corner_Hz) * run.train[0].n_trials
+            gain = nu * screen.n_samples * np.log(screen.rss / best.fold_fits[0].rss) + 2 * dk
+            if not gain < -s.ic_margin:
+                continue
+            fits = [screen] + [pair_fit(k, s.max_iter) for k in range(1, len(run.train))]
             res = run.score(cand, fits, nominal)
             # a pair must beat the single winner, not only the nominal model
             rel = 100.0 * (1 - res.heldout_nrmse_pct / best.heldout_nrmse_pct)

@@ -35,8 +35,9 @@ def _true_params(sE):
 
 
 def write_session(path, *, levels=(0.3, 0.5, 0.7, 0.9, 1.0), repeats=3, seed=0,
-                  dead_time_s=0.0, noise_N=0.04, blocks=True):
-    """Write a synthetic session; ``dead_time_s`` delays the force response."""
+                  dead_time_s=0.0, noise_N=0.04, blocks=True, fatigue_per_100s=0.0):
+    """Write a synthetic session; ``dead_time_s`` delays the force response,
+    ``fatigue_per_100s`` lowers the gain linearly with cumulative stimulation."""
     rng = np.random.default_rng(seed)
     order = [(sE, r) for sE in levels for r in range(1, repeats + 1)]
     if blocks:
@@ -48,6 +49,7 @@ def write_session(path, *, levels=(0.3, 0.5, 0.7, 0.9, 1.0), repeats=3, seed=0,
     w.write_calibration(Calibration(2.0, 9.0, 1.5, 8.0))
     rE = rE_chirp()
     t = np.arange(len(rE)) / FS
+    cum_s = 0.0
     for sE, rep in order:
         Kp, wn, zeta = _true_params(sE)
         # exact for the stimulator's zero-order hold (each sample held for 1/FS)
@@ -58,6 +60,8 @@ def write_session(path, *, levels=(0.3, 0.5, 0.7, 0.9, 1.0), repeats=3, seed=0,
             k = int(round(dead_time_s * FS))
             u = np.concatenate([np.zeros(k), u[:-k]])
         y = signal.lfilter(np.ravel(b), a, u)
+        y = y * (1.0 - fatigue_per_100s * (cum_s + t) / 100.0)
+        cum_s += len(t) / FS
         noise = noise_N * rng.standard_normal(len(t)) + 0.03 * np.sin(2 * np.pi * 50 * t)
         force = y + noise + 0.3 * rng.standard_normal() + 0.01 * rng.standard_normal() * t
         I_e = 2.0 + rE * sE * 7.0

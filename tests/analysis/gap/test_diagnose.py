@@ -117,3 +117,14 @@ def test_single_repeat_is_refused_with_a_clear_message(write_synthetic, tmp_path
     path = write_synthetic(tmp_path / "one.h5", levels=(0.3, 0.6), repeats=1)
     with pytest.raises(GapInputError, match="two repeats"):
         diagnose(load_session(path))
+
+
+def test_pair_dead_time_and_fatigue(write_synthetic, tmp_path):
+    """Two effects at once: the winner is one of them and the pair is found."""
+    path = write_synthetic(tmp_path / "pair.h5", seed=5, dead_time_s=0.02, blocks=False,
+                           fatigue_per_100s=0.12)
+    diag = diagnose(load_session(path))
+    assert diag.best_effect.value in ("dead_time", "fatigue")
+    assert diag.best_pair is not None
+    assert set(e.value for e in diag.best_pair.candidate.effects) == {"dead_time", "fatigue"}
+    assert diag.full_fit.params["L_s"] == pytest.approx(0.02, rel=0.15)
