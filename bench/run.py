@@ -26,6 +26,7 @@ def main(argv: list[str]) -> int:
         print(f"\n=== {path.stem} ===", flush=True)
         spec = importlib.util.spec_from_file_location(path.stem, path)
         module = importlib.util.module_from_spec(spec)
+        sys.modules[path.stem] = module  # dataclasses look their module up by name
         sys.path.insert(0, str(HERE))
         spec.loader.exec_module(module)
         t0 = time.perf_counter()
