@@ -31,14 +31,16 @@ from protocols.schedule import (PlannedTrial, TrialStatus, make_schedule, schedu
                                 schedule_to_json)
 from protocols.waveforms import trial_waveform
 from rig.engine_calibration import CalibrationSteps
-from rig.observer import EngineObserver, RunSummary, TripPolicy
+from rig.observer import (RERUN_WAIT_PREFIX, EngineObserver, RunSummary, TripPolicy,
+                          is_rerun_wait, rerun_wait_reason)
 from rig.safety import Interlock, InterlockTripped, Trip, check_waveform
 from rig.session_file import Calibration, Trial, utc_now
 from rig.session_log import SessionLog, journal_dir, load_trial_npz, utc_now_ms
 from rig.states import State, StateMachine
 from rig.stimulation import BlockResult, run_block
 
-__all__ = ["Engine", "EngineObserver", "RunSummary", "TripPolicy"]
+__all__ = ["Engine", "EngineObserver", "RunSummary", "TripPolicy", "RERUN_WAIT_PREFIX",
+           "is_rerun_wait", "rerun_wait_reason"]
 
 log = logging.getLogger(__name__)
 
@@ -498,6 +500,8 @@ class Engine(CalibrationSteps):
                 continue
             planned = self._next_trial()
             if planned is None:
+                if self._wait_for_reruns():
+                    continue
                 return
             self._sm.to(State.ARMED, f"next trial {planned.index}")
             self._run_trial(planned)
@@ -505,6 +509,38 @@ class Engine(CalibrationSteps):
                     self.interlock.latched or self._pause_req or self._abort_req):
                 self._sm.to(State.RESTING, "trial ended")
                 self._rest()
+
+    def _wait_for_reruns(self) -> bool:
+        """The schedule has nothing pending. With ``WAIT_FOR_REARM`` (an operator is
+        present) and aborted trials left, hold in ``paused`` (output off) until the
+        operator re-runs one (returns True: the run loop continues) or ends the session
+        (:meth:`abort`: the run ends normally). A trip while waiting is handled (re-arm)
+        and the wait starts again. Returns False when there is nothing to wait for
+        (``END_SESSION``: headless never waits)."""
+        if self.trip_policy is not TripPolicy.WAIT_FOR_REARM:
+            return False
+        aborted = [pt for pt in self.schedule if pt.status is TrialStatus.ABORTED]
+        if not aborted:
+            return False
+        self._stop_output()
+        reason = rerun_wait_reason(len(aborted))
+        self._sm.to(State.PAUSED, reason)
+        self._event("waiting_for_rerun", "aborted schedule indices: " + ", ".join(
+            str(pt.index) for pt in aborted))
+        # pause/resume/skip mean nothing here: only re-run or end leave the wait
+        self._pause_req = self._resume_req = self._skip_req = False
+        try:
+            self._wait_operator(lambda: self.interlock.latched or any(
+                pt.status is TrialStatus.PENDING for pt in self.schedule),
+                "re-run an aborted trial or end the session")
+        except _EndRun:
+            n = sum(pt.status is TrialStatus.ABORTED for pt in self.schedule)
+            raise _EndRun(f"{RERUN_WAIT_PREFIX}; ended by operator with {n} aborted "
+                          "trial(s) not re-run") from None
+        if self._resume_req or self._pause_req or self._skip_req:
+            self._event("command_ignored", "pause/resume/skip while waiting for a re-run")
+        self._pause_req = self._resume_req = self._skip_req = False
+        return True
 
     def _rest(self) -> None:
         if any(pt.status is TrialStatus.PENDING for pt in self.schedule):

@@ -19,9 +19,35 @@ class TripPolicy(enum.Enum):
     """What the engine does after an interlock trip (output is already zero, latched)."""
 
     WAIT_FOR_REARM = "wait"
-    """Wait in ``tripped`` until the operator re-arms (GUI) or aborts."""
+    """An operator is present (GUI): wait in ``tripped`` until the operator re-arms or
+    aborts. Also, when the schedule has nothing pending left but some trials are aborted
+    (tripped, skipped), wait in ``paused`` (reason :func:`rerun_wait_reason`) until the
+    operator re-runs one or ends the session, instead of finishing by itself."""
     END_SESSION = "end"
-    """End the run (headless: nobody is there to re-arm); resume later."""
+    """End the run (headless: nobody is there to re-arm); resume later. Never waits."""
+
+
+#: How the reason of the "schedule done, aborted trials left" wait (state ``paused``)
+#: starts; also the start of ``RunSummary.ended_by`` when the operator ends that wait.
+RERUN_WAIT_PREFIX = "schedule done"
+
+
+def rerun_wait_reason(n_aborted: int) -> str:
+    """The reason the engine gives with ``paused`` while it waits for a re-run.
+
+    Parameters
+    ----------
+    n_aborted : int
+        Aborted trials left in the schedule.
+    """
+    return (f"{RERUN_WAIT_PREFIX}; {n_aborted} aborted trial(s) can be re-run; re-run or "
+            "end the session")
+
+
+def is_rerun_wait(state: State, reason: str) -> bool:
+    """True if ``(state, reason)`` from :meth:`EngineObserver.on_state` is the wait for a
+    re-run after the schedule (as opposed to an operator's pause)."""
+    return state is State.PAUSED and str(reason).startswith(RERUN_WAIT_PREFIX + ";")
 
 
 
@@ -29,7 +55,10 @@ class EngineObserver:
     """Receives the engine's progress; every method is a no-op here. Called from the
     engine thread: keep them quick (hand data to the GUI thread, do not draw here)."""
 
-    def on_state(self, old: State, new: State, reason: str) -> None: ...
+    def on_state(self, old: State, new: State, reason: str) -> None:
+        """Every transition. ``paused`` is either the operator's pause or, with
+        ``WAIT_FOR_REARM``, the wait for a re-run after the schedule: tell them apart with
+        :func:`is_rerun_wait`."""
 
     def on_event(self, event: Event) -> None: ...
 
@@ -57,7 +86,8 @@ class RunSummary:
     final_state: State
     ended_by: str
     """``schedule complete``, ``aborted by operator``, ``interlock: <rule>: <detail>``,
-    or ``error: ...``."""
+    ``schedule done; ended by operator with N aborted trial(s) not re-run`` (the operator
+    ended the wait for a re-run, ``WAIT_FOR_REARM`` only) or ``error: ...``."""
     n_completed: int
     n_aborted: int
     n_pending: int

@@ -7,7 +7,7 @@ import pytest
 
 from protocols.config import ConfigError
 from protocols.schedule import TrialStatus
-from rig.engine import Engine, EngineObserver, TripPolicy
+from rig.engine import Engine, EngineObserver, TripPolicy, is_rerun_wait
 from rig.session_file import Calibration, read_session, validate_session
 from rig.session_log import journal_dir
 from rig.states import State
@@ -154,7 +154,10 @@ def test_pause_policies(tmp_path, fake_rig, small_config, policy, n_first):
     def state(old, new, reason):
         if new is State.PAUSED:
             assert rig.stimulator.output_active is False
-            eng.resume()
+            if is_rerun_wait(new, reason):  # "abort": trial 0 is left aborted at the end
+                eng.abort()
+            else:
+                eng.resume()
     obs.hooks = {"chunk": chunk, "state": state}
     eng.run()
     sess = read_session(tmp_path / "s.h5")
@@ -335,3 +338,106 @@ def test_estop_before_run_blocks_all_output(tmp_path, fake_rig, small_config):
     s = eng.run()
     assert s.ended_by == "interlock: estop: before start"
     assert rig.stimulator.started == 0 and s.n_completed == 0
+
+
+def _stop_last_trial(eng, how):
+    """A chunk hook that E-stops (another thread) or skips the last trial (index 3)."""
+    fired = []
+
+    def chunk(index, start):
+        if index == 3 and start >= 1000 and not fired:
+            fired.append(1)
+            if how == "estop":
+                threading.Thread(target=eng.estop, args=("last",)).start()
+            else:
+                eng.skip_trial()
+    return chunk
+
+
+@pytest.mark.parametrize("how", ["estop", "skip"])
+def test_last_trial_aborted_waits_for_rerun_then_completes(tmp_path, fake_rig, small_config,
+                                                           how):
+    """WAIT_FOR_REARM: the last trial is aborted, (re-armed), nothing is pending: the
+    engine does not finish but waits in ``paused`` until the operator re-runs it."""
+    rig = fake_rig()
+    obs = Recorder()
+    path = tmp_path / "s.h5"
+    eng = Engine(small_config(), rig, path, observer=obs)
+    waits = []
+
+    def state(old, new, reason):
+        if new is State.TRIPPED:
+            eng.rearm()  # no re-run queued before the re-arm
+        if new is State.PAUSED:
+            assert rig.stimulator.output_active is False
+            assert is_rerun_wait(new, reason), reason
+            assert all(p.status is not TrialStatus.PENDING for p in eng.schedule)
+            waits.append(reason)
+            eng.resume()  # means nothing here: ignored, the engine keeps waiting
+            threading.Timer(0.1, eng.rerun, args=(3,)).start()
+    obs.hooks = {"chunk": _stop_last_trial(eng, how), "state": state}
+    s = eng.run()
+    assert waits == ["schedule done; 1 aborted trial(s) can be re-run; re-run or end the "
+                     "session"]
+    assert s.complete and s.ended_by == "schedule complete" and s.journal_removed
+    moves = [(c[1], c[2]) for c in obs.kinds("state")]
+    assert (State.PAUSED, State.ARMED) in moves and moves[-1] == (State.RESTING,
+                                                                  State.FINISHED)
+    sess = read_session(path)
+    assert [t.extra_attrs["schedule_index"] for t in sess.trials] == [0, 1, 2, 3, 3]
+    assert [t.completed for t in sess.trials] == [True, True, True, False, True]
+    kinds = [e.kind for e in sess.events]
+    assert kinds.count("waiting_for_rerun") == 1 and "rerun_queued" in kinds
+    assert "command_ignored" in kinds
+    assert validate_session(path) == [] and not journal_dir(path).exists()
+
+
+def test_ending_the_rerun_wait_finishes_cleanly(tmp_path, fake_rig, small_config):
+    """While waiting for a re-run: an E-stop trips (re-arm, the wait starts again), then
+    the operator ends the session: a normal end, file valid, journal removed."""
+    rig = fake_rig()
+    obs = Recorder()
+    path = tmp_path / "s.h5"
+    eng = Engine(small_config(), rig, path, observer=obs)
+    waits = []
+
+    def state(old, new, reason):
+        if new is State.TRIPPED:
+            assert rig.stimulator.output_active is False
+            eng.rearm()
+        if is_rerun_wait(new, reason):
+            waits.append(old)
+            if len(waits) == 1:
+                threading.Thread(target=eng.estop, args=("while waiting",)).start()
+            else:
+                eng.abort()
+    obs.hooks = {"chunk": _stop_last_trial(eng, "estop"), "state": state}
+    s = eng.run()
+    assert waits == [State.ARMED, State.ARMED]  # tripped -> armed -> paused, twice
+    assert s.ended_by == "schedule done; ended by operator with 1 aborted trial(s) not re-run"
+    assert not s.complete and (s.n_completed, s.n_aborted, s.n_pending) == (3, 1, 0)
+    assert s.journal_removed and eng.state is State.FINISHED
+    moves = [(c[1], c[2]) for c in obs.kinds("state")]
+    assert (State.PAUSED, State.TRIPPED) in moves and moves[-1] == (State.PAUSED,
+                                                                    State.FINISHED)
+    assert validate_session(path) == [] and not journal_dir(path).exists()
+    sess = read_session(path)
+    assert [t.completed for t in sess.trials] == [True, True, True, False]
+    kinds = [e.kind for e in sess.events]
+    assert kinds.count("waiting_for_rerun") == 2 and kinds[-1] == "session_end"
+    assert rig.stimulator.output_active is False
+
+
+@pytest.mark.parametrize("how", ["estop", "skip"])
+def test_end_session_policy_never_waits_for_a_rerun(tmp_path, fake_rig, small_config, how):
+    rig = fake_rig()
+    obs = Recorder()
+    path = tmp_path / "s.h5"
+    eng = Engine(small_config(), rig, path, observer=obs, trip_policy=TripPolicy.END_SESSION)
+    obs.hooks = {"chunk": _stop_last_trial(eng, how)}
+    s = eng.run()
+    assert s.ended_by == ("interlock: estop: last" if how == "estop" else "schedule complete")
+    assert (s.n_completed, s.n_aborted, s.n_pending) == (3, 1, 0)
+    assert State.PAUSED not in [c[2] for c in obs.kinds("state")]
+    assert "waiting_for_rerun" not in [e.kind for e in read_session(path).events]
+    assert validate_session(path) == []
