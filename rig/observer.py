@@ -44,10 +44,12 @@ def rerun_wait_reason(n_aborted: int) -> str:
             "end the session")
 
 
-def is_rerun_wait(state: State, reason: str) -> bool:
+def is_rerun_wait(state: State | str, reason: str) -> bool:
     """True if ``(state, reason)`` from :meth:`EngineObserver.on_state` is the wait for a
-    re-run after the schedule (as opposed to an operator's pause)."""
-    return state is State.PAUSED and str(reason).startswith(RERUN_WAIT_PREFIX + ";")
+    re-run after the schedule (as opposed to an operator's pause). ``state`` is a
+    :class:`State` or its value (``"paused"``)."""
+    return str(getattr(state, "value", state)) == State.PAUSED.value and \
+        str(reason).startswith(RERUN_WAIT_PREFIX + ";")
 
 
 

@@ -270,7 +270,7 @@ class MainWindow(QMainWindow):
         if new is State.TRIPPED:
             self.trip_reason = reason
         self.safety.set_state(name, reason)
-        self.schedule_panel.set_state(name)
+        self.schedule_panel.set_state(name, reason)
         self._refresh_schedule()
         self._poll_engine()
         if new is State.CALIBRATING:

@@ -16,6 +16,7 @@ from PySide6.QtWidgets import (QFrame, QGridLayout, QHBoxLayout, QLabel, QPushBu
                                QSizePolicy, QVBoxLayout, QWidget)
 
 from rig.gui.theme import Colour
+from rig.observer import is_rerun_wait
 
 #: The interlock rules shown as lights, in display order: (substring of the engine's rule
 #: name, label). Rules the engine reports that match none of these are shown too.
@@ -150,6 +151,13 @@ class SafetyPanel(QFrame):
                                 "Stimulation is off. Check the participant and the rig, "
                                 "then press RE-ARM.")
             self.banner.setStyleSheet(f"background: {Colour.FAULT}; color: white; "
+                                      "font-weight: bold; padding: 6px;")
+            self.banner.setVisible(True)
+        elif is_rerun_wait(state, reason):
+            self.banner.setText(f"{reason[0].upper()}{reason[1:]}: select an aborted trial "
+                                "in the schedule and press Re-run aborted, or press End "
+                                "session. Stimulation is off.")
+            self.banner.setStyleSheet(f"background: {Colour.WARN}; color: white; "
                                       "font-weight: bold; padding: 6px;")
             self.banner.setVisible(True)
         elif state in ("armed", "stimulating", "resting", "calibrating", "finished"):

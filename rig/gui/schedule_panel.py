@@ -17,6 +17,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLab
                                QVBoxLayout, QWidget)
 
 from rig.gui.theme import Colour
+from rig.observer import is_rerun_wait
 
 COLUMNS = ("#", "sE", "repeat", "status", "runs", "reason")
 END_TEXT = "End session"
@@ -78,6 +79,8 @@ class SchedulePanel(QWidget):
         self.rest_s = 60.0
         self.current_index = -1
         self.statuses: list[str] = []
+        self.waiting_for_rerun = False
+        """The engine waits, after the schedule, for a re-run or the end of the session."""
 
         self.table = QTableWidget(0, len(COLUMNS))
         self.table.setHorizontalHeaderLabels(COLUMNS)
@@ -180,13 +183,18 @@ class SchedulePanel(QWidget):
                                     QAbstractItemView.ScrollHint.EnsureVisible)
         self._selection_changed()
 
-    def set_state(self, state: str) -> None:
-        """Enable the controls that make sense in the engine state."""
+    def set_state(self, state: str, reason: str = "") -> None:
+        """Enable the controls that make sense in the engine state. In the engine's wait
+        for a re-run after the schedule (``paused`` with the reason of
+        :func:`rig.observer.rerun_wait_reason`) only Re-run aborted and End session do
+        something: Resume and Skip are off."""
         self._state = state
+        self.waiting_for_rerun = is_rerun_wait(state, reason)
         running = state in ("calibrating", "armed", "stimulating", "resting")
         self.pause_button.setEnabled(running)
-        self.resume_button.setEnabled(state == "paused")
-        self.skip_button.setEnabled(state in ("armed", "stimulating", "resting", "paused"))
+        self.resume_button.setEnabled(state == "paused" and not self.waiting_for_rerun)
+        self.skip_button.setEnabled(state in ("armed", "stimulating", "resting", "paused")
+                                    and not self.waiting_for_rerun)
         self.end_button.setEnabled(self._on_end is not None and state not in
                                    ("idle", "finished"))
         if state == "finished":

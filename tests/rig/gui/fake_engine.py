@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from protocols.schedule import PlannedTrial, TrialStatus
+from rig.observer import rerun_wait_reason
 from rig.session_file import Calibration, Event, SessionWriter, Trial, utc_now
 from rig.states import State
 
@@ -40,6 +41,7 @@ class FakeEngine:
         self._estop = threading.Event()
         self._rearm = threading.Event()
         self._confirm = threading.Event()
+        self._abort = threading.Event()
         self._cal = None
         self._reruns: list[int] = []
         self._notes: list[str] = []
@@ -62,6 +64,7 @@ class FakeEngine:
         pass
 
     def abort(self):
+        self._abort.set()
         self._estop.set()
         self._rearm.set()
         self._confirm.set()
@@ -103,6 +106,21 @@ class FakeEngine:
         for n in notes:
             self._event("note", n)
 
+    def _wait_for_rerun(self):
+        """As the engine (WAIT_FOR_REARM): schedule done with aborted trials -> paused until
+        a re-run (True) or the end of the session (False)."""
+        n = sum(p.status is TrialStatus.ABORTED for p in self.schedule)
+        if not n or self._abort.is_set():
+            return False
+        self._to(State.PAUSED, rerun_wait_reason(n))
+        while not self._abort.is_set():
+            with self._lock:
+                if self._reruns:
+                    self._to(State.ARMED, "re-run")
+                    return True
+            time.sleep(0.01)
+        return False
+
     def run(self):
         self.writer = SessionWriter.create(self.path, self.config.participant,
                                            config_json=self.config.to_json(), backend="fake")
@@ -119,7 +137,9 @@ class FakeEngine:
         p = self.config.protocol
         queue = list(range(len(self.schedule)))
         done_levels: dict[float, list] = {}
-        while queue or self._reruns:
+        while True:
+            if not queue and not self._reruns and not self._wait_for_rerun():
+                break
             self._flush_notes()
             with self._lock:
                 i = self._reruns.pop(0) if self._reruns else queue.pop(0)
@@ -164,12 +184,6 @@ class FakeEngine:
                 self.obs.on_level_completed(planned.sE, done_levels[planned.sE])
             self._to(State.RESTING)
             self._to(State.ARMED)
-            if not queue:
-                # wait briefly for a re-run request of an aborted trial
-                t0 = time.monotonic()
-                while not self._reruns and time.monotonic() - t0 < 0.3 and any(
-                        s.status is TrialStatus.ABORTED for s in self.schedule):
-                    time.sleep(0.01)
         self._flush_notes()
         self._to(State.FINISHED)
         self.obs.on_finished(str(self.path))

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from rig.observer import rerun_wait_reason
 from rig.session_file import Calibration, SessionWriter, Trial
 
 
@@ -72,6 +73,32 @@ def test_lights_follow_the_engines_rule_names(qtbot):
     assert not p.rearm_button.isEnabled()
     p.estop_button.setDisabled(True)
     assert p.estop_button.isEnabled()
+    p.set_state("paused", "operator")  # an operator's pause: no banner
+    assert p.banner.isHidden()
+    p.set_state("paused", rerun_wait_reason(2))
+    assert not p.banner.isHidden() and "2 aborted trial(s) can be re-run" in p.banner.text()
+    p.set_state("armed", "next trial 3")
+    assert p.banner.isHidden()
+
+
+def test_schedule_panel_in_the_wait_for_a_rerun(qtbot):
+    from protocols.schedule import PlannedTrial, TrialStatus
+    from rig.gui.schedule_panel import SchedulePanel
+    p = SchedulePanel(on_pause=lambda: None, on_resume=lambda: None, on_skip=lambda: None,
+                      on_rerun=lambda i: None, on_end=lambda: None)
+    qtbot.addWidget(p)
+    sched = [PlannedTrial(i, 0.5, i + 1) for i in range(3)]
+    for pt, st in zip(sched, (TrialStatus.DONE, TrialStatus.ABORTED, TrialStatus.DONE)):
+        pt.status = st
+    p.set_schedule(sched)
+    p.set_state("paused", "operator")
+    assert p.resume_button.isEnabled() and p.skip_button.isEnabled()
+    assert not p.waiting_for_rerun
+    p.set_state("paused", rerun_wait_reason(1))
+    assert p.waiting_for_rerun
+    assert not p.resume_button.isEnabled() and not p.skip_button.isEnabled()
+    assert not p.pause_button.isEnabled()
+    assert p.rerun_button.isEnabled() and p.end_button.isEnabled()
 
 
 # -- calibration panel ---------------------------------------------------------------------

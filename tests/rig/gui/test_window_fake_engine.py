@@ -25,14 +25,24 @@ def test_session_through_window_with_estop_rearm_rerun(fake_window, qtbot, tmp_p
     assert w.safety.banner.isVisible() and "TRIPPED" in w.safety.banner.text()
     assert w.trial_statuses()[1] == "aborted"
     w.add_note("electrode checked")
-    # the aborted trial is the last one: queue its re-run before re-arming, or the
-    # engine finishes the schedule at once
-    assert w.schedule_panel.rerun_button.isEnabled()
-    w.schedule_panel.rerun_button.click()
+    # the aborted trial is the last one: after the re-arm the engine waits (paused) for
+    # a re-run or the end of the session; the window says so and offers only those
     w.safety.rearm_button.click()
+    sp = w.schedule_panel
+    qtbot.waitUntil(lambda: w.state is State.PAUSED, timeout=5000)
+    assert sp.waiting_for_rerun
+    assert w.safety.banner.isVisible() and "Schedule done" in w.safety.banner.text()
+    assert "Re-run aborted" in w.safety.banner.text()
+    assert sp.rerun_button.isEnabled() and sp.end_button.isEnabled()
+    assert not sp.resume_button.isEnabled() and not sp.skip_button.isEnabled()
+    assert not sp.pause_button.isEnabled()
+    qtbot.wait(200)
+    assert w.run_result is None and w.state is State.PAUSED  # it does not finish alone
+    sp.rerun_button.click()
     qtbot.waitUntil(lambda: w.run_result is not None, timeout=20000)
     assert w.run_error is None
     assert w.trial_statuses() == ["done"] * 2
+    assert not sp.waiting_for_rerun and not w.safety.banner.isVisible()
     assert validate_session(out) == []
     s = read_session(out)
     assert s.calibration.Iemax_mA == 8.0
