@@ -5,9 +5,10 @@ sub-folder each (named after the file) and a top-level ``gap_report.json`` that 
 and the effect most of them point to.
 
 The *simulation under test* is by default the nominal twin fitted on the training trials.
-With ``twin`` (a twin file) or ``sim_session`` (a simulated session, trials matched by sE
-and repeat) the 'where' part is also computed for that simulation: every trial is then
-held out, since nothing of it was fitted on this session. The candidate search ('which'
+With ``twin`` (a twin file, run with its effects on the simulator's virtual participant
+with an ideal sensor) or ``sim_session`` (a simulated session, trials matched by sE and
+repeat) the 'where' part is also computed for that simulation: every trial is then held
+out, since nothing of it was fitted on this session. The candidate search ('which'
 and 'how far') always works from the nominal model fitted by cross-validation.
 """
 
@@ -59,23 +60,33 @@ def external_predictions(data: GapData, *, twin=None, sim_session=None) -> np.nd
             raise GapInputError(f"{sim_session}: simulated trials are shorter than the "
                                 "measured ones")
         return sim_data.y_N[:, :n]
-    from analysis.twin import Twin
-    by_name = {t.name: t for t in read_session(data.path).trials}
+    return _twin_predictions(data, twin)
+
+
+def _twin_predictions(data: GapData, twin) -> np.ndarray:
+    """Every trial's commanded rE and sE run through the twin (effects included) on the
+    simulator's virtual participant with an ideal sensor, in file order (aborted trials
+    too: they count for fatigue)."""
+    from rig.session_file import read_session
     try:
-        tw = Twin.load(twin)
+        from sim_backends.sensor import SensorModel
+        from sim_backends.simulation import ParticipantSimulator
+        from sim_backends.twin import participant_from_twin
+        participant = participant_from_twin(str(twin), sensor=SensorModel.ideal(),
+                                            snap_calibration=False)
     except (OSError, ValueError) as exc:
         raise GapInputError(f"{twin}: cannot be used as the simulation under test ({exc})"
                             ) from None
-    if tw.effects:
-        log.warning("%s has effects %s; the 'where' view simulates its nominal part only",
-                    twin, [e.get("name") for e in tw.effects])
-    trials = []
-    for info in data.trials:
-        t = by_name[info.name]
-        force = tw.simulate(t.rE, t.sE, t.fs_Hz)
-        trials.append(_with_force(t, force))
-    sim_data = prepare_trials(trials, path=str(twin), settings=data.settings)
-    return sim_data.y_N
+    session = read_session(data.path)
+    cal = participant.calibration
+    sim = ParticipantSimulator(participant, data.fs_raw_Hz)
+    by_name = {}
+    for t in session.trials:
+        I_e = cal.Iemin_mA + t.rE * t.sE * (cal.Iemax_mA - cal.Iemin_mA)
+        I_f = cal.Ifmin_mA + (1.0 - t.rE) * t.sE * (cal.Ifmax_mA - cal.Ifmin_mA)
+        by_name[t.name] = _with_force(t, sim.simulate(I_e, I_f).force_N)
+    trials = [by_name[info.name] for info in data.trials]
+    return prepare_trials(trials, path=str(twin), settings=data.settings).y_N
 
 
 def _with_force(trial, force):

@@ -97,19 +97,30 @@ def test_effective_fraction_of_white_and_smooth_noise():
     assert effective_fraction(smooth, 100.0, 25.0) < 0.05
 
 
-def test_external_simulation_under_test(dead_report, dead_time_session):
-    """--sim-session matches trials by sE and repeat; --twin simulates the twin's nominal
-    part (its dead time is not applied by that view, so the gap is large)."""
+def test_external_simulation_under_test(dead_report, dead_time_session, tmp_path):
+    """--sim-session matches trials by sE and repeat; --twin runs the twin file with its
+    effects: the augmented twin predicts the session, the same twin without its dead time
+    does not."""
     from analysis.gap.api import external_predictions
     out, _ = dead_report
     data = load_session(dead_time_session)
     same = external_predictions(data, sim_session=dead_time_session)
     np.testing.assert_allclose(same, data.y_N)
-    pred = external_predictions(data, twin=out / "twin.json")
-    assert pred.shape == data.y_N.shape
-    r = (data.y_N - pred) - (data.y_N - pred).mean(axis=1, keepdims=True)
-    ref = data.y_N - data.y_N.mean(axis=1, keepdims=True)
-    assert np.sqrt(np.sum(r ** 2) / np.sum(ref ** 2)) > 0.05
+
+    X = np.column_stack([np.ones_like(data.t_eval_s), data.t_eval_s])
+
+    def detrend(v):  # offset and linear trend, as the report does
+        return v - (np.linalg.lstsq(X, v.T, rcond=None)[0].T @ X.T)
+
+    def nrmse(pred):
+        r, ref = detrend(data.y_N - pred), detrend(data.y_N)
+        return 100 * np.sqrt(np.sum(r ** 2) / np.sum(ref ** 2))
+
+    twin = json.loads((out / "twin.json").read_text())
+    assert nrmse(external_predictions(data, twin=out / "twin.json")) < 1.0  # ~ noise
+    twin["effects"] = []
+    (tmp_path / "nominal_twin.json").write_text(json.dumps(twin))
+    assert nrmse(external_predictions(data, twin=tmp_path / "nominal_twin.json")) > 10.0
 
 
 def test_single_repeat_is_refused_with_a_clear_message(write_synthetic, tmp_path):
