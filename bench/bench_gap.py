@@ -260,8 +260,11 @@ def main(argv: list[str] | None = None) -> None:
                  for c in ("none", "dead_time")] if args.timing else []
         jobs = [(c, s, work) for c, s in cases]
         if args.jobs > 1:
+            # bench/run.py loads this file without registering it in sys.modules; the
+            # worker function must come from a normal import to be picklable
+            import bench_gap as registered
             with ProcessPoolExecutor(args.jobs) as ex:
-                results = list(ex.map(run_case, jobs))
+                results = list(ex.map(registered.run_case, jobs))
         else:
             results = [run_case(j) for j in jobs]
     report(results, args.classes)
