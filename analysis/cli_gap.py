@@ -62,5 +62,9 @@ def run(args: argparse.Namespace) -> int:
               + f" in the steady lead-in  [{s['elapsed_s']:.1f} s]")
         for line in s["evidence"]["summary"]:
             print(f"  {line}")
+        if s.get("simulation_under_test"):
+            u = s["simulation_under_test"]
+            print(f"  simulation under test {u['source']}: NRMSE {u['nrmse_pct']:.3g} % on all "
+                  "trials (nothing of it fitted here)")
     print(f"report: {summary['report']}")
     return 0
