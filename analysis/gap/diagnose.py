@@ -5,7 +5,7 @@ of each cross-validation fold (:mod:`analysis.gap.crossval`) and predicts the he
 repeat. Candidates are ranked by their held-out NRMSE and by an information criterion
 computed with the *effective* number of independent samples.
 
-Effective samples. The force is low-passed at 25 Hz and evaluated at 100 Hz, and a model's
+Effective samples. The force is low-passed at 25 Hz and evaluated at 125 Hz, and a model's
 misfit is smooth, so neighbouring residual samples are far from independent. With ``N``
 residual samples, ``N_eff = N nu`` where ``nu = 1 / (1 + 2 sum_k rho_k)`` from the
 residual's autocorrelation (summed while it stays above 0.05, the "initial positive
