@@ -250,6 +250,10 @@ def load_config(path: str | os.PathLike | None = None, *, overrides: dict | None
     data: dict[str, Any] = {}
     if path is not None:
         source = str(path)
+        if not os.path.isfile(path):
+            raise FileNotFoundError(
+                f"{source}: no such configuration file (give a TOML file with --config, "
+                "or leave --config out for the built-in paper protocol)")
         with open(path, "rb") as fh:
             try:
                 data = tomllib.load(fh)

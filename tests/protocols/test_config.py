@@ -107,3 +107,9 @@ def test_config_is_frozen():
     cfg = Config()
     with pytest.raises(Exception):
         cfg.participant = "X"  # type: ignore[misc]
+
+
+def test_missing_configuration_file_is_named(tmp_path):
+    from protocols.config import load_config
+    with pytest.raises(FileNotFoundError, match="nope.toml: no such configuration file"):
+        load_config(tmp_path / "nope.toml")
