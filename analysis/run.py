@@ -77,7 +77,9 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         try:
             res = identify_session(src, s)
         except (ValueError, OSError) as exc:
-            problems.append(f"{src}: {exc}; session skipped")
+            text = str(exc)  # file errors already start with the file's name
+            problems.append((text if text.startswith(str(src)) else f"{src}: {text}")
+                            + "; session skipped")
             continue
         results.append(res)
         problems.extend(f"{res.participant}: {p}" for p in res.problems)
