@@ -29,6 +29,7 @@ import numpy as np
 from scipy import signal
 
 from analysis.gap.discretize import foh_compensate, fractional_delay
+from protocols.waveforms import chirp_frequency_Hz, chirp_phase_rad
 from analysis.gap.errors import GapInputError
 
 log = logging.getLogger(__name__)
@@ -165,27 +166,6 @@ def _filter_chain(x: np.ndarray, fs_Hz: float, s: PreprocessSettings) -> np.ndar
         x = signal.savgol_filter(x, win, s.savgol_order, axis=-1)
     sos = signal.butter(s.lowpass_order, s.lowpass_Hz, fs=fs_Hz, output="sos")
     return signal.sosfiltfilt(sos, x, axis=-1)
-
-
-def chirp_frequency_Hz(t_s, f0_Hz: float, f1_Hz: float, T_s: float) -> np.ndarray:
-    """Instantaneous frequency of the exponential chirp (``protocols.waveforms``)."""
-    try:
-        from protocols.waveforms import chirp_frequency_Hz as impl
-    except ImportError:  # pragma: no cover - protocols is part of nmsid
-        t = np.asarray(t_s, dtype=float)
-        return f0_Hz * np.power(f1_Hz / f0_Hz, t / T_s)
-    return impl(t_s, f0_Hz, f1_Hz, T_s)
-
-
-def chirp_phase_rad(t_s, f0_Hz: float, f1_Hz: float, T_s: float) -> np.ndarray:
-    """Phase of the exponential chirp (``protocols.waveforms``)."""
-    try:
-        from protocols.waveforms import chirp_phase_rad as impl
-    except ImportError:  # pragma: no cover
-        t = np.asarray(t_s, dtype=float)
-        k = f1_Hz / f0_Hz
-        return 2 * np.pi * f0_Hz * T_s / math.log(k) * (np.power(k, t / T_s) - 1.0)
-    return impl(t_s, f0_Hz, f1_Hz, T_s)
 
 
 def load_session(path, settings: PreprocessSettings | None = None) -> GapData:
