@@ -143,7 +143,12 @@ class IdentificationPanel(QWidget):
             except Exception as exc:  # reported in the panel and the log, never raised
                 log.exception("identification of sE=%.2f failed", sE)
                 relay.done.emit(None, f"sE = {sE:.2f}: identification failed: {exc}")
-        return self._pool.submit(work)
+        try:
+            return self._pool.submit(work)
+        except RuntimeError:  # the window is closing: its worker pool is shut down
+            self.pending -= 1
+            log.info("identification of sE=%.2f not started: the window is closing", sE)
+            return None
 
     def add_point(self, point: LevelPoint) -> None:
         """Add (or replace) one level's parameters and redraw."""

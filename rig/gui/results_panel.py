@@ -171,7 +171,11 @@ class ResultsPanel(QWidget):
             except Exception as exc:  # shown in the panel, never raised into Qt
                 log.exception("model selection failed")
                 relay.done.emit(None, f"model selection failed: {exc}")
-        self._pool.submit(work)
+        try:
+            self._pool.submit(work)
+        except RuntimeError:  # the window is closing: its worker pool is shut down
+            self.busy = False
+            log.info("model selection not started: the window is closing")
 
     def _on_done(self, view, error) -> None:
         self.busy = False

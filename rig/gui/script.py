@@ -8,8 +8,9 @@ A script is one command per line (``#`` starts a comment; arguments are shell-qu
     wait-trial-time 0.5                # the running trial is at least 0.5 s in
     estop                              # press E-STOP
     wait tripped                       # engine state
+    wait-aborted                       # some trial is recorded as aborted
+    rerun                              # the first aborted trial, if any (or: rerun 1)
     rearm
-    rerun                              # the first aborted trial (or: rerun 1)
     end-session                        # end early (the file can be resumed later)
     note "electrode re-taped"
     wait-finished                      # session over and results shown
@@ -46,6 +47,7 @@ class Command(enum.Enum):
     WAIT = "wait"
     WAIT_TRIAL = "wait-trial"
     WAIT_TRIAL_TIME = "wait-trial-time"
+    WAIT_ABORTED = "wait-aborted"
     WAIT_FINISHED = "wait-finished"
     SLEEP = "sleep"
     ESTOP = "estop"
@@ -73,9 +75,10 @@ wait-trial 1 running
 wait-trial-time 3.0
 estop
 wait tripped
-note "demo: E-stop pressed during trial 2; participant fine; re-arming"
-rearm
+sleep 0.5
+note "demo: E-stop pressed; participant fine; re-running the aborted trial and re-arming"
 rerun
+rearm
 wait-finished
 tab live
 """
@@ -160,7 +163,7 @@ def _check(cmd: Command, args, kwargs, where: str) -> None:
                               f"or aborted, got {args[1]!r}")
     elif cmd in (Command.WAIT_TRIAL_TIME, Command.SLEEP):
         need(1, 2)
-    elif cmd is Command.WAIT_FINISHED:
+    elif cmd in (Command.WAIT_FINISHED, Command.WAIT_ABORTED):
         need(0, 1)
     elif cmd is Command.RERUN:
         need(0, 1)
@@ -191,7 +194,8 @@ def _check(cmd: Command, args, kwargs, where: str) -> None:
             number(v, k)
     else:
         need(0, 0)
-    if cmd in (Command.WAIT_TRIAL_TIME, Command.SLEEP, Command.WAIT_FINISHED, Command.RERUN):
+    if cmd in (Command.WAIT_TRIAL_TIME, Command.SLEEP, Command.WAIT_FINISHED,
+               Command.WAIT_ABORTED, Command.RERUN):
         for a in args:
             number(a, "the number")
     if cmd in (Command.WAIT, Command.WAIT_TRIAL):
@@ -298,7 +302,7 @@ class ScriptRunner(QObject):
         if c is Command.CONFIRM_CALIBRATION:
             return True  # waits until the calibration result is shown, then confirms
         if c in (Command.WAIT, Command.WAIT_TRIAL, Command.WAIT_TRIAL_TIME,
-                 Command.WAIT_FINISHED):
+                 Command.WAIT_FINISHED, Command.WAIT_ABORTED):
             return True
         if c is Command.SLEEP:
             self._sleep_until = time.monotonic() + float(step.args[0])
@@ -314,7 +318,13 @@ class ScriptRunner(QObject):
         elif c is Command.SKIP:
             w.skip()
         elif c is Command.RERUN:
-            w.rerun(int(step.args[0]) if step.args else None)
+            if step.args:
+                w.rerun(int(step.args[0]))
+            elif "aborted" in w.trial_statuses():
+                w.rerun(None)
+            else:  # on a fast clock an E-stop can fall between two trials
+                log.info("script line %d: rerun: no aborted trial, nothing to re-run",
+                         step.line)
         elif c is Command.END_SESSION:
             w.end_session()
         elif c is Command.NOTE:
@@ -331,6 +341,11 @@ class ScriptRunner(QObject):
     def _poll(self, step: Step) -> bool:
         w = self.window
         c = step.command
+        if c not in (Command.WAIT_FINISHED, Command.SLEEP) and w.run_result is not None \
+                and w.controller.thread is not None and not w.controller.running:
+            raise ScriptError(f"line {step.line}: {step.text!r}: the session ended before "
+                              "this happened (on the fast clock trials pass quicker than a "
+                              "script can react; use the real-time clock)")
         if c is Command.CONFIRM_CALIBRATION:
             if not w.calibration_panel.confirm_button.isEnabled():
                 return False
@@ -344,7 +359,13 @@ class ScriptRunner(QObject):
         if c is Command.WAIT_TRIAL:
             statuses = w.trial_statuses()
             i = int(float(step.args[0]))
-            return i < len(statuses) and statuses[i] == step.args[1]
+            if i >= len(statuses):
+                return False
+            if step.args[1] == "running":  # "has started": it may be over already
+                return statuses[i] in ("running", "done", "aborted")
+            return statuses[i] == step.args[1]
+        if c is Command.WAIT_ABORTED:
+            return "aborted" in w.trial_statuses()
         if c is Command.WAIT_TRIAL_TIME:
             snap = w.buffer.snapshot()
             return (w.state is not None and getattr(w.state, "value", "") == "stimulating"
@@ -365,6 +386,6 @@ def _timeout(step: Step) -> float:
         return float(step.args[2])
     if step.command in (Command.WAIT, Command.WAIT_TRIAL_TIME) and len(step.args) > 1:
         return float(step.args[1])
-    if step.command is Command.WAIT_FINISHED and step.args:
+    if step.command in (Command.WAIT_FINISHED, Command.WAIT_ABORTED) and step.args:
         return float(step.args[0])
     return DEFAULT_TIMEOUT_S

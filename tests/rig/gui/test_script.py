@@ -74,3 +74,10 @@ def test_screenshot_without_script_is_refused():
     from rig.gui.app import GuiOptions, run_gui
     with pytest.raises(ValueError, match="--script"):
         run_gui(GuiOptions(screenshot=Path("x.png")))
+
+
+def test_wait_aborted_parses_with_an_optional_timeout():
+    steps = parse_script("wait-aborted\nwait-aborted 5\n", "t")
+    assert [s.command for s in steps] == [Command.WAIT_ABORTED, Command.WAIT_ABORTED]
+    with pytest.raises(ScriptError, match="t:1: wait-aborted: .* got 'soon'"):
+        parse_script("wait-aborted soon\n", "t")
