@@ -25,6 +25,7 @@ from analysis.errors import IdentificationError
 from analysis.preprocess import LevelData, preprocess_trials
 from analysis.second_order import SecondOrderFit, fit_second_order
 from analysis.settings import IdentificationSettings
+from protocols.session_file import read_session
 
 logger = logging.getLogger(__name__)
 
@@ -131,7 +132,7 @@ def identify_level(trials, settings: IdentificationSettings | None = None) -> Le
 
     Parameters
     ----------
-    trials : sequence of rig.session_file.Trial
+    trials : sequence of protocols.session_file.Trial
         The trials run at this sE (aborted ones are skipped and reported).
     settings : IdentificationSettings, optional
 
@@ -207,7 +208,7 @@ def identify_session(session, settings: IdentificationSettings | None = None,
 
     Parameters
     ----------
-    session : path-like or rig.session_file.Session
+    session : path-like or protocols.session_file.Session
         A session file (read with ``read_session``) or an already-read session.
     settings : IdentificationSettings, optional
     progress : callable(sE, LevelResult), optional
@@ -219,10 +220,9 @@ def identify_session(session, settings: IdentificationSettings | None = None,
 
     Raises
     ------
-    rig.session_file.SessionFileError
+    protocols.session_file.SessionFileError
         If the file cannot be read as a session (the message names the file and item).
     """
-    from rig.session_file import read_session
 
     s = settings or IdentificationSettings()
     if isinstance(session, (str, os.PathLike)):

@@ -164,7 +164,7 @@ def preprocess_trials(trials, settings: IdentificationSettings | None = None) ->
 
     Parameters
     ----------
-    trials : sequence of rig.session_file.Trial
+    trials : sequence of protocols.session_file.Trial
         Completed trials of the same sE with finite data (see
         ``analysis.identify.usable_trials``). Trials of different lengths are cut to the
         shortest (all start at stimulation onset).

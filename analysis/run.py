@@ -46,7 +46,7 @@ def run_identification(sessions, out_dir: str | os.PathLike,
 
     Parameters
     ----------
-    sessions : sequence of path-like or rig.session_file.Session
+    sessions : sequence of path-like or protocols.session_file.Session
         One session: that participant's analysis. Several: also the group analysis
         (participant averages, AICc sums).
     out_dir : path-like

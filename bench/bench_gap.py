@@ -34,7 +34,7 @@ import numpy as np
 
 from protocols.config import Randomisation
 from protocols.schedule import make_schedule
-from rig.session_file import SessionWriter, Trial
+from protocols.session_file import SessionWriter, Trial, read_session
 
 HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
@@ -174,7 +174,6 @@ def _true_window_drift(p: dict, participant, path: str) -> float:
     a function of session time; trial start times are stored by the generator)."""
     from analysis.gap.data import load_session
     from analysis.gap.models import nuisance_basis
-    from rig.session_file import read_session
     from sim_backends.sensor import BaselineWander
     wander = BaselineWander(p["amplitude_N"], p["corner_Hz"], participant.seed)
     data = load_session(path)

@@ -40,7 +40,7 @@ from analysis.identify import identify_level  # noqa: E402
 from analysis.preprocess import preprocess_trials  # noqa: E402
 from analysis.run import run_identification  # noqa: E402
 from analysis.settings import IdentificationSettings  # noqa: E402
-from rig.session_file import Trial, read_session  # noqa: E402
+from protocols.session_file import Trial, read_session  # noqa: E402
 
 FS = 2000.0
 STEADY, CHIRP, F0, F1 = 5.0, 10.0, 1.0, 10.0

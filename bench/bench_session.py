@@ -25,7 +25,7 @@ if str(ROOT) not in sys.path:
 
 from protocols.config import config_from_dict  # noqa: E402
 from rig.engine import Engine, TripPolicy  # noqa: E402
-from rig.session_file import read_session, validate_session  # noqa: E402
+from protocols.session_file import read_session, validate_session  # noqa: E402
 from sim_backends import make_sim_rig  # noqa: E402
 
 

@@ -115,7 +115,7 @@ def trial_waveform(p: ProtocolConfig, sE: float, calibration) -> TrialWaveform:
     p : ProtocolConfig
     sE : float
         The EAA sum held during the trial, in (0, 1].
-    calibration : rig.session_file.Calibration or any object with Iemin_mA, Iemax_mA,
+    calibration : protocols.session_file.Calibration or any object with Iemin_mA, Iemax_mA,
         Ifmin_mA, Ifmax_mA
     """
     if not 0 < sE <= 1:

@@ -3,5 +3,5 @@
 The engine executes protocols (``protocols``) through driver interfaces (``drivers``),
 checks every waveform against the current ceilings before it reaches a stimulator, stops
 output at once on any fault or emergency stop, and writes each trial to the HDF5 session
-file (``rig.session_file``) as the session goes. The ``nmsid`` command lives in ``rig.cli``.
+file (``protocols.session_file``) as the session goes. The ``nmsid`` command lives in ``rig.cli``.
 """

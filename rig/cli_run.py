@@ -7,6 +7,7 @@ cleanly and the file stays valid; ``--resume FILE`` continues it.
 """
 
 from __future__ import annotations
+from protocols.session_file import read_session, validate_session
 
 
 class BackendUnavailable(RuntimeError):
@@ -56,7 +57,6 @@ def register(sub) -> None:
 
 # -- handlers ------------------------------------------------------------------------
 def recover_cmd(args) -> int:
-    from rig.session_file import validate_session
     from rig.session_log import recover
 
     report = recover(args.file)
@@ -158,7 +158,6 @@ def _stored_attrs(path) -> dict:
     j = journal_dir(path) / "header.json"
     if j.exists():
         return dict(json.loads(j.read_text()).get("extra_attrs") or {})
-    from rig.session_file import read_session
     return dict(read_session(path, load_data=False).attrs)
 
 
@@ -171,7 +170,6 @@ def _stored_config(path):
     j = journal_dir(path) / "header.json"
     if j.exists():
         return config_from_json(json.loads(j.read_text())["config_json"], source=str(j))
-    from rig.session_file import read_session
     return config_from_json(read_session(path, load_data=False).config_json, source=str(path))
 
 

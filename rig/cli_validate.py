@@ -1,6 +1,7 @@
 """``nmsid validate FILE ...``: check session files against the v1 contract."""
 
 from __future__ import annotations
+from protocols.session_file import validate_session
 
 
 def register(sub) -> None:
@@ -11,7 +12,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from rig.session_file import validate_session
 
     bad = 0
     for path in args.files:

@@ -34,7 +34,7 @@ from rig.engine_calibration import CalibrationSteps
 from rig.observer import (RERUN_WAIT_PREFIX, EngineObserver, RunSummary, TripPolicy,
                           is_rerun_wait, rerun_wait_reason)
 from rig.safety import Interlock, InterlockTripped, Trip, check_waveform
-from rig.session_file import Calibration, Trial, utc_now
+from protocols.session_file import Calibration, SessionExistsError, Trial, utc_now
 from rig.session_log import SessionLog, journal_dir, load_trial_npz, utc_now_ms
 from rig.states import State, StateMachine
 from rig.stimulation import BlockResult, run_block
@@ -126,7 +126,6 @@ class Engine(CalibrationSteps):
             if config is None:
                 raise ValueError("Engine needs a configuration for a new session")
             if self.path.exists() or journal_dir(self.path).exists():
-                from rig.session_file import SessionExistsError
                 raise SessionExistsError(self.path)
             seed = config.seed if config.seed is not None else secrets.randbelow(2 ** 31)
             self.config = config.replace(seed=seed) if config.seed is None else config

@@ -13,7 +13,7 @@ from protocols.calibration import (Muscle, check_calibration, detect_thresholds,
                                    make_calibration, manual_calibration, ramp_currents_mA,
                                    require_thresholds, settled_mean_N, step_envelopes)
 from protocols.errors import CalibrationError
-from rig.session_file import Calibration
+from protocols.session_file import Calibration
 from rig.states import State
 
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from rig.session_file import Calibration, Event, SessionFileError, Trial
+from protocols.session_file import Calibration, Event, SessionFileError, Trial
 
 PARTIAL_ABORT_REASON = "process ended during trial"
 _TRIAL_FILE = re.compile(r"^trial-(\d{4,})\.npz$")

@@ -11,7 +11,7 @@ import numpy as np
 
 from protocols.schedule import PlannedTrial
 from rig.safety import Trip
-from rig.session_file import Calibration, Event, Trial
+from protocols.session_file import Calibration, Event, Trial
 from rig.states import State
 
 

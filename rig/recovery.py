@@ -13,7 +13,7 @@ import numpy as np
 from rig.journal import (PARTIAL_ABORT_REASON, JournalContents, append_event_line,
                          fsync_dir, partial_trial, save_trial_npz, journal_dir,
                          load_trial_npz, read_journal)
-from rig.session_file import (Event, SessionFileError, SessionWriter, Trial, read_session,
+from protocols.session_file import (Event, SessionFileError, SessionWriter, Trial, read_session,
                               utc_now, validate_session)
 
 log = logging.getLogger(__name__)

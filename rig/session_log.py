@@ -2,7 +2,7 @@
 
 HDF5 can be left unreadable if the process dies in the middle of a write, so every item is
 first made durable in a journal directory ``<file>.journal/`` and only then appended to
-the HDF5 file (through :mod:`rig.session_file`, which this module does not change):
+the HDF5 file (through :mod:`protocols.session_file`, which this module does not change):
 
 ``header.json``
     participant, created_utc, software, config_json, seed, backend, schedule_json
@@ -42,7 +42,7 @@ from rig.journal import (PARTIAL_ABORT_REASON, PARTIAL_COLUMNS, JournalContents,
                          read_journal, trial_meta, utc_now_ms)
 from rig.recovery import (RecoveryReport, create_from_header, read_fully,  # noqa: F401
                           unique_aside, recover)
-from rig.session_file import (Calibration, Event, SessionExistsError, SessionFileError,
+from protocols.session_file import (Calibration, Event, SessionExistsError, SessionFileError,
                               SessionWriter, Trial, read_session, software_id, utc_now,
                               validate_session)
 

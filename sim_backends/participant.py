@@ -48,6 +48,7 @@ from sim_backends.effects import (EFFECT_TYPES, Fatigue, RecruitmentNonlinearity
                                   effects_from_list, effects_to_list)
 from sim_backends.errors import SimConfigError
 from sim_backends.sensor import SensorModel
+from protocols.session_file import Calibration
 
 #: A muscle within this much below its Imin still counts as recruited (co-activated
 #: regime): the stimulator's 1 uA quantisation and float rounding in the inversion of
@@ -112,8 +113,7 @@ class ReferenceCalibration:
         return self.Iemin_mA if muscle == "ext" else self.Ifmin_mA
 
     def as_session_calibration(self):
-        """The same currents as a :class:`rig.session_file.Calibration`."""
-        from rig.session_file import Calibration
+        """The same currents as a :class:`protocols.session_file.Calibration`."""
         return Calibration(self.Iemin_mA, self.Iemax_mA, self.Ifmin_mA, self.Ifmax_mA,
                            self.Fmin_N, self.Fmax_N)
 

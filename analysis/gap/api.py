@@ -27,6 +27,7 @@ from analysis.gap.errors import GapInputError
 from analysis.gap.localize import by_location, frequency_view
 from analysis.gap.models import NOMINAL, nuisance_basis
 from analysis.gap.report import _clean, write_outputs
+from protocols.session_file import read_session
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +43,6 @@ def external_predictions(data: GapData, *, twin=None, sim_session=None) -> np.nd
     GapInputError
         A trial has no counterpart in the simulated session, or the twin cannot be read.
     """
-    from rig.session_file import read_session
 
     if sim_session is not None:
         sim = read_session(sim_session)
@@ -67,7 +67,6 @@ def _twin_predictions(data: GapData, twin) -> np.ndarray:
     """Every trial's commanded rE and sE run through the twin (effects included) on the
     simulator's virtual participant with an ideal sensor, in file order (aborted trials
     too: they count for fatigue)."""
-    from rig.session_file import read_session
     try:
         from sim_backends.sensor import SensorModel
         from sim_backends.simulation import ParticipantSimulator
@@ -133,7 +132,6 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
     dict
         ``{"sessions": [report, ...], "report": path of the top-level JSON}``.
     """
-    from rig.session_file import read_session
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

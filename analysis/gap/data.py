@@ -31,6 +31,7 @@ from scipy import signal
 from analysis.gap.discretize import foh_compensate, fractional_delay
 from protocols.waveforms import chirp_frequency_Hz, chirp_phase_rad
 from analysis.gap.errors import GapInputError
+from protocols.session_file import read_session
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +52,7 @@ class PreprocessSettings:
     between the force (a response) and the drive, and would look like a model error."""
     input_hold_samples: float = 0.5
     """The stimulator holds each commanded sample for one sample period (zero-order hold,
-    ``rig.session_file``: sample k is applied from k / fs_Hz on), which delays the
+    ``protocols.session_file``: sample k is applied from k / fs_Hz on), which delays the
     effective input by half a sample against the commanded samples; the model includes
     this so that a rig's own sampling is not reported as dead time."""
 
@@ -182,7 +183,6 @@ def load_session(path, settings: PreprocessSettings | None = None) -> GapData:
     GapInputError
         No usable trials, mixed sampling rates or chirp settings, or a window too short.
     """
-    from rig.session_file import read_session
 
     s = settings or PreprocessSettings()
     session = read_session(path)
@@ -205,7 +205,7 @@ def _cumulative_stim(trials) -> list[float]:
 
 def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
                    settings: PreprocessSettings | None = None) -> GapData:
-    """Pre-process a list of :class:`rig.session_file.Trial` (file order) for the diagnosis.
+    """Pre-process a list of :class:`protocols.session_file.Trial` (file order) for the diagnosis.
 
     See :func:`load_session`.
     """

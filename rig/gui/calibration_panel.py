@@ -18,7 +18,7 @@ from PySide6.QtWidgets import (QDoubleSpinBox, QFormLayout, QGroupBox, QHBoxLayo
                                QLabel, QPushButton, QVBoxLayout, QWidget)
 
 from rig.gui.theme import Colour
-from rig.session_file import Calibration
+from protocols.session_file import Calibration
 
 #: (muscle key, label, colour, Imin attribute, Imax attribute)
 MUSCLES = (("ext", "Extensor (triceps)", Colour.I_EXT, "Iemin_mA", "Iemax_mA"),
@@ -37,7 +37,7 @@ class CalibrationPanel(QWidget):
     Parameters
     ----------
     on_confirm : callable
-        Called with the :class:`~rig.session_file.Calibration` the operator confirmed.
+        Called with the :class:`~protocols.session_file.Calibration` the operator confirmed.
     """
 
     def __init__(self, on_confirm: Callable[[Calibration], None],

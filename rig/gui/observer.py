@@ -25,7 +25,7 @@ class EngineSignals(QObject):
     """Qt signals carrying engine notifications into the GUI thread."""
 
     state_changed = Signal(object, object, str)      # old, new, reason
-    event = Signal(object)                           # rig.session_file.Event-like
+    event = Signal(object)                           # protocols.session_file.Event-like
     calibration_step = Signal(str, float, float)     # muscle, current_mA, force_N
     calibration_result = Signal(object)              # Calibration
     trial_started = Signal(int, object)              # schedule index, PlannedTrial

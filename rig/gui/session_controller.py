@@ -19,6 +19,7 @@ from PySide6.QtCore import QObject, Qt, Signal
 from rig.gui.live_buffer import LiveBuffer
 from rig.gui.observer import EngineSignals, QtEngineObserver
 from rig.gui.setup_panel import Backend, SessionRequest
+from protocols.session_file import read_session
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +51,6 @@ def load_session_config(request: SessionRequest, *, confirm_calibration: bool = 
     """
     from protocols.config import config_from_json, load_config
     if request.resume:
-        from rig.session_file import read_session
         try:
             stored = read_session(request.output_path, load_data=False).config_json
         except (ValueError, OSError):

@@ -19,7 +19,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QFileDialog, QFormLayout, Q
                                QVBoxLayout, QWidget)
 
 from rig.gui.theme import Colour
-from rig.session_file import PARTICIPANT_PATTERN
+from protocols.session_file import PARTICIPANT_PATTERN, SessionWriter, read_session
 
 
 class Backend(enum.Enum):
@@ -75,7 +75,6 @@ def check_output(path: str | os.PathLike) -> OutputCheck:
                                "journal is there). Press Resume to recover and continue it, "
                                "or choose another output file.")
         return OutputCheck(OutputState.NEW, f"{path} will be created.")
-    from rig.session_file import SessionWriter, read_session
     try:
         session = read_session(path, load_data=False)
     except (ValueError, OSError) as exc:

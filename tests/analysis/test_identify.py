@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from analysis.identify import identify_level, identify_session
-from rig.session_file import SessionWriter, read_session
+from protocols.session_file import Calibration, SessionWriter, Trial, read_session
 
 
 def test_session_parameters_recovered(small_session):
@@ -79,7 +79,6 @@ def test_identify_level_rejects_mixed_levels(small_session):
 
 
 def test_empty_session_reports(tmp_path):
-    from rig.session_file import Calibration
     p = tmp_path / "empty.h5"
     w = SessionWriter.create(p, participant="P9")
     w.write_calibration(Calibration(1, 2, 1, 2))
@@ -111,7 +110,6 @@ def test_too_few_levels_and_single_repeats_still_give_outputs(synthetic, tmp_pat
 
 def test_planned_levels_and_repeats_from_the_stored_protocol(small_session, tmp_path):
     import json
-    from rig.session_file import Calibration
     src = read_session(small_session[0])
     p = tmp_path / "planned.h5"
     cfg = {"protocol": {"sE_levels": [0.3, 0.45, 0.5], "repeats": 3}}
@@ -130,7 +128,6 @@ def test_planned_levels_and_repeats_from_the_stored_protocol(small_session, tmp_
 def test_noise_free_chirp_through_the_whole_pipeline(synthetic, params):
     """Paper protocol, drift and offset, no noise: detrend + filters + decimation + fit
     recover the parameters to a few 1e-6."""
-    from rig.session_file import Trial
     fs, n = 2000.0, 30000
     rE, y = synthetic.exact_response(*params, fs, n, 5.0, 10.0, 1.0, 10.0)
     t = np.arange(n) / fs

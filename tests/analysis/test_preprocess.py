@@ -7,7 +7,7 @@ from analysis.errors import IdentificationError, SettingError
 from analysis.preprocess import (linear_detrend, preprocess_trials, smooth_and_lowpass,
                                  window_indices)
 from analysis.settings import IdentificationSettings
-from rig.session_file import Trial
+from protocols.session_file import Trial
 
 FS = 2000.0
 

@@ -14,7 +14,7 @@ from drivers.hardware import make_hw_rig
 from protocols.config import config_from_dict
 from rig.cli import main
 from rig.engine import Engine, EngineObserver, TripPolicy
-from rig.session_file import read_session, validate_session
+from protocols.session_file import read_session, validate_session
 
 
 #: The fakes run in real time; on a loaded 2-core machine a chunk can come 100+ ms late,

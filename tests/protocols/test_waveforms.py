@@ -8,7 +8,7 @@ from protocols.config import ProtocolConfig
 from protocols.waveforms import (chirp_frequency_Hz, chirp_phase_rad, chirp_time_s,
                                  currents_mA, normalised_from_currents, rE_signal,
                                  trial_waveform)
-from rig.session_file import Calibration
+from protocols.session_file import Calibration
 
 
 def test_chirp_frequency_is_the_phase_derivative():

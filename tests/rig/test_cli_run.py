@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rig.cli import main
-from rig.session_file import read_session, validate_session
+from protocols.session_file import read_session, validate_session
 from rig.session_log import journal_dir
 
 SHORT = """

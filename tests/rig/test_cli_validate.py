@@ -9,7 +9,7 @@ import h5py
 import numpy as np
 
 from rig.cli import main
-from rig.session_file import Calibration, SessionWriter, Trial
+from protocols.session_file import Calibration, SessionWriter, Trial
 
 
 def _good(path):

@@ -8,7 +8,7 @@ import pytest
 from protocols.config import ConfigError
 from protocols.schedule import TrialStatus
 from rig.engine import Engine, EngineObserver, TripPolicy, is_rerun_wait
-from rig.session_file import Calibration, read_session, validate_session
+from protocols.session_file import Calibration, read_session, validate_session
 from rig.session_log import journal_dir
 from rig.states import State
 

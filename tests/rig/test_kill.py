@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.session_file import read_session, validate_session
+from protocols.session_file import read_session, validate_session
 from rig.session_log import PARTIAL_ABORT_REASON, journal_dir, recover
 
 CONFIG = """

@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 from protocols.config import config_from_dict
 from rig.engine import Engine, EngineObserver, TripPolicy
-from rig.session_file import read_session, validate_session
+from protocols.session_file import read_session, validate_session
 from rig.states import State
 
 _counter = itertools.count()

@@ -8,8 +8,7 @@ import shutil
 import numpy as np
 import pytest
 
-from rig.session_file import (Calibration, SessionExistsError, SessionFileError, Trial,
-                              read_session, validate_session)
+from protocols.session_file import Calibration, SessionExistsError, SessionFileError, SessionWriter, Trial, read_session, validate_session
 from rig.session_log import PARTIAL_ABORT_REASON, SessionLog, journal_dir, recover
 
 
@@ -88,7 +87,6 @@ def test_trial_journaled_but_not_in_file_is_appended(tmp_path):
     log.close()
     # simulate a kill between the journal rename and the HDF5 append: build the file anew
     # with only the first trial
-    from rig.session_file import SessionWriter
     os.replace(path, tmp_path / "full.h5")
     w = SessionWriter.create(path, participant="P01", seed=3)
     w.write_calibration(Calibration(1, 9, 1.5, 10))

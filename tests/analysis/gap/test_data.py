@@ -5,7 +5,7 @@ import pytest
 
 from analysis.gap.data import load_session, prepare_trials
 from analysis.gap.errors import GapInputError
-from rig.session_file import Trial, read_session
+from protocols.session_file import Trial, read_session
 
 
 def test_aborted_and_nan_trials_are_skipped_and_reported(nominal_session):

@@ -1,7 +1,7 @@
 """A small stand-in for ``rig.engine.Engine`` that follows its contract (tests of the GUI's
 own logic: threading, widgets, script runner). The end-to-end tests use the real engine.
 
-It writes a real session file through ``rig.session_file.SessionWriter``.
+It writes a real session file through ``protocols.session_file.SessionWriter``.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 
 from protocols.schedule import PlannedTrial, TrialStatus
 from rig.observer import rerun_wait_reason
-from rig.session_file import Calibration, Event, SessionWriter, Trial, utc_now
+from protocols.session_file import Calibration, Event, SessionWriter, Trial, utc_now
 from rig.states import State
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from rig.observer import rerun_wait_reason
-from rig.session_file import Calibration, SessionWriter, Trial
+from protocols.session_file import Calibration, SessionWriter, Trial
 
 
 # -- setup panel: the output file ----------------------------------------------------------

@@ -8,7 +8,7 @@ valid and complete.
 
 from __future__ import annotations
 
-from rig.session_file import read_session, validate_session
+from protocols.session_file import read_session, validate_session
 from rig.states import State
 
 

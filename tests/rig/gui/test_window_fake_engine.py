@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from PySide6.QtCore import Qt
 
-from rig.session_file import read_session, validate_session
+from protocols.session_file import SessionWriter, read_session, validate_session
 from rig.states import State
 
 
@@ -87,7 +87,6 @@ def test_escape_and_space_estop_even_with_rearm_focused(fake_window, qtbot, tmp_
 
 
 def test_refuses_existing_finished_file_and_offers_resume(fake_window, tmp_path):
-    from rig.session_file import SessionWriter
     w = fake_window
     out = tmp_path / "R01.h5"
     SessionWriter.create(out, "R01")

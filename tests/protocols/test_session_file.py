@@ -6,7 +6,7 @@ import h5py
 import numpy as np
 import pytest
 
-from rig.session_file import (Calibration, Event, SessionExistsError, SessionFileError,
+from protocols.session_file import (Calibration, Event, SessionExistsError, SessionFileError,
                               SessionWriter, Trial, read_session, validate_session)
 
 
