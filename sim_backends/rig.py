@@ -34,6 +34,7 @@ class SimRig(RigDevices):
     """
 
     participant: VirtualParticipant | None = None
+    """The template participant, or another with its interface (``MskParticipant``)."""
     world: SimWorld | None = None
     faults: FaultScript = field(default_factory=FaultScript)
 
@@ -82,9 +83,11 @@ def make_sim_rig(participant: VirtualParticipant | None = None, *, realtime: boo
 
     Parameters
     ----------
-    participant : VirtualParticipant, optional
+    participant : VirtualParticipant or MskParticipant, optional
         Who is on the rig; default :func:`~sim_backends.participant.default_participant`
-        with ``seed``.
+        with ``seed``. Any participant with ``make_simulator(fs_Hz)``, ``sensor``,
+        ``seed`` and ``true_parameters`` works (the musculoskeletal one:
+        :func:`sim_backends.msk_participant.default_msk_participant`).
     realtime : bool
         False: :class:`FastClock` (virtual time, as fast as possible). True: real time.
     faults : FaultScript or list of Fault, optional
@@ -112,8 +115,10 @@ def make_sim_rig(participant: VirtualParticipant | None = None, *, realtime: boo
     """
     if participant is None:
         participant = default_participant(seed=seed)
-    if not isinstance(participant, VirtualParticipant):
-        raise SimConfigError(f"participant must be a VirtualParticipant, got "
+    if not (isinstance(participant, VirtualParticipant)
+            or callable(getattr(participant, "make_simulator", None))):
+        raise SimConfigError(f"participant must be a VirtualParticipant or have "
+                             f"make_simulator(fs_Hz) (e.g. an MskParticipant), got "
                              f"{type(participant).__name__}")
     if isinstance(faults, (list, tuple)):
         faults = FaultScript(list(faults))

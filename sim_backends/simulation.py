@@ -201,3 +201,12 @@ class ParticipantSimulator:
     @property
     def cumulative_stim_s(self) -> float:
         return self.stim_samples / self.fs_Hz
+
+
+def simulator_for(participant, fs_Hz: float):
+    """The stateful simulator of a participant: :class:`ParticipantSimulator` for the
+    template participant, else the one the participant makes (``make_simulator(fs_Hz)``,
+    e.g. :class:`sim_backends.msk_participant.MskParticipant`)."""
+    if isinstance(participant, VirtualParticipant):
+        return ParticipantSimulator(participant, fs_Hz)
+    return participant.make_simulator(fs_Hz)

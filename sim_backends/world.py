@@ -26,10 +26,9 @@ from drivers.interfaces import AcquisitionFlags
 from sim_backends.errors import DeviceStateError
 from sim_backends.faults import (SENSOR_KINDS, STIM_KINDS, Fault, FaultKind, FaultScript,
                                  FiredFault)
-from sim_backends.participant import VirtualParticipant
 from sim_backends.run_records import (AcqRun, OutputZero, RunRecord, StimRun, SimBlock,
                                       SampleFault)
-from sim_backends.simulation import ParticipantSimulator
+from sim_backends.simulation import simulator_for
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +41,7 @@ SYNC_HIGH_V = 5.0
 class SimWorld:
     """Shared state of the simulated devices (thread-safe through ``lock``)."""
 
-    def __init__(self, participant: VirtualParticipant, clock, faults: FaultScript | None,
+    def __init__(self, participant, clock, faults: FaultScript | None,
                  fs_Hz: float = 2000.0, chunk_s: float = 0.1, block_s: float = 15.0):
         self.lock = threading.RLock()
         self._stop_lock = threading.Lock()
@@ -55,7 +54,7 @@ class SimWorld:
         self.clock = clock
         self.fs_Hz = float(fs_Hz)
         self.chunk_n = max(1, int(round(chunk_s * self.fs_Hz)))
-        self.sim = ParticipantSimulator(participant, self.fs_Hz)
+        self.sim = simulator_for(participant, self.fs_Hz)
         self.script = faults if faults is not None else FaultScript()
         self.t_origin_s = clock.monotonic_s()
         self.anchor: tuple[float, int] | None = None
@@ -116,7 +115,7 @@ class SimWorld:
             self.fs_Hz = float(fs_Hz)
             self.chunk_n = max(1, int(round(chunk_s * self.fs_Hz)))
             self.block_n = max(1, int(round(block_s * self.fs_Hz)))
-            self.sim = ParticipantSimulator(self.participant, self.fs_Hz)
+            self.sim = simulator_for(self.participant, self.fs_Hz)
 
     # -- faults --------------------------------------------------------------------------
     def _log_fired(self, fault: Fault, t_s: float, N: int | None) -> None:

@@ -1,0 +1,170 @@
+"""MyoSuite's elbow model in MuJoCo, configured as an FES participant on the isometric rig.
+
+:func:`load_elbow_model` compiles ``myoelbow_1dof6muscles.xml`` from the ``myo_sim``
+package once per process (mujoco and myo_sim are the optional ``mujoco`` extra, imported
+here only); :func:`configure` returns a private copy set up for one participant:
+
+* timestep ``1 / fs_Hz`` (one MuJoCo step per acquisition sample, 0.5 ms at 2 kHz);
+* gravity off (the forearm rests on the fixture: gravity loads the support, not the
+  sensor) and contacts off (no contact pairs matter on an isometric rig; this also makes
+  a step about 25 % cheaper);
+* the fixture as the elbow joint's spring (``stiffness``, ``springref`` at the fixture
+  angle) and damping (:class:`~sim_backends.msk_physics.FixtureMount`);
+* each muscle's activation and deactivation time constants (MuJoCo's muscle activation
+  dynamics, ``dynprm[0:2]``); force-length-velocity and passive force are the model's own.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim_backends.errors import SimConfigError
+from sim_backends.msk_physics import MUSCLES, FixtureMount
+
+MODEL_NAME = "myoelbow"
+"""``myo_sim`` registry name of ``models/legacy/elbow/myoelbow_1dof6muscles.xml``."""
+
+REST_SETTLE_S = 3.0
+"""Simulated time without stimulation from which the rest state is taken."""
+
+_lock = threading.Lock()
+_base = None
+
+
+class MujocoUnavailable(ImportError):
+    """mujoco or myo_sim is not installed (the optional ``mujoco`` extra)."""
+
+
+def _import_mujoco():
+    # lazy: mujoco and myo_sim are an optional extra; the rest of nmsid works without them
+    try:
+        import mujoco
+        import myo_sim
+        from mujoco import rollout
+    except ImportError as exc:
+        raise MujocoUnavailable(
+            f"the musculoskeletal participant needs the 'mujoco' extra ({exc}); install it "
+            "with: pip install -e '.[mujoco]'") from None
+    return mujoco, myo_sim, rollout
+
+
+def model_path() -> str:
+    """Path of ``myoelbow_1dof6muscles.xml`` inside the installed ``myo_sim``."""
+    _, myo_sim, _ = _import_mujoco()
+    return str(myo_sim.get_xml_path(MODEL_NAME))
+
+
+def load_elbow_model():
+    """The compiled model, shared (read-only) by every :func:`configure` call."""
+    global _base
+    with _lock:
+        if _base is None:
+            mujoco, _, _ = _import_mujoco()
+            m = mujoco.MjModel.from_xml_path(model_path())
+            names = tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, i)
+                          for i in range(m.nu))
+            if names != MUSCLES or m.nq != 1:
+                raise MujocoUnavailable(f"{model_path()}: expected one joint and muscles "
+                                        f"{MUSCLES}, found {m.nq} joints and {names}")
+            _base = m
+        return _base
+
+
+@dataclass
+class ConfiguredModel:
+    """A participant's own copy of the model and what the simulator derives from it."""
+
+    model: object
+    """mujoco.MjModel (private: fatigue changes its gains)."""
+    q_fixture_rad: float
+    inertia_kgm2: float
+    """Forearm moment of inertia about the elbow at the fixture angle (with armature)."""
+    K_Nm_rad: float
+    B_Nms_rad: float
+    B_sensed_Nms_rad: float
+    lever_m: float
+    F0_N: np.ndarray
+    """Maximal isometric force of each muscle (unfatigued)."""
+    rest_state: np.ndarray
+    """Full physics state at rest on the fixture (no stimulation)."""
+    q_rest_rad: float
+
+    def endpoint_force_N(self, q_rad: np.ndarray, qdot_rad_s: np.ndarray) -> np.ndarray:
+        """Force the cuff transmits to the sensor, extension positive, tared at rest."""
+        return (self.K_Nm_rad * (self.q_rest_rad - q_rad)
+                - self.B_sensed_Nms_rad * qdot_rad_s) / self.lever_m
+
+
+def configure(mount: FixtureMount, tau_act_s: float, tau_deact_s: float,
+              fs_Hz: float) -> ConfiguredModel:
+    """A private copy of the elbow model set up for one participant and sampling rate."""
+    mujoco, _, rollout = _import_mujoco()
+    if not (0.001 <= tau_act_s <= 0.5 and 0.001 <= tau_deact_s <= 0.5):
+        raise SimConfigError(f"activation time constants must lie in [1, 500] ms, got "
+                             f"{tau_act_s * 1e3:g} / {tau_deact_s * 1e3:g} ms")
+    if not (200.0 <= fs_Hz <= 20000.0):
+        raise SimConfigError(f"fs_Hz {fs_Hz!r}: the musculoskeletal participant steps "
+                             "MuJoCo once per sample; use 200-20000 Hz")
+    m = copy.deepcopy(load_elbow_model())
+    m.opt.timestep = 1.0 / fs_Hz
+    m.opt.gravity[:] = 0.0
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    q0 = math.radians(mount.angle_deg)
+    lo, hi = m.jnt_range[0]
+    if not lo < q0 < hi:
+        raise SimConfigError(f"mount angle_deg {mount.angle_deg:g} is outside the model's "
+                             f"elbow range {math.degrees(lo):.0f}-{math.degrees(hi):.0f} deg")
+    d = mujoco.MjData(m)
+    d.qpos[0] = q0
+    mujoco.mj_forward(m, d)
+    Mv = np.zeros(m.nv)
+    mujoco.mj_mulM(m, d, Mv, np.ones(m.nv))      # one joint: M @ [1] is the inertia
+    inertia = float(Mv[0])
+    K, B = mount.stiffness_damping(inertia)
+    m.jnt_stiffness[0] = K
+    m.qpos_spring[0] = q0
+    m.dof_damping[0] = B
+    m.actuator_dynprm[:, 0] = tau_act_s
+    m.actuator_dynprm[:, 1] = tau_deact_s
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    d = mujoco.MjData(m)
+    d.qpos[0] = q0
+    mujoco.mj_forward(m, d)
+    state = np.empty(mujoco.mj_stateSize(m, spec))
+    mujoco.mj_getState(m, d, state, spec)
+    n = int(round(REST_SETTLE_S * fs_Hz))
+    out, _ = rollout.rollout(m, d, state, np.zeros((n, m.nu)))
+    rest = np.array(out[0, -1])
+    rest[0] = 0.0                         # time
+    return ConfiguredModel(model=m, q_fixture_rad=q0, inertia_kgm2=inertia, K_Nm_rad=K,
+                           B_Nms_rad=B, B_sensed_Nms_rad=B * mount.sensed_damping_fraction,
+                           lever_m=mount.lever_m, F0_N=np.array(m.actuator_gainprm[:, 2]),
+                           rest_state=rest, q_rest_rad=float(rest[1]))
+
+
+class Stepper:
+    """Runs a configured model over control sequences with ``mujoco.rollout`` (one C call
+    per segment, no Python per step)."""
+
+    def __init__(self, cm: ConfiguredModel):
+        mujoco, _, rollout = _import_mujoco()
+        self._rollout = rollout.rollout
+        self.cm = cm
+        self.data = mujoco.MjData(cm.model)
+
+    def run(self, state: np.ndarray, ctrl: np.ndarray) -> np.ndarray:
+        """States after each of ``len(ctrl)`` steps from ``state`` (rows: time, q, qdot,
+        activations)."""
+        if len(ctrl) == 0:
+            return np.zeros((0, state.size))
+        out, _ = self._rollout(self.cm.model, self.data, state, np.ascontiguousarray(ctrl))
+        return out[0]
+
+    def set_force_scale(self, scale: np.ndarray) -> None:
+        """Scale each muscle's maximal active force (fatigue); passive force unchanged."""
+        self.cm.model.actuator_gainprm[:, 2] = self.cm.F0_N * scale

@@ -1,0 +1,184 @@
+"""A musculoskeletal virtual participant: MyoSuite's elbow model in MuJoCo under FES.
+
+Same role and interface as :class:`sim_backends.participant.VirtualParticipant` (``code``,
+``seed``, ``sensor``, ``true_parameters``, ``effect_truth``, ``ramp_calibration``; the
+rig gets its simulator from :meth:`MskParticipant.make_simulator`), but the physics is
+not the paper's model:
+
+* six Hill-type muscles of ``myoelbow_1dof6muscles`` (``myo_sim``) with MuJoCo's own
+  activation dynamics, force-length-velocity and passive force, one MuJoCo step per
+  2 kHz sample;
+* two electrodes recruiting the triceps heads / biceps heads and brachialis along
+  sigmoid recruitment curves with thresholds, saturation and spill-over
+  (:mod:`sim_backends.msk_physics`);
+* the forearm on a compliant isometric mount (strap, tissue, sensor), gravity carried by
+  the fixture, the template participant's sensor chain;
+* optional muscle fatigue.
+
+Its ground truth is the best second-order description of its noise-free response per sE
+(:mod:`sim_backends.msk_truth`): :meth:`MskParticipant.second_order_truth` gives Kp, wn,
+zeta and the fit % a second-order model reaches; :meth:`true_parameters` the first three
+as a :class:`~sim_backends.participant.TrueParameters`, as the template participant does.
+
+Examples
+--------
+>>> p = default_msk_participant(seed=3)              # doctest: +SKIP
+>>> rig = make_sim_rig(p)                            # doctest: +SKIP
+>>> p.ramp_calibration()                             # what the 0.5 mA ramp finds
+>>> p.second_order_truth(0.65).fit_pct               # ceiling of a 2nd-order fit
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
+
+import numpy as np
+
+from protocols.calibration import (Muscle, make_calibration, ramp_currents_mA,
+                                   require_thresholds, settled_mean_N, step_envelopes)
+from protocols.config import CalibrationConfig, ProtocolConfig
+from sim_backends.errors import SimConfigError
+from sim_backends.msk_physics import (MUSCLES, FixtureMount, MuscleDrive, MuscleFatigue,
+                                      default_drives)
+from sim_backends.msk_simulation import MskSimulator
+from sim_backends.msk_truth import SecondOrderTruth, second_order_truth
+from sim_backends.participant import TrueParameters
+from sim_backends.sensor import SensorModel
+
+MODEL_KIND = "musculoskeletal"
+"""The value of ``[participant] model`` / ``--participant-model`` that selects it."""
+
+
+@dataclass(frozen=True)
+class MskParticipant:
+    """A musculoskeletal participant (see the module docstring).
+
+    Parameters
+    ----------
+    code : str
+        Participant code, ``[A-Za-z0-9_-]{1,64}``.
+    drives : tuple of MuscleDrive
+        One per muscle, in the model's actuator order (:data:`~sim_backends.msk_physics.
+        MUSCLES`): recruitment by its own electrode and spill-over from the other.
+    mount : FixtureMount
+        The isometric fixture.
+    tau_act_s, tau_deact_s : float
+        Activation / deactivation time constants of MuJoCo's muscle activation dynamics
+        (its own default, 10 / 40 ms, is for voluntary excitation; the force response to
+        electrical stimulation is slower, the twitch contraction time of human elbow
+        muscles being 40-80 ms: Zajac 1989, "Muscle and tendon", Crit Rev Biomed Eng
+        17:359; Riener & Fuhr 1998, "Patient-driven control of FES-supported standing
+        up", IEEE TRE 6:113).
+    fatigue : MuscleFatigue
+        Off by default.
+    sensor : SensorModel
+        The measurement chain (the template participant's).
+    seed : int
+        Seeds the sensor noise.
+    """
+
+    code: str = "MSK01"
+    drives: tuple = field(default_factory=default_drives)
+    mount: FixtureMount = field(default_factory=FixtureMount)
+    tau_act_s: float = 0.03
+    tau_deact_s: float = 0.06
+    fatigue: MuscleFatigue = field(default_factory=MuscleFatigue)
+    sensor: SensorModel = field(default_factory=SensorModel)
+    seed: int = 0
+
+    model_kind = MODEL_KIND
+
+    def __post_init__(self):
+        if not re.fullmatch(r"[A-Za-z0-9_-]{1,64}", str(self.code)):
+            raise SimConfigError(f"participant code {self.code!r} must match "
+                                 "[A-Za-z0-9_-]{1,64}")
+        drives = tuple(self.drives)
+        if tuple(getattr(d, "muscle", None) for d in drives) != MUSCLES or not all(
+                isinstance(d, MuscleDrive) for d in drives):
+            raise SimConfigError(f"drives must be one MuscleDrive per muscle in the order "
+                                 f"{', '.join(MUSCLES)}")
+        object.__setattr__(self, "drives", drives)
+        if not (0.001 <= self.tau_act_s <= 0.5 and 0.001 <= self.tau_deact_s <= 0.5):
+            raise SimConfigError(f"tau_act_s / tau_deact_s must lie in [0.001, 0.5] s, got "
+                                 f"{self.tau_act_s!r} / {self.tau_deact_s!r}")
+
+    # -- the rig -------------------------------------------------------------------------
+    def make_simulator(self, fs_Hz: float) -> MskSimulator:
+        """The stateful simulator :class:`sim_backends.world.SimWorld` drives."""
+        return MskSimulator(self, fs_Hz)
+
+    # -- what a calibration ramp finds ---------------------------------------------------
+    def ramp_calibration(self, cfg: CalibrationConfig | None = None, fs_Hz: float = 2000.0):
+        """What the engine's ramp finds on this participant without sensor noise.
+
+        The engine's sequence is simulated: extensor then flexor, each a rest, a baseline
+        (the tare) and ``step_mA`` steps held ``hold_s``, the settled part averaged,
+        until Fmin and Fmax are both reached.
+
+        Returns
+        -------
+        protocols.session_file.Calibration
+
+        Raises
+        ------
+        protocols.errors.CalibrationError
+            If a ramp never reaches Fmin / Fmax below its ceiling.
+        """
+        return _ramp_calibration(self, cfg or CalibrationConfig(), float(fs_Hz))
+
+    # -- ground truth --------------------------------------------------------------------
+    def second_order_truth(self, sE: float, calibration=None,
+                           protocol: ProtocolConfig | None = None) -> SecondOrderTruth:
+        """The best second-order description at ``sE`` (Kp, wn, zeta, fit %).
+
+        ``calibration``: the currents the session used (default: what the ramp finds,
+        :meth:`ramp_calibration`).
+        """
+        cal = calibration if calibration is not None else self.ramp_calibration()
+        return second_order_truth(self, sE, cal, protocol)
+
+    def true_parameters(self, sE: float, calibration=None,
+                        protocol: ProtocolConfig | None = None) -> TrueParameters:
+        """``(Kp, wn_rad_s, zeta)`` of :meth:`second_order_truth`."""
+        t = self.second_order_truth(sE, calibration, protocol)
+        return TrueParameters(t.Kp, t.wn_rad_s, t.zeta)
+
+    def effect_truth(self) -> list[dict]:
+        """No twin-file effects: its departures from second order are physics, not add-ons
+        (their size is :attr:`SecondOrderTruth.fit_pct`)."""
+        return []
+
+    def with_changes(self, **changes) -> MskParticipant:
+        return replace(self, **changes)
+
+
+@lru_cache(maxsize=64)
+def _ramp_calibration(p: MskParticipant, c: CalibrationConfig, fs_Hz: float):
+    sim = MskSimulator(replace(p, sensor=SensorModel.ideal()), fs_Hz)
+    found = {}
+    ramps = {}
+    for muscle in (Muscle.EXTENSOR, Muscle.FLEXOR):
+        sim.advance_quiet(int(round(c.rest_s * fs_Hz)))
+        n_base = max(1, int(round(c.baseline_s * fs_Hz)))
+        z = np.zeros(n_base)
+        base = settled_mean_N(sim.simulate(z, z).true_force_N, c.settle_fraction)
+        cur, frc = [], []
+        for I in ramp_currents_mA(c, muscle):
+            ext, flex = step_envelopes(c, muscle, float(I), fs_Hz)
+            f = settled_mean_N(sim.simulate(ext, flex).true_force_N, c.settle_fraction) - base
+            cur.append(float(I))
+            frc.append(f)
+            if abs(f) >= c.force_ceiling_N or (muscle.sign * f >= c.Fmax_N):
+                break
+        found[muscle] = require_thresholds(cur, frc, muscle, c)
+        ramps[f"{muscle.prefix}_currents_mA"] = np.asarray(cur)
+        ramps[f"{muscle.prefix}_force_N"] = np.asarray(frc)
+    return make_calibration(found[Muscle.EXTENSOR], found[Muscle.FLEXOR], c, ramps)
+
+
+def default_msk_participant(seed: int = 0, **changes) -> MskParticipant:
+    """The population's centre (:mod:`sim_backends.msk_population`) with ``seed`` for its
+    sensor noise; ``changes`` replace fields."""
+    return replace(MskParticipant(seed=int(seed)), **changes)
