@@ -5,6 +5,12 @@ Layout of the TOML file (every key optional; unknown keys are refused)::
     participant = "P01"
     seed = 1234                    # schedule randomisation seed (omitted: drawn and recorded)
 
+    # or, to choose the simulated participant as well (instead of participant = "P01"):
+    [participant]
+    code = "P01"
+    model = "template"             # --backend sim: "template" (the paper's model) |
+                                   # "musculoskeletal" (MuJoCo elbow; the 'mujoco' extra)
+
     [protocol]
     sE_levels = [0.30, 0.35, ...]  # or sE_min / sE_max / sE_step
     repeats = 3
@@ -63,6 +69,10 @@ from typing import Any
 from protocols.errors import ConfigError
 
 PARTICIPANT_PATTERN = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+PARTICIPANT_MODELS = ("template", "musculoskeletal")
+"""Simulated participants ``[participant] model`` can name: the paper's second-order model
+with add-on effects (``sim_backends.participant``), or MyoSuite's MuJoCo elbow under FES
+(``sim_backends.msk_participant``). Hardware sessions ignore it."""
 DEFAULT_SOURCE = "built-in defaults"
 
 
@@ -162,6 +172,9 @@ class Config:
 
     participant: str = "P01"
     seed: int | None = None
+    participant_model: str = "template"
+    """Which simulated participant ``--backend sim`` puts on the rig
+    (:data:`PARTICIPANT_MODELS`); TOML ``[participant] model``."""
     protocol: ProtocolConfig = field(default_factory=ProtocolConfig)
     calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
     interlock: InterlockConfig = field(default_factory=InterlockConfig)
@@ -185,6 +198,9 @@ class Config:
             del d["calibration"]["manual"]
         if d["seed"] is None:
             del d["seed"]
+        model = d.pop("participant_model")
+        if model != "template":     # the plain string form otherwise (older readers)
+            d["participant"] = {"code": d["participant"], "model": model}
         return d
 
     def to_json(self) -> str:
@@ -261,7 +277,10 @@ def load_config(path: str | os.PathLike | None = None, *, overrides: dict | None
                 raise ConfigError(source, "(file)", "TOML", f"not valid TOML: {exc}") from None
     for key, value in (overrides or {}).items():
         if value is not None:
-            data[key] = value
+            if key == "participant" and isinstance(data.get("participant"), dict):
+                data["participant"] = {**data["participant"], "code": value}
+            else:
+                data[key] = value
     return config_from_dict(data, source=source)
 
 
@@ -281,7 +300,15 @@ def config_from_dict(data: dict[str, Any], *, source: str = DEFAULT_SOURCE) -> C
     _refuse_unknown(data, _TOP_KEYS, "", source)
     kwargs: dict[str, Any] = {"source": source}
     if "participant" in data:
-        kwargs["participant"] = data["participant"]
+        raw = data["participant"]
+        if isinstance(raw, dict):       # the [participant] table: code and model
+            _refuse_unknown(raw, ("code", "model"), "participant.", source)
+            if "code" in raw:
+                kwargs["participant"] = raw["code"]
+            if "model" in raw:
+                kwargs["participant_model"] = raw["model"]
+        else:
+            kwargs["participant"] = raw
     if "seed" in data:
         kwargs["seed"] = data["seed"]
     for section, cls in _SECTIONS.items():
@@ -392,6 +419,9 @@ def validate(cfg: Config) -> None:
     if cfg.seed is not None and (isinstance(cfg.seed, bool) or not isinstance(cfg.seed, int)
                                  or cfg.seed < 0):
         raise ConfigError(src, "seed", cfg.seed, "a whole number >= 0")
+    if cfg.participant_model not in PARTICIPANT_MODELS:
+        raise ConfigError(src, "participant.model", cfg.participant_model,
+                          "one of " + ", ".join(repr(m) for m in PARTICIPANT_MODELS))
     _validate_protocol(cfg.protocol, src)
     _validate_calibration(cfg.calibration, src)
     _validate_interlock(cfg.interlock, src)

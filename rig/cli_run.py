@@ -38,6 +38,11 @@ def register(sub) -> None:
     p.add_argument("--realtime", action="store_true",
                    help="sim: pace the simulation in real time (default: as fast as possible)")
     p.add_argument("--hw-config", metavar="FILE", help="hw: the rig's hardware configuration")
+    p.add_argument("--participant-model", choices=("template", "musculoskeletal"),
+                   help="sim: the virtual participant: the paper's second-order model "
+                        "(template, default) or MyoSuite's MuJoCo elbow under FES "
+                        "(musculoskeletal; needs the 'mujoco' extra); overrides the "
+                        "config's [participant] model")
     p.add_argument("--sim-seed", type=int, metavar="N",
                    help="sim: seed of the virtual participant and its noise (default: from "
                         "the participant code)")
@@ -80,9 +85,11 @@ def run(args) -> int:
     from rig.engine import Engine, TripPolicy
 
     log = logging.getLogger("rig.cli_run")
-    if args.resume and (args.config or args.participant or args.seed is not None):
+    if args.resume and (args.config or args.participant or args.seed is not None
+                        or args.participant_model):
         raise ValueError("--resume continues a session with the configuration stored in its "
-                         "file; do not give --config, --participant or --seed with it")
+                         "file; do not give --config, --participant, --participant-model or "
+                         "--seed with it")
     if args.realtime and args.backend != "sim":
         raise ValueError("--realtime applies to --backend sim (hardware is always real time)")
     if args.resume:
@@ -91,6 +98,8 @@ def run(args) -> int:
     else:
         config = load_config(args.config, overrides={"participant": args.participant,
                                                      "seed": args.seed})
+        if args.participant_model:
+            config = config.replace(participant_model=args.participant_model)
         if args.backend == "sim" and not args.realtime and config.protocol.rest_s != 0:
             log.info("fast clock: rest_s %g -> 0", config.protocol.rest_s)
             config = config.with_protocol(rest_s=0.0)
@@ -106,7 +115,9 @@ def run(args) -> int:
     try:
         engine = Engine(config, devices, path, resume=bool(args.resume), observer=progress,
                         trip_policy=TripPolicy.END_SESSION,
-                        extra_attrs={} if sim_seed is None else {"sim_seed": int(sim_seed)})
+                        extra_attrs={} if sim_seed is None else {
+                            "sim_seed": int(sim_seed),
+                            "participant_model": config.participant_model})
         progress.total = len(engine.schedule)
         progress.done = sum(1 for t in engine.schedule if t.status.value == "done")
         if engine.recovery is not None and engine.recovery.action != "none":
@@ -202,7 +213,9 @@ def _make_devices(args, config, sim_seed):
     except ImportError as exc:
         raise BackendUnavailable(f"the simulated rig is not available in this build "
                                  f"(sim_backends.make_sim_rig: {exc})") from None
-    return make_sim_rig(seed=int(sim_seed), realtime=args.realtime)
+    from sim_backends.participant_models import participant_for_model
+    return make_sim_rig(participant_for_model(config.participant_model, int(sim_seed)),
+                        realtime=args.realtime)
 
 
 def _seed_from_code(code: str) -> int:

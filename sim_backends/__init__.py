@@ -6,6 +6,8 @@ scriptable fault injection.
 Public API (imported lazily, so ``import sim_backends`` stays light)::
 
     make_sim_rig, SimRig                       # the rig (drivers.interfaces.RigDevices)
+    MskParticipant, default_msk_participant    # MuJoCo elbow (optional 'mujoco' extra)
+    make_msk_population
     VirtualParticipant, default_participant    # the participant; .true_parameters(sE, cal)
     TrueParameters, ReferenceCalibration
     participant_from_twin, make_population
@@ -27,6 +29,9 @@ _EXPORTS = {
     "ReferenceCalibration": "sim_backends.participant",
     "participant_from_twin": "sim_backends.twin",
     "make_population": "sim_backends.population",
+    "MskParticipant": "sim_backends.msk_participant",
+    "default_msk_participant": "sim_backends.msk_participant",
+    "make_msk_population": "sim_backends.msk_population",
     "FaultScript": "sim_backends.faults", "Fault": "sim_backends.faults",
     "FaultKind": "sim_backends.faults",
     "FastClock": "sim_backends.clocks", "SimRealClock": "sim_backends.clocks",

@@ -114,6 +114,11 @@ def _sensor(rng: np.random.Generator) -> SensorModel:
                        cross_noise_N=rng.uniform(0.01, 0.03))
 
 
+draw_sensor = _sensor
+"""Draw a sensor chain (noise 0.02-0.06 N RMS, offset, drift, mains): shared with the
+musculoskeletal population (:mod:`sim_backends.msk_population`)."""
+
+
 def make_participant(rng: np.random.Generator, code: str, seed: int,
                      families: tuple[str, str, str] = ("exponential", "quadratic",
                                                        "quadratic")) -> VirtualParticipant:

@@ -30,9 +30,12 @@ DevicesFactory = Callable[[SessionRequest, object], object]
 def default_devices(request: SessionRequest, config) -> object:
     """Build the rig the request names: the simulator or the hardware chain."""
     if request.backend is Backend.SIM:
+        from sim_backends.participant_models import participant_for_model
         from sim_backends.rig import make_sim_rig
-        return make_sim_rig(realtime=request.realtime, fs_Hz=config.protocol.fs_Hz,
-                            seed=request.seed if request.seed is not None else 0)
+        seed = request.seed if request.seed is not None else 0
+        return make_sim_rig(participant_for_model(getattr(config, "participant_model",
+                                                          "template"), seed),
+                            realtime=request.realtime, fs_Hz=config.protocol.fs_Hz)
     if request.hw_config_path is None:
         raise ValueError("--backend hw needs a hardware configuration file (--hw-config "
                          "FILE, or 'Hardware configuration' on the setup panel; see "
