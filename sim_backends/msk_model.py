@@ -11,7 +11,12 @@ here only); :func:`configure` returns a private copy set up for one participant:
 * the fixture as the elbow joint's spring (``stiffness``, ``springref`` at the fixture
   angle) and damping (:class:`~sim_backends.msk_physics.FixtureMount`);
 * each muscle's activation and deactivation time constants (MuJoCo's muscle activation
-  dynamics, ``dynprm[0:2]``); force-length-velocity and passive force are the model's own.
+  dynamics, ``dynprm[0:2]``); force-length-velocity and passive force are the model's own;
+* one extra actuator on the elbow (added with ``mujoco.MjSpec`` when the model is
+  loaded, index 6): the co-activation stiffness (:class:`~sim_backends.msk_physics.
+  CoactivationStiffness`), an affine-gain actuator whose control is the stiffness in
+  N m/rad, so that ``force = ctrl ((q_rest - q) - damping_s qdot)``, behind a first-order
+  filter with the activation time constant.
 """
 
 from __future__ import annotations
@@ -24,9 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim_backends.errors import SimConfigError
-from sim_backends.msk_physics import MUSCLES, FixtureMount
+from sim_backends.msk_physics import MUSCLES, CoactivationStiffness, FixtureMount
 
 MODEL_NAME = "myoelbow"
+STIFFNESS_ACTUATOR = "coactivation_stiffness"
 """``myo_sim`` registry name of ``models/legacy/elbow/myoelbow_1dof6muscles.xml``."""
 
 REST_SETTLE_S = 3.0
@@ -65,10 +71,20 @@ def load_elbow_model():
     with _lock:
         if _base is None:
             mujoco, _, _ = _import_mujoco()
-            m = mujoco.MjModel.from_xml_path(model_path())
+            spec = mujoco.MjSpec.from_file(model_path())
+            a = spec.add_actuator()
+            a.name = STIFFNESS_ACTUATOR
+            a.target = "r_elbow_flex"
+            a.trntype = mujoco.mjtTrn.mjTRN_JOINT
+            a.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
+            a.gaintype = mujoco.mjtGain.mjGAIN_AFFINE
+            a.biastype = mujoco.mjtBias.mjBIAS_NONE
+            a.ctrllimited = 0
+            a.gear[0] = 1.0
+            m = spec.compile()
             names = tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, i)
                           for i in range(m.nu))
-            if names != MUSCLES or m.nq != 1:
+            if names != MUSCLES + (STIFFNESS_ACTUATOR,) or m.nq != 1:
                 raise MujocoUnavailable(f"{model_path()}: expected one joint and muscles "
                                         f"{MUSCLES}, found {m.nq} joints and {names}")
             _base = m
@@ -93,6 +109,8 @@ class ConfiguredModel:
     rest_state: np.ndarray
     """Full physics state at rest on the fixture (no stimulation)."""
     q_rest_rad: float
+    srs_Nm_rad: np.ndarray
+    """Joint stiffness per unit excitation of each muscle (short-range stiffness)."""
 
     def endpoint_force_N(self, q_rad: np.ndarray, qdot_rad_s: np.ndarray) -> np.ndarray:
         """Force the cuff transmits to the sensor, extension positive, tared at rest."""
@@ -101,7 +119,8 @@ class ConfiguredModel:
 
 
 def configure(mount: FixtureMount, tau_act_s: float, tau_deact_s: float,
-              fs_Hz: float) -> ConfiguredModel:
+              fs_Hz: float, stiffening: CoactivationStiffness | None = None
+              ) -> ConfiguredModel:
     """A private copy of the elbow model set up for one participant and sampling rate."""
     mujoco, _, rollout = _import_mujoco()
     if not (0.001 <= tau_act_s <= 0.5 and 0.001 <= tau_deact_s <= 0.5):
@@ -122,6 +141,19 @@ def configure(mount: FixtureMount, tau_act_s: float, tau_deact_s: float,
     d = mujoco.MjData(m)
     d.qpos[0] = q0
     mujoco.mj_forward(m, d)
+    nm = len(MUSCLES)
+    lengths = []
+    for dq in (-1e-6, 1e-6):              # moment arm = d(length)/dq at the fixture angle
+        d.qpos[0] = q0 + dq
+        mujoco.mj_forward(m, d)
+        lengths.append(np.array(d.actuator_length[:nm]))
+    moment = (lengths[1] - lengths[0]) / 2e-6
+    d.qpos[0] = q0
+    mujoco.mj_forward(m, d)
+    L0 = ((m.actuator_lengthrange[:nm, 1] - m.actuator_lengthrange[:nm, 0])
+          / (m.actuator_gainprm[:nm, 1] - m.actuator_gainprm[:nm, 0]))   # MuJoCo's L0
+    st = stiffening or CoactivationStiffness()
+    srs = st.gamma * moment ** 2 * m.actuator_gainprm[:nm, 2] / L0
     Mv = np.zeros(m.nv)
     mujoco.mj_mulM(m, d, Mv, np.ones(m.nv))      # one joint: M @ [1] is the inertia
     inertia = float(Mv[0])
@@ -129,8 +161,10 @@ def configure(mount: FixtureMount, tau_act_s: float, tau_deact_s: float,
     m.jnt_stiffness[0] = K
     m.qpos_spring[0] = q0
     m.dof_damping[0] = B
-    m.actuator_dynprm[:, 0] = tau_act_s
-    m.actuator_dynprm[:, 1] = tau_deact_s
+    m.actuator_dynprm[:nm, 0] = tau_act_s
+    m.actuator_dynprm[:nm, 1] = tau_deact_s
+    m.actuator_dynprm[nm, 0] = tau_act_s
+    m.actuator_gainprm[nm, :3] = (q0, -1.0, -st.damping_s)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     d = mujoco.MjData(m)
     d.qpos[0] = q0
@@ -141,10 +175,11 @@ def configure(mount: FixtureMount, tau_act_s: float, tau_deact_s: float,
     out, _ = rollout.rollout(m, d, state, np.zeros((n, m.nu)))
     rest = np.array(out[0, -1])
     rest[0] = 0.0                         # time
+    m.actuator_gainprm[nm, 0] = rest[1]   # short-range stiffness acts about the rest angle
     return ConfiguredModel(model=m, q_fixture_rad=q0, inertia_kgm2=inertia, K_Nm_rad=K,
                            B_Nms_rad=B, B_sensed_Nms_rad=B * mount.sensed_damping_fraction,
-                           lever_m=mount.lever_m, F0_N=np.array(m.actuator_gainprm[:, 2]),
-                           rest_state=rest, q_rest_rad=float(rest[1]))
+                           lever_m=mount.lever_m, F0_N=np.array(m.actuator_gainprm[:nm, 2]),
+                           rest_state=rest, q_rest_rad=float(rest[1]), srs_Nm_rad=srs)
 
 
 class Stepper:
@@ -167,4 +202,4 @@ class Stepper:
 
     def set_force_scale(self, scale: np.ndarray) -> None:
         """Scale each muscle's maximal active force (fatigue); passive force unchanged."""
-        self.cm.model.actuator_gainprm[:, 2] = self.cm.F0_N * scale
+        self.cm.model.actuator_gainprm[:len(scale), 2] = self.cm.F0_N * scale

@@ -11,6 +11,7 @@ not the paper's model:
 * two electrodes recruiting the triceps heads / biceps heads and brachialis along
   sigmoid recruitment curves with thresholds, saturation and spill-over
   (:mod:`sim_backends.msk_physics`);
+* short-range stiffness growing with co-activation (absent from Hill-type models);
 * the forearm on a compliant isometric mount (strap, tissue, sensor), gravity carried by
   the fixture, the template participant's sensor chain;
 * optional muscle fatigue.
@@ -40,8 +41,8 @@ from protocols.calibration import (Muscle, make_calibration, ramp_currents_mA,
                                    require_thresholds, settled_mean_N, step_envelopes)
 from protocols.config import CalibrationConfig, ProtocolConfig
 from sim_backends.errors import SimConfigError
-from sim_backends.msk_physics import (MUSCLES, FixtureMount, MuscleDrive, MuscleFatigue,
-                                      default_drives)
+from sim_backends.msk_physics import (MUSCLES, CoactivationStiffness, FixtureMount,
+                                      MuscleDrive, MuscleFatigue, default_drives)
 from sim_backends.msk_simulation import MskSimulator
 from sim_backends.msk_truth import SecondOrderTruth, second_order_truth
 from sim_backends.participant import TrueParameters
@@ -71,6 +72,8 @@ class MskParticipant:
         muscles being 40-80 ms: Zajac 1989, "Muscle and tendon", Crit Rev Biomed Eng
         17:359; Riener & Fuhr 1998, "Patient-driven control of FES-supported standing
         up", IEEE TRE 6:113).
+    stiffening : CoactivationStiffness
+        Short-range stiffness of the active muscles (``gamma = 0``: the bare Hill model).
     fatigue : MuscleFatigue
         Off by default.
     sensor : SensorModel
@@ -84,6 +87,7 @@ class MskParticipant:
     mount: FixtureMount = field(default_factory=FixtureMount)
     tau_act_s: float = 0.03
     tau_deact_s: float = 0.06
+    stiffening: CoactivationStiffness = field(default_factory=CoactivationStiffness)
     fatigue: MuscleFatigue = field(default_factory=MuscleFatigue)
     sensor: SensorModel = field(default_factory=SensorModel)
     seed: int = 0

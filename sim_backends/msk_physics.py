@@ -22,6 +22,13 @@ plain frozen dataclass, validated on construction, drawn per participant by
   spring-damper about the fixture angle. With the forearm's inertia it gives the roughly
   second-order endpoint dynamics the paper measures; the forearm rests on the fixture, so
   gravity does not load the sensor (the model runs without gravity).
+* :class:`CoactivationStiffness`: the short-range stiffness of active muscle, which a
+  Hill-type model lacks: joint stiffness and damping that grow with co-activation (Hogan
+  1984, "Adaptive control of mechanical impedance by coactivation of antagonist muscles",
+  IEEE TAC 29:681; Kearney & Hunter 1990, elbow stiffness rising linearly with torque),
+  per muscle ``gamma F / L0`` times its squared moment arm (Cui et al. 2008, "Modeling
+  short-range stiffness of feline lower hindlimb muscles", J Biomech 41:1945: gamma about
+  23). It makes the endpoint's wn and zeta depend on sE, as the paper measures.
 * :class:`MuscleFatigue`: a fatigue state per muscle scaling its maximal active force
   (first-order fatigue / recovery driven by activation, as in Riener, Quintern & Schmidt
   1996, "Biomechanical model of the human knee evaluated by neuromuscular stimulation",
@@ -193,6 +200,40 @@ class FixtureMount:
         """(K in N m/rad, B in N m s/rad) for the forearm's inertia about the elbow."""
         K = inertia_kgm2 * self.wn_rad_s ** 2
         return K, 2.0 * self.zeta * math.sqrt(K * inertia_kgm2)
+
+
+@dataclass(frozen=True)
+class CoactivationStiffness:
+    """Short-range stiffness of the active muscles about the elbow.
+
+    Joint stiffness ``K_j = sum_m gamma r_m^2 F0_m e_m / L0_m`` (``r_m`` the muscle's
+    moment arm at the fixture angle, ``L0_m`` its optimal fibre length, both from the
+    MuJoCo model, ``e_m`` its excitation) and damping ``damping_s K_j``, acting about the
+    rest angle through a first-order lag of the activation time constant. The sensor does
+    not see it directly: it shunts part of the muscle torque and stiffens the dynamics.
+
+    Limitation: the spring acts about the rest angle at any deflection, whereas real
+    short-range stiffness yields beyond a few per cent of stretch and does not resist a
+    muscle's own steady shortening; so it also shunts part of the *static* force (with
+    ``gamma = 8`` about 10-25 % at Fmax). Cui et al.'s 23 would cap the static force of a
+    single muscle near 10 N on this mount, hence the default of 8.
+
+    Parameters
+    ----------
+    gamma : float
+        Dimensionless short-range stiffness (stiffness x L0 / force; about 23 in Cui et
+        al. 2008, 8 here, see above; 0 switches it off).
+    damping_s : float
+        Damping per unit stiffness, s (muscle viscosity: 0.01-0.03 s at the elbow, e.g.
+        Kearney & Hunter 1990's B/K).
+    """
+
+    gamma: float = 8.0
+    damping_s: float = 0.02
+
+    def __post_init__(self):
+        _finite("coactivation stiffness", "gamma", self.gamma, 0.0, 200.0)
+        _finite("coactivation stiffness", "damping_s", self.damping_s, 0.0, 1.0)
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,8 @@ taken from the FES literature (each range is documented on its dataclass in
   elbow at 80-100 deg;
 * activation / deactivation time constants 20-40 ms / 1.5-2.5 times that (electrically
   elicited twitches are slower than voluntary activation: Zajac 1989);
+* co-activation stiffness (short-range stiffness) ``gamma`` 4-12, damping 0.01-0.03 s per
+  unit stiffness (:class:`~sim_backends.msk_physics.CoactivationStiffness`);
 * fatigue only with ``fatigue=True``: time constant 60-240 s under full recruitment,
   recovery 60-300 s, 30-60 % of force left when exhausted (Riener et al. 1996; Ding et al.
   2000); without it the population's truth is the unfatigued participant;
@@ -38,8 +40,8 @@ import numpy as np
 
 from sim_backends.errors import SimConfigError
 from sim_backends.msk_participant import MskParticipant
-from sim_backends.msk_physics import (EXTENSORS, MUSCLES, FixtureMount, MuscleDrive,
-                                      MuscleFatigue, Recruitment)
+from sim_backends.msk_physics import (EXTENSORS, MUSCLES, CoactivationStiffness,
+                                      FixtureMount, MuscleDrive, MuscleFatigue, Recruitment)
 from sim_backends.population import draw_sensor
 
 REACH = {"TRIlong": (0.08, 0.14), "TRIlat": (0.10, 0.16), "TRImed": (0.06, 0.12),
@@ -76,9 +78,11 @@ def make_msk_participant(rng: np.random.Generator, code: str, seed: int, *,
     tau_deact = tau_act * rng.uniform(1.5, 2.5)
     fat_draw = (rng.uniform(60.0, 240.0), rng.uniform(60.0, 300.0), rng.uniform(0.3, 0.6))
     fat = MuscleFatigue(*fat_draw) if fatigue else MuscleFatigue()
+    sensor = draw_sensor(rng)
+    stiff = CoactivationStiffness(rng.uniform(4.0, 12.0), rng.uniform(0.01, 0.03))
     return MskParticipant(code=code, drives=drives, mount=mount, tau_act_s=tau_act,
-                          tau_deact_s=tau_deact, fatigue=fat, sensor=draw_sensor(rng),
-                          seed=seed)
+                          tau_deact_s=tau_deact, stiffening=stiff, fatigue=fat,
+                          sensor=sensor, seed=seed)
 
 
 def make_msk_population(n: int, seed: int = 0, *, fatigue: bool = False

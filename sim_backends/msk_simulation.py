@@ -39,7 +39,7 @@ class MskSimulator:
         self.p = participant
         self.fs_Hz = float(fs_Hz)
         self.cm = configure(participant.mount, participant.tau_act_s,
-                            participant.tau_deact_s, self.fs_Hz)
+                            participant.tau_deact_s, self.fs_Hz, participant.stiffening)
         self.stepper = Stepper(self.cm)
         self.cursor = 0
         self.stim_samples = 0
@@ -54,8 +54,10 @@ class MskSimulator:
 
     # -- inputs --------------------------------------------------------------------------
     def excitation(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> np.ndarray:
-        """MuJoCo ``ctrl`` per sample and muscle, shape (n, 6)."""
-        return np.column_stack([d.command(I_ext_mA, I_flex_mA) for d in self.p.drives])
+        """MuJoCo ``ctrl`` per sample: the six muscles' excitations, then the
+        co-activation stiffness in N m/rad; shape (n, 7)."""
+        e = np.column_stack([d.command(I_ext_mA, I_flex_mA) for d in self.p.drives])
+        return np.column_stack([e, e @ self.cm.srs_Nm_rad])
 
     # -- simulation ----------------------------------------------------------------------
     def _run(self, ctrl: np.ndarray) -> np.ndarray:
@@ -79,7 +81,7 @@ class MskSimulator:
             states[k] = self._state
             states[k + 1:k + m] = out[:-1]
             self._state = np.array(out[-1])
-            self._acc += ctrl[k:k + m].sum(axis=0)
+            self._acc += ctrl[k:k + m, :self._acc.size].sum(axis=0)
             k += m
             if (N + m) % self._seg_n == 0:     # segment complete: update the fatigue state
                 rel = np.divide(self._acc / self._seg_n, self._reach,
@@ -115,7 +117,7 @@ class MskSimulator:
         limit = min(n, QUIET_SKIP_SAMPLES)
         while done < limit and not self.at_rest():
             m = min(QUIET_PIECE_SAMPLES, limit - done)
-            self._run(np.zeros((m, len(self.p.drives))))
+            self._run(np.zeros((m, self.cm.model.nu)))
             self.cursor += m
             done += m
         if done < n:       # settled (or 10 s passed): the rest of the gap changes nothing

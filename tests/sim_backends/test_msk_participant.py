@@ -97,7 +97,7 @@ def test_fatigue_follows_its_state_and_recovers():
     I_e = np.full(n, 9.0)
     f = sim.simulate(I_e, np.zeros(n)).true_force_N
     # the extensor heads' state follows the closed form of their constant drive
-    ctrl = sim.excitation(np.array([9.0]), np.array([0.0]))[0]
+    ctrl = sim.excitation(np.array([9.0]), np.array([0.0]))[0, :6]
     reach = np.array([d.own.max_activation + d.spill.max_activation for d in p.drives])
     want = fat.step(np.ones(6), ctrl / reach, 60.0)
     np.testing.assert_allclose(sim.force_scale, want, rtol=1e-9)
@@ -170,3 +170,21 @@ def test_bad_participant_settings_are_refused():
         MskParticipant(tau_act_s=2.0)
     with pytest.raises(SimConfigError, match="drives"):
         MskParticipant(drives=default_msk_participant().drives[::-1])
+
+
+def test_coactivation_stiffens_the_endpoint_dynamics():
+    from sim_backends.msk_physics import CoactivationStiffness
+    bare = default_msk_participant(stiffening=CoactivationStiffness(gamma=0.0))
+    stiff = default_msk_participant(stiffening=CoactivationStiffness(gamma=12.0))
+    sim = MskSimulator(stiff)
+    e = sim.excitation(np.array([7.0]), np.array([5.0]))
+    # the stiffness control is gamma r^2 F0 / L0 per unit excitation, linear in gamma
+    np.testing.assert_allclose(e[:, 6], e[:, :6] @ sim.cm.srs_Nm_rad)
+    np.testing.assert_allclose(MskSimulator(bare).cm.srs_Nm_rad, 0.0)
+    assert np.all(sim.cm.srs_Nm_rad > 0)
+    cal = bare.ramp_calibration()
+    w_bare = [bare.second_order_truth(s, cal, SHORT).wn_rad_s for s in (0.3, 1.0)]
+    w_stiff = [stiff.second_order_truth(s, cal, SHORT).wn_rad_s for s in (0.3, 1.0)]
+    # without it wn hardly moves with co-activation; with it wn rises with sE
+    assert abs(w_bare[1] / w_bare[0] - 1) < 0.02
+    assert w_stiff[1] > w_stiff[0] * 1.02 and w_stiff[1] > w_bare[1]
