@@ -8,8 +8,9 @@ here only); :func:`configure` returns a private copy set up for one participant:
 * gravity off (the forearm rests on the fixture: gravity loads the support, not the
   sensor) and contacts off (no contact pairs matter on an isometric rig; this also makes
   a step about 25 % cheaper);
-* the fixture as the elbow joint's spring (``stiffness``, ``springref`` at the fixture
-  angle) and damping (:class:`~sim_backends.msk_physics.FixtureMount`);
+* the fixture as the elbow joint's spring (``stiffness``; ``springref`` set so that the
+  relaxed forearm, with the muscles' passive force, rests at the fixture angle: the
+  strap's preload) and damping (:class:`~sim_backends.msk_physics.FixtureMount`);
 * each muscle's activation and deactivation time constants (MuJoCo's muscle activation
   dynamics, ``dynprm[0:2]``); force-length-velocity and passive force are the model's own;
 * one extra actuator on the elbow (added with ``mujoco.MjSpec`` when the model is
@@ -172,6 +173,9 @@ def configure(mount: FixtureMount, tau_act_s: float, tau_deact_s: float,
     state = np.empty(mujoco.mj_stateSize(m, spec))
     mujoco.mj_getState(m, d, state, spec)
     n = int(round(REST_SETTLE_S * fs_Hz))
+    for _ in range(3):     # the strap is set so that the relaxed forearm rests at q0
+        out, _ = rollout.rollout(m, d, state, np.zeros((n, m.nu)))
+        m.qpos_spring[0] += q0 - out[0, -1, 1]
     out, _ = rollout.rollout(m, d, state, np.zeros((n, m.nu)))
     rest = np.array(out[0, -1])
     rest[0] = 0.0                         # time

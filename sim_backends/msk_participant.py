@@ -23,10 +23,10 @@ as a :class:`~sim_backends.participant.TrueParameters`, as the template particip
 
 Examples
 --------
->>> p = default_msk_participant(seed=3)              # doctest: +SKIP
+>>> p = default_msk_participant(seed=3)
 >>> rig = make_sim_rig(p)                            # doctest: +SKIP
->>> p.ramp_calibration()                             # what the 0.5 mA ramp finds
->>> p.second_order_truth(0.65).fit_pct               # ceiling of a 2nd-order fit
+>>> p.ramp_calibration()                             # doctest: +SKIP
+>>> p.second_order_truth(0.65).fit_pct               # doctest: +SKIP
 """
 
 from __future__ import annotations

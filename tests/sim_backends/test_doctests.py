@@ -5,7 +5,8 @@ import importlib
 
 import pytest
 
-MODULES = ["curves", "effects", "faults", "clocks", "rig", "twin", "population"]
+MODULES = ["curves", "effects", "faults", "clocks", "rig", "twin", "population",
+           "msk_population"]
 
 
 @pytest.mark.parametrize("name", MODULES)
