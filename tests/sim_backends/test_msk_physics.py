@@ -85,3 +85,22 @@ def test_default_drives_cover_the_model_muscles_in_order():
 def test_bad_settings_name_the_setting(make, word):
     with pytest.raises(SimConfigError, match=word):
         make()
+
+
+def test_missing_extra_is_one_clear_error(monkeypatch, tmp_path, capsys):
+    import sys
+
+    from rig.cli import main
+    from sim_backends.msk_model import MujocoUnavailable
+    from sim_backends.msk_participant import default_msk_participant
+    from sim_backends.msk_simulation import MskSimulator
+
+    monkeypatch.setitem(sys.modules, "mujoco", None)      # as if not installed
+    with pytest.raises(MujocoUnavailable, match=r"'mujoco' extra"):
+        MskSimulator(default_msk_participant())
+    out = tmp_path / "x.h5"
+    assert main(["run", "--backend", "sim", "--participant-model", "musculoskeletal",
+                 "--out", str(out), "--quiet", "--no-identify"]) == 2
+    err = capsys.readouterr().err
+    assert "'mujoco' extra" in err and "pip install" in err and "Traceback" not in err
+    assert not out.exists()
