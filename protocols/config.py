@@ -19,7 +19,7 @@ Layout of the TOML file (every key optional; unknown keys are refused)::
     carrier_Hz = 1000.0
     rest_s = 60.0
     pause_policy = "finish"        # "finish" | "abort" the trial in progress
-    input_kind = "chirp"           # "chirp" (the paper's) | "multisine" (Schroeder phases)
+    input_kind = "chirp"           # "chirp" (the paper's) | "multisine" (low-crest phases)
     multisine_tones = 24           # multisine only: tones in [chirp_f0_Hz, chirp_f1_Hz]
 
     [calibration]
@@ -84,7 +84,7 @@ class InputKind(enum.Enum):
     """The paper's exponential chirp from chirp_f0_Hz to chirp_f1_Hz over chirp_s."""
     MULTISINE = "multisine"
     """A periodic sum of ``multisine_tones`` sines (period chirp_s) spread log-evenly over
-    [chirp_f0_Hz, chirp_f1_Hz], Schroeder phases, peak exactly rE_amplitude. The chirp_*
+    [chirp_f0_Hz, chirp_f1_Hz], low-crest phases, peak rE_amplitude. The chirp_*
     settings then mean the band and the excitation's length."""
 
 

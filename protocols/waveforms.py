@@ -7,7 +7,7 @@ t' = t - steady_s and the exponential chirp phase
 
 whose instantaneous frequency is f(t') = f0 (f1/f0)^(t'/T) (1 Hz -> 10 Hz over T = 10 s in
 the paper). With ``input_kind = "multisine"`` the excitation is instead a periodic sum of
-sines (period T = chirp_s, tones log-evenly spread over [f0, f1], Schroeder phases) scaled
+sines (period T = chirp_s, tones log-evenly spread over [f0, f1], low-crest phases) scaled
 so that its peak is exactly ``rE_amplitude``: rE stays inside [rE_centre - amplitude,
 rE_centre + amplitude] like the chirp, so the currents stay under Imax of the calibration
 by construction. Each trial records its input as optional attributes (``input_kind``,
@@ -80,24 +80,64 @@ def multisine_frequencies_Hz(f0_Hz: float, f1_Hz: float, period_s: float,
     return k / period_s
 
 
-def multisine_unit(t_s, frequencies_Hz, period_s: float) -> np.ndarray:
-    """Schroeder-phased sum of unit sines, shifted to start at an upward zero crossing
-    and scaled to peak 1 (over one period, sampled finely).
+def schroeder_phases_rad(frequencies_Hz, period_s: float) -> np.ndarray:
+    """Schroeder (1970) phases for equal-amplitude tones at any frequencies.
 
-    Schroeder (1970) phases phi_k = -pi k (k - 1) / K keep the crest factor low, so more
-    power fits under the same peak than with random phases. The shift (a time delay of a
-    periodic signal: same spectrum) makes rE leave the steady lead-in without a step.
+    Each tone is given the group delay of a chirp sweeping the tones in order over the
+    period (tone k "arrives" at k/K of it): phi_{k+1} = phi_k - 2 pi (f_{k+1} - f_k) T k/K.
+    For consecutive harmonics this is Schroeder's phi_k = -pi k (k - 1) / K.
     """
-    f = np.asarray(frequencies_Hz, dtype=float)
+    f = np.sort(np.asarray(frequencies_Hz, dtype=float))
     K = len(f)
-    kk = np.arange(1, K + 1)
-    phi = -np.pi * kk * (kk - 1) / K
+    steps = -2 * np.pi * np.diff(f) * period_s * np.arange(1, K) / K
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def low_crest_phases_rad(frequencies_Hz, period_s: float, iterations: int = 200
+                        ) -> np.ndarray:
+    """Phases that keep the peak of equal-amplitude tones low (deterministic).
+
+    Starts from Schroeder phases and refines them by clipping iterations (Van der
+    Ouderaa, Schoukens & Renneboog 1988): clip the signal of one period at 70 % of its
+    peak, keep the phases of its spectrum at the tones, restore equal amplitudes; the
+    lowest-crest iterate is returned. Needed because Schroeder's formula is optimal only
+    for tones on a dense uniform grid; for log-spaced tones it leaves crest factors near 3.
+    """
+    f = np.sort(np.asarray(frequencies_Hz, dtype=float))
+    k = np.round(f * period_s).astype(int)
+    n = int(2 ** math.ceil(math.log2(max(64 * k.max(), 1024))))
+    spec = np.zeros(n // 2 + 1, dtype=complex)
+    phi = schroeder_phases_rad(f, period_s)
+    best, best_crest = phi, math.inf
+    for _ in range(iterations):
+        spec[:] = 0
+        spec[k] = np.exp(1j * (phi - np.pi / 2))        # sin(x + phi) = cos(x + phi - pi/2)
+        x = np.fft.irfft(spec, n)
+        crest = np.max(np.abs(x)) / np.sqrt(np.mean(x * x))
+        if crest < best_crest:
+            best, best_crest = phi.copy(), crest
+        level = 0.7 * np.max(np.abs(x))
+        phi = np.angle(np.fft.rfft(np.clip(x, -level, level))[k]) + np.pi / 2
+    return best
+
+
+def multisine_unit(t_s, frequencies_Hz, period_s: float) -> np.ndarray:
+    """Sum of equal-amplitude sines with low-crest phases (:func:`low_crest_phases_rad`),
+    shifted to start at an upward zero crossing and scaled to peak 1.
+
+    A low crest factor (about 1.9-2.1 against 3-4 for random phases) fits more power under
+    the same peak. The shift (a delay of a periodic signal: same spectrum) lets rE leave
+    the steady lead-in without a step. The peak is found on a grid of 256 points per
+    period of the highest tone (error < 1e-4) and kept 0.1 % under 1.
+    """
+    f = np.sort(np.asarray(frequencies_Hz, dtype=float))
+    phi = low_crest_phases_rad(f, period_s)
 
     def raw(t):
         t = np.asarray(t, dtype=float)
         return np.sin(2 * np.pi * np.multiply.outer(t, f) + phi).sum(axis=-1)
 
-    grid = np.linspace(0.0, period_s, max(4096, int(64 * f.max() * period_s)),
+    grid = np.linspace(0.0, period_s, max(4096, int(256 * f.max() * period_s)),
                        endpoint=False)
     g = raw(grid)
     up = np.nonzero((g[:-1] < 0) & (g[1:] >= 0))[0]
@@ -105,7 +145,7 @@ def multisine_unit(t_s, frequencies_Hz, period_s: float) -> np.ndarray:
     if len(up):
         i = up[0]
         shift = grid[i] + (grid[i + 1] - grid[i]) * (-g[i]) / (g[i + 1] - g[i])
-    peak = float(np.max(np.abs(g)))
+    peak = float(np.max(np.abs(g))) * 1.001
     return raw(np.asarray(t_s, dtype=float) + shift) / peak
 
 
@@ -142,7 +182,7 @@ def input_attrs(p: ProtocolConfig) -> dict[str, str]:
          "f0_Hz": p.chirp_f0_Hz, "f1_Hz": p.chirp_f1_Hz, "rE_centre": p.rE_centre,
          "rE_amplitude": p.rE_amplitude}
     if p.input_kind is InputKind.MULTISINE:
-        d["phases"] = "schroeder"
+        d["phases"] = "low_crest"
         d["tones_Hz"] = [float(v) for v in multisine_frequencies_Hz(
             p.chirp_f0_Hz, p.chirp_f1_Hz, p.chirp_s, p.multisine_tones)]
     return {"input_kind": p.input_kind.value, "input_json": json.dumps(d, sort_keys=True)}
