@@ -52,9 +52,13 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--noise-N", type=float, default=0.04, metavar="N",
                    help="sensor noise RMS for a --twin prior (default 0.04 N)")
-    p.add_argument("--scatter", type=_scatter, default=None, metavar="SPEC",
-                   help="per-trial physiological scatter, relative SDs (default "
-                        "Kp=0.1,wn_rad_s=0.05,zeta=0.05; 0 for sensor noise only)")
+    sc = p.add_mutually_exclusive_group()
+    sc.add_argument("--scatter", type=_scatter, default=None, metavar="SPEC",
+                    help="per-trial physiological scatter, relative SDs (default "
+                         "Kp=0.1,wn_rad_s=0.05,zeta=0.05; 0 for sensor noise only)")
+    sc.add_argument("--scatter-from", metavar="PARAMETERS.csv",
+                    help="with --twin: measure the scatter on the first session (the "
+                         "parameters.csv nmsid identify wrote beside twin.json)")
     p.add_argument("--n-prior", type=int, default=20, metavar="N",
                    help="population participants the design is computed for (default 20)")
     p.add_argument("--validate", type=int, default=10, metavar="N",
@@ -72,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     """Handler of ``nmsid design``."""
     from analysis.design.api import run_design
     from analysis.design.errors import DesignError
-    from analysis.design.prior import population_prior, twin_prior
+    from analysis.design.prior import population_prior, scatter_from_parameters, twin_prior
 
     for name in ("n_prior", "validate"):
         v = getattr(args, name)
@@ -87,8 +91,16 @@ def run(args: argparse.Namespace) -> int:
         prior = twin_prior(args.twin, args.noise_N)
     else:
         prior = population_prior(args.n_prior, args.seed)
+    scatter = args.scatter
+    if args.scatter_from:
+        if not args.twin:
+            raise DesignError("--scatter-from needs --twin (the curves the scatter is "
+                              "measured about)")
+        scatter = scatter_from_parameters(args.scatter_from, prior)
+        print("scatter measured on the first session: " + ", ".join(
+            f"{k} {100 * v:.2g} %" for k, v in scatter.items()))
     doc = run_design(prior, args.target, args.out, validate_n=args.validate,
-                     scatter=args.scatter, tolerance=args.tolerance,
+                     scatter=scatter, tolerance=args.tolerance,
                      min_steady_s=args.min_steady_s, seed=args.seed, twin_path=args.twin,
                      population_seed=args.seed)
     v = doc["validated_sd_ratio"]

@@ -110,3 +110,53 @@ def population_prior(n: int = 20, seed: int = 0) -> Prior:
         out.append(PriorParticipant(vp.code, curves, float(vp.sensor.noise_N),
                                     tuple(vp.sE_range)))
     return Prior(tuple(out), source=f"simulator population (n={n}, seed={seed})")
+
+
+_SE_COLUMNS = {"Kp": "Kp_se", "wn_rad_s": "wn_se", "zeta": "zeta_se"}
+
+
+def scatter_from_parameters(path, prior: Prior) -> dict:
+    """Per-trial relative scatter measured on a first session (``parameters.csv``).
+
+    For each parameter: the identified values' relative residuals about the prior's curve
+    (the twin fitted to the same session), mean square corrected for the k fitted
+    coefficients, minus the part the fit's own standard errors explain (sensor noise),
+    times the trials averaged per level. Returns relative SDs per trial (0 when the
+    residuals are all explained by the standard errors).
+
+    Raises
+    ------
+    DesignError
+        If the file is missing, lacks a column, or holds fewer levels than curve
+        coefficients + 1 of the prior's participant.
+    """
+    import csv   # stdlib; local because only this helper reads CSV
+    who = prior.participants[0]
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            rows = [r for r in csv.DictReader(fh)
+                    if r.get("participant", who.code) in (who.code, "")]
+    except OSError as exc:
+        raise DesignError(f"{path}: cannot read the first session's parameters "
+                          f"({exc.strerror or exc})") from None
+    if not rows:
+        raise DesignError(f"{path}: no rows for participant {who.code}")
+    out = {}
+    for name in PARAMETERS:
+        need = ("sE", name, _SE_COLUMNS[name], "n_trials")
+        missing = [c for c in need if c not in rows[0]]
+        if missing:
+            raise DesignError(f"{path}: column(s) {', '.join(missing)} missing (give the "
+                              "parameters.csv that nmsid identify wrote)")
+        data = [(float(r["sE"]), float(r[name]), float(r[_SE_COLUMNS[name]]),
+                 float(r["n_trials"])) for r in rows if r[name] not in ("", "nan")]
+        x, y, se, nt = (np.array(v) for v in zip(*data)) if data else ([],) * 4
+        k = len(who.curves[name].coefficients)
+        if len(x) < k + 2:
+            raise DesignError(f"{path}: {len(x)} identified level(s) of {name}; at least "
+                              f"{k + 2} are needed to measure the scatter about its curve")
+        fit = who.curves[name](x)
+        rel = y / fit - 1.0
+        excess = np.sum(rel ** 2) / (len(x) - k) - np.mean((se / fit) ** 2)
+        out[name] = float(np.sqrt(max(excess, 0.0) * np.mean(nt)))
+    return out

@@ -123,7 +123,9 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
         "validated_sd_ratio_definition": (
             "largest over parameters of the ratio of realised RMS relative curve errors "
             "(pooled over simulated participants and the paper's 15 levels), proposal / "
-            "paper, same participants and per-trial physiology for both"),
+            "paper, same participants and per-trial physiology for both; with few "
+            "participants it scatters by tens of per cent where errors are tiny and "
+            "noise-limited (use --validate 20 or more for a verdict)"),
         "selection_accuracy": {"proposal": prop.selection["overall"],
                                "paper": paper.selection["overall"],
                                "kind": "predicted (Monte-Carlo on the predicted covariance)"},

@@ -101,3 +101,53 @@ def test_population_prior_predicts_for_every_participant():
     pred = pr.predict(SHORT)
     assert pred.curve_se.shape == (3, 15, 3) and np.all(np.isfinite(pred.curve_se))
     assert np.all(pred.curve_se > 0)
+
+
+def _write_params(path, x, values, ses, n_trials=3, code="T1"):
+    lines = ["participant,sE,Kp,wn_rad_s,zeta,n_trials,Kp_se,wn_se,zeta_se"]
+    for i, s in enumerate(x):
+        lines.append(",".join([code, f"{s:.6f}"] + [f"{v:.9g}" for v in values[i]]
+                              + [str(n_trials)] + [f"{v:.9g}" for v in ses[i]]))
+    path.write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize("s_trial", [(0.1, 0.05, 0.02), (0.03, 0.2, 0.08)])
+def test_scatter_measured_on_a_first_session_recovers_the_per_trial_scatter(tmp_path, s_trial):
+    from analysis.design.prior import scatter_from_parameters
+    prior = _prior()
+    who = prior.participants[0]
+    x = np.linspace(0.3, 1.0, 400)
+    rng = np.random.default_rng(4)
+    truth = np.column_stack([who.curves[n](x) for n in ("Kp", "wn_rad_s", "zeta")])
+    level_sd = np.array(s_trial) / np.sqrt(3)          # 3 trials averaged per level
+    ses = 0.002 * truth                                  # the fit's own SE: small, removed
+    values = truth * (1 + level_sd * rng.standard_normal(truth.shape)) \
+        + ses * rng.standard_normal(truth.shape)
+    _write_params(tmp_path / "p.csv", x, values, ses)
+    got = scatter_from_parameters(tmp_path / "p.csv", prior)
+    for name, want in zip(("Kp", "wn_rad_s", "zeta"), s_trial):
+        assert got[name] == pytest.approx(want, rel=0.12)
+
+
+def test_scatter_is_zero_when_the_standard_errors_explain_the_residuals(tmp_path):
+    from analysis.design.prior import scatter_from_parameters
+    prior = _prior()
+    who = prior.participants[0]
+    x = np.linspace(0.3, 1.0, 300)
+    truth = np.column_stack([who.curves[n](x) for n in ("Kp", "wn_rad_s", "zeta")])
+    ses = 0.01 * truth
+    values = truth + ses * np.random.default_rng(1).standard_normal(truth.shape)
+    _write_params(tmp_path / "p.csv", x, values, ses)
+    got = scatter_from_parameters(tmp_path / "p.csv", prior)
+    assert all(v < 0.01 for v in got.values())
+
+
+def test_scatter_from_a_bad_file_names_it(tmp_path):
+    from analysis.design.errors import DesignError
+    from analysis.design.prior import scatter_from_parameters
+    with pytest.raises(DesignError, match="nope.csv"):
+        scatter_from_parameters(tmp_path / "nope.csv", _prior())
+    (tmp_path / "few.csv").write_text("participant,sE,Kp,wn_rad_s,zeta,n_trials,Kp_se,"
+                                      "wn_se,zeta_se\nT1,0.3,1,2,3,3,0,0,0\n")
+    with pytest.raises(DesignError, match="at least"):
+        scatter_from_parameters(tmp_path / "few.csv", _prior())
