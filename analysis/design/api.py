@@ -93,5 +93,8 @@ def run_design(prior: Prior, target: str, out_dir, *, validate_n: int = 10,
         validation["without_scatter"] = {
             k: plain[k] for k in ("validated_sd_ratio", "validated_sd_ratio_per_parameter",
                                   "curve_rms_rel", "selection_accuracy")}
+    noise_only = (predictor.predict(result.proposal.candidate, derived=False,
+                                    with_scatter=False),
+                  predictor.predict(result.paper.candidate, derived=False, with_scatter=False))
     return write_outputs(out_dir, result, prior_source=prior.source, scatter=sc,
-                         validation=validation)
+                         validation=validation, noise_only=noise_only)

@@ -61,7 +61,7 @@ def _table_rows(pred, stat) -> list[list]:
 
 
 def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
-                  validation: dict | None, settings_note: str = "") -> dict:
+                  validation: dict | None, noise_only=None) -> dict:
     """Write every output file; return the ``design.json`` dict.
 
     Parameters
@@ -73,6 +73,8 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
         The per-trial relative scatter assumed.
     validation : dict or None
         From the simulation runs (``validated_sd_ratio``, realised errors, selection).
+    noise_only : (Prediction, Prediction), optional
+        Proposal and paper predicted with sensor noise only (drawn dashed in the figure).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -143,7 +145,10 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
         json.dump(doc, fh, indent=1, default=float)
     text = report_text(doc, result)
     (out / "report.txt").write_text(text, encoding="utf-8")
-    fig = _figure(out / "design.png", rel_prop, rel_paper, c, paper.candidate)
+    rel0 = None
+    if noise_only is not None:
+        rel0 = tuple(q.curve_se / np.abs(q.curve_value) for q in noise_only)
+    fig = _figure(out / "design.png", rel_prop, rel_paper, c, paper.candidate, rel0)
     (out / "report.html").write_text(_html(text, fig), encoding="utf-8")
     return doc
 
@@ -210,7 +215,7 @@ def report_text(doc: dict, result) -> str:
     return "\n".join(L) + "\n"
 
 
-def _figure(path: Path, rel_prop, rel_paper, c, paper) -> str | None:
+def _figure(path: Path, rel_prop, rel_paper, c, paper, rel0=None) -> str | None:
     try:
         import matplotlib          # lazy: plotting is an optional extra
         matplotlib.use("Agg")
@@ -220,16 +225,25 @@ def _figure(path: Path, rel_prop, rel_paper, c, paper) -> str | None:
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
     x = np.asarray(PAPER_LEVELS)
     for j, (ax, name) in enumerate(zip(axes, PARAMETERS)):
-        ax.plot(x, 100 * np.median(rel_paper[:, :, j], axis=0), "o-", color="0.4",
-                label=f"paper ({paper.stimulation_s:g} s)")
-        ax.plot(x, 100 * np.median(rel_prop[:, :, j], axis=0), "s-", color="C0",
+        ax.plot(x, 100 * np.median(rel_paper[:, :, j], axis=0), "-", color="0.5", lw=4,
+                alpha=0.6, label=f"paper ({paper.stimulation_s:g} s)")
+        ax.plot(x, 100 * np.median(rel_prop[:, :, j], axis=0), "s-", color="C0", ms=4,
                 label=f"proposal ({c.stimulation_s:g} s)")
+        if rel0 is not None:
+            ax.plot(x, 100 * np.median(rel0[1][:, :, j], axis=0), "--", color="0.5",
+                    label="paper, sensor noise only")
+            ax.plot(x, 100 * np.median(rel0[0][:, :, j], axis=0), "--", color="C0",
+                    label="proposal, sensor noise only")
+            ax.set_yscale("log")
         for s in c.sE_levels:
             ax.axvline(s, color="C0", alpha=0.15)
         ax.set_title(name)
         ax.set_xlabel("sE")
         ax.set_ylabel("predicted SE of the curve (%)")
-    axes[0].legend(fontsize=8)
+    axes[0].legend(fontsize=7)
+    fig.suptitle("predicted standard error of each curve at the paper's levels (median over "
+                 "the prior's participants); vertical lines: the proposal's levels",
+                 fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
