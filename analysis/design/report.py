@@ -137,7 +137,10 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
         "predicted_per_level": per_level,
         "derived": {"proposal": prop.prediction.derived, "paper": paper.prediction.derived},
         "search": {"candidates_evaluated": result.n_evaluated, "notes": result.notes},
-        "caveats": list(CAVEATS),
+        "caveats": list(CAVEATS) + ([
+            "The proposal is a multisine: nmsid gap's localisation by chirp band and its "
+            "chirp-harmonic signatures read time as chirp frequency and do not apply; its "
+            "effect ranking and held-out errors do."] if c.input_kind == "multisine" else []),
     }
     if validation is not None:
         doc["validated_selection_accuracy"] = validation["selection_accuracy"]
