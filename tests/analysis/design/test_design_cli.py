@@ -115,3 +115,23 @@ def test_sd_target_parses_and_refuses_nonsense():
         parse_target("fast")
     with pytest.raises(DesignError, match="relative SD"):
         parse_target("Kp=0")
+
+
+def test_a_multisine_protocol_runs_and_identify_and_gap_work_on_it(tmp_path):
+    from analysis.design.report import protocol_toml
+    toml = tmp_path / "ms.toml"
+    toml.write_text(protocol_toml(SMALL_MULTISINE, "a multisine protocol"))
+    session = tmp_path / "M01.h5"
+    assert main(["run", "--backend", "sim", "--config", str(toml), "--participant", "M01",
+                 "--out", str(session), "--seed", "2", "--no-identify", "--quiet"]) == 0
+    assert validate_session(session) == []
+    s = read_session(session)
+    inp = trial_input(s.trials[0])
+    assert inp["kind"] == "multisine" and len(inp["tones_Hz"]) == 10
+    assert s.trials[0].chirp_s == 3.0 and s.trials[0].chirp_f1_Hz == 10.0
+    assert main(["identify", str(session), "--out", str(tmp_path / "id")]) == 0
+    params = (tmp_path / "id" / "parameters.csv").read_text().splitlines()
+    fits = [float(line.split(",")[5]) for line in params[1:]]
+    assert len(fits) == 5 and min(fits) > 90.0
+    assert main(["gap", str(session), "--out", str(tmp_path / "gap"), "--no-figures",
+                 "--no-pairs"]) == 0
