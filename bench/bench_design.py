@@ -5,7 +5,7 @@
    predicted standard-error ratio to the paper's protocol and the predicted probability of
    selecting the right curve family for both.
 2. Validation on 30 *other* simulated participants (seed 1000): both protocols simulated
-   trial by trial, identified by ``identify_session`` and scored against the truth
+   trial by trial (with, under each, the bound's prediction for the same participants), identified by ``identify_session`` and scored against the truth
    (realised RMS relative error of the right-family curves at the paper's 15 levels, of
    the per-level values, and the AICc selection accuracy), with the scatter (same
    physiology per sE and repeat for both protocols) and without it (plain simulator).
@@ -46,6 +46,22 @@ def _row(label, out, stim):
             + ")")
 
 
+def _predicted_row(label, pred, stim):
+    """The bound's RMS relative errors for the same participants (what the realised row
+    should match if the prediction is calibrated)."""
+    vals = np.array([[pred_vals for pred_vals in who] for who in pred._level_values])
+    lv = np.sqrt(np.mean((pred.level_se / vals) ** 2, axis=(0, 1)))
+    cv = np.sqrt(np.mean((pred.curve_se / pred.curve_value) ** 2, axis=(0, 1)))
+    return (f"   {label:<10}{stim:>7.0f} s" + "".join(f"{100 * v:>9.3f}" for v in cv)
+            + "".join(f"{100 * v:>9.3f}" for v in lv) + "        -  (bound)")
+
+
+def _attach_values(pred, prior):
+    pred._level_values = [[who.parameters_at(s) for s in pred.candidate.sE_levels]
+                          for who in prior.participants]
+    return pred
+
+
 def main() -> None:
     t0 = time.perf_counter()
     prior = population_prior(N_PRIOR, seed=0)
@@ -68,6 +84,7 @@ def main() -> None:
           f"{prop.selection['overall']:.3f} vs paper {paper.selection['overall']:.3f}")
 
     people = make_population(N_VALID, seed=1000)
+    valid_prior = population_prior(N_VALID, seed=1000)     # the same participants
     print(f"\n2. Validation on {N_VALID} other simulated participants (population seed 1000; "
           "the musculoskeletal participant is not in this branch's sim_backends)")
     short = {"Kp": "Kp", "wn_rad_s": "wn", "zeta": "zeta"}
@@ -83,8 +100,14 @@ def main() -> None:
         print(f"   {title}: realised RMS relative error, % (curves at the paper's 15 "
               f"levels; identified levels), selection accuracy ({time.perf_counter() - t1:.0f} s)")
         print(head)
+        pv = Predictor(valid_prior, scatter=scatter or {n: 0.0 for n in PARAMETERS})
         print(_row("paper", b, paper.candidate.stimulation_s))
+        print(_predicted_row("predicted", _attach_values(pv.predict(paper.candidate),
+                                                         valid_prior),
+                             paper.candidate.stimulation_s))
         print(_row("proposal", a, c.stimulation_s))
+        print(_predicted_row("predicted", _attach_values(pv.predict(c), valid_prior),
+                             c.stimulation_s))
         print(f"   validated_sd_ratio {ratio['max']:.4f} ("
               + ", ".join(f"{k} {v:.4f}" for k, v in ratio["per_parameter"].items()) + ")")
 
