@@ -29,7 +29,7 @@ recruitment), and curves outside the three families.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -138,7 +138,6 @@ class Predictor:
     def fit_input(self, c: Candidate) -> np.ndarray:
         """The excitation as the fit sees it (window after the lead-in, fit rate, mean
         removed) at the reference amplitude."""
-        from dataclasses import replace
         p = replace(c, rE_amplitude=REFERENCE_AMPLITUDE).config().protocol
         rE = rE_signal(p)
         q = max(1, int(np.floor(p.fs_Hz / self.fit_fs_Hz + 1e-9)))

@@ -14,6 +14,7 @@ Examples
 
 from __future__ import annotations
 
+import csv
 import math
 from dataclasses import dataclass
 
@@ -130,7 +131,6 @@ def scatter_from_parameters(path, prior: Prior) -> dict:
         If the file is missing, lacks a column, or holds fewer levels than curve
         coefficients + 1 of the prior's participant.
     """
-    import csv   # stdlib; local because only this helper reads CSV
     who = prior.participants[0]
     try:
         with open(path, newline="", encoding="utf-8") as fh:
