@@ -379,3 +379,50 @@ def fit_second_order(u: np.ndarray, y: np.ndarray, fs_Hz: float,
         trend_N_per_s=trend, initial_output_N=(float(coef[1]), float(coef[2])),
         noise_sd_N=math.sqrt(sigma2), covariance=cov, residual_tests=tests,
         start=start_est, notes=notes)
+
+
+def fisher_information(u: np.ndarray, Kp: float, wn_rad_s: float, zeta: float,
+                       fs_Hz: float, noise_sd_N: float,
+                       settings: IdentificationSettings | None = None) -> np.ndarray:
+    """Fisher information of (Kp, wn_rad_s, zeta) for input ``u`` under white noise.
+
+    The same model, nuisance parameters (initial state, offset, optional ramp) and
+    sensitivities as :func:`fit_second_order`, evaluated at the true parameters on the
+    noiseless response; the nuisance parameters are profiled out (Schur complement), so
+    ``inv(result)`` is the Cramer-Rao bound of the estimator's covariance.
+
+    Parameters
+    ----------
+    u : ndarray
+        Input as the fit sees it (rE minus its window mean), sampled at ``fs_Hz``.
+    Kp, wn_rad_s, zeta : float
+        Parameters at which the information is evaluated (N per unit rE, rad/s, -).
+    fs_Hz : float
+        Sampling rate of ``u`` (the fit rate).
+    noise_sd_N : float
+        Standard deviation of white output noise at ``fs_Hz``.
+    settings : IdentificationSettings, optional
+        ``input_hold`` and ``estimate_trend`` as in the fit.
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        Information matrix in units of the parameters (Kp, wn_rad_s, zeta).
+    """
+    s = settings or IdentificationSettings()
+    u = np.asarray(u, dtype=float)
+    v = smooth_hold_input(u) if s.input_hold is InputHold.SMOOTH else u
+    dt = 1.0 / fs_Hz
+    p = np.log(np.array([wn_rad_s, zeta], dtype=float))
+    unit = _Problem(v, np.zeros(len(v)), dt, s.estimate_trend).evaluate(p, jacobian=False)
+    y = Kp * unit["basis"][0]
+    ev = _Problem(v, y, dt, s.estimate_trend).evaluate(p, jacobian=True)
+    jac = np.vstack([ev["jp"], ev["basis"]])            # ln wn, ln zeta, Kp, nuisance...
+    info_full = (jac @ jac.T) / noise_sd_N ** 2
+    a, b, c = info_full[:3, :3], info_full[:3, 3:], info_full[3:, 3:]
+    info = a - b @ np.linalg.solve(c, b.T)
+    # reorder to (Kp, ln wn, ln zeta) and map logs to natural units
+    order = [2, 0, 1]
+    info = info[np.ix_(order, order)]
+    scale = np.array([1.0, 1.0 / wn_rad_s, 1.0 / zeta])
+    return info * np.outer(scale, scale)

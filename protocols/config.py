@@ -25,6 +25,8 @@ Layout of the TOML file (every key optional; unknown keys are refused)::
     carrier_Hz = 1000.0
     rest_s = 60.0
     pause_policy = "finish"        # "finish" | "abort" the trial in progress
+    input_kind = "chirp"           # "chirp" (the paper's) | "multisine" (low-crest phases)
+    multisine_tones = 24           # multisine only: tones in [chirp_f0_Hz, chirp_f1_Hz]
 
     [calibration]
     step_mA = 0.5
@@ -83,6 +85,17 @@ class Randomisation(enum.Enum):
     """The order of sE blocks is random; the repeats of one sE run one after another."""
     FULL = "full"
     """All trials are shuffled."""
+
+
+class InputKind(enum.Enum):
+    """The excitation after the steady lead-in (``protocols.waveforms``)."""
+
+    CHIRP = "chirp"
+    """The paper's exponential chirp from chirp_f0_Hz to chirp_f1_Hz over chirp_s."""
+    MULTISINE = "multisine"
+    """A periodic sum of ``multisine_tones`` sines (period chirp_s) spread log-evenly over
+    [chirp_f0_Hz, chirp_f1_Hz], low-crest phases, peak rE_amplitude. The chirp_*
+    settings then mean the band and the excitation's length."""
 
 
 class PausePolicy(enum.Enum):
@@ -155,6 +168,8 @@ class ProtocolConfig:
     carrier_Hz: float = 1000.0
     rest_s: float = 60.0
     pause_policy: PausePolicy = PausePolicy.FINISH
+    input_kind: InputKind = InputKind.CHIRP
+    multisine_tones: int = 24
 
     @property
     def trial_s(self) -> float:
@@ -350,7 +365,8 @@ def _build_section(cls, section: str, raw: dict, source: str):
                 raise ConfigError(source, "protocol.sE_levels", levels,
                                   "a non-empty list of numbers in (0, 1]")
             kw["sE_levels"] = tuple(_number(source, "protocol.sE_levels", v) for v in levels)
-        for key, enum_cls in (("randomisation", Randomisation), ("pause_policy", PausePolicy)):
+        for key, enum_cls in (("randomisation", Randomisation), ("pause_policy", PausePolicy),
+                              ("input_kind", InputKind)):
             if key in raw:
                 value = raw.pop(key)
                 try:
@@ -476,6 +492,21 @@ def _validate_protocol(p: ProtocolConfig, src: str) -> None:
         v = getattr(p, name)
         if not (isinstance(v, (int, float)) and math.isfinite(v)):
             raise ConfigError(src, f"protocol.{name}", v, "a finite number")
+    if not isinstance(p.input_kind, InputKind):
+        raise ConfigError(src, "protocol.input_kind", p.input_kind, "'chirp' or 'multisine'")
+    if isinstance(p.multisine_tones, bool) or not isinstance(p.multisine_tones, int) or \
+            not 2 <= p.multisine_tones <= 1000:
+        raise ConfigError(src, "protocol.multisine_tones", p.multisine_tones,
+                          "a whole number from 2 to 1000")
+    if p.input_kind is InputKind.MULTISINE:
+        # tones are harmonics of 1 / chirp_s inside the band: there must be enough of them
+        available = (math.floor(p.chirp_f1_Hz * p.chirp_s + 1e-9)
+                     - math.ceil(p.chirp_f0_Hz * p.chirp_s - 1e-9) + 1)
+        if available < p.multisine_tones:
+            raise ConfigError(src, "protocol.multisine_tones", p.multisine_tones,
+                              f"at most {max(available, 0)}: the tones are multiples of "
+                              f"1/chirp_s = {1 / p.chirp_s:g} Hz inside [{p.chirp_f0_Hz:g}, "
+                              f"{p.chirp_f1_Hz:g}] Hz (lengthen chirp_s or widen the band)")
     if p.rE_amplitude < 0:
         raise ConfigError(src, "protocol.rE_amplitude", p.rE_amplitude, "a number >= 0")
     if p.rE_centre - p.rE_amplitude < -1e-12 or p.rE_centre + p.rE_amplitude > 1 + 1e-12:

@@ -49,6 +49,38 @@ TRIAL_DATASETS = ("rE", "I_ext_mA", "I_flex_mA", "force_N")
 STATUSES = ("completed", "aborted")
 
 
+#: Optional trial attributes describing a non-chirp input (written by the rig since the
+#: designer, ``nmsid design``, can propose other inputs). ``input_kind``: ``"chirp"`` (the
+#: paper's; also assumed when absent) or ``"multisine"``; ``input_json``: the input's
+#: parameters as JSON. For a non-chirp input the contract's ``chirp_s``, ``chirp_f0_Hz``,
+#: ``chirp_f1_Hz`` are the excitation's length and band.
+OPTIONAL_INPUT_ATTRS = ("input_kind", "input_json")
+
+
+def trial_input(trial: Trial) -> dict[str, Any]:
+    """The input a trial used: ``{"kind": ..., ...}`` from its optional attributes.
+
+    A trial without them (every file written before they existed, other labs' files) used
+    the paper's chirp, described by the contract's ``chirp_*`` attributes.
+    """
+    extra = trial.extra_attrs
+    kind = _as_str(extra.get("input_kind", "chirp")) or "chirp"
+    out: dict[str, Any] = {}
+    if "input_json" in extra:
+        try:
+            parsed = json.loads(_as_str(extra["input_json"]))
+            if isinstance(parsed, dict):
+                out.update(parsed)
+        except json.JSONDecodeError:
+            pass
+    out.update({"kind": kind})
+    out.setdefault("steady_s", float(trial.steady_s))
+    out.setdefault("duration_s", float(trial.chirp_s))
+    out.setdefault("f0_Hz", float(trial.chirp_f0_Hz))
+    out.setdefault("f1_Hz", float(trial.chirp_f1_Hz))
+    return out
+
+
 def software_id() -> str:
     """The writer's name and version, as stored in the ``software`` root attribute."""
     try:

@@ -20,6 +20,7 @@ COMMAND_MODULES = (
     "rig.cli_validate",     # validate
     "analysis.cli_identify",  # identify, twin
     "analysis.cli_gap",     # gap
+    "analysis.cli_design",  # design
     "drivers.cli_probe",    # probe
     "rig.cli_gui",          # gui
 )

@@ -29,7 +29,7 @@ from drivers.interfaces import RigDevices
 from protocols.config import Config, ConfigError, PausePolicy, config_from_json
 from protocols.schedule import (PlannedTrial, TrialStatus, make_schedule, schedule_from_json,
                                 schedule_to_json)
-from protocols.waveforms import trial_waveform
+from protocols.waveforms import input_attrs, trial_waveform
 from rig.engine_calibration import CalibrationSteps
 from rig.observer import (RERUN_WAIT_PREFIX, EngineObserver, RunSummary, TripPolicy,
                           is_rerun_wait, rerun_wait_reason)
@@ -574,7 +574,7 @@ class Engine(CalibrationSteps):
                      steady_s=p.steady_s, chirp_s=p.chirp_s, chirp_f0_Hz=p.chirp_f0_Hz,
                      chirp_f1_Hz=p.chirp_f1_Hz, carrier_Hz=p.carrier_Hz, started_utc=started,
                      extra_attrs={"schedule_index": planned.index,
-                                  "attempt": planned.attempts})
+                                  "attempt": planned.attempts, **input_attrs(p)})
         self._log.begin_trial(meta)
         self._event("trial_start", f"schedule index {planned.index}: sE {planned.sE:g}, "
                                    f"repeat {planned.repeat}, attempt {planned.attempts}")

@@ -1,0 +1,117 @@
+"""``nmsid design``: the least stimulation for a twin of a given precision.
+
+    nmsid design (--twin TWIN.json | --population) [--target paper|SD-spec] --out DIR
+
+Registering imports nothing heavy; the handler imports the analysis when it runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def _scatter(text: str) -> dict:
+    out = {}
+    for part in text.split(","):
+        name, sep, value = part.partition("=")
+        name = {"wn": "wn_rad_s"}.get(name.strip(), name.strip())
+        if not sep or name not in ("Kp", "wn_rad_s", "zeta"):
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: give Kp=F,wn_rad_s=F,zeta=F (relative SDs per trial, e.g. "
+                "Kp=0.1,wn_rad_s=0.05,zeta=0.05)")
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name}={value!r} is not a number") from None
+        if not 0 <= out[name] < 1:
+            raise argparse.ArgumentTypeError(f"{name}={out[name]:g}: a relative SD in [0, 1)")
+    return out
+
+
+def register(sub) -> None:
+    """Add the ``design`` sub-command."""
+    p = sub.add_parser(
+        "design", help="design a protocol with less stimulation (Cramer-Rao bound + "
+                       "simulation)",
+        description="For a prior twin (a participant's twin.json from a first short session, "
+                    "or the simulator's population), predict the Cramer-Rao bound of Kp, wn, "
+                    "zeta per sE, of their curves over sE and of the AICc model choice for "
+                    "candidate protocols (excitation length, band, amplitude, chirp or "
+                    "multisine, sE levels, repeats, rests); propose the one with the least "
+                    "stimulation that meets the target, validate it against the paper's "
+                    "protocol on simulated participants, and write protocol.toml (for "
+                    "nmsid run --config / nmsid gui), design.json, report.txt/.html and a "
+                    "figure.")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--twin", metavar="TWIN.json", help="prior: one participant's twin")
+    src.add_argument("--population", action="store_true",
+                     help="prior: the simulator's population")
+    p.add_argument("--target", default="paper",
+                   help="'paper' (no worse than the paper's protocol) or relative SDs of "
+                        "the curves, e.g. 'Kp=0.05,wn_rad_s=0.03,zeta=0.03'")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--noise-N", type=float, default=0.04, metavar="N",
+                   help="sensor noise RMS for a --twin prior (default 0.04 N)")
+    sc = p.add_mutually_exclusive_group()
+    sc.add_argument("--scatter", type=_scatter, default=None, metavar="SPEC",
+                    help="per-trial physiological scatter, relative SDs (default "
+                         "Kp=0.1,wn_rad_s=0.05,zeta=0.05; 0 for sensor noise only)")
+    sc.add_argument("--scatter-from", metavar="PARAMETERS.csv",
+                    help="with --twin: measure the scatter on the first session (the "
+                         "parameters.csv nmsid identify wrote beside twin.json)")
+    p.add_argument("--n-prior", type=int, default=20, metavar="N",
+                   help="population participants the design is computed for (default 20)")
+    p.add_argument("--validate", type=int, default=10, metavar="N",
+                   help="simulated participants for the validation (default 10; 0 skips)")
+    p.add_argument("--min-steady-s", type=float, default=2.0, metavar="S",
+                   help="shortest rE = 0.5 lead-in a candidate may have (default 2 s)")
+    p.add_argument("--tolerance", type=float, default=0.02, metavar="F",
+                   help="'no worse' allows standard errors this fraction above the paper's "
+                        "(default 0.02)")
+    p.add_argument("--seed", type=int, default=0, help="population and Monte-Carlo seed")
+    p.set_defaults(handler="analysis.cli_design:run")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Handler of ``nmsid design``."""
+    from analysis.design.api import run_design
+    from analysis.design.errors import DesignError
+    from analysis.design.prior import population_prior, scatter_from_parameters, twin_prior
+
+    for name in ("n_prior", "validate"):
+        v = getattr(args, name)
+        if v < (1 if name == "n_prior" else 0):
+            raise DesignError(f"--{name.replace('_', '-')} {v}: give a whole number >= "
+                              f"{1 if name == 'n_prior' else 0}")
+    if not 0 <= args.tolerance < 1:
+        raise DesignError(f"--tolerance {args.tolerance:g}: a fraction in [0, 1)")
+    if not 0 <= args.min_steady_s <= 60:
+        raise DesignError(f"--min-steady-s {args.min_steady_s:g}: seconds in [0, 60]")
+    if args.twin:
+        prior = twin_prior(args.twin, args.noise_N)
+    else:
+        prior = population_prior(args.n_prior, args.seed)
+    scatter = args.scatter
+    if args.scatter_from:
+        if not args.twin:
+            raise DesignError("--scatter-from needs --twin (the curves the scatter is "
+                              "measured about)")
+        scatter = scatter_from_parameters(args.scatter_from, prior)
+        print("scatter measured on the first session: " + ", ".join(
+            f"{k} {100 * v:.2g} %" for k, v in scatter.items()))
+    doc = run_design(prior, args.target, args.out, validate_n=args.validate,
+                     scatter=scatter, tolerance=args.tolerance,
+                     min_steady_s=args.min_steady_s, seed=args.seed, twin_path=args.twin,
+                     population_seed=args.seed)
+    v = doc["validated_sd_ratio"]
+    print(f"{args.out}/protocol.toml: {doc['protocol_description']}")
+    print(f"stimulation {doc['stimulation_s']:g} s = {100 * doc['stimulation_fraction']:.0f} % "
+          f"of the paper's {doc['paper_stimulation_s']:g} s; session "
+          f"{doc['session_s'] / 60:.1f} min vs {doc['paper_session_s'] / 60:.1f} min")
+    print(f"predicted_sd_ratio {doc['predicted_sd_ratio']:.4f}; validated_sd_ratio "
+          + ("not run" if v is None else f"{v:.4f}")
+          + f"; selection accuracy (predicted) {doc['selection_accuracy']['proposal']:.3f} "
+          f"vs paper {doc['selection_accuracy']['paper']:.3f}")
+    if not doc["found"]:
+        print("no candidate met the target; this is the closest (see report.txt)")
+    return 0

@@ -1,0 +1,162 @@
+"""The prior twin a design is computed for: curves of Kp, wn, zeta over sE and the noise.
+
+Two sources: a participant's own ``twin.json`` (from ``nmsid identify`` on a first short
+session) or the simulator's seeded population (``sim_backends.population``), which differs
+the way the paper's ten participants do. The curve families in the prior are taken as the
+"right" families when the design predicts the probability of selecting them.
+
+Examples
+--------
+>>> prior = population_prior(3, seed=1)
+>>> [p.code for p in prior.participants]
+['S01', 'S02', 'S03']
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from analysis.curves import evaluate_curve
+from analysis.design.errors import DesignError
+from analysis.twin import Twin
+from sim_backends.population import make_population
+
+PARAMETERS = ("Kp", "wn_rad_s", "zeta")
+
+#: Sensor noise assumed for a twin file (which does not store it): the middle of the
+#: 0.02-0.06 N RMS the paper's rig and the simulator's population have.
+DEFAULT_NOISE_N = 0.04
+
+
+@dataclass(frozen=True)
+class PriorCurve:
+    """One parameter's curve over sE: ``model`` in linear / quadratic / exponential."""
+
+    model: str
+    coefficients: tuple[float, ...]
+
+    def __call__(self, sE) -> np.ndarray:
+        return evaluate_curve(self.model, self.coefficients, sE)
+
+
+@dataclass(frozen=True)
+class PriorParticipant:
+    """What the design assumes about one participant.
+
+    ``noise_N`` is the RMS of white force noise at ``raw_fs_Hz`` (the sensor's), per trial.
+    """
+
+    code: str
+    curves: dict
+    noise_N: float
+    sE_range: tuple[float, float] = (0.30, 1.00)
+
+    def parameters_at(self, sE: float) -> tuple[float, float, float]:
+        return tuple(float(self.curves[name](sE)) for name in PARAMETERS)
+
+
+@dataclass(frozen=True)
+class Prior:
+    """A set of prior participants (one for a twin, many for a population)."""
+
+    participants: tuple
+    source: str
+
+
+def _check(code: str, curves: dict, where: str) -> None:
+    grid = np.linspace(0.30, 1.00, 15)
+    for name in PARAMETERS:
+        c = curves[name]
+        if c.model not in ("linear", "quadratic", "exponential"):
+            raise DesignError(f"{where}: {name} curve model {c.model!r} cannot be designed "
+                              "for; valid: linear, quadratic, exponential")
+        vals = c(grid)
+        if not np.all(np.isfinite(vals)) or (name != "Kp" and np.any(vals <= 0)):
+            raise DesignError(f"{where}: {name} of {code} is not finite and positive over "
+                              "sE 0.30-1.00; the twin cannot be a prior")
+
+
+def twin_prior(path, noise_N: float = DEFAULT_NOISE_N) -> Prior:
+    """A prior from one participant's ``twin.json``.
+
+    Raises
+    ------
+    analysis.errors.TwinFileError
+        If the file is missing or breaks the twin format.
+    DesignError
+        If a curve cannot be a prior (constant, or wn/zeta not positive), or noise_N <= 0.
+    """
+    if not (noise_N > 0 and math.isfinite(noise_N)):
+        raise DesignError(f"--noise-N {noise_N!r}: give the sensor's RMS noise in N (> 0)")
+    twin = Twin.load(path)
+    curves = {name: PriorCurve(twin.parameters[name].model,
+                               tuple(float(v) for v in twin.parameters[name].coefficients))
+              for name in PARAMETERS}
+    _check(twin.participant, curves, str(path))
+    return Prior((PriorParticipant(twin.participant, curves, float(noise_N),
+                                   tuple(twin.sE_range)),), source=str(path))
+
+
+def population_prior(n: int = 20, seed: int = 0) -> Prior:
+    """A prior from the simulator's population: ``n`` participants from ``seed``."""
+    out = []
+    for vp in make_population(n, seed):
+        curves = {name: PriorCurve(getattr(vp, name).model.value,
+                                   tuple(getattr(vp, name).coefficients))
+                  for name in PARAMETERS}
+        out.append(PriorParticipant(vp.code, curves, float(vp.sensor.noise_N),
+                                    tuple(vp.sE_range)))
+    return Prior(tuple(out), source=f"simulator population (n={n}, seed={seed})")
+
+
+_SE_COLUMNS = {"Kp": "Kp_se", "wn_rad_s": "wn_se", "zeta": "zeta_se"}
+
+
+def scatter_from_parameters(path, prior: Prior) -> dict:
+    """Per-trial relative scatter measured on a first session (``parameters.csv``).
+
+    For each parameter: the identified values' relative residuals about the prior's curve
+    (the twin fitted to the same session), mean square corrected for the k fitted
+    coefficients, minus the part the fit's own standard errors explain (sensor noise),
+    times the trials averaged per level. Returns relative SDs per trial (0 when the
+    residuals are all explained by the standard errors).
+
+    Raises
+    ------
+    DesignError
+        If the file is missing, lacks a column, or holds fewer levels than curve
+        coefficients + 1 of the prior's participant.
+    """
+    who = prior.participants[0]
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            rows = [r for r in csv.DictReader(fh)
+                    if r.get("participant", who.code) in (who.code, "")]
+    except OSError as exc:
+        raise DesignError(f"{path}: cannot read the first session's parameters "
+                          f"({exc.strerror or exc})") from None
+    if not rows:
+        raise DesignError(f"{path}: no rows for participant {who.code}")
+    out = {}
+    for name in PARAMETERS:
+        need = ("sE", name, _SE_COLUMNS[name], "n_trials")
+        missing = [c for c in need if c not in rows[0]]
+        if missing:
+            raise DesignError(f"{path}: column(s) {', '.join(missing)} missing (give the "
+                              "parameters.csv that nmsid identify wrote)")
+        data = [(float(r["sE"]), float(r[name]), float(r[_SE_COLUMNS[name]]),
+                 float(r["n_trials"])) for r in rows if r[name] not in ("", "nan")]
+        x, y, se, nt = (np.array(v) for v in zip(*data)) if data else ([],) * 4
+        k = len(who.curves[name].coefficients)
+        if len(x) < k + 2:
+            raise DesignError(f"{path}: {len(x)} identified level(s) of {name}; at least "
+                              f"{k + 2} are needed to measure the scatter about its curve")
+        fit = who.curves[name](x)
+        rel = y / fit - 1.0
+        excess = np.sum(rel ** 2) / (len(x) - k) - np.mean((se / fit) ** 2)
+        out[name] = float(np.sqrt(max(excess, 0.0) * np.mean(nt)))
+    return out

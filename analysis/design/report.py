@@ -1,0 +1,259 @@
+"""Outputs of ``nmsid design``: protocol.toml, design.json, report.txt, report.html, a figure.
+
+``protocol.toml`` is a configuration ``nmsid run --config`` and ``nmsid gui`` load (it is
+written from the candidate's validated settings and read back through the same loader
+before anything else is written).
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from analysis.design.candidates import PAPER_LEVELS, Candidate
+from analysis.design.prior import PARAMETERS
+from protocols.config import load_config
+
+#: Caveats printed in every report (the design's model does not see these).
+CAVEATS = (
+    "The prediction is a Cramer-Rao bound: sensor noise (white, at the prior's level) plus "
+    "the assumed per-trial physiological scatter; it is reached only by an efficient "
+    "estimator on a correct model (nmsid's fit is within 1.2x of it on simulated data).",
+    "Not modelled: fatigue or potentiation over the session (rests keep the paper's duty "
+    "cycle, nothing more), dead time or nonlinear recruitment (run nmsid gap on the first "
+    "session), curves outside the linear/quadratic/exponential families, and scatter that "
+    "differs from the assumed one.",
+    "Where the proposal has fewer sE levels than the paper, values between them come from "
+    "the curve; a relation that is none of the three families would go unseen.",
+    "The prior's families are taken as the truth for the selection accuracy; a first short "
+    "session only approximates them.",
+)
+
+
+def protocol_toml(c: Candidate, header: str = "") -> str:
+    """The ``[protocol]`` table of ``c`` as TOML text."""
+    lines = [f"# {line}" for line in header.splitlines()] if header else []
+    lines.append("[protocol]")
+    for key, value in c.protocol_dict().items():
+        if isinstance(value, list):
+            text = "[" + ", ".join(f"{v:g}" for v in value) + "]"
+        elif isinstance(value, str):
+            text = json.dumps(value)
+        elif isinstance(value, bool):
+            text = "true" if value else "false"
+        elif isinstance(value, int):
+            text = str(value)
+        else:
+            text = repr(float(value))
+        lines.append(f"{key} = {text}")
+    return "\n".join(lines) + "\n"
+
+
+def _table_rows(pred, stat) -> list[list]:
+    """Median over prior participants of ``stat`` ([participant, level, parameter])."""
+    med = np.median(stat, axis=0)
+    return [[f"{s:.2f}"] + [f"{100 * med[i, j]:.3g}" for j in range(3)]
+            for i, s in enumerate(PAPER_LEVELS)]
+
+
+def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
+                  validation: dict | None, noise_only=None) -> dict:
+    """Write every output file; return the ``design.json`` dict.
+
+    Parameters
+    ----------
+    out_dir : path-like
+    result : analysis.design.search.DesignResult
+    prior_source : str
+    scatter : dict
+        The per-trial relative scatter assumed.
+    validation : dict or None
+        From the simulation runs (``validated_sd_ratio``, realised errors, selection).
+    noise_only : (Prediction, Prediction), optional
+        Proposal and paper predicted with sensor noise only (drawn dashed in the figure).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    prop, paper = result.proposal, result.paper
+    c = prop.candidate
+    header = (f"nmsid design: {c.describe()}\n"
+              f"stimulation {c.stimulation_s:g} s ({100 * c.stimulation_s / paper.candidate.stimulation_s:.0f} % "
+              f"of the paper's {paper.candidate.stimulation_s:g} s), prior: {prior_source}")
+    toml_path = out / "protocol.toml"
+    tmp = out / ".protocol.toml.tmp"
+    tmp.write_text(protocol_toml(c, header), encoding="utf-8")
+    load_config(tmp)             # the file must load exactly as nmsid run will load it
+    os.replace(tmp, toml_path)
+
+    rel_prop = prop.prediction.curve_se / np.abs(prop.prediction.curve_value)
+    rel_paper = paper.prediction.curve_se / np.abs(paper.prediction.curve_value)
+    per_level = []
+    for i, s in enumerate(PAPER_LEVELS):
+        row = {"sE": s}
+        for j, name in enumerate(PARAMETERS):
+            row[name] = {"proposal_rel_se": float(np.median(rel_prop[:, i, j])),
+                         "paper_rel_se": float(np.median(rel_paper[:, i, j])),
+                         "max_ratio": float(np.max(prop.prediction.curve_se[:, i, j]
+                                                   / paper.prediction.curve_se[:, i, j]))}
+        per_level.append(row)
+    doc = {
+        "format": "nmsid-design", "format_version": 1,
+        "found": bool(result.found),
+        "target": result.target.describe(),
+        "prior": prior_source,
+        "scatter_per_trial_rel": scatter,
+        "protocol": c.protocol_dict(), "protocol_description": c.describe(),
+        "stimulation_s": c.stimulation_s,
+        "paper_stimulation_s": paper.candidate.stimulation_s,
+        "stimulation_fraction": c.stimulation_s / paper.candidate.stimulation_s,
+        "session_s": c.session_s, "paper_session_s": paper.candidate.session_s,
+        "n_trials": c.n_trials, "paper_n_trials": paper.candidate.n_trials,
+        "predicted_sd_ratio": prop.ratio["max"],
+        "predicted_sd_ratio_per_parameter": prop.ratio["per_parameter"],
+        "predicted_sd_ratio_median_participant": prop.ratio["median_participant_max"],
+        "predicted_derived_sd_ratio": prop.derived_ratio,
+        "predicted_sd_ratio_definition": (
+            "largest ratio, over prior participants, parameters (Kp, wn, zeta) and the "
+            "paper's 15 sE levels, of the standard error of the right-family curve fitted "
+            "to the proposal's levels to that of the curve fitted to the paper protocol's "
+            "levels (both evaluated at the paper's 15 levels, so level sets may differ)"),
+        "validated_sd_ratio": None if validation is None else validation["validated_sd_ratio"],
+        "validated_sd_ratio_definition": (
+            "largest over parameters of the ratio of realised RMS relative curve errors "
+            "(pooled over simulated participants and the paper's 15 levels), proposal / "
+            "paper, same participants and per-trial physiology for both; with few "
+            "participants it scatters by tens of per cent where errors are tiny and "
+            "noise-limited (use --validate 20 or more for a verdict)"),
+        "selection_accuracy": {"proposal": prop.selection["overall"],
+                               "paper": paper.selection["overall"],
+                               "kind": "predicted (Monte-Carlo on the predicted covariance)"},
+        "selection_accuracy_per_parameter": {"proposal": prop.selection,
+                                             "paper": paper.selection},
+        "validation": validation,
+        "predicted_per_level": per_level,
+        "derived": {"proposal": prop.prediction.derived, "paper": paper.prediction.derived},
+        "search": {"candidates_evaluated": result.n_evaluated, "notes": result.notes},
+        "caveats": list(CAVEATS) + ([
+            "The proposal is a multisine: nmsid gap's localisation by chirp band and its "
+            "chirp-harmonic signatures read time as chirp frequency and do not apply; its "
+            "effect ranking and held-out errors do."] if c.input_kind == "multisine" else []),
+    }
+    if validation is not None:
+        doc["validated_selection_accuracy"] = validation["selection_accuracy"]
+    with open(out / "design.json", "w", encoding="utf-8") as fh:
+        json.dump(doc, fh, indent=1, default=float)
+    text = report_text(doc, result)
+    (out / "report.txt").write_text(text, encoding="utf-8")
+    rel0 = None
+    if noise_only is not None:
+        rel0 = tuple(q.curve_se / np.abs(q.curve_value) for q in noise_only)
+    fig = _figure(out / "design.png", rel_prop, rel_paper, c, paper.candidate, rel0)
+    (out / "report.html").write_text(_html(text, fig), encoding="utf-8")
+    return doc
+
+
+def report_text(doc: dict, result) -> str:
+    c, paper = result.proposal.candidate, result.paper.candidate
+    L = ["nmsid design", "=" * 12, ""]
+    if not doc["found"]:
+        L.append("NO CANDIDATE MET THE TARGET: the protocol below is the closest one.")
+    L += [f"target: {doc['target']}", f"prior: {doc['prior']}",
+          "per-trial scatter assumed: " + ", ".join(f"{k} {100 * v:g} %" for k, v in
+                                                  doc["scatter_per_trial_rel"].items()), "",
+          f"{'':<22}{'proposal':>26}{'paper':>26}",
+          f"{'protocol':<22}{c.label or '-':>26}{'paper':>26}",
+          f"{'sE levels':<22}{len(c.sE_levels):>26}{len(paper.sE_levels):>26}",
+          f"{'repeats':<22}{c.repeats:>26}{paper.repeats:>26}",
+          f"{'trial':<22}{f'{c.steady_s:g} s + {c.chirp_s:g} s {c.input_kind}':>26}"
+          f"{f'{paper.steady_s:g} s + {paper.chirp_s:g} s chirp':>26}",
+          f"{'band, amplitude':<22}{f'{c.chirp_f0_Hz:g}-{c.chirp_f1_Hz:g} Hz, {c.rE_amplitude:g}':>26}"
+          f"{f'{paper.chirp_f0_Hz:g}-{paper.chirp_f1_Hz:g} Hz, {paper.rE_amplitude:g}':>26}",
+          f"{'rest between trials':<22}{f'{c.rest_s:g} s':>26}{f'{paper.rest_s:g} s':>26}",
+          f"{'stimulation':<22}{f'{c.stimulation_s:g} s':>26}{f'{paper.stimulation_s:g} s':>26}",
+          f"{'session (no calib.)':<22}{f'{c.session_s / 60:.1f} min':>26}"
+          f"{f'{paper.session_s / 60:.1f} min':>26}",
+          f"{'selection (predicted)':<22}{doc['selection_accuracy']['proposal']:>26.3f}"
+          f"{doc['selection_accuracy']['paper']:>26.3f}"]
+    v = doc.get("validation")
+    if v:
+        L.append(f"{'selection (simulated)':<22}{v['selection_accuracy']['proposal']:>26.3f}"
+                 f"{v['selection_accuracy']['paper']:>26.3f}")
+    L += ["", f"predicted_sd_ratio {doc['predicted_sd_ratio']:.4f} (curves, worst participant, "
+              f"parameter and level; median participant {doc['predicted_sd_ratio_median_participant']:.4f}); "
+              f"derived quantities {doc['predicted_derived_sd_ratio']:.4f}"]
+    if v:
+        L.append(f"validated_sd_ratio {v['validated_sd_ratio']:.4f} over {v['n_participants']} "
+                 f"simulated participants ({v['population']})")
+        for name in PARAMETERS:
+            L.append(f"  realised RMS curve error {name:<9} proposal "
+                     f"{100 * v['curve_rms_rel']['proposal'][name]:.3f} %  paper "
+                     f"{100 * v['curve_rms_rel']['paper'][name]:.3f} %")
+        w = v.get("without_scatter")
+        if w:
+            L.append(f"without physiological scatter (sensor noise and model bias only): "
+                     f"validated_sd_ratio {w['validated_sd_ratio']:.4f}, selection "
+                     f"{w['selection_accuracy']['proposal']:.3f} vs paper "
+                     f"{w['selection_accuracy']['paper']:.3f}")
+            for name in PARAMETERS:
+                L.append(f"  realised RMS curve error {name:<9} proposal "
+                         f"{100 * w['curve_rms_rel']['proposal'][name]:.4f} %  paper "
+                         f"{100 * w['curve_rms_rel']['paper'][name]:.4f} %")
+            if w["validated_sd_ratio"] > 1 + 0.02:
+                L.append("  -> where sensor noise alone limits a parameter, the shorter "
+                         "protocol's error is larger (the bound's seconds-for-variance "
+                         "trade); the design relies on trial-to-trial scatter dominating, "
+                         "as it does in the paper's data. Check that on your first session.")
+    L += ["", "predicted relative SE of the curves at the paper's levels, % (median over the "
+              "prior's participants), proposal / paper:",
+          f"{'sE':>6}" + "".join(f"{n:>22}" for n in PARAMETERS)]
+    for row in doc["predicted_per_level"]:
+        L.append(f"{row['sE']:>6.2f}" + "".join(
+            f"{100 * row[n]['proposal_rel_se']:>11.3g}{100 * row[n]['paper_rel_se']:>11.3g}"
+            for n in PARAMETERS))
+    L += ["", "what this does not promise:"] + [f"- {x}" for x in doc["caveats"]]
+    return "\n".join(L) + "\n"
+
+
+def _figure(path: Path, rel_prop, rel_paper, c, paper, rel0=None) -> str | None:
+    try:
+        import matplotlib          # lazy: plotting is an optional extra
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
+    x = np.asarray(PAPER_LEVELS)
+    for j, (ax, name) in enumerate(zip(axes, PARAMETERS)):
+        ax.plot(x, 100 * np.median(rel_paper[:, :, j], axis=0), "-", color="0.5", lw=4,
+                alpha=0.6, label=f"paper ({paper.stimulation_s:g} s)")
+        ax.plot(x, 100 * np.median(rel_prop[:, :, j], axis=0), "s-", color="C0", ms=4,
+                label=f"proposal ({c.stimulation_s:g} s)")
+        if rel0 is not None:
+            ax.plot(x, 100 * np.median(rel0[1][:, :, j], axis=0), "--", color="0.5",
+                    label="paper, sensor noise only")
+            ax.plot(x, 100 * np.median(rel0[0][:, :, j], axis=0), "--", color="C0",
+                    label="proposal, sensor noise only")
+            ax.set_yscale("log")
+        for s in c.sE_levels:
+            ax.axvline(s, color="C0", alpha=0.15)
+        ax.set_title(name)
+        ax.set_xlabel("sE")
+        ax.set_ylabel("predicted SE of the curve (%)")
+    axes[0].legend(fontsize=7)
+    fig.suptitle("predicted standard error of each curve at the paper's levels (median over "
+                 "the prior's participants); vertical lines: the proposal's levels",
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path.name
+
+
+def _html(text: str, fig: str | None) -> str:
+    img = f'<img src="{fig}" alt="predicted SE per level">' if fig else ""
+    return ("<!doctype html><meta charset='utf-8'><title>nmsid design</title>"
+            f"<h1>nmsid design</h1>{img}<pre>{html.escape(text)}</pre>\n")
