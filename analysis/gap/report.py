@@ -19,6 +19,7 @@ from analysis.gap.localize import localization
 from analysis.gap.models import nuisance_basis, recruitment_curve
 from analysis.gap.twin_out import (effect_entries, fatigue_loss_pct, nonlinearity_index_pct,
                                    twin_dict, write_twin)
+from analysis.twin import source_entry
 
 log = logging.getLogger(__name__)
 
@@ -146,7 +147,7 @@ def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | 
             if final else []
         fp.pop("_curve", None)
         twin = twin_dict(participant=diag.data.participant or "unknown",
-                         source=[diag.data.path], calibration=calibration,
+                         source=[source_entry(diag.data.path)], calibration=calibration,
                          sE_levels=diag.data.sE_levels, Kp=Kp, wn_rad_s=wn, zeta=zeta,
                          effects=effects)
     in_aug = final.insample_nrmse_pct if final else nom.insample_nrmse_pct
