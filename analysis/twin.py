@@ -20,7 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from analysis.curves import evaluate_curve
+from analysis.discretize import foh_coefficients, foh_state_matrices
 from analysis.errors import TwinFileError
+from analysis.signal_kernels import lfilter
 
 FORMAT = "nmsid-twin"
 FORMAT_VERSION = 1
@@ -177,8 +179,6 @@ class Twin:
         >>> round(float(f[-1]), 6)                               # settles at Kp * 0.2
         1.0
         """
-        from analysis.discretize import foh_coefficients, foh_state_matrices
-
         r = np.asarray(rE, dtype=float)
         if r.ndim != 1:
             raise ValueError(f"rE must be 1-D, got shape {r.shape}")
@@ -196,7 +196,6 @@ class Twin:
             s0 = float(s.flat[0]) if s.size else 0.5
             kp, wn, zeta = (float(v) for v in self.parameters_at(s0, clip))
             num, den = foh_coefficients(wn, zeta, dt)
-            from scipy.signal import lfilter
             # prepend the rest state (rE = 0.5 before the first sample)
             y = lfilter(num, den, np.concatenate([[0.0], kp * (r - 0.5)]))[1:]
             return y + float(self.offset_N(np.clip(s0, *self.sE_range) if clip else s0))

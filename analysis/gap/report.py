@@ -14,6 +14,7 @@ import numpy as np
 from analysis.gap.diagnose import Diagnosis, ranking
 from analysis.gap.effects import Effect
 from analysis.gap.evidence import confusable_pairs, explain, signatures
+from analysis.gap import plots
 from analysis.gap.fit import Problem
 from analysis.gap.localize import localization
 from analysis.gap.models import nuisance_basis, recruitment_curve
@@ -208,7 +209,6 @@ def write_outputs(diag: Diagnosis, out_dir, calibration=None, *, plots: bool = T
 
 
 def _figures(diag: Diagnosis, report: dict, loc: dict, out: Path) -> list[str]:
-    from analysis.gap import plots
     names = []
     plots.plot_where(loc, out / "where.png", diag.noise_floor_nrmse_pct)
     names.append("where.png")
