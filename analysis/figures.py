@@ -54,13 +54,11 @@ def nice_ticks(lo: float, hi: float, max_ticks: int = 6) -> list[float]:
         return [lo] if math.isfinite(lo) else []
     raw = (hi - lo) / max(1, max_ticks - 1)
     base = 10.0 ** math.floor(math.log10(raw))
-    step = next(m * base for m in (1, 2, 5, 10) if m * base >= raw)
-    first = math.ceil(lo / step - 1e-9)
-    ticks = []
-    k = first
-    while k * step <= hi + 1e-9 * step:
-        ticks.append(round(k * step, 12) + 0.0)
-        k += 1
+    for step in (m * base for m in (0.5, 1, 2, 5, 10, 20)):
+        first, last = math.ceil(lo / step - 1e-9), math.floor(hi / step + 1e-9)
+        if step >= raw / 2 and last - first + 1 <= max_ticks:
+            break
+    ticks = [round(k * step, 12) + 0.0 for k in range(first, last + 1)]
     return ticks
 
 
