@@ -3,12 +3,10 @@ far adding that effect shrinks the gap on held-out trials.
 
     nmsid gap SESSION.h5 [SESSION.h5 ...] --out DIR [--twin TWIN.json | --sim-session SIM.h5]
 
-Registering imports nothing heavy; the handler imports the analysis when it runs.
+Registration only (argparse); the handler is in :mod:`analysis.gap_command`.
 """
 
 from __future__ import annotations
-
-import argparse
 
 
 def register(sub) -> None:
@@ -39,32 +37,4 @@ def register(sub) -> None:
                    help="an effect needs dIC below -D (default 10)")
     p.add_argument("--min-shrink-pct", type=float, default=10.0, metavar="P",
                    help="an effect must cut the held-out NRMSE by P %% (default 10)")
-    p.set_defaults(handler="analysis.cli_gap:run")
-
-
-def run(args: argparse.Namespace) -> int:
-    """Handler of ``nmsid gap``."""
-    from analysis.gap.api import GapSettings, run_gap
-
-    settings = GapSettings(ic_margin=args.ic_margin, min_shrink_pct=args.min_shrink_pct,
-                           try_pairs=not args.no_pairs)
-    summary = run_gap(args.sessions, args.out, settings=settings, twin=args.twin,
-                      sim_session=args.sim_session, plots=not args.no_figures)
-    for s in summary["sessions"]:
-        h = s["heldout"]
-        print(f"{s['session']}: best_effect = {s['best_effect']}"
-              + (f" (pair {' + '.join(s['best_pair'])})" if s.get("best_pair") else "")
-              + f"; held-out NRMSE {h['nominal_nrmse_pct']:.3g} % -> "
-              f"{h['augmented_nrmse_pct']:.3g} % (shrink {h['shrink_pct']:.0f} %); noise floor "
-              f"{h['noise_floor_nrmse_pct']:.3g} % between repeats, "
-              + (f"{h['sensor_floor_nrmse_pct']:.3g} %" if h.get("sensor_floor_nrmse_pct")
-                 is not None else "n/a")
-              + f" in the steady lead-in  [{s['elapsed_s']:.1f} s]")
-        for line in s["evidence"]["summary"]:
-            print(f"  {line}")
-        if s.get("simulation_under_test"):
-            u = s["simulation_under_test"]
-            print(f"  simulation under test {u['source']}: NRMSE {u['nrmse_pct']:.3g} % on all "
-                  "trials (nothing of it fitted here)")
-    print(f"report: {summary['report']}")
-    return 0
+    p.set_defaults(handler="analysis.gap_command:run")

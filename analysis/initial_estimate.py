@@ -21,8 +21,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
-
+from analysis.signal_kernels import lfilter
 from analysis.thin_lstsq import cross, lstsq_rows
 
 logger = logging.getLogger(__name__)

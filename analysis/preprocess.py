@@ -17,10 +17,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.ndimage import convolve1d
-from scipy.signal import butter, savgol_coeffs, sosfilt, sosfilt_zi, sosfiltfilt
-
 from analysis.errors import IdentificationError
+from analysis.signal_kernels import (butter, convolve1d, savgol_coeffs, sosfilt, sosfilt_zi,
+                                     sosfiltfilt)
 from analysis.thin_lstsq import dot
 from analysis.settings import IdentificationSettings
 

@@ -7,18 +7,20 @@ from __future__ import annotations
 import logging
 import math
 import os
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from analysis.errors import IdentificationError
+from analysis.figures import plot_level_fits, plot_parameter_curves
 from analysis.identify import SessionResult, identify_session
 from analysis.model_selection import AVERAGE_LABEL, SelectionResult, select_models
 from analysis.report import (parameter_table, selection_tables, write_model_selection_json,
                              write_parameters_csv, write_text)
 from analysis.settings import PARAMETER_NAMES, IdentificationSettings
-from analysis.twin import Twin, twin_from_selection
+from analysis.twin import Twin, source_entry, twin_from_selection
 
 logger = logging.getLogger(__name__)
 
@@ -37,6 +39,30 @@ class RunOutputs:
 
 def _safe_name(label: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in label)
+
+
+class _SourceEntries:
+    """Each session file's twin ``source`` entry (name and SHA-256), hashed in a thread
+    started before the fit: hashlib releases the GIL, so reading ~100 MB costs no wall time
+    beside the identification."""
+
+    def __init__(self, sessions):
+        self._paths = [str(Path(s)) for s in sessions if isinstance(s, (str, os.PathLike))]
+        self._entries: dict[str, dict | str] = {}
+        self._thread = threading.Thread(target=self._hash_all, daemon=True,
+                                        name="nmsid-source-hash")
+        self._thread.start()
+
+    def _hash_all(self) -> None:
+        for p in self._paths:
+            try:
+                self._entries[p] = source_entry(p)
+            except OSError:       # unreadable: identify reports it; name the file only
+                self._entries[p] = {"file": Path(p).name}
+
+    def __call__(self, source: str) -> dict | str:
+        self._thread.join()
+        return self._entries.get(str(source)) or source_entry(source)
 
 
 def run_identification(sessions, out_dir: str | os.PathLike,
@@ -69,6 +95,7 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         and skipped).
     """
     s = settings or IdentificationSettings()
+    sources = _SourceEntries(sessions)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     results: list[SessionResult] = []
@@ -104,14 +131,14 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         try:
             twins[label] = twin_from_selection(selection, label, baseline_N=baselines[label],
                                                calibration=res.calibration,
-                                               source=[res.source])
+                                               source=[sources(res.source)])
         except ValueError as exc:
             problems.append(f"twin not written: {exc}")
     if group:
         try:
             twins[AVERAGE_LABEL] = twin_from_selection(
                 selection, AVERAGE_LABEL, baseline_N=float(np.mean(list(baselines.values()))),
-                source=[r.source for r in results])
+                source=[sources(r.source) for r in results])
         except ValueError as exc:
             problems.append(f"twin not written: {exc}")
         for label in selection.participants:
@@ -132,7 +159,6 @@ def run_identification(sessions, out_dir: str | os.PathLike,
     files.append(write_text("\n".join(problems) if problems else "no problems",
                             out / "problems.txt"))
     if figures:
-        from analysis.figures import plot_level_fits, plot_parameter_curves
         for label, res in zip(selection.participants, results):
             files.append(plot_level_fits(res, out / f"fit_{_safe_name(label)}.png"))
         for name in PARAMETER_NAMES:

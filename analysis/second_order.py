@@ -29,13 +29,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import lfilter
-
 from analysis.discretize import foh_coefficients_with_derivatives, smooth_hold_input
 from analysis.errors import IdentificationError
 from analysis.initial_estimate import StartEstimate, srivc_start
 from analysis.residual_tests import ResidualTests, residual_tests
 from analysis.settings import IdentificationSettings, InputHold, NoiseLevel
+from analysis.signal_kernels import lfilter
 from analysis.thin_lstsq import cross, dot, gram, lstsq_rows, orthonormalise
 
 logger = logging.getLogger(__name__)

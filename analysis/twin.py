@@ -10,6 +10,7 @@ kept as data; ``sim_backends`` applies it.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -19,12 +20,63 @@ from pathlib import Path
 import numpy as np
 
 from analysis.curves import evaluate_curve
+from analysis.discretize import foh_coefficients, foh_state_matrices
 from analysis.errors import TwinFileError
+from analysis.signal_kernels import lfilter
 
 FORMAT = "nmsid-twin"
 FORMAT_VERSION = 1
 _N_COEF = {"linear": 2, "quadratic": 3, "exponential": 2, "constant": 1}
 _PARAMS = ("Kp", "wn_rad_s", "zeta")
+_SHA256_HEX = frozenset("0123456789abcdef")
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The SHA-256 of a file's bytes, as 64 lower-case hex digits."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def source_entry(source) -> dict | str:
+    """How a twin names one source session: its file name and content hash.
+
+    A twin is shared between people and machines, so it never records where a session
+    lay on the machine that made it (a private path): only ``{"file": name, "sha256":
+    hex}``, which identifies the recording wherever a copy of it lives.
+
+    Parameters
+    ----------
+    source : str, os.PathLike or dict
+        A session file's path, an entry already in this form (returned unchanged), or a
+        label that is not a file (such as ``"sim_backends"``, returned as a string).
+
+    Returns
+    -------
+    dict or str
+    """
+    if isinstance(source, dict):
+        return dict(source)
+    p = Path(source)
+    if p.is_file():
+        return {"file": p.name, "sha256": file_sha256(p)}
+    return str(source)
+
+
+def _source_from(obj, where: str, path) -> dict | str:
+    """One ``source`` item of a twin file: a string (version-1 files written before the
+    hash, or a label) or ``{"file": name, "sha256": 64 hex digits}``."""
+    if isinstance(obj, str):
+        return obj
+    if (isinstance(obj, dict) and isinstance(obj.get("file"), str)
+            and ("sha256" not in obj or (isinstance(obj["sha256"], str)
+                                         and len(obj["sha256"]) == 64
+                                         and set(obj["sha256"]) <= _SHA256_HEX))):
+        return dict(obj)
+    raise TwinFileError(path, f"{where} must be a file name or {{\"file\": name, "
+                              f"\"sha256\": 64 lower-case hex digits}}, got {obj!r}")
 
 
 @dataclass
@@ -65,7 +117,7 @@ class Twin:
     sE_range: tuple[float, float]
     offset_N: Curve = field(default_factory=lambda: Curve("constant", [0.0]))
     calibration: dict = field(default_factory=dict)
-    source: list[str] = field(default_factory=list)
+    source: list[dict | str] = field(default_factory=list)
     effects: list[dict] = field(default_factory=list)
 
     # -- parameters -----------------------------------------------------------------
@@ -127,8 +179,6 @@ class Twin:
         >>> round(float(f[-1]), 6)                               # settles at Kp * 0.2
         1.0
         """
-        from analysis.discretize import foh_coefficients, foh_state_matrices
-
         r = np.asarray(rE, dtype=float)
         if r.ndim != 1:
             raise ValueError(f"rE must be 1-D, got shape {r.shape}")
@@ -146,7 +196,6 @@ class Twin:
             s0 = float(s.flat[0]) if s.size else 0.5
             kp, wn, zeta = (float(v) for v in self.parameters_at(s0, clip))
             num, den = foh_coefficients(wn, zeta, dt)
-            from scipy.signal import lfilter
             # prepend the rest state (rE = 0.5 before the first sample)
             y = lfilter(num, den, np.concatenate([[0.0], kp * (r - 0.5)]))[1:]
             return y + float(self.offset_N(np.clip(s0, *self.sE_range) if clip else s0))
@@ -177,7 +226,8 @@ class Twin:
     def to_dict(self) -> dict:
         return {
             "format": FORMAT, "format_version": FORMAT_VERSION,
-            "participant": self.participant, "source": list(self.source),
+            "participant": self.participant,
+            "source": [dict(s) if isinstance(s, dict) else str(s) for s in self.source],
             "calibration": dict(self.calibration),
             "sE_range": [float(self.sE_range[0]), float(self.sE_range[1])],
             "parameters": {k: v.to_dict() for k, v in self.parameters.items()},
@@ -219,10 +269,12 @@ class Twin:
             raise TwinFileError(path, "effects must be a list of {\"name\": ..., \"params\": "
                                       "{...}} objects")
         source = data.get("source", [])
+        source = [_source_from(item, f"source[{i}]", path) for i, item in
+                  enumerate(source if isinstance(source, list) else [source])]
         return cls(participant=str(data.get("participant", "")), parameters=curves,
                    sE_range=(float(rng[0]), float(rng[1])), offset_N=offset,
                    calibration=dict(data.get("calibration") or {}),
-                   source=list(source) if isinstance(source, list) else [str(source)],
+                   source=source,
                    effects=effects)
 
     @classmethod
@@ -242,6 +294,9 @@ def twin_from_selection(selection, label: str, *, baseline_N: float = 0.0,
                         calibration: dict | None = None, source=()) -> Twin:
     """A twin from the selected curves of one participant (or ``average``).
 
+    ``source`` lists the session files (paths) the twin comes from; the twin keeps each
+    one's file name and content hash (:func:`source_entry`), never its path.
+
     Raises
     ------
     ValueError
@@ -259,4 +314,5 @@ def twin_from_selection(selection, label: str, *, baseline_N: float = 0.0,
         lo, hi = min(lo, float(x.min())), max(hi, float(x.max()))
     offset = Curve("constant", [float(baseline_N) if math.isfinite(baseline_N) else 0.0])
     return Twin(participant=label, parameters=curves, sE_range=(lo, hi), offset_N=offset,
-                calibration=dict(calibration or {}), source=[str(s) for s in source])
+                calibration=dict(calibration or {}),
+                source=[source_entry(s) for s in source])

@@ -24,6 +24,7 @@ import time
 
 from drivers.errors import DeviceNotFound
 from drivers.leptrino import _serial_module
+from drivers.nidaq import load_nidaqmx
 
 log = logging.getLogger(__name__)
 
@@ -122,7 +123,6 @@ class NidaqEStop:
         self._lock = threading.Lock()
 
     def open(self) -> None:
-        from drivers.nidaq import load_nidaqmx
         api = self._api or load_nidaqmx()
         try:
             task = api.nidaqmx.Task("nmsid-estop")

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.caio import CaioAcquisition
+from drivers.caio import CaioAcquisition, declare
 from drivers.estop_switch import NidaqEStop, SerialEStop
 from drivers.fake_hardware import fake_requested, load_fake
 from drivers.hw_config import HardwareConfig, load_hw_config
@@ -146,7 +146,6 @@ def _acquisition(cfg: HardwareConfig, stack: FakeStack | None):
     if a.kind == "caio":
         lib = None
         if stack is not None:
-            from drivers.caio import declare
             lib = declare(load_fake("fake_caio").FakeCaioLibrary(
                 stack.bench, device_name=a.caio["device_name"],
                 wiring=_fake_wiring(cfg, stack.bench)))

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+from rig.qt_platform import check_xcb
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -30,8 +34,9 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from pathlib import Path
-
+    # before Qt loads: a missing X11 library is one line naming the package, not a Qt abort
+    check_xcb()
+    # lazy: PySide6 and pyqtgraph (the optional gui extra) load only when the window opens
     from rig.gui.app import GuiOptions, run_gui
 
     options = GuiOptions(

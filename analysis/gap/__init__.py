@@ -31,13 +31,15 @@ __all__ = ["Effect", "CANDIDATES", "run_gap", "diagnose", "load_session", "GapSe
 
 
 def __getattr__(name):
+    # lazy re-exports: `import analysis.gap.effects` (the sim and the twin writer need only
+    # the effect names) must not load the whole fitting stack and scipy.signal with it
     if name == "run_gap":
-        from analysis.gap.api import run_gap
+        from analysis.gap.api import run_gap  # lazy, see above
         return run_gap
     if name in ("diagnose", "GapSettings"):
-        from analysis.gap import diagnose as m
+        from analysis.gap import diagnose as m  # lazy, see above
         return getattr(m, name)
     if name == "load_session":
-        from analysis.gap.data import load_session
+        from analysis.gap.data import load_session  # lazy, see above
         return load_session
     raise AttributeError(name)

@@ -28,6 +28,9 @@ from analysis.gap.localize import by_location, frequency_view
 from analysis.gap.models import NOMINAL, nuisance_basis
 from analysis.gap.report import _clean, write_outputs
 from protocols.session_file import read_session
+from sim_backends.sensor import SensorModel
+from sim_backends.simulation import ParticipantSimulator
+from sim_backends.twin import participant_from_twin
 
 log = logging.getLogger(__name__)
 
@@ -68,9 +71,6 @@ def _twin_predictions(data: GapData, twin) -> np.ndarray:
     simulator's virtual participant with an ideal sensor, in file order (aborted trials
     too: they count for fatigue)."""
     try:
-        from sim_backends.sensor import SensorModel
-        from sim_backends.simulation import ParticipantSimulator
-        from sim_backends.twin import participant_from_twin
         participant = participant_from_twin(str(twin), sensor=SensorModel.ideal(),
                                             snap_calibration=False)
     except (OSError, ValueError) as exc:

@@ -34,7 +34,7 @@ from analysis.gap.data import GapData
 from analysis.gap.effects import CANDIDATES, Effect
 from analysis.gap.errors import GapInputError
 from analysis.gap.fit import ModelFit, fit_model, predict
-from analysis.gap.models import NOMINAL, Candidate, candidate, n_drift_columns
+from analysis.gap.models import NOMINAL, Candidate, candidate, n_drift_columns, nuisance_basis
 
 log = logging.getLogger(__name__)
 
@@ -236,7 +236,6 @@ class _Runner:
 
 
 def _ref_of(data: GapData) -> np.ndarray:
-    from analysis.gap.models import nuisance_basis
     Q = nuisance_basis(data.t_eval_s, 0.0)
     return data.y_N - (data.y_N @ Q) @ Q.T
 

@@ -14,11 +14,13 @@ import numpy as np
 from analysis.gap.diagnose import Diagnosis, ranking
 from analysis.gap.effects import Effect
 from analysis.gap.evidence import confusable_pairs, explain, signatures
+from analysis.gap import plots
 from analysis.gap.fit import Problem
 from analysis.gap.localize import localization
 from analysis.gap.models import nuisance_basis, recruitment_curve
 from analysis.gap.twin_out import (effect_entries, fatigue_loss_pct, nonlinearity_index_pct,
                                    twin_dict, write_twin)
+from analysis.twin import source_entry
 
 log = logging.getLogger(__name__)
 
@@ -146,7 +148,7 @@ def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | 
             if final else []
         fp.pop("_curve", None)
         twin = twin_dict(participant=diag.data.participant or "unknown",
-                         source=[diag.data.path], calibration=calibration,
+                         source=[source_entry(diag.data.path)], calibration=calibration,
                          sE_levels=diag.data.sE_levels, Kp=Kp, wn_rad_s=wn, zeta=zeta,
                          effects=effects)
     in_aug = final.insample_nrmse_pct if final else nom.insample_nrmse_pct
@@ -207,7 +209,6 @@ def write_outputs(diag: Diagnosis, out_dir, calibration=None, *, plots: bool = T
 
 
 def _figures(diag: Diagnosis, report: dict, loc: dict, out: Path) -> list[str]:
-    from analysis.gap import plots
     names = []
     plots.plot_where(loc, out / "where.png", diag.noise_floor_nrmse_pct)
     names.append("where.png")

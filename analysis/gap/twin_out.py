@@ -24,8 +24,10 @@ from pathlib import Path
 import numpy as np
 from scipy import optimize
 
+from analysis.curves import fit_curve
 from analysis.gap.effects import Effect
 from analysis.gap.models import REFERENCE_STIM_S
+from sim_backends.effects import RecruitmentNonlinearity
 
 
 def fatigue_loss_pct(rate_per_s: float, reference_stim_s: float = REFERENCE_STIM_S) -> float:
@@ -58,7 +60,6 @@ def nonlinearity_index_pct(h, sE_levels) -> float:
 def _sim_h(params: dict):
     """The simulator's documented recruitment curve for ``params`` (used only to write the
     twin file in the simulator's own terms)."""
-    from sim_backends.effects import RecruitmentNonlinearity
     return RecruitmentNonlinearity(**params).h
 
 
@@ -124,7 +125,6 @@ def effect_entries(params: dict, effects, sE_levels) -> list[dict]:
 
 
 def _curve(sE: np.ndarray, values: np.ndarray) -> dict:
-    from analysis.curves import fit_curve
     ok = np.isfinite(values)
     best = None
     for model in ("linear", "quadratic", "exponential"):

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.identify import identify_level as _identify
+from analysis.run import run_identification
 from rig.gui.results_panel import ModelFit, ParameterSelection, SelectionView
 
 
@@ -24,7 +26,6 @@ def identify_level(trials):
     ValueError
         If nothing could be estimated; the message lists the analysis' reasons.
     """
-    from analysis.identify import identify_level as _identify
     result = _identify(list(trials))
     if result.fit is None:
         raise ValueError("; ".join(result.problems) or "no parameters estimated")
@@ -50,7 +51,6 @@ def select_models(session_path: Path) -> SelectionView:
     panel shows: per parameter, the identified values against sE, the AICc of each
     candidate curve and the selected one.
     """
-    from analysis.run import run_identification
     out = analysis_dir(session_path)
     outputs = run_identification([Path(session_path)], out, figures=True)
     label = outputs.selection.participants[0]

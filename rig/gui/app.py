@@ -8,6 +8,12 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+import pyqtgraph as pg
+from PySide6.QtWidgets import QApplication
+
+from rig.gui.main_window import MainWindow
+from rig.gui.script import ScriptRunner, load_script
+
 log = logging.getLogger(__name__)
 
 
@@ -27,7 +33,6 @@ class GuiOptions:
 
 
 def _application():
-    from PySide6.QtWidgets import QApplication
     app = QApplication.instance()
     if app is None:
         app = QApplication(sys.argv[:1])
@@ -37,9 +42,7 @@ def _application():
 
 def build_window(options: GuiOptions, **window_kwargs):
     """Create the main window with the setup form filled from ``options``."""
-    import pyqtgraph as pg
     pg.setConfigOptions(antialias=False, foreground="k")
-    from rig.gui.main_window import MainWindow
     window = MainWindow(**window_kwargs)
     values = {"backend": options.backend, "realtime": options.realtime}
     if options.participant:
@@ -63,7 +66,6 @@ def run_gui(options: GuiOptions) -> int:
     ``options.screenshot`` the window is saved as PNG after the script and the
     application quits. Exit code 1 if the script failed.
     """
-    from rig.gui.script import ScriptRunner, load_script
     if options.screenshot is not None and options.script is None:
         raise ValueError("--screenshot saves the window after a scripted run; give "
                          "--script FILE (or --script demo) too")

@@ -24,6 +24,7 @@ import rig.gui.qt_compat  # noqa: F401  (before any signal is emitted)
 from PySide6.QtWidgets import (QLabel, QMainWindow, QSplitter, QTabWidget, QVBoxLayout,
                                QWidget)
 
+from rig.gui import analysis_hooks
 from rig.gui.calibration_panel import CalibrationPanel
 from rig.gui.event_log import EventLog
 from rig.gui.identification_panel import IdentificationPanel
@@ -33,7 +34,8 @@ from rig.gui.observer import EngineSignals
 from rig.gui.results_panel import ResultsPanel
 from rig.gui.safety_panel import SafetyPanel, install_estop_shortcuts
 from rig.gui.schedule_panel import SchedulePanel, planned_fields, status_name
-from rig.gui.session_controller import DevicesFactory, SessionController
+from rig.gui.session_controller import (DevicesFactory, SessionController,
+                                        load_session_config)
 from rig.gui.setup_panel import SessionRequest, SetupPanel
 from rig.states import State
 
@@ -77,7 +79,6 @@ class MainWindow(QMainWindow):
                  identify: Callable | None = None, select_models: Callable | None = None,
                  auto_tabs: bool = True, live_window_s: float = LIVE_WINDOW_S):
         super().__init__()
-        from rig.gui import analysis_hooks
         self.setWindowTitle("nmsid - FES identification session")
         self.auto_tabs = auto_tabs
         self.config_transform = config_transform
@@ -177,7 +178,6 @@ class MainWindow(QMainWindow):
         self.setup_panel.press_start(resume=resume)
 
     def _start_request(self, request: SessionRequest) -> None:
-        from rig.gui.session_controller import load_session_config
         config = load_session_config(request)
         if self.config_transform is not None and not request.resume:
             config = self.config_transform(config)

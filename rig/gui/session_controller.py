@@ -16,10 +16,15 @@ from typing import Callable
 
 from PySide6.QtCore import QObject, Qt, Signal
 
+from drivers.hardware import make_hw_rig
+from protocols.config import config_from_json, load_config
+from protocols.session_file import read_session
+from rig.engine import Engine
 from rig.gui.live_buffer import LiveBuffer
 from rig.gui.observer import EngineSignals, QtEngineObserver
 from rig.gui.setup_panel import Backend, SessionRequest
-from protocols.session_file import read_session
+from sim_backends.participant_models import participant_for_model
+from sim_backends.rig import make_sim_rig
 
 log = logging.getLogger(__name__)
 
@@ -30,8 +35,6 @@ DevicesFactory = Callable[[SessionRequest, object], object]
 def default_devices(request: SessionRequest, config) -> object:
     """Build the rig the request names: the simulator or the hardware chain."""
     if request.backend is Backend.SIM:
-        from sim_backends.participant_models import participant_for_model
-        from sim_backends.rig import make_sim_rig
         seed = request.seed if request.seed is not None else 0
         return make_sim_rig(participant_for_model(getattr(config, "participant_model",
                                                           "template"), seed),
@@ -40,7 +43,6 @@ def default_devices(request: SessionRequest, config) -> object:
         raise ValueError("--backend hw needs a hardware configuration file (--hw-config "
                          "FILE, or 'Hardware configuration' on the setup panel; see "
                          "docs/hardware.md)")
-    from drivers.hardware import make_hw_rig  # the hardware chain from its configuration
     return make_hw_rig(request.hw_config_path)
 
 
@@ -52,7 +54,6 @@ def load_session_config(request: SessionRequest, *, confirm_calibration: bool = 
     operator to confirm the calibration (``calibration.confirm = true``) unless
     ``confirm_calibration`` is False.
     """
-    from protocols.config import config_from_json, load_config
     if request.resume:
         try:
             stored = read_session(request.output_path, load_data=False).config_json
@@ -132,7 +133,7 @@ class SessionController(QObject):
         if self.engine_factory is not None:
             factory = self.engine_factory
         else:
-            from rig.engine import Engine as factory
+            factory = Engine
         try:
             self.engine = factory(self.config, self.devices, request.output_path,
                                   resume=request.resume, observer=self.observer)

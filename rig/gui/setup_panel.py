@@ -18,8 +18,10 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QFileDialog, QFormLayout, Q
                                QHBoxLayout, QLabel, QLineEdit, QPushButton, QSpinBox,
                                QVBoxLayout, QWidget)
 
-from rig.gui.theme import Colour
+from protocols.config import config_from_json
 from protocols.session_file import PARTICIPANT_PATTERN, SessionWriter, read_session
+from rig.gui.theme import Colour
+from rig.session_log import journal_dir
 
 
 class Backend(enum.Enum):
@@ -65,7 +67,6 @@ def check_output(path: str | os.PathLike) -> OutputCheck:
     (the engine removes it when a run ends cleanly) or if trials of its stored schedule
     are not completed; the engine's resume recovers the journal and re-runs the rest.
     """
-    from rig.session_log import journal_dir
     path = Path(path)
     jdir = journal_dir(path)
     if not path.exists():
@@ -117,7 +118,6 @@ def _planned_count(session) -> int:
         except (ValueError, TypeError):
             pass
     try:
-        from protocols.config import config_from_json
         if session.config_json:
             cfg = config_from_json(session.config_json)
             return len(cfg.protocol.sE_levels) * cfg.protocol.repeats

@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+from analysis.twin import file_sha256
 from rig.cli import main
 
 
@@ -32,6 +33,9 @@ def test_identify_one_session_no_figures(small_session, tmp_path, capsys):
     assert {c["parameter"] for c in sel["comparisons"]} == {"Kp", "wn_rad_s", "zeta"}
     twin = json.loads((out / "twin.json").read_text())
     assert twin["format"] == "nmsid-twin" and twin["participant"] == truth.participant
+    # the source session by name and content hash; no path of this machine leaks
+    assert twin["source"] == [{"file": path.name, "sha256": file_sha256(path)}]
+    assert str(path.parent) not in (out / "twin.json").read_text()
     assert not list(out.glob("*.png"))
     for name in ("tables.txt", "problems.txt"):
         assert (out / name).exists()
@@ -50,7 +54,10 @@ def test_identify_group_with_figures_and_a_bad_file(small_session, second_sessio
     rows = read_csv(out / "parameters.csv")
     assert {r["participant"] for r in rows} == {small_session[1].participant, "P02"}
     assert (out / "twin_P02.json").exists() and (out / "twin.json").exists()
-    assert json.loads((out / "twin.json").read_text())["participant"] == "average"
+    average = json.loads((out / "twin.json").read_text())
+    assert average["participant"] == "average"
+    assert [s["file"] for s in average["source"]] == [small_session[0].name,
+                                                     second_session[0].name]
     for name in ("figure_Kp.png", "figure_wn_rad_s.png", "figure_zeta.png", "fit_P02.png"):
         assert (out / name).stat().st_size > 1000
     sel = json.loads((out / "model_selection.json").read_text())

@@ -130,3 +130,70 @@ def test_time_varying_matches_fine_integration():
         if (i + 1) % m == 0:
             out.append(y)
     assert np.max(np.abs(got - np.array(out))) < 1e-4 * np.max(np.abs(out))
+
+
+def test_source_is_file_name_and_content_hash_never_the_path(tmp_path):
+    import hashlib
+
+    from analysis.twin import source_entry
+    private = tmp_path / "home" / "someone" / "secret-study"
+    private.mkdir(parents=True)
+    session = private / "P07.h5"
+    payload = bytes(range(256)) * 5000 + b"tail"   # > one read block, not a multiple of it
+    session.write_bytes(payload)
+    entry = source_entry(session)
+    assert entry == {"file": "P07.h5", "sha256": hashlib.sha256(payload).hexdigest()}
+    tw = make_twin()
+    tw.source = [entry, "sim_backends"]
+    p = tmp_path / "twin.json"
+    tw.save(p)
+    text = p.read_text()
+    assert "secret-study" not in text and str(tmp_path) not in text
+    assert Twin.load(p).source == [entry, "sim_backends"]
+    # the same bytes elsewhere give the same entry; changed bytes a different hash
+    copy = tmp_path / "P07.h5"
+    copy.write_bytes(payload)
+    assert source_entry(copy) == entry
+    copy.write_bytes(payload[:-1] + b"X")
+    assert source_entry(copy)["sha256"] != entry["sha256"]
+
+
+def test_twin_from_selection_hashes_its_sources(tmp_path):
+    from types import SimpleNamespace
+
+    from analysis.twin import file_sha256, twin_from_selection
+
+    class Comp:
+        def __init__(self, model, coef):
+            self.selected, self.problems = model, []
+            self.selected_fit = SimpleNamespace(coefficients=coef)
+
+        def used_points(self):
+            return np.array([0.3, 0.6, 0.9]), None
+
+    comps = {"Kp": Comp("linear", [1.0, 2.0]), "wn_rad_s": Comp("constant", [30.0]),
+             "zeta": Comp("quadratic", [0.5, 0.1, 0.0])}
+    selection = SimpleNamespace(comparison=lambda name, label: comps[name])
+    session = tmp_path / "deep" / "P02.h5"
+    session.parent.mkdir()
+    session.write_bytes(b"\x89HDF\r\n" + b"0" * 100)
+    tw = twin_from_selection(selection, "P02", source=[str(session)])
+    assert tw.source == [{"file": "P02.h5", "sha256": file_sha256(session)}]
+    assert str(tmp_path) not in json.dumps(tw.to_dict())
+
+
+def test_old_twins_with_a_path_source_still_load():
+    doc = make_twin().to_dict()
+    doc["source"] = ["/home/someone/sessions/P01.h5"]      # written before the hash
+    assert Twin.from_dict(doc).source == ["/home/someone/sessions/P01.h5"]
+    doc["source"] = "/home/someone/sessions/P01.h5"         # a bare string, too
+    assert Twin.from_dict(doc).source == ["/home/someone/sessions/P01.h5"]
+
+
+@pytest.mark.parametrize("bad", [{"sha256": "0" * 64}, {"file": "a.h5", "sha256": "abc"},
+                                 {"file": "a.h5", "sha256": "G" * 64}, 3])
+def test_a_malformed_source_entry_is_named(bad):
+    doc = make_twin().to_dict()
+    doc["source"] = ["ok.h5", bad]
+    with pytest.raises(TwinFileError, match=r"source\[1\]"):
+        Twin.from_dict(doc)

@@ -134,7 +134,7 @@ def test_ctrl_c_is_an_estop_and_leaves_a_valid_file(tmp_path):
 
 def test_resume_uses_the_stored_virtual_participant(tmp_path, short_toml, monkeypatch,
                                                     capsys):
-    import rig.cli_run as cli_run
+    import rig.run_command as cli_run
 
     out = tmp_path / "s.h5"
     assert main(["run", "--backend", "sim", "--config", str(short_toml), "--out", str(out),

@@ -105,7 +105,7 @@ def _check_after_kill(path, printed):
 
 def test_sigkill_at_random_moments_loses_nothing_completed(tmp_path):
     import rig.cli  # noqa: F401  (import once here, not in every child)
-    import rig.cli_run  # noqa: F401
+    import rig.run_command  # noqa: F401
     import rig.engine  # noqa: F401
     import sim_backends.rig  # noqa: F401
     cfg = tmp_path / "k.toml"

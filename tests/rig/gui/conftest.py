@@ -24,6 +24,19 @@ def _load_fake_engine():
 
 fake_engine = _load_fake_engine()
 
+#: A GUI test that hangs (a deadlock between the Qt thread and a worker, an event that never
+#: comes) fails after this long instead of stalling the run. ``thread``: pytest-timeout
+#: dumps every thread's stack (where it hung) and ends the process; the ``signal`` method
+#: cannot interrupt a main thread blocked inside Qt. The slowest GUI test takes ~15 s alone.
+GUI_TEST_TIMEOUT_S = 180
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if HERE in Path(str(item.path)).resolve().parents and \
+                item.get_closest_marker("timeout") is None:
+            item.add_marker(pytest.mark.timeout(GUI_TEST_TIMEOUT_S, method="thread"))
+
 
 class FakeLevelResult:
     def __init__(self, sE):
@@ -129,6 +142,7 @@ def fast_sim_window(qtbot):
     w = _sim_window(qtbot, False, sim_levels_config, faults=[spike])
     yield w
     w.controller.shutdown(timeout_s=5.0)
+    w.identification.shutdown()
     w.results.shutdown(wait=True)
 
 

@@ -1,0 +1,220 @@
+"""The handlers of ``nmsid run`` and ``nmsid recover`` (registered by :mod:`rig.cli_run`).
+
+``run`` builds the configuration and the rig (simulated or hardware), runs the engine in a
+worker thread (Ctrl+C is an E-stop), prints progress, then identifies the new file.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import logging
+import signal
+import sys
+import threading
+import zlib
+from pathlib import Path
+
+from analysis.run import run_identification, summary_line
+from drivers.hardware import make_hw_rig
+from protocols.config import config_from_json, load_config
+from protocols.session_file import read_session, validate_session
+from rig.engine import Engine, TripPolicy
+from rig.session_log import journal_dir, recover
+from sim_backends import make_sim_rig
+from sim_backends.participant_models import participant_for_model
+
+
+def recover_cmd(args) -> int:
+    report = recover(args.file)
+    print(report.summary())
+    if report.action == "no-calibration":
+        return 1
+    problems = validate_session(args.file)
+    if problems:
+        print(f"{args.file}: still INVALID after recovery: {problems[0]}")
+        return 1
+    return 0
+
+
+def run(args) -> int:
+    log = logging.getLogger("rig.run_command")
+    if args.resume and (args.config or args.participant or args.seed is not None
+                        or args.participant_model):
+        raise ValueError("--resume continues a session with the configuration stored in its "
+                         "file; do not give --config, --participant, --participant-model or "
+                         "--seed with it")
+    if args.realtime and args.backend != "sim":
+        raise ValueError("--realtime applies to --backend sim (hardware is always real time)")
+    if args.resume:
+        path = Path(args.resume)
+        config = _stored_config(path)
+    else:
+        config = load_config(args.config, overrides={"participant": args.participant,
+                                                     "seed": args.seed})
+        if args.participant_model:
+            config = config.replace(participant_model=args.participant_model)
+        if args.backend == "sim" and not args.realtime and config.protocol.rest_s != 0:
+            log.info("fast clock: rest_s %g -> 0", config.protocol.rest_s)
+            config = config.with_protocol(rest_s=0.0)
+        path = Path(args.out) if args.out else _free_path(Path(args.outdir or "sessions"),
+                                                          config.participant)
+    stored = _stored_attrs(path) if args.resume else {}
+    sim_seed = None
+    if args.backend == "sim":
+        sim_seed = (args.sim_seed if args.sim_seed is not None else
+                    stored.get("sim_seed", _seed_from_code(config.participant)))
+    devices = _make_devices(args, config, sim_seed)
+    progress = _Progress(quiet=args.quiet)
+    try:
+        engine = Engine(config, devices, path, resume=bool(args.resume), observer=progress,
+                        trip_policy=TripPolicy.END_SESSION,
+                        extra_attrs={} if sim_seed is None else {
+                            "sim_seed": int(sim_seed),
+                            "participant_model": config.participant_model})
+        progress.total = len(engine.schedule)
+        progress.done = sum(1 for t in engine.schedule if t.status.value == "done")
+        if engine.recovery is not None and engine.recovery.action != "none":
+            print(engine.recovery.summary(), flush=True)
+        box: dict = {}
+
+        def work():
+            try:
+                box["summary"] = engine.run()
+            except BaseException as exc:  # handed to the main thread
+                box["error"] = exc
+
+        worker = threading.Thread(target=work, name="nmsid-engine")
+
+        def on_sigint(signum, frame):  # runs in the main thread, which holds no engine lock
+            engine.estop("Ctrl+C (operator E-stop)")
+            engine.abort()
+            print("\nE-stop: output off; ending the session cleanly...", flush=True)
+
+        old = signal.signal(signal.SIGINT, on_sigint)
+        try:
+            worker.start()
+            while worker.is_alive():
+                worker.join(0.1)
+        finally:
+            signal.signal(signal.SIGINT, old)
+    finally:
+        devices.close()
+    if "error" in box:
+        raise box["error"]
+    s = box["summary"]
+    progress.finish()
+    print(f"{s.path}: {s.n_completed} completed, {s.n_aborted} aborted, {s.n_pending} not run "
+          f"({s.ended_by})", flush=True)
+    if s.n_pending or s.n_aborted:
+        print(f"  continue with: nmsid run --backend {args.backend} --resume {s.path}",
+              flush=True)
+    if not args.no_identify and s.n_completed:
+        _identify(s.path)
+    return 0 if s.ended_by == "schedule complete" else 1
+
+
+def _stored_attrs(path) -> dict:
+    """Extra root attributes of a session (journal header first, else the file)."""
+    j = journal_dir(path) / "header.json"
+    if j.exists():
+        return dict(json.loads(j.read_text()).get("extra_attrs") or {})
+    return dict(read_session(path, load_data=False).attrs)
+
+
+def _stored_config(path):
+    j = journal_dir(path) / "header.json"
+    if j.exists():
+        return config_from_json(json.loads(j.read_text())["config_json"], source=str(j))
+    return config_from_json(read_session(path, load_data=False).config_json, source=str(path))
+
+
+def _free_path(outdir, participant: str):
+    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    for k in range(1, 1000):
+        p = outdir / (f"{participant}-{stamp}" + (f"-{k}" if k > 1 else "") + ".h5")
+        if not p.exists() and not journal_dir(p).exists():
+            return p
+    raise FileExistsError(f"{outdir}: no free session file name for {participant}-{stamp}")
+
+
+def _make_devices(args, config, sim_seed):
+    if args.backend == "hw":
+        if not args.hw_config:
+            raise ValueError("--backend hw needs --hw-config FILE (the rig's hardware "
+                             "configuration)")
+        return make_hw_rig(args.hw_config)
+    return make_sim_rig(participant_for_model(config.participant_model, int(sim_seed)),
+                        realtime=args.realtime)
+
+
+def _seed_from_code(code: str) -> int:
+    return zlib.crc32(code.encode("utf-8"))
+
+
+def _identify(path) -> None:
+    """Run the identification on the new file into ``<file stem>-analysis/``."""
+    out = path.with_name(path.stem + "-analysis")
+    outputs = run_identification([path], out)
+    if outputs.tables_text:
+        print(outputs.tables_text, flush=True)
+    print(summary_line(outputs), flush=True)
+    print(f"identification written to {out}", flush=True)
+
+
+class _Progress:
+    """Engine observer that prints a progress bar and one line per finished trial."""
+
+    def __init__(self, quiet: bool = False):
+        self.quiet = quiet
+        self.tty = sys.stdout.isatty()
+        self.total = 0
+        self.done = 0
+
+    # EngineObserver interface (duck-typed)
+    def on_state(self, old, new, reason): ...
+
+    def on_event(self, event):
+        if event.kind in ("interlock_trip", "calibration", "calibration_failed", "recovered",
+                          "session_end") and not self.quiet:
+            self._clear()
+            print(f"[{event.kind}] {event.detail}", flush=True)
+
+    def on_calibration_step(self, muscle, current_mA, force_N): ...
+
+    def on_calibration_result(self, calibration): ...
+
+    def on_trial_started(self, index, planned):
+        if self.tty and not self.quiet:
+            self._bar(f"trial {index}: sE {planned.sE:.2f} repeat {planned.repeat}")
+
+    def on_chunk(self, *a): ...
+
+    def on_trial_finished(self, index, trial):
+        if trial.completed:
+            self.done += 1
+        if self.quiet:
+            return
+        self._clear()
+        crc = zlib.crc32(trial.force_N.astype("<f8").tobytes())
+        status = "completed" if trial.completed else f"aborted ({trial.abort_reason})"
+        print(f"{trial.name} {status}: schedule index {index} sE {trial.sE:.2f} repeat "
+              f"{trial.repeat} n {trial.n_samples} crc {crc:08x} "
+              f"[{self.done}/{self.total}]", flush=True)
+
+    def on_level_completed(self, sE, trials): ...
+
+    def on_finished(self, path): ...
+
+    def _bar(self, text):
+        width = 30
+        k = int(width * self.done / max(1, self.total))
+        print(f"\r[{'#' * k}{'.' * (width - k)}] {self.done}/{self.total} {text:40s}",
+              end="", flush=True)
+
+    def _clear(self):
+        if self.tty:
+            print("\r" + " " * 80 + "\r", end="")
+
+    def finish(self):
+        self._clear()

@@ -1,0 +1,141 @@
+"""The numpy filters against scipy.signal / scipy.ndimage and closed forms."""
+
+import numpy as np
+import pytest
+import scipy.ndimage as nd
+import scipy.signal as ss
+
+from analysis import signal_kernels as k
+
+
+def random_stable(rng, order):
+    """A random stable, possibly resonant, denominator and numerator of an order."""
+    poles = []
+    while len(poles) < order:
+        if order - len(poles) >= 2 and rng.random() < 0.6:
+            r, th = rng.uniform(0.3, 0.999), rng.uniform(0.001, np.pi)
+            poles += [r * np.exp(1j * th), r * np.exp(-1j * th)]
+        else:
+            poles.append(rng.uniform(-0.999, 0.999))
+    a = np.real(np.poly(poles)) * rng.uniform(0.5, 2.0)
+    b = rng.standard_normal(rng.integers(1, order + 2))
+    return b, a
+
+
+@pytest.mark.parametrize("n_samples", [1, 2, 15, 16, 17, 100, 1974, 20011])
+@pytest.mark.parametrize("order", [1, 2, 3, 5])
+def test_lfilter_matches_scipy(n_samples, order):
+    rng = np.random.default_rng(n_samples * 10 + order)
+    b, a = random_stable(rng, order)
+    scale = 10.0 ** rng.uniform(-3, 3)
+    x = scale * rng.standard_normal((3, n_samples))
+    tol = 1e-9 * scale * max(1.0, np.abs(ss.lfilter(b, a, x, axis=1)).max() / scale)
+    assert np.abs(k.lfilter(b, a, x, axis=1) - ss.lfilter(b, a, x, axis=1)).max() <= tol
+    assert np.abs(k.lfilter(b, a, x[0]) - ss.lfilter(b, a, x[0])).max() <= tol
+    # along axis 0, with initial states
+    n = max(len(a), len(b)) - 1
+    zi = rng.standard_normal((n, 3))
+    y1, z1 = k.lfilter(b, a, x.T, axis=0, zi=zi)
+    y2, z2 = ss.lfilter(b, a, x.T, axis=0, zi=zi)
+    assert y1.shape == y2.shape and z1.shape == z2.shape
+    assert np.abs(y1 - y2).max() <= tol + 1e-9 * np.abs(y2).max()
+    assert np.abs(z1 - z2).max() <= tol + 1e-9 * np.abs(z2).max()
+
+
+def test_first_order_step_closed_form():
+    # y[n] = a y[n-1] + (1 - a) x[n], unit step: y[n] = 1 - a^(n+1)
+    a = 0.97
+    y = k.lfilter([1 - a], [1.0, -a], np.ones(500))
+    assert np.allclose(y, 1 - a ** np.arange(1, 501), rtol=0, atol=1e-13)
+
+
+def test_resonator_impulse_closed_form():
+    # poles r e^{+-i th}: h[n] = r^n sin((n+1) th) / sin(th)
+    r, th = 0.995, 0.07
+    a = [1.0, -2 * r * np.cos(th), r * r]
+    imp = np.zeros(3000)
+    imp[0] = 1.0
+    n = np.arange(3000)
+    assert np.allclose(k.lfilter([1.0], a, imp), r ** n * np.sin((n + 1) * th) / np.sin(th),
+                       rtol=0, atol=1e-11)
+
+
+@pytest.mark.parametrize("order", [1, 2, 3, 4, 5, 8])
+@pytest.mark.parametrize("cutoff_Hz,fs_Hz", [(5.0, 2000.0), (20.0, 2000.0), (300.0, 2000.0),
+                                             (40.0, 100.0)])
+def test_butter_response_matches_scipy(order, cutoff_Hz, fs_Hz):
+    mine = k.butter(order, cutoff_Hz, fs=fs_Hz, output="sos")
+    ref = ss.butter(order, cutoff_Hz, fs=fs_Hz, output="sos")
+    _, h1 = ss.sosfreqz(mine, worN=256, fs=fs_Hz)
+    _, h2 = ss.sosfreqz(ref, worN=256, fs=fs_Hz)
+    assert np.abs(h1 - h2).max() < 1e-9
+    _, hc = ss.sosfreqz(mine, worN=[cutoff_Hz], fs=fs_Hz)
+    assert abs(abs(hc[0]) - 2 ** -0.5) < 1e-9          # -3 dB at the cut-off
+
+
+@pytest.mark.parametrize("n_samples", [40, 999, 21000])
+@pytest.mark.parametrize("order", [1, 2, 4, 7])
+def test_sosfilt_and_filtfilt_match_scipy(n_samples, order):
+    rng = np.random.default_rng(order + n_samples)
+    sos = ss.butter(order, rng.uniform(0.02, 0.6), output="sos")
+    x = rng.standard_normal((2, n_samples)).cumsum(axis=1)
+    zi = ss.sosfilt_zi(sos)
+    assert np.allclose(k.sosfilt_zi(sos), zi, rtol=1e-10, atol=1e-12)
+    zi2 = zi[:, None, :] * x[None, :, :1]
+    y1, z1 = k.sosfilt(sos, x, zi=zi2)
+    y2, z2 = ss.sosfilt(sos, x, zi=zi2)
+    assert np.allclose(y1, y2, rtol=1e-9, atol=1e-9) and np.allclose(z1, z2, rtol=1e-9,
+                                                                     atol=1e-9)
+    assert np.allclose(k.sosfilt(sos, x[1]), ss.sosfilt(sos, x[1]), rtol=1e-9, atol=1e-9)
+    for padlen in (None, 0, min(n_samples - 1, 300)):
+        if padlen is None and n_samples <= 3 * (2 * len(sos) + 1):
+            continue
+        assert np.allclose(k.sosfiltfilt(sos, x, padlen=padlen),
+                           ss.sosfiltfilt(sos, x, padlen=padlen), rtol=1e-9, atol=1e-9)
+    assert np.allclose(k.sosfiltfilt(sos, x.T, axis=0, padlen=30),
+                       ss.sosfiltfilt(sos, x.T, axis=0, padlen=30), rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("window", [3, 4, 7, 21, 41])
+@pytest.mark.parametrize("polyorder", [0, 1, 2, 3])
+def test_savgol_coeffs_match_scipy(window, polyorder):
+    if polyorder >= window:
+        pytest.skip("not a valid pair")
+    for deriv in range(polyorder + 1):
+        assert np.allclose(k.savgol_coeffs(window, polyorder, deriv=deriv, delta=0.5),
+                           ss.savgol_coeffs(window, polyorder, deriv=deriv, delta=0.5),
+                           rtol=1e-10, atol=1e-10)
+
+
+@pytest.mark.parametrize("m", [1, 2, 3, 4, 21, 40])
+@pytest.mark.parametrize("n_samples", [1, 5, 300])
+def test_convolve1d_matches_ndimage(m, n_samples):
+    rng = np.random.default_rng(m * 1000 + n_samples)
+    x = rng.standard_normal((2, 3, n_samples))
+    w = rng.standard_normal(m)
+    assert np.allclose(k.convolve1d(x, w, axis=-1, mode="constant"),
+                       nd.convolve1d(x, w, axis=-1, mode="constant"), atol=1e-12)
+    assert np.allclose(k.convolve1d(x, w, axis=1, mode="constant", cval=2.5),
+                       nd.convolve1d(x, w, axis=1, mode="constant", cval=2.5), atol=1e-12)
+
+
+def test_unsupported_designs_are_refused_with_a_reason():
+    with pytest.raises(ValueError, match="low-pass"):
+        k.butter(4, 20.0, btype="high", fs=2000.0, output="sos")
+    with pytest.raises(ValueError, match="Nyquist"):
+        k.butter(4, 1500.0, fs=2000.0, output="sos")
+    with pytest.raises(ValueError, match="padlen"):
+        k.sosfiltfilt(ss.butter(2, 0.1, output="sos"), np.ones(10), padlen=10)
+    with pytest.raises(ValueError, match="a\\[0\\]"):
+        k.lfilter([1.0], [0.0, 1.0], np.ones(3))
+
+
+def test_identification_path_does_not_import_scipy_signal():
+    import subprocess
+    import sys
+    code = ("import sys, analysis.run; "
+            "print(sorted(m for m in sys.modules if m.startswith(('scipy.signal', "
+            "'scipy.ndimage', 'scipy.special', 'matplotlib'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == "[]"
