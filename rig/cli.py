@@ -22,6 +22,8 @@ COMMAND_MODULES = (
     "analysis.cli_gap",     # gap
     "drivers.cli_probe",    # probe
     "rig.cli_gui",          # gui
+    "export.cli_export",    # export nwb
+    "study.cli_study",      # study
 )
 
 EXIT_USER_ERROR = 2
