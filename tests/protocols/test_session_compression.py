@@ -48,17 +48,34 @@ def test_filters_and_narrowing_only_where_lossless(tmp_path):
     import h5py
     rng = np.random.default_rng(3)
     path = tmp_path / "s.h5"
-    _write(path, [_trial(rng, 5000, scale=2.0, wrench_f32=True),
-                  _trial(rng, 5000, scale=2.0, wrench_f32=False)], 4)
+    trials = [_trial(rng, 5000, scale=2.0, wrench_f32=True),
+              _trial(rng, 5000, scale=2.0, wrench_f32=False)]
+    for t in trials:  # signals with redundancy, as real commands and A/D records have
+        t.rE = np.round(t.rE, 2)
+        t.force_N = np.round(t.force_N * 256) / 256  # binary steps, few distinct values
+    _write(path, trials, 4)
     with h5py.File(path, "r") as f:
         for name in ("t001", "t002"):
-            for key in ("rE", "force_N", "wrench"):
+            for key in ("rE", "force_N"):
                 d = f[f"trials/{name}/{key}"]
                 assert d.compression == "gzip" and d.shuffle and d.compression_opts == 4
             assert f[f"trials/{name}/force_N"].dtype == np.float64  # the contract's type
         assert f["trials/t001/wrench"].dtype == np.float32   # float32-exact values
         assert f["trials/t002/wrench"].dtype == np.float64   # would lose bits as float32
         assert f["trials/t001/sync"].dtype == np.float64      # 0.01 steps are not float32
+
+
+def test_incompressible_dataset_stays_plain(tmp_path):
+    """Full-mantissa float64 noise deflates by ~15 %: not worth slower reads."""
+    import h5py
+    rng = np.random.default_rng(8)
+    t = _trial(rng, 20000, scale=1.0, wrench_f32=False)
+    t.I_ext_mA = np.full(20000, 3.0)
+    _write(tmp_path / "s.h5", [t], 4)
+    with h5py.File(tmp_path / "s.h5", "r") as f:
+        assert f["trials/t001/force_N"].compression is None
+        assert f["trials/t001/I_ext_mA"].compression == "gzip"
+    np.testing.assert_array_equal(read_session(tmp_path / "s.h5").trials[0].force_N, t.force_N)
 
 
 def test_compressed_is_smaller_for_redundant_data(tmp_path):
