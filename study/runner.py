@@ -33,6 +33,8 @@ class StudyOutputs:
     elapsed_s: float
     mode: str
     worker_peak_rss_MB: dict[str, float]
+    startup_s: float = 0.0
+    """Time to start the local cluster and connect (0 when serial)."""
 
 
 def _line(i: int, n: int, r: dict) -> str:
@@ -79,8 +81,9 @@ def run_study(config: StudyConfig, out_dir: str | os.PathLike, *, workers: int |
             results[i] = run_session(path, folder, settings, gap=gap)
             say(_line(i + 1, len(jobs), results[i]))
         rss["in-process"] = peak_rss_MB()
+        startup = 0.0
     else:
-        results, mode, rss = _run_dask(jobs, settings, workers, scheduler, say)
+        results, mode, rss, startup = _run_dask(jobs, settings, workers, scheduler, say)
     elapsed = time.perf_counter() - t0
     group = write_group(results, out, settings, config.participants)
     figures = draw_figures(group, out) if config.figures else []
@@ -92,21 +95,27 @@ def run_study(config: StudyConfig, out_dir: str | os.PathLike, *, workers: int |
     report = write_report(out / "report.html", results, group, figures,
                           title=f"nmsid study: {Path(config.source).name}",
                           elapsed_s=elapsed, mode=mode)
-    return StudyOutputs(results, group, report, elapsed, mode, rss)
+    return StudyOutputs(results, group, report, elapsed, mode, rss, startup)
 
 
 def _run_dask(jobs, settings, workers, scheduler, say):
     # dask/distributed are optional (extra "study") and slow to import
+    import dask
     from distributed import Client, LocalCluster, as_completed
+    # The worker's statistical profiler samples every thread's stack every 10 ms under
+    # the GIL; on small CPU-bound tasks it cost as much as the task (bench_study).
+    dask.config.set({"distributed.worker.profile.enabled": False})
+    t0 = time.perf_counter()
     cluster = None
     if scheduler is not None:
         client = Client(scheduler)
         mode = f"Dask scheduler {scheduler}"
     else:
         cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+                               dashboard_address=None, silence_logs=logging.CRITICAL)
         client = Client(cluster)
         mode = f"Dask LocalCluster, {int(workers)} worker process(es)"
+    startup = time.perf_counter() - t0
     try:
         futures = {client.submit(run_session, path, folder, settings, gap=gap, pure=False,
                                  key=f"session-{i:05d}"): i
@@ -131,4 +140,4 @@ def _run_dask(jobs, settings, workers, scheduler, say):
         client.close()
         if cluster is not None:
             cluster.close()
-    return results, mode, rss
+    return results, mode, rss, startup

@@ -52,9 +52,10 @@ def run_session(path: str, out_dir: str, settings: IdentificationSettings, *,
         a failed gap diagnosis leaves ``ok`` True), ``participant``, ``sE`` and
         ``values`` (the identified parameters per sE, NaN as None), ``levels``,
         ``levels_identified``, ``lowest_fit_pct``, ``problems``, ``gap`` (summary or
-        None), ``elapsed_s``, ``peak_rss_MB``.
+        None), ``elapsed_s``, ``cpu_s`` (CPU time of the process meanwhile),
+        ``peak_rss_MB``.
     """
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     out = Path(out_dir)
     result: dict = {"path": str(path), "ok": False, "error": "", "participant": "",
                     "gap": None, "problems": []}
@@ -89,5 +90,6 @@ def run_session(path: str, out_dir: str, settings: IdentificationSettings, *,
         result["error"] = f"{stage} failed: {type(exc).__name__}: {text}"
         result["traceback"] = traceback.format_exc(limit=5)
     result["elapsed_s"] = time.perf_counter() - t0
+    result["cpu_s"] = time.process_time() - c0  # the whole process: a worker's own threads too
     result["peak_rss_MB"] = peak_rss_MB()
     return result
