@@ -105,6 +105,9 @@ def _run_dask(jobs, settings, workers, scheduler, say):
     # The worker's statistical profiler samples every thread's stack every 10 ms under
     # the GIL; on small CPU-bound tasks it cost as much as the task (bench_study).
     dask.config.set({"distributed.worker.profile.enabled": False})
+    # distributed logs every connection at INFO; show it only when asked (nmsid -v)
+    if logging.getLogger().getEffectiveLevel() > logging.INFO:
+        logging.getLogger("distributed").setLevel(logging.ERROR)
     t0 = time.perf_counter()
     cluster = None
     if scheduler is not None:

@@ -15,6 +15,7 @@ from analysis.gap.api import run_gap
 from analysis.model_selection import participant_parameters
 from analysis.run import run_identification
 from analysis.settings import PARAMETER_NAMES, IdentificationSettings
+from protocols.session_file import read_session
 
 
 def session_folder_name(path: Path, index: int) -> str:
@@ -59,8 +60,10 @@ def run_session(path: str, out_dir: str, settings: IdentificationSettings, *,
     out = Path(out_dir)
     result: dict = {"path": str(path), "ok": False, "error": "", "participant": "",
                     "gap": None, "problems": []}
-    stage = "identification"
+    stage = "reading"
     try:
+        read_session(path, load_data=False)  # an unreadable file: say so in one line
+        stage = "identification"
         ident = run_identification([path], out / "identify", settings, figures=False)
         res = ident.sessions[0]
         pp = participant_parameters(res)
