@@ -105,6 +105,12 @@ def _run_dask(jobs, settings, workers, scheduler, say):
     # The worker's statistical profiler samples every thread's stack every 10 ms under
     # the GIL; on small CPU-bound tasks it cost as much as the task (bench_study).
     dask.config.set({"distributed.worker.profile.enabled": False})
+    # distributed makes workers return freed memory to the OS at 64 KiB
+    # (MALLOC_TRIM_THRESHOLD_); the analysis allocates and frees MB-sized arrays all the
+    # time, and with that setting a gap diagnosis took 1.7x the CPU of the same run
+    # outside Dask. Keep one BLAS/OpenMP thread per worker, glibc's own trimming.
+    dask.config.set({"distributed.nanny.pre-spawn-environ": {
+        "OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1}})
     # distributed logs every connection at INFO; show it only when asked (nmsid -v)
     if logging.getLogger().getEffectiveLevel() > logging.INFO:
         logging.getLogger("distributed").setLevel(logging.ERROR)
