@@ -32,6 +32,7 @@ pynwb is an optional dependency (extra ``nwb``), imported inside the functions.
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import os
 import uuid
 from dataclasses import dataclass
@@ -59,7 +60,6 @@ def _parse_utc(text: str) -> _dt.datetime | None:
 
 def _flatten(value, prefix: str = "") -> dict[str, str]:
     """A nested configuration as ``{"a.b": json_value}`` (no dictionaries left)."""
-    import json
     if isinstance(value, dict):
         out: dict[str, str] = {}
         for k, v in value.items():

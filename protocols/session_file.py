@@ -29,6 +29,7 @@ import datetime as _dt
 import json
 import os
 import re
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -405,7 +406,6 @@ def _set_attr(attrs, key: str, value: Any) -> None:
 def _deflates(data: np.ndarray) -> bool:
     """True if shuffle + deflate saves at least :data:`MIN_SAVING` of ``data``, judged
     the way it is chunked (each column of a 2-D dataset on its own)."""
-    import zlib
     raw = np.asarray(data)
     columns = [raw] if raw.ndim == 1 else [raw[:, k] for k in range(raw.shape[1])]
     packed = 0

@@ -25,6 +25,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from analysis.settings import IdentificationSettings
 from study.errors import StudyConfigError
 
 SETTING_DEFAULTS = {"gap": True, "gap_max_sessions": 0, "figures": True}
@@ -53,7 +54,6 @@ class StudyConfig:
 
     def identification_settings(self):
         """The ``IdentificationSettings`` with this study's overrides."""
-        from analysis.settings import IdentificationSettings
         names = {f.name for f in dataclasses.fields(IdentificationSettings)}
         unknown = sorted(set(self.identification) - names)
         if unknown:

@@ -9,7 +9,6 @@ import csv
 import json
 import math
 import statistics
-from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -75,7 +74,7 @@ def gap_summary(results: list[dict]) -> dict:
     return {
         "n_sessions_diagnosed": len(diagnosed),
         "best_effect": {k: {"sessions": len(v), "median_shrink_pct": med(v)}
-                        for k, v in Counter({k: v for k, v in best.items()}).items()},
+                        for k, v in sorted(best.items(), key=lambda kv: -len(kv[1]))},
         "supported": {k: {"sessions": len(v), "median_shrink_pct": med(v)}
                       for k, v in sorted(supported.items(), key=lambda kv: -len(kv[1]))},
         "median_nominal_heldout_nrmse_pct": med(nominal),

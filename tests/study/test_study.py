@@ -158,3 +158,20 @@ def test_gap_summary_counts_and_medians():
     assert s["best_effect"]["delay"] == {"sessions": 2, "median_shrink_pct": 40.0}
     assert s["supported"]["delay"] == {"sessions": 3, "median_shrink_pct": 30.0}
     assert s["median_nominal_heldout_nrmse_pct"] == 10.0
+
+
+def test_existing_scheduler_address(folder, tmp_path):
+    """--scheduler: the tasks go to a cluster the study did not start (and leaves up)."""
+    from distributed import LocalCluster
+    d, _ = folder
+    cfg = load_study(d)
+    cfg.gap, cfg.figures = False, False
+    cfg.sessions = [p for p in cfg.sessions if p.name in ("S0.h5", "broken.h5")]
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster:
+        out = run_study(cfg, tmp_path / "o", scheduler=cluster.scheduler_address,
+                        progress=None)
+        assert cluster.scheduler.status.name == "running"
+    assert out.mode.startswith("Dask scheduler tcp://")
+    assert [r["ok"] for r in out.results] == [True, False]
+    assert out.results[1]["error"].startswith("reading failed")
