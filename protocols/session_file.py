@@ -51,10 +51,9 @@ STATUSES = ("completed", "aborted")
 
 GZIP_LEVEL = 4
 """Default deflate level of trial datasets (with the shuffle filter). Levels 1-9 were
-measured on the demo session by ``bench/bench_share.py``: the file shrinks from 114 MB
-to 72 MB at level 1 and only to 71 MB at 9 (the float64 noise of force and wrench does
-not deflate further) while level 9 writes six times slower; 4 is within 0.3 % of 9's
-size at a sixth of its write time."""
+measured on the demo session by ``bench/bench_share.py``: 114 MB plain, 73.8 MB at level
+1, 73.3 MB at 4, 73.1 MB at 9 (the float64 noise of the wrench does not deflate
+further) while level 9 writes three times slower than 4."""
 MIN_SAVING = 0.25
 """A dataset is stored compressed only if deflate saves at least this fraction of it
 (checked on its shuffled bytes at level 1). The simulated force (float64 noise) saves
