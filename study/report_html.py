@@ -42,7 +42,7 @@ def write_report(path: Path, results: list[dict], group: GroupResult, figures: l
     parts.append("<h2>Sessions</h2>" + _table(
         ["session", "participant", "levels identified", "lowest fit %", "gap best effect",
          "time s"],
-        [[Path(r["path"]).name, r.get("participant", ""),
+        [[Path(r["path"]).name, r.get("label") or r.get("participant", ""),
           f"{r.get('levels_identified', 0)}/{r.get('levels', 0)}" if r.get("ok") else "failed",
           r.get("lowest_fit_pct"), (r.get("gap") or {}).get("best_effect", "-"),
           r["elapsed_s"]] for r in results]))

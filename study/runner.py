@@ -85,6 +85,8 @@ def run_study(config: StudyConfig, out_dir: str | os.PathLike, *, workers: int |
     else:
         results, mode, rss, startup = _run_dask(jobs, settings, workers, scheduler, say)
     elapsed = time.perf_counter() - t0
+    for r in results:  # the code used in the group tables ([participants] overrides)
+        r["label"] = config.participants.get(Path(r["path"]).stem, r.get("participant", ""))
     group = write_group(results, out, settings, config.participants)
     figures = draw_figures(group, out) if config.figures else []
     (out / "study.json").write_text(json.dumps({

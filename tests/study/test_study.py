@@ -109,6 +109,8 @@ def test_study_toml_globs_overrides_and_settings(folder, tmp_path):
     assert cfg.identification_settings().lowpass_Hz == 20.0 and cfg.gap_sessions() == set()
     out = run_study(cfg, tmp_path / "o", workers=0, progress=None)
     assert "P-ONE" in out.group.selection.participants
+    assert "<td>P-ONE</td>" in (tmp_path / "o" / "report.html").read_text()
+    assert [r["participant"] for r in _rows(tmp_path / "o" / "sessions.csv")].count("P-ONE") == 1
     assert not (tmp_path / "o" / "figure_Kp.png").exists()
 
 
