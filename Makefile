@@ -13,7 +13,7 @@ STAMP  := $(VENV)/.installed-$(shell cksum < pyproject.toml | cut -d' ' -f1)
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[gui,plot,serial,test,mujoco]'
+	$(PY) -m pip install --quiet -e '.[gui,plot,serial,test,mujoco,nwb,study]'
 	rm -f $(VENV)/.installed-*
 	touch $(STAMP)
 

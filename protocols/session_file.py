@@ -29,6 +29,7 @@ import datetime as _dt
 import json
 import os
 import re
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,6 +48,19 @@ TRIAL_FLOAT_ATTRS = ("sE", "fs_Hz", "steady_s", "chirp_s", "chirp_f0_Hz", "chirp
 TRIAL_STR_ATTRS = ("status", "abort_reason", "started_utc")
 TRIAL_DATASETS = ("rE", "I_ext_mA", "I_flex_mA", "force_N")
 STATUSES = ("completed", "aborted")
+
+GZIP_LEVEL = 4
+"""Default deflate level of trial datasets (with the shuffle filter). Levels 1-9 were
+measured on the demo session by ``bench/bench_share.py``: 114 MB plain, 73.8 MB at level
+1, 73.3 MB at 4, 73.1 MB at 9 (the float64 noise of the wrench does not deflate
+further) while level 9 writes three times slower than 4."""
+MIN_SAVING = 0.25
+"""A dataset is stored compressed only if deflate saves at least this fraction of it
+(checked on its shuffled bytes at level 1). The simulated force (float64 noise) saves
+about 15 %: it stays plain, so reading all force data costs what it did before."""
+CHUNK_SAMPLES = 65536
+"""Most samples per chunk: a whole 15 s trial at 2 kHz is one chunk per signal, so reading
+a dataset inflates one chunk once."""
 
 
 #: Optional trial attributes describing a non-chirp input (written by the rig since the
@@ -256,15 +270,21 @@ class SessionWriter:
     to continue one (``--resume``).
     """
 
-    def __init__(self, path: str | os.PathLike):
+    def __init__(self, path: str | os.PathLike, *, gzip_level: int | None = GZIP_LEVEL):
         self.path = Path(path)
+        if gzip_level is not None and gzip_level not in range(1, 10):
+            raise ValueError(f"gzip_level {gzip_level!r} is not valid: use 1 ... 9, or None "
+                             "for uncompressed datasets")
+        self.gzip_level = gzip_level
+        """Deflate level of new datasets (with shuffle), or None to store them plain."""
 
     # -- creation -----------------------------------------------------------------
     @classmethod
     def create(cls, path: str | os.PathLike, participant: str, *,
                created_utc: str | None = None, software: str | None = None,
                config_json: str | None = None, seed: int | None = None,
-               backend: str | None = None, extra_attrs: dict | None = None) -> SessionWriter:
+               backend: str | None = None, extra_attrs: dict | None = None,
+               gzip_level: int | None = GZIP_LEVEL) -> SessionWriter:
         """Create a new session file with its root attributes and empty groups.
 
         Raises
@@ -308,10 +328,11 @@ class SessionWriter:
             f.create_group("calibration")
             f.create_group("trials")
             f.create_group("events")
-        return cls(path)
+        return cls(path, gzip_level=gzip_level)
 
     @classmethod
-    def open(cls, path: str | os.PathLike) -> SessionWriter:
+    def open(cls, path: str | os.PathLike, *,
+             gzip_level: int | None = GZIP_LEVEL) -> SessionWriter:
         """Continue writing an existing session file (checks that it is one)."""
         path = Path(path)
         if not path.exists():
@@ -320,7 +341,7 @@ class SessionWriter:
             if _as_str(f.attrs.get("format", "")) != FORMAT:
                 raise SessionFileError(path, "is not an nmsid session file "
                                              f"(root attribute format != {FORMAT!r})")
-        return cls(path)
+        return cls(path, gzip_level=gzip_level)
 
     # -- writing ------------------------------------------------------------------
     def write_calibration(self, cal: Calibration) -> None:
@@ -335,7 +356,7 @@ class SessionWriter:
             for name, data in cal.ramps.items():
                 if name in g:
                     del g[name]
-                g.create_dataset(name, data=np.asarray(data, dtype=float))
+                self._create_dataset(g, name, np.asarray(data, dtype=float))
 
     def next_trial_name(self) -> str:
         with _open_read(self.path) as f:
@@ -360,14 +381,25 @@ class SessionWriter:
             for key, value in trial.extra_attrs.items():
                 _set_attr(g.attrs, key, value)
             for key in TRIAL_DATASETS:
-                g.create_dataset(key, data=np.asarray(getattr(trial, key), dtype=np.float64))
+                self._create_dataset(g, key, np.asarray(getattr(trial, key), dtype=np.float64))
             if trial.wrench is not None:
-                g.create_dataset("wrench", data=np.asarray(trial.wrench, dtype=np.float64))
+                self._create_dataset(g, "wrench", _narrowest_exact(trial.wrench))
             if trial.sync is not None:
-                g.create_dataset("sync", data=np.asarray(trial.sync, dtype=np.float64))
+                self._create_dataset(g, "sync", _narrowest_exact(trial.sync))
             f.flush()
         trial.name = name
         return name
+
+    def _create_dataset(self, group, name: str, data: np.ndarray):
+        """Create ``group[name]`` chunked with shuffle + deflate (lossless, transparent to
+        every HDF5 reader), or plain when ``gzip_level`` is None, ``data`` is empty or
+        deflate would save less than :data:`MIN_SAVING` of it."""
+        if self.gzip_level is None or data.size == 0 or not _deflates(data):
+            return group.create_dataset(name, data=data)
+        n = data.shape[0]
+        chunks = (min(n, CHUNK_SAMPLES),) + (1,) * (data.ndim - 1)
+        return group.create_dataset(name, data=data, chunks=chunks, shuffle=True,
+                                    compression="gzip", compression_opts=self.gzip_level)
 
     def append_events(self, events: list[Event]) -> None:
         """Append events to ``/events`` (one sub-group per event, ``e0001``, ...)."""
@@ -400,6 +432,34 @@ def _set_attr(attrs, key: str, value: Any) -> None:
         attrs.create(key, json.dumps(value), dtype=_h5py().string_dtype("utf-8"))
     else:
         attrs[key] = value
+
+
+def _deflates(data: np.ndarray) -> bool:
+    """True if shuffle + deflate saves at least :data:`MIN_SAVING` of ``data``, judged
+    the way it is chunked (each column of a 2-D dataset on its own)."""
+    raw = np.asarray(data)
+    columns = [raw] if raw.ndim == 1 else [raw[:, k] for k in range(raw.shape[1])]
+    packed = 0
+    for col in columns:
+        col = np.ascontiguousarray(col)
+        shuffled = col.view(np.uint8).reshape(-1, col.dtype.itemsize).T.tobytes()
+        packed += len(zlib.compress(shuffled, 1))
+    return packed <= (1.0 - MIN_SAVING) * raw.nbytes
+
+
+def _narrowest_exact(values) -> np.ndarray:
+    """``values`` as float32 if every sample survives the round trip bit for bit (a
+    measurement that was float32 or A/D counts to begin with), else as float64.
+
+    Only the optional datasets (``wrench``, ``sync``) are narrowed; the contract fixes
+    the required ones at float64.
+    """
+    arr = np.asarray(values)
+    as64 = arr.astype(np.float64)
+    as32 = as64.astype(np.float32)
+    if np.array_equal(as32.astype(np.float64), as64, equal_nan=True):
+        return as32
+    return as64
 
 
 def _check_trial(trial: Trial, path) -> None:
@@ -513,7 +573,9 @@ def _read_trial(g, name: str, wanted: set[str]) -> Trial:
         kw[key] = (np.asarray(g[key][()], dtype=np.float64) if key in wanted
                    else np.empty(0))
     for key in ("wrench", "sync"):
-        kw[key] = np.asarray(g[key][()]) if key in wanted and key in g else None
+        # float64 whatever the stored width (narrowed files hold float32-exact values)
+        kw[key] = (np.asarray(g[key][()], dtype=np.float64) if key in wanted and key in g
+                   else None)
     known = set(TRIAL_FLOAT_ATTRS) | set(TRIAL_STR_ATTRS) | {"repeat"}
     extra = {k: (_as_str(a[k]) if isinstance(a[k], (str, bytes)) else a[k])
              for k in a if k not in known}

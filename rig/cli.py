@@ -23,6 +23,8 @@ COMMAND_MODULES = (
     "analysis.cli_design",  # design
     "drivers.cli_probe",    # probe
     "rig.cli_gui",          # gui
+    "export.cli_export",    # export nwb
+    "study.cli_study",      # study
 )
 
 EXIT_USER_ERROR = 2

@@ -1,0 +1,1 @@
+"""Export session files to community formats (NWB). Analysis layer: imports protocols only."""

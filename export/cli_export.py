@@ -1,0 +1,26 @@
+"""``nmsid export nwb SESSION.h5 --out SESSION.nwb``: share a session as NWB."""
+
+from __future__ import annotations
+
+
+def register(sub) -> None:
+    """Add the ``export`` sub-command."""
+    p = sub.add_parser("export", help="export a session file to another format (NWB)")
+    fmt = p.add_subparsers(dest="export_format", metavar="FORMAT")
+    n = fmt.add_parser("nwb", help="write the session as an NWB file (Neurodata Without "
+                       "Borders); needs the extra 'nwb'",
+                       description="Write one session as NWB: subject, devices, stimulus "
+                                   "and acquisition series per trial, trials table, events, "
+                                   "calibration and configuration. See README 'Sharing'.")
+    n.add_argument("session", metavar="SESSION.h5")
+    n.add_argument("--out", required=True, metavar="SESSION.nwb")
+    n.add_argument("--subject-age", default="P18Y/", metavar="ISO8601",
+                   help="participant age as an ISO 8601 duration or range (default P18Y/: "
+                        "adult, exact age unknown; nmsid does not record age)")
+    n.add_argument("--experimenter", action="append", default=None, metavar="NAME",
+                   help="experimenter (repeatable; 'Last, First')")
+    n.add_argument("--institution", default=None)
+    n.add_argument("--inspect", action="store_true",
+                   help="run nwbinspector on the result and print its findings")
+    n.set_defaults(handler="export.export_command:run_nwb")
+    p.set_defaults(handler="export.export_command:run_missing_format")

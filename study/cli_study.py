@@ -1,0 +1,37 @@
+"""``nmsid study STUDY.toml|FOLDER --out DIR [--workers N | --scheduler ADDRESS]``."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def _workers(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"--workers {n}: use 0 (serial) or more")
+    return n
+
+
+def register(sub) -> None:
+    """Add the ``study`` sub-command."""
+    p = sub.add_parser(
+        "study", help="identify and diagnose many sessions as Dask tasks and write the "
+        "group report",
+        description="Every session's identification (as `nmsid identify`) and gap "
+                    "diagnosis run as Dask tasks; then the group analysis (Tables 1-9, "
+                    "Figures 4-6, the group gap summary) in DIR/report.html plus CSV/JSON. "
+                    "A failing session is reported and the others go on. See docs/study.md.")
+    p.add_argument("study", metavar="STUDY.toml|FOLDER")
+    p.add_argument("--out", required=True, metavar="DIR")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_workers, default=2, metavar="N",
+                       help="worker processes of the local Dask cluster (default 2; 0 = "
+                            "serial in this process)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="an existing Dask scheduler, e.g. tcp://10.0.0.5:8786 (workers "
+                            "must see the files at the same paths)")
+    p.add_argument("--no-gap", action="store_true", help="identification only")
+    p.set_defaults(handler="study.study_command:run")

@@ -1,0 +1,98 @@
+"""One session's work in a study: identification (the same headless run as
+``nmsid identify``) and gap diagnosis. Runs in a Dask worker; takes and returns paths
+and small summaries, never signal arrays.
+"""
+
+from __future__ import annotations
+
+import math
+import resource
+import time
+import traceback
+from pathlib import Path
+
+from analysis.gap.api import run_gap
+from analysis.model_selection import participant_parameters
+from analysis.run import run_identification
+from analysis.settings import PARAMETER_NAMES, IdentificationSettings
+from protocols.session_file import read_session
+
+
+def session_folder_name(path: Path, index: int) -> str:
+    """Output sub-folder of a session (index keeps equal stems apart)."""
+    return f"{index:04d}-{Path(path).stem}"
+
+
+def peak_rss_MB() -> float:
+    """Peak resident memory of this process in MB (Linux reports KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _num(v) -> float | None:
+    return float(v) if v is not None and math.isfinite(float(v)) else None
+
+
+def run_session(path: str, out_dir: str, settings: IdentificationSettings, *,
+                gap: bool = True) -> dict:
+    """Identify (and optionally diagnose) one session; never raises.
+
+    Parameters
+    ----------
+    path : str
+        The session file.
+    out_dir : str
+        This session's output folder (``identify/`` and ``gap/`` are written in it).
+    settings : IdentificationSettings
+    gap : bool
+        Also run the gap diagnosis (``analysis.gap.api.run_gap``).
+
+    Returns
+    -------
+    dict
+        ``ok`` (identification succeeded), ``error`` (one line naming the failed stage;
+        a failed gap diagnosis leaves ``ok`` True), ``participant``, ``sE`` and
+        ``values`` (the identified parameters per sE, NaN as None), ``levels``,
+        ``levels_identified``, ``lowest_fit_pct``, ``problems``, ``gap`` (summary or
+        None), ``elapsed_s``, ``cpu_s`` (CPU time of the process meanwhile),
+        ``peak_rss_MB``.
+    """
+    t0, c0 = time.perf_counter(), time.process_time()
+    out = Path(out_dir)
+    result: dict = {"path": str(path), "ok": False, "error": "", "participant": "",
+                    "gap": None, "problems": []}
+    stage = "reading"
+    try:
+        read_session(path, load_data=False)  # an unreadable file: say so in one line
+        stage = "identification"
+        ident = run_identification([path], out / "identify", settings, figures=False)
+        res = ident.sessions[0]
+        pp = participant_parameters(res)
+        fits = [lv.fit.fit_pct for lv in res.levels if lv.fit is not None]
+        result.update(
+            participant=res.participant,
+            sE=[float(x) for x in pp.sE],
+            values={k: [_num(v) for v in pp.values[k]] for k in PARAMETER_NAMES},
+            levels=len(res.levels),
+            levels_identified=sum(1 for lv in res.levels if lv.fit is not None),
+            lowest_fit_pct=_num(min(fits)) if fits else None,
+            problems=list(ident.problems))
+        result["ok"] = True
+        if gap:
+            stage = "gap diagnosis"
+            rep = run_gap([path], out / "gap", plots=False)["sessions"][0]
+            result["gap"] = {
+                "best_effect": rep["best_effect"],
+                "best_pair": rep.get("best_pair"),
+                "heldout": rep["heldout"],
+                "supported": [{"effect": r["effect"], "shrink_pct": r["shrink_pct"]}
+                              for r in rep["ranking"] if r.get("supported")],
+            }
+    except Exception as exc:  # a failing session is reported; the study goes on
+        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        # a failed gap diagnosis keeps the identification (ok stays True)
+        result["error"] = f"{stage} failed: {type(exc).__name__}: {text}"
+        result["traceback"] = traceback.format_exc(limit=5)
+    result["elapsed_s"] = time.perf_counter() - t0
+    result["cpu_s"] = time.process_time() - c0  # the whole process: a worker's own threads too
+    result["peak_rss_MB"] = peak_rss_MB()
+    return result
