@@ -1,0 +1,366 @@
+"""The decision per trial: ``used``, ``repaired`` or ``excluded``, with reasons and spans.
+
+Rules (every threshold in :class:`analysis.qc.QCSettings`):
+
+* aborted trials are not judged here (identification already skips them);
+* a non-finite commanded rE, a long non-finite, stalled or clipped stretch inside the
+  analysed window, too much to bridge, or lead-in noise far above the session's: excluded;
+* isolated spikes and short non-finite gaps: bridged by linear interpolation (repaired);
+* a baseline jump (the trial's difference from its repeats steps and stays): the step is
+  removed from the jump on (repaired);
+* a response the other repeats do not share inside the analysed window: excluded; in the
+  lead-in only: used, with a note (the fit never sees it; detrend and the fit's offset
+  and ramp absorb its effect on the trend);
+* with two repeats the neighbouring levels decide which one differs; if they cannot, both
+  are kept and the level is flagged; with one repeat only the single-trial checks apply;
+* a level left with fewer usable repeats than ``min_repeats`` is kept and flagged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from analysis.qc import checks
+from analysis.qc.repeats import attribute_pair, deviations, smoothed, unshared
+from analysis.qc.settings import QCSettings
+from protocols.session_file import read_session
+
+USED, REPAIRED, EXCLUDED = "used", "repaired", "excluded"
+
+
+@dataclass
+class TrialQC:
+    """The verdict on one trial.
+
+    Attributes
+    ----------
+    trial : str
+        Group name in the session file (``t001`` ...).
+    sE, repeat : float, int
+    decision : str
+        ``used``, ``repaired``, ``excluded`` (``aborted`` for trials the rig aborted).
+    reasons : list of str
+        One sentence per finding (also for ``used`` trials: notes).
+    spans : list of (float, float)
+        Where, in s after stimulation onset.
+    level_flag : str
+        Set on every trial of a level left with too few usable repeats.
+    """
+
+    trial: str
+    sE: float
+    repeat: int
+    decision: str
+    reasons: list[str] = field(default_factory=list)
+    spans: list[tuple[float, float]] = field(default_factory=list)
+    level_flag: str = ""
+
+    @property
+    def kept(self) -> bool:
+        return self.decision in (USED, REPAIRED)
+
+    def row(self) -> dict:
+        """The ``qc.csv`` row."""
+        return {"trial": self.trial, "sE": self.sE, "repeat": self.repeat,
+                "decision": self.decision, "reasons": "; ".join(self.reasons),
+                "spans": " ".join(f"{a:.2f}-{b:.2f}" for a, b in self.spans),
+                "level_flag": self.level_flag}
+
+
+@dataclass
+class LevelQC:
+    """The verdicts of one level and the trials identification should use."""
+
+    sE: float
+    verdicts: list[TrialQC]
+    kept: list = field(default_factory=list)
+    """Trials to average and fit (repaired data in place of the recorded force)."""
+    flag: str = ""
+
+
+@dataclass
+class SessionQC:
+    """The verdicts of a whole session."""
+
+    participant: str
+    source: str
+    levels: list[LevelQC]
+
+    @property
+    def trials(self) -> list[TrialQC]:
+        return [v for lv in self.levels for v in lv.verdicts]
+
+    def excluded(self) -> dict[str, str]:
+        """Trial name -> reasons, for every excluded trial."""
+        return {v.trial: "; ".join(v.reasons) for v in self.trials if v.decision == EXCLUDED}
+
+    def kept_trials(self, sE: float) -> list:
+        for lv in self.levels:
+            if abs(lv.sE - sE) < 1e-9:
+                return lv.kept
+        return []
+
+    def counts(self) -> dict[str, int]:
+        out = {USED: 0, REPAIRED: 0, EXCLUDED: 0}
+        for v in self.trials:
+            out[v.decision] = out.get(v.decision, 0) + 1
+        return out
+
+
+# -- one trial on its own ---------------------------------------------------------------
+@dataclass
+class _Work:
+    trial: object
+    verdict: TrialQC
+    force: np.ndarray
+    noise_sd: float = float("nan")
+    bridged_s: float = 0.0
+
+
+def _window_start(trial) -> float:
+    return float(trial.steady_s)
+
+
+def _single(trial, s: QCSettings) -> _Work:
+    fs = float(trial.fs_Hz)
+    v = TrialQC(trial.name, float(trial.sE), int(trial.repeat), USED)
+    w = _Work(trial, v, np.asarray(trial.force_N, float))
+    start_s = _window_start(trial)
+
+    def exclude(reason, span=None):
+        v.decision = EXCLUDED
+        v.reasons.append(reason)
+        if span:
+            v.spans.append(span)
+
+    def span_s(a, b):
+        return (round(a / fs, 4), round(b / fs, 4))
+
+    if not np.all(np.isfinite(trial.rE)):
+        exclude("non-finite samples in the commanded rE record")
+        return w
+    if w.force.size < 2 * fs:
+        exclude(f"only {w.force.size / fs:.2f} s of force recorded")
+        return w
+    to_bridge = []
+    for f in checks.nonfinite(w.force, fs, s.nonfinite_max_s, "force_N"):
+        a, b = f.spans[0]
+        if f.repairable:
+            to_bridge.append((a, b))
+            v.reasons.append(f"{f.detail} bridged")
+            v.spans.append(span_s(a, b))
+        else:
+            exclude(f"{f.detail} ({(b - a) / fs * 1000:.0f} ms, too long to bridge)",
+                    span_s(a, b))
+    if v.decision == EXCLUDED:
+        return w
+    if to_bridge:
+        w.force = checks.bridge(w.force, to_bridge, margin=0)
+        w.bridged_s += sum(b - a for a, b in to_bridge) / fs
+    found = checks.spikes(w.force, fs, s.spike_median_s, s.spike_k, s.spike_max_s)
+    if found:
+        spans = [f.spans[0] for f in found]
+        w.bridged_s += sum(b - a + 2 for a, b in spans) / fs
+        w.force = checks.bridge(w.force, spans, margin=1)
+        v.reasons.append(f"{len(found)} spike(s) bridged (largest "
+                         f"{max(float(f.detail.split()[2]) for f in found):.3g} N)")
+        v.spans.extend(span_s(a, b) for a, b in spans[:5])
+    if w.bridged_s > s.repair_max_total_s:
+        exclude(f"{1000 * w.bridged_s:.0f} ms would need bridging (more than "
+                f"{1000 * s.repair_max_total_s:.0f} ms)")
+        return w
+    w.noise_sd = checks.hf_noise_sd(w.force)
+    for f in checks.flat_runs(w.force, fs, s.stall_min_s, s.clip_min_s, w.noise_sd):
+        a, b = f.spans[0]
+        if b / fs > start_s:
+            exclude(f"{f.kind}: {f.detail}", span_s(a, b))
+        else:
+            v.reasons.append(f"{f.kind} in the lead-in only (not fitted): {f.detail}")
+            v.spans.append(span_s(a, b))
+    lead = w.force[int(0.5 * fs):int(start_s * fs)]
+    w.noise_sd = checks.hf_noise_sd(lead) if lead.size > 0.5 * fs else w.noise_sd
+    if v.decision == USED and w.bridged_s > 0:
+        v.decision = REPAIRED
+    return w
+
+
+# -- a level: its repeats against each other ---------------------------------------------
+def _comparable(works: list[_Work], tol: float) -> tuple[list[_Work], int]:
+    """The trials whose rE agree with the first's, and their common length."""
+    if not works:
+        return [], 0
+    n = min(w.force.size for w in works)
+    r0 = np.asarray(works[0].trial.rE[:n], float)
+    same = [w for w in works if np.max(np.abs(np.asarray(w.trial.rE[:n], float) - r0)) <= tol]
+    return same, n
+
+
+def _compare(works: list[_Work], s: QCSettings, neighbour: np.ndarray | None) -> str:
+    """Judge the repeats against each other; returns a level note ('' if none)."""
+    live = [w for w in works if w.verdict.decision != EXCLUDED]
+    same, n = _comparable(live, s.rE_match_tol)
+    if len(live) >= 2 and len(same) < len(live):
+        return "repeats received different rE; not compared with each other"
+    if len(same) < 2:
+        if len(live) == 1:
+            live[0].verdict.reasons.append("single repeat: only the single-trial checks "
+                                           "apply")
+        return ""
+    fs = float(same[0].trial.fs_Hz)
+    sig = []
+    for w in same:
+        y, fs_s = smoothed(w.force[:n], fs, s)
+        sig.append(y)
+    u, flags, rms, typical, response = unshared(sig, fs_s, s)
+    devs = [deviations(u[i], flags[i], rms[i], fs_s, typical, s) for i in range(len(same))]
+    note = ""
+    if len(same) == 2 and devs[0] and devs[1]:
+        owners = []
+        for d in devs[0]:
+            owners.append(attribute_pair(sig, neighbour, fs_s, (d.start_s, d.stop_s), s))
+        if any(o is None for o in owners):
+            note = ("the two repeats differ at " + ", ".join(
+                f"{d.start_s:.1f}-{d.stop_s:.1f} s" for d in devs[0]) +
+                " and the neighbouring levels cannot tell which one is the response")
+            for w in same:
+                w.verdict.reasons.append(note)
+            return note
+        devs = [[d for d, o in zip(devs[0], owners) if o == 0],
+                [d for d, o in zip(devs[0], owners) if o == 1]]
+    for w, ds in zip(same, devs):
+        _apply(w, ds, typical, s)
+    return note
+
+
+def _apply(w: _Work, ds, typical: float, s: QCSettings) -> None:
+    v = w.verdict
+    fs = float(w.trial.fs_Hz)
+    start_s = _window_start(w.trial)
+    for d in ds:
+        span = (round(d.start_s, 2), round(d.stop_s, 2))
+        if d.is_jump:
+            k = int(round(d.step_at_s * fs))
+            w.force = w.force.copy()
+            w.force[k:] -= d.step_N
+            v.reasons.append(f"baseline jump of {d.step_N:+.3g} N at {d.step_at_s:.2f} s "
+                             "removed")
+            v.spans.append(span)
+            if v.decision == USED:
+                v.decision = REPAIRED
+        elif d.stop_s > start_s:
+            v.decision = EXCLUDED
+            v.reasons.append(f"response not explained by rE at {span[0]:.2f}-{span[1]:.2f} s "
+                             f"(RMS {d.rms_N:.3g} N, {d.ratio:.0f}x the repeats' typical "
+                             "difference)")
+            v.spans.append(span)
+        else:
+            v.reasons.append(f"response not explained by rE in the lead-in only "
+                             f"({span[0]:.2f}-{span[1]:.2f} s, not fitted)")
+            v.spans.append(span)
+
+
+def _level_reference(works: list[_Work], s: QCSettings) -> np.ndarray | None:
+    live = [w for w in works if w.verdict.decision != EXCLUDED]
+    same, n = _comparable(live, s.rE_match_tol)
+    if not same:
+        return None
+    sig = [smoothed(w.force[:n], float(w.trial.fs_Hz), s)[0] for w in same]
+    S = np.vstack(sig)
+    return np.median(S - np.median(S, axis=1, keepdims=True), axis=0)
+
+
+def _finish(sE: float, works: list[_Work], note: str, s: QCSettings) -> LevelQC:
+    kept = []
+    for w in works:
+        if w.verdict.kept:
+            tr = w.trial
+            if w.verdict.decision == REPAIRED:
+                tr = dataclasses.replace(tr, force_N=w.force)
+            kept.append(tr)
+    flag = note
+    n_judged = len(works)
+    if n_judged >= s.min_repeats and len(kept) < s.min_repeats:
+        flag = (f"only {len(kept)} usable repeat(s) of {n_judged} at sE={sE:g}"
+                + ("; parameters rest on a single trial" if len(kept) == 1 else
+                   "; level not identified" if not kept else ""))
+    if flag:
+        for w in works:
+            w.verdict.level_flag = flag
+    return LevelQC(sE, [w.verdict for w in works], kept, flag)
+
+
+def assess_level(trials, settings: QCSettings | None = None,
+                 neighbour: np.ndarray | None = None) -> LevelQC:
+    """Judge the completed repeats of one sE level.
+
+    Parameters
+    ----------
+    trials : sequence of protocols.session_file.Trial
+        The level's trials; aborted ones are ignored (identification reports them).
+    settings : QCSettings, optional
+    neighbour : array, optional
+        The neighbouring levels' smoothed response (decides between two repeats).
+
+    Returns
+    -------
+    LevelQC
+        Verdicts, the trials to use (repaired data in place) and the level's flag.
+    """
+    s = settings or QCSettings()
+    trials = [t for t in trials if t.completed]
+    if not trials:
+        return LevelQC(float("nan"), [], [], "")
+    works = [_single(t, s) for t in trials]
+    note = _compare(works, s, neighbour)
+    return _finish(float(trials[0].sE), works, note, s)
+
+
+def assess_session(session, settings: QCSettings | None = None) -> SessionQC:
+    """Judge every completed trial of a session (path or read session).
+
+    Lead-in noise is compared across the whole session; two-repeat levels are decided
+    with the neighbouring levels; everything else as :func:`assess_level`.
+    """
+    s = settings or QCSettings()
+    if isinstance(session, (str, os.PathLike)):
+        session = read_session(session, datasets=("rE", "force_N"))
+    groups: dict[float, list] = {}
+    for tr in session.trials:
+        if tr.completed:
+            groups.setdefault(round(float(tr.sE), 9), []).append(tr)
+    keys = sorted(groups)
+    works = {k: [_single(t, s) for t in groups[k]] for k in keys}
+    noise = np.array([w.noise_sd for k in keys for w in works[k]
+                      if w.verdict.decision != EXCLUDED and np.isfinite(w.noise_sd)])
+    if noise.size >= 3:
+        typical = float(np.median(noise))
+        for k in keys:
+            for w in works[k]:
+                if w.verdict.decision != EXCLUDED and typical > 0 and \
+                        w.noise_sd > s.noise_ratio_max * typical:
+                    w.verdict.decision = EXCLUDED
+                    w.verdict.reasons.append(
+                        f"lead-in noise {w.noise_sd:.3g} N is {w.noise_sd / typical:.1f}x "
+                        f"the session's median {typical:.3g} N (loose electrode or cable, "
+                        "or activity the stimulation did not cause)")
+    refs = {k: _level_reference(works[k], s) if len(works[k]) >= 3 else None for k in keys}
+    levels = []
+    for i, k in enumerate(keys):
+        neighbour = None
+        if sum(w.verdict.decision != EXCLUDED for w in works[k]) == 2:
+            near = [refs[keys[j]] for j in (i - 1, i + 1) if 0 <= j < len(keys)
+                    and refs[keys[j]] is not None]
+            if not near:
+                near = [_level_reference(works[keys[j]], s) for j in (i - 1, i + 1)
+                        if 0 <= j < len(keys)]
+                near = [x for x in near if x is not None]
+            if near:
+                m = min(x.size for x in near)
+                neighbour = np.mean([x[:m] for x in near], axis=0)
+        note = _compare(works[k], s, neighbour)
+        levels.append(_finish(float(groups[k][0].sE), works[k], note, s))
+    return SessionQC(session.participant, str(session.path), levels)

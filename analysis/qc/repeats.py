@@ -1,0 +1,234 @@
+"""Response not explained by rE: what one repeat has that the other repeats do not share.
+
+The repeats of one sE receive the same rE, so whatever the stimulation causes they share,
+up to the physiology's repeat-to-repeat scatter of gain and timing. Per trial, after a
+zero-phase low-pass (:attr:`QCSettings.lowpass_Hz`) and decimation to ~100 Hz:
+
+1. the reference is the pointwise median of the level's repeats (three or more), or the
+   other repeat (two);
+2. the trial is regressed on [reference, d reference/dt, 1, t] (gain, a small time shift,
+   offset and drift are shared physiology or sensor, not artefact) and the remainder is
+   its *unshared component* u(t); the regression is refitted once without the flagged
+   stretches so that an artefact cannot bend it;
+3. the RMS of u in sliding windows (:attr:`QCSettings.window_s`) is compared with the
+   level's typical (median) unshared RMS and with the level's response RMS; windows above
+   both thresholds are flagged and merged into time spans.
+
+A flagged stretch that runs to the end of the trial at a constant level is a baseline
+jump; anything else is a response not explained by rE. With two repeats the difference
+is attributed with the neighbouring sE levels as an independent reference
+(:func:`attribute_pair`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from analysis.qc.checks import runs
+from analysis.qc.settings import QCSettings
+from analysis.signal_kernels import butter, sosfiltfilt
+
+
+@dataclass
+class Deviation:
+    """A stretch of one trial that the other repeats do not share.
+
+    Attributes
+    ----------
+    start_s, stop_s : float
+        The stretch, in s after stimulation onset.
+    rms_N : float
+        RMS of the unshared component there.
+    ratio : float
+        That RMS over the level's typical unshared RMS.
+    step_N : float or None
+        For a baseline jump, its height (N); None otherwise.
+    step_at_s : float or None
+        For a baseline jump, when it happened.
+    """
+
+    start_s: float
+    stop_s: float
+    rms_N: float
+    ratio: float
+    step_N: float | None = None
+    step_at_s: float | None = None
+
+    @property
+    def is_jump(self) -> bool:
+        return self.step_N is not None
+
+
+def smoothed(force_N: np.ndarray, fs_Hz: float, settings: QCSettings) -> tuple[np.ndarray,
+                                                                                float]:
+    """Zero-phase low-pass then decimation; returns (signal, its rate in Hz)."""
+    x = np.asarray(force_N, float)
+    sos = butter(4, min(settings.lowpass_Hz, 0.4 * fs_Hz), fs=fs_Hz)
+    y = sosfiltfilt(sos, x)
+    step = max(1, int(fs_Hz // (5 * settings.lowpass_Hz)))
+    return y[::step].copy(), fs_Hz / step
+
+
+def _regress(s: np.ndarray, ref: np.ndarray, fs: float, keep: np.ndarray) -> np.ndarray:
+    """s minus its robust fit on [ref, ref', 1, t] (Tukey biweight IRLS over ``keep``).
+
+    The biweight gives samples far outside the bulk of the residual zero weight, so a
+    contraction or a jump covering a fifth of the trial cannot bend the gain, offset or
+    drift that the other samples define (Holland & Welsch 1977).
+    """
+    t = np.arange(s.size) / fs
+    X = np.column_stack([ref, np.gradient(ref) * fs, np.ones_like(t), t - t.mean()])
+    w = keep.astype(float)
+    for _ in range(8):
+        sw = np.sqrt(w)
+        beta, *_ = np.linalg.lstsq(X * sw[:, None], s * sw, rcond=None)
+        r = s - X @ beta
+        scale = 1.4826 * np.median(np.abs(r[keep] - np.median(r[keep])))
+        if not np.isfinite(scale) or scale <= 0:
+            break
+        z = r / (4.685 * scale)
+        w_new = np.where(np.abs(z) < 1, (1 - z * z) ** 2, 0.0) * keep
+        if w_new.sum() < 0.3 * keep.sum():
+            break
+        if np.allclose(w_new, w, atol=1e-3):
+            w = w_new
+            break
+        w = w_new
+    return r
+
+
+def _align(s: np.ndarray, ref: np.ndarray, fs: float) -> np.ndarray:
+    """s mapped onto ref's offset, drift and gain (its regression on [ref, 1, t] undone)."""
+    t = np.arange(s.size) / fs
+    X = np.column_stack([ref, np.ones_like(t), t - t.mean()])
+    g, c, d = np.linalg.lstsq(X, s, rcond=None)[0]
+    return (s - c - d * (t - t.mean())) / g if abs(g) > 1e-12 else s - c - d * (t - t.mean())
+
+
+def _window_rms(u: np.ndarray, w: int) -> np.ndarray:
+    w = max(3, min(w, u.size))
+    c = np.convolve(u * u, np.ones(w) / w, mode="same")
+    return np.sqrt(np.maximum(c, 0.0))
+
+
+def unshared(signals: list[np.ndarray], fs: float, settings: QCSettings,
+             references: list[np.ndarray] | None = None,
+             level_scale: tuple[float, float] | None = None):
+    """Unshared components and flagged windows of each signal.
+
+    Parameters
+    ----------
+    signals : list of arrays (same length)
+        The smoothed repeats of one level.
+    fs : float
+        Their rate.
+    references : list of arrays, optional
+        One reference per signal (default: the pointwise median of all signals, or the
+        other signal when there are two).
+    level_scale : (typical_rms, response_rms), optional
+        Thresholds' scales; default from these signals.
+
+    Returns
+    -------
+    u : list of arrays
+    flags : list of bool arrays
+    typical_rms, response_rms : float
+    """
+    n = len(signals)
+    S = np.vstack(signals)
+    t = np.arange(S.shape[1]) / fs
+    own = references is None
+    if own and n < 2:
+        raise ValueError("unshared needs two or more signals or explicit references")
+    if own and n >= 3:
+        # the median of the repeats after each is brought onto a common offset, drift and
+        # gain (two passes: a line first, then the regression on the median itself)
+        X = np.column_stack([np.ones_like(t), t - t.mean()])
+        A = S - (X @ np.linalg.lstsq(X, S.T, rcond=None)[0]).T
+        for _ in range(2):
+            med = np.median(A, axis=0)
+            A = np.vstack([_align(S[i], med, fs) for i in range(n)])
+        references = [np.median(A, axis=0)] * n
+    elif own:
+        references = [S[1], S[0]]
+    w = int(round(settings.window_s * fs))
+    keep = [np.ones(S.shape[1], bool) for _ in range(n)]
+    for _ in range(2):
+        u = [_regress(S[i], references[i], fs, keep[i]) for i in range(n)]
+        rms = [_window_rms(ui, w) for ui in u]
+        if level_scale is None:
+            typical = float(np.median(np.concatenate(rms)))
+            ref0 = references[0]
+            response = float(np.std(ref0[ref0.size // 3:]))
+        else:
+            typical, response = level_scale
+        limit = max(settings.deviation_k * typical, settings.deviation_min_frac * response)
+        flags = [r > limit for r in rms]
+        new_keep = [~f if (~f).sum() > 0.5 * f.size else np.ones_like(f) for f in flags]
+        if all(np.array_equal(a, b) for a, b in zip(new_keep, keep)):
+            break
+        keep = new_keep
+    return u, flags, rms, typical, response
+
+
+def deviations(u: np.ndarray, flags: np.ndarray, rms: np.ndarray, fs: float, typical: float,
+               settings: QCSettings) -> list[Deviation]:
+    """Flagged windows of one trial as merged time spans; baseline jumps recognised."""
+    w = int(round(settings.window_s * fs))
+    spans = runs(flags)
+    merged: list[list[int]] = []
+    for a, b in spans:
+        if merged and a - merged[-1][1] <= w:
+            merged[-1][1] = b
+        else:
+            merged.append([a, b])
+    out = []
+    n = u.size
+    for a, b in merged:
+        a0, b0 = max(0, a - w // 2), min(n, b + w // 2)
+        seg_rms = float(np.sqrt(np.mean(u[a0:b0] ** 2)))
+        dev = Deviation(a0 / fs, b0 / fs, seg_rms, seg_rms / typical if typical > 0 else
+                        float("inf"))
+        if b0 >= n - w:  # runs to the end: a jump if the tail is a plateau
+            before = u[max(0, a0 - 2 * w):a0] if a0 > 0 else u[:0]
+            pre = float(np.median(before)) if before.size else 0.0
+            tail = u[b0 - (b0 - a0) // 2:]
+            height = float(np.median(tail)) - pre
+            spread = float(np.std(tail - np.median(tail)))
+            if abs(height) > 3 * max(spread, 1e-12):
+                # the jump's instant: where u first passes half its height
+                half = np.flatnonzero(np.sign(height) * (u[a0:] - pre) > abs(height) / 2)
+                dev.step_N = height
+                dev.step_at_s = (a0 + int(half[0]) if half.size else a0) / fs
+        out.append(dev)
+    return out
+
+
+def attribute_pair(signals: list[np.ndarray], neighbour: np.ndarray | None, fs: float,
+                   span: tuple[float, float], settings: QCSettings) -> int | None:
+    """Which of two repeats holds a difference: index 0 or 1, or None if undecidable.
+
+    Each repeat is regressed on the neighbouring levels' response (a reference that
+    neither repeat contributes to); the repeat whose remainder inside ``span`` is at least
+    :attr:`QCSettings.attribute_ratio` times the other's holds the difference.
+    """
+    if neighbour is None:
+        return None
+    a, b = int(span[0] * fs), int(span[1] * fs)
+    keep = np.ones(signals[0].size, bool)
+    keep[max(0, a):b] = False
+    if keep.sum() < 10:
+        return None
+    m = min(neighbour.size, signals[0].size, signals[1].size)
+    keep = keep[:m]
+    e = []
+    for s in signals:
+        u = _regress(s[:m], neighbour[:m], fs, keep)
+        e.append(float(np.sqrt(np.mean(u[a:b] ** 2))))
+    if e[0] >= settings.attribute_ratio * e[1]:
+        return 0
+    if e[1] >= settings.attribute_ratio * e[0]:
+        return 1
+    return None

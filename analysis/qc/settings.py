@@ -1,0 +1,82 @@
+"""Thresholds of the trial quality control, each with the reason for its default."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+from analysis.errors import SettingError
+
+
+@dataclass(frozen=True)
+class QCSettings:
+    """Settings of :func:`analysis.qc.assess_session` (``docs/identification.md``).
+
+    Every threshold is relative to the recording's own noise or response, so the same
+    defaults hold for quiet and noisy sensors and for small and large forces.
+    """
+
+    spike_median_s: float = 0.0055
+    """Running-median width of the spike detector (11 samples at 2 kHz). Wider than a
+    cable knock or an A/D glitch (< 2 ms), narrower than anything the muscle does: the
+    fastest component of the response (the 10 Hz end of the chirp, wn <= 60 rad/s) moves
+    < 1 % of its amplitude within it."""
+    spike_k: float = 8.0
+    """A sample is a spike when it is this many robust SDs (1.4826 MAD) from the running
+    median: Gaussian noise passes 8 SD about once in 10^15 samples."""
+    spike_max_s: float = 0.005
+    """Longest run of outlying samples still called a spike (bridged). Longer events are
+    not isolated spikes; the comparison across repeats judges them."""
+    nonfinite_max_s: float = 0.005
+    """Longest run of NaN/Inf samples bridged by linear interpolation (a dropped USB
+    packet of the A/D is 1-2 ms); longer gaps exclude the trial."""
+    repair_max_total_s: float = 0.05
+    """Most data bridged in one trial (0.3 % of a 15 s trial). A trial that needs more is
+    not a response with a few glitches: it is excluded instead."""
+    stall_min_s: float = 0.1
+    """A run of identical samples this long is a stalled stream or a clipped channel. A
+    live sensor with noise above half its A/D step never repeats a value 200 times."""
+    clip_min_s: float = 0.02
+    """A flat run at the trial's own maximum or minimum this long is clipping (the range
+    of the sensor or A/D is inferred from the data's plateaus, not assumed)."""
+    lowpass_Hz: float = 20.0
+    """Bandwidth of the comparison across repeats: twice the chirp's top frequency, below
+    50/60 Hz mains and the 1 kHz carrier, so pick-up does not count as a difference."""
+    window_s: float = 0.25
+    """Length of the sliding window in which the unshared component is measured: short
+    enough to localise a 1 s voluntary contraction, long enough (~10 independent
+    samples at 20 Hz) that its RMS is a stable estimate."""
+    deviation_k: float = 4.0
+    """A window is flagged when its unshared RMS exceeds this multiple of the level's
+    typical (median) unshared RMS, which already contains the sensor noise and the
+    repeat-to-repeat scatter of the physiology."""
+    deviation_min_frac: float = 0.05
+    """... and exceeds this fraction of the level's response RMS, so that a session with a
+    near-perfect sensor does not flag differences nobody could see in the parameters."""
+    attribute_ratio: float = 2.0
+    """With only two repeats the difference is attributed to the one whose deviation from
+    the neighbouring levels' response is at least this many times the other's; otherwise
+    both are kept and the level is flagged."""
+    noise_ratio_max: float = 4.0
+    """Lead-in noise (robust SD of the second difference) above this multiple of the
+    session's median excludes the trial: a loose electrode or cable, or muscle activity
+    the stimulation did not cause."""
+    min_repeats: int = 2
+    """Fewer usable repeats than this at a level keeps the level but flags it."""
+    rE_match_tol: float = 1e-6
+    """Repeats are compared only when their commanded rE agree to this tolerance."""
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v) \
+                    or v <= 0:
+                raise SettingError(f"QC setting {f.name} = {v!r} is not valid: use a "
+                                   "positive number")
+        if self.deviation_min_frac >= 1:
+            raise SettingError(f"QC setting deviation_min_frac = {self.deviation_min_frac} "
+                               "is not valid: use a fraction in (0, 1)")
+
+    def replace(self, **changes) -> "QCSettings":
+        return dataclasses.replace(self, **changes)
