@@ -23,6 +23,8 @@ import numpy as np
 
 from analysis.errors import IdentificationError
 from analysis.preprocess import LevelData, preprocess_trials
+from analysis.qc import SessionQC, assess_level, assess_session
+from analysis.qc.decide import EXCLUDED, REPAIRED, LevelQC
 from analysis.second_order import SecondOrderFit, fit_second_order
 from analysis.settings import IdentificationSettings
 from protocols.session_file import read_session
@@ -40,6 +42,8 @@ class LevelResult:
     n_trials: int
     trial_names: list[str] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
+    qc: LevelQC | None = None
+    """The quality control's verdicts on this level's trials (None when QC is off)."""
 
     @property
     def ok(self) -> bool:
@@ -55,6 +59,10 @@ class LevelResult:
             "Kp": f.Kp if f else nan, "wn_rad_s": f.wn_rad_s if f else nan,
             "zeta": f.zeta if f else nan, "fit_pct": f.fit_pct if f else nan,
             "n_trials": self.n_trials,
+            "n_repeats_used": self.n_trials,
+            "n_repeats_excluded": (sum(v.decision == EXCLUDED for v in self.qc.verdicts)
+                                   if self.qc else 0),
+            "qc_flag": self.qc.flag if self.qc else "",
             "Kp_se": f.Kp_se if f else nan, "wn_se": f.wn_se if f else nan,
             "zeta_se": f.zeta_se if f else nan,
             "converged": bool(f.converged) if f else False,
@@ -74,6 +82,8 @@ class SessionResult:
     problems: list[str]
     settings: IdentificationSettings
     calibration: dict = field(default_factory=dict)
+    qc: SessionQC | None = None
+    """The quality control's verdict on every trial (None when QC is off)."""
 
     def rows(self) -> list[dict]:
         return [lv.row(self.participant) for lv in self.levels]
@@ -127,7 +137,8 @@ def usable_trials(trials, settings: IdentificationSettings | None = None):
     return usable, problems
 
 
-def identify_level(trials, settings: IdentificationSettings | None = None) -> LevelResult:
+def identify_level(trials, settings: IdentificationSettings | None = None,
+                   qc: LevelQC | None = None) -> LevelResult:
     """Identify the second-order model from the repeats of one sE level.
 
     Parameters
@@ -135,6 +146,10 @@ def identify_level(trials, settings: IdentificationSettings | None = None) -> Le
     trials : sequence of protocols.session_file.Trial
         The trials run at this sE (aborted ones are skipped and reported).
     settings : IdentificationSettings, optional
+    qc : LevelQC, optional
+        The quality control's verdicts (computed here when ``settings.qc`` and not given):
+        only the trials it keeps are averaged and fitted, repaired ones with their
+        repaired force.
 
     Returns
     -------
@@ -156,11 +171,24 @@ def identify_level(trials, settings: IdentificationSettings | None = None) -> Le
         raise ValueError(f"identify_level got trials of several sE values {sorted(levels)}; "
                          "pass the trials of one level")
     sE = float(trials[0].sE)
+    qc_notes: list[str] = []
+    if s.qc:
+        qc = qc if qc is not None else assess_level(trials, s.qc_settings)
+        trials = [t for t in trials if not t.completed] + list(qc.kept)
+        for v in qc.verdicts:
+            if v.decision in (EXCLUDED, REPAIRED):
+                qc_notes.append(f"trial {v.trial} (sE={v.sE:g}, repeat {v.repeat}) "
+                                f"{v.decision} by QC: {'; '.join(v.reasons)}")
+        if qc.flag:
+            qc_notes.append(f"sE={sE:g}: QC: {qc.flag}")
+    else:
+        qc = None
     usable, problems = usable_trials(trials, s)
+    problems = qc_notes + problems
     names = [t.name for t in usable]
     if not usable:
         problems.append(f"sE={sE:g}: no usable trial; level not identified")
-        return LevelResult(sE, None, None, 0, names, problems)
+        return LevelResult(sE, None, None, 0, names, problems, qc)
     if len(usable) == 1:
         problems.append(f"sE={sE:g}: only one usable repeat ({usable[0].name}); "
                         "parameters rest on a single trial")
@@ -174,7 +202,7 @@ def identify_level(trials, settings: IdentificationSettings | None = None) -> Le
                                t0_s=float(data.t_s[0]))
     except (IdentificationError, np.linalg.LinAlgError, ArithmeticError) as exc:
         problems.append(f"sE={sE:g}: {exc}; level not identified")
-        return LevelResult(sE, None, None, len(usable), names, problems)
+        return LevelResult(sE, None, None, len(usable), names, problems, qc)
     if not fit.converged:
         problems.append(f"sE={sE:g}: fit did not converge ({fit.message}); parameters "
                         "reported but flagged, and left out of the model selection")
@@ -182,7 +210,7 @@ def identify_level(trials, settings: IdentificationSettings | None = None) -> Le
         problems.append(f"sE={sE:g}: {note}")
     if not math.isfinite(fit.fit_pct) or fit.fit_pct < 50:
         problems.append(f"sE={sE:g}: poor fit ({fit.fit_pct:.1f} %); check the force signal")
-    return LevelResult(sE, fit, data, len(usable), names, problems)
+    return LevelResult(sE, fit, data, len(usable), names, problems, qc)
 
 
 #: The datasets the identification needs; the others (currents, wrench, sync) are not read
@@ -240,9 +268,11 @@ def identify_session(session, settings: IdentificationSettings | None = None,
     planned_repeats = protocol.get("repeats")
     expected = int(planned_repeats) if isinstance(planned_repeats, int) and planned_repeats > 0 \
         else (max(completed.values()) if completed else 0)
+    session_qc = assess_session(session, s.qc_settings) if s.qc else None
+    level_qc = {round(lq.sE, 9): lq for lq in session_qc.levels} if session_qc else {}
     levels = []
     for key in sorted(groups):
-        lv = identify_level(groups[key], s)
+        lv = identify_level(groups[key], s, qc=level_qc.get(key))
         n_done = completed.get(key, 0)
         if expected > 1 and n_done < expected:
             lv.problems.insert(0, f"sE={key:g}: {n_done} of {expected} repeats completed")
@@ -260,4 +290,5 @@ def identify_session(session, settings: IdentificationSettings | None = None,
     cal_dict = {k: float(getattr(cal, k)) for k in
                 ("Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA", "Fmin_N", "Fmax_N")}
     return SessionResult(participant=session.participant, source=str(session.path),
-                         levels=levels, problems=problems, settings=s, calibration=cal_dict)
+                         levels=levels, problems=problems, settings=s, calibration=cal_dict,
+                         qc=session_qc)

@@ -14,7 +14,8 @@ from analysis.settings import PARAMETER_NAMES
 
 PARAMETER_COLUMNS = ("participant", "sE", "Kp", "wn_rad_s", "zeta", "fit_pct", "n_trials",
                      "Kp_se", "wn_se", "zeta_se", "converged", "resid_whiteness_pass",
-                     "resid_independence_pass", "baseline_N")
+                     "resid_independence_pass", "baseline_N", "n_repeats_used",
+                     "n_repeats_excluded", "qc_flag")
 MODEL_TITLES = {"linear": "Linear", "quadratic": "Quadratic", "exponential": "Exponential"}
 PARAMETER_TITLES = {"Kp": "Kp (N)", "wn_rad_s": "wn (rad/s)", "zeta": "zeta"}
 

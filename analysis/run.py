@@ -17,6 +17,7 @@ from analysis.errors import IdentificationError
 from analysis.figures import plot_level_fits, plot_parameter_curves
 from analysis.identify import SessionResult, identify_session
 from analysis.model_selection import AVERAGE_LABEL, SelectionResult, select_models
+from analysis.qc.table import write_qc_csv
 from analysis.report import (parameter_table, selection_tables, write_model_selection_json,
                              write_parameters_csv, write_text)
 from analysis.settings import PARAMETER_NAMES, IdentificationSettings
@@ -113,6 +114,9 @@ def run_identification(sessions, out_dir: str | os.PathLike,
     if not results:
         raise IdentificationError("no session could be analysed: " + " | ".join(problems))
     files = [write_parameters_csv(results, out / "parameters.csv")]
+    if any(r.qc is not None for r in results):
+        files.append(write_qc_csv([r.qc for r in results if r.qc is not None],
+                                  out / "qc.csv"))
     selection = select_models(results, s)
     problems.extend(selection.problems)
     files.append(write_model_selection_json(

@@ -26,6 +26,7 @@ import math
 from dataclasses import dataclass, field
 
 from analysis.errors import SettingError
+from analysis.qc.settings import QCSettings
 
 
 class InputHold(str, enum.Enum):
@@ -116,6 +117,15 @@ class IdentificationSettings:
     Must be at least 4x ``lowpass_Hz``."""
     input_hold: InputHold = InputHold.SMOOTH
     """How the model sees the input between samples (see :class:`InputHold`)."""
+
+    # -- trial quality control ------------------------------------------------------
+    qc: bool = True
+    """Judge every trial before averaging (:mod:`analysis.qc`) and average and fit only
+    the trials it keeps (repaired data where an artefact was bridged). The paper averages
+    every repeat; one voluntary contraction in one repeat then moves Kp and zeta by ~1 %
+    (ten standard errors). False: the paper's plain average of every completed repeat."""
+    qc_settings: QCSettings = field(default_factory=QCSettings)
+    """Thresholds of the trial quality control (:class:`analysis.qc.QCSettings`)."""
 
     # -- fitting ------------------------------------------------------------------
     estimate_trend: bool = True
@@ -242,5 +252,7 @@ class IdentificationSettings:
                 value = value.value
             elif isinstance(value, tuple):
                 value = list(value)
+            elif dataclasses.is_dataclass(value):
+                value = dataclasses.asdict(value)
             out[f.name] = value
         return out

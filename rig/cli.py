@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "rig.cli_run",          # run, recover
     "rig.cli_validate",     # validate
     "analysis.cli_identify",  # identify, twin
+    "analysis.cli_qc",      # qc
     "analysis.cli_gap",     # gap
     "analysis.cli_design",  # design
     "drivers.cli_probe",    # probe

@@ -1,0 +1,66 @@
+"""The QC verdicts as a table: text for ``nmsid qc``, ``qc.csv``, JSON."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+from analysis.qc.decide import SessionQC
+
+QC_COLUMNS = ("participant", "trial", "sE", "repeat", "decision", "reasons", "spans",
+              "level_flag")
+
+
+def rows(qc: SessionQC) -> list[dict]:
+    """One dict per judged trial, in session order, with ``QC_COLUMNS``."""
+    out = []
+    for v in sorted(qc.trials, key=lambda v: v.trial):
+        r = v.row()
+        r["participant"] = qc.participant
+        out.append(r)
+    return out
+
+
+def write_qc_csv(sessions: list[SessionQC], path: str | Path) -> Path:
+    """``qc.csv``: every judged trial of every session (columns ``QC_COLUMNS``)."""
+    path = Path(path)
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=QC_COLUMNS)
+        w.writeheader()
+        for qc in sessions:
+            for r in rows(qc):
+                w.writerow({k: (f"{r[k]:g}" if k == "sE" else r[k]) for k in QC_COLUMNS})
+    return path
+
+
+def as_json(qc: SessionQC) -> str:
+    """The verdicts as JSON (``nmsid qc --json``)."""
+    return json.dumps({"participant": qc.participant, "source": qc.source,
+                       "counts": qc.counts(), "trials": rows(qc),
+                       "levels": [{"sE": lv.sE, "n_kept": len(lv.kept), "flag": lv.flag}
+                                  for lv in qc.levels]}, indent=2)
+
+
+def format_table(qc: SessionQC, all_trials: bool = False) -> str:
+    """A text table: one line per trial that is not plainly used (all with ``all_trials``),
+    then the counts and the flagged levels."""
+    lines = [f"{qc.source}: trial quality control ({qc.participant})",
+             f"{'trial':6} {'sE':>5} {'rep':>3}  {'decision':9} reasons [spans, s]"]
+    shown = 0
+    for r in rows(qc):
+        if not all_trials and r["decision"] == "used" and not r["reasons"]:
+            continue
+        shown += 1
+        spans = f" [{r['spans']}]" if r["spans"] else ""
+        lines.append(f"{r['trial']:6} {r['sE']:5.2f} {r['repeat']:3d}  {r['decision']:9} "
+                     f"{r['reasons'] or '-'}{spans}")
+    if not shown:
+        lines.append("(every trial used as recorded)")
+    c = qc.counts()
+    lines.append(f"{c.get('used', 0)} used, {c.get('repaired', 0)} repaired, "
+                 f"{c.get('excluded', 0)} excluded of {sum(c.values())} completed trials")
+    for lv in qc.levels:
+        if lv.flag:
+            lines.append(f"sE={lv.sE:g}: {lv.flag}")
+    return "\n".join(lines)

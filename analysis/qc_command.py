@@ -1,0 +1,16 @@
+"""Handler of ``nmsid qc`` (registered by :mod:`analysis.cli_qc`)."""
+
+from __future__ import annotations
+
+from analysis.qc import assess_session
+from analysis.qc.table import as_json, format_table
+
+
+def run(args) -> int:
+    """Print each session's QC table (or JSON); 1 if any trial is excluded."""
+    any_excluded = False
+    for path in args.sessions:
+        qc = assess_session(path)
+        print(as_json(qc) if args.json else format_table(qc, all_trials=args.all))
+        any_excluded |= bool(qc.excluded())
+    return 1 if any_excluded else 0
