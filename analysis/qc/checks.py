@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
+from analysis.signal_kernels import butter, sosfiltfilt
 
 
 @dataclass
@@ -49,14 +49,6 @@ def robust_sd(x: np.ndarray) -> float:
     if x.size == 0:
         return float("nan")
     return float(1.4826 * np.median(np.abs(x - np.median(x))))
-
-
-def running_median(x: np.ndarray, width: int) -> np.ndarray:
-    """Centred running median of odd ``width`` (edges padded by reflection)."""
-    width = max(3, int(width) | 1)
-    h = width // 2
-    padded = np.pad(x, h, mode="reflect")
-    return np.median(sliding_window_view(padded, width), axis=1)
 
 
 def hf_noise_sd(x: np.ndarray) -> float:
@@ -122,21 +114,30 @@ def flat_runs(x: np.ndarray, fs_Hz: float, stall_min_s: float, clip_min_s: float
     return out
 
 
-def spikes(x: np.ndarray, fs_Hz: float, median_s: float, k: float,
+def spikes(x: np.ndarray, fs_Hz: float, highpass_Hz: float, k: float,
            max_s: float) -> list[Finding]:
-    """Isolated outliers from the running median (cable knocks, A/D glitches)."""
-    width = int(round(median_s * fs_Hz)) | 1
-    if x.size < 3 * width:
+    """Isolated outliers (cable knocks, A/D glitches) in the signal's high-pass part.
+
+    Above ``highpass_Hz`` the muscle contributes nothing (the response lies below ~20 Hz,
+    mains below ~200 Hz are removed too when ``highpass_Hz`` exceeds them), so what is left
+    is sensor noise, whose robust SD sets the threshold, and broadband glitches. A spike's
+    extent is taken at half its peak (the filter's ringing around it is not data).
+    """
+    fc = min(highpass_Hz, 0.4 * fs_Hz)
+    if x.size < int(fs_Hz / fc) * 8:
         return []
-    r = x - running_median(x, width)
-    sd = robust_sd(r)
+    hp = x - sosfiltfilt(butter(4, fc, fs=fs_Hz), x)
+    sd = robust_sd(hp)
     if not np.isfinite(sd) or sd == 0:
         return []
     out = []
-    for a, b in runs(np.abs(r) > k * sd):
-        if (b - a) / fs_Hz <= max_s:
-            out.append(Finding("spike", [(a, b)],
-                               f"spike of {np.max(np.abs(r[a:b])):.3g} N", repairable=True))
+    for a, b in runs(np.abs(hp) > k * sd):
+        seg = np.abs(hp[a:b])
+        core = np.flatnonzero(seg > 0.5 * seg.max())
+        a1, b1 = a + int(core[0]), a + int(core[-1]) + 1
+        if (b1 - a1) / fs_Hz <= max_s:
+            out.append(Finding("spike", [(a1, b1)],
+                               f"spike of {float(seg.max()):.3g} N", repairable=True))
     return out
 
 

@@ -161,7 +161,7 @@ def _single(trial, s: QCSettings) -> _Work:
     if to_bridge:
         w.force = checks.bridge(w.force, to_bridge, margin=0)
         w.bridged_s += sum(b - a for a, b in to_bridge) / fs
-    found = checks.spikes(w.force, fs, s.spike_median_s, s.spike_k, s.spike_max_s)
+    found = checks.spikes(w.force, fs, s.spike_highpass_Hz, s.spike_k, s.spike_max_s)
     if found:
         spans = [f.spans[0] for f in found]
         w.bridged_s += sum(b - a + 2 for a, b in spans) / fs

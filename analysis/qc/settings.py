@@ -17,11 +17,10 @@ class QCSettings:
     defaults hold for quiet and noisy sensors and for small and large forces.
     """
 
-    spike_median_s: float = 0.0055
-    """Running-median width of the spike detector (11 samples at 2 kHz). Wider than a
-    cable knock or an A/D glitch (< 2 ms), narrower than anything the muscle does: the
-    fastest component of the response (the 10 Hz end of the chirp, wn <= 60 rad/s) moves
-    < 1 % of its amplitude within it."""
+    spike_highpass_Hz: float = 150.0
+    """Spikes are sought above this frequency: the muscle's response (the chirp tops out
+    at 10 Hz; its harmonics and any tremor stay below ~50 Hz) and 50/60 Hz mains with
+    its second harmonic are below it, a glitch of a few samples is broadband."""
     spike_k: float = 8.0
     """A sample is a spike when it is this many robust SDs (1.4826 MAD) from the running
     median: Gaussian noise passes 8 SD about once in 10^15 samples."""
