@@ -135,9 +135,15 @@ def spikes(x: np.ndarray, fs_Hz: float, highpass_Hz: float, k: float,
         seg = np.abs(hp[a:b])
         core = np.flatnonzero(seg > 0.5 * seg.max())
         a1, b1 = a + int(core[0]), a + int(core[-1]) + 1
-        if (b1 - a1) / fs_Hz <= max_s:
-            out.append(Finding("spike", [(a1, b1)],
-                               f"spike of {float(seg.max()):.3g} N", repairable=True))
+        if (b1 - a1) / fs_Hz > max_s or a1 < 3 or b1 + 3 > x.size:
+            continue
+        # a spike leaves and returns to the same level; a step or a kink does not
+        left, right = x[a1 - 3], x[b1 + 2]
+        line = np.interp(np.arange(a1, b1), [a1 - 3, b1 + 2], [left, right])
+        away = float(np.max(np.abs(x[a1:b1] - line)))
+        if away > k * sd and abs(right - left) < 0.5 * away:
+            out.append(Finding("spike", [(a1, b1)], f"spike of {away:.3g} N",
+                               repairable=True))
     return out
 
 

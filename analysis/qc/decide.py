@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from analysis.qc import checks
-from analysis.qc.repeats import attribute_pair, deviations, smoothed, unshared
+from analysis.qc.repeats import Deviation, attribute_pair, deviations, fit_jump, smoothed, unshared
 from analysis.qc.settings import QCSettings
 from protocols.session_file import read_session
 
@@ -215,8 +215,20 @@ def _compare(works: list[_Work], s: QCSettings, neighbour: np.ndarray | None) ->
     for w in same:
         y, fs_s = smoothed(w.force[:n], fs, s)
         sig.append(y)
-    u, flags, rms, typical, response = unshared(sig, fs_s, s)
+    u, flags, rms, typical, response, refs, limit = unshared(sig, fs_s, s)
     devs = [deviations(u[i], flags[i], rms[i], fs_s, typical, s) for i in range(len(same))]
+    for i, ds in enumerate(devs):
+        # one jump may explain everything a trial does not share (a robust line cannot
+        # follow a step over half a trial, so it shows as several stretches)
+        if ds and (any(d.is_jump for d in ds) or ds[-1].stop_s >= sig[i].size / fs_s - 1.0):
+            jump = fit_jump(sig[i], refs[i], fs_s, limit, s)
+            if jump is not None:
+                h, at = jump
+                devs[i] = [Deviation(at, sig[i].size / fs_s, abs(h), abs(h) / typical
+                                     if typical > 0 else float("inf"), h, at)]
+            else:
+                for d in ds:
+                    d.step_N = d.step_at_s = None
     note = ""
     if len(same) == 2 and devs[0] and devs[1]:
         owners = []
@@ -241,6 +253,8 @@ def _apply(w: _Work, ds, typical: float, s: QCSettings) -> None:
     fs = float(w.trial.fs_Hz)
     start_s = _window_start(w.trial)
     for d in ds:
+        if d.stop_s <= s.onset_ignore_s:
+            continue
         span = (round(d.start_s, 2), round(d.stop_s, 2))
         if d.is_jump:
             k = int(round(d.step_at_s * fs))

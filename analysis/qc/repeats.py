@@ -72,31 +72,27 @@ def smoothed(force_N: np.ndarray, fs_Hz: float, settings: QCSettings) -> tuple[n
 
 
 def _regress(s: np.ndarray, ref: np.ndarray, fs: float, keep: np.ndarray) -> np.ndarray:
-    """s minus its robust fit on [ref, ref', 1, t] (Tukey biweight IRLS over ``keep``).
+    """s minus its least-absolute-deviation fit on [ref, ref', 1, t] over ``keep``.
 
-    The biweight gives samples far outside the bulk of the residual zero weight, so a
-    contraction or a jump covering a fifth of the trial cannot bend the gain, offset or
-    drift that the other samples define (Holland & Welsch 1977).
+    An L1 fit (iteratively reweighted least squares) follows the majority of the samples:
+    a contraction or a jump over a minority of the trial cannot pull the gain, offset or
+    drift that the rest defines, as it would pull a least-squares line.
     """
     t = np.arange(s.size) / fs
-    X = np.column_stack([ref, np.gradient(ref) * fs, np.ones_like(t), t - t.mean()])
-    w = keep.astype(float)
-    for _ in range(8):
-        sw = np.sqrt(w)
-        beta, *_ = np.linalg.lstsq(X * sw[:, None], s * sw, rcond=None)
-        r = s - X @ beta
-        scale = 1.4826 * np.median(np.abs(r[keep] - np.median(r[keep])))
-        if not np.isfinite(scale) or scale <= 0:
+    X = np.column_stack([ref, np.gradient(ref) * fs, np.ones_like(t), t - t.mean()])[keep]
+    y = s[keep]
+    beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+    floor = 1e-9 * max(float(np.std(y)), 1e-12)
+    for _ in range(30):
+        r = y - X @ beta
+        sw = 1.0 / np.sqrt(np.maximum(np.abs(r), floor))
+        new, *_ = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)
+        if np.allclose(new, beta, rtol=1e-6, atol=1e-9):
+            beta = new
             break
-        z = r / (4.685 * scale)
-        w_new = np.where(np.abs(z) < 1, (1 - z * z) ** 2, 0.0) * keep
-        if w_new.sum() < 0.3 * keep.sum():
-            break
-        if np.allclose(w_new, w, atol=1e-3):
-            w = w_new
-            break
-        w = w_new
-    return r
+        beta = new
+    Xall = np.column_stack([ref, np.gradient(ref) * fs, np.ones_like(t), t - t.mean()])
+    return s - Xall @ beta
 
 
 def _align(s: np.ndarray, ref: np.ndarray, fs: float) -> np.ndarray:
@@ -135,6 +131,9 @@ def unshared(signals: list[np.ndarray], fs: float, settings: QCSettings,
     u : list of arrays
     flags : list of bool arrays
     typical_rms, response_rms : float
+    references : list of arrays
+    limit : float
+        The flagging threshold on the windowed RMS.
     """
     n = len(signals)
     S = np.vstack(signals)
@@ -170,7 +169,7 @@ def unshared(signals: list[np.ndarray], fs: float, settings: QCSettings,
         if all(np.array_equal(a, b) for a, b in zip(new_keep, keep)):
             break
         keep = new_keep
-    return u, flags, rms, typical, response
+    return u, flags, rms, typical, response, references, limit
 
 
 def deviations(u: np.ndarray, flags: np.ndarray, rms: np.ndarray, fs: float, typical: float,
@@ -231,4 +230,35 @@ def attribute_pair(signals: list[np.ndarray], neighbour: np.ndarray | None, fs: 
         return 0
     if e[1] >= settings.attribute_ratio * e[0]:
         return 1
+    return None
+
+
+def fit_jump(s: np.ndarray, ref: np.ndarray, fs: float, limit: float,
+             settings: QCSettings) -> tuple[float, float] | None:
+    """A baseline jump that explains all of a trial's difference from its repeats.
+
+    The trial is regressed on [ref, ref', 1, t, H(t - T)] for every T on a grid (every
+    two samples); with the best T, the remainder must stay below ``limit`` in every window
+    away from the jump itself. Returns (height in N, T in s) or None.
+    """
+    n = s.size
+    t = np.arange(n) / fs
+    base = np.column_stack([ref, np.gradient(ref) * fs, np.ones(n), t - t.mean()])
+    w = int(round(settings.window_s * fs))
+    best = None
+    for k in range(w, n - w, 2):
+        X = np.column_stack([base, (np.arange(n) >= k).astype(float)])
+        beta, res, *_ = np.linalg.lstsq(X, s, rcond=None)
+        sse = float(res[0]) if res.size else float(np.sum((s - X @ beta) ** 2))
+        if best is None or sse < best[0]:
+            best = (sse, k, beta)
+    if best is None:
+        return None
+    _, k, beta = best
+    X = np.column_stack([base, (np.arange(n) >= k).astype(float)])
+    rms = _window_rms(s - X @ beta, w)
+    away = np.ones(n, bool)
+    away[max(0, k - w):k + w] = False
+    if np.all(rms[away] <= limit):
+        return float(beta[-1]), k / fs
     return None

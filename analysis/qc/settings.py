@@ -46,6 +46,11 @@ class QCSettings:
     """Length of the sliding window in which the unshared component is measured: short
     enough to localise a 1 s voluntary contraction, long enough (~10 independent
     samples at 20 Hz) that its RMS is a stable estimate."""
+    onset_ignore_s: float = 0.5
+    """Differences between repeats in the first this-many seconds after stimulation onset
+    are not reported: how the muscles take up the stimulation depends on how long they
+    rested before it (post-activation potentiation, residual force), which the protocol
+    does not hold equal, and the fit never sees this part of the lead-in."""
     deviation_k: float = 4.0
     """A window is flagged when its unshared RMS exceeds this multiple of the level's
     typical (median) unshared RMS, which already contains the sensor noise and the
