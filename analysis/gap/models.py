@@ -37,8 +37,8 @@ import numpy as np
 from scipy import signal
 
 from analysis.gap.data import GapData
-from analysis.gap.discretize import (foh_compensate, fractional_delay, lagged_second_order_tf, parallel_tf,
-                                     second_order_tf)
+from analysis.discretize import (fractional_delay, lagged_second_order_tf, parallel_tf,
+                                 second_order_tf, smooth_hold_input)
 from analysis.gap.effects import Effect
 
 #: The twin file's default fatigue reference (45 trials x 15 s).
@@ -212,7 +212,7 @@ def recruitment_excess(data: GapData, h) -> np.ndarray:
     sE = np.array([t.sE for t in data.trials])[:, None]
     rE = data.rE_sim
     x = (h(rE * sE) - h((1 - rE) * sE)) / (2 * sE)
-    return foh_compensate(signal.sosfiltfilt(_lowpass_sos(data), x - (rE - 0.5), axis=-1))
+    return smooth_hold_input(signal.sosfiltfilt(_lowpass_sos(data), x - (rE - 0.5), axis=-1))
 
 
 #: Knots of our recruitment curve (normalised intensity).

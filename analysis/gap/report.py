@@ -108,12 +108,12 @@ def _row(r) -> dict:
             "shrink_pct": r.shrink_pct, "supported": r.supported, "fit_s": r.fit_s}
 
 
-def _clean(obj):
+def json_safe(obj):
     """JSON-safe (NaN -> None, numpy -> Python)."""
     if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
+        return {str(k): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
+        return [json_safe(v) for v in obj]
     if isinstance(obj, (np.floating, float)):
         v = float(obj)
         return v if math.isfinite(v) else None
@@ -122,7 +122,7 @@ def _clean(obj):
     if isinstance(obj, np.bool_):
         return bool(obj)
     if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
+        return json_safe(obj.tolist())
     return obj
 
 
@@ -184,7 +184,7 @@ def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | 
         "elapsed_s": diag.elapsed_s,
     }
     report["settings"]["candidates"] = [e.value for e in diag.settings.candidates]
-    return _clean(report), loc, twin
+    return json_safe(report), loc, twin
 
 
 def write_outputs(diag: Diagnosis, out_dir, calibration=None, *, plots: bool = True) -> dict:
