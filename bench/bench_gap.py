@@ -244,6 +244,39 @@ def run_case(args) -> dict:
     return out
 
 
+def run_extra(args) -> dict:
+    """One session of the classes the diagnosis was not written for (``gap_sessions``)."""
+    kind, seed, workdir = args
+    import gap_sessions
+    from analysis.gap.data import load_session
+    from analysis.gap.diagnose import diagnose
+    from sim_backends import make_population
+
+    participant = make_population(seed % 12 + 1, seed=2026)[seed % 12]
+    path = os.path.join(workdir, f"x_{kind}_{seed}.h5")
+    gen = gap_sessions.simulate(participant, path, kind, seed)
+    t0 = time.perf_counter()
+    diag = diagnose(load_session(path))
+    a = diag.assessment
+    return {"class": kind, "seed": seed, "found": _found(diag), "verdict": a["verdict"],
+            "remaining_significant": a["remaining"]["significant"],
+            "beyond_pct": a["remaining"]["beyond_noise_pct_typical"],
+            "nominal_beyond_pct": a["nominal_gap"]["beyond_noise_pct_typical"],
+            "timing_s": diag.data.timing.delay_s if diag.data.timing else None,
+            "rig_timing_s": gen.timing_s, "noise_N": gen.noise_N, "params": gen.describe(),
+            "where": a["remaining"]["where"]["summary"], "t_gap_s": time.perf_counter() - t0}
+
+
+def _found(diag) -> str:
+    """What the report names: an effect, a pair, ``unexplained`` or ``none``."""
+    v = diag.assessment["verdict"]
+    if v == "pair":
+        return "pair"
+    if v == "effect":
+        return diag.best_effect.value
+    return v
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5)

@@ -126,6 +126,9 @@ class GapData:
     """The input timing applied to rE (estimated or fixed, see module)."""
     excluded: dict = field(default_factory=dict)
     """Trials left out because they were excluded upstream: name -> reason."""
+    steady_N: np.ndarray | None = None
+    """(n_trials, n_lead) the same lead-in force after offset and trend, at the evaluation
+    rate (the noise as it is: its spectrum and correlation)."""
     steady_noise_N2: np.ndarray | None = None
     """(n_trials,) mean square of the filtered force in the steady lead-in (rE = 0.5, last
     3 s before the chirp but 0.3 s) after offset and trend: the sensor's noise floor, free
@@ -176,7 +179,9 @@ class GapData:
             chirp_f0_Hz=self.chirp_f0_Hz, chirp_f1_Hz=self.chirp_f1_Hz,
             chirp_s=self.chirp_s, steady_s=self.steady_s, n_lead_sim=self.n_lead_sim,
             sim_step=self.sim_step, skipped=self.skipped, timing=self.timing,
-            excluded=self.excluded, steady_noise_N2=None if self.steady_noise_N2 is None else self.steady_noise_N2[rows])
+            excluded=self.excluded,
+            steady_N=None if self.steady_N is None else self.steady_N[rows],
+            steady_noise_N2=None if self.steady_noise_N2 is None else self.steady_noise_N2[rows])
 
 
 def _filter_chain(x: np.ndarray, fs_Hz: float, s: PreprocessSettings) -> np.ndarray:
@@ -277,7 +282,7 @@ def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
         raise GapInputError(f"{path}: the analysis window (t >= steady_s = "
                             f"{first.steady_s:g} s) is shorter than 2 s")
     n_raw_used = lead + n_eval * step_raw
-    rows_y, rows_draw, steady = [], [], []
+    rows_y, rows_draw, steady, steady_rows = [], [], [], []
     a_st = int(round(max(0.5, first.steady_s - 3.3) * fs))
     b_st = int(round((first.steady_s - 0.3) * fs))
     for _, t in usable:
@@ -288,6 +293,7 @@ def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
             tt = np.arange(len(seg), dtype=float)
             res = seg - np.polyval(np.polyfit(tt, seg, 1), tt)
             steady.append(float(np.mean(res ** 2)))
+            steady_rows.append(res)
         else:
             steady.append(float("nan"))
         seg = slice(i_win - lead, i_win - lead + n_raw_used)
@@ -319,4 +325,5 @@ def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
         chirp_s=float(first.chirp_s), steady_s=float(first.steady_s),
         n_lead_sim=lead // raw_per_sim, sim_step=sim_step, skipped=skipped, timing=timing,
         excluded=left_out,
+        steady_N=np.vstack(steady_rows) if len(steady_rows) == len(usable) else None,
         steady_noise_N2=np.array(steady))

@@ -150,10 +150,16 @@ def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | 
                          sE_levels=diag.data.sE_levels, Kp=Kp, wn_rad_s=wn, zeta=zeta,
                          effects=effects)
     in_aug = final.insample_nrmse_pct if final else nom.insample_nrmse_pct
+    a = diag.assessment
     report = {
         "format": "nmsid-gap-report", "format_version": 1,
         "session": diag.data.path, "participant": diag.data.participant,
+        "verdict": a.get("verdict"), "verdict_sentence": a.get("sentence"),
+        "remaining": a.get("remaining"), "nominal_gap": a.get("nominal_gap"),
+        "not_named": a.get("not_named"),
         "n_trials": diag.data.n_trials, "skipped_trials": diag.data.skipped,
+        "excluded_trials": [{"trial": k, "reason": v} for k, v in diag.data.excluded.items()],
+        "input_timing": diag.data.timing.as_dict() if diag.data.timing else None,
         "folds": [{"held_out_repeat": f.held_out_repeat, "n_train": len(f.train),
                    "n_test": len(f.test)} for f in diag.folds],
         "best_effect": diag.best_effect.value,
@@ -260,10 +266,20 @@ def _html(report: dict, figures: list[str]) -> str:
         f"<p>Session <code>{html.escape(str(report['session']))}</code>, "
         f"{report['n_trials']} trials, {len(report['folds'])}-fold cross-validation by "
         "repeat (held-out figures never come from trials used in fitting).</p>",
-        f"<h2>Verdict: <code>{html.escape(report['best_effect'])}</code>"
+        f"<h2>Verdict: <code>{html.escape(str(report['verdict']))}</code>"
+        + (f" (<code>{html.escape(report['best_effect'])}</code>)"
+           if report["best_effect"] != "none" and not report.get("best_pair") else "")
         + (f" (pair: {html.escape(' + '.join(report['best_pair']))})"
-           if report.get("best_pair") else "") + "</h2><ul>",
+           if report.get("best_pair") else "") + "</h2>",
+        f"<p><b>{html.escape(str(report.get('verdict_sentence') or ''))}</b></p>",
     ]
+    if report.get("excluded_trials"):
+        parts.append("<p>Trials excluded upstream and not held against the model: "
+                     + html.escape("; ".join(f"{e['trial']} ({e['reason']})"
+                                             for e in report["excluded_trials"])) + "</p>")
+    if report.get("not_named"):
+        parts.append(f"<p>{html.escape(report['not_named'])}.</p>")
+    parts.append("<ul>")
     parts += [f"<li>{html.escape(line)}</li>" for line in report["evidence"]["summary"]]
     parts.append("</ul>")
     parts.append(
