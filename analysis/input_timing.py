@@ -114,10 +114,13 @@ def pooled(steps, max_s: float) -> TimingEstimate:
     w = np.array([1.0 / s ** 2 for _, s in ok])
     d = float(np.sum(w * np.array([d for d, _ in ok])) / np.sum(w))
     se = float(1.0 / math.sqrt(np.sum(w)))
+    at_bound = abs(d) >= max_s
     d = float(np.clip(d, -max_s, max_s))
     if abs(d) <= SIGNIFICANCE_SE * se:
         return TimingEstimate(0.0, se, "estimated (not significant: 0 used)", len(ok))
-    return TimingEstimate(round(d, 9), se, "estimated", len(ok))
+    return TimingEstimate(round(d, 9), se, "estimated at the bound (the data ask for more: "
+                          "physiology, e.g. a dead time, or a rig to calibrate)" if at_bound
+                          else "estimated", len(ok))
 
 
 def fixed_timing(settings: IdentificationSettings, fs_Hz: float) -> TimingEstimate | None:

@@ -198,6 +198,7 @@ class _Runner:
                 k = cand.n_shared()
                 if Effect.BASELINE_DRIFT in cand.effects:
                     k += n_drift_columns(d.t_eval_s, fit.corner_Hz) * tr.n_trials
+                    k += 2 * fit.n_steps      # a step's time and height
                 n_eff = nu * fit.n_samples
                 dic.append(n_eff * np.log(fit.rss / nom_fit.rss) + 2 * k)
                 dk.append(k)
@@ -223,7 +224,7 @@ class _Runner:
                 fit = fit_model(tr, candidate(Effect.BASELINE_DRIFT), start=nom,
                                 corner_Hz=fc, max_iter=4)
                 nu = self.nu
-                k = n_drift_columns(d.t_eval_s, fc) * tr.n_trials
+                k = n_drift_columns(d.t_eval_s, fc) * tr.n_trials + 2 * fit.n_steps
                 ic = nu * fit.n_samples * np.log(fit.rss / nom.rss) + 2 * k
                 if ic < best_ic:
                     best, best_ic = fit, ic

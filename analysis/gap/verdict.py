@@ -35,7 +35,9 @@ import math
 
 import numpy as np
 
+from analysis.gap.fit import find_steps
 from analysis.gap.harmonics import local_harmonics
+from analysis.gap.models import nuisance_basis
 from analysis.gap.samples import effective_fraction
 
 #: Residual harmonics examined (1.5f: a non-harmonic reference).
@@ -138,7 +140,8 @@ def gap_test(resid: np.ndarray, noise_N2: np.ndarray, reference: np.ndarray,
 
 
 def narrow_band(resid: np.ndarray, reference: np.ndarray, noise: np.ndarray | None,
-                fs_Hz: float, f_max_Hz: float, *, peak_ratio: float = 2.0,
+                fs_Hz: float, f_max_Hz: float, *, f_min_Hz: float = 1.0,
+                peak_ratio: float = 2.0,
                 line_width_Hz: float = 0.45, min_beyond_noise_pct: float = 0.1) -> list[dict]:
     """Narrow-band components of a residual (see module): frequency, width, kind, size.
 
@@ -179,7 +182,7 @@ def narrow_band(resid: np.ndarray, reference: np.ndarray, noise: np.ndarray | No
     half = max(3, int(round(1.5 / df)))
     pad = np.pad(P, half, mode="reflect")
     bg = np.array([np.median(pad[i:i + 2 * half + 1]) for i in range(len(P))])
-    use = (f > 0.5) & (f <= f_max_Hz)
+    use = (f >= f_min_Hz) & (f <= f_max_Hz)
     hot = use & (P > peak_ratio * bg)
     ref_ms = float(np.mean(reference ** 2))
     out = []
@@ -197,6 +200,9 @@ def narrow_band(resid: np.ndarray, reference: np.ndarray, noise: np.ndarray | No
         ms = 2.0 * float(ex.sum()) / n
         fc = float(np.sum(f[sl] * ex) / ex.sum()) if ex.sum() > 0 else float(f[i])
         width = float((j - i + 1) * df)
+        if width > fc / 2:      # not an oscillation: a broad low-frequency excess
+            i = j + 1
+            continue
         kind = "line" if width <= line_width_Hz else "band"
         beyond = 100.0 * math.sqrt(ms / ref_ms) if ref_ms > 0 else float("nan")
         at_rest = None
@@ -249,9 +255,20 @@ def sentence(verdict: str, label: str | None, nominal: dict, remaining: dict) ->
     nom = nominal.get("beyond_noise_pct_typical") or 0.0
     where = remaining.get("where_summary") or ""
     conc = remaining.get("concentrated_in") or nominal.get("concentrated_in") or []
-    tail = (f" The largest part of the misfit sits in trial(s) {', '.join(map(str, conc))}; "
-            "the verdict does not rest on them - check those trials for a voluntary "
-            "contraction or an artefact." if conc else "")
+    steps = {s["trial"]: s for s in (remaining.get("where") or {}).get("baseline_steps", [])
+             if s["share_of_excess_pct"] >= 80}
+    tail = ""
+    if conc:
+        tail = (f" The largest part of the misfit sits in trial(s) {', '.join(map(str, conc))}"
+                "; the verdict does not rest on them")
+        explained = [c for c in conc if c in steps]
+        if explained:
+            tail += "; " + ", ".join(
+                f"{c} has a baseline step of {steps[c]['height_N']:+.2f} N at "
+                f"{steps[c]['t_s']:.1f} s into the chirp" for c in explained)
+        if len(explained) < len(conc):
+            tail += " - check those trials for a voluntary contraction or an artefact"
+        tail += "."
     if verdict == "none":
         return ("The nominal second-order model predicts held-out repeats as well as the "
                 f"measurement noise allows (what it misses beyond noise, {nom:.2f} % of the "
@@ -311,6 +328,31 @@ def where(diag, resid: np.ndarray, components: list[dict], harmonics: dict | Non
         "correlation_with_order": float(np.corrcoef(order, np.log(ratio))[0, 1])
         if len(ratio) >= 3 and np.std(np.log(ratio)) > 0 else None}
     out["summary"] = _summary(out)
+    return out
+
+
+def baseline_steps(diag, resid: np.ndarray) -> list[dict]:
+    """Baseline steps inside held-out trials (a jump at an unknown time): trial, time after
+    the chirp's start, height, and how much of the trial's misfit beyond noise it carries."""
+    d = diag.data
+    ok = np.flatnonzero(diag.tested)
+    if len(ok) == 0:
+        return []
+    Q = nuisance_basis(d.t_eval_s, 0.0)
+    r = resid[ok]
+    steps = find_steps(r, Q, d.subset(ok))
+    out = []
+    for i, u in steps.items():
+        a = float(r[i] @ u)
+        after = r[i] - a * u
+        N = d.steady_noise_N2[ok[i]] if d.steady_noise_N2 is not None else 0.0
+        ex_before = max(float(np.mean(r[i] ** 2)) - N, 1e-30)
+        ex_after = max(float(np.mean(after ** 2)) - N, 0.0)
+        k = int(np.argmax(np.abs(np.diff(u))))
+        height = a * float(u[k + 1] - u[k])
+        out.append({"trial": d.trials[ok[i]].name, "t_s": float(d.t_eval_s[k + 1]),
+                    "height_N": height,
+                    "share_of_excess_pct": 100.0 * (1 - ex_after / ex_before)})
     return out
 
 
@@ -386,7 +428,7 @@ def assess(diag) -> dict:
         t = gap_test(r, noise[ok], diag.reference[ok], nu, nu, n_lead, z_crit=s.significance_z,
                      min_beyond_noise_pct=s.min_beyond_noise_pct, names=names)
         comps = narrow_band(r, diag.reference[ok], rest, d.fs_eval_Hz, band_top,
-                            min_beyond_noise_pct=s.min_beyond_noise_pct)
+                            f_min_Hz=d.chirp_f0_Hz, min_beyond_noise_pct=s.min_beyond_noise_pct)
         t["narrow_band_significant"] = any(c["significant"] for c in comps)
         t["significant_total"] = bool(t["significant"] or t["narrow_band_significant"])
         return t, comps
@@ -398,11 +440,14 @@ def assess(diag) -> dict:
         rem, comps, res = nom, nom_comps, diag.nominal
     else:
         (rem, comps), res = test(final), final
+    verdict = decide(nom["significant_total"], kind, rem["significant_total"])
+    if verdict == "none":      # nothing named: what remains is the nominal model's gap
+        rem, comps, res = nom, nom_comps, diag.nominal
     w = where(diag, res.heldout_resid, comps, _harmonics(diag, res))
+    w["baseline_steps"] = baseline_steps(diag, diag.nominal.heldout_resid)
     rem = dict(rem)
     rem["where"] = w
     rem["where_summary"] = w["summary"]
-    verdict = decide(nom["significant_total"], kind, rem["significant_total"])
     label = final.label if final is not None else None
     remaining = {"beyond_noise_pct": rem["beyond_noise_pct"],
                  "beyond_noise_pct_typical": rem["beyond_noise_pct_typical"],
@@ -424,7 +469,7 @@ def assess(diag) -> dict:
                 "not significant): not named")
     else:
         note = None
-    text = sentence(verdict, label, nom, dict(rem, where_summary=w["summary"]))
+    text = sentence(verdict, label, nom, dict(rem, where_summary=w["summary"], where=w))
     return {"verdict": verdict, "label": label if verdict in ("effect", "pair") else None,
             "remaining": remaining, "nominal_gap": nominal, "sentence": text,
             "not_named": note}
