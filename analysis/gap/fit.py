@@ -121,10 +121,12 @@ class Problem:
 STEP_Z = 6.0
 
 
-def find_steps(resid: np.ndarray, Q: np.ndarray, data: GapData, z: float = STEP_Z
-               ) -> dict[int, np.ndarray]:
-    """Per row: the most likely time of a baseline step (every 50 ms, 0.3 s from the ends),
-    kept when significant against the trial's noise (see ``STEP_Z``).
+def find_steps(resid: np.ndarray, Q: np.ndarray, data: GapData, z: float = STEP_Z,
+               info: dict | None = None) -> dict[int, np.ndarray]:
+    """Per row: the most likely time of a baseline step (every 50 ms, 0.3 s from the ends,
+    low-passed like the force), kept when significant against the trial's noise (see
+    ``STEP_Z``). ``info``, if given, receives row -> (sample index of the step, height in
+    N per unit of the returned column's coefficient).
 
     The noise of a step's amplitude is that of the noise's spectrum at low frequency:
     per-sample variance (steady lead-in) over the effective-sample fraction of the noise.
@@ -137,6 +139,10 @@ def find_steps(resid: np.ndarray, Q: np.ndarray, data: GapData, z: float = STEP_
     if len(times) == 0:
         return {}
     S = (np.arange(n)[None, :] >= times[:, None]).astype(float)
+    # a step in the force passes the force's low-pass: so does the step column
+    sos = signal.butter(data.settings.lowpass_order, data.settings.lowpass_Hz, fs=fs,
+                        output="sos")
+    S = signal.sosfiltfilt(sos, S, axis=1)
     S -= (S @ Q) @ Q.T
     norm2 = np.sum(S * S, axis=1)
     keep = norm2 > 1e-9
@@ -154,6 +160,8 @@ def find_steps(resid: np.ndarray, Q: np.ndarray, data: GapData, z: float = STEP_
         k = int(np.argmax(stat[i]))
         if stat[i, k] > z * z * var[i] / max(nu, 1e-3):
             out[i] = S[k] / np.sqrt(norm2[k])
+            if info is not None:
+                info[i] = (int(times[keep][k]), 1.0 / float(np.sqrt(norm2[k])))
     return out
 
 
