@@ -221,6 +221,9 @@ def _figures(diag: Diagnosis, report: dict, loc: dict, out: Path) -> list[str]:
     names.append("frequency.png")
     plots.plot_spectrum_and_gain(loc, out / "drift_fatigue.png", diag.data.chirp_f0_Hz)
     names.append("drift_fatigue.png")
+    if report.get("remaining") and report["remaining"]["where"].get("sE"):
+        plots.plot_remaining(report, out / "remaining.png")
+        names.append("remaining.png")
     plots.plot_ranking(report["ranking"], diag.nominal.heldout_nrmse_pct,
                        diag.noise_floor_nrmse_pct, out / "ranking.png")
     names.append("ranking.png")
