@@ -292,7 +292,9 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
             cand = candidate(*effs)
 
             def pair_fit(k, max_iter, other=other, effs=effs, cand=cand):
-                p0 = np.concatenate([_fold_p(best, other, e, k) for e in effs])
+                p0 = np.concatenate([_fold_p(best, other, e, k) for e in effs]
+                                    + [[1e3 * best.candidate.timing_s(
+                                        best.fold_fits[k].p_shared)]])
                 return fit_model(run.train[k], cand, start=best.fold_fits[k], p_start=p0,
                                  corner_Hz=max(best.fold_fits[k].corner_Hz,
                                                other.fold_fits[k].corner_Hz),
@@ -323,8 +325,7 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
     if final is None:
         full = nominal_full
     else:
-        p0 = np.mean([f.p_shared for f in final.fold_fits], axis=0) \
-            if full_cand.n_shared() else None
+        p0 = np.mean([f.p_shared for f in final.fold_fits], axis=0)
         corner = float(np.median([f.corner_Hz for f in final.fold_fits]))
         full = fit_model(data, full_cand, start=nominal_full, p_start=p0, corner_Hz=corner,
                          max_iter=s.max_iter)
@@ -350,7 +351,7 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
 def _fold_p(best: CandidateResult, other: CandidateResult, effect: Effect, k: int):
     for r in (best, other):
         if r.candidate.effects == (effect,):
-            return r.fold_fits[k].p_shared
+            return r.candidate.sub(r.fold_fits[k].p_shared, effect)
     return np.zeros(0)
 
 

@@ -165,6 +165,18 @@ def find_steps(resid: np.ndarray, Q: np.ndarray, data: GapData, z: float = STEP_
     return out
 
 
+def timing_bounds_ms(data: GapData) -> tuple[float, float]:
+    """Bounds of the models' timing correction (ms): the total timing, session estimate
+    plus correction, stays within +-``input_timing_max_s``; a timing fixed by the settings
+    (hold, smooth, calibrated) is not corrected."""
+    t = data.timing
+    sig = data.settings.signal
+    if t is None or not str(t.source).startswith("estimated"):
+        return 0.0, 0.0
+    m = sig.input_timing_max_s
+    return 1e3 * (-m - t.delay_s), 1e3 * (m - t.delay_s)
+
+
 def initial_levels(data: GapData) -> tuple[np.ndarray, np.ndarray]:
     """Per-level start (wn, zeta) from a Levy fit of the local transfer function."""
     u = local_harmonics(data.d_eval, data.phase_eval_rad, data.f_inst_Hz, data.t_eval_s)
@@ -206,7 +218,7 @@ def fit_model(data: GapData, cand: Candidate, *, start: ModelFit | None = None,
         wn0, z0 = start.wn_rad_s[prob.levels].copy(), start.zeta[prob.levels].copy()
     else:
         wn0, z0 = initial_levels(data)
-    ns = cand.n_shared()
+    ns = cand.n_free()
     # screen the shared parameters' starting grid with the per-level start held fixed
     grid = cand.start_grid()
     if p_start is not None:
@@ -225,6 +237,7 @@ def fit_model(data: GapData, cand: Candidate, *, start: ModelFit | None = None,
         return prob.residual(*split(x))[0]
 
     lo_s, hi_s = cand.bounds()
+    lo_s[-1], hi_s[-1] = timing_bounds_ms(data)
     lo = np.concatenate([np.full(nL, np.log(3.0)), np.full(nL, np.log(0.03)), lo_s])
     hi = np.concatenate([np.full(nL, np.log(600.0)), np.full(nL, np.log(10.0)), hi_s])
     x0 = np.clip(x0, lo, hi)

@@ -65,6 +65,12 @@ def final_params(diag: Diagnosis) -> dict:
     fit = diag.full_fit
     p = dict(fit.params)
     effs = fit.candidate.effects
+    session_s = diag.data.timing.delay_s if diag.data.timing else 0.0
+    p["input_timing_s"] = session_s + p.pop("timing_correction_s", 0.0)
+    if Effect.DEAD_TIME in effs:
+        # counted from the rE record: the rig's timing and the participant's latency
+        # together (the two are one delay to the data)
+        p["L_s"] = p["L_s"] + p["input_timing_s"]
     if Effect.FATIGUE in effs:
         p["gain_loss_pct"] = fatigue_loss_pct(p["rate_per_s"])
     if Effect.RECRUITMENT_NONLINEARITY in effs:
