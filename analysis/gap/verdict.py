@@ -158,7 +158,8 @@ def narrow_band(resid: np.ndarray, reference: np.ndarray, noise: np.ndarray | No
     -------
     list of dict
         ``f_Hz``, ``width_Hz``, ``kind`` (``line`` or ``band``), ``beyond_noise_pct``,
-        ``at_rest`` (its power in the lead-in relative to the lead-in background, or None),
+        ``trial_spread_Hz`` (interquartile range of the trials' peak frequencies), ``at_rest``
+        (its power in the lead-in relative to the lead-in background, or None),
         ``significant`` (a material band).
 
     Examples
@@ -179,31 +180,62 @@ def narrow_band(resid: np.ndarray, reference: np.ndarray, noise: np.ndarray | No
     P = np.mean(np.abs(np.fft.rfft(resid * win, axis=1)) ** 2, axis=0) / norm
     f = np.fft.rfftfreq(n, 1.0 / fs_Hz)
     df = f[1]
-    half = max(3, int(round(1.5 / df)))
-    pad = np.pad(P, half, mode="reflect")
-    bg = np.array([np.median(pad[i:i + 2 * half + 1]) for i in range(len(P))])
     use = (f >= f_min_Hz) & (f <= f_max_Hz)
+    # background: the log-spectrum's smooth trend (cubic over the band) plus a running
+    # 35th percentile of what is left over +-4 Hz, so that a peak a few Hz wide (tremor)
+    # does not raise its own background, and the filter's roll-off is no peak
+    L = np.log(np.maximum(P, 1e-300))
+    fu = f[use]
+    if use.sum() < 16:
+        return []
+    coef = np.polyfit(fu, L[use], 3)
+    trend = np.polyval(coef, f)
+    R = L - trend
+    half = max(3, int(round(4.0 / df)))
+    pad = np.pad(R, half, mode="reflect")
+    bgR = np.array([np.percentile(pad[i:i + 2 * half + 1], 35) for i in range(len(P))])
+    bg = np.exp(trend + bgR)
     hot = use & (P > peak_ratio * bg)
     ref_ms = float(np.mean(reference ** 2))
+    # groups of hot bins; gaps under 0.5 Hz joined (one component may dip in places)
+    idx = np.flatnonzero(hot)
+    groups: list[list[int]] = []
+    for k in idx:
+        if groups and (k - groups[-1][-1]) * df < 0.5:
+            groups[-1].append(int(k))
+        else:
+            groups.append([int(k)])
+    Pt = np.abs(np.fft.rfft(resid * win, axis=1)) ** 2          # per trial
     out = []
-    i = 0
-    while i < len(P):
-        if not hot[i]:
-            i += 1
-            continue
-        j = i
-        while j + 1 < len(P) and (hot[j + 1] or (j + 2 < len(P) and hot[j + 2])):
-            j += 1
+    for g in groups:
+        i, j = g[0], g[-1]
         sl = slice(i, j + 1)
         ex = np.maximum(P[sl] - bg[sl], 0.0)
+        if ex.sum() <= 0:
+            continue
+        kp = i + int(np.argmax(ex))
+        top = P[kp] - bg[kp]
+        a = b = kp
+        while a - 1 >= i and P[a - 1] - bg[a - 1] >= 0.5 * top:
+            a -= 1
+        while b + 1 <= j and P[b + 1] - bg[b + 1] >= 0.5 * top:
+            b += 1
+        width = float((b - a + 1) * df)                     # half-power width
+        fc = float(np.sum(f[sl] * ex) / ex.sum())
+        if width > fc / 2:      # not an oscillation: a broad low-frequency excess
+            continue
+        # a line sits at the same frequency in every trial; an oscillation wanders
+        lo_k, hi_k = max(i - 3, 1), min(j + 4, len(P))
+        peaks = f[lo_k + np.argmax(Pt[:, lo_k:hi_k], axis=1)]
+        spread = float(np.subtract(*np.percentile(peaks, [75, 25])))
+        if width <= line_width_Hz and spread <= 2 * df:
+            kind = "line"
+        elif width < 2.5 * df:  # a bin or two, wandering: neither a line nor an oscillation
+            continue
+        else:
+            kind = "band"
         # power per bin -> mean square: Parseval with the window's normalisation, 2 sides
         ms = 2.0 * float(ex.sum()) / n
-        fc = float(np.sum(f[sl] * ex) / ex.sum()) if ex.sum() > 0 else float(f[i])
-        width = float((j - i + 1) * df)
-        if width > fc / 2:      # not an oscillation: a broad low-frequency excess
-            i = j + 1
-            continue
-        kind = "line" if width <= line_width_Hz else "band"
         beyond = 100.0 * math.sqrt(ms / ref_ms) if ref_ms > 0 else float("nan")
         at_rest = None
         if noise is not None and noise.shape[1] >= 32:
@@ -211,14 +243,14 @@ def narrow_band(resid: np.ndarray, reference: np.ndarray, noise: np.ndarray | No
             wn = np.hanning(m)
             Pn = np.mean(np.abs(np.fft.rfft(noise * wn, axis=1)) ** 2, axis=0)
             fn = np.fft.rfftfreq(m, 1.0 / fs_Hz)
-            near = (fn >= f[i] - df) & (fn <= f[j] + df)
-            away = (fn > 0.5) & (np.abs(fn - fc) > 2.0) & (np.abs(fn - fc) < 5.0)
+            near = (fn >= f[a] - df) & (fn <= f[b] + df)
+            away = (fn > 0.5) & (np.abs(fn - fc) > 3.0) & (np.abs(fn - fc) < 8.0)
             if near.any() and away.any():
                 at_rest = float(np.mean(Pn[near]) / np.median(Pn[away]))
         out.append({"f_Hz": fc, "width_Hz": width, "kind": kind, "beyond_noise_pct": beyond,
-                    "at_rest": at_rest,
-                    "significant": bool(kind == "band" and beyond >= min_beyond_noise_pct)})
-        i = j + 1
+                    "trial_spread_Hz": spread, "at_rest": at_rest,
+                    "significant": bool(kind == "band" and beyond >= min_beyond_noise_pct
+                                        and top >= 3 * bg[kp])})
     out.sort(key=lambda c: -c["beyond_noise_pct"])
     return out[:6]
 
