@@ -8,6 +8,12 @@ included: no eigen-decomposition is used). The result is a transfer function
 ``N(z^-1) / D(z^-1)`` with three numerator and three denominator coefficients, run by
 ``scipy.signal.lfilter``.
 
+The same module holds the stacked first-order-hold difference equations of the gap
+diagnosis's augmented models (:func:`foh_allpole` and the functions built on it, vectorised
+over sE levels) and the fractional delay of either sign that carries the rig's input timing
+(:func:`fractional_delay`, see :mod:`analysis.input_timing`): identification and gap
+diagnosis discretise through this one module.
+
 For a sampled *smooth* input (rE is one), :func:`smooth_hold_input` pre-corrects the
 samples so that the piecewise-linear interpolation reproduces the band-limited signal to
 sixth order in f/fs (see :class:`analysis.settings.InputHold`).
@@ -18,6 +24,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy import linalg
 
 #: Relative step of the central differences used for coefficient derivatives.
 _FD_STEP = 1e-6
@@ -164,7 +171,7 @@ def smooth_hold_input(u: np.ndarray) -> np.ndarray:
     gain 1 + x^2/3 + x^4/15 + O(x^6) with x = pi f dt, the series of 1/sinc^2, so the
     held ``v`` equals the band-limited ``u`` to O(x^6): 1e-6 at 10 Hz sampled at 200 Hz.
     The two samples at each end use an odd (point) reflection of the signal, which keeps
-    straight lines exact.
+    straight lines exact. Works along the last axis of an array of any shape.
 
     Examples
     --------
@@ -173,14 +180,14 @@ def smooth_hold_input(u: np.ndarray) -> np.ndarray:
     True
     """
     u = np.asarray(u, dtype=float)
-    if u.size < 5:
+    if u.shape[-1] < 5:
         return u.copy()
-    left = 2 * u[0] - u[2:0:-1]
-    right = 2 * u[-1] - u[-2:-4:-1]
-    p = np.concatenate([left, u, right])
-    c = p[2:-2]
-    d2 = p[3:-1] - 2 * c + p[1:-3]
-    d4 = p[4:] - 4 * p[3:-1] + 6 * c - 4 * p[1:-3] + p[:-4]
+    left = 2 * u[..., :1] - u[..., 2:0:-1]
+    right = 2 * u[..., -1:] - u[..., -2:-4:-1]
+    p = np.concatenate([left, u, right], axis=-1)
+    c = p[..., 2:-2]
+    d2 = p[..., 3:-1] - 2 * c + p[..., 1:-3]
+    d4 = p[..., 4:] - 4 * p[..., 3:-1] + 6 * c - 4 * p[..., 1:-3] + p[..., :-4]
     return c - d2 / 12.0 + d4 / 90.0
 
 
@@ -254,3 +261,171 @@ def foh_state_matrices(wn_rad_s, zeta, dt_s: float):
     ga = np.where(use_series, ga_s, ga_c)
     gb = np.where(use_series, gb_s, gb_c)
     return phi, ga - gb, gb
+
+
+def fractional_delay(x: np.ndarray, delay_samples: float) -> np.ndarray:
+    """Delay each row by a fractional number of samples of either sign.
+
+    Integer shift plus a 4-tap Lagrange (cubic) interpolator: error below 1e-5 of the
+    amplitude for content under 5 % of the sampling rate. A positive delay repeats the
+    first sample before the start (the rig's input was at rest there); a negative delay
+    (an advance) repeats the last sample after the end.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> x = np.arange(10.0)
+    >>> bool(np.allclose(fractional_delay(x, 0.5)[3:-2], x[3:-2] - 0.5))
+    True
+    >>> bool(np.allclose(fractional_delay(x, -1.25)[:6], x[:6] + 1.25))
+    True
+    """
+    x = np.asarray(x, dtype=float)
+    n = x.shape[-1]
+    k = int(np.floor(delay_samples))
+    mu = float(delay_samples - k)
+    # output sample i = x(i - k - mu): Lagrange through x[i-k+1], x[i-k], x[i-k-1], x[i-k-2]
+    c = (-mu * (mu - 1) * (mu - 2) / 6, (mu + 1) * (mu - 1) * (mu - 2) / 2,
+         -(mu + 1) * mu * (mu - 2) / 2, (mu + 1) * mu * (mu - 1) / 6)
+    pad = abs(k) + 3
+    xp = np.concatenate([np.repeat(x[..., :1], pad, axis=-1), x,
+                         np.repeat(x[..., -1:], pad, axis=-1)], axis=-1)
+    out = np.zeros_like(x)
+    for tap, shift in zip(c, (k - 1, k, k + 1, k + 2)):
+        start = pad - shift
+        out += tap * xp[..., start:start + n]
+    return out
+
+
+def foh_tf(A: np.ndarray, B: np.ndarray, C: np.ndarray, dt_s: float
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """First-order-hold discretisation of a SISO state-space model.
+
+    Parameters
+    ----------
+    A : (n, n) ndarray
+    B : (n,) ndarray
+    C : (n,) ndarray
+        ``x' = A x + B u``, ``y = C x`` (no direct feed-through).
+    dt_s : float
+        Sample interval in s.
+
+    Returns
+    -------
+    b, a : ndarray
+        Numerator and denominator (length n + 1, ``a[0] = 1``) for ``lfilter``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> b, a = foh_tf(np.array([[-2.0]]), np.array([2.0]), np.array([1.0]), 0.01)
+    >>> round(float(b.sum() / a.sum()), 12)   # unit DC gain
+    1.0
+    """
+    n = A.shape[0]
+    em = np.zeros((n + 2, n + 2))
+    em[:n, :n] = A * dt_s
+    em[:n, n] = B * dt_s
+    em[n, n + 1] = 1.0
+    ms = linalg.expm(em)
+    ad = ms[:n, :n]
+    m12 = ms[:n, n]
+    m13 = ms[:n, n + 1]
+    bd = m12 - m13 + ad @ m13
+    dd = float(C @ m13)
+    den = np.real(np.poly(ad))
+    num = np.real(np.poly(ad - np.outer(bd, C))) - den + dd * den
+    return num, den
+
+
+def foh_allpole(gain: np.ndarray, poles: np.ndarray, dt_s: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """FOH difference equations of ``gain / prod(s - p_i)`` in closed form (stacked).
+
+    Each first-order mode ``r / (s - p)`` has the first-order-hold equivalent
+    ``r / (p^2 T) [(e^{pT} - 1 - pT) z + (1 - e^{pT} + pT e^{pT})] / (z - e^{pT})``
+    (from ``(z - 1)^2 / (T z) Z{H(s) / s^2}``); the modes are summed over a common
+    denominator. Poles must be distinct (a repeated pole is nudged apart by 1e-7 relative).
+
+    Parameters
+    ----------
+    gain : (m,) ndarray
+    poles : (m, n) complex ndarray
+    dt_s : float
+
+    Returns
+    -------
+    b, a : (m, n + 1) ndarray
+    """
+    P = np.array(poles, dtype=complex)
+    m, n = P.shape
+    scale = np.max(np.abs(P), axis=1, keepdims=True)
+    for i in range(n):
+        for j in range(i):
+            close = np.abs(P[:, i] - P[:, j]) < 1e-7 * scale[:, 0]
+            P[close, i] *= 1 + 2e-7
+    r = np.array(gain, dtype=complex)[:, None] * np.ones((m, n), complex)
+    for i in range(n):
+        for j in range(n):
+            if i != j:
+                r[:, i] /= (P[:, i] - P[:, j])
+    T = dt_s
+    Phi = np.exp(P * T)
+    pT = P * T
+    c1 = r / (P ** 2 * T) * (Phi - 1 - pT)
+    c0 = r / (P ** 2 * T) * (1 - Phi + pT * Phi)
+    den = np.zeros((m, n + 1), complex)
+    den[:, 0] = 1.0
+    for i in range(n):
+        den[:, 1:i + 2] = den[:, 1:i + 2] - Phi[:, i, None] * den[:, 0:i + 1]
+    num = np.zeros((m, n + 1), complex)
+    for i in range(n):
+        # prod_{j != i} (z - Phi_j): degree n - 1
+        q = np.zeros((m, n), complex)
+        q[:, 0] = 1.0
+        deg = 0
+        for j in range(n):
+            if j == i:
+                continue
+            q[:, 1:deg + 2] = q[:, 1:deg + 2] - Phi[:, j, None] * q[:, 0:deg + 1]
+            deg += 1
+        # (c1 z + c0) * q
+        num[:, 0:n] += c1[:, i, None] * q
+        num[:, 1:n + 1] += c0[:, i, None] * q
+    return num.real, den.real
+
+
+def second_order_poles(wn_rad_s: np.ndarray, zeta: np.ndarray) -> np.ndarray:
+    """(m, 2) poles of ``s^2 + 2 zeta wn s + wn^2``."""
+    wn = np.asarray(wn_rad_s, float)
+    z = np.asarray(zeta, float)
+    root = np.sqrt((z ** 2 - 1).astype(complex))
+    return np.stack([wn * (-z + root), wn * (-z - root)], axis=1)
+
+
+def second_order_tf(wn_rad_s, zeta, dt_s: float):
+    """Stacked FOH difference equations of the unit-gain second-order system."""
+    wn = np.asarray(wn_rad_s, float)
+    return foh_allpole(wn ** 2, second_order_poles(wn, zeta), dt_s)
+
+
+def lagged_second_order_tf(wn_rad_s, zeta, tau_s: float, dt_s: float):
+    """Stacked FOH difference equations of ``1 / (tau s + 1)`` times the second-order
+    system."""
+    wn = np.asarray(wn_rad_s, float)
+    P = np.concatenate([second_order_poles(wn, zeta),
+                        np.full((len(wn), 1), -1.0 / tau_s, complex)], axis=1)
+    return foh_allpole(wn ** 2 / tau_s, P, dt_s)
+
+
+def parallel_tf(b1, a1, b2, a2, weight2: float = 0.5):
+    """Stacked ``(1 - w) b1/a1 + w b2/a2`` as one difference equation."""
+    m = b1.shape[0]
+    n1, n2 = a1.shape[1], a2.shape[1]
+    num = np.zeros((m, n1 + n2 - 1))
+    den = np.zeros((m, n1 + n2 - 1))
+    for i in range(n1):
+        for k in range(n2):
+            num[:, i + k] += (1 - weight2) * b1[:, i] * a2[:, k] + weight2 * b2[:, k] * a1[:, i]
+            den[:, i + k] += a1[:, i] * a2[:, k]
+    return num, den

@@ -15,7 +15,7 @@ def run(args: argparse.Namespace) -> int:
                       sim_session=args.sim_session, plots=not args.no_figures)
     for s in summary["sessions"]:
         h = s["heldout"]
-        print(f"{s['session']}: best_effect = {s['best_effect']}"
+        print(f"{s['session']}: verdict = {s['verdict']}, best_effect = {s['best_effect']}"
               + (f" (pair {' + '.join(s['best_pair'])})" if s.get("best_pair") else "")
               + f"; held-out NRMSE {h['nominal_nrmse_pct']:.3g} % -> "
               f"{h['augmented_nrmse_pct']:.3g} % (shrink {h['shrink_pct']:.0f} %); noise floor "
@@ -23,6 +23,7 @@ def run(args: argparse.Namespace) -> int:
               + (f"{h['sensor_floor_nrmse_pct']:.3g} %" if h.get("sensor_floor_nrmse_pct")
                  is not None else "n/a")
               + f" in the steady lead-in  [{s['elapsed_s']:.1f} s]")
+        print(f"  {s['verdict_sentence']}")
         for line in s["evidence"]["summary"]:
             print(f"  {line}")
         if s.get("simulation_under_test"):

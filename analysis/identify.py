@@ -22,10 +22,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from analysis.errors import IdentificationError
-from analysis.preprocess import LevelData, preprocess_trials
+from analysis.input_timing import fit_level
+from analysis.preprocess import LevelData
 from analysis.qc import SessionQC, assess_level, assess_session
 from analysis.qc.decide import EXCLUDED, REPAIRED, LevelQC
-from analysis.second_order import SecondOrderFit, fit_second_order
+from analysis.second_order import SecondOrderFit
 from analysis.settings import IdentificationSettings
 from protocols.session_file import read_session
 
@@ -197,9 +198,8 @@ def identify_level(trials, settings: IdentificationSettings | None = None,
         problems.append(f"sE={sE:g}: repeats differ in length ({sorted(lengths)} samples); "
                         "averaged over the common part")
     try:
-        data = preprocess_trials(usable, s)
-        fit = fit_second_order(data.u, data.y_N, data.fs_Hz, s, band_Hz=data.band_Hz,
-                               t0_s=float(data.t_s[0]))
+        # preprocessing and fit under the rig's input-timing model (estimated by default)
+        data, fit, _timing = fit_level(usable, s)
     except (IdentificationError, np.linalg.LinAlgError, ArithmeticError) as exc:
         problems.append(f"sE={sE:g}: {exc}; level not identified")
         return LevelResult(sE, None, None, len(usable), names, problems, qc)

@@ -8,6 +8,12 @@ whole trial and the window is cut afterwards (``IdentificationSettings.filter_wh
 rE gets the same filters as the force (``prefilter_input``), so G is untouched by them.
 Finally the data are decimated to ``fit_fs_Hz`` (after the low-pass nothing is lost) and
 the input's window mean is removed: u = rE - mean(rE over the window).
+
+Before any of this, rE is moved by the rig's input timing (``input_delay_s``, see
+:mod:`analysis.input_timing`): a fractional delay of either sign at the raw rate, so that
+u is the stimulation the participant received rather than the record of its command. The
+gap diagnosis (:mod:`analysis.gap.data`) uses the same filters, through
+:func:`smooth_and_lowpass`, and the same timing.
 """
 
 from __future__ import annotations
@@ -17,11 +23,13 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from analysis.discretize import fractional_delay
 from analysis.errors import IdentificationError
 from analysis.signal_kernels import (butter, convolve1d, savgol_coeffs, sosfilt, sosfilt_zi,
                                      sosfiltfilt)
 from analysis.thin_lstsq import dot
-from analysis.settings import IdentificationSettings
+from analysis.settings import IdentificationSettings, InputTiming
 
 
 @dataclass
@@ -44,6 +52,8 @@ class LevelData:
     """Chirp band (f0, f1) of the trials."""
     rE_mean: float = 0.5
     """Mean of rE over the window (removed from u)."""
+    input_delay_s: float = 0.0
+    """Delay applied to rE before filtering (the rig's input timing)."""
     baseline_N: float = float("nan")
     """Mean raw force (not detrended) over the second half of the lead-in, where
     rE = 0.5 and the force has settled: the force at rE = 0.5 for this sE."""
@@ -158,7 +168,23 @@ def window_indices(n_samples: int, fs_Hz: float, steady_s: float, chirp_s: float
     return i0, i1
 
 
-def preprocess_trials(trials, settings: IdentificationSettings | None = None) -> LevelData:
+def delay_input(rE: np.ndarray, delay_s: float, fs_Hz: float) -> np.ndarray:
+    """rE moved by ``delay_s`` (either sign) along the last axis, at the raw rate.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> x = np.linspace(0.0, 1.0, 50)
+    >>> bool(np.allclose(delay_input(x, 0.0, 2000.0), x))
+    True
+    """
+    if delay_s == 0.0:
+        return np.asarray(rE, dtype=float)
+    return fractional_delay(rE, delay_s * fs_Hz)
+
+
+def preprocess_trials(trials, settings: IdentificationSettings | None = None, *,
+                      input_delay_s: float | None = None) -> LevelData:
     """Detrend, average, filter, window and decimate the repeats of one sE level.
 
     Parameters
@@ -168,6 +194,10 @@ def preprocess_trials(trials, settings: IdentificationSettings | None = None) ->
         ``analysis.identify.usable_trials``). Trials of different lengths are cut to the
         shortest (all start at stimulation onset).
     settings : IdentificationSettings, optional
+    input_delay_s : float, optional
+        Delay of the stimulation behind the rE record in s (either sign); default: the
+        fixed delay of ``settings.input_timing`` (0 when it is ``"estimate"``: the
+        estimate is made by :func:`analysis.input_timing.fit_level`).
 
     Returns
     -------
@@ -194,7 +224,10 @@ def preprocess_trials(trials, settings: IdentificationSettings | None = None) ->
     for k, tr in enumerate(trials):
         f = np.asarray(tr.force_N, dtype=float)
         force[k] = (linear_detrend(f) if s.detrend else f)[:n]
-    rE = np.vstack([np.asarray(tr.rE, dtype=float)[:n] for tr in trials])
+    if input_delay_s is None:
+        input_delay_s = fixed_delay_s(s, fs)
+    rE = delay_input(np.vstack([np.asarray(tr.rE, dtype=float)[:n] for tr in trials]),
+                     input_delay_s, fs)
     lead = slice(int(first.steady_s * fs / 2), int(first.steady_s * fs))
     baseline = float(np.mean([np.mean(tr.force_N[lead]) for tr in trials])) \
         if lead.stop > lead.start and n >= lead.stop else float("nan")
@@ -241,4 +274,23 @@ def preprocess_trials(trials, settings: IdentificationSettings | None = None) ->
                      raw_fs_Hz=fs, n_trials=len(trials),
                      trial_names=[tr.name for tr in trials],
                      band_Hz=(float(first.chirp_f0_Hz), float(first.chirp_f1_Hz)),
-                     rE_mean=r_mean, baseline_N=baseline)
+                     rE_mean=r_mean, baseline_N=baseline, input_delay_s=float(input_delay_s))
+
+
+def fixed_delay_s(settings: IdentificationSettings, fs_Hz: float) -> float:
+    """The delay that ``settings.input_timing`` fixes (0 for ``"estimate"`` and ``"smooth"``,
+    half a sample for ``"hold"``, the number itself for a calibrated delay).
+
+    Examples
+    --------
+    >>> fixed_delay_s(IdentificationSettings(input_timing="hold"), 2000.0)
+    0.00025
+    >>> fixed_delay_s(IdentificationSettings(input_timing=-1e-4), 2000.0)
+    -0.0001
+    """
+    timing = settings.input_timing
+    if isinstance(timing, float):
+        return timing
+    if timing is InputTiming.HOLD:
+        return 0.5 / fs_Hz
+    return 0.0

@@ -45,6 +45,23 @@ class InputHold(str, enum.Enum):
     LINEAR = "linear"
 
 
+class InputTiming(str, enum.Enum):
+    """How the rig turns the recorded rE samples into stimulation (the input-timing model).
+
+    ``ESTIMATE``: no built-in belief; the sub-millisecond delay between the rE record and
+    the stimulation (either sign) is estimated from the data (see
+    :mod:`analysis.input_timing`), within +-``input_timing_max_s``.
+    ``HOLD``: the stimulator holds each sample for one sample period (zero-order hold:
+    sample k applied from k / fs_Hz on), i.e. the input lags the record by half a sample.
+    ``SMOOTH``: the record is the stimulation (a smooth, band-limited input; no delay).
+    A number of seconds instead of a name is a delay calibrated per rig (either sign).
+    """
+
+    ESTIMATE = "estimate"
+    HOLD = "hold"
+    SMOOTH = "smooth"
+
+
 class NoiseLevel(str, enum.Enum):
     """How the noise level behind the standard errors is estimated.
 
@@ -116,7 +133,18 @@ class IdentificationSettings:
     keeps all the information and makes the fit 10x cheaper. None: fit at the raw rate.
     Must be at least 4x ``lowpass_Hz``."""
     input_hold: InputHold = InputHold.SMOOTH
-    """How the model sees the input between samples (see :class:`InputHold`)."""
+    """How the model sees the input between samples at the fit rate (see
+    :class:`InputHold`); the rig's own timing is ``input_timing``."""
+    input_timing: InputTiming | float = InputTiming.ESTIMATE
+    """The input-timing model, shared by identification and gap diagnosis (see
+    :class:`InputTiming`): ``"estimate"`` (default: rigs differ, e.g. our simulated
+    stimulator holds each sample, a DAC with a reconstruction filter does not; estimating
+    costs one extra fit only where the delay is significant), ``"hold"``, ``"smooth"``, or
+    a delay in s calibrated for the rig (positive: the stimulation lags the rE record)."""
+    input_timing_max_s: float = 1e-3
+    """Largest delay (either sign) the estimate may take: sub-millisecond timing is what
+    a rig's sampling and output stage produce (a one-sample hold at 1 kHz is 0.5 ms);
+    longer latencies are physiology (``dead_time`` in the gap diagnosis)."""
 
     # -- trial quality control ------------------------------------------------------
     qc: bool = True
@@ -220,6 +248,21 @@ class IdentificationSettings:
             if p not in PARAMETER_NAMES:
                 yield bad("iqr_parameters", self.iqr_parameters, f"a subset of {PARAMETER_NAMES}")
                 break
+        if isinstance(self.input_timing, (int, float)) and not isinstance(
+                self.input_timing, bool):
+            if not (math.isfinite(self.input_timing) and abs(self.input_timing) < 0.05):
+                yield bad("input_timing", self.input_timing,
+                          "'estimate', 'hold', 'smooth' or a delay in s below 0.05 in size")
+            else:
+                object.__setattr__(self, "input_timing", float(self.input_timing))
+        elif not isinstance(self.input_timing, InputTiming):
+            try:
+                object.__setattr__(self, "input_timing", InputTiming(self.input_timing))
+            except ValueError:
+                yield bad("input_timing", self.input_timing,
+                          f"one of {[k.value for k in InputTiming]} or a delay in s")
+        if not (0 < self.input_timing_max_s < 0.05):
+            yield bad("input_timing_max_s", self.input_timing_max_s, "a time in (0, 0.05) s")
         # enums given as strings (e.g. from JSON) are converted, bad ones rejected
         for name, kind in (("input_hold", InputHold), ("noise_level", NoiseLevel)):
             value = getattr(self, name)

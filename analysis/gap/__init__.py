@@ -6,12 +6,16 @@ far* does the miss shrink on held-out trials once that effect is added.
 
 Modules, each with one job:
 
-- :mod:`~analysis.gap.data`: session files -> pre-processed arrays (:class:`GapData`);
-- :mod:`~analysis.gap.discretize`: exact first-order-hold difference equations;
+- :mod:`~analysis.gap.data`: session files -> pre-processed arrays (:class:`GapData`),
+  through identification's signal path (:mod:`analysis.preprocess`,
+  :mod:`analysis.discretize`, :mod:`analysis.input_timing`);
 - :mod:`~analysis.gap.models`: the nominal model and the six candidate augmentations;
 - :mod:`~analysis.gap.fit`: joint output-error fit (variable projection, grouped LM);
 - :mod:`~analysis.gap.crossval`: folds by repeat;
-- :mod:`~analysis.gap.diagnose`: scoring, effective samples, the decision;
+- :mod:`~analysis.gap.diagnose`: scoring, the decision; :mod:`~analysis.gap.samples`:
+  effective samples;
+- :mod:`~analysis.gap.verdict`: none / effect / pair / unexplained, the remaining gap
+  beyond noise and where it lies;
 - :mod:`~analysis.gap.localize`, :mod:`~analysis.gap.harmonics`: where the gap lies;
 - :mod:`~analysis.gap.evidence`: the signatures and confusable pairs;
 - :mod:`~analysis.gap.twin_out`, :mod:`~analysis.gap.report`, :mod:`~analysis.gap.plots`:

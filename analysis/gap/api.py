@@ -26,7 +26,7 @@ from analysis.gap.diagnose import CandidateResult, Diagnosis, GapSettings, diagn
 from analysis.gap.errors import GapInputError
 from analysis.gap.localize import by_location, frequency_view
 from analysis.gap.models import NOMINAL, nuisance_basis
-from analysis.gap.report import _clean, write_outputs
+from analysis.gap.report import json_safe, write_outputs
 from protocols.session_file import read_session
 from sim_backends.sensor import SensorModel
 from sim_backends.simulation import ParticipantSimulator
@@ -57,7 +57,8 @@ def external_predictions(data: GapData, *, twin=None, sim_session=None) -> np.nd
                 raise GapInputError(f"{sim_session}: no completed trial with sE = {info.sE:g}"
                                     f", repeat {info.repeat} to compare with {info.name}")
             sim_trials.append(t)
-        sim_data = prepare_trials(sim_trials, path=str(sim_session), settings=data.settings)
+        sim_data = prepare_trials(sim_trials, path=str(sim_session), settings=data.settings,
+                                  timing=data.timing)
         n = min(sim_data.y_N.shape[1], data.y_N.shape[1])
         if n < data.y_N.shape[1]:
             raise GapInputError(f"{sim_session}: simulated trials are shorter than the "
@@ -85,7 +86,8 @@ def _twin_predictions(data: GapData, twin) -> np.ndarray:
         I_f = cal.Ifmin_mA + (1.0 - t.rE) * t.sE * (cal.Ifmax_mA - cal.Ifmin_mA)
         by_name[t.name] = _with_force(t, sim.simulate(I_e, I_f).force_N)
     trials = [by_name[info.name] for info in data.trials]
-    return prepare_trials(trials, path=str(twin), settings=data.settings).y_N
+    return prepare_trials(trials, path=str(twin), settings=data.settings,
+                          timing=data.timing).y_N
 
 
 def _with_force(trial, force):
@@ -114,7 +116,7 @@ def _under_test(diag: Diagnosis, pred: np.ndarray, label: str) -> dict:
 
 def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None,
             sim_session=None, plots: bool = True,
-            preprocess: PreprocessSettings | None = None) -> dict:
+            preprocess: PreprocessSettings | None = None, excluded=None) -> dict:
     """Diagnose each session and write the outputs.
 
     Parameters
@@ -126,6 +128,12 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
         An external simulation under test (see module).
     plots : bool
         Write the PNG figures.
+    preprocess : PreprocessSettings, optional
+        Filters, fit rate and input timing (shared with identification).
+    excluded : dict or callable, optional
+        Trials excluded upstream (e.g. by quality control), never held against the model:
+        a mapping trial name -> reason, or a callable ``path -> mapping`` for several
+        sessions. They are left out of every fit and score and listed in the report.
 
     Returns
     -------
@@ -138,14 +146,15 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
     reports = []
     multi = len(sessions) > 1
     for path in sessions:
-        data = load_session(path, preprocess)
+        excl = excluded(path) if callable(excluded) else excluded
+        data = load_session(path, preprocess, excluded=excl)
         diag = diagnose(data, settings)
         cal = read_session(path, load_data=False).calibration
         target = out / Path(path).stem if multi else out
         report = write_outputs(diag, target, cal, plots=plots)
         if twin is not None or sim_session is not None:
             pred = external_predictions(data, twin=twin, sim_session=sim_session)
-            report["simulation_under_test"] = _clean(
+            report["simulation_under_test"] = json_safe(
                 _under_test(diag, pred, str(twin or sim_session)))
             (target / "gap_report.json").write_text(json.dumps(report, indent=1) + "\n",
                                                     encoding="utf-8")

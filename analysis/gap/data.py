@@ -1,18 +1,22 @@
 """Session files -> the arrays the gap diagnosis works on.
 
-Per completed trial the force is pre-processed as the paper does (Savitzky-Golay order 3,
-window 41, then a zero-phase Butterworth low-pass at 25 Hz), the analysis window
-(t >= steady_s) is cut and decimated to ``fs_eval_Hz`` (125 Hz: the force has next to
-nothing above 25 Hz left, so nothing aliases, and 3 x 10 Hz stays below Nyquist). The offset and the linear trend (the paper's detrend) are
-not subtracted here: every model carries them as per-trial nuisance terms, so that the
-nominal and the augmented models are scored on the same footing.
+One signal path with identification: the force and the drive ``rE - 0.5`` pass through
+the same filters as in :mod:`analysis.preprocess` (:func:`analysis.preprocess.smooth_and_lowpass`
+with the settings of :class:`analysis.settings.IdentificationSettings`: Savitzky-Golay order
+3, window 41, zero-phase Butterworth low-pass at 25 Hz), rE is moved by the same input
+timing (:mod:`analysis.input_timing`: estimated per session by default, or fixed by the
+setting ``input_timing``), and the models run at the identification's fit rate
+(``fit_fs_Hz``, 200 Hz) with the same hold correction
+(:func:`analysis.discretize.smooth_hold_input`). The analysis window (t >= steady_s) is
+evaluated at every ``eval_step``-th simulation sample (100 Hz: the force has next to
+nothing above 25 Hz left, and 3 x 10 Hz stays below Nyquist). The offset and the linear
+trend (the paper's detrend) are not subtracted here: every model carries them as
+per-trial nuisance terms, so that the nominal and the augmented models are scored on the
+same footing. The simulation starts ``lead_s`` before the window, so that any transient
+of a delay or lag has settled when the window starts.
 
-The commanded drive ``rE - 0.5`` goes through the same filter chain as the force, so that
-the model's output and the measurement see the same (tiny) filter gain; the simulation runs
-at ``fs_sim_Hz`` (250 Hz; a first-order-hold discretisation with the drive pre-compensated
-for the hold's sinc^2 droop is exact to 1e-4 in gain and has no phase error at 10 Hz: on
-noise-free data the whole pipeline reproduces an exact simulation to 0.005 % NRMSE) from ``lead_s`` before the window, so that any transient of a delay or lag has
-settled when the window starts.
+Trials excluded upstream (quality control: a mapping trial name -> reason) are left out
+and listed, like aborted and non-finite trials.
 
 Cumulative stimulation time is taken from the trial attribute ``cumulative_stim_s`` when a
 writer stored it, otherwise it is the summed length of all earlier trials (completed or
@@ -26,35 +30,46 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import signal
-
-from analysis.gap.discretize import foh_compensate, fractional_delay
-from protocols.waveforms import chirp_frequency_Hz, chirp_phase_rad
+from analysis.discretize import smooth_hold_input
 from analysis.gap.errors import GapInputError
+from analysis.input_timing import TimingEstimate, estimate_session_timing
+from analysis.preprocess import delay_input, smooth_and_lowpass
+from analysis.settings import IdentificationSettings
 from protocols.session_file import read_session
+from protocols.waveforms import chirp_frequency_Hz, chirp_phase_rad
 
 log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
 class PreprocessSettings:
-    """How force and drive are filtered and resampled (defaults: the paper's, see module)."""
+    """How force and drive are prepared: the identification's signal settings plus the
+    diagnosis's evaluation grid (see module)."""
 
-    savgol_window: int = 41
-    savgol_order: int = 3
-    lowpass_Hz: float = 25.0
-    lowpass_order: int = 4
-    fs_eval_Hz: float = 125.0
-    fs_sim_Hz: float = 250.0
+    signal: IdentificationSettings = field(default_factory=IdentificationSettings)
+    """Filters, fit rate and input timing, shared with identification."""
+    eval_step: int = 2
+    """Evaluate every this many simulation samples (100 Hz at the 200 Hz fit rate)."""
     lead_s: float = 1.0
     edge_s: float = 0.3
     """Left out at the end of each trial: the zero-phase filters' end transients differ
     between the force (a response) and the drive, and would look like a model error."""
-    input_hold_samples: float = 0.5
-    """The stimulator holds each commanded sample for one sample period (zero-order hold,
-    ``protocols.session_file``: sample k is applied from k / fs_Hz on), which delays the
-    effective input by half a sample against the commanded samples; the model includes
-    this so that a rig's own sampling is not reported as dead time."""
+
+    @property
+    def lowpass_Hz(self) -> float:
+        return float(self.signal.lowpass_Hz or 25.0)
+
+    @property
+    def lowpass_order(self) -> int:
+        return int(self.signal.butter_order)
+
+    @property
+    def fs_sim_Hz(self) -> float:
+        return float(self.signal.fit_fs_Hz or 200.0)
+
+    @property
+    def fs_eval_Hz(self) -> float:
+        return self.fs_sim_Hz / self.eval_step
 
 
 @dataclass
@@ -107,6 +122,13 @@ class GapData:
     sim_step: int
     """Evaluation sample k is simulation sample ``n_lead_sim + k * sim_step``."""
     skipped: list[str] = field(default_factory=list)
+    timing: TimingEstimate | None = None
+    """The input timing applied to rE (estimated or fixed, see module)."""
+    excluded: dict = field(default_factory=dict)
+    """Trials left out because they were excluded upstream: name -> reason."""
+    steady_N: np.ndarray | None = None
+    """(n_trials, n_lead) the same lead-in force after offset and trend, at the evaluation
+    rate (the noise as it is: its spectrum and correlation)."""
     steady_noise_N2: np.ndarray | None = None
     """(n_trials,) mean square of the filtered force in the steady lead-in (rE = 0.5, last
     3 s before the chirp but 0.3 s) after offset and trend: the sensor's noise floor, free
@@ -156,20 +178,19 @@ class GapData:
             f_inst_Hz=self.f_inst_Hz, phase_eval_rad=self.phase_eval_rad,
             chirp_f0_Hz=self.chirp_f0_Hz, chirp_f1_Hz=self.chirp_f1_Hz,
             chirp_s=self.chirp_s, steady_s=self.steady_s, n_lead_sim=self.n_lead_sim,
-            sim_step=self.sim_step, skipped=self.skipped,
+            sim_step=self.sim_step, skipped=self.skipped, timing=self.timing,
+            excluded=self.excluded,
+            steady_N=None if self.steady_N is None else self.steady_N[rows],
             steady_noise_N2=None if self.steady_noise_N2 is None else self.steady_noise_N2[rows])
 
 
 def _filter_chain(x: np.ndarray, fs_Hz: float, s: PreprocessSettings) -> np.ndarray:
-    """Savitzky-Golay then zero-phase Butterworth low-pass, along the last axis."""
-    win = s.savgol_window
-    if x.shape[-1] > win:
-        x = signal.savgol_filter(x, win, s.savgol_order, axis=-1)
-    sos = signal.butter(s.lowpass_order, s.lowpass_Hz, fs=fs_Hz, output="sos")
-    return signal.sosfiltfilt(sos, x, axis=-1)
+    """The identification's Savitzky-Golay and low-pass, along the last axis."""
+    return smooth_and_lowpass(x, fs_Hz, s.signal)
 
 
-def load_session(path, settings: PreprocessSettings | None = None) -> GapData:
+def load_session(path, settings: PreprocessSettings | None = None, *,
+                 excluded: dict | None = None) -> GapData:
     """Read one session file and pre-process its completed trials.
 
     Parameters
@@ -177,6 +198,8 @@ def load_session(path, settings: PreprocessSettings | None = None) -> GapData:
     path : path-like
         An ``nmsid-session`` HDF5 file.
     settings : PreprocessSettings, optional
+    excluded : dict, optional
+        Trials excluded upstream (name -> reason): left out and listed.
 
     Raises
     ------
@@ -187,7 +210,7 @@ def load_session(path, settings: PreprocessSettings | None = None) -> GapData:
     s = settings or PreprocessSettings()
     session = read_session(path)
     return prepare_trials(session.trials, path=str(path), participant=session.participant,
-                          settings=s)
+                          settings=s, excluded=excluded)
 
 
 def _cumulative_stim(trials) -> list[float]:
@@ -204,15 +227,22 @@ def _cumulative_stim(trials) -> list[float]:
 
 
 def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
-                   settings: PreprocessSettings | None = None) -> GapData:
+                   settings: PreprocessSettings | None = None, excluded: dict | None = None,
+                   timing: TimingEstimate | None = None) -> GapData:
     """Pre-process a list of :class:`protocols.session_file.Trial` (file order) for the diagnosis.
 
-    See :func:`load_session`.
+    See :func:`load_session`. ``timing``: use this input timing instead of the settings'
+    (e.g. a simulated session compared with a measured one gets the measured timing).
     """
     s = settings or PreprocessSettings()
     cum = _cumulative_stim(trials)
     usable, skipped = [], []
+    excluded = {str(k): str(v) for k, v in (excluded or {}).items()}
+    left_out = {}
     for k, t in enumerate(trials):
+        if (t.name or f"t{k + 1:03d}") in excluded:
+            left_out[t.name or f"t{k + 1:03d}"] = excluded[t.name or f"t{k + 1:03d}"]
+            continue
         if not t.completed:
             skipped.append(f"{t.name or k + 1}: aborted ({t.abort_reason or 'no reason'})")
             continue
@@ -236,6 +266,8 @@ def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
     raw_per_sim = int(round(fs / s.fs_sim_Hz))
     fs_sim = fs / raw_per_sim
     sim_step = int(round(fs_sim / s.fs_eval_Hz))
+    if timing is None:
+        timing = estimate_session_timing([t for _, t in usable], s.signal)
     if raw_per_sim < 1 or sim_step < 1 or fs < 4 * s.lowpass_Hz:
         raise GapInputError(f"{path}: fs_Hz = {fs:g} is too low for the gap diagnosis "
                             f"(needs at least {4 * s.lowpass_Hz:g} Hz)")
@@ -250,7 +282,7 @@ def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
         raise GapInputError(f"{path}: the analysis window (t >= steady_s = "
                             f"{first.steady_s:g} s) is shorter than 2 s")
     n_raw_used = lead + n_eval * step_raw
-    rows_y, rows_draw, steady = [], [], []
+    rows_y, rows_draw, steady, steady_rows = [], [], [], []
     a_st = int(round(max(0.5, first.steady_s - 3.3) * fs))
     b_st = int(round((first.steady_s - 0.3) * fs))
     for _, t in usable:
@@ -261,11 +293,12 @@ def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
             tt = np.arange(len(seg), dtype=float)
             res = seg - np.polyval(np.polyfit(tt, seg, 1), tt)
             steady.append(float(np.mean(res ** 2)))
+            steady_rows.append(res)
         else:
             steady.append(float("nan"))
         seg = slice(i_win - lead, i_win - lead + n_raw_used)
         rows_draw.append(np.asarray(t.rE, float)[:n_min])
-    rE_full = fractional_delay(np.vstack(rows_draw) - 0.5, s.input_hold_samples) + 0.5
+    rE_full = delay_input(np.vstack(rows_draw), timing.delay_s, fs)
     drive_full = _filter_chain(rE_full - 0.5, fs, s)
     seg = slice(i_win - lead, i_win - lead + n_raw_used)
     drive_raw = drive_full[:, seg]
@@ -282,7 +315,7 @@ def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
     return GapData(
         path=path, participant=participant, settings=s, fs_raw_Hz=fs, sE_levels=levels,
         trials=infos, y_N=np.vstack(rows_y), drive_raw=drive_raw,
-        drive_sim=foh_compensate(drive_raw[:, ::raw_per_sim]), rE_sim=rE_raw[:, ::raw_per_sim].copy(),
+        drive_sim=smooth_hold_input(drive_raw[:, ::raw_per_sim]), rE_sim=rE_raw[:, ::raw_per_sim].copy(),
         d_eval=d_eval, t_eval_s=t_eval,
         f_inst_Hz=chirp_frequency_Hz(t_eval, first.chirp_f0_Hz, first.chirp_f1_Hz,
                                      first.chirp_s),
@@ -290,5 +323,7 @@ def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
                                        first.chirp_s),
         chirp_f0_Hz=float(first.chirp_f0_Hz), chirp_f1_Hz=float(first.chirp_f1_Hz),
         chirp_s=float(first.chirp_s), steady_s=float(first.steady_s),
-        n_lead_sim=lead // raw_per_sim, sim_step=sim_step, skipped=skipped,
+        n_lead_sim=lead // raw_per_sim, sim_step=sim_step, skipped=skipped, timing=timing,
+        excluded=left_out,
+        steady_N=np.vstack(steady_rows) if len(steady_rows) == len(usable) else None,
         steady_noise_N2=np.array(steady))

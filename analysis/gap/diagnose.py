@@ -9,8 +9,9 @@ Effective samples. The force is low-passed at 25 Hz and evaluated at 125 Hz, and
 misfit is smooth, so neighbouring residual samples are far from independent. With ``N``
 residual samples, ``N_eff = N nu`` where ``nu = 1 / (1 + 2 sum_k rho_k)`` from the
 residual's autocorrelation (summed while it stays above 0.05, the "initial positive
-sequence"), capped at the analysis bandwidth ``2 B / fs_eval``. ``nu`` is taken from the
-augmented model's residual (the better model's residual is the closer one to the noise).
+sequence"), capped at the analysis bandwidth ``2 B / fs_eval``. ``nu`` is that of the
+measurement noise in the steady lead-in (no model involved), the same for the nominal
+model, every candidate and every pair, so all are compared on one basis.
 The criterion is ``dIC = N_eff ln(RSS_aug / RSS_nom) + 2 dk`` on the training trials
 (averaged over folds); ``dk`` counts the shared parameters, and for ``baseline_drift`` the
 baseline coefficients of every trial.
@@ -35,6 +36,8 @@ from analysis.gap.effects import CANDIDATES, Effect
 from analysis.gap.errors import GapInputError
 from analysis.gap.fit import ModelFit, fit_model, predict
 from analysis.gap.models import NOMINAL, Candidate, candidate, n_drift_columns, nuisance_basis
+from analysis.gap.samples import effective_fraction
+from analysis.gap.verdict import assess
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +60,12 @@ class GapSettings:
     cross-validated when the second effect adds beyond the winner)."""
     max_iter: int = 25
     bands_Hz: tuple[float, ...] = (1.0, 1.5, 2.2, 3.3, 5.0, 7.5, 10.0)
+    significance_z: float = 3.0
+    """A gap is significant when the median log ratio of held-out residual power to
+    lead-in noise power exceeds this many standard errors (``analysis.gap.verdict``)."""
+    min_beyond_noise_pct: float = 0.1
+    """... and the gap beyond noise is at least this (NRMSE points of the response): a
+    twin 99.9 % right is not wrong in any way a physiologist would act on."""
     deviation_edges: tuple[float, ...] = (-0.5, -0.25, 0.0, 0.25, 0.5)
 
 
@@ -107,6 +116,10 @@ class Diagnosis:
     """Noise in the steady lead-in (no stimulation change, no model involved) as an NRMSE
     of the held-out trials: the part of any model's error that is measurement noise."""
     elapsed_s: float = 0.0
+    assessment: dict = field(default_factory=dict)
+    """Verdict, nominal and remaining gap (``analysis.gap.verdict.assess``)."""
+    not_named: CandidateResult | None = None
+    """A candidate (or pair) that was supported on a gap within noise, hence not named."""
 
     def excess_pct(self, nrmse_pct: float) -> float:
         """The gap beyond measurement noise: ``sqrt(NRMSE^2 - sensor floor^2)``."""
@@ -118,25 +131,6 @@ class Diagnosis:
     @property
     def best_effect(self) -> Effect:
         return self.best.candidate.effect if self.best is not None else Effect.NONE
-
-
-def effective_fraction(resid: np.ndarray, fs_eval_Hz: float, bandwidth_Hz: float,
-                       max_lag: int = 100) -> float:
-    """``nu = N_eff / N`` from the mean autocorrelation of residual rows (see module)."""
-    r = resid - resid.mean(axis=1, keepdims=True)
-    n = r.shape[1]
-    lags = min(max_lag, n - 1)
-    f = np.fft.rfft(r, 2 * n, axis=1)
-    ac = np.fft.irfft(np.abs(f) ** 2, axis=1)[:, :lags + 1].sum(axis=0)
-    if ac[0] <= 0:
-        return min(1.0, 2 * bandwidth_Hz / fs_eval_Hz)
-    rho = ac[1:] / ac[0]
-    s = 0.0
-    for v in rho:
-        if v < 0.05:
-            break
-        s += v
-    return float(min(1.0 / (1.0 + 2.0 * s), 2 * bandwidth_Hz / fs_eval_Hz))
 
 
 def _nrmse(resid: np.ndarray, ref: np.ndarray) -> float:
@@ -173,6 +167,13 @@ class _Runner:
         self.train = [data.subset(f.train) for f in self.folds]
         self.test = [data.subset(f.test) for f in self.folds]
         self.bandwidth = data.settings.lowpass_Hz
+        # one effective-sample basis for every model, single or pair: that of the noise
+        # itself (the steady lead-in, no model involved); a model's own residual would
+        # give each model a different N_eff and tilt the comparison
+        if data.steady_N is not None and data.steady_N.shape[1] >= 16:
+            self.nu = effective_fraction(data.steady_N, data.fs_eval_Hz, self.bandwidth)
+        else:
+            self.nu = min(1.0, 2 * self.bandwidth / data.fs_eval_Hz)
 
     def score(self, cand: Candidate, fits: list[ModelFit], nominal: CandidateResult | None
               ) -> CandidateResult:
@@ -193,11 +194,11 @@ class _Runner:
         if nominal is not None:
             dic, dk, nus = [], [], []
             for fit, nom_fit, tr in zip(fits, nominal.fold_fits, self.train):
-                r_aug, _, _ = predict(fit, tr)
-                nu = effective_fraction(r_aug, d.fs_eval_Hz, self.bandwidth)
+                nu = self.nu
                 k = cand.n_shared()
                 if Effect.BASELINE_DRIFT in cand.effects:
                     k += n_drift_columns(d.t_eval_s, fit.corner_Hz) * tr.n_trials
+                    k += 2 * fit.n_steps      # a step's time and height
                 n_eff = nu * fit.n_samples
                 dic.append(n_eff * np.log(fit.rss / nom_fit.rss) + 2 * k)
                 dk.append(k)
@@ -222,9 +223,8 @@ class _Runner:
                 # iterations from the nominal fit settle the dynamics
                 fit = fit_model(tr, candidate(Effect.BASELINE_DRIFT), start=nom,
                                 corner_Hz=fc, max_iter=4)
-                r_aug, _, _ = predict(fit, tr)
-                nu = effective_fraction(r_aug, d.fs_eval_Hz, self.bandwidth)
-                k = n_drift_columns(d.t_eval_s, fc) * tr.n_trials
+                nu = self.nu
+                k = n_drift_columns(d.t_eval_s, fc) * tr.n_trials + 2 * fit.n_steps
                 ic = nu * fit.n_samples * np.log(fit.rss / nom.rss) + 2 * k
                 if ic < best_ic:
                     best, best_ic = fit, ic
@@ -291,7 +291,9 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
             cand = candidate(*effs)
 
             def pair_fit(k, max_iter, other=other, effs=effs, cand=cand):
-                p0 = np.concatenate([_fold_p(best, other, e, k) for e in effs])
+                p0 = np.concatenate([_fold_p(best, other, e, k) for e in effs]
+                                    + [[1e3 * best.candidate.timing_s(
+                                        best.fold_fits[k].p_shared)]])
                 return fit_model(run.train[k], cand, start=best.fold_fits[k], p_start=p0,
                                  corner_Hz=max(best.fold_fits[k].corner_Hz,
                                                other.fold_fits[k].corner_Hz),
@@ -299,8 +301,7 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
 
             # screen on the first fold: does the second effect add beyond the winner?
             screen = pair_fit(0, 10)
-            r_aug, _, _ = predict(screen, run.train[0])
-            nu = effective_fraction(r_aug, data.fs_eval_Hz, run.bandwidth)
+            nu = run.nu
             dk = cand.n_shared() - best.candidate.n_shared()
             if Effect.BASELINE_DRIFT in effs and best.candidate.effect is not \
                     Effect.BASELINE_DRIFT:
@@ -323,8 +324,7 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
     if final is None:
         full = nominal_full
     else:
-        p0 = np.mean([f.p_shared for f in final.fold_fits], axis=0) \
-            if full_cand.n_shared() else None
+        p0 = np.mean([f.p_shared for f in final.fold_fits], axis=0)
         corner = float(np.median([f.corner_Hz for f in final.fold_fits]))
         full = fit_model(data, full_cand, start=nominal_full, p_start=p0, corner_Hz=corner,
                          max_iter=s.max_iter)
@@ -333,18 +333,24 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
     if data.steady_noise_N2 is not None and np.any(np.isfinite(data.steady_noise_N2[tested])):
         sensor = 100.0 * float(np.sqrt(np.nanmean(data.steady_noise_N2[tested])
                                        / np.mean(run.reference[tested] ** 2)))
-    return Diagnosis(data=data, settings=s, folds=run.folds, reference=run.reference,
+    diag = Diagnosis(data=data, settings=s, folds=run.folds, reference=run.reference,
                      tested=tested, nominal=nominal, candidates=results, pairs=pairs,
                      best=best, best_pair=best_pair, full_fit=full, nominal_full=nominal_full,
                      noise_floor_nrmse_pct=noise_floor_pct(data, run.reference),
-                     sensor_floor_nrmse_pct=sensor,
-                     elapsed_s=time.perf_counter() - t0)
+                     sensor_floor_nrmse_pct=sensor)
+    diag.assessment = assess(diag)
+    if diag.assessment["verdict"] == "none" and (best is not None):
+        # a candidate fitted a gap that is within noise: not named, the twin stays nominal
+        diag.not_named = best_pair or best
+        diag.best, diag.best_pair, diag.full_fit = None, None, nominal_full
+    diag.elapsed_s = time.perf_counter() - t0
+    return diag
 
 
 def _fold_p(best: CandidateResult, other: CandidateResult, effect: Effect, k: int):
     for r in (best, other):
         if r.candidate.effects == (effect,):
-            return r.fold_fits[k].p_shared
+            return r.candidate.sub(r.fold_fits[k].p_shared, effect)
     return np.zeros(0)
 
 

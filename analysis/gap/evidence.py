@@ -112,7 +112,10 @@ def explain(diag: Diagnosis, sig: dict) -> list[str]:
             f"none: no candidate cut the held-out NRMSE ({nom.heldout_nrmse_pct:.3g} %; "
             f"repeat-to-repeat noise floor {diag.noise_floor_nrmse_pct:.3g} %) by "
             f"{diag.settings.min_shrink_pct:g} % or more with dIC < "
-            f"-{diag.settings.ic_margin:g}; the nominal model is as good as the data allow.")
+            f"-{diag.settings.ic_margin:g}"
+            + ("; the nominal model is as good as the data allow."
+               if diag.assessment.get("verdict", "none") == "none" else
+               "; what the nominal model misses is not one of the candidate effects."))
         return lines
     lines.append(f"{final.label}: held-out NRMSE {nom.heldout_nrmse_pct:.3g} % -> "
                  f"{final.heldout_nrmse_pct:.3g} % ({final.shrink_pct:.0f} % smaller), dIC "

@@ -21,6 +21,7 @@ from analysis.gap.data import GapData
 from analysis.gap.effects import Effect
 from analysis.gap.harmonics import levy_second_order, local_harmonics
 from analysis.gap.models import Candidate, nuisance_basis
+from analysis.gap.samples import effective_fraction
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +44,8 @@ class ModelFit:
     n_samples: int = 0
     fitted_levels: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     converged: bool = True
+    n_steps: int = 0
+    """Baseline steps found (``baseline_drift``: a jump at an unknown time in a trial)."""
 
     @property
     def effect(self) -> Effect:
@@ -67,13 +70,23 @@ class Problem:
         lev = data.level
         self.levels = np.unique(lev)
         self.rows = [np.flatnonzero(lev == j) for j in self.levels]
+        self.steps: dict[int, np.ndarray] = {}
+        """Row -> unit step column (orthogonal to ``Q``) projected out of that row."""
         self.yp = self.project(data.y_N)
         self.dt = 1.0 / data.fs_sim_Hz
         self.n_eval = data.y_N.shape[1]
 
     def project(self, v: np.ndarray) -> np.ndarray:
-        """Remove the nuisance columns from each row."""
-        return v - (v @ self.Q) @ self.Q.T
+        """Remove the nuisance columns (and each row's baseline step, if any)."""
+        out = v - (v @ self.Q) @ self.Q.T
+        for i, u in self.steps.items():
+            out[i] -= (out[i] @ u) * u
+        return out
+
+    def set_steps(self, resid: np.ndarray) -> None:
+        """Find each row's baseline step in a residual and project it out from now on."""
+        self.steps = find_steps(resid, self.Q, self.data)
+        self.yp = self.project(self.data.y_N)
 
     def unit_response(self, wn: np.ndarray, zeta: np.ndarray, p: np.ndarray,
                       drive: np.ndarray | None = None) -> np.ndarray:
@@ -101,6 +114,67 @@ class Problem:
             Kp[k] = float(np.sum(xp[rows] * self.yp[rows])) / den if den > 0 else 0.0
             r[rows] = self.yp[rows] - Kp[k] * xp[rows]
         return r, Kp
+
+
+#: A step is accepted when its least-squares amplitude is this many standard errors from
+#: zero (the search over ~100 step times needs a high bar).
+STEP_Z = 6.0
+
+
+def find_steps(resid: np.ndarray, Q: np.ndarray, data: GapData, z: float = STEP_Z,
+               info: dict | None = None) -> dict[int, np.ndarray]:
+    """Per row: the most likely time of a baseline step (every 50 ms, 0.3 s from the ends,
+    low-passed like the force), kept when significant against the trial's noise (see
+    ``STEP_Z``). ``info``, if given, receives row -> (sample index of the step, height in
+    N per unit of the returned column's coefficient).
+
+    The noise of a step's amplitude is that of the noise's spectrum at low frequency:
+    per-sample variance (steady lead-in) over the effective-sample fraction of the noise.
+    """
+    n = resid.shape[1]
+    fs = data.fs_eval_Hz
+    stride = max(1, int(round(0.05 * fs)))
+    edge = int(round(0.3 * fs))
+    times = np.arange(edge, n - edge, stride)
+    if len(times) == 0:
+        return {}
+    S = (np.arange(n)[None, :] >= times[:, None]).astype(float)
+    # a step in the force passes the force's low-pass: so does the step column
+    sos = signal.butter(data.settings.lowpass_order, data.settings.lowpass_Hz, fs=fs,
+                        output="sos")
+    S = signal.sosfiltfilt(sos, S, axis=1)
+    S -= (S @ Q) @ Q.T
+    norm2 = np.sum(S * S, axis=1)
+    keep = norm2 > 1e-9
+    S, norm2 = S[keep], norm2[keep]
+    proj = resid @ S.T                                # (rows, times)
+    stat = proj ** 2 / norm2[None, :]
+    if data.steady_N is not None and data.steady_noise_N2 is not None:
+        nu = effective_fraction(data.steady_N, fs, data.settings.lowpass_Hz)
+        var = np.where(np.isfinite(data.steady_noise_N2), data.steady_noise_N2,
+                       np.mean(resid ** 2, axis=1))
+    else:
+        nu, var = 0.5, np.mean(resid ** 2, axis=1)
+    out = {}
+    for i in range(resid.shape[0]):
+        k = int(np.argmax(stat[i]))
+        if stat[i, k] > z * z * var[i] / max(nu, 1e-3):
+            out[i] = S[k] / np.sqrt(norm2[k])
+            if info is not None:
+                info[i] = (int(times[keep][k]), 1.0 / float(np.sqrt(norm2[k])))
+    return out
+
+
+def timing_bounds_ms(data: GapData) -> tuple[float, float]:
+    """Bounds of the models' timing correction (ms): the total timing, session estimate
+    plus correction, stays within +-``input_timing_max_s``; a timing fixed by the settings
+    (hold, smooth, calibrated) is not corrected."""
+    t = data.timing
+    sig = data.settings.signal
+    if t is None or not str(t.source).startswith("estimated"):
+        return 0.0, 0.0
+    m = sig.input_timing_max_s
+    return 1e3 * (-m - t.delay_s), 1e3 * (m - t.delay_s)
 
 
 def initial_levels(data: GapData) -> tuple[np.ndarray, np.ndarray]:
@@ -144,7 +218,7 @@ def fit_model(data: GapData, cand: Candidate, *, start: ModelFit | None = None,
         wn0, z0 = start.wn_rad_s[prob.levels].copy(), start.zeta[prob.levels].copy()
     else:
         wn0, z0 = initial_levels(data)
-    ns = cand.n_shared()
+    ns = cand.n_free()
     # screen the shared parameters' starting grid with the per-level start held fixed
     grid = cand.start_grid()
     if p_start is not None:
@@ -163,9 +237,13 @@ def fit_model(data: GapData, cand: Candidate, *, start: ModelFit | None = None,
         return prob.residual(*split(x))[0]
 
     lo_s, hi_s = cand.bounds()
+    lo_s[-1], hi_s[-1] = timing_bounds_ms(data)
     lo = np.concatenate([np.full(nL, np.log(3.0)), np.full(nL, np.log(0.03)), lo_s])
     hi = np.concatenate([np.full(nL, np.log(600.0)), np.full(nL, np.log(10.0)), hi_s])
     x0 = np.clip(x0, lo, hi)
+    if Effect.BASELINE_DRIFT in cand.effects:
+        # steps are found on the starting model's residual and kept during the search
+        prob.set_steps(fun(x0))
     x, converged = _levenberg_marquardt(fun, x0, prob.rows, nL, ns, lo, hi,
                                         max_iter=max_iter)
     wn, zeta, p = split(x)
@@ -176,7 +254,8 @@ def fit_model(data: GapData, cand: Candidate, *, start: ModelFit | None = None,
         arr[prob.levels] = val
     return ModelFit(candidate=cand, p_shared=p, Kp=full[0], wn_rad_s=full[1], zeta=full[2],
                     corner_Hz=corner_Hz, rss=float(np.sum(r ** 2)), n_samples=r.size,
-                    fitted_levels=prob.levels.copy(), converged=converged)
+                    fitted_levels=prob.levels.copy(), converged=converged,
+                    n_steps=len(prob.steps))
 
 
 def _normal_equations(fun, x, r0, rows, nL, ns):
@@ -281,6 +360,10 @@ def predict(fit: ModelFit, data: GapData) -> tuple[np.ndarray, np.ndarray, np.nd
     Kp_rows = fit.Kp[data.level][:, None]
     model = Kp_rows * x
     r = prob.project(data.y_N - model)
+    if Effect.BASELINE_DRIFT in fit.candidate.effects:
+        # a held-out trial's own baseline step is found like its offset: folds keep it
+        prob.steps = find_steps(r, prob.Q, data)
+        r = prob.project(data.y_N - model)
     pred = data.y_N - r
     ref = Problem(data, fit.candidate, 0.0).project(data.y_N)
     return r, pred, ref

@@ -37,9 +37,12 @@ import numpy as np
 from scipy import signal
 
 from analysis.gap.data import GapData
-from analysis.gap.discretize import (foh_compensate, fractional_delay, lagged_second_order_tf, parallel_tf,
-                                     second_order_tf)
+from analysis.discretize import (fractional_delay, lagged_second_order_tf, parallel_tf,
+                                 second_order_tf, smooth_hold_input)
 from analysis.gap.effects import Effect
+
+#: Bound of every model's correction of the session's input timing, ms.
+TIMING_CORRECTION_MS = 1.0
 
 #: The twin file's default fatigue reference (45 trials x 15 s).
 REFERENCE_STIM_S = 675.0
@@ -97,6 +100,12 @@ class Candidate:
     parameters concatenated in :attr:`effects` order) and mapped to physical values by
     :meth:`params`. ``baseline_drift`` has no such parameter: its bandwidth is chosen on a
     grid (see ``analysis.gap.diagnose``) and it acts through the nuisance basis.
+
+    Every model, the nominal one included, also carries the last entry of ``p``: a
+    correction of the rig's input timing in ms (within +-``TIMING_CORRECTION_MS``), on top
+    of the session's estimate (:mod:`analysis.input_timing`, made with a plain
+    second-order fit, which an effect outside it can pull). Each model thus gets the
+    timing that suits it, and since all carry it, it never counts in ``dk``.
     """
 
     effects: tuple[Effect, ...] = ()
@@ -119,20 +128,29 @@ class Candidate:
         return out
 
     def n_shared(self) -> int:
-        """Number of shared parameters optimised by least squares."""
+        """Number of the effects' shared parameters (what ``dk`` counts)."""
         return sum(_SHARED[e][0] for e in self.effects)
+
+    def n_free(self) -> int:
+        """Length of ``p``: the effects' parameters and the timing correction."""
+        return self.n_shared() + 1
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper bounds of ``p``."""
         b = [bd for e in self.effects for bd in _SHARED[e][1]]
+        b.append((-TIMING_CORRECTION_MS, TIMING_CORRECTION_MS))
         return (np.array([x[0] for x in b], float), np.array([x[1] for x in b], float))
 
     def start_grid(self) -> list[np.ndarray]:
         """Starting points screened for the shared parameters (single effects only; a
-        pair starts from its members' own fits)."""
+        pair starts from its members' own fits); the timing correction starts at 0."""
         if len(self.effects) != 1:
-            return [np.zeros(self.n_shared())]
-        return [np.array(g, float) for g in _SHARED[self.effects[0]][2]]
+            return [np.zeros(self.n_free())]
+        return [np.array(list(g) + [0.0], float) for g in _SHARED[self.effects[0]][2]]
+
+    def timing_s(self, p: np.ndarray) -> float:
+        """The timing correction in s (0 when ``p`` has no entry for it)."""
+        return float(p[self.n_shared()]) * 1e-3 if len(p) > self.n_shared() else 0.0
 
     def sub(self, p: np.ndarray, effect: Effect) -> np.ndarray:
         """The part of ``p`` that belongs to ``effect``."""
@@ -154,6 +172,7 @@ class Candidate:
                             zip(RECRUITMENT_KNOTS[1:-1], recruitment_knot_values(q)[1:-1])})
             elif e is Effect.FLEXOR_EXTENSOR_ASYMMETRY:
                 out["wn_ratio"], out["zeta_ratio"] = float(np.exp(q[0])), float(np.exp(q[1]))
+        out["timing_correction_s"] = self.timing_s(p)
         return out
 
     # -- the model ----------------------------------------------------------------------
@@ -185,9 +204,11 @@ class Candidate:
         if Effect.RECRUITMENT_NONLINEARITY in sl:
             h = recruitment_curve(p[sl[Effect.RECRUITMENT_NONLINEARITY]])
             u = u + recruitment_excess(data, h)
+        delay_s = self.timing_s(p)
         if Effect.DEAD_TIME in sl:
-            u = fractional_delay(u, float(np.exp(p[sl[Effect.DEAD_TIME]][0]))
-                                 * data.fs_sim_Hz)
+            delay_s += float(np.exp(p[sl[Effect.DEAD_TIME]][0]))
+        if delay_s != 0.0:
+            u = fractional_delay(u, delay_s * data.fs_sim_Hz)
         return u
 
     def gain(self, data: GapData, p: np.ndarray) -> np.ndarray | None:
@@ -212,7 +233,7 @@ def recruitment_excess(data: GapData, h) -> np.ndarray:
     sE = np.array([t.sE for t in data.trials])[:, None]
     rE = data.rE_sim
     x = (h(rE * sE) - h((1 - rE) * sE)) / (2 * sE)
-    return foh_compensate(signal.sosfiltfilt(_lowpass_sos(data), x - (rE - 0.5), axis=-1))
+    return smooth_hold_input(signal.sosfiltfilt(_lowpass_sos(data), x - (rE - 0.5), axis=-1))
 
 
 #: Knots of our recruitment curve (normalised intensity).

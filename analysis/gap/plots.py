@@ -164,3 +164,35 @@ def plot_example(t_s, measured, nominal, augmented, title: str, path: Path) -> N
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def plot_remaining(report: dict, path: Path) -> None:
+    """The remaining gap: held-out residual power over the trial's own noise power (1 = as
+    good as the noise allows) by sE, by chirp band and by session third, with the verdict."""
+    plt = _plt()
+    rem = report["remaining"]
+    w = rem["where"]
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), gridspec_kw={"width_ratios": [3, 2, 1]})
+    panels = (
+        ([f"{r['sE']:.2f}" for r in w["sE"]], [r["ratio_to_noise"] for r in w["sE"]], "by sE"),
+        ([f"{r['f_lo_Hz']:g}-{r['f_hi_Hz']:g}" for r in w["chirp_band"]],
+         [r["ratio_to_noise"] for r in w["chirp_band"]], "by chirp band (Hz)"),
+        (["first", "middle", "last"],
+         [v if v is not None else np.nan
+          for v in w["trial_position"].get("ratio_to_noise_by_third", [])],
+         "by session third"))
+    for ax, (labels, vals, title) in zip(axes, panels):
+        ax.bar(np.arange(len(vals)), vals, color="tab:orange" if rem["significant"] else "0.6")
+        ax.axhline(1.0, color="k", ls=":", lw=1)
+        ax.set_yscale("log")
+        ax.set_xticks(np.arange(len(vals)))
+        ax.set_xticklabels(labels, rotation=45, ha="right", fontsize=8)
+        ax.set_title(title, fontsize=9)
+    axes[0].set_ylabel("residual power / noise power")
+    label = report.get("best_pair") and "+".join(report["best_pair"]) or report["best_effect"]
+    fig.suptitle(f"verdict: {report['verdict']} ({label}); remaining beyond noise "
+                 f"{rem['beyond_noise_pct_typical'] or 0:.2f} % of the response, "
+                 + ("significant" if rem["significant"] else "not significant"), fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

@@ -67,6 +67,12 @@ def final_params(diag: Diagnosis) -> dict:
     fit = diag.full_fit
     p = dict(fit.params)
     effs = fit.candidate.effects
+    session_s = diag.data.timing.delay_s if diag.data.timing else 0.0
+    p["input_timing_s"] = session_s + p.pop("timing_correction_s", 0.0)
+    if Effect.DEAD_TIME in effs:
+        # counted from the rE record: the rig's timing and the participant's latency
+        # together (the two are one delay to the data)
+        p["L_s"] = p["L_s"] + p["input_timing_s"]
     if Effect.FATIGUE in effs:
         p["gain_loss_pct"] = fatigue_loss_pct(p["rate_per_s"])
     if Effect.RECRUITMENT_NONLINEARITY in effs:
@@ -110,12 +116,12 @@ def _row(r) -> dict:
             "shrink_pct": r.shrink_pct, "supported": r.supported, "fit_s": r.fit_s}
 
 
-def _clean(obj):
+def json_safe(obj):
     """JSON-safe (NaN -> None, numpy -> Python)."""
     if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
+        return {str(k): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
+        return [json_safe(v) for v in obj]
     if isinstance(obj, (np.floating, float)):
         v = float(obj)
         return v if math.isfinite(v) else None
@@ -124,7 +130,7 @@ def _clean(obj):
     if isinstance(obj, np.bool_):
         return bool(obj)
     if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
+        return json_safe(obj.tolist())
     return obj
 
 
@@ -152,10 +158,16 @@ def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | 
                          sE_levels=diag.data.sE_levels, Kp=Kp, wn_rad_s=wn, zeta=zeta,
                          effects=effects)
     in_aug = final.insample_nrmse_pct if final else nom.insample_nrmse_pct
+    a = diag.assessment
     report = {
         "format": "nmsid-gap-report", "format_version": 1,
         "session": diag.data.path, "participant": diag.data.participant,
+        "verdict": a.get("verdict"), "verdict_sentence": a.get("sentence"),
+        "remaining": a.get("remaining"), "nominal_gap": a.get("nominal_gap"),
+        "not_named": a.get("not_named"),
         "n_trials": diag.data.n_trials, "skipped_trials": diag.data.skipped,
+        "excluded_trials": [{"trial": k, "reason": v} for k, v in diag.data.excluded.items()],
+        "input_timing": diag.data.timing.as_dict() if diag.data.timing else None,
         "folds": [{"held_out_repeat": f.held_out_repeat, "n_train": len(f.train),
                    "n_test": len(f.test)} for f in diag.folds],
         "best_effect": diag.best_effect.value,
@@ -186,7 +198,7 @@ def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | 
         "elapsed_s": diag.elapsed_s,
     }
     report["settings"]["candidates"] = [e.value for e in diag.settings.candidates]
-    return _clean(report), loc, twin
+    return json_safe(report), loc, twin
 
 
 def write_outputs(diag: Diagnosis, out_dir, calibration=None, *, plots: bool = True) -> dict:
@@ -216,6 +228,9 @@ def _figures(diag: Diagnosis, report: dict, loc: dict, out: Path) -> list[str]:
     names.append("frequency.png")
     plots.plot_spectrum_and_gain(loc, out / "drift_fatigue.png", diag.data.chirp_f0_Hz)
     names.append("drift_fatigue.png")
+    if report.get("remaining") and report["remaining"]["where"].get("sE"):
+        plots.plot_remaining(report, out / "remaining.png")
+        names.append("remaining.png")
     plots.plot_ranking(report["ranking"], diag.nominal.heldout_nrmse_pct,
                        diag.noise_floor_nrmse_pct, out / "ranking.png")
     names.append("ranking.png")
@@ -261,10 +276,20 @@ def _html(report: dict, figures: list[str]) -> str:
         f"<p>Session <code>{html.escape(str(report['session']))}</code>, "
         f"{report['n_trials']} trials, {len(report['folds'])}-fold cross-validation by "
         "repeat (held-out figures never come from trials used in fitting).</p>",
-        f"<h2>Verdict: <code>{html.escape(report['best_effect'])}</code>"
+        f"<h2>Verdict: <code>{html.escape(str(report['verdict']))}</code>"
+        + (f" (<code>{html.escape(report['best_effect'])}</code>)"
+           if report["best_effect"] != "none" and not report.get("best_pair") else "")
         + (f" (pair: {html.escape(' + '.join(report['best_pair']))})"
-           if report.get("best_pair") else "") + "</h2><ul>",
+           if report.get("best_pair") else "") + "</h2>",
+        f"<p><b>{html.escape(str(report.get('verdict_sentence') or ''))}</b></p>",
     ]
+    if report.get("excluded_trials"):
+        parts.append("<p>Trials excluded upstream and not held against the model: "
+                     + html.escape("; ".join(f"{e['trial']} ({e['reason']})"
+                                             for e in report["excluded_trials"])) + "</p>")
+    if report.get("not_named"):
+        parts.append(f"<p>{html.escape(report['not_named'])}.</p>")
+    parts.append("<ul>")
     parts += [f"<li>{html.escape(line)}</li>" for line in report["evidence"]["summary"]]
     parts.append("</ul>")
     parts.append(

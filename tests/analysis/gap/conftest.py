@@ -35,9 +35,16 @@ def _true_params(sE):
 
 
 def write_session(path, *, levels=(0.3, 0.5, 0.7, 0.9, 1.0), repeats=3, seed=0,
-                  dead_time_s=0.0, noise_N=0.04, blocks=True, fatigue_per_100s=0.0):
+                  dead_time_s=0.0, noise_N=0.04, blocks=True, fatigue_per_100s=0.0,
+                  hold=True, step=None, bump=None):
     """Write a synthetic session; ``dead_time_s`` delays the force response,
-    ``fatigue_per_100s`` lowers the gain linearly with cumulative stimulation."""
+    ``fatigue_per_100s`` lowers the gain linearly with cumulative stimulation.
+
+    ``hold``: the stimulator holds each sample (zero-order hold, exact); False: a rig whose
+    stimulation is the smooth signal the record samples (first-order hold: linear between
+    samples). ``step = (k, t_s, height_N)``: a baseline step in the k-th trial written;
+    ``bump = (ks, t_s, duration_s, height_N)``: a voluntary contraction in those trials.
+    """
     rng = np.random.default_rng(seed)
     order = [(sE, r) for sE in levels for r in range(1, repeats + 1)]
     if blocks:
@@ -50,16 +57,21 @@ def write_session(path, *, levels=(0.3, 0.5, 0.7, 0.9, 1.0), repeats=3, seed=0,
     rE = rE_chirp()
     t = np.arange(len(rE)) / FS
     cum_s = 0.0
-    for sE, rep in order:
+    for k_trial, (sE, rep) in enumerate(order):
         Kp, wn, zeta = _true_params(sE)
         # exact for the stimulator's zero-order hold (each sample held for 1/FS)
         b, a, _ = signal.cont2discrete(([Kp * wn ** 2], [1, 2 * zeta * wn, wn ** 2]),
-                                       1 / FS, method="zoh")
+                                       1 / FS, method="zoh" if hold else "foh")
         u = rE - 0.5
         if dead_time_s > 0:
             k = int(round(dead_time_s * FS))
             u = np.concatenate([np.zeros(k), u[:-k]])
-        y = signal.lfilter(np.ravel(b), a, u)
+        y = signal.lfilter(np.ravel(b), np.ravel(a), u)
+        if step is not None and step[0] == k_trial:
+            y = y + step[2] * (t >= step[1])
+        if bump is not None and k_trial in bump[0]:
+            m = (t >= bump[1]) & (t < bump[1] + bump[2])
+            y = y + bump[3] * m * np.sin(np.pi * (t - bump[1]) / bump[2]) ** 2
         y = y * (1.0 - fatigue_per_100s * (cum_s + t) / 100.0)
         cum_s += len(t) / FS
         noise = noise_N * rng.standard_normal(len(t)) + 0.03 * np.sin(2 * np.pi * 50 * t)

@@ -188,13 +188,13 @@ def test_session_two_repeats_decided_by_neighbours_and_lead_in_noise(contaminate
 
 def test_nothing_excluded_reaches_a_fit(contaminated, monkeypatch):
     seen = []
-    real = identify_module.preprocess_trials
+    real = identify_module.fit_level
 
-    def spy(trials, settings):
+    def spy(trials, settings, *args, **kwargs):
         seen.extend((t.sE, t.repeat) for t in trials)
-        return real(trials, settings)
+        return real(trials, settings, *args, **kwargs)
 
-    monkeypatch.setattr(identify_module, "preprocess_trials", spy)
+    monkeypatch.setattr(identify_module, "fit_level", spy)
     res = identify_session(read_session(contaminated))
     assert (0.5, 2) not in seen and (0.6, 1) not in seen and len(seen) == 6
     rows = {round(r["sE"], 2): r for r in res.rows()}

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from analysis.gap.discretize import (fractional_delay, lagged_second_order_tf, parallel_tf,
+from analysis.discretize import (fractional_delay, lagged_second_order_tf, parallel_tf,
                                      second_order_tf)
 
 
@@ -53,12 +53,14 @@ def test_parallel_is_the_mean_of_both_responses():
     np.testing.assert_allclose(y, ref, atol=1e-9)
 
 
-@pytest.mark.parametrize("delay_samples", [0.0, 0.37, 4.0, 12.81])
+@pytest.mark.parametrize("delay_samples", [0.0, 0.37, 4.0, 12.81, -0.5, -0.37, -3.6])
 def test_fractional_delay_of_a_slow_sine(delay_samples):
+    """Either sign: a delay (the stimulation lags the record) or an advance."""
     fs = 500.0
     t = np.arange(3000) / fs
-    x = np.sin(2 * np.pi * 7.0 * t)[None, :]
+    x = np.sin(2 * np.pi * 7.0 * t + 0.3)[None, :]
     y = fractional_delay(x, delay_samples)
-    ref = np.sin(2 * np.pi * 7.0 * (t - delay_samples / fs))
-    np.testing.assert_allclose(y[0, 20:], ref[20:], atol=2e-5)
-    assert np.all(y[0, :int(delay_samples) - 1] == 0) if delay_samples >= 2 else True
+    ref = np.sin(2 * np.pi * 7.0 * (t - delay_samples / fs) + 0.3)
+    np.testing.assert_allclose(y[0, 20:-20], ref[20:-20], atol=2e-5)
+    if delay_samples >= 2:   # before the start the input rests at its first sample
+        assert np.all(y[0, :int(delay_samples) - 1] == x[0, 0])
