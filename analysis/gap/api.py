@@ -27,6 +27,7 @@ from analysis.gap.errors import GapInputError
 from analysis.gap.localize import by_location, frequency_view
 from analysis.gap.models import NOMINAL, nuisance_basis
 from analysis.gap.report import json_safe, write_outputs
+from analysis.qc import assess_session
 from protocols.session_file import read_session
 from sim_backends.sensor import SensorModel
 from sim_backends.simulation import ParticipantSimulator
@@ -116,7 +117,7 @@ def _under_test(diag: Diagnosis, pred: np.ndarray, label: str) -> dict:
 
 def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None,
             sim_session=None, plots: bool = True,
-            preprocess: PreprocessSettings | None = None, excluded=None) -> dict:
+            preprocess: PreprocessSettings | None = None, excluded="qc") -> dict:
     """Diagnose each session and write the outputs.
 
     Parameters
@@ -130,10 +131,12 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
         Write the PNG figures.
     preprocess : PreprocessSettings, optional
         Filters, fit rate and input timing (shared with identification).
-    excluded : dict or callable, optional
-        Trials excluded upstream (e.g. by quality control), never held against the model:
-        a mapping trial name -> reason, or a callable ``path -> mapping`` for several
-        sessions. They are left out of every fit and score and listed in the report.
+    excluded : "qc", dict, callable or None
+        Trials excluded upstream, never held against the model: by default (``"qc"``)
+        the ones the trial quality control (:func:`analysis.qc.assess_session`) excludes;
+        or a mapping trial name -> reason, or a callable ``path -> mapping`` for several
+        sessions; None keeps every completed trial. They are left out of every fit and
+        score and listed in the report.
 
     Returns
     -------
@@ -146,7 +149,10 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
     reports = []
     multi = len(sessions) > 1
     for path in sessions:
-        excl = excluded(path) if callable(excluded) else excluded
+        if isinstance(excluded, str) and excluded == "qc":
+            excl = assess_session(path).excluded()
+        else:
+            excl = excluded(path) if callable(excluded) else excluded
         data = load_session(path, preprocess, excluded=excl)
         diag = diagnose(data, settings)
         cal = read_session(path, load_data=False).calibration

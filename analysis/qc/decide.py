@@ -143,8 +143,8 @@ def _single(trial, s: QCSettings) -> _Work:
     if not np.all(np.isfinite(trial.rE)):
         exclude("non-finite samples in the commanded rE record")
         return w
-    if w.force.size < 2 * fs:
-        exclude(f"only {w.force.size / fs:.2f} s of force recorded")
+    if w.force.size < 0.5 * fs:
+        v.reasons.append(f"only {w.force.size / fs:.2f} s recorded: too short to judge")
         return w
     to_bridge = []
     for f in checks.nonfinite(w.force, fs, s.nonfinite_max_s, "force_N"):
