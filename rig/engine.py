@@ -56,6 +56,7 @@ class _Cmd(enum.Enum):
     ABORT = "abort"
     SKIP = "skip"
     RERUN = "rerun"
+    REPEAT = "repeat"
     REARM = "rearm"
     CONFIRM = "confirm"
     NOTE = "note"
@@ -183,6 +184,13 @@ class Engine(CalibrationSteps):
         for a trial that is not aborted)."""
         self._put(_Cmd.RERUN, int(schedule_index))
 
+    def repeat_trial(self, schedule_index: int, reason: str) -> None:
+        """Run a completed trial once more (e.g. the quality control excluded it while the
+        participant is still there); it runs next. The recorded trial stays in the file
+        and the new attempt is written as a new trial. Refused (event ``repeat_refused``)
+        for a trial that is not completed."""
+        self._put(_Cmd.REPEAT, (int(schedule_index), str(reason)))
+
     def confirm_calibration(self, calibration: Calibration) -> None:
         """The operator's calibration (the measured one, or edited values); used when
         ``calibration.confirm`` is set. Refused (event ``calibration_refused``) if it
@@ -244,6 +252,8 @@ class Engine(CalibrationSteps):
                 self._event("note", arg)
             elif cmd is _Cmd.RERUN:
                 self._queue_rerun(arg)
+            elif cmd is _Cmd.REPEAT:
+                self._queue_repeat(*arg)
 
     def _queue_rerun(self, index: int) -> None:
         if not 0 <= index < len(self.schedule):
@@ -258,6 +268,21 @@ class Engine(CalibrationSteps):
         self._rerun_first.append(index)
         self._event("rerun_queued", f"schedule index {index} (sE {pt.sE:g}, repeat "
                                     f"{pt.repeat})")
+
+    def _queue_repeat(self, index: int, reason: str) -> None:
+        if not 0 <= index < len(self.schedule):
+            self._event("repeat_refused", f"no schedule index {index}")
+            return
+        pt = self.schedule[index]
+        if pt.status is not TrialStatus.DONE:
+            self._event("repeat_refused", f"schedule index {index} is {pt.status.value}, "
+                                          "only completed trials are repeated")
+            return
+        pt.status, pt.reason = TrialStatus.PENDING, ""
+        self._rerun_first.append(index)
+        self._levels_reported.discard(round(pt.sE, 9))
+        self._event("repeat_queued", f"schedule index {index} (sE {pt.sE:g}, repeat "
+                                     f"{pt.repeat}): {reason}")
 
     def _wait_operator(self, until, what: str) -> None:
         """Wait (real time, output off) until ``until()`` is true; abort ends the run."""

@@ -10,7 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
+import dataclasses
+
 from analysis.identify import identify_level as _identify
+from analysis.qc import assess_level
 from analysis.run import run_identification
 from rig.gui.results_panel import ModelFit, ParameterSelection, SelectionView
 
@@ -30,6 +33,29 @@ def identify_level(trials):
     if result.fit is None:
         raise ValueError("; ".join(result.problems) or "no parameters estimated")
     return result.fit
+
+
+def trial_verdicts(trials_by_index: dict) -> dict[int, tuple[str, str]]:
+    """The quality control's verdict on each completed trial of one level so far.
+
+    Parameters
+    ----------
+    trials_by_index : dict of schedule index -> Trial
+        The completed trials of one sE level (the latest attempt of each).
+
+    Returns
+    -------
+    dict of schedule index -> (decision, reasons)
+        ``used``, ``repaired`` or ``excluded`` and the reasons (with time spans).
+    """
+    named = [dataclasses.replace(t, name=str(i)) for i, t in trials_by_index.items()]
+    level = assess_level(named)
+    out = {}
+    for v in level.verdicts:
+        spans = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in v.spans)
+        out[int(v.trial)] = (v.decision, "; ".join(v.reasons) + (f" [{spans}]" if spans
+                                                                   else ""))
+    return out
 
 
 #: Parameter -> (label, units, the paper's figure).

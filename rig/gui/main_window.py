@@ -107,7 +107,10 @@ class MainWindow(QMainWindow):
             else analysis_hooks.select_models)
         self.schedule_panel = SchedulePanel(on_pause=self.pause, on_resume=self.resume,
                                             on_skip=self.skip, on_rerun=self.rerun,
-                                            on_end=self.end_session)
+                                            on_end=self.end_session,
+                                            on_repeat=self.repeat_excluded)
+        self._qc_trials: dict[float, dict] = {}
+        """sE -> {schedule index: the latest completed trial}, for the quality control."""
         self.event_log = EventLog(on_note=self.add_note)
 
         self.tabs = QTabWidget()
@@ -202,6 +205,8 @@ class MainWindow(QMainWindow):
         self.current_index = -1
         self.run_result = self.run_error = None
         self.session_finished = False
+        self._qc_trials: dict[float, dict] = {}
+        self.schedule_panel.qc.clear()
         self.calibration_panel.reset()
         self.identification.reset()
         self.results.reset()
@@ -243,6 +248,17 @@ class MainWindow(QMainWindow):
                 raise ValueError("no aborted trial to re-run")
             schedule_index = aborted[0]
         self.controller.rerun(schedule_index)
+
+    def repeat_excluded(self, schedule_index: int | None = None) -> None:
+        """Run a trial the quality control excluded once more (the first such trial if no
+        index is given); the recorded one stays in the file."""
+        if schedule_index is None:
+            excluded = self.schedule_panel.excluded_indices()
+            if not excluded:
+                raise ValueError("no trial excluded by the quality control to repeat")
+            schedule_index = excluded[0]
+        _, reasons = self.schedule_panel.qc.get(schedule_index, ("", ""))
+        self.controller.repeat_trial(schedule_index, f"QC excluded it: {reasons}")
 
     def end_session(self) -> None:
         """End the session early: the engine stops output and finishes; the file keeps
@@ -307,9 +323,34 @@ class MainWindow(QMainWindow):
         status = getattr(trial, "status", "")
         reason = getattr(trial, "abort_reason", "")
         sE, repeat = getattr(trial, "sE", float("nan")), getattr(trial, "repeat", 0)
+        verdict = self._judge(index, trial) if status == "completed" else None
         self.live.set_title(f"Trial {index + 1}: sE = {sE:.2f}, repeat {repeat}: {status}"
-                            + (f" ({reason})" if reason else ""))
+                            + (f" ({reason})" if reason else "")
+                            + (f"  |  QC: {verdict[0]}" + (f" ({verdict[1]})" if verdict[1]
+                                                           else "") if verdict else ""))
         self._refresh_schedule()
+
+    def _judge(self, index: int, trial) -> tuple[str, str] | None:
+        """QC of a completed trial against the completed repeats of its level so far; the
+        verdicts of the level's earlier trials are updated too (a third repeat can decide
+        what two could not)."""
+        if getattr(trial, "force_N", None) is None:
+            return None
+        level = self._qc_trials.setdefault(round(float(trial.sE), 9), {})
+        level[index] = trial
+        try:
+            verdicts = analysis_hooks.trial_verdicts(level)
+        except (ValueError, ArithmeticError) as exc:
+            log.warning("quality control of trial %d failed: %s", index + 1, exc)
+            return None
+        for i, (decision, why) in verdicts.items():
+            self.schedule_panel.set_qc(i, decision, why)
+        decision, why = verdicts.get(index, ("", ""))
+        if decision == "excluded":
+            self.event_log.append(f"QC: trial {index + 1} (sE {trial.sE:.2f}, repeat "
+                                  f"{trial.repeat}) excluded: {why}. 'Repeat excluded' runs "
+                                  "it again.")
+        return verdicts.get(index)
 
     def _on_level_completed(self, sE: float, trials: list) -> None:
         self.identification.submit_level(sE, trials)

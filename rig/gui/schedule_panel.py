@@ -19,7 +19,8 @@ from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLab
 from rig.gui.theme import Colour
 from rig.observer import is_rerun_wait
 
-COLUMNS = ("#", "sE", "repeat", "status", "runs", "reason")
+COLUMNS = ("#", "sE", "repeat", "status", "runs", "reason", "QC")
+QC_COLOURS = {"used": "#d8f3dc", "repaired": "#fff3b0", "excluded": "#ffb3b3"}
 END_TEXT = "End session"
 #: The second click of End session must come within this time, ms.
 END_CONFIRM_MS = 4000
@@ -71,9 +72,13 @@ class SchedulePanel(QWidget):
     def __init__(self, on_pause: Callable[[], None], on_resume: Callable[[], None],
                  on_skip: Callable[[], None], on_rerun: Callable[[int], None],
                  on_end: Callable[[], None] | None = None,
+                 on_repeat: Callable[[int], None] | None = None,
                  parent: QWidget | None = None):
         super().__init__(parent)
         self._on_rerun = on_rerun
+        self._on_repeat = on_repeat
+        self.qc: dict[int, tuple[str, str]] = {}
+        """Schedule index -> (QC decision, reasons) of each completed trial."""
         self._on_end = on_end
         self.trial_s = 15.0
         self.rest_s = 60.0
@@ -90,9 +95,9 @@ class SchedulePanel(QWidget):
         self.table.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
         self.table.setFocusPolicy(Qt.FocusPolicy.NoFocus)
         hdr = self.table.horizontalHeader()
-        for col in range(len(COLUMNS) - 1):
+        for col in range(len(COLUMNS)):
             hdr.setSectionResizeMode(col, QHeaderView.ResizeMode.ResizeToContents)
-        hdr.setSectionResizeMode(len(COLUMNS) - 1, QHeaderView.ResizeMode.Stretch)
+        hdr.setSectionResizeMode(COLUMNS.index("reason"), QHeaderView.ResizeMode.Stretch)
         self.table.itemSelectionChanged.connect(self._selection_changed)
 
         self.progress = QProgressBar()
@@ -104,6 +109,10 @@ class SchedulePanel(QWidget):
         self.rerun_button = QPushButton("Re-run aborted")
         self.rerun_button.setToolTip("Re-run the selected aborted trial (or the first "
                                      "aborted one if none is selected)")
+        self.repeat_button = QPushButton("Repeat excluded")
+        self.repeat_button.setToolTip("Run a trial that the quality control excluded once "
+                                      "more while the participant is still there (the "
+                                      "recorded one stays in the file)")
         self.end_button = QPushButton(END_TEXT)
         self.end_button.setToolTip("End the session now (output off); press twice. The "
                                    "file keeps everything and can be resumed later.")
@@ -112,18 +121,19 @@ class SchedulePanel(QWidget):
         self._end_timer.setSingleShot(True)
         self._end_timer.timeout.connect(self._disarm_end)
         for b in (self.pause_button, self.resume_button, self.skip_button, self.rerun_button,
-                  self.end_button):
+                  self.repeat_button, self.end_button):
             b.setFocusPolicy(Qt.FocusPolicy.NoFocus)
             b.setEnabled(False)
         self.pause_button.clicked.connect(on_pause)
         self.resume_button.clicked.connect(on_resume)
         self.skip_button.clicked.connect(on_skip)
         self.rerun_button.clicked.connect(self._rerun_clicked)
+        self.repeat_button.clicked.connect(self._repeat_clicked)
         self.end_button.clicked.connect(self._end_clicked)
 
         controls = QHBoxLayout()
         for b in (self.pause_button, self.resume_button, self.skip_button, self.rerun_button,
-                  self.end_button):
+                  self.repeat_button, self.end_button):
             controls.addWidget(b)
         lay = QVBoxLayout(self)
         lay.setContentsMargins(0, 0, 0, 0)
@@ -158,7 +168,9 @@ class SchedulePanel(QWidget):
                 shown = status
             self.statuses.append(shown)
             runs = str(attempts[i]) if attempts[i] else ""
-            values = (str(i + 1), f"{sE:.2f}", str(repeat), shown, runs, reason)
+            decision, why = self.qc.get(i, ("", ""))
+            values = (str(i + 1), f"{sE:.2f}", str(repeat), shown, runs, reason,
+                      decision if shown in ("done", "completed") else "")
             colour = QColor(Colour.STATUS.get(shown, "#ffffff"))
             for col, text in enumerate(values):
                 item = self.table.item(i, col)
@@ -167,10 +179,14 @@ class SchedulePanel(QWidget):
                     self.table.setItem(i, col, item)
                 if item.text() != text:
                     item.setText(text)
-                item.setBackground(QBrush(colour))
+                qc_col = col == COLUMNS.index("QC")
+                item.setBackground(QBrush(QColor(QC_COLOURS.get(text, colour.name()))
+                                          if qc_col else colour))
                 item.setFont(bold if i == self.current_index else normal)
-                if col == len(values) - 1:
+                if col == COLUMNS.index("reason"):
                     item.setToolTip(reason)
+                elif qc_col:
+                    item.setToolTip(why)
         done = sum(s in ("done", "completed", "skipped") for s in self.statuses)
         self.progress.setMaximum(max(1, len(rows)))
         self.progress.setValue(done)
@@ -220,6 +236,16 @@ class SchedulePanel(QWidget):
         self.end_button.setStyleSheet("")
 
     # -- re-run -----------------------------------------------------------------------
+    def set_qc(self, index: int, decision: str, reasons: str) -> None:
+        """Show the quality control's verdict on the completed trial at ``index``."""
+        self.qc[int(index)] = (decision, reasons)
+        self._selection_changed()
+
+    def excluded_indices(self) -> list[int]:
+        """Completed trials the quality control excluded (not yet repeated)."""
+        return [i for i, (d, _) in sorted(self.qc.items()) if d == "excluded"
+                and i < len(self.statuses) and self.statuses[i] in ("done", "completed")]
+
     def aborted_indices(self) -> list[int]:
         return [i for i, s in enumerate(self.statuses) if s == "aborted"]
 
@@ -231,6 +257,15 @@ class SchedulePanel(QWidget):
         state = getattr(self, "_state", "idle")
         ok_state = state in ("armed", "stimulating", "resting", "paused", "tripped")
         self.rerun_button.setEnabled(ok_state and bool(self.aborted_indices()))
+        self.repeat_button.setEnabled(ok_state and self._on_repeat is not None
+                                      and bool(self.excluded_indices()))
+
+    def _repeat_clicked(self) -> None:
+        sel = self.selected_index()
+        excluded = self.excluded_indices()
+        if self._on_repeat is None or not excluded:
+            return
+        self._on_repeat(sel if sel in excluded else excluded[0])
 
     def _rerun_clicked(self) -> None:
         sel = self.selected_index()

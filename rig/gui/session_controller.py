@@ -210,6 +210,9 @@ class SessionController(QObject):
     def rerun(self, schedule_index: int) -> None:
         self._call("rerun", int(schedule_index))
 
+    def repeat_trial(self, schedule_index: int, reason: str) -> None:
+        self._call("repeat_trial", int(schedule_index), str(reason))
+
     def confirm_calibration(self, calibration) -> None:
         self._call("confirm_calibration", calibration)
 

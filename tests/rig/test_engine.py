@@ -441,3 +441,29 @@ def test_end_session_policy_never_waits_for_a_rerun(tmp_path, fake_rig, small_co
     assert State.PAUSED not in [c[2] for c in obs.kinds("state")]
     assert "waiting_for_rerun" not in [e.kind for e in read_session(path).events]
     assert validate_session(path) == []
+
+
+def test_repeat_a_completed_trial_writes_a_new_attempt(tmp_path, fake_rig, small_config):
+    """The operator repeats a completed trial (the quality control excluded it): it runs
+    next, the recorded one stays, and a pending trial cannot be 'repeated'."""
+    rig = fake_rig()
+    obs = Recorder()
+    eng = Engine(small_config(), rig, tmp_path / "s.h5", observer=obs)
+    asked = []
+
+    def finished(index, trial):
+        if index == 0 and not asked:
+            asked.append(1)
+            eng.repeat_trial(3, "not done yet")        # refused: still pending
+            eng.repeat_trial(0, "QC excluded it: contraction at 1.0-1.4 s")
+
+    obs.hooks = {"finished": finished}
+    s = eng.run()
+    sess = read_session(tmp_path / "s.h5")
+    idx = [t.extra_attrs["schedule_index"] for t in sess.trials]
+    assert idx == [0, 0, 1, 2, 3] and s.complete
+    assert all(t.completed for t in sess.trials)
+    kinds = [(e.kind, e.detail) for e in sess.events]
+    assert any(k == "repeat_refused" and "pending" in d for k, d in kinds)
+    assert any(k == "repeat_queued" and "QC excluded it" in d for k, d in kinds)
+    assert validate_session(tmp_path / "s.h5") == []
