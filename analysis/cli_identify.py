@@ -41,6 +41,9 @@ def register(sub) -> None:
     p.add_argument("sessions", nargs="+", metavar="SESSION.h5", help="session file(s)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument("--no-qc", action="store_true",
+                   help="average every completed repeat as the paper does (default: only "
+                        "the trials the quality control keeps; see `nmsid qc`)")
     g = p.add_argument_group("settings (defaults follow the paper; see docs/identification.md)")
     g.add_argument("--lowpass-Hz", type=_float_or_none, default=25.0, metavar="F|none")
     g.add_argument("--butter-order", type=int, default=4, metavar="N")

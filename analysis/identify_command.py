@@ -22,7 +22,8 @@ def settings_from_args(args):
         prefilter_input=not args.no_input_prefilter,
         fit_fs_Hz=args.fit_fs_Hz if args.lowpass_Hz is not None else None,
         input_hold=args.input_hold, estimate_trend=not args.no_trend_term,
-        iqr_k=args.iqr_k, aicc_count_noise_variance=args.aicc_count_noise)
+        iqr_k=args.iqr_k, aicc_count_noise_variance=args.aicc_count_noise,
+        qc=not getattr(args, "no_qc", False))
 
 
 def run_identify(args) -> int:
