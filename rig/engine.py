@@ -256,33 +256,29 @@ class Engine(CalibrationSteps):
                 self._queue_repeat(*arg)
 
     def _queue_rerun(self, index: int) -> None:
-        if not 0 <= index < len(self.schedule):
-            self._event("rerun_refused", f"no schedule index {index}")
-            return
-        pt = self.schedule[index]
-        if pt.status is not TrialStatus.ABORTED:
-            self._event("rerun_refused", f"schedule index {index} is {pt.status.value}, "
-                                         "only aborted trials are re-run")
-            return
-        pt.status, pt.reason = TrialStatus.PENDING, ""
-        self._rerun_first.append(index)
-        self._event("rerun_queued", f"schedule index {index} (sE {pt.sE:g}, repeat "
-                                    f"{pt.repeat})")
+        self._queue_again(index, TrialStatus.ABORTED, "rerun", "only aborted trials are re-run")
 
     def _queue_repeat(self, index: int, reason: str) -> None:
+        self._queue_again(index, TrialStatus.DONE, "repeat",
+                          "only completed trials are repeated", reason)
+
+    def _queue_again(self, index: int, required: TrialStatus, kind: str, rule: str,
+                     reason: str = "") -> None:
+        """Put a trial back to pending (it runs next) if its status is ``required``;
+        otherwise log ``<kind>_refused``."""
         if not 0 <= index < len(self.schedule):
-            self._event("repeat_refused", f"no schedule index {index}")
+            self._event(f"{kind}_refused", f"no schedule index {index}")
             return
         pt = self.schedule[index]
-        if pt.status is not TrialStatus.DONE:
-            self._event("repeat_refused", f"schedule index {index} is {pt.status.value}, "
-                                          "only completed trials are repeated")
+        if pt.status is not required:
+            self._event(f"{kind}_refused", f"schedule index {index} is {pt.status.value}, "
+                                           f"{rule}")
             return
         pt.status, pt.reason = TrialStatus.PENDING, ""
         self._rerun_first.append(index)
         self._levels_reported.discard(round(pt.sE, 9))
-        self._event("repeat_queued", f"schedule index {index} (sE {pt.sE:g}, repeat "
-                                     f"{pt.repeat}): {reason}")
+        self._event(f"{kind}_queued", f"schedule index {index} (sE {pt.sE:g}, repeat "
+                                      f"{pt.repeat})" + (f": {reason}" if reason else ""))
 
     def _wait_operator(self, until, what: str) -> None:
         """Wait (real time, output off) until ``until()`` is true; abort ends the run."""
