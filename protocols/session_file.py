@@ -485,6 +485,10 @@ def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and np.array_equal(a.view(np.int64), b.view(np.int64))
 
 
+_MAX_SUBSTEPS = 4096
+"""A grid is found when its step is at least 1/4096 of the smallest gap between values."""
+
+
 def _column_step(col: np.ndarray) -> float | None:
     """The step ``q`` with ``col == q * k`` bit for bit for integers ``k`` (|k| < 2**31),
     or None. Candidates: ``x / k`` of the largest samples and their neighbouring floats
@@ -492,10 +496,18 @@ def _column_step(col: np.ndarray) -> float | None:
     nz = np.unique(np.abs(col[col != 0.0]))
     if nz.size == 0:
         return None
-    diffs = np.diff(nz)
-    step0 = float(min(nz[0], diffs.min())) if diffs.size else float(nz[0])
+    diffs = np.concatenate([nz[:1], np.diff(nz)])
+    step0 = float(diffs.min())
     if not step0 > 0 or nz[-1] / step0 >= 2 ** 31:
         return None
+    # sparse codes: the smallest gap may be several steps; the step divides every gap
+    ratios = diffs[::max(1, diffs.size // 64)][:64] / step0
+    if ratios.max() * _MAX_SUBSTEPS < 2 ** 40:
+        m = np.arange(1, _MAX_SUBSTEPS + 1)[:, None] * ratios[None, :]
+        ok = np.flatnonzero((np.abs(m - np.rint(m)) < 1e-4).all(axis=1))
+        if ok.size == 0:
+            return None
+        step0 /= ok[0] + 1
     tried = set()
     for x in (nz[-1], nz[nz.size // 2], nz[0]):
         k = float(np.rint(x / step0))
