@@ -476,9 +476,10 @@ def _deflates(data: np.ndarray) -> bool:
 def counts_to_values(counts: np.ndarray, scale, offset) -> np.ndarray:
     """float64 ``offset + scale * counts`` (``scale``, ``offset``: scalars, or one per
     column of a 2-D dataset): how a reader turns a stored count dataset into values."""
-    scale = np.asarray(scale, dtype=np.float64)
-    offset = np.asarray(offset, dtype=np.float64)
-    return offset + scale * np.asarray(counts).astype(np.float64)
+    out = np.asarray(counts).astype(np.float64)
+    out *= np.asarray(scale, dtype=np.float64)
+    out += np.asarray(offset, dtype=np.float64)
+    return out
 
 
 def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
