@@ -9,7 +9,7 @@
    floats only (the writer before the counts), and with gzip + integer counts for the
    optional signals on an exact grid (the default; levels 1 and 9 for the level choice):
    file size, write time (one open/close per trial, as the rig writes), the time to read
-   all force data (``read_session(datasets=("force_N",))``, best of 3) and all datasets;
+   all force data (``read_session(datasets=("force_N",))``, best of 5) and all datasets;
    ratios against the old plain file of the same recording; every file checked bit for
    bit against the recording.
 2. The default file exported to NWB: time, size, nwbinspector's findings.
@@ -64,7 +64,7 @@ def rewrite(session, path: Path, level, counts: bool) -> float:
     return time.perf_counter() - t0
 
 
-def best_of(fn, n: int = 3) -> float:
+def best_of(fn, n: int = 5) -> float:
     out = []
     for _ in range(n):
         t0 = time.perf_counter()
@@ -127,7 +127,7 @@ def files(tmp: Path) -> Path:
                   f"{t_force:14.3f}{t_force / base[1]:8.2f}{t_all:12.3f}{t_all / base[2]:8.2f}"
                   f"  {stored_as(path, 'wrench'):<7} {validate_session(path) == []!s:<5} "
                   f"{exact}")
-            if chain.startswith("A/D") and level == 4 and counts:
+            if chain.startswith("A/D chain (") and level == 4 and counts:
                 keep = path
             else:
                 path.unlink()
