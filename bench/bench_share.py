@@ -1,17 +1,17 @@
 """Compact session files and NWB export: sizes, times, nwbinspector findings.
 
-1. The demo session (simulated rig, 45 trials, calibration, wrench, sync) recorded twice
-   in this process: with the simulated chain's 16-bit A/D (the default since the A/D
-   model: every wrench sample is a count times the LSB, as on the real rig) and without it
-   (``SensorModel(adc_bits=None)``, float64 noise: the chain before), and once with an
-   amplifier sensitivity whose LSB is not float32-exact. Each is rewritten
-   through ``SessionWriter`` as the old files (plain float64), with shuffle + gzip 4 and
-   floats only (the writer before the counts), and with gzip + integer counts for the
-   optional signals on an exact grid (the default; levels 1 and 9 for the level choice):
-   file size, write time (one open/close per trial, as the rig writes), the time to read
-   all force data (``read_session(datasets=("force_N",))``, best of 5) and all datasets;
-   ratios against the old plain file of the same recording; every file checked bit for
-   bit against the recording.
+1. The demo session (simulated rig, 45 trials, calibration, wrench, sync) recorded three
+   times in this process: without the simulated A/D (``SensorModel(adc_bits=None)``,
+   float64 noise: the chain before), with the 16-bit A/D (the default: every wrench
+   sample is a count times the LSB, as on the real rig), and with an amplifier
+   sensitivity whose LSB is not float32-exact. Each is rewritten through
+   ``SessionWriter`` plain (no filters), with shuffle + gzip 4 and floats only (the writer
+   before the counts), and with gzip + integer counts for the optional signals on an
+   exact grid (the default; levels 1 and 9 for the level choice): file size, write time
+   (one open/close per trial, as the rig writes), the time to read all force data
+   (``read_session(datasets=("force_N",))``, best of 5) and all datasets; every file
+   checked bit for bit against its recording. Ratios ("vs old") are against the old
+   file: the float chain's recording, float64 everywhere, no filters (114.1 MB).
 2. The default file exported to NWB: time, size, nwbinspector's findings.
 
     python bench/bench_share.py
@@ -102,16 +102,16 @@ def files(tmp: Path) -> Path:
     print(f"{'recording / file':<34}{'size MB':>9}{'vs old':>8}{'write s':>9}"
           f"{'read force s':>14}{'vs old':>8}{'read all s':>12}{'vs old':>8}  wrench  "
           "valid bit-exact")
-    for chain, sensor in (("A/D chain (16 bit)", SensorModel()),
+    base = None
+    for chain, sensor in (("float chain (before the A/D model)", SensorModel(adc_bits=None)),
+                          ("A/D chain (16 bit, the default)", SensorModel()),
                           ("A/D chain, 0.0197 V/N, 0.49 V/N*m",
-                           SensorModel(volts_per_N=0.0197, volts_per_Nm=0.49)),
-                          ("float chain", SensorModel(adc_bits=None))):
+                           SensorModel(volts_per_N=0.0197, volts_per_Nm=0.49))):
         src = demo_session(tmp, f"rec{len(list(tmp.glob('rec*')))}", sensor)
         session = read_session(src)
         n = sum(t.n_samples for t in session.trials)
         print(f"{chain}: {len(session.trials)} trials, {n} samples; as the rig wrote it "
               f"{src.stat().st_size / 1e6:.1f} MB")
-        base = None
         for label, level, counts in ROWS:
             if not chain.startswith("A/D chain (") and level in (1, 9):
                 continue
@@ -120,8 +120,10 @@ def files(tmp: Path) -> Path:
             size = path.stat().st_size / 1e6
             t_force = best_of(lambda: read_session(path, datasets=("force_N",)))
             t_all = best_of(lambda: read_session(path))
-            if base is None:
+            if base is None:   # the old file: float chain, float64 everywhere, no filters
                 base = (size, t_force, t_all)
+            if label.startswith("old") and not chain.startswith("float"):
+                label = "plain (no filters)"
             exact = bit_exact(session, read_session(path))
             print(f"  {label:<32}{size:9.1f}{size / base[0]:8.2f}{t_write:9.2f}"
                   f"{t_force:14.3f}{t_force / base[1]:8.2f}{t_all:12.3f}{t_all / base[2]:8.2f}"

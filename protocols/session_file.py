@@ -50,14 +50,16 @@ TRIAL_DATASETS = ("rE", "I_ext_mA", "I_flex_mA", "force_N")
 STATUSES = ("completed", "aborted")
 
 GZIP_LEVEL = 4
-"""Default deflate level of trial datasets (with the shuffle filter). Levels 1-9 were
-measured on the demo session by ``bench/bench_share.py``: 114 MB plain, 73.8 MB at level
-1, 73.3 MB at 4, 73.1 MB at 9 (the float64 noise of the wrench does not deflate
-further) while level 9 writes three times slower than 4."""
+"""Default deflate level of trial datasets (with the shuffle filter). Measured on the demo
+session by ``bench/bench_share.py``: with the float64 chain (before the simulated A/D)
+114 MB plain, 73.8 MB at level 1, 73.3 MB at 4, 73.1 MB at 9; with the 16-bit A/D
+chain and the wrench as counts 33.6 / 33.3 / 33.1 MB at 1 / 4 / 9, while level 9
+writes three to four times slower than 4."""
 MIN_SAVING = 0.25
 """A dataset is stored compressed only if deflate saves at least this fraction of it
-(checked on its shuffled bytes at level 1). The simulated force (float64 noise) saves
-about 15 %: it stays plain, so reading all force data costs what it did before."""
+(checked on its shuffled bytes at level 1). The simulated force_N (a float64 combination
+of three A/D channels, full mantissas) saves about 15 %: it stays plain, so reading all
+force data costs what it did before."""
 CHUNK_SAMPLES = 65536
 """Most samples per chunk: a whole 15 s trial at 2 kHz is one chunk per signal, so reading
 a dataset inflates one chunk once."""
