@@ -9,7 +9,8 @@
    before the counts), and with gzip + integer counts for the optional signals on an
    exact grid (the default; levels 1 and 9 for the level choice): file size, write time
    (one open/close per trial, as the rig writes), the time to read all force data
-   (``read_session(datasets=("force_N",))``, best of 5) and all datasets; every file
+   (``read_session(datasets=("force_N",))``, best of 5, each read paired with one of the
+   old file so that the ratio sees the same machine load) and all datasets; every file
    checked bit for bit against its recording. Ratios ("vs old") are against the old
    file: the float chain's recording, float64 everywhere, no filters (114.1 MB).
 2. The default file exported to NWB: time, size, nwbinspector's findings.
@@ -64,15 +65,6 @@ def rewrite(session, path: Path, level, counts: bool) -> float:
     return time.perf_counter() - t0
 
 
-def best_of(fn, n: int = 5) -> float:
-    out = []
-    for _ in range(n):
-        t0 = time.perf_counter()
-        fn()
-        out.append(time.perf_counter() - t0)
-    return min(out)
-
-
 def bit_exact(a, b) -> bool:
     for ta, tb in zip(a.trials, b.trials, strict=True):
         for key in KEYS:
@@ -97,12 +89,24 @@ ROWS = (("old: plain float64", None, False), ("gzip 4, floats", 4, False),
         ("gzip 9 + counts", 9, True))
 
 
+def paired(path: Path, old: Path, datasets) -> tuple[float, float]:
+    """Best-of-5 read time of ``path`` and its ratio to the old file's, the two read
+    alternately (the machine is shared: load changes between rows, not within a pair)."""
+    t_new, t_old = [], []
+    for _ in range(5):
+        for p, out in ((path, t_new), (old, t_old)):
+            t0 = time.perf_counter()
+            read_session(p, datasets=datasets)
+            out.append(time.perf_counter() - t0)
+    return min(t_new), min(t_new) / min(t_old)
+
+
 def files(tmp: Path) -> Path:
     keep = None
     print(f"{'recording / file':<34}{'size MB':>9}{'vs old':>8}{'write s':>9}"
           f"{'read force s':>14}{'vs old':>8}{'read all s':>12}{'vs old':>8}  wrench  "
           "valid bit-exact")
-    base = None
+    old = None
     for chain, sensor in (("float chain (before the A/D model)", SensorModel(adc_bits=None)),
                           ("A/D chain (16 bit, the default)", SensorModel()),
                           ("A/D chain, 0.0197 V/N, 0.49 V/N*m",
@@ -118,20 +122,20 @@ def files(tmp: Path) -> Path:
             path = tmp / f"{src.stem}-{level}{counts}.h5"
             t_write = rewrite(session, path, level, counts)
             size = path.stat().st_size / 1e6
-            t_force = best_of(lambda: read_session(path, datasets=("force_N",)))
-            t_all = best_of(lambda: read_session(path))
-            if base is None:   # the old file: float chain, float64 everywhere, no filters
-                base = (size, t_force, t_all)
+            if old is None:   # the old file: float chain, float64 everywhere, no filters
+                old, old_size = path, size
+            t_force, r_force = paired(path, old, ("force_N",))
+            t_all, r_all = paired(path, old, None)
             if label.startswith("old") and not chain.startswith("float"):
                 label = "plain (no filters)"
             exact = bit_exact(session, read_session(path))
-            print(f"  {label:<32}{size:9.1f}{size / base[0]:8.2f}{t_write:9.2f}"
-                  f"{t_force:14.3f}{t_force / base[1]:8.2f}{t_all:12.3f}{t_all / base[2]:8.2f}"
+            print(f"  {label:<32}{size:9.1f}{size / old_size:8.2f}{t_write:9.2f}"
+                  f"{t_force:14.3f}{r_force:8.2f}{t_all:12.3f}{r_all:8.2f}"
                   f"  {stored_as(path, 'wrench'):<7} {validate_session(path) == []!s:<5} "
                   f"{exact}")
             if chain.startswith("A/D chain (") and level == 4 and counts:
                 keep = path
-            else:
+            elif path != old:
                 path.unlink()
     return keep
 
