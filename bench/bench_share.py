@@ -1,11 +1,19 @@
 """Compact session files and NWB export: sizes, times, nwbinspector findings.
 
-1. The demo session (simulated rig, 45 trials, calibration, wrench, sync) is rewritten
-   through ``SessionWriter`` uncompressed (the old files) and with shuffle + gzip levels
-   1-9: file size, write time (one open/close per trial, as the rig writes) and the time
-   to read all force data (``read_session(datasets=("force_N",))``, best of 3) and all
-   datasets; ratios against the uncompressed file, in this process.
-2. The same session exported to NWB: time, size, nwbinspector's findings.
+1. The demo session (simulated rig, 45 trials, calibration, wrench, sync) recorded three
+   times in this process: without the simulated A/D (``SensorModel(adc_bits=None)``,
+   float64 noise: the chain before), with the 16-bit A/D (the default: every wrench
+   sample is a count times the LSB, as on the real rig), and with an amplifier
+   sensitivity whose LSB is not float32-exact. Each is rewritten through
+   ``SessionWriter`` plain (no filters), with shuffle + gzip 4 and floats only (the writer
+   before the counts), and with gzip + integer counts for the optional signals on an
+   exact grid (the default; levels 1 and 9 for the level choice): file size, write time
+   (one open/close per trial, as the rig writes), the time to read all force data
+   (``read_session(datasets=("force_N",))``, best of 5, each read paired with one of the
+   old file so that the ratio sees the same machine load) and all datasets; every file
+   checked bit for bit against its recording. Ratios ("vs old") are against the old
+   file: the float chain's recording, float64 everywhere, no filters (114.1 MB).
+2. The default file exported to NWB: time, size, nwbinspector's findings.
 
     python bench/bench_share.py
 """
@@ -29,22 +37,27 @@ from protocols.session_file import (SessionWriter, read_session,  # noqa: E402
                                     validate_session)
 from rig.engine import Engine, TripPolicy  # noqa: E402
 from sim_backends import make_sim_rig  # noqa: E402
+from sim_backends.participant import default_participant  # noqa: E402
+from sim_backends.sensor import SensorModel  # noqa: E402
+
+KEYS = ("rE", "I_ext_mA", "I_flex_mA", "force_N", "wrench", "sync")
 
 
-def demo_session(tmp: Path) -> Path:
+def demo_session(tmp: Path, name: str, sensor: SensorModel) -> Path:
     """A whole simulated session as ``nmsid run --backend sim`` writes it."""
-    rig = make_sim_rig(seed=0)
+    rig = make_sim_rig(default_participant(seed=0, sensor=sensor))
     cfg = config_from_dict({"participant": "DEMO", "seed": 0, "protocol": {"rest_s": 0.0}})
-    path = tmp / "DEMO.h5"
+    path = tmp / f"{name}.h5"
     Engine(cfg, rig, path, trip_policy=TripPolicy.END_SESSION).run()
     return path
 
 
-def rewrite(session, path: Path, level) -> float:
+def rewrite(session, path: Path, level, counts: bool) -> float:
     t0 = time.perf_counter()
     w = SessionWriter.create(path, participant=session.participant,
                              created_utc=session.created_utc, config_json=session.config_json,
-                             seed=session.seed, backend=session.backend, gzip_level=level)
+                             seed=session.seed, backend=session.backend, gzip_level=level,
+                             store_counts=counts)
     w.write_calibration(session.calibration)
     for t in session.trials:
         w.append_trial(t)
@@ -52,48 +65,79 @@ def rewrite(session, path: Path, level) -> float:
     return time.perf_counter() - t0
 
 
-def best_of(fn, n: int = 3) -> float:
-    out = []
-    for _ in range(n):
-        t0 = time.perf_counter()
-        fn()
-        out.append(time.perf_counter() - t0)
-    return min(out)
+def bit_exact(a, b) -> bool:
+    for ta, tb in zip(a.trials, b.trials, strict=True):
+        for key in KEYS:
+            x, y = getattr(ta, key), getattr(tb, key)
+            if (x is None) != (y is None):
+                return False
+            if x is not None and not (x.shape == y.shape and y.dtype == np.float64 and
+                                      np.array_equal(np.asarray(x, np.float64).view(np.int64),
+                                                     y.view(np.int64))):
+                return False
+    return True
+
+
+def stored_as(path: Path, key: str) -> str:
+    import h5py  # the bench looks inside the file; the product reads through read_session
+    with h5py.File(path, "r") as f:
+        return str(f[f"trials/t001/{key}"].dtype)
+
+
+ROWS = (("old: plain float64", None, False), ("gzip 4, floats", 4, False),
+        ("gzip 1 + counts", 1, True), ("gzip 4 + counts", 4, True),
+        ("gzip 9 + counts", 9, True))
+
+
+def paired(path: Path, old: Path, datasets) -> tuple[float, float]:
+    """Best-of-5 read time of ``path`` and its ratio to the old file's, the two read
+    alternately (the machine is shared: load changes between rows, not within a pair)."""
+    t_new, t_old = [], []
+    for _ in range(5):
+        for p, out in ((path, t_new), (old, t_old)):
+            t0 = time.perf_counter()
+            read_session(p, datasets=datasets)
+            out.append(time.perf_counter() - t0)
+    return min(t_new), min(t_new) / min(t_old)
 
 
 def files(tmp: Path) -> Path:
-    src = demo_session(tmp)
-    session = read_session(src)
-    n = sum(t.n_samples for t in session.trials)
-    print(f"demo session: {len(session.trials)} trials, {n} samples, as the rig wrote it "
-          f"{src.stat().st_size / 1e6:.1f} MB (gzip level 4)")
-    print(f"{'datasets':<14}{'size MB':>9}{'vs old':>8}{'write s':>9}{'read force s':>14}"
-          f"{'vs old':>8}{'read all s':>12}{'vs old':>8}  valid")
-    base = None
-    for level in (None, 1, 2, 3, 4, 5, 6, 7, 8, 9):
-        path = tmp / f"L{level}.h5"
-        t_write = rewrite(session, path, level)
-        size = path.stat().st_size / 1e6
-        t_force = best_of(lambda: read_session(path, datasets=("force_N",)))
-        t_all = best_of(lambda: read_session(path))
-        if base is None:
-            base = (size, t_force, t_all)
-        back = read_session(path)
-        exact = all(np.array_equal(a.force_N, b.force_N) and np.array_equal(a.wrench, b.wrench)
-                    and np.array_equal(a.rE, b.rE) for a, b in zip(session.trials, back.trials))
-        label = "old (plain)" if level is None else f"gzip {level}"
-        print(f"{label:<14}{size:9.1f}{size / base[0]:8.2f}{t_write:9.2f}{t_force:14.3f}"
-              f"{t_force / base[1]:8.2f}{t_all:12.3f}{t_all / base[2]:8.2f}  "
-              f"{validate_session(path) == []}{'' if exact else '  NOT BIT-EXACT'}")
-        if level not in (None, 4):
-            path.unlink()
-    w = np.concatenate([t.wrench for t in session.trials])
-    w32 = w.astype(np.float32).astype(np.float64)
-    stored = [t.wrench.dtype for t in read_session(tmp / "L4.h5").trials]
-    print(f"wrench stored as {stored[0]} (float32 only when bit-exact); as float32 it would "
-          f"change {np.mean(w32 != w) * 100:.0f} % of its samples by up to "
-          f"{np.max(np.abs(w32 - w)):.2g} N or N*m: not lossless, so not done")
-    return tmp / "L4.h5"
+    keep = None
+    print(f"{'recording / file':<34}{'size MB':>9}{'vs old':>8}{'write s':>9}"
+          f"{'read force s':>14}{'vs old':>8}{'read all s':>12}{'vs old':>8}  wrench  "
+          "valid bit-exact")
+    old = None
+    for chain, sensor in (("float chain (before the A/D model)", SensorModel(adc_bits=None)),
+                          ("A/D chain (16 bit, the default)", SensorModel()),
+                          ("A/D chain, 0.0197 V/N, 0.49 V/N*m",
+                           SensorModel(volts_per_N=0.0197, volts_per_Nm=0.49))):
+        src = demo_session(tmp, f"rec{len(list(tmp.glob('rec*')))}", sensor)
+        session = read_session(src)
+        n = sum(t.n_samples for t in session.trials)
+        print(f"{chain}: {len(session.trials)} trials, {n} samples; as the rig wrote it "
+              f"{src.stat().st_size / 1e6:.1f} MB")
+        for label, level, counts in ROWS:
+            if not chain.startswith("A/D chain (") and level in (1, 9):
+                continue
+            path = tmp / f"{src.stem}-{level}{counts}.h5"
+            t_write = rewrite(session, path, level, counts)
+            size = path.stat().st_size / 1e6
+            if old is None:   # the old file: float chain, float64 everywhere, no filters
+                old, old_size = path, size
+            t_force, r_force = paired(path, old, ("force_N",))
+            t_all, r_all = paired(path, old, None)
+            if label.startswith("old") and not chain.startswith("float"):
+                label = "plain (no filters)"
+            exact = bit_exact(session, read_session(path))
+            print(f"  {label:<32}{size:9.1f}{size / old_size:8.2f}{t_write:9.2f}"
+                  f"{t_force:14.3f}{r_force:8.2f}{t_all:12.3f}{r_all:8.2f}"
+                  f"  {stored_as(path, 'wrench'):<7} {validate_session(path) == []!s:<5} "
+                  f"{exact}")
+            if chain.startswith("A/D chain (") and level == 4 and counts:
+                keep = path
+            elif path != old:
+                path.unlink()
+    return keep
 
 
 def nwb(src: Path, tmp: Path) -> None:

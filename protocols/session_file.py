@@ -50,17 +50,27 @@ TRIAL_DATASETS = ("rE", "I_ext_mA", "I_flex_mA", "force_N")
 STATUSES = ("completed", "aborted")
 
 GZIP_LEVEL = 4
-"""Default deflate level of trial datasets (with the shuffle filter). Levels 1-9 were
-measured on the demo session by ``bench/bench_share.py``: 114 MB plain, 73.8 MB at level
-1, 73.3 MB at 4, 73.1 MB at 9 (the float64 noise of the wrench does not deflate
-further) while level 9 writes three times slower than 4."""
+"""Default deflate level of trial datasets (with the shuffle filter). Measured on the demo
+session by ``bench/bench_share.py``: with the float64 chain (before the simulated A/D)
+114 MB plain, 73.8 MB at level 1, 73.3 MB at 4, 73.1 MB at 9; with the 16-bit A/D
+chain and the wrench as counts 33.6 / 33.3 / 33.1 MB at 1 / 4 / 9, while level 9
+writes three to four times slower than 4."""
 MIN_SAVING = 0.25
 """A dataset is stored compressed only if deflate saves at least this fraction of it
-(checked on its shuffled bytes at level 1). The simulated force (float64 noise) saves
-about 15 %: it stays plain, so reading all force data costs what it did before."""
+(checked on its shuffled bytes at level 1). The simulated force_N (a float64 combination
+of three A/D channels, full mantissas) saves about 15 %: it stays plain, so reading all
+force data costs what it did before."""
 CHUNK_SAMPLES = 65536
 """Most samples per chunk: a whole 15 s trial at 2 kHz is one chunk per signal, so reading
 a dataset inflates one chunk once."""
+
+
+OPTIONAL_SIGNALS = ("wrench", "sync")
+"""Optional trial datasets. Each is stored as the values (float64, or float32 when every
+sample is float32-exact) or, when every sample is an A/D count times a step, as integer
+counts (int8/16/32) with attributes ``scale`` and ``offset`` (scalars, or one per column
+of ``wrench``): value = offset + scale * count, float64, bit-exact. :func:`read_session`
+returns float64 values either way."""
 
 
 #: Optional trial attributes describing a non-chirp input (written by the rig since the
@@ -270,13 +280,17 @@ class SessionWriter:
     to continue one (``--resume``).
     """
 
-    def __init__(self, path: str | os.PathLike, *, gzip_level: int | None = GZIP_LEVEL):
+    def __init__(self, path: str | os.PathLike, *, gzip_level: int | None = GZIP_LEVEL,
+                 store_counts: bool = True):
         self.path = Path(path)
         if gzip_level is not None and gzip_level not in range(1, 10):
             raise ValueError(f"gzip_level {gzip_level!r} is not valid: use 1 ... 9, or None "
                              "for uncompressed datasets")
         self.gzip_level = gzip_level
         """Deflate level of new datasets (with shuffle), or None to store them plain."""
+        self.store_counts = bool(store_counts)
+        """Store an optional signal on an exact grid as integer counts + ``scale`` /
+        ``offset`` (see :data:`OPTIONAL_SIGNALS`); False: always as floats."""
 
     # -- creation -----------------------------------------------------------------
     @classmethod
@@ -284,7 +298,8 @@ class SessionWriter:
                created_utc: str | None = None, software: str | None = None,
                config_json: str | None = None, seed: int | None = None,
                backend: str | None = None, extra_attrs: dict | None = None,
-               gzip_level: int | None = GZIP_LEVEL) -> SessionWriter:
+               gzip_level: int | None = GZIP_LEVEL,
+               store_counts: bool = True) -> SessionWriter:
         """Create a new session file with its root attributes and empty groups.
 
         Raises
@@ -328,11 +343,11 @@ class SessionWriter:
             f.create_group("calibration")
             f.create_group("trials")
             f.create_group("events")
-        return cls(path, gzip_level=gzip_level)
+        return cls(path, gzip_level=gzip_level, store_counts=store_counts)
 
     @classmethod
-    def open(cls, path: str | os.PathLike, *,
-             gzip_level: int | None = GZIP_LEVEL) -> SessionWriter:
+    def open(cls, path: str | os.PathLike, *, gzip_level: int | None = GZIP_LEVEL,
+             store_counts: bool = True) -> SessionWriter:
         """Continue writing an existing session file (checks that it is one)."""
         path = Path(path)
         if not path.exists():
@@ -341,7 +356,7 @@ class SessionWriter:
             if _as_str(f.attrs.get("format", "")) != FORMAT:
                 raise SessionFileError(path, "is not an nmsid session file "
                                              f"(root attribute format != {FORMAT!r})")
-        return cls(path, gzip_level=gzip_level)
+        return cls(path, gzip_level=gzip_level, store_counts=store_counts)
 
     # -- writing ------------------------------------------------------------------
     def write_calibration(self, cal: Calibration) -> None:
@@ -382,10 +397,10 @@ class SessionWriter:
                 _set_attr(g.attrs, key, value)
             for key in TRIAL_DATASETS:
                 self._create_dataset(g, key, np.asarray(getattr(trial, key), dtype=np.float64))
-            if trial.wrench is not None:
-                self._create_dataset(g, "wrench", _narrowest_exact(trial.wrench))
-            if trial.sync is not None:
-                self._create_dataset(g, "sync", _narrowest_exact(trial.sync))
+            for key in OPTIONAL_SIGNALS:
+                values = getattr(trial, key)
+                if values is not None:
+                    self._create_signal(g, key, values)
             f.flush()
         trial.name = name
         return name
@@ -400,6 +415,19 @@ class SessionWriter:
         chunks = (min(n, CHUNK_SAMPLES),) + (1,) * (data.ndim - 1)
         return group.create_dataset(name, data=data, chunks=chunks, shuffle=True,
                                     compression="gzip", compression_opts=self.gzip_level)
+
+    def _create_signal(self, group, name: str, values) -> None:
+        """An optional signal (``wrench``, ``sync``) as integer counts with ``scale`` /
+        ``offset`` attributes when every sample is ``offset + scale * count`` bit for bit
+        (A/D readings), else float32 when float32-exact, else float64."""
+        grid = _as_counts(values) if self.store_counts else None
+        if grid is None:
+            self._create_dataset(group, name, _narrowest_exact(values))
+            return
+        counts, scale, offset = grid
+        d = self._create_dataset(group, name, counts)
+        d.attrs["scale"] = scale
+        d.attrs["offset"] = offset
 
     def append_events(self, events: list[Event]) -> None:
         """Append events to ``/events`` (one sub-group per event, ``e0001``, ...)."""
@@ -445,6 +473,93 @@ def _deflates(data: np.ndarray) -> bool:
         shuffled = col.view(np.uint8).reshape(-1, col.dtype.itemsize).T.tobytes()
         packed += len(zlib.compress(shuffled, 1))
     return packed <= (1.0 - MIN_SAVING) * raw.nbytes
+
+
+def counts_to_values(counts: np.ndarray, scale, offset) -> np.ndarray:
+    """float64 ``offset + scale * counts`` (``scale``, ``offset``: scalars, or one per
+    column of a 2-D dataset): how a reader turns a stored count dataset into values."""
+    out = np.asarray(counts).astype(np.float64)
+    out *= np.asarray(scale, dtype=np.float64)
+    out += np.asarray(offset, dtype=np.float64)
+    return out
+
+
+def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.shape == b.shape and np.array_equal(a.view(np.int64), b.view(np.int64))
+
+
+_MAX_SUBSTEPS = 4096
+"""A grid is found when its step is at least 1/4096 of the smallest gap between values."""
+
+
+def _column_step(col: np.ndarray) -> float | None:
+    """The step ``q`` with ``col == q * k`` bit for bit for integers ``k`` (|k| < 2**31),
+    or None. Candidates: ``x / k`` of the largest samples and their neighbouring floats
+    (``fl(q * k)`` is correctly rounded, so the true step is within an ulp or two)."""
+    nz = np.unique(np.abs(col[col != 0.0]))
+    if nz.size == 0:
+        return None
+    diffs = np.concatenate([nz[:1], np.diff(nz)])
+    step0 = float(diffs.min())
+    if not step0 > 0 or nz[-1] / step0 >= 2 ** 31:
+        return None
+    # sparse codes: the smallest gap may be several steps; the step divides every gap
+    ratios = diffs[::max(1, diffs.size // 64)][:64] / step0
+    if ratios.max() * _MAX_SUBSTEPS < 2 ** 40:
+        m = np.arange(1, _MAX_SUBSTEPS + 1)[:, None] * ratios[None, :]
+        ok = np.flatnonzero((np.abs(m - np.rint(m)) < 1e-4).all(axis=1))
+        if ok.size == 0:
+            return None
+        step0 /= ok[0] + 1
+    tried = set()
+    for x in (nz[-1], nz[nz.size // 2], nz[0]):
+        k = float(np.rint(x / step0))
+        if k < 1:
+            continue
+        q = x / k
+        for cand in (q, *np.nextafter(q, [np.inf, 0.0]),
+                     *np.nextafter(np.nextafter(q, [np.inf, 0.0]), [np.inf, 0.0])):
+            cand = float(cand)
+            if cand in tried or not cand > 0:
+                continue
+            tried.add(cand)
+            counts = np.rint(col / cand)
+            if np.abs(counts).max() < 2 ** 31 and _same_bits(counts * cand, col):
+                return cand
+    return None
+
+
+def _as_counts(values) -> tuple[np.ndarray, Any, Any] | None:
+    """``(counts, scale, offset)`` if every sample of ``values`` (1-D, or 2-D column by
+    column) is ``offset + scale * count`` bit for bit as :func:`counts_to_values`
+    rebuilds it, with the counts as int8/int16/int32; else None.
+
+    A/D readings (``code * LSB``, the simulated chain's wrench, a sync line at 0 / 5 V)
+    pass; float noise does not. The writer detects grids through zero (``offset`` 0);
+    readers honour any ``offset``.
+    """
+    arr = np.asarray(values, dtype=np.float64)
+    if arr.size == 0 or arr.ndim not in (1, 2) or not np.isfinite(arr).all():
+        return None
+    cols = [arr] if arr.ndim == 1 else [arr[:, k] for k in range(arr.shape[1])]
+    scales = []
+    for col in cols:
+        if not col.any():
+            scales.append(1.0)
+            continue
+        q = _column_step(col)
+        if q is None:
+            return None
+        scales.append(q)
+    scale = np.array(scales) if arr.ndim == 2 else np.float64(scales[0])
+    counts = np.rint(arr / scale)
+    dtype = next(dt for dt in (np.int8, np.int16, np.int32)
+                 if np.iinfo(dt).min <= counts.min() and counts.max() <= np.iinfo(dt).max)
+    counts = counts.astype(dtype)
+    offset = np.zeros_like(scale)
+    if not _same_bits(counts_to_values(counts, scale, offset), arr):
+        return None
+    return counts, scale, offset
 
 
 def _narrowest_exact(values) -> np.ndarray:
@@ -572,14 +687,21 @@ def _read_trial(g, name: str, wanted: set[str]) -> Trial:
     for key in TRIAL_DATASETS:
         kw[key] = (np.asarray(g[key][()], dtype=np.float64) if key in wanted
                    else np.empty(0))
-    for key in ("wrench", "sync"):
-        # float64 whatever the stored width (narrowed files hold float32-exact values)
-        kw[key] = (np.asarray(g[key][()], dtype=np.float64) if key in wanted and key in g
-                   else None)
+    for key in OPTIONAL_SIGNALS:
+        kw[key] = _read_signal(g[key]) if key in wanted and key in g else None
     known = set(TRIAL_FLOAT_ATTRS) | set(TRIAL_STR_ATTRS) | {"repeat"}
     extra = {k: (_as_str(a[k]) if isinstance(a[k], (str, bytes)) else a[k])
              for k in a if k not in known}
     return Trial(name=name, extra_attrs=extra, **kw)
+
+
+def _read_signal(d) -> np.ndarray:
+    """An optional signal as float64: stored counts (an integer dataset with ``scale`` /
+    ``offset``) rebuilt by :func:`counts_to_values`, float32 / float64 widened."""
+    data = d[()]
+    if np.issubdtype(d.dtype, np.integer) and "scale" in d.attrs:
+        return counts_to_values(data, d.attrs["scale"], d.attrs.get("offset", 0.0))
+    return np.asarray(data, dtype=np.float64)
 
 
 def _read_events(g) -> list[Event]:
@@ -765,3 +887,8 @@ def _validate_trials(g, out: list[str], fatal_only: bool) -> None:
             n = next(iter(lengths.values()))
             if t["sync"].shape != (n,):
                 out.append(f"{where}/sync must have shape ({n},), got {t['sync'].shape}")
+        for key in OPTIONAL_SIGNALS:
+            if key in t and isinstance(t[key], h5py.Dataset) and \
+                    np.issubdtype(t[key].dtype, np.integer) and "scale" not in t[key].attrs:
+                out.append(f"{where}/{key} holds integer counts without a 'scale' attribute "
+                           "(value = offset + scale * count)")

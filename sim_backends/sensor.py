@@ -1,5 +1,10 @@
 """The simulated force chain: six-axis sensor + A/D, with noise, offset, drift and mains.
 
+The six channels are quantised like the real chain's: the sensor's analog outputs
+(``volts_per_N`` / ``volts_per_Nm``) are sampled by a bipolar ``adc_bits`` A/D of range
++/- ``adc_range_V`` (the rig's Contec AI-1608AY-USB: 16 bit, +/-10 V), so every wrench
+sample is ``code * LSB`` with an integer ``code``, as on the hardware.
+
 Every term is a function of the absolute sample index of the rig's time base (sample 0 =
 the first stimulation onset of the session), so the same seed gives the same samples
 whatever the chunking (fast clock: long chunks; real time: short chunks).
@@ -46,6 +51,21 @@ class SensorModel:
         Point of force application relative to the sensor origin, m (gives the moments).
     cross_noise_N : float
         RMS of noise on the force components orthogonal to the axis, N.
+    adc_bits : int or None
+        Resolution of the A/D that samples the six analog channels (16: the Contec
+        AI-1608AY-USB); None turns quantisation off (float64 readings, the chain of
+        releases before the A/D model).
+    adc_range_V : float
+        The A/D's bipolar input range, +/- V (Contec AI-1608AY-USB: 10 V).
+    volts_per_N : float
+        Analog output of the force channels, V per N. Default 0.02 V/N: the A/D's full
+        scale (10 V) at the sensor's rated 500 N (an assumed amplifier setting; the
+        Leptrino datasheet is not at hand), so one count is 20 V / 2**16 / 0.02 V/N =
+        0.0153 N and the rounding adds 0.0153 / sqrt(12) = 0.0044 N RMS, a tenth of
+        ``noise_N``.
+    volts_per_Nm : float
+        Analog output of the moment channels, V per N*m. Default 0.5 V/(N*m): full scale
+        at 20 N*m (assumed rated moment), one count 0.00061 N*m.
     """
 
     noise_N: float = 0.04
@@ -58,6 +78,10 @@ class SensorModel:
     axis: tuple[float, float, float] = (0.0, -0.9962, 0.0872)
     lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.04)
     cross_noise_N: float = 0.02
+    adc_bits: int | None = 16
+    adc_range_V: float = 10.0
+    volts_per_N: float = 0.02
+    volts_per_Nm: float = 0.5
 
     def __post_init__(self):
         for name in ("noise_N", "mains_N", "range_N", "cross_noise_N"):
@@ -70,12 +94,41 @@ class SensorModel:
         if axis.shape != (3,) or not np.linalg.norm(axis) > 0:
             raise SimConfigError(f"sensor axis must be a non-zero 3-vector, got {self.axis!r}")
         object.__setattr__(self, "axis", tuple(axis / np.linalg.norm(axis)))
+        if self.adc_bits is not None and (isinstance(self.adc_bits, bool) or int(
+                self.adc_bits) != self.adc_bits or not 2 <= self.adc_bits <= 32):
+            raise SimConfigError(f"sensor adc_bits must be an integer 2-32 or None (no "
+                                 f"quantisation), got {self.adc_bits!r}")
+        for name in ("adc_range_V", "volts_per_N", "volts_per_Nm"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise SimConfigError(f"sensor {name} must be finite and > 0, got {v!r}")
+
+    @property
+    def lsb(self) -> np.ndarray | None:
+        """One A/D count of each wrench channel (Fx, Fy, Fz in N, Mx, My, Mz in N*m), or
+        None without quantisation."""
+        if self.adc_bits is None:
+            return None
+        lsb_V = 2.0 * self.adc_range_V / 2 ** int(self.adc_bits)
+        return np.array([lsb_V / self.volts_per_N] * 3 + [lsb_V / self.volts_per_Nm] * 3)
+
+    def quantise(self, wrench: np.ndarray) -> np.ndarray:
+        """``wrench`` (n, 6) as the A/D reports it: ``code * lsb`` with the integer code
+        ``round(value / lsb)`` clipped to the A/D's codes (saturation at its range).
+        Without quantisation (``adc_bits`` None) a float64 copy."""
+        w = np.array(wrench, dtype=np.float64)
+        lsb = self.lsb
+        if lsb is None:
+            return w
+        half = 2 ** (int(self.adc_bits) - 1)
+        code = np.clip(np.rint(w / lsb), -half, half - 1).astype(np.int64)
+        return code * lsb     # integer codes: never -0.0, exactly code * lsb per channel
 
     @classmethod
     def ideal(cls) -> SensorModel:
         """A noiseless, offset-free, drift-free chain (for closed-form tests)."""
         return cls(noise_N=0.0, offset_N=0.0, drift_N_per_s=0.0, mains_N=0.0,
-                   cross_noise_N=0.0)
+                   cross_noise_N=0.0, adc_bits=None)
 
 
 def block_normal(seed: int, stream: int, n0: int, n: int, width: int = 1) -> np.ndarray:
@@ -165,6 +218,10 @@ class SensorState:
             projected on ``axis`` is ``force_N``.
         over_range : bool
             True if any force component exceeded ``range_N`` (the reading saturates).
+
+        With an A/D (``model.adc_bits``) every wrench channel is quantised to its counts
+        (:meth:`SensorModel.quantise`) and ``force_N`` is the projection of the quantised
+        forces on ``axis`` (a combination of three channels, not itself on a grid).
         """
         m = self.model
         n = true_force_N.size
@@ -193,6 +250,9 @@ class SensorState:
             forces = np.clip(wrench[:, :3], -m.range_N, m.range_N)
             f = forces @ axis
             wrench = np.hstack([forces, np.cross(np.asarray(m.lever_arm_m)[None, :], forces)])
+        if m.adc_bits is not None:
+            wrench = m.quantise(wrench)
+            f = wrench[:, :3] @ np.asarray(m.axis)
         return f, wrench, over
 
 
