@@ -51,10 +51,16 @@ def _scaled(curve: ParameterCurve, factor: float) -> ParameterCurve:
 
 def simulate_session(vp, candidate: Candidate, *, scatter: dict | None = None,
                      seed: int = 0) -> Session:
-    """One session of ``candidate`` on virtual participant ``vp`` (in memory)."""
+    """One session of ``candidate`` on virtual participant ``vp`` (in memory).
+
+    ``vp`` is a template participant (``sim_backends.participant``) or a musculoskeletal
+    one (``sim_backends.msk_participant``: its own MuJoCo simulator and the calibration its
+    ramp finds; ``scatter`` does not apply: its physiology is the model's own)."""
     cfg = candidate.config()
     p = cfg.protocol
-    cal = vp.calibration.as_session_calibration()
+    musculoskeletal = hasattr(vp, "make_simulator")  # MuJoCo participant: its own simulator
+    cal = vp.ramp_calibration() if musculoskeletal else \
+        vp.calibration.as_session_calibration()
     trials = []
     attrs = input_attrs(p)
     for s in p.sE_levels:
@@ -63,14 +69,15 @@ def simulate_session(vp, candidate: Candidate, *, scatter: dict | None = None,
             key = [int(seed) & 0xFFFFFFFF, int(round(s * 1000)), r, 9173]
             rng = np.random.default_rng(key)
             who = vp
-            if scatter:
+            if scatter and not musculoskeletal:
                 z = rng.standard_normal(3)
                 who = dataclasses.replace(
                     vp, Kp=_scaled(vp.Kp, 1 + scatter.get("Kp", 0.0) * z[0]),
                     wn_rad_s=_scaled(vp.wn_rad_s, 1 + scatter.get("wn_rad_s", 0.0) * z[1]),
                     zeta=_scaled(vp.zeta, 1 + scatter.get("zeta", 0.0) * z[2]))
             who = dataclasses.replace(who, seed=int(rng.integers(0, 2 ** 31 - 1)))
-            sim = ParticipantSimulator(who, p.fs_Hz)
+            sim = who.make_simulator(p.fs_Hz) if musculoskeletal else \
+                ParticipantSimulator(who, p.fs_Hz)
             force = sim.simulate(wf.I_ext_mA, wf.I_flex_mA).force_N
             trials.append(Trial(sE=float(s), repeat=r, fs_Hz=p.fs_Hz, rE=wf.rE,
                                 I_ext_mA=wf.I_ext_mA, I_flex_mA=wf.I_flex_mA,
