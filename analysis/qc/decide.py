@@ -220,15 +220,12 @@ def _compare(works: list[_Work], s: QCSettings, neighbour: np.ndarray | None) ->
     for i, ds in enumerate(devs):
         # one jump may explain everything a trial does not share (a robust line cannot
         # follow a step over half a trial, so it shows as several stretches)
-        if ds and (any(d.is_jump for d in ds) or ds[-1].stop_s >= sig[i].size / fs_s - 1.0):
+        if ds and ds[-1].stop_s >= sig[i].size / fs_s - 1.0:
             jump = fit_jump(sig[i], refs[i], fs_s, limit, s)
             if jump is not None:
                 h, at = jump
                 devs[i] = [Deviation(at, sig[i].size / fs_s, abs(h), abs(h) / typical
                                      if typical > 0 else float("inf"), h, at)]
-            else:
-                for d in ds:
-                    d.step_N = d.step_at_s = None
     note = ""
     if len(same) == 2 and devs[0] and devs[1]:
         owners = []

@@ -14,8 +14,8 @@ zero-phase low-pass (:attr:`QCSettings.lowpass_Hz`) and decimation to ~100 Hz:
    level's typical (median) unshared RMS and with the level's response RMS; windows above
    both thresholds are flagged and merged into time spans.
 
-A flagged stretch that runs to the end of the trial at a constant level is a baseline
-jump; anything else is a response not explained by rE. With two repeats the difference
+A trial whose flagged stretches reach its end is tried against a baseline jump
+(:func:`fit_jump`); anything else is a response not explained by rE. With two repeats the difference
 is attributed with the neighbouring sE levels as an independent reference
 (:func:`attribute_pair`).
 """
@@ -174,7 +174,7 @@ def unshared(signals: list[np.ndarray], fs: float, settings: QCSettings,
 
 def deviations(u: np.ndarray, flags: np.ndarray, rms: np.ndarray, fs: float, typical: float,
                settings: QCSettings) -> list[Deviation]:
-    """Flagged windows of one trial as merged time spans; baseline jumps recognised."""
+    """Flagged windows of one trial as merged time spans (jumps: :func:`fit_jump`)."""
     w = int(round(settings.window_s * fs))
     spans = runs(flags)
     merged: list[list[int]] = []
@@ -190,17 +190,6 @@ def deviations(u: np.ndarray, flags: np.ndarray, rms: np.ndarray, fs: float, typ
         seg_rms = float(np.sqrt(np.mean(u[a0:b0] ** 2)))
         dev = Deviation(a0 / fs, b0 / fs, seg_rms, seg_rms / typical if typical > 0 else
                         float("inf"))
-        if b0 >= n - w:  # runs to the end: a jump if the tail is a plateau
-            before = u[max(0, a0 - 2 * w):a0] if a0 > 0 else u[:0]
-            pre = float(np.median(before)) if before.size else 0.0
-            tail = u[b0 - (b0 - a0) // 2:]
-            height = float(np.median(tail)) - pre
-            spread = float(np.std(tail - np.median(tail)))
-            if abs(height) > 3 * max(spread, 1e-12):
-                # the jump's instant: where u first passes half its height
-                half = np.flatnonzero(np.sign(height) * (u[a0:] - pre) > abs(height) / 2)
-                dev.step_N = height
-                dev.step_at_s = (a0 + int(half[0]) if half.size else a0) / fs
         out.append(dev)
     return out
 
