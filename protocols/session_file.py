@@ -503,14 +503,33 @@ def _column_step(col: np.ndarray) -> float | None:
     step0 = float(diffs.min())
     if not step0 > 0 or nz[-1] / step0 >= 2 ** 31:
         return None
-    # sparse codes: the smallest gap may be several steps; the step divides every gap
-    ratios = diffs[::max(1, diffs.size // 64)][:64] / step0
+    # sparse codes: the smallest gap may be several steps; the step divides every gap.
+    # A gap between floats is off by up to ~2 ulps of its upper end, so the test that
+    # ``m * gap / step0`` is whole allows for that error (and step0's own) times m.
+    substeps = [1]
+    pick = slice(None, None, max(1, diffs.size // 64))
+    gaps, ups = diffs[pick][:64], nz[pick][:64]
+    ratios = gaps / step0
     if ratios.max() * _MAX_SUBSTEPS < 2 ** 40:
-        m = np.arange(1, _MAX_SUBSTEPS + 1)[:, None] * ratios[None, :]
-        ok = np.flatnonzero((np.abs(m - np.rint(m)) < 1e-4).all(axis=1))
+        eps = np.finfo(float).eps
+        err0 = 2 * eps * nz[int(np.argmin(diffs))]
+        ratio_err = (2 * eps * ups + ratios * err0) / step0
+        m = np.arange(1, _MAX_SUBSTEPS + 1)[:, None]
+        ok = np.flatnonzero((np.abs(m * ratios - np.rint(m * ratios))
+                             < 1e-4 + 2 * m * ratio_err).all(axis=1))
         if ok.size == 0:
             return None
-        step0 /= ok[0] + 1
+        substeps = [int(k) + 1 for k in ok[:8]]
+    for sub in substeps:
+        q = _exact_step_near(col, nz, step0 / sub)
+        if q is not None:
+            return q
+    return None
+
+
+def _exact_step_near(col: np.ndarray, nz: np.ndarray, step0: float) -> float | None:
+    """The float ``q`` within a few ulps of ``x / round(x / step0)`` (x: a large, middle
+    and small sample) for which ``col == q * round(col / q)`` bit for bit, or None."""
     tried = set()
     for x in (nz[-1], nz[nz.size // 2], nz[0]):
         k = float(np.rint(x / step0))
@@ -593,6 +612,10 @@ def _check_trial(trial: Trial, path) -> None:
         raise ValueError(f"{path}: trial fs_Hz must be > 0, got {trial.fs_Hz!r}")
 
 
+_DAMAGE_ERRORS = (KeyError, OSError, RuntimeError, ValueError)
+"""What h5py raises when a file cut short by a crash is read past its end."""
+
+
 class _open_read:
     """``with _open_read(path) as f``: open read-only, turning h5py errors into a
     :class:`SessionFileError` that names the file."""
@@ -654,9 +677,14 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
         cal = Calibration(**{k: _as_float(cal_g.attrs[k]) for k in CALIBRATION_ATTRS},
                           ramps={k: np.asarray(cal_g[k][()]) for k in cal_g
                                  if isinstance(cal_g[k], _h5py().Dataset)} if load_data else {})
-        trials = [_read_trial(f["trials"][name], name, wanted)
-                  for name in _trial_names(f["trials"])]
-        events = _read_events(f["events"]) if "events" in f else []
+        try:
+            trials = [_read_trial(f["trials"][name], name, wanted)
+                      for name in _trial_names(f["trials"])]
+            events = _read_events(f["events"]) if "events" in f else []
+        except _DAMAGE_ERRORS as exc:
+            raise SessionFileError(path, f"damaged: data cannot be read ({type(exc).__name__}:"
+                                         f" {exc}); if it was being written when a program "
+                                         "stopped, run `nmsid recover` on it") from None
         known = set(ROOT_ATTRS) | {"config_json", "seed", "backend"}
         seed = a.get("seed")
         return Session(
@@ -740,7 +768,11 @@ def validate_session(path: str | os.PathLike, *, fatal_only: bool = False) -> li
         return [f"cannot be opened as HDF5 ({exc}); if it was being written when a program "
                 "stopped, try `nmsid recover`"]
     with f:
-        return _problems(f, fatal_only)
+        try:
+            return _problems(f, fatal_only)
+        except _DAMAGE_ERRORS as exc:  # an object the structural checks reached is torn
+            return [f"damaged: an item cannot be read ({type(exc).__name__}: {exc}); if it "
+                    "was being written when a program stopped, try `nmsid recover`"]
 
 
 def _problems(f, fatal_only: bool) -> list[str]:
@@ -817,8 +849,13 @@ def _validate_trials(g, out: list[str], fatal_only: bool) -> None:
             out.append(f"/trials groups must be numbered t001, t002, ... without gaps; found "
                        f"{names[:5]}{'...' if len(names) > 5 else ''}")
     for name in names:
-        t = g[name]
         where = f"/trials/{name}"
+        try:
+            t = g[name]
+        except _DAMAGE_ERRORS as exc:
+            out.append(f"{where} cannot be read ({type(exc).__name__}: {exc}); the file is "
+                       "damaged (try `nmsid recover`)")
+            continue
         if not isinstance(t, h5py.Group):
             out.append(f"{where} is not a group")
             continue

@@ -82,6 +82,51 @@ def test_damaged_file_rebuilt_and_kept_aside(tmp_path):
     assert recover(path).action == "none"
 
 
+@pytest.mark.parametrize("fraction", np.linspace(0.05, 0.995, 24))
+def test_file_cut_anywhere_is_reported_not_raised_and_rebuilt(tmp_path, fraction):
+    """A kill can leave the HDF5 file short of what its headers point at (h5py then
+    raises KeyError 'len not positive after adjustment for EOA' deep inside a read).
+    Validation reports it, reading raises our error naming the file, recovery rebuilds."""
+    path, log, trials = _session(tmp_path, 4)
+    log.close()
+    good = path.read_bytes()
+    with open(path, "r+b") as fh:
+        fh.truncate(int(len(good) * fraction))
+    problems = validate_session(path)          # never raises
+    assert isinstance(problems, list)
+    try:
+        read_session(path)
+    except SessionFileError as exc:
+        assert str(path) in str(exc)
+    rep = recover(path)
+    s = read_session(path)
+    assert validate_session(path) == [] and len(s.trials) == 4
+    assert all(_same(a, b) for a, b in zip(s.trials, trials))
+    assert rep.action in ("rebuilt", "appended", "none")
+
+
+def test_stale_end_of_file_address_is_reported_and_rebuilt(tmp_path):
+    """A kill while a trial is appended can leave the superblock's end-of-allocation from
+    before the append while the new trial's group is already linked: h5py then raises
+    KeyError ('len not positive after adjustment for EOA') on opening that trial."""
+    path, log, trials = _session(tmp_path, 2)
+    before = path.read_bytes()
+    trials.append(_trial(2))
+    log.end_trial(trials[-1])
+    log.close()
+    after = path.read_bytes()
+    path.write_bytes(before[:96] + after[96:])    # the old superblock, the new body
+    problems = validate_session(path)
+    assert len(problems) == 1 and "/trials/t003 cannot be read" in problems[0]
+    with pytest.raises(SessionFileError, match="nmsid recover"):
+        read_session(path)
+    rep = recover(path)
+    assert rep.action == "rebuilt" and rep.damaged_kept_at
+    s = read_session(path)
+    assert validate_session(path) == [] and len(s.trials) == 3
+    assert all(_same(a, b) for a, b in zip(s.trials, trials))
+
+
 def test_trial_journaled_but_not_in_file_is_appended(tmp_path):
     path, log, trials = _session(tmp_path, 2)
     log.close()
