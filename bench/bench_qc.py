@@ -5,8 +5,8 @@ Sessions come from two generators of different structure, so that QC is not tune
 * ``synthetic``: bench/synthetic_sessions.py (exact second order, drawn parameter curves,
   50 Hz mains, offsets and drifts, noise 0.02-0.06 N);
 * ``inline``: written here: a second-order response behind an input delay of 0-2 ms and a
-  saturating static nonlinearity, with the physiology's scatter between repeats (gain
-  +-2 %, wn +-1 %), 50 or 60 Hz mains, noise 0.005-0.06 N, a 16-bit-like quantisation of
+  saturating static nonlinearity, with the physiology's scatter between repeats (uniform,
+  half-widths drawn per session: gain 2-10 %, wn 1-6 %, zeta 0-6 %), 50 or 60 Hz mains, noise 0.005-0.06 N, a 16-bit-like quantisation of
   0.002-0.01 N, 3 or 4 repeats.
 
 Each session gets one contaminated repeat at each of three sE levels, drawn from:
@@ -54,6 +54,9 @@ def write_inline_session(path: Path, seed: int) -> None:
     kp0, kp1 = np.sort(rng.uniform(1.0, 15.0, 2))
     wn0, wn1 = rng.uniform(8, 50, 2)
     z0, z1 = rng.uniform(0.3, 1.0, 2)
+    # the physiology's scatter between repeats (half-widths of uniform draws): gain
+    # 2-10 %, wn 1-6 %, zeta 0-6 %, a different amount in every session
+    scatter = (rng.uniform(0.02, 0.10), rng.uniform(0.01, 0.06), rng.uniform(0.0, 0.06))
     w = SessionWriter.create(path, participant=f"INL{seed:03d}")
     w.write_calibration(Calibration(2.0, 9.5, 1.5, 8.0, 0.5, 5.0))
     u = np.concatenate([np.full(delay, 0.5), rE[:rE.size - delay]]) - 0.5
@@ -62,8 +65,10 @@ def write_inline_session(path: Path, seed: int) -> None:
         Kp, wn, zeta = kp0 + (kp1 - kp0) * x, wn0 + (wn1 - wn0) * x, z0 + (z1 - z0) * x
         sat = rng.uniform(2.0, 4.0) * 0.5 * Kp
         for r in range(1, repeats + 1):
-            g, wr = 1 + rng.uniform(-0.02, 0.02), wn * (1 + rng.uniform(-0.01, 0.01))
-            _, y, _ = lsim(([g * Kp * wr * wr], [1, 2 * zeta * wr, wr * wr]), u, t)
+            g = 1 + rng.uniform(-1, 1) * scatter[0]
+            wr = wn * (1 + rng.uniform(-1, 1) * scatter[1])
+            zr = zeta * (1 + rng.uniform(-1, 1) * scatter[2])
+            _, y, _ = lsim(([g * Kp * wr * wr], [1, 2 * zr * wr, wr * wr]), u, t)
             y = sat * np.tanh(y / sat)
             f = (y + rng.normal(0, noise, t.size) + rng.uniform(0.01, 0.05)
                  * np.sin(2 * np.pi * mains_Hz * t + rng.uniform(0, 6.3))

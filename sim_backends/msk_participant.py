@@ -157,6 +157,37 @@ class MskParticipant:
     def with_changes(self, **changes) -> MskParticipant:
         return replace(self, **changes)
 
+    def trial_variant(self, gain: float = 1.0, speed: float = 1.0,
+                      damping: float = 1.0) -> MskParticipant:
+        """The same participant on another trial: the physiology that varies between
+        repeats, scaled by factors near 1.
+
+        ``gain`` scales every electrode's reach (``max_activation``, own and spill-over:
+        electrode-skin contact and the fibres under it change between trials, which moves
+        the force per unit rE, Kp); ``speed`` divides the activation and deactivation time
+        constants and multiplies the mount's natural frequency (muscle temperature, strap
+        tension: wn); ``damping`` scales the mount's damping ratio (zeta). The factors
+        act on physics, not on a second-order template, so the scatter they give in Kp, wn
+        and zeta is the model's own mapping of them.
+
+        Raises
+        ------
+        SimConfigError
+            If a factor is not in (0.2, 5) or a scaled value leaves its valid range.
+        """
+        for name, v in (("gain", gain), ("speed", speed), ("damping", damping)):
+            if not (0.2 < float(v) < 5.0):
+                raise SimConfigError(f"trial_variant {name} factor {v!r}: give a factor in "
+                                     "(0.2, 5), near 1")
+        drives = tuple(replace(
+            d, own=replace(d.own, max_activation=min(1.0, d.own.max_activation * gain)),
+            spill=replace(d.spill, max_activation=min(1.0, d.spill.max_activation * gain)))
+            for d in self.drives)
+        mount = replace(self.mount, wn_rad_s=self.mount.wn_rad_s * speed,
+                        zeta=self.mount.zeta * damping)
+        return replace(self, drives=drives, mount=mount, tau_act_s=self.tau_act_s / speed,
+                       tau_deact_s=self.tau_deact_s / speed)
+
 
 @lru_cache(maxsize=64)
 def _ramp_calibration(p: MskParticipant, c: CalibrationConfig, fs_Hz: float):

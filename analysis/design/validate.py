@@ -55,7 +55,10 @@ def simulate_session(vp, candidate: Candidate, *, scatter: dict | None = None,
 
     ``vp`` is a template participant (``sim_backends.participant``) or a musculoskeletal
     one (``sim_backends.msk_participant``: its own MuJoCo simulator and the calibration its
-    ramp finds; ``scatter`` does not apply: its physiology is the model's own)."""
+    ramp finds). ``scatter`` (relative SDs per trial of Kp, wn_rad_s, zeta) scales the
+    template's curves; on a musculoskeletal participant it scales the physics behind
+    them (:meth:`~sim_backends.msk_participant.MskParticipant.trial_variant`: electrode
+    reach, muscle and mount speed, mount damping) by the same relative SDs."""
     cfg = candidate.config()
     p = cfg.protocol
     musculoskeletal = hasattr(vp, "make_simulator")  # MuJoCo participant: its own simulator
@@ -69,12 +72,15 @@ def simulate_session(vp, candidate: Candidate, *, scatter: dict | None = None,
             key = [int(seed) & 0xFFFFFFFF, int(round(s * 1000)), r, 9173]
             rng = np.random.default_rng(key)
             who = vp
-            if scatter and not musculoskeletal:
+            if scatter:
                 z = rng.standard_normal(3)
-                who = dataclasses.replace(
-                    vp, Kp=_scaled(vp.Kp, 1 + scatter.get("Kp", 0.0) * z[0]),
-                    wn_rad_s=_scaled(vp.wn_rad_s, 1 + scatter.get("wn_rad_s", 0.0) * z[1]),
-                    zeta=_scaled(vp.zeta, 1 + scatter.get("zeta", 0.0) * z[2]))
+                f = [1 + scatter.get(name, 0.0) * z[j] for j, name in enumerate(PARAMETERS)]
+                if musculoskeletal:   # the same relative SDs on the physics behind them
+                    who = vp.trial_variant(gain=f[0], speed=f[1], damping=f[2])
+                else:
+                    who = dataclasses.replace(vp, Kp=_scaled(vp.Kp, f[0]),
+                                              wn_rad_s=_scaled(vp.wn_rad_s, f[1]),
+                                              zeta=_scaled(vp.zeta, f[2]))
             who = dataclasses.replace(who, seed=int(rng.integers(0, 2 ** 31 - 1)))
             sim = who.make_simulator(p.fs_Hz) if musculoskeletal else \
                 ParticipantSimulator(who, p.fs_Hz)

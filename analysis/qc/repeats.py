@@ -4,15 +4,16 @@ The repeats of one sE receive the same rE, so whatever the stimulation causes th
 up to the physiology's repeat-to-repeat scatter of gain and timing. Per trial, after a
 zero-phase low-pass (:attr:`QCSettings.lowpass_Hz`) and decimation to ~100 Hz:
 
-1. the reference is the pointwise median of the level's repeats (three or more), or the
-   other repeat (two);
-2. the trial is regressed on [reference, d reference/dt, 1, t] (gain, a small time shift,
-   offset and drift are shared physiology or sensor, not artefact) and the remainder is
-   its *unshared component* u(t); the regression is refitted once without the flagged
-   stretches so that an artefact cannot bend it;
-3. the RMS of u in sliding windows (:attr:`QCSettings.window_s`) is compared with the
-   level's typical (median) unshared RMS and with the level's response RMS; windows above
-   both thresholds are flagged and merged into time spans.
+1. every repeat is compared with every other one (its *partner*);
+2. the trial is regressed on its partner through a short two-sided FIR filter
+   (:attr:`QCSettings.shared_filter_s`), an offset and a drift (gain, timing and small
+   changes of the dynamics are shared physiology, offset and drift the sensor's; none is
+   artefact) and the remainder is its *unshared component* u(t); the regression is
+   refitted once without the flagged stretches so that an artefact cannot bend it;
+3. the RMS of u in sliding windows (:attr:`QCSettings.window_s`), the smallest over the
+   partners (a repeat differs where it differs from all the others), is compared with
+   the level's typical (median) unshared RMS and with the level's response RMS; windows
+   above both thresholds are flagged and merged into time spans.
 
 A trial whose flagged stretches reach its end is tried against a baseline jump
 (:func:`fit_jump`); anything else is a response not explained by rE. With two repeats the difference
@@ -71,36 +72,78 @@ def smoothed(force_N: np.ndarray, fs_Hz: float, settings: QCSettings) -> tuple[n
     return y[::step].copy(), fs_Hz / step
 
 
-def _regress(s: np.ndarray, ref: np.ndarray, fs: float, keep: np.ndarray) -> np.ndarray:
-    """s minus its least-absolute-deviation fit on [ref, ref', 1, t] over ``keep``.
+def shared_regressors(ref: np.ndarray, fs: float, half_s: float,
+                      tap_s: float = 0.02) -> np.ndarray:
+    """Columns of what a trial may share with its reference: the reference delayed and
+    advanced by lags ``0, +-tap_s, +-2 tap_s, ...`` up to ``half_s`` (a two-sided FIR
+    filter; edges held), or with ``half_s`` below one tap the reference and its
+    derivative (gain and a small time shift); then an offset and a drift.
+
+    ``tap_s`` 0.02 s samples the filter at 50 Hz, above twice the comparison's 20 Hz
+    bandwidth (:attr:`QCSettings.lowpass_Hz`), so the taps lose nothing the signals hold.
+    """
+    n = ref.size
+    t = np.arange(n) / fs
+    step = max(1, int(round(tap_s * fs)))
+    lags = int(round(half_s * fs)) // step * step
+    if lags < step:
+        cols = [ref, np.gradient(ref) * fs]
+    else:
+        padded = np.concatenate([np.full(lags, ref[0]), ref, np.full(lags, ref[-1])])
+        cols = [padded[lags + k:lags + k + n] for k in range(-lags, lags + 1, step)]
+    return np.column_stack(cols + [np.ones(n), t - t.mean()])
+
+
+def _weighted_solve(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted least squares by the normal equations (fast for the few dozen columns
+    here), falling back on an SVD solution when they are singular."""
+    Xw = X * w[:, None]
+    try:
+        return np.linalg.solve(Xw.T @ X, Xw.T @ y)
+    except np.linalg.LinAlgError:
+        sw = np.sqrt(w)
+        return np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)[0]
+
+
+def _regress(s: np.ndarray, ref: np.ndarray, fs: float, keep: np.ndarray,
+             half_s: float = 0.0) -> np.ndarray:
+    """s minus its least-absolute-deviation fit on :func:`shared_regressors` over ``keep``.
 
     An L1 fit (iteratively reweighted least squares) follows the majority of the samples:
-    a contraction or a jump over a minority of the trial cannot pull the gain, offset or
-    drift that the rest defines, as it would pull a least-squares line.
+    a contraction or a jump over a minority of the trial cannot pull the gain, filter,
+    offset or drift that the rest defines, as it would pull a least-squares line.
     """
-    t = np.arange(s.size) / fs
-    X = np.column_stack([ref, np.gradient(ref) * fs, np.ones_like(t), t - t.mean()])[keep]
-    y = s[keep]
+    Xall = shared_regressors(ref, fs, half_s)
+    edge = filter_edge(ref.size, fs, half_s)
+    inside = keep.copy()
+    inside[:edge] = False
+    inside[ref.size - edge:] = False
+    if inside.sum() < 3 * Xall.shape[1]:
+        inside = keep
+    X = Xall[inside]
+    y = s[inside]
     beta, *_ = np.linalg.lstsq(X, y, rcond=None)
     floor = 1e-9 * max(float(np.std(y)), 1e-12)
     for _ in range(30):
         r = y - X @ beta
-        sw = 1.0 / np.sqrt(np.maximum(np.abs(r), floor))
-        new, *_ = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)
+        new = _weighted_solve(X, y, 1.0 / np.maximum(np.abs(r), floor))
         if np.allclose(new, beta, rtol=1e-6, atol=1e-9):
             beta = new
             break
         beta = new
-    Xall = np.column_stack([ref, np.gradient(ref) * fs, np.ones_like(t), t - t.mean()])
-    return s - Xall @ beta
+    u = s - Xall @ beta
+    if edge:   # the held edges are not the reference: no evidence there either way
+        u[:edge] = 0.0
+        u[u.size - edge:] = 0.0
+    return u
 
 
-def _align(s: np.ndarray, ref: np.ndarray, fs: float) -> np.ndarray:
-    """s mapped onto ref's offset, drift and gain (its regression on [ref, 1, t] undone)."""
-    t = np.arange(s.size) / fs
-    X = np.column_stack([ref, np.ones_like(t), t - t.mean()])
-    g, c, d = np.linalg.lstsq(X, s, rcond=None)[0]
-    return (s - c - d * (t - t.mean())) / g if abs(g) > 1e-12 else s - c - d * (t - t.mean())
+def filter_edge(n: int, fs: float, half_s: float, tap_s: float = 0.02) -> int:
+    """Samples at each end of a record where the shared filter reaches past it (its
+    lagged references are held edges there, not the reference): 0 without the filter."""
+    step = max(1, int(round(tap_s * fs)))
+    lags = int(round(half_s * fs)) // step * step
+    return lags if lags >= step and 2 * lags < n else 0
 
 
 def _window_rms(u: np.ndarray, w: int) -> np.ndarray:
@@ -109,67 +152,62 @@ def _window_rms(u: np.ndarray, w: int) -> np.ndarray:
     return np.sqrt(np.maximum(c, 0.0))
 
 
-def unshared(signals: list[np.ndarray], fs: float, settings: QCSettings,
-             references: list[np.ndarray] | None = None,
-             level_scale: tuple[float, float] | None = None):
-    """Unshared components and flagged windows of each signal.
+def unshared(signals: list[np.ndarray], fs: float, settings: QCSettings):
+    """Unshared components and flagged windows of each repeat of one level.
+
+    Every repeat is compared with every other (:func:`_regress`: the other through the
+    shared filter, plus offset and drift). A repeat differs *where it differs from all
+    the others*: its windowed RMS is the pointwise minimum over its partners. So a clean
+    repeat is not blamed for an artefact in another, and no pointwise median (which
+    switches between repeats whose dynamics differ) stands in as a reference. With two
+    repeats both show the difference; :func:`attribute_pair` decides.
 
     Parameters
     ----------
-    signals : list of arrays (same length)
+    signals : list of arrays (same length, two or more)
         The smoothed repeats of one level.
     fs : float
         Their rate.
-    references : list of arrays, optional
-        One reference per signal (default: the pointwise median of all signals, or the
-        other signal when there are two).
-    level_scale : (typical_rms, response_rms), optional
-        Thresholds' scales; default from these signals.
 
     Returns
     -------
     u : list of arrays
+        Each repeat's remainder against its closest partner.
     flags : list of bool arrays
+    rms : list of arrays
     typical_rms, response_rms : float
     references : list of arrays
+        Each repeat's closest partner (the other repeat that explains it best).
     limit : float
         The flagging threshold on the windowed RMS.
     """
     n = len(signals)
+    if n < 2:
+        raise ValueError("unshared needs two or more signals")
     S = np.vstack(signals)
-    t = np.arange(S.shape[1]) / fs
-    own = references is None
-    if own and n < 2:
-        raise ValueError("unshared needs two or more signals or explicit references")
-    if own and n >= 3:
-        # the median of the repeats after each is brought onto a common offset, drift and
-        # gain (two passes: a line first, then the regression on the median itself)
-        X = np.column_stack([np.ones_like(t), t - t.mean()])
-        A = S - (X @ np.linalg.lstsq(X, S.T, rcond=None)[0]).T
-        for _ in range(2):
-            med = np.median(A, axis=0)
-            A = np.vstack([_align(S[i], med, fs) for i in range(n)])
-        references = [np.median(A, axis=0)] * n
-    elif own:
-        references = [S[1], S[0]]
     w = int(round(settings.window_s * fs))
     keep = [np.ones(S.shape[1], bool) for _ in range(n)]
+    response = float(np.std(np.median(S, axis=0)[S.shape[1] // 3:]))
     for _ in range(2):
-        u = [_regress(S[i], references[i], fs, keep[i]) for i in range(n)]
-        rms = [_window_rms(ui, w) for ui in u]
-        if level_scale is None:
-            typical = float(np.median(np.concatenate(rms)))
-            ref0 = references[0]
-            response = float(np.std(ref0[ref0.size // 3:]))
-        else:
-            typical, response = level_scale
+        u, rms, partner = [], [], []
+        for i in range(n):
+            pairs = []
+            for j in range(n):
+                if j != i:
+                    uij = _regress(S[i], S[j], fs, keep[i], settings.shared_filter_s)
+                    pairs.append((uij, _window_rms(uij, w), j))
+            best = min(pairs, key=lambda p: float(np.median(p[1])))
+            u.append(best[0])
+            rms.append(np.min(np.vstack([p[1] for p in pairs]), axis=0))
+            partner.append(best[2])
+        typical = float(np.median(np.concatenate(rms)))
         limit = max(settings.deviation_k * typical, settings.deviation_min_frac * response)
         flags = [r > limit for r in rms]
         new_keep = [~f if (~f).sum() > 0.5 * f.size else np.ones_like(f) for f in flags]
         if all(np.array_equal(a, b) for a, b in zip(new_keep, keep)):
             break
         keep = new_keep
-    return u, flags, rms, typical, response, references, limit
+    return u, flags, rms, typical, response, [S[j] for j in partner], limit
 
 
 def deviations(u: np.ndarray, flags: np.ndarray, rms: np.ndarray, fs: float, typical: float,
@@ -213,7 +251,7 @@ def attribute_pair(signals: list[np.ndarray], neighbour: np.ndarray | None, fs: 
     keep = keep[:m]
     e = []
     for s in signals:
-        u = _regress(s[:m], neighbour[:m], fs, keep)
+        u = _regress(s[:m], neighbour[:m], fs, keep, settings.shared_filter_s)
         e.append(float(np.sqrt(np.mean(u[a:b] ** 2))))
     if e[0] >= settings.attribute_ratio * e[1]:
         return 0
@@ -226,28 +264,35 @@ def fit_jump(s: np.ndarray, ref: np.ndarray, fs: float, limit: float,
              settings: QCSettings) -> tuple[float, float] | None:
     """A baseline jump that explains all of a trial's difference from its repeats.
 
-    The trial is regressed on [ref, ref', 1, t, H(t - T)] for every T on a grid (every
-    two samples); with the best T, the remainder must stay below ``limit`` in every window
+    The trial is regressed on :func:`shared_regressors` and H(t - T) for every T on a grid
+    (every two samples); with the best T, the remainder must stay below ``limit`` in every window
     away from the jump itself. Returns (height in N, T in s) or None.
     """
     n = s.size
-    t = np.arange(n) / fs
-    base = np.column_stack([ref, np.gradient(ref) * fs, np.ones(n), t - t.mean()])
+    base = shared_regressors(ref, fs, settings.shared_filter_s)
     w = int(round(settings.window_s * fs))
-    best = None
-    for k in range(w, n - w, 2):
-        X = np.column_stack([base, (np.arange(n) >= k).astype(float)])
-        beta, res, *_ = np.linalg.lstsq(X, s, rcond=None)
-        sse = float(res[0]) if res.size else float(np.sum((s - X @ beta) ** 2))
-        if best is None or sse < best[0]:
-            best = (sse, k, beta)
-    if best is None:
+    if n - w <= w:
         return None
-    _, k, beta = best
+    # least squares with a step at every k at once: with Q an orthonormal basis of the
+    # base columns and r the base fit's residual, a step at k lowers the squared error by
+    # (sum_{i>=k} r_i)^2 / ((n - k) - |sum_{i>=k} Q_i|^2)
+    Q, _ = np.linalg.qr(base)
+    r = s - Q @ (Q.T @ s)
+    tail_r = np.cumsum(r[::-1])[::-1]
+    tail_q = np.cumsum(Q[::-1], axis=0)[::-1]
+    ks = np.arange(w, n - w, 2)
+    denom = (n - ks) - np.sum(tail_q[ks] ** 2, axis=1)
+    gain = np.where(denom > 1e-9, tail_r[ks] ** 2 / np.maximum(denom, 1e-9), -np.inf)
+    k = int(ks[int(np.argmax(gain))])
     X = np.column_stack([base, (np.arange(n) >= k).astype(float)])
+    beta = np.linalg.lstsq(X, s, rcond=None)[0]
     rms = _window_rms(s - X @ beta, w)
     away = np.ones(n, bool)
     away[max(0, k - w):k + w] = False
+    edge = filter_edge(n, fs, settings.shared_filter_s)
+    if edge:
+        away[:edge] = False
+        away[n - edge:] = False
     if np.all(rms[away] <= limit):
         return float(beta[-1]), k / fs
     return None

@@ -9,6 +9,10 @@ from dataclasses import dataclass
 from analysis.errors import SettingError
 
 
+_ZERO_ALLOWED = frozenset({"shared_filter_s"})
+"""Settings for which 0 is meaningful (0 s of shared filter: gain and time shift only)."""
+
+
 @dataclass(frozen=True)
 class QCSettings:
     """Settings of :func:`analysis.qc.assess_session` (``docs/identification.md``).
@@ -51,6 +55,17 @@ class QCSettings:
     are not reported: how the muscles take up the stimulation depends on how long they
     rested before it (post-activation potentiation, residual force), which the protocol
     does not hold equal, and the fit never sees this part of the lead-in."""
+    shared_filter_s: float = 0.3
+    """Repeats may differ by a short linear filter, not only by gain and a time shift: the
+    trial is compared with its repeats' reference passed through the best two-sided FIR
+    filter of this half-length (taps at the comparison rate). Muscle dynamics vary from
+    one trial to the next (a few % in wn or zeta: potentiation, temperature, strap
+    tension), which changes gain and phase near the resonance; that is a response to rE,
+    not an artefact. 0.3 s resolves changes about 1.7 Hz wide, the width of the elbow's
+    resonance peak (2 zeta wn at wn 13-46 rad/s, zeta 0.5-0.95). A filtered reference
+    holds only the frequencies rE drives, so a contraction, a jump or a knock (slow or
+    broadband force the reference lacks) stays unexplained. 0: gain and a time shift only
+    (the first release's comparison)."""
     deviation_k: float = 4.0
     """A window is flagged when its unshared RMS exceeds this multiple of the level's
     typical (median) unshared RMS, which already contains the sensor noise and the
@@ -74,10 +89,11 @@ class QCSettings:
     def __post_init__(self):
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
+            zero_ok = f.name in _ZERO_ALLOWED
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v) \
-                    or v <= 0:
+                    or v < 0 or (v == 0 and not zero_ok):
                 raise SettingError(f"QC setting {f.name} = {v!r} is not valid: use a "
-                                   "positive number")
+                                   + ("number >= 0" if zero_ok else "positive number"))
         if self.deviation_min_frac >= 1:
             raise SettingError(f"QC setting deviation_min_frac = {self.deviation_min_frac} "
                                "is not valid: use a fraction in (0, 1)")

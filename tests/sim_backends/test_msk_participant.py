@@ -188,3 +188,24 @@ def test_coactivation_stiffens_the_endpoint_dynamics():
     # without it wn hardly moves with co-activation; with it wn rises with sE
     assert abs(w_bare[1] / w_bare[0] - 1) < 0.02
     assert w_stiff[1] > w_stiff[0] * 1.02 and w_stiff[1] > w_bare[1]
+
+
+def test_trial_variant_moves_the_parameter_its_physics_drives():
+    """gain -> Kp, speed -> wn, damping -> zeta, each mostly on its own; 1 changes nothing."""
+    from sim_backends.errors import SimConfigError
+    p = default_msk_participant()
+    cal = p.ramp_calibration()
+    assert p.trial_variant() == p
+
+    def rel(q):
+        a, b = q.second_order_truth(0.6, cal, SHORT), p.second_order_truth(0.6, cal, SHORT)
+        return np.array([a.Kp / b.Kp, a.wn_rad_s / b.wn_rad_s, a.zeta / b.zeta]) - 1
+
+    for j, kw in enumerate(({"gain": 1.1}, {"speed": 1.05}, {"damping": 1.05})):
+        r = rel(p.trial_variant(**kw))
+        assert r[j] > 0.025, (kw, r)                            # the one it is meant for
+        assert abs(r[j]) > 1.5 * np.max(np.abs(np.delete(r, j))), (kw, r)
+    assert p.trial_variant(gain=0.9).drives[0].own.max_activation == pytest.approx(
+        0.9 * p.drives[0].own.max_activation)
+    with pytest.raises(SimConfigError, match="gain"):
+        p.trial_variant(gain=0.0)

@@ -228,3 +228,65 @@ def test_settings_refuse_nonsense():
         QCSettings(deviation_k=0)
     with pytest.raises(ValueError, match="deviation_min_frac"):
         QCSettings(deviation_min_frac=2.0)
+
+
+def make_varied_level(wn_sd, zeta_sd, *, n=3, Kp=6.0, wn=25.0, zeta=0.6, noise=0.02,
+                      seed=0):
+    """Repeats whose dynamics differ from trial to trial (wn, zeta drawn per trial with
+    relative SDs ``wn_sd``, ``zeta_sd``; Kp by 10 %): physiology, not artefact."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(int((STEADY + CHIRP) * FS)) / FS
+    r = chirp(t, False)
+    trials = []
+    for k in range(n):
+        kp = Kp * (1 + 0.1 * rng.standard_normal())
+        w = wn * (1 + wn_sd * rng.standard_normal())
+        z = zeta * (1 + zeta_sd * rng.standard_normal())
+        _, y, _ = lsim(([kp * w * w], [1, 2 * z * w, w * w]), r - 0.5, t)
+        f = y + rng.normal(0, noise, t.size) + rng.uniform(-1, 1)
+        trials.append(Trial(sE=0.6, repeat=k + 1, fs_Hz=FS, rE=r, I_ext_mA=3 + 0 * r,
+                            I_flex_mA=3 + 0 * r, force_N=f, name=f"t{k + 1:03d}"))
+    return trials, t
+
+
+@pytest.mark.parametrize("wn_sd,zeta_sd,wn,zeta,n,seed", [
+    (0.05, 0.0, 25.0, 0.6, 3, 0), (0.0, 0.08, 25.0, 0.6, 3, 1), (0.08, 0.08, 12.0, 0.9, 3, 2),
+    (0.08, 0.08, 45.0, 0.4, 5, 3), (0.1, 0.1, 30.0, 0.5, 2, 4), (0.06, 0.06, 20.0, 0.7, 4, 5)])
+def test_dynamics_varying_between_repeats_is_not_an_artefact(wn_sd, zeta_sd, wn, zeta, n,
+                                                              seed):
+    trials, _ = make_varied_level(wn_sd, zeta_sd, wn=wn, zeta=zeta, n=n, seed=seed)
+    lv = assess_level(trials)
+    assert [v.decision for v in lv.verdicts] == ["used"] * n, \
+        [v.reasons for v in lv.verdicts]
+
+
+def test_gain_and_shift_alone_would_call_dynamics_scatter_an_artefact():
+    """The comparison without the shared filter (the first release's) excludes clean
+    trials whose wn differs by ~10 %: the filter is what keeps them."""
+    narrow = QCSettings(shared_filter_s=0)
+    excluded = 0
+    for seed in range(4):
+        trials, _ = make_varied_level(0.1, 0.1, wn=30.0, zeta=0.5, seed=seed)
+        excluded += sum(v.decision == "excluded"
+                        for v in assess_level(trials, narrow).verdicts)
+        assert all(v.decision == "used" for v in assess_level(trials).verdicts)
+    assert excluded >= 1
+
+
+@pytest.mark.parametrize("amp,t0,seed", [(2.0, 9.0, 0), (-2.0, 12.0, 1), (3.0, 6.5, 2)])
+def test_contraction_found_among_repeats_with_varying_dynamics(amp, t0, seed):
+    trials, t = make_varied_level(0.08, 0.08, seed=seed)
+    trials[2].force_N = trials[2].force_N + bump(t, t0, 1.5, amp)
+    v = verdicts(assess_level(trials))
+    assert v["t003"].decision == "excluded", v["t003"].reasons
+    (a, b), = v["t003"].spans
+    assert a <= t0 + 0.3 and b >= t0 + 1.2
+    assert v["t001"].decision == v["t002"].decision == "used"
+
+
+def test_jump_found_among_repeats_with_varying_dynamics():
+    trials, t = make_varied_level(0.08, 0.08, seed=7)
+    trials[0].force_N = trials[0].force_N + np.where(t > 11.0, -1.2, 0.0)
+    v = verdicts(assess_level(trials))
+    assert v["t001"].decision == "repaired", v["t001"].reasons
+    assert v["t002"].decision == v["t003"].decision == "used"
