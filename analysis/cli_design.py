@@ -59,6 +59,11 @@ def register(sub) -> None:
     sc.add_argument("--scatter-from", metavar="PARAMETERS.csv",
                     help="with --twin: measure the scatter on the first session (the "
                          "parameters.csv nmsid identify wrote beside twin.json)")
+    p.add_argument("--excitation", choices=("auto", "paper", "free"), default="auto",
+                   help="auto (default): with --scatter-from, keep the paper's excitation "
+                        "(10 s chirp 1-10 Hz, amplitude 0.5) when the first session is not "
+                        "second order (median fit < 97 %%), since the twin then depends on "
+                        "the input; paper: always keep it; free: search inputs regardless")
     p.add_argument("--n-prior", type=int, default=20, metavar="N",
                    help="population participants the design is computed for (default 20)")
     p.add_argument("--validate", type=int, default=10, metavar="N",

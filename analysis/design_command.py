@@ -6,7 +6,8 @@ import argparse
 
 from analysis.design.api import run_design
 from analysis.design.errors import DesignError
-from analysis.design.prior import population_prior, scatter_from_parameters, twin_prior
+from analysis.design.prior import (adequacy_from_parameters, population_prior,
+                                   scatter_from_parameters, twin_prior)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -32,10 +33,20 @@ def run(args: argparse.Namespace) -> int:
         scatter = scatter_from_parameters(args.scatter_from, prior)
         print("scatter measured on the first session: " + ", ".join(
             f"{k} {100 * v:.2g} %" for k, v in scatter.items()))
+    keep, note = args.excitation == "paper", ""
+    if args.excitation == "paper":
+        note = "asked for (--excitation paper)"
+    elif args.excitation == "auto" and args.scatter_from:
+        adequacy = adequacy_from_parameters(args.scatter_from)
+        keep, note = not adequacy.second_order, adequacy.sentence()
+        print(note)
+    elif args.excitation == "free":
+        note = "searched as asked (--excitation free)"
     doc = run_design(prior, args.target, args.out, validate_n=args.validate,
                      scatter=scatter, tolerance=args.tolerance,
                      min_steady_s=args.min_steady_s, seed=args.seed, twin_path=args.twin,
-                     population_seed=args.seed)
+                     population_seed=args.seed, keep_paper_excitation=keep,
+                     excitation_note=note)
     v = doc["validated_sd_ratio"]
     print(f"{args.out}/protocol.toml: {doc['protocol_description']}")
     print(f"stimulation {doc['stimulation_s']:g} s = {100 * doc['stimulation_fraction']:.0f} % "

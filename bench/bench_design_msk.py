@@ -17,7 +17,9 @@ every protocol:
    and the paper's protocol with a 2 s lead-in (540 s);
 2. the lab's own flow: a first session (5 levels x 2 repeats, the paper's trial) is
    identified, ``nmsid design --twin twin.json --scatter-from parameters.csv`` designs
-   for it, and the proposal and the paper's protocol then run on the participant.
+   for it (keeping the paper's excitation when the first session's median fit is below
+   97 %, as ``--excitation auto`` does), and the proposal and the paper's protocol then run
+   on the participant.
 
 Printed per protocol: stimulation seconds; RMS relative error against the reference of
 the per-level estimates and of the twin's curves at the paper's 15 levels (the family
@@ -37,9 +39,11 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
 from analysis.curves import fit_curve  # noqa: E402
-from analysis.design.candidates import Candidate, paper_candidate, search_space  # noqa: E402
+from analysis.design.candidates import (Candidate, paper_candidate, search_space,  # noqa: E402
+                                        with_paper_excitation)
 from analysis.design.predict import DEFAULT_SCATTER, Predictor  # noqa: E402
-from analysis.design.prior import PARAMETERS, scatter_from_parameters, twin_prior  # noqa: E402
+from analysis.design.prior import (PARAMETERS, adequacy_from_parameters,  # noqa: E402
+                                   scatter_from_parameters, twin_prior)
 from analysis.design.search import design, parse_target  # noqa: E402
 from analysis.design.validate import simulate_session  # noqa: E402
 from analysis.identify import identify_session  # noqa: E402
@@ -98,9 +102,11 @@ def lab_design(vp, scatter, seed: int) -> tuple[Candidate, dict]:
         run_identification([session], tmp, figures=False)
         prior = twin_prior(Path(tmp) / "twin.json", noise_N=float(vp.sensor.noise_N))
         measured = scatter_from_parameters(Path(tmp) / "parameters.csv", prior)
-    result = design(Predictor(prior, scatter=measured), parse_target("paper"),
-                    search_space(), draws=50, seed=seed)
-    return result.proposal.candidate, measured
+        adequacy = adequacy_from_parameters(Path(tmp) / "parameters.csv")
+    cands = search_space() if adequacy.second_order else with_paper_excitation(search_space())
+    result = design(Predictor(prior, scatter=measured), parse_target("paper"), cands,
+                    draws=50, seed=seed)
+    return result.proposal.candidate, measured, adequacy
 
 
 def selection(rows: list) -> float:
@@ -143,10 +149,11 @@ def main(n_participants: int = 4) -> None:
                   f"{np.round(rms(r, 'curve'), 3).tolist()!s:27s} "
                   f"{np.round(rms(r, 'curve') / base, 3).tolist()!s:22s} {selection(r):.3f}")
         print(f"\n2. the lab's flow (first session 5 x 2 -> design -> run), {label}")
-        print(f"  {'participant':11s} {'scatter measured':22s} {'proposal':30s} {'stim s':>6s}")
+        print(f"  {'participant':11s} {'scatter measured':22s} {'fit %':>6s} "
+              f"{'proposal':30s} {'stim s':>6s}")
         prop_rows, paper_rows = [], []
         for k, vp in enumerate(people):
-            prop, measured = lab_design(vp, scatter, 500 + k)
+            prop, measured, adequacy = lab_design(vp, scatter, 500 + k)
             prop = Candidate(**{**prop.__dict__, "label": "lab"})
             prop_rows.append(errors(vp, prop, scatter, 21 + k, refs[k], fams[k]))
             paper_rows.append(errors(vp, paper, scatter, 21 + k, refs[k], fams[k]))
@@ -154,7 +161,8 @@ def main(n_participants: int = 4) -> None:
             what = (f"{len(prop.sE_levels)} lv x{prop.repeats}, {prop.steady_s:g}+"
                     f"{prop.chirp_s:g} s {prop.input_kind} {prop.chirp_f0_Hz:g}-"
                     f"{prop.chirp_f1_Hz:g} Hz")
-            print(f"  {vp.code:11s} {m!s:22s} {what:30s} {prop.stimulation_s:6.0f}")
+            print(f"  {vp.code:11s} {m!s:22s} {adequacy.median_fit_pct:6.1f} {what:30s} "
+                  f"{prop.stimulation_s:6.0f}")
         a, b = rms(prop_rows, "curve"), rms(paper_rows, "curve")
         la, lb = rms(prop_rows, "level"), rms(paper_rows, "level")
         print(f"  level RMS %: designed {np.round(la, 3).tolist()} vs paper "

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from analysis.design.candidates import paper_candidate, search_space
+from analysis.design.candidates import paper_candidate, search_space, with_paper_excitation
 from analysis.design.predict import DEFAULT_SCATTER, Predictor
 from analysis.design.prior import Prior
 from analysis.design.report import write_outputs
@@ -58,7 +58,8 @@ def run_design(prior: Prior, target: str, out_dir, *, validate_n: int = 10,
                scatter: dict | None = None, tolerance: float = DEFAULT_TOLERANCE,
                min_steady_s: float = 2.0, draws: int = 100, seed: int = 0,
                twin_path=None, population_seed: int = 0, candidates=None,
-               max_stimulation_s: float | None = None) -> dict:
+               max_stimulation_s: float | None = None, keep_paper_excitation: bool = False,
+               excitation_note: str = "") -> dict:
     """Search, validate and write the outputs; returns the ``design.json`` dict.
 
     Parameters
@@ -72,11 +73,18 @@ def run_design(prior: Prior, target: str, out_dir, *, validate_n: int = 10,
         then null).
     scatter : dict, optional
         Per-trial relative scatter (default :data:`DEFAULT_SCATTER`).
+    keep_paper_excitation : bool
+        Search only candidates with the paper's excitation (a participant that is not
+        second order: :func:`analysis.design.prior.adequacy_from_parameters`).
+    excitation_note : str
+        Why, for ``design.json`` and the report.
     """
     sc = dict(DEFAULT_SCATTER if scatter is None else scatter)
     tgt = parse_target(target, tolerance)
     predictor = Predictor(prior, scatter=sc)
     cands = candidates if candidates is not None else search_space(min_steady_s=min_steady_s)
+    if keep_paper_excitation:
+        cands = with_paper_excitation(cands)
     result = design(predictor, tgt, cands, draws=draws, seed=seed,
                     max_stimulation_s=max_stimulation_s, paper=paper_candidate())
     validation = None
@@ -97,4 +105,6 @@ def run_design(prior: Prior, target: str, out_dir, *, validate_n: int = 10,
                                     with_scatter=False),
                   predictor.predict(result.paper.candidate, derived=False, with_scatter=False))
     return write_outputs(out_dir, result, prior_source=prior.source, scatter=sc,
-                         validation=validation, noise_only=noise_only)
+                         validation=validation, noise_only=noise_only,
+                         excitation={"kept_paper_excitation": bool(keep_paper_excitation),
+                                     "why": excitation_note})

@@ -148,3 +148,18 @@ def search_space(*, min_steady_s: float = 2.0, rest_per_stim_s: float = REST_PER
                              label=name))
     out.sort(key=lambda c: (c.stimulation_s, c.session_s, -c.rE_amplitude))
     return out
+
+
+def with_paper_excitation(candidates: list[Candidate], paper: Candidate | None = None
+                          ) -> list[Candidate]:
+    """The candidates whose excitation is the paper's (same input kind, length, band and
+    amplitude); lead-in, levels, repeats and rests stay free.
+
+    For a participant that is not second order the best second-order description depends
+    on the excitation, so only these give the twin the paper's protocol would give.
+    """
+    ref = paper or paper_candidate()
+    key = (ref.input_kind, ref.chirp_s, ref.chirp_f0_Hz, ref.chirp_f1_Hz, ref.rE_amplitude)
+    return [c for c in candidates
+            if (c.input_kind, c.chirp_s, c.chirp_f0_Hz, c.chirp_f1_Hz, c.rE_amplitude) == key]
+

@@ -32,10 +32,10 @@ CAVEATS = (
     "The prior's families are taken as the truth for the selection accuracy; a first short "
     "session only approximates them.",
     "On physiology that is not second order, a shorter or otherwise different input gives "
-    "a different best second-order twin: on MuJoCo musculoskeletal participants the 270 s "
-    "proposal lands 6-8x further than the paper's protocol from the paper-protocol twin "
-    "(RMS 0.2-0.6 % against 0.03-0.08 %; bench_design_msk). If nmsid gap reports "
-    "remaining.significant on the first session, keep the paper's input.",
+    "a different best second-order twin (on MuJoCo musculoskeletal elbows a 4 s chirp "
+    "moves wn and zeta by 0.1-0.4 %, an 0.8-8 Hz band by more; bench_design_msk). With a "
+    "first session (--scatter-from) whose median fit is below 97 %, the design keeps the "
+    "paper's excitation (see 'excitation' above); without one it cannot tell.",
 )
 
 
@@ -66,7 +66,8 @@ def _table_rows(pred, stat) -> list[list]:
 
 
 def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
-                  validation: dict | None, noise_only=None) -> dict:
+                  validation: dict | None, noise_only=None,
+                  excitation: dict | None = None) -> dict:
     """Write every output file; return the ``design.json`` dict.
 
     Parameters
@@ -80,6 +81,9 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
         From the simulation runs (``validated_sd_ratio``, realised errors, selection).
     noise_only : (Prediction, Prediction), optional
         Proposal and paper predicted with sensor noise only (drawn dashed in the figure).
+    excitation : dict, optional
+        ``{"kept_paper_excitation": bool, "why": str}``: whether the search was limited to
+        the paper's excitation and why.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -111,6 +115,7 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
         "target": result.target.describe(),
         "prior": prior_source,
         "scatter_per_trial_rel": scatter,
+        "excitation": excitation or {"kept_paper_excitation": False, "why": ""},
         "protocol": c.protocol_dict(), "protocol_description": c.describe(),
         "stimulation_s": c.stimulation_s,
         "paper_stimulation_s": paper.candidate.stimulation_s,
@@ -168,7 +173,11 @@ def report_text(doc: dict, result) -> str:
         L.append("NO CANDIDATE MET THE TARGET: the protocol below is the closest one.")
     L += [f"target: {doc['target']}", f"prior: {doc['prior']}",
           "per-trial scatter assumed: " + ", ".join(f"{k} {100 * v:g} %" for k, v in
-                                                  doc["scatter_per_trial_rel"].items()), "",
+                                                  doc["scatter_per_trial_rel"].items()),
+          "excitation: " + ("the paper's, kept: " if doc["excitation"]["kept_paper_excitation"]
+                            else "searched: ") + (doc["excitation"]["why"] or
+                                                 "no first session to judge the model by"),
+          "",
           f"{'':<22}{'proposal':>26}{'paper':>26}",
           f"{'protocol':<22}{c.label or '-':>26}{'paper':>26}",
           f"{'sE levels':<22}{len(c.sE_levels):>26}{len(paper.sE_levels):>26}",
