@@ -86,7 +86,7 @@ def main() -> None:
     people = make_population(N_VALID, seed=1000)
     valid_prior = population_prior(N_VALID, seed=1000)     # the same participants
     print(f"\n2. Validation on {N_VALID} other simulated participants (population seed 1000; "
-          "the musculoskeletal participant is not in this branch's sim_backends)")
+          "template participants; musculoskeletal ones: bench_design_msk)")
     short = {"Kp": "Kp", "wn_rad_s": "wn", "zeta": "zeta"}
     head = (f"   {'':<19}{'curves at 15 levels':>27}{'identified levels':>27}\n"
             f"   {'protocol':<10}{'stim':>9}" + "".join(f"{short[n]:>9}" for n in PARAMETERS) * 2
