@@ -126,11 +126,11 @@ def _regress(s: np.ndarray, ref: np.ndarray, fs: float, keep: np.ndarray,
     floor = 1e-9 * max(float(np.std(y)), 1e-12)
     r = y - X @ beta
     l1 = float(np.sum(np.abs(r)))
-    for _ in range(30):   # stop once the sum of |residuals| improves by < 0.01 %
+    for _ in range(30):   # stop once the sum of |residuals| improves by < 0.1 %
         beta = _weighted_solve(X, y, 1.0 / np.maximum(np.abs(r), floor))
         r = y - X @ beta
         l1, before = float(np.sum(np.abs(r))), l1
-        if before - l1 < 1e-4 * l1:
+        if before - l1 < 1e-3 * l1:
             break
     u = s - Xall @ beta
     if edge:   # the held edges are not the reference: no evidence there either way
