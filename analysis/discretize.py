@@ -24,7 +24,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import linalg
+
+from analysis.signal_kernels import expm
 
 #: Relative step of the central differences used for coefficient derivatives.
 _FD_STEP = 1e-6
@@ -327,7 +328,7 @@ def foh_tf(A: np.ndarray, B: np.ndarray, C: np.ndarray, dt_s: float
     em[:n, :n] = A * dt_s
     em[:n, n] = B * dt_s
     em[n, n + 1] = 1.0
-    ms = linalg.expm(em)
+    ms = expm(em)
     ad = ms[:n, :n]
     m12 = ms[:n, n]
     m13 = ms[:n, n + 1]

@@ -119,6 +119,14 @@ class _Work:
     force: np.ndarray
     noise_sd: float = float("nan")
     bridged_s: float = 0.0
+    smooth_cache: dict = dataclasses.field(default_factory=dict)
+
+    def smoothed(self, n: int, s: QCSettings) -> tuple[np.ndarray, float]:
+        """The first ``n`` samples of the (possibly bridged) force, smoothed once."""
+        key = (n, id(self.force))
+        if key not in self.smooth_cache:
+            self.smooth_cache[key] = smoothed(self.force[:n], float(self.trial.fs_Hz), s)
+        return self.smooth_cache[key]
 
 
 def _window_start(trial) -> float:
@@ -213,7 +221,7 @@ def _compare(works: list[_Work], s: QCSettings, neighbour: np.ndarray | None) ->
     fs = float(same[0].trial.fs_Hz)
     sig = []
     for w in same:
-        y, fs_s = smoothed(w.force[:n], fs, s)
+        y, fs_s = w.smoothed(n, s)
         sig.append(y)
     u, flags, rms, typical, response, refs, limit = unshared(sig, fs_s, s)
     devs = [deviations(u[i], flags[i], rms[i], fs_s, typical, s) for i in range(len(same))]
@@ -279,7 +287,7 @@ def _level_reference(works: list[_Work], s: QCSettings) -> np.ndarray | None:
     same, n = _comparable(live, s.rE_match_tol)
     if not same:
         return None
-    sig = [smoothed(w.force[:n], float(w.trial.fs_Hz), s)[0] for w in same]
+    sig = [w.smoothed(n, s)[0] for w in same]
     S = np.vstack(sig)
     return np.median(S - np.median(S, axis=1, keepdims=True), axis=0)
 
@@ -358,16 +366,22 @@ def assess_session(session, settings: QCSettings | None = None) -> SessionQC:
                         f"lead-in noise {w.noise_sd:.3g} N is {w.noise_sd / typical:.1f}x "
                         f"the session's median {typical:.3g} N (loose electrode or cable, "
                         "or activity the stimulation did not cause)")
-    refs = {k: _level_reference(works[k], s) if len(works[k]) >= 3 else None for k in keys}
+    refs: dict = {}
+
+    def reference(k):          # computed only for a two-repeat level's neighbours
+        if k not in refs:
+            refs[k] = _level_reference(works[k], s)
+        return refs[k]
+
     levels = []
     for i, k in enumerate(keys):
         neighbour = None
         if sum(w.verdict.decision != EXCLUDED for w in works[k]) == 2:
-            near = [refs[keys[j]] for j in (i - 1, i + 1) if 0 <= j < len(keys)
-                    and refs[keys[j]] is not None]
+            around = [keys[j] for j in (i - 1, i + 1) if 0 <= j < len(keys)]
+            near = [reference(j) for j in around if len(works[j]) >= 3]
+            near = [x for x in near if x is not None]
             if not near:
-                near = [_level_reference(works[keys[j]], s) for j in (i - 1, i + 1)
-                        if 0 <= j < len(keys)]
+                near = [reference(j) for j in around]
                 near = [x for x in near if x is not None]
             if near:
                 m = min(x.size for x in near)

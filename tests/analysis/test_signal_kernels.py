@@ -134,8 +134,29 @@ def test_identification_path_does_not_import_scipy_signal():
     import subprocess
     import sys
     code = ("import sys, analysis.run; "
-            "print(sorted(m for m in sys.modules if m.startswith(('scipy.signal', "
+            "print(sorted(m for m in sys.modules if m.startswith(('scipy.signal', 'scipy.linalg', "
             "'scipy.ndimage', 'scipy.special', 'matplotlib'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.strip()
     assert out == "[]"
+
+
+@pytest.mark.parametrize("n,scale,seed", [(1, 0.01, 0), (3, 0.1, 1), (4, 1.0, 2),
+                                          (5, 7.0, 3), (2, 40.0, 4), (6, 0.0, 5)])
+def test_expm_matches_scipy(n, scale, seed):
+    from scipy.linalg import expm as scipy_expm
+    from analysis.signal_kernels import expm
+    M = np.random.default_rng(seed).normal(0, scale, (n, n))
+    want = scipy_expm(M)
+    np.testing.assert_allclose(expm(M), want, rtol=1e-12, atol=1e-14 * np.abs(want).max())
+
+
+def test_expm_closed_forms():
+    from analysis.signal_kernels import expm
+    t = 0.3
+    np.testing.assert_allclose(expm([[0.0, t], [-t, 0.0]]),
+                               [[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]], rtol=1e-14)
+    np.testing.assert_allclose(expm([[-2.0, 1.0], [0.0, -2.0]]),
+                               np.exp(-2.0) * np.array([[1.0, 1.0], [0.0, 1.0]]), rtol=1e-14)
+    with pytest.raises(ValueError, match="square"):
+        expm(np.ones((2, 3)))
