@@ -162,4 +162,3 @@ def with_paper_excitation(candidates: list[Candidate], paper: Candidate | None =
     key = (ref.input_kind, ref.chirp_s, ref.chirp_f0_Hz, ref.chirp_f1_Hz, ref.rE_amplitude)
     return [c for c in candidates
             if (c.input_kind, c.chirp_s, c.chirp_f0_Hz, c.chirp_f1_Hz, c.rE_amplitude) == key]
-

@@ -72,21 +72,27 @@ def smoothed(force_N: np.ndarray, fs_Hz: float, settings: QCSettings) -> tuple[n
     return y[::step].copy(), fs_Hz / step
 
 
-def shared_regressors(ref: np.ndarray, fs: float, half_s: float,
-                      tap_s: float = 0.02) -> np.ndarray:
-    """Columns of what a trial may share with its reference: the reference delayed and
-    advanced by lags ``0, +-tap_s, +-2 tap_s, ...`` up to ``half_s`` (a two-sided FIR
-    filter; edges held), or with ``half_s`` below one tap the reference and its
-    derivative (gain and a small time shift); then an offset and a drift.
+TAP_S = 0.02
+"""Spacing of the shared filter's taps: 50 Hz, above twice the comparison's 20 Hz
+bandwidth (:attr:`QCSettings.lowpass_Hz`), so the taps lose nothing the signals hold."""
 
-    ``tap_s`` 0.02 s samples the filter at 50 Hz, above twice the comparison's 20 Hz
-    bandwidth (:attr:`QCSettings.lowpass_Hz`), so the taps lose nothing the signals hold.
-    """
+
+def _filter_lags(fs: float, half_s: float) -> tuple[int, int]:
+    """(tap spacing, largest lag) in samples of the shared filter; lag 0: no filter."""
+    step = max(1, int(round(TAP_S * fs)))
+    lags = int(round(half_s * fs)) // step * step
+    return step, (lags if lags >= step else 0)
+
+
+def shared_regressors(ref: np.ndarray, fs: float, half_s: float) -> np.ndarray:
+    """Columns of what a trial may share with its reference: the reference delayed and
+    advanced by every tap (:data:`TAP_S`) up to ``half_s`` (a two-sided FIR filter; edges
+    held), or with ``half_s`` below one tap the reference and its derivative (gain and a
+    small time shift); then an offset and a drift."""
     n = ref.size
     t = np.arange(n) / fs
-    step = max(1, int(round(tap_s * fs)))
-    lags = int(round(half_s * fs)) // step * step
-    if lags < step:
+    step, lags = _filter_lags(fs, half_s)
+    if not lags:
         cols = [ref, np.gradient(ref) * fs]
     else:
         padded = np.concatenate([np.full(lags, ref[0]), ref, np.full(lags, ref[-1])])
@@ -122,7 +128,7 @@ def _regress(s: np.ndarray, ref: np.ndarray, fs: float, keep: np.ndarray,
         inside = keep
     X = Xall[inside]
     y = s[inside]
-    beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+    beta = _weighted_solve(X, y, np.ones(y.size))      # least squares to start from
     floor = 1e-9 * max(float(np.std(y)), 1e-12)
     r = y - X @ beta
     l1 = float(np.sum(np.abs(r)))
@@ -139,12 +145,11 @@ def _regress(s: np.ndarray, ref: np.ndarray, fs: float, keep: np.ndarray,
     return u
 
 
-def filter_edge(n: int, fs: float, half_s: float, tap_s: float = 0.02) -> int:
+def filter_edge(n: int, fs: float, half_s: float) -> int:
     """Samples at each end of a record where the shared filter reaches past it (its
     lagged references are held edges there, not the reference): 0 without the filter."""
-    step = max(1, int(round(tap_s * fs)))
-    lags = int(round(half_s * fs)) // step * step
-    return lags if lags >= step and 2 * lags < n else 0
+    lags = _filter_lags(fs, half_s)[1]
+    return lags if 2 * lags < n else 0
 
 
 def _window_rms(u: np.ndarray, w: int) -> np.ndarray:

@@ -56,15 +56,15 @@ class QCSettings:
     rested before it (post-activation potentiation, residual force), which the protocol
     does not hold equal, and the fit never sees this part of the lead-in."""
     shared_filter_s: float = 0.3
-    """Repeats may differ by a short linear filter, not only by gain and a time shift: the
-    trial is compared with its repeats' reference passed through the best two-sided FIR
-    filter of this half-length (taps at the comparison rate). Muscle dynamics vary from
+    """Repeats may differ by a short linear filter, not only by gain and a time shift: each
+    repeat is compared with every other one passed through the best two-sided FIR filter
+    of this half-length (taps every 20 ms). Muscle dynamics vary from
     one trial to the next (a few % in wn or zeta: potentiation, temperature, strap
     tension), which changes gain and phase near the resonance; that is a response to rE,
     not an artefact. 0.3 s resolves changes about 1.7 Hz wide, the width of the elbow's
-    resonance peak (2 zeta wn at wn 13-46 rad/s, zeta 0.5-0.95). A filtered reference
+    resonance peak (2 zeta wn at wn 13-46 rad/s, zeta 0.5-0.95). A filtered repeat
     holds only the frequencies rE drives, so a contraction, a jump or a knock (slow or
-    broadband force the reference lacks) stays unexplained. 0: gain and a time shift only
+    broadband force the other repeats lack) stays unexplained. 0: gain and a time shift only
     (the first release's comparison)."""
     deviation_k: float = 4.0
     """A window is flagged when its unshared RMS exceeds this multiple of the level's
