@@ -1,6 +1,6 @@
 """Driver figures: STG download rendering, stop latency, Leptrino codec and pty stream.
 
-Measured against the fakes in tests/drivers/fakes (no hardware here), so they are the
+Measured against the fakes in testing/fakes (no hardware here), so they are the
 host-side costs of the drivers, not the devices' own latencies:
 
 * rendering + quantising + checking one paper trial (15 s, 2 channels, 50 kHz output) and

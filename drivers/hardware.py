@@ -6,7 +6,7 @@ stimulator and configures the acquisition in its set-up); the E-stop switch is o
 once so that a wrong port fails before the session starts.
 
 With ``fake = true`` in ``[rig]`` (or ``NMSID_HW_FAKE=1``) the same drivers run against the
-faithful fakes of ``tests/drivers/fakes`` (McsUsbNet, CAIO, nidaqmx, a Leptrino emulator on
+faithful fakes of ``testing/fakes`` (McsUsbNet, CAIO, nidaqmx, a Leptrino emulator on
 a pseudo-terminal, a ``loop://`` serial E-stop), coupled through a simulated force model.
 For testing the software only: never with a participant.
 """
@@ -197,7 +197,7 @@ def _fake_wiring(cfg: HardwareConfig, bench) -> dict:
 
 def _install_fakes(cfg: HardwareConfig) -> FakeStack:
     """Put the fake vendor modules in place and wire the fake bench (fake mode only)."""
-    log.warning("FAKE hardware: %s runs against the fakes in tests/drivers/fakes, "
+    log.warning("FAKE hardware: %s runs against the fakes in testing/fakes, "
                 "no device is used", cfg.source)
     bench = load_fake("bench").FakeBench(speed=cfg.fake_speed)
     s = cfg.stimulator

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-LAYERS = {"protocols": 0, "drivers": 1, "sim_backends": 2, "analysis": 3, "export": 3,
+LAYERS = {"protocols": 0, "testing": 0, "drivers": 1, "sim_backends": 2, "analysis": 3, "export": 3,
           "study": 4, "rig": 5}
 NOT_PACKAGES = {"tests", "bench", "docs", "build", "dist"}
 

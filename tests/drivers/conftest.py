@@ -1,4 +1,4 @@
-"""Shared fixtures of the driver tests: the fakes, loaded as ``nmsid_hw_fakes``."""
+"""Shared fixtures of the driver tests: the fakes, the package ``testing.fakes``."""
 
 from __future__ import annotations
 

@@ -1,0 +1,1 @@
+"""Fakes of the vendor libraries (see the package docstring of ``testing``)."""
