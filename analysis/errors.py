@@ -1,21 +1,24 @@
 """Exceptions of the identification and model-selection module.
 
-Every exception subclasses a builtin so that the ``nmsid`` command turns it into one line.
+Every exception subclasses a branch of :mod:`nmsid.errors`; the ``nmsid`` command turns a
+user error into one line.
 Messages name the file, setting or value and say what would be valid.
 """
 
 from __future__ import annotations
 
+from nmsid.errors import UserError
 
-class SettingError(ValueError):
+
+class SettingError(UserError):
     """An identification setting has a value that cannot be used (message names it)."""
 
 
-class IdentificationError(ValueError):
+class IdentificationError(UserError):
     """A level or session cannot be identified (no usable trial, too few samples, ...)."""
 
 
-class TwinFileError(ValueError):
+class TwinFileError(UserError):
     """A twin file is missing, unreadable or breaks ``docs/twin-file.md``."""
 
     def __init__(self, path, problem: str):

@@ -1,16 +1,17 @@
 """Exceptions of the hardware drivers.
 
-Every exception subclasses a builtin so that the ``nmsid`` command turns it into one
-line (``rig.cli`` catches ``ValueError``, ``OSError``, ``ImportError`` ...). Messages name
-the device, setting or library and say what would be valid or how to fix it.
+Every exception subclasses a branch of :mod:`nmsid.errors` (device faults, user errors,
+missing libraries). Messages name the device, setting or library and say what would be
+valid or how to fix it.
 """
 
 from __future__ import annotations
 
-from drivers.interfaces import CurrentLimitError
+from nmsid.drivers.interfaces import CurrentLimitError
+from nmsid.errors import DeviceFault, MissingDependency, UserError
 
 
-class VendorLibraryMissing(ImportError):
+class VendorLibraryMissing(MissingDependency):
     """A vendor library (Python package, .NET assembly or shared library) is not installed.
 
     The message is one line: what is missing, what needs it and how to install it.
@@ -26,19 +27,19 @@ class VendorLibraryMissing(ImportError):
         self.how_to_install = how_to_install
 
 
-class DeviceNotFound(OSError):
+class DeviceNotFound(DeviceFault):
     """The configured device is not connected, not powered, or its serial does not match."""
 
 
-class DeviceError(OSError):
+class DeviceError(DeviceFault):
     """A vendor call failed; the message names the call and the vendor's error text."""
 
 
-class ProtocolError(OSError):
+class ProtocolError(DeviceFault):
     """A device answered outside its documented protocol (bad frame, NAK, error result)."""
 
 
-class HardwareConfigError(ValueError):
+class HardwareConfigError(UserError):
     """The hardware configuration file holds a missing, unknown or invalid setting."""
 
 

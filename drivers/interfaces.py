@@ -21,8 +21,10 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from nmsid.errors import SafetyError
 
-class CurrentLimitError(ValueError):
+
+class CurrentLimitError(SafetyError, ValueError):
     """A stimulation current would exceed its ceiling (nothing was sent)."""
 
 

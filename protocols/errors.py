@@ -1,9 +1,11 @@
-"""Exceptions of the protocol layer; each subclasses a builtin and names what is wrong."""
+"""Exceptions of the protocol layer; user errors (:class:`nmsid.errors.UserError`) that name what is wrong."""
 
 from __future__ import annotations
 
+from nmsid.errors import UserError
 
-class ConfigError(ValueError):
+
+class ConfigError(UserError):
     """A configuration value is refused (before anything is stimulated).
 
     Parameters
@@ -27,9 +29,9 @@ class ConfigError(ValueError):
         super().__init__(f"{self.source}: setting {setting} = {value!r} is refused: {valid}")
 
 
-class CalibrationError(ValueError):
+class CalibrationError(UserError):
     """A calibration ramp did not give usable Imin / Imax (or manual values are invalid)."""
 
 
-class ScheduleError(ValueError):
+class ScheduleError(UserError):
     """A schedule cannot be built from the given levels / repeats / randomisation."""

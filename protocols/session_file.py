@@ -36,6 +36,8 @@ from typing import Any
 
 import numpy as np
 
+from nmsid.errors import UserError
+
 FORMAT = "nmsid-session"
 FORMAT_VERSION = 1
 PARTICIPANT_PATTERN = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
@@ -119,7 +121,7 @@ def utc_now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
-class SessionFileError(ValueError):
+class SessionFileError(UserError):
     """A session file is missing, unreadable or breaks the contract.
 
     The message names the file and the item, and says what would be valid.
@@ -131,7 +133,7 @@ class SessionFileError(ValueError):
         super().__init__(f"{self.path}: {problem}")
 
 
-class SessionExistsError(FileExistsError):
+class SessionExistsError(UserError, FileExistsError):
     """Refused to create a session file where a file already exists (never overwrite)."""
 
     def __init__(self, path: str | os.PathLike):

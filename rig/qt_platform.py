@@ -20,6 +20,8 @@ import os
 import sys
 from typing import Callable
 
+from nmsid.errors import MissingDependency
+
 #: soname -> Debian/Ubuntu package, for every system library Qt 6's xcb plugin links.
 XCB_PLUGIN_LIBRARIES: dict[str, str] = {
     "libxcb.so.1": "libxcb1",
@@ -46,7 +48,7 @@ XCB_PLUGIN_LIBRARIES: dict[str, str] = {
 }
 
 
-class QtPlatformLibrariesMissing(OSError):
+class QtPlatformLibrariesMissing(MissingDependency):
     """System libraries of Qt's xcb platform plugin are missing (the message says which
     packages to install)."""
 

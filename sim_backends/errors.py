@@ -1,16 +1,17 @@
 """Exceptions of the simulated rig.
 
-Each subclasses a builtin (and, for device faults, the drivers' own exceptions) so that
+Each subclasses a branch of :mod:`nmsid.errors` (device faults: the drivers' own) so that
 the engine can catch a simulated fault exactly as it catches a real one, and the CLI turns
 a user mistake into one line.
 """
 
 from __future__ import annotations
 
-from drivers.errors import DeviceError
+from nmsid.drivers.errors import DeviceError
+from nmsid.errors import UserError
 
 
-class SimConfigError(ValueError):
+class SimConfigError(UserError):
     """A virtual participant, effect, twin file or fault script setting is invalid.
 
     The message names the setting, the value and what would be valid.

@@ -1,7 +1,9 @@
-"""Exceptions of the study package (each subclasses a builtin)."""
+"""Exceptions of the study package (each a branch of :mod:`nmsid.errors`)."""
 
 from __future__ import annotations
 
+from nmsid.errors import UserError
 
-class StudyConfigError(ValueError):
+
+class StudyConfigError(UserError):
     """A STUDY.toml or study folder is unusable; the message names the file and setting."""

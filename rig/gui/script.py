@@ -35,6 +35,8 @@ from pathlib import Path
 
 from PySide6.QtCore import QObject, QTimer, Signal
 
+from nmsid.errors import UserError
+
 log = logging.getLogger(__name__)
 
 DEFAULT_TIMEOUT_S = 600.0
@@ -84,7 +86,7 @@ tab live
 """
 
 
-class ScriptError(ValueError):
+class ScriptError(UserError):
     """A script line is not understood (names the line) or a wait timed out."""
 
 
@@ -217,7 +219,7 @@ def load_script(name_or_path: str) -> list[Step]:
 
 
 class ScriptRunner(QObject):
-    """Runs steps against a :class:`~rig.gui.main_window.MainWindow` from a Qt timer.
+    """Runs steps against a :class:`~nmsid.rig.gui.main_window.MainWindow` from a Qt timer.
 
     Signals
     -------

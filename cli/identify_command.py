@@ -1,5 +1,5 @@
 """The handlers of ``nmsid identify`` and ``nmsid twin simulate`` (registered by
-:mod:`analysis.cli_identify`)."""
+:mod:`nmsid.cli.identify`)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,10 @@ import csv
 
 import numpy as np
 
-from analysis.run import run_identification, summary_line
-from analysis.settings import IdentificationSettings
-from analysis.twin import Twin
+from nmsid.analysis.run import run_identification, summary_line
+from nmsid.analysis.settings import IdentificationSettings
+from nmsid.analysis.twin import Twin
+from nmsid.cli.errors import InputFileError, UsageError
 
 
 def settings_from_args(args):
@@ -49,12 +50,12 @@ def _read_input_csv(path: str):
         with open(path, newline="", encoding="utf-8") as fh:
             rows = list(csv.reader(fh))
     except OSError as exc:
-        raise OSError(f"{path}: cannot read the input CSV ({exc.strerror or exc})") from None
+        raise InputFileError(f"{path}: cannot read the input CSV ({exc.strerror or exc})") from None
     if len(rows) < 3:
-        raise ValueError(f"{path}: needs a header row and at least 2 samples")
+        raise InputFileError(f"{path}: needs a header row and at least 2 samples")
     header = [h.strip() for h in rows[0]]
     if "rE" not in header:
-        raise ValueError(f"{path}: header {header} has no 'rE' column (columns: rE, "
+        raise InputFileError(f"{path}: header {header} has no 'rE' column (columns: rE, "
                          "optional sE and t_s)")
     cols = {}
     for name in ("rE", "sE", "t_s"):
@@ -63,7 +64,7 @@ def _read_input_csv(path: str):
             try:
                 cols[name] = np.array([float(r[j]) for r in rows[1:] if r], dtype=float)
             except (ValueError, IndexError):
-                raise ValueError(f"{path}: column {name!r} holds a non-number") from None
+                raise InputFileError(f"{path}: column {name!r} holds a non-number") from None
     return cols
 
 
@@ -76,7 +77,7 @@ def run_twin_simulate(args) -> int:
         t = np.arange(n) / fs
         tc = np.clip(t - args.steady_s, 0.0, None)
         if not (args.f1_Hz > 0 and args.f0_Hz > 0 and args.f1_Hz != args.f0_Hz):
-            raise ValueError(f"--f0-Hz {args.f0_Hz} and --f1-Hz {args.f1_Hz} must be "
+            raise UsageError(f"--f0-Hz {args.f0_Hz} and --f1-Hz {args.f1_Hz} must be "
                              "different positive frequencies")
         k = args.f1_Hz / args.f0_Hz
         phi = 2 * np.pi * args.f0_Hz * args.chirp_s / np.log(k) * (k ** (tc / args.chirp_s) - 1)
@@ -91,7 +92,7 @@ def run_twin_simulate(args) -> int:
         elif "t_s" in cols and len(cols["t_s"]) > 1:
             dt = np.diff(cols["t_s"])
             if not np.all(dt > 0) or np.ptp(dt) > 1e-6 * np.mean(dt):
-                raise ValueError(f"{args.input}: t_s must be uniformly increasing")
+                raise InputFileError(f"{args.input}: t_s must be uniformly increasing")
             fs = 1.0 / float(np.mean(dt))
         else:
             fs = 2000.0
@@ -99,7 +100,7 @@ def run_twin_simulate(args) -> int:
     if args.sE is not None:
         sE = np.full(len(rE), args.sE)
     if sE is None:
-        raise ValueError("give --sE, or an 'sE' column in the --input CSV")
+        raise UsageError("give --sE, or an 'sE' column in the --input CSV")
     force = twin.simulate(rE, sE, fs, clip=not args.extrapolate)
     with open(args.out, "w", encoding="utf-8") as fh:
         fh.write("t_s,rE,sE,force_N\n")

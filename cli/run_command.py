@@ -1,4 +1,4 @@
-"""The handlers of ``nmsid run`` and ``nmsid recover`` (registered by :mod:`rig.cli_run`).
+"""The handlers of ``nmsid run`` and ``nmsid recover`` (registered by :mod:`nmsid.cli.run`).
 
 ``run`` builds the configuration and the rig (simulated or hardware), runs the engine in a
 worker thread (Ctrl+C is an E-stop), prints progress, then identifies the new file.
@@ -15,14 +15,15 @@ import threading
 import zlib
 from pathlib import Path
 
-from analysis.run import run_identification, summary_line
-from drivers.hardware import make_hw_rig
-from protocols.config import config_from_json, load_config
-from protocols.session_file import read_session, validate_session
-from rig.engine import Engine, TripPolicy
-from rig.session_log import journal_dir, recover
-from sim_backends import make_sim_rig
-from sim_backends.participant_models import participant_for_model
+from nmsid.analysis.run import run_identification, summary_line
+from nmsid.cli.errors import UsageError
+from nmsid.drivers.hardware import make_hw_rig
+from nmsid.protocols.config import config_from_json, load_config
+from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.engine import Engine, TripPolicy
+from nmsid.rig.session_log import journal_dir, recover
+from nmsid.sim_backends import make_sim_rig
+from nmsid.sim_backends.participant_models import participant_for_model
 
 
 def recover_cmd(args) -> int:
@@ -38,14 +39,14 @@ def recover_cmd(args) -> int:
 
 
 def run(args) -> int:
-    log = logging.getLogger("rig.run_command")
+    log = logging.getLogger("nmsid.cli.run_command")
     if args.resume and (args.config or args.participant or args.seed is not None
                         or args.participant_model):
-        raise ValueError("--resume continues a session with the configuration stored in its "
+        raise UsageError("--resume continues a session with the configuration stored in its "
                          "file; do not give --config, --participant, --participant-model or "
                          "--seed with it")
     if args.realtime and args.backend != "sim":
-        raise ValueError("--realtime applies to --backend sim (hardware is always real time)")
+        raise UsageError("--realtime applies to --backend sim (hardware is always real time)")
     if args.resume:
         path = Path(args.resume)
         config = _stored_config(path)
@@ -135,13 +136,13 @@ def _free_path(outdir, participant: str):
         p = outdir / (f"{participant}-{stamp}" + (f"-{k}" if k > 1 else "") + ".h5")
         if not p.exists() and not journal_dir(p).exists():
             return p
-    raise FileExistsError(f"{outdir}: no free session file name for {participant}-{stamp}")
+    raise UsageError(f"{outdir}: no free session file name for {participant}-{stamp}")
 
 
 def _make_devices(args, config, sim_seed):
     if args.backend == "hw":
         if not args.hw_config:
-            raise ValueError("--backend hw needs --hw-config FILE (the rig's hardware "
+            raise UsageError("--backend hw needs --hw-config FILE (the rig's hardware "
                              "configuration)")
         return make_hw_rig(args.hw_config)
     return make_sim_rig(participant_for_model(config.participant_model, int(sim_seed)),

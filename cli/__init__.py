@@ -1,0 +1,143 @@
+"""The ``nmsid`` command: one entry point, one sub-command per job.
+
+Each sub-command is a registration module here (``nmsid.cli.<name>``: argparse only,
+``register(subparsers)``, so ``nmsid --help`` imports no numpy or Qt) and a handler module
+(``nmsid.cli.<name>_command``), imported only when the sub-command runs.
+
+What ends a command (:mod:`nmsid.errors`):
+
+* a user error (bad file, setting or value; a missing optional package; a file-system error
+  on a path the user gave): one line, exit status 2;
+* a device fault: one line, exit status 3; a safety refusal: one line, exit status 4;
+* anything else is a bug: its traceback, one line saying so, exit status 1.
+
+``--debug`` shows the traceback of every error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import importlib
+import logging
+import sys
+import traceback
+
+from nmsid.errors import (EXIT_BUG, EXIT_USER_ERROR, DeviceFault, MissingDependency,
+                          NmsidError, SafetyError, UserError)
+
+#: Modules that each add one or more sub-commands.
+COMMAND_MODULES = (
+    "nmsid.cli.run",          # run, recover
+    "nmsid.cli.validate",     # validate
+    "nmsid.cli.identify",  # identify, twin
+    "nmsid.cli.qc",      # qc
+    "nmsid.cli.gap",     # gap
+    "nmsid.cli.design",  # design
+    "nmsid.cli.probe",    # probe
+    "nmsid.cli.gui",          # gui
+    "nmsid.cli.export",    # export nwb
+    "nmsid.cli.study",      # study
+)
+
+#: errno values of file-system errors that are the user's to fix (a path that does not
+#: exist, is not allowed, is full, is read-only, ...), not bugs.
+_USER_ERRNOS = frozenset({errno.EPERM, errno.ENOENT, errno.EACCES, errno.EEXIST, errno.ENOTDIR,
+                          errno.EISDIR, errno.ENOSPC, errno.EROFS, errno.ENAMETOOLONG,
+                          errno.ENOTEMPTY, errno.EDQUOT})
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="nmsid",
+        description="FES neuromuscular-system identification: run sessions on a simulated "
+                    "or real rig, identify the second-order model per sE, select models "
+                    "across sE, and diagnose the sim-to-real gap.")
+    parser.add_argument("--debug", action="store_true",
+                        help="show full tracebacks instead of one-line error messages")
+    parser.add_argument("-v", "--verbose", action="count", default=0,
+                        help="more log output (-v info, -vv debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:  # that command is not part of this build
+                continue
+            raise
+        module.register(sub)
+    return parser
+
+
+def _third_party_missing(exc: BaseException) -> str | None:
+    """The name of a missing optional third-party package, or None."""
+    if isinstance(exc, ImportError) and not isinstance(exc, NmsidError):
+        name = getattr(exc, "name", None)
+        if name and not name.split(".")[0] == "nmsid":
+            return name
+    return None
+
+
+def _user_os_error(exc: BaseException) -> bool:
+    """A file-system error on a path (the user's to fix), not an internal failure."""
+    return (isinstance(exc, OSError) and not isinstance(exc, NmsidError)
+            and exc.errno in _USER_ERRNOS and exc.filename is not None)
+
+
+def report(exc: BaseException, command: str) -> int:
+    """Print one line for an error the user can act on; return the exit status.
+
+    Returns ``EXIT_BUG`` (and prints nothing) for anything that is not such an error.
+    """
+    missing = _third_party_missing(exc)
+    if missing:
+        print(f"nmsid: error: the Python package {missing!r} is needed for "
+              f"`nmsid {command}`; install nmsid with the matching extra, e.g. "
+              "pip install 'nmsid[gui,plot,serial]'", file=sys.stderr)
+        return EXIT_USER_ERROR
+    if isinstance(exc, (UserError, MissingDependency)):
+        print(f"nmsid: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    if _user_os_error(exc):
+        print(f"nmsid: error: {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    if isinstance(exc, DeviceFault):
+        print(f"nmsid: device error: {exc}", file=sys.stderr)
+        return DeviceFault.exit_code
+    if isinstance(exc, SafetyError):
+        print(f"nmsid: safety: {exc}", file=sys.stderr)
+        return SafetyError.exit_code
+    return EXIT_BUG
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    handler = getattr(args, "handler", None)
+    if handler is None:
+        parser.print_help()
+        return EXIT_USER_ERROR
+    module_name, func_name = handler.split(":")
+    try:
+        func = getattr(importlib.import_module(module_name), func_name)
+        result = func(args)
+    except KeyboardInterrupt:
+        print("nmsid: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - sorted into user errors and bugs below
+        if args.debug:
+            raise
+        status = report(exc, args.command)
+        if status == EXIT_BUG:
+            traceback.print_exc()
+            print(f"nmsid: internal error in `nmsid {args.command}` (a bug, not your "
+                  "input): please report it with the traceback above", file=sys.stderr)
+        return status
+    return int(result or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

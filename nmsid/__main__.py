@@ -1,0 +1,7 @@
+"""``python -m nmsid`` is the ``nmsid`` command."""
+
+import sys
+
+from nmsid.cli import main
+
+sys.exit(main())
