@@ -22,6 +22,7 @@ from nmsid.analysis.report import (parameter_table, selection_tables, write_mode
                                    write_parameters_csv, write_text)
 from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
 from nmsid.analysis.twin import Twin, source_entry, twin_from_selection
+from nmsid.errors import UserError
 
 logger = logging.getLogger(__name__)
 
@@ -104,7 +105,7 @@ def run_identification(sessions, out_dir: str | os.PathLike,
     for src in sessions:
         try:
             res = identify_session(src, s)
-        except (ValueError, OSError) as exc:
+        except (UserError, OSError) as exc:  # a file or data problem; bugs propagate
             text = str(exc)  # file errors already start with the file's name
             problems.append((text if text.startswith(str(src)) else f"{src}: {text}")
                             + "; session skipped")
@@ -136,14 +137,14 @@ def run_identification(sessions, out_dir: str | os.PathLike,
             twins[label] = twin_from_selection(selection, label, baseline_N=baselines[label],
                                                calibration=res.calibration,
                                                source=[sources(res.source)])
-        except ValueError as exc:
+        except IdentificationError as exc:
             problems.append(f"twin not written: {exc}")
     if group:
         try:
             twins[AVERAGE_LABEL] = twin_from_selection(
                 selection, AVERAGE_LABEL, baseline_N=float(np.mean(list(baselines.values()))),
                 source=[sources(r.source) for r in results])
-        except ValueError as exc:
+        except IdentificationError as exc:
             problems.append(f"twin not written: {exc}")
         for label in selection.participants:
             if label in twins:

@@ -21,7 +21,7 @@ import numpy as np
 
 from nmsid.analysis.curves import evaluate_curve
 from nmsid.analysis.discretize import foh_coefficients, foh_state_matrices
-from nmsid.analysis.errors import TwinFileError
+from nmsid.analysis.errors import IdentificationError, TwinFileError
 from nmsid.analysis.signal_kernels import lfilter
 
 FORMAT = "nmsid-twin"
@@ -308,7 +308,7 @@ def twin_from_selection(selection, label: str, *, baseline_N: float = 0.0,
         comp = selection.comparison(name, label)
         if comp is None or comp.selected is None:
             why = "; ".join(comp.problems) if comp else "no comparison"
-            raise ValueError(f"no twin for {label}: {name} has no selected model ({why})")
+            raise IdentificationError(f"no twin for {label}: {name} has no selected model ({why})")
         curves[name] = Curve(comp.selected, list(comp.selected_fit.coefficients))
         x, _ = comp.used_points()
         lo, hi = min(lo, float(x.min())), max(hi, float(x.max()))
