@@ -11,6 +11,7 @@ from pathlib import Path
 import pyqtgraph as pg
 from PySide6.QtWidgets import QApplication
 
+from nmsid.rig.errors import DisplayUnavailable, RequestError
 from nmsid.rig.gui.main_window import MainWindow
 from nmsid.rig.gui.script import ScriptRunner, load_script
 
@@ -67,15 +68,15 @@ def run_gui(options: GuiOptions) -> int:
     application quits. Exit code 1 if the script failed.
     """
     if options.screenshot is not None and options.script is None:
-        raise ValueError("--screenshot saves the window after a scripted run; give "
+        raise RequestError("--screenshot saves the window after a scripted run; give "
                          "--script FILE (or --script demo) too")
     if options.backend not in ("sim", "hw"):
-        raise ValueError(f"--backend {options.backend!r} is not valid: use sim or hw")
+        raise RequestError(f"--backend {options.backend!r} is not valid: use sim or hw")
     steps = load_script(options.script) if options.script else None
     if os.environ.get("QT_QPA_PLATFORM") is None and not os.environ.get("DISPLAY") \
             and not os.environ.get("WAYLAND_DISPLAY") and sys.platform.startswith("linux"):
         if steps is None:
-            raise OSError("no display found (DISPLAY and WAYLAND_DISPLAY are unset): "
+            raise DisplayUnavailable("no display found (DISPLAY and WAYLAND_DISPLAY are unset): "
                           "nmsid gui needs a screen; to run it without one give --script "
                           "(and --screenshot), or use `nmsid run` for a headless session")
         log.warning("no display found; running the script on the offscreen Qt platform")

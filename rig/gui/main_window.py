@@ -24,6 +24,7 @@ import nmsid.rig.gui.qt_compat  # noqa: F401  (before any signal is emitted)
 from PySide6.QtWidgets import (QLabel, QMainWindow, QSplitter, QTabWidget, QVBoxLayout,
                                QWidget)
 
+from nmsid.rig.errors import RequestError
 from nmsid.rig.gui import analysis_hooks
 from nmsid.rig.gui.calibration_panel import CalibrationPanel
 from nmsid.rig.gui.event_log import EventLog
@@ -276,7 +277,7 @@ class MainWindow(QMainWindow):
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         if not self.grab().save(str(path), "PNG"):
-            raise OSError(f"{path}: could not save the screenshot (is the folder writable?)")
+            raise RequestError(f"{path}: could not save the screenshot (is the folder writable?)")
         return path
 
     # -- engine notifications (GUI thread) -------------------------------------------

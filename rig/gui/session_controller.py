@@ -20,6 +20,7 @@ from nmsid.drivers.hardware import make_hw_rig
 from nmsid.protocols.config import config_from_json, load_config
 from nmsid.protocols.session_file import read_session
 from nmsid.rig.engine import Engine
+from nmsid.rig.errors import RequestError
 from nmsid.rig.gui.live_buffer import LiveBuffer
 from nmsid.rig.gui.observer import EngineSignals, QtEngineObserver
 from nmsid.rig.gui.setup_panel import Backend, SessionRequest
@@ -40,7 +41,7 @@ def default_devices(request: SessionRequest, config) -> object:
                                                           "template"), seed),
                             realtime=request.realtime, fs_Hz=config.protocol.fs_Hz)
     if request.hw_config_path is None:
-        raise ValueError("--backend hw needs a hardware configuration file (--hw-config "
+        raise RequestError("--backend hw needs a hardware configuration file (--hw-config "
                          "FILE, or 'Hardware configuration' on the setup panel; see "
                          "docs/hardware.md)")
     return make_hw_rig(request.hw_config_path)

@@ -20,6 +20,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QFileDialog, QFormLayout, Q
 
 from nmsid.protocols.config import config_from_json
 from nmsid.protocols.session_file import PARTICIPANT_PATTERN, SessionWriter, read_session
+from nmsid.rig.errors import RequestError
 from nmsid.rig.gui.theme import Colour
 from nmsid.rig.session_log import journal_dir
 
@@ -286,12 +287,12 @@ class SetupPanel(QWidget):
         """The request the form describes (raises ValueError naming a bad field)."""
         code = self.participant.text()
         if not PARTICIPANT_PATTERN.match(code):
-            raise ValueError(f"participant code {code!r} is not [A-Za-z0-9_-]{{1,64}}")
+            raise RequestError(f"participant code {code!r} is not [A-Za-z0-9_-]{{1,64}}")
         cfg = self.config_path.text().strip()
         hw = self.hw_config_path.text().strip()
         out = self.output_path.text().strip()
         if not out:
-            raise ValueError("no output file chosen")
+            raise RequestError("no output file chosen")
         return SessionRequest(
             participant=code, backend=self.backend.currentData(), output_path=Path(out),
             config_path=Path(cfg) if cfg else None, hw_config_path=Path(hw) if hw else None,
