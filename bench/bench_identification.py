@@ -211,12 +211,17 @@ def speed(tmp: Path, plain_levels: int):
 
     pick = [levels[i] for i in np.linspace(0, len(levels) - 1, plain_levels).astype(int)]
     raw = settings.replace(fit_fs_Hz=None)
-    plain_t, plain_err, our_err, diff_se = 0.0, [], [], []
+    plain_t, fair_t, plain_err, our_err, diff_se = 0.0, 0.0, [], [], []
     for s in pick:
         data = preprocess_trials(groups[s], raw)
         t0 = time.perf_counter()
         est = plain_fit(data.u, data.y_N, data.fs_Hz)
         plain_t += time.perf_counter() - t0
+        # the fair baseline: the same plain fitter on exactly the data ours fits (200 Hz)
+        same = preprocess_trials(groups[s], settings)
+        t0 = time.perf_counter()
+        plain_fit(same.u, same.y_N, same.fs_Hz)
+        fair_t += time.perf_counter() - t0
         kp, wn, z = truth.at(s)
         plain_err.append([abs(est[0] / kp - 1), abs(est[1] / wn - 1), abs(est[2] / z - 1)])
         f = next(lv.fit for lv in out.sessions[0].levels if abs(lv.sE - s) < 1e-6)
@@ -225,7 +230,7 @@ def speed(tmp: Path, plain_levels: int):
                         abs(est[2] - f.zeta) / f.zeta_se])
     plain_per_level = plain_t / len(pick)
     plain_15 = plain_per_level * len(levels)
-    plain_run = ours_total - ours_levels + plain_15   # same read/select/write, plain fitter
+    fair_15 = fair_t / len(pick) * len(levels)
     load = os.getloadavg()
     print(f"\n3. Speed: 45-trial session (15 sE x 3), 2000 Hz, 15 s trials; machine load "
           f"average {load[0]:.1f} / {load[1]:.1f} (1 / 5 min) on {os.cpu_count()} cores")
@@ -235,11 +240,13 @@ def speed(tmp: Path, plain_levels: int):
     print(f"     of which preprocessing + fitting of the 15 levels: {ours_levels:.3f} s "
           f"({ours_levels / len(levels) * 1e3:.1f} ms per level)")
     print(f"   nmsid identify as a new process (Python start + imports + run): {cli_wall:.2f} s")
-    print(f"   plain approach (least_squares over lsim, 3 starts, raw 2000 Hz data), timed on "
-          f"{len(pick)} level(s): {plain_per_level:.1f} s per level -> {plain_15:.0f} s for 15")
-    print(f"   speed-up, fitting only: {plain_15 / ours_levels:.0f}x ; whole run with the "
-          f"plain fitter ({plain_run:.0f} s) vs ours: {plain_run / ours_total:.0f}x   target "
-          f">= 50x  {'OK' if plain_run / ours_total >= 50 else 'MISSED'}")
+    print(f"   baseline, same data and rate: the plain approach (least_squares over lsim, 3 "
+          f"starts) on the 200 Hz data ours fits, timed on {len(pick)} level(s): "
+          f"{fair_15 / len(levels):.2f} s per level -> {fair_15:.1f} s for 15; "
+          f"ours {ours_levels:.3f} s: x{fair_15 / ours_levels:.1f} (fitting only)")
+    print(f"   (the same plain fitter on the raw 2000 Hz data: {plain_per_level:.1f} s per level "
+          f"-> {plain_15:.0f} s for 15; that ratio, x{plain_15 / ours_levels:.0f}, mostly "
+          f"measures decimation, not the fitter: quote the one above)")
     pe, oe = np.array(plain_err), np.array(our_err)
     print(f"   |relative error| on those levels (Kp, wn, zeta): plain "
           f"{', '.join(f'{v:.2e}' for v in pe.mean(axis=0))} ; ours "
