@@ -441,6 +441,11 @@ class Stg4002Stimulator:
 
         check_stop()
         dev.ResetStatus(self._u32(self._all_triggers))  # no status leaks into this trial
+        latched = self._query_locked()
+        if latched is not None and latched.overcurrent is OvercurrentStatus.SHUTDOWN:
+            log.warning("STG: clearing the overcurrent shutdown of the previous trial "
+                        "(ResetOvercurrent) for a new download")
+            dev.ResetOvercurrent()
         self._poll = None
         self._fit_memory(prepared)
         check_stop()
@@ -582,10 +587,14 @@ class Stg4002Stimulator:
     def _on_poll(self, status, stg_status, index_list) -> None:
         """McsUsbNet poll-status callback (runs on the library's thread)."""
         try:
-            self._poll = decode_status(stg_status)
+            ds = decode_status(stg_status)
         except UnknownStatus as exc:
             log.error("STG poll status: %s", exc)
             self._error = self._error or str(exc)
+            return
+        self._poll = ds
+        if ds.trigger(0) in (TriggerStatus.RUNNING, TriggerStatus.FINISHED):
+            self._seen_running = True  # a short Running may fall between two queries
 
     def _query_locked(self) -> DeviceStatus | None:
         """``QueryTriggerstatus()`` decoded, or None if this McsUsbNet lacks it."""

@@ -335,12 +335,29 @@ class FakeStgHardware:
                 out.append(S.Finished)
         return out
 
-    def overcurrent_status(self):
-        return (Stg5OvercurrentStatusEnumNet.Shutdown if self._oc_time() is not None
+    def overcurrent_status(self, t: float | None = None):
+        oc = self._oc_time()
+        t = self.now() if t is None else t
+        return (Stg5OvercurrentStatusEnumNet.Shutdown if oc is not None and t >= oc
                 else Stg5OvercurrentStatusEnumNet.Normal)
 
-    def stg_status(self) -> StgStatusNet:
-        return StgStatusNet(self.status_at(self.now()), self.overcurrent_status())
+    def stg_status(self, t: float | None = None) -> StgStatusNet:
+        t = self.now() if t is None else t
+        return StgStatusNet(self.status_at(t), self.overcurrent_status(t))
+
+    def change_times(self, after: float, until: float) -> list[float]:
+        """Times in (after, until] at which some status changes (for the poll events)."""
+        pts = []
+        for tr in self.triggers:
+            if tr.start_t is None:
+                continue
+            end = self._end(tr)
+            pts += [tr.start_t, tr.run_t, end, end + self.poll_period_s]
+            pts += [x for x in (tr.stop_t, tr.reset_t) if x is not None]
+        oc = self._oc_time()
+        if oc is not None:
+            pts.append(oc)
+        return sorted(p for p in pts if after < p <= until and p != _INF)
 
     # -- playback (what the bench samples) ---------------------------------------------
     @property
@@ -451,6 +468,7 @@ class CStg200xDownloadNet:
         self.disposed = False
         self._generation = -1
         self._last_fired = None
+        self._last_t = -_INF
         self.fail_next: dict[str, Exception] = {}
         _Registry.devices.append(self)
 
@@ -470,14 +488,19 @@ class CStg200xDownloadNet:
         return hw
 
     def _fire_if_changed(self):
+        """McsUsbNet's poll thread, run lazily: one event per status change since the last
+        call (so a short Running or a one-cycle Finished is reported as it would be)."""
         hw = self.hw
         if hw is None or not hw.plugged or hw.plug_generation != self._generation:
             return
-        st = hw.stg_status()
-        key = (tuple(st.TiggerStatus), st.OvercurrentStatus)
-        if key != self._last_fired:
-            self._last_fired = key
-            self.Stg200xPollStatusEvent.fire(UInt32(0), st, [])
+        now = hw.now()
+        for t in [*hw.change_times(self._last_t, now), now]:
+            st = hw.stg_status(t)
+            key = (tuple(st.TiggerStatus), st.OvercurrentStatus)
+            if key != self._last_fired:
+                self._last_fired = key
+                self.Stg200xPollStatusEvent.fire(UInt32(0), st, [])
+        self._last_t = now
 
     def poll(self):
         """What McsUsbNet's poll thread does: fire the event if the status changed."""
