@@ -59,6 +59,7 @@ from drivers.stg_download import (BYTES_PER_POINT, STG4002_OUTPUT_RATE_HZ, Chann
 from drivers.stg_status import (DeviceStatus, OvercurrentStatus, TriggerStatus,
                                 UnknownStatus, decode_status, parse_version_info)
 from drivers.stg_waveform import NA_PER_MA, RenderedChannel
+from drivers.stimulation_report import download_summary
 
 log = logging.getLogger(__name__)
 
@@ -188,6 +189,7 @@ class Stg4002Stimulator:
         self._seen_running = False
         self._poll: DeviceStatus | None = None
         self._generation = 0
+        self._capacity: dict[int, int] = {}
         self._error = ""
         self._stop_error = ""
         """A failed SendStop: the output may still be on; cleared only by connect()."""
@@ -398,6 +400,7 @@ class Stg4002Stimulator:
         if state is StimulatorState.RUNNING:
             raise DeviceError("cannot load a trial while the STG is running; stop it first")
         self.capabilities()
+        self.last_download = None  # until this trial is completely downloaded
         ext, flex = self.plans()
         prepared = prepare_download(waveform, ext, flex, self.sync_out, self.output_rate_Hz)
         self._io.acquire()
@@ -489,6 +492,7 @@ class Stg4002Stimulator:
         if caps is None:
             return  # this McsUsbNet has no download-mode GetCapacity: total checked above
         cap_ch, cap_sync = caps
+        self._capacity = {ch + 1: c for ch, c in enumerate(cap_ch)}
         if _fits(need_ch, cap_ch) and _fits(need_sync, cap_sync):
             return
         n = len(need_ch) + len(need_sync)
@@ -500,6 +504,8 @@ class Stg4002Stimulator:
         log.info("STG memory laid out per channel %s and sync %s bytes (SetCapacity)",
                  new_ch, new_sync)
         caps = self._get_capacity()
+        if caps is not None:
+            self._capacity = {ch + 1: c for ch, c in enumerate(caps[0])}
         if caps is not None and not (_fits(need_ch, caps[0]) and _fits(need_sync, caps[1])):
             raise DeviceMemoryError(
                 f"STG memory layout did not take: channels need {need_ch} bytes, sync "
@@ -663,6 +669,13 @@ class Stg4002Stimulator:
             else:
                 self._fault(f"the STG still reports {trig.name} {elapsed:.3f} s after a "
                             f"{self._duration_s:.3f} s trial started")
+
+    def delivery_summary(self) -> dict | None:
+        """Charge and current figures of the last download (session file
+        ``stimulation_json``), or None before the first load."""
+        if self.last_download is None:
+            return None
+        return download_summary(self.last_download, self._capacity or None)
 
     def describe(self) -> dict:
         """What ``nmsid probe`` prints (after :meth:`connect`)."""

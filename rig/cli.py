@@ -23,6 +23,7 @@ COMMAND_MODULES = (
     "analysis.cli_gap",     # gap
     "analysis.cli_design",  # design
     "drivers.cli_probe",    # probe
+    "drivers.cli_stimulation",  # stimulation
     "rig.cli_gui",          # gui
     "export.cli_export",    # export nwb
     "study.cli_study",      # study
