@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from drivers.dry_run import dry_run_probe
 from drivers.hardware import build_devices
 from drivers.hw_config import load_hw_config
 
@@ -63,6 +64,8 @@ def probe(args) -> int:
             print(f"E-stop switch: {'PRESSED (or unreadable)' if pressed else 'released'}")
         else:
             print("E-stop switch: none configured")
+        if getattr(args, "dry_run", False):
+            ok = dry_run_probe(devices, cfg, args) and ok
     finally:
         devices.close()
     print("probe: OK" if ok else "probe: problems found (see above)")
