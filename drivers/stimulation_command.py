@@ -126,7 +126,7 @@ def run(args) -> int:
     calibration = parse_calibration(args.calibration)
     stim = (load_hw_config(args.hw_config).stimulator if args.hw_config
             else StimulatorConfig())
-    report, samples = render_protocol(args.config, calibration, stim)
+    report, samples = render_protocol(args.config, calibration, stim, stim.output_rate_Hz)
     out.mkdir(parents=True, exist_ok=True)
     (out / "stimulation.json").write_text(json.dumps(report, indent=1) + "\n")
     np.savez_compressed(out / "samples.npz", **samples)

@@ -269,3 +269,15 @@ def test_connect_twice_releases_the_first_connection(fake_mcs):
     stim.connect()
     assert first.disposed and hw.opened_by is reg.devices[-1]
     assert stim.status().state is StimulatorState.IDLE
+
+
+def test_output_rate_setting_of_the_hardware_config(tmp_path):
+    from drivers.errors import HardwareConfigError
+    from drivers.hw_config import parse_hw_config
+    base = {"acquisition": {"kind": "leptrino", "fs_Hz": 1200.0,
+                            "leptrino": {"port": "COM5"}}}
+    cfg = parse_hw_config({**base, "stimulator": {"output_rate_Hz": 25000.0}}, "hw.toml")
+    assert cfg.stimulator.output_rate_Hz == 25000.0
+    with pytest.raises(HardwareConfigError, match=r"hw.toml: stimulator.output_rate_Hz = "
+                                                  r"30000.0 is invalid; 1000 .. 50000 Hz"):
+        parse_hw_config({**base, "stimulator": {"output_rate_Hz": 30000.0}}, "hw.toml")
