@@ -11,25 +11,11 @@ the type metadata of ``x64/McsUsbNet.dll``, see :mod:`drivers.stg_status`); MCS'
 ``Examples/CSharp/STG_Stimulation/Form1.cs``); the ``mcs.stg.sdk`` MATLAB wrapper of
 McsUsbNet (``cstg200x_download_basic.m``) for ``GetCapacity`` / ``SetCapacity``.
 
-Sequence:
-
-* connect: ``CMcsUsbListNet(DeviceEnumNet.MCS_STG_DEVICE)``, ``CStg200xDownloadNet()`` with
-  ``Stg200xPollStatusEvent += handler(status, StgStatusNet, index_list)``,
-  ``Connect(entry)``; then at once ``SendStop(all triggers)`` ("Stop some or all triggers
-  of the STG", ``triggermap`` a bitmap) so a pattern left running by MC_Stimulus II or a
-  crashed run stops, checked with ``QueryTriggerstatus()``; ``ResetStatus(all)``,
-  ``EnableAutoReset()`` (the power-up default), ``ResetOvercurrent()`` if a shutdown is
-  latched; ``SetCurrentMode()``, ``DisableMultiFileMode()`` ("trigger inputs are assigned
-  to channels"), ``GetCurrentRangeInNanoAmp`` / ``GetCurrentResolutionInNanoAmp`` per
-  channel, ``SetOutputRate(rate)`` + ``GetOutputRate()`` read back ("Valid rates are from
-  1000 Hz to 50000 Hz"), ``GetTotalMemory()``, ``GetStgVersionInfo(out sw, out hw)``.
-* load: ``ResetStatus``, the memory layout (per channel and sync output:
-  ``GetCapacity`` / ``SetCapacity(channelCapacity[], syncCapacity[])``, "Make sure the
-  sum does not exceed the memory"; checked before anything is sent),
-  ``SetupTrigger(first, channelmap[], syncoutmap[], repeat[])``, ``ClearChannelData``,
-  ``PrepareAndSendData(ch, Int32[] nA, UInt64[] us, channeldata_current)``,
-  ``ClearSyncData``, ``PrepareAndSendData(s, ..., syncoutdata)``.
-* start ``SendStart(1)``; stop ``SendStop(all triggers)``; ``Disconnect()``, ``Dispose()``.
+Sequence (each call's vendor source is cited where it is made; the whole story is in
+``docs/hardware.md``, section 4): connect -> ``SendStop`` on every trigger, status and
+overcurrent reset, current mode, range / resolution, output rate set and read back, memory,
+version; load -> ``ResetStatus``, memory layout, ``SetupTrigger``, ``PrepareAndSendData``
+per channel and for the sync; ``SendStart(1)``; ``SendStop(all)``; ``Disconnect``.
 
 Threads: every vendor call holds one lock, so a stop never runs concurrently with a
 download or a disconnect (McsUsbNet does not document its objects as thread-safe).
@@ -46,83 +32,30 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass
-from types import SimpleNamespace
 
-from drivers.errors import (DeviceError, DeviceMemoryError, DeviceNotFound,
-                            DeviceRangeError, StimulatorFault, StimulatorSettingError,
-                            VendorLibraryMissing)
-from drivers.interfaces import (CheckedWaveform, StimulatorCapabilities, StimulatorState,
-                                StimulatorStatus)
+from drivers.errors import (DeviceError, DeviceMemoryError, DeviceRangeError,
+                            StimulatorFault, StimulatorSettingError)
+from drivers.interfaces import CheckedWaveform, StimulatorCapabilities, StimulatorState
+from drivers.mcs_usb import (DEFAULT_DLL, StgDeviceInfo, find_stg, list_stg_devices,
+                             load_mcs_usb)
 from drivers.stg_download import (BYTES_PER_POINT, STG4002_OUTPUT_RATE_HZ, ChannelPlan,
                                   PreparedDownload, check_output_rate, prepare_download)
-from drivers.stg_status import (DeviceStatus, OvercurrentStatus, TriggerStatus,
-                                UnknownStatus, decode_status, parse_version_info)
+from drivers.stg_memory import fit_memory
+from drivers.stg_status import DeviceStatus, OvercurrentStatus, parse_version_info
+from drivers.stg_tracking import StgStatusTracking
 from drivers.stg_waveform import NA_PER_MA, RenderedChannel
 from drivers.stimulation_report import download_summary
 
 log = logging.getLogger(__name__)
 
 DEFAULT_OUTPUT_RATE_HZ = STG4002_OUTPUT_RATE_HZ
-DEFAULT_DLL = r"C:\Program Files\Multi Channel Systems\McsUsbNet\x64\McsUsbNet.dll"
 STOP_WAIT_S = 0.25
 """How long :meth:`Stg4002Stimulator.stop_now` waits for a vendor call in progress."""
-START_TIMEOUT_S = 1.0
-"""Allowance for the start delay ("The startup delay is in the range of a few ms",
-``SendStart``) and late poll events before a missing Running/end is a fault."""
-EARLY_END_TOLERANCE_S = 0.02
 __all__ = ["Stg4002Stimulator", "load_mcs_usb", "list_stg_devices", "StgDeviceInfo",
            "BYTES_PER_POINT", "DEFAULT_DLL", "DEFAULT_OUTPUT_RATE_HZ"]
 
 
-def load_mcs_usb(dll_path: str) -> SimpleNamespace:
-    """Import pythonnet, load McsUsbNet.dll and return the names the driver uses.
-
-    Raises
-    ------
-    VendorLibraryMissing
-        If pythonnet or the assembly is missing (one line saying how to install).
-    """
-    try:
-        import clr  # noqa: PLC0415 (pythonnet; lazy: Windows vendor library)
-    except ImportError:
-        raise VendorLibraryMissing(
-            "the Python package pythonnet", "the MCS STG4002 stimulator",
-            "install it with: pip install 'nmsid[mcs]' (Windows, .NET Framework 4.x)"
-        ) from None
-    try:
-        clr.AddReference(str(dll_path))
-        from Mcs.Usb import (CMcsUsbListNet, CStg200xDownloadNet,  # noqa: PLC0415
-                             DeviceEnumNet, STG_DestinationEnumNet)
-        from System import Array, Int32, UInt32, UInt64  # noqa: PLC0415
-    except Exception as exc:  # .NET FileNotFoundException is not a Python OSError
-        raise VendorLibraryMissing(
-            f"McsUsbNet.dll ({dll_path})", "the MCS STG4002 stimulator",
-            "get it from github.com/multichannelsystems/McsUsbNet (or MC_Stimulus II) and "
-            f"set stimulator.dll_path in the hardware config ({type(exc).__name__})"
-        ) from None
-    return SimpleNamespace(CMcsUsbListNet=CMcsUsbListNet, DeviceEnumNet=DeviceEnumNet,
-                           CStg200xDownloadNet=CStg200xDownloadNet,
-                           STG_DestinationEnumNet=STG_DestinationEnumNet, Array=Array,
-                           Int32=Int32, UInt32=UInt32, UInt64=UInt64)
-
-
-@dataclass(frozen=True)
-class StgDeviceInfo:
-    name: str
-    serial: str
-
-
-def list_stg_devices(api: SimpleNamespace) -> list[StgDeviceInfo]:
-    devices = api.CMcsUsbListNet(api.DeviceEnumNet.MCS_STG_DEVICE)
-    out = []
-    for i in range(int(devices.Count)):
-        entry = devices.GetUsbListEntry(api.UInt32(i))
-        out.append(StgDeviceInfo(name=str(entry.DeviceName), serial=str(entry.SerialNumber)))
-    return out
-
-
-class Stg4002Stimulator:
+class Stg4002Stimulator(StgStatusTracking):
     """:class:`~drivers.interfaces.Stimulator` for an MCS STG4002 in download mode.
 
     Parameters
@@ -242,25 +175,7 @@ class Stg4002Stimulator:
             self.disconnect()
         self._reset_session_state()
         api = self.api
-        devices = api.CMcsUsbListNet(api.DeviceEnumNet.MCS_STG_DEVICE)
-        n = int(devices.Count)
-        entries = [devices.GetUsbListEntry(self._u32(i)) for i in range(n)]
-        if not entries:
-            raise DeviceNotFound("no MCS STG stimulator found on USB; check the cable and "
-                                 "power, and that MC_Stimulus II is closed")
-        if self.serial:
-            matches = [e for e in entries if str(e.SerialNumber) == self.serial]
-            if not matches:
-                found = ", ".join(str(e.SerialNumber) for e in entries)
-                raise DeviceNotFound(f"no STG with serial {self.serial!r} (found: {found}); "
-                                     "check stimulator.serial in the hardware config")
-            entry = matches[0]
-        elif len(entries) > 1:
-            found = ", ".join(str(e.SerialNumber) for e in entries)
-            raise DeviceNotFound(f"{len(entries)} STGs found ({found}); set "
-                                 "stimulator.serial in the hardware config to choose one")
-        else:
-            entry = entries[0]
+        entry = find_stg(api, self.serial)
         dev = api.CStg200xDownloadNet()
         dev.Stg200xPollStatusEvent += self._on_poll
         status = dev.Connect(entry)
@@ -450,7 +365,9 @@ class Stg4002Stimulator:
                         "(ResetOvercurrent) for a new download")
             dev.ResetOvercurrent()
         self._poll = None
-        self._fit_memory(prepared)
+        self._capacity = fit_memory(dev, api, prepared, n_channels=self._n_channels,
+                                    n_sync=self._n_sync, sync_out=self.sync_out,
+                                    total_bytes=self._memory_bytes)
         check_stop()
         self._setup_trigger()
         for ch, data in prepared.channels.items():
@@ -468,59 +385,6 @@ class Stg4002Stimulator:
                                api.Array[api.UInt64](sync.durations_us.tolist()),
                                dest.syncoutdata)
         check_stop()
-
-    def _fit_memory(self, prepared: PreparedDownload) -> None:
-        """Check (and if needed lay out) the per-channel and sync memory before sending.
-
-        ``SetCapacity(channelCapacity[], syncCapacity[])`` (``mcs.stg.sdk`` wrapper of
-        McsUsbNet): "Each channel and sync output can be given an individual amount of
-        memory space ... Make sure the sum does not exceed the memory"; a download larger
-        than its channel's capacity fails in the vendor library, mid-download.
-        """
-        need_ch = [0] * self._n_channels
-        for ch, nbytes in prepared.channel_bytes().items():
-            need_ch[ch - 1] = nbytes
-        need_sync = [0] * self._n_sync
-        need_sync[self.sync_out - 1] = prepared.sync_bytes
-        total_need = sum(need_ch) + sum(need_sync)
-        if total_need > self._memory_bytes:
-            raise DeviceMemoryError(
-                f"trial needs about {total_need / 1e6:.1f} MB of STG memory (estimated "
-                f"{BYTES_PER_POINT} B/point), the device has {self._memory_bytes / 1e6:.1f} "
-                "MB; shorten the trial; nothing was sent")
-        caps = self._get_capacity()
-        if caps is None:
-            return  # this McsUsbNet has no download-mode GetCapacity: total checked above
-        cap_ch, cap_sync = caps
-        self._capacity = {ch + 1: c for ch, c in enumerate(cap_ch)}
-        if _fits(need_ch, cap_ch) and _fits(need_sync, cap_sync):
-            return
-        n = len(need_ch) + len(need_sync)
-        share = (self._memory_bytes - total_need) // n
-        new_ch = [need + share for need in need_ch]
-        new_sync = [need + share for need in need_sync]
-        api = self.api
-        self._dev.SetCapacity(api.Array[api.UInt32](new_ch), api.Array[api.UInt32](new_sync))
-        log.info("STG memory laid out per channel %s and sync %s bytes (SetCapacity)",
-                 new_ch, new_sync)
-        caps = self._get_capacity()
-        if caps is not None:
-            self._capacity = {ch + 1: c for ch, c in enumerate(caps[0])}
-        if caps is not None and not (_fits(need_ch, caps[0]) and _fits(need_sync, caps[1])):
-            raise DeviceMemoryError(
-                f"STG memory layout did not take: channels need {need_ch} bytes, sync "
-                f"{need_sync}; the device reports capacities {list(caps[0])} and "
-                f"{list(caps[1])}; nothing was sent")
-
-    def _get_capacity(self):
-        """``GetCapacity(out UInt32[] channel, out UInt32[] sync)`` or None if absent."""
-        try:  # pythonnet: out parameters are placeholders and come back in the tuple
-            result = self._dev.GetCapacity(None, None)
-        except AttributeError:  # McsUsbNet 5.3.15 has no download-mode GetCapacity
-            return None
-        if isinstance(result, tuple) and len(result) >= 2:
-            return [int(x) for x in result[-2]], [int(x) for x in result[-1]]
-        return None
 
     def _setup_trigger(self) -> None:
         api = self.api
@@ -589,87 +453,6 @@ class Stg4002Stimulator:
         self._error = message
         log.error("STG fault: %s (output stopped)", message)
 
-    # -- status -----------------------------------------------------------------------
-    def _on_poll(self, status, stg_status, index_list) -> None:
-        """McsUsbNet poll-status callback (runs on the library's thread)."""
-        try:
-            ds = decode_status(stg_status)
-        except UnknownStatus as exc:
-            log.error("STG poll status: %s", exc)
-            self._error = self._error or str(exc)
-            return
-        self._poll = ds
-        if ds.trigger(0) in (TriggerStatus.RUNNING, TriggerStatus.FINISHED):
-            self._seen_running = True  # a short Running may fall between two queries
-
-    def _query_locked(self) -> DeviceStatus | None:
-        """``QueryTriggerstatus()`` decoded, or None if this McsUsbNet lacks it."""
-        query = getattr(self._dev, "QueryTriggerstatus", None)
-        if query is None:
-            return None
-        return decode_status(query())
-
-    def status(self) -> StimulatorStatus:
-        if self._state is StimulatorState.RUNNING and self._t_start is not None:
-            if self._io.acquire(blocking=False):
-                try:
-                    self._update_running()
-                finally:
-                    self._release()
-        state = self._state
-        index = -1
-        if state is StimulatorState.RUNNING and self._t_start is not None:
-            index = int((self._now() - self._t_start) * self._fs_Hz)
-        return StimulatorStatus(state=state,
-                                output_active=state is StimulatorState.RUNNING
-                                or bool(self._stop_error),
-                                error=self._stop_error or self._error, sample_index=index)
-
-    def _update_running(self) -> None:
-        """Decide from the device's own status whether the trial runs, ended or faulted."""
-        elapsed = self._now() - self._t_start
-        ds = None
-        if self._dev is not None:
-            try:
-                ds = self._query_locked()
-            except UnknownStatus as exc:
-                self._fault(str(exc))
-                return
-            except Exception as exc:
-                self._fault(f"status query failed: {exc}")
-                return
-        if ds is None:
-            ds = self._poll
-        if ds is None:  # nothing reported by this McsUsbNet: the host's clock decides
-            if elapsed >= self._duration_s:
-                self._state = StimulatorState.STOPPED
-            return
-        if ds.overcurrent is OvercurrentStatus.SHUTDOWN:
-            self._fault(f"overcurrent shutdown after {elapsed:.3f} s: an electrode lost "
-                        "contact (Stg5OvercurrentStatus Shutdown); check the electrodes")
-            return
-        trig = ds.trigger(0)
-        if trig is TriggerStatus.RUNNING:
-            self._seen_running = True
-        ended = trig is TriggerStatus.FINISHED or (trig is TriggerStatus.IDLE
-                                                   and self._seen_running)
-        if ended:
-            if elapsed < self._duration_s - EARLY_END_TOLERANCE_S:
-                self._fault(f"the STG ended the pattern after {elapsed:.3f} s of "
-                            f"{self._duration_s:.3f} s (trigger status {trig.name}; a "
-                            "second pulse on its trigger input stops it)")
-                return
-            self._state = StimulatorState.STOPPED
-            return
-        if elapsed > self._duration_s + START_TIMEOUT_S:
-            if trig is TriggerStatus.IDLE:  # ended between two queries, Running never seen
-                log.warning("STG never reported Running; trial taken as ended after %.3f s",
-                            elapsed)
-                self._state = StimulatorState.STOPPED
-            else:
-                self._fault(f"the STG still reports {trig.name} {elapsed:.3f} s after a "
-                            f"{self._duration_s:.3f} s trial started")
-
     def delivery_summary(self) -> dict | None:
         """Charge and current figures of the last download (session file
         ``stimulation_json``), or None before the first load."""
@@ -691,7 +474,3 @@ class Stg4002Stimulator:
 
 class _Aborted(Exception):
     """Internal: a stop arrived during a download (turned into StimulatorFault)."""
-
-
-def _fits(need: list[int], capacity: list[int]) -> bool:
-    return all(n <= (capacity[i] if i < len(capacity) else 0) for i, n in enumerate(need))

@@ -110,3 +110,35 @@ def parse_version_info(info) -> tuple[str, str]:
         if len(items) >= 2:
             return items[-2], items[-1]
     return "", ""
+
+
+START_TIMEOUT_S = 1.0
+"""Allowance for the start delay ("The startup delay is in the range of a few ms",
+``SendStart``) and late poll events before a missing Running / end is judged."""
+EARLY_END_TOLERANCE_S = 0.02
+
+
+class TrialProgress(enum.Enum):
+    RUNNING = "running"
+    ENDED = "ended"
+    ENDED_UNSEEN = "ended, Running never seen"
+    EARLY_END = "ended before its duration"
+    OVERDUE = "still active after its duration"
+
+
+def judge_trial(trig: TriggerStatus, seen_running: bool, elapsed_s: float,
+                duration_s: float) -> TrialProgress:
+    """Where a started trial is, from trigger 1's status (vendor enum) and the host's time.
+
+    Finished, or Idle after Running was seen, is the end (with auto-reset Finished shows
+    for one poll cycle only); before ``duration_s`` that is an early end. Idle or Armed
+    before Running is a start still under way until ``duration_s + START_TIMEOUT_S``.
+    """
+    ended = trig is TriggerStatus.FINISHED or (trig is TriggerStatus.IDLE and seen_running)
+    if ended:
+        return (TrialProgress.EARLY_END if elapsed_s < duration_s - EARLY_END_TOLERANCE_S
+                else TrialProgress.ENDED)
+    if elapsed_s > duration_s + START_TIMEOUT_S:
+        return (TrialProgress.ENDED_UNSEEN if trig is TriggerStatus.IDLE
+                else TrialProgress.OVERDUE)
+    return TrialProgress.RUNNING
