@@ -42,7 +42,7 @@ def test_finished_is_an_end_not_running_and_an_early_end_is_a_fault(fake_mcs):
     # Stg200xTriggerStatusEnumNet: Finished = 2 must not read as running (bool(2)); a pulse
     # on the trigger input stops the pattern (SetupRetriggerMode default): the trial ended
     # early and must not be recorded as complete
-    reg, hw, stim = make(fake_mcs)
+    reg, hw, stim = make(fake_mcs, start_status=3)  # Armed during the start delay
     stim.connect()
     reg.devices[-1].DisableAutoReset()   # status stays Finished (XML: DisableAutoReset)
     start(stim, waveform(seconds=1.0))
