@@ -119,6 +119,7 @@ class Stg4002Stimulator(StgStatusTracking):
         self._duration_s = 0.0
         self._fs_Hz = 0.0
         self._t_start: float | None = None
+        self._t_sent: float | None = None
         self._seen_running = False
         self._poll: DeviceStatus | None = None
         self._generation = 0
@@ -180,13 +181,20 @@ class Stg4002Stimulator(StgStatusTracking):
         dev.Stg200xPollStatusEvent += self._on_poll
         status = dev.Connect(entry)
         if status not in (None, 0):
+            try:
+                dev.Dispose()
+            except Exception:  # nothing to release on a refused connection
+                pass
             raise DeviceError(f"McsUsbNet Connect to STG {entry.SerialNumber} failed with "
                               f"status {status} (is MC_Stimulus II or another program "
                               "connected to it?)")
         self._dev = dev
         try:
-            with self._io:
+            self._io.acquire()
+            try:
                 self._configure_device(entry)
+            finally:
+                self._release()  # a stop requested meanwhile is sent here
         except Exception:
             self.disconnect()
             raise
@@ -410,6 +418,10 @@ class Stg4002Stimulator(StgStatusTracking):
             self._poll = None
             self._seen_running = False
             self._generation += 1
+            # host times bracketing the start: the device starts between them (plus its
+            # start delay), so an early end is judged from the first, a late one from the
+            # second, and a busy host cannot turn a normal end into a fault
+            t_before = self._now()
             self._dev.SendStart(self._u32(1))  # trigger 1 (bit 0)
         except Exception as exc:
             self._state = StimulatorState.ERROR
@@ -417,7 +429,7 @@ class Stg4002Stimulator(StgStatusTracking):
             raise DeviceError(f"STG SendStart failed: {exc}") from exc
         finally:
             self._release()
-        self._t_start = self._now()
+        self._t_start, self._t_sent = t_before, self._now()
         self._state = StimulatorState.RUNNING
 
     def stop_now(self) -> None:

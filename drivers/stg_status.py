@@ -127,18 +127,22 @@ class TrialProgress(enum.Enum):
 
 
 def judge_trial(trig: TriggerStatus, seen_running: bool, elapsed_s: float,
-                duration_s: float) -> TrialProgress:
+                duration_s: float, *, elapsed_sent_s: float | None = None) -> TrialProgress:
     """Where a started trial is, from trigger 1's status (vendor enum) and the host's time.
 
     Finished, or Idle after Running was seen, is the end (with auto-reset Finished shows
     for one poll cycle only); before ``duration_s`` that is an early end. Idle or Armed
     before Running is a start still under way until ``duration_s + START_TIMEOUT_S``.
+    ``elapsed_s`` counts from just before ``SendStart`` (the device cannot have started
+    earlier: used for the early end), ``elapsed_sent_s`` from its return (the device
+    cannot have started later: used for the overdue end).
     """
+    since_sent = elapsed_s if elapsed_sent_s is None else elapsed_sent_s
     ended = trig is TriggerStatus.FINISHED or (trig is TriggerStatus.IDLE and seen_running)
     if ended:
         return (TrialProgress.EARLY_END if elapsed_s < duration_s - EARLY_END_TOLERANCE_S
                 else TrialProgress.ENDED)
-    if elapsed_s > duration_s + START_TIMEOUT_S:
+    if since_sent > duration_s + START_TIMEOUT_S:
         return (TrialProgress.ENDED_UNSEEN if trig is TriggerStatus.IDLE
                 else TrialProgress.OVERDUE)
     return TrialProgress.RUNNING

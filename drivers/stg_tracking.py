@@ -59,7 +59,9 @@ class StgStatusTracking:
 
     def _update_running(self) -> None:
         """Decide from the device's own status whether the trial runs, ended or faulted."""
-        elapsed = self._now() - self._t_start
+        now = self._now()
+        elapsed = now - self._t_start                      # since just before SendStart
+        elapsed_sent = now - (self._t_sent or self._t_start)  # since it returned
         ds = None
         if self._dev is not None:
             try:
@@ -83,7 +85,8 @@ class StgStatusTracking:
         trig = ds.trigger(0)
         if trig is TriggerStatus.RUNNING:
             self._seen_running = True
-        verdict = judge_trial(trig, self._seen_running, elapsed, self._duration_s)
+        verdict = judge_trial(trig, self._seen_running, elapsed, self._duration_s,
+                              elapsed_sent_s=elapsed_sent)
         if verdict is TrialProgress.RUNNING:
             return
         if verdict in (TrialProgress.ENDED, TrialProgress.ENDED_UNSEEN):

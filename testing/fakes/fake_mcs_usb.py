@@ -136,6 +136,8 @@ def _vendor(fn):
                 if delay:
                     time.sleep(delay)
             result = fn(self, *args)
+            if hw is not None and hw.call_delay_after_s.get(name):
+                time.sleep(hw.call_delay_after_s[name])   # the call returns late
             self._fire_if_changed()
             return result
         finally:

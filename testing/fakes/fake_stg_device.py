@@ -103,6 +103,7 @@ class FakeStgHardware:
         self.overcurrent_t: float | None = None
         self.overlaps: list[tuple[str, str]] = []
         self.call_delay_s: dict[str, float] = {}
+        self.call_delay_after_s: dict[str, float] = {}
         self.on_call: dict[str, object] = {}
         self._busy: list[str] = []
         self._busy_lock = threading.Lock()

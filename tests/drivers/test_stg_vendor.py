@@ -281,3 +281,28 @@ def test_output_rate_setting_of_the_hardware_config(tmp_path):
     with pytest.raises(HardwareConfigError, match=r"hw.toml: stimulator.output_rate_Hz = "
                                                   r"30000.0 is invalid; 1000 .. 50000 Hz"):
         parse_hw_config({**base, "stimulator": {"output_rate_Hz": 30000.0}}, "hw.toml")
+
+
+def test_a_busy_host_never_turns_a_normal_end_into_a_fault(fake_mcs):
+    # the device starts at once, but SendStart returns to the (loaded) host 80 ms later
+    reg, hw, stim = make(fake_mcs, start_delay_s=0.0)
+    stim.connect()
+    stim.load(waveform(seconds=0.15))
+    stim.arm()
+    hw.call_delay_after_s["SendStart"] = 0.08
+    stim.start()
+    fake_mcs.bench.sleep(0.12)   # device ended 0.15 s after its start; host saw ~0.12 s
+    st = stim.status()
+    assert st.state is StimulatorState.STOPPED and st.error == ""
+
+
+def test_judge_trial_uses_the_bracketing_times():
+    from drivers.stg_status import TrialProgress, TriggerStatus, judge_trial
+    F, I, R = TriggerStatus.FINISHED, TriggerStatus.IDLE, TriggerStatus.RUNNING
+    assert judge_trial(F, True, 1.0, 1.0, elapsed_sent_s=0.9) is TrialProgress.ENDED
+    assert judge_trial(F, True, 0.5, 1.0) is TrialProgress.EARLY_END
+    assert judge_trial(I, True, 1.0, 1.0) is TrialProgress.ENDED
+    assert judge_trial(I, False, 0.5, 1.0) is TrialProgress.RUNNING   # late Running
+    assert judge_trial(R, True, 2.5, 1.0, elapsed_sent_s=1.9) is TrialProgress.RUNNING
+    assert judge_trial(R, True, 2.5, 1.0, elapsed_sent_s=2.1) is TrialProgress.OVERDUE
+    assert judge_trial(I, False, 2.5, 1.0, elapsed_sent_s=2.1) is TrialProgress.ENDED_UNSEEN
