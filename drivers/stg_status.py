@@ -20,8 +20,11 @@ of ``x64/McsUsbNet.dll`` read with ``dnfile``, and the XML documentation
   the metadata; not described in the XML); the poll-status event ``OnStgPollStatus`` is
   ``Invoke(status, stgStatusNet, index_list)``.
 * ``CStg200xBasicNet.GetStgVersionInfo(out string SwVersion, out string HwVersion)``
-  returns ``void``; pythonnet returns a void method's two ``out`` values as the tuple
-  ``(SwVersion, HwVersion)`` (a non-void method would put its return value first).
+  returns ``void``; pythonnet 3 returns "the result, if any, followed by the out
+  parameters" (pythonnet's own comment, "by symmetry with MethodBinder.Invoke"), i.e.
+  ``(SwVersion, HwVersion)``; pythonnet 2 put a ``None`` for the void result first
+  (pythonnet issue #228). Both are accepted; the old ``info[1:]`` lost the software
+  version under pythonnet 3.
 """
 
 from __future__ import annotations
