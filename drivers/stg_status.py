@@ -70,9 +70,19 @@ class UnknownStatus(ValueError):
     """A status value outside the vendor's enum (named with the value)."""
 
 
+_NAMES = {"IDLE": 0, "RUNNING": 1, "FINISHED": 2, "ARMED": 3, "NORMAL": 0, "SHUTDOWN": 1}
+
+
 def _enum_value(value) -> int:
-    # a pythonnet enum converts with int(); the fakes hand plain ints or IntEnums
-    return int(value)
+    """A .NET enum value as int: ``int()`` (pythonnet 3 enum objects, plain ints), else
+    by its name (``str()`` of an enum is its member name)."""
+    try:
+        return int(value)
+    except (TypeError, ValueError):
+        name = str(value).rsplit(".", 1)[-1].upper()
+        if name in _NAMES:
+            return _NAMES[name]
+        raise ValueError(value) from None
 
 
 def decode_status(stg_status) -> DeviceStatus:

@@ -306,3 +306,21 @@ def test_judge_trial_uses_the_bracketing_times():
     assert judge_trial(R, True, 2.5, 1.0, elapsed_sent_s=1.9) is TrialProgress.RUNNING
     assert judge_trial(R, True, 2.5, 1.0, elapsed_sent_s=2.1) is TrialProgress.OVERDUE
     assert judge_trial(I, False, 2.5, 1.0, elapsed_sent_s=2.1) is TrialProgress.ENDED_UNSEEN
+
+
+def test_status_decoding_accepts_enum_objects_and_refuses_unknown_values():
+    from types import SimpleNamespace
+
+    from drivers.stg_status import UnknownStatus, decode_status
+
+    class NetEnum:  # an enum object that int() does not convert
+        def __init__(self, name):
+            self.name = name
+
+        def __str__(self):
+            return f"Stg200xTriggerStatusEnumNet.{self.name}"
+    ds = decode_status(SimpleNamespace(TiggerStatus=[NetEnum("Finished"), 3],
+                                       OvercurrentStatus=1))
+    assert [int(t) for t in ds.triggers] == [2, 3] and int(ds.overcurrent) == 1
+    with pytest.raises(UnknownStatus, match="trigger 1 reported status 7"):
+        decode_status(SimpleNamespace(TiggerStatus=[7], OvercurrentStatus=0))
