@@ -26,11 +26,11 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from drivers.interfaces import CheckedWaveform  # noqa: E402
-from drivers.stg_download import ChannelPlan, prepare_download  # noqa: E402
-from drivers.stg_waveform import check_rendered, compress  # noqa: E402
-from protocols.config import load_config  # noqa: E402
-from protocols.waveforms import trial_waveform  # noqa: E402
+from nmsid.drivers.interfaces import CheckedWaveform  # noqa: E402
+from nmsid.drivers.stg_download import ChannelPlan, prepare_download  # noqa: E402
+from nmsid.drivers.stg_waveform import check_rendered, compress  # noqa: E402
+from nmsid.protocols.config import load_config  # noqa: E402
+from nmsid.protocols.waveforms import trial_waveform  # noqa: E402
 
 RATE, RES = 50_000.0, 500.0
 CAL = (2.0, 16.0, 1.5, 16.0)

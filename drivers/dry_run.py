@@ -35,8 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.errors import StimulatorSettingError
-from drivers.interfaces import CheckedWaveform, StimulatorState
+from nmsid.drivers.errors import StimulatorSettingError
+from nmsid.drivers.interfaces import CheckedWaveform, StimulatorState
 
 log = logging.getLogger(__name__)
 
@@ -263,7 +263,7 @@ def dry_run_probe(devices, cfg, args, *, out=print) -> bool:
     recorder = None
     bench = getattr(devices.clock, "bench", None)
     if bench is not None:  # fake mode: the simulated resistor and A/D input
-        from drivers.fake_hardware import load_fake  # noqa: PLC0415 (fake mode only)
+        from nmsid.drivers.fake_hardware import load_fake  # noqa: PLC0415 (fake mode only)
         ch = cfg.stimulator.extensor_channel if s.channel == "extensor" \
             else cfg.stimulator.flexor_channel
         recorder = load_fake("loopback").BenchLoopback(

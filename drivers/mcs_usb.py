@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from types import SimpleNamespace
 
-from drivers.errors import DeviceNotFound, VendorLibraryMissing
+from nmsid.drivers.errors import DeviceNotFound, VendorLibraryMissing
 
 DEFAULT_DLL = r"C:\Program Files\Multi Channel Systems\McsUsbNet\x64\McsUsbNet.dll"
 

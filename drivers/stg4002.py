@@ -1,12 +1,12 @@
 """Multi Channel Systems STG4002 stimulator through McsUsbNet (.NET) via pythonnet.
 
 Mode: **download**. A trial (15 s) is rendered and checked by
-:func:`drivers.stg_download.prepare_download` (charge-balanced carrier, ceiling, net charge
+:func:`nmsid.drivers.stg_download.prepare_download` (charge-balanced carrier, ceiling, net charge
 per period), downloaded, and played from the device's own memory, hardware-timed.
 
 Vendor sources, cited next to each behaviour below: McsUsbNet 5.3.15
 (``github.com/multichannelsystems/McsUsbNet``: XML documentation ``x64/McsUsbNet.xml`` and
-the type metadata of ``x64/McsUsbNet.dll``, see :mod:`drivers.stg_status`); MCS's examples
+the type metadata of ``x64/McsUsbNet.dll``, see :mod:`nmsid.drivers.stg_status`); MCS's examples
 ``multichannelsystems/McsUsbNet_Examples`` (``Examples/Python/Stimulation.py``,
 ``Examples/CSharp/STG_Stimulation/Form1.cs``); the ``mcs.stg.sdk`` MATLAB wrapper of
 McsUsbNet (``cstg200x_download_basic.m``) for ``GetCapacity`` / ``SetCapacity``.
@@ -33,18 +33,18 @@ import logging
 import threading
 import time
 
-from drivers.errors import (DeviceError, DeviceMemoryError, DeviceRangeError,
-                            StimulatorFault, StimulatorSettingError)
-from drivers.interfaces import CheckedWaveform, StimulatorCapabilities, StimulatorState
-from drivers.mcs_usb import (DEFAULT_DLL, StgDeviceInfo, find_stg, list_stg_devices,
-                             load_mcs_usb)
-from drivers.stg_download import (BYTES_PER_POINT, STG4002_OUTPUT_RATE_HZ, ChannelPlan,
-                                  PreparedDownload, check_output_rate, prepare_download)
-from drivers.stg_memory import fit_memory
-from drivers.stg_status import DeviceStatus, OvercurrentStatus, parse_version_info
-from drivers.stg_tracking import StgStatusTracking
-from drivers.stg_waveform import NA_PER_MA, RenderedChannel
-from drivers.stimulation_report import download_summary
+from nmsid.drivers.errors import (DeviceError, DeviceMemoryError, DeviceRangeError,
+                                  StimulatorFault, StimulatorSettingError)
+from nmsid.drivers.interfaces import CheckedWaveform, StimulatorCapabilities, StimulatorState
+from nmsid.drivers.mcs_usb import (DEFAULT_DLL, StgDeviceInfo, find_stg, list_stg_devices,
+                                   load_mcs_usb)
+from nmsid.drivers.stg_download import (BYTES_PER_POINT, STG4002_OUTPUT_RATE_HZ, ChannelPlan,
+                                        PreparedDownload, check_output_rate, prepare_download)
+from nmsid.drivers.stg_memory import fit_memory
+from nmsid.drivers.stg_status import DeviceStatus, OvercurrentStatus, parse_version_info
+from nmsid.drivers.stg_tracking import StgStatusTracking
+from nmsid.drivers.stg_waveform import NA_PER_MA, RenderedChannel
+from nmsid.drivers.stimulation_report import download_summary
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +56,7 @@ __all__ = ["Stg4002Stimulator", "load_mcs_usb", "list_stg_devices", "StgDeviceIn
 
 
 class Stg4002Stimulator(StgStatusTracking):
-    """:class:`~drivers.interfaces.Stimulator` for an MCS STG4002 in download mode.
+    """:class:`~nmsid.drivers.interfaces.Stimulator` for an MCS STG4002 in download mode.
 
     Parameters
     ----------

@@ -1,15 +1,15 @@
 """One trial's STG download, prepared and checked without touching the device.
 
 :func:`prepare_download` is the single code path from a
-:class:`~drivers.interfaces.CheckedWaveform` to the arrays ``PrepareAndSendData`` receives:
-:meth:`drivers.stg4002.Stg4002Stimulator.load` sends what it returns, and
-``nmsid stimulation`` (:mod:`drivers.stimulation_command`) reports on it, so what a lab
+:class:`~nmsid.drivers.interfaces.CheckedWaveform` to the arrays ``PrepareAndSendData`` receives:
+:meth:`nmsid.drivers.stg4002.Stg4002Stimulator.load` sends what it returns, and
+``nmsid stimulation`` (:mod:`nmsid.cli.stimulation_command`) reports on it, so what a lab
 hands its ethics committee is what the device would play.
 
 Checks, in order, each refusing with nothing sent: the waveform's ceilings against the
 rig's and the device's; the envelope peak; rendering (charge-balanced carrier, see
-:mod:`drivers.stg_waveform`); the rendered peak (:func:`~drivers.stg_waveform.check_rendered`);
-the net charge of every carrier period (:func:`~drivers.stg_waveform.check_charge_balance`).
+:mod:`nmsid.drivers.stg_waveform`); the rendered peak (:func:`~nmsid.drivers.stg_waveform.check_rendered`);
+the net charge of every carrier period (:func:`~nmsid.drivers.stg_waveform.check_charge_balance`).
 
 Memory: the download format's size on the device is not documented; :data:`BYTES_PER_POINT`
 is a conservative estimate per (value, duration) point.
@@ -21,10 +21,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.errors import DeviceRangeError, StimulatorSettingError
-from drivers.interfaces import CheckedWaveform, CurrentLimitError
-from drivers.stg_waveform import (NA_PER_MA, RenderedChannel, check_charge_balance,
-                                  check_rendered, compress, output_tick_us, render_channel)
+from nmsid.drivers.errors import DeviceRangeError, StimulatorSettingError
+from nmsid.drivers.interfaces import CheckedWaveform, CurrentLimitError
+from nmsid.drivers.stg_waveform import (NA_PER_MA, RenderedChannel, check_charge_balance,
+                                        check_rendered, compress, output_tick_us, render_channel)
 
 BYTES_PER_POINT = 8
 """Conservative device-memory estimate per (value, duration) point (not documented)."""

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import logging
 
-from drivers.errors import DeviceMemoryError
-from drivers.stg_download import BYTES_PER_POINT, PreparedDownload
+from nmsid.drivers.errors import DeviceMemoryError
+from nmsid.drivers.stg_download import BYTES_PER_POINT, PreparedDownload
 
 log = logging.getLogger(__name__)
 

@@ -1,8 +1,8 @@
 """How the STG4002 driver follows a running trial from the device's own status.
 
-A mixin of :class:`drivers.stg4002.Stg4002Stimulator` (kept apart to keep each module
+A mixin of :class:`nmsid.drivers.stg4002.Stg4002Stimulator` (kept apart to keep each module
 small): the McsUsbNet poll-status callback, ``QueryTriggerstatus``, and the decision
-whether a started trial still runs, ended, or faulted (:func:`drivers.stg_status.judge_trial`:
+whether a started trial still runs, ended, or faulted (:func:`nmsid.drivers.stg_status.judge_trial`:
 trigger status enum Idle 0 / Running 1 / Finished 2 / Armed 3; ``OvercurrentStatus``
 Shutdown = an electrode lost contact, a fault). The attributes it uses (``_dev``, ``_io``,
 ``_state``, ``_t_start``, ...) and ``_fault`` / ``_release`` belong to the driver.
@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import logging
 
-from drivers.interfaces import StimulatorState, StimulatorStatus
-from drivers.stg_status import (DeviceStatus, OvercurrentStatus, TrialProgress,
-                                TriggerStatus, UnknownStatus, decode_status, judge_trial)
+from nmsid.drivers.interfaces import StimulatorState, StimulatorStatus
+from nmsid.drivers.stg_status import (DeviceStatus, OvercurrentStatus, TrialProgress,
+                                      TriggerStatus, UnknownStatus, decode_status, judge_trial)
 
-log = logging.getLogger("drivers.stg4002")
+log = logging.getLogger("nmsid.drivers.stg4002")
 
 
 class StgStatusTracking:

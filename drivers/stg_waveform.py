@@ -13,7 +13,7 @@ rate. A carrier period must be a whole number ``P`` of output samples (otherwise
 :func:`samples_per_period`). The envelope is held constant over each *whole carrier
 period*: the amplitude of period ``k`` is the mean of the (zero-order held) envelope over
 that period, never above the largest envelope sample it covers, so the ceiling proven by
-:class:`~drivers.interfaces.CheckedWaveform` still holds. Within a period, the samples of
+:class:`~nmsid.drivers.interfaces.CheckedWaveform` still holds. Within a period, the samples of
 the first half-wave are quantised to the device's current resolution *toward zero*
 (rounding could step one resolution above the ceiling), and the second half-wave is their
 exact negative mirror (``q[P - j] = -q[j]``, ``q[0] = 0``, and ``q[P/2] = 0`` for even
@@ -37,8 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.errors import ChargeBalanceError, StimulatorSettingError
-from drivers.interfaces import CurrentLimitError
+from nmsid.drivers.errors import ChargeBalanceError, StimulatorSettingError
+from nmsid.drivers.interfaces import CurrentLimitError
 
 NA_PER_MA = 1_000_000
 

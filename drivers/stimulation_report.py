@@ -1,7 +1,7 @@
 """Charge and current figures of a prepared STG download (``nmsid stimulation``, session file).
 
 Computed from exactly the samples the driver downloads
-(:class:`~drivers.stg_download.PreparedDownload`), expanded on the device's output grid:
+(:class:`~nmsid.drivers.stg_download.PreparedDownload`), expanded on the device's output grid:
 
 * ``peak_current_mA``: largest ``|I|``;
 * ``max_charge_per_phase_nC``: largest charge of one phase (a run of samples of one sign
@@ -9,7 +9,7 @@ Computed from exactly the samples the driver downloads
 * ``worst_net_charge_per_period_nC``: largest ``|sum I dt|`` over one carrier period;
 * ``net_charge_per_trial_uC``: ``sum I dt`` over the whole trial;
 * ``points``: (value, duration) points sent, ``memory_bytes`` at
-  :data:`~drivers.stg_download.BYTES_PER_POINT`, the channel's capacity and whether the
+  :data:`~nmsid.drivers.stg_download.BYTES_PER_POINT`, the channel's capacity and whether the
   trial fits it.
 """
 
@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.stg_download import BYTES_PER_POINT, PreparedDownload
-from drivers.stg_waveform import NA_PER_MA, RenderedChannel, period_net_nA_ticks
+from nmsid.drivers.stg_download import BYTES_PER_POINT, PreparedDownload
+from nmsid.drivers.stg_waveform import NA_PER_MA, RenderedChannel, period_net_nA_ticks
 
 SUMMARY_FORMAT = "nmsid-stimulation-1"
 

@@ -61,11 +61,11 @@ import types
 
 import numpy as np
 
-from testing.fakes.fake_dotnet import (Int32, NetArray, ObjectDisposedException, UInt32,
-                                       UInt64, CUsbExceptionNet, _ArrayFactory, _require)
-from testing.fakes.fake_stg_device import (_INF, DeviceEnumNet, FakeStgHardware,
-                                           STG_DestinationEnumNet, Stg200xTriggerStatusEnumNet,
-                                           Stg5OvercurrentStatusEnumNet, StgStatusNet)
+from nmsid.testing.fakes.fake_dotnet import (Int32, NetArray, ObjectDisposedException, UInt32,
+                                             UInt64, CUsbExceptionNet, _ArrayFactory, _require)
+from nmsid.testing.fakes.fake_stg_device import (_INF, DeviceEnumNet, FakeStgHardware,
+                                                 STG_DestinationEnumNet, Stg200xTriggerStatusEnumNet,
+                                                 Stg5OvercurrentStatusEnumNet, StgStatusNet)
 
 POINT_BYTES = 8  # ASSUMED (the download format's size on the device is not documented)
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from testing.fakes.fake_mcs_usb import registry
+from nmsid.testing.fakes.fake_mcs_usb import registry
 
 
 class BenchLoopback:

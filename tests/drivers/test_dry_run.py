@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.dry_run import DryRunSettings, check_loopback, run_dry_run
-from drivers.errors import StimulatorSettingError
-from drivers.fake_hardware import load_fake
-from drivers.hardware import make_hw_rig
-from rig.cli import main
+from nmsid.drivers.dry_run import DryRunSettings, check_loopback, run_dry_run
+from nmsid.drivers.errors import StimulatorSettingError
+from nmsid.drivers.fake_hardware import load_fake
+from nmsid.drivers.hardware import make_hw_rig
+from nmsid.cli import main
 
 
 def test_probe_dry_run_passes_every_check_on_the_fake_rig(tmp_path, write_hw_config, capsys):

@@ -13,9 +13,9 @@ import threading
 import numpy as np
 import pytest
 
-from drivers.errors import DeviceError, StimulatorSettingError
-from drivers.interfaces import CheckedWaveform, StimulatorState
-from drivers.stg4002 import Stg4002Stimulator
+from nmsid.drivers.errors import DeviceError, StimulatorSettingError
+from nmsid.drivers.interfaces import CheckedWaveform, StimulatorState
+from nmsid.drivers.stg4002 import Stg4002Stimulator
 
 FS = 2000.0
 
@@ -89,7 +89,7 @@ def test_overcurrent_shutdown_is_a_fault_with_output_stopped_and_logged(fake_mcs
     start(stim, waveform(seconds=1.0))
     fake_mcs.bench.sleep(0.05)
     hw.lose_contact()
-    with caplog.at_level(logging.ERROR, logger="drivers.stg4002"):
+    with caplog.at_level(logging.ERROR, logger="nmsid.drivers.stg4002"):
         st = stim.status()
     assert st.state is StimulatorState.ERROR
     assert "overcurrent shutdown" in st.error and "electrode" in st.error
@@ -152,7 +152,7 @@ def test_memory_is_checked_per_channel_and_laid_out_before_sending(fake_mcs):
 
 
 def test_trial_too_large_for_the_memory_sends_nothing(fake_mcs):
-    from drivers.errors import DeviceMemoryError
+    from nmsid.drivers.errors import DeviceMemoryError
     reg, hw, stim = make(fake_mcs, memory_bytes=200_000)
     stim.connect()
     with pytest.raises(DeviceMemoryError, match="nothing was sent"):
@@ -272,8 +272,8 @@ def test_connect_twice_releases_the_first_connection(fake_mcs):
 
 
 def test_output_rate_setting_of_the_hardware_config(tmp_path):
-    from drivers.errors import HardwareConfigError
-    from drivers.hw_config import parse_hw_config
+    from nmsid.drivers.errors import HardwareConfigError
+    from nmsid.drivers.hw_config import parse_hw_config
     base = {"acquisition": {"kind": "leptrino", "fs_Hz": 1200.0,
                             "leptrino": {"port": "COM5"}}}
     cfg = parse_hw_config({**base, "stimulator": {"output_rate_Hz": 25000.0}}, "hw.toml")
@@ -297,7 +297,7 @@ def test_a_busy_host_never_turns_a_normal_end_into_a_fault(fake_mcs):
 
 
 def test_judge_trial_uses_the_bracketing_times():
-    from drivers.stg_status import TrialProgress, TriggerStatus, judge_trial
+    from nmsid.drivers.stg_status import TrialProgress, TriggerStatus, judge_trial
     F, I, R = TriggerStatus.FINISHED, TriggerStatus.IDLE, TriggerStatus.RUNNING
     assert judge_trial(F, True, 1.0, 1.0, elapsed_sent_s=0.9) is TrialProgress.ENDED
     assert judge_trial(F, True, 0.5, 1.0) is TrialProgress.EARLY_END
@@ -311,7 +311,7 @@ def test_judge_trial_uses_the_bracketing_times():
 def test_status_decoding_accepts_enum_objects_and_refuses_unknown_values():
     from types import SimpleNamespace
 
-    from drivers.stg_status import UnknownStatus, decode_status
+    from nmsid.drivers.stg_status import UnknownStatus, decode_status
 
     class NetEnum:  # an enum object that int() does not convert
         def __init__(self, name):

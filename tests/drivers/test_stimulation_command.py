@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from rig.cli import main
+from nmsid.cli import main
 
 
 def test_default_protocol_full_range_is_balanced_per_period_in_the_npz(tmp_path, capsys):

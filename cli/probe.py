@@ -6,7 +6,7 @@ with a software-started acquisition, read the E-stop switch, and release everyth
 stimulator is connected and queried only: nothing is downloaded or started. A missing
 library or device ends in one line (exit status 2).
 
-Registration only (argparse); the handler is in :mod:`drivers.probe_command`.
+Registration only (argparse); the handler is in :mod:`nmsid.cli.probe_command`.
 """
 
 from __future__ import annotations
@@ -30,4 +30,4 @@ def register(sub) -> None:
                    help="dry run: the STG channel wired to the resistor (default extensor)")
     p.add_argument("--dry-run-mA", type=float, default=2.0, metavar="MA",
                    help="dry run: peak current, at most 5 mA (default 2)")
-    p.set_defaults(handler="drivers.probe_command:probe")
+    p.set_defaults(handler="nmsid.cli.probe_command:probe")

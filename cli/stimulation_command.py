@@ -1,11 +1,11 @@
-"""The handler of ``nmsid stimulation`` (registered by :mod:`drivers.cli_stimulation`).
+"""The handler of ``nmsid stimulation`` (registered by :mod:`nmsid.cli.stimulation`).
 
-Every sE level of the protocol goes through :func:`protocols.waveforms.trial_waveform` (as
-in a session) and :func:`drivers.stg_download.prepare_download` (as in
-:meth:`drivers.stg4002.Stg4002Stimulator.load`), with the channels, ceilings and output
+Every sE level of the protocol goes through :func:`nmsid.protocols.waveforms.trial_waveform` (as
+in a session) and :func:`nmsid.drivers.stg_download.prepare_download` (as in
+:meth:`nmsid.drivers.stg4002.Stg4002Stimulator.load`), with the channels, ceilings and output
 rate of the hardware configuration and the STG4002's nominal range and resolution
-(:data:`~drivers.stg_download.STG4002_RANGE_NA`,
-:data:`~drivers.stg_download.STG4002_RESOLUTION_NA`; ``nmsid probe`` reports the
+(:data:`~nmsid.drivers.stg_download.STG4002_RANGE_NA`,
+:data:`~nmsid.drivers.stg_download.STG4002_RESOLUTION_NA`; ``nmsid probe`` reports the
 device's own). Memory: the per-channel capacity is the STG4002's 64 MiB split evenly over
 its 2 channels and 2 sync outputs (the driver can lay out more with ``SetCapacity``).
 """
@@ -18,15 +18,15 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.hw_config import StimulatorConfig, load_hw_config
-from drivers.interfaces import CheckedWaveform, CurrentLimitError
-from drivers.stg_download import (STG4002_OUTPUT_RATE_HZ, STG4002_RANGE_NA,
-                                  STG4002_RESOLUTION_NA, ChannelPlan, prepare_download)
-from drivers.stimulation_report import SUMMARY_FORMAT, download_summary
-from protocols.calibration import make_calibration
-from protocols.config import load_config
-from protocols.errors import CalibrationError
-from protocols.waveforms import trial_waveform
+from nmsid.drivers.hw_config import StimulatorConfig, load_hw_config
+from nmsid.drivers.interfaces import CheckedWaveform, CurrentLimitError
+from nmsid.drivers.stg_download import (STG4002_OUTPUT_RATE_HZ, STG4002_RANGE_NA,
+                                        STG4002_RESOLUTION_NA, ChannelPlan, prepare_download)
+from nmsid.drivers.stimulation_report import SUMMARY_FORMAT, download_summary
+from nmsid.protocols.calibration import make_calibration
+from nmsid.protocols.config import load_config
+from nmsid.protocols.errors import CalibrationError
+from nmsid.protocols.waveforms import trial_waveform
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """``nmsid stimulation``: what the STG4002 would deliver, per sE level, without hardware.
 
-Registration only (argparse); the handler is in :mod:`drivers.stimulation_command`.
+Registration only (argparse); the handler is in :mod:`nmsid.cli.stimulation_command`.
 """
 
 from __future__ import annotations
@@ -27,4 +27,4 @@ def register(sub) -> None:
     p.add_argument("--force", action="store_true",
                    help="write into an existing --out (replaces its stimulation.json and "
                    "samples.npz only)")
-    p.set_defaults(handler="drivers.stimulation_command:run")
+    p.set_defaults(handler="nmsid.cli.stimulation_command:run")
