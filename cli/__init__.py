@@ -38,6 +38,7 @@ COMMAND_MODULES = (
     "nmsid.cli.gui",          # gui
     "nmsid.cli.export",    # export nwb
     "nmsid.cli.study",      # study
+    "nmsid.cli.stimulation",  # stimulation
 )
 
 #: errno values of file-system errors that are the user's to fix (a path that does not

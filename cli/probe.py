@@ -21,4 +21,13 @@ def register(sub) -> None:
                    help="the rig's hardware configuration (TOML)")
     p.add_argument("--samples", type=int, default=20, metavar="N",
                    help="force samples to read (default 20)")
+    p.add_argument("--dry-run", action="store_true",
+                   help="also run one short low-current trial into a dummy-load resistor "
+                   "and check the recorded current against the command (docs/hardware.md)")
+    p.add_argument("--load-ohm", type=float, default=1000.0, metavar="OHM",
+                   help="dry run: the dummy-load resistor (default 1000)")
+    p.add_argument("--dry-run-channel", choices=("extensor", "flexor"), default="extensor",
+                   help="dry run: the STG channel wired to the resistor (default extensor)")
+    p.add_argument("--dry-run-mA", type=float, default=2.0, metavar="MA",
+                   help="dry run: peak current, at most 5 mA (default 2)")
     p.set_defaults(handler="nmsid.cli.probe_command:probe")

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from nmsid.cli.errors import UsageError
+from nmsid.drivers.dry_run import dry_run_probe
 from nmsid.drivers.hardware import build_devices
 from nmsid.drivers.hw_config import load_hw_config
 
@@ -64,6 +65,8 @@ def probe(args) -> int:
             print(f"E-stop switch: {'PRESSED (or unreadable)' if pressed else 'released'}")
         else:
             print("E-stop switch: none configured")
+        if getattr(args, "dry_run", False):
+            ok = dry_run_probe(devices, cfg, args) and ok
     finally:
         devices.close()
     print("probe: OK" if ok else "probe: problems found (see above)")

@@ -47,5 +47,24 @@ class DeviceRangeError(CurrentLimitError):
     """A configured or requested current ceiling exceeds what the device can deliver."""
 
 
+class ChargeBalanceError(CurrentLimitError):
+    """Rendered stimulation data would leave net charge in a carrier period (nothing sent)."""
+
+
+class StimulatorSettingError(HardwareConfigError):
+    """A stimulator setting (output rate, carrier, resolution) the device cannot honour."""
+
+
+class DeviceMemoryError(DeviceError):
+    """A trial does not fit the stimulator's per-channel or sync memory (nothing sent)."""
+
+
+class StimulatorFault(DeviceError):
+    """The stimulator reported a fault during output (overcurrent shutdown, early end,
+    an E-stop during a download); output was stopped and the trial must be aborted."""
+
+
 __all__ = ["VendorLibraryMissing", "DeviceNotFound", "DeviceError", "ProtocolError",
-           "HardwareConfigError", "DeviceRangeError", "CurrentLimitError"]
+           "HardwareConfigError", "DeviceRangeError", "CurrentLimitError",
+           "ChargeBalanceError", "StimulatorSettingError", "DeviceMemoryError",
+           "StimulatorFault"]

@@ -109,6 +109,7 @@ def build_devices(cfg: HardwareConfig) -> RigDevices:
         ceiling_ext_mA=s.ceiling_ext_mA, ceiling_flex_mA=s.ceiling_flex_mA,
         extensor_channel=s.extensor_channel, flexor_channel=s.flexor_channel,
         sync_out=s.sync_out, serial=s.serial, dll_path=s.dll_path or DEFAULT_DLL,
+        output_rate_Hz=s.output_rate_Hz,
         clock=clock.monotonic_s if stack is not None else None)
     acq = _acquisition(cfg, stack)
     # load every vendor library now: a missing one is reported (one line) before any port

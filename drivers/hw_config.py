@@ -33,6 +33,8 @@ class StimulatorConfig:
     sync_out: int = 1
     ceiling_ext_mA: float = 16.0
     ceiling_flex_mA: float = 16.0
+    output_rate_Hz: float = 50_000.0
+    """Set with McsUsbNet ``SetOutputRate`` and read back at connect (1000 .. 50000 Hz)."""
 
 
 @dataclass(frozen=True)
@@ -167,7 +169,12 @@ def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
         extensor_channel=s.get("extensor_channel", 1, int),
         flexor_channel=s.get("flexor_channel", 2, int), sync_out=s.get("sync_out", 1, int),
         ceiling_ext_mA=s.get("ceiling_ext_mA", 16.0, float),
-        ceiling_flex_mA=s.get("ceiling_flex_mA", 16.0, float))
+        ceiling_flex_mA=s.get("ceiling_flex_mA", 16.0, float),
+        output_rate_Hz=s.get("output_rate_Hz", 50_000.0, float))
+    rate, tick = stim.output_rate_Hz, 1e6 / stim.output_rate_Hz if stim.output_rate_Hz else 0
+    if not (1000 <= rate <= 50_000 and abs(tick - round(tick)) < 1e-9):
+        s.fail("output_rate_Hz", rate, "1000 .. 50000 Hz and a whole number of microseconds "
+               "per sample (50000, 25000, 20000, 10000 ...; McsUsbNet SetOutputRate)")
     for key in ("extensor_channel", "flexor_channel", "sync_out"):
         if not 1 <= getattr(stim, key) <= 8:
             s.fail(key, getattr(stim, key), "channels are numbered from 1 (1 .. 8)")

@@ -1,44 +1,30 @@
 """Multi Channel Systems STG4002 stimulator through McsUsbNet (.NET) via pythonnet.
 
-Mode: **download**. A trial is 15 s; at the STG4000 series' output rate of 50 kHz (20 us
-time resolution) that is 750 000 points per channel, about 12 MB for two channels at a
-conservative 8 bytes per (value, duration) point, well inside the STG4002's 64 MB
-(MC_Stimulus II manual for the STG4002, "Pulse Types"). Download mode plays the whole
-trial from the device's own memory, hardware-timed, so a busy or slow host cannot
-interrupt or distort the stimulation; streaming mode (``CStg200xStreamingNet``) would need
-the host to keep the device's queue filled at 50 kHz for 15 s, and an underrun there is a
-stimulation fault. Streaming would only pay off for trials longer than the memory holds
-(several minutes), which the protocol does not have. :meth:`Stg4002Stimulator.load`
-still checks the estimate against ``GetTotalMemory()`` before sending.
+Mode: **download**. A trial (15 s) is rendered and checked by
+:func:`nmsid.drivers.stg_download.prepare_download` (charge-balanced carrier, ceiling, net charge
+per period), downloaded, and played from the device's own memory, hardware-timed.
 
-Sequence (names and argument types as in MCS's public McsUsbNet examples,
-``multichannelsystems/McsUsbNet_Examples``: ``Examples/Python/Stimulation.py`` and
-``Examples/CSharp/STG_Stimulation/Form1.cs``):
+Vendor sources, cited next to each behaviour below: McsUsbNet 5.3.15
+(``github.com/multichannelsystems/McsUsbNet``: XML documentation ``x64/McsUsbNet.xml`` and
+the type metadata of ``x64/McsUsbNet.dll``, see :mod:`nmsid.drivers.stg_status`); MCS's examples
+``multichannelsystems/McsUsbNet_Examples`` (``Examples/Python/Stimulation.py``,
+``Examples/CSharp/STG_Stimulation/Form1.cs``); the ``mcs.stg.sdk`` MATLAB wrapper of
+McsUsbNet (``cstg200x_download_basic.m``) for ``GetCapacity`` / ``SetCapacity``.
 
-* ``clr.AddReference(<McsUsbNet.dll>)``; ``CMcsUsbListNet(DeviceEnumNet.MCS_STG_DEVICE)``,
-  ``.Count``, ``.GetUsbListEntry(i)`` (``.SerialNumber``, ``.DeviceName``);
-* ``CStg200xDownloadNet()``, ``Stg200xPollStatusEvent += handler(status, StgStatusNet,
-  index_list)``, ``Connect(entry)``;
-* ``SetCurrentMode()``, ``GetCurrentRangeInNanoAmp(ch)``,
-  ``GetCurrentResolutionInNanoAmp(ch)``, ``GetNumberOfAnalogChannels()``,
-  ``GetTotalMemory()``; ``DisableMultiFileMode()`` (triggers map to channels, as in the
-  neurostim MCS plugin);
-* ``SetupTrigger(first_trigger, channelmap[], syncoutmap[], repeat[])`` (``UInt32``
-  arrays, one entry per trigger input, bit i = channel / sync out i);
-* ``ClearChannelData(ch)``, ``PrepareAndSendData(ch, Int32[] nA, UInt64[] us,
-  STG_DestinationEnumNet.channeldata_current)``; in current mode a value is a multiple of
-  1 nA and durations are microseconds (McsUsbNet documentation of PrepareAndSendData, as
-  quoted in the ``mcs.stg.sdk`` MATLAB wrapper); ``ClearSyncData(s)``,
-  ``PrepareAndSendData(s, values, durations, STG_DestinationEnumNet.syncoutdata)``;
-* ``SendStart(trigger_mask)``, ``SendStop(trigger_mask)``, ``Disconnect()``,
-  ``Dispose()``.
+Sequence (each call's vendor source is cited where it is made; the whole story is in
+``docs/hardware.md``, section 4): connect -> ``SendStop`` on every trigger, status and
+overcurrent reset, current mode, range / resolution, output rate set and read back, memory,
+version; load -> ``ResetStatus``, memory layout, ``SetupTrigger``, ``PrepareAndSendData``
+per channel and for the sync; ``SendStart(1)``; ``SendStop(all)``; ``Disconnect``.
 
-Sync: the sync output goes high (3.3 V TTL) at onset for the whole trial and low at its
-end; the A/D's start trigger is its rising edge and it is also recorded as a channel.
+Threads: every vendor call holds one lock, so a stop never runs concurrently with a
+download or a disconnect (McsUsbNet does not document its objects as thread-safe).
+:meth:`Stg4002Stimulator.stop_now` waits up to :data:`STOP_WAIT_S` for the lock; if a
+download holds it longer, the download sends ``SendStop`` right after its current vendor
+call returns, and the load ends in a fault (never LOADED).
 
-Not verified on hardware: the ``StgStatusNet.TiggerStatus`` semantics (vendor spelling)
-used by :meth:`status`; the 8-byte memory estimate; ``GetStgVersionInfo`` returning
-(status, software, hardware) through pythonnet.
+Not verified on hardware: everything here ran against ``testing/fakes/fake_mcs_usb.py``
+only (built from the same vendor material).
 """
 
 from __future__ import annotations
@@ -46,75 +32,30 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass
-from types import SimpleNamespace
 
-import numpy as np
-
-from nmsid.drivers.errors import (DeviceError, DeviceNotFound, DeviceRangeError,
-                                  VendorLibraryMissing)
-from nmsid.drivers.interfaces import (CheckedWaveform, CurrentLimitError,
-                                      StimulatorCapabilities, StimulatorState, StimulatorStatus)
-from nmsid.drivers.stg_waveform import (NA_PER_MA, RenderedChannel, check_rendered, compress,
-                                        output_tick_us, render_channel)
+from nmsid.drivers.errors import (DeviceError, DeviceMemoryError, DeviceRangeError,
+                                  StimulatorFault, StimulatorSettingError)
+from nmsid.drivers.interfaces import CheckedWaveform, StimulatorCapabilities, StimulatorState
+from nmsid.drivers.mcs_usb import (DEFAULT_DLL, StgDeviceInfo, find_stg, list_stg_devices,
+                                   load_mcs_usb)
+from nmsid.drivers.stg_download import (BYTES_PER_POINT, STG4002_OUTPUT_RATE_HZ, ChannelPlan,
+                                        PreparedDownload, check_output_rate, prepare_download)
+from nmsid.drivers.stg_memory import fit_memory
+from nmsid.drivers.stg_status import DeviceStatus, OvercurrentStatus, parse_version_info
+from nmsid.drivers.stg_tracking import StgStatusTracking
+from nmsid.drivers.stg_waveform import NA_PER_MA, RenderedChannel
+from nmsid.drivers.stimulation_report import download_summary
 
 log = logging.getLogger(__name__)
 
-DEFAULT_OUTPUT_RATE_HZ = 50_000.0
-"""STG4000 series: 20 us time resolution (STG4002 manual, "Pulse Types")."""
-BYTES_PER_POINT = 8
-"""Conservative device-memory estimate per (value, duration) point (not documented)."""
-DEFAULT_DLL = r"C:\Program Files\Multi Channel Systems\McsUsbNet\x64\McsUsbNet.dll"
+DEFAULT_OUTPUT_RATE_HZ = STG4002_OUTPUT_RATE_HZ
+STOP_WAIT_S = 0.25
+"""How long :meth:`Stg4002Stimulator.stop_now` waits for a vendor call in progress."""
+__all__ = ["Stg4002Stimulator", "load_mcs_usb", "list_stg_devices", "StgDeviceInfo",
+           "BYTES_PER_POINT", "DEFAULT_DLL", "DEFAULT_OUTPUT_RATE_HZ"]
 
 
-def load_mcs_usb(dll_path: str) -> SimpleNamespace:
-    """Import pythonnet, load McsUsbNet.dll and return the names the driver uses.
-
-    Raises
-    ------
-    VendorLibraryMissing
-        If pythonnet or the assembly is missing (one line saying how to install).
-    """
-    try:
-        import clr  # noqa: PLC0415 (pythonnet; lazy: Windows vendor library)
-    except ImportError:
-        raise VendorLibraryMissing(
-            "the Python package pythonnet", "the MCS STG4002 stimulator",
-            "install it with: pip install 'nmsid[mcs]' (Windows, .NET Framework 4.x)"
-        ) from None
-    try:
-        clr.AddReference(str(dll_path))
-        from Mcs.Usb import (CMcsUsbListNet, CStg200xDownloadNet,  # noqa: PLC0415
-                             DeviceEnumNet, STG_DestinationEnumNet)
-        from System import Array, Int32, UInt32, UInt64  # noqa: PLC0415
-    except Exception as exc:  # .NET FileNotFoundException is not a Python OSError
-        raise VendorLibraryMissing(
-            f"McsUsbNet.dll ({dll_path})", "the MCS STG4002 stimulator",
-            "get it from github.com/multichannelsystems/McsUsbNet (or MC_Stimulus II) and "
-            f"set stimulator.dll_path in the hardware config ({type(exc).__name__})"
-        ) from None
-    return SimpleNamespace(CMcsUsbListNet=CMcsUsbListNet, DeviceEnumNet=DeviceEnumNet,
-                           CStg200xDownloadNet=CStg200xDownloadNet,
-                           STG_DestinationEnumNet=STG_DestinationEnumNet, Array=Array,
-                           Int32=Int32, UInt32=UInt32, UInt64=UInt64)
-
-
-@dataclass(frozen=True)
-class StgDeviceInfo:
-    name: str
-    serial: str
-
-
-def list_stg_devices(api: SimpleNamespace) -> list[StgDeviceInfo]:
-    devices = api.CMcsUsbListNet(api.DeviceEnumNet.MCS_STG_DEVICE)
-    out = []
-    for i in range(int(devices.Count)):
-        entry = devices.GetUsbListEntry(api.UInt32(i))
-        out.append(StgDeviceInfo(name=str(entry.DeviceName), serial=str(entry.SerialNumber)))
-    return out
-
-
-class Stg4002Stimulator:
+class Stg4002Stimulator(StgStatusTracking):
     """:class:`~nmsid.drivers.interfaces.Stimulator` for an MCS STG4002 in download mode.
 
     Parameters
@@ -130,6 +71,9 @@ class Stg4002Stimulator:
         Serial number to connect to; empty for the only STG present.
     dll_path : str
         Path of McsUsbNet.dll.
+    output_rate_Hz : float
+        The STG's output rate, set and read back at :meth:`connect` (1000 .. 50000 Hz,
+        a whole number of microseconds per sample).
     api : namespace, optional
         The loaded vendor names (for tests); default :func:`load_mcs_usb`.
     clock : callable, optional
@@ -138,34 +82,53 @@ class Stg4002Stimulator:
 
     def __init__(self, *, ceiling_ext_mA: float, ceiling_flex_mA: float,
                  extensor_channel: int = 1, flexor_channel: int = 2, sync_out: int = 1,
-                 serial: str = "", dll_path: str = DEFAULT_DLL, api=None, clock=None):
+                 serial: str = "", dll_path: str = DEFAULT_DLL,
+                 output_rate_Hz: float = DEFAULT_OUTPUT_RATE_HZ, api=None, clock=None):
         if extensor_channel == flexor_channel:
-            raise ValueError("extensor_channel and flexor_channel must differ, both are "
-                             f"{extensor_channel}")
+            raise StimulatorSettingError("extensor_channel and flexor_channel must differ, "
+                                         f"both are {extensor_channel}")
         self.ceiling_mA = {extensor_channel: float(ceiling_ext_mA),
                            flexor_channel: float(ceiling_flex_mA)}
         self.ext_ch, self.flex_ch, self.sync_out = extensor_channel, flexor_channel, sync_out
         self.serial = serial
         self.dll_path = dll_path
+        self.output_rate_Hz = check_output_rate(output_rate_Hz)
         self._api = api
         self._now = clock or time.monotonic
         self._dev = None
         self._io = threading.Lock()
+        """Held around every vendor call (never two at once)."""
+        self._flags = threading.Lock()
+        self._stop_pending = False
+        """A stop_now() that found the device busy: the holder sends SendStop on release."""
+        self._stop_count = 0
+        self._reset_session_state()
+        self.last_loaded: dict[int, RenderedChannel] = {}
+        self.last_download: PreparedDownload | None = None
+
+    def _reset_session_state(self) -> None:
         self._state = StimulatorState.DISCONNECTED
         self._caps: StimulatorCapabilities | None = None
         self._range_nA: dict[int, float] = {}
         self._res_nA: dict[int, float] = {}
         self._memory_bytes = 0
+        self._n_triggers = 1
+        self._n_channels = 0
+        self._n_sync = 0
+        self._software = self._hardware = ""
         self._duration_s = 0.0
         self._fs_Hz = 0.0
         self._t_start: float | None = None
-        self._last_poll: tuple[int, bool] | None = None
+        self._t_sent: float | None = None
+        self._seen_running = False
+        self._poll: DeviceStatus | None = None
+        self._generation = 0
+        self._capacity: dict[int, int] = {}
         self._error = ""
         self._stop_error = ""
         """A failed SendStop: the output may still be on; cleared only by connect()."""
-        self.last_loaded: dict[int, RenderedChannel] = {}
 
-    # -- connection -------------------------------------------------------------------
+    # -- vendor access ------------------------------------------------------------------
     @property
     def api(self):
         if self._api is None:
@@ -175,37 +138,63 @@ class Stg4002Stimulator:
     def _u32(self, value: int):
         return self.api.UInt32(int(value))
 
+    @property
+    def _all_triggers(self) -> int:
+        """Bitmap of every trigger input (``SendStop``'s ``triggermap``)."""
+        return (1 << max(self._n_triggers, 1)) - 1
+
+    def _release(self) -> None:
+        """Release the device lock; first send a stop that was requested meanwhile."""
+        try:
+            if self._stop_pending and self._dev is not None:
+                self._send_stop_locked("deferred stop (requested during a vendor call)")
+        finally:
+            self._io.release()
+
+    def _send_stop_locked(self, why: str) -> None:
+        """``SendStop(all triggers)``; the caller holds the device lock. Never raises."""
+        self._stop_pending = False
+        dev = self._dev
+        if dev is None:
+            return
+        try:
+            dev.SendStop(self._u32(self._all_triggers))
+            log.info("STG SendStop(0x%x) sent: %s", self._all_triggers, why)
+        except Exception as exc:  # never raise from the safety path
+            self._stop_error = f"SendStop failed: {exc}"
+            log.error("STG SendStop failed (%s): %s", why, exc)
+
+    # -- connection -------------------------------------------------------------------
     def connect(self) -> None:
+        """Connect (again), stop anything left running and configure the device.
+
+        Safe to call after a USB error or twice in a row: a previous handle is released
+        first and every per-session state (errors, status, capabilities) starts afresh.
+        """
+        if self._dev is not None:
+            log.info("STG connect(): releasing the previous connection first")
+            self.disconnect()
+        self._reset_session_state()
         api = self.api
-        devices = api.CMcsUsbListNet(api.DeviceEnumNet.MCS_STG_DEVICE)
-        n = int(devices.Count)
-        entries = [devices.GetUsbListEntry(self._u32(i)) for i in range(n)]
-        if not entries:
-            raise DeviceNotFound("no MCS STG stimulator found on USB; check the cable and "
-                                 "power, and that MC_Stimulus II is closed")
-        if self.serial:
-            matches = [e for e in entries if str(e.SerialNumber) == self.serial]
-            if not matches:
-                found = ", ".join(str(e.SerialNumber) for e in entries)
-                raise DeviceNotFound(f"no STG with serial {self.serial!r} (found: {found}); "
-                                     "check stimulator.serial in the hardware config")
-            entry = matches[0]
-        elif len(entries) > 1:
-            found = ", ".join(str(e.SerialNumber) for e in entries)
-            raise DeviceNotFound(f"{len(entries)} STGs found ({found}); set "
-                                 "stimulator.serial in the hardware config to choose one")
-        else:
-            entry = entries[0]
-        self._error = self._stop_error = ""
+        entry = find_stg(api, self.serial)
         dev = api.CStg200xDownloadNet()
         dev.Stg200xPollStatusEvent += self._on_poll
         status = dev.Connect(entry)
         if status not in (None, 0):
+            try:
+                dev.Dispose()
+            except Exception:  # nothing to release on a refused connection
+                pass
             raise DeviceError(f"McsUsbNet Connect to STG {entry.SerialNumber} failed with "
-                              f"status {status}")
+                              f"status {status} (is MC_Stimulus II or another program "
+                              "connected to it?)")
         self._dev = dev
         try:
-            self._configure_device(entry)
+            self._io.acquire()
+            try:
+                self._configure_device(entry)
+            finally:
+                self._release()  # a stop requested meanwhile is sent here
         except Exception:
             self.disconnect()
             raise
@@ -213,16 +202,33 @@ class Stg4002Stimulator:
 
     def _configure_device(self, entry) -> None:
         dev = self._dev
+        self._n_triggers = int(dev.GetNumberOfTriggerInputs())
+        # first: stop whatever an earlier program left running, on every trigger
+        dev.SendStop(self._u32(self._all_triggers))
+        log.info("STG %s: SendStop(0x%x) at connect", entry.SerialNumber, self._all_triggers)
+        left = self._query_locked()
+        if left is not None:
+            if left.any_active:
+                raise DeviceError(f"STG {entry.SerialNumber} still reports a running trigger "
+                                  f"after SendStop ({[t.name for t in left.triggers]}); "
+                                  "power-cycle it")
+            if left.overcurrent is OvercurrentStatus.SHUTDOWN:
+                log.warning("STG %s: overcurrent shutdown latched from before; "
+                            "ResetOvercurrent()", entry.SerialNumber)
+                dev.ResetOvercurrent()
+        dev.ResetStatus(self._u32(self._all_triggers))
+        dev.EnableAutoReset()
         n_channels = int(dev.GetNumberOfAnalogChannels())
         for ch in (self.ext_ch, self.flex_ch):
             if not 1 <= ch <= n_channels:
-                raise ValueError(f"stimulator channel {ch} does not exist on "
-                                 f"{entry.DeviceName} ({n_channels} channels, numbered "
-                                 "from 1)")
+                raise StimulatorSettingError(
+                    f"stimulator channel {ch} does not exist on {entry.DeviceName} "
+                    f"({n_channels} channels, numbered from 1)")
         n_sync = int(dev.GetNumberOfSyncoutChannels())
         if not 1 <= self.sync_out <= n_sync:
-            raise ValueError(f"stimulator.sync_out = {self.sync_out} does not exist "
-                             f"({n_sync} sync outputs, numbered from 1)")
+            raise StimulatorSettingError(f"stimulator.sync_out = {self.sync_out} does not "
+                                         f"exist ({n_sync} sync outputs, numbered from 1)")
+        self._n_channels, self._n_sync = n_channels, n_sync
         dev.SetCurrentMode()
         dev.DisableMultiFileMode()
         for ch in (self.ext_ch, self.flex_ch):
@@ -234,102 +240,164 @@ class Stg4002Stimulator:
                     f"current ceiling {self.ceiling_mA[ch]:g} mA on stimulator channel {ch} "
                     f"exceeds the device's range {range_mA:g} mA; lower the ceiling in the "
                     "hardware config")
+        # McsUsbNet SetOutputRate / GetOutputRate: "Valid rates are from 1000 Hz to 50000 Hz"
+        dev.SetOutputRate(self._u32(int(self.output_rate_Hz)))
+        got = float(dev.GetOutputRate())
+        if abs(got - self.output_rate_Hz) > 0.5:
+            raise DeviceError(f"STG output rate set to {self.output_rate_Hz:g} Hz but the "
+                              f"device reports {got:g} Hz; nothing will be downloaded")
         self._memory_bytes = int(dev.GetTotalMemory())
-        firmware = ""
-        try:
-            info = dev.GetStgVersionInfo("", "")
-            firmware = " / ".join(str(x) for x in info[1:]) if isinstance(info, tuple) else str(info)
-        except Exception:  # informative only
-            firmware = ""
+        try:  # void GetStgVersionInfo(out string SwVersion, out string HwVersion)
+            self._software, self._hardware = parse_version_info(dev.GetStgVersionInfo("", ""))
+        except Exception as exc:  # informative only
+            log.warning("STG GetStgVersionInfo failed: %s", exc)
+        firmware = (f"software {self._software}, hardware {self._hardware}"
+                    if self._software or self._hardware else "")
         self._caps = StimulatorCapabilities(
             n_channels=n_channels,
             max_current_mA=min(self._range_nA.values()) / NA_PER_MA,
             resolution_mA=max(self._res_nA.values()) / NA_PER_MA,
-            output_rate_Hz=DEFAULT_OUTPUT_RATE_HZ,
-            model=str(entry.DeviceName), serial=str(entry.SerialNumber), firmware=firmware)
+            output_rate_Hz=got, model=str(entry.DeviceName),
+            serial=str(entry.SerialNumber), firmware=firmware)
 
     def capabilities(self) -> StimulatorCapabilities:
         if self._caps is None:
             raise DeviceError("the STG is not connected; call connect() first")
         return self._caps
 
+    def disconnect(self) -> None:
+        """Stop all triggers and release the device; waits for a vendor call in progress."""
+        got = self._io.acquire(timeout=5.0)
+        if not got:
+            log.error("STG disconnect: a vendor call has not returned for 5 s; "
+                      "disconnecting anyway")
+        try:
+            dev, self._dev = self._dev, None
+            if dev is None:
+                return
+            try:
+                dev.SendStop(self._u32(self._all_triggers))
+            except Exception as exc:  # the device may be gone (USB error)
+                log.warning("STG SendStop at disconnect failed: %s", exc)
+            try:
+                dev.Stg200xPollStatusEvent -= self._on_poll
+            except Exception:
+                pass
+            for call in ("Disconnect", "Dispose"):
+                try:
+                    getattr(dev, call)()
+                except Exception as exc:
+                    log.warning("STG %s failed: %s", call, exc)
+            self._stop_pending = False
+        finally:
+            if got:
+                self._io.release()
+            self._state = StimulatorState.DISCONNECTED
+
     # -- trial ----------------------------------------------------------------------
+    def plans(self) -> tuple[ChannelPlan, ChannelPlan]:
+        """The extensor and flexor channels as :func:`prepare_download` needs them."""
+        return tuple(ChannelPlan(ch, name, self.ceiling_mA[ch], self._range_nA[ch],
+                                 self._res_nA[ch])
+                     for ch, name in ((self.ext_ch, "extensor"), (self.flex_ch, "flexor")))
+
     def load(self, waveform: CheckedWaveform) -> None:
-        """Render, quantise, check once more and download one trial (does not start it).
+        """Render, check and download one trial (does not start it).
 
         Raises
         ------
-        DeviceRangeError, CurrentLimitError
-            If a ceiling exceeds the device / rig ceiling or a rendered point exceeds its
-            ceiling; nothing is sent then.
+        DeviceRangeError, CurrentLimitError, ChargeBalanceError
+            The waveform or its rendering breaks a ceiling or the charge balance; nothing
+            is sent.
+        DeviceMemoryError
+            The trial does not fit the device memory; nothing is sent.
+        StimulatorFault
+            A stop (E-stop) arrived during the download: the trial is not loaded.
         DeviceError
-            If the data would not fit in the device memory or a vendor call fails.
+            A vendor call failed.
         """
         if self._dev is None:
             raise DeviceError("the STG is not connected; call connect() first")
+        stops_before = self._stop_count
         state = self.status().state  # a finished trial turns RUNNING into STOPPED here
         if state is StimulatorState.RUNNING:
             raise DeviceError("cannot load a trial while the STG is running; stop it first")
-        caps = self.capabilities()
-        plan = ((self.ext_ch, waveform.I_ext_mA, waveform.ceiling_ext_mA, "extensor"),
-                (self.flex_ch, waveform.I_flex_mA, waveform.ceiling_flex_mA, "flexor"))
-        rendered: dict[int, RenderedChannel] = {}
-        for ch, env, wf_ceiling, name in plan:
-            limit = min(wf_ceiling, self.ceiling_mA[ch], self._range_nA[ch] / NA_PER_MA)
-            if wf_ceiling > self.ceiling_mA[ch] + 1e-12:
-                raise DeviceRangeError(
-                    f"{name} waveform ceiling {wf_ceiling:g} mA exceeds the rig ceiling "
-                    f"{self.ceiling_mA[ch]:g} mA of stimulator channel {ch}; nothing was sent")
-            if env.size and env.max() > limit:
-                raise CurrentLimitError(f"{name} envelope peak {env.max():.4f} mA exceeds "
-                                        f"{limit:.4f} mA; nothing was sent")
-            rendered[ch] = render_channel(env, waveform.fs_Hz, waveform.carrier_Hz,
-                                          caps.output_rate_Hz, self._res_nA[ch])
-        need = sum(r.n_points for r in rendered.values()) * BYTES_PER_POINT
-        if need > self._memory_bytes:
-            raise DeviceError(f"trial needs about {need / 1e6:.1f} MB of STG memory, the "
-                              f"device has {self._memory_bytes / 1e6:.1f} MB; shorten the "
-                              "trial")
-        tick = output_tick_us(caps.output_rate_Hz)
-        n_ticks = int(round(waveform.duration_s * caps.output_rate_Hz))
-        sync = compress(np.ones(n_ticks, dtype=np.int64), tick)  # high, then final 0
-        # the last check, on exactly the arrays that are sent
-        for ch, _env, wf_ceiling, name in plan:
-            check_rendered(rendered[ch], min(wf_ceiling, self.ceiling_mA[ch],
-                                             self._range_nA[ch] / NA_PER_MA),
-                           f"{name} channel {ch}")
-        api = self.api
-        dest = api.STG_DestinationEnumNet
-        with self._io:
-            try:
-                self._setup_trigger()
-                for ch, data in rendered.items():
-                    self._dev.ClearChannelData(self._u32(ch - 1))
-                    self._dev.PrepareAndSendData(
-                        self._u32(ch - 1), api.Array[api.Int32](data.values_nA.tolist()),
-                        api.Array[api.UInt64](data.durations_us.tolist()),
-                        dest.channeldata_current)
-                self._dev.ClearSyncData(self._u32(self.sync_out - 1))
-                self._dev.PrepareAndSendData(
-                    self._u32(self.sync_out - 1), api.Array[api.Int32](sync.values_nA.tolist()),
-                    api.Array[api.UInt64](sync.durations_us.tolist()), dest.syncoutdata)
-            except Exception as exc:
-                self._state = StimulatorState.ERROR
-                self._error = f"download failed: {exc}"
-                raise DeviceError(f"STG download failed: {exc}") from exc
-        self.last_loaded = rendered
+        self.capabilities()
+        self.last_download = None  # until this trial is completely downloaded
+        ext, flex = self.plans()
+        prepared = prepare_download(waveform, ext, flex, self.sync_out, self.output_rate_Hz)
+        self._io.acquire()
+        try:
+            self._download(prepared, stops_before)
+        except _Aborted:
+            pass
+        except (DeviceMemoryError, StimulatorFault):
+            raise
+        except Exception as exc:
+            self._state = StimulatorState.ERROR
+            self._error = f"download failed: {exc}"
+            raise DeviceError(f"STG download failed: {exc}") from exc
+        finally:
+            self._release()
+        if self._stop_count != stops_before:
+            self._state = StimulatorState.ERROR
+            self._error = ("stopped (E-stop) during the download: the trial was not loaded; "
+                           "load it again")
+            log.error("STG: %s", self._error)
+            raise StimulatorFault(f"STG: {self._error}")
+        self.last_download = prepared
+        self.last_loaded = dict(prepared.channels)
         self._error = ""  # a fresh, complete download clears an earlier fault
-        self._duration_s = n_ticks / caps.output_rate_Hz
+        self._duration_s = prepared.duration_s
         self._fs_Hz = waveform.fs_Hz
         self._t_start = None
         self._state = StimulatorState.LOADED
 
+    def _download(self, prepared: PreparedDownload, stops_before: int) -> None:
+        """The vendor calls of one download; the caller holds the device lock."""
+        api, dev = self.api, self._dev
+        if dev is None:
+            raise DeviceError("the STG was disconnected")
+        dest = api.STG_DestinationEnumNet
+
+        def check_stop():
+            if self._stop_count != stops_before:
+                self._send_stop_locked("E-stop during the download")
+                raise _Aborted
+
+        check_stop()
+        dev.ResetStatus(self._u32(self._all_triggers))  # no status leaks into this trial
+        latched = self._query_locked()
+        if latched is not None and latched.overcurrent is OvercurrentStatus.SHUTDOWN:
+            log.warning("STG: clearing the overcurrent shutdown of the previous trial "
+                        "(ResetOvercurrent) for a new download")
+            dev.ResetOvercurrent()
+        self._poll = None
+        self._capacity = fit_memory(dev, api, prepared, n_channels=self._n_channels,
+                                    n_sync=self._n_sync, sync_out=self.sync_out,
+                                    total_bytes=self._memory_bytes)
+        check_stop()
+        self._setup_trigger()
+        for ch, data in prepared.channels.items():
+            check_stop()
+            dev.ClearChannelData(self._u32(ch - 1))
+            dev.PrepareAndSendData(self._u32(ch - 1),
+                                   api.Array[api.Int32](data.values_nA.tolist()),
+                                   api.Array[api.UInt64](data.durations_us.tolist()),
+                                   dest.channeldata_current)
+        check_stop()
+        sync = prepared.sync
+        dev.ClearSyncData(self._u32(self.sync_out - 1))
+        dev.PrepareAndSendData(self._u32(self.sync_out - 1),
+                               api.Array[api.Int32](sync.values_nA.tolist()),
+                               api.Array[api.UInt64](sync.durations_us.tolist()),
+                               dest.syncoutdata)
+        check_stop()
+
     def _setup_trigger(self) -> None:
         api = self.api
-        n_triggers = int(self._dev.GetNumberOfTriggerInputs())
-        channelmap = [0] * n_triggers
-        syncoutmap = [0] * n_triggers
-        repeat = [0] * n_triggers
+        n = self._n_triggers
+        channelmap, syncoutmap, repeat = [0] * n, [0] * n, [0] * n
         channelmap[0] = (1 << (self.ext_ch - 1)) | (1 << (self.flex_ch - 1))
         syncoutmap[0] = 1 << (self.sync_out - 1)
         repeat[0] = 1  # play once (0 would repeat forever)
@@ -345,84 +413,76 @@ class Stg4002Stimulator:
     def start(self) -> None:
         if self._state is not StimulatorState.ARMED:
             raise DeviceError(f"cannot start the STG while it is {self._state.value}")
-        with self._io:
-            try:
-                self._dev.SendStart(self._u32(1))  # trigger 1 (bit 0)
-            except Exception as exc:
-                self._state = StimulatorState.ERROR
-                self._error = f"SendStart failed: {exc}"
-                raise DeviceError(f"STG SendStart failed: {exc}") from exc
-        self._t_start = self._now()
+        self._io.acquire()
+        try:
+            self._poll = None
+            self._seen_running = False
+            self._generation += 1
+            # host times bracketing the start: the device starts between them (plus its
+            # start delay), so an early end is judged from the first, a late one from the
+            # second, and a busy host cannot turn a normal end into a fault
+            t_before = self._now()
+            self._dev.SendStart(self._u32(1))  # trigger 1 (bit 0)
+        except Exception as exc:
+            self._state = StimulatorState.ERROR
+            self._error = f"SendStart failed: {exc}"
+            raise DeviceError(f"STG SendStart failed: {exc}") from exc
+        finally:
+            self._release()
+        self._t_start, self._t_sent = t_before, self._now()
         self._state = StimulatorState.RUNNING
 
     def stop_now(self) -> None:
-        """SendStop at once. Thread-safe, idempotent, never raises.
+        """``SendStop`` on every trigger at once. Thread-safe, idempotent, never raises.
 
-        If another thread holds the device (a download in progress) for more than 50 ms,
-        the stop is sent anyway: a concurrent USB call is the lesser risk.
+        Never concurrent with another vendor call: if one is in progress for longer than
+        :data:`STOP_WAIT_S` (a download), its thread sends the stop as soon as that call
+        returns, and a download ends in a fault instead of LOADED.
         """
-        dev = self._dev
-        if dev is None:
+        with self._flags:
+            self._stop_count += 1
+            self._stop_pending = True
+        if self._dev is None:
+            self._stop_pending = False
             return
-        got = self._io.acquire(timeout=0.05)
-        try:
-            dev.SendStop(self._u32(1))
-        except Exception as exc:  # never raise from the safety path
-            self._stop_error = f"SendStop failed: {exc}"
-            log.error("STG SendStop failed: %s", exc)
-        finally:
-            if got:
+        if self._io.acquire(timeout=STOP_WAIT_S):
+            try:
+                if self._stop_pending:
+                    self._send_stop_locked("stop_now")
+            finally:
                 self._io.release()
+        else:
+            log.warning("STG busy for more than %.2f s (download in progress): SendStop "
+                        "follows as soon as the current vendor call returns", STOP_WAIT_S)
         if self._state in (StimulatorState.RUNNING, StimulatorState.ARMED,
                            StimulatorState.LOADED):
             self._state = StimulatorState.STOPPED
 
-    def _on_poll(self, status, stg_status, index_list) -> None:
-        """McsUsbNet poll-status callback (runs on the library's thread)."""
-        try:
-            trig = stg_status.TiggerStatus  # vendor spelling
-            running = bool(int(trig[0]))
-        except Exception:
-            running = True
-        self._last_poll = (int(status), running)
+    def _fault(self, message: str) -> None:
+        """Output to zero, state ERROR with ``message``, logged; the caller holds the lock."""
+        self._send_stop_locked(message)
+        self._state = StimulatorState.ERROR
+        self._error = message
+        log.error("STG fault: %s (output stopped)", message)
 
-    def status(self) -> StimulatorStatus:
-        state = self._state
-        index = -1
-        if state is StimulatorState.RUNNING and self._t_start is not None:
-            elapsed = self._now() - self._t_start
-            poll_says_done = self._last_poll is not None and not self._last_poll[1] \
-                and elapsed > 0.05
-            if elapsed >= self._duration_s or poll_says_done:
-                self._state = state = StimulatorState.STOPPED
-            else:
-                index = int(elapsed * self._fs_Hz)
-        return StimulatorStatus(state=state,
-                                output_active=state is StimulatorState.RUNNING
-                                or bool(self._stop_error),
-                                error=self._stop_error or self._error, sample_index=index)
-
-    def disconnect(self) -> None:
-        dev, self._dev = self._dev, None
-        if dev is None:
-            return
-        try:
-            dev.SendStop(self._u32(1))
-        except Exception:
-            pass
-        for call in ("Disconnect", "Dispose"):
-            try:
-                getattr(dev, call)()
-            except Exception as exc:
-                log.warning("STG %s failed: %s", call, exc)
-        self._state = StimulatorState.DISCONNECTED
+    def delivery_summary(self) -> dict | None:
+        """Charge and current figures of the last download (session file
+        ``stimulation_json``), or None before the first load."""
+        if self.last_download is None:
+            return None
+        return download_summary(self.last_download, self._capacity or None)
 
     def describe(self) -> dict:
         """What ``nmsid probe`` prints (after :meth:`connect`)."""
         caps = self.capabilities()
-        return {"model": caps.model, "serial": caps.serial, "firmware": caps.firmware,
-                "channels": caps.n_channels,
+        return {"model": caps.model, "serial": caps.serial,
+                "software": self._software, "hardware": self._hardware,
+                "channels": caps.n_channels, "output_rate_Hz": caps.output_rate_Hz,
                 "range_mA": {ch: r / NA_PER_MA for ch, r in self._range_nA.items()},
                 "resolution_uA": {ch: r / 1000 for ch, r in self._res_nA.items()},
                 "memory_MB": self._memory_bytes / 1e6,
                 "ceiling_mA": dict(self.ceiling_mA)}
+
+
+class _Aborted(Exception):
+    """Internal: a stop arrived during a download (turned into StimulatorFault)."""

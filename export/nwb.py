@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nmsid.errors import OutputExistsError
 from nmsid.export.errors import ExportError
 from nmsid.protocols.session_file import Session, read_session
 
@@ -275,7 +276,7 @@ def export_nwb(session_path: str | os.PathLike, out_path: str | os.PathLike, *,
     """
     out = Path(out_path)
     if out.exists():
-        raise FileExistsError(f"{out}: a file already exists here; choose another --out "
+        raise OutputExistsError(f"{out}: a file already exists here; choose another --out "
                               "(nmsid never overwrites)")
     session = read_session(session_path)
     nwb, n_series = build_nwbfile(session, subject_age=subject_age,
@@ -287,7 +288,7 @@ def export_nwb(session_path: str | os.PathLike, out_path: str | os.PathLike, *,
         with NWBHDF5IO(str(tmp), "w") as io:
             io.write(nwb)
         if out.exists():
-            raise FileExistsError(f"{out}: appeared while exporting; not overwritten")
+            raise OutputExistsError(f"{out}: appeared while exporting; not overwritten")
         os.replace(tmp, out)
     finally:
         if tmp.exists():

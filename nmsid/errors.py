@@ -41,6 +41,10 @@ class MissingDependency(UserError, ImportError):
     """
 
 
+class OutputExistsError(UserError, FileExistsError):
+    """An output the user did not ask to replace already exists (nothing was written)."""
+
+
 class DeviceFault(NmsidError, OSError):
     """A device cannot be reached or reports a failure."""
 
@@ -58,5 +62,6 @@ EXIT_USER_ERROR = UserError.exit_code
 EXIT_DEVICE_FAULT = DeviceFault.exit_code
 EXIT_SAFETY = SafetyError.exit_code
 
-__all__ = ["NmsidError", "UserError", "MissingDependency", "DeviceFault", "SafetyError",
+__all__ = ["NmsidError", "UserError", "MissingDependency", "OutputExistsError", "DeviceFault",
+           "SafetyError",
            "EXIT_BUG", "EXIT_USER_ERROR", "EXIT_DEVICE_FAULT", "EXIT_SAFETY"]

@@ -620,7 +620,7 @@ class Engine(CalibrationSteps):
                       carrier_Hz=p.carrier_Hz, started_utc=started,
                       wrench=None if wrench is None else wrench[:got],
                       sync=None if sync is None else sync[:got],
-                      extra_attrs=dict(meta.extra_attrs))
+                      extra_attrs={**meta.extra_attrs, **self._stimulation_attrs()})
         self._poll()  # log the trip event (if any) before the trial's own event
         name = self._log.end_trial(trial)
         planned.status = TrialStatus.ABORTED if reason else TrialStatus.DONE
@@ -633,6 +633,17 @@ class Engine(CalibrationSteps):
         self._notify("on_trial_finished", planned.index, trial)
         if not reason:
             self._maybe_level_completed(planned.sE)
+
+    def _stimulation_attrs(self) -> dict:
+        """Optional ``stimulation_json``: the stimulator's charge summary of what it was
+        given to deliver (drivers that offer ``delivery_summary``, e.g. the STG4002)."""
+        summary = getattr(self.devices.stimulator, "delivery_summary", None)
+        try:
+            value = summary() if summary is not None else None
+        except Exception:  # informative only: never lose a trial over it
+            log.exception("stimulator delivery_summary() failed")
+            value = None
+        return {} if value is None else {"stimulation_json": value}
 
     def _maybe_level_completed(self, sE: float) -> None:
         key = round(sE, 9)

@@ -24,6 +24,7 @@ import math
 import os
 from pathlib import Path
 
+from nmsid.errors import OutputExistsError
 from nmsid.sim_backends.curves import ParameterCurve
 from nmsid.sim_backends.effects import effects_from_list
 from nmsid.sim_backends.errors import SimConfigError
@@ -136,5 +137,5 @@ def write_twin(participant: VirtualParticipant, path) -> None:
     """Write a participant as a twin file (never overwrites)."""
     path = Path(path)
     if path.exists():
-        raise FileExistsError(f"{path}: already exists; choose another path")
+        raise OutputExistsError(f"{path}: already exists; choose another path")
     path.write_text(json.dumps(participant.to_twin(), indent=2), encoding="utf-8")

@@ -1,114 +1,79 @@
 """A fake of pythonnet + McsUsbNet: the modules ``clr``, ``System`` and ``Mcs.Usb``.
 
-Only what ``drivers.stg4002`` calls exists, with the vendor's names and .NET argument
-types (as in MCS's McsUsbNet examples): ``clr.AddReference``; ``System.Array[T](items)``
-for ``Int32``, ``UInt32``, ``UInt64`` (range-checked like pythonnet: an out-of-range item
-raises ``OverflowError``); ``Mcs.Usb.CMcsUsbListNet(DeviceEnumNet)``, ``.Count``,
-``.GetUsbListEntry(UInt32)``; ``CStg200xDownloadNet`` with ``Stg200xPollStatusEvent +=``,
-``Connect``, ``SetCurrentMode``, ``DisableMultiFileMode``, ``GetNumberOfAnalogChannels``,
-``GetNumberOfSyncoutChannels``, ``GetNumberOfTriggerInputs``,
-``GetCurrentRangeInNanoAmp(UInt32)``, ``GetCurrentResolutionInNanoAmp(UInt32)``,
-``GetTotalMemory``, ``GetStgVersionInfo``, ``SetupTrigger``, ``ClearChannelData``,
-``ClearSyncData``, ``PrepareAndSendData(UInt32, Int32[], UInt64[], STG_DestinationEnumNet)``,
-``SendStart(UInt32)``, ``SendStop(UInt32)``, ``Disconnect``, ``Dispose``. Anything else
-raises ``AttributeError`` (a driver calling an unknown method fails the tests).
+Built from the vendor's documented behaviour, not from ``drivers.stg4002``. Sources:
+McsUsbNet 5.3.15 (``github.com/multichannelsystems/McsUsbNet``): the XML documentation
+``x64/McsUsbNet.xml`` ("XML" below) and the type metadata of ``x64/McsUsbNet.dll``
+("metadata", read with ``dnfile``); the ``mcs.stg.sdk`` MATLAB wrapper of McsUsbNet
+(``cstg200x_download_basic.m``, "wrapper") for ``GetCapacity`` / ``SetCapacity``; pythonnet's
+conventions for ``out`` parameters. Where the vendor is silent the behaviour is marked
+ASSUMED.
 
-The fake device records every call (``calls``), keeps what was downloaded, refuses values
-outside its current range or not a multiple of 20 us, and plays the download on the
-:class:`~bench.FakeBench` clock so the fake A/D can sample its sync and the force it evokes.
+Modelled (each with its source):
+
+* Names and .NET argument types (metadata); ``System.Array[T](items)`` range-checked like
+  pythonnet (out-of-range -> ``OverflowError``). Anything not listed raises
+  ``AttributeError``.
+* ``Stg200xTriggerStatusEnumNet`` Idle 0 / Running 1 / Finished 2 / Armed 3 and
+  ``Stg5OvercurrentStatusEnumNet`` Normal 0 / Shutdown 1 (metadata constants); the status
+  is kept per trigger ("The STG maintains the status for each of the STG200x_NUM_TRIGGER
+  triggers", XML).
+* A Running that arrives late: ``SendStart`` "The startup delay is in the range of a few
+  ms" (XML); :attr:`FakeStgHardware.start_delay_s` (default 3 ms, tests make it longer);
+  during it the trigger reads ``start_status`` (Idle; ASSUMED, Armed selectable).
+* Auto-reset: with ``EnableAutoReset`` (the power-up default) "the STG status switches to
+  FINISHED only for one poll cycle, after this, it switches to IDLE automatically"; with
+  ``DisableAutoReset`` it stays FINISHED until ``ResetStatus(triggermap)`` (XML).
+  One poll cycle = :attr:`FakeStgHardware.poll_period_s` (ASSUMED 50 ms).
+* A second trigger pulse while a trigger runs stops it (``SetupRetriggerMode``: "stop this
+  trigger (default action)", XML): :meth:`FakeStgHardware.trigger_pulse`.
+* Overcurrent shutdown (an electrode lost contact): :meth:`FakeStgHardware.lose_contact`
+  or ``overcurrent_after_s``; output goes to zero and the status reads Shutdown until
+  ``ResetOvercurrent()`` "Reset the Overcurrent Status" (XML; zero output ASSUMED).
+* Output rate ``SetOutputRate`` / ``GetOutputRate``, "Valid rates are from 1000 Hz to
+  50000 Hz" (XML); the time resolution is one output sample ("The STG has a resolution of
+  20 us" at 50 kHz, XML); a rate left by another program persists in the device.
+* Memory: ``GetTotalMemory`` (XML); per-channel and per-sync capacities ``GetCapacity`` /
+  ``SetCapacity(channelCapacity[], syncCapacity[])`` ("Make sure the sum does not exceed
+  the memory", wrapper; "this currently clears both channel and sync memory", wrapper).
+  A download larger than its channel's capacity raises the vendor exception mid-download.
+  8 bytes per point (ASSUMED; undocumented). ``has_capacity=False`` models McsUsbNet
+  5.3.15, whose metadata has no download-mode ``GetCapacity``.
+* ``GetStgVersionInfo(out string SwVersion, out string HwVersion)`` is void (metadata):
+  pythonnet returns the two out values as ``(sw, hw)``.
+* ``SendStop(triggermap)`` stops the triggers in the bitmap only (XML).
+* The device keeps playing when the host disconnects or crashes (a pattern left running:
+  :meth:`FakeStgHardware.leave_running`); one host connection at a time (ASSUMED: USB
+  device opened exclusively; ``Connect`` returns a non-zero status).
+* Vendor exceptions (``Mcs.Usb.CUsbExceptionNet``) on an unplugged device, a handle from
+  before a replug, and calls after ``Dispose`` (``System.ObjectDisposedException``).
+* Concurrency: McsUsbNet does not document its objects as thread-safe; the fake records
+  every overlap of two vendor calls on one device in :attr:`FakeStgHardware.overlaps`.
+
+The device plays its downloads on the :class:`~bench.FakeBench` clock so the fake A/D can
+sample its sync, the force it evokes and (dry run) the voltage over a dummy-load resistor.
 """
 
 from __future__ import annotations
 
-import enum
 import sys
+import time
 import types
 
 import numpy as np
 
+from nmsid.testing.fakes.fake_dotnet import (Int32, NetArray, ObjectDisposedException, UInt32,
+                                             UInt64, CUsbExceptionNet, _ArrayFactory, _require)
+from nmsid.testing.fakes.fake_stg_device import (_INF, DeviceEnumNet, FakeStgHardware,
+                                                 STG_DestinationEnumNet, Stg200xTriggerStatusEnumNet,
+                                                 Stg5OvercurrentStatusEnumNet, StgStatusNet)
 
-# -- System ------------------------------------------------------------------------
-class _NetInt(int):
-    MIN, MAX, NAME = 0, 0, ""
-
-    def __new__(cls, value):
-        if isinstance(value, float) and not float(value).is_integer():
-            raise TypeError(f"cannot convert {value!r} to System.{cls.NAME}")
-        v = int(value)
-        if not cls.MIN <= v <= cls.MAX:
-            raise OverflowError(f"value {v} out of range for System.{cls.NAME}")
-        return super().__new__(cls, v)
-
-
-class Int32(_NetInt):
-    MIN, MAX, NAME = -2 ** 31, 2 ** 31 - 1, "Int32"
-
-
-class UInt32(_NetInt):
-    MIN, MAX, NAME = 0, 2 ** 32 - 1, "UInt32"
-
-
-class UInt64(_NetInt):
-    MIN, MAX, NAME = 0, 2 ** 64 - 1, "UInt64"
-
-
-class NetArray:
-    """``System.Array[T]``: a typed, fixed-length array (items range-checked)."""
-
-    def __init__(self, element_type, items):
-        self.element_type = element_type
-        arr = np.asarray(items.tolist() if isinstance(items, np.ndarray) else list(items))
-        if arr.size and arr.dtype.kind not in "iu":
-            if arr.dtype.kind != "f" or not np.all(np.mod(arr, 1) == 0):
-                raise TypeError(f"non-integer item for System.{element_type.NAME}[]")
-        arr = arr.astype(np.int64)
-        if arr.size and (int(arr.min()) < element_type.MIN or int(arr.max()) > element_type.MAX):
-            raise OverflowError(f"item out of range for System.{element_type.NAME}[]")
-        self.values = arr
-
-    def __len__(self):
-        return len(self.values)
-
-    def __getitem__(self, i):
-        return self.values[i]
-
-
-class _ArrayFactory:
-    def __getitem__(self, element_type):
-        return lambda items: NetArray(element_type, items)
-
-
-def _require(value, kind, what, array=False):
-    if kind is UInt32 and not array:
-        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < 2 ** 32:
-            raise TypeError(f"{what}: expected System.UInt32, got {value!r}")
-        return int(value)
-    if not isinstance(value, NetArray) or value.element_type is not kind:
-        raise TypeError(f"{what}: expected System.{kind.NAME}[], got {type(value).__name__}")
-    return value.values
-
-
-# -- Mcs.Usb -----------------------------------------------------------------------
-class DeviceEnumNet(enum.Enum):
-    MCS_STG_DEVICE = 1
-    MCS_DEVICE_USB = 2
-
-
-class STG_DestinationEnumNet(enum.Enum):
-    channeldata_voltage = 0
-    channeldata_current = 1
-    syncoutdata = 2
+POINT_BYTES = 8  # ASSUMED (the download format's size on the device is not documented)
 
 
 class CMcsUsbListEntryNet:
     def __init__(self, device_name, serial):
         self.DeviceName = device_name
         self.SerialNumber = serial
-
-
-class StgStatusNet:
-    def __init__(self, running):
-        self.TiggerStatus = [1 if running else 0, 0]  # vendor spelling
 
 
 class _Event:
@@ -126,20 +91,6 @@ class _Event:
     def fire(self, *args):
         for h in list(self.handlers):
             h(*args)
-
-
-class FakeStgHardware:
-    """The physical device behind the fake library (one per bench)."""
-
-    def __init__(self, *, name="STG4002", serial="4002-0001", n_channels=2, n_sync=2,
-                 n_triggers=2, range_nA=16_000_000, resolution_nA=500,
-                 memory_bytes=64 * 1024 * 1024, firmware=("1.34", "Rev. B")):
-        self.name, self.serial = name, serial
-        self.n_channels, self.n_sync, self.n_triggers = n_channels, n_sync, n_triggers
-        self.range_nA, self.resolution_nA = range_nA, resolution_nA
-        self.memory_bytes = memory_bytes
-        self.firmware = firmware
-        self.plugged = True
 
 
 class _Registry:
@@ -164,190 +115,346 @@ class CMcsUsbListNet:
         return self._entries[_require(index, UInt32, "GetUsbListEntry index")]
 
 
-class CStg200xDownloadNet:
-    """Fake download-mode STG: records calls, plays downloads on the bench clock."""
+def _vendor(fn):
+    """Wrap a vendor method: log it, check the handle, detect overlapping calls."""
+    name = fn.__name__
 
-    TICK_US = 20
+    def call(self, *args):
+        self._log(name, *args)
+        hw = self.hw
+        if hw is not None:
+            with hw._busy_lock:
+                if hw._busy:
+                    hw.overlaps.append((hw._busy[-1], name))
+                hw._busy.append(name)
+        try:
+            if hw is not None:
+                hook = hw.on_call.get(name)
+                if hook is not None:
+                    hook()
+                delay = hw.call_delay_s.get(name, 0.0)
+                if delay:
+                    time.sleep(delay)
+            result = fn(self, *args)
+            if hw is not None and hw.call_delay_after_s.get(name):
+                time.sleep(hw.call_delay_after_s[name])   # the call returns late
+            self._fire_if_changed()
+            return result
+        finally:
+            if hw is not None:
+                with hw._busy_lock:
+                    hw._busy.remove(name)
+    call.__name__ = name
+    return call
+
+
+class CStg200xDownloadNet:
+    """Fake download-mode STG handle (one host connection to a :class:`FakeStgHardware`)."""
 
     def __init__(self):
         self.Stg200xPollStatusEvent = _Event()
         self.calls: list[tuple] = []
         self.hw: FakeStgHardware | None = None
-        self.current_mode = False
-        self.channel_data: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self.sync_data: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self.trigger_setup = None
-        self.started_at: float | None = None
-        self.stopped_at: float | None = None
-        self._expanded: dict[int, np.ndarray] = {}
-        self._envelope: dict[int, np.ndarray] = {}
-        self._sync_expanded: dict[int, np.ndarray] = {}
+        self.disposed = False
+        self._generation = -1
+        self._last_fired = None
+        self._last_t = -_INF
         self.fail_next: dict[str, Exception] = {}
         _Registry.devices.append(self)
 
+    # -- plumbing ----------------------------------------------------------------------
     def _log(self, name, *args):
+        if self.disposed:
+            raise ObjectDisposedException(f"System.ObjectDisposedException: {name} on a "
+                                          "disposed CStg200xDownloadNet")
         self.calls.append((name, *args))
         if name in self.fail_next:
             raise self.fail_next.pop(name)
 
     def _need(self):
-        if self.hw is None or not self.hw.plugged:
-            raise RuntimeError("Mcs.Usb.CUsbExceptionNet: device not connected")
+        hw = self.hw
+        if hw is None or not hw.plugged or hw.plug_generation != self._generation:
+            raise CUsbExceptionNet("Mcs.Usb.CUsbExceptionNet: device not connected")
+        return hw
 
+    def _fire_if_changed(self):
+        """McsUsbNet's poll thread, run lazily: one event per status change since the last
+        call (so a short Running or a one-cycle Finished is reported as it would be)."""
+        hw = self.hw
+        if hw is None or not hw.plugged or hw.plug_generation != self._generation:
+            return
+        now = hw.now()
+        for t in [*hw.change_times(self._last_t, now), now]:
+            st = hw.stg_status(t)
+            key = (tuple(st.TiggerStatus), st.OvercurrentStatus)
+            if key != self._last_fired:
+                self._last_fired = key
+                self.Stg200xPollStatusEvent.fire(UInt32(0), st, [])
+        self._last_t = now
+
+    def poll(self):
+        """What McsUsbNet's poll thread does: fire the event if the status changed."""
+        self._fire_if_changed()
+
+    # -- pass-through for tests and the bench --------------------------------------------
+    def __getattr__(self, name):
+        if name in ("started_at", "stopped_at", "current_at", "envelope_at", "sync_at",
+                    "channel_data", "sync_data", "trigger_setup", "current_mode"):
+            hw = self.__dict__.get("hw") or self.__dict__.get("_last_hw")
+            if hw is None:
+                raise AttributeError(name)
+            return getattr(hw, name)
+        if name in ("_expanded", "_sync_expanded"):
+            hw = self.__dict__.get("hw") or self.__dict__.get("_last_hw")
+            return getattr(hw, name[1:])
+        raise AttributeError(f"'CStg200xDownloadNet' has no attribute {name!r} (not part "
+                             "of the fake McsUsbNet)")
+
+    # -- connection ----------------------------------------------------------------------
+    @_vendor
     def Connect(self, entry):
-        self._log("Connect", entry.SerialNumber)
         for hw in _Registry.hardware:
             if hw.serial == entry.SerialNumber and hw.plugged:
-                self.hw = hw
+                owner = hw.opened_by
+                if owner is not None and owner is not self and not owner.disposed \
+                        and owner.hw is hw and owner._generation == hw.plug_generation:
+                    return 1  # ASSUMED: the device is open in another connection
+                self.hw = self._last_hw = hw
+                self._generation = hw.plug_generation
+                hw.opened_by = self
                 bench = _Registry.bench
                 if bench is not None:
-                    bench.stimulator = self
+                    bench.stimulator = hw
                 return 0
         return 1
 
+    @_vendor
     def Disconnect(self):
-        self._log("Disconnect")
+        hw = self.hw
+        if hw is not None and hw.opened_by is self:
+            hw.opened_by = None   # the device keeps playing whatever runs
         self.hw = None
 
     def Dispose(self):
         self._log("Dispose")
+        self.disposed = True
 
+    # -- device information ----------------------------------------------------------------
+    @_vendor
     def GetNumberOfAnalogChannels(self):
-        self._need(); self._log("GetNumberOfAnalogChannels")
-        return UInt32(self.hw.n_channels)
+        return UInt32(self._need().n_channels)
 
+    @_vendor
     def GetNumberOfSyncoutChannels(self):
-        self._need(); self._log("GetNumberOfSyncoutChannels")
-        return UInt32(self.hw.n_sync)
+        return UInt32(self._need().n_sync)
 
+    @_vendor
     def GetNumberOfTriggerInputs(self):
-        self._need(); self._log("GetNumberOfTriggerInputs")
-        return UInt32(self.hw.n_triggers)
+        return UInt32(self._need().n_triggers)
 
+    @_vendor
     def SetCurrentMode(self, *channel):
-        self._need(); self._log("SetCurrentMode", *channel)
-        self.current_mode = True
+        self._need().current_mode = True
 
+    @_vendor
     def DisableMultiFileMode(self):
-        self._need(); self._log("DisableMultiFileMode")
-
-    def GetCurrentRangeInNanoAmp(self, channel):
-        self._need(); ch = _require(channel, UInt32, "channel")
-        self._log("GetCurrentRangeInNanoAmp", ch)
-        return Int32(self.hw.range_nA)
-
-    def GetCurrentResolutionInNanoAmp(self, channel):
-        self._need(); ch = _require(channel, UInt32, "channel")
-        self._log("GetCurrentResolutionInNanoAmp", ch)
-        return Int32(self.hw.resolution_nA)
-
-    def GetTotalMemory(self):
-        self._need(); self._log("GetTotalMemory")
-        return UInt32(self.hw.memory_bytes)
-
-    def GetStgVersionInfo(self, software, hardware):
-        self._need(); self._log("GetStgVersionInfo")
-        return (0, *self.hw.firmware)
-
-    def SetupTrigger(self, first_trigger, channelmap, syncoutmap, repeat):
         self._need()
+
+    @_vendor
+    def GetCurrentRangeInNanoAmp(self, channel):
+        _require(channel, UInt32, "channel")
+        return Int32(self._need().range_nA)
+
+    @_vendor
+    def GetCurrentResolutionInNanoAmp(self, channel):
+        _require(channel, UInt32, "channel")
+        return Int32(self._need().resolution_nA)
+
+    @_vendor
+    def GetTotalMemory(self):
+        return UInt32(self._need().memory_bytes)
+
+    @_vendor
+    def GetStgVersionInfo(self, software, hardware):
+        hw = self._need()
+        return (hw.software, hw.hardware)  # void + 2 out strings, as pythonnet returns it
+
+    @_vendor
+    def SetOutputRate(self, rate):
+        r = _require(rate, UInt32, "rate")
+        if not 1000 <= r <= 50_000:
+            raise CUsbExceptionNet(f"Mcs.Usb.CUsbExceptionNet: output rate {r} Hz invalid "
+                                   "(valid 1000 .. 50000 Hz)")
+        self._need().output_rate_Hz = r
+
+    @_vendor
+    def GetOutputRate(self):
+        return UInt32(self._need().output_rate_Hz)
+
+    # -- status ----------------------------------------------------------------------------
+    @_vendor
+    def QueryTriggerstatus(self):
+        return self._need().stg_status()
+
+    @_vendor
+    def ResetStatus(self, triggermap):
+        m = _require(triggermap, UInt32, "triggermap")
+        hw = self._need()
+        t = hw.now()
+        for i, tr in enumerate(hw.triggers):
+            if m >> i & 1 and tr.start_t is not None and t >= hw._end(tr):
+                tr.reset_t = t
+
+    @_vendor
+    def EnableAutoReset(self):
+        self._need().autoreset = True
+
+    @_vendor
+    def DisableAutoReset(self):
+        self._need().autoreset = False
+
+    @_vendor
+    def ResetOvercurrent(self):
+        hw = self._need()
+        hw.overcurrent_t = None
+        hw.overcurrent_after_s = None
+
+    # -- memory ----------------------------------------------------------------------------
+    @_vendor
+    def GetCapacity(self, channel_out, sync_out):
+        """void GetCapacity(out UInt32[], out UInt32[]) -> pythonnet's (channel, sync)."""
+        hw = self._need()
+        if not hw.has_capacity:
+            raise AttributeError("'CStg200xDownloadNet' object has no attribute "
+                                 "'GetCapacity' (McsUsbNet 5.3.15)")
+        return (NetArray(UInt32, hw.channel_capacity), NetArray(UInt32, hw.sync_capacity))
+
+    @_vendor
+    def SetCapacity(self, channel_capacity, sync_capacity):
+        hw = self._need()
+        if not hw.has_capacity:
+            raise AttributeError("SetCapacity")
+        ch = _require(channel_capacity, UInt32, "channelCapacity", array=True).tolist()
+        sy = _require(sync_capacity, UInt32, "syncCapacity", array=True).tolist()
+        if len(ch) != hw.n_channels or len(sy) != hw.n_sync:
+            raise CUsbExceptionNet("Mcs.Usb.CUsbExceptionNet: one capacity per channel and "
+                                   "per sync output")
+        if sum(ch) + sum(sy) > hw.memory_bytes:
+            raise CUsbExceptionNet("Mcs.Usb.CUsbExceptionNet: capacities exceed the memory")
+        hw.channel_capacity, hw.sync_capacity = ch, sy
+        # wrapper: "this currently clears both channel and sync memory"
+        hw.channel_data.clear(), hw.sync_data.clear(), hw.expanded.clear()
+        hw.envelope.clear(), hw.sync_expanded.clear()
+
+    # -- download --------------------------------------------------------------------------
+    @_vendor
+    def SetupTrigger(self, first_trigger, channelmap, syncoutmap, repeat):
+        hw = self._need()
         first = _require(first_trigger, UInt32, "first_trigger")
         maps = [_require(a, UInt32, n, array=True).tolist() for a, n in
                 ((channelmap, "channelmap"), (syncoutmap, "syncoutmap"), (repeat, "repeat"))]
         for a in maps:
-            if len(a) != self.hw.n_triggers:
-                raise ValueError("SetupTrigger arrays must have one entry per trigger input")
-        self._log("SetupTrigger", first, *maps)
-        self.trigger_setup = (first, *maps)
+            if first + len(a) > hw.n_triggers:
+                raise CUsbExceptionNet("SetupTrigger: more entries than trigger inputs")
+        for k in range(len(maps[0])):
+            hw.channelmap[first + k] = maps[0][k]
+            hw.syncoutmap[first + k] = maps[1][k]
+            hw.repeat[first + k] = maps[2][k]
+        hw.trigger_setup = (first, *maps)
 
+    @_vendor
     def ClearChannelData(self, channel):
-        self._need(); ch = _require(channel, UInt32, "channel")
-        self._log("ClearChannelData", ch)
-        self.channel_data.pop(ch, None)
+        ch = _require(channel, UInt32, "channel")
+        hw = self._need()
+        for d in (hw.channel_data, hw.expanded, hw.envelope):
+            d.pop(ch, None)
 
+    @_vendor
     def ClearSyncData(self, sync):
-        self._need(); s = _require(sync, UInt32, "sync")
-        self._log("ClearSyncData", s)
-        self.sync_data.pop(s, None)
+        s = _require(sync, UInt32, "sync")
+        hw = self._need()
+        hw.sync_data.pop(s, None)
+        hw.sync_expanded.pop(s, None)
 
+    @_vendor
     def PrepareAndSendData(self, channel, amplitude, duration, destination):
-        self._need()
+        hw = self._need()
         ch = _require(channel, UInt32, "channel")
         values = _require(amplitude, Int32, "amplitude", array=True)
         durations = _require(duration, UInt64, "duration", array=True)
         if not isinstance(destination, STG_DestinationEnumNet):
             raise TypeError("destination must be an STG_DestinationEnumNet")
-        self._log("PrepareAndSendData", ch, len(values), destination.name)
         if len(values) != len(durations):
-            raise ValueError("amplitude and duration must have the same length")
-        if np.any(durations.astype(np.int64) % self.TICK_US):
-            raise ValueError("durations must be multiples of 20 us")
-        points = sum(len(v) for v, _ in self.channel_data.values()) + len(values)
-        if points * 8 > self.hw.memory_bytes:
-            raise RuntimeError("Mcs.Usb.CUsbExceptionNet: STG memory full")
-        if destination is STG_DestinationEnumNet.channeldata_current:
-            if not self.current_mode:
-                raise RuntimeError("channel is not in current mode")
-            if ch >= self.hw.n_channels:
-                raise ValueError(f"no channel {ch}")
-            if np.abs(values).max(initial=0) > self.hw.range_nA:
-                raise ValueError("amplitude outside the current range")
-            self.channel_data[ch] = (values.copy(), durations.copy())
-            self._expanded[ch] = np.repeat(values, durations.astype(np.int64) // self.TICK_US)
-            # demodulated envelope: peak |I| over the last carrier period (1 ms = 50 ticks)
-            mag = np.abs(self._expanded[ch])
-            padded = np.concatenate([np.full(49, mag[0] if len(mag) else 0), mag])
-            self._envelope[ch] = np.lib.stride_tricks.sliding_window_view(padded, 50).max(axis=1)
-        elif destination is STG_DestinationEnumNet.syncoutdata:
-            if ch >= self.hw.n_sync:
-                raise ValueError(f"no sync output {ch}")
-            self.sync_data[ch] = (values.copy(), durations.copy())
-            self._sync_expanded[ch] = np.repeat(values, durations.astype(np.int64) // self.TICK_US)
+            raise CUsbExceptionNet("amplitude and duration must have the same length")
+        tick = hw.tick_us
+        if np.any(durations.astype(np.int64) % tick):
+            raise CUsbExceptionNet(f"Mcs.Usb.CUsbExceptionNet: durations must be multiples "
+                                   f"of {tick} us at {hw.output_rate_Hz} Hz")
+        nbytes = len(values) * POINT_BYTES
+        sync = destination is STG_DestinationEnumNet.syncoutdata
+        if hw.has_capacity:
+            cap = (hw.sync_capacity if sync else hw.channel_capacity)
+            if ch < len(cap) and nbytes > cap[ch]:
+                raise CUsbExceptionNet(
+                    f"Mcs.Usb.CUsbExceptionNet: {nbytes} bytes exceed the capacity "
+                    f"{cap[ch]} of {'sync' if sync else 'channel'} {ch}")
         else:
-            raise ValueError("voltage data sent to a current-mode stimulator")
+            used = sum(len(v) for v, _ in hw.channel_data.values()) * POINT_BYTES
+            if used + nbytes > hw.memory_bytes:
+                raise CUsbExceptionNet("Mcs.Usb.CUsbExceptionNet: STG memory full")
+        expanded = np.repeat(values, durations.astype(np.int64) // tick)
+        if destination is STG_DestinationEnumNet.channeldata_current:
+            if not hw.current_mode:
+                raise CUsbExceptionNet("channel is not in current mode")
+            if ch >= hw.n_channels:
+                raise CUsbExceptionNet(f"no channel {ch}")
+            if np.abs(values).max(initial=0) > hw.range_nA:
+                raise CUsbExceptionNet("amplitude outside the current range")
+            hw.channel_data[ch] = (values.copy(), durations.copy())
+            hw.expanded[ch] = expanded
+            per = max(int(round(hw.output_rate_Hz / 1000.0)), 1)  # demodulate over ~1 ms
+            mag = np.abs(expanded)
+            padded = np.concatenate([np.full(per - 1, mag[0] if len(mag) else 0), mag])
+            hw.envelope[ch] = np.lib.stride_tricks.sliding_window_view(
+                padded, per).max(axis=1) if len(mag) else mag
+        elif sync:
+            if ch >= hw.n_sync:
+                raise CUsbExceptionNet(f"no sync output {ch}")
+            hw.sync_data[ch] = (values.copy(), durations.copy())
+            hw.sync_expanded[ch] = expanded
+        else:
+            raise CUsbExceptionNet("voltage data sent to a current-mode stimulator")
 
+    # -- start / stop ----------------------------------------------------------------------
+    @_vendor
     def SendStart(self, trigger_map):
-        self._need(); m = _require(trigger_map, UInt32, "trigger map")
-        self._log("SendStart", m)
-        bench = _Registry.bench
-        self.started_at = bench.now() if bench is not None else 0.0
-        self.stopped_at = None
-        self.Stg200xPollStatusEvent.fire(UInt32(1), StgStatusNet(True), [0])
+        m = _require(trigger_map, UInt32, "trigger map")
+        hw = self._need()
+        t = hw.now()
+        for i, tr in enumerate(hw.triggers):
+            if not m >> i & 1:
+                continue
+            n = 0
+            for ch in range(hw.n_channels):
+                if hw.channelmap[i] >> ch & 1:
+                    n = max(n, len(hw.expanded.get(ch, ())))
+            for s in range(hw.n_sync):
+                if hw.syncoutmap[i] >> s & 1:
+                    n = max(n, len(hw.sync_expanded.get(s, ())))
+            rep = hw.repeat[i]
+            tr.start_t, tr.run_t = t, t + hw.start_delay_s
+            tr.length_s = _INF if rep == 0 else n * rep / hw.output_rate_Hz
+            tr.stop_t = tr.reset_t = None
 
+    @_vendor
     def SendStop(self, trigger_map):
         m = _require(trigger_map, UInt32, "trigger map")
-        self._log("SendStop", m)
-        self._need()
-        bench = _Registry.bench
-        if self.started_at is not None and self.stopped_at is None:
-            self.stopped_at = bench.now() if bench is not None else 0.0
-        self.Stg200xPollStatusEvent.fire(UInt32(0), StgStatusNet(False), [0])
-
-    # -- playback (used by the bench, not by the driver) --------------------------------
-    def _index(self, t: np.ndarray, length: int) -> tuple[np.ndarray, np.ndarray]:
-        t = np.asarray(t, dtype=np.float64)
-        if self.started_at is None:
-            return np.zeros(len(t), dtype=np.int64), np.zeros(len(t), dtype=bool)
-        k = np.floor((t - self.started_at) * 1e6 / self.TICK_US + 1e-9).astype(np.int64)
-        live = (k >= 0) & (k < length)
-        if self.stopped_at is not None:
-            live &= t < self.stopped_at
-        return np.clip(k, 0, max(length - 1, 0)), live
-
-    def current_at(self, channel: int, t) -> np.ndarray:
-        data = self._expanded.get(channel, np.zeros(1, dtype=np.int64))
-        k, live = self._index(t, len(data))
-        return np.where(live, data[k], 0)
-
-    def envelope_at(self, channel: int, t) -> np.ndarray:
-        data = self._envelope.get(channel, np.zeros(1, dtype=np.int64))
-        k, live = self._index(t, len(data))
-        return np.where(live, data[k], 0).astype(np.float64)
-
-    def sync_at(self, sync: int, t) -> np.ndarray:
-        data = self._sync_expanded.get(sync, np.zeros(1, dtype=np.int64))
-        k, live = self._index(t, len(data))
-        return np.where(live, data[k], 0).astype(np.float64)
+        hw = self._need()
+        t = hw.now()
+        for i, tr in enumerate(hw.triggers):
+            if m >> i & 1 and tr.start_t is not None and tr.stop_t is None \
+                    and t < hw._end(tr):
+                tr.stop_t = t
 
 
 def install(bench=None, hardware=None, modules=None) -> dict:
@@ -358,6 +465,9 @@ def install(bench=None, hardware=None, modules=None) -> dict:
     """
     _Registry.hardware = list(hardware) if hardware is not None else [FakeStgHardware()]
     _Registry.bench = bench
+    for hw in _Registry.hardware:
+        if hw.clock is None and bench is not None:
+            hw.clock = bench.now
     _Registry.references = []
     _Registry.devices = []
     clr = types.ModuleType("clr")
@@ -365,10 +475,12 @@ def install(bench=None, hardware=None, modules=None) -> dict:
     system = types.ModuleType("System")
     system.Array = _ArrayFactory()
     system.Int32, system.UInt32, system.UInt64 = Int32, UInt32, UInt64
+    system.ObjectDisposedException = ObjectDisposedException
     mcs = types.ModuleType("Mcs")
     usb = types.ModuleType("Mcs.Usb")
     for cls in (CMcsUsbListNet, CMcsUsbListEntryNet, CStg200xDownloadNet, DeviceEnumNet,
-                STG_DestinationEnumNet, StgStatusNet):
+                STG_DestinationEnumNet, StgStatusNet, Stg200xTriggerStatusEnumNet,
+                Stg5OvercurrentStatusEnumNet, CUsbExceptionNet):
         setattr(usb, cls.__name__, cls)
     mcs.Usb = usb
     mods = {"clr": clr, "System": system, "Mcs": mcs, "Mcs.Usb": usb}

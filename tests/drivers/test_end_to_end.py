@@ -7,6 +7,8 @@ follows rE, and the sync recorded with each trial is high from sample 0 (onset).
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from nmsid.drivers.fake_hardware import load_fake
@@ -51,6 +53,12 @@ def check_session(path, n_trials, fs=2000.0):
         err = np.asarray(t.force_N)[k:] - expected[k:]
         assert np.sqrt(np.mean(err ** 2)) < 0.25, np.sqrt(np.mean(err ** 2))
         assert np.corrcoef(expected[k:], t.force_N[k:])[0, 1] > 0.95
+        # optional stimulation_json: the STG's charge summary of the trial's download
+        stim = t.extra_attrs["stimulation_json"]
+        stim = json.loads(stim) if isinstance(stim, str) else stim
+        for ch in stim["channels"].values():
+            assert ch["worst_net_charge_per_period_nC"] == 0.0
+            assert 0 < ch["peak_current_mA"] <= 16.0
     return s
 
 

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from nmsid.drivers.errors import DeviceError, DeviceNotFound, DeviceRangeError, VendorLibraryMissing
+from nmsid.drivers.errors import (DeviceError, DeviceMemoryError, DeviceNotFound, DeviceRangeError,
+                                  VendorLibraryMissing)
 from nmsid.drivers.interfaces import CheckedWaveform, CurrentLimitError, StimulatorState
 from nmsid.drivers.stg4002 import Stg4002Stimulator, load_mcs_usb
 from nmsid.drivers.stg_waveform import render_channel
@@ -33,25 +34,36 @@ def stim(**kw):
     return Stg4002Stimulator(**args)
 
 
+def period_envelope(env_mA, n):
+    """Independent reference: the held envelope averaged over each 1 ms carrier period."""
+    per = int(RATE / FC)
+    j = np.arange(n)
+    k = np.minimum((j * FS / RATE + 1e-9).astype(int), len(env_mA) - 1)
+    m = n // per
+    held = env_mA[k[:m * per]].reshape(m, per)
+    return np.repeat(np.minimum(held.mean(axis=1), held.max(axis=1)), per), m * per
+
+
 def demodulation_check(samples_nA, env_mA, ceiling_mA, resolution_nA):
-    """Sample by sample: |I| <= ceiling; I / sin(carrier) equals the held envelope."""
+    """Sample by sample: |I| <= ceiling; I / sin(carrier) equals the per-period envelope."""
     n = len(samples_nA)
     j = np.arange(n)
     s = np.sin(2 * np.pi * FC * j / RATE)
-    k = np.minimum((j * FS / RATE + 1e-9).astype(int), len(env_mA) - 1)
     assert np.abs(samples_nA).max() <= ceiling_mA * 1e6
-    ok = np.abs(s) > 0.2
-    demod_mA = samples_nA[ok] / s[ok] / 1e6
-    err = env_mA[k[ok]] - demod_mA
+    ref, m = period_envelope(env_mA, n)
+    assert np.all(samples_nA[m:] == 0)  # after the last whole period: nothing
+    ok = np.abs(s[:m]) > 0.2
+    demod_mA = samples_nA[:m][ok] / s[:m][ok] / 1e6
+    err = ref[ok] - demod_mA
     # quantised toward zero: never above the envelope, at most one step below
     assert err.min() >= -1e-9
-    assert (err * np.abs(s[ok]) * 1e6).max() <= resolution_nA + 1e-6
+    assert (err * np.abs(s[:m][ok]) * 1e6).max() <= resolution_nA + 1e-6
     # independent lock-in demodulation over each full carrier period
     per = int(RATE / FC)
-    m = n // per
-    lockin = 2 * (samples_nA[:m * per] * s[:m * per]).reshape(m, per).mean(axis=1) / 1e6
-    env_mean = env_mA[k[:m * per]].reshape(m, per).mean(axis=1)
-    np.testing.assert_allclose(lockin, env_mean, atol=2 * resolution_nA / 1e6)
+    lockin = 2 * (samples_nA[:m] * s[:m]).reshape(-1, per).mean(axis=1) / 1e6
+    np.testing.assert_allclose(lockin, ref[::per], atol=2 * resolution_nA / 1e6)
+    # charge balance: every carrier period sums to exactly zero
+    assert np.all(samples_nA[:m].reshape(-1, per).sum(axis=1) == 0)
 
 
 def test_vendor_sequence_and_waveform_reaching_the_device(fake_mcs):
@@ -61,6 +73,7 @@ def test_vendor_sequence_and_waveform_reaching_the_device(fake_mcs):
     assert reg.references == ["C:/mcs/McsUsbNet.dll"]
     caps = st_.capabilities()
     assert (caps.max_current_mA, caps.resolution_mA, caps.output_rate_Hz) == (16.0, 0.0005, RATE)
+    assert caps.firmware == "software 1.34, hardware Rev. B"
     wf = waveform()
     st_.load(wf)
     dev = reg.devices[-1]
@@ -75,14 +88,15 @@ def test_vendor_sequence_and_waveform_reaching_the_device(fake_mcs):
     assert sync[:-1].tolist() == [1] * int(wf.duration_s * RATE) and sync[-1] == 0
     st_.arm()
     st_.start()
-    assert dev.calls[-1] == ("SendStart", 1)
+    assert [c for c in dev.calls if c[0] == "SendStart"][-1] == ("SendStart", 1)
     assert st_.status().state is StimulatorState.RUNNING and st_.status().output_active
     st_.stop_now()
     st_.stop_now()  # idempotent
-    assert dev.calls[-1] == ("SendStop", 1)
+    assert dev.calls[-1] == ("SendStop", 0b11)  # every trigger input
     assert not st_.status().output_active
     st_.disconnect()
     assert [c[0] for c in dev.calls[-3:]] == ["SendStop", "Disconnect", "Dispose"]
+    assert reg.hardware[0].overlaps == []
 
 
 def test_status_ends_after_the_trial(fake_mcs):
@@ -111,7 +125,10 @@ def test_stop_now_from_many_threads_while_running(fake_mcs):
         t.join()
     dev = reg.devices[-1]
     assert dev.stopped_at is not None
-    assert sum(1 for c in dev.calls if c[0] == "SendStop") == 8
+    names = [c[0] for c in dev.calls]
+    stops = names[names.index("SendStart"):].count("SendStop")
+    assert 1 <= stops <= 8  # concurrent requests may share one SendStop, never overlap
+    assert reg.hardware[0].overlaps == []
     assert not st_.status().output_active
 
 
@@ -145,7 +162,7 @@ def test_memory_too_small_sends_nothing(fake_mcs):
     reg = fake_mcs(hardware=[hw])
     st_ = stim()
     st_.connect()
-    with pytest.raises(DeviceError, match="MB of STG memory"):
+    with pytest.raises(DeviceMemoryError, match="MB of STG memory"):
         st_.load(waveform(seconds=1.0))
     assert not any(c[0] == "PrepareAndSendData" for c in reg.devices[-1].calls)
 

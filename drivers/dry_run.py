@@ -1,0 +1,272 @@
+"""``nmsid probe --dry-run``: one short low-current trial into a dummy-load resistor.
+
+Wiring (``docs/hardware.md``, "Dry run on a dummy load"): the tested STG output drives a
+resistor of ``load_ohm`` (1 kOhm, >= 0.25 W) instead of electrodes; the voltage over it
+goes to a spare A/D input, the STG sync output to the A/D's trigger input and sync channel
+as in a session. The trial: 1 s at 1 kHz carrier on one channel (the other at 0 mA), an
+envelope that ramps up to ``amplitude_mA`` (default 2 mA = 2 V over 1 kOhm), holds, steps
+to half, ramps down. The monitor is sampled at ``monitor_fs_Hz`` (20 kHz: 20 samples per
+carrier period).
+
+What is compared with what the driver downloaded (``Stg4002Stimulator.last_download``,
+the exact samples), each printed with its figure and limit:
+
+* ``onset``: the recorded current lags the command by at most :data:`ONSET_LIMIT_S`
+  (cross-correlation; sample 0 of the record is the sync edge, as for the force record);
+* ``force record``: the force acquisition, triggered by the same sync, sees the sync high
+  at its sample 0 (onset timing against the force record);
+* ``amplitude``: per carrier period (lock-in at the carrier), measured vs commanded, at
+  most :data:`AMPLITUDE_LIMIT` of ``amplitude_mA``;
+* ``carrier``: spectral peak within :data:`CARRIER_LIMIT` of the carrier frequency;
+* ``envelope``: correlation of the per-period amplitudes >= :data:`ENVELOPE_LIMIT`;
+* ``charge balance``: worst net charge of one carrier period, measured, at most
+  :data:`CHARGE_LIMIT_NC` or 1 % of the largest phase charge.
+
+The monitor input: in fake mode the loop-back of ``testing.fakes.loopback`` (the fake
+STG's output through a simulated resistor into a simulated A/D input). On real hardware
+the spare A/D input is not read yet (the acquisition drivers expose force and sync only):
+the dry run then says so and fails, after the stimulator part has run.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from nmsid.drivers.errors import StimulatorSettingError
+from nmsid.drivers.interfaces import CheckedWaveform, StimulatorState
+
+log = logging.getLogger(__name__)
+
+MAX_DRY_RUN_MA = 5.0
+A2D_RANGE_V = 10.0
+ONSET_LIMIT_S = 1e-4
+AMPLITUDE_LIMIT = 0.05
+CARRIER_LIMIT = 0.01
+ENVELOPE_LIMIT = 0.99
+CHARGE_LIMIT_NC = 2.0
+ENVELOPE_FS_HZ = 2000.0
+CARRIER_HZ = 1000.0
+
+
+@dataclass(frozen=True)
+class DryRunSettings:
+    """What the dry run stimulates and how it records (``nmsid probe`` flags)."""
+
+    load_ohm: float = 1000.0
+    channel: str = "extensor"
+    amplitude_mA: float = 2.0
+    duration_s: float = 1.0
+    monitor_fs_Hz: float = 20_000.0
+
+    def __post_init__(self):
+        if self.channel not in ("extensor", "flexor"):
+            raise StimulatorSettingError(f"dry-run channel {self.channel!r}: expected "
+                                         "'extensor' or 'flexor'")
+        if not 0 < self.amplitude_mA <= MAX_DRY_RUN_MA:
+            raise StimulatorSettingError(f"dry-run amplitude {self.amplitude_mA:g} mA: "
+                                         f"expected > 0 and <= {MAX_DRY_RUN_MA:g} mA (a "
+                                         "low-current check)")
+        if not 100 <= self.load_ohm <= 10_000:
+            raise StimulatorSettingError(f"dummy load {self.load_ohm:g} Ohm: expected 100 .. "
+                                         "10000 Ohm (1000 Ohm recommended)")
+        if self.amplitude_mA * 1e-3 * self.load_ohm > A2D_RANGE_V:
+            raise StimulatorSettingError(
+                f"{self.amplitude_mA:g} mA over {self.load_ohm:g} Ohm is "
+                f"{self.amplitude_mA * self.load_ohm / 1000:g} V, above the A/D's "
+                f"+-{A2D_RANGE_V:g} V; lower the amplitude or the resistor")
+        per = self.monitor_fs_Hz / CARRIER_HZ
+        if abs(per - round(per)) > 1e-9 or round(per) < 10:
+            raise StimulatorSettingError(f"monitor rate {self.monitor_fs_Hz:g} Hz: expected a "
+                                         f"multiple of the {CARRIER_HZ:g} Hz carrier, >= 10x")
+        if not 0.2 <= self.duration_s <= 5:
+            raise StimulatorSettingError(f"dry-run duration {self.duration_s:g} s: expected "
+                                         "0.2 .. 5 s")
+
+
+@dataclass(frozen=True)
+class Check:
+    """One comparison of the recorded current with the command."""
+
+    name: str
+    passed: bool
+    figure: str
+    limit: str
+
+    def line(self) -> str:
+        return f"  [{'PASS' if self.passed else 'FAIL'}] {self.name}: {self.figure} " \
+               f"(limit {self.limit})"
+
+
+def dry_run_envelope(s: DryRunSettings, fs_Hz: float = ENVELOPE_FS_HZ) -> np.ndarray:
+    """Ramp up (20 %), hold at ``amplitude_mA`` (40 %), half (20 %), ramp down (20 %)."""
+    n = int(round(s.duration_s * fs_Hz))
+    x = np.arange(n) / n
+    A = s.amplitude_mA
+    env = np.select([x < 0.2, x < 0.6, x < 0.8], [A * x / 0.2, A, A / 2],
+                    A / 2 * (1 - (x - 0.8) / 0.2))
+    return np.clip(env, 0.0, A)
+
+
+def commanded_current_A(values_nA: np.ndarray, output_rate_Hz: float, n: int,
+                        fs_Hz: float) -> np.ndarray:
+    """The downloaded samples (nA at the output rate) as the monitor would see them (A)."""
+    k = np.floor(np.arange(n) * output_rate_Hz / fs_Hz + 1e-9).astype(np.int64)
+    x = np.asarray(values_nA, dtype=np.float64)
+    return np.where(k < len(x), x[np.minimum(k, len(x) - 1)], 0.0) * 1e-9
+
+
+def _per_period(i_A: np.ndarray, fs_Hz: float) -> np.ndarray:
+    P = int(round(fs_Hz / CARRIER_HZ))
+    m = len(i_A) // P
+    return i_A[:m * P].reshape(m, P)
+
+
+def lockin_amplitude_A(i_A: np.ndarray, fs_Hz: float) -> np.ndarray:
+    """Carrier amplitude per period: ``2 mean(i sin(2 pi f_c t))`` (phase 0 at onset)."""
+    per = _per_period(i_A, fs_Hz)
+    s = np.sin(2 * np.pi * CARRIER_HZ * np.arange(per.shape[1]) / fs_Hz)
+    return 2 * (per * s).mean(axis=1)
+
+
+def _lag_samples(measured: np.ndarray, command: np.ndarray, max_lag: int) -> int:
+    best, best_c = 0, -np.inf
+    for lag in range(-max_lag, max_lag + 1):
+        a = measured[max(lag, 0):len(measured) + min(lag, 0)]
+        b = command[max(-lag, 0):len(command) - max(lag, 0)]
+        c = float(np.dot(a, b))
+        if c > best_c:
+            best, best_c = lag, c
+    return best
+
+
+def check_loopback(monitor_V: np.ndarray, sync_V: np.ndarray, command_A: np.ndarray,
+                   s: DryRunSettings, force_sync_first_V: float | None) -> list[Check]:
+    """Compare the recorded resistor current with the command (see module docstring)."""
+    fs = s.monitor_fs_Hz
+    i_A = np.asarray(monitor_V, dtype=float) / s.load_ohm
+    out = []
+    high = np.flatnonzero(np.asarray(sync_V) > 1.5)
+    edge = int(high[0]) if high.size else -1
+    lag = _lag_samples(i_A, command_A, int(2 * fs / CARRIER_HZ))
+    lag_s = lag / fs
+    out.append(Check("onset", edge in (0, 1) and abs(lag_s) <= ONSET_LIMIT_S,
+                     f"current {lag_s * 1e3:+.3f} ms against the command, sync edge at "
+                     f"sample {edge}", f"+-{ONSET_LIMIT_S * 1e3:g} ms, edge at sample 0"))
+    if force_sync_first_V is None:
+        out.append(Check("force record", False, "no sync channel in the force record",
+                         "sync high at sample 0"))
+    else:
+        out.append(Check("force record", force_sync_first_V > 1.5,
+                         f"sync {force_sync_first_V:.2f} V at sample 0 of the force record",
+                         "> 1.5 V (triggered on the sync edge)"))
+    meas = lockin_amplitude_A(i_A, fs)
+    cmd = lockin_amplitude_A(command_A, fs)
+    on = cmd > 0.1 * s.amplitude_mA * 1e-3
+    err_A = float(np.abs(meas[on] - cmd[on]).max()) if on.any() else np.inf
+    rel = err_A / (s.amplitude_mA * 1e-3)
+    out.append(Check("amplitude", rel <= AMPLITUDE_LIMIT,
+                     f"max error {err_A * 1e3:.3f} mA ({rel * 100:.1f} % of "
+                     f"{s.amplitude_mA:g} mA) over {int(on.sum())} carrier periods",
+                     f"{AMPLITUDE_LIMIT * 100:g} %"))
+    n_fft = 8 * len(i_A)
+    spec = np.abs(np.fft.rfft(i_A * np.hanning(len(i_A)), n_fft))
+    k = int(np.argmax(spec[1:])) + 1
+    if 1 <= k < len(spec) - 1:  # parabolic interpolation of the peak
+        a, b, c = np.log(spec[k - 1:k + 2] + 1e-300)
+        k = k + 0.5 * (a - c) / (a - 2 * b + c)
+    f_Hz = k * fs / n_fft
+    out.append(Check("carrier", abs(f_Hz - CARRIER_HZ) <= CARRIER_LIMIT * CARRIER_HZ,
+                     f"{f_Hz:.2f} Hz", f"{CARRIER_HZ:g} Hz +-{CARRIER_LIMIT * 100:g} %"))
+    r = float(np.corrcoef(meas, cmd)[0, 1]) if len(cmd) > 2 and cmd.std() > 0 else 0.0
+    out.append(Check("envelope", r >= ENVELOPE_LIMIT, f"r = {r:.4f} over {len(cmd)} "
+                     "carrier periods", f">= {ENVELOPE_LIMIT:g}"))
+    per = _per_period(i_A, fs)
+    net_nC = np.abs(per.sum(axis=1)) / fs * 1e9
+    phase_nC = float(np.where(per > 0, per, 0).sum(axis=1).max(initial=0) / fs * 1e9)
+    limit = max(CHARGE_LIMIT_NC, 0.01 * phase_nC)
+    worst = float(net_nC.max(initial=0))
+    total_nC = float(i_A.sum() / fs * 1e9)
+    out.append(Check("charge balance", worst <= limit,
+                     f"worst net {worst:.3f} nC per carrier period (phase {phase_nC:.0f} nC), "
+                     f"{total_nC:+.2f} nC over the trial", f"{limit:.2f} nC per period"))
+    return out
+
+
+def run_dry_run(devices, s: DryRunSettings, recorder, *, fs_Hz: float = 2000.0,
+                out=print) -> bool:
+    """Stimulate the dummy load once, record, compare, print; True if every check passed.
+
+    Parameters
+    ----------
+    devices : drivers.interfaces.RigDevices
+        Connected stimulator (``Stg4002Stimulator``), acquisition, clock.
+    recorder : object with ``record(n_samples, fs_Hz) -> (monitor_V, sync_V)`` or None
+        The A/D's monitor and sync inputs (sample 0 = the sync edge); None: not available.
+    """
+    stim, acq, clock = devices.stimulator, devices.acquisition, devices.clock
+    ext = s.channel == "extensor"
+    ch = devices.extensor_channel if ext else devices.flexor_channel
+    env = dry_run_envelope(s)
+    zeros = np.zeros_like(env)
+    wf = CheckedWaveform(env if ext else zeros, zeros if ext else env, ENVELOPE_FS_HZ,
+                         CARRIER_HZ, s.amplitude_mA, s.amplitude_mA)
+    out(f"dry run: {s.duration_s:g} s at up to {s.amplitude_mA:g} mA on the {s.channel} "
+        f"channel ({ch}) into {s.load_ohm:g} Ohm")
+    fs_acq = acq.configure(fs_Hz)
+    n_acq = int(round(s.duration_s * fs_acq))
+    first_sync = None
+    got = 0
+    acq.start(n_acq, triggered=True)
+    try:
+        stim.load(wf)
+        stim.arm()
+        stim.start()
+        t_end = clock.monotonic_s() + s.duration_s + 2.0 + 2.0
+        while got < n_acq and clock.monotonic_s() < t_end:
+            chunk = acq.read(0.1)
+            if chunk is None:
+                continue
+            if got == 0 and chunk.sync is not None and len(chunk.sync):
+                first_sync = float(np.asarray(chunk.sync)[0])
+            got += chunk.n
+        while stim.status().state is StimulatorState.RUNNING and \
+                clock.monotonic_s() < t_end:
+            clock.sleep(0.02)
+    finally:
+        stim.stop_now()
+        acq.stop()
+    out(f"  force record: {got} of {n_acq} samples at {fs_acq:g} Hz")
+    if recorder is None:
+        out("  [FAIL] loop-back: the resistor monitor is read through the fake A/D only; "
+            "reading a spare CAIO / NI input is not implemented yet (docs/hardware.md)")
+        return False
+    dl = stim.last_download
+    n_mon = int(round(s.duration_s * s.monitor_fs_Hz))
+    monitor_V, sync_V = recorder.record(n_mon, s.monitor_fs_Hz)
+    command = commanded_current_A(dl.channels[ch].expand(), dl.output_rate_Hz, n_mon,
+                                  s.monitor_fs_Hz)
+    checks = check_loopback(monitor_V, sync_V, command, s, first_sync)
+    for c in checks:
+        out(c.line())
+    ok = all(c.passed for c in checks)
+    out("dry run: OK" if ok else "dry run: FAILED (see above)")
+    return ok
+
+
+def dry_run_probe(devices, cfg, args, *, out=print) -> bool:
+    """``nmsid probe --dry-run``: settings from the flags, the loop-back in fake mode."""
+    s = DryRunSettings(load_ohm=args.load_ohm, channel=args.dry_run_channel,
+                       amplitude_mA=args.dry_run_mA)
+    recorder = None
+    bench = getattr(devices.clock, "bench", None)
+    if bench is not None:  # fake mode: the simulated resistor and A/D input
+        from nmsid.drivers.fake_hardware import load_fake  # noqa: PLC0415 (fake mode only)
+        ch = cfg.stimulator.extensor_channel if s.channel == "extensor" \
+            else cfg.stimulator.flexor_channel
+        recorder = load_fake("loopback").BenchLoopback(
+            bench, channel=ch - 1, sync_out=cfg.stimulator.sync_out - 1,
+            load_ohm=s.load_ohm)
+    return run_dry_run(devices, s, recorder, fs_Hz=cfg.acquisition.fs_Hz, out=out)

@@ -1,0 +1,257 @@
+"""The physical STG behind the fake McsUsbNet: status per trigger, playback, memory, faults.
+
+See ``testing/fakes/fake_mcs_usb.py`` for the vendor sources of each behaviour. The enums
+and ``StgStatusNet`` are those of ``Mcs.Usb`` (values from McsUsbNet 5.3.15's metadata).
+"""
+
+from __future__ import annotations
+
+import enum
+import threading
+import time
+
+import numpy as np
+
+
+class DeviceEnumNet(enum.Enum):
+    MCS_STG_DEVICE = 1
+    MCS_DEVICE_USB = 2
+
+
+class STG_DestinationEnumNet(enum.Enum):
+    channeldata_voltage = 0
+    channeldata_current = 1
+    syncoutdata = 2
+
+
+class Stg200xTriggerStatusEnumNet(enum.IntEnum):
+    Idle = 0
+    Running = 1
+    Finished = 2
+    Armed = 3
+
+
+class Stg5OvercurrentStatusEnumNet(enum.IntEnum):
+    Normal = 0
+    Shutdown = 1
+
+
+class StgStatusNet:
+    """Fields as in the metadata: ``TiggerStatus`` (sic), ``ListOfChangedTriggers``,
+    ``OvercurrentStatus``."""
+
+    def __init__(self, triggers, overcurrent=Stg5OvercurrentStatusEnumNet.Normal,
+                 changed=()):
+        self.TiggerStatus = list(triggers)
+        self.ListOfChangedTriggers = list(changed)
+        self.OvercurrentStatus = overcurrent
+
+
+_INF = float("inf")
+
+
+class _Trigger:
+    """Playback state of one trigger input."""
+
+    def __init__(self):
+        self.start_t: float | None = None   # SendStart (or a left-over pattern)
+        self.run_t: float | None = None     # output began (after the start delay)
+        self.length_s = 0.0
+        self.stop_t: float | None = None    # SendStop / retrigger
+        self.reset_t: float | None = None   # ResetStatus
+
+
+class FakeStgHardware:
+    """The physical device behind the fake library (one per bench); see module docstring."""
+
+    def __init__(self, *, name="STG4002", serial="4002-0001", n_channels=2, n_sync=2,
+                 n_triggers=2, range_nA=16_000_000, resolution_nA=500,
+                 memory_bytes=64 * 1024 * 1024, software="1.34", hardware="Rev. B",
+                 output_rate_Hz=50_000, has_capacity=True, start_delay_s=0.003,
+                 start_status=Stg200xTriggerStatusEnumNet.Idle, poll_period_s=0.05,
+                 overcurrent_after_s=None, clock=None):
+        self.name, self.serial = name, serial
+        self.n_channels, self.n_sync, self.n_triggers = n_channels, n_sync, n_triggers
+        self.range_nA, self.resolution_nA = range_nA, resolution_nA
+        self.memory_bytes = memory_bytes
+        self.software, self.hardware = software, hardware
+        self.output_rate_Hz = int(output_rate_Hz)
+        self.has_capacity = has_capacity
+        n = n_channels + n_sync
+        self.channel_capacity = [memory_bytes // n] * n_channels   # ASSUMED power-up layout
+        self.sync_capacity = [memory_bytes // n] * n_sync
+        self.start_delay_s = start_delay_s
+        self.start_status = Stg200xTriggerStatusEnumNet(start_status)
+        self.poll_period_s = poll_period_s
+        self.overcurrent_after_s = overcurrent_after_s
+        self.autoreset = True
+        self.current_mode = False
+        self.plugged = True
+        self.plug_generation = 0
+        self.opened_by = None
+        self.clock = clock
+        self.channel_data: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.sync_data: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.expanded: dict[int, np.ndarray] = {}
+        self.envelope: dict[int, np.ndarray] = {}
+        self.sync_expanded: dict[int, np.ndarray] = {}
+        self.trigger_setup = None
+        self.channelmap = [0] * n_triggers
+        self.syncoutmap = [0] * n_triggers
+        self.repeat = [1] * n_triggers
+        self.triggers = [_Trigger() for _ in range(n_triggers)]
+        self.overcurrent_t: float | None = None
+        self.overlaps: list[tuple[str, str]] = []
+        self.call_delay_s: dict[str, float] = {}
+        self.call_delay_after_s: dict[str, float] = {}
+        self.on_call: dict[str, object] = {}
+        self._busy: list[str] = []
+        self._busy_lock = threading.Lock()
+
+    # -- time --------------------------------------------------------------------------
+    def now(self) -> float:
+        """Bench time (``install`` gives the device the bench's clock), else monotonic."""
+        if self.clock is not None:
+            return self.clock()
+        return time.monotonic()
+
+    @property
+    def tick_us(self) -> int:
+        return int(round(1e6 / self.output_rate_Hz))
+
+    # -- physical events (tests) --------------------------------------------------------
+    def unplug(self) -> None:
+        self.plugged = False
+
+    def replug(self) -> None:
+        """Plug back: handles opened before are dead (they must reconnect)."""
+        self.plugged = True
+        self.plug_generation += 1
+        self.opened_by = None
+
+    def trigger_pulse(self, trigger: int = 0) -> None:
+        """A pulse on a trigger input while it runs: "stop this trigger" (default)."""
+        t = self.now()
+        tr = self.triggers[trigger]
+        if self.status_at(t)[trigger] == Stg200xTriggerStatusEnumNet.Running:
+            tr.stop_t = t
+
+    def lose_contact(self) -> None:
+        """An electrode loses contact: overcurrent shutdown now."""
+        self.overcurrent_t = self.now()
+
+    def leave_running(self, trigger: int, channel: int, current_nA: int) -> None:
+        """A pattern left running forever by another program (repeat 0) on ``trigger``."""
+        tick = self.tick_us
+        vals = np.array([current_nA, -current_nA], dtype=np.int64)
+        self.channel_data[channel] = (vals, np.array([tick, tick], dtype=np.int64))
+        self.expanded[channel] = vals
+        self.envelope[channel] = np.abs(vals).astype(float)
+        self.channelmap[trigger] |= 1 << channel
+        self.repeat[trigger] = 0
+        tr = self.triggers[trigger]
+        tr.start_t = tr.run_t = self.now() - 1.0
+        tr.length_s, tr.stop_t = _INF, None
+
+    # -- status --------------------------------------------------------------------------
+    def _oc_time(self) -> float | None:
+        tr = self.triggers[0]
+        if self.overcurrent_t is None and self.overcurrent_after_s is not None \
+                and tr.run_t is not None and tr.stop_t is None:
+            at = tr.run_t + self.overcurrent_after_s
+            if self.now() >= at:
+                self.overcurrent_t = at
+        return self.overcurrent_t
+
+    def _end(self, tr: _Trigger) -> float:
+        natural = tr.run_t + tr.length_s
+        return natural if tr.stop_t is None else min(natural, max(tr.stop_t, tr.start_t))
+
+    def status_at(self, t: float) -> list:
+        S = Stg200xTriggerStatusEnumNet
+        out = []
+        for tr in self.triggers:
+            if tr.start_t is None:
+                out.append(S.Idle)
+                continue
+            end = self._end(tr)
+            if t < tr.run_t and (tr.stop_t is None or t < tr.stop_t):
+                out.append(self.start_status)
+            elif t < end:
+                out.append(S.Running)
+            elif tr.reset_t is not None and tr.reset_t >= end:
+                out.append(S.Idle)
+            elif self.autoreset and t >= end + self.poll_period_s:
+                out.append(S.Idle)
+            else:
+                out.append(S.Finished)
+        return out
+
+    def overcurrent_status(self, t: float | None = None):
+        oc = self._oc_time()
+        t = self.now() if t is None else t
+        return (Stg5OvercurrentStatusEnumNet.Shutdown if oc is not None and t >= oc
+                else Stg5OvercurrentStatusEnumNet.Normal)
+
+    def stg_status(self, t: float | None = None) -> StgStatusNet:
+        t = self.now() if t is None else t
+        return StgStatusNet(self.status_at(t), self.overcurrent_status(t))
+
+    def change_times(self, after: float, until: float) -> list[float]:
+        """Times in (after, until] at which some status changes (for the poll events)."""
+        pts = []
+        for tr in self.triggers:
+            if tr.start_t is None:
+                continue
+            end = self._end(tr)
+            pts += [tr.start_t, tr.run_t, end, end + self.poll_period_s]
+            pts += [x for x in (tr.stop_t, tr.reset_t) if x is not None]
+        oc = self._oc_time()
+        if oc is not None:
+            pts.append(oc)
+        return sorted(p for p in pts if after < p <= until and p != _INF)
+
+    # -- playback (what the bench samples) ---------------------------------------------
+    @property
+    def started_at(self) -> float | None:
+        """Bench time at which trigger 1's output (and its sync) began."""
+        return self.triggers[0].run_t
+
+    @property
+    def stopped_at(self) -> float | None:
+        return self.triggers[0].stop_t
+
+    def _trigger_of(self, channel: int, sync: bool) -> int | None:
+        maps = self.syncoutmap if sync else self.channelmap
+        for i, m in enumerate(maps):
+            if m >> channel & 1:
+                return i
+        return None
+
+    def _play(self, data: np.ndarray | None, channel: int, t, sync: bool) -> np.ndarray:
+        t = np.asarray(t, dtype=np.float64)
+        i = self._trigger_of(channel, sync)
+        if data is None or i is None or self.triggers[i].run_t is None or not len(data):
+            return np.zeros(len(t))
+        tr = self.triggers[i]
+        k = np.floor((t - tr.run_t) * self.output_rate_Hz + 1e-9).astype(np.int64)
+        live = (k >= 0) & (t < self._end(tr))
+        if self.repeat[i] == 0:  # repeat forever
+            k = np.mod(k, len(data))
+        else:
+            live &= k < len(data)
+        oc = self._oc_time()
+        if oc is not None and not sync:
+            live &= t < oc
+        return np.where(live, data[np.clip(k, 0, len(data) - 1)], 0).astype(np.float64)
+
+    def current_at(self, channel: int, t) -> np.ndarray:
+        """Output current (nA) of ``channel`` (0-based) at bench times ``t``."""
+        return self._play(self.expanded.get(channel), channel, t, False)
+
+    def envelope_at(self, channel: int, t) -> np.ndarray:
+        """Demodulated amplitude (nA): peak |I| over the last carrier period."""
+        return self._play(self.envelope.get(channel), channel, t, False)
+
+    def sync_at(self, sync: int, t) -> np.ndarray:
+        return self._play(self.sync_expanded.get(sync), sync, t, True)
