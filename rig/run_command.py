@@ -20,6 +20,7 @@ from drivers.hardware import make_hw_rig
 from protocols.config import config_from_json, load_config
 from protocols.session_file import read_session, validate_session
 from rig.engine import Engine, TripPolicy
+from rig.glitch_prompt import glitch_confirmation
 from rig.session_log import journal_dir, recover
 from sim_backends import make_sim_rig
 from sim_backends.participant_models import participant_for_model
@@ -69,6 +70,8 @@ def run(args) -> int:
     try:
         engine = Engine(config, devices, path, resume=bool(args.resume), observer=progress,
                         trip_policy=TripPolicy.END_SESSION,
+                        on_device_glitch=glitch_confirmation(
+                            getattr(args, "resume_after_reconnect", False)),
                         extra_attrs={} if sim_seed is None else {
                             "sim_seed": int(sim_seed),
                             "participant_model": config.participant_model})

@@ -121,3 +121,29 @@ def test_glitch_during_a_trial_aborts_that_trial_as_before(tmp_path):
     sess = read_session(tmp_path / "g.h5")
     assert sess.trials[1].status == "aborted"
     assert "USB link lost" in sess.trials[1].abort_reason
+
+
+class _Tty:
+    def __init__(self, answer, tty=True):
+        self.answer, self.tty = answer, tty
+
+    def isatty(self):
+        return self.tty
+
+    def readline(self):
+        return self.answer
+
+
+def test_headless_confirmation_flag_terminal_and_no_terminal():
+    import io
+
+    from rig.glitch_prompt import glitch_confirmation
+    out = io.StringIO()
+    auto = glitch_confirmation(True, stdin=_Tty("", tty=False), stdout=out)
+    assert (auto("acquisition glitch", True), auto("acquisition glitch", False)) == (True, False)
+    ask = glitch_confirmation(False, stdin=_Tty("y\n"), stdout=out)
+    assert ask("stimulator glitch", True) is True
+    assert glitch_confirmation(False, stdin=_Tty("\n"), stdout=out)("x", True) is False
+    refuse = glitch_confirmation(False, stdin=_Tty("y\n", tty=False), stdout=out)
+    assert refuse("x", True) is False
+    assert "--resume" in out.getvalue()
