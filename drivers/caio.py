@@ -367,6 +367,17 @@ class CaioAcquisition:
                 self._id = c_short(-1)  # never used again: AioInit issues a new one
                 self._fs_Hz = 0.0
 
+    def device_fault(self) -> str:
+        """Between trials: "" if the device answers ``AioGetAiStatus``, else the error."""
+        if not self._open:
+            return f"Contec {self.device_name!r} is not open"
+        status = c_long(0)
+        try:
+            self._call("AioGetAiStatus", self._id, ctypes.byref(status))
+        except DeviceError as exc:
+            return str(exc)
+        return ""
+
     def reconnect(self, fs_Hz: float) -> float:
         """After a USB glitch: release the old ID, ``AioInit`` anew, set everything again.
 

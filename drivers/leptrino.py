@@ -12,8 +12,9 @@ this chain for 2000 Hz.
 Time base: the digital interface has no hardware start trigger. With
 ``sync_on_external_input`` (set only for a model that has the external input: on the others
 status bit 5 is undefined) the stimulator's sync line is wired to the sensor's external
-input and sample 0 is the first record at which bit 5 RISES (a record with the bit after
-one without it), so a line already high when the trial is armed does not start it;
+input and sample 0 is the first record at which bit 5 RISES: the level at arming is read
+with one handshake record (0x30); if it is already high, the trial starts only at the first
+high record after a low one, so a line stuck high does not start it;
 otherwise a triggered start is aligned to the first record after :meth:`start` (host
 timing: one record plus USB latency, logged as a warning). Reserved status bits (3, 4, 6,
 7) are masked off by the protocol layer and never raise a flag.
@@ -305,6 +306,24 @@ class LeptrinoAcquisition:
         self.connect()
         return self.configure(fs_Hz if fs_Hz is not None else self._rate_Hz)
 
+    def device_fault(self) -> str:
+        """Between trials: "" if the sensor answers, else what is wrong (for the engine).
+
+        Asks for the product information (one short command; the stream is stopped
+        between trials), so a port that died while idle is found before the next trial.
+        """
+        if self._dead:
+            return self._dead
+        if self._running:
+            return ""
+        if not self.sensor.is_open:
+            return f"serial port {self.sensor.port!r} is not open"
+        try:
+            self.sensor.product_info()
+        except (OSError, ProtocolError) as exc:
+            return f"no answer on {self.sensor.port!r}: {exc}"
+        return ""
+
     def configure(self, fs_Hz: float) -> float:
         if self.info is None:
             self.connect()
@@ -325,6 +344,11 @@ class LeptrinoAcquisition:
         self._dead = ""
         self._armed_wait_sync = bool(triggered and self.sync_on_external_input)
         self._sync_seen_low = False
+        if self._armed_wait_sync:
+            # the line's level at arming (one handshake record, 0x30): if it is already
+            # high, the trial starts only after it has been seen low again
+            level = self.sensor.read_one().status & Status.EXTERNAL_INPUT
+            self._sync_seen_low = not level
         if triggered and not self.sync_on_external_input:
             log.warning("Leptrino %s has no hardware trigger wired "
                         "(sync_on_external_input = false): onset alignment is host-timed",

@@ -256,6 +256,22 @@ class NidaqAcquisition:
             except Exception as exc:
                 log.warning("NI DAQ stop failed: %s", exc)
 
+    def device_fault(self) -> str:
+        """Between trials: "" if the task answers ``is_task_done()``, else the DAQmx error.
+
+        (That a task on a removed USB device answers with an error, e.g. -201003, is what
+        the fake models; not verified on hardware.)
+        """
+        if self._task is None:
+            return f"NI DAQ {self.device!r}: no task (configure() not called)"
+        try:
+            self._task.is_task_done()
+        except Exception as exc:
+            code = getattr(exc, "error_code", "")
+            return f"NI DAQ {self.device!r} does not answer: DAQmx error {code}: " \
+                   f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+        return ""
+
     def reconnect(self, fs_Hz: float) -> float:
         """After a USB glitch: close the old task, build and configure a new one.
 

@@ -27,8 +27,11 @@ nidaqmx-python ``error_codes.DAQmxErrors``), not from ``drivers.nidaq``:
   (``BufferSizeNotMultipleOfEveryNSampsEventIntervalWhenDMA``).
 * -200019 (``ADCOverrun``): a conversion was attempted before the previous one was
   complete; samples are lost. -200141 is ``CounterOverflow`` (counter tasks only).
-* ``unplug()`` / ``replug()``: while unplugged, starting or creating on the device fails
-  with -201003 (device cannot be accessed) and a running task's next read fails with it.
+* ``unplug()`` / ``replug()``: while unplugged, starting a task fails with -201003 (device
+  cannot be accessed) and a running task's next read fails with it; a task created before
+  the glitch stays dead after ``replug()`` (a new task must be made), and
+  ``is_task_done()`` on a dead task raises -201003 (an assumption, not verified on
+  hardware).
 """
 
 from __future__ import annotations
@@ -110,6 +113,7 @@ class _State:
     tasks: list = []
     inject_read_error: int | None = None
     unplugged: bool = False
+    generation: int = 0
 
 
 class _Channels:
@@ -188,7 +192,16 @@ class Task:
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self._data = np.zeros((0, 0))
+        self.generation = _State.generation
         _State.tasks.append(self)
+
+    def _dead(self) -> bool:
+        return _State.unplugged or self.generation != _State.generation
+
+    def is_task_done(self):
+        if self._dead() and self.ai_channels.names:
+            raise DaqError(MESSAGES[-201003], -201003)
+        return not self.running
 
     def __enter__(self):
         return self
@@ -204,7 +217,7 @@ class Task:
     def start(self):
         if self.closed:
             raise DaqError("task closed", -200088)
-        if _State.unplugged and self.ai_channels.names:
+        if self._dead() and self.ai_channels.names:
             raise DaqError(MESSAGES[-201003], -201003)
         if self.mode is AcquisitionType.CONTINUOUS and self.callback is not None \
                 and self.buffer % self.n_every:
@@ -275,7 +288,7 @@ class Task:
 
     def _take(self, n):
         with self._lock:
-            if _State.unplugged:
+            if self._dead():
                 raise DaqReadError(MESSAGES[-201003], -201003)
             if _State.inject_read_error is not None:
                 code, _State.inject_read_error = _State.inject_read_error, None
@@ -313,6 +326,7 @@ def install(bench=None, devices=None, wiring=None, di_lines=None, modules=None) 
     _State.tasks = []
     _State.inject_read_error = None
     _State.unplugged = False
+    _State.generation = 0
     root = types.ModuleType("nidaqmx")
     constants = types.ModuleType("nidaqmx.constants")
     for c in (AcquisitionType, Edge, TerminalConfiguration):
@@ -335,8 +349,10 @@ def install(bench=None, devices=None, wiring=None, di_lines=None, modules=None) 
 
 
 def unplug() -> None:
-    """The USB device disappears: reads and starts fail with -201003."""
+    """The USB device disappears: reads and starts fail with -201003; tasks made before
+    stay dead."""
     _State.unplugged = True
+    _State.generation += 1
 
 
 def replug() -> None:
