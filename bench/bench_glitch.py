@@ -31,10 +31,10 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from drivers.hardware import make_hw_rig  # noqa: E402
-from protocols.config import config_from_dict  # noqa: E402
-from rig.engine import Engine, EngineObserver, TripPolicy  # noqa: E402
-from sim_backends import Fault, FaultKind, make_sim_rig  # noqa: E402
+from nmsid.drivers.hardware import make_hw_rig  # noqa: E402
+from nmsid.protocols.config import config_from_dict  # noqa: E402
+from nmsid.rig.engine import Engine, EngineObserver, TripPolicy  # noqa: E402
+from nmsid.sim_backends import Fault, FaultKind, make_sim_rig  # noqa: E402
 
 REPEATS = 3
 

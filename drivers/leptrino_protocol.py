@@ -2,7 +2,7 @@
 
 Pure byte handling, no I/O: :func:`encode_frame` builds a frame to send and
 :class:`FrameDecoder` turns a byte stream (fed in arbitrary pieces, garbage included) into
-frames, NAKs and corruption reports. :mod:`drivers.leptrino` does the I/O.
+frames, NAKs and corruption reports. :mod:`nmsid.drivers.leptrino` does the I/O.
 
 Frame (both directions)::
 
@@ -35,7 +35,7 @@ that reply is accepted and the rate is reported as not stated (``rate_stated = F
 the driver then uses the nominal rate and says so in the log. The rate text is parsed
 strictly by :func:`parse_rate_text`: a decimal number, optionally followed by ``Hz``,
 ``k`` or ``kHz`` (``1200``, ``1200Hz``, ``1.2k``, ``1.2kHz``); anything else (``1k2``,
-``12e2``) is refused with a :class:`~drivers.errors.ProtocolError` naming the device and
+``12e2``) is refused with a :class:`~nmsid.drivers.errors.ProtocolError` naming the device and
 the reply. Every parse error raises that driver error, never a bare ``ValueError``.
 
 Sources (public; no Leptrino protocol manual was available to us):
@@ -58,7 +58,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.errors import ProtocolError
+from nmsid.drivers.errors import ProtocolError
 
 DLE = 0x10
 STX = 0x02

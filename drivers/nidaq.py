@@ -39,10 +39,10 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from drivers.analog_force import AnalogCalibration, convert_block
-from drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
-                            VendorLibraryMissing)
-from drivers.interfaces import AcquisitionFlags, ForceChunk
+from nmsid.drivers.analog_force import AnalogCalibration, convert_block
+from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
+                                  VendorLibraryMissing)
+from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
 
 log = logging.getLogger(__name__)
 
@@ -82,7 +82,7 @@ def buffer_samples(fs_Hz: float, buffer_s: float, n_block: int) -> int:
 
 
 class NidaqAcquisition:
-    """:class:`~drivers.interfaces.ForceAcquisition` over an NI DAQmx device.
+    """:class:`~nmsid.drivers.interfaces.ForceAcquisition` over an NI DAQmx device.
 
     Parameters
     ----------

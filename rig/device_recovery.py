@@ -28,8 +28,8 @@ import logging
 import math
 from typing import Callable
 
-from drivers.interfaces import StimulatorState
-from rig.states import State
+from nmsid.drivers.interfaces import StimulatorState
+from nmsid.rig.states import State
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +47,7 @@ class DeviceGlitchEnd(Exception):
 
 
 class DeviceRecovery:
-    """Mixin of :class:`rig.engine.Engine` (uses its devices, events, state machine)."""
+    """Mixin of :class:`nmsid.rig.engine.Engine` (uses its devices, events, state machine)."""
 
     on_device_glitch: GlitchConfirm | None = None
 

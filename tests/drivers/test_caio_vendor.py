@@ -11,9 +11,9 @@ import logging
 
 import pytest
 
-from drivers.caio import CaioAcquisition
-from drivers.errors import DeviceError
-from drivers.fake_hardware import load_fake
+from nmsid.drivers.caio import CaioAcquisition
+from nmsid.drivers.errors import DeviceError
+from nmsid.drivers.fake_hardware import load_fake
 from tests.drivers.test_caio import CAL, read_all, rig
 
 
@@ -23,7 +23,7 @@ def test_not_supported_setter_is_logged_and_tolerated(fake_mcs, caplog, func):
     lib.unsupported.add(func)
     acq = CaioAcquisition(CAL, lib=lib)
     try:
-        with caplog.at_level(logging.WARNING, logger="drivers.caio"):
+        with caplog.at_level(logging.WARNING, logger="nmsid.drivers.caio"):
             assert acq.configure(2000.0) == 2000.0
         assert acq.unsupported == [func]
         assert f"does not support {func} (error 20001" in caplog.text

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import pytest
 
-from drivers.fake_hardware import load_fake
-from drivers.hardware import make_hw_rig
-from protocols.config import config_from_dict
-from protocols.session_file import read_session, validate_session
-from rig.engine import Engine, EngineObserver, TripPolicy
+from nmsid.drivers.fake_hardware import load_fake
+from nmsid.drivers.hardware import make_hw_rig
+from nmsid.protocols.config import config_from_dict
+from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
 
 
 def _glitch(kind, devices):

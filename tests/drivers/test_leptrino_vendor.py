@@ -13,10 +13,10 @@ import time
 import numpy as np
 import pytest
 
-from drivers.errors import ProtocolError
-from drivers.leptrino import NOMINAL_RATE_HZ, LeptrinoAcquisition, LeptrinoSensor
-from drivers.leptrino_protocol import (Frame, Status, parse_data_record, parse_product_info,
-                                       parse_rate_text, parse_rated_values)
+from nmsid.drivers.errors import ProtocolError
+from nmsid.drivers.leptrino import NOMINAL_RATE_HZ, LeptrinoAcquisition, LeptrinoSensor
+from nmsid.drivers.leptrino_protocol import (Frame, Status, parse_data_record, parse_product_info,
+                                             parse_rate_text, parse_rated_values)
 
 RATED = (500.0, 500.0, 1000.0, 10.0, 10.0, 10.0)
 
@@ -84,7 +84,7 @@ def test_old_firmware_sensor_with_random_reserved_bits_connects_and_reads_force(
                             wrench_fn=lambda t: (12.5, 0.0, 0.0, 0.0, 0.0, 0.0))
     acq = LeptrinoAcquisition(LeptrinoSensor(emu.port, reply_timeout_s=0.3))
     try:
-        with caplog.at_level(logging.INFO, logger="drivers.leptrino"):
+        with caplog.at_level(logging.INFO, logger="nmsid.drivers.leptrino"):
             info = acq.connect()
         assert info.rate_stated is False
         assert acq.configure(1200.0) == NOMINAL_RATE_HZ
@@ -124,7 +124,7 @@ def test_reconnect_after_usb_glitch_opens_a_new_handle(leptrino_emulator):
     opened = []
 
     def factory(port, baud, timeout):
-        from drivers.leptrino import open_serial
+        from nmsid.drivers.leptrino import open_serial
         ser = open_serial(port, baud, timeout)
         opened.append(ser)
         return ser

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import pytest
 
-from drivers.fake_hardware import load_fake
-from drivers.nidaq import NidaqAcquisition
+from nmsid.drivers.fake_hardware import load_fake
+from nmsid.drivers.nidaq import NidaqAcquisition
 from tests.drivers.test_nidaq import CAL, collect
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from drivers.fake_hardware import load_fake
-from rig.cli import main
+from nmsid.drivers.fake_hardware import load_fake
+from nmsid.cli import main
 
 
 def _unplug_stimulator(monkeypatch):
@@ -40,8 +40,8 @@ def _unplug_leptrino(monkeypatch):
 
 
 def _unplug_estop(monkeypatch):
-    from drivers import estop_switch
-    from drivers.errors import DeviceNotFound
+    from nmsid.drivers import estop_switch
+    from nmsid.drivers.errors import DeviceNotFound
 
     def fail(self):
         raise DeviceNotFound("cannot open serial port 'COM7' for the E-stop switch "

@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import pytest
 
-from protocols.config import config_from_dict
-from protocols.session_file import read_session, validate_session
-from rig.device_recovery import RECONNECT_ATTEMPTS
-from rig.engine import Engine, EngineObserver, TripPolicy
-from rig.states import State
-from sim_backends import Fault, FaultKind, make_sim_rig
+from nmsid.protocols.config import config_from_dict
+from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.device_recovery import RECONNECT_ATTEMPTS
+from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
+from nmsid.rig.states import State
+from nmsid.sim_backends import Fault, FaultKind, make_sim_rig
 
 TRIAL_S = 1.5  # steady 0.5 s + chirp 1.0 s
 
@@ -137,7 +137,7 @@ class _Tty:
 def test_headless_confirmation_flag_terminal_and_no_terminal():
     import io
 
-    from rig.glitch_prompt import glitch_confirmation
+    from nmsid.rig.glitch_prompt import glitch_confirmation
     out = io.StringIO()
     auto = glitch_confirmation(True, stdin=_Tty("", tty=False), stdout=out)
     assert (auto("acquisition glitch", True), auto("acquisition glitch", False)) == (True, False)

@@ -1,4 +1,4 @@
-"""The handler of ``nmsid probe`` (registered by :mod:`drivers.cli_probe`): check every
+"""The handler of ``nmsid probe`` (registered by :mod:`nmsid.cli.probe`): check every
 configured device ON ITS OWN, print what it reports and a few force samples, release it;
 nothing is stimulated.
 
@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.errors import HardwareConfigError
-from drivers.hardware import (load_acquisition_library, make_acquisition, make_estop,
-                              make_stimulator, prepare)
-from drivers.hw_config import load_hw_config
+from nmsid.drivers.errors import HardwareConfigError
+from nmsid.drivers.hardware import (load_acquisition_library, make_acquisition, make_estop,
+                                    make_stimulator, prepare)
+from nmsid.drivers.hw_config import load_hw_config
 
 
 def _one_line(exc: BaseException) -> str:

@@ -8,7 +8,7 @@ cannot be reached (missing library, unplugged cable) is one line ``<device>: FAI
 <reason>`` and the others are still checked; exit status 1 if any failed (2 for a bad
 configuration file).
 
-Registration only (argparse); the handler is in :mod:`drivers.probe_command`.
+Registration only (argparse); the handler is in :mod:`nmsid.cli.probe_command`.
 """
 
 from __future__ import annotations
@@ -23,4 +23,4 @@ def register(sub) -> None:
                    help="the rig's hardware configuration (TOML)")
     p.add_argument("--samples", type=int, default=20, metavar="N",
                    help="force samples to read (default 20)")
-    p.set_defaults(handler="drivers.probe_command:probe")
+    p.set_defaults(handler="nmsid.cli.probe_command:probe")
