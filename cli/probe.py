@@ -1,10 +1,12 @@
 """``nmsid probe --hw-config FILE``: list and check the configured devices, never stimulate.
 
-For each device of the hardware configuration: connect, print what it reports (model,
-serial, firmware, current range and resolution, channels, rate), take a few force samples
-with a software-started acquisition, read the E-stop switch, and release everything. The
-stimulator is connected and queried only: nothing is downloaded or started. A missing
-library or device ends in one line (exit status 2).
+For each device of the hardware configuration, ON ITS OWN: connect, print what it reports
+(model, serial, firmware, current range and resolution, channels, rate), take a few force
+samples with a software-started acquisition, read the E-stop switch, and release it. The
+stimulator is connected and queried only: nothing is downloaded or started. A device that
+cannot be reached (missing library, unplugged cable) is one line ``<device>: FAILED:
+<reason>`` and the others are still checked; exit status 1 if any failed (2 for a bad
+configuration file).
 
 Registration only (argparse); the handler is in :mod:`nmsid.cli.probe_command`.
 """

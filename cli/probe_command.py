@@ -1,6 +1,13 @@
-"""The handler of ``nmsid probe`` (registered by :mod:`nmsid.cli.probe`): connect to each
-configured device, print what it reports and a few force samples, release it; nothing is
-stimulated."""
+"""The handler of ``nmsid probe`` (registered by :mod:`nmsid.cli.probe`): check every
+configured device ON ITS OWN, print what it reports and a few force samples, release it;
+nothing is stimulated.
+
+Each device (stimulator, force acquisition, E-stop switch) is built, loaded and asked in
+its own ``try``: one that cannot be reached (a missing vendor library, an unplugged cable,
+a wrong port or serial) is reported in one line, ``<device>: FAILED: <reason>``, and the
+others are still checked. Exit status 0 if every device passed, 1 if any failed (a bad
+configuration file is still one line and exit 2, raised before any device is tried).
+"""
 
 from __future__ import annotations
 
@@ -8,24 +15,80 @@ import numpy as np
 
 from nmsid.cli.errors import UsageError
 from nmsid.drivers.dry_run import dry_run_probe
-from nmsid.drivers.hardware import build_devices
+from nmsid.drivers.hardware import (build_devices, load_acquisition_library, make_acquisition,
+                                    make_estop, make_stimulator, prepare)
 from nmsid.drivers.hw_config import load_hw_config
 
 
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0] if text else 'no detail'}"
+
+
 def probe(args) -> int:
-    cfg = load_hw_config(args.hw_config)
     if args.samples < 1:
         raise UsageError(f"--samples must be >= 1, got {args.samples}")
-    devices = build_devices(cfg)
-    ok = True
+    cfg = load_hw_config(args.hw_config)
+    cfg, stack, clock = prepare(cfg)
+    print(f"hardware configuration {cfg.source}: {cfg.describe()}")
+    failed: list[str] = []
     try:
-        print(f"hardware configuration {cfg.source}: {cfg.describe()}")
-        stim = devices.stimulator
+        for name, check in (("stimulator", _check_stimulator),
+                            ("acquisition", _check_acquisition),
+                            ("E-stop switch", _check_estop)):
+            try:
+                problem = check(cfg, stack, clock, args)
+            except Exception as exc:  # this device only: report it, check the others
+                problem = _one_line(exc)
+            if problem:
+                failed.append(name)
+                print(f"{name}: FAILED: {problem}", flush=True)
+    finally:
+        if stack is not None:
+            stack.close()
+    if getattr(args, "dry_run", False):
+        # the stimulator-side checks on the dummy load, once every device above passed
+        if failed:
+            print("dry run: not run (a device failed)")
+        elif not _dry_run(cfg, args):
+            failed.append("dry run")
+    if failed:
+        print(f"probe: {len(failed)} device(s) failed: {', '.join(failed)}")
+        return 1
+    print("probe: OK")
+    return 0
+
+
+def _dry_run(cfg, args) -> bool:
+    devices = build_devices(cfg)
+    try:
+        devices.stimulator.connect()
+        return dry_run_probe(devices, cfg, args)
+    finally:
+        devices.close()
+
+
+def _check_stimulator(cfg, stack, clock, args) -> str:
+    stim = make_stimulator(cfg, stack, clock)
+    try:
+        _ = stim.api
         stim.connect()
         print("stimulator:")
         for key, value in stim.describe().items():
             print(f"  {key}: {value}")
-        acq = devices.acquisition
+    finally:
+        try:
+            stim.disconnect()
+        except Exception:  # releasing a device that never connected
+            pass
+    return ""
+
+
+def _check_acquisition(cfg, stack, clock, args) -> str:
+    # a fake stack is closed by probe() itself, not by the acquisition it wraps
+    acq = make_acquisition(cfg, None if stack is None else _Borrowed(stack))
+    try:
+        load_acquisition_library(cfg, acq)
         rate = acq.configure(cfg.acquisition.fs_Hz)
         print(f"acquisition: {rate:g} Hz")
         describe = getattr(acq, "describe", None)
@@ -34,40 +97,63 @@ def probe(args) -> int:
                 print(f"  {key}: {value}")
         info = getattr(acq, "info", None)
         if info is not None:
-            print(f"  sensor: {info.model}, serial {info.serial}, firmware {info.firmware}")
-        acq.start(args.samples, triggered=False)
-        got, force, flags = 0, [], []
-        for _ in range(100):
-            chunk = acq.read(0.05)
-            if chunk is None:
-                if got >= args.samples:
-                    break
-                continue
-            got += chunk.n
-            force.append(chunk.force_N)
-            if chunk.flags.any:
-                flags.append(chunk.flags.detail)
-            if got >= args.samples:
-                break
-        acq.stop()
-        f = np.concatenate(force) if force else np.zeros(0)
-        if len(f):
-            print(f"  {len(f)} samples: force mean {f.mean():+.3f} N, sd {f.std():.3f} N, "
-                  f"first {', '.join(f'{x:+.3f}' for x in f[:5])} N")
-        else:
-            ok = False
-            print("  NO samples arrived")
-        for detail in flags:
-            ok = False
-            print(f"  flag: {detail}")
-        if devices.estop is not None:
-            pressed = devices.estop.is_pressed()
-            print(f"E-stop switch: {'PRESSED (or unreadable)' if pressed else 'released'}")
-        else:
-            print("E-stop switch: none configured")
-        if getattr(args, "dry_run", False):
-            ok = dry_run_probe(devices, cfg, args) and ok
+            print(f"  sensor: {info.model}, serial {info.serial}, firmware {info.firmware}"
+                  + ("" if info.rate_stated else " (no rate stated: nominal rate used)"))
+        return _read_samples(acq, args.samples)
     finally:
-        devices.close()
-    print("probe: OK" if ok else "probe: problems found (see above)")
-    return 0 if ok else 1
+        acq.close()
+
+
+def _read_samples(acq, n: int) -> str:
+    acq.start(n, triggered=False)
+    got, force, flags = 0, [], []
+    for _ in range(100):
+        chunk = acq.read(0.05)
+        if chunk is None:
+            if got >= n:
+                break
+            continue
+        got += chunk.n
+        force.append(chunk.force_N)
+        if chunk.flags.any:
+            flags.append(chunk.flags.detail)
+        if got >= n:
+            break
+    acq.stop()
+    f = np.concatenate(force) if force else np.zeros(0)
+    if len(f):
+        print(f"  {len(f)} samples: force mean {f.mean():+.3f} N, sd {f.std():.3f} N, "
+              f"first {', '.join(f'{x:+.3f}' for x in f[:5])} N")
+    for detail in flags:
+        print(f"  flag: {detail}")
+    if not len(f):
+        return "no samples arrived"
+    if flags:
+        return f"{len(flags)} flagged chunk(s): {flags[0]}"
+    return ""
+
+
+def _check_estop(cfg, stack, clock, args) -> str:
+    estop = make_estop(cfg, stack)
+    if estop is None:
+        print("E-stop switch: none configured")
+        return ""
+    try:
+        pressed = estop.is_pressed()
+        print(f"E-stop switch: {'PRESSED (or unreadable)' if pressed else 'released'}")
+        return "switch reads as pressed (or unreadable)" if pressed else ""
+    finally:
+        estop.close()
+
+
+class _Borrowed:
+    """A fake stack lent to one device: its ``close`` leaves the stack running."""
+
+    def __init__(self, stack):
+        self._stack = stack
+
+    def __getattr__(self, name):
+        return getattr(self._stack, name)
+
+    def close(self) -> None:
+        pass

@@ -44,6 +44,10 @@ def register(sub) -> None:
     p.add_argument("--sim-seed", type=int, metavar="N",
                    help="sim: seed of the virtual participant and its noise (default: from "
                         "the participant code)")
+    p.add_argument("--resume-after-reconnect", action="store_true",
+                   help="hw: after a USB glitch between trials, resume as soon as the device "
+                        "is reconnected (default: ask on a terminal, else end the session "
+                        "for --resume)")
     p.add_argument("--no-identify", action="store_true",
                    help="do not run the identification after the schedule")
     p.add_argument("--quiet", action="store_true", help="no progress output")

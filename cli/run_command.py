@@ -21,6 +21,7 @@ from nmsid.drivers.hardware import make_hw_rig
 from nmsid.protocols.config import config_from_json, load_config
 from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.rig.engine import Engine, TripPolicy
+from nmsid.rig.glitch_prompt import glitch_confirmation
 from nmsid.rig.session_log import journal_dir, recover
 from nmsid.sim_backends import make_sim_rig
 from nmsid.sim_backends.participant_models import participant_for_model
@@ -70,6 +71,8 @@ def run(args) -> int:
     try:
         engine = Engine(config, devices, path, resume=bool(args.resume), observer=progress,
                         trip_policy=TripPolicy.END_SESSION,
+                        on_device_glitch=glitch_confirmation(
+                            getattr(args, "resume_after_reconnect", False)),
                         extra_attrs={} if sim_seed is None else {
                             "sim_seed": int(sim_seed),
                             "participant_model": config.participant_model})

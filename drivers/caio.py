@@ -20,6 +20,17 @@ overflow, samples lost) and ``AIS_SCERR`` (sampling clock error: conversions mis
 -> ``overrun``; ``AIS_AIERR`` (A/D conversion error) and ``AIS_DRVERR`` -> ``sensor_fault``;
 a sensor voltage at the edge of the range -> ``over_range``. A failed vendor call during a
 read becomes ``sensor_fault`` (never an exception into the engine's loop).
+
+Optional setters: ``AioSetAiRangeAll`` and ``AioSetAiMemoryType`` may not be implemented by
+every device (the AI-1608AY-USB has one fixed +/-10 V range and a FIFO). When one answers
+``AIO_ERR_SYS_NOT_SUPPORTED`` (20001, "this function cannot be used with this device",
+Contec's ``libcpsaio.h``) the driver logs it and goes on with the device's fixed setting,
+except for a configured range other than ``PM10``, which such a device cannot give (refused,
+naming ``acquisition.caio.range``). Every other error of these calls is fatal.
+
+USB glitch: :meth:`CaioAcquisition.reconnect` calls ``AioExit`` on the old ID (its failure
+only logged), forgets it, and calls ``AioInit`` again for a NEW ID; no call is ever made
+with a stale ID.
 """
 
 from __future__ import annotations
@@ -33,7 +44,8 @@ from ctypes import POINTER, c_char_p, c_float, c_long, c_short
 import numpy as np
 
 from nmsid.drivers.analog_force import AnalogCalibration, convert_block
-from nmsid.drivers.errors import DeviceError, DeviceNotFound, VendorLibraryMissing
+from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
+                                  VendorLibraryMissing)
 from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
 
 log = logging.getLogger(__name__)
@@ -57,6 +69,10 @@ START_SOFTWARE = 0
 START_EXTERNAL_RISING = 1
 STOP_AFTER_TIMES = 0
 STOP_BY_COMMAND = 4
+
+AIO_ERR_SYS_NOT_SUPPORTED = 20001
+"""Contec's error number for "this function cannot be used with this device" (``AIO_ERR_
+SYS_NOT_SUPPORTED`` in ``libcpsaio.h`` of Contec's CONPROSYS Linux driver)."""
 
 _PROTOTYPES = {
     "AioInit": [c_char_p, POINTER(c_short)],
@@ -138,10 +154,10 @@ class CaioAcquisition:
                  ai_range: str = "PM10", input_method: str = "", library: str = "",
                  lib=None, max_chunk: int = 4000, poll_s: float = 0.005):
         if ai_range not in RANGES_V:
-            raise ValueError(f"acquisition.caio.range {ai_range!r} is not one of "
+            raise HardwareConfigError(f"acquisition.caio.range {ai_range!r} is not one of "
                              f"{sorted(RANGES_V)}")
         if input_method and input_method not in INPUT_METHODS:
-            raise ValueError(f"acquisition.caio.input_method {input_method!r} is not one of "
+            raise HardwareConfigError(f"acquisition.caio.input_method {input_method!r} is not one of "
                              f"{sorted(INPUT_METHODS)} (or empty)")
         self.cal = calibration
         self.device_name = device_name
@@ -160,6 +176,9 @@ class CaioAcquisition:
         self._buf = None
         self._fault = ""
         self.max_channels = 0
+        self.ai_range = ai_range
+        self.unsupported: list[str] = []
+        """Optional setters the device answered with AIO_ERR_SYS_NOT_SUPPORTED."""
 
     # -- vendor calls -----------------------------------------------------------------
     @property
@@ -181,6 +200,22 @@ class CaioAcquisition:
         if ret != 0:
             raise DeviceError(f"{func} on Contec {self.device_name!r} failed with error "
                               f"{ret}: {self._error_text(ret)}")
+
+    def _call_optional(self, func: str, *args, fixed: str) -> None:
+        """Like :meth:`_call`, but "not supported by this device" is logged and tolerated.
+
+        ``fixed`` says what the device then uses (for the log).
+        """
+        ret = getattr(self.lib, func)(*args)
+        if ret == 0:
+            return
+        if ret == AIO_ERR_SYS_NOT_SUPPORTED:
+            self.unsupported.append(func)
+            log.warning("Contec %s does not support %s (error %d: %s); its fixed setting is "
+                        "used: %s", self.device_name, func, ret, self._error_text(ret), fixed)
+            return
+        raise DeviceError(f"{func} on Contec {self.device_name!r} failed with error "
+                          f"{ret}: {self._error_text(ret)}")
 
     # -- lifecycle ------------------------------------------------------------------
     def open(self) -> None:
@@ -205,8 +240,16 @@ class CaioAcquisition:
                 raise DeviceError(f"the channel map needs {self.cal.n_channels} channels, "
                                   f"{self.device_name!r} has {self.max_channels}")
             self._call("AioSetAiChannels", self._id, c_short(self.cal.n_channels))
-            self._call("AioSetAiRangeAll", self._id, c_short(self.range_code))
-            self._call("AioSetAiMemoryType", self._id, c_short(MEMORY_FIFO))
+            self.unsupported = []
+            self._call_optional("AioSetAiRangeAll", self._id, c_short(self.range_code),
+                                fixed="+/-10 V (the AI-1608AY-USB's only range)")
+            if "AioSetAiRangeAll" in self.unsupported and self.ai_range != "PM10":
+                raise DeviceError(
+                    f"Contec {self.device_name!r} cannot set its input range, so "
+                    f"acquisition.caio.range = {self.ai_range!r} cannot be used; set it to "
+                    "'PM10' (the device's fixed +/-10 V)")
+            self._call_optional("AioSetAiMemoryType", self._id, c_short(MEMORY_FIFO),
+                                fixed="FIFO")
             self._call("AioSetAiClockType", self._id, c_short(CLOCK_INTERNAL))
         except Exception:
             self.close()
@@ -215,7 +258,7 @@ class CaioAcquisition:
     def configure(self, fs_Hz: float) -> float:
         """Set the sampling clock to ``1e6 / fs_Hz`` us; return the rate the device uses."""
         if not fs_Hz > 0:
-            raise ValueError(f"fs_Hz must be > 0, got {fs_Hz!r}")
+            raise HardwareConfigError(f"acquisition.fs_Hz must be > 0, got {fs_Hz!r}")
         self.open()
         self._call("AioSetAiSamplingClock", self._id, c_float(1e6 / fs_Hz))
         actual = c_float(0.0)
@@ -321,6 +364,36 @@ class CaioAcquisition:
                     self._call("AioExit", self._id)
                 except DeviceError as exc:
                     log.warning("%s", exc)
+                self._id = c_short(-1)  # never used again: AioInit issues a new one
+                self._fs_Hz = 0.0
+
+    def device_fault(self) -> str:
+        """Between trials: "" if the device answers ``AioGetAiStatus``, else the error."""
+        if not self._open:
+            return f"Contec {self.device_name!r} is not open"
+        status = c_long(0)
+        try:
+            self._call("AioGetAiStatus", self._id, ctypes.byref(status))
+        except DeviceError as exc:
+            return str(exc)
+        return ""
+
+    def reconnect(self, fs_Hz: float) -> float:
+        """After a USB glitch: release the old ID, ``AioInit`` anew, set everything again.
+
+        Returns
+        -------
+        float
+            The sampling rate the device uses.
+
+        Raises
+        ------
+        DeviceNotFound
+            If the device is still not there (``AioInit`` fails).
+        """
+        self._running = False
+        self.close()
+        return self.configure(fs_Hz)
 
     def describe(self) -> dict:
         return {"device": self.device_name, "max_channels": self.max_channels,

@@ -99,28 +99,15 @@ def make_hw_rig(hw_config_path) -> RigDevices:
 
 
 def build_devices(cfg: HardwareConfig) -> RigDevices:
-    fake = fake_requested(cfg.fake)
-    if fake and not cfg.fake:
-        cfg = _with_fake(cfg)
-    stack = _install_fakes(cfg) if fake else None
-    clock = BenchClock(stack.bench) if stack is not None else RealClock()
+    cfg, stack, clock = prepare(cfg)
     s = cfg.stimulator
-    stim = Stg4002Stimulator(
-        ceiling_ext_mA=s.ceiling_ext_mA, ceiling_flex_mA=s.ceiling_flex_mA,
-        extensor_channel=s.extensor_channel, flexor_channel=s.flexor_channel,
-        sync_out=s.sync_out, serial=s.serial, dll_path=s.dll_path or DEFAULT_DLL,
-        output_rate_Hz=s.output_rate_Hz,
-        clock=clock.monotonic_s if stack is not None else None)
-    acq = _acquisition(cfg, stack)
+    stim = make_stimulator(cfg, stack, clock)
+    acq = make_acquisition(cfg, stack)
     # load every vendor library now: a missing one is reported (one line) before any port
     # is opened or anything else is tried
     _ = stim.api
-    inner = getattr(acq, "_inner", acq)
-    if isinstance(inner, CaioAcquisition):
-        _ = inner.lib
-    elif isinstance(inner, NidaqAcquisition):
-        _ = inner.api
-    if cfg.acquisition.kind == "leptrino" or cfg.estop.kind == "serial":
+    load_acquisition_library(cfg, acq)
+    if cfg.estop.kind == "serial":
         _serial_module()
     estop = _estop(cfg, stack)
     if estop is None:
@@ -135,6 +122,54 @@ def build_devices(cfg: HardwareConfig) -> RigDevices:
     return RigDevices(stimulator=stim, acquisition=acq, estop=estop, clock=clock,
                       backend=cfg.describe(), extensor_channel=s.extensor_channel,
                       flexor_channel=s.flexor_channel)
+
+
+def prepare(cfg: HardwareConfig):
+    """``(cfg, fake stack or None, clock)``: fake mode set up if asked (``nmsid probe``
+    builds each device on its own from these)."""
+    fake = fake_requested(cfg.fake)
+    if fake and not cfg.fake:
+        cfg = _with_fake(cfg)
+    stack = _install_fakes(cfg) if fake else None
+    clock = BenchClock(stack.bench) if stack is not None else RealClock()
+    return cfg, stack, clock
+
+
+def make_stimulator(cfg: HardwareConfig, stack: FakeStack | None, clock) -> Stg4002Stimulator:
+    """The STG4002 driver of the configuration (not connected, library not loaded)."""
+    s = cfg.stimulator
+    return Stg4002Stimulator(
+        ceiling_ext_mA=s.ceiling_ext_mA, ceiling_flex_mA=s.ceiling_flex_mA,
+        extensor_channel=s.extensor_channel, flexor_channel=s.flexor_channel,
+        sync_out=s.sync_out, serial=s.serial, dll_path=s.dll_path or DEFAULT_DLL,
+        output_rate_Hz=s.output_rate_Hz,
+        clock=clock.monotonic_s if stack is not None else None)
+
+
+def make_acquisition(cfg: HardwareConfig, stack: FakeStack | None):
+    """The configured force acquisition (not configured yet)."""
+    return _acquisition(cfg, stack)
+
+
+def load_acquisition_library(cfg: HardwareConfig, acq) -> None:
+    """Load the acquisition's vendor library now (raises VendorLibraryMissing)."""
+    inner = getattr(acq, "_inner", acq)
+    if isinstance(inner, CaioAcquisition):
+        _ = inner.lib
+    elif isinstance(inner, NidaqAcquisition):
+        _ = inner.api
+    elif cfg.acquisition.kind == "leptrino":
+        _serial_module()
+
+
+def make_estop(cfg: HardwareConfig, stack: FakeStack | None):
+    """The configured E-stop switch, opened (None if none is configured)."""
+    if cfg.estop.kind == "serial":
+        _serial_module()
+    estop = _estop(cfg, stack)
+    if estop is not None:
+        estop.open()
+    return estop
 
 
 def _with_fake(cfg: HardwareConfig) -> HardwareConfig:

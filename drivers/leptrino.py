@@ -10,10 +10,19 @@ rate, never the one asked for, and ``drivers.hardware`` refuses a configuration 
 this chain for 2000 Hz.
 
 Time base: the digital interface has no hardware start trigger. With
-``sync_on_external_input`` the stimulator's sync line is wired to the sensor's external
-input and sample 0 is the first record whose status has the external-input bit; otherwise
-a triggered start is aligned to the first record after :meth:`start` (host timing: one
-record plus USB latency, logged as a warning).
+``sync_on_external_input`` (set only for a model that has the external input: on the others
+status bit 5 is undefined) the stimulator's sync line is wired to the sensor's external
+input and sample 0 is the first record at which bit 5 RISES: the level at arming is read
+with one handshake record (0x30); if it is already high, the trial starts only at the first
+high record after a low one, so a line stuck high does not start it;
+otherwise a triggered start is aligned to the first record after :meth:`start` (host
+timing: one record plus USB latency, logged as a warning). Reserved status bits (3, 4, 6,
+7) are masked off by the protocol layer and never raise a flag.
+
+Older firmware answers product information without the rate field: the nominal rate
+(:data:`NOMINAL_RATE_HZ`) is used and the log says so. A USB glitch: :meth:`reconnect`
+closes the dead port handle and opens the port anew (never reusing the old handle), then
+reads product information and rated values again.
 
 Faults become :class:`~nmsid.drivers.interfaces.AcquisitionFlags`: status bits over-rated ->
 ``over_range``, sensor fault / ROM error -> ``sensor_fault``; frames lost to corruption ->
@@ -33,7 +42,8 @@ from typing import Callable
 
 import numpy as np
 
-from nmsid.drivers.errors import DeviceNotFound, ProtocolError, VendorLibraryMissing
+from nmsid.drivers.errors import (DeviceNotFound, HardwareConfigError, ProtocolError,
+                                  VendorLibraryMissing)
 from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
 from nmsid.drivers.leptrino_protocol import (
     DATA_RECORD_LEN, RAW_AT_RATED, Command, Corrupt, DataRecord, Frame, FrameDecoder, Nak, ProductInfo,
@@ -44,7 +54,8 @@ log = logging.getLogger(__name__)
 
 DEFAULT_BAUD = 460800
 NOMINAL_RATE_HZ = 1200.0
-"""Used when the product information does not state a parsable rate."""
+"""Used when the product information states no rate (older firmware): "maximum 1.2 kHz" in
+Leptrino's sample as shipped in the ROS driver (``leptrino_force_torque.cpp``)."""
 
 
 def _serial_module():
@@ -199,12 +210,16 @@ class LeptrinoSensor:
                             f"(0x{int(command):02X}) after {self.retries} attempts "
                             f"({last_problem})")
 
+    @property
+    def device(self) -> str:
+        return f"Leptrino on {self.port!r}"
+
     def product_info(self) -> ProductInfo:
-        return parse_product_info(self.request(Command.PRODUCT_INFO))
+        return parse_product_info(self.request(Command.PRODUCT_INFO), self.device)
 
     def rated_values(self) -> np.ndarray:
         """Rated Fx, Fy, Fz (N) and Mx, My, Mz (N m) as stored in the sensor."""
-        values = parse_rated_values(self.request(Command.RATED_VALUES))
+        values = parse_rated_values(self.request(Command.RATED_VALUES), self.device)
         if not np.all(np.isfinite(values)) or np.any(values <= 0):
             raise ProtocolError(f"Leptrino {self.port!r} reported invalid rated values "
                                 f"{values.tolist()}")
@@ -212,7 +227,7 @@ class LeptrinoSensor:
 
     def read_one(self) -> DataRecord:
         """One record by handshake (command 0x30); not used while streaming."""
-        return parse_data_record(self.request(Command.HANDSHAKE))
+        return parse_data_record(self.request(Command.HANDSHAKE), self.device)
 
     def start_continuous(self) -> None:
         """Command 0x32. Records start to arrive; the sensor sends no separate reply."""
@@ -230,8 +245,8 @@ class LeptrinoAcquisition:
                  extension_direction=(1.0, 0.0, 0.0), sync_on_external_input: bool = False):
         d = np.asarray(extension_direction, dtype=float)
         if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) == 0:
-            raise ValueError("extension_direction must be 3 finite numbers, not all zero; "
-                             f"got {extension_direction!r}")
+            raise HardwareConfigError("extension_direction must be 3 finite numbers, not all "
+                                      f"zero; got {extension_direction!r}")
         self.sensor = sensor
         self.direction = d / np.linalg.norm(d)
         self.sync_on_external_input = sync_on_external_input
@@ -240,6 +255,7 @@ class LeptrinoAcquisition:
         self._rate_Hz = NOMINAL_RATE_HZ
         self._running = False
         self._armed_wait_sync = False
+        self._sync_seen_low = False
         self._index = 0
         self._remaining: int | None = None
         self._dead: str = ""
@@ -252,11 +268,61 @@ class LeptrinoAcquisition:
             self.sensor.stop_continuous()
         except ProtocolError:
             pass  # not streaming, or a sensor that does not ack 0x33 when idle
-        self.info = self.sensor.product_info()
+        info = self.sensor.product_info()
         self.rated = self.sensor.rated_values()
-        if np.isfinite(self.info.output_rate_Hz) and self.info.output_rate_Hz > 0:
-            self._rate_Hz = self.info.output_rate_Hz
-        return self.info
+        if info.rate_stated:
+            self._rate_Hz = info.output_rate_Hz
+        else:
+            self._rate_Hz = NOMINAL_RATE_HZ
+            log.info("Leptrino %s (%s, firmware %s) states no output rate in its product "
+                     "information (older firmware); the nominal %.0f Hz is used",
+                     self.sensor.port, info.model or "unknown model", info.firmware or "?",
+                     NOMINAL_RATE_HZ)
+        if self.sync_on_external_input:
+            log.info("Leptrino %s (%s): trials start at the rising edge of the external "
+                     "input (status bit 5); acquisition.leptrino.sync_on_external_input "
+                     "asserts that this model has the input", self.sensor.port,
+                     info.model or "unknown model")
+        self.info = info
+        return info
+
+    def reconnect(self, fs_Hz: float | None = None) -> float:
+        """After a USB glitch: close the (dead) port, open it anew, read the sensor again.
+
+        The old handle is never reused: :meth:`LeptrinoSensor.close` drops it and
+        :meth:`LeptrinoSensor.open` asks the serial factory for a new one.
+
+        Returns
+        -------
+        float
+            The rate the sensor streams at.
+
+        Raises
+        ------
+        DeviceNotFound, ProtocolError
+            If the port cannot be opened or the sensor does not answer.
+        """
+        self.close()
+        self.connect()
+        return self.configure(fs_Hz if fs_Hz is not None else self._rate_Hz)
+
+    def device_fault(self) -> str:
+        """Between trials: "" if the sensor answers, else what is wrong (for the engine).
+
+        Asks for the product information (one short command; the stream is stopped
+        between trials), so a port that died while idle is found before the next trial.
+        """
+        if self._dead:
+            return self._dead
+        if self._running:
+            return ""
+        if not self.sensor.is_open:
+            return f"serial port {self.sensor.port!r} is not open"
+        try:
+            self.sensor.product_info()
+        except (OSError, ProtocolError) as exc:
+            return f"no answer on {self.sensor.port!r}: {exc}"
+        return ""
 
     def configure(self, fs_Hz: float) -> float:
         if self.info is None:
@@ -277,6 +343,12 @@ class LeptrinoAcquisition:
         self._remaining = n_samples
         self._dead = ""
         self._armed_wait_sync = bool(triggered and self.sync_on_external_input)
+        self._sync_seen_low = False
+        if self._armed_wait_sync:
+            # the line's level at arming (one handshake record, 0x30): if it is already
+            # high, the trial starts only after it has been seen low again
+            level = self.sensor.read_one().status & Status.EXTERNAL_INPUT
+            self._sync_seen_low = not level
         if triggered and not self.sync_on_external_input:
             log.warning("Leptrino %s has no hardware trigger wired "
                         "(sync_on_external_input = false): onset alignment is host-timed",
@@ -313,9 +385,13 @@ class LeptrinoAcquisition:
                         continue
                     if len(ev.payload) < 20:
                         continue  # a bare acknowledgement of 0x32
-                    rec = parse_data_record(ev)
+                    rec = parse_data_record(ev, self.sensor.device)
                     if self._armed_wait_sync:
+                        # edge, not level: the bit must be seen low, then high
                         if not rec.status & Status.EXTERNAL_INPUT:
+                            self._sync_seen_low = True
+                            continue
+                        if not self._sync_seen_low:
                             continue
                         self._armed_wait_sync = False
                     records.append(rec)
@@ -375,3 +451,4 @@ class LeptrinoAcquisition:
             self.stop()
         finally:
             self.sensor.close()
+            self.info = None  # the next configure()/start() opens the port and reads anew

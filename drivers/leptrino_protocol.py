@@ -24,7 +24,19 @@ little-endian force / moment values (Fx, Fy, Fz, Mx, My, Mz), int16 temperature,
 byte, a reserved byte. A raw value of 10000 is the axis' rated value, so
 ``value = raw * rated / 10000``. Status bits: 0 = calibration data in ROM corrupt,
 1 = sensor fault, 2 = load above the rated value, 5 = external input detected (models
-with an external input).
+with an external input only; on the others it is undefined). Bits 3, 4, 6 and 7 are
+reserved and indeterminate: :func:`parse_data_record` masks them off, so no flag and no
+sync can ever come from them.
+
+Product information (0x2A, ``ST_R_GET_INF`` in ``pComResInternal.h``): model (16 bytes),
+serial (8), firmware version (4) and output rate (6, text; ``FREQ_SIZE`` in
+``pCommon.h``). Older firmware ends the reply after the firmware version (28 data bytes):
+that reply is accepted and the rate is reported as not stated (``rate_stated = False``);
+the driver then uses the nominal rate and says so in the log. The rate text is parsed
+strictly by :func:`parse_rate_text`: a decimal number, optionally followed by ``Hz``,
+``k`` or ``kHz`` (``1200``, ``1200Hz``, ``1.2k``, ``1.2kHz``); anything else (``1k2``,
+``12e2``) is refused with a :class:`~nmsid.drivers.errors.ProtocolError` naming the device and
+the reply. Every parse error raises that driver error, never a bare ``ValueError``.
 
 Sources (public; no Leptrino protocol manual was available to us):
 Leptrino's own C sample as shipped in the ROS driver
@@ -40,10 +52,13 @@ continuous"; every vendor-derived source above says 0x32, which is what is used.
 from __future__ import annotations
 
 import enum
+import re
 import struct
 from dataclasses import dataclass
 
 import numpy as np
+
+from nmsid.drivers.errors import ProtocolError
 
 DLE = 0x10
 STX = 0x02
@@ -60,6 +75,8 @@ FIRMWARE_SIZE = 4
 RATE_SIZE = 6
 DATA_RECORD_LEN = 20
 PRODUCT_INFO_LEN = 4 + PRODUCT_NAME_SIZE + SERIAL_SIZE + FIRMWARE_SIZE + RATE_SIZE
+PRODUCT_INFO_LEN_NO_RATE = PRODUCT_INFO_LEN - RATE_SIZE
+"""Older firmware: the reply ends after the firmware version (28 data bytes)."""
 RATED_VALUES_LEN = 4 + 6 * 4
 
 
@@ -84,6 +101,11 @@ class Status(enum.IntFlag):
     SENSOR_FAULT = 0x02
     OVER_RATED = 0x04
     EXTERNAL_INPUT = 0x20
+
+
+DOCUMENTED_STATUS_BITS = int(Status.ROM_ERROR | Status.SENSOR_FAULT | Status.OVER_RATED
+                             | Status.EXTERNAL_INPUT)
+"""Bits 0, 1, 2, 5; bits 3, 4, 6, 7 are reserved (indeterminate) and masked off."""
 
 
 def bcc(payload: bytes) -> int:
@@ -244,7 +266,10 @@ class ProductInfo:
     serial: str
     firmware: str
     output_rate_Hz: float
-    """The rate the sensor reports for continuous output (``nan`` if unparsable)."""
+    """The rate the sensor reports for continuous output (``nan`` if not stated)."""
+    rate_stated: bool = True
+    """False when the reply had no rate field (older firmware) or an empty one."""
+    rate_text: str = ""
 
 
 @dataclass(frozen=True)
@@ -252,43 +277,84 @@ class DataRecord:
     raw: tuple[int, int, int, int, int, int]
     temperature_raw: int
     status: Status
+    """Documented bits only (reserved bits 3, 4, 6, 7 masked off)."""
 
 
 def _text(data: bytes) -> str:
     return data.split(b"\x00", 1)[0].decode("ascii", errors="replace").strip()
 
 
-def parse_product_info(frame: Frame) -> ProductInfo:
+_RATE_RE = re.compile(r"(?P<num>[0-9]+(?:\.[0-9]+)?)\s*(?P<unit>k|kHz|Hz)?", re.IGNORECASE)
+
+
+def parse_rate_text(text: str, device: str = "Leptrino sensor") -> float:
+    """The output rate in Hz from the product information's rate text, parsed strictly.
+
+    Accepted: a decimal number, optionally followed by ``Hz``, ``k`` or ``kHz`` (any case,
+    spaces allowed before the unit): ``1200``, ``1200Hz``, ``1.2k``, ``1.2 kHz``.
+
+    Raises
+    ------
+    ProtocolError
+        For any other text (``1k2``, ``12e2``, ``fast``) or a rate that is not positive; the
+        message names ``device`` and the text.
+    """
+    m = _RATE_RE.fullmatch(text.strip())
+    rate = float("nan")
+    if m is not None:
+        rate = float(m.group("num"))
+        if (m.group("unit") or "").lower().startswith("k"):
+            rate *= 1000.0
+    if not rate > 0:
+        raise ProtocolError(
+            f"{device}: product information states the output rate as {text!r}, which is "
+            "not a rate; expected a number optionally followed by Hz, k or kHz "
+            "(e.g. '1200', '1200Hz', '1.2kHz')")
+    return rate
+
+
+def parse_product_info(frame: Frame, device: str = "Leptrino sensor") -> ProductInfo:
+    """Model, serial, firmware and output rate from a 0x2A reply (28 or 34 data bytes).
+
+    Raises
+    ------
+    ProtocolError
+        If the reply is shorter than 28 data bytes or states an unreadable rate.
+    """
     data = frame.data
-    need = PRODUCT_INFO_LEN - 4
+    need = PRODUCT_INFO_LEN_NO_RATE - 4
     if len(data) < need:
-        raise ValueError(f"product information frame has {len(data)} data bytes, "
-                         f"expected {need}")
+        raise ProtocolError(f"{device}: product information reply has {len(data)} data "
+                            f"bytes ({data!r}); expected {need} (older firmware) or "
+                            f"{PRODUCT_INFO_LEN - 4}")
     o = 0
     model = _text(data[o:o + PRODUCT_NAME_SIZE]); o += PRODUCT_NAME_SIZE
     serial = _text(data[o:o + SERIAL_SIZE]); o += SERIAL_SIZE
     firmware = _text(data[o:o + FIRMWARE_SIZE]); o += FIRMWARE_SIZE
     rate_text = _text(data[o:o + RATE_SIZE])
-    digits = "".join(ch for ch in rate_text if ch.isdigit() or ch == ".")
-    try:
-        rate = float(digits) * (1000.0 if "k" in rate_text.lower() else 1.0)
-    except ValueError:
-        rate = float("nan")
-    return ProductInfo(model=model, serial=serial, firmware=firmware, output_rate_Hz=rate)
+    if not rate_text:  # no rate field (older firmware) or an empty one
+        return ProductInfo(model=model, serial=serial, firmware=firmware,
+                           output_rate_Hz=float("nan"), rate_stated=False)
+    rate = parse_rate_text(rate_text, f"{device} ({model or 'unknown model'})")
+    return ProductInfo(model=model, serial=serial, firmware=firmware, output_rate_Hz=rate,
+                       rate_stated=True, rate_text=rate_text)
 
 
-def parse_rated_values(frame: Frame) -> np.ndarray:
+def parse_rated_values(frame: Frame, device: str = "Leptrino sensor") -> np.ndarray:
+    """Rated Fx, Fy, Fz, Mx, My, Mz (6 little-endian float32, ``ST_R_LEP_GET_LIMIT``)."""
     data = frame.data
     if len(data) < 24:
-        raise ValueError(f"rated-value frame has {len(data)} data bytes, expected 24")
+        raise ProtocolError(f"{device}: rated-value reply has {len(data)} data bytes "
+                            f"({data!r}); expected 24")
     return np.array(struct.unpack("<6f", data[:24]), dtype=np.float64)
 
 
-def parse_data_record(frame: Frame) -> DataRecord:
+def parse_data_record(frame: Frame, device: str = "Leptrino sensor") -> DataRecord:
+    """One ``ST_R_DATA_GET_F`` record; the status keeps documented bits only."""
     data = frame.data
     if len(data) < DATA_RECORD_LEN - 4:
-        raise ValueError(f"data frame has {len(data)} data bytes, expected "
-                         f"{DATA_RECORD_LEN - 4}")
+        raise ProtocolError(f"{device}: data record has {len(data)} data bytes; expected "
+                            f"{DATA_RECORD_LEN - 4}")
     values = struct.unpack("<6hhBB", data[:16])
     return DataRecord(raw=tuple(values[:6]), temperature_raw=values[6],
-                      status=Status(values[7]))
+                      status=Status(values[7] & DOCUMENTED_STATUS_BITS))

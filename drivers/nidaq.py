@@ -15,9 +15,20 @@ Acquisition: continuous, hardware-timed at ``fs_Hz`` (2000 Hz), started by the r
 of the stimulator's sync output on a PFI line (``start_trigger``), so sample 0 is
 stimulation onset; the sync is also recorded on an analog channel. The driver's callback
 (NI's thread) reads every ``fs_Hz / reads_per_s`` samples (about 10 reads a second) into a
-queue; :meth:`NidaqAcquisition.read` takes chunks from it. A read error from DAQmx (buffer
-overwritten -200279, onboard overflow -200361, ...) becomes ``overrun`` with the DAQmx
-message; any other failure in the callback becomes ``sensor_fault``.
+queue; :meth:`NidaqAcquisition.read` takes chunks from it. A read error from DAQmx that
+means samples were lost (:data:`OVERRUN_CODES`: -200279, -200361, -200010, -200222 and
+-200019 ADC overrun) becomes ``overrun`` with the DAQmx message; any other failure in the
+callback (including -200141, ``CounterOverflow``, which is not a buffer overrun) becomes
+``sensor_fault``. Code names: NI's ``NIDAQmx.h`` error list (as in nidaqmx-python's
+``error_codes.DAQmxErrors``).
+
+Buffer: DAQmx refuses to start a continuous task whose buffer is not a whole multiple of
+the Every N Samples interval (-200877, ``BufferSizeNotMultipleOfEveryNSampsEventInterval
+WhenDMA``). The driver reads back the COERCED sample rate (``timing.samp_clk_rate``),
+derives the callback block from it, and sizes the buffer as a whole number of blocks
+(timing configured once more with that size), so any ``reads_per_s`` works.
+
+USB glitch: :meth:`NidaqAcquisition.reconnect` closes the old task and builds a new one.
 """
 
 from __future__ import annotations
@@ -29,13 +40,22 @@ from types import SimpleNamespace
 import numpy as np
 
 from nmsid.drivers.analog_force import AnalogCalibration, convert_block
-from nmsid.drivers.errors import DeviceError, DeviceNotFound, VendorLibraryMissing
+from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
+                                  VendorLibraryMissing)
 from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
 
 log = logging.getLogger(__name__)
 
-OVERRUN_CODES = {-200279, -200361, -200010, -200141, -200222}
-"""DAQmx errors that mean samples were lost (buffer overwritten / overflow)."""
+OVERRUN_CODES = {
+    -200279,  # SamplesNoLongerAvailable: the buffer was overwritten before it was read
+    -200361,  # InputFIFOOverflow2: onboard memory overflow
+    -200010,  # InputFIFOOverflow
+    -200222,  # AcqStoppedToPreventInputBufferOverwrite
+    -200019,  # ADCOverrun: a conversion started before the previous one was complete
+}
+"""DAQmx errors that mean samples were lost (NIDAQmx.h names)."""
+COUNTER_OVERFLOW = -200141
+"""``CounterOverflow``: a counter task's counter wrapped; not a buffer overrun."""
 TERMINAL_CONFIGS = ("DEFAULT", "RSE", "NRSE", "DIFF", "PSEUDO_DIFF")
 
 
@@ -51,6 +71,14 @@ def load_nidaqmx() -> SimpleNamespace:
             "(python -m nidaqmx installdriver)") from None
     return SimpleNamespace(nidaqmx=nidaqmx, constants=constants, errors=errors,
                            stream_readers=stream_readers)
+
+
+def buffer_samples(fs_Hz: float, buffer_s: float, n_block: int) -> int:
+    """Input buffer per channel: at least ``buffer_s`` seconds (and 1000 samples) at the
+    coerced rate ``fs_Hz``, rounded UP to a whole number of callback blocks (DAQmx -200877
+    otherwise)."""
+    want = max(fs_Hz * buffer_s, 1000.0)
+    return int(-(-want // n_block)) * n_block
 
 
 class NidaqAcquisition:
@@ -79,10 +107,13 @@ class NidaqAcquisition:
                  range_V: float = 10.0, reads_per_s: float = 10.0, buffer_s: float = 5.0,
                  api=None):
         if terminal_config not in TERMINAL_CONFIGS:
-            raise ValueError(f"acquisition.nidaq.terminal_config {terminal_config!r} is not "
+            raise HardwareConfigError(f"acquisition.nidaq.terminal_config {terminal_config!r} is not "
                              f"one of {TERMINAL_CONFIGS}")
         if not range_V > 0:
-            raise ValueError(f"acquisition.nidaq.range_V must be > 0, got {range_V!r}")
+            raise HardwareConfigError(f"acquisition.nidaq.range_V must be > 0, got {range_V!r}")
+        if not reads_per_s > 0:
+            raise HardwareConfigError("acquisition.nidaq.reads_per_s must be > 0, got "
+                                      f"{reads_per_s!r}")
         self.cal = calibration
         self.device = device
         self.start_trigger = start_trigger
@@ -96,6 +127,7 @@ class NidaqAcquisition:
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._fs_Hz = 0.0
         self._n_block = 0
+        self._buffer = 0
         self._running = False
         self._index = 0
         self._remaining: int | None = None
@@ -113,7 +145,7 @@ class NidaqAcquisition:
     def configure(self, fs_Hz: float) -> float:
         """Build the task (channels, continuous timing, callback); return the real rate."""
         if not fs_Hz > 0:
-            raise ValueError(f"fs_Hz must be > 0, got {fs_Hz!r}")
+            raise HardwareConfigError(f"acquisition.fs_Hz must be > 0, got {fs_Hz!r}")
         self.close()
         api = self.api
         c = api.constants
@@ -129,8 +161,16 @@ class NidaqAcquisition:
             task.timing.cfg_samp_clk_timing(
                 fs_Hz, sample_mode=c.AcquisitionType.CONTINUOUS,
                 samps_per_chan=int(max(fs_Hz * self.buffer_s, 1000)))
-            self._fs_Hz = float(task.timing.samp_clk_rate)
+            self._fs_Hz = float(task.timing.samp_clk_rate)  # coerced by the device
             self._n_block = max(1, int(round(self._fs_Hz / self.reads_per_s)))
+            self._buffer = buffer_samples(self._fs_Hz, self.buffer_s, self._n_block)
+            task.timing.cfg_samp_clk_timing(
+                self._fs_Hz, sample_mode=c.AcquisitionType.CONTINUOUS,
+                samps_per_chan=self._buffer)
+            if abs(float(task.timing.samp_clk_rate) - self._fs_Hz) > 1e-9 * self._fs_Hz:
+                raise DeviceError(f"NI DAQ {self.device!r} changed its sample rate from "
+                                  f"{self._fs_Hz} to {task.timing.samp_clk_rate} Hz when "
+                                  "the buffer was resized")
             self._reader = api.stream_readers.AnalogMultiChannelReader(task.in_stream)
             task.register_every_n_samples_acquired_into_buffer_event(self._n_block,
                                                                      self._on_samples)
@@ -188,6 +228,8 @@ class NidaqAcquisition:
         if err is not None:
             code, text = err
             overrun = code in OVERRUN_CODES
+            if code == COUNTER_OVERFLOW:
+                text = f"counter overflow (not a buffer overrun): {text}"
             return ForceChunk(start_index=self._index, force_N=np.zeros(0),
                               wrench=np.zeros((0, 6)) if self.cal.full_wrench else None,
                               sync=np.zeros(0) if self.cal.sync_channel is not None else None,
@@ -214,6 +256,32 @@ class NidaqAcquisition:
             except Exception as exc:
                 log.warning("NI DAQ stop failed: %s", exc)
 
+    def device_fault(self) -> str:
+        """Between trials: "" if the task answers ``is_task_done()``, else the DAQmx error.
+
+        (That a task on a removed USB device answers with an error, e.g. -201003, is what
+        the fake models; not verified on hardware.)
+        """
+        if self._task is None:
+            return f"NI DAQ {self.device!r}: no task (configure() not called)"
+        try:
+            self._task.is_task_done()
+        except Exception as exc:
+            code = getattr(exc, "error_code", "")
+            return f"NI DAQ {self.device!r} does not answer: DAQmx error {code}: " \
+                   f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+        return ""
+
+    def reconnect(self, fs_Hz: float) -> float:
+        """After a USB glitch: close the old task, build and configure a new one.
+
+        Raises
+        ------
+        DeviceNotFound, DeviceError
+            If the device is still not reachable.
+        """
+        return self.configure(fs_Hz)
+
     def close(self) -> None:
         task, self._task = self._task, None
         self._running = False
@@ -226,7 +294,7 @@ class NidaqAcquisition:
     def describe(self) -> dict:
         info = {"device": self.device, "channels": self._channels(),
                 "start_trigger": self.start_trigger, "fs_Hz": self._fs_Hz,
-                "samples_per_read": self._n_block}
+                "samples_per_read": self._n_block, "buffer_samples": self._buffer}
         try:
             dev = self.api.nidaqmx.system.System.local().devices[self.device]
             info.update(product=str(dev.product_type), serial=str(dev.serial_num))

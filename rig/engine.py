@@ -30,6 +30,7 @@ from nmsid.protocols.config import Config, ConfigError, PausePolicy, config_from
 from nmsid.protocols.schedule import (PlannedTrial, TrialStatus, make_schedule, schedule_from_json,
                                       schedule_to_json)
 from nmsid.protocols.waveforms import input_attrs, trial_waveform
+from nmsid.rig.device_recovery import DeviceGlitchEnd, DeviceRecovery
 from nmsid.rig.engine_calibration import CalibrationSteps
 from nmsid.rig.observer import (RERUN_WAIT_PREFIX, EngineObserver, RunSummary, TripPolicy,
                                 is_rerun_wait, rerun_wait_reason)
@@ -67,7 +68,7 @@ class _EndRun(Exception):
     """Internal: leave the run loop (abort, or trip under END_SESSION)."""
 
 
-class Engine(CalibrationSteps):
+class Engine(CalibrationSteps, DeviceRecovery):
     """Runs one session.
 
     Parameters
@@ -86,13 +87,17 @@ class Engine(CalibrationSteps):
         ``WAIT_FOR_REARM`` (default, an operator is present) or ``END_SESSION``.
     extra_attrs : dict, optional
         Additional root attributes of a new session file (e.g. ``sim_seed``).
+    on_device_glitch : callable(description, reconnected) -> bool, optional
+        Asked after a device glitch between trials (:mod:`nmsid.rig.device_recovery`); None:
+        wait for :meth:`resume` (the GUI).
     """
 
     def __init__(self, config: Config | None, devices: RigDevices, session_path, *,
                  resume: bool = False, observer: EngineObserver | None = None,
                  trip_policy: TripPolicy = TripPolicy.WAIT_FOR_REARM,
-                 extra_attrs: dict | None = None):
+                 extra_attrs: dict | None = None, on_device_glitch=None):
         self.devices = devices
+        self.on_device_glitch = on_device_glitch
         self.clock = devices.clock
         self.path = Path(session_path)
         self.observer = observer or EngineObserver()
@@ -314,7 +319,7 @@ class Engine(CalibrationSteps):
             self._setup()
             self._calibrate()
             self._run_schedule()
-        except _EndRun as exc:
+        except (_EndRun, DeviceGlitchEnd) as exc:
             ended_by = str(exc)
         except BaseException as exc:  # includes KeyboardInterrupt: still leave output zero
             error = exc
@@ -510,6 +515,8 @@ class Engine(CalibrationSteps):
                     pt.status, pt.reason = TrialStatus.PENDING, ""
         while True:
             self._check_interrupts()
+            if self._check_devices_between_trials():
+                continue  # a USB glitch was recovered: look at commands and trips again
             if self._skip_req:  # skip between trials: the next pending trial is not run
                 self._skip_req = False
                 nxt = self._next_trial()

@@ -6,8 +6,8 @@ import time
 
 import numpy as np
 
-from nmsid.drivers.interfaces import ForceChunk
-from nmsid.sim_backends.errors import DeviceStateError, SimConfigError
+from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
+from nmsid.sim_backends.errors import DeviceStateError, SensorDisconnected, SimConfigError
 from nmsid.sim_backends.world import SimWorld
 
 #: Largest real-time wait slice while a read blocks (keeps reads responsive).
@@ -44,6 +44,9 @@ class SimForceAcquisition:
         if n_samples is not None and int(n_samples) < 0:
             raise SimConfigError(f"n_samples must be >= 0 or None, got {n_samples!r}")
         with self._w.lock:
+            self._w.update()
+            if self._w.acq_fault is not None:
+                raise SensorDisconnected(f"start() failed: {self._w.acq_fault[0]}")
             if self._w.acq is not None:
                 raise DeviceStateError("start() while acquiring; stop() first")
             self._w.start_acquisition(None if n_samples is None else int(n_samples),
@@ -60,6 +63,10 @@ class SimForceAcquisition:
                 if acq is None:
                     raise DeviceStateError("read() before start()")
                 w.update()
+                if w.acq_fault is not None:  # USB glitch: nothing more arrives
+                    return ForceChunk(start_index=acq.next_k, force_N=np.zeros(0),
+                                      flags=AcquisitionFlags(sensor_fault=True,
+                                                             detail=w.acq_fault[0]))
                 due = None
                 if not acq.waiting and not acq.done:
                     Na, Nb = w.next_range(acq)
@@ -117,6 +124,30 @@ class SimForceAcquisition:
     def stop(self) -> None:
         with self._w.lock:
             self._w.stop_acquisition()
+
+    def device_fault(self) -> str:
+        """What is wrong with the link to the device ("" if nothing)."""
+        with self._w.lock:
+            self._w.update()
+            return self._w.acq_fault[0] if self._w.acq_fault is not None else ""
+
+    def reconnect(self, fs_Hz: float) -> float:
+        """Re-open the (simulated) device after a USB glitch; returns the rate.
+
+        Raises
+        ------
+        SensorDisconnected
+            While the simulated glitch lasts (``duration_s`` of the fault).
+        """
+        with self._w.lock:
+            self._w.update()
+            self._w.stop_acquisition()
+            fault = self._w.acq_fault
+            if fault is not None:
+                if fault[1] is not None and self._w.now() < fault[1]:
+                    raise SensorDisconnected(f"{fault[0]}: the device is not back yet")
+                self._w.acq_fault = None
+        return self.configure(fs_Hz)
 
     def close(self) -> None:
         self.stop()

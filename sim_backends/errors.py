@@ -26,9 +26,14 @@ class StimulatorDisconnected(StimulatorFault, ConnectionError):
     """The (simulated) stimulator is disconnected; call ``connect()`` once it is back."""
 
 
+class SensorDisconnected(DeviceError, ConnectionError):
+    """The (simulated) force chain's USB link is lost; ``reconnect()`` once it is back."""
+
+
 class DeviceStateError(RuntimeError):
     """A device call is not allowed in the device's present state (a programming error:
     e.g. ``start()`` before ``arm()``, ``read()`` before ``start()``)."""
 
 
-__all__ = ["SimConfigError", "StimulatorFault", "StimulatorDisconnected", "DeviceStateError"]
+__all__ = ["SimConfigError", "StimulatorFault", "StimulatorDisconnected", "SensorDisconnected",
+           "DeviceStateError"]

@@ -53,6 +53,10 @@ class FaultKind(enum.Enum):
     :class:`~nmsid.sim_backends.errors.StimulatorFault` until ``connect()``."""
     ESTOP = "estop"
     """The hardware E-stop switch is pressed (and stays pressed until released)."""
+    SENSOR_DISCONNECT = "sensor_disconnect"
+    """A USB glitch of the force chain: from then on reads carry ``flags.sensor_fault``,
+    ``start()`` raises and ``device_fault()`` names it, until ``reconnect()``, which fails
+    while ``duration_s`` has not passed (None: the device is back at once)."""
 
 
 SENSOR_KINDS = {FaultKind.SENSOR_STALL, FaultKind.SENSOR_FAULT, FaultKind.OVER_RANGE,

@@ -69,6 +69,8 @@ class SimWorld:
         self.max_sent_mA = [0.0, 0.0]
         self.max_delivered_mA = [0.0, 0.0]
         self.stim_fault: tuple[FaultKind, str] | None = None
+        self.acq_fault: tuple[str, float | None] | None = None
+        """A force-chain USB glitch: (text, clock time it is reachable again or None)."""
         self.estop_pressed = False
         self.estop_pressed_at_s: float | None = None
         self._timed: list[tuple[Fault, float]] = []   # (fault, clock time) for time faults
@@ -147,6 +149,10 @@ class SimWorld:
             elif f.kind in STIM_KINDS:
                 N = self.sample_at(t) if self.anchor is not None else None
                 self._stim_fail(f, t, N)
+            elif f.kind is FaultKind.SENSOR_DISCONNECT:
+                self.acq_fault = (f.detail or "force sensor USB link lost (simulated)",
+                                  None if f.duration_s is None else t + f.duration_s)
+                self._log_fired(f, t, None)
 
     def _stim_fail(self, f: Fault, t_s: float, N: int | None) -> None:
         text = f.detail or ("stimulator disconnected (simulated)"

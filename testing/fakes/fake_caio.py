@@ -12,7 +12,11 @@ The fake device samples, on the :class:`bench.FakeBench` clock, the A/D channels
 ``wiring`` (``{channel: callable(t_array, force_N_array) -> volts}``) into a FIFO of
 ``fifo_samples`` scans; an external start trigger waits for the fake stimulator's sync
 edge; a FIFO that overflows sets ``AIS_OFERR`` and loses samples; ``inject_status`` adds
-status bits (clock error, conversion error) from the next poll on.
+status bits (clock error, conversion error) from the next poll on. ``unsupported`` names
+setters the device does not implement (they return ``AIO_ERR_SYS_NOT_SUPPORTED``, as
+Contec documents for functions a device lacks); :meth:`unplug` / :meth:`replug` model a
+USB glitch: every ID issued before it is invalid afterwards (``AIO_ERR_DLL_INVALID_ID``),
+only a new ``AioInit`` works. Error numbers: Contec's, see ``ERRORS``.
 """
 
 from __future__ import annotations
@@ -24,13 +28,33 @@ import numpy as np
 AIS_BUSY, AIS_START_TRG, AIS_DATA_NUM = 0x1, 0x2, 0x10
 AIS_OFERR, AIS_SCERR, AIS_AIERR, AIS_DRVERR = 0x10000, 0x20000, 0x40000, 0x80000
 
+# Error numbers and texts: Contec's CAIO error codes as defined in Contec's own header
+# ``libcpsaio.h`` (CONTEC CONPROSYS Linux driver, repository ``cps-driver``,
+# ``include/libcpsaio.h``, "ERROR CODE" section; the same AIO_ERR_* numbering as the
+# API-AIO(WDM) help's error list). Texts are our English renderings of the header's comments.
+AIO_ERR_DLL_DEVICE_NAME = 10000    # device name not registered in the setting utility
+AIO_ERR_DLL_INVALID_ID = 10001     # an invalid ID was specified
+AIO_ERR_DLL_CALL_DRIVER = 10002    # the driver could not be called
+AIO_ERR_AI_RANGE = 11060           # AiRange outside the function's range
+AIO_ERR_SYS_NOT_SUPPORTED = 20001  # this function cannot be used with this device
+AIO_ERR_SYS_BOARD_EXECUTING = 20002  # the device is running
+AIO_ERR_AI_DEVICE_RANGE = 21060    # AiRange outside the device's ranges
+AIO_ERR_AI_DEVICE_CHANNEL = 21420  # AiChannel outside the device's channels
+AIO_ERR_PTR_AI_DATA_UNVERIFIED = 11421  # AIO_ERR_PTR_AI_DATA: closest header entry
+AIO_ERR_SAMPLING_CLOCK_UNVERIFIED = 11300
+"""NOT from a Contec header (none available to us lists the sampling-clock error): a
+stand-in number for a sampling clock out of range; the driver treats it as any error."""
+
 ERRORS = {
-    10001: "Invalid device name",
-    10200: "Invalid ID",
-    11140: "Invalid number of channels",
-    11180: "Invalid range",
-    11200: "Invalid sampling clock",
-    20003: "Device is running",
+    AIO_ERR_DLL_DEVICE_NAME: "Device name not registered in the device manager",
+    AIO_ERR_DLL_INVALID_ID: "Invalid ID",
+    AIO_ERR_DLL_CALL_DRIVER: "Driver call failed",
+    AIO_ERR_AI_RANGE: "AiRange is out of range of the function",
+    AIO_ERR_SYS_NOT_SUPPORTED: "This function cannot be used with this device",
+    AIO_ERR_SYS_BOARD_EXECUTING: "The device is running",
+    AIO_ERR_AI_DEVICE_RANGE: "AiRange is out of range of the device",
+    AIO_ERR_AI_DEVICE_CHANNEL: "AiChannel is out of range of the device",
+    AIO_ERR_SAMPLING_CLOCK_UNVERIFIED: "Sampling clock out of range (stand-in number)",
 }
 
 
@@ -94,6 +118,8 @@ class FakeCaioLibrary:
         self.wiring = wiring or {}
         self.calls: list[tuple] = []
         self.plugged = True
+        self.unsupported: set[str] = set()
+        self._next_id = 0
         self.inject_status = 0
         self.range_V = range_V
         self.lsb_V = 2 * range_V / 2 ** resolution_bits
@@ -123,8 +149,19 @@ class FakeCaioLibrary:
     # -- helpers --------------------------------------------------------------------
     def _check_id(self, id_):
         if not self.plugged:
-            return 10200
-        return 0 if _val(id_) in self._ids else 10200
+            # the USB device is gone: the driver behind the ID cannot be reached
+            return AIO_ERR_DLL_CALL_DRIVER if _val(id_) in self._ids else AIO_ERR_DLL_INVALID_ID
+        return 0 if _val(id_) in self._ids else AIO_ERR_DLL_INVALID_ID
+
+    def unplug(self):
+        """The USB cable is pulled: calls fail; IDs issued so far die with the device."""
+        self.plugged = False
+        self.running = False
+
+    def replug(self):
+        """The device is back; the old IDs stay invalid, ``AioInit`` gives a new one."""
+        self._ids.clear()
+        self.plugged = True
 
     def _advance(self):
         """Convert the samples that are due on the bench clock into the FIFO."""
@@ -166,8 +203,9 @@ class FakeCaioLibrary:
     # -- common ---------------------------------------------------------------------
     def _AioInit(self, name, id_ptr):
         if not self.plugged or name.decode() != self.device_name:
-            return 10001
-        new_id = len(self._ids)
+            return AIO_ERR_DLL_DEVICE_NAME
+        new_id = self._next_id  # never reissued: a stale ID cannot alias a new one
+        self._next_id += 1
         self._ids.add(new_id)
         _target(id_ptr).value = new_id
         return 0
@@ -198,14 +236,14 @@ class FakeCaioLibrary:
         return err
 
     def _AioSetAiInputMethod(self, id_, method):
-        return self._check_id(id_) or (0 if _val(method) in (0, 1) else 11140)
+        return self._check_id(id_) or (0 if _val(method) in (0, 1) else AIO_ERR_AI_RANGE)
 
     def _AioSetAiChannels(self, id_, n):
         err = self._check_id(id_)
         if err:
             return err
         if not 1 <= _val(n) <= self.max_channels:
-            return 11140
+            return AIO_ERR_AI_DEVICE_CHANNEL
         self.channels = _val(n)
         self._fifo = np.zeros((0, self.channels))
         return 0
@@ -214,14 +252,21 @@ class FakeCaioLibrary:
         err = self._check_id(id_)
         if err:
             return err
+        if "AioSetAiRangeAll" in self.unsupported:
+            return AIO_ERR_SYS_NOT_SUPPORTED
         if _val(code) != 0:
-            return 11180  # the fake models the +/-10 V range only
+            return AIO_ERR_AI_DEVICE_RANGE  # the fake models the +/-10 V range only
         self.range_code = 0
         return 0
 
     def _AioSetAiMemoryType(self, id_, kind):
+        err = self._check_id(id_)
+        if err:
+            return err
+        if "AioSetAiMemoryType" in self.unsupported:
+            return AIO_ERR_SYS_NOT_SUPPORTED
         self.memory_type = _val(kind)
-        return self._check_id(id_)
+        return 0
 
     def _AioSetAiClockType(self, id_, kind):
         self.clock_type = _val(kind)
@@ -232,7 +277,7 @@ class FakeCaioLibrary:
         if err:
             return err
         if not 10.0 <= _val(usec) <= 1e6:
-            return 11200
+            return AIO_ERR_SAMPLING_CLOCK_UNVERIFIED
         self.clock_us = round(_val(usec) * 4) / 4  # 0.25 us clock granularity
         return 0
 
@@ -264,7 +309,7 @@ class FakeCaioLibrary:
         if err:
             return err
         if self.running:
-            return 20003
+            return AIO_ERR_SYS_BOARD_EXECUTING
         self.running = True
         self._t_start_call = self.bench.now()
         self._t_first = None
@@ -305,7 +350,7 @@ class FakeCaioLibrary:
         n = min(n_obj.value, len(self._fifo))
         out = _target(data)
         if n * self.channels > len(out):
-            return 11140
+            return AIO_ERR_PTR_AI_DATA_UNVERIFIED
         flat = self._fifo[:n].ravel()  # interleaved: ch0, ch1, ... of scan 0, then scan 1
         out[:len(flat)] = flat.astype(np.float32).tolist()
         self._fifo = self._fifo[n:]

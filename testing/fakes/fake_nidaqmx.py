@@ -13,7 +13,25 @@ Modules ``nidaqmx``, ``nidaqmx.constants``, ``nidaqmx.errors``, ``nidaqmx.stream
 Like DAQmx, the callback runs on a separate thread once per ``n`` acquired samples; the
 acquisition is hardware-timed on the :class:`bench.FakeBench` clock and, with a digital
 edge start trigger, starts at the fake stimulator's sync edge. ``inject_read_error`` makes
-the next read fail (e.g. -200279, samples overwritten).
+the next read fail with that DAQmx error (e.g. -200279 samples no longer available,
+-200019 ADC overrun), with DAQmx's message.
+
+DAQmx behaviour modelled from NI's documentation and error list (``NIDAQmx.h`` /
+nidaqmx-python ``error_codes.DAQmxErrors``), not from ``drivers.nidaq``:
+
+* The sample clock is derived from a timebase (``timebase_Hz`` of the device entry,
+  20 MHz by default as on M/X series boards), so the rate is COERCED to
+  ``timebase / round(timebase / rate)``; ``timing.samp_clk_rate`` reads it back.
+* Starting a continuous task with an Every N Samples event whose buffer
+  (``samps_per_chan``) is not a multiple of N fails with -200877
+  (``BufferSizeNotMultipleOfEveryNSampsEventIntervalWhenDMA``).
+* -200019 (``ADCOverrun``): a conversion was attempted before the previous one was
+  complete; samples are lost. -200141 is ``CounterOverflow`` (counter tasks only).
+* ``unplug()`` / ``replug()``: while unplugged, starting a task fails with -201003 (device
+  cannot be accessed) and a running task's next read fails with it; a task created before
+  the glitch stays dead after ``replug()`` (a new task must be made), and
+  ``is_task_done()`` on a dead task raises -201003 (an assumption, not verified on
+  hardware).
 """
 
 from __future__ import annotations
@@ -34,6 +52,22 @@ class DaqError(Exception):
 
 class DaqReadError(DaqError):
     pass
+
+
+MESSAGES = {
+    -200279: "The application is not able to keep up with the acquisition. Attempted to "
+             "read samples that are no longer available.",
+    -200019: "ADC conversion attempted before the prior conversion was complete.",
+    -200141: "Counter overflow.",
+    -200361: "Onboard device memory overflow. Because of system and/or bus-bandwidth "
+             "limitations, the driver could not read data from the device fast enough.",
+    -200877: "Requested Every N Samples Event Interval is not supported for the given Data "
+             "Transfer Mechanism and buffer size. To keep DMA or USB Bulk as the Data "
+             "Transfer Mechanism, make the buffer size an even multiple of the Every N "
+             "Samples Event Interval.",
+    -201003: "Device cannot be accessed. Possible causes: Device is no longer present in "
+             "the system.",
+}
 
 
 class AcquisitionType(enum.Enum):
@@ -78,6 +112,8 @@ class _State:
     di_lines: dict = {}
     tasks: list = []
     inject_read_error: int | None = None
+    unplugged: bool = False
+    generation: int = 0
 
 
 class _Channels:
@@ -116,8 +152,10 @@ class _Timing:
             raise TypeError("sample_mode must be an AcquisitionType")
         if not 0 < rate <= 250_000:
             raise DaqError(f"sample clock rate {rate} is out of range", -200077)
-        base = 20e6  # timebase divisor like an M/X series board
-        self.samp_clk_rate = base / round(base / rate)
+        dev = self.task.ai_channels.names[0].split("/")[0] if self.task.ai_channels.names \
+            else ""
+        base = float(_State.devices.get(dev, {}).get("timebase_Hz", 20e6))
+        self.samp_clk_rate = base / max(1, round(base / rate))  # coerced, as DAQmx does
         self.task.mode = sample_mode
         self.task.buffer = int(samps_per_chan)
 
@@ -154,7 +192,16 @@ class Task:
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self._data = np.zeros((0, 0))
+        self.generation = _State.generation
         _State.tasks.append(self)
+
+    def _dead(self) -> bool:
+        return _State.unplugged or self.generation != _State.generation
+
+    def is_task_done(self):
+        if self._dead() and self.ai_channels.names:
+            raise DaqError(MESSAGES[-201003], -201003)
+        return not self.running
 
     def __enter__(self):
         return self
@@ -170,6 +217,12 @@ class Task:
     def start(self):
         if self.closed:
             raise DaqError("task closed", -200088)
+        if self._dead() and self.ai_channels.names:
+            raise DaqError(MESSAGES[-201003], -201003)
+        if self.mode is AcquisitionType.CONTINUOUS and self.callback is not None \
+                and self.buffer % self.n_every:
+            raise DaqError(f"{MESSAGES[-200877]} Buffer size: {self.buffer}; Every N Samples "
+                           f"Event Interval: {self.n_every}", -200877)
         self.running = True
         if not self.ai_channels.names:
             return
@@ -235,12 +288,12 @@ class Task:
 
     def _take(self, n):
         with self._lock:
+            if self._dead():
+                raise DaqReadError(MESSAGES[-201003], -201003)
             if _State.inject_read_error is not None:
                 code, _State.inject_read_error = _State.inject_read_error, None
                 self._data = self._data[:, n:]
-                raise DaqReadError("The application is not able to keep up with the "
-                                   "acquisition. Attempted to read samples that are no "
-                                   "longer available.", code)
+                raise DaqReadError(MESSAGES.get(code, f"DAQmx error {code}"), code)
             out = self._data[:, :n]
             self._data = self._data[:, n:]
             return out
@@ -272,6 +325,8 @@ def install(bench=None, devices=None, wiring=None, di_lines=None, modules=None) 
     _State.di_lines = di_lines if di_lines is not None else {}
     _State.tasks = []
     _State.inject_read_error = None
+    _State.unplugged = False
+    _State.generation = 0
     root = types.ModuleType("nidaqmx")
     constants = types.ModuleType("nidaqmx.constants")
     for c in (AcquisitionType, Edge, TerminalConfiguration):
@@ -291,6 +346,17 @@ def install(bench=None, devices=None, wiring=None, di_lines=None, modules=None) 
             "nidaqmx.stream_readers": readers, "nidaqmx.system": system}
     (sys.modules if modules is None else modules).update(mods)
     return mods
+
+
+def unplug() -> None:
+    """The USB device disappears: reads and starts fail with -201003; tasks made before
+    stay dead."""
+    _State.unplugged = True
+    _State.generation += 1
+
+
+def replug() -> None:
+    _State.unplugged = False
 
 
 def state() -> type[_State]:

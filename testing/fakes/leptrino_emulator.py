@@ -15,13 +15,28 @@ sees partial reads), ``error_result`` (answer a command with an error result cod
 ``ack_start`` (acknowledge 0x32 with a bare header), ``corrupt_replies`` (break the BCC
 of the next N command replies), :meth:`inject` (raw bytes, e.g. a
 spontaneous ``DLE NAK``), :meth:`stall` (stop streaming but stay
-connected) and :meth:`unplug` (close the master side: the driver's port errors out).
+connected), :meth:`unplug` (close the master side: the driver's port errors out) and
+:meth:`replug` (a new pseudo-terminal behind the same ``port`` path, like a sensor that
+re-enumerates after a USB glitch; the old handle stays dead).
+
+Behaviour modelled from the vendor's material, not from ``drivers.leptrino``:
+
+* Product information (``ST_R_GET_INF`` in Leptrino's ``pComResInternal.h``, sizes in
+  ``pCommon.h``: model 16, serial 8, firmware 4, rate 6 bytes of text). ``rate_text``
+  sets the rate field's text (``"1200Hz"`` by default; other spellings such as ``"1200"``
+  or ``"1.2k"``); ``rate_text=None`` ends the reply after the firmware version (28 data
+  bytes), as older firmware does.
+* Status byte (``ucStatus``): bits 0, 1, 2 and 5 are documented; bits 3, 4, 6, 7 are
+  reserved and indeterminate, so with ``reserved_bits_random`` each record carries random
+  values there. Bit 5 (external input) exists only on models with the input:
+  ``has_external_input=False`` makes it random too.
 """
 
 from __future__ import annotations
 
 import os
 import random
+import tempfile
 import select
 import struct
 import threading
@@ -48,12 +63,16 @@ class LeptrinoEmulator:
 
     def __init__(self, *, rate_Hz: float = 1200.0, rated=(500.0, 500.0, 1000.0, 10.0, 10.0, 10.0),
                  wrench_fn=None, model: str = "PFS080YA501G6", serial: str = "LT000042",
-                 firmware: str = "1.07", seed: int = 0):
+                 firmware: str = "1.07", seed: int = 0, rate_text: str | None = "",
+                 reserved_bits_random: bool = False, has_external_input: bool = True):
         self.rate_Hz = rate_Hz
         self.rated = tuple(float(r) for r in rated)
         self.wrench_fn = wrench_fn or (lambda t: (2.0, -1.0, 0.5, 0.01, 0.0, -0.02))
         self.status_fn = lambda t: 0
         self.model, self.serial, self.firmware = model, serial, firmware
+        self.rate_text = f"{rate_Hz:.0f}Hz" if rate_text == "" else rate_text
+        self.reserved_bits_random = reserved_bits_random
+        self.has_external_input = has_external_input
         self.rng = random.Random(seed)
         self.nak_next = 0
         self.corrupt_every = 0
@@ -75,13 +94,23 @@ class LeptrinoEmulator:
         self._rx = bytearray()
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self._dir = tempfile.mkdtemp(prefix="leptrino-emu-")
+        self.port = os.path.join(self._dir, "ttyLEPTRINO")
+        """A stable path (a symlink to the current pseudo-terminal), like a udev name."""
+        self._new_pty()
+        self._unplugged = False
+        self.replugs = 0
+
+    def _new_pty(self):
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
         os.set_blocking(self.master, False)
-        self.port = os.ttyname(self.slave)
+        tmp = self.port + ".new"
+        os.symlink(os.ttyname(self.slave), tmp)
+        os.replace(tmp, self.port)
+        self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="leptrino-emulator",
                                         daemon=True)
-        self._unplugged = False
 
     # -- control ----------------------------------------------------------------------
     def __enter__(self):
@@ -93,12 +122,19 @@ class LeptrinoEmulator:
 
     def close(self):
         self._stop.set()
-        self._thread.join(timeout=2)
+        if self._thread.is_alive():
+            self._thread.join(timeout=2)
         for fd in (self.master, self.slave):
             try:
                 os.close(fd)
             except OSError:
                 pass
+        self.master = self.slave = -1
+        try:
+            os.unlink(self.port)
+            os.rmdir(self._dir)
+        except OSError:
+            pass
 
     def inject(self, data: bytes):
         with self._lock:
@@ -115,6 +151,21 @@ class LeptrinoEmulator:
         os.close(self.master)
         os.close(self.slave)
         self.master = self.slave = -1
+
+    def replug(self):
+        """The sensor is back (after :meth:`unplug`): a new pseudo-terminal at ``port``.
+
+        Like a re-enumerated USB device: not streaming, fresh receive state; a handle opened
+        before the glitch stays dead, only a newly opened port reaches the sensor.
+        """
+        with self._lock:
+            self._streaming = self._stalled = False
+            self._out.clear()
+            self._rx.clear()
+        self._new_pty()
+        self._unplugged = False
+        self.replugs += 1
+        self._thread.start()
 
     @property
     def streaming(self) -> bool:
@@ -195,8 +246,9 @@ class LeptrinoEmulator:
             return
         if cmd == 0x2A:
             data = (self.model.encode().ljust(16, b"\0") + self.serial.encode().ljust(8, b"\0")
-                    + self.firmware.encode().ljust(4, b"\0")
-                    + f"{self.rate_Hz:.0f}Hz".encode().ljust(6, b"\0"))
+                    + self.firmware.encode().ljust(4, b"\0"))
+            if self.rate_text is not None:  # older firmware: no rate field at all
+                data += self.rate_text.encode()[:6].ljust(6, b"\0")
             self._reply(_frame(bytes([4 + len(data), 0xFF, cmd, 0]) + data))
         elif cmd == 0x2B:
             data = struct.pack("<6f", *self.rated)
@@ -221,6 +273,10 @@ class LeptrinoEmulator:
         raw = [max(-32768, min(32767, int(round(w / r * 10000.0))))
                for w, r in zip(wrench, self.rated)]
         status = int(self.status_fn(t)) & 0xFF
+        if self.reserved_bits_random:  # bits 3, 4, 6, 7: reserved, indeterminate
+            status = (status & ~0xD8) | (self.rng.randrange(256) & 0xD8)
+        if not self.has_external_input:  # bit 5 undefined on a model without the input
+            status = (status & ~0x20) | (self.rng.randrange(2) << 5)
         data = struct.pack("<6hhBB", *raw, 2500, status, 0)
         return _frame(bytes([4 + len(data), 0xFF, cmd, self.data_result]) + data)
 

@@ -20,8 +20,7 @@ def leptrino_emulator():
 
     yield make
     for emu in emulators:
-        if emu.master != -1:
-            emu.close()
+        emu.close()  # also after unplug(): removes the stable port path
 
 
 @pytest.fixture

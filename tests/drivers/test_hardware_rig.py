@@ -83,9 +83,12 @@ def test_missing_vendor_library_is_one_line_exit_2(write_hw_config, tmp_path, ca
             monkeypatch.setitem(sys.modules, name, m)
     monkeypatch.setitem(sys.modules, missing, None)
     path = write_hw_config(tmp_path / "hw.toml", kind=kind, fake=False, estop="none")
-    assert main(["probe", "--hw-config", str(path)]) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and text in err and "install" in err
+    # probe: each device on its own; the missing library is one line, exit status 1
+    assert main(["probe", "--hw-config", str(path)]) == 1
+    out = capsys.readouterr().out
+    failed = [line for line in out.splitlines() if "FAILED" in line and text in line]
+    assert len(failed) == 1 and "install" in failed[0]
+    assert "E-stop switch: none configured" in out  # still checked after the failure
     assert main(["run", "--backend", "hw", "--hw-config", str(path), "--out",
                  str(tmp_path / "s.h5")]) == 2
     err = capsys.readouterr().err.strip()
@@ -99,9 +102,13 @@ def test_missing_caio_library_is_one_line(write_hw_config, tmp_path, capsys, mon
     for name, m in mods.items():
         monkeypatch.setitem(sys.modules, name, m)
     path = write_hw_config(tmp_path / "hw.toml", fake=False, estop="none")
-    assert main(["probe", "--hw-config", str(path)]) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "CAIO" in err and "API-AIO" in err
+    assert main(["probe", "--hw-config", str(path)]) == 1
+    out = capsys.readouterr().out
+    assert [line.split(":")[0] for line in out.splitlines() if "FAILED" in line] == [
+        "acquisition"]
+    line = next(line for line in out.splitlines() if "FAILED" in line)
+    assert "CAIO" in line and "API-AIO" in line
+    assert "stimulator:" in out and "serial: 4002-0001" in out  # the STG was still probed
 
 
 def test_bad_config_is_one_line(write_hw_config, tmp_path, capsys):

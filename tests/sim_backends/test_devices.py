@@ -231,7 +231,7 @@ def test_concurrent_stop_now_calls_while_reading_on_the_fast_clock():
 @given(st.sampled_from(list(FaultKind)), st.floats(0.0, 0.9), st.integers(0, 1))
 def test_after_any_fault_and_a_stop_the_output_is_zero(kind, at_s, trial):
     """An engine-like loop stops on any fault it can see; from then on nothing is output."""
-    from nmsid.sim_backends.errors import StimulatorFault
+    from nmsid.sim_backends.errors import SensorDisconnected, StimulatorFault
     p = default_participant(sensor=SensorModel.ideal())
     rig = make_sim_rig(p, faults=[Fault(kind, trial=trial, at_s=at_s, amplitude_N=80.0)],
                        connect=True)
@@ -249,7 +249,7 @@ def test_after_any_fault_and_a_stop_the_output_is_zero(kind, at_s, trial):
     for _ in range(2):
         try:
             run_waveform(rig, waveform(I_e, I_f), on_chunk=watch, max_reads=60)
-        except StimulatorFault:
+        except (StimulatorFault, SensorDisconnected):  # refused at start: nothing output
             stops.append(-1)
             break
     status = rig.stimulator.status()

@@ -1,0 +1,92 @@
+"""``nmsid probe`` checks each device on its own (issue 16): the fakes are made to fail one
+device at a time; that device is one FAILED line, the others are still checked, exit 1."""
+
+from __future__ import annotations
+
+import pytest
+
+from nmsid.drivers.fake_hardware import load_fake
+from nmsid.cli import main
+
+
+def _unplug_stimulator(monkeypatch):
+    mcs = load_fake("fake_mcs_usb")
+    real = mcs.install
+    monkeypatch.setattr(mcs, "install", lambda bench=None, hardware=None, modules=None:
+                        real(bench=bench, hardware=[], modules=modules))  # no STG on USB
+
+
+def _unplug_caio(monkeypatch):
+    caio = load_fake("fake_caio")
+    real = caio.FakeCaioLibrary.__init__
+
+    def init(self, *a, **kw):
+        real(self, *a, **kw)
+        self.plugged = False  # AioInit: AIO_ERR_DLL_DEVICE_NAME
+
+    monkeypatch.setattr(caio.FakeCaioLibrary, "__init__", init)
+
+
+def _unplug_leptrino(monkeypatch):
+    emu = load_fake("leptrino_emulator")
+    real = emu.LeptrinoEmulator.__enter__
+
+    def enter(self):
+        real(self)
+        self.unplug()  # the port vanishes: opening it fails
+        return self
+
+    monkeypatch.setattr(emu.LeptrinoEmulator, "__enter__", enter)
+
+
+def _unplug_estop(monkeypatch):
+    from nmsid.drivers import estop_switch
+    from nmsid.drivers.errors import DeviceNotFound
+
+    def fail(self):
+        raise DeviceNotFound("cannot open serial port 'COM7' for the E-stop switch "
+                             "(estop.port): no such device")
+
+    monkeypatch.setattr(estop_switch.SerialEStop, "open", fail)
+
+
+CASES = [("caio", _unplug_stimulator, "stimulator", "acquisition: 2000 Hz"),
+         ("caio", _unplug_caio, "acquisition", "serial: 4002-0001"),
+         ("leptrino", _unplug_leptrino, "acquisition", "E-stop switch: released"),
+         ("caio", _unplug_estop, "E-stop switch", "samples: force mean")]
+
+
+@pytest.mark.parametrize("kind, unplug, device, still_checked", CASES,
+                         ids=[f"{c[0]}-{c[2]}" for c in CASES])
+def test_one_unreachable_device_is_one_line_and_the_others_are_checked(
+        write_hw_config, tmp_path, capsys, monkeypatch, kind, unplug, device, still_checked):
+    unplug(monkeypatch)
+    fs = 1200.0 if kind == "leptrino" else 2000.0
+    path = write_hw_config(tmp_path / "hw.toml", kind=kind, fs_Hz=fs)
+    assert main(["probe", "--hw-config", str(path), "--samples", "20"]) == 1
+    out = capsys.readouterr().out
+    failed = [line for line in out.splitlines() if ": FAILED: " in line]
+    assert len(failed) == 1 and failed[0].startswith(f"{device}: FAILED: ")
+    assert still_checked in out
+    assert out.rstrip().splitlines()[-1] == f"probe: 1 device(s) failed: {device}"
+
+
+def test_old_firmware_leptrino_with_random_reserved_bits_probes_clean(
+        write_hw_config, tmp_path, capsys, monkeypatch):
+    """Done-when of issue 16: no rate field, reserved status bits at random: no error, no
+    flag, and its force is read."""
+    emu = load_fake("leptrino_emulator")
+    real = emu.LeptrinoEmulator.__init__
+
+    def init(self, *a, **kw):
+        real(self, *a, **{**kw, "rate_text": None, "reserved_bits_random": True})
+
+    monkeypatch.setattr(emu.LeptrinoEmulator, "__init__", init)
+    path = write_hw_config(tmp_path / "hw.toml", kind="leptrino", fs_Hz=1200.0)
+    assert main(["probe", "--hw-config", str(path), "--samples", "200"]) == 0
+    out = capsys.readouterr().out
+    assert "(no rate stated: nominal rate used)" in out
+    assert "acquisition: 1200 Hz" in out
+    assert "200 samples: force mean" in out
+    assert "flag:" not in out and "FAILED" not in out
+    assert out.rstrip().splitlines()[-1] == "probe: OK"
