@@ -5,3 +5,8 @@ from __future__ import annotations
 
 class ExportError(ValueError):
     """A session cannot be exported as asked; the message names the file and the reason."""
+
+
+class FmuExportError(ExportError):
+    """A twin cannot be exported as an FMU as asked (a form or effect the FMU does not
+    model, an existing output file, no C compiler); the message names it."""

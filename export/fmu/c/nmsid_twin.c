@@ -1,0 +1,518 @@
+/* nmsid digital twin as an FMI 2.0 FMU (model exchange and co-simulation).
+ *
+ * The model (docs/twin-file.md, docs/fmu.md):
+ *   F(t) = offset_N(sE) + g(c) (y_e(t) - y_f(t))
+ *   each path p: y_p'' + 2 zeta_p wn_p y_p' + wn_p^2 y_p = wn_p^2 a_p,
+ *   a_p = w_p (no activation lag) or tau a_p' + a_p = w_p (activation_dynamics),
+ *   w = Kp(sE) (rE - 0.5) on one path (no recruitment map, no asymmetry), or
+ *   w_e = k (h(rE sE) - h(sE / 2)), w_f = k (h((1 - rE) sE) - h(sE / 2)), k = Kp / (2 sE).
+ * Parameters are the twin's curves of sE, evaluated at sE clipped to [sE_min, sE_max]
+ * unless `extrapolate` is set.
+ *
+ * Co-simulation: fmi2DoStep solves the linear dynamics exactly for inputs that are straight
+ * lines over the step (the value set at the step's start plus the first derivative set by
+ * fmi2SetRealInputDerivatives, zero when none is set), with wn and zeta the mean of their
+ * values at the step's two ends: the triangle-hold discretisation of `nmsid twin simulate`
+ * (analysis/twin.py), so a step equal to the sampling period reproduces it.
+ * The transition matrices come from the matrix exponential of the augmented system
+ * [[hA, hB, 0], [0, 0, 1], [0, 0, 0]] (C. Van Loan, "Computing integrals involving the
+ * matrix exponential", IEEE TAC 23(3), 1978), by scaling and squaring of its Taylor series.
+ *
+ * Generated values (value references and the twin's parameters) are in twin_data.h.
+ * Needs only the C standard library and libm; no Python at run time.
+ */
+
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi2Functions.h"
+#include "twin_data.h"
+
+#define NX 7          /* continuous states: path e [a, y, y'], path f [a, y, y'], c */
+#define MAXN 5        /* largest augmented matrix (3 states + 2) */
+
+typedef struct {
+    fmi2Real r[N_REAL];
+    fmi2Integer i[N_INTEGER];
+    fmi2Boolean b[N_BOOLEAN];
+    fmi2Real der_rE, der_sE;       /* input derivatives for the next step (CS) */
+    fmi2Real last_rE, last_sE;     /* inputs at the last completed integrator step (ME) */
+    fmi2Real time;
+    const fmi2CallbackFunctions *cb;
+    fmi2String name;
+    int is_cs;
+    int logging;
+} Model;
+
+static void logmsg(Model *m, fmi2Status st, const char *cat, const char *fmt, ...)
+{
+    char buf[512];
+    va_list ap;
+    if (!m || !m->cb || !m->cb->logger) return;
+    if (st == fmi2OK && !m->logging) return;
+    va_start(ap, fmt);
+    vsnprintf(buf, sizeof buf, fmt, ap);
+    va_end(ap);
+    m->cb->logger(m->cb->componentEnvironment, m->name, st, cat, "%s", buf);
+}
+
+/* ---- the twin's curves and effects ------------------------------------------------ */
+
+static double curve(int model, const double *c, double x)
+{
+    switch (model) {
+    case 0: return c[0];                         /* constant    a            */
+    case 1: return c[0] + c[1] * x;              /* linear      a + b x      */
+    case 2: return c[0] + c[1] * x + c[2] * x * x; /* quadratic a + b x + c x^2 */
+    default: return c[0] * exp(c[1] * x);        /* exponential a exp(b x)   */
+    }
+}
+
+static double sE_eval(const Model *m, double sE)
+{
+    if (m->b[VRB_extrapolate]) return sE;
+    if (sE < m->r[VR_sE_min]) return m->r[VR_sE_min];
+    if (sE > m->r[VR_sE_max]) return m->r[VR_sE_max];
+    return sE;
+}
+
+static double Kp_at(const Model *m, double sE)
+{ return curve(m->i[VRI_Kp_model], &m->r[VR_Kp_c0], sE_eval(m, sE)); }
+static double wn_at(const Model *m, double sE)
+{ return curve(m->i[VRI_wn_model], &m->r[VR_wn_c0], sE_eval(m, sE)); }
+static double zeta_at(const Model *m, double sE)
+{ return curve(m->i[VRI_zeta_model], &m->r[VR_zeta_c0], sE_eval(m, sE)); }
+static double offset_at(const Model *m, double sE)
+{ return curve(m->i[VRI_offset_model], &m->r[VR_offset_c0], sE_eval(m, sE)); }
+
+static double logistic(double z) { return 0.5 * (1.0 + tanh(0.5 * z)); }
+
+/* recruitment map h(I): h(0) = 0, h(1) = 1, unit slope outside [0, 1]
+   (sim_backends/effects.py RecruitmentNonlinearity.h) */
+static double recruit(const Model *m, double x)
+{
+    double xin = x < 0.0 ? 0.0 : (x > 1.0 ? 1.0 : x), y, p1 = m->r[VR_recruitment_p1],
+           p2 = m->r[VR_recruitment_p2];
+    switch (m->i[VRI_recruitment_shape]) {
+    case 1: y = pow(xin, p1); break;                                   /* power: gamma */
+    case 2: {                                            /* sigmoid: slope, midpoint */
+        double lo = logistic(-p1 * p2), hi = logistic(p1 * (1.0 - p2));
+        y = (logistic(p1 * (xin - p2)) - lo) / (hi - lo);
+        break; }
+    case 3:                                   /* threshold_saturation: threshold, saturation */
+        y = (xin - p1) / (p2 - p1);
+        y = y < 0.0 ? 0.0 : (y > 1.0 ? 1.0 : y);
+        break;
+    default: y = xin;
+    }
+    return y + (x - xin);
+}
+
+static int two_paths(const Model *m)
+{ return m->r[VR_asym_wn_ratio] != 1.0 || m->r[VR_asym_zeta_ratio] != 1.0; }
+
+/* drives of the extensor and flexor paths for inputs (rE, sE) */
+static void drives(const Model *m, double rE, double sE, double *we, double *wf)
+{
+    double kp = Kp_at(m, sE);
+    if (m->i[VRI_recruitment_shape] == 0 && !two_paths(m)) {
+        *we = kp * (rE - 0.5);
+        *wf = 0.0;
+        return;
+    }
+    if (!(sE > 0.0)) { *we = *wf = 0.0; return; }
+    {
+        double k = kp / (2.0 * sE), h0 = recruit(m, 0.5 * sE);
+        *we = k * (recruit(m, rE * sE) - h0);
+        *wf = -k * (recruit(m, (1.0 - rE) * sE) - h0);  /* sign: force = y_e + y_f */
+    }
+    if (!two_paths(m)) { *we += *wf; *wf = 0.0; }
+}
+
+static double fatigue_gain(const Model *m, double c)
+{
+    double p = m->r[VR_fatigue_gain_loss_pct] / 100.0, cref = m->r[VR_fatigue_reference_stim_s];
+    if (m->i[VRI_fatigue_shape] == 1) return pow(1.0 - p, c / cref);
+    if (m->i[VRI_fatigue_shape] == 2) { double g = 1.0 - p * c / cref; return g > 0.05 ? g : 0.05; }
+    return 1.0;
+}
+
+/* ---- linear algebra: exp of a small matrix ----------------------------------------- */
+
+static void matmul(int n, const double *a, const double *b, double *out)
+{
+    double t[MAXN * MAXN];
+    int i, j, k;
+    for (i = 0; i < n; i++)
+        for (j = 0; j < n; j++) {
+            double s = 0.0;
+            for (k = 0; k < n; k++) s += a[i * n + k] * b[k * n + j];
+            t[i * n + j] = s;
+        }
+    memcpy(out, t, sizeof(double) * n * n);
+}
+
+static void expm(int n, const double *a, double *e)
+{
+    double norm = 0.0, as[MAXN * MAXN], term[MAXN * MAXN];
+    int i, j, k, sq = 0;
+    for (i = 0; i < n; i++) {
+        double row = 0.0;
+        for (j = 0; j < n; j++) row += fabs(a[i * n + j]);
+        if (row > norm) norm = row;
+    }
+    while (norm > 0.125) { norm *= 0.5; sq++; }
+    for (i = 0; i < n * n; i++) as[i] = ldexp(a[i], -sq);
+    for (i = 0; i < n * n; i++) e[i] = term[i] = (i % (n + 1) == 0) ? 1.0 : 0.0;
+    for (k = 1; k <= 18; k++) {                /* Taylor series: |A| <= 1/8, error < 1e-30 */
+        matmul(n, term, as, term);
+        for (i = 0; i < n * n; i++) { term[i] /= k; e[i] += term[i]; }
+    }
+    for (i = 0; i < sq; i++) matmul(n, e, e, e);
+}
+
+/* one path over a step of h s: state x (nx = 2: [y, y'], or 3: [a, y, y']) driven by
+   the straight line from w0 to w1 */
+static void path_step(int nx, double *x, double wn, double zeta, double tau, double h,
+                      double w0, double w1)
+{
+    double m[MAXN * MAXN], e[MAXN * MAXN], xn[3];
+    int n = nx + 2, i, j;
+    memset(m, 0, sizeof m);
+    if (nx == 2) {
+        m[0 * n + 1] = h;
+        m[1 * n + 0] = -wn * wn * h; m[1 * n + 1] = -2.0 * zeta * wn * h;
+        m[1 * n + 2] = wn * wn * h;
+    } else {
+        m[0 * n + 0] = -h / tau; m[0 * n + 3] = h / tau;
+        m[1 * n + 2] = h;
+        m[2 * n + 0] = wn * wn * h; m[2 * n + 1] = -wn * wn * h;
+        m[2 * n + 2] = -2.0 * zeta * wn * h;
+    }
+    m[nx * n + nx + 1] = 1.0;
+    expm(n, m, e);
+    for (i = 0; i < nx; i++) {
+        double s = e[i * n + nx] * w0 + e[i * n + nx + 1] * (w1 - w0);
+        for (j = 0; j < nx; j++) s += e[i * n + j] * x[j];
+        xn[i] = s;
+    }
+    memcpy(x, xn, sizeof(double) * nx);
+}
+
+static int params_ok(Model *m, double sE)
+{
+    double wn = wn_at(m, sE), z = zeta_at(m, sE);
+    if (wn > 0.0 && z > 0.0 && isfinite(Kp_at(m, sE)) && isfinite(offset_at(m, sE))) return 1;
+    logmsg(m, fmi2Error, "logStatusError", "wn_rad_s (%g) or zeta (%g) is not positive at "
+           "sE = %g; keep sE in [%g, %g] or leave extrapolate off", wn, z, sE,
+           m->r[VR_sE_min], m->r[VR_sE_max]);
+    return 0;
+}
+
+/* advance the states by h s with inputs moving in straight lines (r0, s0) -> (r1, s1) */
+static int advance(Model *m, double h, double r0, double s0, double r1, double s1,
+                   int rest_start)
+{
+    double *x = &m->r[VR_x0];
+    double wn = 0.5 * (wn_at(m, s0) + wn_at(m, s1)), z = 0.5 * (zeta_at(m, s0) + zeta_at(m, s1));
+    double tau = m->r[VR_activation_tau_s], we0, wf0, we1, wf1;
+    int nx = tau > 0.0 ? 3 : 2, off = tau > 0.0 ? 0 : 1;
+    if (!params_ok(m, s0) || !params_ok(m, s1)) return 0;
+    drives(m, r0, s0, &we0, &wf0);
+    drives(m, r1, s1, &we1, &wf1);
+    if (rest_start) we0 = wf0 = 0.0;
+    if (h > 0.0) {
+        path_step(nx, x + off, wn, z, tau, h, we0, we1);
+        if (two_paths(m))
+            path_step(nx, x + 3 + off, wn * m->r[VR_asym_wn_ratio], z * m->r[VR_asym_zeta_ratio],
+                      tau, h, wf0, wf1);
+        if (s0 > 0.0) x[6] += h;
+    }
+    return 1;
+}
+
+static void derivatives(Model *m, double *dx)
+{
+    const double *x = &m->r[VR_x0];
+    double sE = m->r[VR_sE], wn = wn_at(m, sE), z = zeta_at(m, sE), tau = m->r[VR_activation_tau_s];
+    double w[2];
+    int p;
+    drives(m, m->r[VR_rE], sE, &w[0], &w[1]);
+    for (p = 0; p < 2; p++) {
+        const double *xp = x + 3 * p;
+        double *dp = dx + 3 * p;
+        double wnp = p ? wn * m->r[VR_asym_wn_ratio] : wn, zp = p ? z * m->r[VR_asym_zeta_ratio] : z;
+        double a = tau > 0.0 ? xp[0] : w[p];
+        dp[0] = tau > 0.0 ? (w[p] - xp[0]) / tau : 0.0;
+        dp[1] = xp[2];
+        dp[2] = wnp * wnp * (a - xp[1]) - 2.0 * zp * wnp * xp[2];
+    }
+    dx[6] = sE > 0.0 ? 1.0 : 0.0;
+}
+
+static void outputs(Model *m)
+{
+    double sE = m->r[VR_sE], *x = &m->r[VR_x0];
+    m->r[VR_Kp] = Kp_at(m, sE);
+    m->r[VR_wn_rad_s] = wn_at(m, sE);
+    m->r[VR_zeta] = zeta_at(m, sE);
+    m->r[VR_force_N] = offset_at(m, sE) + fatigue_gain(m, x[6]) * (x[1] + x[4]);
+}
+
+/* ---- FMI 2.0 interface -------------------------------------------------------------- */
+
+const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+const char *fmi2GetVersion(void) { return fmi2Version; }
+
+fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n, const fmi2String cat[])
+{ (void)n; (void)cat; ((Model *)c)->logging = on; return fmi2OK; }
+
+static void set_defaults(Model *m)
+{
+    memcpy(m->r, START_REAL, sizeof m->r);
+    memcpy(m->i, START_INTEGER, sizeof m->i);
+    memcpy(m->b, START_BOOLEAN, sizeof m->b);
+    m->der_rE = m->der_sE = 0.0;
+    m->time = 0.0;
+}
+
+fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2String guid, fmi2String loc,
+                              const fmi2CallbackFunctions *cb, fmi2Boolean visible,
+                              fmi2Boolean logging)
+{
+    Model *m;
+    (void)loc; (void)visible;
+    if (!guid || strcmp(guid, MODEL_GUID) != 0) {
+        if (cb && cb->logger)
+            cb->logger(cb->componentEnvironment, name, fmi2Error, "logStatusError",
+                       "GUID %s does not match this binary's %s", guid ? guid : "(null)",
+                       MODEL_GUID);
+        return NULL;
+    }
+    m = (Model *)calloc(1, sizeof(Model));
+    if (!m) return NULL;
+    m->cb = cb;
+    m->name = name;
+    m->is_cs = type == fmi2CoSimulation;
+    m->logging = logging;
+    set_defaults(m);
+    return m;
+}
+
+void fmi2FreeInstance(fmi2Component c) { free(c); }
+
+fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean tolDef, fmi2Real tol, fmi2Real t0,
+                               fmi2Boolean stopDef, fmi2Real tStop)
+{ (void)tolDef; (void)tol; (void)stopDef; (void)tStop; ((Model *)c)->time = t0; return fmi2OK; }
+
+fmi2Status fmi2EnterInitializationMode(fmi2Component c) { (void)c; return fmi2OK; }
+
+fmi2Status fmi2ExitInitializationMode(fmi2Component c)
+{
+    /* at rest until rest_lead_s before the start, then a straight line to the first input
+       (`nmsid twin simulate` assumes one sampling period) */
+    Model *m = (Model *)c;
+    double r = m->r[VR_rE], s = m->r[VR_sE];
+    memset(&m->r[VR_x0], 0, sizeof(double) * NX);
+    if (!advance(m, m->r[VR_rest_lead_s], 0.5, s, r, s, 1)) return fmi2Error;
+    m->r[VR_x0 + 6] = 0.0;
+    outputs(m);
+    return fmi2OK;
+}
+
+fmi2Status fmi2Terminate(fmi2Component c) { (void)c; return fmi2OK; }
+fmi2Status fmi2Reset(fmi2Component c) { set_defaults((Model *)c); return fmi2OK; }
+
+fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real v[])
+{
+    Model *m = (Model *)c;
+    size_t k;
+    outputs(m);
+    for (k = 0; k < n; k++) {
+        if (vr[k] >= N_REAL) return fmi2Error;
+        if (vr[k] >= VR_dx0 && vr[k] < VR_dx0 + NX) {
+            double dx[NX];
+            derivatives(m, dx);
+            v[k] = dx[vr[k] - VR_dx0];
+        } else v[k] = m->r[vr[k]];
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Integer v[])
+{
+    size_t k;
+    for (k = 0; k < n; k++) { if (vr[k] >= N_INTEGER) return fmi2Error; v[k] = ((Model *)c)->i[vr[k]]; }
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Boolean v[])
+{
+    size_t k;
+    for (k = 0; k < n; k++) { if (vr[k] >= N_BOOLEAN) return fmi2Error; v[k] = ((Model *)c)->b[vr[k]]; }
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[])
+{ (void)c; (void)vr; (void)v; return n ? fmi2Error : fmi2OK; }
+
+fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Real v[])
+{
+    Model *m = (Model *)c;
+    size_t k;
+    for (k = 0; k < n; k++) {
+        if (vr[k] >= N_REAL) return fmi2Error;
+        if (!isfinite(v[k])) {
+            logmsg(m, fmi2Error, "logStatusError", "value reference %u set to a non-finite "
+                   "value", (unsigned)vr[k]);
+            return fmi2Error;
+        }
+        m->r[vr[k]] = v[k];
+        if (vr[k] == VR_rE) m->der_rE = 0.0;
+        if (vr[k] == VR_sE) m->der_sE = 0.0;
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer v[])
+{
+    size_t k;
+    for (k = 0; k < n; k++) { if (vr[k] >= N_INTEGER) return fmi2Error; ((Model *)c)->i[vr[k]] = v[k]; }
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Boolean v[])
+{
+    size_t k;
+    for (k = 0; k < n; k++) { if (vr[k] >= N_BOOLEAN) return fmi2Error; ((Model *)c)->b[vr[k]] = v[k]; }
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2String v[])
+{ (void)c; (void)vr; (void)v; return n ? fmi2Error : fmi2OK; }
+
+fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *s)
+{
+    Model *copy = (Model *)malloc(sizeof(Model));
+    if (!copy) return fmi2Error;
+    memcpy(copy, c, sizeof(Model));
+    *s = copy;
+    return fmi2OK;
+}
+fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate s)
+{ memcpy(c, s, sizeof(Model)); return fmi2OK; }
+fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *s)
+{ (void)c; free(*s); *s = NULL; return fmi2OK; }
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate s, size_t *size)
+{ (void)c; (void)s; *size = sizeof(Model); return fmi2OK; }
+fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte b[], size_t size)
+{ (void)c; if (size < sizeof(Model)) return fmi2Error; memcpy(b, s, sizeof(Model)); return fmi2OK; }
+fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte b[], size_t size, fmi2FMUstate *s)
+{
+    Model *copy;
+    if (size < sizeof(Model)) return fmi2Error;
+    copy = (Model *)malloc(sizeof(Model));
+    if (!copy) return fmi2Error;
+    memcpy(copy, b, sizeof(Model));
+    copy->cb = ((Model *)c)->cb;
+    copy->name = ((Model *)c)->name;
+    *s = copy;
+    return fmi2OK;
+}
+fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference u[], size_t nu,
+                                        const fmi2ValueReference z[], size_t nz,
+                                        const fmi2Real dv[], fmi2Real dz[])
+{ (void)c; (void)u; (void)nu; (void)z; (void)nz; (void)dv; (void)dz; return fmi2Error; }
+
+/* ---- model exchange ---- */
+fmi2Status fmi2EnterEventMode(fmi2Component c) { (void)c; return fmi2OK; }
+fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *ev)
+{
+    (void)c;
+    ev->newDiscreteStatesNeeded = fmi2False;
+    ev->terminateSimulation = fmi2False;
+    ev->nominalsOfContinuousStatesChanged = fmi2False;
+    ev->valuesOfContinuousStatesChanged = fmi2False;
+    ev->nextEventTimeDefined = fmi2False;
+    ev->nextEventTime = 0.0;
+    return fmi2OK;
+}
+fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { (void)c; return fmi2OK; }
+/* A step event when the importer has changed an input since the last completed step: an
+   importer that sets inputs only between its steps (FMPy) then restarts its solver there
+   instead of carrying a step integrated with the old inputs past the change. */
+fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSet, fmi2Boolean *enter,
+                                       fmi2Boolean *term)
+{
+    Model *m = (Model *)c;
+    (void)noSet;
+    *enter = m->r[VR_rE] != m->last_rE || m->r[VR_sE] != m->last_sE;
+    m->last_rE = m->r[VR_rE];
+    m->last_sE = m->r[VR_sE];
+    *term = fmi2False;
+    return fmi2OK;
+}
+fmi2Status fmi2SetTime(fmi2Component c, fmi2Real t) { ((Model *)c)->time = t; return fmi2OK; }
+fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t n)
+{ if (n != NX) return fmi2Error; memcpy(&((Model *)c)->r[VR_x0], x, sizeof(double) * NX); return fmi2OK; }
+fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real dx[], size_t n)
+{
+    Model *m = (Model *)c;
+    if (n != NX || !params_ok(m, m->r[VR_sE])) return fmi2Error;
+    derivatives(m, dx);
+    return fmi2OK;
+}
+fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real e[], size_t n)
+{ (void)c; (void)e; return n ? fmi2Error : fmi2OK; }
+fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t n)
+{ if (n != NX) return fmi2Error; memcpy(x, &((Model *)c)->r[VR_x0], sizeof(double) * NX); return fmi2OK; }
+fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x[], size_t n)
+{ size_t k; (void)c; for (k = 0; k < n; k++) x[k] = 1.0; return fmi2OK; }
+
+/* ---- co-simulation ---- */
+fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t n,
+                                       const fmi2Integer order[], const fmi2Real v[])
+{
+    Model *m = (Model *)c;
+    size_t k;
+    for (k = 0; k < n; k++) {
+        if (order[k] != 1) continue;               /* the model is exact for straight lines */
+        if (vr[k] == VR_rE) m->der_rE = v[k];
+        else if (vr[k] == VR_sE) m->der_sE = v[k];
+        else return fmi2Error;
+    }
+    return fmi2OK;
+}
+fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t n,
+                                        const fmi2Integer order[], fmi2Real v[])
+{ size_t k; (void)c; (void)vr; (void)order; for (k = 0; k < n; k++) v[k] = 0.0; return fmi2Error; }
+
+fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSetPrior)
+{
+    Model *m = (Model *)c;
+    double r0 = m->r[VR_rE], s0 = m->r[VR_sE];
+    double r1 = r0 + m->der_rE * h, s1 = s0 + m->der_sE * h;
+    (void)noSetPrior;
+    if (!(h >= 0.0)) return fmi2Error;
+    if (!advance(m, h, r0, s0, r1, s1, 0)) return fmi2Error;
+    /* the inputs the model sees at the new time are the extrapolated lines' ends */
+    m->r[VR_rE] = r1;
+    m->r[VR_sE] = s1;
+    m->der_rE = m->der_sE = 0.0;
+    m->time = t + h;
+    return fmi2OK;
+}
+fmi2Status fmi2CancelStep(fmi2Component c) { (void)c; return fmi2Error; }
+fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *v)
+{ (void)c; (void)s; *v = fmi2OK; return fmi2Discard; }
+fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *v)
+{ Model *m = (Model *)c; if (s == fmi2LastSuccessfulTime) { *v = m->time; return fmi2OK; } return fmi2Discard; }
+fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *v)
+{ (void)c; (void)s; (void)v; return fmi2Discard; }
+fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *v)
+{ (void)c; (void)s; *v = fmi2False; return fmi2Discard; }
+fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *v)
+{ (void)c; (void)s; (void)v; return fmi2Discard; }
