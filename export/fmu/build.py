@@ -37,10 +37,8 @@ C_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 KNOWN_ITEMS = frozenset({"format", "format_version", "participant", "source", "calibration",
                          "sE_range", "parameters", "offset_N", "effects"})
 SUPPORTED_EFFECTS = ("recruitment_nonlinearity", "activation_dynamics",
-                     "flexor_extensor_asymmetry", "fatigue")
+                     "flexor_extensor_asymmetry", "dead_time", "fatigue")
 _REFUSED = {
-    "dead_time": "the FMU keeps no input history for a delay line (FMI 2.0 model exchange has "
-                 "no delay)",
     "baseline_drift": "the wander is a random signal seeded per simulated participant, not a "
                       "deterministic model",
 }
@@ -88,8 +86,7 @@ def check_exportable(data: dict, where: str) -> Twin:
     except SimConfigError as exc:
         raise FmuExportError(f"{where}: {exc}") from None
     for e in effects:
-        inert = ((e.name == "dead_time" and e.L_s == 0)
-                 or (e.name == "baseline_drift" and e.amplitude_N == 0))
+        inert = e.name == "baseline_drift" and e.amplitude_N == 0
         if e.name in _REFUSED and not inert:
             raise FmuExportError(f"{where}: effect {e.name} is not in the FMU ({_REFUSED[e.name]}); "
                                  f"the FMU models {', '.join(SUPPORTED_EFFECTS)}; remove "

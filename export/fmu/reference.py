@@ -30,6 +30,8 @@ class TwinStepper:
         self.ratios = (asym.wn_ratio, asym.zeta_ratio) if asym else (1.0, 1.0)
         self.two_paths = self.ratios != (1.0, 1.0)
         self.fatigue = eff.get("fatigue")
+        dead = eff.get("dead_time")
+        self.dead_s = dead.L_s if dead else 0.0
         self._cache: dict[tuple, np.ndarray] = {}
 
     def _s(self, sE: float) -> float:
@@ -85,31 +87,62 @@ class TwinStepper:
                  ) -> np.ndarray:
         """Force in N at each sample, co-simulating at the sampling step with inputs that
         are straight lines between samples (``rest_lead_s`` default one period, as
-        ``nmsid twin simulate``)."""
+        ``nmsid twin simulate``). With a dead time the dynamics see the inputs ``L_s``
+        late, the interval cut where the delayed input has a corner, as the C code does."""
         r = np.asarray(rE, float)
         s = np.broadcast_to(np.asarray(sE, float), r.shape)
         dt = 1.0 / fs_Hz
         lead = dt if rest_lead_s is None else rest_lead_s
+        L = self.dead_s
+        # the input history: straight segments (t0, r0, s0, t1, r1, s1); rest before them
+        segs = [(-lead, 0.5, s[0], 0.0, r[0], s[0])] if lead > 0 else []
+        segs += [((k - 1) * dt, r[k - 1], s[k - 1], k * dt, r[k], s[k])
+                 for k in range(1, len(r))]
+        starts = np.array([g[0] for g in segs])
         nx = 3 if self.tau_s > 0 else 2
-        xe, xf, c = np.zeros(nx), np.zeros(nx), 0.0
+        state = {"e": np.zeros(nx), "f": np.zeros(nx)}
+
+        def value(k, t):
+            if k < 0:
+                return 0.5, s[0]
+            t0, r0, s0, t1, r1, s1 = segs[k]
+            a = min(max((t - t0) / (t1 - t0), 0.0), 1.0) if t1 > t0 else 1.0
+            return r0 + a * (r1 - r0), s0 + a * (s1 - s0)
+
+        def advance(a, b):
+            while b - a > 0:
+                k = int(np.searchsorted(starts, a, side="right")) - 1
+                q = b
+                if k + 1 < len(segs) and segs[k + 1][0] < q:
+                    q = segs[k + 1][0]
+                if k >= 0 and a < segs[k][3] < q:
+                    q = segs[k][3]
+                if q - a <= 1e-12 * (abs(a) + 1.0) and q < b:
+                    a = q
+                    continue
+                (r0, s0), (r1, s1) = value(k, a), value(k, q)
+                self._advance(state, q - a, r0, s0, r1, s1)
+                a = q
+
         out = np.empty(len(r))
+        c = 0.0
+        if lead > 0:
+            advance(-lead - L, -L)
         for k in range(len(r)):
-            if k == 0:
-                h, r0, s0, rest = lead, 0.5, s[0], True
-            else:
-                h, r0, s0, rest = dt, r[k - 1], s[k - 1], False
-            r1, s1 = r[k], s[k]
-            p0, p1 = self.params(s0), self.params(s1)
-            wn, z = 0.5 * (p0[1] + p1[1]), 0.5 * (p0[2] + p1[2])
-            we0, wf0 = (0.0, 0.0) if rest else self.drives(r0, s0)
-            we1, wf1 = self.drives(r1, s1)
-            if h > 0:
-                xe = self._path_step(xe, wn, z, h, we0, we1)
-                if self.two_paths:
-                    xf = self._path_step(xf, wn * self.ratios[0], z * self.ratios[1], h,
-                                         wf0, wf1)
-                if not rest and s0 > 0:
-                    c += h
+            if k > 0:
+                advance((k - 1) * dt - L, k * dt - L)
+                if s[k - 1] > 0:
+                    c += dt
             g = self.fatigue.gain(c) if self.fatigue is not None else 1.0
-            out[k] = self.offset(s1) + g * (xe[-2] + xf[-2])
+            out[k] = self.offset(s[k]) + g * (state["e"][-2] + state["f"][-2])
         return out
+
+    def _advance(self, state: dict, h: float, r0: float, s0: float, r1: float, s1: float):
+        p0, p1 = self.params(s0), self.params(s1)
+        wn, z = 0.5 * (p0[1] + p1[1]), 0.5 * (p0[2] + p1[2])
+        we0, wf0 = self.drives(r0, s0)
+        we1, wf1 = self.drives(r1, s1)
+        state["e"] = self._path_step(state["e"], wn, z, h, we0, we1)
+        if self.two_paths:
+            state["f"] = self._path_step(state["f"], wn * self.ratios[0], z * self.ratios[1],
+                                         h, wf0, wf1)

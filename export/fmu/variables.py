@@ -57,6 +57,7 @@ def variables(twin: Twin, *, extrapolate: bool = False) -> list[Var]:
     act = effects.get("activation_dynamics")
     asym = effects.get("flexor_extensor_asymmetry")
     fat = effects.get("fatigue")
+    dead = effects.get("dead_time")
     rule = ("evaluated at sE itself (extrapolate = true)" if extrapolate else
             f"clamped to the tested range [{lo:g}, {hi:g}]")
     reals = [
@@ -96,6 +97,8 @@ def variables(twin: Twin, *, extrapolate: bool = False) -> list[Var]:
         ("rest_lead_s", 0.0, "the inputs ramp from rest (rE = 0.5) to their start values "
          "over this time before the start (0: at rest at the start; `nmsid twin simulate` "
          "uses one sampling period)", "s"),
+        ("dead_time_s", float(dead.L_s) if dead else 0.0,
+         "effect dead_time: the dynamics respond to the inputs this late (0 = off)", "s"),
         ("activation_tau_s", float(act.tau_s) if act else 0.0,
          "effect activation_dynamics: first-order lag of each muscle's activation (0 = off)",
          "s"),

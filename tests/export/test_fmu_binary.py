@@ -183,6 +183,7 @@ def _random_twin(rng, effect: str | None) -> dict:
                                  "params": {"tau_s": float(rng.uniform(0.005, 0.08))}}],
         "flexor_extensor_asymmetry": [{"name": "flexor_extensor_asymmetry", "params": {
             "wn_ratio": float(rng.uniform(0.6, 1.5)), "zeta_ratio": float(rng.uniform(0.6, 1.5))}}],
+        "dead_time": [{"name": "dead_time", "params": {"L_s": float(rng.uniform(0.002, 0.06))}}],
         "fatigue": [{"name": "fatigue", "params": {
             "shape": ["exponential", "linear"][rng.integers(2)],
             "gain_loss_pct": float(rng.uniform(5, 60)), "reference_stim_s": 0.5}}],
@@ -206,6 +207,8 @@ def _start_values(data: dict) -> dict:
             vals = [p.get(k) for k in ("gamma", "slope", "midpoint", "threshold", "saturation")
                     if p.get(k) is not None]
             sv["recruitment_p1"], sv["recruitment_p2"] = (vals + [0.0])[:2]
+        elif e["name"] == "dead_time":
+            sv["dead_time_s"] = p["L_s"]
         elif e["name"] == "activation_dynamics":
             sv["activation_tau_s"] = p["tau_s"]
         elif e["name"] == "flexor_extensor_asymmetry":
@@ -219,7 +222,7 @@ def _start_values(data: dict) -> dict:
 
 @pytest.mark.parametrize("effect", [None, "power", "sigmoid", "threshold_saturation",
                                     "activation_dynamics", "flexor_extensor_asymmetry",
-                                    "fatigue"])
+                                    "dead_time", "fatigue"])
 def test_binary_equals_the_python_definition_on_randomised_twins(fmu, effect):
     """The C step and the Python step (export.fmu.reference) agree on random twins, and
     without effects the Python step is `nmsid twin simulate`'s."""

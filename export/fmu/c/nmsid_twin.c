@@ -33,6 +33,7 @@
 
 #define NX 7          /* continuous states: path e [a, y, y'], path f [a, y, y'], c */
 #define MAXN 5        /* largest augmented matrix (3 states + 2) */
+#define HCAP 32768    /* input history (dead time): straight segments kept */
 
 typedef struct {
     fmi2Real r[N_REAL];
@@ -40,6 +41,13 @@ typedef struct {
     fmi2Boolean b[N_BOOLEAN];
     fmi2Real der_rE, der_sE;       /* input derivatives for the next step (CS) */
     fmi2Real last_rE, last_sE;     /* inputs at the last completed integrator step (ME) */
+    /* input history for the dead time: segments (t0, rE0, sE0, t1, rE1, sE1) of straight
+       lines, oldest at h0, n of them; before the first one the inputs were at rest
+       (rE = 0.5, sE = rest_sE) */
+    double hist[HCAP][6];
+    int h0, hn;
+    double rest_sE;
+    int in_init;
     fmi2Real time;
     const fmi2CallbackFunctions *cb;
     fmi2String name;
@@ -213,8 +221,7 @@ static int params_ok(Model *m, double sE)
 }
 
 /* advance the states by h s with inputs moving in straight lines (r0, s0) -> (r1, s1) */
-static int advance(Model *m, double h, double r0, double s0, double r1, double s1,
-                   int rest_start)
+static int advance(Model *m, double h, double r0, double s0, double r1, double s1)
 {
     double *x = &m->r[VR_x0];
     double wn = 0.5 * (wn_at(m, s0) + wn_at(m, s1)), z = 0.5 * (zeta_at(m, s0) + zeta_at(m, s1));
@@ -223,13 +230,73 @@ static int advance(Model *m, double h, double r0, double s0, double r1, double s
     if (!params_ok(m, s0) || !params_ok(m, s1)) return 0;
     drives(m, r0, s0, &we0, &wf0);
     drives(m, r1, s1, &we1, &wf1);
-    if (rest_start) we0 = wf0 = 0.0;
     if (h > 0.0) {
         path_step(nx, x + off, wn, z, tau, h, we0, we1);
         if (two_paths(m))
             path_step(nx, x + 3 + off, wn * m->r[VR_asym_wn_ratio], z * m->r[VR_asym_zeta_ratio],
                       tau, h, wf0, wf1);
-        if (s0 > 0.0) x[6] += h;
+    }
+    return 1;
+}
+
+/* ---- input history and the dead time --------------------------------------------- */
+
+static double *hseg(Model *m, int k) { return m->hist[(m->h0 + k) % HCAP]; }
+
+static int hist_push(Model *m, double t0, double r0, double s0, double t1, double r1, double s1)
+{
+    double *g;
+    if (m->hn == HCAP) {
+        logmsg(m, fmi2Error, "logStatusError", "dead_time %g s spans more than %d input "
+               "steps; use longer steps", m->r[VR_dead_time_s], HCAP);
+        return 0;
+    }
+    g = hseg(m, m->hn++);
+    g[0] = t0; g[1] = r0; g[2] = s0; g[3] = t1; g[4] = r1; g[5] = s1;
+    return 1;
+}
+
+/* forget segments that end before t (never needed again) */
+static void hist_prune(Model *m, double t)
+{
+    while (m->hn > 1 && hseg(m, 0)[3] < t) { m->h0 = (m->h0 + 1) % HCAP; m->hn--; }
+}
+
+/* inputs at time t on segment k (k < 0: at rest; past the last one: its end held) */
+static void seg_eval(Model *m, int k, double t, double *r, double *s)
+{
+    double *g, a;
+    if (k < 0) { *r = 0.5; *s = m->rest_sE; return; }
+    g = hseg(m, k);
+    if (g[3] <= g[0] || t >= g[3]) { *r = g[4]; *s = g[5]; return; }
+    a = (t - g[0]) / (g[3] - g[0]);
+    if (a < 0.0) a = 0.0;
+    *r = g[1] + a * (g[4] - g[1]);
+    *s = g[2] + a * (g[5] - g[2]);
+}
+
+/* the segment that holds the piece starting at t (-1 before the first) */
+static int seg_at(Model *m, double t)
+{
+    int k;
+    for (k = m->hn - 1; k >= 0; k--) if (hseg(m, k)[0] <= t) return k;
+    return -1;
+}
+
+/* advance the states from a to b (times of the delayed input, i.e. minus the dead time),
+   cutting the interval where the input history has a corner */
+static int advance_delayed(Model *m, double a, double b)
+{
+    while (b - a > 0.0) {
+        int k = seg_at(m, a);
+        double q = b, r0, s0, r1, s1;
+        if (k + 1 < m->hn && hseg(m, k + 1)[0] < q) q = hseg(m, k + 1)[0];
+        if (k >= 0 && hseg(m, k)[3] > a && hseg(m, k)[3] < q) q = hseg(m, k)[3];
+        if (q - a <= 1e-12 * (fabs(a) + 1.0) && q < b) { a = q; continue; }
+        seg_eval(m, k, a, &r0, &s0);
+        seg_eval(m, k, q, &r1, &s1);
+        if (!advance(m, q - a, r0, s0, r1, s1)) return 0;
+        a = q;
     }
     return 1;
 }
@@ -237,10 +304,16 @@ static int advance(Model *m, double h, double r0, double s0, double r1, double s
 static void derivatives(Model *m, double *dx)
 {
     const double *x = &m->r[VR_x0];
-    double sE = m->r[VR_sE], wn = wn_at(m, sE), z = zeta_at(m, sE), tau = m->r[VR_activation_tau_s];
-    double w[2];
+    double rE = m->r[VR_rE], sE = m->r[VR_sE], tau = m->r[VR_activation_tau_s], wn, z;
+    double w[2], stim = sE;
     int p;
-    drives(m, m->r[VR_rE], sE, &w[0], &w[1]);
+    if (m->r[VR_dead_time_s] > 0.0) {
+        double t = m->time - m->r[VR_dead_time_s];
+        seg_eval(m, seg_at(m, t), t, &rE, &sE);
+    }
+    wn = wn_at(m, sE);
+    z = zeta_at(m, sE);
+    drives(m, rE, sE, &w[0], &w[1]);
     for (p = 0; p < 2; p++) {
         const double *xp = x + 3 * p;
         double *dp = dx + 3 * p;
@@ -250,7 +323,7 @@ static void derivatives(Model *m, double *dx)
         dp[1] = xp[2];
         dp[2] = wnp * wnp * (a - xp[1]) - 2.0 * zp * wnp * xp[2];
     }
-    dx[6] = sE > 0.0 ? 1.0 : 0.0;
+    dx[6] = stim > 0.0 ? 1.0 : 0.0;
 }
 
 static void outputs(Model *m)
@@ -308,17 +381,24 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean tolDef, fmi2Real tol
                                fmi2Boolean stopDef, fmi2Real tStop)
 { (void)tolDef; (void)tol; (void)stopDef; (void)tStop; ((Model *)c)->time = t0; return fmi2OK; }
 
-fmi2Status fmi2EnterInitializationMode(fmi2Component c) { (void)c; return fmi2OK; }
+fmi2Status fmi2EnterInitializationMode(fmi2Component c) { ((Model *)c)->in_init = 1; return fmi2OK; }
 
 fmi2Status fmi2ExitInitializationMode(fmi2Component c)
 {
     /* at rest until rest_lead_s before the start, then a straight line to the first input
        (`nmsid twin simulate` assumes one sampling period) */
     Model *m = (Model *)c;
-    double r = m->r[VR_rE], s = m->r[VR_sE];
+    double r = m->r[VR_rE], s = m->r[VR_sE], lead = m->r[VR_rest_lead_s], t = m->time;
+    double L = m->r[VR_dead_time_s];
     memset(&m->r[VR_x0], 0, sizeof(double) * NX);
-    if (!advance(m, m->r[VR_rest_lead_s], 0.5, s, r, s, 1)) return fmi2Error;
-    m->r[VR_x0 + 6] = 0.0;
+    m->h0 = m->hn = 0;
+    m->rest_sE = s;
+    m->in_init = 0;
+    if (lead > 0.0 && !hist_push(m, t - lead, 0.5, s, t, r, s)) return fmi2Error;
+    if (!m->is_cs) { if (!hist_push(m, t, r, s, t, r, s)) return fmi2Error; }
+    if (lead > 0.0 && !advance_delayed(m, t - lead - L, t - L)) return fmi2Error;
+    m->last_rE = r;
+    m->last_sE = s;
     outputs(m);
     return fmi2OK;
 }
@@ -373,6 +453,16 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n,
         m->r[vr[k]] = v[k];
         if (vr[k] == VR_rE) m->der_rE = 0.0;
         if (vr[k] == VR_sE) m->der_sE = 0.0;
+    }
+    if (!m->is_cs && !m->in_init && m->hn > 0 && m->r[VR_dead_time_s] > 0.0) {
+        /* model exchange: the history joins the values set at successive times by
+           straight lines */
+        double *g = hseg(m, m->hn - 1);
+        if (m->time > g[3]) {
+            if (!hist_push(m, g[3], g[4], g[5], m->time, m->r[VR_rE], m->r[VR_sE]))
+                return fmi2Error;
+            hist_prune(m, m->time - m->r[VR_dead_time_s]);
+        } else { g[4] = m->r[VR_rE]; g[5] = m->r[VR_sE]; }
     }
     return fmi2OK;
 }
@@ -495,13 +585,17 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
     Model *m = (Model *)c;
     double r0 = m->r[VR_rE], s0 = m->r[VR_sE];
     double r1 = r0 + m->der_rE * h, s1 = s0 + m->der_sE * h;
-    (void)noSetPrior;
+    double L = m->r[VR_dead_time_s];
     if (!(h >= 0.0)) return fmi2Error;
-    if (!advance(m, h, r0, s0, r1, s1, 0)) return fmi2Error;
+    if (!hist_push(m, t, r0, s0, t + h, r1, s1)) return fmi2Error;
+    if (!advance_delayed(m, t - L, t + h - L)) return fmi2Error;
+    hist_prune(m, t + h - L);
+    if (s0 > 0.0) m->r[VR_x0 + 6] += h;    /* cumulative stimulation (fatigue) */
     /* the inputs the model sees at the new time are the extrapolated lines' ends */
     m->r[VR_rE] = r1;
     m->r[VR_sE] = s1;
     m->der_rE = m->der_sE = 0.0;
+    (void)noSetPrior;
     m->time = t + h;
     return fmi2OK;
 }
