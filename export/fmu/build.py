@@ -220,7 +220,7 @@ variables are in modelDescription.xml; the twin file it came from is resources/t
 <code>cc -shared -fPIC -O2 -std=c99 -fvisibility=hidden -Isources sources/nmsid_twin.c
 -o binaries/linux64/{ident}.so -lm</code>; on macOS <code>binaries/darwin64/{ident}.dylib</code>;
 on Windows <code>cl /LD /O2 /Isources sources\\nmsid_twin.c /Fe:binaries\\win64\\{ident}.dll</code>.
-Or let the importer build it (FMPy: <code>fmpy.util.compile_platform_binary</code>).</p>
+Or let the importer build it (FMPy: <code>fmpy.build.build_platform_binary</code>, needs CMake).</p>
 <p>Co-simulation is exact for inputs that move in straight lines over each step: set their
 first derivatives (fmi2SetRealInputDerivatives), otherwise they are held over the step.</p>
 </body></html>
