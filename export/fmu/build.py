@@ -2,7 +2,7 @@
 sources, a binary for this platform compiled with the system's C compiler, zipped.
 
 The FMU needs no Python at run time: the binary links only the C library and libm. Its
-model is documented in ``docs/fmu.md`` and at the top of ``c/nmsid_twin.c``.
+model is documented in ``docs/fmu.md`` and at the top of ``c/nmsid_model.c``.
 """
 
 from __future__ import annotations
@@ -30,8 +30,9 @@ from sim_backends.effects import effects_from_list
 from sim_backends.errors import SimConfigError
 
 C_DIR = Path(__file__).resolve().parent / "c"
-C_SOURCES = ("nmsid_twin.c",)
-C_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+C_SOURCES = ("nmsid_model.c", "nmsid_twin.c")
+C_HEADERS = ("nmsid_model.h", "fmi2Functions.h", "fmi2FunctionTypes.h",
+             "fmi2TypesPlatform.h")
 #: items of a version-1 twin file (docs/twin-file.md); any other item is a twin form the
 #: FMU does not model (such as the muscle form), and the export refuses it
 KNOWN_ITEMS = frozenset({"format", "format_version", "participant", "source", "calibration",
@@ -217,9 +218,10 @@ def _doc_html(ident: str) -> str:
 <p>An nmsid digital twin (force from the EAA ratio rE and sum sE). The model and its
 variables are in modelDescription.xml; the twin file it came from is resources/twin.json.</p>
 <p>Build the binary for another platform from sources/ (C99, needs only libm), e.g.
-<code>cc -shared -fPIC -O2 -std=c99 -fvisibility=hidden -Isources sources/nmsid_twin.c
--o binaries/linux64/{ident}.so -lm</code>; on macOS <code>binaries/darwin64/{ident}.dylib</code>;
-on Windows <code>cl /LD /O2 /Isources sources\\nmsid_twin.c /Fe:binaries\\win64\\{ident}.dll</code>.
+<code>cc -shared -fPIC -O2 -std=c99 -fvisibility=hidden -Isources sources/nmsid_model.c
+sources/nmsid_twin.c -o binaries/linux64/{ident}.so -lm</code>; on macOS <code>binaries/darwin64/{ident}.dylib</code>;
+on Windows <code>cl /LD /O2 /Isources sources\\nmsid_model.c sources\\nmsid_twin.c
+/Fe:binaries\\win64\\{ident}.dll</code>.
 Or let the importer build it (FMPy: <code>fmpy.build.build_platform_binary</code>, needs CMake).</p>
 <p>Co-simulation is exact for inputs that move in straight lines over each step: set their
 first derivatives (fmi2SetRealInputDerivatives), otherwise they are held over the step.</p>

@@ -1,5 +1,5 @@
 """The FMU's co-simulation step in Python: the twin with its effects, stepped exactly as
-``c/nmsid_twin.c`` steps it, so that tests hold the binary to this definition.
+``c/nmsid_model.c`` steps it, so that tests hold the binary to this definition.
 
 Without effects this is :meth:`analysis.twin.Twin.simulate` (``nmsid twin simulate``),
 which the tests also hold it to (one definition of the nominal dynamics; the effects

@@ -126,7 +126,8 @@ def test_metadata_names_participant_sources_and_version(demo):
         names = set(z.namelist())
         xml = z.read("modelDescription.xml")
         assert z.read("resources/twin.json") == demo.twin_path.read_bytes()
-    assert {"sources/nmsid_twin.c", "sources/twin_data.h", "sources/fmi2Functions.h",
+    assert {"sources/nmsid_twin.c", "sources/nmsid_model.c", "sources/twin_data.h",
+            "sources/fmi2Functions.h",
             f"binaries/linux64/{demo.result.model_identifier}.so"} <= names
     root = ElementTree.fromstring(xml)
     tool = root.find("VendorAnnotations/Tool[@name='nmsid']/Twin")

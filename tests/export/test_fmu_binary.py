@@ -65,8 +65,8 @@ def test_built_from_its_sources_alone_in_a_clean_directory(fmu, tmp_path):
     so = root / "binaries" / "linux64" / f"{fmu.model_identifier}.so"
     so.parent.mkdir(parents=True)
     subprocess.run(["cc", "-shared", "-fPIC", "-O2", "-std=c99", "-fvisibility=hidden",
-                    "-Isources", "sources/nmsid_twin.c", "-o", str(so), "-lm"], cwd=root,
-                   check=True)
+                    "-Isources", "sources/nmsid_model.c", "sources/nmsid_twin.c", "-o",
+                    str(so), "-lm"], cwd=root, check=True)
     rebuilt = tmp_path / "rebuilt.fmu"
     with zipfile.ZipFile(rebuilt, "w") as z:
         for p in sorted(root.rglob("*")):
