@@ -252,3 +252,17 @@ def test_curve_values_are_read_from_parameters(fmu):
     ref = twin.simulate(rE, sE, FS_HZ)
     # rest_lead_s = 0 in the FMU: equal once the first interval's ramp has died out
     np.testing.assert_allclose(got[300:], ref[300:], atol=1e-6 * np.max(np.abs(ref)))
+
+
+def test_extrapolate_evaluates_the_curves_outside_the_range(fmu):
+    """`extrapolate = true` is `nmsid twin simulate --extrapolate`; the default clamps."""
+    rE, _ = _inputs()
+    sE = np.linspace(0.15, 1.25, len(rE))
+    twin = Twin.from_dict(TWIN)
+    sv = {"rest_lead_s": 1.0 / FS_HZ}
+    got = _cosim(fmu.path, rE, sE, {**sv, "extrapolate": True})
+    ref = twin.simulate(rE, sE, FS_HZ, clip=False)
+    assert np.max(np.abs(got - ref)) < 1e-9 * np.max(np.abs(ref))
+    clamped = _cosim(fmu.path, rE, sE, sv)
+    assert np.max(np.abs(clamped - twin.simulate(rE, sE, FS_HZ))) < 1e-9 * np.max(np.abs(ref))
+    assert np.max(np.abs(clamped - got)) > 1e-3 * np.max(np.abs(ref))
