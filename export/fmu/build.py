@@ -66,11 +66,14 @@ def nmsid_version() -> str:
 
 def fmi_platform() -> str | None:
     """The FMI 2.0 binaries folder name of this machine (None when it has none)."""
-    name = {"Linux": "linux", "Darwin": "darwin", "Windows": "win"}.get(platform.system())
-    if name is None:
-        return None
-    bits = "64" if platform.machine().lower() in ("x86_64", "amd64", "aarch64", "arm64") else "32"
-    return name + bits
+    system, machine = platform.system(), platform.machine().lower()
+    if system == "Darwin":
+        return "darwin64"
+    if machine in ("x86_64", "amd64"):
+        return {"Linux": "linux64", "Windows": "win64"}.get(system)
+    if machine in ("i386", "i686", "x86"):
+        return {"Linux": "linux32", "Windows": "win32"}.get(system)
+    return None      # FMI 2.0 names no folder for, e.g., Linux on ARM: sources only
 
 
 def check_exportable(data: dict, where: str) -> Twin:
@@ -204,7 +207,9 @@ def export_fmu(twin_path: str | os.PathLike, out: str | os.PathLike, *, force: b
         if plat:
             ext = {"linux": ".so", "darwin": ".dylib", "win": ".dll"}[plat.rstrip("0123456789")]
             compile_binary(root / "sources", root / "binaries" / plat / (ident + ext))
-        tmp_out = out.with_name(out.name + ".part")
+        fd, tmp_name = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".part")
+        os.close(fd)
+        tmp_out = Path(tmp_name)
         with zipfile.ZipFile(tmp_out, "w", zipfile.ZIP_DEFLATED) as z:
             for p in sorted(root.rglob("*")):
                 if p.is_file():

@@ -264,3 +264,13 @@ def test_cli_refuses_an_existing_out_unless_forced(demo, tmp_path, capsys):
     assert run_twin_export(args) == 0
     assert zipfile.is_zipfile(out)
     assert "co-simulation + model exchange" in capsys.readouterr().out
+
+
+def test_sources_only_has_no_binary(demo, tmp_path):
+    result = export_fmu(demo.twin_path, tmp_path / "src.fmu", binary=False)
+    assert result.platform is None
+    with zipfile.ZipFile(result.path) as z:
+        names = z.namelist()
+    assert "sources/nmsid_model.c" in names
+    assert not [n for n in names if n.startswith("binaries/")]
+    assert [p.name for p in tmp_path.iterdir()] == ["src.fmu"]      # no temporary left
