@@ -6,6 +6,9 @@
  *   a_p = w_p (no activation lag) or tau a_p' + a_p = w_p (activation_dynamics),
  *   w = Kp(sE) (rE - 0.5) on one path (no recruitment map, no asymmetry), or
  *   w_e = k (h(rE sE) - h(sE / 2)), w_f = k (h((1 - rE) sE) - h(sE / 2)), k = Kp / (2 sE).
+ *   The state y_f holds minus the flexor's force (its drive is -w_f), so F sums the paths.
+ *   dead_time: the dynamics see the inputs dead_time_s late (an input history of straight
+ *   segments); fatigue: g(c), c = cumulative time with sE > 0.
  * Parameters are the twin's curves of sE, evaluated at sE clipped to [sE_min, sE_max]
  * unless `extrapolate` is set.
  *
