@@ -33,13 +33,13 @@ if str(ROOT) not in sys.path:
 
 from fmpy import simulate_fmu  # noqa: E402
 
-from analysis.design.candidates import PAPER_LEVELS  # noqa: E402
-from analysis.gap.twin_out import twin_dict  # noqa: E402
-from analysis.twin import Twin  # noqa: E402
-from export.fmu import export_fmu  # noqa: E402
-from export.fmu.fmpy_support import (fmpy_input, fmpy_input_derivatives_fixed,  # noqa: E402
-                                     on_output_grid)
-from sim_backends.participant import default_participant  # noqa: E402
+from nmsid.analysis.design.candidates import PAPER_LEVELS  # noqa: E402
+from nmsid.analysis.gap.twin_out import twin_dict  # noqa: E402
+from nmsid.analysis.twin import Twin  # noqa: E402
+from nmsid.export.fmu import export_fmu  # noqa: E402
+from nmsid.export.fmu.fmpy_support import (fmpy_input, fmpy_input_derivatives_fixed,  # noqa: E402
+                                           on_output_grid)
+from nmsid.sim_backends.participant import default_participant  # noqa: E402
 
 FS_HZ = 2000.0
 SE_LEVELS = (0.2, 0.4, 0.6, 0.8, 1.2)

@@ -22,12 +22,12 @@ from importlib import metadata
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-from analysis.twin import Twin, file_sha256
-from export.errors import FmuExportError
-from export.fmu.description import c_header, model_description
-from export.fmu.variables import variables
-from sim_backends.effects import effects_from_list
-from sim_backends.errors import SimConfigError
+from nmsid.analysis.twin import Twin, file_sha256
+from nmsid.export.errors import FmuExportError
+from nmsid.export.fmu.description import c_header, model_description
+from nmsid.export.fmu.variables import variables
+from nmsid.sim_backends.effects import effects_from_list
+from nmsid.sim_backends.errors import SimConfigError
 
 C_DIR = Path(__file__).resolve().parent / "c"
 C_SOURCES = ("nmsid_model.c", "nmsid_twin.c")

@@ -1,9 +1,9 @@
 """Handler of ``nmsid twin export TWIN.json --fmu --out P01.fmu`` (registered by
-:mod:`analysis.cli_identify`)."""
+:mod:`nmsid.cli.identify`)."""
 
 from __future__ import annotations
 
-from export.fmu.build import export_fmu
+from nmsid.export.fmu.build import export_fmu
 
 
 def run_twin_export(args) -> int:

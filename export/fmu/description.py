@@ -1,5 +1,5 @@
 """The FMU's ``modelDescription.xml`` and the C header ``twin_data.h``, both from the one
-variable table of :mod:`export.fmu.variables`.
+variable table of :mod:`nmsid.export.fmu.variables`.
 
 FMI 2.0.x section 2.2 (schema ``fmi2ModelDescription.xsd``): one description for model
 exchange and co-simulation; ``ModelStructure`` lists outputs, state derivatives and initial
@@ -11,7 +11,7 @@ from __future__ import annotations
 import datetime as _dt
 from xml.sax.saxutils import quoteattr
 
-from export.fmu.variables import STATE_NAMES, Var, value_references
+from nmsid.export.fmu.variables import STATE_NAMES, Var, value_references
 
 _UNITS = {  # name -> SI base unit exponents (FMI 2.0.x section 2.2.2 BaseUnit)
     "N": {"kg": 1, "m": 1, "s": -2}, "N/s": {"kg": 1, "m": 1, "s": -3},

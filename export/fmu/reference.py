@@ -1,7 +1,7 @@
 """The FMU's co-simulation step in Python: the twin with its effects, stepped exactly as
 ``c/nmsid_model.c`` steps it, so that tests hold the binary to this definition.
 
-Without effects this is :meth:`analysis.twin.Twin.simulate` (``nmsid twin simulate``),
+Without effects this is :meth:`nmsid.analysis.twin.Twin.simulate` (``nmsid twin simulate``),
 which the tests also hold it to (one definition of the nominal dynamics; the effects
 extend it as ``docs/twin-file.md`` describes them: recruitment map on each muscle's
 intensity, activation lag, flexor/extensor dynamics, fatigue gain on the dynamic force).
@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import expm
 
-from analysis.twin import Twin
-from sim_backends.effects import effects_from_list
+from nmsid.analysis.twin import Twin
+from nmsid.sim_backends.effects import effects_from_list
 
 
 class TwinStepper:

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from analysis.twin import Twin
-from sim_backends.effects import effects_from_list
+from nmsid.analysis.twin import Twin
+from nmsid.sim_backends.effects import effects_from_list
 
 CURVE_CODES = {"constant": 0, "linear": 1, "quadratic": 2, "exponential": 3}
 RECRUITMENT_CODES = {None: 0, "power": 1, "sigmoid": 2, "threshold_saturation": 3}

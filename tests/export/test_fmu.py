@@ -12,15 +12,15 @@ from xml.etree import ElementTree
 import numpy as np
 import pytest
 
-from analysis.gap.twin_out import twin_dict
-from analysis.identify_command import run_twin_simulate
-from analysis.twin import Twin, file_sha256
-from export.errors import FmuExportError
-from export.fmu import export_fmu
-from export.fmu.command import run_twin_export
-from export.fmu.fmpy_support import fmpy_input, fmpy_input_derivatives_fixed, on_output_grid
-from export.fmu.reference import TwinStepper
-from sim_backends.participant import default_participant
+from nmsid.analysis.gap.twin_out import twin_dict
+from nmsid.cli.identify_command import run_twin_simulate
+from nmsid.analysis.twin import Twin, file_sha256
+from nmsid.export.errors import FmuExportError
+from nmsid.export.fmu import export_fmu
+from nmsid.export.fmu.command import run_twin_export
+from nmsid.export.fmu.fmpy_support import fmpy_input, fmpy_input_derivatives_fixed, on_output_grid
+from nmsid.export.fmu.reference import TwinStepper
+from nmsid.sim_backends.participant import default_participant
 
 fmpy = pytest.importorskip("fmpy")
 from fmpy import read_model_description, simulate_fmu  # noqa: E402  (after the skip)

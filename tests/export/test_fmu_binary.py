@@ -12,11 +12,11 @@ import zipfile
 import numpy as np
 import pytest
 
-from analysis.twin import Curve, Twin
-from export.fmu import export_fmu
-from export.fmu.fmpy_support import fmpy_input, fmpy_input_derivatives_fixed
-from export.fmu.reference import TwinStepper
-from export.fmu.variables import CURVE_CODES, FATIGUE_CODES, RECRUITMENT_CODES
+from nmsid.analysis.twin import Curve, Twin
+from nmsid.export.fmu import export_fmu
+from nmsid.export.fmu.fmpy_support import fmpy_input, fmpy_input_derivatives_fixed
+from nmsid.export.fmu.reference import TwinStepper
+from nmsid.export.fmu.variables import CURVE_CODES, FATIGUE_CODES, RECRUITMENT_CODES
 
 fmpy = pytest.importorskip("fmpy")
 from fmpy import simulate_fmu  # noqa: E402  (after the skip)

@@ -5,7 +5,7 @@
     nmsid twin simulate TWIN.json --input input.csv --out force.csv
     nmsid twin export TWIN.json --fmu --out P01.fmu
 
-Registration only (argparse); the handlers are in :mod:`analysis.identify_command`.
+Registration only (argparse); the handlers are in :mod:`nmsid.cli.identify_command`.
 """
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ def register(sub) -> None:
     g.add_argument("--iqr-k", type=float, default=1.5, metavar="K")
     g.add_argument("--aicc-count-noise", action="store_true",
                    help="count the noise variance as a parameter in AICc")
-    p.set_defaults(handler="analysis.identify_command:run_identify")
+    p.set_defaults(handler="nmsid.cli.identify_command:run_identify")
 
     t = sub.add_parser("twin", help="use a twin file (twin.json)",
                        description="Use a digital twin written by `nmsid identify`.")
@@ -90,7 +90,7 @@ def register(sub) -> None:
     sim.add_argument("--extrapolate", action="store_true",
                      help="evaluate the curves outside the tested sE range (default: clip)")
     sim.add_argument("--out", required=True, metavar="CSV")
-    sim.set_defaults(handler="analysis.identify_command:run_twin_simulate")
+    sim.set_defaults(handler="nmsid.cli.identify_command:run_twin_simulate")
     exp = tsub.add_parser(
         "export", help="write the twin as an FMI 2.0 FMU (co-simulation + model exchange)",
         description="Write the twin as a Functional Mock-up Unit (FMI 2.0, co-simulation and "
@@ -106,5 +106,5 @@ def register(sub) -> None:
                           "curves outside the tested sE range (default: clamp sE)")
     exp.add_argument("--sources-only", action="store_true",
                      help="no binary: C sources only (the importer builds them)")
-    exp.set_defaults(handler="export.fmu.command:run_twin_export")
-    t.set_defaults(handler="analysis.identify_command:run_twin_help")
+    exp.set_defaults(handler="nmsid.export.fmu.command:run_twin_export")
+    t.set_defaults(handler="nmsid.cli.identify_command:run_twin_help")
