@@ -3,6 +3,7 @@
     nmsid identify SESSION.h5 [SESSION.h5 ...] --out DIR [--no-figures] [settings]
     nmsid twin simulate TWIN.json --sE 0.6 --rE-chirp --out force.csv
     nmsid twin simulate TWIN.json --input input.csv --out force.csv
+    nmsid twin export TWIN.json --fmu --out P01.fmu
 
 Registration only (argparse); the handlers are in :mod:`nmsid.cli.identify_command`.
 """
@@ -90,4 +91,20 @@ def register(sub) -> None:
                      help="evaluate the curves outside the tested sE range (default: clip)")
     sim.add_argument("--out", required=True, metavar="CSV")
     sim.set_defaults(handler="nmsid.cli.identify_command:run_twin_simulate")
+    exp = tsub.add_parser(
+        "export", help="write the twin as an FMI 2.0 FMU (co-simulation + model exchange)",
+        description="Write the twin as a Functional Mock-up Unit (FMI 2.0, co-simulation and "
+                    "model exchange): C sources plus a binary for this platform built with "
+                    "the system's C compiler (cc, or $CC). See docs/fmu.md.")
+    exp.add_argument("twin", metavar="TWIN.json")
+    exp.add_argument("--fmu", action="store_true", required=True,
+                     help="the format to write (FMI 2.0 FMU; the only one today)")
+    exp.add_argument("--out", required=True, metavar="P01.fmu")
+    exp.add_argument("--force", action="store_true", help="replace an existing --out")
+    exp.add_argument("--extrapolate", action="store_true",
+                     help="start value of the FMU's extrapolate parameter: evaluate the "
+                          "curves outside the tested sE range (default: clamp sE)")
+    exp.add_argument("--sources-only", action="store_true",
+                     help="no binary: C sources only (the importer builds them)")
+    exp.set_defaults(handler="nmsid.export.fmu.command:run_twin_export")
     t.set_defaults(handler="nmsid.cli.identify_command:run_twin_help")

@@ -1,0 +1,235 @@
+"""Write a twin as an FMI 2.0 FMU (model exchange + co-simulation): model description, C
+sources, a binary for this platform compiled with the system's C compiler, zipped.
+
+The FMU needs no Python at run time: the binary links only the C library and libm. Its
+model is documented in ``docs/fmu.md`` and at the top of ``c/nmsid_model.c``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import re
+import shutil
+import subprocess
+import tempfile
+import time
+import uuid
+import zipfile
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+from nmsid.analysis.twin import Twin, file_sha256
+from nmsid.export.errors import FmuExportError
+from nmsid.export.fmu.description import c_header, model_description
+from nmsid.export.fmu.variables import variables
+from nmsid.sim_backends.effects import effects_from_list
+from nmsid.sim_backends.errors import SimConfigError
+
+C_DIR = Path(__file__).resolve().parent / "c"
+C_SOURCES = ("nmsid_model.c", "nmsid_twin.c")
+C_HEADERS = ("nmsid_model.h", "fmi2Functions.h", "fmi2FunctionTypes.h",
+             "fmi2TypesPlatform.h")
+#: items of a version-1 twin file (docs/twin-file.md); any other item is a twin form the
+#: FMU does not model (such as the muscle form), and the export refuses it
+KNOWN_ITEMS = frozenset({"format", "format_version", "participant", "source", "calibration",
+                         "sE_range", "parameters", "offset_N", "effects"})
+SUPPORTED_EFFECTS = ("recruitment_nonlinearity", "activation_dynamics",
+                     "flexor_extensor_asymmetry", "dead_time", "fatigue")
+_REFUSED = {
+    "baseline_drift": "the wander is a random signal seeded per simulated participant, not a "
+                      "deterministic model",
+}
+
+
+@dataclass(frozen=True)
+class FmuResult:
+    """What :func:`export_fmu` wrote."""
+
+    path: Path
+    model_identifier: str
+    guid: str
+    platform: str | None
+    seconds: float
+
+
+def nmsid_version() -> str:
+    """The installed nmsid's version ("unknown" when not installed)."""
+    try:
+        return metadata.version("nmsid")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def fmi_platform() -> str | None:
+    """The FMI 2.0 binaries folder name of this machine (None when it has none)."""
+    system, machine = platform.system(), platform.machine().lower()
+    if system == "Darwin":
+        return "darwin64"
+    if machine in ("x86_64", "amd64"):
+        return {"Linux": "linux64", "Windows": "win64"}.get(system)
+    if machine in ("i386", "i686", "x86"):
+        return {"Linux": "linux32", "Windows": "win32"}.get(system)
+    return None      # FMI 2.0 names no folder for, e.g., Linux on ARM: sources only
+
+
+def check_exportable(data: dict, where: str) -> Twin:
+    """The twin of a twin file's JSON object, or :class:`FmuExportError` naming the form or
+    effect the FMU does not model."""
+    extra = sorted(set(data) - KNOWN_ITEMS) if isinstance(data, dict) else []
+    if extra:
+        raise FmuExportError(f"{where}: the twin has item(s) {extra} (a twin form the FMU "
+                             f"does not model yet, such as the muscle form); the FMU exports "
+                             f"the second-order twin: {sorted(KNOWN_ITEMS)}")
+    twin = Twin.from_dict(data, where)
+    try:
+        effects = effects_from_list(twin.effects)
+    except SimConfigError as exc:
+        raise FmuExportError(f"{where}: {exc}") from None
+    for e in effects:
+        inert = e.name == "baseline_drift" and e.amplitude_N == 0
+        if e.name in _REFUSED and not inert:
+            raise FmuExportError(f"{where}: effect {e.name} is not in the FMU ({_REFUSED[e.name]}); "
+                                 f"the FMU models {', '.join(SUPPORTED_EFFECTS)}; remove "
+                                 f"{e.name} from the twin's effects to export the rest")
+    return twin
+
+
+def _identifier(participant: str) -> str:
+    tail = re.sub(r"[^A-Za-z0-9_]", "_", participant)[:40]
+    return "nmsid_twin" + (f"_{tail}" if tail else "")
+
+
+def _annotation(twin: Twin, twin_sha256: str, version: str) -> str:
+    srcs = []
+    for s in twin.source:
+        if isinstance(s, dict):
+            sha = f' sha256="{s["sha256"]}"' if "sha256" in s else ""
+            srcs.append(f'<Source file={quoteattr(s["file"])}{sha}/>')
+        else:
+            srcs.append(f"<Source label={quoteattr(str(s))}/>")
+    effects = "".join(f"<Effect name={quoteattr(e['name'])} params="
+                      f"{quoteattr(json.dumps(e.get('params', {}), sort_keys=True))}/>"
+                      for e in twin.effects)
+    return (f'<Twin participant={quoteattr(twin.participant)} nmsidVersion="{version}" '
+            f'twinFileSha256="{twin_sha256}">{"".join(srcs)}{effects}</Twin>')
+
+
+def compile_binary(sources_dir: Path, out_file: Path, cc: str | None = None) -> None:
+    """Compile the FMU's sources into a shared library with the system's C compiler.
+
+    Raises
+    ------
+    FmuExportError
+        No C compiler, or compilation failed (its message quoted).
+    """
+    cc = cc or os.environ.get("CC") or "cc"
+    if shutil.which(cc) is None:
+        raise FmuExportError(f"no C compiler {cc!r} on PATH (set CC, or install cc/gcc/clang) "
+                             "to build the FMU's binary")
+    out_file.parent.mkdir(parents=True, exist_ok=True)
+    cmd = [cc, "-shared", "-fPIC", "-O2", "-std=c99", "-fvisibility=hidden",
+           "-I", str(sources_dir), *[str(sources_dir / s) for s in C_SOURCES],
+           "-o", str(out_file), "-lm"]
+    run = subprocess.run(cmd, capture_output=True, text=True)
+    if run.returncode != 0:
+        raise FmuExportError(f"{cc} failed to build the FMU binary: "
+                             f"{(run.stderr or run.stdout).strip().splitlines()[:3]}")
+
+
+def export_fmu(twin_path: str | os.PathLike, out: str | os.PathLike, *, force: bool = False,
+               extrapolate: bool = False, binary: bool = True) -> FmuResult:
+    """Write ``twin_path`` as an FMI 2.0 FMU at ``out``.
+
+    Parameters
+    ----------
+    twin_path : path
+        A twin file (``docs/twin-file.md``).
+    out : path
+        The ``.fmu`` to write; an existing file is refused unless ``force``.
+    force : bool
+        Replace an existing ``out``.
+    extrapolate : bool
+        Start value of the FMU's ``extrapolate`` parameter (default clamp sE to the tested
+        range, as ``nmsid twin simulate`` does).
+    binary : bool
+        Compile a binary for this platform (False: sources only).
+
+    Returns
+    -------
+    FmuResult
+
+    Raises
+    ------
+    FmuExportError
+        Existing ``out`` without ``force``, a form or effect the FMU does not model, no C
+        compiler.
+    """
+    t0 = time.perf_counter()
+    src, out = Path(twin_path), Path(out)
+    if out.exists() and not force:
+        raise FmuExportError(f"{out}: already exists; choose another --out or add --force")
+    if out.suffix.lower() != ".fmu":
+        raise FmuExportError(f"{out}: an FMU's file name ends in .fmu")
+    twin = Twin.load(src)       # errors name the file and item
+    data = json.loads(src.read_text(encoding="utf-8"))
+    twin = check_exportable(data, str(src))
+    twin_sha = file_sha256(src)
+    version = nmsid_version()
+    guid = "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, f"nmsid-twin:{twin_sha}:{version}:"
+                                                   f"{extrapolate}")) + "}"
+    ident = _identifier(twin.participant)
+    vs = variables(twin, extrapolate=extrapolate)
+    names = ", ".join(e["name"] for e in twin.effects) or "none"
+    desc = (f"nmsid digital twin of {twin.participant or 'an unnamed participant'}: force "
+            f"from rE and sE, second-order dynamics with parameter curves of sE; effects: "
+            f"{names}")
+    plat = fmi_platform() if binary else None
+    with tempfile.TemporaryDirectory(prefix="nmsid-fmu-") as tmp:
+        root = Path(tmp)
+        (root / "sources").mkdir()
+        for f in C_SOURCES + C_HEADERS:
+            shutil.copyfile(C_DIR / f, root / "sources" / f)
+        (root / "sources" / "twin_data.h").write_text(c_header(vs, guid), encoding="utf-8")
+        (root / "modelDescription.xml").write_text(model_description(
+            vs, model_name=f"nmsid_twin {twin.participant}".strip(), model_identifier=ident,
+            guid=guid, description=desc, version=f"twin sha256 {twin_sha[:12]}",
+            generation_tool=f"nmsid {version}",
+            annotation_xml=_annotation(twin, twin_sha, version),
+            source_files=list(C_SOURCES)), encoding="utf-8")
+        (root / "resources").mkdir()
+        shutil.copyfile(src, root / "resources" / "twin.json")
+        (root / "documentation").mkdir()
+        (root / "documentation" / "index.html").write_text(_doc_html(ident), encoding="utf-8")
+        if plat:
+            ext = {"linux": ".so", "darwin": ".dylib", "win": ".dll"}[plat.rstrip("0123456789")]
+            compile_binary(root / "sources", root / "binaries" / plat / (ident + ext))
+        fd, tmp_name = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".part")
+        os.close(fd)
+        tmp_out = Path(tmp_name)
+        with zipfile.ZipFile(tmp_out, "w", zipfile.ZIP_DEFLATED) as z:
+            for p in sorted(root.rglob("*")):
+                if p.is_file():
+                    z.write(p, p.relative_to(root).as_posix())
+        os.replace(tmp_out, out)
+    return FmuResult(out, ident, guid, plat, time.perf_counter() - t0)
+
+
+def _doc_html(ident: str) -> str:
+    return f"""<html><body><h1>{ident}</h1>
+<p>An nmsid digital twin (force from the EAA ratio rE and sum sE). The model and its
+variables are in modelDescription.xml; the twin file it came from is resources/twin.json.</p>
+<p>Build the binary for another platform from sources/ (C99, needs only libm), e.g.
+<code>cc -shared -fPIC -O2 -std=c99 -fvisibility=hidden -Isources sources/nmsid_model.c
+sources/nmsid_twin.c -o binaries/linux64/{ident}.so -lm</code>; on macOS <code>binaries/darwin64/{ident}.dylib</code>;
+on Windows <code>cl /LD /O2 /Isources sources\\nmsid_model.c sources\\nmsid_twin.c
+/Fe:binaries\\win64\\{ident}.dll</code>.
+Or let the importer build it (FMPy: <code>fmpy.build.build_platform_binary</code>, needs CMake).</p>
+<p>Co-simulation is exact for inputs that move in straight lines over each step: set their
+first derivatives (fmi2SetRealInputDerivatives), otherwise they are held over the step.</p>
+</body></html>
+"""
+
