@@ -106,5 +106,5 @@ def register(sub) -> None:
                           "curves outside the tested sE range (default: clamp sE)")
     exp.add_argument("--sources-only", action="store_true",
                      help="no binary: C sources only (the importer builds them)")
-    exp.set_defaults(handler="nmsid.export.fmu.command:run_twin_export")
+    exp.set_defaults(handler="nmsid.cli.twin_export_command:run_twin_export")
     t.set_defaults(handler="nmsid.cli.identify_command:run_twin_help")

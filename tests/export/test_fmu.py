@@ -17,7 +17,7 @@ from nmsid.cli.identify_command import run_twin_simulate
 from nmsid.analysis.twin import Twin, file_sha256
 from nmsid.export.errors import FmuExportError
 from nmsid.export.fmu import export_fmu
-from nmsid.export.fmu.command import run_twin_export
+from nmsid.cli.twin_export_command import run_twin_export
 from nmsid.export.fmu.fmpy_support import fmpy_input, fmpy_input_derivatives_fixed, on_output_grid
 from nmsid.export.fmu.reference import TwinStepper
 from nmsid.sim_backends.participant import default_participant
