@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -40,9 +41,13 @@ def test_every_package_folder_is_listed_and_mapped():
 
 
 def test_pip_install_adds_exactly_one_top_level_name(tmp_path):
+    # a copy of the tree: pip builds in the source folder and would leave build/ behind
+    src = tmp_path / "src"
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(
+        ".venv", ".git", "build", "*.egg-info", "__pycache__", "sessions", ".hypothesis"))
     target = tmp_path / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps",
-                    "--no-compile", "--target", str(target), str(ROOT)],
+                    "--no-compile", "--target", str(target), str(src)],
                    check=True, capture_output=True, text=True, timeout=300)
     # bin/ holds the `nmsid` console script, not an importable name
     names = sorted(p.name for p in target.iterdir()
