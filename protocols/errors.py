@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 
 class ConfigError(ValueError):
     """A configuration value is refused (before anything is stimulated).
@@ -33,3 +35,25 @@ class CalibrationError(ValueError):
 
 class ScheduleError(ValueError):
     """A schedule cannot be built from the given levels / repeats / randomisation."""
+class SessionFileError(ValueError):
+    """A session file is missing, unreadable or breaks the contract.
+
+    The message names the file and the item, and says what would be valid.
+    """
+
+    def __init__(self, path: str | os.PathLike, problem: str):
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
+class SessionExistsError(FileExistsError):
+    """Refused to create a session file where a file already exists (never overwrite)."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = str(path)
+        super().__init__(
+            f"{self.path}: a file already exists here; nmsid never overwrites a session "
+            "file. Choose another --out path, or resume it with --resume.")
+
+

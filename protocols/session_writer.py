@@ -1,0 +1,216 @@
+"""Writing session files: :class:`SessionWriter`."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from protocols.session_codec import _as_counts, _deflates, _narrowest_exact, _set_attr
+from protocols.session_model import (CALIBRATION_ATTRS, CHUNK_SAMPLES, FORMAT, FORMAT_VERSION,
+                                     GZIP_LEVEL, OPTIONAL_SIGNALS, PARTICIPANT_PATTERN,
+                                     ROOT_ATTRS, STATUSES, TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
+                                     TRIAL_NAME_PATTERN, TRIAL_STR_ATTRS, Calibration, Event,
+                                     SessionExistsError, SessionFileError, Trial, _as_str,
+                                     _h5py, software_id, utc_now)
+from protocols.session_reader import _open_read
+
+class SessionWriter:
+    """Write a session file incrementally; every call leaves a complete file on disk.
+
+    Use :meth:`create` for a new session (refuses an existing path) and :meth:`open`
+    to continue one (``--resume``).
+    """
+
+    def __init__(self, path: str | os.PathLike, *, gzip_level: int | None = GZIP_LEVEL,
+                 store_counts: bool = True):
+        self.path = Path(path)
+        if gzip_level is not None and gzip_level not in range(1, 10):
+            raise ValueError(f"gzip_level {gzip_level!r} is not valid: use 1 ... 9, or None "
+                             "for uncompressed datasets")
+        self.gzip_level = gzip_level
+        """Deflate level of new datasets (with shuffle), or None to store them plain."""
+        self.store_counts = bool(store_counts)
+        """Store an optional signal on an exact grid as integer counts + ``scale`` /
+        ``offset`` (see :data:`OPTIONAL_SIGNALS`); False: always as floats."""
+
+    # -- creation -----------------------------------------------------------------
+    @classmethod
+    def create(cls, path: str | os.PathLike, participant: str, *,
+               created_utc: str | None = None, software: str | None = None,
+               config_json: str | None = None, seed: int | None = None,
+               backend: str | None = None, extra_attrs: dict | None = None,
+               gzip_level: int | None = GZIP_LEVEL,
+               store_counts: bool = True) -> SessionWriter:
+        """Create a new session file with its root attributes and empty groups.
+
+        Raises
+        ------
+        SessionExistsError
+            If anything exists at ``path``.
+        ValueError
+            If ``participant`` is not ``[A-Za-z0-9_-]{1,64}``.
+        """
+        path = Path(path)
+        if not PARTICIPANT_PATTERN.match(participant or ""):
+            raise ValueError(
+                f"participant code {participant!r} is not valid: use 1 to 64 letters, "
+                "digits, '_' or '-' (a code, never a name)")
+        if path.exists():
+            raise SessionExistsError(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        h5py = _h5py()
+        str_dt = h5py.string_dtype("utf-8")
+        # mode "x": fails if the file appears between the check and the open.
+        try:
+            f = h5py.File(path, "x")
+        except (FileExistsError, OSError) as exc:
+            if path.exists():
+                raise SessionExistsError(path) from exc
+            raise
+        with f:
+            f.attrs.create("format", FORMAT, dtype=str_dt)
+            f.attrs["format_version"] = np.int64(FORMAT_VERSION)
+            f.attrs.create("participant", participant, dtype=str_dt)
+            f.attrs.create("created_utc", created_utc or utc_now(), dtype=str_dt)
+            f.attrs.create("software", software or software_id(), dtype=str_dt)
+            if config_json is not None:
+                f.attrs.create("config_json", config_json, dtype=str_dt)
+            if seed is not None:
+                f.attrs["seed"] = np.int64(seed)
+            if backend is not None:
+                f.attrs.create("backend", backend, dtype=str_dt)
+            for key, value in (extra_attrs or {}).items():
+                _set_attr(f.attrs, key, value)
+            f.create_group("calibration")
+            f.create_group("trials")
+            f.create_group("events")
+        return cls(path, gzip_level=gzip_level, store_counts=store_counts)
+
+    @classmethod
+    def open(cls, path: str | os.PathLike, *, gzip_level: int | None = GZIP_LEVEL,
+             store_counts: bool = True) -> SessionWriter:
+        """Continue writing an existing session file (checks that it is one)."""
+        path = Path(path)
+        if not path.exists():
+            raise SessionFileError(path, "no such file")
+        with _open_read(path) as f:
+            if _as_str(f.attrs.get("format", "")) != FORMAT:
+                raise SessionFileError(path, "is not an nmsid session file "
+                                             f"(root attribute format != {FORMAT!r})")
+        return cls(path, gzip_level=gzip_level, store_counts=store_counts)
+
+    # -- writing ------------------------------------------------------------------
+    def write_calibration(self, cal: Calibration) -> None:
+        """Store the calibration (attributes and optional ramp datasets)."""
+        problems = cal.problems()
+        if problems:
+            raise ValueError(f"{self.path}: refusing to write calibration: " + "; ".join(problems))
+        with _h5py().File(self.path, "a") as f:
+            g = f.require_group("calibration")
+            for name in CALIBRATION_ATTRS:
+                g.attrs[name] = float(getattr(cal, name))
+            for name, data in cal.ramps.items():
+                if name in g:
+                    del g[name]
+                self._create_dataset(g, name, np.asarray(data, dtype=float))
+
+    def next_trial_name(self) -> str:
+        with _open_read(self.path) as f:
+            n = len([k for k in f.get("trials", {}) if TRIAL_NAME_PATTERN.match(k)])
+        return f"t{n + 1:03d}"
+
+    def append_trial(self, trial: Trial) -> str:
+        """Append one trial as the next ``tNNN`` group and return its name."""
+        _check_trial(trial, self.path)
+        h5py = _h5py()
+        str_dt = h5py.string_dtype("utf-8")
+        with h5py.File(self.path, "a") as f:
+            trials = f.require_group("trials")
+            n = len([k for k in trials if TRIAL_NAME_PATTERN.match(k)])
+            name = f"t{n + 1:03d}"
+            g = trials.create_group(name)
+            for key in TRIAL_FLOAT_ATTRS:
+                g.attrs[key] = float(getattr(trial, key))
+            g.attrs["repeat"] = np.int64(trial.repeat)
+            for key in TRIAL_STR_ATTRS:
+                g.attrs.create(key, getattr(trial, key) or "", dtype=str_dt)
+            for key, value in trial.extra_attrs.items():
+                _set_attr(g.attrs, key, value)
+            for key in TRIAL_DATASETS:
+                self._create_dataset(g, key, np.asarray(getattr(trial, key), dtype=np.float64))
+            for key in OPTIONAL_SIGNALS:
+                values = getattr(trial, key)
+                if values is not None:
+                    self._create_signal(g, key, values)
+            f.flush()
+        trial.name = name
+        return name
+
+    def _create_dataset(self, group, name: str, data: np.ndarray):
+        """Create ``group[name]`` chunked with shuffle + deflate (lossless, transparent to
+        every HDF5 reader), or plain when ``gzip_level`` is None, ``data`` is empty or
+        deflate would save less than :data:`MIN_SAVING` of it."""
+        if self.gzip_level is None or data.size == 0 or not _deflates(data):
+            return group.create_dataset(name, data=data)
+        n = data.shape[0]
+        chunks = (min(n, CHUNK_SAMPLES),) + (1,) * (data.ndim - 1)
+        return group.create_dataset(name, data=data, chunks=chunks, shuffle=True,
+                                    compression="gzip", compression_opts=self.gzip_level)
+
+    def _create_signal(self, group, name: str, values) -> None:
+        """An optional signal (``wrench``, ``sync``) as integer counts with ``scale`` /
+        ``offset`` attributes when every sample is ``offset + scale * count`` bit for bit
+        (A/D readings), else float32 when float32-exact, else float64."""
+        grid = _as_counts(values) if self.store_counts else None
+        if grid is None:
+            self._create_dataset(group, name, _narrowest_exact(values))
+            return
+        counts, scale, offset = grid
+        d = self._create_dataset(group, name, counts)
+        d.attrs["scale"] = scale
+        d.attrs["offset"] = offset
+
+    def append_events(self, events: list[Event]) -> None:
+        """Append events to ``/events`` (one sub-group per event, ``e0001``, ...)."""
+        if not events:
+            return
+        h5py = _h5py()
+        str_dt = h5py.string_dtype("utf-8")
+        with h5py.File(self.path, "a") as f:
+            g = f.require_group("events")
+            n = len(g)
+            for i, ev in enumerate(events):
+                e = g.create_group(f"e{n + i + 1:05d}")
+                e.attrs.create("utc", ev.utc, dtype=str_dt)
+                e.attrs.create("kind", ev.kind, dtype=str_dt)
+                e.attrs.create("detail", ev.detail, dtype=str_dt)
+
+    def set_root_attrs(self, **attrs: Any) -> None:
+        """Add or update optional root attributes (never the required ones)."""
+        with _h5py().File(self.path, "a") as f:
+            for key, value in attrs.items():
+                if key in ROOT_ATTRS:
+                    raise ValueError(f"{self.path}: root attribute {key!r} is fixed at creation")
+                _set_attr(f.attrs, key, value)
+
+
+
+def _check_trial(trial: Trial, path) -> None:
+    n = len(trial.force_N)
+    for key in TRIAL_DATASETS:
+        arr = np.asarray(getattr(trial, key))
+        if arr.ndim != 1 or len(arr) != n:
+            raise ValueError(f"{path}: trial dataset {key} must be 1-D with {n} samples "
+                             f"(as force_N), got shape {arr.shape}")
+    if trial.wrench is not None and np.asarray(trial.wrench).shape != (n, 6):
+        raise ValueError(f"{path}: trial dataset wrench must have shape ({n}, 6), "
+                         f"got {np.asarray(trial.wrench).shape}")
+    if trial.status not in STATUSES:
+        raise ValueError(f"{path}: trial status {trial.status!r} is not one of {STATUSES}")
+    if not (trial.fs_Hz > 0):
+        raise ValueError(f"{path}: trial fs_Hz must be > 0, got {trial.fs_Hz!r}")
+
+
