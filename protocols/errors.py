@@ -57,3 +57,37 @@ class SessionExistsError(FileExistsError):
             "file. Choose another --out path, or resume it with --resume.")
 
 
+
+
+def _mb(n_bytes: float) -> str:
+    return f"{n_bytes / 1e6:.1f} MB"
+
+
+class DiskFullError(SessionFileError):
+    """Not enough free space to write a session file (or its journal) safely.
+
+    Raised before the write when the free space is known to be short, or when the
+    system reports ENOSPC / EDQUOT; the file already on disk is never damaged by it.
+    """
+
+    def __init__(self, path: str | os.PathLike, need_bytes: int, free_bytes: int,
+                 doing: str = "writing it"):
+        self.need_bytes = int(need_bytes)
+        self.free_bytes = int(free_bytes)
+        folder = os.path.dirname(os.path.abspath(path))
+        super().__init__(path, f"disk full: {doing} needs {_mb(need_bytes)} in {folder}, "
+                               f"{_mb(free_bytes)} free; free some space, then "
+                               "`nmsid recover` / `nmsid run --resume` the session")
+
+
+class SessionWriteError(SessionFileError):
+    """The system refused a write to a session file or its journal (not a full disk)."""
+
+
+class SessionLockedError(SessionFileError):
+    """Another process (alive) writes this session; only one writer per session."""
+
+    def __init__(self, path: str | os.PathLike, holder: str):
+        self.holder = holder
+        super().__init__(path, f"is being written by {holder}; one writer per session: "
+                               "wait for it to end (or stop it) and try again")

@@ -19,7 +19,8 @@ from protocols.errors import SessionExistsError, SessionFileError  # noqa: F401 
 
 FORMAT = "nmsid-session"
 FORMAT_VERSION = 1
-PARTICIPANT_PATTERN = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+PARTICIPANT_PATTERN = re.compile(r"\A[A-Za-z0-9_-]{1,64}\Z")
+"""A participant code (``\\Z``, not ``$``: ``"P01\\n"`` is refused)."""
 TRIAL_NAME_PATTERN = re.compile(r"^t(\d{3,})$")
 
 ROOT_ATTRS = ("format", "format_version", "participant", "created_utc", "software")
