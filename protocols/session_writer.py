@@ -192,7 +192,9 @@ class SessionWriter:
         """Append trials (and events) in one new version of the file; return their names."""
         for trial in trials:
             _check_trial(trial, self.path)
-        names = []
+        names: list[str] = []
+        if not trials and not events:
+            return names
         what = (f"writing trial sE {trials[0].sE:g} repeat {trials[0].repeat}"
                 if len(trials) == 1 else f"writing {len(trials)} trials")
         with self._edit(what) as f:

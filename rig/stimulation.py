@@ -44,7 +44,7 @@ def _reason(trip) -> str:
 
 
 def run_block(devices, interlock: Interlock, checked, n: int, *,
-              on_samples: Callable[[int, int, np.ndarray], None] | None = None,
+              on_samples: Callable[..., None] | None = None,
               should_stop: Callable[[], str] | None = None) -> BlockResult:
     """Stimulate ``checked`` and record ``n`` samples of force.
 
@@ -118,7 +118,9 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
                         force[received:lo] = np.nan
                     received = hi
                     if on_samples is not None:
-                        on_samples(lo, hi, force[lo:hi])
+                        on_samples(lo, hi, force[lo:hi],
+                                   None if wrench is None else wrench[lo:hi],
+                                   None if sync is None else sync[lo:hi])
                 if trip is not None:
                     reason = _reason(trip)
                     break
