@@ -2,19 +2,25 @@
 
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from protocols.session_checks import value_problem, max_current_mA
 from protocols.session_codec import counts_to_values
+from protocols.session_lock import live_writer
 from protocols.session_model import (CALIBRATION_ATTRS, OPTIONAL_SIGNALS, ROOT_ATTRS,
                                      TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
                                      TRIAL_STR_ATTRS, _DAMAGE_ERRORS, Calibration, Event,
                                      Session, SessionFileError, Trial, _as_float, _as_str,
                                      _h5py, _trial_names)
 from protocols.session_validator import _problems
+
+log = logging.getLogger(__name__)
+
 
 class _open_read:
     """``with _open_read(path) as f``: open read-only, turning h5py errors into a
@@ -74,10 +80,11 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
             wanted = set()
         a = f.attrs
         cal_g = f["calibration"]
-        cal = Calibration(**{k: _as_float(cal_g.attrs[k]) for k in CALIBRATION_ATTRS},
-                          ramps={k: np.asarray(cal_g[k][()]) for k in cal_g
-                                 if isinstance(cal_g[k], _h5py().Dataset)} if load_data else {})
         try:
+            cal = Calibration(**{k: _as_float(cal_g.attrs[k]) for k in CALIBRATION_ATTRS},
+                              ramps={k: np.asarray(cal_g[k][()]) for k in cal_g
+                                     if isinstance(cal_g[k], _h5py().Dataset)}
+                              if load_data else {})
             trials = [_read_trial(f["trials"][name], name, wanted)
                       for name in _trial_names(f["trials"])]
             events = _read_events(f["events"]) if "events" in f else []
@@ -85,6 +92,17 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
             raise SessionFileError(path, f"damaged: data cannot be read ({type(exc).__name__}:"
                                          f" {exc}); if it was being written when a program "
                                          "stopped, run `nmsid recover` on it") from None
+        max_mA = max_current_mA(_as_str(a.get("config_json", "")))
+        for t in trials:
+            for key in (*TRIAL_DATASETS, *OPTIONAL_SIGNALS):
+                values = getattr(t, key)
+                problem = None if values is None else value_problem(key, values, max_mA)
+                if problem:
+                    raise SessionFileError(path, f"/trials/{t.name}/{key} {problem}")
+        writer = live_writer(path)
+        if writer is not None and writer.pid != os.getpid():
+            log.warning("%s: live session: written now by %s; read %d trial(s) so far",
+                        path, writer.describe(), len(trials))
         known = set(ROOT_ATTRS) | {"config_json", "seed", "backend"}
         seed = a.get("seed")
         return Session(
