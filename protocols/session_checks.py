@@ -52,7 +52,7 @@ def number_problem(where: str, name: str, value: Any, low: float | None = None,
                    valid: str = "") -> str | None:
     """The problem with a float attribute (type, finiteness, range), or None."""
     if not is_number_attr(value):
-        return (f"{where} attribute {name} = {_short(value)} is not a number "
+        return (f"{where} attribute {name} = {short_repr(value)} is not a number "
                 f"(valid: a float{', ' + valid if valid else ''})")
     x = float(np.asarray(value).reshape(()))
     if not math.isfinite(x):
@@ -68,8 +68,15 @@ def _range(low, high, low_open) -> str:
         else f"{'>' if low_open else '>='} {low:g}"
 
 
-def _short(value: Any) -> str:
-    text = repr(_as_str(value) if isinstance(value, (bytes, np.bytes_)) else value)
+def short_repr(value: Any) -> str:
+    """``repr`` of an attribute value, plain (no ``np.float64(...)``), at most 60 chars."""
+    if isinstance(value, (bytes, np.bytes_)):
+        value = _as_str(value)
+    elif isinstance(value, np.generic):
+        value = value.item()
+    elif isinstance(value, np.ndarray):
+        value = value.tolist() if value.size <= 8 else f"array of shape {value.shape}"
+    text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
 
 
@@ -79,10 +86,10 @@ def printable_problem(where: str, name: str, value: Any) -> str | None:
     if not isinstance(value, (str, bytes, np.bytes_, np.str_)):
         arr = np.asarray(value)
         if not (arr.shape == () and arr.dtype.kind in "OSU"):
-            return f"{where} attribute {name} = {_short(value)} is not a string"
+            return f"{where} attribute {name} = {short_repr(value)} is not a string"
     text = _as_str(value)
     if _CONTROL.search(text):
-        return (f"{where} attribute {name} = {_short(text)} holds non-printable characters "
+        return (f"{where} attribute {name} = {short_repr(text)} holds non-printable characters "
                 "(control codes, newlines or terminal escapes); valid: printable text")
     return None
 

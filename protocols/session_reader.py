@@ -70,7 +70,12 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
     """
     path = Path(path)
     with _open_read(path) as f:
-        problems = _problems(f, fatal_only=True)
+        try:
+            problems = _problems(f, fatal_only=True)
+        except _DAMAGE_ERRORS as exc:
+            raise SessionFileError(path, f"damaged: an item cannot be read ({type(exc).__name__}"
+                                         f": {exc}); if it was being written when a program "
+                                         "stopped, run `nmsid recover` on it") from None
         if problems:
             raise SessionFileError(path, problems[0] + (
                 f" (and {len(problems) - 1} more problem(s); run `nmsid validate {path}`)"

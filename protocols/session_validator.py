@@ -17,7 +17,8 @@ import numpy as np
 
 from protocols.session_checks import (FS_RANGE_Hz, MAX_CARRIER_Hz, MAX_TRIAL_S,
                                       is_int_attr, is_number_attr, link_problems, max_current_mA,
-                                      number_problem, printable_problem, samples_problems)
+                                      number_problem, printable_problem, samples_problems,
+                                      short_repr)
 from protocols.session_model import (CALIBRATION_ATTRS, FORMAT, FORMAT_VERSION,
                                      OPTIONAL_SIGNALS, PARTICIPANT_PATTERN, ROOT_ATTRS,
                                      STATUSES, TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
@@ -231,8 +232,8 @@ def _validate_trial_attrs(t, where: str, out: list[str], fatal_only: bool) -> No
     if "repeat" not in a:
         out.append(f"missing required attribute {where}/repeat")
     elif not is_int_attr(a["repeat"]) or int(np.asarray(a["repeat"]).reshape(())) < 1:
-        out.append(f"{where} attribute repeat = {a['repeat']!r} is not valid: an integer "
-                   "1, 2, 3, ...")
+        out.append(f"{where} attribute repeat = {short_repr(a['repeat'])} is not valid: an "
+                   "integer 1, 2, 3, ...")
     for key in TRIAL_STR_ATTRS:
         if key not in a:
             out.append(f"missing required attribute {where}/{key}")
