@@ -60,7 +60,7 @@ class SessionExistsError(FileExistsError):
 
 
 def _mb(n_bytes: float) -> str:
-    return f"{n_bytes / 1e6:.1f} MB"
+    return f"{n_bytes / 1e6:.2f} MB"
 
 
 class DiskFullError(SessionFileError):

@@ -213,8 +213,8 @@ def test_check_space_names_folder_need_and_free(tmp_path, monkeypatch):
     monkeypatch.setattr(sl, "free_bytes", lambda folder: 2_000_000)
     with pytest.raises(DiskFullError) as err:
         log.check_space(50_000_000)
-    assert str(tmp_path) in str(err.value) and "51.0 MB" in str(err.value) \
-        and "2.0 MB free" in str(err.value)
+    assert str(tmp_path) in str(err.value) and "51.05 MB" in str(err.value) \
+        and "2.00 MB free" in str(err.value)
     log.close()
 
 

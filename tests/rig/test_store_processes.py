@@ -206,6 +206,7 @@ def test_disk_filled_mid_session_at_ten_sizes(tmp_path, small_fs):
     import rig.cli  # noqa: F401 (imported once; the forked children share it)
     import rig.engine  # noqa: F401
     import sim_backends.rig  # noqa: F401
+    outcomes = []
     for k, leave in enumerate(LEAVE_FREE_BYTES):
         folder = small_fs / f"s{k}"
         folder.mkdir()
@@ -224,6 +225,7 @@ def test_disk_filled_mid_session_at_ten_sizes(tmp_path, small_fs):
         code, signalled = _wait(pid)
         text = log.read_text()
         assert not signalled, (k, text)
+        outcomes.append(code)
         if code != 0:  # ended by the full disk: one line naming the file
             last = text.strip().splitlines()[-1]
             assert code == 2 and last.startswith(f"nmsid: error: {out}: disk full"), (k, text)
@@ -236,6 +238,7 @@ def test_disk_filled_mid_session_at_ten_sizes(tmp_path, small_fs):
         rtext = (tmp_path / f"rf{k}.txt").read_text()
         assert not signalled and "Traceback" not in rtext, (k, rtext)
         assert code == 0 or "disk full" in rtext.strip().splitlines()[-1], (k, rtext)
+        outcomes[-1] = (outcomes[-1], code)
         filler.unlink()
         code, signalled = _wait(_fork_main(["recover", out], tmp_path / f"r{k}.txt"))
         assert code in (0, 1) and not signalled, (tmp_path / f"r{k}.txt").read_text()
@@ -247,3 +250,6 @@ def test_disk_filled_mid_session_at_ten_sizes(tmp_path, small_fs):
         assert {t.extra_attrs["schedule_index"] for t in s.trials if t.completed} == \
             set(range(6)), k
         assert _leftovers(folder) == [] and not journal_dir(out).exists(), k
+    # most sizes really ended the session on the full disk (the rest finished first)
+    assert sum(1 for run, _ in outcomes if run == 2) >= 7, outcomes
+    print("disk-full outcomes (run exit, recover-on-full-disk exit):", outcomes)
