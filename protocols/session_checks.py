@@ -59,7 +59,8 @@ def number_problem(where: str, name: str, value: Any, low: float | None = None,
         return f"{where} attribute {name} = {x!r} is not a finite number"
     bad_low = low is not None and (x <= low if low_open else x < low)
     if bad_low or (high is not None and x > high):
-        return f"{where} attribute {name} = {x:g} is outside {valid or _range(low, high, low_open)}"
+        shown = valid or _range(low, high, low_open)
+        return f"{where} attribute {name} = {x:g} is outside {shown}"
     return None
 
 

@@ -92,6 +92,7 @@ class SessionWriter:
             raise SessionFileError(
                 path, f"participant code {participant!r} is not valid: use 1 to 64 letters, "
                       "digits, '_' or '-' (a code, never a name)")
+        check_seed(path, seed)
         h5py = _h5py()
         str_dt = h5py.string_dtype("utf-8")
         bio = io.BytesIO()
@@ -268,6 +269,22 @@ class SessionWriter:
         with self._edit("writing attributes") as f:
             for key, value in attrs.items():
                 _set_attr(f.attrs, key, value)
+
+
+def check_seed(path, seed) -> None:
+    """Refuse a seed the file cannot store (an HDF5 int64): before anything is written.
+
+    Raises
+    ------
+    SessionFileError
+        Naming the file, the seed and the valid range.
+    """
+    if seed is None:
+        return
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or \
+            not 0 <= int(seed) <= np.iinfo(np.int64).max:
+        raise SessionFileError(path, f"seed {seed!r} is not valid: an integer in "
+                                     f"[0, 2**63 - 1]")
 
 
 def _add_events(f, events) -> None:

@@ -41,8 +41,11 @@ from protocols.session_file import (Calibration, Event, SessionExistsError, Sess
                                     SessionWriter, Trial, read_session, software_id, utc_now,
                                     validate_session)
 from protocols.session_lock import SessionLock, live_writer
+from protocols.session_model import PARTICIPANT_PATTERN
+from protocols.session_writer import check_seed
 from protocols.session_publish import SPACE_MARGIN_BYTES, free_bytes
-from rig.journal import (PARTIAL_ABORT_REASON, PARTIAL_COLUMNS, JournalContents,  # noqa: F401 (re-exports)
+# re-exported names (callers import them from here)
+from rig.journal import (PARTIAL_ABORT_REASON, PARTIAL_COLUMNS, JournalContents,  # noqa: F401
                          disk_error, trial_digest, fsync_dir, json_default, save_calibration,
                          save_trial_npz, write_durable, journal_dir, load_trial_npz,
                          read_journal, trial_meta, utc_now_ms)
@@ -90,6 +93,10 @@ class SessionLog:
         """Start a new session at ``path`` (refused if the file or its journal exists, or
         another process writes it)."""
         path = Path(path)
+        check_seed(path, seed)  # the file stores it as int64: refuse now, not after calibration
+        if not PARTICIPANT_PATTERN.match(participant or ""):
+            raise SessionFileError(path, f"participant code {participant!r} is not valid: "
+                                         "use 1 to 64 letters, digits, '_' or '-'")
         check_new_session_path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         lock = SessionLock.acquire(path, "nmsid run")
@@ -317,7 +324,8 @@ class SessionLog:
         files = read_journal(self.jdir).trial_files
         digests = list(self._digests)
         if len(digests) < len(files):  # trials journaled before this process (resume)
-            digests = [trial_digest(load_trial_npz(p)) for p in files[:len(files) - len(digests)]] \
+            digests = [trial_digest(load_trial_npz(p))
+                       for p in files[:len(files) - len(digests)]] \
                 + digests
         if len(s.trials) != len(files) or [trial_digest(t) for t in s.trials] != digests:
             log.error("%s: file and journal differ (%d / %d trials); journal kept", self.path,

@@ -130,8 +130,8 @@ def _apply(path, mutation):
             del f[where]
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow,
-                                                                   HealthCheck.function_scoped_fixture])
+@settings(max_examples=60, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(mutation=_mutation())
 def test_fuzzed_files_are_refused_in_one_line_or_read_correctly(tmp_path_factory, mutation):
     path = _good(tmp_path_factory.mktemp("fuzz") / "s.h5", n=1000)

@@ -231,3 +231,16 @@ def test_lock_is_reentrant_in_one_process_and_released_at_the_end(tmp_path):
     (tmp_path / "P01.h5.lock").write_text(json.dumps({"pid": 1, "host": "x"}))
     assert live_writer(path) is None
     SessionLock.acquire(path, "c").release()
+
+
+@pytest.mark.parametrize("seed, participant, expected", [
+    (2 ** 63, "P01", "seed 9223372036854775808 is not valid: an integer in [0, 2**63 - 1]"),
+    (3, "P01\n", "participant code 'P01\\n' is not valid")])
+def test_a_seed_or_code_the_file_cannot_hold_is_refused_before_anything_is_written(
+        tmp_path, seed, participant, expected):
+    path = tmp_path / "P01.h5"
+    with pytest.raises(SessionFileError) as err:
+        SessionLog.create(path, participant=participant, config_json="{}", seed=seed,
+                          backend="test", schedule_json="[]")
+    assert expected in str(err.value)
+    assert list(tmp_path.iterdir()) == []  # no journal, no lock file, no session file
