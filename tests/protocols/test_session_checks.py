@@ -154,3 +154,22 @@ def test_fuzzed_files_are_refused_in_one_line_or_read_correctly(tmp_path_factory
         assert len(s.trials) == len(good.trials)
         for a, b in zip(s.trials, good.trials):
             assert np.array_equal(a.force_N, b.force_N) and a.sE == b.sE
+
+
+@pytest.mark.parametrize("case", ["fs_Hz a string", "force x 1e300", "external link",
+                                  "participant escape"])
+def test_validate_and_identify_end_a_bad_file_in_one_line(tmp_path, capsys, case):
+    from rig.cli import main
+    mutate, expected = BAD[case]
+    path = _good(tmp_path / "s.h5")
+    with h5py.File(path, "a") as f:
+        mutate(f)
+    assert main(["validate", str(path)]) == 1
+    out = capsys.readouterr().out
+    assert out.startswith(f"{path}: INVALID") and expected in out
+    assert main(["identify", str(path), "--out", str(tmp_path / "out")]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("nmsid: error: ") and f"{path}: " in lines[0]
+    assert "\x1b" not in captured.err + captured.out  # an escape is never printed raw
+    assert not (tmp_path / "out").exists()

@@ -244,3 +244,20 @@ def test_a_seed_or_code_the_file_cannot_hold_is_refused_before_anything_is_writt
                           backend="test", schedule_json="[]")
     assert expected in str(err.value)
     assert list(tmp_path.iterdir()) == []  # no journal, no lock file, no session file
+
+
+def test_reading_a_live_file_says_so(tmp_path, caplog):
+    path = tmp_path / "P01.h5"
+    log = _log(path)
+    log.end_trial(_trial(0))
+    log.close()
+    proc = _hold_lock_in_child(path)
+    try:
+        with caplog.at_level("WARNING"):
+            s = read_session(path)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert len(s.trials) == 1
+    assert any(f"live session: written now by process {proc.pid}" in r.getMessage()
+               and "1 trial(s) so far" in r.getMessage() for r in caplog.records)
