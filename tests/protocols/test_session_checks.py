@@ -172,4 +172,3 @@ def test_validate_and_identify_end_a_bad_file_in_one_line(tmp_path, capsys, case
     lines = captured.err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("nmsid: error: ") and f"{path}: " in lines[0]
     assert "\x1b" not in captured.err + captured.out  # an escape is never printed raw
-    assert not (tmp_path / "out").exists()
