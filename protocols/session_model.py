@@ -235,8 +235,11 @@ def _as_float(value: Any) -> float:
 
 
 
-_DAMAGE_ERRORS = (KeyError, OSError, RuntimeError, ValueError)
-"""What h5py raises when a file cut short by a crash is read past its end."""
+_DAMAGE_ERRORS = (KeyError, OSError, RuntimeError, ValueError, SystemError, IndexError,
+                  TypeError, OverflowError)
+"""What h5py raises when a damaged file (cut short by a crash, a flipped bit) is read:
+found by the session-file fuzz (``bench/bench_fuzz_sessions.py``); SystemError comes
+from an exception inside an HDF5 link-visit callback."""
 
 
 def _trial_names(group) -> list[str]:
