@@ -1,12 +1,17 @@
 """Read, write and validate session files (``shared/spec/session-file-v1.md``).
 
-One HDF5 file holds one session. This module is the only place that knows the layout: the
-rig writes through :class:`SessionWriter`, the analysis reads through :func:`read_session`,
-and ``nmsid validate`` calls :func:`validate_session`.
+One HDF5 file holds one session. This module is the public facade of the modules that
+know the layout (it re-exports them, so callers import from here): the rig writes through
+:class:`SessionWriter` (:mod:`protocols.session_writer`), the analysis reads through
+:func:`read_session` (:mod:`protocols.session_reader`), and ``nmsid validate`` calls
+:func:`validate_session` (:mod:`protocols.session_validator`, with the checks of
+:mod:`protocols.session_checks`); :mod:`protocols.session_model` holds the contract's
+names and objects, :mod:`protocols.session_codec` the signal encoding.
 
-Every write opens the file, changes it and closes it again, so that the file on disk is
-complete between writes. Crash recovery (a journal of completed trials) is layered on top
-by ``rig.session_log``.
+Every write publishes a complete new version of the file by temp file + atomic rename
+(:mod:`protocols.session_publish`), so readers are never disturbed and the file on disk is
+complete between writes. One writer per session (:mod:`protocols.session_lock`). Crash
+recovery (a journal of completed trials) is layered on top by ``rig.session_log``.
 
 Examples
 --------
