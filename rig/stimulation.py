@@ -55,8 +55,9 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
     checked : drivers.interfaces.CheckedWaveform
     n : int
         Samples to record (the waveform's length).
-    on_samples : callable(lo, hi, force_N), optional
-        Called with each new run of samples ``[lo, hi)``.
+    on_samples : callable(lo, hi, force_N, wrench, sync), optional
+        Called with each new run of samples ``[lo, hi)``; ``wrench`` (rows of 6) and
+        ``sync`` are None when the acquisition does not record them.
     should_stop : callable() -> str, optional
         Asked after every chunk; a non-empty answer stops the block with that reason.
 
