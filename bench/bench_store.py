@@ -28,7 +28,7 @@ if str(ROOT) not in sys.path:
 
 import h5py  # noqa: E402
 
-from protocols.session_file import Calibration, SessionWriter, Trial  # noqa: E402
+from nmsid.protocols.session_file import Calibration, SessionWriter, Trial  # noqa: E402
 
 N_TRIALS = 45
 N_SAMPLES = 30_000  # 15 s at 2 kHz

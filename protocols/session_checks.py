@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from protocols.session_model import _as_str, _h5py
+from nmsid.protocols.session_model import _as_str, _h5py
 
 DEFAULT_MAX_CURRENT_mA = 16.0
 """Highest current a file may hold when its stored configuration names no ceiling: the

@@ -1,7 +1,7 @@
 """How trial signals are encoded in a session file: compression choice, A/D counts.
 
 Pure functions on numpy arrays (and HDF5 attribute setting); used by
-:mod:`protocols.session_writer` and :mod:`protocols.session_reader`.
+:mod:`nmsid.protocols.session_writer` and :mod:`nmsid.protocols.session_reader`.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from protocols.session_model import MIN_SAVING, _h5py
+from nmsid.protocols.session_model import MIN_SAVING, _h5py
 
 def _set_attr(attrs, key: str, value: Any) -> None:
     if isinstance(value, str):

@@ -2,15 +2,15 @@
 
 One HDF5 file holds one session. This module is the public facade of the modules that
 know the layout (it re-exports them, so callers import from here): the rig writes through
-:class:`SessionWriter` (:mod:`protocols.session_writer`), the analysis reads through
-:func:`read_session` (:mod:`protocols.session_reader`), and ``nmsid validate`` calls
-:func:`validate_session` (:mod:`protocols.session_validator`, with the checks of
-:mod:`protocols.session_checks`); :mod:`protocols.session_model` holds the contract's
-names and objects, :mod:`protocols.session_codec` the signal encoding.
+:class:`SessionWriter` (:mod:`nmsid.protocols.session_writer`), the analysis reads through
+:func:`read_session` (:mod:`nmsid.protocols.session_reader`), and ``nmsid validate`` calls
+:func:`validate_session` (:mod:`nmsid.protocols.session_validator`, with the checks of
+:mod:`nmsid.protocols.session_checks`); :mod:`nmsid.protocols.session_model` holds the contract's
+names and objects, :mod:`nmsid.protocols.session_codec` the signal encoding.
 
 Every write publishes a complete new version of the file by temp file + atomic rename
-(:mod:`protocols.session_publish`), so readers are never disturbed and the file on disk is
-complete between writes. One writer per session (:mod:`protocols.session_lock`). Crash
+(:mod:`nmsid.protocols.session_publish`), so readers are never disturbed and the file on disk is
+complete between writes. One writer per session (:mod:`nmsid.protocols.session_lock`). Crash
 recovery (a journal of completed trials) is layered on top by ``rig.session_log``.
 
 Examples
@@ -33,17 +33,17 @@ from __future__ import annotations
 
 from __future__ import annotations
 
-from protocols.errors import SessionExistsError, SessionFileError  # noqa: F401
-from protocols.session_codec import counts_to_values  # noqa: F401
-from protocols.session_model import (CALIBRATION_ATTRS, CHUNK_SAMPLES, FORMAT,  # noqa: F401
-                                     FORMAT_VERSION, GZIP_LEVEL, MIN_SAVING, OPTIONAL_INPUT_ATTRS,
-                                     OPTIONAL_SIGNALS, PARTICIPANT_PATTERN, ROOT_ATTRS,
-                                     STATUSES, TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
-                                     TRIAL_NAME_PATTERN, TRIAL_STR_ATTRS, Calibration, Event,
-                                     Session, Trial, software_id, trial_input, utc_now)
-from protocols.session_reader import read_session  # noqa: F401
-from protocols.session_validator import validate_session  # noqa: F401
-from protocols.session_writer import SessionWriter  # noqa: F401
+from nmsid.protocols.errors import SessionExistsError, SessionFileError  # noqa: F401
+from nmsid.protocols.session_codec import counts_to_values  # noqa: F401
+from nmsid.protocols.session_model import (CALIBRATION_ATTRS, CHUNK_SAMPLES, FORMAT,  # noqa: F401
+                                           FORMAT_VERSION, GZIP_LEVEL, MIN_SAVING, OPTIONAL_INPUT_ATTRS,
+                                           OPTIONAL_SIGNALS, PARTICIPANT_PATTERN, ROOT_ATTRS,
+                                           STATUSES, TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
+                                           TRIAL_NAME_PATTERN, TRIAL_STR_ATTRS, Calibration, Event,
+                                           Session, Trial, software_id, trial_input, utc_now)
+from nmsid.protocols.session_reader import read_session  # noqa: F401
+from nmsid.protocols.session_validator import validate_session  # noqa: F401
+from nmsid.protocols.session_writer import SessionWriter  # noqa: F401
 
 __all__ = ["CALIBRATION_ATTRS", "CHUNK_SAMPLES", "FORMAT", "FORMAT_VERSION", "GZIP_LEVEL",
            "MIN_SAVING", "OPTIONAL_INPUT_ATTRS", "OPTIONAL_SIGNALS", "PARTICIPANT_PATTERN",

@@ -23,8 +23,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from protocols.errors import SessionLockedError
-from protocols.session_model import utc_now
+from nmsid.protocols.errors import SessionLockedError
+from nmsid.protocols.session_model import utc_now
 
 LOCK_SUFFIX = ".lock"
 _ACQUIRE_TRIES = 5

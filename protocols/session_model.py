@@ -1,8 +1,8 @@
 """The session file's data model: the contract's names, and the objects a file holds.
 
-See ``shared/spec/session-file-v1.md``. :mod:`protocols.session_writer` writes these
-objects, :mod:`protocols.session_reader` reads them and :mod:`protocols.session_validator`
-checks a file against the contract; :mod:`protocols.session_file` re-exports all of it.
+See ``shared/spec/session-file-v1.md``. :mod:`nmsid.protocols.session_writer` writes these
+objects, :mod:`nmsid.protocols.session_reader` reads them and :mod:`nmsid.protocols.session_validator`
+checks a file against the contract; :mod:`nmsid.protocols.session_file` re-exports all of it.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from protocols.errors import SessionExistsError, SessionFileError  # noqa: F401 (re-export)
+from nmsid.protocols.errors import SessionExistsError, SessionFileError  # noqa: F401 (re-export)
 
 FORMAT = "nmsid-session"
 FORMAT_VERSION = 1

@@ -22,7 +22,7 @@ import os
 import re
 from pathlib import Path
 
-from protocols.errors import DiskFullError, SessionExistsError, SessionWriteError
+from nmsid.protocols.errors import DiskFullError, SessionExistsError, SessionWriteError
 
 TEMP_TAG = ".writing-"
 SPACE_MARGIN_BYTES = 1 << 20

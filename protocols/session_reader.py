@@ -9,15 +9,15 @@ from typing import Any
 
 import numpy as np
 
-from protocols.session_checks import value_problem, max_current_mA
-from protocols.session_codec import counts_to_values
-from protocols.session_lock import live_writer
-from protocols.session_model import (CALIBRATION_ATTRS, OPTIONAL_SIGNALS, ROOT_ATTRS,
-                                     TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
-                                     TRIAL_STR_ATTRS, _DAMAGE_ERRORS, Calibration, Event,
-                                     Session, SessionFileError, Trial, _as_float, _as_str,
-                                     _h5py, _trial_names)
-from protocols.session_validator import _problems
+from nmsid.protocols.session_checks import value_problem, max_current_mA
+from nmsid.protocols.session_codec import counts_to_values
+from nmsid.protocols.session_lock import live_writer
+from nmsid.protocols.session_model import (CALIBRATION_ATTRS, OPTIONAL_SIGNALS, ROOT_ATTRS,
+                                           TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
+                                           TRIAL_STR_ATTRS, _DAMAGE_ERRORS, Calibration, Event,
+                                           Session, SessionFileError, Trial, _as_float, _as_str,
+                                           _h5py, _trial_names)
+from nmsid.protocols.session_validator import _problems
 
 log = logging.getLogger(__name__)
 

@@ -15,15 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
-from protocols.session_checks import (FS_RANGE_Hz, MAX_CARRIER_Hz, MAX_TRIAL_S,
-                                      is_int_attr, is_number_attr, link_problems, max_current_mA,
-                                      number_problem, printable_problem, samples_problems,
-                                      short_repr)
-from protocols.session_model import (CALIBRATION_ATTRS, FORMAT, FORMAT_VERSION,
-                                     OPTIONAL_SIGNALS, PARTICIPANT_PATTERN, ROOT_ATTRS,
-                                     STATUSES, TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
-                                     TRIAL_STR_ATTRS, _DAMAGE_ERRORS, _as_float, _as_str,
-                                     _h5py, _trial_names)
+from nmsid.protocols.session_checks import (FS_RANGE_Hz, MAX_CARRIER_Hz, MAX_TRIAL_S,
+                                            is_int_attr, is_number_attr, link_problems, max_current_mA,
+                                            number_problem, printable_problem, samples_problems,
+                                            short_repr)
+from nmsid.protocols.session_model import (CALIBRATION_ATTRS, FORMAT, FORMAT_VERSION,
+                                           OPTIONAL_SIGNALS, PARTICIPANT_PATTERN, ROOT_ATTRS,
+                                           STATUSES, TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
+                                           TRIAL_STR_ATTRS, _DAMAGE_ERRORS, _as_float, _as_str,
+                                           _h5py, _trial_names)
 
 
 def validate_session(path: str | os.PathLike, *, fatal_only: bool = False,

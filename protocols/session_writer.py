@@ -10,21 +10,21 @@ from typing import Any
 
 import numpy as np
 
-from protocols.session_codec import _as_counts, _deflates, _narrowest_exact, _set_attr
-from protocols.session_model import (CALIBRATION_ATTRS, CHUNK_SAMPLES, FORMAT, FORMAT_VERSION,
-                                     GZIP_LEVEL, OPTIONAL_SIGNALS, PARTICIPANT_PATTERN,
-                                     ROOT_ATTRS, STATUSES, TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
-                                     TRIAL_NAME_PATTERN, TRIAL_STR_ATTRS, Calibration, Event,
-                                     SessionExistsError, SessionFileError, Trial, _as_str,
-                                     _h5py, software_id, utc_now)
-from protocols.session_publish import publish_image
-from protocols.session_reader import _open_read
+from nmsid.protocols.session_codec import _as_counts, _deflates, _narrowest_exact, _set_attr
+from nmsid.protocols.session_model import (CALIBRATION_ATTRS, CHUNK_SAMPLES, FORMAT, FORMAT_VERSION,
+                                           GZIP_LEVEL, OPTIONAL_SIGNALS, PARTICIPANT_PATTERN,
+                                           ROOT_ATTRS, STATUSES, TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
+                                           TRIAL_NAME_PATTERN, TRIAL_STR_ATTRS, Calibration, Event,
+                                           SessionExistsError, SessionFileError, Trial, _as_str,
+                                           _h5py, software_id, utc_now)
+from nmsid.protocols.session_publish import publish_image
+from nmsid.protocols.session_reader import _open_read
 
 class SessionWriter:
     """Write a session file incrementally; every call publishes a complete new version.
 
     The writer keeps the file's HDF5 image in memory, changes it there and publishes the
-    new image by temp file + fsync + atomic rename (:mod:`protocols.session_publish`): it
+    new image by temp file + fsync + atomic rename (:mod:`nmsid.protocols.session_publish`): it
     never opens the published file for writing, so readers that have it open are never
     disturbed (nor disturb it), and a failed write (a full disk) leaves the published
     version as it was. Every dataset carries a Fletcher-32 checksum (HDF5 filter), which
@@ -32,7 +32,7 @@ class SessionWriter:
 
     Use :meth:`create` for a new session (refuses an existing path) and :meth:`open`
     to continue one (``--resume``). One writer per file: the rig takes the session's lock
-    (:mod:`protocols.session_lock`) before it writes.
+    (:mod:`nmsid.protocols.session_lock`) before it writes.
     """
 
     def __init__(self, path: str | os.PathLike, *, gzip_level: int | None = GZIP_LEVEL,

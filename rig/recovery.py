@@ -21,15 +21,15 @@ from pathlib import Path
 
 import numpy as np
 
-from protocols.errors import DiskFullError
-from protocols.session_file import (Event, SessionFileError, SessionWriter, Trial,
-                                    read_session, utc_now, validate_session)
-from protocols.session_lock import SessionLock
-from protocols.session_publish import (SPACE_MARGIN_BYTES, free_bytes, fsync_dir,
-                                       remove_stale_temps)
-from rig.journal import (PARTIAL_ABORT_REASON, JournalContents, JournalEntryError,
-                         append_event_line, journal_dir, load_trial_meta, load_trial_npz,
-                         partial_trial, read_journal, save_trial_npz)
+from nmsid.protocols.errors import DiskFullError
+from nmsid.protocols.session_file import (Event, SessionFileError, SessionWriter, Trial,
+                                          read_session, utc_now, validate_session)
+from nmsid.protocols.session_lock import SessionLock
+from nmsid.protocols.session_publish import (SPACE_MARGIN_BYTES, free_bytes, fsync_dir,
+                                             remove_stale_temps)
+from nmsid.rig.journal import (PARTIAL_ABORT_REASON, JournalContents, JournalEntryError,
+                               append_event_line, journal_dir, load_trial_meta, load_trial_npz,
+                               partial_trial, read_journal, save_trial_npz)
 
 log = logging.getLogger(__name__)
 

@@ -2,7 +2,7 @@
 
 HDF5 can be left unreadable if the process dies in the middle of a write, so every item is
 first made durable in a journal directory ``<file>.journal/`` and only then appended to
-the HDF5 file (through :mod:`protocols.session_file`, which this module does not change):
+the HDF5 file (through :mod:`nmsid.protocols.session_file`, which this module does not change):
 
 ``header.json``
     participant, created_utc, software, config_json, seed, backend, schedule_json
@@ -36,21 +36,21 @@ from pathlib import Path
 
 import numpy as np
 
-from protocols.errors import DiskFullError, SessionLockedError
-from protocols.session_file import (Calibration, Event, SessionExistsError, SessionFileError,
-                                    SessionWriter, Trial, read_session, software_id, utc_now,
-                                    validate_session)
-from protocols.session_lock import SessionLock, live_writer
-from protocols.session_model import PARTICIPANT_PATTERN
-from protocols.session_writer import check_seed
-from protocols.session_publish import SPACE_MARGIN_BYTES, free_bytes
+from nmsid.protocols.errors import DiskFullError, SessionLockedError
+from nmsid.protocols.session_file import (Calibration, Event, SessionExistsError, SessionFileError,
+                                          SessionWriter, Trial, read_session, software_id, utc_now,
+                                          validate_session)
+from nmsid.protocols.session_lock import SessionLock, live_writer
+from nmsid.protocols.session_model import PARTICIPANT_PATTERN
+from nmsid.protocols.session_writer import check_seed
+from nmsid.protocols.session_publish import SPACE_MARGIN_BYTES, free_bytes
 # re-exported names (callers import them from here)
-from rig.journal import (PARTIAL_ABORT_REASON, PARTIAL_COLUMNS, JournalContents,  # noqa: F401
-                         disk_error, trial_digest, fsync_dir, json_default, save_calibration,
-                         save_trial_npz, write_durable, journal_dir, load_trial_npz,
-                         read_journal, trial_meta, utc_now_ms)
-from rig.recovery import (RecoveryReport, create_from_header, read_fully,  # noqa: F401
-                          remove_leftovers, unique_aside, recover)
+from nmsid.rig.journal import (PARTIAL_ABORT_REASON, PARTIAL_COLUMNS, JournalContents,  # noqa: F401
+                               disk_error, trial_digest, fsync_dir, json_default, save_calibration,
+                               save_trial_npz, write_durable, journal_dir, load_trial_npz,
+                               read_journal, trial_meta, utc_now_ms)
+from nmsid.rig.recovery import (RecoveryReport, create_from_header, read_fully,  # noqa: F401
+                                remove_leftovers, unique_aside, recover)
 
 log = logging.getLogger(__name__)
 

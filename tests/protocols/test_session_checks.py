@@ -10,8 +10,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from protocols.session_file import (Calibration, SessionFileError, SessionWriter, Trial,
-                                    read_session, validate_session)
+from nmsid.protocols.session_file import (Calibration, SessionFileError, SessionWriter, Trial,
+                                          read_session, validate_session)
 
 
 def _good(path, n=2000):
@@ -159,7 +159,7 @@ def test_fuzzed_files_are_refused_in_one_line_or_read_correctly(tmp_path_factory
 @pytest.mark.parametrize("case", ["fs_Hz a string", "force x 1e300", "external link",
                                   "participant escape"])
 def test_validate_and_identify_end_a_bad_file_in_one_line(tmp_path, capsys, case):
-    from rig.cli import main
+    from nmsid.cli import main
     mutate, expected = BAD[case]
     path = _good(tmp_path / "s.h5")
     with h5py.File(path, "a") as f:

@@ -11,11 +11,11 @@ import h5py
 import numpy as np
 import pytest
 
-from protocols.errors import DiskFullError, SessionLockedError
-from protocols.session_file import Calibration, SessionFileError, Trial, read_session, \
+from nmsid.protocols.errors import DiskFullError, SessionLockedError
+from nmsid.protocols.session_file import Calibration, SessionFileError, Trial, read_session, \
     validate_session
-from protocols.session_lock import SessionLock, live_writer
-from rig.session_log import SessionLog, journal_dir, recover
+from nmsid.protocols.session_lock import SessionLock, live_writer
+from nmsid.rig.session_log import SessionLog, journal_dir, recover
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -196,7 +196,7 @@ def test_a_full_disk_before_the_write_changes_nothing_and_says_so(tmp_path, monk
     log = _log(path)
     log.end_trial(_trial(0))
     before = path.read_bytes()
-    import protocols.session_publish as pub
+    import nmsid.protocols.session_publish as pub
     monkeypatch.setattr(pub, "free_bytes", lambda folder: 1000)
     with pytest.raises(DiskFullError) as err:
         log._writer.append_trial(_trial(1))
@@ -209,7 +209,7 @@ def test_a_full_disk_before_the_write_changes_nothing_and_says_so(tmp_path, monk
 def test_check_space_names_folder_need_and_free(tmp_path, monkeypatch):
     path = tmp_path / "P01.h5"
     log = _log(path)
-    import rig.session_log as sl
+    import nmsid.rig.session_log as sl
     monkeypatch.setattr(sl, "free_bytes", lambda folder: 2_000_000)
     with pytest.raises(DiskFullError) as err:
         log.check_space(50_000_000)

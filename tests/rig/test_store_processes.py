@@ -12,8 +12,8 @@ from pathlib import Path
 import h5py
 import pytest
 
-from protocols.session_file import read_session, validate_session
-from rig.session_log import journal_dir
+from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.session_log import journal_dir
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -38,7 +38,7 @@ def _leftovers(folder: Path) -> list[str]:
 
 
 def _nmsid(*argv, **kw):
-    return subprocess.Popen([sys.executable, "-m", "rig.cli", *map(str, argv)], cwd=str(ROOT),
+    return subprocess.Popen([sys.executable, "-m", "nmsid.cli", *map(str, argv)], cwd=str(ROOT),
                             env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, **kw)
 
@@ -57,7 +57,7 @@ def _fork_main(argv, log_path, fault=None):
             sys.stderr = open(2, "w", buffering=1, closefd=False)
             if fault is not None:
                 fault()
-            from rig.cli import main
+            from nmsid.cli import main
             code = main([str(a) for a in argv])
         except BaseException:
             import traceback
@@ -95,9 +95,9 @@ def test_reader_across_trial_ends_and_second_writers_refused_during_a_realtime_r
         stdout=subprocess.PIPE, text=True)
     # second writers and a validate while the session runs: forked (no interpreter start
     # up to wait for, so they surely meet the live writer), real processes all the same
-    import rig.cli  # noqa: F401
-    import rig.run_command  # noqa: F401
-    import rig.validate_command  # noqa: F401
+    import nmsid.cli  # noqa: F401
+    import nmsid.cli.run_command  # noqa: F401
+    import nmsid.cli.validate_command  # noqa: F401
     others = {name: (_fork_main(argv, tmp_path / f"{name}.txt"), tmp_path / f"{name}.txt")
               for name, argv in (("recover", ["recover", out]),
                                  ("resume", ["run", "--backend", "sim", "--resume", out,
@@ -156,16 +156,16 @@ def test_sigkill_at_a_chosen_moment_loses_nothing_and_leaves_no_temp_file(tmp_pa
     out = tmp_path / "k.h5"
     argv = ["run", "--backend", "sim", "--config", cfg, "--out", out, "--no-identify"]
     if moment == "calibration":  # calibration journaled, file not yet published
-        fault = _fault_in("rig.session_log", "create_from_header")
+        fault = _fault_in("nmsid.rig.session_log", "create_from_header")
     elif moment == "end of session":  # journal renamed to .done-PID, not yet removed
-        fault = _fault_in("rig.session_log", "shutil.rmtree")
+        fault = _fault_in("nmsid.rig.session_log", "shutil.rmtree")
     else:  # the first trial journaled, not yet in the file: recover must append it
-        fault = _fault_in("protocols.session_writer", "SessionWriter.append_trials")
+        fault = _fault_in("nmsid.protocols.session_writer", "SessionWriter.append_trials")
     code, signalled = _wait(_fork_main(argv, tmp_path / "run.txt", fault))
     assert signalled, (tmp_path / "run.txt").read_text()
     if moment == "recover publish":  # SIGKILL recover as it renames its first file
         code, signalled = _wait(_fork_main(["recover", out], tmp_path / "rec.txt",
-                                           _fault_in("protocols.session_publish",
+                                           _fault_in("nmsid.protocols.session_publish",
                                                      "os.replace")))
         assert signalled, (tmp_path / "rec.txt").read_text()
     code, signalled = _wait(_fork_main(["recover", out], tmp_path / "rec2.txt"))
@@ -214,9 +214,9 @@ def _fill(folder: Path, leave_bytes: int) -> Path:
 def test_disk_filled_mid_session_at_ten_sizes(tmp_path, small_fs):
     cfg = _config(tmp_path, levels=(0.4, 0.6, 0.8), repeats=2, steady_s=0.25, chirp_s=0.5,
                   rest_s=0.0)
-    import rig.cli  # noqa: F401 (imported once; the forked children share it)
-    import rig.engine  # noqa: F401
-    import sim_backends.rig  # noqa: F401
+    import nmsid.cli  # noqa: F401 (imported once; the forked children share it)
+    import nmsid.rig.engine  # noqa: F401
+    import nmsid.sim_backends.rig  # noqa: F401
     outcomes = []
     for k, leave in enumerate(LEAVE_FREE_BYTES):
         folder = small_fs / f"s{k}"

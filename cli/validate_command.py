@@ -1,9 +1,9 @@
-"""The handler of ``nmsid validate`` (registered by :mod:`rig.cli_validate`)."""
+"""The handler of ``nmsid validate`` (registered by :mod:`nmsid.cli.validate`)."""
 
 from __future__ import annotations
 
-from protocols.session_file import read_session, validate_session
-from protocols.session_lock import live_writer
+from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.protocols.session_lock import live_writer
 
 
 def run(args) -> int:
