@@ -2,19 +2,39 @@
 
 from __future__ import annotations
 
-from nmsid.protocols.session_file import validate_session
+from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.protocols.session_lock import live_writer
 
 
 def run(args) -> int:
-    """Print every contract violation of each file; exit 1 if any file is invalid."""
+    """Print every contract violation of each file; exit 1 if any file is invalid.
+
+    A file that a run is writing now is checked as published so far (the writer
+    publishes whole new versions atomically, so that is a consistent snapshot) and the
+    output says so, naming the writer.
+    """
     bad = 0
     for path in args.files:
         problems = validate_session(path)
+        writer = live_writer(path)
+        live = ""
+        if writer is not None:
+            live = f" (live session: written now by {writer.describe()}; checked as published " \
+                   "so far)"
         if problems:
             bad += 1
-            print(f"{path}: INVALID ({len(problems)} problem(s))")
+            print(f"{path}: INVALID ({len(problems)} problem(s)){live}")
             for p in problems:
                 print(f"  - {p}")
         else:
-            print(f"{path}: valid nmsid session file (format version 1)")
+            n = _n_trials(path)
+            print(f"{path}: valid nmsid session file (format version 1){live}"
+                  + (f"; {n} trial(s) so far" if live and n is not None else ""))
     return 1 if bad else 0
+
+
+def _n_trials(path) -> int | None:
+    try:
+        return len(read_session(path, load_data=False).trials)
+    except (ValueError, OSError):
+        return None

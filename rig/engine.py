@@ -35,8 +35,9 @@ from nmsid.rig.engine_calibration import CalibrationSteps
 from nmsid.rig.observer import (RERUN_WAIT_PREFIX, EngineObserver, RunSummary, TripPolicy,
                                 is_rerun_wait, rerun_wait_reason)
 from nmsid.rig.safety import Interlock, InterlockTripped, Trip, check_waveform
-from nmsid.protocols.session_file import Calibration, SessionExistsError, Trial, utc_now
-from nmsid.rig.session_log import SessionLog, journal_dir, load_trial_npz, utc_now_ms
+from nmsid.protocols.session_file import Calibration, Trial, utc_now
+from nmsid.rig.session_log import (SessionLog, check_new_session_path, expected_session_bytes,
+                                   journal_dir, load_trial_npz, utc_now_ms)
 from nmsid.rig.states import State, StateMachine
 from nmsid.rig.stimulation import BlockResult, run_block
 
@@ -131,8 +132,7 @@ class Engine(CalibrationSteps, DeviceRecovery):
         else:
             if config is None:
                 raise ValueError("Engine needs a configuration for a new session")
-            if self.path.exists() or journal_dir(self.path).exists():
-                raise SessionExistsError(self.path)
+            check_new_session_path(self.path)  # names a live writer of that session
             seed = config.seed if config.seed is not None else secrets.randbelow(2 ** 31)
             self.config = config.replace(seed=seed) if config.seed is None else config
             self.seed = seed
@@ -387,6 +387,9 @@ class Engine(CalibrationSteps, DeviceRecovery):
                 self.path, participant=cfg.participant, config_json=cfg.to_json(),
                 seed=self.seed, backend=self.devices.backend,
                 schedule_json=schedule_to_json(self.schedule), extra_attrs=self.extra_attrs)
+        n_left = sum(1 for t in self.schedule if t.status is not TrialStatus.DONE)
+        self._log.check_space(expected_session_bytes(  # before calibration: one line
+            n_left, p.n_samples, self.path.stat().st_size if self.path.exists() else 0))
         for utc, kind, detail in self._pending_events:
             self._log.event(kind, detail, utc=utc)
         self._pending_events.clear()
@@ -610,9 +613,9 @@ class Engine(CalibrationSteps, DeviceRecovery):
         self._sm.to(State.STIMULATING, f"trial {planned.index}")
         rE, Ie, If = wf.rE, checked.I_ext_mA, checked.I_flex_mA
 
-        def on_samples(lo, hi, force_seg):
+        def on_samples(lo, hi, force_seg, wrench_seg=None, sync_seg=None):
             self._log.append_chunk(force_N=force_seg, rE=rE[lo:hi], I_ext_mA=Ie[lo:hi],
-                                   I_flex_mA=If[lo:hi])
+                                   I_flex_mA=If[lo:hi], wrench=wrench_seg, sync=sync_seg)
             self._notify("on_chunk", planned.index, lo, force_seg, rE[lo:hi], Ie[lo:hi],
                          If[lo:hi])
 

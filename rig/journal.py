@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as _dt
+import errno
 import json
 import os
 import re
+import zipfile
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,7 +21,9 @@ from typing import Any
 
 import numpy as np
 
+from nmsid.protocols.errors import DiskFullError, SessionWriteError
 from nmsid.protocols.session_file import Calibration, Event, SessionFileError, Trial
+from nmsid.protocols.session_publish import free_bytes, fsync_dir  # noqa: F401 (re-export)
 
 PARTIAL_ABORT_REASON = "process ended during trial"
 _TRIAL_FILE = re.compile(r"^trial-(\d{4,})\.npz$")
@@ -42,28 +46,51 @@ def journal_dir(path: str | os.PathLike) -> Path:
 
 
 # -- durable small writes ----------------------------------------------------------------
-def fsync_dir(d: Path) -> None:
-    """Make a rename inside ``d`` durable (fsync of the folder; best effort)."""
-    try:
-        fd = os.open(d, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
+class JournalEntryError(SessionFileError):
+    """One journal file cannot be read (truncated by a kill, damaged on disk)."""
+
+
+def disk_error(path: Path, exc: OSError, need_bytes: int = 0,
+               doing: str = "") -> SessionFileError:
+    """The one-line error for a refused write of ``path``: a full disk names the folder,
+    the need and the free space."""
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        try:
+            free = free_bytes(path.parent)
+        except OSError:
+            free = 0
+        return DiskFullError(path, max(need_bytes, free + 1), free,
+                             doing or f"writing {path.name}")
+    return SessionWriteError(path, f"cannot be written ({exc.strerror or exc})")
 
 
 def write_durable(target: Path, write) -> None:
-    """Write via ``write(fileobj)`` to a temp file, fsync, rename onto ``target``."""
+    """Write via ``write(fileobj)`` to a temp file, fsync, rename onto ``target``.
+
+    Raises
+    ------
+    DiskFullError, SessionWriteError
+        If the system refuses the write (the temp file is removed, ``target`` unchanged).
+    """
     tmp = target.with_name(target.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        write(fh)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, target)
+    try:
+        with open(tmp, "wb") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, target)
+    except OSError as exc:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise disk_error(target, exc) from None
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
     fsync_dir(target.parent)
 
 
@@ -96,14 +123,43 @@ def save_trial_npz(target: Path, trial: Trial) -> None:
     write_durable(target, lambda fh: np.savez(fh, __meta__=meta, **arrays))
 
 
+_NPZ_ERRORS = (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile,
+               zlib.error)
+"""What reading a truncated or damaged ``.npz`` raises (BadZipFile, a short read, a bad
+JSON or a missing member)."""
+
+
 def load_trial_npz(path: Path) -> Trial:
-    """Read a trial written by :func:`save_trial_npz`."""
-    with np.load(path, allow_pickle=False) as z:
-        meta = json.loads(str(z["__meta__"]))
-        arrays = {k: np.array(z[k]) for k in z.files if k != "__meta__"}
-    kw = {k: v for k, v in meta.items() if k in _TRIAL_META_FIELDS}
-    return Trial(**kw, **{k: arrays.get(k) for k in ("rE", "I_ext_mA", "I_flex_mA",
-                                                       "force_N", "wrench", "sync")})
+    """Read a trial written by :func:`save_trial_npz`.
+
+    Raises
+    ------
+    JournalEntryError
+        If the file is truncated or damaged (names the file).
+    """
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["__meta__"]))
+            arrays = {k: np.array(z[k]) for k in z.files if k != "__meta__"}
+        kw = {k: v for k, v in meta.items() if k in _TRIAL_META_FIELDS}
+        return Trial(**kw, **{k: arrays.get(k) for k in ("rE", "I_ext_mA", "I_flex_mA",
+                                                           "force_N", "wrench", "sync")})
+    except _NPZ_ERRORS as exc:
+        raise JournalEntryError(path, f"journal entry unreadable ({type(exc).__name__}: "
+                                      f"{exc})") from None
+
+
+def load_trial_meta(path: Path) -> dict[str, Any]:
+    """Only the metadata of a journaled trial (raises :class:`JournalEntryError`)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["__meta__"]))
+        if not isinstance(meta, dict):
+            raise TypeError("metadata is not an object")
+        return meta
+    except _NPZ_ERRORS as exc:
+        raise JournalEntryError(path, f"journal entry unreadable ({type(exc).__name__}: "
+                                      f"{exc})") from None
 
 
 def save_calibration(target: Path, cal: Calibration) -> None:
@@ -115,10 +171,15 @@ def save_calibration(target: Path, cal: Calibration) -> None:
 
 def load_calibration(path: Path) -> Calibration:
     """Read a calibration written by :func:`save_calibration`."""
-    with np.load(path, allow_pickle=False) as z:
-        meta = json.loads(str(z["__meta__"]))
-        ramps = {k[len("ramp__"):]: np.array(z[k]) for k in z.files if k.startswith("ramp__")}
-    return Calibration(**meta, ramps=ramps)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["__meta__"]))
+            ramps = {k[len("ramp__"):]: np.array(z[k]) for k in z.files
+                     if k.startswith("ramp__")}
+        return Calibration(**{k: float(meta[k]) for k in _CAL_FIELDS}, ramps=ramps)
+    except _NPZ_ERRORS as exc:
+        raise JournalEntryError(path, f"journal calibration unreadable ({type(exc).__name__}:"
+                                      f" {exc})") from None
 
 
 # -- the journal ---------------------------------------------------------------------
@@ -132,13 +193,11 @@ class JournalContents:
     trial_files: list[Path]
     partial_meta: dict[str, Any] | None = None
     partial_path: Path | None = None
+    calibration_error: str = ""
+    """Why ``calibration.npz`` could not be read (empty if it was, or is absent)."""
 
     def trial_metas(self) -> list[dict[str, Any]]:
-        out = []
-        for p in self.trial_files:
-            with np.load(p, allow_pickle=False) as z:
-                out.append(json.loads(str(z["__meta__"])))
-        return out
+        return [load_trial_meta(p) for p in self.trial_files]
 
 
 def read_journal(jdir: Path) -> JournalContents:
@@ -155,8 +214,12 @@ def read_journal(jdir: Path) -> JournalContents:
     except (OSError, json.JSONDecodeError) as exc:
         raise SessionFileError(jdir, f"journal header unreadable ({exc})") from None
     cal = None
+    cal_error = ""
     if (jdir / "calibration.npz").exists():
-        cal = load_calibration(jdir / "calibration.npz")
+        try:
+            cal = load_calibration(jdir / "calibration.npz")
+        except JournalEntryError as exc:
+            cal_error = exc.problem
     events = []
     ev_path = jdir / "events.jsonl"
     if ev_path.exists():
@@ -178,8 +241,12 @@ def read_journal(jdir: Path) -> JournalContents:
             pmeta = json.loads((jdir / "partial.json").read_text(encoding="utf-8"))
         except (OSError, json.JSONDecodeError):
             pmeta = None
+    if pmeta is not None and not (isinstance(pmeta, dict) and isinstance(
+            pmeta.get("columns"), list) and set(PARTIAL_COLUMNS) <= set(pmeta["columns"])):
+        pmeta = None  # metadata torn or from another version: nothing usable to stream into
     return JournalContents(header, cal, events, files, pmeta,
-                           jdir / "partial.f64" if pmeta is not None else None)
+                           jdir / "partial.f64" if pmeta is not None else None,
+                           calibration_error=cal_error)
 
 
 def partial_trial(jc: JournalContents) -> Trial:

@@ -36,15 +36,21 @@ from pathlib import Path
 
 import numpy as np
 
-from nmsid.rig.journal import (PARTIAL_ABORT_REASON, PARTIAL_COLUMNS, JournalContents,  # noqa: F401
-                               trial_digest, fsync_dir, json_default, save_calibration,
-                               save_trial_npz, write_durable, journal_dir, load_trial_npz,
-                               read_journal, trial_meta, utc_now_ms)
-from nmsid.rig.recovery import (RecoveryReport, create_from_header, read_fully,  # noqa: F401
-                                unique_aside, recover)
+from nmsid.protocols.errors import DiskFullError, SessionLockedError
 from nmsid.protocols.session_file import (Calibration, Event, SessionExistsError, SessionFileError,
                                           SessionWriter, Trial, read_session, software_id, utc_now,
                                           validate_session)
+from nmsid.protocols.session_lock import SessionLock, live_writer
+from nmsid.protocols.session_model import PARTICIPANT_PATTERN
+from nmsid.protocols.session_writer import check_seed
+from nmsid.protocols.session_publish import SPACE_MARGIN_BYTES, free_bytes
+# re-exported names (callers import them from here)
+from nmsid.rig.journal import (PARTIAL_ABORT_REASON, PARTIAL_COLUMNS, JournalContents,  # noqa: F401
+                               disk_error, trial_digest, fsync_dir, json_default, save_calibration,
+                               save_trial_npz, write_durable, journal_dir, load_trial_npz,
+                               read_journal, trial_meta, utc_now_ms)
+from nmsid.rig.recovery import (RecoveryReport, create_from_header, read_fully,  # noqa: F401
+                                remove_leftovers, unique_aside, recover)
 
 log = logging.getLogger(__name__)
 
@@ -56,8 +62,11 @@ class SessionLog:
     """
 
     def __init__(self, path: Path, header: dict, *, calibration: Calibration | None = None,
-                 events: list[Event] | None = None, trials: list[dict] | None = None):
+                 events: list[Event] | None = None, trials: list[dict] | None = None,
+                 lock: SessionLock | None = None):
         self.path = Path(path)
+        self.lock = lock
+        """The session's writer lock (held until :meth:`close` / :meth:`finish`)."""
         self.jdir = journal_dir(self.path)
         self.header = header
         self.calibration = calibration
@@ -72,6 +81,8 @@ class SessionLog:
         self._ev_fh = open(self.jdir / "events.jsonl", "a", encoding="utf-8")
         self._partial_fd: int | None = None
         self._partial_cols: tuple[str, ...] = ()
+        self._partial_meta: dict = {}
+        self._partial_rows = 0
 
     # -- opening -------------------------------------------------------------------
     @classmethod
@@ -79,14 +90,31 @@ class SessionLog:
                seed: int | None, backend: str, schedule_json: str,
                created_utc: str | None = None, extra_attrs: dict | None = None
                ) -> SessionLog:
-        """Start a new session at ``path`` (refused if the file or its journal exists)."""
+        """Start a new session at ``path`` (refused if the file or its journal exists, or
+        another process writes it)."""
         path = Path(path)
-        jdir = journal_dir(path)
-        if path.exists():
-            raise SessionExistsError(path)
-        if jdir.exists():
-            raise SessionExistsError(jdir)
+        check_seed(path, seed)  # the file stores it as int64: refuse now, not after calibration
+        if not PARTICIPANT_PATTERN.match(participant or ""):
+            raise SessionFileError(path, f"participant code {participant!r} is not valid: "
+                                         "use 1 to 64 letters, digits, '_' or '-'")
+        check_new_session_path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
+        lock = SessionLock.acquire(path, "nmsid run")
+        try:
+            check_new_session_path(path)
+            remove_leftovers(path)
+            return cls._create_locked(path, lock, participant=participant,
+                                      config_json=config_json, seed=seed, backend=backend,
+                                      schedule_json=schedule_json, created_utc=created_utc,
+                                      extra_attrs=extra_attrs)
+        except BaseException:
+            lock.release()
+            raise
+
+    @classmethod
+    def _create_locked(cls, path: Path, lock: SessionLock, *, participant, config_json, seed,
+                       backend, schedule_json, created_utc, extra_attrs) -> SessionLog:
+        jdir = journal_dir(path)
         header = {"participant": participant, "created_utc": created_utc or utc_now(),
                   "software": software_id(), "config_json": config_json,
                   "seed": None if seed is None else int(seed), "backend": backend,
@@ -104,7 +132,7 @@ class SessionLog:
             raise SessionExistsError(jdir)
         os.rename(tmp, jdir)
         fsync_dir(jdir.parent)
-        return cls(path, header)
+        return cls(path, header, lock=lock)
 
     @classmethod
     def resume(cls, path: str | os.PathLike) -> tuple[SessionLog, RecoveryReport | None]:
@@ -116,35 +144,54 @@ class SessionLog:
         """
         path = Path(path)
         jdir = journal_dir(path)
-        report = None
-        if jdir.is_dir() and not (jdir / "header.json").exists():
-            os.rename(jdir, unique_aside(jdir, "headerless"))  # keep it, but aside
-        if jdir.is_dir():
-            report = recover(path)
-        elif path.exists():
-            _journal_from_file(path, jdir)
-        else:
-            raise SessionFileError(path, "no such file and no journal to resume from")
-        jc = read_journal(jdir)
-        return cls(path, jc.header, calibration=jc.calibration, events=jc.events,
-                   trials=jc.trial_metas()), report
+        lock = SessionLock.acquire(path, "nmsid run --resume")
+        try:
+            report = None
+            remove_leftovers(path)
+            if jdir.is_dir() and not (jdir / "header.json").exists():
+                os.rename(jdir, unique_aside(jdir, "headerless"))  # keep it, but aside
+            if jdir.is_dir():
+                report = recover(path)
+            elif path.exists():
+                _journal_from_file(path, jdir)
+            else:
+                raise SessionFileError(path, "no such file and no journal to resume from")
+            jc = read_journal(jdir)
+            if jc.calibration is None and jc.calibration_error:
+                raise SessionFileError(jdir, jc.calibration_error)
+            return cls(path, jc.header, calibration=jc.calibration, events=jc.events,
+                       trials=jc.trial_metas(), lock=lock), report
+        except BaseException:
+            lock.release()
+            raise
 
     # -- writing ---------------------------------------------------------------------
     def event(self, kind: str, detail: str = "", utc: str | None = None) -> Event:
         """Record an event: journal now; HDF5 with the next trial / calibration / flush."""
         ev = Event(utc or utc_now_ms(), str(kind), str(detail))
         self.events.append(ev)
-        self._ev_fh.write(json.dumps({"utc": ev.utc, "kind": ev.kind,
-                                      "detail": ev.detail}) + "\n")
-        self._ev_fh.flush()
+        try:
+            self._ev_fh.write(json.dumps({"utc": ev.utc, "kind": ev.kind,
+                                          "detail": ev.detail}) + "\n")
+            self._ev_fh.flush()
+        except OSError as exc:  # a full disk: the event stays in memory (and the log)
+            log.warning("%s: event %s not journaled (%s)", self.path, kind,
+                        exc.strerror or exc)
         return ev
 
     def flush_events(self) -> None:
         """Copy the events not yet in the HDF5 file to it (once the file exists)."""
         if self._writer is None or self._events_in_h5 >= len(self.events):
             return
-        self._writer.append_events(self.events[self._events_in_h5:])
+        try:
+            self._writer.append_events(self.events[self._events_in_h5:])
+        except DiskFullError as exc:  # the journal keeps them; recover puts them in
+            log.warning("%s", exc)
+            return
         self._events_in_h5 = len(self.events)
+
+    def _pending_events(self) -> list[Event]:
+        return self.events[self._events_in_h5:]
 
     def write_calibration(self, cal: Calibration) -> None:
         """Journal the calibration, then create the HDF5 file with it."""
@@ -156,8 +203,9 @@ class SessionLog:
         save_calibration(self.jdir / "calibration.npz", cal)
         self.calibration = cal
         self._writer = create_from_header(self.path, self.header)
-        self._writer.write_calibration(cal)
-        self.flush_events()
+        pending = self._pending_events()
+        self._writer.write_calibration(cal, events=pending)
+        self._events_in_h5 += len(pending)
 
     def begin_trial(self, meta: Trial, columns: tuple[str, ...] = PARTIAL_COLUMNS) -> None:
         """Start streaming the trial in progress to ``partial.f64``."""
@@ -170,19 +218,52 @@ class SessionLog:
         self._partial_cols = tuple(columns)
         self._partial_fd = os.open(self.jdir / "partial.f64",
                                    os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_APPEND, 0o644)
-        tmp = self.jdir / "partial.json.tmp"
-        tmp.write_text(json.dumps(pmeta), encoding="utf-8")
-        os.replace(tmp, self.jdir / "partial.json")  # atomic; no fsync: a kill keeps it
+        self._partial_meta = pmeta
+        self._partial_rows = 0
+        self._write_partial_meta()
 
-    def append_chunk(self, **columns: np.ndarray) -> None:
-        """Append samples of the trial in progress (one write, whole rows)."""
+    def _write_partial_meta(self) -> None:
+        tmp = self.jdir / "partial.json.tmp"
+        try:
+            tmp.write_text(json.dumps(self._partial_meta), encoding="utf-8")
+            os.replace(tmp, self.jdir / "partial.json")  # atomic; no fsync: a kill keeps it
+        except OSError as exc:
+            tmp.unlink(missing_ok=True)
+            raise disk_error(self.jdir / "partial.json", exc) from None
+
+    def append_chunk(self, *, wrench: np.ndarray | None = None,
+                     sync: np.ndarray | None = None, **columns: np.ndarray) -> None:
+        """Append samples of the trial in progress (one write, whole rows).
+
+        ``wrench`` (n x 6) and ``sync`` (n), when the acquisition records them, are
+        streamed too (from the first chunk on), so a trial kept by ``recover`` carries
+        them as the contract lists them.
+        """
         if self._partial_fd is None:
             return
+        if wrench is not None:
+            w = np.asarray(wrench, dtype=np.float64).reshape(-1, 6)
+            columns.update({f"wrench{k}": w[:, k] for k in range(6)})
+        if sync is not None:
+            columns["sync"] = np.asarray(sync, dtype=np.float64).reshape(-1)
+        if self._partial_rows == 0 and set(columns) - set(self._partial_cols):
+            # the first chunk says which signals this rig records: name them before the
+            # first row is written (the stream is still empty)
+            self._partial_cols = tuple(self._partial_cols) + tuple(
+                sorted(set(columns) - set(self._partial_cols)))
+            self._partial_meta["columns"] = list(self._partial_cols)
+            self._write_partial_meta()
         first = columns[self._partial_cols[0]]
-        rows = np.empty((len(first), len(self._partial_cols)), dtype=np.float64)
+        rows = np.full((len(first), len(self._partial_cols)), np.nan, dtype=np.float64)
         for j, c in enumerate(self._partial_cols):
-            rows[:, j] = columns[c]
-        os.write(self._partial_fd, rows.data)
+            if c in columns:
+                rows[:, j] = columns[c]
+        try:
+            os.write(self._partial_fd, rows.data)
+        except OSError as exc:
+            raise disk_error(self.jdir / "partial.f64", exc, rows.nbytes,
+                             "streaming the trial in progress") from None
+        self._partial_rows += len(rows)
 
     def _close_partial(self) -> None:
         if self._partial_fd is not None:
@@ -204,8 +285,9 @@ class SessionLog:
         # recovery ignores; the next begin_trial reuses them
         self.trials.append(trial_meta(trial))
         self._digests.append(trial_digest(trial))
-        name = self._writer.append_trial(trial)
-        self.flush_events()
+        pending = self._pending_events()
+        name = self._writer.append_trial(trial, events=pending)
+        self._events_in_h5 += len(pending)
         return name
 
     def discard_partial(self) -> None:
@@ -225,7 +307,13 @@ class SessionLog:
         journaled trial); otherwise the journal is kept for ``nmsid recover``.
         """
         self.flush_events()
-        self.close()
+        try:
+            return self._finish()
+        finally:
+            self.release()
+
+    def _finish(self) -> bool:
+        self.close(release=False)
         if self._writer is None:
             return False
         s, problems = read_fully(self.path)
@@ -236,7 +324,8 @@ class SessionLog:
         files = read_journal(self.jdir).trial_files
         digests = list(self._digests)
         if len(digests) < len(files):  # trials journaled before this process (resume)
-            digests = [trial_digest(load_trial_npz(p)) for p in files[:len(files) - len(digests)]] \
+            digests = [trial_digest(load_trial_npz(p))
+                       for p in files[:len(files) - len(digests)]] \
                 + digests
         if len(s.trials) != len(files) or [trial_digest(t) for t in s.trials] != digests:
             log.error("%s: file and journal differ (%d / %d trials); journal kept", self.path,
@@ -248,8 +337,31 @@ class SessionLog:
         shutil.rmtree(gone, ignore_errors=True)
         return True
 
-    def close(self) -> None:
+    def check_space(self, need_bytes: int) -> None:
+        """Refuse to start (before calibration) unless the folder holds ``need_bytes``
+        plus the margin: the protocol's file, its journal and one temp version.
+
+        Raises
+        ------
+        DiskFullError
+            Naming the folder, the need and the free space.
+        """
+        need = int(need_bytes) + SPACE_MARGIN_BYTES
+        free = free_bytes(self.path.parent)
+        if free < need:
+            raise DiskFullError(self.path, need, free, "the session (file, journal and a "
+                                "temporary copy, with a 20 % margin)")
+
+    def release(self) -> None:
+        """Give up the writer lock (after the last write)."""
+        if self.lock is not None:
+            self.lock.release()
+            self.lock = None
+
+    def close(self, release: bool = True) -> None:
         self._close_partial()
+        if release:
+            self.release()
         if not self._ev_fh.closed:
             try:
                 self._ev_fh.flush()
@@ -257,6 +369,27 @@ class SessionLog:
             except OSError:
                 pass
             self._ev_fh.close()
+
+
+def expected_session_bytes(n_trials: int, samples_per_trial: int, file_bytes: int = 0,
+                           n_columns: int = 11) -> int:
+    """Disk space a session needs, with a 20 % margin: each trial once in the journal
+    (``.npz``, float64) and once in the file (stored plain at worst), plus one temporary
+    copy of the whole file while a new version is published; ``n_columns``: rE, two
+    currents, force, a 6-axis wrench and sync."""
+    trial = 8 * int(samples_per_trial) * int(n_columns) + 64 * 1024
+    return int(1.2 * (int(n_trials) * trial * 3 + 2 * int(file_bytes))) + (4 << 20)
+
+
+def check_new_session_path(path: Path) -> None:
+    """Refuse a new session where a file or journal exists, naming a live writer."""
+    writer = live_writer(path)
+    if writer is not None and writer.pid != os.getpid():
+        raise SessionLockedError(path, writer.describe())
+    if os.path.lexists(path):
+        raise SessionExistsError(path)
+    if os.path.lexists(journal_dir(path)):
+        raise SessionExistsError(journal_dir(path))
 
 
 def _journal_from_file(path: Path, jdir: Path) -> None:

@@ -44,7 +44,7 @@ def _reason(trip) -> str:
 
 
 def run_block(devices, interlock: Interlock, checked, n: int, *,
-              on_samples: Callable[[int, int, np.ndarray], None] | None = None,
+              on_samples: Callable[..., None] | None = None,
               should_stop: Callable[[], str] | None = None) -> BlockResult:
     """Stimulate ``checked`` and record ``n`` samples of force.
 
@@ -55,8 +55,9 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
     checked : drivers.interfaces.CheckedWaveform
     n : int
         Samples to record (the waveform's length).
-    on_samples : callable(lo, hi, force_N), optional
-        Called with each new run of samples ``[lo, hi)``.
+    on_samples : callable(lo, hi, force_N, wrench, sync), optional
+        Called with each new run of samples ``[lo, hi)``; ``wrench`` (rows of 6) and
+        ``sync`` are None when the acquisition does not record them.
     should_stop : callable() -> str, optional
         Asked after every chunk; a non-empty answer stops the block with that reason.
 
@@ -118,7 +119,9 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
                         force[received:lo] = np.nan
                     received = hi
                     if on_samples is not None:
-                        on_samples(lo, hi, force[lo:hi])
+                        on_samples(lo, hi, force[lo:hi],
+                                   None if wrench is None else wrench[lo:hi],
+                                   None if sync is None else sync[lo:hi])
                 if trip is not None:
                     reason = _reason(trip)
                     break

@@ -119,7 +119,8 @@ def test_ctrl_c_is_an_estop_and_leaves_a_valid_file(tmp_path):
     t0 = time.monotonic()
     # wait until the first trial has streamed a few chunks (real time), then press Ctrl+C
     while proc.poll() is None and time.monotonic() - t0 < 60 and not (
-            stream.exists() and stream.stat().st_size >= 32 * 400):
+            # 11 float64 columns a row: rE, two currents, force, the 6-axis wrench, sync
+            stream.exists() and stream.stat().st_size >= 8 * 11 * 400):
         time.sleep(0.01)
     proc.send_signal(signal.SIGINT)
     text = proc.communicate(timeout=60)[0].decode()

@@ -79,6 +79,10 @@ def _check_after_kill(path, printed):
         assert not printed
         return 0, False
     rep = recover(path)
+    marks = (".writing-", ".recovering-", ".journal.done-", ".journal.tmp-", ".lock")
+    left = [p.name for p in path.parent.iterdir()
+            if p.name.startswith(path.name) and any(m in p.name for m in marks)]
+    assert left == [], left  # no temp file, half-removed journal or lock left behind
     if rep.action == "no-calibration":
         assert not printed and not path.exists()
         return 0, False

@@ -1,0 +1,162 @@
+"""Reading session files: :func:`read_session`."""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nmsid.protocols.session_checks import value_problem, max_current_mA
+from nmsid.protocols.session_codec import counts_to_values
+from nmsid.protocols.session_lock import live_writer
+from nmsid.protocols.session_model import (CALIBRATION_ATTRS, OPTIONAL_SIGNALS, ROOT_ATTRS,
+                                           TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
+                                           TRIAL_STR_ATTRS, _DAMAGE_ERRORS, Calibration, Event,
+                                           Session, SessionFileError, Trial, _as_float, _as_str,
+                                           _h5py, _trial_names)
+from nmsid.protocols.session_validator import _problems
+
+log = logging.getLogger(__name__)
+
+
+class _open_read:
+    """``with _open_read(path) as f``: open read-only, turning h5py errors into a
+    :class:`SessionFileError` that names the file."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.f = None
+
+    def __enter__(self):
+        if not self.path.exists():
+            raise SessionFileError(self.path, "no such file")
+        try:
+            self.f = _h5py().File(self.path, "r")
+        except OSError as exc:
+            raise SessionFileError(
+                self.path, f"cannot be opened as HDF5 ({exc}); if a session was running "
+                "when the computer or program stopped, run `nmsid recover` on it") from None
+        return self.f
+
+    def __exit__(self, *exc):
+        if self.f is not None:
+            self.f.close()
+        return False
+
+
+# -- reading ----------------------------------------------------------------------
+def read_session(path: str | os.PathLike, *, load_data: bool = True,
+                 datasets: tuple[str, ...] | None = None) -> Session:
+    """Read a whole session file.
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.h5`` file.
+    load_data : bool
+        If False, trial datasets are left empty (fast listing of attributes).
+    datasets : tuple of str, optional
+        Read only these trial datasets (e.g. ``("rE", "force_N")``); the others are left
+        empty (``wrench`` / ``sync`` None). Default: all.
+
+    Raises
+    ------
+    SessionFileError
+        If the file is missing, not HDF5, or lacks a required item; the message names
+        the file and the item.
+    """
+    path = Path(path)
+    with _open_read(path) as f:
+        try:
+            problems = _problems(f, fatal_only=True)
+        except _DAMAGE_ERRORS as exc:
+            raise SessionFileError(path, f"damaged: an item cannot be read ({type(exc).__name__}"
+                                         f": {exc}); if it was being written when a program "
+                                         "stopped, run `nmsid recover` on it") from None
+        if problems:
+            raise SessionFileError(path, problems[0] + (
+                f" (and {len(problems) - 1} more problem(s); run `nmsid validate {path}`)"
+                if len(problems) > 1 else ""))
+        wanted = (set(TRIAL_DATASETS) | {"wrench", "sync"}) if datasets is None else set(datasets)
+        if not load_data:
+            wanted = set()
+        a = f.attrs
+        cal_g = f["calibration"]
+        try:
+            cal = Calibration(**{k: _as_float(cal_g.attrs[k]) for k in CALIBRATION_ATTRS},
+                              ramps={k: np.asarray(cal_g[k][()]) for k in cal_g
+                                     if isinstance(cal_g[k], _h5py().Dataset)}
+                              if load_data else {})
+            trials = [_read_trial(f["trials"][name], name, wanted)
+                      for name in _trial_names(f["trials"])]
+            events = _read_events(f["events"]) if "events" in f else []
+        except _DAMAGE_ERRORS as exc:
+            raise SessionFileError(path, f"damaged: data cannot be read ({type(exc).__name__}:"
+                                         f" {exc}); if it was being written when a program "
+                                         "stopped, run `nmsid recover` on it") from None
+        max_mA = max_current_mA(_as_str(a.get("config_json", "")))
+        for t in trials:
+            for key in (*TRIAL_DATASETS, *OPTIONAL_SIGNALS):
+                values = getattr(t, key)
+                problem = None if values is None else value_problem(key, values, max_mA)
+                if problem:
+                    raise SessionFileError(path, f"/trials/{t.name}/{key} {problem}")
+        writer = live_writer(path)
+        if writer is not None and writer.pid != os.getpid():
+            log.warning("%s: live session: written now by %s; read %d trial(s) so far",
+                        path, writer.describe(), len(trials))
+        known = set(ROOT_ATTRS) | {"config_json", "seed", "backend"}
+        seed = a.get("seed")
+        return Session(
+            path=str(path),
+            participant=_as_str(a["participant"]),
+            created_utc=_as_str(a["created_utc"]),
+            software=_as_str(a["software"]),
+            calibration=cal,
+            trials=trials,
+            events=events,
+            config_json=_as_str(a.get("config_json", "")),
+            seed=int(np.asarray(seed)) if seed is not None else None,
+            backend=_as_str(a.get("backend", "")),
+            attrs={k: a[k] for k in a if k not in known},
+        )
+
+
+def _read_trial(g, name: str, wanted: set[str]) -> Trial:
+    a = g.attrs
+    kw: dict[str, Any] = {k: _as_float(a[k]) for k in TRIAL_FLOAT_ATTRS}
+    kw.update({k: _as_str(a[k]) for k in TRIAL_STR_ATTRS})
+    kw["repeat"] = int(np.asarray(a["repeat"]))
+    for key in TRIAL_DATASETS:
+        kw[key] = (np.asarray(g[key][()], dtype=np.float64) if key in wanted
+                   else np.empty(0))
+    for key in OPTIONAL_SIGNALS:
+        kw[key] = _read_signal(g[key]) if key in wanted and key in g else None
+    known = set(TRIAL_FLOAT_ATTRS) | set(TRIAL_STR_ATTRS) | {"repeat"}
+    extra = {k: (_as_str(a[k]) if isinstance(a[k], (str, bytes)) else a[k])
+             for k in a if k not in known}
+    return Trial(name=name, extra_attrs=extra, **kw)
+
+
+def _read_signal(d) -> np.ndarray:
+    """An optional signal as float64: stored counts (an integer dataset with ``scale`` /
+    ``offset``) rebuilt by :func:`counts_to_values`, float32 / float64 widened."""
+    data = d[()]
+    if np.issubdtype(d.dtype, np.integer) and "scale" in d.attrs:
+        return counts_to_values(data, d.attrs["scale"], d.attrs.get("offset", 0.0))
+    return np.asarray(data, dtype=np.float64)
+
+
+def _read_events(g) -> list[Event]:
+    out = []
+    for key in sorted(g):
+        e = g[key]
+        if isinstance(e, _h5py().Group):
+            out.append(Event(_as_str(e.attrs.get("utc", "")), _as_str(e.attrs.get("kind", "")),
+                             _as_str(e.attrs.get("detail", ""))))
+    return out
+
+
