@@ -8,6 +8,7 @@ from analysis.design.api import run_design
 from analysis.design.errors import DesignError
 from analysis.design.prior import (adequacy_from_parameters, population_prior,
                                    scatter_from_parameters, twin_prior)
+from protocols.output_paths import check_output, output_dir
 
 
 def run(args: argparse.Namespace) -> int:
@@ -21,6 +22,7 @@ def run(args: argparse.Namespace) -> int:
         raise DesignError(f"--tolerance {args.tolerance:g}: a fraction in [0, 1)")
     if not 0 <= args.min_steady_s <= 60:
         raise DesignError(f"--min-steady-s {args.min_steady_s:g}: seconds in [0, 60]")
+    check_output(args.out, force=args.force, kind="folder")  # before the search
     if args.twin:
         prior = twin_prior(args.twin, args.noise_N)
     else:
@@ -42,11 +44,12 @@ def run(args: argparse.Namespace) -> int:
         print(note)
     elif args.excitation == "free":
         note = "searched as asked (--excitation free)"
-    doc = run_design(prior, args.target, args.out, validate_n=args.validate,
-                     scatter=scatter, tolerance=args.tolerance,
-                     min_steady_s=args.min_steady_s, seed=args.seed, twin_path=args.twin,
-                     population_seed=args.seed, keep_paper_excitation=keep,
-                     excitation_note=note)
+    with output_dir(args.out, force=args.force) as tmp:
+        doc = run_design(prior, args.target, tmp, validate_n=args.validate,
+                         scatter=scatter, tolerance=args.tolerance,
+                         min_steady_s=args.min_steady_s, seed=args.seed, twin_path=args.twin,
+                         population_seed=args.seed, keep_paper_excitation=keep,
+                         excitation_note=note)
     v = doc["validated_sd_ratio"]
     print(f"{args.out}/protocol.toml: {doc['protocol_description']}")
     print(f"stimulation {doc['stimulation_s']:g} s = {100 * doc['stimulation_fraction']:.0f} % "

@@ -22,3 +22,8 @@ class TwinFileError(ValueError):
         self.path = str(path)
         self.problem = problem
         super().__init__(f"{self.path}: {problem}")
+
+
+class SimulateOptionError(SettingError):
+    """An option of ``nmsid twin simulate`` is out of its bounds (message names the
+    option, the value and the valid range)."""

@@ -5,14 +5,17 @@ from __future__ import annotations
 import argparse
 
 from analysis.gap.api import GapSettings, run_gap
+from protocols.output_paths import output_dir
 
 
 def run(args: argparse.Namespace) -> int:
     """Handler of ``nmsid gap``."""
     settings = GapSettings(ic_margin=args.ic_margin, min_shrink_pct=args.min_shrink_pct,
                            try_pairs=not args.no_pairs)
-    summary = run_gap(args.sessions, args.out, settings=settings, twin=args.twin,
-                      sim_session=args.sim_session, plots=not args.no_figures)
+    with output_dir(args.out, force=args.force) as tmp:
+        summary = run_gap(args.sessions, tmp, settings=settings, twin=args.twin,
+                          sim_session=args.sim_session, plots=not args.no_figures)
+    summary["report"] = str(summary["report"]).replace(str(tmp), str(args.out))
     for s in summary["sessions"]:
         h = s["heldout"]
         print(f"{s['session']}: verdict = {s['verdict']}, best_effect = {s['best_effect']}"

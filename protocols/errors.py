@@ -33,3 +33,8 @@ class CalibrationError(ValueError):
 
 class ScheduleError(ValueError):
     """A schedule cannot be built from the given levels / repeats / randomisation."""
+
+
+class OutputPathError(ValueError):
+    """An output path (``--out``) is refused: it exists (without ``--force``), is a
+    session file, a dangling link or cannot be written. Raised before any work."""

@@ -17,6 +17,8 @@ from pathlib import Path
 from analysis.run import run_identification, summary_line
 from drivers.hardware import make_hw_rig
 from protocols.config import config_from_json, load_config
+from protocols.errors import OutputPathError
+from protocols.output_paths import check_output, output_dir
 from protocols.session_file import read_session, validate_session
 from rig.engine import Engine, TripPolicy
 from rig.session_log import journal_dir, recover
@@ -59,6 +61,12 @@ def run(args) -> int:
             config = config.with_protocol(rest_s=0.0)
         path = Path(args.out) if args.out else _free_path(Path(args.outdir or "sessions"),
                                                           config.participant)
+        # a taken, dangling or unwritable --out is refused before any device is touched
+        check_output(path, kind="file", option="--out" if args.out else "--outdir")
+        if journal_dir(path).exists():
+            raise OutputPathError(f"{path}: a journal of an unfinished session "
+                                  f"({journal_dir(path)}) is here; continue it with "
+                                  f"--resume {path}, or give another --out")
     stored = _stored_attrs(path) if args.resume else {}
     sim_seed = None
     if args.backend == "sim":
@@ -172,9 +180,12 @@ def _seed_from_code(code: str) -> int:
 
 
 def _identify(path) -> None:
-    """Run the identification on the new file into ``<file stem>-analysis/``."""
-    out = path.with_name(path.stem + "-analysis")
-    outputs = run_identification([path], out)
+    """Run the identification on the new file into ``<file stem>-analysis/`` (or
+    ``-analysis-2``, ... if that exists: an earlier result is never replaced)."""
+    out = next(p for k in range(1, 10_000) if not (p := path.with_name(
+        path.stem + "-analysis" + (f"-{k}" if k > 1 else ""))).exists())
+    with output_dir(out) as tmp:
+        outputs = run_identification([path], tmp)
     if outputs.tables_text:
         print(outputs.tables_text, flush=True)
     print(summary_line(outputs), flush=True)
