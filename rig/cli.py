@@ -10,9 +10,12 @@ it runs. User mistakes (bad file, bad setting) end in one clear line and exit st
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import sys
+
+from protocols.printable import escape_controls
 
 #: Modules that each add one or more sub-commands.
 COMMAND_MODULES = (
@@ -29,6 +32,30 @@ COMMAND_MODULES = (
 )
 
 EXIT_USER_ERROR = 2
+
+
+class _EscapingStream:
+    """A text stream that writes control characters as visible escapes: names and notes
+    read from files never reach the terminal raw (:mod:`protocols.printable`)."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        return self._stream.write(escape_controls(text))
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+@contextlib.contextmanager
+def _escaped_output():
+    out, err = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = _EscapingStream(out), _EscapingStream(err)
+    try:
+        yield
+    finally:
+        sys.stdout, sys.stderr = out, err
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -70,7 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     module_name, func_name = handler.split(":")
     try:
         func = getattr(importlib.import_module(module_name), func_name)
-        result = func(args)
+        with _escaped_output():
+            result = func(args)
     except KeyboardInterrupt:
         print("nmsid: interrupted", file=sys.stderr)
         return 130
@@ -82,7 +110,9 @@ def main(argv: list[str] | None = None) -> int:
                   f"`nmsid {args.command}`; install nmsid with the matching extra, e.g. "
                   "pip install 'nmsid[gui,plot,serial]'", file=sys.stderr)
         else:
-            print(f"nmsid: error: {exc}", file=sys.stderr)
+            # one line: a newline inside a value read from a file is shown, not obeyed
+            print("nmsid: error: " + escape_controls(str(exc)).replace("\n", "\\n"),
+                  file=sys.stderr)
         return EXIT_USER_ERROR
     return int(result or 0)
 
