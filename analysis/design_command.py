@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 from analysis.design.api import run_design
 from analysis.design.errors import DesignError
@@ -11,13 +12,22 @@ from analysis.design.prior import (adequacy_from_parameters, population_prior,
 from protocols.output_paths import check_output, output_dir
 
 
+#: Largest --n-prior / --validate (each simulated participant costs a design evaluation).
+COUNT_MAX = 1000
+#: Largest --noise-N: a sensor noise RMS above 10 N would drown any wrist force.
+NOISE_MAX_N = 10.0
+
+
 def run(args: argparse.Namespace) -> int:
     """Handler of ``nmsid design``."""
-    for name in ("n_prior", "validate"):
+    for name, lo in (("n_prior", 1), ("validate", 0)):
         v = getattr(args, name)
-        if v < (1 if name == "n_prior" else 0):
-            raise DesignError(f"--{name.replace('_', '-')} {v}: give a whole number >= "
-                              f"{1 if name == 'n_prior' else 0}")
+        if not lo <= v <= COUNT_MAX:
+            raise DesignError(f"--{name.replace('_', '-')} {v}: give a whole number in "
+                              f"[{lo}, {COUNT_MAX}]")
+    if not (math.isfinite(args.noise_N) and 0 < args.noise_N <= NOISE_MAX_N):
+        raise DesignError(f"--noise-N {args.noise_N:g}: a sensor noise RMS in (0, "
+                          f"{NOISE_MAX_N:g}] N")
     if not 0 <= args.tolerance < 1:
         raise DesignError(f"--tolerance {args.tolerance:g}: a fraction in [0, 1)")
     if not 0 <= args.min_steady_s <= 60:

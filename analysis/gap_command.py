@@ -3,13 +3,21 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 from analysis.gap.api import GapSettings, run_gap
+from analysis.gap.errors import GapInputError
 from protocols.output_paths import output_dir
 
 
 def run(args: argparse.Namespace) -> int:
     """Handler of ``nmsid gap``."""
+    if not (math.isfinite(args.ic_margin) and 0 <= args.ic_margin <= 1000):
+        raise GapInputError(f"--ic-margin {args.ic_margin:g}: an information-criterion "
+                            "margin in [0, 1000] (default 10)")
+    if not (math.isfinite(args.min_shrink_pct) and 0 <= args.min_shrink_pct <= 100):
+        raise GapInputError(f"--min-shrink-pct {args.min_shrink_pct:g}: a percentage in "
+                            "[0, 100] (default 10)")
     settings = GapSettings(ic_margin=args.ic_margin, min_shrink_pct=args.min_shrink_pct,
                            try_pairs=not args.no_pairs)
     with output_dir(args.out, force=args.force) as tmp:

@@ -58,8 +58,17 @@ def _escaped_output():
         sys.stdout, sys.stderr = out, err
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose refusals are one line on stderr (exit 2), naming the
+    command and pointing at its --help, instead of argparse's usage block."""
+
+    def error(self, message: str):
+        text = escape_controls(message).replace("\n", "\\n")
+        self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {text} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _OneLineParser(
         prog="nmsid",
         description="FES neuromuscular-system identification: run sessions on a simulated "
                     "or real rig, identify the second-order model per sE, select models "

@@ -10,8 +10,8 @@ def _workers(text: str) -> int:
         n = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if n < 0:
-        raise argparse.ArgumentTypeError(f"--workers {n}: use 0 (serial) or more")
+    if not 0 <= n <= 256:
+        raise argparse.ArgumentTypeError(f"--workers {n}: use 0 (serial) to 256")
     return n
 
 
