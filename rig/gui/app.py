@@ -93,6 +93,8 @@ def run_gui(options: GuiOptions) -> int:
         runner = ScriptRunner(window, steps, screenshot=options.screenshot, parent=window)
 
         def done(ok: bool, message: str) -> None:
+            if result.get("signal"):  # the signal's own line says how it ended
+                return
             print(("nmsid gui: " if ok else "nmsid gui: error: ") + message,
                   file=sys.stdout if ok else sys.stderr)
             result["code"] = 0 if ok else 1
@@ -108,6 +110,7 @@ def run_gui(options: GuiOptions) -> int:
         # of the event loop (closing joins the engine thread, which writes the end record)
         controller = window.controller
         controller.estop(reason)
+        result["signal"] = signum
         if controller.engine is not None:
             controller.engine.abort(reason)
         QTimer.singleShot(0, lambda: (window.close(), app.quit()))
