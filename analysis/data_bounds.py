@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from analysis.errors import DataRangeError
+from nmsid.analysis.errors import DataRangeError
 
 #: Largest |force| in N accepted: two orders of magnitude above any force sensor an FES
 #: wrist rig carries (the Leptrino sensors' ranges are hundreds of N).

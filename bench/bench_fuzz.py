@@ -61,7 +61,7 @@ def run_one(argv: list[str], cwd: Path) -> dict:
     err_path = cwd / f"err-{os.getpid()}-{time.monotonic_ns()}.txt"
     with open(err_path, "w") as err:
         t0 = time.monotonic()
-        p = subprocess.Popen([sys.executable, "-m", "rig.cli", *argv], cwd=str(ROOT),
+        p = subprocess.Popen([sys.executable, "-m", "nmsid.cli", *argv], cwd=str(ROOT),
                              stdout=subprocess.DEVNULL, stderr=err, preexec_fn=_limit,
                              env=dict(os.environ, OPENBLAS_NUM_THREADS="1",
                                       NMSID_HW_FAKE="1"))

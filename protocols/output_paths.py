@@ -24,8 +24,8 @@ from pathlib import Path
 
 import h5py
 
-from protocols.errors import OutputPathError
-from protocols.session_file import FORMAT as SESSION_FORMAT
+from nmsid.protocols.errors import OutputPathError
+from nmsid.protocols.session_file import FORMAT as SESSION_FORMAT
 
 #: HDF5's format signature; it sits at byte 0, 512, 1024, 2048, ... of a file.
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"

@@ -1,7 +1,7 @@
 """Property-based fuzzing of the command line: every bad value ends in exit 2 and exactly
 one line on stderr, quickly.
 
-In-process (``rig.cli.main``) for speed; hypothesis draws the bad values (non-finite,
+In-process (``nmsid.cli.main``) for speed; hypothesis draws the bad values (non-finite,
 negative, huge, not a number, garbage paths) for every sub-command's numeric and path
 options. Each example has a deadline of a few seconds, so a value that hangs fails. A few
 real subprocesses check the same from outside.
@@ -20,7 +20,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from rig.cli import main
+from nmsid.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 FUZZ = settings(max_examples=25, deadline=5000, derandomize=True,
@@ -174,6 +174,6 @@ def test_real_subprocesses_refuse_in_one_line(files):
                   "--fs-Hz", "1e12", "--out", str(files["dir"] / "f.csv")],
                  ["run", "--seed", str(2 ** 63), "--out", str(files["dir"] / "r.h5")],
                  ["run", "--out", str(files["dangling"])]):
-        p = subprocess.run([sys.executable, "-m", "rig.cli", *argv], capture_output=True,
+        p = subprocess.run([sys.executable, "-m", "nmsid.cli", *argv], capture_output=True,
                            text=True, timeout=60, cwd=str(ROOT), env=env)
         assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1, (argv, p.stderr)

@@ -6,8 +6,8 @@ import csv
 import json
 from pathlib import Path
 
-from analysis.qc.decide import SessionQC
-from protocols.printable import escape_controls
+from nmsid.analysis.qc.decide import SessionQC
+from nmsid.protocols.printable import escape_controls
 
 QC_COLUMNS = ("participant", "trial", "sE", "repeat", "decision", "reasons", "spans",
               "level_flag")

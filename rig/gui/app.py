@@ -12,9 +12,9 @@ import pyqtgraph as pg
 from PySide6.QtCore import QTimer
 from PySide6.QtWidgets import QApplication
 
-from rig.gui.main_window import MainWindow
-from rig.gui.script import ScriptRunner, load_script
-from rig.session_signals import SessionSignals
+from nmsid.rig.gui.main_window import MainWindow
+from nmsid.rig.gui.script import ScriptRunner, load_script
+from nmsid.rig.session_signals import SessionSignals
 
 #: How often the Qt loop hands control to Python so a signal handler can run, ms.
 SIGNAL_POLL_MS = 100

@@ -12,8 +12,8 @@ import h5py
 import numpy as np
 import pytest
 
-from analysis.twin import Curve, Twin
-from rig.cli import main
+from nmsid.analysis.twin import Curve, Twin
+from nmsid.cli import main
 
 
 @pytest.fixture

@@ -6,9 +6,9 @@ import json
 import h5py
 import pytest
 
-from analysis.identify_command import EXIT_NOTHING_IDENTIFIED
-from analysis.twin import Curve, Twin
-from rig.cli import main
+from nmsid.cli.identify_command import EXIT_NOTHING_IDENTIFIED
+from nmsid.analysis.twin import Curve, Twin
+from nmsid.cli import main
 
 
 @pytest.fixture
@@ -93,7 +93,7 @@ def test_identify_out_refused_then_forced_and_a_repeated_file_counts_once(
 
 def test_identify_exits_3_when_nothing_was_identified(small_session, tmp_path, capsys,
                                                       monkeypatch):
-    import analysis.run as run_mod
+    import nmsid.analysis.run as run_mod
     real = run_mod.identify_session
 
     def no_fits(src, settings):

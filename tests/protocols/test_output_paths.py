@@ -5,9 +5,9 @@ import os
 import h5py
 import pytest
 
-from protocols.errors import OutputPathError
-from protocols.output_paths import (TMP_PREFIX, check_output, is_session_file, output_dir,
-                                    output_file)
+from nmsid.protocols.errors import OutputPathError
+from nmsid.protocols.output_paths import (TMP_PREFIX, check_output, is_session_file, output_dir,
+                                          output_file)
 
 
 def _session(path):

@@ -2,9 +2,9 @@
 
 import pytest
 
-import rig.run_command as run_command
-from rig.cli import main
-from rig.session_log import journal_dir
+import nmsid.cli.run_command as run_command
+from nmsid.cli import main
+from nmsid.rig.session_log import journal_dir
 
 
 @pytest.fixture

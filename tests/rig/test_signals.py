@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from protocols.session_file import read_session, validate_session
-from rig.session_log import journal_dir
-from rig.session_signals import exit_code, signal_reason
+from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.session_log import journal_dir
+from nmsid.rig.session_signals import exit_code, signal_reason
 
 ROOT = Path(__file__).resolve().parents[2]
 TRIAL = ('participant = "SG"\n[protocol]\nsE_levels = [0.5, 0.7]\nrepeats = 1\n'
@@ -34,7 +34,7 @@ def _start(tmp_path, config_text, out):
     cfg = tmp_path / "c.toml"
     cfg.write_text(config_text)
     return subprocess.Popen(
-        [sys.executable, "-m", "rig.cli", "run", "--backend", "sim", "--realtime",
+        [sys.executable, "-m", "nmsid.cli", "run", "--backend", "sim", "--realtime",
          "--config", str(cfg), "--out", str(out), "--no-identify"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=str(ROOT),
         env=dict(os.environ, PYTHONUNBUFFERED="1"))
@@ -98,7 +98,7 @@ def test_sigterm_during_calibration_stops_output_and_writes_nothing_half(tmp_pat
 
 
 def test_no_signal_handlers_left_behind_in_process(tmp_path):
-    from rig.cli import main
+    from nmsid.cli import main
 
     cfg = tmp_path / "c.toml"
     cfg.write_text(TRIAL.replace("chirp_s = 3.0", "chirp_s = 0.5"))
@@ -119,7 +119,7 @@ def test_sigterm_ends_a_gui_session_like_the_estop(tmp_path):
                       "wait-trial 0 running 60\n"
                       "wait-trial-time 0.3 60\nsleep 60\n")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "rig.cli", "gui", "--config", str(cfg), "--script",
+        [sys.executable, "-m", "nmsid.cli", "gui", "--config", str(cfg), "--script",
          str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=str(ROOT),
         env=dict(os.environ, PYTHONUNBUFFERED="1", QT_QPA_PLATFORM="offscreen"))
     stream = journal_dir(out) / "partial.f64"

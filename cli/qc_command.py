@@ -1,11 +1,11 @@
-"""Handler of ``nmsid qc`` (registered by :mod:`analysis.cli_qc`)."""
+"""Handler of ``nmsid qc`` (registered by :mod:`nmsid.cli.qc`)."""
 
 from __future__ import annotations
 
-from analysis.data_bounds import check_session_data
-from analysis.qc import assess_session
-from analysis.qc.table import as_json, format_table
-from protocols.session_file import read_session
+from nmsid.analysis.data_bounds import check_session_data
+from nmsid.analysis.qc import assess_session
+from nmsid.analysis.qc.table import as_json, format_table
+from nmsid.protocols.session_file import read_session
 
 
 def run(args) -> int:

@@ -1,12 +1,12 @@
-"""Handlers of ``nmsid export`` (registered by :mod:`export.cli_export`; pynwb loads here)."""
+"""Handlers of ``nmsid export`` (registered by :mod:`nmsid.cli.export`; pynwb loads here)."""
 
 from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
 
-from export.nwb import export_nwb, inspect_nwb
-from protocols.output_paths import check_output, output_file
+from nmsid.export.nwb import export_nwb, inspect_nwb
+from nmsid.protocols.output_paths import check_output, output_file
 
 
 def run_missing_format(args) -> int:

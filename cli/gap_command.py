@@ -1,13 +1,13 @@
-"""The handler of ``nmsid gap`` (registered by :mod:`analysis.cli_gap`)."""
+"""The handler of ``nmsid gap`` (registered by :mod:`nmsid.cli.gap`)."""
 
 from __future__ import annotations
 
 import argparse
 import math
 
-from analysis.gap.api import GapSettings, run_gap
-from analysis.gap.errors import GapInputError
-from protocols.output_paths import output_dir
+from nmsid.analysis.gap.api import GapSettings, run_gap
+from nmsid.analysis.gap.errors import GapInputError
+from nmsid.protocols.output_paths import output_dir
 
 
 def run(args: argparse.Namespace) -> int:

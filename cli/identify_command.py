@@ -1,5 +1,5 @@
 """The handlers of ``nmsid identify`` and ``nmsid twin simulate`` (registered by
-:mod:`analysis.cli_identify`)."""
+:mod:`nmsid.cli.identify`)."""
 
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ import sys
 
 import numpy as np
 
-from analysis.errors import SimulateOptionError
-from analysis.run import run_identification, summary_line
-from analysis.settings import IdentificationSettings
-from analysis.twin import Twin
-from protocols.output_paths import check_output, output_dir, output_file
+from nmsid.analysis.errors import SimulateOptionError
+from nmsid.analysis.run import run_identification, summary_line
+from nmsid.analysis.settings import IdentificationSettings
+from nmsid.analysis.twin import Twin
+from nmsid.protocols.output_paths import check_output, output_dir, output_file
 
 #: Exit status of ``nmsid identify`` when no sE level could be identified (docs/cli.md).
 EXIT_NOTHING_IDENTIFIED = 3

@@ -1,10 +1,10 @@
-"""Handler of ``nmsid study`` (registered by :mod:`study.cli_study`; Dask loads here)."""
+"""Handler of ``nmsid study`` (registered by :mod:`nmsid.cli.study`; Dask loads here)."""
 
 from __future__ import annotations
 
-from study.config import load_study
-from study.runner import run_study
-from protocols.output_paths import check_output, output_dir
+from nmsid.study.config import load_study
+from nmsid.study.runner import run_study
+from nmsid.protocols.output_paths import check_output, output_dir
 
 
 def run(args) -> int:

@@ -1,15 +1,15 @@
-"""Handler of ``nmsid design`` (registered by :mod:`analysis.cli_design`)."""
+"""Handler of ``nmsid design`` (registered by :mod:`nmsid.cli.design`)."""
 
 from __future__ import annotations
 
 import argparse
 import math
 
-from analysis.design.api import run_design
-from analysis.design.errors import DesignError
-from analysis.design.prior import (adequacy_from_parameters, population_prior,
-                                   scatter_from_parameters, twin_prior)
-from protocols.output_paths import check_output, output_dir
+from nmsid.analysis.design.api import run_design
+from nmsid.analysis.design.errors import DesignError
+from nmsid.analysis.design.prior import (adequacy_from_parameters, population_prior,
+                                         scatter_from_parameters, twin_prior)
+from nmsid.protocols.output_paths import check_output, output_dir
 
 
 #: Largest --n-prior / --validate (each simulated participant costs a design evaluation).
