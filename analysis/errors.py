@@ -25,3 +25,13 @@ class TwinFileError(UserError):
         self.path = str(path)
         self.problem = problem
         super().__init__(f"{self.path}: {problem}")
+
+
+class SimulateOptionError(SettingError):
+    """An option of ``nmsid twin simulate`` is out of its bounds (message names the
+    option, the value and the valid range)."""
+
+
+class DataRangeError(UserError):
+    """A session file holds values no rig can record (a force of 1e300 N, an infinite
+    sample): the file is refused as a whole, naming the file, the trial and the value."""

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nmsid.analysis.data_bounds import check_session_data
 from nmsid.analysis.errors import IdentificationError
 from nmsid.analysis.input_timing import fit_level
 from nmsid.analysis.preprocess import LevelData
@@ -216,6 +217,9 @@ def identify_level(trials, settings: IdentificationSettings | None = None,
 #: The datasets the identification needs; the others (currents, wrench, sync) are not read
 #: when ``read_session`` can skip them.
 NEEDED_DATASETS = ("rE", "force_N")
+#: sE (the sum of the two EAAs) lies in (0, 1] (session-file contract); a trial outside it
+#: is excluded and reported, so it cannot stretch the curves or the twin's range.
+SE_RANGE = (0.0, 1.0)
 
 
 def _read_for_identification(path, read_session):
@@ -255,13 +259,25 @@ def identify_session(session, settings: IdentificationSettings | None = None,
     s = settings or IdentificationSettings()
     if isinstance(session, (str, os.PathLike)):
         session = _read_for_identification(session, read_session)
+    check_session_data(session)
     problems: list[str] = []
     groups: dict[float, list] = {}
+    outside = []
     for tr in session.trials:
+        if not (math.isfinite(float(tr.sE)) and SE_RANGE[0] < float(tr.sE) <= SE_RANGE[1]):
+            outside.append(tr)  # sE is an activation sum: outside (0, 1] it is not data
+            continue
         groups.setdefault(round(float(tr.sE), 9), []).append(tr)
+    if outside:
+        problems.append(f"{session.path}: {len(outside)} trial(s) excluded: sE outside "
+                        f"({SE_RANGE[0]:g}, {SE_RANGE[1]:g}] ("
+                        + ", ".join(f"{getattr(t, 'name', '?')} sE {float(t.sE):g}"
+                                    for t in outside[:5])
+                        + (", ..." if len(outside) > 5 else "") + ")")
     if not groups:
         problems.append(f"{session.path}: the session holds no trials; nothing to identify")
-    completed = Counter(round(float(t.sE), 9) for t in session.trials if t.completed)
+    completed = Counter(round(float(t.sE), 9) for t in session.trials
+                        if t.completed and id(t) not in {id(o) for o in outside})
     config = session.config if isinstance(session.config, dict) else {}
     protocol = config.get("protocol") if isinstance(config.get("protocol"), dict) else config
     planned = protocol.get("sE_levels")

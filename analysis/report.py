@@ -11,6 +11,7 @@ from pathlib import Path
 
 from nmsid.analysis.model_selection import AVERAGE_LABEL, SelectionResult
 from nmsid.analysis.settings import PARAMETER_NAMES
+from nmsid.protocols.printable import escape_controls
 
 PARAMETER_COLUMNS = ("participant", "sE", "Kp", "wn_rad_s", "zeta", "fit_pct", "n_trials",
                      "Kp_se", "wn_se", "zeta_se", "converged", "resid_whiteness_pass",
@@ -37,7 +38,8 @@ def write_parameters_csv(session_results, path: str | Path) -> Path:
         w.writerow(PARAMETER_COLUMNS)
         for res in session_results:
             for row in res.rows():
-                w.writerow([_fmt(row[c], 8 if c in ("Kp", "wn_rad_s", "zeta") else 6)
+                w.writerow([escape_controls(_fmt(row[c], 8 if c in ("Kp", "wn_rad_s",
+                                                                       "zeta") else 6))
                             for c in PARAMETER_COLUMNS])
     return path
 
@@ -128,5 +130,6 @@ def selection_tables(selection: SelectionResult) -> str:
 
 
 def write_text(text: str, path: str | Path) -> Path:
-    Path(path).write_text(text.rstrip("\n") + "\n", encoding="utf-8")
+    # names and reasons come from session files: no raw control character in the file
+    Path(path).write_text(escape_controls(text.rstrip("\n")) + "\n", encoding="utf-8")
     return Path(path)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nmsid.analysis.errors import IdentificationError
+from nmsid.analysis.errors import IdentificationError, TwinFileError
 from nmsid.analysis.figures import plot_level_fits, plot_parameter_curves
 from nmsid.analysis.identify import SessionResult, identify_session
 from nmsid.analysis.model_selection import AVERAGE_LABEL, SelectionResult, select_models
@@ -149,13 +149,12 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         for label in selection.participants:
             if label in twins:
                 path = out / f"twin_{_safe_name(label)}.json"
-                twins[label].save(path)
-                files.append(path)
+                if _save_twin(twins[label], path, problems):
+                    files.append(path)
         main_twin = twins.get(AVERAGE_LABEL)
     else:
         main_twin = twins.get(selection.participants[0])
-    if main_twin is not None:
-        main_twin.save(out / "twin.json")
+    if main_twin is not None and _save_twin(main_twin, out / "twin.json", problems):
         files.append(out / "twin.json")
 
     text = "\n\n".join(parameter_table(r) for r in results) + "\n\n" + \
@@ -170,6 +169,16 @@ def run_identification(sessions, out_dir: str | os.PathLike,
             files.append(plot_parameter_curves(selection, name, out / f"figure_{name}.png",
                                                AVERAGE_LABEL))
     return RunOutputs(results, selection, files, problems, twins, text)
+
+
+def _save_twin(twin: Twin, path: Path, problems: list[str]) -> bool:
+    """Write a twin; a twin that JSON cannot hold (non-finite curve) becomes a problem."""
+    try:
+        twin.save(path)
+    except TwinFileError as exc:
+        problems.append(f"twin not written: {exc}")
+        return False
+    return True
 
 
 def summary_line(outputs: RunOutputs) -> str:

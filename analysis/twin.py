@@ -236,8 +236,28 @@ class Twin:
         }
 
     def save(self, path: str | os.PathLike) -> None:
-        """Write the twin as JSON (UTF-8)."""
-        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n", encoding="utf-8")
+        """Write the twin as JSON (UTF-8). JSON has no NaN: a non-finite calibration value
+        is written as ``null`` with a line in ``caveats``; a non-finite curve coefficient
+        or sE range refuses the twin (:class:`TwinFileError`, nothing written)."""
+        data = self.to_dict()
+        for where, curve in [*(("parameters." + k, v) for k, v in data["parameters"].items()),
+                             ("offset_N", data["offset_N"])]:
+            if not all(math.isfinite(float(c)) for c in curve["coefficients"]):
+                raise TwinFileError(path, f"{where} has a non-finite coefficient "
+                                          f"{curve['coefficients']}; twin not written")
+        if not all(math.isfinite(v) for v in data["sE_range"]):
+            raise TwinFileError(path, f"sE_range {data['sE_range']} is not finite; twin not "
+                                      "written")
+        caveats = []
+        for key, value in list(data["calibration"].items()):
+            if isinstance(value, float) and not math.isfinite(value):
+                data["calibration"][key] = None
+                caveats.append(f"calibration.{key} was {value!r} (not a number JSON can "
+                               "hold): written as null")
+        if caveats:
+            data["caveats"] = caveats
+        text = json.dumps(data, indent=2, allow_nan=False)
+        Path(path).write_text(text + "\n", encoding="utf-8")
 
     @classmethod
     def from_dict(cls, data: dict, path: str | os.PathLike = "<twin>") -> Twin:

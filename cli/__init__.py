@@ -17,6 +17,7 @@ What ends a command (:mod:`nmsid.errors`):
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import importlib
 import logging
@@ -25,6 +26,7 @@ import traceback
 
 from nmsid.errors import (EXIT_BUG, EXIT_USER_ERROR, DeviceFault, MissingDependency,
                           NmsidError, SafetyError, UserError)
+from nmsid.protocols.printable import escape_controls
 
 #: Modules that each add one or more sub-commands.
 COMMAND_MODULES = (
@@ -48,8 +50,46 @@ _USER_ERRNOS = frozenset({errno.EPERM, errno.ENOENT, errno.EACCES, errno.EEXIST,
                           errno.ENOTEMPTY, errno.EDQUOT})
 
 
+class _EscapingStream:
+    """A text stream that writes control characters as visible escapes: names and notes
+    read from files never reach the terminal raw (:mod:`nmsid.protocols.printable`)."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        return self._stream.write(escape_controls(text))
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+@contextlib.contextmanager
+def _escaped_output():
+    out, err = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = _EscapingStream(out), _EscapingStream(err)
+    try:
+        yield
+    finally:
+        sys.stdout, sys.stderr = out, err
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose refusals are one line on stderr (exit 2), naming the
+    command and pointing at its --help, instead of argparse's usage block."""
+
+    def error(self, message: str):
+        text = escape_controls(message).replace("\n", "\\n")
+        self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {text} (see {self.prog} --help)\n")
+
+
+def _one_line(text: str) -> str:
+    """A message as one line: a newline inside a value read from a file is shown, not obeyed."""
+    return escape_controls(text).replace("\n", "\\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _OneLineParser(
         prog="nmsid",
         description="FES neuromuscular-system identification: run sessions on a simulated "
                     "or real rig, identify the second-order model per sE, select models "
@@ -97,16 +137,16 @@ def report(exc: BaseException, command: str) -> int:
               "pip install 'nmsid[gui,plot,serial]'", file=sys.stderr)
         return EXIT_USER_ERROR
     if isinstance(exc, (UserError, MissingDependency)):
-        print(f"nmsid: error: {exc}", file=sys.stderr)
+        print(f"nmsid: error: {_one_line(str(exc))}", file=sys.stderr)
         return EXIT_USER_ERROR
     if _user_os_error(exc):
-        print(f"nmsid: error: {exc.filename}: {exc.strerror}", file=sys.stderr)
+        print(f"nmsid: error: {_one_line(str(exc.filename))}: {exc.strerror}", file=sys.stderr)
         return EXIT_USER_ERROR
     if isinstance(exc, DeviceFault):
-        print(f"nmsid: device error: {exc}", file=sys.stderr)
+        print(f"nmsid: device error: {_one_line(str(exc))}", file=sys.stderr)
         return DeviceFault.exit_code
     if isinstance(exc, SafetyError):
-        print(f"nmsid: safety: {exc}", file=sys.stderr)
+        print(f"nmsid: safety: {_one_line(str(exc))}", file=sys.stderr)
         return SafetyError.exit_code
     return EXIT_BUG
 
@@ -124,7 +164,8 @@ def main(argv: list[str] | None = None) -> int:
     module_name, func_name = handler.split(":")
     try:
         func = getattr(importlib.import_module(module_name), func_name)
-        result = func(args)
+        with _escaped_output():
+            result = func(args)
     except KeyboardInterrupt:
         print("nmsid: interrupted", file=sys.stderr)
         return 130

@@ -50,6 +50,9 @@ def register(sub) -> None:
                    help="'paper' (no worse than the paper's protocol) or relative SDs of "
                         "the curves, e.g. 'Kp=0.05,wn_rad_s=0.03,zeta=0.03'")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing --out folder (atomically; never one holding "
+                        "a session file)")
     p.add_argument("--noise-N", type=float, default=0.04, metavar="N",
                    help="sensor noise RMS for a --twin prior (default 0.04 N)")
     sc = p.add_mutually_exclusive_group()

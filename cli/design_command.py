@@ -3,24 +3,36 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 from nmsid.analysis.design.api import run_design
 from nmsid.analysis.design.errors import DesignError
 from nmsid.analysis.design.prior import (adequacy_from_parameters, population_prior,
                                          scatter_from_parameters, twin_prior)
+from nmsid.protocols.output_paths import check_output, output_dir
+
+
+#: Largest --n-prior / --validate (each simulated participant costs a design evaluation).
+COUNT_MAX = 1000
+#: Largest --noise-N: a sensor noise RMS above 10 N would drown any wrist force.
+NOISE_MAX_N = 10.0
 
 
 def run(args: argparse.Namespace) -> int:
     """Handler of ``nmsid design``."""
-    for name in ("n_prior", "validate"):
+    for name, lo in (("n_prior", 1), ("validate", 0)):
         v = getattr(args, name)
-        if v < (1 if name == "n_prior" else 0):
-            raise DesignError(f"--{name.replace('_', '-')} {v}: give a whole number >= "
-                              f"{1 if name == 'n_prior' else 0}")
+        if not lo <= v <= COUNT_MAX:
+            raise DesignError(f"--{name.replace('_', '-')} {v}: give a whole number in "
+                              f"[{lo}, {COUNT_MAX}]")
+    if not (math.isfinite(args.noise_N) and 0 < args.noise_N <= NOISE_MAX_N):
+        raise DesignError(f"--noise-N {args.noise_N:g}: a sensor noise RMS in (0, "
+                          f"{NOISE_MAX_N:g}] N")
     if not 0 <= args.tolerance < 1:
         raise DesignError(f"--tolerance {args.tolerance:g}: a fraction in [0, 1)")
     if not 0 <= args.min_steady_s <= 60:
         raise DesignError(f"--min-steady-s {args.min_steady_s:g}: seconds in [0, 60]")
+    check_output(args.out, force=args.force, kind="folder")  # before the search
     if args.twin:
         prior = twin_prior(args.twin, args.noise_N)
     else:
@@ -42,11 +54,12 @@ def run(args: argparse.Namespace) -> int:
         print(note)
     elif args.excitation == "free":
         note = "searched as asked (--excitation free)"
-    doc = run_design(prior, args.target, args.out, validate_n=args.validate,
-                     scatter=scatter, tolerance=args.tolerance,
-                     min_steady_s=args.min_steady_s, seed=args.seed, twin_path=args.twin,
-                     population_seed=args.seed, keep_paper_excitation=keep,
-                     excitation_note=note)
+    with output_dir(args.out, force=args.force) as tmp:
+        doc = run_design(prior, args.target, tmp, validate_n=args.validate,
+                         scatter=scatter, tolerance=args.tolerance,
+                         min_steady_s=args.min_steady_s, seed=args.seed, twin_path=args.twin,
+                         population_seed=args.seed, keep_paper_excitation=keep,
+                         excitation_note=note)
     v = doc["validated_sd_ratio"]
     print(f"{args.out}/protocol.toml: {doc['protocol_description']}")
     print(f"stimulation {doc['stimulation_s']:g} s = {100 * doc['stimulation_fraction']:.0f} % "

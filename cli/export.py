@@ -14,6 +14,8 @@ def register(sub) -> None:
                                    "calibration and configuration. See README 'Sharing'.")
     n.add_argument("session", metavar="SESSION.h5")
     n.add_argument("--out", required=True, metavar="SESSION.nwb")
+    n.add_argument("--force", action="store_true",
+                   help="replace an existing --out file (never a session file)")
     n.add_argument("--subject-age", default="P18Y/", metavar="ISO8601",
                    help="participant age as an ISO 8601 duration or range (default P18Y/: "
                         "adult, exact age unknown; nmsid does not record age)")

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
+from pathlib import Path
+
 from nmsid.cli.errors import UsageError
 from nmsid.export.nwb import export_nwb, inspect_nwb
+from nmsid.protocols.output_paths import check_output, output_file
 
 
 def run_missing_format(args) -> int:
@@ -12,8 +16,13 @@ def run_missing_format(args) -> int:
 
 
 def run_nwb(args) -> int:
-    result = export_nwb(args.session, args.out, subject_age=args.subject_age,
-                        experimenter=args.experimenter, institution=args.institution)
+    check_output(args.out, force=args.force, kind="file")
+    with output_file(args.out, force=args.force) as tmp:
+        # export_nwb never overwrites: it writes the new file at `tmp` (absent), which
+        # replaces --out only once it is complete
+        result = export_nwb(args.session, tmp, subject_age=args.subject_age,
+                            experimenter=args.experimenter, institution=args.institution)
+    result = dataclasses.replace(result, path=Path(args.out))
     print(f"{result.path}: {result.n_trials} trial(s), {result.n_series} time series, "
           f"{result.n_events} event(s)")
     if args.inspect:

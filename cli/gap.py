@@ -23,6 +23,9 @@ def register(sub) -> None:
                     "See docs/gap.md.")
     p.add_argument("sessions", nargs="+", metavar="SESSION.h5", help="session file(s)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing --out folder (atomically; never one holding "
+                        "a session file)")
     src = p.add_mutually_exclusive_group()
     src.add_argument("--twin", metavar="TWIN.json",
                      help="simulation under test: this twin file instead of the nominal "

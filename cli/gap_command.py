@@ -3,16 +3,27 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 from nmsid.analysis.gap.api import GapSettings, run_gap
+from nmsid.analysis.gap.errors import GapInputError
+from nmsid.protocols.output_paths import output_dir
 
 
 def run(args: argparse.Namespace) -> int:
     """Handler of ``nmsid gap``."""
+    if not (math.isfinite(args.ic_margin) and 0 <= args.ic_margin <= 1000):
+        raise GapInputError(f"--ic-margin {args.ic_margin:g}: an information-criterion "
+                            "margin in [0, 1000] (default 10)")
+    if not (math.isfinite(args.min_shrink_pct) and 0 <= args.min_shrink_pct <= 100):
+        raise GapInputError(f"--min-shrink-pct {args.min_shrink_pct:g}: a percentage in "
+                            "[0, 100] (default 10)")
     settings = GapSettings(ic_margin=args.ic_margin, min_shrink_pct=args.min_shrink_pct,
                            try_pairs=not args.no_pairs)
-    summary = run_gap(args.sessions, args.out, settings=settings, twin=args.twin,
-                      sim_session=args.sim_session, plots=not args.no_figures)
+    with output_dir(args.out, force=args.force) as tmp:
+        summary = run_gap(args.sessions, tmp, settings=settings, twin=args.twin,
+                          sim_session=args.sim_session, plots=not args.no_figures)
+    summary["report"] = str(summary["report"]).replace(str(tmp), str(args.out))
     for s in summary["sessions"]:
         h = s["heldout"]
         print(f"{s['session']}: verdict = {s['verdict']}, best_effect = {s['best_effect']}"

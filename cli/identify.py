@@ -41,6 +41,9 @@ def register(sub) -> None:
                     "sessions give the group analysis. See docs/identification.md.")
     p.add_argument("sessions", nargs="+", metavar="SESSION.h5", help="session file(s)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing --out folder (atomically; never one holding "
+                        "a session file)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument("--no-qc", action="store_true",
                    help="average every completed repeat as the paper does (default: only "
@@ -89,7 +92,13 @@ def register(sub) -> None:
     sim.add_argument("--f1-Hz", type=float, default=10.0)
     sim.add_argument("--extrapolate", action="store_true",
                      help="evaluate the curves outside the tested sE range (default: clip)")
+    sim.add_argument("--without-effects", action="store_true",
+                     help="simulate the parameter curves alone when the twin lists effects "
+                          "(otherwise such a twin is refused: this command cannot simulate "
+                          "effects)")
     sim.add_argument("--out", required=True, metavar="CSV")
+    sim.add_argument("--force", action="store_true",
+                     help="replace an existing --out file (never a session file)")
     sim.set_defaults(handler="nmsid.cli.identify_command:run_twin_simulate")
     exp = tsub.add_parser(
         "export", help="write the twin as an FMI 2.0 FMU (co-simulation + model exchange)",

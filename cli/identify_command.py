@@ -4,13 +4,21 @@
 from __future__ import annotations
 
 import csv
+import math
+import os
+import sys
 
 import numpy as np
 
+from nmsid.analysis.errors import SimulateOptionError
 from nmsid.analysis.run import run_identification, summary_line
 from nmsid.analysis.settings import IdentificationSettings
 from nmsid.analysis.twin import Twin
 from nmsid.cli.errors import InputFileError, UsageError
+from nmsid.protocols.output_paths import check_output, output_dir, output_file
+
+#: Exit status of ``nmsid identify`` when no sE level could be identified (docs/cli.md).
+EXIT_NOTHING_IDENTIFIED = 3
 
 
 def settings_from_args(args):
@@ -27,16 +35,45 @@ def settings_from_args(args):
         qc=not getattr(args, "no_qc", False))
 
 
+def unique_sessions(paths) -> list[str]:
+    """The session paths with repeats of one file removed (the same file given twice,
+    by the same or another name, e.g. a symbolic link, counts once); prints a note per
+    repeat."""
+    seen: dict[tuple, str] = {}
+    kept = []
+    for p in paths:
+        try:
+            st = os.stat(p)
+            key = (st.st_dev, st.st_ino)
+        except OSError:  # unreadable: identify reports it by name
+            key = ("path", os.path.realpath(p))
+        if key in seen:
+            print(f"note: {p} is the same file as {seen[key]}; counted once")
+            continue
+        seen[key] = p
+        kept.append(p)
+    return kept
+
+
 def run_identify(args) -> int:
-    """Handler of ``nmsid identify``."""
+    """Handler of ``nmsid identify``: exit 0, or :data:`EXIT_NOTHING_IDENTIFIED` when no
+    sE level of any session could be identified (the outputs are still written)."""
     settings = settings_from_args(args)
-    out = run_identification(args.sessions, args.out, settings, figures=not args.no_figures)
+    sessions = unique_sessions(args.sessions)
+    with output_dir(args.out, force=args.force) as tmp:
+        out = run_identification(sessions, tmp, settings, figures=not args.no_figures)
     print(out.tables_text)
     if out.problems:
         print(f"\n{len(out.problems)} problem(s) (also in {args.out}/problems.txt):")
         for p in out.problems:
             print(f"  - {p}")
     print(f"\n{summary_line(out)}; outputs in {args.out}")
+    n_ok = sum(1 for r in out.sessions for lv in r.levels if lv.fit is not None)
+    if n_ok == 0:
+        print(f"nmsid: identify: no sE level could be identified in "
+              f"{', '.join(map(str, sessions))} (see {args.out}/problems.txt)",
+              file=sys.stderr)
+        return EXIT_NOTHING_IDENTIFIED
     return 0
 
 
@@ -68,9 +105,62 @@ def _read_input_csv(path: str):
     return cols
 
 
+#: Bounds of ``nmsid twin simulate`` (docs/cli-safety.md): the rig samples at 2 kHz; 100
+#: kHz is far above any muscle's bandwidth, and 5 million samples keep the CSV under
+#: ~250 MB and the memory under ~0.5 GB.
+FS_RANGE_HZ = (1.0, 100_000.0)
+DURATION_MAX_S = 3600.0
+MAX_SAMPLES = 5_000_000
+
+
+def _bounded(option: str, value, lo: float, hi: float, *, lo_open: bool = False,
+             unit: str = "") -> float:
+    """``value`` as a float inside [lo, hi] (or (lo, hi]), else one clear refusal."""
+    v = float(value)
+    ok = math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi
+    if not ok:
+        left = "(" if lo_open else "["
+        raise SimulateOptionError(f"{option} {value!r}: must be a finite value in "
+                                  f"{left}{lo:g}, {hi:g}]{unit}")
+    return v
+
+
+def _check_simulate_options(args) -> None:
+    if args.fs_Hz is not None:
+        _bounded("--fs-Hz", args.fs_Hz, *FS_RANGE_HZ, unit=" Hz")
+    if args.sE is not None:
+        _bounded("--sE", args.sE, 0.0, 10.0, lo_open=True)
+    if args.rE_chirp:
+        _bounded("--steady-s", args.steady_s, 0.0, DURATION_MAX_S, unit=" s")
+        _bounded("--chirp-s", args.chirp_s, 0.0, DURATION_MAX_S, lo_open=True, unit=" s")
+        fs = args.fs_Hz or 2000.0
+        for opt, v in (("--f0-Hz", args.f0_Hz), ("--f1-Hz", args.f1_Hz)):
+            _bounded(opt, v, 0.0, fs / 2, lo_open=True, unit=f" Hz (below fs/2 = {fs / 2:g})")
+        n = (args.steady_s + args.chirp_s) * fs
+        if n > MAX_SAMPLES:
+            raise SimulateOptionError(
+                f"--steady-s {args.steady_s:g} + --chirp-s {args.chirp_s:g} at --fs-Hz "
+                f"{fs:g} is {n:.3g} samples; at most {MAX_SAMPLES:,} (shorten it or lower "
+                "--fs-Hz)")
+
+
+def _check_effects(twin, args) -> None:
+    """``Twin.simulate`` runs the curves only; refuse a twin with effects unless the user
+    says to leave them out."""
+    if twin.effects and not args.without_effects:
+        names = ", ".join(str(e.get("name")) for e in twin.effects)
+        raise SimulateOptionError(
+            f"{args.twin}: the twin has effects ({names}) that `nmsid twin simulate` cannot "
+            "simulate (it runs the parameter curves only); give --without-effects to "
+            "simulate the curves alone, or run the twin as a participant in `nmsid run`")
+
+
 def run_twin_simulate(args) -> int:
     """Handler of ``nmsid twin simulate``."""
+    _check_simulate_options(args)
     twin = Twin.load(args.twin)
+    _check_effects(twin, args)
+    check_output(args.out, force=args.force, kind="file")
     if args.rE_chirp:
         fs = args.fs_Hz or 2000.0
         n = int(round((args.steady_s + args.chirp_s) * fs))
@@ -94,6 +184,7 @@ def run_twin_simulate(args) -> int:
             if not np.all(dt > 0) or np.ptp(dt) > 1e-6 * np.mean(dt):
                 raise InputFileError(f"{args.input}: t_s must be uniformly increasing")
             fs = 1.0 / float(np.mean(dt))
+            _bounded(f"{args.input}: the t_s column's rate", fs, *FS_RANGE_HZ, unit=" Hz")
         else:
             fs = 2000.0
         t = np.arange(len(rE)) / fs
@@ -102,10 +193,11 @@ def run_twin_simulate(args) -> int:
     if sE is None:
         raise UsageError("give --sE, or an 'sE' column in the --input CSV")
     force = twin.simulate(rE, sE, fs, clip=not args.extrapolate)
-    with open(args.out, "w", encoding="utf-8") as fh:
-        fh.write("t_s,rE,sE,force_N\n")
-        for row in zip(t, rE, sE, force):
-            fh.write(f"{row[0]:.6f},{row[1]:.9g},{row[2]:.9g},{row[3]:.9g}\n")
+    with output_file(args.out, force=args.force) as tmp:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write("t_s,rE,sE,force_N\n")
+            for row in zip(t, rE, sE, force):
+                fh.write(f"{row[0]:.6f},{row[1]:.9g},{row[2]:.9g},{row[3]:.9g}\n")
     print(f"wrote {len(rE)} samples at {fs:g} Hz to {args.out} "
           f"(force {force.min():.3f} to {force.max():.3f} N)")
     return 0

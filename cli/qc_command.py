@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+from nmsid.analysis.data_bounds import check_session_data
 from nmsid.analysis.qc import assess_session
 from nmsid.analysis.qc.table import as_json, format_table
+from nmsid.protocols.session_file import read_session
 
 
 def run(args) -> int:
     """Print each session's QC table (or JSON); 1 if any trial is excluded."""
     any_excluded = False
     for path in args.sessions:
+        check_session_data(read_session(path), path)  # absurd values: one line
         qc = assess_session(path)
         print(as_json(qc) if args.json else format_table(qc, all_trials=args.all))
         any_excluded |= bool(qc.excluded())

@@ -11,6 +11,25 @@ Registration only (argparse): ``nmsid --help`` imports nothing else; the handler
 
 from __future__ import annotations
 
+import argparse
+
+
+#: Seeds are stored as 64-bit signed integers in the session file.
+SEED_MAX = 2 ** 63 - 1
+
+
+def _seed(text: str) -> int:
+    """argparse type of a seed: a whole number in [0, 2**63 - 1]."""
+    try:
+        value = int(text, 10)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number; give a seed in "
+                                         f"[0, {SEED_MAX}]") from None
+    if not 0 <= value <= SEED_MAX:
+        raise argparse.ArgumentTypeError(f"{value} is outside [0, {SEED_MAX}] (seeds are "
+                                         "stored as 64-bit integers)")
+    return value
+
 
 def register(sub) -> None:
     p = sub.add_parser("run", help="run a whole session (calibration + schedule) headless, "
@@ -23,7 +42,7 @@ def register(sub) -> None:
     p.add_argument("--participant", metavar="CODE",
                    help="participant code [A-Za-z0-9_-]{1,64} (overrides the config)")
     p.add_argument("--config", metavar="FILE", help="protocol configuration (TOML)")
-    p.add_argument("--seed", type=int, metavar="N",
+    p.add_argument("--seed", type=_seed, metavar="N",
                    help="schedule randomisation seed (overrides the config; default: drawn "
                         "and recorded)")
     out = p.add_mutually_exclusive_group()
@@ -41,7 +60,7 @@ def register(sub) -> None:
                         "(template, default) or MyoSuite's MuJoCo elbow under FES "
                         "(musculoskeletal; needs the 'mujoco' extra); overrides the "
                         "config's [participant] model")
-    p.add_argument("--sim-seed", type=int, metavar="N",
+    p.add_argument("--sim-seed", type=_seed, metavar="N",
                    help="sim: seed of the virtual participant and its noise (default: from "
                         "the participant code)")
     p.add_argument("--resume-after-reconnect", action="store_true",

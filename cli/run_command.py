@@ -9,7 +9,6 @@ from __future__ import annotations
 import datetime as dt
 import json
 import logging
-import signal
 import sys
 import threading
 import zlib
@@ -19,10 +18,13 @@ from nmsid.analysis.run import run_identification, summary_line
 from nmsid.cli.errors import UsageError
 from nmsid.drivers.hardware import make_hw_rig
 from nmsid.protocols.config import config_from_json, load_config
+from nmsid.protocols.errors import OutputPathError
+from nmsid.protocols.output_paths import check_output, output_dir
 from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.rig.engine import Engine, TripPolicy
 from nmsid.rig.glitch_prompt import glitch_confirmation
 from nmsid.rig.session_log import journal_dir, recover
+from nmsid.rig.session_signals import SessionSignals, signal_name
 from nmsid.sim_backends import make_sim_rig
 from nmsid.sim_backends.participant_models import participant_for_model
 
@@ -61,53 +63,70 @@ def run(args) -> int:
             config = config.with_protocol(rest_s=0.0)
         path = Path(args.out) if args.out else _free_path(Path(args.outdir or "sessions"),
                                                           config.participant)
+        # a taken, dangling or unwritable --out is refused before any device is touched
+        check_output(path, kind="file", option="--out" if args.out else "--outdir")
+        if journal_dir(path).exists():
+            raise OutputPathError(f"{path}: a journal of an unfinished session "
+                                  f"({journal_dir(path)}) is here; continue it with "
+                                  f"--resume {path}, or give another --out")
     stored = _stored_attrs(path) if args.resume else {}
     sim_seed = None
     if args.backend == "sim":
         sim_seed = (args.sim_seed if args.sim_seed is not None else
                     stored.get("sim_seed", _seed_from_code(config.participant)))
-    devices = _make_devices(args, config, sim_seed)
-    progress = _Progress(quiet=args.quiet)
-    try:
-        engine = Engine(config, devices, path, resume=bool(args.resume), observer=progress,
-                        trip_policy=TripPolicy.END_SESSION,
-                        on_device_glitch=glitch_confirmation(
-                            getattr(args, "resume_after_reconnect", False)),
-                        extra_attrs={} if sim_seed is None else {
-                            "sim_seed": int(sim_seed),
-                            "participant_model": config.participant_model})
-        progress.total = len(engine.schedule)
-        progress.done = sum(1 for t in engine.schedule if t.status.value == "done")
-        if engine.recovery is not None and engine.recovery.action != "none":
-            print(engine.recovery.summary(), flush=True)
-        box: dict = {}
+    box: dict = {}
 
-        def work():
-            try:
-                box["summary"] = engine.run()
-            except BaseException as exc:  # handed to the main thread
-                box["error"] = exc
+    def on_signal(signum, reason):  # main thread, which holds no engine lock
+        engine = box.get("engine")
+        if engine is not None:  # output to zero first, then end the session
+            engine.estop(reason)
+            engine.abort(reason)
+        # before the engine exists nothing has been stimulated: run() checks `received`
 
-        worker = threading.Thread(target=work, name="nmsid-engine")
-
-        def on_sigint(signum, frame):  # runs in the main thread, which holds no engine lock
-            engine.estop("Ctrl+C (operator E-stop)")
-            engine.abort()
-            print("\nE-stop: output off; ending the session cleanly...", flush=True)
-
-        old = signal.signal(signal.SIGINT, on_sigint)
+    with SessionSignals(on_signal) as signals:
+        devices = _make_devices(args, config, sim_seed)
+        progress = _Progress(quiet=args.quiet)
         try:
+            engine = Engine(config, devices, path, resume=bool(args.resume),
+                            observer=progress, trip_policy=TripPolicy.END_SESSION,
+                            on_device_glitch=glitch_confirmation(
+                                getattr(args, "resume_after_reconnect", False)),
+                            extra_attrs={} if sim_seed is None else {
+                                "sim_seed": int(sim_seed),
+                                "participant_model": config.participant_model})
+            if signals.received is not None:
+                print(f"nmsid: {signal_name(signals.received)} received before the session "
+                      f"started: nothing stimulated, no session file written",
+                      file=sys.stderr, flush=True)
+                return signals.exit_code
+            box["engine"] = engine
+            progress.total = len(engine.schedule)
+            progress.done = sum(1 for t in engine.schedule if t.status.value == "done")
+            if engine.recovery is not None and engine.recovery.action != "none":
+                print(engine.recovery.summary(), flush=True)
+
+            def work():
+                try:
+                    box["summary"] = engine.run()
+                except BaseException as exc:  # handed to the main thread
+                    box["error"] = exc
+
+            worker = threading.Thread(target=work, name="nmsid-engine")
             worker.start()
-            while worker.is_alive():
+            while worker.is_alive():  # short joins: the signal handler runs between them
                 worker.join(0.1)
         finally:
-            signal.signal(signal.SIGINT, old)
-    finally:
-        devices.close()
+            devices.close()
     if "error" in box:
         raise box["error"]
     s = box["summary"]
     progress.finish()
+    if signals.received is not None:
+        # one line on stderr; stdout (maybe a closed terminal after SIGHUP) may fail
+        _print_quietly(f"{s.path}: {s.n_completed} completed, {s.n_aborted} aborted, "
+                       f"{s.n_pending} not run ({s.ended_by})")
+        print(signals.stderr_line(s.path), file=sys.stderr, flush=True)
+        return signals.exit_code
     print(f"{s.path}: {s.n_completed} completed, {s.n_aborted} aborted, {s.n_pending} not run "
           f"({s.ended_by})", flush=True)
     if s.n_pending or s.n_aborted:
@@ -116,6 +135,14 @@ def run(args) -> int:
     if not args.no_identify and s.n_completed:
         _identify(s.path)
     return 0 if s.ended_by == "schedule complete" else 1
+
+
+def _print_quietly(text: str) -> None:
+    """Print to stdout, ignoring a terminal that has gone (SIGHUP: EIO / broken pipe)."""
+    try:
+        print(text, flush=True)
+    except OSError:
+        pass
 
 
 def _stored_attrs(path) -> dict:
@@ -157,9 +184,12 @@ def _seed_from_code(code: str) -> int:
 
 
 def _identify(path) -> None:
-    """Run the identification on the new file into ``<file stem>-analysis/``."""
-    out = path.with_name(path.stem + "-analysis")
-    outputs = run_identification([path], out)
+    """Run the identification on the new file into ``<file stem>-analysis/`` (or
+    ``-analysis-2``, ... if that exists: an earlier result is never replaced)."""
+    out = next(p for k in range(1, 10_000) if not (p := path.with_name(
+        path.stem + "-analysis" + (f"-{k}" if k > 1 else ""))).exists())
+    with output_dir(out) as tmp:
+        outputs = run_identification([path], tmp)
     if outputs.tables_text:
         print(outputs.tables_text, flush=True)
     print(summary_line(outputs), flush=True)

@@ -10,8 +10,8 @@ def _workers(text: str) -> int:
         n = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if n < 0:
-        raise argparse.ArgumentTypeError(f"--workers {n}: use 0 (serial) or more")
+    if not 0 <= n <= 256:
+        raise argparse.ArgumentTypeError(f"--workers {n}: use 0 (serial) to 256")
     return n
 
 
@@ -26,6 +26,9 @@ def register(sub) -> None:
                     "A failing session is reported and the others go on. See docs/study.md.")
     p.add_argument("study", metavar="STUDY.toml|FOLDER")
     p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing --out folder (atomically; never one holding "
+                        "a session file)")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--workers", type=_workers, default=2, metavar="N",
                        help="worker processes of the local Dask cluster (default 2; 0 = "

@@ -4,13 +4,17 @@ from __future__ import annotations
 
 from nmsid.study.config import load_study
 from nmsid.study.runner import run_study
+from nmsid.protocols.output_paths import check_output, output_dir
 
 
 def run(args) -> int:
+    check_output(args.out, force=args.force, kind="folder")
     cfg = load_study(args.study)
     if args.no_gap:
         cfg.gap = False
-    out = run_study(cfg, args.out, workers=args.workers, scheduler=args.scheduler)
+    with output_dir(args.out, force=args.force) as tmp:
+        out = run_study(cfg, tmp, workers=args.workers, scheduler=args.scheduler)
+    out.report = str(out.report).replace(str(tmp.resolve()), str(args.out))
     n_bad = sum(1 for r in out.results if not r.get("ok"))
     print(f"{len(out.results)} session(s), {n_bad} failed, {out.elapsed_s:.1f} s "
           f"({out.mode}); report: {out.report}")

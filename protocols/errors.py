@@ -93,3 +93,8 @@ class SessionLockedError(SessionFileError):
         self.holder = holder
         super().__init__(path, f"is being written by {holder}; one writer per session: "
                                "wait for it to end (or stop it) and try again")
+
+
+class OutputPathError(UserError):
+    """An output path (``--out``) is refused: it exists (without ``--force``), is a
+    session file, a dangling link or cannot be written. Raised before any work."""

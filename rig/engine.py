@@ -116,6 +116,7 @@ class Engine(CalibrationSteps, DeviceRecovery):
         self._ran = False
         # operator flags (engine thread only)
         self._pause_req = self._resume_req = self._abort_req = False
+        self._abort_by = "operator"  # who asked to end the session (operator, a signal)
         self._skip_req = self._rearm_req = False
         self._confirmations: list[Calibration] = []
         self._rerun_first: list[int] = []
@@ -174,10 +175,11 @@ class Engine(CalibrationSteps, DeviceRecovery):
         """Leave ``paused``."""
         self._put(_Cmd.RESUME)
 
-    def abort(self) -> None:
+    def abort(self, by: str = "operator") -> None:
         """End the session: the running trial is aborted, output off, file closed cleanly
-        (it can be resumed later)."""
-        self._put(_Cmd.ABORT)
+        (it can be resumed later). ``by`` names who asked (the session's end record says
+        ``aborted by <by>``), e.g. ``"SIGTERM received"`` for a signal."""
+        self._put(_Cmd.ABORT, str(by))
 
     def skip_trial(self) -> None:
         """Abort the running trial ("skipped by operator"), or between trials mark the
@@ -245,8 +247,10 @@ class Engine(CalibrationSteps, DeviceRecovery):
             elif cmd is _Cmd.RESUME:
                 self._resume_req = True
             elif cmd is _Cmd.ABORT:
+                if not self._abort_req:
+                    self._abort_by = arg or "operator"
                 self._abort_req = True
-                self._event("abort_requested", "operator")
+                self._event("abort_requested", arg or "operator")
             elif cmd is _Cmd.SKIP:
                 self._skip_req = True
             elif cmd is _Cmd.REARM:
@@ -291,7 +295,7 @@ class Engine(CalibrationSteps, DeviceRecovery):
         while True:
             self._poll()
             if self._abort_req:
-                raise _EndRun("aborted by operator")
+                raise _EndRun(f"aborted by {self._abort_by}")
             if until():
                 return
             self._wake.wait(WAIT_SLICE_S)
@@ -422,7 +426,7 @@ class Engine(CalibrationSteps, DeviceRecovery):
         redo its step (after re-arm / resume)."""
         self._poll()
         if self._abort_req:
-            raise _EndRun("aborted by operator")
+            raise _EndRun(f"aborted by {self._abort_by}")
         redo = False
         if self.interlock.latched:
             self._handle_trip(calibrating)
@@ -480,7 +484,7 @@ class Engine(CalibrationSteps, DeviceRecovery):
         def should_stop() -> str:
             self._poll()
             if self._abort_req:
-                return "session aborted by operator"
+                return f"session aborted by {self._abort_by}"
             if watch_commands:
                 if self._skip_req:
                     self._skip_req = False

@@ -322,7 +322,10 @@ class Interlock:
         if rule in self.rules and self.rules[rule].ok:
             self.rules[rule]._verdict(detail)
         if first:
-            log.warning("interlock tripped by %s: %s", rule, detail)
+            # the E-stop is the operator's (or a signal's) own act, reported by the UI that
+            # took it; a fault trip is news: a warning
+            log.log(logging.INFO if rule == self.estop_rule.name else logging.WARNING,
+                    "interlock tripped by %s: %s", rule, detail)
             if self.on_trip is not None:
                 try:
                     self.on_trip(trip)

@@ -10,6 +10,7 @@ from pathlib import Path
 from nmsid.analysis.model_selection import AVERAGE_LABEL
 from nmsid.analysis.settings import PARAMETER_NAMES
 from nmsid.study.group import GroupResult
+from nmsid.protocols.printable import escape_controls
 
 
 def _fmt(v, digits: int = 4) -> str:
@@ -80,7 +81,7 @@ def write_report(path: Path, results: list[dict], group: GroupResult, figures: l
              "img{max-width:32em}")
     doc = (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
            f"</title><style>{style}</style></head><body>{''.join(parts)}</body></html>\n")
-    path.write_text(doc, encoding="utf-8")
+    path.write_text(escape_controls(doc), encoding="utf-8")  # no raw control characters
     return path
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nmsid.analysis.data_bounds import check_session_data
 from nmsid.analysis.gap.data import GapData, PreprocessSettings, load_session, prepare_trials
 from nmsid.analysis.gap.diagnose import CandidateResult, Diagnosis, GapSettings, diagnose
 from nmsid.analysis.gap.errors import GapInputError
@@ -149,6 +150,7 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
     reports = []
     multi = len(sessions) > 1
     for path in sessions:
+        check_session_data(read_session(path), path)  # absurd values: one line, first
         if isinstance(excluded, str) and excluded == "qc":
             excl = assess_session(path).excluded()
         else:

@@ -21,6 +21,7 @@ from nmsid.analysis.gap.models import nuisance_basis, recruitment_curve
 from nmsid.analysis.gap.twin_out import (effect_entries, fatigue_loss_pct, nonlinearity_index_pct,
                                          twin_dict, write_twin)
 from nmsid.analysis.twin import source_entry
+from nmsid.protocols.printable import escape_controls
 
 log = logging.getLogger(__name__)
 
@@ -216,7 +217,9 @@ def write_outputs(diag: Diagnosis, out_dir, calibration=None, *, plots: bool = T
     report["figures"] = figures
     (out / "gap_report.json").write_text(json.dumps(report, indent=1) + "\n",
                                          encoding="utf-8")
-    (out / "report.html").write_text(_html(report, figures), encoding="utf-8")
+    # names and reasons come from the session file: no control character reaches the page
+    (out / "report.html").write_text(escape_controls(_html(report, figures)),
+                                     encoding="utf-8")
     return report
 
 

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from nmsid.analysis.qc.decide import SessionQC
+from nmsid.protocols.printable import escape_controls
 
 QC_COLUMNS = ("participant", "trial", "sE", "repeat", "decision", "reasons", "spans",
               "level_flag")
@@ -30,7 +31,9 @@ def write_qc_csv(sessions: list[SessionQC], path: str | Path) -> Path:
         w.writeheader()
         for qc in sessions:
             for r in rows(qc):
-                w.writerow({k: (f"{r[k]:g}" if k == "sE" else r[k]) for k in QC_COLUMNS})
+                w.writerow({k: (f"{r[k]:g}" if k == "sE" else escape_controls(r[k])
+                                if isinstance(r[k], str) else r[k])
+                            for k in QC_COLUMNS})
     return path
 
 

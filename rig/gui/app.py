@@ -9,11 +9,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pyqtgraph as pg
+from PySide6.QtCore import QTimer
 from PySide6.QtWidgets import QApplication
 
 from nmsid.rig.errors import DisplayUnavailable, RequestError
 from nmsid.rig.gui.main_window import MainWindow
 from nmsid.rig.gui.script import ScriptRunner, load_script
+from nmsid.rig.session_signals import SessionSignals
+
+#: How often the Qt loop hands control to Python so a signal handler can run, ms.
+SIGNAL_POLL_MS = 100
 
 log = logging.getLogger(__name__)
 
@@ -89,6 +94,8 @@ def run_gui(options: GuiOptions) -> int:
         runner = ScriptRunner(window, steps, screenshot=options.screenshot, parent=window)
 
         def done(ok: bool, message: str) -> None:
+            if result.get("signal"):  # the signal's own line says how it ended
+                return
             print(("nmsid gui: " if ok else "nmsid gui: error: ") + message,
                   file=sys.stdout if ok else sys.stderr)
             result["code"] = 0 if ok else 1
@@ -98,8 +105,30 @@ def run_gui(options: GuiOptions) -> int:
                 app.quit()
         runner.finished.connect(done)
         runner.start()
-    app.exec()
-    _dispose(app, window)
+
+    def on_signal(signum, reason):  # main (Qt) thread, between Python bytecodes
+        # output to zero first, then end the session; the window closes on the next turn
+        # of the event loop (closing joins the engine thread, which writes the end record)
+        controller = window.controller
+        controller.estop(reason)
+        result["signal"] = signum
+        if controller.engine is not None:
+            controller.engine.abort(reason)
+        QTimer.singleShot(0, lambda: (window.close(), app.quit()))
+
+    with SessionSignals(on_signal) as signals:
+        # Qt's loop runs in C++: a short timer gives the interpreter control, so the
+        # handler runs within SIGNAL_POLL_MS of the signal
+        wake = QTimer(window)
+        wake.timeout.connect(lambda: None)
+        wake.start(SIGNAL_POLL_MS)
+        app.exec()
+        wake.stop()
+        session = window.controller.session_path if window.controller else None
+        _dispose(app, window)
+    if signals.received is not None:
+        print(signals.stderr_line(session), file=sys.stderr, flush=True)
+        return signals.exit_code
     return result["code"]
 
 

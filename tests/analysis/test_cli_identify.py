@@ -101,5 +101,5 @@ def test_twin_simulate_chirp_and_csv(tmp_path, capsys):
     assert "no such file" in capsys.readouterr().err
     (tmp_path / "bad.csv").write_text("x,y\n1,2\n3,4\n")
     assert main(["twin", "simulate", str(tp), "--input", str(tmp_path / "bad.csv"),
-                 "--sE", "0.5", "--out", str(out2)]) == 2
+                 "--sE", "0.5", "--out", str(tmp_path / "force3.csv")]) == 2
     assert "no 'rE' column" in capsys.readouterr().err

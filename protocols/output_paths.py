@@ -1,0 +1,194 @@
+"""Where commands write their results: never over what the user did not ask to replace.
+
+Every command that writes a file or a folder goes through this module (one place, not one
+copy per command):
+
+* :func:`check_output` refuses, before any work (and before any device is touched), an
+  ``--out`` that exists (unless ``force``), that is a session file (an HDF5 file whose
+  ``format`` is ``nmsid-session``: never replaced, even with ``force``), a folder holding
+  one, a dangling symbolic link, or a place that cannot be written;
+* :func:`output_file` and :func:`output_dir` write into a temporary file / folder beside
+  the target and rename it into place only when the command succeeded, so a kill never
+  leaves half a result, and never mixes old and new results. With ``force`` an existing
+  file is replaced by one ``os.replace`` (atomic); an existing folder is first renamed
+  aside, the new one renamed in, then the old one deleted (two renames: atomic per rename,
+  which is as far as POSIX goes for a non-empty folder).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+from pathlib import Path
+
+import h5py
+
+from nmsid.protocols.errors import OutputPathError
+from nmsid.protocols.session_file import FORMAT as SESSION_FORMAT
+
+#: HDF5's format signature; it sits at byte 0, 512, 1024, 2048, ... of a file.
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+#: Temporary names start with this (beside the target, so a rename never crosses devices).
+TMP_PREFIX = ".nmsid-tmp-"
+
+
+def is_session_file(path) -> bool:
+    """True if ``path`` is (or might be) an nmsid session file.
+
+    An HDF5 file whose root ``format`` attribute is ``nmsid-session``, or an HDF5 file
+    that cannot be opened to tell (damaged, or locked by a live writer): those are treated
+    as session files, since guessing wrong would destroy data.
+    """
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(8)
+            if head != _HDF5_SIGNATURE:
+                fh.seek(512)
+                if fh.read(8) != _HDF5_SIGNATURE:
+                    return False
+    except OSError:
+        return False
+    try:
+        with h5py.File(p, "r", locking=False) as f:
+            fmt = f.attrs.get("format", b"")
+    except Exception:
+        return True
+    if isinstance(fmt, bytes):
+        fmt = fmt.decode("utf-8", "replace")
+    return str(fmt) == SESSION_FORMAT
+
+
+def _session_files_in(folder: Path, depth: int = 2) -> list[Path]:
+    found = []
+    try:
+        entries = list(folder.iterdir())
+    except OSError:
+        return found
+    for e in entries:
+        if e.is_symlink():
+            continue
+        if e.is_dir() and depth > 1:
+            found += _session_files_in(e, depth - 1)
+        elif e.is_file() and is_session_file(e):
+            found.append(e)
+    return found
+
+
+def check_output(path, *, force: bool = False, kind: str = "file",
+                 option: str = "--out") -> Path:
+    """Refuse an output place before any work; return it as a ``Path``.
+
+    Parameters
+    ----------
+    path : path-like
+        The ``--out`` the user gave.
+    force : bool
+        The user asked to replace an existing output (``--force``).
+    kind : {"file", "folder"}
+        What the command writes there.
+    option : str
+        The option's name, for the message.
+
+    Raises
+    ------
+    OutputPathError
+        One line naming the path, what is wrong and what would be valid.
+    """
+    p = Path(path)
+    if str(path) == "" or "\x00" in str(path):
+        raise OutputPathError(f"{option} {str(path)!r}: not a usable path; give a {kind} name")
+    if p.is_symlink() and not p.exists():
+        raise OutputPathError(f"{option} {p}: a dangling symbolic link (to "
+                              f"{os.readlink(p)}); give a real {kind} path")
+    if p.exists():
+        if p.is_file() and is_session_file(p):
+            raise OutputPathError(f"{option} {p}: is a session file; nmsid never overwrites a "
+                                  f"session file, even with --force; give another {kind}")
+        if kind == "file" and p.is_dir():
+            raise OutputPathError(f"{option} {p}: is a folder; give a file name")
+        if kind == "folder" and not p.is_dir():
+            raise OutputPathError(f"{option} {p}: is a file; give a folder name")
+        if kind == "folder":
+            inside = _session_files_in(p)
+            if inside:
+                raise OutputPathError(f"{option} {p}: holds the session file {inside[0]}; "
+                                      f"nmsid never replaces a folder holding session "
+                                      f"files, even with --force; give another folder")
+            if not force and any(p.iterdir()):
+                raise OutputPathError(f"{option} {p}: the folder exists and is not empty; "
+                                      "give --force to replace it, or another folder")
+        elif not force:
+            raise OutputPathError(f"{option} {p}: the file exists; give --force to replace "
+                                  "it, or another file name")
+    parent = _existing_ancestor(p.absolute().parent)
+    if not parent.is_dir():
+        raise OutputPathError(f"{option} {p}: {parent} is not a folder; give a path inside "
+                              "a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise OutputPathError(f"{option} {p}: cannot write in {parent} (permission denied); "
+                              f"give a {kind} in a writable folder")
+    return p
+
+
+def _existing_ancestor(folder: Path) -> Path:
+    while not folder.exists() and folder != folder.parent:
+        if folder.is_symlink():  # a dangling link among the parents
+            raise OutputPathError(f"{folder}: a dangling symbolic link (to "
+                                  f"{os.readlink(folder)}); give a real folder")
+        folder = folder.parent
+    return folder
+
+
+def _tmp_beside(p: Path) -> Path:
+    return p.with_name(f"{TMP_PREFIX}{p.name}-{os.getpid()}")
+
+
+@contextlib.contextmanager
+def output_file(path, *, force: bool = False, option: str = "--out"):
+    """Yield a temporary path beside ``path``; on success it replaces ``path`` (checked
+    by :func:`check_output` first). On any error the temporary file is removed and
+    ``path`` is untouched."""
+    p = check_output(path, force=force, kind="file", option=option)
+    p.absolute().parent.mkdir(parents=True, exist_ok=True)
+    tmp = _tmp_beside(p)
+    try:
+        yield tmp
+        if p.exists() and is_session_file(p):  # appeared while we worked
+            raise OutputPathError(f"{option} {p}: became a session file meanwhile; not "
+                                  f"replaced; the result is in {tmp}")
+        if p.exists() and not force:
+            raise OutputPathError(f"{option} {p}: appeared while the command ran; not "
+                                  f"replaced (give --force)")
+        os.replace(tmp, p)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            if tmp.exists() and not (p.exists() and p.samefile(tmp)):
+                tmp.unlink()
+
+
+@contextlib.contextmanager
+def output_dir(path, *, force: bool = False, option: str = "--out"):
+    """Yield a temporary folder beside ``path``; on success it is renamed to ``path``
+    (an existing one, allowed by ``force``, is renamed aside first and then deleted). On
+    any error the temporary folder is deleted and ``path`` is untouched."""
+    p = check_output(path, force=force, kind="folder", option=option)
+    p.absolute().parent.mkdir(parents=True, exist_ok=True)
+    tmp = _tmp_beside(p)
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    try:
+        yield tmp
+        old = None
+        if p.exists():
+            check_output(p, force=force, kind="folder", option=option)  # still allowed?
+            old = p.with_name(f"{TMP_PREFIX}{p.name}-old-{os.getpid()}")
+            os.rename(p, old)
+        os.rename(tmp, p)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
