@@ -44,6 +44,9 @@ def register(sub) -> None:
     p.add_argument("--sim-seed", type=int, metavar="N",
                    help="sim: seed of the virtual participant and its noise (default: from "
                         "the participant code)")
+    p.add_argument("--allow-weakened-safety", action="store_true",
+                   help="confirm settings that weaken the interlock (a trip_on_* = false, a "
+                        "force_limit_N above the sensor's range); recorded in the session")
     p.add_argument("--no-identify", action="store_true",
                    help="do not run the identification after the schedule")
     p.add_argument("--quiet", action="store_true", help="no progress output")
