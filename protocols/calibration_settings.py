@@ -7,9 +7,9 @@ sit next to the fields (``docs/settings.md``).
 from __future__ import annotations
 
 from pydantic import StrictBool, StrictFloat, model_validator
-from pydantic.dataclasses import dataclass
 
-from protocols.settings_base import SETTINGS_CONFIG, SettingProblem, bounded
+from protocols.errors import ConfigError
+from protocols.settings_base import SettingProblem, bounded, settings_dataclass
 
 MAX_RAMP_STEPS = 2000
 """Calibration steps per ramp at most (ceiling / step_mA); the paper's: 32."""
@@ -18,7 +18,7 @@ _CURRENT_WHY = ("no transcutaneous stimulator of this rig delivers more than 100
                 "device's own range is checked when it is connected")
 
 
-@dataclass(frozen=True, config=SETTINGS_CONFIG)
+@settings_dataclass(ConfigError, prefix="calibration.manual")
 class ManualCurrents:
     """Calibration currents entered by hand (skips the ramps)."""
 
@@ -38,7 +38,7 @@ class ManualCurrents:
         return self
 
 
-@dataclass(frozen=True, config=SETTINGS_CONFIG)
+@settings_dataclass(ConfigError, prefix="calibration")
 class CalibrationConfig:
     """Settings of the calibration ramps (paper: 0.5 mA steps, Fmin 0.5 N, Fmax 5 N)."""
 

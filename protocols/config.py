@@ -72,13 +72,12 @@ import re
 from typing import Annotated, Any
 
 from pydantic import AfterValidator, Field, StrictFloat, StrictInt, model_validator
-from pydantic.dataclasses import dataclass
 
 from protocols.calibration_settings import MAX_RAMP_STEPS, CalibrationConfig, ManualCurrents
 from protocols.errors import ConfigError
 from protocols.interlock_settings import FORCE_SENSOR_RANGE_N, TRIP_SWITCHES, InterlockConfig
-from protocols.settings_base import (SETTINGS_CONFIG, SettingProblem, bounded, read_toml,
-                                     replace_settings, validate_settings)
+from protocols.settings_base import (SettingProblem, bounded, read_toml, replace_settings,
+                                     settings_dataclass, validate_settings)
 
 PARTICIPANT_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,64}")
 """A participant code (used with ``fullmatch``: no trailing newline slips through)."""
@@ -150,7 +149,7 @@ def _default_levels() -> tuple[float, ...]:
     return tuple(round(0.30 + 0.05 * k, 2) for k in range(15))
 
 
-@dataclass(frozen=True, config=SETTINGS_CONFIG)
+@settings_dataclass(ConfigError, prefix="protocol")
 class ProtocolConfig:
     """The identification protocol (paper: 15 sE x 3 repeats, 5 s steady + 10 s chirp).
 
@@ -275,7 +274,7 @@ class ProtocolConfig:
 _LEVEL_RANGE_KEYS = ("sE_min", "sE_max", "sE_step")
 
 
-@dataclass(frozen=True, config=SETTINGS_CONFIG)
+@settings_dataclass(ConfigError)
 class Config:
     """Everything a session needs, validated on construction (see :func:`load_config`)."""
 

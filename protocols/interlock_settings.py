@@ -7,9 +7,9 @@ protection needs ``confirm_weakened_safety = true`` (``docs/settings.md``).
 from __future__ import annotations
 
 from pydantic import StrictBool, StrictFloat, model_validator
-from pydantic.dataclasses import dataclass
 
-from protocols.settings_base import SETTINGS_CONFIG, SettingProblem, bounded
+from protocols.errors import ConfigError
+from protocols.settings_base import SettingProblem, bounded, settings_dataclass
 
 FORCE_SENSOR_RANGE_N = 500.0
 """Rated range of the rig's force sensor (Leptrino PFS080YA501G6: 500 N per force axis;
@@ -20,7 +20,7 @@ TRIP_SWITCHES = ("trip_on_overrun", "trip_on_over_range", "trip_on_sensor_fault"
 """Interlock rules that can be switched off (each then weakens protection)."""
 
 
-@dataclass(frozen=True, config=SETTINGS_CONFIG)
+@settings_dataclass(ConfigError, prefix="interlock")
 class InterlockConfig:
     """Thresholds of the safety interlock (see ``docs/rig.md``).
 

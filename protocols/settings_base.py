@@ -12,6 +12,7 @@ file, the dotted key, the value and what is valid (``docs/settings.md``).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 import tomllib
@@ -21,6 +22,7 @@ from collections.abc import Callable
 from typing import Any
 
 from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic.dataclasses import dataclass as pydantic_dataclass
 
 SETTINGS_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False, validate_default=False,
                              hide_input_in_errors=True)
@@ -51,6 +53,42 @@ class SettingProblem(ValueError):
     def __init__(self, key: str, value, valid: str):
         self.key, self.value, self.valid = key, value, valid
         super().__init__(f"{key} = {value!r}: {valid}")
+
+
+IN_CODE = "(in code)"
+"""The source named for settings built in Python rather than read from a file."""
+
+
+def settings_dataclass(make_error: ErrorFactory, *, frozen: bool = True, prefix: str = ""):
+    """Declare a settings class: a pydantic dataclass with :data:`SETTINGS_CONFIG`.
+
+    Built in code (``ProtocolConfig(fs_Hz=-1)``, ``dataclasses.replace``), a bad value
+    raises ``make_error(IN_CODE, key, value, valid)`` instead of pydantic's
+    ``ValidationError``, so every settings object fails the same way a file does.
+
+    Parameters
+    ----------
+    make_error : callable
+        The package's ConfigError-style factory ``(source, key, value, valid)``.
+    frozen : bool
+        Instances are immutable (as every settings object but a study's).
+    prefix : str
+        Dotted table name put before keys in messages (``"protocol"``).
+    """
+    def wrap(cls):
+        model = pydantic_dataclass(frozen=frozen, config=SETTINGS_CONFIG)(cls)
+        init = model.__init__
+
+        @functools.wraps(init)
+        def __init__(self, *args, **kwargs):
+            try:
+                init(self, *args, **kwargs)
+            except ValidationError as exc:
+                raise convert_error(exc, kwargs, IN_CODE, make_error, model, prefix) from None
+
+        model.__init__ = __init__
+        return model
+    return wrap
 
 
 def bounded(default=dataclasses.MISSING, *, why: str, **bounds):
@@ -145,6 +183,20 @@ def _num(v):
     return v
 
 
+_RANK = {"extra_forbidden": 0, "unexpected_keyword_argument": 0, "value_error": 1,
+         "greater_than_equal": 2, "greater_than": 2, "less_than_equal": 2, "less_than": 2,
+         "too_long": 2, "too_short": 2, "finite_number": 2}
+_TYPE_TAGS = {"float", "int", "str", "bool", "none", "list", "tuple", "dict",
+              "constrained-float", "constrained-int", "constrained-str", "lax-or-strict",
+              "nullable", "default"}
+
+
+def _is_tag(part) -> bool:
+    """True for the parts of a pydantic error location that name a type, not a key."""
+    return isinstance(part, str) and ("[" in part or part in _TYPE_TAGS
+                                      or part.startswith("function-"))
+
+
 def _value_at(data, loc) -> Any:
     cur = data
     for part in loc:
@@ -176,10 +228,10 @@ def convert_error(exc: ValidationError, data, source: str, make_error: ErrorFact
         Prepended to every key (a model loaded as one table of a bigger file).
     """
     errors = exc.errors(include_url=False, include_input=True)
-    unknown = [e for e in errors if e["type"] in ("extra_forbidden",
-                                                  "unexpected_keyword_argument")]
-    err = (unknown or errors)[0]    # a misspelt key explains the 'missing' one beside it
-    loc = [p for p in err["loc"] if not (isinstance(p, str) and p.startswith("function-"))]
+    # a misspelt key explains the 'missing' one beside it; of a union's alternatives
+    # (``"hold"`` or a delay in s) the one that failed on its bounds says the most
+    err = min(errors, key=lambda e: _RANK.get(e["type"], 3))
+    loc = [p for p in err["loc"] if not _is_tag(p)]
     ctx = err.get("ctx") or {}
     parts = [str(p) for p in loc if not isinstance(p, int)]
     value = err.get("input", _value_at(data, loc))
