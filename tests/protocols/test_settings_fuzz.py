@@ -215,3 +215,18 @@ def test_broken_toml_is_one_line(tmp_path, text):
     with pytest.raises(ConfigError) as ei:
         load_config(f)
     assert ei.value.setting in ("(file)", "x") and "\n" not in str(ei.value)
+
+
+@settings(max_examples=60, deadline=2000)
+@given(cmd=st.sampled_from(["start", "confirm-calibration"]),
+       key=st.sampled_from(["seed", "realtime", "Iemax_mA", "Ifmin_mA", "colour", "seed_"]),
+       value=st.sampled_from(["x", "-1", "nan", "inf", "1e400", str(2 ** 63), "maybe",
+                              "1e9", "\u00e9\u00e9"]))
+def test_gui_script_arguments_fuzz(cmd, key, value):
+    pytest.importorskip("PySide6")
+    from rig.gui.script import ScriptError, parse_script
+    try:
+        parse_script(f"{cmd} {key}={value}", "s.txt")
+    except ScriptError as exc:
+        msg = str(exc)
+        assert msg.startswith(f"s.txt:1: {cmd}: {key} = ") and "\n" not in msg, msg
