@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 import os
 import tomllib
 import types
@@ -331,7 +330,33 @@ def read_toml(path: str | os.PathLike, make_error: ErrorFactory, *, what: str) -
         raise make_error(source, "(file)", "TOML", "a table nested less deeply") from None
 
 
-def finite(value: float) -> bool:
-    """True for a finite real number (bools are not numbers here)."""
-    return (isinstance(value, (int, float)) and not isinstance(value, bool)
-            and math.isfinite(value))
+def settings_rows(cls, prefix: str = "") -> list[tuple[str, str, str, str]]:
+    """``(key, default, bounds, why)`` of every key below ``cls``, nested tables expanded.
+
+    ``docs/settings.md`` is generated from these rows, so the page and the models agree.
+    """
+    rows = []
+    for name, info in getattr(cls, "__pydantic_fields__", {}).items():
+        if name in getattr(cls, "_hidden_keys", ("source",)):
+            continue
+        key = f"{prefix}.{name}" if prefix else name
+        sub = _settings_class(info.annotation)
+        if sub is not None and sub is not cls:
+            rows.extend(settings_rows(sub, key))
+            continue
+        bounds = []
+        for m in info.metadata:
+            for attr, sign in (("ge", ">="), ("gt", ">"), ("le", "<="), ("lt", "<"),
+                               ("min_length", "entries >="), ("max_length", "entries <=")):
+                v = getattr(m, attr, None)
+                if v is not None:
+                    bounds.append(f"{sign} {v:g}" if isinstance(v, float) else f"{sign} {v}")
+        if info.default_factory is not None:
+            default = repr(info.default_factory())
+        else:
+            default = "required" if info.is_required() else repr(getattr(info.default, "value",
+                                                                          info.default))
+        if len(default) > 40:
+            default = default[:37] + "..."
+        rows.append((key, default, ", ".join(bounds), info.description or ""))
+    return rows
