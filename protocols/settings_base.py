@@ -167,7 +167,8 @@ def _valid_words(err: dict, model, key: str) -> str:
     if kind in bound_words:
         words = bound_words[kind].format(**{k: _num(v) for k, v in ctx.items()})
         reason = reason_of(model, key) if model is not None else ""
-        return f"a value {words}" + (f" ({reason})" if reason else "")
+        words = words if kind.startswith("too_") else f"a value {words}"
+        return words + (f" ({reason})" if reason else "")
     if kind in _TYPE_WORDS:
         return _TYPE_WORDS[kind]
     if kind == "value_error" and isinstance(ctx.get("error"), SettingProblem):
