@@ -149,6 +149,19 @@ def _default_levels() -> tuple[float, ...]:
     return tuple(round(0.30 + 0.05 * k, 2) for k in range(15))
 
 
+def _problem(source, key, value, valid) -> SettingProblem:
+    return SettingProblem(key, value, valid)
+
+
+@settings_dataclass(ConfigError, prefix="protocol")
+class LevelRange:
+    """``sE_min`` / ``sE_max`` / ``sE_step``: the levels as a range (instead of sE_levels)."""
+
+    sE_min: StrictFloat = bounded(0.30, gt=0.0, le=1.0, why="sE = Ie + If, normalised")
+    sE_max: StrictFloat = bounded(1.00, gt=0.0, le=1.0, why="sE = Ie + If, normalised")
+    sE_step: StrictFloat = bounded(0.05, gt=0.0, le=1.0, why="a step of sE")
+
+
 @settings_dataclass(ConfigError, prefix="protocol")
 class ProtocolConfig:
     """The identification protocol (paper: 15 sE x 3 repeats, 5 s steady + 10 s chirp).
@@ -190,16 +203,11 @@ class ProtocolConfig:
             raise SettingProblem("sE_levels", data["sE_levels"],
                                  "give either sE_levels or sE_min/sE_max/sE_step, not both")
         data = dict(data)
-        lo, hi, step = (data.pop(k, d) for k, d in zip(_LEVEL_RANGE_KEYS, (0.30, 1.00, 0.05)))
-        for key, v in zip(_LEVEL_RANGE_KEYS, (lo, hi, step)):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise SettingProblem(key, v, "a finite number")
-        if not 0 < lo <= 1:
-            raise SettingProblem("sE_min", lo, "in (0, 1] (sE = Ie + If, normalised)")
+        given = {k: data.pop(k) for k in _LEVEL_RANGE_KEYS if k in data}
+        r = validate_settings(LevelRange, given, source="", make_error=_problem)
+        lo, hi, step = r.sE_min, r.sE_max, r.sE_step
         if not lo <= hi <= 1:
             raise SettingProblem("sE_max", hi, f"in [sE_min, 1] = [{lo:g}, 1]")
-        if not step > 0:
-            raise SettingProblem("sE_step", step, "a step > 0")
         n = math.floor((hi - lo) / step + 1e-9) + 1
         if n > MAX_LEVELS:
             raise SettingProblem("sE_step", step,
