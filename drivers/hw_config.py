@@ -19,9 +19,7 @@ from typing import Annotated, Literal
 from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, model_validator
 
 from drivers.analog_force import AXES, AnalogCalibration
-from drivers.caio import INPUT_METHODS, RANGES_V
 from drivers.errors import HardwareConfigError, hw_config_error
-from drivers.nidaq import TERMINAL_CONFIGS
 from protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
                                      validate_settings)
 
@@ -31,12 +29,14 @@ MAX_CEILING_MA = 100.0
 """No stimulator of this rig delivers more; the device's own range is checked on connect."""
 
 Axis = Literal["Fx", "Fy", "Fz", "Mx", "My", "Mz"]
+"""``drivers.analog_force.AXES``; the choices of caio/nidaq below are the drivers' tables
+(``RANGES_V``, ``INPUT_METHODS``, ``TERMINAL_CONFIGS``): tests/drivers/test_hw_config.py
+checks they agree."""
 Channel = Annotated[StrictInt, Field(ge=0, le=63, description="an A/D channel 0 .. 63")]
 Positive = Annotated[StrictFloat, Field(gt=0.0, le=1e6, description="a positive rating")]
 Volts = Annotated[StrictFloat, Field(ge=-100.0, le=100.0, description="a voltage within 100 V")]
 StimChannel = Annotated[StrictInt, Field(ge=1, le=8, description=(
     "channels are numbered from 1 (1 .. 8)"))]
-assert set(Axis.__args__) == set(AXES)      # the literal lists the driver's axes
 
 
 @settings_dataclass(hw_config_error, prefix="rig")
@@ -82,11 +82,6 @@ class CaioSettings:
     library: StrictStr = ""
 
 
-assert set(CaioSettings.__pydantic_fields__["range"].annotation.__args__) == set(RANGES_V)
-assert set(CaioSettings.__pydantic_fields__["input_method"].annotation.__args__) == \
-    set(INPUT_METHODS) | {""}
-
-
 @settings_dataclass(hw_config_error, prefix="acquisition.nidaq")
 class NidaqSettings:
     """``[acquisition.nidaq]``: an NI DAQ device."""
@@ -96,10 +91,6 @@ class NidaqSettings:
     terminal_config: Literal["DEFAULT", "RSE", "NRSE", "DIFF", "PSEUDO_DIFF"] = "DIFF"
     range_V: StrictFloat = bounded(10.0, gt=0.0, le=100.0, why="an input range of NI DAQs")
     reads_per_s: StrictFloat = bounded(10.0, ge=1.0, le=100.0, why="expected 1 .. 100")
-
-
-assert set(NidaqSettings.__pydantic_fields__["terminal_config"].annotation.__args__) == \
-    set(TERMINAL_CONFIGS)
 
 
 @settings_dataclass(hw_config_error, prefix="acquisition.leptrino")

@@ -95,3 +95,18 @@ def test_file_errors(tmp_path):
     bad.write_text("[rig\nfake = true\n")
     with pytest.raises(HardwareConfigError, match="not valid TOML"):
         load_hw_config(bad)
+
+
+def test_declared_choices_match_the_drivers_tables():
+    from typing import get_args
+
+    from drivers.analog_force import AXES
+    from drivers.caio import INPUT_METHODS, RANGES_V
+    from drivers.hw_config import Axis, CaioSettings, NidaqSettings
+    from drivers.nidaq import TERMINAL_CONFIGS
+    fields = CaioSettings.__pydantic_fields__
+    assert set(get_args(Axis)) == set(AXES)
+    assert set(get_args(fields["range"].annotation)) == set(RANGES_V)
+    assert set(get_args(fields["input_method"].annotation)) == set(INPUT_METHODS) | {""}
+    assert set(get_args(NidaqSettings.__pydantic_fields__["terminal_config"].annotation)) == \
+        set(TERMINAL_CONFIGS)
