@@ -26,9 +26,9 @@ from typing import Annotated, Literal
 
 from pydantic import Field, StrictBool, StrictFloat, StrictInt, model_validator
 
-from analysis.errors import setting_error
-from analysis.qc.settings import QCSettings
-from protocols.settings_base import SettingProblem, bounded, settings_dataclass
+from nmsid.analysis.errors import setting_error
+from nmsid.analysis.qc.settings import QCSettings
+from nmsid.protocols.settings_base import SettingProblem, bounded, settings_dataclass
 
 
 class InputHold(str, enum.Enum):
@@ -52,7 +52,7 @@ class InputTiming(str, enum.Enum):
 
     ``ESTIMATE``: no built-in belief; the sub-millisecond delay between the rE record and
     the stimulation (either sign) is estimated from the data (see
-    :mod:`analysis.input_timing`), within +-``input_timing_max_s``.
+    :mod:`nmsid.analysis.input_timing`), within +-``input_timing_max_s``.
     ``HOLD``: the stimulator holds each sample for one sample period (zero-order hold:
     sample k applied from k / fs_Hz on), i.e. the input lags the record by half a sample.
     ``SMOOTH``: the record is the stimulation (a smooth, band-limited input; no delay).
@@ -163,12 +163,12 @@ class IdentificationSettings:
 
     # -- trial quality control ------------------------------------------------------
     qc: StrictBool = True
-    """Judge every trial before averaging (:mod:`analysis.qc`) and average and fit only
+    """Judge every trial before averaging (:mod:`nmsid.analysis.qc`) and average and fit only
     the trials it keeps (repaired data where an artefact was bridged). The paper averages
     every repeat; one voluntary contraction in one repeat then moves Kp and zeta by ~1 %
     (ten standard errors). False: the paper's plain average of every completed repeat."""
     qc_settings: QCSettings = Field(default_factory=QCSettings)
-    """Thresholds of the trial quality control (:class:`analysis.qc.QCSettings`)."""
+    """Thresholds of the trial quality control (:class:`nmsid.analysis.qc.QCSettings`)."""
 
     # -- fitting ------------------------------------------------------------------
     estimate_trend: StrictBool = True

@@ -1,9 +1,9 @@
 """The hardware configuration file (TOML): which devices, channels, calibration, ceilings.
 
-Every table is a settings model of the shared layer (:mod:`protocols.settings_base`):
+Every table is a settings model of the shared layer (:mod:`nmsid.protocols.settings_base`):
 typed keys with their bounds and reasons next to them, unknown keys refused, checked
 before any device is touched. A bad setting raises
-:class:`~drivers.errors.HardwareConfigError` naming the file, the dotted key, the value
+:class:`~nmsid.drivers.errors.HardwareConfigError` naming the file, the dotted key, the value
 and what would be valid. ``docs/hw-config.example.toml`` is a complete example;
 ``docs/hardware.md`` explains each table, ``docs/settings.md`` lists every key.
 
@@ -18,10 +18,10 @@ from typing import Annotated, Literal
 
 from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, model_validator
 
-from drivers.analog_force import AXES, AnalogCalibration
-from drivers.errors import HardwareConfigError, hw_config_error
-from protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
-                                     validate_settings)
+from nmsid.drivers.analog_force import AXES, AnalogCalibration
+from nmsid.drivers.errors import HardwareConfigError, hw_config_error
+from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
+                                           validate_settings)
 
 LEPTRINO_MAX_RATE_HZ = 1200.0
 """What the Leptrino USB interface streams at (vendor sample: "maximum 1.2 kHz")."""

@@ -1,6 +1,6 @@
 """The ``[calibration]`` table of a session configuration: ramps, ceilings, manual currents.
 
-Part of :mod:`protocols.config` (which re-exports every name); bounds and their reasons
+Part of :mod:`nmsid.protocols.config` (which re-exports every name); bounds and their reasons
 sit next to the fields (``docs/settings.md``).
 """
 
@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from pydantic import StrictBool, StrictFloat, model_validator
 
-from protocols.errors import ConfigError
-from protocols.settings_base import SettingProblem, bounded, settings_dataclass
+from nmsid.protocols.errors import ConfigError
+from nmsid.protocols.settings_base import SettingProblem, bounded, settings_dataclass
 
 MAX_RAMP_STEPS = 2000
 """Calibration steps per ramp at most (ceiling / step_mA); the paper's: 32."""

@@ -58,7 +58,7 @@ Layout of the TOML file (every key optional; unknown keys are refused)::
                                    # above the sensor range (docs/settings.md)
 
 Every key is a field of a pydantic dataclass below, with its bounds and their reason next
-to it (:mod:`protocols.settings_base`); ``docs/settings.md`` lists them all.
+to it (:mod:`nmsid.protocols.settings_base`); ``docs/settings.md`` lists them all.
 """
 
 from __future__ import annotations
@@ -73,11 +73,11 @@ from typing import Annotated, Any
 
 from pydantic import AfterValidator, Field, StrictFloat, StrictInt, model_validator
 
-from protocols.calibration_settings import MAX_RAMP_STEPS, CalibrationConfig, ManualCurrents
-from protocols.errors import ConfigError
-from protocols.interlock_settings import FORCE_SENSOR_RANGE_N, TRIP_SWITCHES, InterlockConfig
-from protocols.settings_base import (SettingProblem, bounded, read_toml, replace_settings,
-                                     settings_dataclass, validate_settings)
+from nmsid.protocols.calibration_settings import MAX_RAMP_STEPS, CalibrationConfig, ManualCurrents
+from nmsid.protocols.errors import ConfigError
+from nmsid.protocols.interlock_settings import FORCE_SENSOR_RANGE_N, TRIP_SWITCHES, InterlockConfig
+from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, replace_settings,
+                                           settings_dataclass, validate_settings)
 
 PARTICIPANT_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,64}")
 """A participant code (used with ``fullmatch``: no trailing newline slips through)."""

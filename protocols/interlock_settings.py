@@ -1,6 +1,6 @@
 """The ``[interlock]`` table of a session configuration, and the weakened-safety rule.
 
-Part of :mod:`protocols.config` (which re-exports every name). A setting that weakens
+Part of :mod:`nmsid.protocols.config` (which re-exports every name). A setting that weakens
 protection needs ``confirm_weakened_safety = true`` (``docs/settings.md``).
 """
 
@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from pydantic import StrictBool, StrictFloat, model_validator
 
-from protocols.errors import ConfigError
-from protocols.settings_base import SettingProblem, bounded, settings_dataclass
+from nmsid.protocols.errors import ConfigError
+from nmsid.protocols.settings_base import SettingProblem, bounded, settings_dataclass
 
 FORCE_SENSOR_RANGE_N = 500.0
 """Rated range of the rig's force sensor (Leptrino PFS080YA501G6: 500 N per force axis;

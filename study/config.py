@@ -25,11 +25,11 @@ from typing import Annotated
 
 from pydantic import AfterValidator, Field, StrictBool, StrictInt, StrictStr
 
-from analysis.settings import IdentificationSettings
-from protocols.config import PARTICIPANT_PATTERN
-from protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
-                                     validate_settings)
-from study.errors import StudyConfigError, study_config_error
+from nmsid.analysis.settings import IdentificationSettings
+from nmsid.protocols.config import PARTICIPANT_PATTERN
+from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
+                                           validate_settings)
+from nmsid.study.errors import StudyConfigError, study_config_error
 
 MAX_SESSION_ENTRIES = 100_000
 """Entries of ``sessions`` at most (each a path or a glob)."""
@@ -87,7 +87,7 @@ class StudyConfig:
         "diagnose only the first N sessions; 0 = all"))
     figures: StrictBool = True
     identification: dict = Field(default_factory=dict)
-    """Overrides of :class:`~analysis.settings.IdentificationSettings` fields."""
+    """Overrides of :class:`~nmsid.analysis.settings.IdentificationSettings` fields."""
     source: str = ""
 
     def gap_sessions(self) -> set[Path]:

@@ -7,8 +7,8 @@ from typing import Annotated
 
 from pydantic import Field, StrictFloat, StrictInt
 
-from analysis.errors import setting_error
-from protocols.settings_base import settings_dataclass
+from nmsid.analysis.errors import setting_error
+from nmsid.protocols.settings_base import settings_dataclass
 
 
 Seconds = Annotated[StrictFloat, Field(gt=0.0, le=600.0, description=(
@@ -19,7 +19,7 @@ Factor = Annotated[StrictFloat, Field(gt=0.0, le=1e6, description="a positive fa
 
 @settings_dataclass(setting_error, prefix="qc_settings")
 class QCSettings:
-    """Settings of :func:`analysis.qc.assess_session` (``docs/identification.md``).
+    """Settings of :func:`nmsid.analysis.qc.assess_session` (``docs/identification.md``).
 
     Every threshold is relative to the recording's own noise or response, so the same
     defaults hold for quiet and noisy sensors and for small and large forces.

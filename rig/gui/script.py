@@ -35,8 +35,8 @@ from pathlib import Path
 
 from PySide6.QtCore import QObject, QTimer, Signal
 
-from protocols.config import SEED_MAX
-from protocols.settings_base import bounded, settings_dataclass, validate_settings
+from nmsid.protocols.config import SEED_MAX
+from nmsid.protocols.settings_base import bounded, settings_dataclass, validate_settings
 
 log = logging.getLogger(__name__)
 
@@ -246,7 +246,7 @@ def load_script(name_or_path: str) -> list[Step]:
 
 
 class ScriptRunner(QObject):
-    """Runs steps against a :class:`~rig.gui.main_window.MainWindow` from a Qt timer.
+    """Runs steps against a :class:`~nmsid.rig.gui.main_window.MainWindow` from a Qt timer.
 
     Signals
     -------

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from drivers.errors import HardwareConfigError
-from drivers.hw_config import load_hw_config, parse_hw_config
+from nmsid.drivers.errors import HardwareConfigError
+from nmsid.drivers.hw_config import load_hw_config, parse_hw_config
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "docs" / "hw-config.example.toml"
 
@@ -100,10 +100,10 @@ def test_file_errors(tmp_path):
 def test_declared_choices_match_the_drivers_tables():
     from typing import get_args
 
-    from drivers.analog_force import AXES
-    from drivers.caio import INPUT_METHODS, RANGES_V
-    from drivers.hw_config import Axis, CaioSettings, NidaqSettings
-    from drivers.nidaq import TERMINAL_CONFIGS
+    from nmsid.drivers.analog_force import AXES
+    from nmsid.drivers.caio import INPUT_METHODS, RANGES_V
+    from nmsid.drivers.hw_config import Axis, CaioSettings, NidaqSettings
+    from nmsid.drivers.nidaq import TERMINAL_CONFIGS
     fields = CaioSettings.__pydantic_fields__
     assert set(get_args(Axis)) == set(AXES)
     assert set(get_args(fields["range"].annotation)) == set(RANGES_V)

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from analysis.settings import IdentificationSettings
-from drivers.hw_config import HardwareFile
-from protocols.config import Config
-from protocols.settings_base import settings_rows
-from study.config import StudyFile
+from nmsid.analysis.settings import IdentificationSettings
+from nmsid.drivers.hw_config import HardwareFile
+from nmsid.protocols.config import Config
+from nmsid.protocols.settings_base import settings_rows
+from nmsid.study.config import StudyFile
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "settings.md"
 KINDS = [("Protocol file (`nmsid run --config`)", Config, ""),

@@ -15,11 +15,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from analysis.errors import SettingError
-from drivers.errors import HardwareConfigError
-from protocols.config import ConfigError, load_config
-from study.config import load_study
-from study.errors import StudyConfigError
+from nmsid.analysis.errors import SettingError
+from nmsid.drivers.errors import HardwareConfigError
+from nmsid.protocols.config import ConfigError, load_config
+from nmsid.study.config import load_study
+from nmsid.study.errors import StudyConfigError
 
 BAD_VALUES = st.one_of(
     st.just(math.nan), st.just(math.inf), st.just(-math.inf), st.just(1e308), st.just(-1e308),
@@ -191,13 +191,13 @@ def test_study_file_fuzz(case, tmp_path):
 @settings(max_examples=60, deadline=2000, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(case=_mutation(HW_FILE))
 def test_hw_file_fuzz(case, tmp_path):
-    from drivers.hw_config import load_hw_config
+    from nmsid.drivers.hw_config import load_hw_config
     path, data = case
     _check(path, data, HW_FILE, load_hw_config, HardwareConfigError, tmp_path)
 
 
 def test_valid_files_load(tmp_path):
-    from drivers.hw_config import load_hw_config
+    from nmsid.drivers.hw_config import load_hw_config
     f = tmp_path / "p.toml"
     f.write_text(_dump(PROTOCOL_FILE))
     assert load_config(f).protocol.sE_levels == (0.3, 0.5)
@@ -224,7 +224,7 @@ def test_broken_toml_is_one_line(tmp_path, text):
                               "1e9", "\u00e9\u00e9"]))
 def test_gui_script_arguments_fuzz(cmd, key, value):
     pytest.importorskip("PySide6")
-    from rig.gui.script import ScriptError, parse_script
+    from nmsid.rig.gui.script import ScriptError, parse_script
     try:
         parse_script(f"{cmd} {key}={value}", "s.txt")
     except ScriptError as exc:

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from protocols.session_file import read_session
-from rig.cli import main
+from nmsid.protocols.session_file import read_session
+from nmsid.cli import main
 
 WEAK = """
 participant = "C02"
