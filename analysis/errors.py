@@ -14,6 +14,11 @@ class SettingError(UserError):
     """An identification setting has a value that cannot be used (message names it)."""
 
 
+def setting_error(source: str, key: str, value, valid: str) -> SettingError:
+    """The settings layer's factory (``protocols.settings_base``) for :class:`SettingError`."""
+    return SettingError(f"{source}: {key} = {value!r} is not valid: {valid}")
+
+
 class IdentificationError(UserError):
     """A level or session cannot be identified (no usable trial, too few samples, ...)."""
 

@@ -15,18 +15,20 @@ Examples
 >>> IdentificationSettings(iqr_k=-1)
 Traceback (most recent call last):
 ...
-analysis.errors.SettingError: iqr_k = -1 is not valid: use a number > 0 (1.5 in the paper)
+analysis.errors.SettingError: (in code): iqr_k = -1 is not valid: a value > 0 (the outlier fence's width in IQRs; 1.5 in the paper)
 """
 
 from __future__ import annotations
 
 import dataclasses
 import enum
-import math
-from dataclasses import dataclass, field
+from typing import Annotated, Literal
 
-from nmsid.analysis.errors import SettingError
+from pydantic import Field, StrictBool, StrictFloat, StrictInt, model_validator
+
+from nmsid.analysis.errors import setting_error
 from nmsid.analysis.qc.settings import QCSettings
+from nmsid.protocols.settings_base import SettingProblem, bounded, settings_dataclass
 
 
 class InputHold(str, enum.Enum):
@@ -79,9 +81,16 @@ class NoiseLevel(str, enum.Enum):
 
 MODEL_NAMES = ("linear", "quadratic", "exponential")
 PARAMETER_NAMES = ("Kp", "wn_rad_s", "zeta")
+MAX_INPUT_DELAY_S = 0.05
+"""A rig's input delay is sub-millisecond; 50 ms is physiology (gap diagnosis), not timing."""
+
+Seconds = Annotated[StrictFloat, Field(ge=0.0, le=3600.0, description=(
+    "a time in the trial, at most an hour"))]
+Delay = Annotated[StrictFloat, Field(gt=-MAX_INPUT_DELAY_S, lt=MAX_INPUT_DELAY_S, description=(
+    "a calibrated input delay below 0.05 s in size"))]
 
 
-@dataclass(frozen=True)
+@settings_dataclass(setting_error)
 class IdentificationSettings:
     """Settings of preprocessing, fitting and model selection (defaults follow the paper).
 
@@ -89,45 +98,49 @@ class IdentificationSettings:
     """
 
     # -- preprocessing ------------------------------------------------------------
-    detrend: bool = True
+    detrend: StrictBool = True
     """Remove a least-squares line from each raw trial (paper: "detrended to remove linear
     drift"). Done on the whole raw trial, lead-in included, as the paper describes."""
-    window_start_s: float | None = None
+    window_start_s: Seconds | None = None
     """Start of the analysed window in s after stimulation onset; None = the trial's
     ``steady_s`` (5 s in the paper)."""
-    window_end_s: float | None = None
+    window_end_s: Seconds | None = None
     """End of the window; None = ``steady_s + chirp_s`` (or the end of the data)."""
-    savgol_window: int | None = 41
+    savgol_window: StrictInt | None = bounded(41, ge=3, le=100_001, why=(
+        "an odd window of 3 samples up to 100,001"))
     """Savitzky-Golay window in samples (odd), None to skip (paper: 41)."""
-    savgol_order: int = 3
+    savgol_order: StrictInt = bounded(3, ge=0, le=20, why="a polynomial order up to 20")
     """Savitzky-Golay polynomial order (paper: 3)."""
-    lowpass_Hz: float | None = 25.0
+    lowpass_Hz: StrictFloat | None = bounded(25.0, gt=0.0, le=100_000.0, why=(
+        "a cut-off frequency below 100 kHz"))
     """Butterworth low-pass cut-off, None to skip (paper: 25 Hz)."""
-    butter_order: int = 4
+    butter_order: StrictInt = bounded(4, ge=1, le=12, why=(
+        "higher Butterworth orders are numerically fragile"))
     """Butterworth order (paper: not stated). 4 gives, run forward and backward, an
     8th-order magnitude roll-off: 50 Hz mains pick-up is attenuated 257x while the chirp
     band (<= 10 Hz) is passed within 0.07 %."""
-    zero_phase: bool = True
+    zero_phase: StrictBool = True
     """Filter forward and backward (``sosfiltfilt``). A causal 25 Hz Butterworth delays
     the force by 10-20 ms, which biases wn and zeta; zero phase has no delay."""
-    prefilter_input: bool = True
+    prefilter_input: StrictBool = True
     """Apply the same smoothing and low-pass to rE as to the force. Filtering input and
     output with the same linear filter leaves G unchanged (F y = G F u), so the small
     in-band attenuation of the filters cannot bias Kp, wn or zeta."""
-    filter_whole_trial: bool = True
+    filter_whole_trial: StrictBool = True
     """Filter the whole detrended trial and cut the window afterwards (True), instead of
     cutting first as the paper's wording orders it (False). Inside the window the result is
     the same; cutting afterwards keeps the filters' start-up transients out of the
     window (before the window rE is constant and the force at rest). The filters start
     max(0.5 s, 10 / lowpass_Hz) before the window: their memory is far shorter."""
-    edge_trim_s: float | None = None
+    edge_trim_s: Seconds | None = None
     """Data dropped where the window meets an edge of the filtered record (the end of the
     trial; also the window start when ``filter_whole_trial`` is False). Zero-phase
     filtering pads each signal by reflection, which is not consistent with G between rE
     and force, so the last ~2.5/lowpass_Hz s are slightly wrong (bias ~4e-4 in Kp for a
     lightly damped system). None: automatic, 3 / lowpass_Hz + half the Savitzky-Golay
     window (0.13 s with the paper's filters: 1.3 % of the chirp; bias < 2e-6)."""
-    fit_fs_Hz: float | None = 200.0
+    fit_fs_Hz: StrictFloat | None = bounded(200.0, gt=0.0, le=100_000.0, why=(
+        "a fit rate below 100 kHz"))
     """Rate at which the model is fitted: the filtered data are decimated by
     floor(fs_Hz / fit_fs_Hz). After a 25 Hz low-pass nothing above ~40 Hz is left, so 200 Hz
     keeps all the information and makes the fit 10x cheaper. None: fit at the raw rate.
@@ -135,142 +148,88 @@ class IdentificationSettings:
     input_hold: InputHold = InputHold.SMOOTH
     """How the model sees the input between samples at the fit rate (see
     :class:`InputHold`); the rig's own timing is ``input_timing``."""
-    input_timing: InputTiming | float = InputTiming.ESTIMATE
+    input_timing: InputTiming | Delay = bounded(InputTiming.ESTIMATE, why=(
+        "'estimate', 'hold', 'smooth' or a calibrated delay in s below 0.05 in size"))
     """The input-timing model, shared by identification and gap diagnosis (see
     :class:`InputTiming`): ``"estimate"`` (default: rigs differ, e.g. our simulated
     stimulator holds each sample, a DAC with a reconstruction filter does not; estimating
     costs one extra fit only where the delay is significant), ``"hold"``, ``"smooth"``, or
     a delay in s calibrated for the rig (positive: the stimulation lags the rE record)."""
-    input_timing_max_s: float = 1e-3
+    input_timing_max_s: StrictFloat = bounded(1e-3, gt=0.0, lt=MAX_INPUT_DELAY_S, why=(
+        "sub-millisecond timing is the rig's; longer latencies are physiology"))
     """Largest delay (either sign) the estimate may take: sub-millisecond timing is what
     a rig's sampling and output stage produce (a one-sample hold at 1 kHz is 0.5 ms);
     longer latencies are physiology (``dead_time`` in the gap diagnosis)."""
 
     # -- trial quality control ------------------------------------------------------
-    qc: bool = True
+    qc: StrictBool = True
     """Judge every trial before averaging (:mod:`nmsid.analysis.qc`) and average and fit only
     the trials it keeps (repaired data where an artefact was bridged). The paper averages
     every repeat; one voluntary contraction in one repeat then moves Kp and zeta by ~1 %
     (ten standard errors). False: the paper's plain average of every completed repeat."""
-    qc_settings: QCSettings = field(default_factory=QCSettings)
+    qc_settings: QCSettings = Field(default_factory=QCSettings)
     """Thresholds of the trial quality control (:class:`nmsid.analysis.qc.QCSettings`)."""
 
     # -- fitting ------------------------------------------------------------------
-    estimate_trend: bool = True
+    estimate_trend: StrictBool = True
     """Estimate an output ramp (c1 t) along with the output offset and initial state.
     The paper's detrend fits its line to drift + response together, so part of the
     response's own mean leaks into the window as a ramp; a ramp term absorbs it exactly
     and any drift the detrend missed. MATLAB tfest estimates offset and initial state."""
-    max_iterations: int = 100
+    max_iterations: StrictInt = bounded(100, ge=1, le=100_000, why=(
+        "a search that has not converged in 100,000 iterations will not"))
     """Iteration limit of the prediction-error (Gauss-Newton / Levenberg-Marquardt) search."""
-    tolerance: float = 1e-10
+    tolerance: StrictFloat = bounded(1e-10, gt=0.0, lt=1.0, why="a relative tolerance")
     """Stop when the relative cost decrease and the relative step are below this."""
-    retry_below_fit_pct: float = 70.0
+    retry_below_fit_pct: StrictFloat = bounded(70.0, ge=-1e6, le=100.0, why=(
+        "a fit percent (100 is perfect)"))
     """If the fit from the instrumental-variable start ends below this fit percent (or does
     not converge), also start from a coarse grid of (wn, zeta) and keep the best."""
     noise_level: NoiseLevel = NoiseLevel.BAND_PSD
     """How standard errors estimate the noise (see :class:`NoiseLevel`)."""
-    resid_lags: int = 25
+    resid_lags: StrictInt = bounded(25, ge=1, le=10_000, why="lags of the residual tests")
     """Lags of the residual tests (MATLAB ``resid`` default: 25)."""
-    resid_confidence: float = 0.99
+    resid_confidence: StrictFloat = bounded(0.99, gt=0.0, lt=1.0, why="a probability")
     """Confidence of the residual tests' bounds (MATLAB ``resid`` default: 99 %)."""
 
     # -- model selection ----------------------------------------------------------
-    models: tuple[str, ...] = MODEL_NAMES
+    models: tuple[Literal["linear", "quadratic", "exponential"], ...] = bounded(
+        MODEL_NAMES, min_length=1, max_length=3, why=f"a non-empty subset of {MODEL_NAMES}")
     """Candidate curves of a parameter against sE."""
-    iqr_k: float = 1.5
+    iqr_k: StrictFloat = bounded(1.5, gt=0.0, le=100.0, why=(
+        "the outlier fence's width in IQRs; 1.5 in the paper"))
     """Outliers are outside [Q1 - k IQR, Q3 + k IQR] (paper: 1.5)."""
-    iqr_parameters: tuple[str, ...] = ("wn_rad_s", "zeta")
+    iqr_parameters: tuple[Literal["Kp", "wn_rad_s", "zeta"], ...] = ("wn_rad_s", "zeta")
     """Parameters cleaned of IQR outliers before selection (paper: wn and zeta, not Kp)."""
-    aicc_count_noise_variance: bool = False
+    aicc_count_noise_variance: StrictBool = False
     """Count the residual variance as a parameter in AICc (k + 1) or not (k = number of
     curve coefficients, as MATLAB's ``aic(..., 'AICc')`` counts only estimated model
     coefficients). Burnham & Anderson count it; the selection rarely changes, the values do."""
-    extra: dict = field(default_factory=dict, compare=False, repr=False)
+    extra: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
     """Free-form notes (stored with the outputs; not used)."""
 
-    def __post_init__(self):
-        problems = list(self._problems())
-        if problems:
-            raise SettingError(problems[0])
-
-    def _problems(self):
-        def bad(name, value, valid):
-            return f"{name} = {value!r} is not valid: use {valid}"
-
+    @model_validator(mode="after")
+    def _consistent(self):
         if self.savgol_window is not None:
-            if (not isinstance(self.savgol_window, int) or self.savgol_window < 3
-                    or self.savgol_window % 2 == 0):
-                yield bad("savgol_window", self.savgol_window, "an odd integer >= 3, or None")
-            elif not 0 <= self.savgol_order < self.savgol_window:
-                yield bad("savgol_order", self.savgol_order,
-                          f"an integer in [0, savgol_window) = [0, {self.savgol_window})")
-        if self.lowpass_Hz is not None and not (self.lowpass_Hz > 0):
-            yield bad("lowpass_Hz", self.lowpass_Hz, "a frequency > 0 in Hz, or None")
-        if not isinstance(self.butter_order, int) or not 1 <= self.butter_order <= 12:
-            yield bad("butter_order", self.butter_order, "an integer from 1 to 12")
+            if self.savgol_window % 2 == 0:
+                raise SettingProblem("savgol_window", self.savgol_window,
+                                     "an odd integer >= 3, or None")
+            if not self.savgol_order < self.savgol_window:
+                raise SettingProblem("savgol_order", self.savgol_order,
+                                     f"an integer in [0, savgol_window) = "
+                                     f"[0, {self.savgol_window})")
         if self.fit_fs_Hz is not None:
-            if not (self.fit_fs_Hz > 0):
-                yield bad("fit_fs_Hz", self.fit_fs_Hz, "a rate > 0 in Hz, or None")
-            elif self.lowpass_Hz is None:
-                yield bad("fit_fs_Hz", self.fit_fs_Hz,
-                          "None when lowpass_Hz is None (decimating unfiltered data aliases)")
-            elif self.fit_fs_Hz < 4 * self.lowpass_Hz:
-                yield bad("fit_fs_Hz", self.fit_fs_Hz,
-                          f">= 4 x lowpass_Hz = {4 * self.lowpass_Hz:g} Hz, or None")
-        if self.edge_trim_s is not None and not (self.edge_trim_s >= 0):
-            yield bad("edge_trim_s", self.edge_trim_s, "a time >= 0 in s, or None (automatic)")
-        for name in ("window_start_s", "window_end_s"):
-            value = getattr(self, name)
-            if value is not None and not (math.isfinite(value) and value >= 0):
-                yield bad(name, value, "a time >= 0 in s, or None")
+            if self.lowpass_Hz is None:
+                raise SettingProblem("fit_fs_Hz", self.fit_fs_Hz, "None when lowpass_Hz is "
+                                     "None (decimating unfiltered data aliases)")
+            if self.fit_fs_Hz < 4 * self.lowpass_Hz:
+                raise SettingProblem("fit_fs_Hz", self.fit_fs_Hz,
+                                     f">= 4 x lowpass_Hz = {4 * self.lowpass_Hz:g} Hz, or None")
         if (self.window_start_s is not None and self.window_end_s is not None
                 and self.window_end_s <= self.window_start_s):
-            yield bad("window_end_s", self.window_end_s,
-                      f"a time after window_start_s = {self.window_start_s}")
-        if not isinstance(self.max_iterations, int) or self.max_iterations < 1:
-            yield bad("max_iterations", self.max_iterations, "an integer >= 1")
-        if not 0 < self.tolerance < 1:
-            yield bad("tolerance", self.tolerance, "a number in (0, 1)")
-        if not isinstance(self.resid_lags, int) or self.resid_lags < 1:
-            yield bad("resid_lags", self.resid_lags, "an integer >= 1")
-        if not 0 < self.resid_confidence < 1:
-            yield bad("resid_confidence", self.resid_confidence, "a probability in (0, 1)")
-        if not (self.iqr_k > 0):
-            yield bad("iqr_k", self.iqr_k, "a number > 0 (1.5 in the paper)")
-        for m in self.models:
-            if m not in MODEL_NAMES:
-                yield bad("models", self.models, f"a subset of {MODEL_NAMES}")
-                break
-        if not self.models:
-            yield bad("models", self.models, f"a non-empty subset of {MODEL_NAMES}")
-        for p in self.iqr_parameters:
-            if p not in PARAMETER_NAMES:
-                yield bad("iqr_parameters", self.iqr_parameters, f"a subset of {PARAMETER_NAMES}")
-                break
-        if isinstance(self.input_timing, (int, float)) and not isinstance(
-                self.input_timing, bool):
-            if not (math.isfinite(self.input_timing) and abs(self.input_timing) < 0.05):
-                yield bad("input_timing", self.input_timing,
-                          "'estimate', 'hold', 'smooth' or a delay in s below 0.05 in size")
-            else:
-                object.__setattr__(self, "input_timing", float(self.input_timing))
-        elif not isinstance(self.input_timing, InputTiming):
-            try:
-                object.__setattr__(self, "input_timing", InputTiming(self.input_timing))
-            except ValueError:
-                yield bad("input_timing", self.input_timing,
-                          f"one of {[k.value for k in InputTiming]} or a delay in s")
-        if not (0 < self.input_timing_max_s < 0.05):
-            yield bad("input_timing_max_s", self.input_timing_max_s, "a time in (0, 0.05) s")
-        # enums given as strings (e.g. from JSON) are converted, bad ones rejected
-        for name, kind in (("input_hold", InputHold), ("noise_level", NoiseLevel)):
-            value = getattr(self, name)
-            if not isinstance(value, kind):
-                try:
-                    object.__setattr__(self, name, kind(value))
-                except ValueError:
-                    yield bad(name, value, f"one of {[k.value for k in kind]}")
+            raise SettingProblem("window_end_s", self.window_end_s,
+                                 f"a time after window_start_s = {self.window_start_s}")
+        return self
 
     def edge_trim_samples(self, fs_Hz: float) -> int:
         """Samples dropped at a filtered edge (see ``edge_trim_s``)."""
@@ -281,7 +240,7 @@ class IdentificationSettings:
         return int(round(trim * fs_Hz)) + half_sg
 
     def replace(self, **changes) -> IdentificationSettings:
-        """A copy with some settings changed (validated again)."""
+        """A copy with some settings changed (validated again; :class:`SettingError`)."""
         return dataclasses.replace(self, **changes)
 
     def as_dict(self) -> dict:

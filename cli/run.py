@@ -67,6 +67,9 @@ def register(sub) -> None:
                    help="hw: after a USB glitch between trials, resume as soon as the device "
                         "is reconnected (default: ask on a terminal, else end the session "
                         "for --resume)")
+    p.add_argument("--allow-weakened-safety", action="store_true",
+                   help="confirm settings that weaken the interlock (a trip_on_* = false, a "
+                        "force_limit_N above the sensor's range); recorded in the session")
     p.add_argument("--no-identify", action="store_true",
                    help="do not run the identification after the schedule")
     p.add_argument("--quiet", action="store_true", help="no progress output")

@@ -54,8 +54,9 @@ def run(args) -> int:
         path = Path(args.resume)
         config = _stored_config(path)
     else:
-        config = load_config(args.config, overrides={"participant": args.participant,
-                                                     "seed": args.seed})
+        config = load_config(args.config, overrides={
+            "participant": args.participant, "seed": args.seed,
+            "confirm_weakened_safety": getattr(args, "allow_weakened_safety", False)})
         if args.participant_model:
             config = config.replace(participant_model=args.participant_model)
         if args.backend == "sim" and not args.realtime and config.protocol.rest_s != 0:

@@ -123,7 +123,7 @@ def run(args) -> int:
         raise OutputExistsError(f"--out {out} exists; choose a new folder or add --force "
                               "(replaces its stimulation.json and samples.npz only)")
     if out.exists() and not out.is_dir():
-        raise NotADirectoryError(f"--out {out} is a file, not a folder")
+        raise OutputExistsError(f"--out {out} is a file, not a folder")
     calibration = parse_calibration(args.calibration)
     stim = (load_hw_config(args.hw_config).stimulator if args.hw_config
             else StimulatorConfig())

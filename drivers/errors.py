@@ -43,6 +43,11 @@ class HardwareConfigError(UserError):
     """The hardware configuration file holds a missing, unknown or invalid setting."""
 
 
+def hw_config_error(source: str, key: str, value, valid: str) -> HardwareConfigError:
+    """The settings layer's factory (``protocols.settings_base``) for hardware files."""
+    return HardwareConfigError(f"{source}: {key} = {value!r} is invalid; {valid}")
+
+
 class DeviceRangeError(CurrentLimitError):
     """A configured or requested current ceiling exceeds what the device can deliver."""
 
@@ -65,6 +70,6 @@ class StimulatorFault(DeviceError):
 
 
 __all__ = ["VendorLibraryMissing", "DeviceNotFound", "DeviceError", "ProtocolError",
-           "HardwareConfigError", "DeviceRangeError", "CurrentLimitError",
+           "HardwareConfigError", "hw_config_error", "DeviceRangeError", "CurrentLimitError",
            "ChargeBalanceError", "StimulatorSettingError", "DeviceMemoryError",
            "StimulatorFault"]

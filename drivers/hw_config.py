@@ -1,44 +1,254 @@
 """The hardware configuration file (TOML): which devices, channels, calibration, ceilings.
 
-Every setting is validated before any device is touched; a bad one raises
-:class:`~nmsid.drivers.errors.HardwareConfigError` naming the file, the setting (dotted path),
-the value and what would be valid. Unknown settings are refused too (a typo must not
-silently fall back to a default). ``docs/hw-config.example.toml`` is a complete example;
-``docs/hardware.md`` explains each table.
+Every table is a settings model of the shared layer (:mod:`nmsid.protocols.settings_base`):
+typed keys with their bounds and reasons next to them, unknown keys refused, checked
+before any device is touched. A bad setting raises
+:class:`~nmsid.drivers.errors.HardwareConfigError` naming the file, the dotted key, the value
+and what would be valid. ``docs/hw-config.example.toml`` is a complete example;
+``docs/hardware.md`` explains each table, ``docs/settings.md`` lists every key.
+
+A new hardware setting: add a field (with ``bounded(..., why=...)`` if it has limits) to
+the table's class below, and read it where the device is made (``drivers.hardware``).
 """
 
 from __future__ import annotations
 
-import math
-import tomllib
 from dataclasses import dataclass, field
-from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, model_validator
 
 from nmsid.drivers.analog_force import AXES, AnalogCalibration
-from nmsid.drivers.caio import INPUT_METHODS, RANGES_V
-from nmsid.drivers.errors import HardwareConfigError
-from nmsid.drivers.nidaq import TERMINAL_CONFIGS
+from nmsid.drivers.errors import HardwareConfigError, hw_config_error
+from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
+                                           validate_settings)
 
 LEPTRINO_MAX_RATE_HZ = 1200.0
 """What the Leptrino USB interface streams at (vendor sample: "maximum 1.2 kHz")."""
+MAX_CEILING_MA = 100.0
+"""No stimulator of this rig delivers more; the device's own range is checked on connect."""
+
+Axis = Literal["Fx", "Fy", "Fz", "Mx", "My", "Mz"]
+"""``drivers.analog_force.AXES``; the choices of caio/nidaq below are the drivers' tables
+(``RANGES_V``, ``INPUT_METHODS``, ``TERMINAL_CONFIGS``): tests/drivers/test_hw_config.py
+checks they agree."""
+Channel = Annotated[StrictInt, Field(ge=0, le=63, description="an A/D channel 0 .. 63")]
+Positive = Annotated[StrictFloat, Field(gt=0.0, le=1e6, description="a positive rating")]
+Volts = Annotated[StrictFloat, Field(ge=-100.0, le=100.0, description="a voltage within 100 V")]
+StimChannel = Annotated[StrictInt, Field(ge=1, le=8, description=(
+    "channels are numbered from 1 (1 .. 8)"))]
 
 
-@dataclass(frozen=True)
+@settings_dataclass(hw_config_error, prefix="rig")
+class RigSettings:
+    """``[rig]``: name and the fake-device switch."""
+
+    name: StrictStr = ""
+    fake: StrictBool = False
+    fake_speed: StrictFloat = bounded(1.0, ge=0.1, le=100.0, why=(
+        "the fakes' clock runs 0.1 .. 100 x real time"))
+
+
+@settings_dataclass(hw_config_error, prefix="stimulator")
 class StimulatorConfig:
-    kind: str = "stg4002"
-    dll_path: str = ""
-    serial: str = ""
-    extensor_channel: int = 1
-    flexor_channel: int = 2
-    sync_out: int = 1
-    ceiling_ext_mA: float = 16.0
-    ceiling_flex_mA: float = 16.0
-    output_rate_Hz: float = 50_000.0
+    """``[stimulator]``: the MCS STG4002 and its channels."""
+
+    kind: Literal["stg4002"] = "stg4002"
+    dll_path: StrictStr = ""
+    serial: StrictStr = ""
+    extensor_channel: StimChannel = 1
+    flexor_channel: StimChannel = 2
+    sync_out: StimChannel = 1
+    ceiling_ext_mA: StrictFloat = bounded(16.0, gt=0.0, le=MAX_CEILING_MA, why=(
+        "expected > 0 and <= 100 mA (the device's own range is checked when it is connected)"))
+    ceiling_flex_mA: StrictFloat = bounded(16.0, gt=0.0, le=MAX_CEILING_MA, why=(
+        "expected > 0 and <= 100 mA (the device's own range is checked when it is connected)"))
+    output_rate_Hz: StrictFloat = bounded(50_000.0, ge=1000.0, le=50_000.0, why=(
+        "the STG4002's output rate, 1000 .. 50000 Hz (McsUsbNet SetOutputRate; read back "
+        "at connect)"))
     """Set with McsUsbNet ``SetOutputRate`` and read back at connect (1000 .. 50000 Hz)."""
+
+    @model_validator(mode="after")
+    def _distinct(self):
+        if self.extensor_channel == self.flexor_channel:
+            raise SettingProblem("flexor_channel", self.flexor_channel,
+                                 "must differ from extensor_channel")
+        tick_us = 1e6 / self.output_rate_Hz
+        if abs(tick_us - round(tick_us)) > 1e-9:
+            raise SettingProblem("output_rate_Hz", self.output_rate_Hz,
+                                 "a whole number of microseconds per sample (50000, 25000, "
+                                 "20000, 10000 ... Hz; McsUsbNet SetOutputRate)")
+        return self
+
+
+@settings_dataclass(hw_config_error, prefix="acquisition.caio")
+class CaioSettings:
+    """``[acquisition.caio]``: the Contec AI-1608AY-USB."""
+
+    device_name: StrictStr = "AIO000"
+    range: Literal["PM10", "PM5", "PM25", "PM125", "PM1"] = "PM10"
+    input_method: Literal["", "single_ended", "differential"] = ""
+    library: StrictStr = ""
+
+
+@settings_dataclass(hw_config_error, prefix="acquisition.nidaq")
+class NidaqSettings:
+    """``[acquisition.nidaq]``: an NI DAQ device."""
+
+    device: StrictStr = "Dev1"
+    start_trigger: StrictStr = "/Dev1/PFI0"
+    terminal_config: Literal["DEFAULT", "RSE", "NRSE", "DIFF", "PSEUDO_DIFF"] = "DIFF"
+    range_V: StrictFloat = bounded(10.0, gt=0.0, le=100.0, why="an input range of NI DAQs")
+    reads_per_s: StrictFloat = bounded(10.0, ge=1.0, le=100.0, why="expected 1 .. 100")
+
+
+@settings_dataclass(hw_config_error, prefix="acquisition.leptrino")
+class LeptrinoSettings:
+    """``[acquisition.leptrino]``: the Leptrino USB sensor."""
+
+    port: StrictStr = ""
+    baudrate: StrictInt = bounded(460800, ge=1200, le=10_000_000, why="a serial baud rate")
+    sync_on_external_input: StrictBool = False
+
+
+@settings_dataclass(hw_config_error, prefix="acquisition")
+class AcquisitionSettings:
+    """``[acquisition]``: which A/D chain and its rate."""
+
+    kind: Literal["caio", "nidaq", "leptrino"] = "caio"
+    fs_Hz: StrictFloat = bounded(2000.0, gt=0.0, le=100_000.0, why=(
+        "the A/D chains of this rig sample at up to 100 kHz"))
+    caio: CaioSettings = Field(default_factory=CaioSettings)
+    nidaq: NidaqSettings = Field(default_factory=NidaqSettings)
+    leptrino: LeptrinoSettings = Field(default_factory=LeptrinoSettings)
+
+    @model_validator(mode="after")
+    def _chain(self):
+        if self.kind == "leptrino" and self.fs_Hz > LEPTRINO_MAX_RATE_HZ:
+            raise SettingProblem(
+                "fs_Hz", self.fs_Hz,
+                f"the Leptrino USB interface streams at about {LEPTRINO_MAX_RATE_HZ:g} Hz and "
+                f"cannot give {self.fs_Hz:g} Hz; use an analog chain (acquisition.kind = "
+                "\"caio\" or \"nidaq\") for the paper's 2000 Hz, or set acquisition.fs_Hz (and "
+                f"the protocol's fs_Hz) to {LEPTRINO_MAX_RATE_HZ:g}")
+        if self.kind == "leptrino" and not self.leptrino.port:
+            raise SettingProblem("leptrino.port", "", "the serial port of the sensor is "
+                                 "needed (COM5, /dev/ttyACM0)")
+        return self
+
+
+_ANALOG_ONLY = ("channels", "rated", "rated_output_V", "offset_V", "matrix", "sync_channel")
+
+
+@settings_dataclass(hw_config_error, prefix="sensor")
+class SensorSettings:
+    """``[sensor]``: the force sensor, and for analog chains its wiring and calibration."""
+
+    model: StrictStr = "PFS080YA501G6"
+    extension_direction: tuple[StrictFloat, StrictFloat, StrictFloat] = (1.0, 0.0, 0.0)
+    channels: dict[Axis, Channel] = Field(default_factory=dict)
+    rated: dict[Axis, Positive] = Field(default_factory=dict)
+    rated_output_V: dict[Axis, Annotated[StrictFloat, Field(gt=0.0, le=100.0)]] = Field(
+        default_factory=dict)
+    offset_V: dict[Axis, Volts] = Field(default_factory=dict)
+    matrix: tuple[tuple[StrictFloat, ...], ...] | None = None
+    sync_channel: StrictInt = bounded(-1, ge=-1, le=63, why=(
+        "the A/D channel of the stimulator's sync output (0 .. 63); required for analog "
+        "chains"))
+
+    @model_validator(mode="after")
+    def _direction(self):
+        if not any(self.extension_direction):
+            raise SettingProblem("extension_direction", list(self.extension_direction),
+                                 "expected 3 numbers, not all zero (the extension axis in "
+                                 "the sensor frame)")
+        return self
+
+
+@settings_dataclass(hw_config_error, prefix="estop")
+class EStopConfig:
+    """``[estop]``: the hardware E-stop switch."""
+
+    kind: Literal["none", "serial", "nidaq"] = "none"
+    port: StrictStr = ""
+    line: StrictStr = "CTS"
+    released_level: StrictBool = True
+
+    @model_validator(mode="after")
+    def _wired(self):
+        if self.kind == "serial":
+            if not self.port:
+                raise SettingProblem("port", "", "the USB-serial adapter's port is needed")
+            if self.line not in ("CTS", "DSR"):
+                raise SettingProblem("line", self.line, "valid: CTS, DSR")
+        if self.kind == "nidaq" and "/" not in self.line:
+            raise SettingProblem("line", self.line,
+                                 "a DAQmx digital line such as Dev1/port0/line0")
+        return self
+
+
+@settings_dataclass(hw_config_error)
+class HardwareFile:
+    """The whole hardware file; cross-table rules (analog wiring) live here."""
+
+    rig: RigSettings = Field(default_factory=RigSettings)
+    stimulator: StimulatorConfig = Field(default_factory=StimulatorConfig)
+    acquisition: AcquisitionSettings = Field(default_factory=AcquisitionSettings)
+    sensor: SensorSettings = Field(default_factory=SensorSettings)
+    estop: EStopConfig = Field(default_factory=EStopConfig)
+
+    @model_validator(mode="after")
+    def _wiring(self):
+        se = self.sensor
+        if self.acquisition.kind not in ("caio", "nidaq"):
+            for key in _ANALOG_ONLY:
+                value = getattr(se, key)
+                if value not in ({}, None, -1):
+                    raise SettingProblem(f"sensor.{key}", value, "only for analog chains "
+                                         "(acquisition.kind caio or nidaq); the Leptrino USB "
+                                         "sensor reports its own rated values")
+            return self
+        if not se.channels:
+            raise SettingProblem("sensor.channels", {}, "map the sensor's outputs to A/D "
+                                 "channels, e.g. [sensor.channels] Fx = 0")
+        if se.sync_channel < 0:
+            raise SettingProblem("sensor.sync_channel", "(missing)", "sensor.sync_channel is "
+                                 "missing; wire the stimulator's sync output to an A/D "
+                                 "channel and name it (it is recorded with every trial)")
+        seen: dict[int, str] = {}
+        for axis, ch in [*se.channels.items(), ("sync_channel", se.sync_channel)]:
+            if ch in seen:
+                key = "sensor.sync_channel" if axis == "sync_channel" else f"sensor.channels.{axis}"
+                raise SettingProblem(key, ch, f"A/D channels must be distinct ({seen[ch]} "
+                                     f"uses {ch})")
+            seen[ch] = axis
+        if not any(a in se.channels for a in AXES[:3]):
+            raise SettingProblem("sensor.channels", dict(se.channels),
+                                 "at least one force axis (Fx, Fy, Fz) wired to the A/D")
+        for i, axis in enumerate(AXES[:3]):
+            if se.extension_direction[i] != 0 and axis not in se.channels:
+                raise SettingProblem("sensor.extension_direction", list(se.extension_direction),
+                                     f"uses {axis}, which is not wired to the A/D")
+        if se.matrix is not None:
+            if len(se.matrix) != 6 or any(len(row) != 6 for row in se.matrix):
+                raise SettingProblem("sensor.matrix", "...", "6 rows of 6 numbers")
+            if set(se.channels) != set(AXES):
+                raise SettingProblem("sensor.matrix", "...",
+                                     "a 6 x 6 matrix needs all six axes wired to the A/D")
+        else:
+            for axis in se.channels:
+                for key in ("rated", "rated_output_V"):
+                    if axis not in getattr(se, key):
+                        raise SettingProblem(f"sensor.{key}.{axis}", "(missing)",
+                                             f"axis {axis}: rated and rated_output_V must "
+                                             "both be > 0")
+        return self
 
 
 @dataclass(frozen=True)
 class AcquisitionConfig:
+    """The A/D chain as ``drivers.hardware`` uses it (built from :class:`AcquisitionSettings`)."""
+
     kind: str = "caio"
     fs_Hz: float = 2000.0
     caio: dict = field(default_factory=dict)
@@ -47,15 +257,9 @@ class AcquisitionConfig:
 
 
 @dataclass(frozen=True)
-class EStopConfig:
-    kind: str = "none"
-    port: str = ""
-    line: str = "CTS"
-    released_level: bool = True
-
-
-@dataclass(frozen=True)
 class HardwareConfig:
+    """A validated hardware file, as ``drivers.hardware.make_hw_rig`` uses it."""
+
     source: str
     name: str
     fake: bool
@@ -75,63 +279,6 @@ class HardwareConfig:
         return text + (" [FAKE devices]" if self.fake else "")
 
 
-class _Reader:
-    """Typed access to one TOML table that remembers which keys were used."""
-
-    def __init__(self, source: str, table: dict, prefix: str):
-        if not isinstance(table, dict):
-            raise HardwareConfigError(f"{source}: [{prefix}] must be a table")
-        self.source, self.table, self.prefix = source, table, prefix
-        self.used: set[str] = set()
-
-    def _name(self, key: str) -> str:
-        return f"{self.prefix}.{key}" if self.prefix else key
-
-    def fail(self, key: str, value, valid: str):
-        raise HardwareConfigError(f"{self.source}: {self._name(key)} = {value!r} is invalid; "
-                                  f"{valid}")
-
-    def get(self, key: str, default, kind):
-        self.used.add(key)
-        if key not in self.table:
-            return default
-        v = self.table[key]
-        if kind is float:
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                self.fail(key, v, "expected a finite number")
-            return float(v)
-        if kind is int:
-            if isinstance(v, bool) or not isinstance(v, int):
-                self.fail(key, v, "expected a whole number")
-            return v
-        if kind is bool:
-            if not isinstance(v, bool):
-                self.fail(key, v, "expected true or false")
-            return v
-        if kind is str:
-            if not isinstance(v, str):
-                self.fail(key, v, "expected a string")
-            return v
-        return v
-
-    def choice(self, key: str, default: str, choices) -> str:
-        v = self.get(key, default, str)
-        if v not in choices:
-            self.fail(key, v, f"valid: {', '.join(sorted(choices))}")
-        return v
-
-    def table_of(self, key: str) -> "_Reader":
-        self.used.add(key)
-        return _Reader(self.source, self.table.get(key, {}), self._name(key))
-
-    def done(self, allow_tables=()) -> None:
-        unknown = set(self.table) - self.used - set(allow_tables)
-        if unknown:
-            names = ", ".join(self._name(k) for k in sorted(unknown))
-            raise HardwareConfigError(f"{self.source}: unknown setting(s) {names}; see "
-                                      "docs/hw-config.example.toml for the valid ones")
-
-
 def load_hw_config(path) -> HardwareConfig:
     """Read and validate a hardware configuration file.
 
@@ -142,154 +289,35 @@ def load_hw_config(path) -> HardwareConfig:
     FileNotFoundError
         If the file does not exist.
     """
-    p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"hardware configuration {p} not found (--hw-config)")
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise HardwareConfigError(f"{p}: not valid TOML: {exc}") from None
-    return parse_hw_config(data, str(p))
+    data = read_toml(path, hw_config_error, what="hardware configuration (--hw-config)")
+    return parse_hw_config(data, str(path))
 
 
 def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
-    root = _Reader(source, data, "")
-    rig = root.table_of("rig")
-    name = rig.get("name", "", str)
-    fake = rig.get("fake", False, bool)
-    speed = rig.get("fake_speed", 1.0, float)
-    if not 0.1 <= speed <= 100:
-        rig.fail("fake_speed", speed, "expected 0.1 .. 100")
-    rig.done()
-
-    s = root.table_of("stimulator")
-    stim = StimulatorConfig(
-        kind=s.choice("kind", "stg4002", {"stg4002"}),
-        dll_path=s.get("dll_path", "", str), serial=s.get("serial", "", str),
-        extensor_channel=s.get("extensor_channel", 1, int),
-        flexor_channel=s.get("flexor_channel", 2, int), sync_out=s.get("sync_out", 1, int),
-        ceiling_ext_mA=s.get("ceiling_ext_mA", 16.0, float),
-        ceiling_flex_mA=s.get("ceiling_flex_mA", 16.0, float),
-        output_rate_Hz=s.get("output_rate_Hz", 50_000.0, float))
-    rate, tick = stim.output_rate_Hz, 1e6 / stim.output_rate_Hz if stim.output_rate_Hz else 0
-    if not (1000 <= rate <= 50_000 and abs(tick - round(tick)) < 1e-9):
-        s.fail("output_rate_Hz", rate, "1000 .. 50000 Hz and a whole number of microseconds "
-               "per sample (50000, 25000, 20000, 10000 ...; McsUsbNet SetOutputRate)")
-    for key in ("extensor_channel", "flexor_channel", "sync_out"):
-        if not 1 <= getattr(stim, key) <= 8:
-            s.fail(key, getattr(stim, key), "channels are numbered from 1 (1 .. 8)")
-    if stim.extensor_channel == stim.flexor_channel:
-        s.fail("flexor_channel", stim.flexor_channel, "must differ from extensor_channel")
-    for key in ("ceiling_ext_mA", "ceiling_flex_mA"):
-        if not 0 < getattr(stim, key) <= 100:
-            s.fail(key, getattr(stim, key), "expected > 0 and <= 100 mA (the device's own "
-                   "range is checked when it is connected)")
-    s.done()
-
-    a = root.table_of("acquisition")
-    kind = a.choice("kind", "caio", {"caio", "nidaq", "leptrino"})
-    fs = a.get("fs_Hz", 2000.0, float)
-    if not fs > 0:
-        a.fail("fs_Hz", fs, "expected > 0")
-    if kind == "leptrino" and fs > LEPTRINO_MAX_RATE_HZ:
-        a.fail("fs_Hz", fs, f"the Leptrino USB interface streams at about "
-               f"{LEPTRINO_MAX_RATE_HZ:g} Hz and cannot give {fs:g} Hz; use an analog chain "
-               "(acquisition.kind = \"caio\" or \"nidaq\") for the paper's 2000 Hz, or set "
-               f"acquisition.fs_Hz (and the protocol's fs_Hz) to {LEPTRINO_MAX_RATE_HZ:g}")
-    sub = {}
-    c = a.table_of("caio")
-    sub["caio"] = dict(device_name=c.get("device_name", "AIO000", str),
-                       ai_range=c.choice("range", "PM10", set(RANGES_V)),
-                       input_method=c.choice("input_method", "", set(INPUT_METHODS) | {""}),
-                       library=c.get("library", "", str))
-    c.done()
-    n = a.table_of("nidaq")
-    sub["nidaq"] = dict(device=n.get("device", "Dev1", str),
-                        start_trigger=n.get("start_trigger", "/Dev1/PFI0", str),
-                        terminal_config=n.choice("terminal_config", "DIFF",
-                                                 set(TERMINAL_CONFIGS)),
-                        range_V=n.get("range_V", 10.0, float),
-                        reads_per_s=n.get("reads_per_s", 10.0, float))
-    if not sub["nidaq"]["range_V"] > 0:
-        n.fail("range_V", sub["nidaq"]["range_V"], "expected > 0")
-    if not 1 <= sub["nidaq"]["reads_per_s"] <= 100:
-        n.fail("reads_per_s", sub["nidaq"]["reads_per_s"], "expected 1 .. 100")
-    n.done()
-    lt = a.table_of("leptrino")
-    sub["leptrino"] = dict(port=lt.get("port", "", str),
-                           baudrate=lt.get("baudrate", 460800, int),
-                           sync_on_external_input=lt.get("sync_on_external_input", False, bool))
-    if kind == "leptrino" and not sub["leptrino"]["port"]:
-        lt.fail("port", "", "the serial port of the sensor is needed (COM5, /dev/ttyACM0)")
-    lt.done()
-    a.done()
-    acq = AcquisitionConfig(kind=kind, fs_Hz=fs, **sub)
-
-    se = root.table_of("sensor")
-    model = se.get("model", "PFS080YA501G6", str)
-    direction = se.get("extension_direction", [1.0, 0.0, 0.0], list)
-    if (not isinstance(direction, list) or len(direction) != 3
-            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in direction)
-            or not any(direction)):
-        se.fail("extension_direction", direction, "expected 3 numbers, not all zero (the "
-                "extension axis in the sensor frame)")
-    direction = tuple(float(x) for x in direction)
+    """Validate a hardware file's tables (``load_hw_config`` without the reading)."""
+    f = validate_settings(HardwareFile, data, source=source, make_error=hw_config_error)
+    a, se = f.acquisition, f.sensor
+    acq = AcquisitionConfig(
+        kind=a.kind, fs_Hz=a.fs_Hz,
+        caio=dict(device_name=a.caio.device_name, ai_range=a.caio.range,
+                  input_method=a.caio.input_method, library=a.caio.library),
+        nidaq=dict(device=a.nidaq.device, start_trigger=a.nidaq.start_trigger,
+                   terminal_config=a.nidaq.terminal_config, range_V=a.nidaq.range_V,
+                   reads_per_s=a.nidaq.reads_per_s),
+        leptrino=dict(port=a.leptrino.port, baudrate=a.leptrino.baudrate,
+                      sync_on_external_input=a.leptrino.sync_on_external_input))
     cal = None
-    if kind in ("caio", "nidaq"):
-        channels = _axis_table(se, "channels", int, required=True)
-        rated = _axis_table(se, "rated", float)
-        out_V = _axis_table(se, "rated_output_V", float)
-        offset = _axis_table(se, "offset_V", float)
-        matrix = se.get("matrix", None, list)
-        sync_ch = se.get("sync_channel", -1, int)
+    if a.kind in ("caio", "nidaq"):
         try:
             cal = AnalogCalibration(
-                channels=channels, rated=rated, rated_output_V=out_V, offset_V=offset,
-                matrix=tuple(tuple(float(x) for x in row) for row in matrix)
-                if matrix is not None else None,
-                extension_direction=direction,
-                sync_channel=None if sync_ch < 0 else sync_ch)
-        except (ValueError, TypeError) as exc:
+                channels=dict(se.channels), rated=dict(se.rated),
+                rated_output_V=dict(se.rated_output_V), offset_V=dict(se.offset_V),
+                matrix=se.matrix, extension_direction=se.extension_direction,
+                sync_channel=se.sync_channel)
+        except (ValueError, TypeError) as exc:      # a rule of the driver's own
             raise HardwareConfigError(f"{source}: [sensor]: {exc}") from None
-        if cal.sync_channel is None:
-            raise HardwareConfigError(
-                f"{source}: sensor.sync_channel is missing; wire the stimulator's sync "
-                "output to an A/D channel and name it (it is recorded with every trial)")
-    else:
-        for key in ("channels", "rated", "rated_output_V", "offset_V", "matrix",
-                    "sync_channel"):
-            if key in se.table:
-                se.fail(key, se.table[key], "only for analog chains (acquisition.kind caio "
-                        "or nidaq); the Leptrino USB sensor reports its own rated values")
-    se.done()
-
-    e = root.table_of("estop")
-    ekind = e.choice("kind", "none", {"none", "serial", "nidaq"})
-    estop = EStopConfig(kind=ekind, port=e.get("port", "", str), line=e.get("line", "CTS", str),
-                        released_level=e.get("released_level", True, bool))
-    if ekind == "serial":
-        if not estop.port:
-            e.fail("port", "", "the USB-serial adapter's port is needed")
-        if estop.line not in ("CTS", "DSR"):
-            e.fail("line", estop.line, "valid: CTS, DSR")
-    if ekind == "nidaq" and "/" not in estop.line:
-        e.fail("line", estop.line, "a DAQmx digital line such as Dev1/port0/line0")
-    e.done()
-    root.done()
-    return HardwareConfig(source=source, name=name, fake=fake, fake_speed=speed,
-                          stimulator=stim, acquisition=acq, calibration=cal,
-                          extension_direction=direction, sensor_model=model, estop=estop)
-
-
-def _axis_table(reader: _Reader, key: str, kind, required: bool = False) -> dict:
-    t = reader.table_of(key)
-    if required and not t.table:
-        reader.fail(key, {}, f"map the sensor's outputs to A/D channels, e.g. "
-                    f"[sensor.{key}] Fx = 0")
-    out = {}
-    for axis in list(t.table):
-        if axis not in AXES:
-            t.fail(axis, t.table[axis], f"not a sensor axis; valid: {', '.join(AXES)}")
-        out[axis] = t.get(axis, None, kind)
-    t.done()
-    return out
+    return HardwareConfig(source=source, name=f.rig.name, fake=f.rig.fake,
+                          fake_speed=f.rig.fake_speed, stimulator=f.stimulator,
+                          acquisition=acq, calibration=cal,
+                          extension_direction=se.extension_direction, sensor_model=se.model,
+                          estop=f.estop)

@@ -41,6 +41,10 @@ class MissingDependency(UserError, ImportError):
     """
 
 
+class InputFileMissing(UserError, FileNotFoundError):
+    """A file the user named does not exist or cannot be read as the kind it should be."""
+
+
 class OutputExistsError(UserError, FileExistsError):
     """An output the user did not ask to replace already exists (nothing was written)."""
 
@@ -62,6 +66,7 @@ EXIT_USER_ERROR = UserError.exit_code
 EXIT_DEVICE_FAULT = DeviceFault.exit_code
 EXIT_SAFETY = SafetyError.exit_code
 
-__all__ = ["NmsidError", "UserError", "MissingDependency", "OutputExistsError", "DeviceFault",
+__all__ = ["NmsidError", "UserError", "MissingDependency", "InputFileMissing",
+           "OutputExistsError", "DeviceFault",
            "SafetyError",
            "EXIT_BUG", "EXIT_USER_ERROR", "EXIT_DEVICE_FAULT", "EXIT_SAFETY"]

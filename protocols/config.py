@@ -54,6 +54,11 @@ Layout of the TOML file (every key optional; unknown keys are refused)::
     trip_on_over_range = true
     trip_on_sensor_fault = true
     estop_poll_Hz = 1000.0
+    confirm_weakened_safety = false  # needed for a trip_on_* = false or a force_limit_N
+                                   # above the sensor range (docs/settings.md)
+
+Every key is a field of a pydantic dataclass below, with its bounds and their reason next
+to it (:mod:`nmsid.protocols.settings_base`); ``docs/settings.md`` lists them all.
 """
 
 from __future__ import annotations
@@ -64,18 +69,51 @@ import json
 import math
 import os
 import re
-import tomllib
-from dataclasses import dataclass, field
-from typing import Any
+from typing import Annotated, Any
 
+from pydantic import AfterValidator, Field, StrictFloat, StrictInt, model_validator
+
+from nmsid.protocols.calibration_settings import MAX_RAMP_STEPS, CalibrationConfig, ManualCurrents
 from nmsid.protocols.errors import ConfigError
+from nmsid.protocols.interlock_settings import FORCE_SENSOR_RANGE_N, TRIP_SWITCHES, InterlockConfig
+from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, replace_settings,
+                                           settings_dataclass, validate_settings)
 
-PARTICIPANT_PATTERN = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+PARTICIPANT_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,64}")
+"""A participant code (used with ``fullmatch``: no trailing newline slips through)."""
 PARTICIPANT_MODELS = ("template", "musculoskeletal")
 """Simulated participants ``[participant] model`` can name: the paper's second-order model
 with add-on effects (``sim_backends.participant``), or MyoSuite's MuJoCo elbow under FES
 (``sim_backends.msk_participant``). Hardware sessions ignore it."""
 DEFAULT_SOURCE = "built-in defaults"
+
+__all__ = ["Config", "ConfigError", "ProtocolConfig", "CalibrationConfig", "InterlockConfig",
+           "ManualCurrents", "Randomisation", "InputKind", "PausePolicy", "PARTICIPANT_MODELS",
+           "PARTICIPANT_PATTERN", "MAX_LEVELS", "MAX_TRIALS", "MAX_SESSION_S",
+           "MAX_TRIAL_SAMPLES", "MAX_RAMP_STEPS", "SEED_MAX", "FORCE_SENSOR_RANGE_N",
+           "TRIP_SWITCHES", "load_config", "config_from_json", "config_from_dict", "validate"]
+
+MAX_LEVELS = 100
+"""At most this many sE levels (the paper: 15); 1/100 of the sE range is below the
+resolution a force recording can tell apart."""
+MAX_TRIALS = 2000
+"""Levels x repeats at most (the paper: 45)."""
+MAX_SESSION_S = 12 * 3600.0
+"""Total stimulation + rest time of a schedule at most (the paper's: about 56 min)."""
+MAX_TRIAL_SAMPLES = 20_000_000
+"""(steady_s + chirp_s) x fs_Hz at most: one trial's arrays stay below ~1 GB."""
+SEED_MAX = 2 ** 63 - 1
+"""Largest seed: numpy's generators take any integer >= 0, but the session file stores
+the seed as a 64-bit signed integer."""
+def _participant_code(value: str) -> str:
+    if not PARTICIPANT_PATTERN.fullmatch(value):
+        raise SettingProblem("", value, "1 to 64 letters, digits, '_' or '-' (a code, never "
+                             "a name; no spaces or control characters)")
+    return value
+
+
+Fraction = Annotated[StrictFloat, Field(ge=0.0, le=1.0)]
+SELevel = Annotated[StrictFloat, Field(gt=0.0, le=1.0)]
 
 
 class Randomisation(enum.Enum):
@@ -111,65 +149,120 @@ def _default_levels() -> tuple[float, ...]:
     return tuple(round(0.30 + 0.05 * k, 2) for k in range(15))
 
 
-@dataclass(frozen=True)
-class ManualCurrents:
-    """Calibration currents entered by hand (skips the ramps)."""
-
-    Iemin_mA: float
-    Iemax_mA: float
-    Ifmin_mA: float
-    Ifmax_mA: float
+def _problem(source, key, value, valid) -> SettingProblem:
+    return SettingProblem(key, value, valid)
 
 
-@dataclass(frozen=True)
-class CalibrationConfig:
-    """Settings of the calibration ramps (paper: 0.5 mA steps, Fmin 0.5 N, Fmax 5 N)."""
+@settings_dataclass(ConfigError, prefix="protocol")
+class LevelRange:
+    """``sE_min`` / ``sE_max`` / ``sE_step``: the levels as a range (instead of sE_levels)."""
 
-    step_mA: float = 0.5
-    hold_s: float = 1.0
-    settle_fraction: float = 0.5
-    baseline_s: float = 1.0
-    rest_s: float = 2.0
-    Fmin_N: float = 0.5
-    Fmax_N: float = 5.0
-    ceiling_ext_mA: float = 16.0
-    ceiling_flex_mA: float = 16.0
-    force_ceiling_N: float = 10.0
-    confirm: bool = False
-    manual: ManualCurrents | None = None
+    sE_min: StrictFloat = bounded(0.30, gt=0.0, le=1.0, why="sE = Ie + If, normalised")
+    sE_max: StrictFloat = bounded(1.00, gt=0.0, le=1.0, why="sE = Ie + If, normalised")
+    sE_step: StrictFloat = bounded(0.05, gt=0.0, le=1.0, why="a step of sE")
 
 
-@dataclass(frozen=True)
-class InterlockConfig:
-    """Thresholds of the safety interlock (see ``docs/rig.md``)."""
-
-    force_limit_N: float = 25.0
-    stall_timeout_s: float = 0.1
-    trip_on_overrun: bool = True
-    trip_on_over_range: bool = True
-    trip_on_sensor_fault: bool = True
-    estop_poll_Hz: float = 1000.0
-
-
-@dataclass(frozen=True)
+@settings_dataclass(ConfigError, prefix="protocol")
 class ProtocolConfig:
-    """The identification protocol (paper: 15 sE x 3 repeats, 5 s steady + 10 s chirp)."""
+    """The identification protocol (paper: 15 sE x 3 repeats, 5 s steady + 10 s chirp).
 
-    sE_levels: tuple[float, ...] = field(default_factory=_default_levels)
-    repeats: int = 3
+    In a file, ``sE_min`` / ``sE_max`` / ``sE_step`` may replace ``sE_levels``.
+    """
+
+    sE_levels: tuple[SELevel, ...] = bounded(
+        default_factory=_default_levels, min_length=1, max_length=MAX_LEVELS,
+        why=f"at most {MAX_LEVELS} levels, each in (0, 1] (sE = Ie + If, normalised)")
+    repeats: StrictInt = bounded(3, ge=1, le=100, why="a whole number of repeats per sE")
     randomisation: Randomisation = Randomisation.BLOCKS
-    steady_s: float = 5.0
-    chirp_s: float = 10.0
-    chirp_f0_Hz: float = 1.0
-    chirp_f1_Hz: float = 10.0
-    rE_centre: float = 0.5
-    rE_amplitude: float = 0.5
-    fs_Hz: float = 2000.0
-    carrier_Hz: float = 1000.0
-    rest_s: float = 60.0
+    steady_s: StrictFloat = bounded(5.0, ge=0.0, le=600.0, why=(
+        "a steady lead-in of at most 10 min; the paper: 5 s"))
+    chirp_s: StrictFloat = bounded(10.0, gt=0.0, le=3600.0, why=(
+        "an excitation of at most an hour; the paper: 10 s"))
+    chirp_f0_Hz: StrictFloat = bounded(1.0, gt=0.0, le=1000.0, why=(
+        "muscle dynamics lie below a few tens of Hz"))
+    chirp_f1_Hz: StrictFloat = bounded(10.0, gt=0.0, le=1000.0, why=(
+        "muscle dynamics lie below a few tens of Hz"))
+    rE_centre: Fraction = 0.5
+    rE_amplitude: Fraction = 0.5
+    fs_Hz: StrictFloat = bounded(2000.0, ge=10.0, le=100_000.0, why=(
+        "the acquisition chains sample between 10 Hz and 100 kHz; the paper: 2 kHz"))
+    carrier_Hz: StrictFloat = bounded(1000.0, gt=0.0, le=100_000.0, why=(
+        "the STG4002 renders carriers up to a few tens of kHz; the paper: 1 kHz"))
+    rest_s: StrictFloat = bounded(60.0, ge=0.0, le=3600.0, why=(
+        "a rest of at most an hour between trials; the paper: 60 s"))
     pause_policy: PausePolicy = PausePolicy.FINISH
     input_kind: InputKind = InputKind.CHIRP
-    multisine_tones: int = 24
+    multisine_tones: StrictInt = bounded(24, ge=2, le=1000, why="tones of a multisine")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _levels_from_range(cls, data):
+        if not isinstance(data, dict) or not any(k in data for k in _LEVEL_RANGE_KEYS):
+            return data
+        if "sE_levels" in data:
+            raise SettingProblem("sE_levels", data["sE_levels"],
+                                 "give either sE_levels or sE_min/sE_max/sE_step, not both")
+        data = dict(data)
+        given = {k: data.pop(k) for k in _LEVEL_RANGE_KEYS if k in data}
+        r = validate_settings(LevelRange, given, source="", make_error=_problem)
+        lo, hi, step = r.sE_min, r.sE_max, r.sE_step
+        if not lo <= hi <= 1:
+            raise SettingProblem("sE_max", hi, f"in [sE_min, 1] = [{lo:g}, 1]")
+        n = math.floor((hi - lo) / step + 1e-9) + 1
+        if n > MAX_LEVELS:
+            raise SettingProblem("sE_step", step,
+                                 f"at least (sE_max - sE_min) / {MAX_LEVELS - 1} = "
+                                 f"{(hi - lo) / (MAX_LEVELS - 1):.3g}: at most {MAX_LEVELS} "
+                                 "levels")
+        data["sE_levels"] = tuple(round(lo + k * step, 10) for k in range(n))
+        return data
+
+    @model_validator(mode="after")
+    def _consistent(self):
+        if len(set(round(v, 9) for v in self.sE_levels)) != len(self.sE_levels):
+            raise SettingProblem("sE_levels", list(self.sE_levels),
+                                 "each sE level once (use repeats for repetitions)")
+        n_trials = len(self.sE_levels) * self.repeats
+        if n_trials > MAX_TRIALS:
+            raise SettingProblem("repeats", self.repeats,
+                                 f"at most {MAX_TRIALS} trials in all (levels x repeats = "
+                                 f"{n_trials})")
+        if self.chirp_f1_Hz <= self.chirp_f0_Hz:
+            raise SettingProblem("chirp_f1_Hz", self.chirp_f1_Hz,
+                                 f"above chirp_f0_Hz ({self.chirp_f0_Hz:g} Hz): the chirp rises")
+        nyquist = self.fs_Hz / 2
+        if self.chirp_f1_Hz >= nyquist:
+            raise SettingProblem("chirp_f1_Hz", self.chirp_f1_Hz,
+                                 f"below the Nyquist rate fs_Hz/2 = {nyquist:g} Hz")
+        if self.trial_s * self.fs_Hz < 10:
+            raise SettingProblem("chirp_s", self.chirp_s, "a trial of at least 10 samples "
+                                 "(steady_s + chirp_s) * fs_Hz")
+        if self.trial_s * self.fs_Hz > MAX_TRIAL_SAMPLES:
+            raise SettingProblem("fs_Hz", self.fs_Hz,
+                                 f"(steady_s + chirp_s) * fs_Hz of at most "
+                                 f"{MAX_TRIAL_SAMPLES:g} samples per trial (memory)")
+        session_s = n_trials * (self.trial_s + self.rest_s)
+        if session_s > MAX_SESSION_S:
+            raise SettingProblem("rest_s", self.rest_s,
+                                 f"a schedule of at most {MAX_SESSION_S / 3600:g} h "
+                                 f"(trials x (steady_s + chirp_s + rest_s) = "
+                                 f"{session_s / 3600:.3g} h)")
+        if self.input_kind is InputKind.MULTISINE:
+            # tones are harmonics of 1 / chirp_s inside the band: there must be enough
+            available = (math.floor(self.chirp_f1_Hz * self.chirp_s + 1e-9)
+                         - math.ceil(self.chirp_f0_Hz * self.chirp_s - 1e-9) + 1)
+            if available < self.multisine_tones:
+                raise SettingProblem(
+                    "multisine_tones", self.multisine_tones,
+                    f"at most {max(available, 0)}: the tones are multiples of 1/chirp_s = "
+                    f"{1 / self.chirp_s:g} Hz inside [{self.chirp_f0_Hz:g}, "
+                    f"{self.chirp_f1_Hz:g}] Hz (lengthen chirp_s or widen the band)")
+        if (self.rE_centre - self.rE_amplitude < -1e-12
+                or self.rE_centre + self.rE_amplitude > 1 + 1e-12):
+            raise SettingProblem("rE_amplitude", self.rE_amplitude,
+                                 f"rE_centre +/- rE_amplitude inside [0, 1] (rE_centre = "
+                                 f"{self.rE_centre:g})")
+        return self
 
     @property
     def trial_s(self) -> float:
@@ -180,21 +273,54 @@ class ProtocolConfig:
         """Samples per trial."""
         return int(round(self.trial_s * self.fs_Hz))
 
+    @property
+    def session_s(self) -> float:
+        """Stimulation plus rest time of the whole schedule in s."""
+        return len(self.sE_levels) * self.repeats * (self.trial_s + self.rest_s)
 
-@dataclass(frozen=True)
+
+_LEVEL_RANGE_KEYS = ("sE_min", "sE_max", "sE_step")
+
+
+@settings_dataclass(ConfigError)
 class Config:
-    """Everything a session needs, validated on construction through :func:`load_config`."""
+    """Everything a session needs, validated on construction (see :func:`load_config`)."""
 
-    participant: str = "P01"
-    seed: int | None = None
+    participant: Annotated[str, AfterValidator(_participant_code)] = "P01"
+    seed: StrictInt | None = bounded(None, ge=0, le=SEED_MAX, why=(
+        "the session file stores the seed as a 64-bit signed integer"))
     participant_model: str = "template"
     """Which simulated participant ``--backend sim`` puts on the rig
     (:data:`PARTICIPANT_MODELS`); TOML ``[participant] model``."""
-    protocol: ProtocolConfig = field(default_factory=ProtocolConfig)
-    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
-    interlock: InterlockConfig = field(default_factory=InterlockConfig)
+    protocol: ProtocolConfig = Field(default_factory=ProtocolConfig)
+    calibration: CalibrationConfig = Field(default_factory=CalibrationConfig)
+    interlock: InterlockConfig = Field(default_factory=InterlockConfig)
     source: str = DEFAULT_SOURCE
     """Where the values came from (for messages); not stored."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _participant_table(cls, data):
+        if isinstance(data, dict) and isinstance(data.get("participant"), dict):
+            data = dict(data)
+            table = data.pop("participant")
+            for key in table:
+                if key not in ("code", "model"):
+                    raise SettingProblem(f"participant.{key}", table[key],
+                                         "unknown setting; known settings here are: code, "
+                                         "model")
+            if "code" in table:
+                data["participant"] = table["code"]
+            if "model" in table:
+                data["participant_model"] = table["model"]
+        return data
+
+    @model_validator(mode="after")
+    def _model_known(self):
+        if self.participant_model not in PARTICIPANT_MODELS:
+            raise SettingProblem("participant.model", self.participant_model,
+                                 "one of " + ", ".join(repr(m) for m in PARTICIPANT_MODELS))
+        return self
 
     # -- conversion ---------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
@@ -211,6 +337,8 @@ class Config:
         d = conv(self)
         if d["calibration"]["manual"] is None:
             del d["calibration"]["manual"]
+        if not d["interlock"]["confirm_weakened_safety"]:   # older readers lack the key
+            del d["interlock"]["confirm_weakened_safety"]
         if d["seed"] is None:
             del d["seed"]
         model = d.pop("participant_model")
@@ -222,14 +350,24 @@ class Config:
         return json.dumps(self.to_dict(), sort_keys=True)
 
     def replace(self, **changes) -> Config:
-        """A copy with top-level fields changed, validated again."""
-        new = dataclasses.replace(self, **changes)
-        validate(new)
-        return new
+        """A copy with top-level fields changed, validated again.
+
+        Raises
+        ------
+        ConfigError
+            Naming the setting, as for a file.
+        """
+        return replace_settings(self, ConfigError, self.source, **changes)
 
     def with_protocol(self, **changes) -> Config:
         """A copy with protocol fields changed, validated again."""
-        return self.replace(protocol=dataclasses.replace(self.protocol, **changes))
+        protocol = replace_settings(self.protocol, _prefixed(ConfigError, "protocol"),
+                                    self.source, **changes)
+        return self.replace(protocol=protocol)
+
+    def weakened_safety(self) -> list[str]:
+        """The settings that weaken the interlock (each needs the confirmation)."""
+        return self.interlock.weakened()
 
     def check_device(self, max_current_mA: float, device_name: str = "stimulator") -> None:
         """Refuse current ceilings above what the device can deliver.
@@ -247,13 +385,13 @@ class Config:
                                   f"use a ceiling <= {max_current_mA:g}")
 
 
+def _prefixed(make_error, prefix: str):
+    def make(source, key, value, valid):
+        return make_error(source, f"{prefix}.{key}", value, valid)
+    return make
+
+
 # -- loading --------------------------------------------------------------------------
-_SECTIONS = {"protocol": ProtocolConfig, "calibration": CalibrationConfig,
-             "interlock": InterlockConfig}
-_TOP_KEYS = ("participant", "seed", *_SECTIONS)
-_LEVEL_RANGE_KEYS = ("sE_min", "sE_max", "sE_step")
-
-
 def load_config(path: str | os.PathLike | None = None, *, overrides: dict | None = None
                 ) -> Config:
     """Load and validate a configuration.
@@ -264,7 +402,8 @@ def load_config(path: str | os.PathLike | None = None, *, overrides: dict | None
         A TOML file; None uses the built-in defaults.
     overrides : dict, optional
         Top-level values that win over the file (``{"participant": "P07", "seed": 3}``),
-        as given on the command line.
+        as given on the command line; ``{"confirm_weakened_safety": True}`` sets
+        ``interlock.confirm_weakened_safety`` (``--allow-weakened-safety``).
 
     Returns
     -------
@@ -281,21 +420,19 @@ def load_config(path: str | os.PathLike | None = None, *, overrides: dict | None
     data: dict[str, Any] = {}
     if path is not None:
         source = str(path)
-        if not os.path.isfile(path):
-            raise FileNotFoundError(
-                f"{source}: no such configuration file (give a TOML file with --config, "
-                "or leave --config out for the built-in paper protocol)")
-        with open(path, "rb") as fh:
-            try:
-                data = tomllib.load(fh)
-            except tomllib.TOMLDecodeError as exc:
-                raise ConfigError(source, "(file)", "TOML", f"not valid TOML: {exc}") from None
+        data = read_toml(path, ConfigError, what=(
+            "configuration file (give a TOML file with --config, or leave --config out for "
+            "the built-in paper protocol)"))
     for key, value in (overrides or {}).items():
-        if value is not None:
-            if key == "participant" and isinstance(data.get("participant"), dict):
-                data["participant"] = {**data["participant"], "code": value}
-            else:
-                data[key] = value
+        if value is None or value is False and key == "confirm_weakened_safety":
+            continue
+        if key == "participant" and isinstance(data.get("participant"), dict):
+            data["participant"] = {**data["participant"], "code": value}
+        elif key == "confirm_weakened_safety":
+            table = data.get("interlock", {})
+            data["interlock"] = {**table, key: value} if isinstance(table, dict) else table
+        else:
+            data[key] = value
     return config_from_dict(data, source=source)
 
 
@@ -303,272 +440,26 @@ def config_from_json(text: str, source: str = "session file config_json") -> Con
     """Rebuild a configuration stored with a session (``Config.to_json``)."""
     try:
         data = json.loads(text)
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, RecursionError) as exc:
         raise ConfigError(source, "config_json", text[:40], f"not valid JSON: {exc}") from None
     return config_from_dict(data, source=source)
 
 
 def config_from_dict(data: dict[str, Any], *, source: str = DEFAULT_SOURCE) -> Config:
-    """Build and validate a :class:`Config` from a dict with the TOML layout."""
-    if not isinstance(data, dict):
-        raise ConfigError(source, "(top level)", data, "a table of settings")
-    _refuse_unknown(data, _TOP_KEYS, "", source)
-    kwargs: dict[str, Any] = {"source": source}
-    if "participant" in data:
-        raw = data["participant"]
-        if isinstance(raw, dict):       # the [participant] table: code and model
-            _refuse_unknown(raw, ("code", "model"), "participant.", source)
-            if "code" in raw:
-                kwargs["participant"] = raw["code"]
-            if "model" in raw:
-                kwargs["participant_model"] = raw["model"]
-        else:
-            kwargs["participant"] = raw
-    if "seed" in data:
-        kwargs["seed"] = data["seed"]
-    for section, cls in _SECTIONS.items():
-        raw = data.get(section, {})
-        if not isinstance(raw, dict):
-            raise ConfigError(source, section, raw, "a table ([%s])" % section)
-        kwargs[section] = _build_section(cls, section, dict(raw), source)
-    cfg = Config(**kwargs)
-    validate(cfg)
-    return cfg
+    """Build and validate a :class:`Config` from a dict with the TOML layout.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``source``, the dotted setting, the value and what is valid.
+    """
+    if isinstance(data, dict) and "source" in data:
+        raise ConfigError(source, "source", data["source"], "unknown setting")
+    if isinstance(data, dict):
+        data = {**data, "source": source}
+    return validate_settings(Config, data, source=source, make_error=ConfigError)
 
 
-def _refuse_unknown(raw: dict, known, prefix: str, source: str) -> None:
-    for key in raw:
-        if key not in known:
-            raise ConfigError(source, prefix + key, raw[key],
-                              "unknown setting; known settings here are: "
-                              + ", ".join(sorted(known)))
-
-
-def _build_section(cls, section: str, raw: dict, source: str):
-    names = [f.name for f in dataclasses.fields(cls)]
-    known = list(names)
-    if cls is ProtocolConfig:
-        known += list(_LEVEL_RANGE_KEYS)
-    _refuse_unknown(raw, known, section + ".", source)
-    kw: dict[str, Any] = {}
-    if cls is ProtocolConfig:
-        if any(k in raw for k in _LEVEL_RANGE_KEYS):
-            if "sE_levels" in raw:
-                raise ConfigError(source, "protocol.sE_levels", raw["sE_levels"],
-                                  "give either sE_levels or sE_min/sE_max/sE_step, not both")
-            kw["sE_levels"] = _levels_from_range(raw, source)
-            for k in _LEVEL_RANGE_KEYS:
-                raw.pop(k, None)
-        if "sE_levels" in raw:
-            levels = raw.pop("sE_levels")
-            if not isinstance(levels, (list, tuple)) or not levels:
-                raise ConfigError(source, "protocol.sE_levels", levels,
-                                  "a non-empty list of numbers in (0, 1]")
-            kw["sE_levels"] = tuple(_number(source, "protocol.sE_levels", v) for v in levels)
-        for key, enum_cls in (("randomisation", Randomisation), ("pause_policy", PausePolicy),
-                              ("input_kind", InputKind)):
-            if key in raw:
-                value = raw.pop(key)
-                try:
-                    kw[key] = enum_cls(value)
-                except ValueError:
-                    raise ConfigError(source, f"protocol.{key}", value, "one of " + ", ".join(
-                        repr(m.value) for m in enum_cls)) from None
-    if cls is CalibrationConfig and "manual" in raw:
-        manual = raw.pop("manual")
-        mnames = [f.name for f in dataclasses.fields(ManualCurrents)]
-        if not isinstance(manual, dict):
-            raise ConfigError(source, "calibration.manual", manual, "a table with " +
-                              ", ".join(mnames))
-        _refuse_unknown(manual, mnames, "calibration.manual.", source)
-        missing = [n for n in mnames if n not in manual]
-        if missing:
-            raise ConfigError(source, "calibration.manual", manual,
-                              "give all four currents (missing: " + ", ".join(missing) + ")")
-        kw["manual"] = ManualCurrents(**{n: _number(source, f"calibration.manual.{n}",
-                                                    manual[n]) for n in mnames})
-    types = {f.name: f.type for f in dataclasses.fields(cls)}
-    for key, value in raw.items():
-        setting = f"{section}.{key}"
-        t = str(types[key])
-        if t == "bool":
-            if not isinstance(value, bool):
-                raise ConfigError(source, setting, value, "true or false")
-            kw[key] = value
-        elif t == "int":
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise ConfigError(source, setting, value, "a whole number")
-            kw[key] = value
-        else:
-            kw[key] = _number(source, setting, value)
-    return cls(**kw)
-
-
-def _number(source: str, setting: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(source, setting, value, "a number")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ConfigError(source, setting, value, "a finite number")
-    return value
-
-
-def _levels_from_range(raw: dict, source: str) -> tuple[float, ...]:
-    lo = _number(source, "protocol.sE_min", raw.get("sE_min", 0.30))
-    hi = _number(source, "protocol.sE_max", raw.get("sE_max", 1.00))
-    step = _number(source, "protocol.sE_step", raw.get("sE_step", 0.05))
-    if step <= 0:
-        raise ConfigError(source, "protocol.sE_step", step, "a step > 0")
-    if hi < lo:
-        raise ConfigError(source, "protocol.sE_max", hi, f"sE_max >= sE_min ({lo:g})")
-    n = int(math.floor((hi - lo) / step + 1e-9)) + 1
-    return tuple(round(lo + k * step, 10) for k in range(n))
-
-
-# -- validation -----------------------------------------------------------------------
 def validate(cfg: Config) -> None:
-    """Check every value of ``cfg``; raise :class:`ConfigError` on the first bad one."""
-    src = cfg.source
-    if not isinstance(cfg.participant, str) or not PARTICIPANT_PATTERN.match(cfg.participant):
-        raise ConfigError(src, "participant", cfg.participant,
-                          "1 to 64 letters, digits, '_' or '-' (a code, never a name)")
-    if cfg.seed is not None and (isinstance(cfg.seed, bool) or not isinstance(cfg.seed, int)
-                                 or cfg.seed < 0):
-        raise ConfigError(src, "seed", cfg.seed, "a whole number >= 0")
-    if cfg.participant_model not in PARTICIPANT_MODELS:
-        raise ConfigError(src, "participant.model", cfg.participant_model,
-                          "one of " + ", ".join(repr(m) for m in PARTICIPANT_MODELS))
-    _validate_protocol(cfg.protocol, src)
-    _validate_calibration(cfg.calibration, src)
-    _validate_interlock(cfg.interlock, src)
-
-
-def _positive(src, setting, value, *, allow_zero=False):
-    ok = value >= 0 if allow_zero else value > 0
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and ok):
-        raise ConfigError(src, setting, value, "a finite number " + (">= 0" if allow_zero
-                                                                      else "> 0"))
-
-
-def _validate_protocol(p: ProtocolConfig, src: str) -> None:
-    if not p.sE_levels:
-        raise ConfigError(src, "protocol.sE_levels", list(p.sE_levels),
-                          "a non-empty list of numbers in (0, 1]")
-    for v in p.sE_levels:
-        if not (0 < v <= 1):
-            raise ConfigError(src, "protocol.sE_levels", v,
-                              "every sE must lie in (0, 1] (sE = Ie + If, normalised)")
-    if len(set(round(v, 9) for v in p.sE_levels)) != len(p.sE_levels):
-        raise ConfigError(src, "protocol.sE_levels", list(p.sE_levels),
-                          "each sE level once (use repeats for repetitions)")
-    if isinstance(p.repeats, bool) or not isinstance(p.repeats, int) or not 1 <= p.repeats <= 100:
-        raise ConfigError(src, "protocol.repeats", p.repeats, "a whole number from 1 to 100")
-    if not isinstance(p.randomisation, Randomisation):
-        raise ConfigError(src, "protocol.randomisation", p.randomisation,
-                          "'blocks' or 'full'")
-    if not isinstance(p.pause_policy, PausePolicy):
-        raise ConfigError(src, "protocol.pause_policy", p.pause_policy, "'finish' or 'abort'")
-    _positive(src, "protocol.steady_s", p.steady_s, allow_zero=True)
-    _positive(src, "protocol.chirp_s", p.chirp_s)
-    _positive(src, "protocol.fs_Hz", p.fs_Hz)
-    _positive(src, "protocol.carrier_Hz", p.carrier_Hz)
-    _positive(src, "protocol.rest_s", p.rest_s, allow_zero=True)
-    _positive(src, "protocol.chirp_f0_Hz", p.chirp_f0_Hz)
-    _positive(src, "protocol.chirp_f1_Hz", p.chirp_f1_Hz)
-    if p.chirp_f1_Hz <= p.chirp_f0_Hz:
-        raise ConfigError(src, "protocol.chirp_f1_Hz", p.chirp_f1_Hz,
-                          f"above chirp_f0_Hz ({p.chirp_f0_Hz:g} Hz): the chirp rises")
-    nyquist = p.fs_Hz / 2
-    if p.chirp_f1_Hz >= nyquist:
-        raise ConfigError(src, "protocol.chirp_f1_Hz", p.chirp_f1_Hz,
-                          f"below the Nyquist rate fs_Hz/2 = {nyquist:g} Hz")
-    if p.trial_s * p.fs_Hz < 10:
-        raise ConfigError(src, "protocol.chirp_s", p.chirp_s,
-                          "a trial of at least 10 samples (steady_s + chirp_s) * fs_Hz")
-    if p.trial_s > 3600:
-        raise ConfigError(src, "protocol.chirp_s", p.chirp_s,
-                          "steady_s + chirp_s of at most 3600 s")
-    for name in ("rE_centre", "rE_amplitude"):
-        v = getattr(p, name)
-        if not (isinstance(v, (int, float)) and math.isfinite(v)):
-            raise ConfigError(src, f"protocol.{name}", v, "a finite number")
-    if not isinstance(p.input_kind, InputKind):
-        raise ConfigError(src, "protocol.input_kind", p.input_kind, "'chirp' or 'multisine'")
-    if isinstance(p.multisine_tones, bool) or not isinstance(p.multisine_tones, int) or \
-            not 2 <= p.multisine_tones <= 1000:
-        raise ConfigError(src, "protocol.multisine_tones", p.multisine_tones,
-                          "a whole number from 2 to 1000")
-    if p.input_kind is InputKind.MULTISINE:
-        # tones are harmonics of 1 / chirp_s inside the band: there must be enough of them
-        available = (math.floor(p.chirp_f1_Hz * p.chirp_s + 1e-9)
-                     - math.ceil(p.chirp_f0_Hz * p.chirp_s - 1e-9) + 1)
-        if available < p.multisine_tones:
-            raise ConfigError(src, "protocol.multisine_tones", p.multisine_tones,
-                              f"at most {max(available, 0)}: the tones are multiples of "
-                              f"1/chirp_s = {1 / p.chirp_s:g} Hz inside [{p.chirp_f0_Hz:g}, "
-                              f"{p.chirp_f1_Hz:g}] Hz (lengthen chirp_s or widen the band)")
-    if p.rE_amplitude < 0:
-        raise ConfigError(src, "protocol.rE_amplitude", p.rE_amplitude, "a number >= 0")
-    if p.rE_centre - p.rE_amplitude < -1e-12 or p.rE_centre + p.rE_amplitude > 1 + 1e-12:
-        raise ConfigError(src, "protocol.rE_amplitude", p.rE_amplitude,
-                          f"rE_centre +/- rE_amplitude inside [0, 1] (rE_centre = "
-                          f"{p.rE_centre:g})")
-
-
-def _validate_calibration(c: CalibrationConfig, src: str) -> None:
-    _positive(src, "calibration.step_mA", c.step_mA)
-    _positive(src, "calibration.hold_s", c.hold_s)
-    _positive(src, "calibration.baseline_s", c.baseline_s)
-    _positive(src, "calibration.rest_s", c.rest_s, allow_zero=True)
-    if not 0 <= c.settle_fraction < 1:
-        raise ConfigError(src, "calibration.settle_fraction", c.settle_fraction,
-                          "a fraction in [0, 1)")
-    _positive(src, "calibration.Fmin_N", c.Fmin_N)
-    _positive(src, "calibration.Fmax_N", c.Fmax_N)
-    if c.Fmax_N <= c.Fmin_N:
-        raise ConfigError(src, "calibration.Fmax_N", c.Fmax_N,
-                          f"above Fmin_N ({c.Fmin_N:g} N)")
-    _positive(src, "calibration.force_ceiling_N", c.force_ceiling_N)
-    if c.force_ceiling_N <= c.Fmax_N:
-        raise ConfigError(src, "calibration.force_ceiling_N", c.force_ceiling_N,
-                          f"above Fmax_N ({c.Fmax_N:g} N), or the ramp could never reach Fmax")
-    _positive(src, "calibration.ceiling_ext_mA", c.ceiling_ext_mA)
-    _positive(src, "calibration.ceiling_flex_mA", c.ceiling_flex_mA)
-    for name, ceiling in (("ceiling_ext_mA", c.ceiling_ext_mA),
-                          ("ceiling_flex_mA", c.ceiling_flex_mA)):
-        if ceiling < c.step_mA:
-            raise ConfigError(src, f"calibration.{name}", ceiling,
-                              f"at least one ramp step ({c.step_mA:g} mA)")
-    if not isinstance(c.confirm, bool):
-        raise ConfigError(src, "calibration.confirm", c.confirm, "true or false")
-    m = c.manual
-    if m is not None:
-        for name in ("Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA"):
-            _positive(src, f"calibration.manual.{name}", getattr(m, name), allow_zero=True)
-        if not m.Iemax_mA > m.Iemin_mA:
-            raise ConfigError(src, "calibration.manual.Iemax_mA", m.Iemax_mA,
-                              f"above Iemin_mA ({m.Iemin_mA:g} mA)")
-        if not m.Ifmax_mA > m.Ifmin_mA:
-            raise ConfigError(src, "calibration.manual.Ifmax_mA", m.Ifmax_mA,
-                              f"above Ifmin_mA ({m.Ifmin_mA:g} mA)")
-        if m.Iemax_mA > c.ceiling_ext_mA:
-            raise ConfigError(src, "calibration.manual.Iemax_mA", m.Iemax_mA,
-                              f"at most calibration.ceiling_ext_mA ({c.ceiling_ext_mA:g} mA)")
-        if m.Ifmax_mA > c.ceiling_flex_mA:
-            raise ConfigError(src, "calibration.manual.Ifmax_mA", m.Ifmax_mA,
-                              f"at most calibration.ceiling_flex_mA ({c.ceiling_flex_mA:g} mA)")
-
-
-def _validate_interlock(i: InterlockConfig, src: str) -> None:
-    _positive(src, "interlock.force_limit_N", i.force_limit_N)
-    _positive(src, "interlock.stall_timeout_s", i.stall_timeout_s)
-    if i.stall_timeout_s > 10:
-        raise ConfigError(src, "interlock.stall_timeout_s", i.stall_timeout_s,
-                          "at most 10 s (a stalled sensor must stop stimulation quickly)")
-    _positive(src, "interlock.estop_poll_Hz", i.estop_poll_Hz)
-    if i.estop_poll_Hz < 100:
-        raise ConfigError(src, "interlock.estop_poll_Hz", i.estop_poll_Hz,
-                          "at least 100 Hz (the switch must be seen within 10 ms)")
-    for name in ("trip_on_overrun", "trip_on_over_range", "trip_on_sensor_fault"):
-        if not isinstance(getattr(i, name), bool):
-            raise ConfigError(src, f"interlock.{name}", getattr(i, name), "true or false")
+    """Check every value of ``cfg`` again (a :class:`Config` is validated when built)."""
+    config_from_dict(cfg.to_dict(), source=cfg.source)

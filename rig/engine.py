@@ -401,6 +401,9 @@ class Engine(CalibrationSteps, DeviceRecovery):
                     f"participant {cfg.participant}, seed {self.seed}, backend "
                     f"{self.devices.backend}, stimulator {caps.model} max "
                     f"{caps.max_current_mA:g} mA")
+        for weakened in cfg.weakened_safety():   # confirmed, or the config was refused
+            log.warning("weakened safety (confirmed): %s", weakened)
+            self._event("weakened_safety", f"confirmed: {weakened}")
         if self.recovery is not None and self.recovery.action != "none":
             self._event("recovered", self.recovery.summary())
         self.interlock.start_watcher()

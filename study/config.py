@@ -19,29 +19,75 @@ A study is a folder of session files (every ``*.h5`` in it, recursively) or a TO
 
 from __future__ import annotations
 
-import dataclasses
 import glob
-import tomllib
-from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
+
+from pydantic import AfterValidator, Field, StrictBool, StrictInt, StrictStr
 
 from nmsid.analysis.settings import IdentificationSettings
-from nmsid.study.errors import StudyConfigError
+from nmsid.protocols.config import PARTICIPANT_PATTERN
+from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
+                                           validate_settings)
+from nmsid.study.errors import StudyConfigError, study_config_error
+
+MAX_SESSION_ENTRIES = 100_000
+"""Entries of ``sessions`` at most (each a path or a glob)."""
+
+
+def _code(value: str) -> str:
+    if not PARTICIPANT_PATTERN.fullmatch(value):
+        raise SettingProblem("", value, "a participant code: 1 to 64 letters, digits, '_' "
+                             "or '-' (no spaces or control characters)")
+    return value
+
+
+def _path_text(value: str) -> str:
+    if not value or any(ord(c) < 32 or ord(c) == 127 for c in value):
+        raise SettingProblem("", value, "a path or glob without control characters")
+    return value
+
+
+@settings_dataclass(study_config_error, prefix="settings")
+class StudySettings:
+    """The ``[settings]`` table of a STUDY.toml."""
+
+    gap: StrictBool = True
+    """Gap diagnosis per session (~10 s each)."""
+    gap_max_sessions: StrictInt = bounded(0, ge=0, le=MAX_SESSION_ENTRIES, why=(
+        "diagnose only the first N sessions; 0 = all"))
+    figures: StrictBool = True
+    """Figures 4-6 in the report."""
+
+
+@settings_dataclass(study_config_error)
+class StudyFile:
+    """The layout of a STUDY.toml (validated before any session is opened)."""
+
+    sessions: list[Annotated[StrictStr, AfterValidator(_path_text)]] = bounded(
+        min_length=1, max_length=MAX_SESSION_ENTRIES, why="paths or globs of session files")
+    participants: dict[StrictStr, Annotated[StrictStr, AfterValidator(_code)]] = Field(
+        default_factory=dict)
+    settings: StudySettings = Field(default_factory=StudySettings)
+    identification: IdentificationSettings = Field(default_factory=IdentificationSettings)
+
 
 SETTING_DEFAULTS = {"gap": True, "gap_max_sessions": 0, "figures": True}
 
 
-@dataclass
+@settings_dataclass(study_config_error, frozen=False)
 class StudyConfig:
     """A resolved study: absolute session paths plus settings."""
 
     sessions: list[Path]
-    participants: dict[str, str] = field(default_factory=dict)
+    participants: dict[str, str] = Field(default_factory=dict)
     """Session file stem -> participant code used in the group analysis."""
-    gap: bool = True
-    gap_max_sessions: int = 0
-    figures: bool = True
-    identification: dict = field(default_factory=dict)
+    gap: StrictBool = True
+    gap_max_sessions: StrictInt = bounded(0, ge=0, le=MAX_SESSION_ENTRIES, why=(
+        "diagnose only the first N sessions; 0 = all"))
+    figures: StrictBool = True
+    identification: dict = Field(default_factory=dict)
+    """Overrides of :class:`~nmsid.analysis.settings.IdentificationSettings` fields."""
     source: str = ""
 
     def gap_sessions(self) -> set[Path]:
@@ -52,14 +98,17 @@ class StudyConfig:
             self.sessions[:self.gap_max_sessions]
         return set(chosen)
 
-    def identification_settings(self):
-        """The ``IdentificationSettings`` with this study's overrides."""
-        names = {f.name for f in dataclasses.fields(IdentificationSettings)}
-        unknown = sorted(set(self.identification) - names)
-        if unknown:
-            raise StudyConfigError(f"{self.source}: [identification] has unknown setting(s) "
-                                   f"{unknown}; valid: {sorted(names)}")
-        return IdentificationSettings(**self.identification)
+    def identification_settings(self) -> IdentificationSettings:
+        """The ``IdentificationSettings`` with this study's overrides.
+
+        Raises
+        ------
+        StudyConfigError
+            Naming the study file and ``identification.<key>``.
+        """
+        return validate_settings(IdentificationSettings, self.identification,
+                                 source=self.source, make_error=study_config_error,
+                                 prefix="identification")
 
 
 def load_study(source: str | Path) -> StudyConfig:
@@ -68,8 +117,8 @@ def load_study(source: str | Path) -> StudyConfig:
     Raises
     ------
     StudyConfigError
-        If the file or folder is missing, the TOML is invalid, a setting is unknown or no
-        session file is found.
+        If the file or folder is missing, the TOML is invalid, a setting is unknown or out
+        of bounds, or no session file is found.
     """
     src = Path(source)
     if src.is_dir():
@@ -86,21 +135,11 @@ def load_study(source: str | Path) -> StudyConfig:
 
 
 def _from_toml(path: Path) -> StudyConfig:
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise StudyConfigError(f"{path}: not valid TOML ({exc})") from None
-    unknown = sorted(set(data) - {"sessions", "participants", "settings", "identification"})
-    if unknown:
-        raise StudyConfigError(f"{path}: unknown key(s) {unknown}; valid: sessions, "
-                               "participants, settings, identification")
-    patterns = data.get("sessions")
-    if not isinstance(patterns, list) or not all(isinstance(p, str) for p in patterns):
-        raise StudyConfigError(f"{path}: 'sessions' must be a list of paths or globs, "
-                               f"got {patterns!r}")
+    data = read_toml(path, study_config_error, what="study file")
+    spec = validate_settings(StudyFile, data, source=str(path), make_error=study_config_error)
     base = path.parent
     sessions: list[Path] = []
-    for pattern in patterns:
+    for pattern in spec.sessions:
         full = pattern if Path(pattern).is_absolute() else str(base / pattern)
         hits = sorted(glob.glob(full, recursive=True))
         if not hits:
@@ -109,19 +148,7 @@ def _from_toml(path: Path) -> StudyConfig:
             p = Path(h).resolve()
             if p not in sessions:
                 sessions.append(p)
-    settings = data.get("settings", {})
-    bad = sorted(set(settings) - set(SETTING_DEFAULTS))
-    if bad:
-        raise StudyConfigError(f"{path}: [settings] has unknown key(s) {bad}; valid: "
-                               f"{sorted(SETTING_DEFAULTS)}")
-    merged = {**SETTING_DEFAULTS, **settings}
-    for key, default in SETTING_DEFAULTS.items():
-        if type(merged[key]) is not type(default):
-            raise StudyConfigError(f"{path}: [settings] {key} = {merged[key]!r} must be "
-                                   f"{type(default).__name__}")
-    participants = data.get("participants", {})
-    if not all(isinstance(v, str) for v in participants.values()):
-        raise StudyConfigError(f"{path}: [participants] values must be participant codes")
-    return StudyConfig(sessions=sessions, participants=dict(participants),
-                       identification=dict(data.get("identification", {})),
-                       source=str(path), **merged)
+    return StudyConfig(sessions=sessions, participants=dict(spec.participants),
+                       gap=spec.settings.gap, gap_max_sessions=spec.settings.gap_max_sessions,
+                       figures=spec.settings.figures,
+                       identification=dict(data.get("identification", {})), source=str(path))

@@ -190,7 +190,9 @@ class MainWindow(QMainWindow):
         engine = self.controller.engine
         self._calibration_known = bool(request.resume and
                                        getattr(engine, "calibration", None) is not None)
-        p = getattr(engine, "config", config).protocol
+        used = getattr(engine, "config", config)
+        self.safety.set_weakened(used.weakened_safety())
+        p = used.protocol
         self.schedule_panel.set_timing(p.trial_s, p.rest_s)
         self.setup_panel.setEnabled(False)
         self.event_log.append(f"session {request.participant}: "

@@ -112,6 +112,12 @@ class SafetyPanel(QFrame):
         self.banner.setWordWrap(True)
         self.banner.setObjectName("banner")
         self.banner.setVisible(False)
+        self.weakened = QLabel("")
+        self.weakened.setWordWrap(True)
+        self.weakened.setObjectName("weakened")
+        self.weakened.setStyleSheet(f"background: {Colour.WARN}; color: white; "
+                                    "font-weight: bold; padding: 6px;")
+        self.weakened.setVisible(False)
         self.lights: dict[str, Light] = {}
         self._lights_box = QHBoxLayout()
         for _, label in LIGHTS:
@@ -126,6 +132,7 @@ class SafetyPanel(QFrame):
         top.addWidget(self.rearm_button)
         left.addLayout(top)
         left.addWidget(self.banner)
+        left.addWidget(self.weakened)
         lay = QHBoxLayout(self)
         lay.addLayout(left, 1)
         lay.addWidget(self.estop_button)
@@ -162,6 +169,12 @@ class SafetyPanel(QFrame):
             self.banner.setVisible(True)
         elif state in ("armed", "stimulating", "resting", "calibrating", "finished"):
             self.banner.setVisible(False)
+
+    def set_weakened(self, settings: list[str]) -> None:
+        """Show (or hide, if empty) the confirmed settings that weaken the interlock."""
+        self.weakened.setText("WEAKENED SAFETY (confirmed in the configuration): "
+                              + "; ".join(settings))
+        self.weakened.setVisible(bool(settings))
 
     def set_interlock(self, status: dict) -> None:
         """Update the lights from ``engine.interlock_status()`` (rule -> (ok, detail))."""

@@ -35,7 +35,9 @@ from pathlib import Path
 
 from PySide6.QtCore import QObject, QTimer, Signal
 
-from nmsid.errors import UserError
+from nmsid.errors import InputFileMissing, UserError
+from nmsid.protocols.config import SEED_MAX
+from nmsid.protocols.settings_base import bounded, settings_dataclass, validate_settings
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +90,43 @@ tab live
 
 class ScriptError(UserError):
     """A script line is not understood (names the line) or a wait timed out."""
+
+
+def script_error(source: str, key: str, value, valid: str) -> ScriptError:
+    """The settings layer's factory (``protocols.settings_base``) for script arguments."""
+    return ScriptError(f"{source}: {key} = {value!r} is refused: {valid}")
+
+
+@settings_dataclass(script_error)
+class StartArgs:
+    """``start key=value ...``: what the setup form takes (all optional).
+
+    Script arguments are words, so these fields are lax: ``seed=3`` is the number 3,
+    ``realtime=yes`` is true.
+    """
+
+    participant: str | None = None
+    backend: str | None = None
+    config: str | None = None
+    hw_config: str | None = None
+    output: str | None = None
+    seed: int | None = bounded(None, ge=0, le=SEED_MAX, why=(
+        "the session file stores the seed as a 64-bit signed integer"))
+    realtime: bool | None = None
+    resume: bool = False
+
+
+@settings_dataclass(script_error)
+class CalibrationArgs:
+    """``confirm-calibration Iemin_mA=... ...``: currents replacing the detected ones."""
+
+    Iemin_mA: float | None = bounded(None, ge=0.0, le=100.0, why="a current of the rig")
+    Iemax_mA: float | None = bounded(None, ge=0.0, le=100.0, why="a current of the rig")
+    Ifmin_mA: float | None = bounded(None, ge=0.0, le=100.0, why="a current of the rig")
+    Ifmax_mA: float | None = bounded(None, ge=0.0, le=100.0, why="a current of the rig")
+
+
+_ARGS = {"start": StartArgs, "confirm-calibration": CalibrationArgs}
 
 
 @dataclass(frozen=True)
@@ -179,21 +218,10 @@ def _check(cmd: Command, args, kwargs, where: str) -> None:
     elif cmd is Command.NOTE:
         if not args[0]:
             raise ScriptError(f"{where}: note needs a text")
-    elif cmd is Command.START:
+    elif cmd in (Command.START, Command.CONFIRM_CALIBRATION):
         need(0, 0)
-        known = {"participant", "backend", "config", "hw_config", "output", "seed",
-                 "realtime", "resume"}
-        bad = set(kwargs) - known
-        if bad:
-            raise ScriptError(f"{where}: start: unknown setting(s) {sorted(bad)}; known: "
-                              + ", ".join(sorted(known)))
-    elif cmd is Command.CONFIRM_CALIBRATION:
-        need(0, 0)
-        bad = set(kwargs) - {"Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA"}
-        if bad:
-            raise ScriptError(f"{where}: confirm-calibration: unknown field(s) {sorted(bad)}")
-        for k, v in kwargs.items():
-            number(v, k)
+        validate_settings(_ARGS[cmd.value], kwargs, source=f"{where}: {cmd.value}",
+                          make_error=script_error)
     else:
         need(0, 0)
     if cmd in (Command.WAIT_TRIAL_TIME, Command.SLEEP, Command.WAIT_FINISHED,
@@ -213,7 +241,7 @@ def load_script(name_or_path: str) -> list[Step]:
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise OSError(f"{path}: cannot read the GUI script ({exc.strerror}); give a script "
+        raise InputFileMissing(f"{path}: cannot read the GUI script ({exc.strerror}); give a script "
                       "file or 'demo'") from None
     return parse_script(text, str(path))
 
@@ -290,13 +318,10 @@ class ScriptRunner(QObject):
         w = self.window
         c = step.command
         if c is Command.START:
-            kw = dict(step.kwargs)
-            resume = kw.pop("resume", "false").lower() in ("1", "true", "yes")
-            if "seed" in kw:
-                kw["seed"] = int(kw["seed"])
-            if "realtime" in kw:
-                kw["realtime"] = kw["realtime"].lower() in ("1", "true", "yes")
-            w.start_session(resume=resume, **kw)
+            args = validate_settings(StartArgs, step.kwargs, source=f"line {step.line}",
+                                     make_error=script_error)
+            kw = {k: v for k, v in vars(args).items() if v is not None and k != "resume"}
+            w.start_session(resume=args.resume, **kw)
             if w.controller.engine is None:
                 raise ScriptError(f"line {step.line}: the session did not start: "
                                   f"{w.setup_panel.message.text()}")
@@ -351,7 +376,9 @@ class ScriptRunner(QObject):
         if c is Command.CONFIRM_CALIBRATION:
             if not w.calibration_panel.confirm_button.isEnabled():
                 return False
-            w.confirm_calibration(**{k: float(v) for k, v in step.kwargs.items()})
+            args = validate_settings(CalibrationArgs, step.kwargs, source=f"line {step.line}",
+                                     make_error=script_error)
+            w.confirm_calibration(**{k: v for k, v in vars(args).items() if v is not None})
             return True
         if c is Command.SLEEP:
             return time.monotonic() >= self._sleep_until

@@ -115,11 +115,15 @@ def test_study_toml_globs_overrides_and_settings(folder, tmp_path):
 
 
 @pytest.mark.parametrize("text,match", [
-    ('sessions = "a.h5"\n', "list of paths"),
+    ('sessions = "a.h5"\n', "sessions = 'a.h5' is refused: a list"),
     ('sessions = ["nothing-*.h5"]\n', "matches no file"),
-    ('sessions = ["site/*.h5"]\n[settings]\nworkers = 3\n', "unknown key"),
-    ('sessions = ["site/*.h5"]\n[settings]\ngap = "yes"\n', "must be bool"),
-    ('sessions = ["site/*.h5"]\nsesions = 1\n', "unknown key"),
+    ('sessions = ["site/*.h5"]\n[settings]\nworkers = 3\n', "settings.workers = 3 is "
+     "refused: unknown setting"),
+    ('sessions = ["site/*.h5"]\n[settings]\ngap = "yes"\n', "settings.gap = 'yes' is "
+     "refused: true or false"),
+    ('sessions = ["site/*.h5"]\nsesions = 1\n', "sesions = 1 is refused: unknown setting"),
+    ('sessions = ["site/*.h5"]\n[participants]\nS0 = "P01\\n"\n', "participants.S0 = "
+     "'P01\\\\n' is refused: a participant code"),
     ('sessions = [\n', "not valid TOML"),
 ])
 def test_bad_study_files_name_the_problem(folder, text, match):

@@ -81,6 +81,21 @@ def test_lights_follow_the_engines_rule_names(qtbot):
     assert p.banner.isHidden()
 
 
+def test_safety_panel_shows_confirmed_weakened_settings(qtbot):
+    from nmsid.rig.gui.safety_panel import SafetyPanel
+    p = SafetyPanel(on_estop=lambda: None, on_rearm=lambda: None)
+    qtbot.addWidget(p)
+    p.show()
+    assert not p.weakened.isVisible()
+    p.set_weakened(["interlock.trip_on_overrun = false (that interlock rule never trips)"])
+    assert p.weakened.isVisible()
+    assert p.weakened.text() == ("WEAKENED SAFETY (confirmed in the configuration): "
+                                 "interlock.trip_on_overrun = false (that interlock rule "
+                                 "never trips)")
+    p.set_weakened([])
+    assert not p.weakened.isVisible()
+
+
 def test_schedule_panel_in_the_wait_for_a_rerun(qtbot):
     from nmsid.protocols.schedule import PlannedTrial, TrialStatus
     from nmsid.rig.gui.schedule_panel import SchedulePanel

@@ -1,0 +1,68 @@
+"""The ``[interlock]`` table of a session configuration, and the weakened-safety rule.
+
+Part of :mod:`nmsid.protocols.config` (which re-exports every name). A setting that weakens
+protection needs ``confirm_weakened_safety = true`` (``docs/settings.md``).
+"""
+
+from __future__ import annotations
+
+from pydantic import StrictBool, StrictFloat, model_validator
+
+from nmsid.protocols.errors import ConfigError
+from nmsid.protocols.settings_base import SettingProblem, bounded, settings_dataclass
+
+FORCE_SENSOR_RANGE_N = 500.0
+"""Rated range of the rig's force sensor (Leptrino PFS080YA501G6: 500 N per force axis;
+the simulated sensor's ``range_N``). A force limit above it can never trip."""
+
+
+TRIP_SWITCHES = ("trip_on_overrun", "trip_on_over_range", "trip_on_sensor_fault")
+"""Interlock rules that can be switched off (each then weakens protection)."""
+
+
+@settings_dataclass(ConfigError, prefix="interlock")
+class InterlockConfig:
+    """Thresholds of the safety interlock (see ``docs/rig.md``).
+
+    A setting that weakens protection (a ``trip_on_*`` switched off, a force limit above
+    the sensor's range) is refused unless ``confirm_weakened_safety`` is true
+    (``nmsid run --allow-weakened-safety`` sets it); see :meth:`weakened`.
+    """
+
+    force_limit_N: StrictFloat = bounded(25.0, gt=0.0, le=10_000.0, why=(
+        "no elbow pushes 10 kN: a larger limit is a typo"))
+    stall_timeout_s: StrictFloat = bounded(0.1, gt=0.0, le=10.0, why=(
+        "a stalled sensor must stop stimulation quickly"))
+    trip_on_overrun: StrictBool = True
+    trip_on_over_range: StrictBool = True
+    trip_on_sensor_fault: StrictBool = True
+    estop_poll_Hz: StrictFloat = bounded(1000.0, ge=100.0, le=100_000.0, why=(
+        "the switch must be seen within 10 ms; faster than 100 kHz only burns a core"))
+    confirm_weakened_safety: StrictBool = False
+
+    def weakened(self) -> list[str]:
+        """Each setting that weakens protection, as ``"interlock.key = value (why)"``."""
+        out = [f"interlock.{name} = false (that interlock rule never trips)"
+               for name in TRIP_SWITCHES if not getattr(self, name)]
+        if self.force_limit_N > FORCE_SENSOR_RANGE_N:
+            out.append(f"interlock.force_limit_N = {self.force_limit_N:g} (above the force "
+                       f"sensor's range, {FORCE_SENSOR_RANGE_N:g} N: it can never trip)")
+        return out
+
+    @model_validator(mode="after")
+    def _confirmed(self):
+        if self.confirm_weakened_safety:
+            return self
+        for name in TRIP_SWITCHES:
+            if not getattr(self, name):
+                raise SettingProblem(name, False, _CONFIRM_WORDS)
+        if self.force_limit_N > FORCE_SENSOR_RANGE_N:
+            raise SettingProblem("force_limit_N", self.force_limit_N,
+                                 f"at most the force sensor's range "
+                                 f"({FORCE_SENSOR_RANGE_N:g} N), or {_CONFIRM_WORDS}")
+        return self
+
+
+_CONFIRM_WORDS = ("this weakens the safety interlock; to run anyway set interlock."
+                  "confirm_weakened_safety = true in the file or pass --allow-weakened-safety "
+                  "(recorded in the session)")
