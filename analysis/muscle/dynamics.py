@@ -77,7 +77,7 @@ def simulate_batch(theta: np.ndarray, rE: np.ndarray, sE: np.ndarray, dt_s: floa
         Physical parameters in :data:`PARAM_NAMES` order, one row per parameter set.
     rE : ndarray, (n_trials, n_steps)
         Commanded rE, held over each step; the first sample is the lead-in's 0.5 level.
-    sE : ndarray, (n_trials,)
+    sE : ndarray, (n_trials,) or (n_trials, n_steps)
     dt_s : float
         Step, s.
 
@@ -94,7 +94,8 @@ def simulate_batch(theta: np.ndarray, rE: np.ndarray, sE: np.ndarray, dt_s: floa
     ke, kf = ks * Fe / (0.5 * (Fe + Ff)), ks * Ff / (0.5 * (Fe + Ff))
     de, df = cs * Fe / (0.5 * (Fe + Ff)), cs * Ff / (0.5 * (Fe + Ff))
     rE = np.asarray(rE, float)
-    sE = np.asarray(sE, float)[:, None]
+    sE = np.asarray(sE, float)
+    sE = sE[:, None] if sE.ndim == 1 else sE          # per trial, or per trial and step
     u_e = recruitment((rE * sE)[None], ce[..., None], we[..., None])   # (P, n, T)
     u_f = recruitment(((1.0 - rE) * sE)[None], cf[..., None], wf[..., None])
     P, n, T = u_e.shape
