@@ -100,7 +100,8 @@ def main(codes=("MSK-A", "MSK-B", "HILL")) -> None:
               f"{r['verdict']:>12s} {str(r['remaining_sig']):>7s}")
     print()
     for r in rows:
-        print(f"{r['code']}: session simulated in {r['sim_s']:.0f} s; diagnosis {r['diag_s']:.0f} s "
+        print(f"{r['code']}: session simulated in {r['sim_s']:.0f} s; "
+              f"diagnosis {r['diag_s']:.0f} s "
               f"of which the muscle twin {r['muscle_fit_s']:.0f} s (all trials + 3 folds at "
               f"100 Hz); not determined by the data: {', '.join(r['undetermined']) or '-'}")
     print(f"\nwhole benchmark: {time.perf_counter() - t0:.0f} s with 2 worker processes")

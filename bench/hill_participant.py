@@ -20,7 +20,8 @@ written with. Differences on purpose:
   plus 15 % of the damper's.
 
 Simulated by explicit Euler at 4 kHz (sub-steps of the session's rate: the tendon is
-stiff); sessions are recorded at 1 kHz to keep the simulation short. Everything is vectorised over trials.
+stiff); sessions are recorded at 1 kHz to keep the simulation short. Everything is
+vectorised over trials.
 """
 
 from __future__ import annotations

@@ -17,7 +17,8 @@ Uncertainty: the Gauss-Newton covariance at the optimum, ``s^2 / nu (J'J + prior
 (``s^2`` the residual variance, ``nu`` the effective-sample fraction). A parameter is *not
 determined by the data* when the data alone shrink its prior spread by less than half
 (posterior sd > 0.5 prior sd), or, for a parameter without prior, when its sd on the log
-scale exceeds 0.5 (a factor 1.6), or when it ends at a bound of its literature range. The singular values of the scaled Jacobian are kept too.
+scale exceeds 0.5 (a factor 1.6), or when it ends at a bound of its literature range.
+The singular values of the scaled Jacobian are kept too.
 """
 
 from __future__ import annotations
@@ -77,7 +78,8 @@ class MuscleFit:
         """Each parameter with its uncertainty (relative for the log-scale ones)."""
         rows = []
         for k, n in enumerate(PARAM_NAMES):
-            row = {"name": n, "value": float(self.theta[k]), "determined": bool(self.determined[k])}
+            row = {"name": n, "value": float(self.theta[k]),
+                   "determined": bool(self.determined[k])}
             if lit.LOG[k]:
                 row["sd_rel_pct"] = 100.0 * float(np.expm1(self.sd_z[k]))
             else:

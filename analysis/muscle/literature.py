@@ -73,14 +73,17 @@ def to_theta(z: np.ndarray) -> np.ndarray:
 
 
 def start_theta() -> np.ndarray:
+    """The literature starting values (physical units, :data:`PARAM_NAMES` order)."""
     return np.array([TABLE[n][0] for n in PARAM_NAMES], float)
 
 
 def bounds_z() -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds on the fitted scale."""
     lo = to_z(np.array([TABLE[n][1] for n in PARAM_NAMES]))
     hi = to_z(np.array([TABLE[n][2] for n in PARAM_NAMES]))
     return lo, hi
 
 
 def prior_centre_z() -> np.ndarray:
+    """Centres of the priors on the fitted scale (the literature values)."""
     return to_z(start_theta())
