@@ -355,7 +355,7 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
             and diag.assessment["remaining"]["significant"]:
         # lazy: the muscle twin's modules are needed only when the template falls short
         from analysis.muscle.candidate import score_muscle
-        from analysis.muscle.fit import MuscleFitSettings
+        from analysis.muscle.fit import MuscleFitSettings  # lazy, as the line above
         mres = score_muscle(run, nominal, final if final is not None else nominal, s,
                             fit_settings=MuscleFitSettings(fs_fit_Hz=s.muscle_fs_Hz,
                                                            progress=s.progress))

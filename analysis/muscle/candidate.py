@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from analysis.gap.models import nuisance_basis
 from analysis.muscle.fit import MuscleFit, MuscleFitSettings, fit_muscle, predict_muscle
 
 log = logging.getLogger(__name__)
@@ -113,5 +114,4 @@ def score_muscle(run, nominal, final, settings, *, fit_settings: MuscleFitSettin
 
 
 def _Q(data):
-    from analysis.gap.models import nuisance_basis
     return nuisance_basis(data.t_eval_s, 0.0)

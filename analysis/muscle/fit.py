@@ -31,6 +31,7 @@ import numpy as np
 from scipy import signal
 
 from analysis.gap.data import GapData
+from analysis.gap.fit import initial_levels
 from analysis.gap.models import nuisance_basis
 from analysis.gap.samples import effective_fraction
 from analysis.muscle import literature as lit
@@ -142,7 +143,6 @@ def _noise_scale(data: GapData) -> tuple[float, float]:
 
 def initial_theta(data: GapData) -> np.ndarray:
     """Literature values with the forces and the mount's wn, zeta scaled to the session."""
-    from analysis.gap.fit import initial_levels
     th = lit.start_theta()
     try:
         wn, zeta = initial_levels(data)
