@@ -202,7 +202,7 @@ def fit_muscle(data: GapData, settings: MuscleFitSettings | None = None, *,
             r = prob.residuals(lit.to_theta(z_rows)).reshape(len(z_rows), -1)
         # a trial step into an unstable corner (huge damping at the fit rate) diverges:
         # a large finite residual makes LM reject it instead of failing on NaN
-        r = np.where(np.isfinite(r), r, 1e6)
+        r = np.where(np.isfinite(r), np.clip(r, -1e6, 1e6), 1e6)
         pr = w_prior * (z_rows[:, has_prior] - z0[has_prior]) / lit.PRIOR_SD[has_prior]
         return np.concatenate([r, pr], axis=1)
 
