@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.curves import evaluate_curve
-from analysis.discretize import foh_coefficients, foh_state_matrices
-from analysis.errors import TwinFileError
-from analysis.signal_kernels import lfilter
+from nmsid.analysis.curves import evaluate_curve
+from nmsid.analysis.discretize import foh_coefficients, foh_state_matrices
+from nmsid.analysis.errors import TwinFileError
+from nmsid.analysis.signal_kernels import lfilter
 
 FORMAT = "nmsid-twin"
 FORMAT_VERSION = 1
@@ -155,10 +155,10 @@ class Twin:
     # -- simulation -----------------------------------------------------------------
     def simulate(self, rE, sE, fs_Hz: float, clip: bool = True) -> np.ndarray:
         """Force in N for an rE(t) and sE: the muscle form when the twin has one
-        (:func:`analysis.muscle.twin_form.simulate_muscle`), else the second-order form
+        (:func:`nmsid.analysis.muscle.twin_form.simulate_muscle`), else the second-order form
         (:meth:`_simulate_second_order`, where the parameters are described)."""
         if self.muscle_model is not None:   # muscle form: its own dynamics (issue 20)
-            from analysis.muscle.twin_form import simulate_muscle  # lazy: muscle form only
+            from nmsid.analysis.muscle.twin_form import simulate_muscle  # lazy: muscle form only
             s = np.broadcast_to(np.asarray(sE, float), np.shape(rE))
             return simulate_muscle(self.muscle_model, rE, sE, fs_Hz) + \
                 self.offset_N(np.clip(s, *self.sE_range) if clip else s)
@@ -288,7 +288,7 @@ class Twin:
                   enumerate(source if isinstance(source, list) else [source])]
         muscle = None
         if data.get("muscle_model") is not None:     # muscle form (issue 20), optional
-            from analysis.muscle.twin_form import parse_muscle_model  # lazy: muscle form only
+            from nmsid.analysis.muscle.twin_form import parse_muscle_model  # lazy: muscle form only
             muscle = parse_muscle_model(data["muscle_model"], path)
         return cls(participant=str(data.get("participant", "")), parameters=curves,
                    muscle_model=muscle,

@@ -35,9 +35,9 @@ sys.path.insert(0, str(HERE))
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from analysis.gap.data import prepare_trials  # noqa: E402
-from analysis.gap.diagnose import GapSettings, diagnose  # noqa: E402
-from analysis.gap.effects import Effect  # noqa: E402
+from nmsid.analysis.gap.data import prepare_trials  # noqa: E402
+from nmsid.analysis.gap.diagnose import GapSettings, diagnose  # noqa: E402
+from nmsid.analysis.gap.effects import Effect  # noqa: E402
 
 #: The library effects that matter on muscle physics (the others never come near on these
 #: sessions; bench_gap runs all six): fewer template fits keep the bench short.
@@ -49,10 +49,10 @@ def _session(code: str):
     if code == "HILL":
         from hill_participant import HillParticipant, session
         return session(HillParticipant(), seed=4)
-    from analysis.design.candidates import paper_candidate
-    from analysis.design.predict import DEFAULT_SCATTER
-    from analysis.design.validate import simulate_session
-    from sim_backends.msk_population import make_msk_population
+    from nmsid.analysis.design.candidates import paper_candidate
+    from nmsid.analysis.design.predict import DEFAULT_SCATTER
+    from nmsid.analysis.design.validate import simulate_session
+    from nmsid.sim_backends.msk_population import make_msk_population
     people = make_msk_population(2, seed=7)
     if code == "MSK-A":
         return simulate_session(people[0], paper_candidate(), seed=0)

@@ -32,8 +32,8 @@ for p in (ROOT, HERE):
     if str(p) not in sys.path:
         sys.path.insert(0, str(p))
 
-from study.config import StudyConfig  # noqa: E402
-from study.runner import run_study  # noqa: E402
+from nmsid.study.config import StudyConfig  # noqa: E402
+from nmsid.study.runner import run_study  # noqa: E402
 from synthetic_sessions import write_synthetic_session  # noqa: E402
 
 N_SESSIONS = 40

@@ -1,7 +1,7 @@
 """An independent muscle formulation: compliant-tendon Hill muscles on a fixture (issue 20).
 
 Written apart from MuJoCo's muscles and from the physiological twin
-(:mod:`analysis.muscle.dynamics`) so that the twin is checked against physics it was not
+(:mod:`nmsid.analysis.muscle.dynamics`) so that the twin is checked against physics it was not
 written with. Differences on purpose:
 
 - recruitment: a power law above a threshold, ``u = a_max ((I - I_th) / (1 - I_th))^g``
@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from protocols.session_file import Session, Trial
+from nmsid.protocols.session_file import Session, Trial
 
 
 @dataclass(frozen=True)
@@ -144,8 +144,8 @@ def simulate(p: HillParticipant, rE: np.ndarray, sE: np.ndarray, fs_Hz: float,
 def session(p: HillParticipant, *, levels=None, repeats: int = 3, seed: int = 0,
             chirp_s: float = 10.0, steady_s: float = 5.0, fs_Hz: float = 1000.0) -> Session:
     """A session of the paper's protocol (in memory) on this formulation."""
-    from analysis.design.candidates import paper_candidate
-    from protocols.waveforms import input_attrs, rE_signal
+    from nmsid.analysis.design.candidates import paper_candidate
+    from nmsid.protocols.waveforms import input_attrs, rE_signal
 
     cand = paper_candidate()
     cfg = cand.config()

@@ -11,11 +11,11 @@ import time
 import traceback
 from pathlib import Path
 
-from analysis.gap.api import run_gap
-from analysis.model_selection import participant_parameters
-from analysis.run import run_identification
-from analysis.settings import PARAMETER_NAMES, IdentificationSettings
-from protocols.session_file import read_session
+from nmsid.analysis.gap.api import run_gap
+from nmsid.analysis.model_selection import participant_parameters
+from nmsid.analysis.run import run_identification
+from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
+from nmsid.protocols.session_file import read_session
 
 
 def session_folder_name(path: Path, index: int) -> str:

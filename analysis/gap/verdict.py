@@ -27,9 +27,9 @@ within noise is reported as such, not named). ``effect`` / ``pair``: a candidate
 supported and the nominal gap is significant; ``remaining`` then says whether what it
 leaves is still significant. ``unexplained``: the nominal gap is significant and no
 candidate or pair is supported. ``muscle_twin``: the template's answer still leaves a
-significant gap and the physiological twin (:mod:`analysis.muscle`) predicts the held-out
-repeats better (see :mod:`analysis.muscle.candidate`); ``remaining`` is then its own.
-Narrow-band components: :mod:`analysis.gap.narrowband`.
+significant gap and the physiological twin (:mod:`nmsid.analysis.muscle`) predicts the held-out
+repeats better (see :mod:`nmsid.analysis.muscle.candidate`); ``remaining`` is then its own.
+Narrow-band components: :mod:`nmsid.analysis.gap.narrowband`.
 """
 
 from __future__ import annotations
@@ -38,11 +38,11 @@ import math
 
 import numpy as np
 
-from analysis.gap.fit import find_steps
-from analysis.gap.harmonics import local_harmonics
-from analysis.gap.models import nuisance_basis
-from analysis.gap.narrowband import narrow_band
-from analysis.gap.samples import effective_fraction
+from nmsid.analysis.gap.fit import find_steps
+from nmsid.analysis.gap.harmonics import local_harmonics
+from nmsid.analysis.gap.models import nuisance_basis
+from nmsid.analysis.gap.narrowband import narrow_band
+from nmsid.analysis.gap.samples import effective_fraction
 
 #: Residual harmonics examined (1.5f: a non-harmonic reference).
 HARMONIC_ORDERS = (1, 1.5, 2, 3)
@@ -347,7 +347,7 @@ def _harmonics(diag, res) -> dict | None:
 def assess(diag, muscle=None) -> dict:
     """Verdict, the nominal gap and the remaining gap of a diagnosis (see module).
 
-    ``muscle``: a supported :class:`analysis.muscle.candidate.MuscleResult`, which then
+    ``muscle``: a supported :class:`nmsid.analysis.muscle.candidate.MuscleResult`, which then
     replaces the template's final model as the answer."""
     d = diag.data
     s = diag.settings

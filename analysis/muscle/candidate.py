@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from analysis.gap.models import nuisance_basis
-from analysis.muscle.fit import MuscleFit, MuscleFitSettings, fit_muscle, predict_muscle
+from nmsid.analysis.gap.models import nuisance_basis
+from nmsid.analysis.muscle.fit import MuscleFit, MuscleFitSettings, fit_muscle, predict_muscle
 
 log = logging.getLogger(__name__)
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from analysis.gap.errors import GapInputError
+from nmsid.analysis.gap.errors import GapInputError
 
 
 class MuscleFitError(GapInputError):

@@ -1,6 +1,6 @@
 """Fitting the physiological twin to a session: every sE level at once, one parameter set.
 
-The data are the gap diagnosis's (:class:`analysis.gap.data.GapData`): the identification's
+The data are the gap diagnosis's (:class:`nmsid.analysis.gap.data.GapData`): the identification's
 filters, input timing and evaluation grid, and only the trials quality control kept. The
 model runs at a reduced rate (``fs_fit_Hz``, 100 Hz by default: the input of each step is
 the mid-step value, so halving the rate moves no phase) from the commanded rE, and its
@@ -8,8 +8,8 @@ force passes the same zero-phase low-pass as the measured force. The per-trial o
 linear trend are nuisance terms, projected out exactly as in every gap model.
 
 Levenberg-Marquardt on the fitted scale (logs of the positive parameters) with the weak
-literature priors of :mod:`analysis.muscle.literature` as extra residual rows, weighted by
-the noise per *effective* sample (:func:`analysis.gap.samples.effective_fraction`). The
+literature priors of :mod:`nmsid.analysis.muscle.literature` as extra residual rows, weighted by
+the noise per *effective* sample (:func:`nmsid.analysis.gap.samples.effective_fraction`). The
 finite-difference Jacobian costs one batched simulation (all perturbations stacked), so an
 iteration costs about as much as two model runs.
 
@@ -30,13 +30,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import signal
 
-from analysis.gap.data import GapData
-from analysis.gap.fit import initial_levels
-from analysis.gap.models import nuisance_basis
-from analysis.gap.samples import effective_fraction
-from analysis.muscle import literature as lit
-from analysis.muscle.dynamics import PARAM_NAMES, simulate_batch
-from analysis.muscle.errors import MuscleFitError
+from nmsid.analysis.gap.data import GapData
+from nmsid.analysis.gap.fit import initial_levels
+from nmsid.analysis.gap.models import nuisance_basis
+from nmsid.analysis.gap.samples import effective_fraction
+from nmsid.analysis.muscle import literature as lit
+from nmsid.analysis.muscle.dynamics import PARAM_NAMES, simulate_batch
+from nmsid.analysis.muscle.errors import MuscleFitError
 
 
 @dataclass(frozen=True)
@@ -57,7 +57,7 @@ class MuscleFit:
     """One fitted physiological twin."""
 
     theta: np.ndarray
-    """Physical parameters, :data:`~analysis.muscle.dynamics.PARAM_NAMES` order."""
+    """Physical parameters, :data:`~nmsid.analysis.muscle.dynamics.PARAM_NAMES` order."""
     rss: float
     n_samples: int
     nrmse_pct: float

@@ -35,7 +35,7 @@ import math
 
 import numpy as np
 
-from analysis.muscle.dynamics import PARAM_NAMES
+from nmsid.analysis.muscle.dynamics import PARAM_NAMES
 
 #: (start, lower, upper, log-scale, prior sd on the fitted scale or None) per parameter.
 TABLE = {

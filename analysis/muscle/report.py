@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.muscle.twin_form import muscle_entry
+from nmsid.analysis.muscle.twin_form import muscle_entry
 
 #: Bins of the commanded deviation's size |rE - 0.5|.
 ABS_DEVIATION_EDGES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)

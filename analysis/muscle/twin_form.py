@@ -13,15 +13,15 @@ import math
 
 import numpy as np
 
-from analysis.errors import TwinFileError
-from analysis.muscle.dynamics import PARAM_NAMES, simulate_batch
+from nmsid.analysis.errors import TwinFileError
+from nmsid.analysis.muscle.dynamics import PARAM_NAMES, simulate_batch
 
 FORM = "hill2-isometric"
 FORM_VERSION = 1
 
 
 def muscle_entry(fit, fs_fit_Hz: float) -> dict:
-    """The ``muscle_model`` item for a :class:`analysis.muscle.fit.MuscleFit`."""
+    """The ``muscle_model`` item for a :class:`nmsid.analysis.muscle.fit.MuscleFit`."""
     return {"form": FORM, "form_version": FORM_VERSION,
             "params": {k: float(v) for k, v in fit.params.items()},
             "fit_fs_Hz": float(fs_fit_Hz),

@@ -4,8 +4,8 @@ common random numbers between protocols."""
 import numpy as np
 import pytest
 
-from analysis.design.candidates import Candidate
-from analysis.design.validate import simulate_session
+from nmsid.analysis.design.candidates import Candidate
+from nmsid.analysis.design.validate import simulate_session
 
 SHORT = Candidate(sE_levels=(0.5, 0.9), repeats=2, steady_s=1.0, chirp_s=3.0, rest_s=10.0)
 
@@ -17,10 +17,10 @@ def _swing(trial):
 
 
 def _participants():
-    from sim_backends.population import make_population
+    from nmsid.sim_backends.population import make_population
     out = [make_population(1, seed=4)[0]]
     try:
-        from sim_backends.msk_population import make_msk_population
+        from nmsid.sim_backends.msk_population import make_msk_population
     except ImportError:
         return out
     return out + [make_msk_population(1, seed=7)[0]]
@@ -43,7 +43,7 @@ def test_gain_scatter_changes_each_repeat_and_is_reproducible(vp):
 def test_two_protocols_share_the_draw_of_a_level_and_repeat():
     """Common random numbers: the same (sE, repeat) gets the same physiology whatever the
     protocol, so a longer lead-in changes the trial's start, not its participant."""
-    from sim_backends.population import make_population
+    from nmsid.sim_backends.population import make_population
     vp = make_population(1, seed=4)[0]
     longer = Candidate(sE_levels=(0.5, 0.9), repeats=2, steady_s=1.0, chirp_s=3.0,
                        rest_s=30.0)

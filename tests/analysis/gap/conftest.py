@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from protocols.session_file import Calibration, SessionWriter, Trial
+from nmsid.protocols.session_file import Calibration, SessionWriter, Trial
 
 FS = 2000.0
 STEADY_S = 5.0

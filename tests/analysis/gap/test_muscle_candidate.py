@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from analysis.gap.data import load_session
-from analysis.gap.diagnose import GapSettings, diagnose
+from nmsid.analysis.gap.data import load_session
+from nmsid.analysis.gap.diagnose import GapSettings, diagnose
 
 
 def test_template_session_never_goes_to_the_muscle_twin(nominal_session):

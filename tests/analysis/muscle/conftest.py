@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.gap.data import prepare_trials
-from analysis.muscle import literature as lit
-from analysis.muscle.dynamics import PARAM_NAMES, simulate_batch
-from protocols.session_file import Trial
+from nmsid.analysis.gap.data import prepare_trials
+from nmsid.analysis.muscle import literature as lit
+from nmsid.analysis.muscle.dynamics import PARAM_NAMES, simulate_batch
+from nmsid.protocols.session_file import Trial
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "bench"))
 

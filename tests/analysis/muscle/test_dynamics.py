@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from analysis.muscle import literature as lit
-from analysis.muscle.dynamics import PARAM_NAMES, recruitment, simulate_batch
+from nmsid.analysis.muscle import literature as lit
+from nmsid.analysis.muscle.dynamics import PARAM_NAMES, recruitment, simulate_batch
 
 
 def _theta(**changes):

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.gap.diagnose import GapSettings, diagnose
-from analysis.gap.effects import Effect
-from analysis.muscle.dynamics import PARAM_NAMES
-from analysis.muscle.errors import MuscleFitError
-from analysis.muscle.fit import MuscleFitSettings, fit_muscle
+from nmsid.analysis.gap.diagnose import GapSettings, diagnose
+from nmsid.analysis.gap.effects import Effect
+from nmsid.analysis.muscle.dynamics import PARAM_NAMES
+from nmsid.analysis.muscle.errors import MuscleFitError
+from nmsid.analysis.muscle.fit import MuscleFitSettings, fit_muscle
 
 from .conftest import TRUE
 

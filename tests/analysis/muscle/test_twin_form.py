@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from analysis.design.errors import DesignError
-from analysis.design.prior import twin_prior
-from analysis.errors import TwinFileError
-from analysis.muscle import literature as lit
-from analysis.muscle.dynamics import PARAM_NAMES
-from analysis.twin import Twin
+from nmsid.analysis.design.errors import DesignError
+from nmsid.analysis.design.prior import twin_prior
+from nmsid.analysis.errors import TwinFileError
+from nmsid.analysis.muscle import literature as lit
+from nmsid.analysis.muscle.dynamics import PARAM_NAMES
+from nmsid.analysis.twin import Twin
 
 BASE = {"format": "nmsid-twin", "format_version": 1, "participant": "P",
         "calibration": {"Iemin_mA": 2.0, "Iemax_mA": 9.0, "Ifmin_mA": 1.5, "Ifmax_mA": 8.0},
