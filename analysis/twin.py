@@ -119,6 +119,9 @@ class Twin:
     calibration: dict = field(default_factory=dict)
     source: list[dict | str] = field(default_factory=list)
     effects: list[dict] = field(default_factory=list)
+    # -- muscle form (issue 20): optional physiological twin, analysis.muscle.twin_form --
+    muscle_model: dict | None = None
+    """The ``muscle_model`` item when the file has one; :meth:`simulate` then runs it."""
 
     # -- parameters -----------------------------------------------------------------
     def parameters_at(self, sE, clip: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -151,6 +154,17 @@ class Twin:
 
     # -- simulation -----------------------------------------------------------------
     def simulate(self, rE, sE, fs_Hz: float, clip: bool = True) -> np.ndarray:
+        """Force in N for an rE(t) and sE: the muscle form when the twin has one
+        (:func:`nmsid.analysis.muscle.twin_form.simulate_muscle`), else the second-order form
+        (:meth:`_simulate_second_order`, where the parameters are described)."""
+        if self.muscle_model is not None:   # muscle form: its own dynamics (issue 20)
+            from nmsid.analysis.muscle.twin_form import simulate_muscle  # lazy: muscle form only
+            s = np.broadcast_to(np.asarray(sE, float), np.shape(rE))
+            return simulate_muscle(self.muscle_model, rE, sE, fs_Hz) + \
+                self.offset_N(np.clip(s, *self.sE_range) if clip else s)
+        return self._simulate_second_order(rE, sE, fs_Hz, clip)
+
+    def _simulate_second_order(self, rE, sE, fs_Hz: float, clip: bool = True) -> np.ndarray:
         """Force in N for an rE(t) and sE (constant or one value per sample).
 
         Parameters
@@ -233,6 +247,7 @@ class Twin:
             "parameters": {k: v.to_dict() for k, v in self.parameters.items()},
             "offset_N": self.offset_N.to_dict(),
             "effects": list(self.effects),
+            **({"muscle_model": dict(self.muscle_model)} if self.muscle_model else {}),
         }
 
     def save(self, path: str | os.PathLike) -> None:
@@ -291,7 +306,12 @@ class Twin:
         source = data.get("source", [])
         source = [_source_from(item, f"source[{i}]", path) for i, item in
                   enumerate(source if isinstance(source, list) else [source])]
+        muscle = None
+        if data.get("muscle_model") is not None:     # muscle form (issue 20), optional
+            from nmsid.analysis.muscle.twin_form import parse_muscle_model  # lazy: muscle form only
+            muscle = parse_muscle_model(data["muscle_model"], path)
         return cls(participant=str(data.get("participant", "")), parameters=curves,
+                   muscle_model=muscle,
                    sE_range=(float(rng[0]), float(rng[1])), offset_N=offset,
                    calibration=dict(data.get("calibration") or {}),
                    source=source,

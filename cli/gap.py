@@ -36,6 +36,9 @@ def register(sub) -> None:
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument("--no-pairs", action="store_true",
                    help="do not try the winner together with a second effect")
+    p.add_argument("--no-muscle", action="store_true",
+                   help="do not try the physiological (muscle) twin when the template "
+                        "leaves a significant gap (it adds about a minute per session)")
     p.add_argument("--ic-margin", type=float, default=10.0, metavar="D",
                    help="an effect needs dIC below -D (default 10)")
     p.add_argument("--min-shrink-pct", type=float, default=10.0, metavar="P",

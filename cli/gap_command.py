@@ -19,7 +19,8 @@ def run(args: argparse.Namespace) -> int:
         raise GapInputError(f"--min-shrink-pct {args.min_shrink_pct:g}: a percentage in "
                             "[0, 100] (default 10)")
     settings = GapSettings(ic_margin=args.ic_margin, min_shrink_pct=args.min_shrink_pct,
-                           try_pairs=not args.no_pairs)
+                           try_pairs=not args.no_pairs,
+                           try_muscle=not getattr(args, "no_muscle", False), progress=True)
     with output_dir(args.out, force=args.force) as tmp:
         summary = run_gap(args.sessions, tmp, settings=settings, twin=args.twin,
                           sim_session=args.sim_session, plots=not args.no_figures)
@@ -35,6 +36,15 @@ def run(args: argparse.Namespace) -> int:
                  is not None else "n/a")
               + f" in the steady lead-in  [{s['elapsed_s']:.1f} s]")
         print(f"  {s['verdict_sentence']}")
+        m = s.get("muscle_twin")
+        if m:
+            mh = m["heldout"]
+            print(f"  muscle twin ({'supported' if m['supported'] else 'not supported'}): "
+                  f"held-out NRMSE {mh['nominal_nrmse_pct']:.3g} % nominal, "
+                  f"{mh['template_nrmse_pct']:.3g} % {mh['template']} -> "
+                  f"{mh['muscle_nrmse_pct']:.3g} % (noise floor "
+                  f"{mh['noise_floor_nrmse_pct']:.3g} %); fitted in {m['fit_s']:.0f} s; not "
+                  f"determined by the data: {', '.join(m['not_determined']) or 'none'}")
         for line in s["evidence"]["summary"]:
             print(f"  {line}")
         if s.get("simulation_under_test"):

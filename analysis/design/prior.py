@@ -93,6 +93,11 @@ def twin_prior(path, noise_N: float = DEFAULT_NOISE_N) -> Prior:
     if not (noise_N > 0 and math.isfinite(noise_N)):
         raise DesignError(f"--noise-N {noise_N!r}: give the sensor's RMS noise in N (> 0)")
     twin = Twin.load(path)
+    if twin.muscle_model is not None:
+        raise DesignError(f"{path}: this twin has the muscle form (muscle_model "
+                          f"{twin.muscle_model.get('form')!r}); nmsid design plans for the "
+                          "second-order form only: give a twin without 'muscle_model' (as "
+                          "nmsid identify writes it)")
     curves = {name: PriorCurve(twin.parameters[name].model,
                                tuple(float(v) for v in twin.parameters[name].coefficients))
               for name in PARAMETERS}

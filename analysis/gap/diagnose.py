@@ -67,6 +67,13 @@ class GapSettings:
     """... and the gap beyond noise is at least this (NRMSE points of the response): a
     twin 99.9 % right is not wrong in any way a physiologist would act on."""
     deviation_edges: tuple[float, ...] = (-0.5, -0.25, 0.0, 0.25, 0.5)
+    try_muscle: bool = True
+    """When the template's answer leaves a significant gap, also try the physiological
+    twin (:mod:`nmsid.analysis.muscle.candidate`)."""
+    muscle_fs_Hz: float = 100.0
+    """Simulation rate of the muscle twin's fit (reduced from the 200 Hz fit rate)."""
+    progress: bool = False
+    """Progress lines on stderr for the long muscle-twin fit."""
 
 
 @dataclass
@@ -120,6 +127,11 @@ class Diagnosis:
     """Verdict, nominal and remaining gap (``analysis.gap.verdict.assess``)."""
     not_named: CandidateResult | None = None
     """A candidate (or pair) that was supported on a gap within noise, hence not named."""
+    muscle_tried: object | None = None
+    """The physiological twin's result (``analysis.muscle.candidate.MuscleResult``) when it
+    was tried (the template left a significant gap), supported or not."""
+    muscle: object | None = None
+    """... the same when it is supported: the verdict is then ``muscle_twin``."""
 
     def excess_pct(self, nrmse_pct: float) -> float:
         """The gap beyond measurement noise: ``sqrt(NRMSE^2 - sensor floor^2)``."""
@@ -339,6 +351,18 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
                      noise_floor_nrmse_pct=noise_floor_pct(data, run.reference),
                      sensor_floor_nrmse_pct=sensor)
     diag.assessment = assess(diag)
+    if s.try_muscle and diag.assessment["verdict"] in ("effect", "pair", "unexplained") \
+            and diag.assessment["remaining"]["significant"]:
+        # lazy: the muscle twin's modules are needed only when the template falls short
+        from nmsid.analysis.muscle.candidate import score_muscle
+        from nmsid.analysis.muscle.fit import MuscleFitSettings  # lazy, as the line above
+        mres = score_muscle(run, nominal, final if final is not None else nominal, s,
+                            fit_settings=MuscleFitSettings(fs_fit_Hz=s.muscle_fs_Hz,
+                                                           progress=s.progress))
+        diag.muscle_tried = mres
+        if mres.supported:
+            diag.muscle = mres
+            diag.assessment = assess(diag, muscle=mres)
     if diag.assessment["verdict"] == "none" and (best is not None):
         # a candidate fitted a gap that is within noise: not named, the twin stays nominal
         diag.not_named = best_pair or best

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nmsid.analysis.muscle.report import muscle_section, plot_muscle, twin_item
 from nmsid.analysis.gap.diagnose import Diagnosis, ranking
 from nmsid.analysis.gap.effects import Effect
 from nmsid.analysis.gap.evidence import confusable_pairs, explain, signatures
@@ -199,6 +200,9 @@ def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | 
         "elapsed_s": diag.elapsed_s,
     }
     report["settings"]["candidates"] = [e.value for e in diag.settings.candidates]
+    report["muscle_twin"] = muscle_section(diag)
+    if twin is not None and diag.muscle is not None:
+        twin["muscle_model"] = twin_item(diag)
     return json_safe(report), loc, twin
 
 
@@ -234,6 +238,9 @@ def _figures(diag: Diagnosis, report: dict, loc: dict, out: Path) -> list[str]:
     if report.get("remaining") and report["remaining"]["where"].get("sE"):
         plots.plot_remaining(report, out / "remaining.png")
         names.append("remaining.png")
+    if report.get("muscle_twin"):
+        plot_muscle(report["muscle_twin"], out / "muscle.png")
+        names.append("muscle.png")
     plots.plot_ranking(report["ranking"], diag.nominal.heldout_nrmse_pct,
                        diag.noise_floor_nrmse_pct, out / "ranking.png")
     names.append("ranking.png")

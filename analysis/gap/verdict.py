@@ -26,7 +26,10 @@ Verdict. ``none``: the nominal gap is not significant (a candidate that would fi
 within noise is reported as such, not named). ``effect`` / ``pair``: a candidate (pair) is
 supported and the nominal gap is significant; ``remaining`` then says whether what it
 leaves is still significant. ``unexplained``: the nominal gap is significant and no
-candidate or pair is supported.
+candidate or pair is supported. ``muscle_twin``: the template's answer still leaves a
+significant gap and the physiological twin (:mod:`nmsid.analysis.muscle`) predicts the held-out
+repeats better (see :mod:`nmsid.analysis.muscle.candidate`); ``remaining`` is then its own.
+Narrow-band components: :mod:`nmsid.analysis.gap.narrowband`.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ import numpy as np
 from nmsid.analysis.gap.fit import find_steps
 from nmsid.analysis.gap.harmonics import local_harmonics
 from nmsid.analysis.gap.models import nuisance_basis
+from nmsid.analysis.gap.narrowband import narrow_band
 from nmsid.analysis.gap.samples import effective_fraction
 
 #: Residual harmonics examined (1.5f: a non-harmonic reference).
@@ -139,122 +143,6 @@ def gap_test(resid: np.ndarray, noise_N2: np.ndarray, reference: np.ndarray,
     return out
 
 
-def narrow_band(resid: np.ndarray, reference: np.ndarray, noise: np.ndarray | None,
-                fs_Hz: float, f_max_Hz: float, *, f_min_Hz: float = 1.0,
-                peak_ratio: float = 2.0,
-                line_width_Hz: float = 0.45, min_beyond_noise_pct: float = 0.1) -> list[dict]:
-    """Narrow-band components of a residual (see module): frequency, width, kind, size.
-
-    Parameters
-    ----------
-    resid : (n_trials, n) ndarray
-    reference : (n_trials, n) ndarray
-    noise : (n_trials, m) ndarray or None
-        Lead-in noise rows: is the component there at rest too?
-    fs_Hz, f_max_Hz : float
-        Sampling rate and the top of the analysed band.
-
-    Returns
-    -------
-    list of dict
-        ``f_Hz``, ``width_Hz``, ``kind`` (``line`` or ``band``), ``beyond_noise_pct``,
-        ``trial_spread_Hz`` (interquartile range of the trials' peak frequencies), ``at_rest``
-        (its power in the lead-in relative to the lead-in background, or None),
-        ``significant`` (a material band).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> rng = np.random.default_rng(1)
-    >>> t = np.arange(1000) / 100.0
-    >>> r = rng.normal(0, 0.1, (20, 1000)) + 0.2 * np.sin(2 * np.pi * 5.0 * t)
-    >>> c = narrow_band(r, np.ones((20, 1000)), None, 100.0, 25.0)
-    >>> [(round(x["f_Hz"], 1), x["kind"]) for x in c]
-    [(5.0, 'line')]
-    """
-    n = resid.shape[1]
-    if resid.shape[0] == 0 or n < 64:
-        return []
-    win = np.hanning(n)
-    norm = float(np.sum(win ** 2))
-    P = np.mean(np.abs(np.fft.rfft(resid * win, axis=1)) ** 2, axis=0) / norm
-    f = np.fft.rfftfreq(n, 1.0 / fs_Hz)
-    df = f[1]
-    use = (f >= f_min_Hz) & (f <= f_max_Hz)
-    # background: the log-spectrum's smooth trend (cubic over the band) plus a running
-    # 35th percentile of what is left over +-4 Hz, so that a peak a few Hz wide (tremor)
-    # does not raise its own background, and the filter's roll-off is no peak
-    L = np.log(np.maximum(P, 1e-300))
-    fu = f[use]
-    if use.sum() < 16:
-        return []
-    coef = np.polyfit(fu, L[use], 3)
-    trend = np.polyval(coef, f)
-    R = L - trend
-    half = max(3, int(round(4.0 / df)))
-    pad = np.pad(R, half, mode="reflect")
-    bgR = np.array([np.percentile(pad[i:i + 2 * half + 1], 35) for i in range(len(P))])
-    bg = np.exp(trend + bgR)
-    hot = use & (P > peak_ratio * bg)
-    ref_ms = float(np.mean(reference ** 2))
-    # groups of hot bins; gaps under 0.5 Hz joined (one component may dip in places)
-    idx = np.flatnonzero(hot)
-    groups: list[list[int]] = []
-    for k in idx:
-        if groups and (k - groups[-1][-1]) * df < 0.5:
-            groups[-1].append(int(k))
-        else:
-            groups.append([int(k)])
-    Pt = np.abs(np.fft.rfft(resid * win, axis=1)) ** 2          # per trial
-    out = []
-    for g in groups:
-        i, j = g[0], g[-1]
-        sl = slice(i, j + 1)
-        ex = np.maximum(P[sl] - bg[sl], 0.0)
-        if ex.sum() <= 0:
-            continue
-        kp = i + int(np.argmax(ex))
-        top = P[kp] - bg[kp]
-        a = b = kp
-        while a - 1 >= i and P[a - 1] - bg[a - 1] >= 0.5 * top:
-            a -= 1
-        while b + 1 <= j and P[b + 1] - bg[b + 1] >= 0.5 * top:
-            b += 1
-        width = float((b - a + 1) * df)                     # half-power width
-        fc = float(np.sum(f[sl] * ex) / ex.sum())
-        if width > fc / 2:      # not an oscillation: a broad low-frequency excess
-            continue
-        # a line sits at the same frequency in every trial; an oscillation wanders
-        lo_k, hi_k = max(i - 3, 1), min(j + 4, len(P))
-        peaks = f[lo_k + np.argmax(Pt[:, lo_k:hi_k], axis=1)]
-        spread = float(np.subtract(*np.percentile(peaks, [75, 25])))
-        if width <= line_width_Hz and spread <= 2 * df:
-            kind = "line"
-        elif width < 2.5 * df:  # a bin or two, wandering: neither a line nor an oscillation
-            continue
-        else:
-            kind = "band"
-        # power per bin -> mean square: Parseval with the window's normalisation, 2 sides
-        ms = 2.0 * float(ex.sum()) / n
-        beyond = 100.0 * math.sqrt(ms / ref_ms) if ref_ms > 0 else float("nan")
-        at_rest = None
-        if noise is not None and noise.shape[1] >= 32:
-            m = noise.shape[1]
-            wn = np.hanning(m)
-            Pn = np.mean(np.abs(np.fft.rfft(noise * wn, axis=1)) ** 2, axis=0)
-            fn = np.fft.rfftfreq(m, 1.0 / fs_Hz)
-            near = (fn >= f[a] - df) & (fn <= f[b] + df)
-            away = (fn > 0.5) & (np.abs(fn - fc) > 3.0) & (np.abs(fn - fc) < 8.0)
-            if near.any() and away.any():
-                at_rest = float(np.mean(Pn[near]) / np.median(Pn[away]))
-        out.append({"f_Hz": fc, "width_Hz": width, "kind": kind, "beyond_noise_pct": beyond,
-                    "trial_spread_Hz": spread, "at_rest": at_rest,
-                    "significant": bool(kind == "band" and beyond >= min_beyond_noise_pct
-                                        and top >= 3 * bg[kp])})
-    out.sort(key=lambda c: -c["beyond_noise_pct"])
-    return out[:6]
-
-
 def decide(nominal_significant: bool, kind: str, remaining_significant: bool) -> str:
     """The verdict from three facts (see module).
 
@@ -262,7 +150,7 @@ def decide(nominal_significant: bool, kind: str, remaining_significant: bool) ->
     ----------
     nominal_significant : bool
         The nominal model's held-out gap is significant.
-    kind : {"none", "effect", "pair"}
+    kind : {"none", "effect", "pair", "muscle_twin"}
         What the candidate search supports.
     remaining_significant : bool
         What the final model leaves is significant (for ``none`` the nominal's).
@@ -271,9 +159,11 @@ def decide(nominal_significant: bool, kind: str, remaining_significant: bool) ->
     --------
     >>> decide(False, "effect", False), decide(True, "none", True), decide(True, "pair", True)
     ('none', 'unexplained', 'pair')
+    >>> decide(True, "muscle_twin", False)
+    'muscle_twin'
     """
-    if kind not in ("none", "effect", "pair"):
-        raise ValueError(f"kind = {kind!r}: use 'none', 'effect' or 'pair'")
+    if kind not in ("none", "effect", "pair", "muscle_twin"):
+        raise ValueError(f"kind = {kind!r}: use 'none', 'effect', 'pair' or 'muscle_twin'")
     if not nominal_significant and not remaining_significant:
         return "none"
     if kind == "none":
@@ -310,6 +200,19 @@ def sentence(verdict: str, label: str | None, nominal: dict, remaining: dict) ->
                 f"({nom:.2f} % of the response beyond noise, significant), and none of the "
                 "six candidate effects, alone or in pairs, explains it: something else is at "
                 f"work{(' - ' + where) if where else ''}." + tail)
+    if verdict == "muscle_twin":
+        text = ("The remainder is muscle physics: the second-order template (with the best "
+                "library effects) leaves a significant gap, and the physiological twin (two "
+                "Hill-type muscles with recruitment, activation dynamics and force-dependent "
+                "stiffness and damping, one parameter set for every sE) predicts held-out "
+                f"repeats better: what it misses beyond noise is {rem:.2f} % of the response "
+                f"(nominal {nom:.2f} %)")
+        if remaining.get("significant"):
+            text += (f", still significant{(' - ' + where) if where else ''}: the muscle "
+                     "model is not the whole story either.")
+        else:
+            text += ", which is within noise."
+        return text + tail
     words = effect_words(label or "")
     text = (f"Adding {words} explains the gap: what the model misses beyond noise falls from "
             f"{nom:.2f} % to {rem:.2f} % of the response")
@@ -441,8 +344,11 @@ def _harmonics(diag, res) -> dict | None:
     return {"median_residual_pct": h, "excess": excess}
 
 
-def assess(diag) -> dict:
-    """Verdict, the nominal gap and the remaining gap of a diagnosis (see module)."""
+def assess(diag, muscle=None) -> dict:
+    """Verdict, the nominal gap and the remaining gap of a diagnosis (see module).
+
+    ``muscle``: a supported :class:`nmsid.analysis.muscle.candidate.MuscleResult`, which then
+    replaces the template's final model as the answer."""
     d = diag.data
     s = diag.settings
     if d.steady_N is not None and d.steady_N.shape[1] >= 16:
@@ -469,6 +375,8 @@ def assess(diag) -> dict:
     nom, nom_comps = test(diag.nominal)
     final = diag.best_pair or diag.best
     kind = "none" if final is None else ("pair" if diag.best_pair is not None else "effect")
+    if muscle is not None:
+        final, kind = muscle, "muscle_twin"
     if final is None:
         rem, comps, res = nom, nom_comps, diag.nominal
     else:
@@ -503,6 +411,7 @@ def assess(diag) -> dict:
     else:
         note = None
     text = sentence(verdict, label, nom, dict(rem, where_summary=w["summary"], where=w))
-    return {"verdict": verdict, "label": label if verdict in ("effect", "pair") else None,
+    return {"verdict": verdict,
+            "label": label if verdict in ("effect", "pair", "muscle_twin") else None,
             "remaining": remaining, "nominal_gap": nominal, "sentence": text,
             "not_named": note}

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from nmsid.analysis.gap.twin_out import twin_dict
-from nmsid.cli.identify_command import run_twin_simulate
+from nmsid.cli import main
 from nmsid.analysis.twin import Twin, file_sha256
 from nmsid.export.errors import FmuExportError
 from nmsid.export.fmu import export_fmu
@@ -156,10 +156,9 @@ def test_cosim_matches_twin_simulate_over_chirps_and_ramp(demo):
 
 def test_cosim_matches_the_cli_on_its_own_chirp(demo, tmp_path):
     out = tmp_path / "force.csv"
-    args = SimpleNamespace(twin=str(demo.twin_path), rE_chirp=True, input=None, sE=0.6,
-                           fs_Hz=None, steady_s=1.0, chirp_s=4.0, f0_Hz=1.0, f1_Hz=10.0,
-                           extrapolate=False, out=str(out))
-    assert run_twin_simulate(args) == 0
+    assert main(["twin", "simulate", str(demo.twin_path), "--rE-chirp", "--sE", "0.6",
+                 "--steady-s", "1.0", "--chirp-s", "4.0", "--f0-Hz", "1.0", "--f1-Hz", "10.0",
+                 "--out", str(out)]) == 0
     cli = np.loadtxt(out, delimiter=",", skiprows=1)
     res = _cosim(demo.fmu, cli[:, 1], cli[:, 2], 2000.0)
     err = np.max(np.abs(res["force_N"] - cli[:, 3])) / np.max(np.abs(cli[:, 3]))

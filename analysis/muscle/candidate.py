@@ -1,0 +1,117 @@
+"""The physiological twin as a candidate of the gap diagnosis.
+
+Tried only when the template's best answer (nominal, effect or pair) still leaves a
+significant gap. Scored exactly like the library's candidates: fitted on each fold's
+training trials (one parameter set for every sE), held-out repeats predicted, held-out
+NRMSE and ``dIC = N_eff ln(RSS / RSS_nominal) + 2 dk`` on the training trials with the same
+effective-sample fraction ``nu``. ``dk`` is its 14 parameters minus the nominal model's
+three per sE level and its timing correction: the muscle twin has *fewer* parameters than
+the per-level template. It is *supported* when, like a pair against its single effect, it
+beats the nominal model (``dIC < -ic_margin``, held-out shrink >= ``min_shrink_pct``) and
+also the template's final model (held-out NRMSE ``min_shrink_pct`` % below it and ``dIC``
+lower by ``ic_margin``).
+
+The fold fits start from the fit on every trial (a warm start only: each fold's optimum
+is that of its own training trials), which is also the twin the report gives.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from nmsid.analysis.gap.models import nuisance_basis
+from nmsid.analysis.muscle.fit import MuscleFit, MuscleFitSettings, fit_muscle, predict_muscle
+
+log = logging.getLogger(__name__)
+
+LABEL = "muscle_twin"
+
+
+@dataclass
+class MuscleResult:
+    """The muscle twin scored on one session (the fields the report reads of a candidate)."""
+
+    fold_fits: list[MuscleFit]
+    full: MuscleFit
+    heldout_resid: np.ndarray
+    heldout_nrmse_pct: float
+    insample_nrmse_pct: float
+    delta_ic: float = 0.0
+    delta_k: int = 0
+    shrink_pct: float = 0.0
+    shrink_vs_template_pct: float = 0.0
+    supported: bool = False
+    fit_s: float = 0.0
+    params: dict = field(default_factory=dict)
+    label: str = LABEL
+
+
+def _nrmse(r, ref):
+    return 100.0 * float(np.sqrt(np.sum(r ** 2) / np.sum(ref ** 2)))
+
+
+def score_muscle(run, nominal, final, settings, *, fit_settings: MuscleFitSettings | None
+                 = None) -> MuscleResult:
+    """Fit and score the muscle twin on the folds of a diagnosis.
+
+    Parameters
+    ----------
+    run : analysis.gap.diagnose._Runner
+        Folds, training and test data, ``nu`` and the reference.
+    nominal, final : CandidateResult
+        The nominal model and the template's final model (the nominal one when nothing
+        was supported).
+    settings : GapSettings
+    fit_settings : MuscleFitSettings, optional
+
+    Returns
+    -------
+    MuscleResult
+    """
+    t0 = time.perf_counter()
+    fs = fit_settings or MuscleFitSettings()
+    d = run.data
+    full = fit_muscle(d, fs, label="all trials")
+    resid = np.full_like(d.y_N, np.nan)
+    fits = []
+    ins_num = ins_den = 0.0
+    for k, (fold, tr, te) in enumerate(zip(run.folds, run.train, run.test)):
+        fold_s = MuscleFitSettings(fs_fit_Hz=fs.fs_fit_Hz, max_iter=min(fs.max_iter, 12),
+                                   rtol=fs.rtol, progress=fs.progress)
+        fit = fit_muscle(tr, fold_s, start=full.theta, label=f"fold {k + 1}/{len(run.folds)}")
+        fits.append(fit)
+        r, _ = predict_muscle(fit.theta, te, fs)
+        resid[fold.test] = r
+        ins_num += fit.rss
+        ins_den += float(np.sum(((tr.y_N - (tr.y_N @ _Q(tr)) @ _Q(tr).T)) ** 2))
+    tested = ~np.isnan(resid[:, 0])
+    res = MuscleResult(fold_fits=fits, full=full, heldout_resid=resid,
+                       heldout_nrmse_pct=_nrmse(resid[tested], run.reference[tested]),
+                       insample_nrmse_pct=100.0 * np.sqrt(ins_num / ins_den),
+                       params=full.params)
+    n_levels = len(d.sE_levels)
+    dk = len(full.theta) - (3 * n_levels + 1)
+    dic = [run.nu * f.n_samples * np.log(f.rss / nf.rss) + 2 * dk
+           for f, nf in zip(fits, nominal.fold_fits)]
+    res.delta_ic = float(np.mean(dic))
+    res.delta_k = int(dk)
+    res.shrink_pct = 100.0 * (1 - res.heldout_nrmse_pct / nominal.heldout_nrmse_pct)
+    res.shrink_vs_template_pct = 100.0 * (1 - res.heldout_nrmse_pct / final.heldout_nrmse_pct)
+    final_dic = final.delta_ic if final is not nominal else 0.0
+    res.supported = bool(res.delta_ic < -settings.ic_margin
+                         and res.shrink_pct >= settings.min_shrink_pct
+                         and res.shrink_vs_template_pct >= settings.min_shrink_pct
+                         and res.delta_ic < final_dic - settings.ic_margin)
+    res.fit_s = time.perf_counter() - t0
+    log.info("muscle twin: held-out NRMSE %.3f %% (nominal %.3f %%, template %.3f %%), "
+             "dIC %.1f, %.1f s", res.heldout_nrmse_pct, nominal.heldout_nrmse_pct,
+             final.heldout_nrmse_pct, res.delta_ic, res.fit_s)
+    return res
+
+
+def _Q(data):
+    return nuisance_basis(data.t_eval_s, 0.0)

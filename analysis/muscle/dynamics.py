@@ -1,0 +1,137 @@
+"""The physiological twin's equations, simulated for many trials and parameter sets at once.
+
+Two Hill-type muscles (extensor ``e``, flexor ``f``) on the isometric elbow, each driven by
+its normalised stimulation intensity (paper eqs. 1-4): ``I_e = rE sE``, ``I_f = (1 - rE) sE``.
+
+1. **Recruitment** (Crago, Peckham & Thrope 1980; Durfee & MacLean 1989): the fraction of
+   the muscle's fibres an electrode recruits, a sigmoid of intensity normalised to 0 at
+   ``I = 0`` (the calibrated threshold) and 1 at ``I = 1``:
+   ``u(I) = (S(I) - S(0)) / (S(1) - S(0))``, ``S(I) = 1 / (1 + exp(-(I - c) / w))``.
+2. **Activation dynamics** (Thelen 2003, after Winters 1995; the form Millard et al. 2013
+   and MuJoCo use): ``a' = (u - a) / tau``, ``tau = tau_act (0.5 + 1.5 a)`` while
+   activating (``u > a``), ``tau_deact / (0.5 + 1.5 a)`` while deactivating: separate
+   activation and deactivation time constants. ``a`` here is the recruited share of the
+   muscle normalised to 1 at ``I = 1``; the time constants see the muscle's own activation
+   ``a_max a`` (surface electrodes reach only part of a muscle: ``a_max`` < 1).
+3. **Force** at the sensor: ``F_m a_m`` (``F_m`` = maximal isometric force of muscle ``m``
+   at the fixture angle, through its moment arm: the force-length factor at that length is
+   a constant and is part of ``F_m``).
+4. **Limb, fixture and muscle mechanics** in force units (``x`` = the force the fixture
+   spring carries, what the sensor reads):
+   ``x'' = wn0^2 (F_e a_e - F_f a_f - (1 + k_s phi) x) - (2 zeta0 wn0 + c_s phi) x'``
+   with ``phi = (F_e a_e + F_f a_f) / ((F_e + F_f) / 2)`` (active force, relative).
+   ``wn0``, ``zeta0``: the passive limb on its compliant mount (forearm inertia against
+   strap, tissue and sensor stiffness; the series-elastic tendon is in series with that
+   compliance and lumps into it - with the joint held, tendon and mount stretch together
+   and the protocol cannot tell them apart). ``k_s``: the stiffness active muscle adds,
+   per unit activation relative to the mount's (the force-length slope and short-range
+   stiffness; Hogan 1984; Cui et al. 2008). ``c_s``: the damping active muscle adds per
+   unit activation (the Hill force-velocity slope at zero velocity: a shortening fibre
+   pulls less, a lengthening one more, ``dF/dv = -F (1 + 1/A) / v_max`` with Hill's
+   ``A`` about 0.25; Hill 1938; Zajac 1989). Both make the response's ``wn`` and ``zeta``
+   depend on sE, as the paper measures.
+5. **Sensor**: it reads the mount's spring force plus the part of the mount's damping
+   force that passes through it (strap viscosity in series with the cell):
+   ``y = x + tau_z x'`` (``sensor_zero_s`` = ``tau_z``, a zero of the measurement chain).
+
+The simulation starts in the steady state of ``rE = 0.5`` (the trial's lead-in) and steps
+the activation exactly over each step for the step's frozen time constant and the
+mechanics by classical Runge-Kutta (4th order), with the input held per step (the
+commanded rE is piecewise constant). Everything is vectorised over a leading batch axis,
+so one call simulates the finite-difference perturbations of every parameter together.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Parameter names, in the order of the parameter vector (physical units).
+PARAM_NAMES = ("F_e_N", "F_f_N", "c_e", "c_f", "w_e", "w_f", "tau_act_s", "tau_deact_s",
+               "wn0_rad_s", "zeta0", "k_s", "c_s_per_s", "sensor_zero_s",
+               "a_max")
+
+
+def recruitment(I: np.ndarray, c: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Recruited fraction ``u(I)`` (see module), 0 at ``I <= 0``, 1 at ``I = 1``.
+
+    Parameters
+    ----------
+    I : ndarray
+        Normalised intensity, any shape broadcasting against ``c``, ``w``.
+    c, w : ndarray
+        Sigmoid midpoint and width (normalised intensity).
+    """
+    def S(x):
+        return 1.0 / (1.0 + np.exp(-(x - c) / w))
+    s0, s1 = S(0.0), S(1.0)
+    return np.clip((S(np.maximum(I, 0.0)) - s0) / (s1 - s0), 0.0, None)
+
+
+def simulate_batch(theta: np.ndarray, rE: np.ndarray, sE: np.ndarray, dt_s: float
+                   ) -> np.ndarray:
+    """Sensor force of the twin for a batch of parameter sets and trials.
+
+    Parameters
+    ----------
+    theta : ndarray, (P, 14)
+        Physical parameters in :data:`PARAM_NAMES` order, one row per parameter set.
+    rE : ndarray, (n_trials, n_steps)
+        Commanded rE, held over each step; the first sample is the lead-in's 0.5 level.
+    sE : ndarray, (n_trials,) or (n_trials, n_steps)
+    dt_s : float
+        Step, s.
+
+    Returns
+    -------
+    ndarray, (P, n_trials, n_steps)
+        Force ``x`` at the start of every step (before the step's input acts).
+    """
+    th = np.asarray(theta, float)[:, :, None]        # (P, 14, 1)
+    Fe, Ff, ce, cf, we, wf, ta, td, wn0, z0, ks, cs, ts, am = (th[:, k] for k in range(14))
+    # stiffness and damping of active muscle grow with its force (short-range stiffness
+    # gamma F / L0; the force-velocity slope F (1 + 1/A) / v_max): per unit of force,
+    # relative to the mean of the two maximal forces
+    ke, kf = ks * Fe / (0.5 * (Fe + Ff)), ks * Ff / (0.5 * (Fe + Ff))
+    de, df = cs * Fe / (0.5 * (Fe + Ff)), cs * Ff / (0.5 * (Fe + Ff))
+    rE = np.asarray(rE, float)
+    sE = np.asarray(sE, float)
+    sE = sE[:, None] if sE.ndim == 1 else sE          # per trial, or per trial and step
+    u_e = recruitment((rE * sE)[None], ce[..., None], we[..., None])   # (P, n, T)
+    u_f = recruitment(((1.0 - rE) * sE)[None], cf[..., None], wf[..., None])
+    P, n, T = u_e.shape
+    u = np.stack([u_e, u_f], axis=1)                  # (P, 2, n, T)
+    # one matrix product per activation state gives the drive (F_e a_e - F_f a_f), the
+    # stiffness and the damping terms
+    M = np.stack([np.stack([Fe, -Ff], -1), np.stack([ke, kf], -1),
+                  np.stack([de, df], -1)], axis=1)[:, :, 0, :]      # (P, 3, 2)
+    w2 = (wn0 ** 2)
+    c0 = 2.0 * z0 * wn0
+    ta_, td_, am_ = ta[..., None], td[..., None], am[..., None]
+    h = dt_s
+    a = u[..., 0].copy()                               # steady state of the lead-in
+    m0 = M @ a
+    x = m0[:, 0] / (1.0 + m0[:, 1])
+    v = np.zeros_like(x)
+    out = np.empty((P, n, T))
+    for k in range(T):
+        out[:, :, k] = x + ts * v
+        uk = u[..., k]
+        g = 0.5 + 1.5 * am_ * a
+        tau = np.where(uk > a, ta_ * g, td_ / g)
+        a1 = uk + (a - uk) * np.exp(-h / tau)         # exact for the frozen time constant
+        m0, mm, m1 = M @ a, M @ (0.5 * (a + a1)), M @ a1
+        d0, dm, d1 = w2 * m0[:, 0], w2 * mm[:, 0], w2 * m1[:, 0]
+        K0, Km, K1 = w2 * (1 + m0[:, 1]), w2 * (1 + mm[:, 1]), w2 * (1 + m1[:, 1])
+        C0, Cm, C1 = c0 + m0[:, 2], c0 + mm[:, 2], c0 + m1[:, 2]
+        # mechanics: classical Runge-Kutta with the activation linear over the step
+        k1v = d0 - K0 * x - C0 * v
+        x2, v2 = x + 0.5 * h * v, v + 0.5 * h * k1v
+        k2v = dm - Km * x2 - Cm * v2
+        x3, v3 = x + 0.5 * h * v2, v + 0.5 * h * k2v
+        k3v = dm - Km * x3 - Cm * v3
+        x4, v4 = x + h * v3, v + h * k3v
+        k4v = d1 - K1 * x4 - C1 * v4
+        x = x + h / 6.0 * (v + 2 * v2 + 2 * v3 + v4)
+        v = v + h / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v)
+        a = a1
+    return out

@@ -1,0 +1,283 @@
+"""Fitting the physiological twin to a session: every sE level at once, one parameter set.
+
+The data are the gap diagnosis's (:class:`nmsid.analysis.gap.data.GapData`): the identification's
+filters, input timing and evaluation grid, and only the trials quality control kept. The
+model runs at a reduced rate (``fs_fit_Hz``, 100 Hz by default: the input of each step is
+the mid-step value, so halving the rate moves no phase) from the commanded rE, and its
+force passes the same zero-phase low-pass as the measured force. The per-trial offset and
+linear trend are nuisance terms, projected out exactly as in every gap model.
+
+Levenberg-Marquardt on the fitted scale (logs of the positive parameters) with the weak
+literature priors of :mod:`nmsid.analysis.muscle.literature` as extra residual rows, weighted by
+the noise per *effective* sample (:func:`nmsid.analysis.gap.samples.effective_fraction`). The
+finite-difference Jacobian costs one batched simulation (all perturbations stacked), so an
+iteration costs about as much as two model runs.
+
+Uncertainty: the Gauss-Newton covariance at the optimum, ``s^2 / nu (J'J + prior)^-1``
+(``s^2`` the residual variance, ``nu`` the effective-sample fraction). A parameter is *not
+determined by the data* when the data alone shrink its prior spread by less than half
+(posterior sd > 0.5 prior sd), or, for a parameter without prior, when its sd on the log
+scale exceeds 0.5 (a factor 1.6), or when it ends at a bound of its literature range.
+The singular values of the scaled Jacobian are kept too.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import signal
+
+from nmsid.analysis.gap.data import GapData
+from nmsid.analysis.gap.fit import initial_levels
+from nmsid.analysis.gap.models import nuisance_basis
+from nmsid.analysis.gap.samples import effective_fraction
+from nmsid.analysis.muscle import literature as lit
+from nmsid.analysis.muscle.dynamics import PARAM_NAMES, simulate_batch
+from nmsid.analysis.muscle.errors import MuscleFitError
+
+
+@dataclass(frozen=True)
+class MuscleFitSettings:
+    """How the physiological twin is fitted (see module)."""
+
+    fs_fit_Hz: float = 100.0
+    """Simulation rate of the fit; must divide the gap data's simulation rate."""
+    max_iter: int = 40
+    rtol: float = 2e-4
+    """Stop when the objective improves by less than this fraction."""
+    progress: bool = False
+    """Write one line per iteration to stderr."""
+
+
+@dataclass
+class MuscleFit:
+    """One fitted physiological twin."""
+
+    theta: np.ndarray
+    """Physical parameters, :data:`~nmsid.analysis.muscle.dynamics.PARAM_NAMES` order."""
+    rss: float
+    n_samples: int
+    nrmse_pct: float
+    sd_z: np.ndarray
+    """Standard deviation of each parameter on the fitted scale (log for positive ones)."""
+    determined: np.ndarray
+    """(14,) bool: the data determine the parameter (see module; one held at its bound
+    is not determined)."""
+    singular_values: np.ndarray
+    iterations: int
+    elapsed_s: float
+    history: list = field(default_factory=list)
+
+    @property
+    def params(self) -> dict[str, float]:
+        return {n: float(v) for n, v in zip(PARAM_NAMES, self.theta)}
+
+    def table(self) -> list[dict]:
+        """Each parameter with its uncertainty (relative for the log-scale ones)."""
+        rows = []
+        for k, n in enumerate(PARAM_NAMES):
+            row = {"name": n, "value": float(self.theta[k]),
+                   "determined": bool(self.determined[k])}
+            if lit.LOG[k]:
+                row["sd_rel_pct"] = 100.0 * float(np.expm1(self.sd_z[k]))
+            else:
+                row["sd"] = float(self.sd_z[k])
+            rows.append(row)
+        return rows
+
+
+class _Problem:
+    """The residual of one set of trials, for stacked parameter sets."""
+
+    def __init__(self, data: GapData, s: MuscleFitSettings):
+        dec = int(round(data.fs_sim_Hz / s.fs_fit_Hz))
+        if dec < 1 or abs(data.fs_sim_Hz / dec - s.fs_fit_Hz) > 1e-6 or data.sim_step % dec:
+            raise MuscleFitError(
+                f"fs_fit_Hz = {s.fs_fit_Hz:g}: the muscle twin's fit rate must divide the "
+                f"simulation rate {data.fs_sim_Hz:g} Hz and leave the {data.fs_eval_Hz:g} Hz "
+                "evaluation grid on its samples (e.g. 100 or 200)")
+        self.dec = dec
+        self.dt_s = dec / data.fs_sim_Hz
+        # mid-step input: the mean of the commanded rE over each fit step
+        rE = data.rE_sim
+        n = (rE.shape[1] // dec) * dec
+        self.rE = rE[:, :n].reshape(rE.shape[0], -1, dec).mean(axis=2)
+        self.sE = np.array([t.sE for t in data.trials])
+        self.idx = (data.n_lead_sim + np.arange(data.y_N.shape[1]) * data.sim_step) // dec
+        if self.idx[-1] >= self.rE.shape[1]:
+            self.idx = self.idx[self.idx < self.rE.shape[1]]
+        self.y = data.y_N[:, : len(self.idx)]
+        self.Q = nuisance_basis(data.t_eval_s[: len(self.idx)], 0.0)
+        st = data.settings
+        self.sos = signal.butter(st.lowpass_order, st.lowpass_Hz, fs=data.fs_sim_Hz / dec,
+                                 output="sos")
+        self.ref = self._project(self.y)
+
+    def _project(self, v):
+        return v - (v @ self.Q) @ self.Q.T
+
+    def predict(self, theta: np.ndarray) -> np.ndarray:
+        """(P, n_trials, n_eval) filtered force at the evaluation samples."""
+        x = simulate_batch(np.atleast_2d(theta), self.rE, self.sE, self.dt_s)
+        x = signal.sosfiltfilt(self.sos, x, axis=-1)
+        return x[..., self.idx]
+
+    def residuals(self, theta: np.ndarray) -> np.ndarray:
+        """(P, n_trials, n_eval) measured minus predicted, offset and trend removed."""
+        return self._project(self.y[None] - self.predict(theta))
+
+
+def _noise_scale(data: GapData) -> tuple[float, float]:
+    """(noise variance per sample, effective-sample fraction nu) from the steady lead-in."""
+    bw = data.settings.lowpass_Hz
+    if data.steady_N is not None and data.steady_N.shape[1] >= 16:
+        nu = effective_fraction(data.steady_N, data.fs_eval_Hz, bw)
+    else:
+        nu = min(1.0, 2 * bw / data.fs_eval_Hz)
+    s2 = float(np.nanmean(data.steady_noise_N2)) if data.steady_noise_N2 is not None else np.nan
+    return (s2 if np.isfinite(s2) and s2 > 0 else np.nan), float(nu)
+
+
+def initial_theta(data: GapData) -> np.ndarray:
+    """Literature values with the forces and the mount's wn, zeta scaled to the session."""
+    th = lit.start_theta()
+    try:
+        wn, zeta = initial_levels(data)
+        th[PARAM_NAMES.index("wn0_rad_s")] = float(np.clip(np.min(wn) * 0.9, 5.0, 200.0))
+        th[PARAM_NAMES.index("zeta0")] = float(np.clip(np.min(zeta), 0.05, 2.0))
+    except (ValueError, np.linalg.LinAlgError):
+        pass
+    prob = _Problem(data, MuscleFitSettings())
+    pred = prob._project(prob.predict(th)[0])
+    g = float(np.sum(pred * prob.ref) / max(np.sum(pred ** 2), 1e-30))
+    if g > 0:
+        th[0] *= g
+        th[1] *= g
+    return th
+
+
+def fit_muscle(data: GapData, settings: MuscleFitSettings | None = None, *,
+               start: np.ndarray | None = None, label: str = "") -> MuscleFit:
+    """Fit the physiological twin to the trials of ``data`` (all sE levels at once).
+
+    Parameters
+    ----------
+    data : GapData
+        Pre-processed session (or a fold's training trials).
+    settings : MuscleFitSettings, optional
+    start : ndarray, optional
+        Physical starting parameters (default: :func:`initial_theta`).
+    label : str
+        Shown in the progress line.
+
+    Returns
+    -------
+    MuscleFit
+
+    Raises
+    ------
+    MuscleFitError
+        The fit rate does not suit the data.
+    """
+    s = settings or MuscleFitSettings()
+    t0 = time.perf_counter()
+    prob = _Problem(data, s)
+    s2, nu = _noise_scale(data)
+    if not np.isfinite(s2):
+        s2 = 1e-4 * float(np.mean(prob.ref ** 2))
+    # prior rows: (z - z0) / sd, in units of the noise per effective sample
+    w_prior = np.sqrt(s2 / nu)
+    has_prior = np.isfinite(lit.PRIOR_SD)
+    z0 = lit.prior_centre_z()
+    lo, hi = lit.bounds_z()
+    z = np.clip(lit.to_z(start if start is not None else initial_theta(data)), lo, hi)
+    n_p = len(z)
+    steps = np.full(n_p, 1e-4)
+
+    def cost_parts(z_rows):
+        with np.errstate(over="ignore", invalid="ignore"):
+            r = prob.residuals(lit.to_theta(z_rows)).reshape(len(z_rows), -1)
+        # a trial step into an unstable corner (huge damping at the fit rate) diverges:
+        # a large finite residual makes LM reject it instead of failing on NaN
+        r = np.where(np.isfinite(r), np.clip(r, -1e6, 1e6), 1e6)
+        pr = w_prior * (z_rows[:, has_prior] - z0[has_prior]) / lit.PRIOR_SD[has_prior]
+        return np.concatenate([r, pr], axis=1)
+
+    lam = 1e-2
+    hist = []
+    r = cost_parts(z[None])[0]
+    cost = float(r @ r)
+    it = 0
+    J = None
+    for it in range(1, s.max_iter + 1):
+        Z = np.vstack([z] + [z + steps[k] * np.eye(n_p)[k] for k in range(n_p)])
+        R = cost_parts(Z)
+        r = R[0]
+        J = ((R[1:] - r) / steps[:, None]).T            # (rows, n_p)
+        A = J.T @ J
+        g = J.T @ r
+        improved = False
+        for _ in range(8):
+            dz = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), -g)
+            z_new = np.clip(z + dz, lo, hi)
+            r_new = cost_parts(z_new[None])[0]
+            c_new = float(r_new @ r_new)
+            if c_new < cost:
+                improved = True
+                rel = (cost - c_new) / cost
+                z, cost = z_new, c_new
+                lam = max(lam / 3.0, 1e-7)
+                break
+            lam *= 4.0
+        nrmse = 100.0 * np.sqrt(max(cost, 0.0) / np.sum(prob.ref ** 2))
+        hist.append(nrmse)
+        if s.progress:
+            print(f"\rmuscle twin{(' ' + label) if label else ''}: iteration {it}, "
+                  f"NRMSE {nrmse:.3f} %, {time.perf_counter() - t0:.0f} s   ",
+                  end="", file=sys.stderr, flush=True)
+        if not improved or rel < s.rtol:
+            break
+    if s.progress:
+        print(file=sys.stderr, flush=True)
+    rd = prob.residuals(lit.to_theta(z[None]))[0]
+    rss = float(np.sum(rd ** 2))
+    n = rd.size
+    # uncertainty at the optimum (J from the last accepted linearisation)
+    Jd = J[:n] if J is not None else np.zeros((n, n_p))
+    s2_res = rss / n
+    A_data = Jd.T @ Jd * nu / s2_res
+    A_prior = np.diag(np.where(has_prior, 1.0 / np.where(has_prior, lit.PRIOR_SD, 1.0) ** 2,
+                               0.0))
+    cov = np.linalg.pinv(A_data + A_prior)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    determined = np.where(has_prior, sd < 0.5 * np.where(has_prior, lit.PRIOR_SD, 1.0),
+                          sd < 0.5)
+    at_bound = (z <= lo + 1e-9) | (z >= hi - 1e-9)
+    determined &= ~at_bound     # a parameter held by its bound is not the data's answer
+    D = np.sqrt(np.maximum(np.diag(A_data), 1e-300))
+    sv = np.linalg.svd(A_data / np.outer(D, D), compute_uv=False)
+    return MuscleFit(theta=lit.to_theta(z), rss=rss, n_samples=n,
+                     nrmse_pct=100.0 * np.sqrt(rss / np.sum(prob.ref ** 2)), sd_z=sd,
+                     determined=determined, singular_values=sv, iterations=it,
+                     elapsed_s=time.perf_counter() - t0, history=hist)
+
+
+def predict_muscle(theta: np.ndarray, data: GapData,
+                   settings: MuscleFitSettings | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Residual (offset and trend removed) and prediction of the twin on ``data``.
+
+    Returns
+    -------
+    resid, yhat : ndarray, (n_trials, n_eval)
+    """
+    prob = _Problem(data, settings or MuscleFitSettings())
+    yhat = prob.predict(theta)[0]
+    resid = prob._project(prob.y - yhat)
+    if resid.shape[1] < data.y_N.shape[1]:   # the last evaluation samples past the fit grid
+        pad = data.y_N.shape[1] - resid.shape[1]
+        resid = np.pad(resid, ((0, 0), (0, pad)), constant_values=0.0)
+        yhat = np.pad(yhat, ((0, 0), (0, pad)), mode="edge")
+    return resid, yhat

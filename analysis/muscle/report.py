@@ -1,0 +1,112 @@
+"""What the gap report says about the muscle twin: ``gap_report.json``'s ``muscle_twin``
+section, the twin file's ``muscle_model`` item and the figure ``muscle.png`` (where the
+muscle twin helps: by sE, by chirp band, by ``|rE - 0.5|``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from nmsid.analysis.muscle.twin_form import muscle_entry
+
+#: Bins of the commanded deviation's size |rE - 0.5|.
+ABS_DEVIATION_EDGES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
+
+
+def _nrmse(r, ref):
+    den = float(np.sum(ref ** 2))
+    return 100.0 * float(np.sqrt(np.sum(r ** 2) / den)) if den > 0 else float("nan")
+
+
+def _where(diag, resid) -> dict:
+    d = diag.data
+    ok = diag.tested
+    ref = diag.reference
+    out = {"sE": [], "band": [], "abs_deviation": []}
+    for j, sE in enumerate(d.sE_levels):
+        rows = np.flatnonzero(ok & (d.level == j))
+        if len(rows):
+            out["sE"].append({"sE": float(sE), "nrmse_pct": _nrmse(resid[rows], ref[rows])})
+    edges = diag.settings.bands_Hz
+    f = d.f_inst_Hz
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (f >= lo) & (f <= hi)
+        if np.any(m):
+            out["band"].append({"f_lo_Hz": lo, "f_hi_Hz": hi,
+                                "nrmse_pct": _nrmse(resid[ok][:, m], ref[ok][:, m])})
+    dev = np.abs(d.d_eval)
+    e = ABS_DEVIATION_EDGES
+    for lo, hi in zip(e[:-1], e[1:]):
+        m = ok[:, None] & (dev >= lo) & (dev <= hi if hi == e[-1] else dev < hi)
+        if np.any(m):
+            out["abs_deviation"].append({"d_lo": lo, "d_hi": hi,
+                                         "nrmse_pct": _nrmse(resid[m], ref[m])})
+    return out
+
+
+def muscle_section(diag) -> dict | None:
+    """``gap_report.json``'s ``muscle_twin`` (None when it was not tried: the template's
+    answer left no significant gap)."""
+    m = diag.muscle_tried
+    if m is None:
+        return None
+    final = diag.best_pair or diag.best
+    tmpl = final if final is not None else diag.nominal
+    floor = diag.noise_floor_nrmse_pct
+    return {
+        "supported": bool(m.supported),
+        "heldout": {"nominal_nrmse_pct": diag.nominal.heldout_nrmse_pct,
+                    "template": tmpl.label, "template_nrmse_pct": tmpl.heldout_nrmse_pct,
+                    "muscle_nrmse_pct": m.heldout_nrmse_pct,
+                    "noise_floor_nrmse_pct": floor,
+                    "sensor_floor_nrmse_pct": diag.sensor_floor_nrmse_pct,
+                    "muscle_to_noise_floor": m.heldout_nrmse_pct / floor if floor > 0
+                    else None},
+        "insample_nrmse_pct": m.insample_nrmse_pct,
+        "delta_ic": m.delta_ic, "delta_k": m.delta_k,
+        "shrink_pct": m.shrink_pct, "shrink_vs_template_pct": m.shrink_vs_template_pct,
+        "parameters": m.full.table(),
+        "not_determined": [r["name"] for r in m.full.table() if not r["determined"]],
+        "singular_values": [float(v) for v in m.full.singular_values],
+        "fit_s": m.fit_s,
+        "where": {"muscle": _where(diag, m.heldout_resid),
+                  "template": _where(diag, tmpl.heldout_resid)},
+    }
+
+
+def twin_item(diag) -> dict | None:
+    """The twin file's ``muscle_model`` when the muscle twin won, else None."""
+    if diag.muscle is None:
+        return None
+    return muscle_entry(diag.muscle.full, diag.settings.muscle_fs_Hz)
+
+
+def plot_muscle(section: dict, path: Path) -> None:
+    """Held-out NRMSE of the template's answer and of the muscle twin by sE, by chirp band
+    and by |rE - 0.5|, with the noise floor."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
+    w = section["where"]
+    floor = section["heldout"]["noise_floor_nrmse_pct"]
+    specs = [("sE", lambda r: f"{r['sE']:g}", "sE"),
+             ("band", lambda r: f"{r['f_lo_Hz']:g}-{r['f_hi_Hz']:g}", "chirp band, Hz"),
+             ("abs_deviation", lambda r: f"{r['d_lo']:g}-{r['d_hi']:g}", "|rE - 0.5|")]
+    for ax, (key, lab, xlabel) in zip(axes, specs):
+        rows_t, rows_m = w["template"][key], w["muscle"][key]
+        x = np.arange(len(rows_t))
+        ax.bar(x - 0.2, [r["nrmse_pct"] for r in rows_t], 0.4, color="0.6",
+               label=section["heldout"]["template"])
+        ax.bar(x + 0.2, [r["nrmse_pct"] for r in rows_m], 0.4, color="tab:green",
+               label="muscle twin")
+        ax.axhline(floor, ls=":", color="k", label="noise floor")
+        ax.set_xticks(x)
+        ax.set_xticklabels([lab(r) for r in rows_t], rotation=45, fontsize=7)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("held-out NRMSE, %")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

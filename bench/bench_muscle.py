@@ -1,0 +1,111 @@
+"""The physiological twin on sessions the template cannot explain (issue 20).
+
+Per participant, one 45-trial session of the paper's protocol (15 sE x 3 repeats, 10 s
+chirp), handed to the gap diagnosis (QC not run: the sessions are clean by construction):
+
+- ``MSK-A``: the MuJoCo elbow participant at the population's centre (``make_msk_population``
+  seed 7, first), no trial-to-trial scatter;
+- ``MSK-B``: another MuJoCo participant of that population (other muscle recruitment,
+  activation time constants, fixture stiffness and damping) with the physiology's
+  trial-to-trial scatter (``analysis.design.predict.DEFAULT_SCATTER``: electrode reach,
+  muscle and mount speed, mount damping);
+- ``HILL``: the independent compliant-tendon Hill formulation (``bench/hill_participant.py``),
+  neither MuJoCo's equations nor the twin's.
+
+Printed per participant: held-out NRMSE of the nominal template, of the template's best
+answer (effect or pair), of the muscle twin, the noise floor (between repeats) and the
+sensor floor (steady lead-in), the muscle twin's ratio to the noise floor (goal <= 3), the
+verdict, and what the muscle twin's fit costs (all trials + 3 folds, wall and CPU). The
+fairest baseline run in the same process is the template's best answer.
+
+    python bench/bench_muscle.py          # about 4-5 min with 2 worker processes
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE))
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+from nmsid.analysis.gap.data import prepare_trials  # noqa: E402
+from nmsid.analysis.gap.diagnose import GapSettings, diagnose  # noqa: E402
+from nmsid.analysis.gap.effects import Effect  # noqa: E402
+
+#: The library effects that matter on muscle physics (the others never come near on these
+#: sessions; bench_gap runs all six): fewer template fits keep the bench short.
+CANDIDATES = (Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS, Effect.RECRUITMENT_NONLINEARITY,
+              Effect.FLEXOR_EXTENSOR_ASYMMETRY)
+
+
+def _session(code: str):
+    if code == "HILL":
+        from hill_participant import HillParticipant, session
+        return session(HillParticipant(), seed=4)
+    from nmsid.analysis.design.candidates import paper_candidate
+    from nmsid.analysis.design.predict import DEFAULT_SCATTER
+    from nmsid.analysis.design.validate import simulate_session
+    from nmsid.sim_backends.msk_population import make_msk_population
+    people = make_msk_population(2, seed=7)
+    if code == "MSK-A":
+        return simulate_session(people[0], paper_candidate(), seed=0)
+    return simulate_session(people[1], paper_candidate(), scatter=DEFAULT_SCATTER, seed=1)
+
+
+def run_one(code: str) -> dict:
+    t0 = time.perf_counter()
+    s = _session(code)
+    sim_s = time.perf_counter() - t0
+    data = prepare_trials(s.trials, path=code)
+    t1 = time.perf_counter()
+    diag = diagnose(data, GapSettings(candidates=CANDIDATES))
+    diag_s = time.perf_counter() - t1
+    final = diag.best_pair or diag.best
+    m = diag.muscle_tried
+    return {"code": code, "sim_s": sim_s, "diag_s": diag_s,
+            "nominal": diag.nominal.heldout_nrmse_pct,
+            "template": final.heldout_nrmse_pct if final else diag.nominal.heldout_nrmse_pct,
+            "template_label": final.label if final else "nominal",
+            "muscle": m.heldout_nrmse_pct if m else float("nan"),
+            "muscle_fit_s": m.fit_s if m else float("nan"),
+            "muscle_cpu_s": sum(f.elapsed_s for f in m.fold_fits) + m.full.elapsed_s
+            if m else float("nan"),
+            "undetermined": [r["name"] for r in m.full.table() if not r["determined"]]
+            if m else [],
+            "floor": diag.noise_floor_nrmse_pct, "sensor": diag.sensor_floor_nrmse_pct,
+            "verdict": diag.assessment["verdict"],
+            "remaining_sig": diag.assessment["remaining"]["significant"]}
+
+
+def main(codes=("MSK-A", "MSK-B", "HILL")) -> None:
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=2) as ex:
+        rows = list(ex.map(run_one, codes))
+    print("Muscle twin vs the second-order template on muscle physics "
+          "(held-out NRMSE %, 45-trial sessions)\n")
+    print(f"{'participant':12s} {'nominal':>8s} {'template best':>28s} {'muscle':>8s} "
+          f"{'floor':>7s} {'sensor':>7s} {'muscle/floor':>12s} {'muscle/template':>15s} "
+          f"{'verdict':>12s} {'rem.sig':>7s}")
+    for r in rows:
+        print(f"{r['code']:12s} {r['nominal']:8.3f} {r['template_label'][:19]:>19s} "
+              f"{r['template']:8.3f} {r['muscle']:8.3f} {r['floor']:7.3f} {r['sensor']:7.3f} "
+              f"{r['muscle'] / r['floor']:12.2f} {r['muscle'] / r['template']:15.2f} "
+              f"{r['verdict']:>12s} {str(r['remaining_sig']):>7s}")
+    print()
+    for r in rows:
+        print(f"{r['code']}: session simulated in {r['sim_s']:.0f} s; "
+              f"diagnosis {r['diag_s']:.0f} s "
+              f"of which the muscle twin {r['muscle_fit_s']:.0f} s (all trials + 3 folds at "
+              f"100 Hz); not determined by the data: {', '.join(r['undetermined']) or '-'}")
+    print(f"\nwhole benchmark: {time.perf_counter() - t0:.0f} s with 2 worker processes")
+
+
+if __name__ == "__main__":
+    main()

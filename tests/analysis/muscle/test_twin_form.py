@@ -1,0 +1,60 @@
+"""The muscle form of twin.json (analysis.muscle.twin_form, analysis.twin)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from nmsid.analysis.design.errors import DesignError
+from nmsid.analysis.design.prior import twin_prior
+from nmsid.analysis.errors import TwinFileError
+from nmsid.analysis.muscle import literature as lit
+from nmsid.analysis.muscle.dynamics import PARAM_NAMES
+from nmsid.analysis.twin import Twin
+
+BASE = {"format": "nmsid-twin", "format_version": 1, "participant": "P",
+        "calibration": {"Iemin_mA": 2.0, "Iemax_mA": 9.0, "Ifmin_mA": 1.5, "Ifmax_mA": 8.0},
+        "sE_range": [0.3, 1.0],
+        "parameters": {"Kp": {"model": "constant", "coefficients": [2.0]},
+                       "wn_rad_s": {"model": "constant", "coefficients": [20.0]},
+                       "zeta": {"model": "constant", "coefficients": [0.5]}},
+        "offset_N": {"model": "constant", "coefficients": [0.25]}, "effects": []}
+
+
+def _muscle():
+    return {"form": "hill2-isometric", "form_version": 1, "fit_fs_Hz": 100.0,
+            "params": dict(zip(PARAM_NAMES, map(float, lit.start_theta())))}
+
+
+def test_existing_form_stays_valid_and_muscle_form_runs(tmp_path):
+    plain = Twin.from_dict(dict(BASE))
+    assert plain.muscle_model is None and "muscle_model" not in plain.to_dict()
+    path = tmp_path / "twin.json"
+    path.write_text(json.dumps(dict(BASE, muscle_model=_muscle())))
+    tw = Twin.load(path)
+    assert tw.muscle_model["form"] == "hill2-isometric"
+    assert tw.to_dict()["muscle_model"]["params"] == _muscle()["params"]
+    rE = 0.5 + 0.4 * np.sin(2 * np.pi * 2.0 * np.arange(4000) / 2000.0)
+    f_m = tw.simulate(rE, 0.8, 2000.0)
+    f_2 = plain.simulate(rE, 0.8, 2000.0)
+    assert f_m.shape == rE.shape and abs(f_m[0] - 0.25) < 1e-9   # at rest: the offset
+    assert np.ptp(f_m) > 0.1 and not np.allclose(f_m, f_2)
+
+
+def test_a_bad_muscle_item_is_named(tmp_path):
+    bad = _muscle()
+    bad["params"]["tau_act_s"] = -1.0
+    with pytest.raises(TwinFileError, match="muscle_model.params.tau_act_s"):
+        Twin.from_dict(dict(BASE, muscle_model=bad))
+    with pytest.raises(TwinFileError, match="knows 'hill2-isometric'"):
+        Twin.from_dict(dict(BASE, muscle_model=dict(_muscle(), form="other")))
+
+
+def test_design_refuses_the_muscle_form_in_one_line(tmp_path):
+    path = tmp_path / "twin.json"
+    path.write_text(json.dumps(dict(BASE, muscle_model=_muscle())))
+    with pytest.raises(DesignError, match="muscle form") as exc:
+        twin_prior(path, noise_N=0.03)
+    assert "\n" not in str(exc.value)
