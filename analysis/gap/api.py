@@ -21,14 +21,15 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.gap.data import GapData, PreprocessSettings, load_session, prepare_trials
+from analysis.gap.data import (GAP_DATASETS, GapData, PreprocessSettings, load_session,
+                               prepare_trials)
 from analysis.gap.diagnose import CandidateResult, Diagnosis, GapSettings, diagnose
 from analysis.gap.errors import GapInputError
 from analysis.gap.localize import by_location, frequency_view
 from analysis.gap.models import NOMINAL, nuisance_basis
 from analysis.gap.report import json_safe, write_outputs
 from analysis.qc import assess_session
-from protocols.session_file import read_session
+from protocols.session_file import Session, read_session
 from sim_backends.sensor import SensorModel
 from sim_backends.simulation import ParticipantSimulator
 from sim_backends.twin import participant_from_twin
@@ -38,9 +39,13 @@ log = logging.getLogger(__name__)
 __all__ = ["GapSettings", "run_gap", "external_predictions"]
 
 
-def external_predictions(data: GapData, *, twin=None, sim_session=None) -> np.ndarray:
+def external_predictions(data: GapData, *, twin=None, sim_session=None,
+                         session: Session | None = None) -> np.ndarray:
     """(n_trials, n_eval) force predicted by an external simulation, pre-processed like the
     measurement.
+
+    ``session``: the measured session already read (its rE and sE drive the twin); read
+    from ``data.path`` when not given.
 
     Raises
     ------
@@ -49,7 +54,7 @@ def external_predictions(data: GapData, *, twin=None, sim_session=None) -> np.nd
     """
 
     if sim_session is not None:
-        sim = read_session(sim_session)
+        sim = read_session(sim_session, datasets=GAP_DATASETS)
         table = {(round(t.sE, 6), t.repeat): t for t in sim.trials if t.completed}
         sim_trials = []
         for info in data.trials:  # in the measured file's order
@@ -65,10 +70,10 @@ def external_predictions(data: GapData, *, twin=None, sim_session=None) -> np.nd
             raise GapInputError(f"{sim_session}: simulated trials are shorter than the "
                                 "measured ones")
         return sim_data.y_N[:, :n]
-    return _twin_predictions(data, twin)
+    return _twin_predictions(data, twin, session)
 
 
-def _twin_predictions(data: GapData, twin) -> np.ndarray:
+def _twin_predictions(data: GapData, twin, session: Session | None = None) -> np.ndarray:
     """Every trial's commanded rE and sE run through the twin (effects included) on the
     simulator's virtual participant with an ideal sensor, in file order (aborted trials
     too: they count for fatigue)."""
@@ -78,7 +83,8 @@ def _twin_predictions(data: GapData, twin) -> np.ndarray:
     except (OSError, ValueError) as exc:
         raise GapInputError(f"{twin}: cannot be used as the simulation under test ({exc})"
                             ) from None
-    session = read_session(data.path)
+    if session is None:
+        session = read_session(data.path, datasets=GAP_DATASETS)
     cal = participant.calibration
     sim = ParticipantSimulator(participant, data.fs_raw_Hz)
     by_name = {}
@@ -122,7 +128,9 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
 
     Parameters
     ----------
-    sessions : list of path-like
+    sessions : list of path-like or protocols.session_file.Session
+        Session files (each read once, with :data:`analysis.gap.data.GAP_DATASETS`), or
+        sessions read already (e.g. by a study task that identified them first).
     out_dir : path-like
     settings : GapSettings, optional
     twin, sim_session : path-like, optional
@@ -135,7 +143,7 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
         Trials excluded upstream, never held against the model: by default (``"qc"``)
         the ones the trial quality control (:func:`analysis.qc.assess_session`) excludes;
         or a mapping trial name -> reason, or a callable ``path -> mapping`` for several
-        sessions; None keeps every completed trial. They are left out of every fit and
+        sessions (called with the session's file path); None keeps every completed trial. They are left out of every fit and
         score and listed in the report.
 
     Returns
@@ -148,18 +156,22 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
     out.mkdir(parents=True, exist_ok=True)
     reports = []
     multi = len(sessions) > 1
-    for path in sessions:
+    for entry in sessions:
+        # read once; QC, pre-processing, the report and the twin all use this session
+        session = entry if isinstance(entry, Session) else \
+            read_session(entry, datasets=GAP_DATASETS)
+        path = session.path
         if isinstance(excluded, str) and excluded == "qc":
-            excl = assess_session(path).excluded()
+            excl = assess_session(session).excluded()
         else:
             excl = excluded(path) if callable(excluded) else excluded
-        data = load_session(path, preprocess, excluded=excl)
+        data = load_session(session, preprocess, excluded=excl)
         diag = diagnose(data, settings)
-        cal = read_session(path, load_data=False).calibration
         target = out / Path(path).stem if multi else out
-        report = write_outputs(diag, target, cal, plots=plots)
+        report = write_outputs(diag, target, session.calibration, plots=plots)
         if twin is not None or sim_session is not None:
-            pred = external_predictions(data, twin=twin, sim_session=sim_session)
+            pred = external_predictions(data, twin=twin, sim_session=sim_session,
+                                        session=session)
             report["simulation_under_test"] = json_safe(
                 _under_test(diag, pred, str(twin or sim_session)))
             (target / "gap_report.json").write_text(json.dumps(report, indent=1) + "\n",
