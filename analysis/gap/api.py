@@ -143,8 +143,8 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
         Trials excluded upstream, never held against the model: by default (``"qc"``)
         the ones the trial quality control (:func:`analysis.qc.assess_session`) excludes;
         or a mapping trial name -> reason, or a callable ``path -> mapping`` for several
-        sessions (called with the session's file path); None keeps every completed trial. They are left out of every fit and
-        score and listed in the report.
+        sessions (called with the session's file path); None keeps every completed trial.
+        They are left out of every fit and score and listed in the report.
 
     Returns
     -------
