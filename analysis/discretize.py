@@ -11,12 +11,12 @@ included: no eigen-decomposition is used). The result is a transfer function
 The same module holds the stacked first-order-hold difference equations of the gap
 diagnosis's augmented models (:func:`foh_allpole` and the functions built on it, vectorised
 over sE levels) and the fractional delay of either sign that carries the rig's input timing
-(:func:`fractional_delay`, see :mod:`analysis.input_timing`): identification and gap
+(:func:`fractional_delay`, see :mod:`nmsid.analysis.input_timing`): identification and gap
 diagnosis discretise through this one module.
 
 For a sampled *smooth* input (rE is one), :func:`smooth_hold_input` pre-corrects the
 samples so that the piecewise-linear interpolation reproduces the band-limited signal to
-sixth order in f/fs (see :class:`analysis.settings.InputHold`).
+sixth order in f/fs (see :class:`nmsid.analysis.settings.InputHold`).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from analysis.signal_kernels import expm
+from nmsid.analysis.signal_kernels import expm
 
 #: Relative step of the central differences used for coefficient derivatives.
 _FD_STEP = 1e-6

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.report import MODEL_TITLES, PARAMETER_TITLES
+from nmsid.analysis.report import MODEL_TITLES, PARAMETER_TITLES
 
 _WHITE = (255, 255, 255)
 _BLACK = (0, 0, 0)

@@ -7,7 +7,7 @@ Two entry points, both safe to call from a GUI thread or a headless run:
 * :func:`identify_session` - every level of a session file, one row per sE plus a list of
   human-readable problems. Nothing in a level's data stops the other levels.
 
-Both use :mod:`analysis.preprocess` and :mod:`analysis.second_order`, which the gap
+Both use :mod:`nmsid.analysis.preprocess` and :mod:`nmsid.analysis.second_order`, which the gap
 diagnosis reuses.
 """
 
@@ -21,14 +21,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from analysis.errors import IdentificationError
-from analysis.input_timing import fit_level
-from analysis.preprocess import LevelData
-from analysis.qc import SessionQC, assess_level, assess_session
-from analysis.qc.decide import EXCLUDED, REPAIRED, LevelQC
-from analysis.second_order import SecondOrderFit
-from analysis.settings import IdentificationSettings
-from protocols.session_file import read_session
+from nmsid.analysis.errors import IdentificationError
+from nmsid.analysis.input_timing import fit_level
+from nmsid.analysis.preprocess import LevelData
+from nmsid.analysis.qc import SessionQC, assess_level, assess_session
+from nmsid.analysis.qc.decide import EXCLUDED, REPAIRED, LevelQC
+from nmsid.analysis.second_order import SecondOrderFit
+from nmsid.analysis.settings import IdentificationSettings
+from nmsid.protocols.session_file import read_session
 
 logger = logging.getLogger(__name__)
 

@@ -21,8 +21,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from analysis.signal_kernels import lfilter
-from analysis.thin_lstsq import cross, lstsq_rows
+from nmsid.analysis.signal_kernels import lfilter
+from nmsid.analysis.thin_lstsq import cross, lstsq_rows
 
 logger = logging.getLogger(__name__)
 

@@ -27,12 +27,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from analysis.discretize import foh_coefficients, smooth_hold_input
-from analysis.errors import IdentificationError
-from analysis.preprocess import LevelData, preprocess_trials
-from analysis.second_order import SecondOrderFit, fit_second_order
-from analysis.settings import IdentificationSettings, InputTiming
-from analysis.signal_kernels import lfilter
+from nmsid.analysis.discretize import foh_coefficients, smooth_hold_input
+from nmsid.analysis.errors import IdentificationError
+from nmsid.analysis.preprocess import LevelData, preprocess_trials
+from nmsid.analysis.second_order import SecondOrderFit, fit_second_order
+from nmsid.analysis.settings import IdentificationSettings, InputTiming
+from nmsid.analysis.signal_kernels import lfilter
 
 #: A delay must exceed this many standard errors to be used (the standard error assumes
 #: white noise at the fit rate: a margin against its optimism on low-passed data) ...
@@ -151,8 +151,8 @@ def fit_level(trials, settings: IdentificationSettings | None = None
     Raises
     ------
     IdentificationError
-        As :func:`analysis.preprocess.preprocess_trials` and
-        :func:`analysis.second_order.fit_second_order`.
+        As :func:`nmsid.analysis.preprocess.preprocess_trials` and
+        :func:`nmsid.analysis.second_order.fit_second_order`.
     """
     s = settings or IdentificationSettings()
     trials = list(trials)

@@ -1,7 +1,7 @@
 """Model selection across sE: the paper's Results (Tables 1-9) for one or many sessions.
 
 For each parameter (Kp, wn, zeta) and each participant, and for the participant average
-at each sE: fit the linear, quadratic and exponential curves (:mod:`analysis.curves`) to the
+at each sE: fit the linear, quadratic and exponential curves (:mod:`nmsid.analysis.curves`) to the
 same points, compute AICc, select the lowest, describe the trend. For wn and zeta
 (``IdentificationSettings.iqr_parameters``) the paper first removes IQR outliers per
 participant, averages the participants per sE, and removes IQR outliers again from the
@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from analysis.curves import CurveFit, Trend, fit_curve, trend_of
-from analysis.outliers import iqr_fences, iqr_inliers
-from analysis.settings import PARAMETER_NAMES, IdentificationSettings
+from nmsid.analysis.curves import CurveFit, Trend, fit_curve, trend_of
+from nmsid.analysis.outliers import iqr_fences, iqr_inliers
+from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
 
 AVERAGE_LABEL = "average"
 

@@ -10,9 +10,9 @@ Finally the data are decimated to ``fit_fs_Hz`` (after the low-pass nothing is l
 the input's window mean is removed: u = rE - mean(rE over the window).
 
 Before any of this, rE is moved by the rig's input timing (``input_delay_s``, see
-:mod:`analysis.input_timing`): a fractional delay of either sign at the raw rate, so that
+:mod:`nmsid.analysis.input_timing`): a fractional delay of either sign at the raw rate, so that
 u is the stimulation the participant received rather than the record of its command. The
-gap diagnosis (:mod:`analysis.gap.data`) uses the same filters, through
+gap diagnosis (:mod:`nmsid.analysis.gap.data`) uses the same filters, through
 :func:`smooth_and_lowpass`, and the same timing.
 """
 
@@ -24,12 +24,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from analysis.discretize import fractional_delay
-from analysis.errors import IdentificationError
-from analysis.signal_kernels import (butter, convolve1d, savgol_coeffs, sosfilt, sosfilt_zi,
-                                     sosfiltfilt)
-from analysis.thin_lstsq import dot
-from analysis.settings import IdentificationSettings, InputTiming
+from nmsid.analysis.discretize import fractional_delay
+from nmsid.analysis.errors import IdentificationError
+from nmsid.analysis.signal_kernels import (butter, convolve1d, savgol_coeffs, sosfilt, sosfilt_zi,
+                                           sosfiltfilt)
+from nmsid.analysis.thin_lstsq import dot
+from nmsid.analysis.settings import IdentificationSettings, InputTiming
 
 
 @dataclass
@@ -197,7 +197,7 @@ def preprocess_trials(trials, settings: IdentificationSettings | None = None, *,
     input_delay_s : float, optional
         Delay of the stimulation behind the rE record in s (either sign); default: the
         fixed delay of ``settings.input_timing`` (0 when it is ``"estimate"``: the
-        estimate is made by :func:`analysis.input_timing.fit_level`).
+        estimate is made by :func:`nmsid.analysis.input_timing.fit_level`).
 
     Returns
     -------

@@ -9,8 +9,8 @@ import json
 import math
 from pathlib import Path
 
-from analysis.model_selection import AVERAGE_LABEL, SelectionResult
-from analysis.settings import PARAMETER_NAMES
+from nmsid.analysis.model_selection import AVERAGE_LABEL, SelectionResult
+from nmsid.analysis.settings import PARAMETER_NAMES
 
 PARAMETER_COLUMNS = ("participant", "sE", "Kp", "wn_rad_s", "zeta", "fit_pct", "n_trials",
                      "Kp_se", "wn_se", "zeta_se", "converged", "resid_whiteness_pass",

@@ -13,16 +13,16 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.errors import IdentificationError
-from analysis.figures import plot_level_fits, plot_parameter_curves
-from analysis.identify import SessionResult, identify_session
-from analysis.model_selection import AVERAGE_LABEL, SelectionResult, select_models
-from analysis.qc.table import write_qc_csv
-from analysis.report import (parameter_table, selection_tables, write_model_selection_json,
-                             write_parameters_csv, write_text)
-from analysis.settings import PARAMETER_NAMES, IdentificationSettings
-from analysis.twin import Twin, source_entry, twin_from_selection
-from protocols.session_file import Session
+from nmsid.analysis.errors import IdentificationError
+from nmsid.analysis.figures import plot_level_fits, plot_parameter_curves
+from nmsid.analysis.identify import SessionResult, identify_session
+from nmsid.analysis.model_selection import AVERAGE_LABEL, SelectionResult, select_models
+from nmsid.analysis.qc.table import write_qc_csv
+from nmsid.analysis.report import (parameter_table, selection_tables, write_model_selection_json,
+                                   write_parameters_csv, write_text)
+from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
+from nmsid.analysis.twin import Twin, source_entry, twin_from_selection
+from nmsid.protocols.session_file import Session
 
 logger = logging.getLogger(__name__)
 

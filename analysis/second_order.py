@@ -2,7 +2,7 @@
 
 What MATLAB's ``tfest`` does for this model, done in closed form where possible:
 
-1. a start from simplified refined instrumental variables (:mod:`analysis.initial_estimate`);
+1. a start from simplified refined instrumental variables (:mod:`nmsid.analysis.initial_estimate`);
 2. prediction-error minimisation of ||y - yhat||^2 (output error: the model is simulated
    from the input alone), with the initial state, an output offset and (by default) an
    output ramp estimated along with Kp, wn and zeta.
@@ -11,12 +11,12 @@ The model output is linear in Kp, the initial state (as the first two free-respo
 samples), offset and ramp, so those are solved exactly by least squares for every (wn,
 zeta) - variable projection (Golub & Pereyra 2003; Kaufman's Jacobian) - and a
 Levenberg-Marquardt search runs over ln wn and ln zeta only. The simulation is the exact
-triangle-hold discretisation run by ``lfilter`` (:mod:`analysis.discretize`); its
+triangle-hold discretisation run by ``lfilter`` (:mod:`nmsid.analysis.discretize`); its
 sensitivities are obtained by filtering too (derivatives of the difference equation), so
 one iteration costs a handful of ``lfilter`` passes and no ``lsim``.
 
 Standard errors come from the Jacobian at the optimum, scaled by the noise level of the
-residual (see :class:`analysis.settings.NoiseLevel`). They assume the model structure is
+residual (see :class:`nmsid.analysis.settings.NoiseLevel`). They assume the model structure is
 right and the noise is stationary; the effective number of independent samples is not the
 number of samples once the data are low-passed, which is why the default noise level is
 the residual PSD over the chirp band rather than RSS/(N - p).
@@ -29,13 +29,13 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from analysis.discretize import foh_coefficients_with_derivatives, smooth_hold_input
-from analysis.errors import IdentificationError
-from analysis.initial_estimate import StartEstimate, srivc_start
-from analysis.residual_tests import ResidualTests, residual_tests
-from analysis.settings import IdentificationSettings, InputHold, NoiseLevel
-from analysis.signal_kernels import lfilter
-from analysis.thin_lstsq import cross, dot, gram, lstsq_rows, orthonormalise
+from nmsid.analysis.discretize import foh_coefficients_with_derivatives, smooth_hold_input
+from nmsid.analysis.errors import IdentificationError
+from nmsid.analysis.initial_estimate import StartEstimate, srivc_start
+from nmsid.analysis.residual_tests import ResidualTests, residual_tests
+from nmsid.analysis.settings import IdentificationSettings, InputHold, NoiseLevel
+from nmsid.analysis.signal_kernels import lfilter
+from nmsid.analysis.thin_lstsq import cross, dot, gram, lstsq_rows, orthonormalise
 
 logger = logging.getLogger(__name__)
 
@@ -115,7 +115,7 @@ class _Problem:
     def evaluate(self, p: np.ndarray, jacobian: bool):
         """Cost, linear parameters and (optionally) the full and reduced Jacobians at p.
 
-        Regressors are rows of (m, n) arrays (see :mod:`analysis.thin_lstsq`).
+        Regressors are rows of (m, n) arrays (see :mod:`nmsid.analysis.thin_lstsq`).
         """
         num, den, dnum, dden = foh_coefficients_with_derivatives(p[0], p[1], self.dt_s)
         v = self.v

@@ -25,8 +25,8 @@ import enum
 import math
 from dataclasses import dataclass, field
 
-from analysis.errors import SettingError
-from analysis.qc.settings import QCSettings
+from nmsid.analysis.errors import SettingError
+from nmsid.analysis.qc.settings import QCSettings
 
 
 class InputHold(str, enum.Enum):
@@ -50,7 +50,7 @@ class InputTiming(str, enum.Enum):
 
     ``ESTIMATE``: no built-in belief; the sub-millisecond delay between the rE record and
     the stimulation (either sign) is estimated from the data (see
-    :mod:`analysis.input_timing`), within +-``input_timing_max_s``.
+    :mod:`nmsid.analysis.input_timing`), within +-``input_timing_max_s``.
     ``HOLD``: the stimulator holds each sample for one sample period (zero-order hold:
     sample k applied from k / fs_Hz on), i.e. the input lags the record by half a sample.
     ``SMOOTH``: the record is the stimulation (a smooth, band-limited input; no delay).
@@ -148,12 +148,12 @@ class IdentificationSettings:
 
     # -- trial quality control ------------------------------------------------------
     qc: bool = True
-    """Judge every trial before averaging (:mod:`analysis.qc`) and average and fit only
+    """Judge every trial before averaging (:mod:`nmsid.analysis.qc`) and average and fit only
     the trials it keeps (repaired data where an artefact was bridged). The paper averages
     every repeat; one voluntary contraction in one repeat then moves Kp and zeta by ~1 %
     (ten standard errors). False: the paper's plain average of every completed repeat."""
     qc_settings: QCSettings = field(default_factory=QCSettings)
-    """Thresholds of the trial quality control (:class:`analysis.qc.QCSettings`)."""
+    """Thresholds of the trial quality control (:class:`nmsid.analysis.qc.QCSettings`)."""
 
     # -- fitting ------------------------------------------------------------------
     estimate_trend: bool = True

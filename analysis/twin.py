@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.curves import evaluate_curve
-from analysis.discretize import foh_coefficients, foh_state_matrices
-from analysis.errors import TwinFileError
-from analysis.signal_kernels import lfilter
+from nmsid.analysis.curves import evaluate_curve
+from nmsid.analysis.discretize import foh_coefficients, foh_state_matrices
+from nmsid.analysis.errors import TwinFileError
+from nmsid.analysis.signal_kernels import lfilter
 
 FORMAT = "nmsid-twin"
 FORMAT_VERSION = 1

@@ -33,13 +33,13 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from analysis.design.candidates import PAPER_LEVELS, Candidate, paper_candidate, search_space  # noqa: E402,E501
-from analysis.design.predict import DEFAULT_SCATTER, Predictor, sd_ratio  # noqa: E402
-from analysis.design.prior import PARAMETERS, population_prior  # noqa: E402
-from analysis.design.search import design, parse_target  # noqa: E402
-from analysis.design.api import PAPER_STREAM, PROPOSAL_STREAM  # noqa: E402
-from analysis.design.validate import alternative_scatter, run_protocol, validated_ratio  # noqa: E402,E501
-from sim_backends.population import make_population  # noqa: E402
+from nmsid.analysis.design.candidates import PAPER_LEVELS, Candidate, paper_candidate, search_space  # noqa: E402,E501
+from nmsid.analysis.design.predict import DEFAULT_SCATTER, Predictor, sd_ratio  # noqa: E402
+from nmsid.analysis.design.prior import PARAMETERS, population_prior  # noqa: E402
+from nmsid.analysis.design.search import design, parse_target  # noqa: E402
+from nmsid.analysis.design.api import PAPER_STREAM, PROPOSAL_STREAM  # noqa: E402
+from nmsid.analysis.design.validate import alternative_scatter, run_protocol, validated_ratio  # noqa: E402,E501
+from nmsid.sim_backends.population import make_population  # noqa: E402
 
 N_PRIOR, N_VALID = 20, 20
 

@@ -38,18 +38,18 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
-from analysis.curves import fit_curve  # noqa: E402
-from analysis.design.candidates import (Candidate, paper_candidate, search_space,  # noqa: E402
-                                        with_paper_excitation)
-from analysis.design.predict import DEFAULT_SCATTER, Predictor  # noqa: E402
-from analysis.design.prior import (PARAMETERS, adequacy_from_parameters,  # noqa: E402
-                                   scatter_from_parameters, twin_prior)
-from analysis.design.search import design, parse_target  # noqa: E402
-from analysis.design.validate import simulate_session  # noqa: E402
-from analysis.identify import identify_session  # noqa: E402
-from analysis.model_selection import compare_models  # noqa: E402
-from analysis.run import run_identification  # noqa: E402
-from analysis.settings import IdentificationSettings  # noqa: E402
+from nmsid.analysis.curves import fit_curve  # noqa: E402
+from nmsid.analysis.design.candidates import (Candidate, paper_candidate, search_space,  # noqa: E402
+                                              with_paper_excitation)
+from nmsid.analysis.design.predict import DEFAULT_SCATTER, Predictor  # noqa: E402
+from nmsid.analysis.design.prior import (PARAMETERS, adequacy_from_parameters,  # noqa: E402
+                                         scatter_from_parameters, twin_prior)
+from nmsid.analysis.design.search import design, parse_target  # noqa: E402
+from nmsid.analysis.design.validate import simulate_session  # noqa: E402
+from nmsid.analysis.identify import identify_session  # noqa: E402
+from nmsid.analysis.model_selection import compare_models  # noqa: E402
+from nmsid.analysis.run import run_identification  # noqa: E402
+from nmsid.analysis.settings import IdentificationSettings  # noqa: E402
 
 GRID = paper_candidate().sE_levels
 POPULATION_PROPOSAL = Candidate(steady_s=2.0, chirp_s=4.0, rest_s=24.0, label="proposal")
@@ -115,7 +115,7 @@ def selection(rows: list) -> float:
 
 def main(n_participants: int = 4) -> None:
     try:
-        from sim_backends.msk_population import make_msk_population  # mujoco extra
+        from nmsid.sim_backends.msk_population import make_msk_population  # mujoco extra
     except ImportError as exc:
         print(f"musculoskeletal participant unavailable ({exc}); install the mujoco extra")
         return

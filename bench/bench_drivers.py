@@ -27,12 +27,12 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from drivers.fake_hardware import load_fake  # noqa: E402
-from drivers.interfaces import CheckedWaveform  # noqa: E402
-from drivers.leptrino import LeptrinoAcquisition, LeptrinoSensor  # noqa: E402
-from drivers.leptrino_protocol import FrameDecoder, encode_frame  # noqa: E402
-from drivers.stg4002 import BYTES_PER_POINT, Stg4002Stimulator  # noqa: E402
-from drivers.stg_waveform import check_rendered, render_channel  # noqa: E402
+from nmsid.drivers.fake_hardware import load_fake  # noqa: E402
+from nmsid.drivers.interfaces import CheckedWaveform  # noqa: E402
+from nmsid.drivers.leptrino import LeptrinoAcquisition, LeptrinoSensor  # noqa: E402
+from nmsid.drivers.leptrino_protocol import FrameDecoder, encode_frame  # noqa: E402
+from nmsid.drivers.stg4002 import BYTES_PER_POINT, Stg4002Stimulator  # noqa: E402
+from nmsid.drivers.stg_waveform import check_rendered, render_channel  # noqa: E402
 
 
 def paper_trial(fs=2000.0):

@@ -26,10 +26,10 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from protocols.config import config_from_dict  # noqa: E402
-from rig.engine import Engine, EngineObserver  # noqa: E402
-from rig.states import State  # noqa: E402
-from sim_backends import make_sim_rig  # noqa: E402
+from nmsid.protocols.config import config_from_dict  # noqa: E402
+from nmsid.rig.engine import Engine, EngineObserver  # noqa: E402
+from nmsid.rig.states import State  # noqa: E402
+from nmsid.sim_backends import make_sim_rig  # noqa: E402
 
 
 def _measure(n_trips: int, source: str, seed: int = 1) -> np.ndarray:

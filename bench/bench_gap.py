@@ -41,9 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
-from protocols.config import Randomisation
-from protocols.schedule import make_schedule
-from protocols.session_file import SessionWriter, Trial, read_session
+from nmsid.protocols.config import Randomisation
+from nmsid.protocols.schedule import make_schedule
+from nmsid.protocols.session_file import SessionWriter, Trial, read_session
 
 HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
@@ -64,7 +64,7 @@ LEVELS = tuple(np.round(np.linspace(0.30, 1.00, 15), 2))
 
 
 def chirp_rE(fs_Hz=FS_HZ, steady_s=STEADY_S, chirp_s=CHIRP_S, f0=1.0, f1=10.0):
-    from protocols.waveforms import chirp_phase_rad
+    from nmsid.protocols.waveforms import chirp_phase_rad
     n = int(round((steady_s + chirp_s) * fs_Hz))
     t = np.arange(n) / fs_Hz
     tc = np.clip(t - steady_s, 0.0, None)
@@ -87,7 +87,7 @@ def simulate_session(participant, path, *, seed: int = 0, rest_s: float = 20.0,
     rest_s : float
         Rest between trials (no stimulation; the baseline keeps wandering).
     """
-    from sim_backends.simulation import ParticipantSimulator
+    from nmsid.sim_backends.simulation import ParticipantSimulator
 
     sim = ParticipantSimulator(participant, FS_HZ)
     cal = participant.calibration
@@ -159,7 +159,7 @@ def draw_effect(cls: str, seed: int) -> dict | None:
 
 def true_main(effect: dict, participant, path: str) -> float | None:
     """The main parameter's true value (as defined in the module docstring)."""
-    from analysis.gap.twin_out import nonlinearity_index_pct
+    from nmsid.analysis.gap.twin_out import nonlinearity_index_pct
     name, p = effect["name"], effect["params"]
     if name == "dead_time":
         return p["L_s"]
@@ -168,7 +168,7 @@ def true_main(effect: dict, participant, path: str) -> float | None:
     if name == "fatigue":
         return p["gain_loss_pct"]
     if name == "recruitment_nonlinearity":
-        from sim_backends.effects import RecruitmentNonlinearity
+        from nmsid.sim_backends.effects import RecruitmentNonlinearity
         return nonlinearity_index_pct(RecruitmentNonlinearity(**p).h,
                                       np.linspace(0.3, 1.0, 15))
     if name == "flexor_extensor_asymmetry":
@@ -181,9 +181,9 @@ def true_main(effect: dict, participant, path: str) -> float | None:
 def _true_window_drift(p: dict, participant, path: str) -> float:
     """RMS of the wander's non-linear part in each trial's analysis window (the wander is
     a function of session time; trial start times are stored by the generator)."""
-    from analysis.gap.data import load_session
-    from analysis.gap.models import nuisance_basis
-    from sim_backends.sensor import BaselineWander
+    from nmsid.analysis.gap.data import load_session
+    from nmsid.analysis.gap.models import nuisance_basis
+    from nmsid.sim_backends.sensor import BaselineWander
     wander = BaselineWander(p["amplitude_N"], p["corner_Hz"], participant.seed)
     data = load_session(path)
     sess = read_session(path, load_data=False)
@@ -215,10 +215,10 @@ def estimated_main(name: str, params: dict) -> float | None:
 def run_case(args) -> dict:
     cls, seed, workdir = args
 
-    from analysis.gap.data import load_session
-    from analysis.gap.diagnose import diagnose
-    from analysis.gap.report import final_params
-    from sim_backends import make_population
+    from nmsid.analysis.gap.data import load_session
+    from nmsid.analysis.gap.diagnose import diagnose
+    from nmsid.analysis.gap.report import final_params
+    from nmsid.sim_backends import make_population
 
     participant = make_population(seed + 1, seed=2026)[seed]
     effect = draw_effect(cls, seed)
@@ -260,9 +260,9 @@ def run_extra(args) -> dict:
     """One session of the classes the diagnosis was not written for (``gap_sessions``)."""
     kind, seed, workdir = args
     import gap_sessions
-    from analysis.gap.data import load_session
-    from analysis.gap.diagnose import diagnose
-    from sim_backends import make_population
+    from nmsid.analysis.gap.data import load_session
+    from nmsid.analysis.gap.diagnose import diagnose
+    from nmsid.sim_backends import make_population
 
     participant = make_population(seed % 12 + 1, seed=2026)[seed % 12]
     path = os.path.join(workdir, f"x_{kind}_{seed}.h5")

@@ -124,7 +124,7 @@ def _gap_stats(times: list[float]) -> float:
 
 
 def bench_synthetic() -> Row:
-    from rig.gui.main_window import MainWindow, Tab
+    from nmsid.rig.gui.main_window import MainWindow, Tab
     app = _app()
     w = MainWindow(identify=lambda trials: None, select_models=None)
     w.resize(1560, 980)
@@ -132,7 +132,7 @@ def bench_synthetic() -> Row:
     w.tabs.setCurrentIndex(Tab.LIVE)
     paints = _PaintCounter(w.live.graphics.viewport())
     redraws = _instrument_redraw(w.live)
-    from rig.gui.observer import QtEngineObserver
+    from nmsid.rig.gui.observer import QtEngineObserver
     obs = QtEngineObserver(w.signals, w.buffer)
     handled, scheduled = [], []
     stop = threading.Event()
@@ -177,7 +177,7 @@ def bench_synthetic() -> Row:
 
 def _short_config(cfg):
     import dataclasses
-    from protocols.config import ManualCurrents
+    from nmsid.protocols.config import ManualCurrents
     p = dataclasses.replace(cfg.protocol, sE_levels=SIM_LEVELS, repeats=1,
                             steady_s=SIM_STEADY_S, chirp_s=SIM_CHIRP_S, rest_s=0.5)
     c = dataclasses.replace(cfg.calibration, confirm=False,
@@ -202,11 +202,11 @@ def _lateness(records) -> tuple[np.ndarray, list[float]]:
 
 def bench_sim_gui() -> Row | None:
     try:
-        from sim_backends.rig import make_sim_rig  # noqa: F401
+        from nmsid.sim_backends.rig import make_sim_rig  # noqa: F401
     except ImportError:
         return None
-    from rig.gui.main_window import MainWindow, Tab
-    from rig.gui.observer import QtEngineObserver
+    from nmsid.rig.gui.main_window import MainWindow, Tab
+    from nmsid.rig.gui.observer import QtEngineObserver
     app = _app()
     records = []
     orig_on_chunk = QtEngineObserver.on_chunk
@@ -262,11 +262,11 @@ def _max_gap_within_trials(records) -> float:
 
 def bench_sim_headless() -> Row | None:
     try:
-        from sim_backends.rig import make_sim_rig
+        from nmsid.sim_backends.rig import make_sim_rig
     except ImportError:
         return None
-    from protocols.config import load_config
-    from rig.engine import Engine, EngineObserver
+    from nmsid.protocols.config import load_config
+    from nmsid.rig.engine import Engine, EngineObserver
 
     records = []
 

@@ -34,13 +34,13 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
 
-from testing.sessions import exact_response, write_synthetic_session  # noqa: E402
+from nmsid.testing.sessions import exact_response, write_synthetic_session  # noqa: E402
 
-from analysis.identify import identify_level  # noqa: E402
-from analysis.preprocess import preprocess_trials  # noqa: E402
-from analysis.run import run_identification  # noqa: E402
-from analysis.settings import IdentificationSettings  # noqa: E402
-from protocols.session_file import Trial, read_session  # noqa: E402
+from nmsid.analysis.identify import identify_level  # noqa: E402
+from nmsid.analysis.preprocess import preprocess_trials  # noqa: E402
+from nmsid.analysis.run import run_identification  # noqa: E402
+from nmsid.analysis.settings import IdentificationSettings  # noqa: E402
+from nmsid.protocols.session_file import Trial, read_session  # noqa: E402
 
 FS = 2000.0
 STEADY, CHIRP, F0, F1 = 5.0, 10.0, 1.0, 10.0
@@ -204,7 +204,7 @@ def speed(tmp: Path, plain_levels: int):
     # CLI process wall time, imports included
     env = dict(os.environ)
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "rig.cli", "identify", str(path), "--out",
+    subprocess.run([sys.executable, "-m", "nmsid.cli", "identify", str(path), "--out",
                     str(tmp / "cli_out"), "--no-figures"], check=True, env=env,
                    stdout=subprocess.DEVNULL, cwd=HERE.parent)
     cli_wall = time.perf_counter() - t0

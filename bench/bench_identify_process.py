@@ -43,7 +43,7 @@ def _wall(cmd: list[str]) -> float:
 
 
 def make_session(tmp: Path) -> Path:
-    subprocess.run([sys.executable, "-m", "rig.cli", "run", "--backend", "sim",
+    subprocess.run([sys.executable, "-m", "nmsid.cli", "run", "--backend", "sim",
                     "--participant", "B", "--outdir", str(tmp), "--seed", "12"],
                    check=True, env=_env(), cwd=ROOT, stdout=subprocess.DEVNULL)
     return next(tmp.glob("B-*.h5"))
@@ -58,7 +58,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         session = make_session(tmp)
-        ident = [sys.executable, "-m", "rig.cli", "identify", str(session), "--out"]
+        ident = [sys.executable, "-m", "nmsid.cli", "identify", str(session), "--out"]
         _wall(ident + [str(tmp / "warm")])                  # page cache, .pyc files
         with_fig, without = [], []
         for i in range(runs):                              # interleaved: same load for both

@@ -36,16 +36,16 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from protocols.config import config_from_dict  # noqa: E402
-from protocols.session_file import read_session, validate_session  # noqa: E402
-from rig.engine import Engine, TripPolicy  # noqa: E402
-from sim_backends import make_sim_rig  # noqa: E402
+from nmsid.protocols.config import config_from_dict  # noqa: E402
+from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
+from nmsid.rig.engine import Engine, TripPolicy  # noqa: E402
+from nmsid.sim_backends import make_sim_rig  # noqa: E402
 
 PARAMS = ("Kp", "wn_rad_s", "zeta")
 
 
 def _session(participant, code: str, tmp: Path) -> dict:
-    from analysis.identify import identify_session
+    from nmsid.analysis.identify import identify_session
 
     rig = make_sim_rig(participant)
     cfg = config_from_dict({"participant": code, "seed": 7, "protocol": {"rest_s": 0.0}})
@@ -117,12 +117,12 @@ def _cli_session(tmp: Path) -> None:
     env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
     out = tmp / "cli.h5"
     t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-m", "rig.cli", "run", "--backend", "sim",
+    p = subprocess.run([sys.executable, "-m", "nmsid.cli", "run", "--backend", "sim",
                         "--participant-model", "musculoskeletal", "--participant", "CLI1",
                         "--out", str(out), "--quiet", "--no-identify"], env=env, cwd=ROOT,
                        capture_output=True, text=True)
     wall = time.perf_counter() - t0
-    v = subprocess.run([sys.executable, "-m", "rig.cli", "validate", str(out)], env=env,
+    v = subprocess.run([sys.executable, "-m", "nmsid.cli", "validate", str(out)], env=env,
                        cwd=ROOT, capture_output=True, text=True)
     print("\n2. nmsid run --backend sim --participant-model musculoskeletal --no-identify "
           "(subprocess, imports included)")
@@ -131,11 +131,11 @@ def _cli_session(tmp: Path) -> None:
 
 
 def _realtime() -> None:
-    from sim_backends.direct_drive import chirp_rE, currents_for, run_waveform, waveform
-    from sim_backends.msk_participant import default_msk_participant
-    from sim_backends.msk_simulation import MskSimulator
-    from sim_backends.participant import default_participant
-    from sim_backends.simulation import ParticipantSimulator
+    from nmsid.sim_backends.direct_drive import chirp_rE, currents_for, run_waveform, waveform
+    from nmsid.sim_backends.msk_participant import default_msk_participant
+    from nmsid.sim_backends.msk_simulation import MskSimulator
+    from nmsid.sim_backends.participant import default_participant
+    from nmsid.sim_backends.simulation import ParticipantSimulator
 
     print("\n4. real time (2000 samples/s needed)")
     p = default_msk_participant()
@@ -169,7 +169,7 @@ def _gap(path: Path, tmp: Path) -> None:
     env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
     out = tmp / "gap"
     t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-m", "rig.cli", "gap", str(path), "--out", str(out),
+    p = subprocess.run([sys.executable, "-m", "nmsid.cli", "gap", str(path), "--out", str(out),
                         "--no-figures"], env=env, cwd=ROOT, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     print(f"\n5. nmsid gap on the default musculoskeletal session (exit {p.returncode}, "
@@ -191,9 +191,9 @@ def _gap(path: Path, tmp: Path) -> None:
 
 def main() -> None:
     logging.disable(logging.WARNING)
-    from sim_backends.msk_participant import default_msk_participant
-    from sim_backends.msk_population import make_msk_population
-    from sim_backends.participant import default_participant
+    from nmsid.sim_backends.msk_participant import default_msk_participant
+    from nmsid.sim_backends.msk_population import make_msk_population
+    from nmsid.sim_backends.participant import default_participant
 
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)

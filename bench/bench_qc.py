@@ -31,12 +31,12 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
-from analysis.identify import identify_session  # noqa: E402
-from analysis.qc import assess_session  # noqa: E402
-from analysis.settings import IdentificationSettings  # noqa: E402
-from protocols.session_file import (Calibration, SessionWriter, Trial,  # noqa: E402
-                                    read_session)
-from testing.sessions import SE_LEVELS, chirp_rE, write_synthetic_session  # noqa: E402
+from nmsid.analysis.identify import identify_session  # noqa: E402
+from nmsid.analysis.qc import assess_session  # noqa: E402
+from nmsid.analysis.settings import IdentificationSettings  # noqa: E402
+from nmsid.protocols.session_file import (Calibration, SessionWriter, Trial,  # noqa: E402
+                                          read_session)
+from nmsid.testing.sessions import SE_LEVELS, chirp_rE, write_synthetic_session  # noqa: E402
 
 FS = 2000.0
 STEADY, CHIRP = 5.0, 10.0

@@ -23,10 +23,10 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
-from analysis.design.candidates import paper_candidate  # noqa: E402
-from analysis.design.validate import simulate_session  # noqa: E402
-from analysis.qc import QCSettings, assess_session  # noqa: E402
-from sim_backends.population import make_population  # noqa: E402
+from nmsid.analysis.design.candidates import paper_candidate  # noqa: E402
+from nmsid.analysis.design.validate import simulate_session  # noqa: E402
+from nmsid.analysis.qc import QCSettings, assess_session  # noqa: E402
+from nmsid.sim_backends.population import make_population  # noqa: E402
 
 SCATTERS = [None, {"Kp": 0.1, "wn_rad_s": 0.05, "zeta": 0.05}, {"wn_rad_s": 0.1},
             {"zeta": 0.1}, {"Kp": 0.2, "wn_rad_s": 0.1, "zeta": 0.1}]
@@ -53,7 +53,7 @@ def main() -> None:
           f"{'excluded (gain+shift only)':>28s}")
     groups = [("template x3", make_population(3, seed=5), SCATTERS)]
     try:
-        from sim_backends.msk_population import make_msk_population  # mujoco extra
+        from nmsid.sim_backends.msk_population import make_msk_population  # mujoco extra
         groups.append(("MuJoCo x3", make_msk_population(3, seed=21), SCATTERS[:2]))
     except ImportError as exc:
         print(f"(musculoskeletal participants unavailable: {exc})")

@@ -23,14 +23,14 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from protocols.config import config_from_dict  # noqa: E402
-from rig.engine import Engine, TripPolicy  # noqa: E402
-from protocols.session_file import read_session, validate_session  # noqa: E402
-from sim_backends import make_sim_rig  # noqa: E402
+from nmsid.protocols.config import config_from_dict  # noqa: E402
+from nmsid.rig.engine import Engine, TripPolicy  # noqa: E402
+from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
+from nmsid.sim_backends import make_sim_rig  # noqa: E402
 
 
 def _one(seed: int, tmp: Path) -> dict:
-    from analysis.identify import identify_session
+    from nmsid.analysis.identify import identify_session
 
     rig = make_sim_rig(seed=seed)
     cfg = config_from_dict({"participant": f"B{seed:02d}", "seed": seed,

@@ -32,13 +32,13 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from protocols.config import config_from_dict  # noqa: E402
-from protocols.session_file import (SessionWriter, read_session,  # noqa: E402
-                                    validate_session)
-from rig.engine import Engine, TripPolicy  # noqa: E402
-from sim_backends import make_sim_rig  # noqa: E402
-from sim_backends.participant import default_participant  # noqa: E402
-from sim_backends.sensor import SensorModel  # noqa: E402
+from nmsid.protocols.config import config_from_dict  # noqa: E402
+from nmsid.protocols.session_file import (SessionWriter, read_session,  # noqa: E402
+                                          validate_session)
+from nmsid.rig.engine import Engine, TripPolicy  # noqa: E402
+from nmsid.sim_backends import make_sim_rig  # noqa: E402
+from nmsid.sim_backends.participant import default_participant  # noqa: E402
+from nmsid.sim_backends.sensor import SensorModel  # noqa: E402
 
 KEYS = ("rE", "I_ext_mA", "I_flex_mA", "force_N", "wrench", "sync")
 
@@ -142,7 +142,7 @@ def files(tmp: Path) -> Path:
 
 def nwb(src: Path, tmp: Path) -> None:
     try:
-        from export.nwb import export_nwb, inspect_nwb
+        from nmsid.export.nwb import export_nwb, inspect_nwb
         import pynwb  # noqa: F401
     except ImportError as exc:
         print(f"NWB export skipped: {exc}")

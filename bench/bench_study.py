@@ -32,9 +32,9 @@ for p in (ROOT, HERE):
     if str(p) not in sys.path:
         sys.path.insert(0, str(p))
 
-from study.config import StudyConfig  # noqa: E402
-from study.runner import run_study  # noqa: E402
-from testing.sessions import write_synthetic_session  # noqa: E402
+from nmsid.study.config import StudyConfig  # noqa: E402
+from nmsid.study.runner import run_study  # noqa: E402
+from nmsid.testing.sessions import write_synthetic_session  # noqa: E402
 
 N_SESSIONS = 40
 GAP_SUBSET = 4

@@ -22,11 +22,11 @@ import dataclasses
 import numpy as np
 from scipy import signal
 
-from analysis.discretize import fractional_delay
-from protocols.config import Randomisation
-from protocols.schedule import make_schedule
-from protocols.session_file import SessionWriter, Trial
-from protocols.waveforms import chirp_phase_rad
+from nmsid.analysis.discretize import fractional_delay
+from nmsid.protocols.config import Randomisation
+from nmsid.protocols.schedule import make_schedule
+from nmsid.protocols.session_file import SessionWriter, Trial
+from nmsid.protocols.waveforms import chirp_phase_rad
 
 FS_HZ = 2000.0
 STEADY_S = 5.0
@@ -160,8 +160,8 @@ class Generator:
 
 def simulate(participant, path, kind: str, seed: int) -> Generator:
     """Write one session of ``kind`` (see module) to ``path``; returns its generator."""
-    from sim_backends.sensor import SensorModel
-    from sim_backends.simulation import ParticipantSimulator
+    from nmsid.sim_backends.sensor import SensorModel
+    from nmsid.sim_backends.simulation import ParticipantSimulator
 
     gen = Generator(kind, seed)
     sensor = dataclasses.replace(participant.sensor, noise_N=gen.noise_N)

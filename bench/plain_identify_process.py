@@ -22,9 +22,9 @@ from scipy.signal import cont2discrete, lfilter
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from analysis.preprocess import preprocess_trials  # noqa: E402
-from analysis.settings import IdentificationSettings  # noqa: E402
-from protocols.session_file import read_session  # noqa: E402
+from nmsid.analysis.preprocess import preprocess_trials  # noqa: E402
+from nmsid.analysis.settings import IdentificationSettings  # noqa: E402
+from nmsid.protocols.session_file import read_session  # noqa: E402
 
 
 def plain_fit(u: np.ndarray, y: np.ndarray, fs_Hz: float) -> np.ndarray:

@@ -15,7 +15,7 @@ clock of 500 us (2000 Hz); with ``triggered=True`` conversion starts on the risi
 the stimulator's sync output wired to the external start-trigger input, so sample 0 is
 stimulation onset. Reads are chunked by what :func:`AioGetAiSamplingCount` reports.
 
-Status bits -> :class:`~drivers.interfaces.AcquisitionFlags`: ``AIS_OFERR`` (FIFO
+Status bits -> :class:`~nmsid.drivers.interfaces.AcquisitionFlags`: ``AIS_OFERR`` (FIFO
 overflow, samples lost) and ``AIS_SCERR`` (sampling clock error: conversions missed)
 -> ``overrun``; ``AIS_AIERR`` (A/D conversion error) and ``AIS_DRVERR`` -> ``sensor_fault``;
 a sensor voltage at the edge of the range -> ``over_range``. A failed vendor call during a
@@ -32,9 +32,9 @@ from ctypes import POINTER, c_char_p, c_float, c_long, c_short
 
 import numpy as np
 
-from drivers.analog_force import AnalogCalibration, convert_block
-from drivers.errors import DeviceError, DeviceNotFound, VendorLibraryMissing
-from drivers.interfaces import AcquisitionFlags, ForceChunk
+from nmsid.drivers.analog_force import AnalogCalibration, convert_block
+from nmsid.drivers.errors import DeviceError, DeviceNotFound, VendorLibraryMissing
+from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +112,7 @@ def declare(lib) -> object:
 
 
 class CaioAcquisition:
-    """:class:`~drivers.interfaces.ForceAcquisition` over a Contec AI-1608AY-USB.
+    """:class:`~nmsid.drivers.interfaces.ForceAcquisition` over a Contec AI-1608AY-USB.
 
     Parameters
     ----------

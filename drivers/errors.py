@@ -7,7 +7,7 @@ the device, setting or library and say what would be valid or how to fix it.
 
 from __future__ import annotations
 
-from drivers.interfaces import CurrentLimitError
+from nmsid.drivers.interfaces import CurrentLimitError
 
 
 class VendorLibraryMissing(ImportError):

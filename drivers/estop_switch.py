@@ -22,9 +22,9 @@ import logging
 import threading
 import time
 
-from drivers.errors import DeviceNotFound
-from drivers.leptrino import _serial_module
-from drivers.nidaq import load_nidaqmx
+from nmsid.drivers.errors import DeviceNotFound
+from nmsid.drivers.leptrino import _serial_module
+from nmsid.drivers.nidaq import load_nidaqmx
 
 log = logging.getLogger(__name__)
 

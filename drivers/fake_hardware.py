@@ -14,7 +14,7 @@ import os
 from types import ModuleType
 
 #: The package that holds the fakes.
-PACKAGE = "testing.fakes"
+PACKAGE = "nmsid.testing.fakes"
 
 
 def fake_requested(config_says: bool = False) -> bool:

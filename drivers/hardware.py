@@ -18,20 +18,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.caio import CaioAcquisition, declare
-from drivers.estop_switch import NidaqEStop, SerialEStop
-from drivers.fake_hardware import fake_requested, load_fake
-from drivers.hw_config import HardwareConfig, load_hw_config
-from drivers.interfaces import RealClock, RigDevices
-from drivers.leptrino import LeptrinoAcquisition, LeptrinoSensor, _serial_module
-from drivers.nidaq import NidaqAcquisition
-from drivers.stg4002 import DEFAULT_DLL, Stg4002Stimulator
+from nmsid.drivers.caio import CaioAcquisition, declare
+from nmsid.drivers.estop_switch import NidaqEStop, SerialEStop
+from nmsid.drivers.fake_hardware import fake_requested, load_fake
+from nmsid.drivers.hw_config import HardwareConfig, load_hw_config
+from nmsid.drivers.interfaces import RealClock, RigDevices
+from nmsid.drivers.leptrino import LeptrinoAcquisition, LeptrinoSensor, _serial_module
+from nmsid.drivers.nidaq import NidaqAcquisition
+from nmsid.drivers.stg4002 import DEFAULT_DLL, Stg4002Stimulator
 
 log = logging.getLogger(__name__)
 
 
 class BenchClock:
-    """The fake bench's clock as a :class:`drivers.interfaces.Clock` (fake mode only)."""
+    """The fake bench's clock as a :class:`nmsid.drivers.interfaces.Clock` (fake mode only)."""
 
     def __init__(self, bench):
         self.bench = bench

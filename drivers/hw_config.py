@@ -1,7 +1,7 @@
 """The hardware configuration file (TOML): which devices, channels, calibration, ceilings.
 
 Every setting is validated before any device is touched; a bad one raises
-:class:`~drivers.errors.HardwareConfigError` naming the file, the setting (dotted path),
+:class:`~nmsid.drivers.errors.HardwareConfigError` naming the file, the setting (dotted path),
 the value and what would be valid. Unknown settings are refused too (a typo must not
 silently fall back to a default). ``docs/hw-config.example.toml`` is a complete example;
 ``docs/hardware.md`` explains each table.
@@ -14,10 +14,10 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from drivers.analog_force import AXES, AnalogCalibration
-from drivers.caio import INPUT_METHODS, RANGES_V
-from drivers.errors import HardwareConfigError
-from drivers.nidaq import TERMINAL_CONFIGS
+from nmsid.drivers.analog_force import AXES, AnalogCalibration
+from nmsid.drivers.caio import INPUT_METHODS, RANGES_V
+from nmsid.drivers.errors import HardwareConfigError
+from nmsid.drivers.nidaq import TERMINAL_CONFIGS
 
 LEPTRINO_MAX_RATE_HZ = 1200.0
 """What the Leptrino USB interface streams at (vendor sample: "maximum 1.2 kHz")."""

@@ -1,8 +1,8 @@
 """Leptrino 6-axis force sensor on its USB (virtual COM port) interface, via pyserial.
 
-:class:`LeptrinoSensor` speaks the command protocol of :mod:`drivers.leptrino_protocol`
+:class:`LeptrinoSensor` speaks the command protocol of :mod:`nmsid.drivers.leptrino_protocol`
 (product information, rated values, start / stop continuous output) over a serial port;
-:class:`LeptrinoAcquisition` wraps it as a :class:`drivers.interfaces.ForceAcquisition`.
+:class:`LeptrinoAcquisition` wraps it as a :class:`nmsid.drivers.interfaces.ForceAcquisition`.
 
 Rate: the sensor streams at its own fixed rate (about 1.2 kHz for this family; the
 product-information reply states it). :meth:`LeptrinoAcquisition.configure` returns that
@@ -15,14 +15,14 @@ input and sample 0 is the first record whose status has the external-input bit; 
 a triggered start is aligned to the first record after :meth:`start` (host timing: one
 record plus USB latency, logged as a warning).
 
-Faults become :class:`~drivers.interfaces.AcquisitionFlags`: status bits over-rated ->
+Faults become :class:`~nmsid.drivers.interfaces.AcquisitionFlags`: status bits over-rated ->
 ``over_range``, sensor fault / ROM error -> ``sensor_fault``; frames lost to corruption ->
 ``overrun`` (a sample is missing, the time base would shift); a serial-port error
 (cable pulled out) -> ``sensor_fault`` on every later read. A stalled stream returns
 ``None`` and the engine's watchdog trips.
 
 Port settings (460800 baud, 8N1, no flow control) follow Leptrino's sample code, see
-:mod:`drivers.leptrino_protocol` for the sources.
+:mod:`nmsid.drivers.leptrino_protocol` for the sources.
 """
 
 from __future__ import annotations
@@ -33,9 +33,9 @@ from typing import Callable
 
 import numpy as np
 
-from drivers.errors import DeviceNotFound, ProtocolError, VendorLibraryMissing
-from drivers.interfaces import AcquisitionFlags, ForceChunk
-from drivers.leptrino_protocol import (
+from nmsid.drivers.errors import DeviceNotFound, ProtocolError, VendorLibraryMissing
+from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
+from nmsid.drivers.leptrino_protocol import (
     DATA_RECORD_LEN, RAW_AT_RATED, Command, Corrupt, DataRecord, Frame, FrameDecoder, Nak, ProductInfo,
     Result, Status, encode_command, parse_data_record, parse_product_info,
     parse_rated_values)
@@ -224,7 +224,7 @@ class LeptrinoSensor:
 
 
 class LeptrinoAcquisition:
-    """:class:`~drivers.interfaces.ForceAcquisition` over a Leptrino USB sensor."""
+    """:class:`~nmsid.drivers.interfaces.ForceAcquisition` over a Leptrino USB sensor."""
 
     def __init__(self, sensor: LeptrinoSensor, *,
                  extension_direction=(1.0, 0.0, 0.0), sync_on_external_input: bool = False):

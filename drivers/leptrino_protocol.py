@@ -2,7 +2,7 @@
 
 Pure byte handling, no I/O: :func:`encode_frame` builds a frame to send and
 :class:`FrameDecoder` turns a byte stream (fed in arbitrary pieces, garbage included) into
-frames, NAKs and corruption reports. :mod:`drivers.leptrino` does the I/O.
+frames, NAKs and corruption reports. :mod:`nmsid.drivers.leptrino` does the I/O.
 
 Frame (both directions)::
 

@@ -28,9 +28,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from drivers.analog_force import AnalogCalibration, convert_block
-from drivers.errors import DeviceError, DeviceNotFound, VendorLibraryMissing
-from drivers.interfaces import AcquisitionFlags, ForceChunk
+from nmsid.drivers.analog_force import AnalogCalibration, convert_block
+from nmsid.drivers.errors import DeviceError, DeviceNotFound, VendorLibraryMissing
+from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +54,7 @@ def load_nidaqmx() -> SimpleNamespace:
 
 
 class NidaqAcquisition:
-    """:class:`~drivers.interfaces.ForceAcquisition` over an NI DAQmx device.
+    """:class:`~nmsid.drivers.interfaces.ForceAcquisition` over an NI DAQmx device.
 
     Parameters
     ----------

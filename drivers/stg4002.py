@@ -51,12 +51,12 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from drivers.errors import (DeviceError, DeviceNotFound, DeviceRangeError,
-                            VendorLibraryMissing)
-from drivers.interfaces import (CheckedWaveform, CurrentLimitError,
-                                StimulatorCapabilities, StimulatorState, StimulatorStatus)
-from drivers.stg_waveform import (NA_PER_MA, RenderedChannel, check_rendered, compress,
-                                  output_tick_us, render_channel)
+from nmsid.drivers.errors import (DeviceError, DeviceNotFound, DeviceRangeError,
+                                  VendorLibraryMissing)
+from nmsid.drivers.interfaces import (CheckedWaveform, CurrentLimitError,
+                                      StimulatorCapabilities, StimulatorState, StimulatorStatus)
+from nmsid.drivers.stg_waveform import (NA_PER_MA, RenderedChannel, check_rendered, compress,
+                                        output_tick_us, render_channel)
 
 log = logging.getLogger(__name__)
 
@@ -115,7 +115,7 @@ def list_stg_devices(api: SimpleNamespace) -> list[StgDeviceInfo]:
 
 
 class Stg4002Stimulator:
-    """:class:`~drivers.interfaces.Stimulator` for an MCS STG4002 in download mode.
+    """:class:`~nmsid.drivers.interfaces.Stimulator` for an MCS STG4002 in download mode.
 
     Parameters
     ----------

@@ -8,7 +8,7 @@ ceiling before anything is sent.
 Rendering: the carrier is ``sin(2 pi f_c t)`` starting at phase 0 at onset; the envelope
 is held (zero-order hold) over each of its samples, which keeps every rendered amplitude
 at or below an envelope sample, so the ceiling proven by
-:class:`~drivers.interfaces.CheckedWaveform` still holds. Values are quantised to the
+:class:`~nmsid.drivers.interfaces.CheckedWaveform` still holds. Values are quantised to the
 device's current resolution *toward zero* (rounding could step one resolution above the
 ceiling). Consecutive equal values are merged into one longer step (the download format is
 value + duration), and a final 0 nA step is appended because the STG keeps the last value
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.interfaces import CurrentLimitError
+from nmsid.drivers.interfaces import CurrentLimitError
 
 NA_PER_MA = 1_000_000
 

@@ -40,8 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-from export.errors import ExportError
-from protocols.session_file import Session, read_session
+from nmsid.export.errors import ExportError
+from nmsid.protocols.session_file import Session, read_session
 
 CALIBRATION_FIELDS = ("Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA", "Fmin_N", "Fmax_N")
 

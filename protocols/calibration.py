@@ -23,9 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from protocols.config import CalibrationConfig, ManualCurrents
-from protocols.errors import CalibrationError
-from protocols.session_file import Calibration
+from nmsid.protocols.config import CalibrationConfig, ManualCurrents
+from nmsid.protocols.errors import CalibrationError
+from nmsid.protocols.session_file import Calibration
 
 
 class Muscle(enum.Enum):
@@ -138,7 +138,7 @@ def require_thresholds(currents_mA, forces_N, muscle: Muscle, cfg: CalibrationCo
 
 def make_calibration(ext: tuple[float, float], flex: tuple[float, float],
                      cfg: CalibrationConfig, ramps: dict | None = None):
-    """A :class:`protocols.session_file.Calibration` from (Imin, Imax) per muscle."""
+    """A :class:`nmsid.protocols.session_file.Calibration` from (Imin, Imax) per muscle."""
     cal = Calibration(Iemin_mA=float(ext[0]), Iemax_mA=float(ext[1]),
                       Ifmin_mA=float(flex[0]), Ifmax_mA=float(flex[1]),
                       Fmin_N=cfg.Fmin_N, Fmax_N=cfg.Fmax_N, ramps=dict(ramps or {}))

@@ -68,7 +68,7 @@ import tomllib
 from dataclasses import dataclass, field
 from typing import Any
 
-from protocols.errors import ConfigError
+from nmsid.protocols.errors import ConfigError
 
 PARTICIPANT_PATTERN = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 PARTICIPANT_MODELS = ("template", "musculoskeletal")

@@ -20,8 +20,8 @@ from typing import Iterable
 
 import numpy as np
 
-from protocols.config import Randomisation
-from protocols.errors import ScheduleError
+from nmsid.protocols.config import Randomisation
+from nmsid.protocols.errors import ScheduleError
 
 
 class TrialStatus(enum.Enum):

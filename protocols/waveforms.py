@@ -32,7 +32,7 @@ import numpy as np
 
 import json
 
-from protocols.config import InputKind, ProtocolConfig
+from nmsid.protocols.config import InputKind, ProtocolConfig
 
 
 def chirp_phase_rad(t_s, f0_Hz: float, f1_Hz: float, T_s: float) -> np.ndarray:

@@ -1,8 +1,8 @@
 """The protocol engine: runs calibration and the trial schedule on a rig, safely, logged.
 
-The engine executes the pure protocols (:mod:`protocols`) through the device interfaces
-(:mod:`drivers.interfaces`). Every waveform passes :func:`rig.safety.check_waveform`;
-every output start passes the :class:`rig.safety.Interlock` gate; every trip stops output
+The engine executes the pure protocols (:mod:`nmsid.protocols`) through the device interfaces
+(:mod:`nmsid.drivers.interfaces`). Every waveform passes :func:`nmsid.rig.safety.check_waveform`;
+every output start passes the :class:`nmsid.rig.safety.Interlock` gate; every trip stops output
 first, in the tripping thread. Every trial is written through :class:`rig.session_log.
 SessionLog` (journal first, then HDF5).
 
@@ -25,19 +25,19 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.interfaces import RigDevices
-from protocols.config import Config, ConfigError, PausePolicy, config_from_json
-from protocols.schedule import (PlannedTrial, TrialStatus, make_schedule, schedule_from_json,
-                                schedule_to_json)
-from protocols.waveforms import input_attrs, trial_waveform
-from rig.engine_calibration import CalibrationSteps
-from rig.observer import (RERUN_WAIT_PREFIX, EngineObserver, RunSummary, TripPolicy,
-                          is_rerun_wait, rerun_wait_reason)
-from rig.safety import Interlock, InterlockTripped, Trip, check_waveform
-from protocols.session_file import Calibration, SessionExistsError, Trial, utc_now
-from rig.session_log import SessionLog, journal_dir, load_trial_npz, utc_now_ms
-from rig.states import State, StateMachine
-from rig.stimulation import BlockResult, run_block
+from nmsid.drivers.interfaces import RigDevices
+from nmsid.protocols.config import Config, ConfigError, PausePolicy, config_from_json
+from nmsid.protocols.schedule import (PlannedTrial, TrialStatus, make_schedule, schedule_from_json,
+                                      schedule_to_json)
+from nmsid.protocols.waveforms import input_attrs, trial_waveform
+from nmsid.rig.engine_calibration import CalibrationSteps
+from nmsid.rig.observer import (RERUN_WAIT_PREFIX, EngineObserver, RunSummary, TripPolicy,
+                                is_rerun_wait, rerun_wait_reason)
+from nmsid.rig.safety import Interlock, InterlockTripped, Trip, check_waveform
+from nmsid.protocols.session_file import Calibration, SessionExistsError, Trial, utc_now
+from nmsid.rig.session_log import SessionLog, journal_dir, load_trial_npz, utc_now_ms
+from nmsid.rig.states import State, StateMachine
+from nmsid.rig.stimulation import BlockResult, run_block
 
 __all__ = ["Engine", "EngineObserver", "RunSummary", "TripPolicy", "RERUN_WAIT_PREFIX",
            "is_rerun_wait", "rerun_wait_reason"]
@@ -467,7 +467,7 @@ class Engine(CalibrationSteps):
     # -- stimulation of one block (a calibration step or a trial) ------------------------
     def _stimulate(self, checked, *, n: int, on_samples=None, watch_commands: bool = False
                    ) -> BlockResult:
-        """Run one block (:func:`rig.stimulation.run_block`); operator commands stop it."""
+        """Run one block (:func:`nmsid.rig.stimulation.run_block`); operator commands stop it."""
 
         def should_stop() -> str:
             self._poll()

@@ -1,20 +1,20 @@
 """Calibration as the engine runs it: manual, ramps, or the operator's confirmation.
 
-A mixin of :class:`rig.engine.Engine` (it uses the engine's state machine, interlock,
+A mixin of :class:`nmsid.rig.engine.Engine` (it uses the engine's state machine, interlock,
 journal and command flags); the pure parts (ramp plans, threshold detection) live in
-:mod:`protocols.calibration`.
+:mod:`nmsid.protocols.calibration`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from protocols.calibration import (Muscle, check_calibration, detect_thresholds,
-                                   make_calibration, manual_calibration, ramp_currents_mA,
-                                   require_thresholds, settled_mean_N, step_envelopes)
-from protocols.errors import CalibrationError
-from protocols.session_file import Calibration
-from rig.states import State
+from nmsid.protocols.calibration import (Muscle, check_calibration, detect_thresholds,
+                                         make_calibration, manual_calibration, ramp_currents_mA,
+                                         require_thresholds, settled_mean_N, step_envelopes)
+from nmsid.protocols.errors import CalibrationError
+from nmsid.protocols.session_file import Calibration
+from nmsid.rig.states import State
 
 
 class CalibrationSteps:

@@ -1,7 +1,7 @@
 """The write-ahead journal's file layout: ``<file>.journal/`` beside a session file.
 
-See :mod:`rig.session_log` for what each file holds and why. This module only knows how
-to write and read them durably; :mod:`rig.recovery` and :class:`rig.session_log.SessionLog`
+See :mod:`nmsid.rig.session_log` for what each file holds and why. This module only knows how
+to write and read them durably; :mod:`nmsid.rig.recovery` and :class:`nmsid.rig.session_log.SessionLog`
 use it.
 """
 
@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from protocols.session_file import Calibration, Event, SessionFileError, Trial
+from nmsid.protocols.session_file import Calibration, Event, SessionFileError, Trial
 
 PARTIAL_ABORT_REASON = "process ended during trial"
 _TRIAL_FILE = re.compile(r"^trial-(\d{4,})\.npz$")

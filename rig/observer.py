@@ -1,5 +1,5 @@
 """What the engine tells the outside world: the observer interface, the run summary, and
-the policy after a trip. (Re-exported by :mod:`rig.engine`.)"""
+the policy after a trip. (Re-exported by :mod:`nmsid.rig.engine`.)"""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from protocols.schedule import PlannedTrial
-from rig.safety import Trip
-from protocols.session_file import Calibration, Event, Trial
-from rig.states import State
+from nmsid.protocols.schedule import PlannedTrial
+from nmsid.rig.safety import Trip
+from nmsid.protocols.session_file import Calibration, Event, Trial
+from nmsid.rig.states import State
 
 
 class TripPolicy(enum.Enum):

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.journal import (PARTIAL_ABORT_REASON, JournalContents, append_event_line,
-                         fsync_dir, partial_trial, save_trial_npz, journal_dir,
-                         load_trial_npz, read_journal)
-from protocols.session_file import (Event, SessionFileError, SessionWriter, Trial, read_session,
-                              utc_now, validate_session)
+from nmsid.rig.journal import (PARTIAL_ABORT_REASON, JournalContents, append_event_line,
+                               fsync_dir, partial_trial, save_trial_npz, journal_dir,
+                               load_trial_npz, read_journal)
+from nmsid.protocols.session_file import (Event, SessionFileError, SessionWriter, Trial, read_session,
+                                          utc_now, validate_session)
 
 log = logging.getLogger(__name__)
 

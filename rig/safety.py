@@ -1,7 +1,7 @@
 """The safety interlock, independent of the protocol code.
 
 * :func:`check_waveform` is the only way to build the
-  :class:`drivers.interfaces.CheckedWaveform` a stimulator accepts: the envelopes are
+  :class:`nmsid.drivers.interfaces.CheckedWaveform` a stimulator accepts: the envelopes are
   checked against ``min(protocol ceiling, device maximum)`` per channel, so a waveform
   above its ceiling cannot reach a stimulator.
 * Rule objects watch the force stream, the acquisition flags, the stimulator status and
@@ -23,8 +23,8 @@ from typing import Callable
 
 import numpy as np
 
-from drivers.interfaces import (CheckedWaveform, CurrentLimitError, ForceChunk,
-                                StimulatorState, StimulatorStatus)
+from nmsid.drivers.interfaces import (CheckedWaveform, CurrentLimitError, ForceChunk,
+                                      StimulatorState, StimulatorStatus)
 
 log = logging.getLogger(__name__)
 

@@ -2,7 +2,7 @@
 
 HDF5 can be left unreadable if the process dies in the middle of a write, so every item is
 first made durable in a journal directory ``<file>.journal/`` and only then appended to
-the HDF5 file (through :mod:`protocols.session_file`, which this module does not change):
+the HDF5 file (through :mod:`nmsid.protocols.session_file`, which this module does not change):
 
 ``header.json``
     participant, created_utc, software, config_json, seed, backend, schedule_json
@@ -36,15 +36,15 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.journal import (PARTIAL_ABORT_REASON, PARTIAL_COLUMNS, JournalContents,  # noqa: F401
-                         trial_digest, fsync_dir, json_default, save_calibration,
-                         save_trial_npz, write_durable, journal_dir, load_trial_npz,
-                         read_journal, trial_meta, utc_now_ms)
-from rig.recovery import (RecoveryReport, create_from_header, read_fully,  # noqa: F401
-                          unique_aside, recover)
-from protocols.session_file import (Calibration, Event, SessionExistsError, SessionFileError,
-                              SessionWriter, Trial, read_session, software_id, utc_now,
-                              validate_session)
+from nmsid.rig.journal import (PARTIAL_ABORT_REASON, PARTIAL_COLUMNS, JournalContents,  # noqa: F401
+                               trial_digest, fsync_dir, json_default, save_calibration,
+                               save_trial_npz, write_durable, journal_dir, load_trial_npz,
+                               read_journal, trial_meta, utc_now_ms)
+from nmsid.rig.recovery import (RecoveryReport, create_from_header, read_fully,  # noqa: F401
+                                unique_aside, recover)
+from nmsid.protocols.session_file import (Calibration, Event, SessionExistsError, SessionFileError,
+                                          SessionWriter, Trial, read_session, software_id, utc_now,
+                                          validate_session)
 
 log = logging.getLogger(__name__)
 

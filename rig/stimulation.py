@@ -16,7 +16,7 @@ from typing import Callable
 
 import numpy as np
 
-from rig.safety import Interlock, InterlockTripped
+from nmsid.rig.safety import Interlock, InterlockTripped
 
 log = logging.getLogger(__name__)
 

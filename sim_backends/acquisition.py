@@ -6,9 +6,9 @@ import time
 
 import numpy as np
 
-from drivers.interfaces import ForceChunk
-from sim_backends.errors import DeviceStateError, SimConfigError
-from sim_backends.world import SimWorld
+from nmsid.drivers.interfaces import ForceChunk
+from nmsid.sim_backends.errors import DeviceStateError, SimConfigError
+from nmsid.sim_backends.world import SimWorld
 
 #: Largest real-time wait slice while a read blocks (keeps reads responsive).
 _WAIT_SLICE_S = 0.005

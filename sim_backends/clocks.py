@@ -12,7 +12,7 @@ from __future__ import annotations
 import threading
 import time
 
-from drivers.interfaces import RealClock
+from nmsid.drivers.interfaces import RealClock
 
 
 class FastClock:

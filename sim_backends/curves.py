@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim_backends.errors import SimConfigError
+from nmsid.sim_backends.errors import SimConfigError
 
 
 class CurveModel(enum.Enum):

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.interfaces import CheckedWaveform
+from nmsid.drivers.interfaces import CheckedWaveform
 
 FS_HZ = 2000.0
 

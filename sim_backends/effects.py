@@ -23,7 +23,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from sim_backends.errors import SimConfigError
+from nmsid.sim_backends.errors import SimConfigError
 
 
 def _positive(name: str, value: float, *, allow_zero: bool = False, upper: float | None = None

@@ -7,7 +7,7 @@ a user mistake into one line.
 
 from __future__ import annotations
 
-from drivers.errors import DeviceError
+from nmsid.drivers.errors import DeviceError
 
 
 class SimConfigError(ValueError):

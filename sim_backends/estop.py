@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from sim_backends.world import SimWorld
+from nmsid.sim_backends.world import SimWorld
 
 
 class SimEStop:

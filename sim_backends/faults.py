@@ -26,7 +26,7 @@ import enum
 import math
 from dataclasses import dataclass, field
 
-from sim_backends.errors import SimConfigError
+from nmsid.sim_backends.errors import SimConfigError
 
 
 class FaultKind(enum.Enum):
@@ -47,10 +47,10 @@ class FaultKind(enum.Enum):
     """``amplitude_N`` is added to the reading for ``duration_s`` (default 2 ms)."""
     STIM_DISCONNECT = "stim_disconnect"
     """The stimulator is lost: output zero from then on, status ERROR, load / arm / start
-    raise :class:`~sim_backends.errors.StimulatorDisconnected` until ``connect()``."""
+    raise :class:`~nmsid.sim_backends.errors.StimulatorDisconnected` until ``connect()``."""
     STIM_ERROR = "stim_error"
     """The stimulator reports an error: output zero, status ERROR, load / arm / start raise
-    :class:`~sim_backends.errors.StimulatorFault` until ``connect()``."""
+    :class:`~nmsid.sim_backends.errors.StimulatorFault` until ``connect()``."""
     ESTOP = "estop"
     """The hardware E-stop switch is pressed (and stays pressed until released)."""
 

@@ -10,7 +10,7 @@ here only); :func:`configure` returns a private copy set up for one participant:
   a step about 25 % cheaper);
 * the fixture as the elbow joint's spring (``stiffness``; ``springref`` set so that the
   relaxed forearm, with the muscles' passive force, rests at the fixture angle: the
-  strap's preload) and damping (:class:`~sim_backends.msk_physics.FixtureMount`);
+  strap's preload) and damping (:class:`~nmsid.sim_backends.msk_physics.FixtureMount`);
 * each muscle's activation and deactivation time constants (MuJoCo's muscle activation
   dynamics, ``dynprm[0:2]``); force-length-velocity and passive force are the model's own;
 * one extra actuator on the elbow (added with ``mujoco.MjSpec`` when the model is
@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim_backends.errors import SimConfigError
-from sim_backends.msk_physics import MUSCLES, CoactivationStiffness, FixtureMount
+from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.msk_physics import MUSCLES, CoactivationStiffness, FixtureMount
 
 MODEL_NAME = "myoelbow"
 STIFFNESS_ACTUATOR = "coactivation_stiffness"

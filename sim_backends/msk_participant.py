@@ -1,6 +1,6 @@
 """A musculoskeletal virtual participant: MyoSuite's elbow model in MuJoCo under FES.
 
-Same role and interface as :class:`sim_backends.participant.VirtualParticipant` (``code``,
+Same role and interface as :class:`nmsid.sim_backends.participant.VirtualParticipant` (``code``,
 ``seed``, ``sensor``, ``true_parameters``, ``effect_truth``, ``ramp_calibration``; the
 rig gets its simulator from :meth:`MskParticipant.make_simulator`), but the physics is
 not the paper's model:
@@ -10,16 +10,16 @@ not the paper's model:
   2 kHz sample;
 * two electrodes recruiting the triceps heads / biceps heads and brachialis along
   sigmoid recruitment curves with thresholds, saturation and spill-over
-  (:mod:`sim_backends.msk_physics`);
+  (:mod:`nmsid.sim_backends.msk_physics`);
 * short-range stiffness growing with co-activation (absent from Hill-type models);
 * the forearm on a compliant isometric mount (strap, tissue, sensor), gravity carried by
   the fixture, the template participant's sensor chain;
 * optional muscle fatigue.
 
 Its ground truth is the best second-order description of its noise-free response per sE
-(:mod:`sim_backends.msk_truth`): :meth:`MskParticipant.second_order_truth` gives Kp, wn,
+(:mod:`nmsid.sim_backends.msk_truth`): :meth:`MskParticipant.second_order_truth` gives Kp, wn,
 zeta and the fit % a second-order model reaches; :meth:`true_parameters` the first three
-as a :class:`~sim_backends.participant.TrueParameters`, as the template participant does.
+as a :class:`~nmsid.sim_backends.participant.TrueParameters`, as the template participant does.
 
 Examples
 --------
@@ -37,16 +37,16 @@ from functools import lru_cache
 
 import numpy as np
 
-from protocols.calibration import (Muscle, make_calibration, ramp_currents_mA,
-                                   require_thresholds, settled_mean_N, step_envelopes)
-from protocols.config import CalibrationConfig, ProtocolConfig
-from sim_backends.errors import SimConfigError
-from sim_backends.msk_physics import (MUSCLES, CoactivationStiffness, FixtureMount,
-                                      MuscleDrive, MuscleFatigue, default_drives)
-from sim_backends.msk_simulation import MskSimulator
-from sim_backends.msk_truth import SecondOrderTruth, second_order_truth
-from sim_backends.participant import TrueParameters
-from sim_backends.sensor import SensorModel
+from nmsid.protocols.calibration import (Muscle, make_calibration, ramp_currents_mA,
+                                         require_thresholds, settled_mean_N, step_envelopes)
+from nmsid.protocols.config import CalibrationConfig, ProtocolConfig
+from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.msk_physics import (MUSCLES, CoactivationStiffness, FixtureMount,
+                                            MuscleDrive, MuscleFatigue, default_drives)
+from nmsid.sim_backends.msk_simulation import MskSimulator
+from nmsid.sim_backends.msk_truth import SecondOrderTruth, second_order_truth
+from nmsid.sim_backends.participant import TrueParameters
+from nmsid.sim_backends.sensor import SensorModel
 
 MODEL_KIND = "musculoskeletal"
 """The value of ``[participant] model`` / ``--participant-model`` that selects it."""
@@ -110,7 +110,7 @@ class MskParticipant:
 
     # -- the rig -------------------------------------------------------------------------
     def make_simulator(self, fs_Hz: float) -> MskSimulator:
-        """The stateful simulator :class:`sim_backends.world.SimWorld` drives."""
+        """The stateful simulator :class:`nmsid.sim_backends.world.SimWorld` drives."""
         return MskSimulator(self, fs_Hz)
 
     # -- what a calibration ramp finds ---------------------------------------------------
@@ -214,6 +214,6 @@ def _ramp_calibration(p: MskParticipant, c: CalibrationConfig, fs_Hz: float):
 
 
 def default_msk_participant(seed: int = 0, **changes) -> MskParticipant:
-    """The population's centre (:mod:`sim_backends.msk_population`) with ``seed`` for its
+    """The population's centre (:mod:`nmsid.sim_backends.msk_population`) with ``seed`` for its
     sensor noise; ``changes`` replace fields."""
     return replace(MskParticipant(seed=int(seed)), **changes)

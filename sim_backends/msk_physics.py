@@ -1,10 +1,10 @@
 """What turns MuJoCo's elbow model into an FES experiment: electrodes, fixture, fatigue.
 
-The musculoskeletal participant (:mod:`sim_backends.msk_participant`) drives the six
+The musculoskeletal participant (:mod:`nmsid.sim_backends.msk_participant`) drives the six
 muscles of MyoSuite's ``myoelbow_1dof6muscles`` (TRIlong, TRIlat, TRImed: extensors;
 BIClong, BICshort, BRA: flexors) through two surface electrodes. Every setting here is a
 plain frozen dataclass, validated on construction, drawn per participant by
-:mod:`sim_backends.msk_population`; the defaults are the population's centre.
+:mod:`nmsid.sim_backends.msk_population`; the defaults are the population's centre.
 
 * :class:`Recruitment`: the fraction of one muscle's fibres an electrode recruits, a
   sigmoid in current with a threshold and a saturation (Crago, Peckham & Thrope 1980,
@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim_backends.errors import SimConfigError
+from nmsid.sim_backends.errors import SimConfigError
 
 EXTENSORS = ("TRIlong", "TRIlat", "TRImed")
 FLEXORS = ("BIClong", "BICshort", "BRA")

@@ -3,7 +3,7 @@
 Each participant is the same MyoSuite elbow (``myoelbow_1dof6muscles``) with its own
 electrodes, fixture, muscle time constants, fatigue and sensor chain, drawn from ranges
 taken from the FES literature (each range is documented on its dataclass in
-:mod:`sim_backends.msk_physics` / :mod:`sim_backends.msk_participant`):
+:mod:`nmsid.sim_backends.msk_physics` / :mod:`nmsid.sim_backends.msk_participant`):
 
 * recruitment per muscle (Crago et al. 1980; Durfee & MacLean 1989): motor threshold
   1-3 mA, sigmoid midpoint 4.5-7.5 mA above it, width 1-2.2 mA, reach (fraction of the
@@ -18,12 +18,12 @@ taken from the FES literature (each range is documented on its dataclass in
 * activation / deactivation time constants 20-40 ms / 1.5-2.5 times that (electrically
   elicited twitches are slower than voluntary activation: Zajac 1989);
 * co-activation stiffness (short-range stiffness) ``gamma`` 4-12, damping 0.01-0.03 s per
-  unit stiffness (:class:`~sim_backends.msk_physics.CoactivationStiffness`);
+  unit stiffness (:class:`~nmsid.sim_backends.msk_physics.CoactivationStiffness`);
 * fatigue only with ``fatigue=True``: time constant 60-240 s under full recruitment,
   recovery 60-300 s, 30-60 % of force left when exhausted (Riener et al. 1996; Ding et al.
   2000); without it the population's truth is the unfatigued participant;
 * sensor noise, offset, drift and mains as the template population
-  (:func:`sim_backends.population.draw_sensor`).
+  (:func:`nmsid.sim_backends.population.draw_sensor`).
 
 Examples
 --------
@@ -38,11 +38,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim_backends.errors import SimConfigError
-from sim_backends.msk_participant import MskParticipant
-from sim_backends.msk_physics import (EXTENSORS, MUSCLES, CoactivationStiffness,
-                                      FixtureMount, MuscleDrive, MuscleFatigue, Recruitment)
-from sim_backends.population import draw_sensor
+from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.msk_participant import MskParticipant
+from nmsid.sim_backends.msk_physics import (EXTENSORS, MUSCLES, CoactivationStiffness,
+                                            FixtureMount, MuscleDrive, MuscleFatigue, Recruitment)
+from nmsid.sim_backends.population import draw_sensor
 
 REACH = {"TRIlong": (0.08, 0.14), "TRIlat": (0.10, 0.16), "TRImed": (0.06, 0.12),
          "BIClong": (0.08, 0.16), "BICshort": (0.08, 0.16), "BRA": (0.03, 0.08)}

@@ -2,16 +2,16 @@
 
 :class:`MskSimulator` has the interface of :class:`sim_backends.simulation.
 ParticipantSimulator` (``simulate``, ``advance_quiet``, ``snapshot`` / ``restore``,
-``cursor``, ``cumulative_stim_s``), so :class:`sim_backends.world.SimWorld` - hence the
+``cursor``, ``cumulative_stim_s``), so :class:`nmsid.sim_backends.world.SimWorld` - hence the
 stimulator, acquisition, E-stop, fault script, engine and GUI - runs on it unchanged.
 
 Per sample k (absolute index of the rig's time base): the delivered currents give each
-muscle's excitation through its electrodes' recruitment (:mod:`sim_backends.msk_physics`);
+muscle's excitation through its electrodes' recruitment (:mod:`nmsid.sim_backends.msk_physics`);
 MuJoCo integrates activation dynamics, Hill-type muscle forces and the forearm on its
 compliant mount over one timestep; the reading at sample k is the cuff force of the state
 at the start of step k (the stimulator holds sample k over the step, so a current change
 shows from the next sample on, as with the template participant's zero-order hold); the
-sensor chain (:class:`sim_backends.sensor.SensorState`: noise, offset, drift, mains,
+sensor chain (:class:`nmsid.sim_backends.sensor.SensorState`: noise, offset, drift, mains,
 wrench, over-range) is the template participant's, one signal path for both.
 
 Fatigue (when enabled) updates each muscle's force scale on a fixed grid of absolute
@@ -24,16 +24,16 @@ import math
 
 import numpy as np
 
-from sim_backends.msk_model import Stepper, configure
-from sim_backends.sensor import SensorState
-from sim_backends.simulation import QUIET_SKIP_SAMPLES, SimulatedBlock
+from nmsid.sim_backends.msk_model import Stepper, configure
+from nmsid.sim_backends.sensor import SensorState
+from nmsid.sim_backends.simulation import QUIET_SKIP_SAMPLES, SimulatedBlock
 
 QUIET_PIECE_SAMPLES = 2000
 """A rest is simulated in pieces of this many samples until the participant is at rest."""
 
 
 class MskSimulator:
-    """Stateful simulation of one :class:`~sim_backends.msk_participant.MskParticipant`."""
+    """Stateful simulation of one :class:`~nmsid.sim_backends.msk_participant.MskParticipant`."""
 
     def __init__(self, participant, fs_Hz: float = 2000.0):
         self.p = participant
@@ -93,7 +93,7 @@ class MskSimulator:
     def simulate(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray, *,
                  spike_N: np.ndarray | None = None) -> SimulatedBlock:
         """Simulate the next ``len(I_ext_mA)`` samples from the cursor (see
-        :meth:`sim_backends.simulation.ParticipantSimulator.simulate`)."""
+        :meth:`nmsid.sim_backends.simulation.ParticipantSimulator.simulate`)."""
         I_e = np.asarray(I_ext_mA, dtype=float)
         I_f = np.asarray(I_flex_mA, dtype=float)
         n0 = self.cursor

@@ -26,9 +26,9 @@ from functools import lru_cache
 import numpy as np
 from scipy import optimize, signal
 
-from protocols.config import ProtocolConfig
-from protocols.waveforms import trial_waveform
-from sim_backends.msk_simulation import MskSimulator
+from nmsid.protocols.config import ProtocolConfig
+from nmsid.protocols.waveforms import trial_waveform
+from nmsid.sim_backends.msk_simulation import MskSimulator
 
 SAVGOL_WINDOW = 41
 SAVGOL_ORDER = 3

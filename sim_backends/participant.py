@@ -43,12 +43,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from sim_backends.curves import CurveModel, ParameterCurve
-from sim_backends.effects import (EFFECT_TYPES, Fatigue, RecruitmentNonlinearity,
-                                  effects_from_list, effects_to_list)
-from sim_backends.errors import SimConfigError
-from sim_backends.sensor import SensorModel
-from protocols.session_file import Calibration
+from nmsid.sim_backends.curves import CurveModel, ParameterCurve
+from nmsid.sim_backends.effects import (EFFECT_TYPES, Fatigue, RecruitmentNonlinearity,
+                                        effects_from_list, effects_to_list)
+from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.sensor import SensorModel
+from nmsid.protocols.session_file import Calibration
 
 #: A muscle within this much below its Imin still counts as recruited (co-activated
 #: regime): the stimulator's 1 uA quantisation and float rounding in the inversion of
@@ -113,7 +113,7 @@ class ReferenceCalibration:
         return self.Iemin_mA if muscle == "ext" else self.Ifmin_mA
 
     def as_session_calibration(self):
-        """The same currents as a :class:`protocols.session_file.Calibration`."""
+        """The same currents as a :class:`nmsid.protocols.session_file.Calibration`."""
         return Calibration(self.Iemin_mA, self.Iemax_mA, self.Ifmin_mA, self.Ifmax_mA,
                            self.Fmin_N, self.Fmax_N)
 
@@ -152,7 +152,7 @@ class VirtualParticipant:
     sE_range : (float, float)
         Range over which the curves hold; parameters are clipped to it.
     effects : tuple
-        Enabled optional effects (:mod:`sim_backends.effects`), at most one of each name.
+        Enabled optional effects (:mod:`nmsid.sim_backends.effects`), at most one of each name.
     sensor : SensorModel
         The measurement chain.
     seed : int

@@ -2,16 +2,16 @@
 
 ``template``: the paper's second-order model (:func:`sim_backends.participant.
 default_participant`); ``musculoskeletal``: MyoSuite's MuJoCo elbow under FES
-(:func:`sim_backends.msk_participant.default_msk_participant`, needs the ``mujoco``
+(:func:`nmsid.sim_backends.msk_participant.default_msk_participant`, needs the ``mujoco``
 extra). Both take the session's simulation seed for their sensor noise.
 """
 
 from __future__ import annotations
 
-from protocols.config import PARTICIPANT_MODELS
-from sim_backends.errors import SimConfigError
-from sim_backends.msk_participant import default_msk_participant
-from sim_backends.participant import default_participant
+from nmsid.protocols.config import PARTICIPANT_MODELS
+from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.msk_participant import default_msk_participant
+from nmsid.sim_backends.participant import default_participant
 
 
 def participant_for_model(model: str, seed: int = 0):
@@ -20,7 +20,7 @@ def participant_for_model(model: str, seed: int = 0):
     Raises
     ------
     SimConfigError
-        If ``model`` is not one of :data:`protocols.config.PARTICIPANT_MODELS`.
+        If ``model`` is not one of :data:`nmsid.protocols.config.PARTICIPANT_MODELS`.
     """
     if model == "template":
         return default_participant(seed=int(seed))

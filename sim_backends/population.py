@@ -32,10 +32,10 @@ import math
 
 import numpy as np
 
-from sim_backends.curves import CurveModel, ParameterCurve
-from sim_backends.errors import SimConfigError
-from sim_backends.participant import ReferenceCalibration, VirtualParticipant
-from sim_backends.sensor import SensorModel
+from nmsid.sim_backends.curves import CurveModel, ParameterCurve
+from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.participant import ReferenceCalibration, VirtualParticipant
+from nmsid.sim_backends.sensor import SensorModel
 
 SE_LO, SE_HI = 0.30, 1.00
 _GRID = np.linspace(SE_LO, SE_HI, 15)
@@ -116,7 +116,7 @@ def _sensor(rng: np.random.Generator) -> SensorModel:
 
 draw_sensor = _sensor
 """Draw a sensor chain (noise 0.02-0.06 N RMS, offset, drift, mains): shared with the
-musculoskeletal population (:mod:`sim_backends.msk_population`)."""
+musculoskeletal population (:mod:`nmsid.sim_backends.msk_population`)."""
 
 
 def make_participant(rng: np.random.Generator, code: str, seed: int,

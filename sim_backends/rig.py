@@ -4,15 +4,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from drivers.interfaces import RigDevices
-from sim_backends.acquisition import SimForceAcquisition
-from sim_backends.clocks import FastClock, SimRealClock
-from sim_backends.errors import SimConfigError
-from sim_backends.estop import SimEStop
-from sim_backends.faults import Fault, FaultScript
-from sim_backends.participant import VirtualParticipant, default_participant
-from sim_backends.stimulator import SimStimulator
-from sim_backends.world import SimWorld
+from nmsid.drivers.interfaces import RigDevices
+from nmsid.sim_backends.acquisition import SimForceAcquisition
+from nmsid.sim_backends.clocks import FastClock, SimRealClock
+from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.estop import SimEStop
+from nmsid.sim_backends.faults import Fault, FaultScript
+from nmsid.sim_backends.participant import VirtualParticipant, default_participant
+from nmsid.sim_backends.stimulator import SimStimulator
+from nmsid.sim_backends.world import SimWorld
 
 FAST_CHUNK_S = 0.1
 """Chunk length on the fast clock (long chunks: fewer calls, faster sessions)."""
@@ -84,10 +84,10 @@ def make_sim_rig(participant: VirtualParticipant | None = None, *, realtime: boo
     Parameters
     ----------
     participant : VirtualParticipant or MskParticipant, optional
-        Who is on the rig; default :func:`~sim_backends.participant.default_participant`
+        Who is on the rig; default :func:`~nmsid.sim_backends.participant.default_participant`
         with ``seed``. Any participant with ``make_simulator(fs_Hz)``, ``sensor``,
         ``seed`` and ``true_parameters`` works (the musculoskeletal one:
-        :func:`sim_backends.msk_participant.default_msk_participant`).
+        :func:`nmsid.sim_backends.msk_participant.default_msk_participant`).
     realtime : bool
         False: :class:`FastClock` (virtual time, as fast as possible). True: real time.
     faults : FaultScript or list of Fault, optional
@@ -105,7 +105,7 @@ def make_sim_rig(participant: VirtualParticipant | None = None, *, realtime: boo
     Returns
     -------
     SimRig
-        A :class:`drivers.interfaces.RigDevices` with ``backend="sim"``.
+        A :class:`nmsid.drivers.interfaces.RigDevices` with ``backend="sim"``.
 
     Examples
     --------

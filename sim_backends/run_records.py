@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim_backends.faults import Fault
+from nmsid.sim_backends.faults import Fault
 
 
 @dataclass

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim_backends.errors import SimConfigError
+from nmsid.sim_backends.errors import SimConfigError
 
 NOISE_BLOCK = 4096
 """White noise is drawn in blocks of this many samples, each from its own seeded stream,

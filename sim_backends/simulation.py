@@ -19,12 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim_backends.effects import (ActivationDynamics, BaselineDrift, DeadTime, Fatigue,
-                                  FlexorExtensorAsymmetry)
-from sim_backends.filters import DelayLine, StatefulFilter, dynamics_zoh
-from sim_backends.participant import (SE_RESOLUTION, OperatingPoint, VirtualParticipant,
-                                      sensed_sE)
-from sim_backends.sensor import BaselineWander, SensorState
+from nmsid.sim_backends.effects import (ActivationDynamics, BaselineDrift, DeadTime, Fatigue,
+                                        FlexorExtensorAsymmetry)
+from nmsid.sim_backends.filters import DelayLine, StatefulFilter, dynamics_zoh
+from nmsid.sim_backends.participant import (SE_RESOLUTION, OperatingPoint, VirtualParticipant,
+                                            sensed_sE)
+from nmsid.sim_backends.sensor import BaselineWander, SensorState
 
 
 QUIET_SKIP_SAMPLES = 20000
@@ -206,7 +206,7 @@ class ParticipantSimulator:
 def simulator_for(participant, fs_Hz: float):
     """The stateful simulator of a participant: :class:`ParticipantSimulator` for the
     template participant, else the one the participant makes (``make_simulator(fs_Hz)``,
-    e.g. :class:`sim_backends.msk_participant.MskParticipant`)."""
+    e.g. :class:`nmsid.sim_backends.msk_participant.MskParticipant`)."""
     if isinstance(participant, VirtualParticipant):
         return ParticipantSimulator(participant, fs_Hz)
     return participant.make_simulator(fs_Hz)

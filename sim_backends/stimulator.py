@@ -6,13 +6,13 @@ import logging
 
 import numpy as np
 
-from drivers.errors import DeviceRangeError
-from drivers.interfaces import (CheckedWaveform, StimulatorCapabilities, StimulatorState,
-                                StimulatorStatus)
-from sim_backends.errors import (DeviceStateError, SimConfigError, StimulatorDisconnected,
-                                 StimulatorFault)
-from sim_backends.faults import FaultKind
-from sim_backends.world import SimWorld
+from nmsid.drivers.errors import DeviceRangeError
+from nmsid.drivers.interfaces import (CheckedWaveform, StimulatorCapabilities, StimulatorState,
+                                      StimulatorStatus)
+from nmsid.sim_backends.errors import (DeviceStateError, SimConfigError, StimulatorDisconnected,
+                                       StimulatorFault)
+from nmsid.sim_backends.faults import FaultKind
+from nmsid.sim_backends.world import SimWorld
 
 log = logging.getLogger(__name__)
 

@@ -24,11 +24,11 @@ import math
 import os
 from pathlib import Path
 
-from sim_backends.curves import ParameterCurve
-from sim_backends.effects import effects_from_list
-from sim_backends.errors import SimConfigError
-from sim_backends.participant import ReferenceCalibration, VirtualParticipant
-from sim_backends.sensor import SensorModel
+from nmsid.sim_backends.curves import ParameterCurve
+from nmsid.sim_backends.effects import effects_from_list
+from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.participant import ReferenceCalibration, VirtualParticipant
+from nmsid.sim_backends.sensor import SensorModel
 
 log = logging.getLogger(__name__)
 

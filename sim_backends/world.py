@@ -22,13 +22,13 @@ import time
 
 import numpy as np
 
-from drivers.interfaces import AcquisitionFlags
-from sim_backends.errors import DeviceStateError
-from sim_backends.faults import (SENSOR_KINDS, STIM_KINDS, Fault, FaultKind, FaultScript,
-                                 FiredFault)
-from sim_backends.run_records import (AcqRun, OutputZero, RunRecord, StimRun, SimBlock,
-                                      SampleFault)
-from sim_backends.simulation import simulator_for
+from nmsid.drivers.interfaces import AcquisitionFlags
+from nmsid.sim_backends.errors import DeviceStateError
+from nmsid.sim_backends.faults import (SENSOR_KINDS, STIM_KINDS, Fault, FaultKind, FaultScript,
+                                       FiredFault)
+from nmsid.sim_backends.run_records import (AcqRun, OutputZero, RunRecord, StimRun, SimBlock,
+                                            SampleFault)
+from nmsid.sim_backends.simulation import simulator_for
 
 log = logging.getLogger(__name__)
 

@@ -25,8 +25,8 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from analysis.settings import IdentificationSettings
-from study.errors import StudyConfigError
+from nmsid.analysis.settings import IdentificationSettings
+from nmsid.study.errors import StudyConfigError
 
 SETTING_DEFAULTS = {"gap": True, "gap_max_sessions": 0, "figures": True}
 

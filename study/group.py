@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.model_selection import (AVERAGE_LABEL, ParticipantParameters, SelectionResult,
-                                      select_models)
-from analysis.report import selection_tables, write_model_selection_json
-from analysis.settings import PARAMETER_NAMES, IdentificationSettings
+from nmsid.analysis.model_selection import (AVERAGE_LABEL, ParticipantParameters, SelectionResult,
+                                            select_models)
+from nmsid.analysis.report import selection_tables, write_model_selection_json
+from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
 
 
 @dataclass

@@ -7,9 +7,9 @@ import html
 import math
 from pathlib import Path
 
-from analysis.model_selection import AVERAGE_LABEL
-from analysis.settings import PARAMETER_NAMES
-from study.group import GroupResult
+from nmsid.analysis.model_selection import AVERAGE_LABEL
+from nmsid.analysis.settings import PARAMETER_NAMES
+from nmsid.study.group import GroupResult
 
 
 def _fmt(v, digits: int = 4) -> str:
@@ -88,6 +88,6 @@ def draw_figures(group: GroupResult, out: Path) -> list[Path]:
     """Figures 4-6 (Kp, wn, zeta against sE with the fitted curves) as PNG files."""
     if group.selection is None:
         return []
-    from analysis.figures import plot_parameter_curves  # matplotlib: loaded only to draw
+    from nmsid.analysis.figures import plot_parameter_curves  # matplotlib: loaded only to draw
     return [plot_parameter_curves(group.selection, name, out / f"figure_{name}.png",
                                   AVERAGE_LABEL) for name in PARAMETER_NAMES]

@@ -17,10 +17,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from study.config import StudyConfig
-from study.group import GroupResult, write_group
-from study.report_html import draw_figures, write_report
-from study.tasks import peak_rss_MB, run_session, session_folder_name
+from nmsid.study.config import StudyConfig
+from nmsid.study.group import GroupResult, write_group
+from nmsid.study.report_html import draw_figures, write_report
+from nmsid.study.tasks import peak_rss_MB, run_session, session_folder_name
 
 
 @dataclass

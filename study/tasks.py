@@ -15,13 +15,13 @@ import time
 import traceback
 from pathlib import Path
 
-from analysis.gap.api import run_gap
-from analysis.gap.data import GAP_DATASETS
-from analysis.identify import NEEDED_DATASETS
-from analysis.model_selection import participant_parameters
-from analysis.run import run_identification
-from analysis.settings import PARAMETER_NAMES, IdentificationSettings
-from protocols.session_file import read_session
+from nmsid.analysis.gap.api import run_gap
+from nmsid.analysis.gap.data import GAP_DATASETS
+from nmsid.analysis.identify import NEEDED_DATASETS
+from nmsid.analysis.model_selection import participant_parameters
+from nmsid.analysis.run import run_identification
+from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
+from nmsid.protocols.session_file import read_session
 
 
 #: What one task reads of a session file: the datasets of identification (and its QC) and

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import cont2discrete, lfilter
 
-from protocols.session_file import Calibration, SessionWriter, Trial
+from nmsid.protocols.session_file import Calibration, SessionWriter, Trial
 
 SE_LEVELS = tuple(round(0.30 + 0.05 * i, 2) for i in range(15))
 RANGES = {"Kp": (2.0, 15.0), "wn_rad_s": (8.0, 60.0), "zeta": (0.2, 1.2)}

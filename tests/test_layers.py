@@ -103,13 +103,13 @@ def test_function_local_imports_of_the_project_are_commented_lazy_loads():
 
 # -- the checker itself ------------------------------------------------------------------
 @pytest.mark.parametrize("code,expected", [
-    ("import rig.engine\n", [("rig.engine", False, False)]),
+    ("import rig.engine\n", [("nmsid.rig.engine", False, False)]),
     ("def f():\n    from analysis import run\n", [("analysis", True, False)]),
-    ("def f():\n    # lazy: PySide6\n    from rig.gui import app\n", [("rig.gui", True, True)]),
-    ("def f():\n    import drivers.nidaq  # vendor library\n", [("drivers.nidaq", True, True)]),
+    ("def f():\n    # lazy: PySide6\n    from rig.gui import app\n", [("nmsid.rig.gui", True, True)]),
+    ("def f():\n    import drivers.nidaq  # vendor library\n", [("nmsid.drivers.nidaq", True, True)]),
     ("try:\n    from protocols import config\nexcept ImportError:\n    pass\n",
      [("protocols", False, False)]),
-    ("class A:\n    def m(self):\n        from .b import c\n", [("analysis.gap.b", True, False)]),
+    ("class A:\n    def m(self):\n        from .b import c\n", [("nmsid.analysis.gap.b", True, False)]),
 ])
 def test_the_checker_sees_local_relative_and_commented_imports(tmp_path, code, expected):
     pkg = tmp_path / "analysis" / "gap"
@@ -130,7 +130,7 @@ def test_registering_the_commands_imports_nothing_heavy():
     scipy, Qt or plotting."""
     import subprocess
     import sys
-    code = ("import sys, rig.cli; rig.cli.build_parser(); "
+    code = ("import sys, rig.cli; nmsid.cli.build_parser(); "
             "print(sorted(m for m in sys.modules if m.split('.')[0] in "
             "('numpy', 'h5py', 'scipy', 'PySide6', 'pyqtgraph', 'matplotlib', 'PIL')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -12,15 +12,15 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from analysis.design.candidates import paper_candidate, search_space, with_paper_excitation
-from analysis.design.predict import DEFAULT_SCATTER, Predictor
-from analysis.design.prior import Prior
-from analysis.design.report import write_outputs
-from analysis.design.search import DEFAULT_TOLERANCE, design, parse_target
-from analysis.design.validate import alternative_scatter, run_protocol, validated_ratio
-from sim_backends.population import make_population
-from sim_backends.sensor import SensorModel
-from sim_backends.twin import participant_from_twin
+from nmsid.analysis.design.candidates import paper_candidate, search_space, with_paper_excitation
+from nmsid.analysis.design.predict import DEFAULT_SCATTER, Predictor
+from nmsid.analysis.design.prior import Prior
+from nmsid.analysis.design.report import write_outputs
+from nmsid.analysis.design.search import DEFAULT_TOLERANCE, design, parse_target
+from nmsid.analysis.design.validate import alternative_scatter, run_protocol, validated_ratio
+from nmsid.sim_backends.population import make_population
+from nmsid.sim_backends.sensor import SensorModel
+from nmsid.sim_backends.twin import participant_from_twin
 
 #: Seed offset between the prior population and the population the design is validated
 #: on: the protocol is not scored on the participants it was designed for.
@@ -40,7 +40,7 @@ def validation_participants(prior: Prior, n: int, *, twin_path=None, population_
 
 
 #: The random streams of the two protocols in a validation: each draws its own physiology
-#: and sensor noise (see :mod:`analysis.design.validate`).
+#: and sensor noise (see :mod:`nmsid.analysis.design.validate`).
 PROPOSAL_STREAM, PAPER_STREAM = 1, 2
 
 
@@ -82,7 +82,7 @@ def run_design(prior: Prior, target: str, out_dir, *, validate_n: int = 10,
     ----------
     prior : Prior
     target : str
-        ``paper`` or an SD specification (:func:`analysis.design.search.parse_target`).
+        ``paper`` or an SD specification (:func:`nmsid.analysis.design.search.parse_target`).
     out_dir : path-like
     validate_n : int
         Simulated participants for the validation (0: skip it; ``validated_sd_ratio`` is
@@ -91,7 +91,7 @@ def run_design(prior: Prior, target: str, out_dir, *, validate_n: int = 10,
         Per-trial relative scatter (default :data:`DEFAULT_SCATTER`).
     keep_paper_excitation : bool
         Search only candidates with the paper's excitation (a participant that is not
-        second order: :func:`analysis.design.prior.adequacy_from_parameters`).
+        second order: :func:`nmsid.analysis.design.prior.adequacy_from_parameters`).
     excitation_note : str
         Why, for ``design.json`` and the report.
     """

@@ -24,7 +24,7 @@ import itertools
 import math
 from dataclasses import dataclass
 
-from protocols.config import Config, config_from_dict
+from nmsid.protocols.config import Config, config_from_dict
 
 PAPER_LEVELS = tuple(round(0.30 + 0.05 * k, 2) for k in range(15))
 

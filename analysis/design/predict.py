@@ -1,7 +1,7 @@
 """Predicted precision of a protocol for a prior twin: Cramer-Rao bounds at three stages.
 
 1. **Per level**: the Fisher information of (Kp, wn, zeta) for one trial's excitation at
-   each sE (:func:`analysis.second_order.fisher_information`: the fit's own model,
+   each sE (:func:`nmsid.analysis.second_order.fisher_information`: the fit's own model,
    sensitivities and nuisance parameters, at the prior's parameters), times the repeats
    (the identification averages them), inverted. Noise: the prior's white sensor noise
    (RMS ``noise_N`` at the raw rate) seen at the fit rate after the 25 Hz low-pass, i.e.
@@ -33,12 +33,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from analysis.design.candidates import PAPER_LEVELS, Candidate
-from analysis.design.prior import PARAMETERS, Prior, PriorParticipant
-from analysis.model_selection import compare_models
-from analysis.second_order import fisher_information
-from analysis.settings import IdentificationSettings
-from protocols.waveforms import rE_signal
+from nmsid.analysis.design.candidates import PAPER_LEVELS, Candidate
+from nmsid.analysis.design.prior import PARAMETERS, Prior, PriorParticipant
+from nmsid.analysis.model_selection import compare_models
+from nmsid.analysis.second_order import fisher_information
+from nmsid.analysis.settings import IdentificationSettings
+from nmsid.protocols.waveforms import rE_signal
 
 #: Relative per-trial scatter of (Kp, wn, zeta) assumed by default. Order of magnitude
 #: from the paper's AICc tables: with n = 15 levels of 3 averaged trials, Tables 1, 4 and 7

@@ -20,10 +20,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from analysis.curves import evaluate_curve
-from analysis.design.errors import DesignError
-from analysis.twin import Twin
-from sim_backends.population import make_population
+from nmsid.analysis.curves import evaluate_curve
+from nmsid.analysis.design.errors import DesignError
+from nmsid.analysis.twin import Twin
+from nmsid.sim_backends.population import make_population
 
 PARAMETERS = ("Kp", "wn_rad_s", "zeta")
 

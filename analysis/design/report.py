@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.design.candidates import PAPER_LEVELS, Candidate
-from analysis.design.prior import PARAMETERS
-from protocols.config import load_config
+from nmsid.analysis.design.candidates import PAPER_LEVELS, Candidate
+from nmsid.analysis.design.prior import PARAMETERS
+from nmsid.protocols.config import load_config
 
 #: Caveats printed in every report (the design's model does not see these).
 CAVEATS = (

@@ -19,11 +19,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from analysis.design.candidates import Candidate, paper_candidate, search_space
-from analysis.design.errors import DesignError
-from analysis.design.predict import (Prediction, Predictor, derived_ratio, relative_curve_se,
-                                     sd_ratio)
-from analysis.design.prior import PARAMETERS
+from nmsid.analysis.design.candidates import Candidate, paper_candidate, search_space
+from nmsid.analysis.design.errors import DesignError
+from nmsid.analysis.design.predict import (Prediction, Predictor, derived_ratio, relative_curve_se,
+                                           sd_ratio)
+from nmsid.analysis.design.prior import PARAMETERS
 
 #: "No worse than the paper" allows this relative excess of a predicted standard error:
 #: a 2 % difference is far below what a study of ten participants can detect, and below

@@ -34,17 +34,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from analysis.curves import fit_curve
-from analysis.design.candidates import PAPER_LEVELS, Candidate
-from analysis.design.errors import DesignError
-from analysis.design.prior import PARAMETERS
-from analysis.identify import identify_session
-from analysis.model_selection import compare_models
-from analysis.settings import IdentificationSettings
-from protocols.session_file import Session, Trial
-from protocols.waveforms import input_attrs, trial_waveform
-from sim_backends.curves import CurveModel, ParameterCurve
-from sim_backends.simulation import ParticipantSimulator
+from nmsid.analysis.curves import fit_curve
+from nmsid.analysis.design.candidates import PAPER_LEVELS, Candidate
+from nmsid.analysis.design.errors import DesignError
+from nmsid.analysis.design.prior import PARAMETERS
+from nmsid.analysis.identify import identify_session
+from nmsid.analysis.model_selection import compare_models
+from nmsid.analysis.settings import IdentificationSettings
+from nmsid.protocols.session_file import Session, Trial
+from nmsid.protocols.waveforms import input_attrs, trial_waveform
+from nmsid.sim_backends.curves import CurveModel, ParameterCurve
+from nmsid.sim_backends.simulation import ParticipantSimulator
 
 
 def _scaled(curve: ParameterCurve, factor: float) -> ParameterCurve:
@@ -129,7 +129,7 @@ def simulate_session(vp, candidate: Candidate, *, scatter: dict | ScatterModel |
     ramp finds). ``scatter`` (relative SDs per trial of Kp, wn_rad_s, zeta, drawn
     independent normal; or a :class:`ScatterModel`) scales the template's curves; on a
     musculoskeletal participant it scales the physics behind them
-    (:meth:`~sim_backends.msk_participant.MskParticipant.trial_variant`: electrode reach,
+    (:meth:`~nmsid.sim_backends.msk_participant.MskParticipant.trial_variant`: electrode reach,
     muscle and mount speed, mount damping) by the same factors. ``stream``: two calls
     with the same seed and stream draw the same physiology and noise for a shared
     (sE, repeat); different streams draw independently."""

@@ -6,21 +6,21 @@ far* does the miss shrink on held-out trials once that effect is added.
 
 Modules, each with one job:
 
-- :mod:`~analysis.gap.data`: session files -> pre-processed arrays (:class:`GapData`),
-  through identification's signal path (:mod:`analysis.preprocess`,
-  :mod:`analysis.discretize`, :mod:`analysis.input_timing`);
-- :mod:`~analysis.gap.models`: the nominal model and the six candidate augmentations;
-- :mod:`~analysis.gap.fit`: joint output-error fit (variable projection, grouped LM);
-- :mod:`~analysis.gap.crossval`: folds by repeat;
-- :mod:`~analysis.gap.diagnose`: scoring, the decision; :mod:`~analysis.gap.samples`:
+- :mod:`~nmsid.analysis.gap.data`: session files -> pre-processed arrays (:class:`GapData`),
+  through identification's signal path (:mod:`nmsid.analysis.preprocess`,
+  :mod:`nmsid.analysis.discretize`, :mod:`nmsid.analysis.input_timing`);
+- :mod:`~nmsid.analysis.gap.models`: the nominal model and the six candidate augmentations;
+- :mod:`~nmsid.analysis.gap.fit`: joint output-error fit (variable projection, grouped LM);
+- :mod:`~nmsid.analysis.gap.crossval`: folds by repeat;
+- :mod:`~nmsid.analysis.gap.diagnose`: scoring, the decision; :mod:`~nmsid.analysis.gap.samples`:
   effective samples;
-- :mod:`~analysis.gap.verdict`: none / effect / pair / unexplained, the remaining gap
+- :mod:`~nmsid.analysis.gap.verdict`: none / effect / pair / unexplained, the remaining gap
   beyond noise and where it lies;
-- :mod:`~analysis.gap.localize`, :mod:`~analysis.gap.harmonics`: where the gap lies;
-- :mod:`~analysis.gap.evidence`: the signatures and confusable pairs;
-- :mod:`~analysis.gap.twin_out`, :mod:`~analysis.gap.report`, :mod:`~analysis.gap.plots`:
+- :mod:`~nmsid.analysis.gap.localize`, :mod:`~nmsid.analysis.gap.harmonics`: where the gap lies;
+- :mod:`~nmsid.analysis.gap.evidence`: the signatures and confusable pairs;
+- :mod:`~nmsid.analysis.gap.twin_out`, :mod:`~nmsid.analysis.gap.report`, :mod:`~nmsid.analysis.gap.plots`:
   outputs;
-- :mod:`~analysis.gap.api`: :func:`run_gap`, the whole job in one call.
+- :mod:`~nmsid.analysis.gap.api`: :func:`run_gap`, the whole job in one call.
 
 Examples
 --------
@@ -29,7 +29,7 @@ Examples
 'dead_time'
 """
 
-from analysis.gap.effects import CANDIDATES, Effect
+from nmsid.analysis.gap.effects import CANDIDATES, Effect
 
 __all__ = ["Effect", "CANDIDATES", "run_gap", "diagnose", "load_session", "GapSettings"]
 
@@ -38,12 +38,12 @@ def __getattr__(name):
     # lazy re-exports: `import analysis.gap.effects` (the sim and the twin writer need only
     # the effect names) must not load the whole fitting stack and scipy.signal with it
     if name == "run_gap":
-        from analysis.gap.api import run_gap  # lazy, see above
+        from nmsid.analysis.gap.api import run_gap  # lazy, see above
         return run_gap
     if name in ("diagnose", "GapSettings"):
-        from analysis.gap import diagnose as m  # lazy, see above
+        from nmsid.analysis.gap import diagnose as m  # lazy, see above
         return getattr(m, name)
     if name == "load_session":
-        from analysis.gap.data import load_session  # lazy, see above
+        from nmsid.analysis.gap.data import load_session  # lazy, see above
         return load_session
     raise AttributeError(name)

@@ -21,18 +21,18 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.gap.data import (GAP_DATASETS, GapData, PreprocessSettings, load_session,
-                               prepare_trials)
-from analysis.gap.diagnose import CandidateResult, Diagnosis, GapSettings, diagnose
-from analysis.gap.errors import GapInputError
-from analysis.gap.localize import by_location, frequency_view
-from analysis.gap.models import NOMINAL, nuisance_basis
-from analysis.gap.report import json_safe, write_outputs
-from analysis.qc import assess_session
-from protocols.session_file import Session, read_session
-from sim_backends.sensor import SensorModel
-from sim_backends.simulation import ParticipantSimulator
-from sim_backends.twin import participant_from_twin
+from nmsid.analysis.gap.data import (GAP_DATASETS, GapData, PreprocessSettings, load_session,
+                                     prepare_trials)
+from nmsid.analysis.gap.diagnose import CandidateResult, Diagnosis, GapSettings, diagnose
+from nmsid.analysis.gap.errors import GapInputError
+from nmsid.analysis.gap.localize import by_location, frequency_view
+from nmsid.analysis.gap.models import NOMINAL, nuisance_basis
+from nmsid.analysis.gap.report import json_safe, write_outputs
+from nmsid.analysis.qc import assess_session
+from nmsid.protocols.session_file import Session, read_session
+from nmsid.sim_backends.sensor import SensorModel
+from nmsid.sim_backends.simulation import ParticipantSimulator
+from nmsid.sim_backends.twin import participant_from_twin
 
 log = logging.getLogger(__name__)
 
@@ -129,7 +129,7 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
     Parameters
     ----------
     sessions : list of path-like or protocols.session_file.Session
-        Session files (each read once, with :data:`analysis.gap.data.GAP_DATASETS`), or
+        Session files (each read once, with :data:`nmsid.analysis.gap.data.GAP_DATASETS`), or
         sessions read already (e.g. by a study task that identified them first).
     out_dir : path-like
     settings : GapSettings, optional
@@ -141,7 +141,7 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
         Filters, fit rate and input timing (shared with identification).
     excluded : "qc", dict, callable or None
         Trials excluded upstream, never held against the model: by default (``"qc"``)
-        the ones the trial quality control (:func:`analysis.qc.assess_session`) excludes;
+        the ones the trial quality control (:func:`nmsid.analysis.qc.assess_session`) excludes;
         or a mapping trial name -> reason, or a callable ``path -> mapping`` for several
         sessions (called with the session's file path); None keeps every completed trial.
         They are left out of every fit and score and listed in the report.

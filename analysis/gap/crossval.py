@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from analysis.gap.data import GapData
+from nmsid.analysis.gap.data import GapData
 
 
 @dataclass(frozen=True)

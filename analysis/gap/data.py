@@ -1,13 +1,13 @@
 """Session files -> the arrays the gap diagnosis works on.
 
 One signal path with identification: the force and the drive ``rE - 0.5`` pass through
-the same filters as in :mod:`analysis.preprocess` (:func:`analysis.preprocess.smooth_and_lowpass`
-with the settings of :class:`analysis.settings.IdentificationSettings`: Savitzky-Golay order
+the same filters as in :mod:`nmsid.analysis.preprocess` (:func:`nmsid.analysis.preprocess.smooth_and_lowpass`
+with the settings of :class:`nmsid.analysis.settings.IdentificationSettings`: Savitzky-Golay order
 3, window 41, zero-phase Butterworth low-pass at 25 Hz), rE is moved by the same input
-timing (:mod:`analysis.input_timing`: estimated per session by default, or fixed by the
+timing (:mod:`nmsid.analysis.input_timing`: estimated per session by default, or fixed by the
 setting ``input_timing``), and the models run at the identification's fit rate
 (``fit_fs_Hz``, 200 Hz) with the same hold correction
-(:func:`analysis.discretize.smooth_hold_input`). The analysis window (t >= steady_s) is
+(:func:`nmsid.analysis.discretize.smooth_hold_input`). The analysis window (t >= steady_s) is
 evaluated at every ``eval_step``-th simulation sample (100 Hz: the force has next to
 nothing above 25 Hz left, and 3 x 10 Hz stays below Nyquist). The offset and the linear
 trend (the paper's detrend) are not subtracted here: every model carries them as
@@ -30,13 +30,13 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from analysis.discretize import smooth_hold_input
-from analysis.gap.errors import GapInputError
-from analysis.input_timing import TimingEstimate, estimate_session_timing
-from analysis.preprocess import delay_input, smooth_and_lowpass
-from analysis.settings import IdentificationSettings
-from protocols.session_file import Session, read_session
-from protocols.waveforms import chirp_frequency_Hz, chirp_phase_rad
+from nmsid.analysis.discretize import smooth_hold_input
+from nmsid.analysis.gap.errors import GapInputError
+from nmsid.analysis.input_timing import TimingEstimate, estimate_session_timing
+from nmsid.analysis.preprocess import delay_input, smooth_and_lowpass
+from nmsid.analysis.settings import IdentificationSettings
+from nmsid.protocols.session_file import Session, read_session
+from nmsid.protocols.waveforms import chirp_frequency_Hz, chirp_phase_rad
 
 log = logging.getLogger(__name__)
 
@@ -236,7 +236,7 @@ def _cumulative_stim(trials) -> list[float]:
 def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
                    settings: PreprocessSettings | None = None, excluded: dict | None = None,
                    timing: TimingEstimate | None = None) -> GapData:
-    """Pre-process a list of :class:`protocols.session_file.Trial` (file order) for the diagnosis.
+    """Pre-process a list of :class:`nmsid.protocols.session_file.Trial` (file order) for the diagnosis.
 
     See :func:`load_session`. ``timing``: use this input timing instead of the settings'
     (e.g. a simulated session compared with a measured one gets the measured timing).

@@ -1,7 +1,7 @@
 """Which unmodelled effect explains the sim-to-real gap, and how far adding it shrinks it.
 
 For one session: every candidate (and the nominal model) is fitted on the training trials
-of each cross-validation fold (:mod:`analysis.gap.crossval`) and predicts the held-out
+of each cross-validation fold (:mod:`nmsid.analysis.gap.crossval`) and predicts the held-out
 repeat. Candidates are ranked by their held-out NRMSE and by an information criterion
 computed with the *effective* number of independent samples.
 
@@ -30,14 +30,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from analysis.gap.crossval import Fold, repeat_folds
-from analysis.gap.data import GapData
-from analysis.gap.effects import CANDIDATES, Effect
-from analysis.gap.errors import GapInputError
-from analysis.gap.fit import ModelFit, fit_model, predict
-from analysis.gap.models import NOMINAL, Candidate, candidate, n_drift_columns, nuisance_basis
-from analysis.gap.samples import effective_fraction
-from analysis.gap.verdict import assess
+from nmsid.analysis.gap.crossval import Fold, repeat_folds
+from nmsid.analysis.gap.data import GapData
+from nmsid.analysis.gap.effects import CANDIDATES, Effect
+from nmsid.analysis.gap.errors import GapInputError
+from nmsid.analysis.gap.fit import ModelFit, fit_model, predict
+from nmsid.analysis.gap.models import NOMINAL, Candidate, candidate, n_drift_columns, nuisance_basis
+from nmsid.analysis.gap.samples import effective_fraction
+from nmsid.analysis.gap.verdict import assess
 
 log = logging.getLogger(__name__)
 
@@ -251,7 +251,7 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
     Parameters
     ----------
     data : GapData
-        From :func:`analysis.gap.data.load_session`.
+        From :func:`nmsid.analysis.gap.data.load_session`.
     settings : GapSettings, optional
 
     Returns

@@ -20,11 +20,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from analysis.gap.diagnose import Diagnosis
-from analysis.gap.effects import Effect
-from analysis.gap.fit import Problem
-from analysis.gap.harmonics import local_harmonics
-from analysis.gap.models import NOMINAL
+from nmsid.analysis.gap.diagnose import Diagnosis
+from nmsid.analysis.gap.effects import Effect
+from nmsid.analysis.gap.fit import Problem
+from nmsid.analysis.gap.harmonics import local_harmonics
+from nmsid.analysis.gap.models import NOMINAL
 
 CONFUSABLE = (
     (Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS),

@@ -17,11 +17,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import signal
 
-from analysis.gap.data import GapData
-from analysis.gap.effects import Effect
-from analysis.gap.harmonics import levy_second_order, local_harmonics
-from analysis.gap.models import Candidate, nuisance_basis
-from analysis.gap.samples import effective_fraction
+from nmsid.analysis.gap.data import GapData
+from nmsid.analysis.gap.effects import Effect
+from nmsid.analysis.gap.harmonics import levy_second_order, local_harmonics
+from nmsid.analysis.gap.models import Candidate, nuisance_basis
+from nmsid.analysis.gap.samples import effective_fraction
 
 log = logging.getLogger(__name__)
 

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from analysis.gap.diagnose import CandidateResult, Diagnosis
-from analysis.gap.harmonics import local_harmonics
+from nmsid.analysis.gap.diagnose import CandidateResult, Diagnosis
+from nmsid.analysis.gap.harmonics import local_harmonics
 
 HARMONIC_ORDERS = (1, 1.5, 2, 3)
 

@@ -36,10 +36,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
-from analysis.gap.data import GapData
-from analysis.discretize import (fractional_delay, lagged_second_order_tf, parallel_tf,
-                                 second_order_tf, smooth_hold_input)
-from analysis.gap.effects import Effect
+from nmsid.analysis.gap.data import GapData
+from nmsid.analysis.discretize import (fractional_delay, lagged_second_order_tf, parallel_tf,
+                                       second_order_tf, smooth_hold_input)
+from nmsid.analysis.gap.effects import Effect
 
 #: Bound of every model's correction of the session's input timing, ms.
 TIMING_CORRECTION_MS = 1.0
@@ -103,7 +103,7 @@ class Candidate:
 
     Every model, the nominal one included, also carries the last entry of ``p``: a
     correction of the rig's input timing in ms (within +-``TIMING_CORRECTION_MS``), on top
-    of the session's estimate (:mod:`analysis.input_timing`, made with a plain
+    of the session's estimate (:mod:`nmsid.analysis.input_timing`, made with a plain
     second-order fit, which an effect outside it can pull). Each model thus gets the
     timing that suits it, and since all carry it, it never counts in ``dk``.
     """

@@ -11,16 +11,16 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.gap.diagnose import Diagnosis, ranking
-from analysis.gap.effects import Effect
-from analysis.gap.evidence import confusable_pairs, explain, signatures
-from analysis.gap import plots
-from analysis.gap.fit import Problem
-from analysis.gap.localize import localization
-from analysis.gap.models import nuisance_basis, recruitment_curve
-from analysis.gap.twin_out import (effect_entries, fatigue_loss_pct, nonlinearity_index_pct,
-                                   twin_dict, write_twin)
-from analysis.twin import source_entry
+from nmsid.analysis.gap.diagnose import Diagnosis, ranking
+from nmsid.analysis.gap.effects import Effect
+from nmsid.analysis.gap.evidence import confusable_pairs, explain, signatures
+from nmsid.analysis.gap import plots
+from nmsid.analysis.gap.fit import Problem
+from nmsid.analysis.gap.localize import localization
+from nmsid.analysis.gap.models import nuisance_basis, recruitment_curve
+from nmsid.analysis.gap.twin_out import (effect_entries, fatigue_loss_pct, nonlinearity_index_pct,
+                                         twin_dict, write_twin)
+from nmsid.analysis.twin import source_entry
 
 log = logging.getLogger(__name__)
 

@@ -24,10 +24,10 @@ from pathlib import Path
 import numpy as np
 from scipy import optimize
 
-from analysis.curves import fit_curve
-from analysis.gap.effects import Effect
-from analysis.gap.models import REFERENCE_STIM_S
-from sim_backends.effects import RecruitmentNonlinearity
+from nmsid.analysis.curves import fit_curve
+from nmsid.analysis.gap.effects import Effect
+from nmsid.analysis.gap.models import REFERENCE_STIM_S
+from nmsid.sim_backends.effects import RecruitmentNonlinearity
 
 
 def fatigue_loss_pct(rate_per_s: float, reference_stim_s: float = REFERENCE_STIM_S) -> float:

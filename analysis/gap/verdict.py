@@ -35,10 +35,10 @@ import math
 
 import numpy as np
 
-from analysis.gap.fit import find_steps
-from analysis.gap.harmonics import local_harmonics
-from analysis.gap.models import nuisance_basis
-from analysis.gap.samples import effective_fraction
+from nmsid.analysis.gap.fit import find_steps
+from nmsid.analysis.gap.harmonics import local_harmonics
+from nmsid.analysis.gap.models import nuisance_basis
+from nmsid.analysis.gap.samples import effective_fraction
 
 #: Residual harmonics examined (1.5f: a non-harmonic reference).
 HARMONIC_ORDERS = (1, 1.5, 2, 3)

@@ -2,10 +2,10 @@
 
 A lab's first session contains artefacts the paper's mean-then-fit cannot see: a voluntary
 contraction in one repeat, a cable knock, a clipped or stalled A/D, a baseline jump. Each
-completed trial is checked on its own (:mod:`analysis.qc.checks`) and against the other
-repeats of its sE (:mod:`analysis.qc.repeats`), and gets a decision
-(:mod:`analysis.qc.decide`): ``used``, ``repaired`` (a short artefact bridged, said where)
-or ``excluded`` (with reasons and time spans). :mod:`analysis.qc.table` prints and writes
+completed trial is checked on its own (:mod:`nmsid.analysis.qc.checks`) and against the other
+repeats of its sE (:mod:`nmsid.analysis.qc.repeats`), and gets a decision
+(:mod:`nmsid.analysis.qc.decide`): ``used``, ``repaired`` (a short artefact bridged, said where)
+or ``excluded`` (with reasons and time spans). :mod:`nmsid.analysis.qc.table` prints and writes
 the verdicts (``nmsid qc``, ``qc.csv``).
 
 Examples
@@ -15,7 +15,7 @@ Examples
 8.0
 """
 
-from analysis.qc.decide import SessionQC, TrialQC, assess_level, assess_session
-from analysis.qc.settings import QCSettings
+from nmsid.analysis.qc.decide import SessionQC, TrialQC, assess_level, assess_session
+from nmsid.analysis.qc.settings import QCSettings
 
 __all__ = ["QCSettings", "SessionQC", "TrialQC", "assess_level", "assess_session"]

@@ -1,6 +1,6 @@
 """Checks of one trial on its own: non-finite, stalled and clipped stretches, spikes, noise.
 
-Each check returns :class:`Finding` s with the samples it concerns; :mod:`analysis.qc.decide`
+Each check returns :class:`Finding` s with the samples it concerns; :mod:`nmsid.analysis.qc.decide`
 turns them into a decision. Nothing here knows the model or the other repeats.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from analysis.signal_kernels import butter, sosfiltfilt
+from nmsid.analysis.signal_kernels import butter, sosfiltfilt
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """The decision per trial: ``used``, ``repaired`` or ``excluded``, with reasons and spans.
 
-Rules (every threshold in :class:`analysis.qc.QCSettings`):
+Rules (every threshold in :class:`nmsid.analysis.qc.QCSettings`):
 
 * aborted trials are not judged here (identification already skips them);
 * a non-finite commanded rE, a long non-finite, stalled or clipped stretch inside the
@@ -24,10 +24,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from analysis.qc import checks
-from analysis.qc.repeats import Deviation, attribute_pair, deviations, fit_jump, smoothed, unshared
-from analysis.qc.settings import QCSettings
-from protocols.session_file import read_session
+from nmsid.analysis.qc import checks
+from nmsid.analysis.qc.repeats import Deviation, attribute_pair, deviations, fit_jump, smoothed, unshared
+from nmsid.analysis.qc.settings import QCSettings
+from nmsid.protocols.session_file import read_session
 
 USED, REPAIRED, EXCLUDED = "used", "repaired", "excluded"
 

@@ -27,9 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from analysis.qc.checks import runs
-from analysis.qc.settings import QCSettings
-from analysis.signal_kernels import butter, sosfiltfilt
+from nmsid.analysis.qc.checks import runs
+from nmsid.analysis.qc.settings import QCSettings
+from nmsid.analysis.signal_kernels import butter, sosfiltfilt
 
 
 @dataclass

@@ -6,7 +6,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
-from analysis.errors import SettingError
+from nmsid.analysis.errors import SettingError
 
 
 _ZERO_ALLOWED = frozenset({"shared_filter_s"})
@@ -15,7 +15,7 @@ _ZERO_ALLOWED = frozenset({"shared_filter_s"})
 
 @dataclass(frozen=True)
 class QCSettings:
-    """Settings of :func:`analysis.qc.assess_session` (``docs/identification.md``).
+    """Settings of :func:`nmsid.analysis.qc.assess_session` (``docs/identification.md``).
 
     Every threshold is relative to the recording's own noise or response, so the same
     defaults hold for quiet and noisy sensors and for small and large forces.

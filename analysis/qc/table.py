@@ -6,7 +6,7 @@ import csv
 import json
 from pathlib import Path
 
-from analysis.qc.decide import SessionQC
+from nmsid.analysis.qc.decide import SessionQC
 
 QC_COLUMNS = ("participant", "trial", "sE", "repeat", "decision", "reasons", "spans",
               "level_flag")

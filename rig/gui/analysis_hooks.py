@@ -12,10 +12,10 @@ import numpy as np
 
 import dataclasses
 
-from analysis.identify import identify_level as _identify
-from analysis.qc import assess_level
-from analysis.run import run_identification
-from rig.gui.results_panel import ModelFit, ParameterSelection, SelectionView
+from nmsid.analysis.identify import identify_level as _identify
+from nmsid.analysis.qc import assess_level
+from nmsid.analysis.run import run_identification
+from nmsid.rig.gui.results_panel import ModelFit, ParameterSelection, SelectionView
 
 
 def identify_level(trials):

@@ -11,8 +11,8 @@ from pathlib import Path
 import pyqtgraph as pg
 from PySide6.QtWidgets import QApplication
 
-from rig.gui.main_window import MainWindow
-from rig.gui.script import ScriptRunner, load_script
+from nmsid.rig.gui.main_window import MainWindow
+from nmsid.rig.gui.script import ScriptRunner, load_script
 
 log = logging.getLogger(__name__)
 

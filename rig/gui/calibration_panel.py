@@ -17,8 +17,8 @@ import pyqtgraph as pg
 from PySide6.QtWidgets import (QDoubleSpinBox, QFormLayout, QGroupBox, QHBoxLayout,
                                QLabel, QPushButton, QVBoxLayout, QWidget)
 
-from rig.gui.theme import Colour
-from protocols.session_file import Calibration
+from nmsid.rig.gui.theme import Colour
+from nmsid.protocols.session_file import Calibration
 
 #: (muscle key, label, colour, Imin attribute, Imax attribute)
 MUSCLES = (("ext", "Extensor (triceps)", Colour.I_EXT, "Iemin_mA", "Iemax_mA"),
@@ -37,7 +37,7 @@ class CalibrationPanel(QWidget):
     Parameters
     ----------
     on_confirm : callable
-        Called with the :class:`~protocols.session_file.Calibration` the operator confirmed.
+        Called with the :class:`~nmsid.protocols.session_file.Calibration` the operator confirmed.
     """
 
     def __init__(self, on_confirm: Callable[[Calibration], None],

@@ -20,7 +20,7 @@ import pyqtgraph as pg
 from PySide6.QtCore import QObject, Qt, Signal
 from PySide6.QtWidgets import QLabel, QVBoxLayout, QWidget
 
-from rig.gui.theme import Colour
+from nmsid.rig.gui.theme import Colour
 
 log = logging.getLogger(__name__)
 

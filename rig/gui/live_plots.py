@@ -2,7 +2,7 @@
 
 The plots never receive data from the engine directly. A ``QTimer`` in the GUI thread
 (at most ``max_fps`` per second, 30 by default) takes a snapshot of the
-:class:`~rig.gui.live_buffer.LiveBuffer` and redraws only if the buffer changed; the
+:class:`~nmsid.rig.gui.live_buffer.LiveBuffer` and redraws only if the buffer changed; the
 engine thread meanwhile only copies chunks into the buffer. pyqtgraph's clip-to-view and
 peak downsampling keep each redraw cheap at 2 kHz.
 """
@@ -17,8 +17,8 @@ import pyqtgraph as pg
 from PySide6.QtCore import Qt, QTimer
 from PySide6.QtWidgets import QLabel, QVBoxLayout, QWidget
 
-from rig.gui.live_buffer import LiveBuffer, LiveSnapshot
-from rig.gui.theme import Colour
+from nmsid.rig.gui.live_buffer import LiveBuffer, LiveSnapshot
+from nmsid.rig.gui.theme import Colour
 
 MAX_FPS = 30.0
 #: Frames a late redraw may catch up on the absolute schedule.

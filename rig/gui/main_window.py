@@ -20,24 +20,24 @@ from typing import Callable
 
 from PySide6.QtCore import Qt, QTimer
 
-import rig.gui.qt_compat  # noqa: F401  (before any signal is emitted)
+import nmsid.rig.gui.qt_compat  # noqa: F401  (before any signal is emitted)
 from PySide6.QtWidgets import (QLabel, QMainWindow, QSplitter, QTabWidget, QVBoxLayout,
                                QWidget)
 
-from rig.gui import analysis_hooks
-from rig.gui.calibration_panel import CalibrationPanel
-from rig.gui.event_log import EventLog
-from rig.gui.identification_panel import IdentificationPanel
-from rig.gui.live_buffer import LiveBuffer
-from rig.gui.live_plots import LivePlots
-from rig.gui.observer import EngineSignals
-from rig.gui.results_panel import ResultsPanel
-from rig.gui.safety_panel import SafetyPanel, install_estop_shortcuts
-from rig.gui.schedule_panel import SchedulePanel, planned_fields, status_name
-from rig.gui.session_controller import (DevicesFactory, SessionController,
-                                        load_session_config)
-from rig.gui.setup_panel import SessionRequest, SetupPanel
-from rig.states import State
+from nmsid.rig.gui import analysis_hooks
+from nmsid.rig.gui.calibration_panel import CalibrationPanel
+from nmsid.rig.gui.event_log import EventLog
+from nmsid.rig.gui.identification_panel import IdentificationPanel
+from nmsid.rig.gui.live_buffer import LiveBuffer
+from nmsid.rig.gui.live_plots import LivePlots
+from nmsid.rig.gui.observer import EngineSignals
+from nmsid.rig.gui.results_panel import ResultsPanel
+from nmsid.rig.gui.safety_panel import SafetyPanel, install_estop_shortcuts
+from nmsid.rig.gui.schedule_panel import SchedulePanel, planned_fields, status_name
+from nmsid.rig.gui.session_controller import (DevicesFactory, SessionController,
+                                              load_session_config)
+from nmsid.rig.gui.setup_panel import SessionRequest, SetupPanel
+from nmsid.rig.states import State
 
 log = logging.getLogger(__name__)
 
@@ -62,10 +62,10 @@ class MainWindow(QMainWindow):
         ``config -> config`` applied after loading (tests shorten the protocol).
     identify : callable, optional
         ``identify(trials) -> result`` for the running identification; default
-        :func:`rig.gui.analysis_hooks.identify_level`.
+        :func:`nmsid.rig.gui.analysis_hooks.identify_level`.
     select_models : callable, optional
         ``select_models(session_path) -> ModelSelection``; default
-        :func:`rig.gui.analysis_hooks.select_models`.
+        :func:`nmsid.rig.gui.analysis_hooks.select_models`.
     auto_tabs : bool
         Switch to the tab that matters when the state changes (calibration, live trial,
         results).

@@ -1,7 +1,7 @@
 """The bridge from the engine thread to the GUI thread.
 
 :class:`QtEngineObserver` is the engine's observer. Its methods run in the ENGINE thread,
-so they only (a) copy acquisition chunks into a :class:`~rig.gui.live_buffer.LiveBuffer`
+so they only (a) copy acquisition chunks into a :class:`~nmsid.rig.gui.live_buffer.LiveBuffer`
 and (b) emit Qt signals of :class:`EngineSignals`, which live in the GUI thread and are
 connected with ``Qt.QueuedConnection``: the slots run later in the GUI thread. Nothing
 here touches a widget or waits for the GUI.
@@ -13,10 +13,10 @@ import logging
 
 from PySide6.QtCore import QObject, Signal
 
-import rig.gui.qt_compat  # noqa: F401  (before any signal is emitted)
+import nmsid.rig.gui.qt_compat  # noqa: F401  (before any signal is emitted)
 
-from rig.engine import EngineObserver
-from rig.gui.live_buffer import LiveBuffer
+from nmsid.rig.engine import EngineObserver
+from nmsid.rig.gui.live_buffer import LiveBuffer
 
 log = logging.getLogger(__name__)
 

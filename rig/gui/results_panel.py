@@ -26,7 +26,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QHeaderView, QLabel, QPlainTex
                                QTableWidget, QTableWidgetItem, QTabWidget, QVBoxLayout,
                                QWidget)
 
-from rig.gui.theme import Colour
+from nmsid.rig.gui.theme import Colour
 
 log = logging.getLogger(__name__)
 

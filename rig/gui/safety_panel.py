@@ -15,8 +15,8 @@ from PySide6.QtGui import QKeySequence, QShortcut
 from PySide6.QtWidgets import (QFrame, QGridLayout, QHBoxLayout, QLabel, QPushButton,
                                QSizePolicy, QVBoxLayout, QWidget)
 
-from rig.gui.theme import Colour
-from rig.observer import is_rerun_wait
+from nmsid.rig.gui.theme import Colour
+from nmsid.rig.observer import is_rerun_wait
 
 #: The interlock rules shown as lights, in display order: (substring of the engine's rule
 #: name, label). Rules the engine reports that match none of these are shown too.

@@ -16,8 +16,8 @@ from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLab
                                QProgressBar, QPushButton, QTableWidget, QTableWidgetItem,
                                QVBoxLayout, QWidget)
 
-from rig.gui.theme import Colour
-from rig.observer import is_rerun_wait
+from nmsid.rig.gui.theme import Colour
+from nmsid.rig.observer import is_rerun_wait
 
 COLUMNS = ("#", "sE", "repeat", "status", "runs", "reason", "QC")
 QC_COLOURS = {"used": "#d8f3dc", "repaired": "#fff3b0", "excluded": "#ffb3b3"}
@@ -202,7 +202,7 @@ class SchedulePanel(QWidget):
     def set_state(self, state: str, reason: str = "") -> None:
         """Enable the controls that make sense in the engine state. In the engine's wait
         for a re-run after the schedule (``paused`` with the reason of
-        :func:`rig.observer.rerun_wait_reason`) only Re-run aborted and End session do
+        :func:`nmsid.rig.observer.rerun_wait_reason`) only Re-run aborted and End session do
         something: Resume and Skip are off."""
         self._state = state
         self.waiting_for_rerun = is_rerun_wait(state, reason)

@@ -217,7 +217,7 @@ def load_script(name_or_path: str) -> list[Step]:
 
 
 class ScriptRunner(QObject):
-    """Runs steps against a :class:`~rig.gui.main_window.MainWindow` from a Qt timer.
+    """Runs steps against a :class:`~nmsid.rig.gui.main_window.MainWindow` from a Qt timer.
 
     Signals
     -------

@@ -3,7 +3,7 @@
 The controller owns the engine, its devices and the thread that runs ``engine.run()``.
 Every operator command (E-stop, re-arm, pause, ...) is a direct call of the engine's
 thread-safe command methods; none waits for the engine thread. The engine's notifications
-arrive through :class:`~rig.gui.observer.QtEngineObserver` as queued Qt signals.
+arrive through :class:`~nmsid.rig.gui.observer.QtEngineObserver` as queued Qt signals.
 """
 
 from __future__ import annotations
@@ -16,15 +16,15 @@ from typing import Callable
 
 from PySide6.QtCore import QObject, Qt, Signal
 
-from drivers.hardware import make_hw_rig
-from protocols.config import config_from_json, load_config
-from protocols.session_file import read_session
-from rig.engine import Engine
-from rig.gui.live_buffer import LiveBuffer
-from rig.gui.observer import EngineSignals, QtEngineObserver
-from rig.gui.setup_panel import Backend, SessionRequest
-from sim_backends.participant_models import participant_for_model
-from sim_backends.rig import make_sim_rig
+from nmsid.drivers.hardware import make_hw_rig
+from nmsid.protocols.config import config_from_json, load_config
+from nmsid.protocols.session_file import read_session
+from nmsid.rig.engine import Engine
+from nmsid.rig.gui.live_buffer import LiveBuffer
+from nmsid.rig.gui.observer import EngineSignals, QtEngineObserver
+from nmsid.rig.gui.setup_panel import Backend, SessionRequest
+from nmsid.sim_backends.participant_models import participant_for_model
+from nmsid.sim_backends.rig import make_sim_rig
 
 log = logging.getLogger(__name__)
 

@@ -18,10 +18,10 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QFileDialog, QFormLayout, Q
                                QHBoxLayout, QLabel, QLineEdit, QPushButton, QSpinBox,
                                QVBoxLayout, QWidget)
 
-from protocols.config import config_from_json
-from protocols.session_file import PARTICIPANT_PATTERN, SessionWriter, read_session
-from rig.gui.theme import Colour
-from rig.session_log import journal_dir
+from nmsid.protocols.config import config_from_json
+from nmsid.protocols.session_file import PARTICIPANT_PATTERN, SessionWriter, read_session
+from nmsid.rig.gui.theme import Colour
+from nmsid.rig.session_log import journal_dir
 
 
 class Backend(enum.Enum):

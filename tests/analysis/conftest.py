@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import pytest
 
-import testing.sessions
+import nmsid.testing.sessions
 
 
 @pytest.fixture(scope="session")
 def synthetic():
-    """The synthetic-session generators (:mod:`testing.sessions`)."""
+    """The synthetic-session generators (:mod:`nmsid.testing.sessions`)."""
     return testing.sessions
 
 

@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from analysis.twin import file_sha256
-from rig.cli import main
+from nmsid.analysis.twin import file_sha256
+from nmsid.cli import main
 
 
 def read_csv(path):
@@ -74,7 +74,7 @@ def test_identify_errors_are_one_line(tmp_path, capsys):
 
 
 def test_twin_simulate_chirp_and_csv(tmp_path, capsys):
-    from analysis.twin import Curve, Twin
+    from nmsid.analysis.twin import Curve, Twin
     tw = Twin("P01", {"Kp": Curve("linear", [1.0, 8.0]), "wn_rad_s": Curve("constant", [30.0]),
                       "zeta": Curve("constant", [0.6])}, (0.3, 1.0))
     tp = tmp_path / "twin.json"

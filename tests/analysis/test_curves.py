@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from analysis.curves import aicc, evaluate_curve, fit_curve, fit_exponential, trend_of
+from nmsid.analysis.curves import aicc, evaluate_curve, fit_curve, fit_exponential, trend_of
 
 X = np.linspace(0.3, 1.0, 15)
 

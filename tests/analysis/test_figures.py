@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from analysis.figures import envelope, nice_ticks, plot_level_fits
+from nmsid.analysis.figures import envelope, nice_ticks, plot_level_fits
 
 
 @pytest.mark.parametrize("lo,hi", [(0.0, 1.0), (-3.2, 7.9), (1e-4, 3e-4), (250.0, 2600.0),

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from analysis.identify import identify_level, identify_session
-from protocols.session_file import Calibration, SessionWriter, Trial, read_session
+from nmsid.analysis.identify import identify_level, identify_session
+from nmsid.protocols.session_file import Calibration, SessionWriter, Trial, read_session
 
 
 def test_session_parameters_recovered(small_session):
@@ -87,7 +87,7 @@ def test_empty_session_reports(tmp_path):
 
 
 def test_non_converging_fit_is_reported(small_session):
-    from analysis.settings import IdentificationSettings
+    from nmsid.analysis.settings import IdentificationSettings
     s = read_session(small_session[0])
     level = [t for t in s.trials if t.sE == 0.6]
     res = identify_level(level, IdentificationSettings(max_iterations=1))
@@ -96,7 +96,7 @@ def test_non_converging_fit_is_reported(small_session):
 
 
 def test_too_few_levels_and_single_repeats_still_give_outputs(synthetic, tmp_path):
-    from analysis.run import run_identification
+    from nmsid.analysis.run import run_identification
     path = tmp_path / "three.h5"
     synthetic.write_synthetic_session(path, seed=3, sE_levels=(0.3, 0.6, 0.9), repeats=1)
     out = run_identification([path], tmp_path / "out", figures=False)

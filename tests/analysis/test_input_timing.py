@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from analysis.errors import SettingError
-from analysis.identify import identify_level
-from analysis.input_timing import estimate_session_timing, fixed_timing, pooled
-from analysis.preprocess import fixed_delay_s
-from analysis.settings import IdentificationSettings
-from protocols.session_file import Trial
+from nmsid.analysis.errors import SettingError
+from nmsid.analysis.identify import identify_level
+from nmsid.analysis.input_timing import estimate_session_timing, fixed_timing, pooled
+from nmsid.analysis.preprocess import fixed_delay_s
+from nmsid.analysis.settings import IdentificationSettings
+from nmsid.protocols.session_file import Trial
 
 FS = 2000.0
 STEADY_S, CHIRP_S = 5.0, 10.0
@@ -77,8 +77,8 @@ def test_pooling_weights_and_clips():
 
 def _simulated_level(sE=0.8):
     """Three repeats of one level from the simulated rig (its stimulator holds samples)."""
-    from sim_backends import make_population
-    from sim_backends.simulation import ParticipantSimulator
+    from nmsid.sim_backends import make_population
+    from nmsid.sim_backends.simulation import ParticipantSimulator
     participant = make_population(1, seed=2026)[0]
     sim = ParticipantSimulator(participant, FS)
     cal = participant.calibration

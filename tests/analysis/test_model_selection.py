@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from analysis.model_selection import (AVERAGE_LABEL, ParticipantParameters, compare_models,
-                                      select_models)
-from analysis.settings import IdentificationSettings
+from nmsid.analysis.model_selection import (AVERAGE_LABEL, ParticipantParameters, compare_models,
+                                            select_models)
+from nmsid.analysis.settings import IdentificationSettings
 
 
 def test_hand_computed_selection_linear_beats_quadratic():

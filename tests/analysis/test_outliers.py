@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from analysis.outliers import iqr_fences, iqr_inliers, matlab_prctile
+from nmsid.analysis.outliers import iqr_fences, iqr_inliers, matlab_prctile
 
 
 def test_prctile_hand_values():

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from analysis.errors import IdentificationError, SettingError
-from analysis.preprocess import (linear_detrend, preprocess_trials, smooth_and_lowpass,
-                                 window_indices)
-from analysis.settings import IdentificationSettings
-from protocols.session_file import Trial
+from nmsid.analysis.errors import IdentificationError, SettingError
+from nmsid.analysis.preprocess import (linear_detrend, preprocess_trials, smooth_and_lowpass,
+                                       window_indices)
+from nmsid.analysis.settings import IdentificationSettings
+from nmsid.protocols.session_file import Trial
 
 FS = 2000.0
 
@@ -98,7 +98,7 @@ def test_settings_are_validated_with_named_values():
 
 def test_no_lead_in_and_other_rates_still_recover_the_model(synthetic):
     """A trial without lead-in (the window starts at the first sample) at 1000 Hz."""
-    from analysis.second_order import fit_second_order
+    from nmsid.analysis.second_order import fit_second_order
     fs = 1000.0
     rE, y = synthetic.exact_response(6.0, 25.0, 0.5, fs, 8000, 0.0, 8.0, 1.0, 10.0)
     tr = Trial(sE=0.5, repeat=1, fs_Hz=fs, rE=rE, I_ext_mA=rE, I_flex_mA=rE,

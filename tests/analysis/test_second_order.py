@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from analysis.errors import IdentificationError
-from analysis.second_order import _Problem, fit_second_order
-from analysis.settings import IdentificationSettings
+from nmsid.analysis.errors import IdentificationError
+from nmsid.analysis.second_order import _Problem, fit_second_order
+from nmsid.analysis.settings import IdentificationSettings
 
 LINEAR = IdentificationSettings(input_hold="linear", estimate_trend=False)
 
@@ -129,7 +129,7 @@ def test_non_converging_fit_is_flagged_not_raised():
 
 
 def test_residual_tests_detect_unmodelled_dynamics():
-    from analysis.residual_tests import residual_tests
+    from nmsid.analysis.residual_tests import residual_tests
     rng = np.random.default_rng(2)
     u = rng.standard_normal(3000)
     e = np.convolve(u, [0, 0.5, 0.3], mode="same") * 0.5 + rng.standard_normal(3000)

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from rig.cli import main
-from testing.sessions import write_gap_session
+from nmsid.cli import main
+from nmsid.testing.sessions import write_gap_session
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ import pytest
 import scipy.ndimage as nd
 import scipy.signal as ss
 
-from analysis import signal_kernels as k
+from nmsid.analysis import signal_kernels as k
 
 
 def random_stable(rng, order):
@@ -145,14 +145,14 @@ def test_identification_path_does_not_import_scipy_signal():
                                           (5, 7.0, 3), (2, 40.0, 4), (6, 0.0, 5)])
 def test_expm_matches_scipy(n, scale, seed):
     from scipy.linalg import expm as scipy_expm
-    from analysis.signal_kernels import expm
+    from nmsid.analysis.signal_kernels import expm
     M = np.random.default_rng(seed).normal(0, scale, (n, n))
     want = scipy_expm(M)
     np.testing.assert_allclose(expm(M), want, rtol=1e-12, atol=1e-14 * np.abs(want).max())
 
 
 def test_expm_closed_forms():
-    from analysis.signal_kernels import expm
+    from nmsid.analysis.signal_kernels import expm
     t = 0.3
     np.testing.assert_allclose(expm([[0.0, t], [-t, 0.0]]),
                                [[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]], rtol=1e-14)

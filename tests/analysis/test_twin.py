@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.signal import lsim
 
-from analysis.errors import TwinFileError
-from analysis.twin import Curve, Twin
+from nmsid.analysis.errors import TwinFileError
+from nmsid.analysis.twin import Curve, Twin
 
 
 def make_twin():
@@ -135,7 +135,7 @@ def test_time_varying_matches_fine_integration():
 def test_source_is_file_name_and_content_hash_never_the_path(tmp_path):
     import hashlib
 
-    from analysis.twin import source_entry
+    from nmsid.analysis.twin import source_entry
     private = tmp_path / "home" / "someone" / "secret-study"
     private.mkdir(parents=True)
     session = private / "P07.h5"
@@ -161,7 +161,7 @@ def test_source_is_file_name_and_content_hash_never_the_path(tmp_path):
 def test_twin_from_selection_hashes_its_sources(tmp_path):
     from types import SimpleNamespace
 
-    from analysis.twin import file_sha256, twin_from_selection
+    from nmsid.analysis.twin import file_sha256, twin_from_selection
 
     class Comp:
         def __init__(self, model, coef):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from drivers.fake_hardware import load_fake
+from nmsid.drivers.fake_hardware import load_fake
 
 
 @pytest.fixture

@@ -7,12 +7,12 @@ import ctypes
 import numpy as np
 import pytest
 
-from drivers.analog_force import AnalogCalibration
-from drivers.caio import CaioAcquisition, declare, load_caio
-from drivers.errors import DeviceNotFound, VendorLibraryMissing
-from drivers.fake_hardware import load_fake
-from drivers.interfaces import CheckedWaveform
-from drivers.stg4002 import Stg4002Stimulator
+from nmsid.drivers.analog_force import AnalogCalibration
+from nmsid.drivers.caio import CaioAcquisition, declare, load_caio
+from nmsid.drivers.errors import DeviceNotFound, VendorLibraryMissing
+from nmsid.drivers.fake_hardware import load_fake
+from nmsid.drivers.interfaces import CheckedWaveform
+from nmsid.drivers.stg4002 import Stg4002Stimulator
 
 CAL = AnalogCalibration(channels={"Fx": 0, "Fy": 1, "Fz": 2, "Mx": 3, "My": 4, "Mz": 5},
                         rated={"Fx": 500, "Fy": 500, "Fz": 1000, "Mx": 10, "My": 10, "Mz": 10},

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.fake_hardware import load_fake
-from drivers.hardware import make_hw_rig
-from protocols.config import config_from_dict
-from rig.cli import main
-from rig.engine import Engine, EngineObserver, TripPolicy
-from protocols.session_file import read_session, validate_session
+from nmsid.drivers.fake_hardware import load_fake
+from nmsid.drivers.hardware import make_hw_rig
+from nmsid.protocols.config import config_from_dict
+from nmsid.cli import main
+from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
+from nmsid.protocols.session_file import read_session, validate_session
 
 
 #: The fakes run in real time; on a loaded 2-core machine a chunk can come 100+ ms late,

@@ -7,8 +7,8 @@ import time
 
 import pytest
 
-from drivers.errors import DeviceNotFound
-from drivers.estop_switch import NidaqEStop, SerialEStop
+from nmsid.drivers.errors import DeviceNotFound
+from nmsid.drivers.estop_switch import NidaqEStop, SerialEStop
 
 
 @pytest.mark.parametrize("line, out", [("CTS", "rts"), ("DSR", "dtr")])

@@ -6,14 +6,14 @@ import sys
 
 import pytest
 
-from drivers.caio import CaioAcquisition
-from drivers.estop_switch import NidaqEStop, SerialEStop
-from drivers.hardware import make_hw_rig
-from drivers.interfaces import ForceAcquisition, RigDevices, Stimulator
-from drivers.leptrino import LeptrinoAcquisition
-from drivers.nidaq import NidaqAcquisition
-from drivers.stg4002 import Stg4002Stimulator
-from rig.cli import main
+from nmsid.drivers.caio import CaioAcquisition
+from nmsid.drivers.estop_switch import NidaqEStop, SerialEStop
+from nmsid.drivers.hardware import make_hw_rig
+from nmsid.drivers.interfaces import ForceAcquisition, RigDevices, Stimulator
+from nmsid.drivers.leptrino import LeptrinoAcquisition
+from nmsid.drivers.nidaq import NidaqAcquisition
+from nmsid.drivers.stg4002 import Stg4002Stimulator
+from nmsid.cli import main
 
 
 @pytest.mark.parametrize("kind, estop, inner, estop_cls", [
@@ -62,7 +62,7 @@ def test_probe_against_fakes(write_hw_config, tmp_path, capsys, kind):
 
 
 def test_probe_never_stimulates(write_hw_config, tmp_path, capsys):
-    from drivers.fake_hardware import load_fake
+    from nmsid.drivers.fake_hardware import load_fake
     path = write_hw_config(tmp_path / "hw.toml")
     assert main(["probe", "--hw-config", str(path)]) == 0
     calls = [c[0] for dev in load_fake("fake_mcs_usb").registry().devices for c in dev.calls]
@@ -75,7 +75,7 @@ def test_probe_never_stimulates(write_hw_config, tmp_path, capsys):
     ("nidaq", "nidaqmx", "nidaqmx")])
 def test_missing_vendor_library_is_one_line_exit_2(write_hw_config, tmp_path, capsys, monkeypatch, kind,
                                                     missing, text):
-    from drivers.fake_hardware import load_fake
+    from nmsid.drivers.fake_hardware import load_fake
     if kind == "nidaq":  # pythonnet present (fake), nidaqmx absent
         mods = {}
         load_fake("fake_mcs_usb").install(modules=mods)
@@ -93,7 +93,7 @@ def test_missing_vendor_library_is_one_line_exit_2(write_hw_config, tmp_path, ca
 
 
 def test_missing_caio_library_is_one_line(write_hw_config, tmp_path, capsys, monkeypatch):
-    from drivers.fake_hardware import load_fake
+    from nmsid.drivers.fake_hardware import load_fake
     mods = {}
     load_fake("fake_mcs_usb").install(modules=mods)
     for name, m in mods.items():

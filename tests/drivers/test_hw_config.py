@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from drivers.errors import HardwareConfigError
-from drivers.hw_config import load_hw_config, parse_hw_config
+from nmsid.drivers.errors import HardwareConfigError
+from nmsid.drivers.hw_config import load_hw_config, parse_hw_config
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "docs" / "hw-config.example.toml"
 

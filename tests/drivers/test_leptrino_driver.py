@@ -12,9 +12,9 @@ import time
 import numpy as np
 import pytest
 
-from drivers.errors import DeviceNotFound, ProtocolError
-from drivers.leptrino import LeptrinoAcquisition, LeptrinoSensor
-from drivers.leptrino_protocol import Command
+from nmsid.drivers.errors import DeviceNotFound, ProtocolError
+from nmsid.drivers.leptrino import LeptrinoAcquisition, LeptrinoSensor
+from nmsid.drivers.leptrino_protocol import Command
 
 RATED = (500.0, 500.0, 1000.0, 10.0, 10.0, 10.0)
 

@@ -7,7 +7,7 @@ import struct
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from drivers.leptrino_protocol import (
+from nmsid.drivers.leptrino_protocol import (
     DLE, ETX, STX, Command, Corrupt, Frame, FrameDecoder, Nak, Status, bcc,
     encode_command, encode_frame, parse_data_record, parse_product_info,
     parse_rated_values)

@@ -7,12 +7,12 @@ import time
 import numpy as np
 import pytest
 
-from drivers.analog_force import AnalogCalibration
-from drivers.errors import DeviceNotFound, VendorLibraryMissing
-from drivers.fake_hardware import load_fake
-from drivers.interfaces import CheckedWaveform
-from drivers.nidaq import NidaqAcquisition, load_nidaqmx
-from drivers.stg4002 import Stg4002Stimulator
+from nmsid.drivers.analog_force import AnalogCalibration
+from nmsid.drivers.errors import DeviceNotFound, VendorLibraryMissing
+from nmsid.drivers.fake_hardware import load_fake
+from nmsid.drivers.interfaces import CheckedWaveform
+from nmsid.drivers.nidaq import NidaqAcquisition, load_nidaqmx
+from nmsid.drivers.stg4002 import Stg4002Stimulator
 
 CAL = AnalogCalibration(channels={"Fx": 0}, rated={"Fx": 500.0}, rated_output_V={"Fx": 5.0},
                         sync_channel=1, extension_direction=(-1.0, 0.0, 0.0))

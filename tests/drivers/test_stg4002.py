@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from drivers.errors import DeviceError, DeviceNotFound, DeviceRangeError, VendorLibraryMissing
-from drivers.interfaces import CheckedWaveform, CurrentLimitError, StimulatorState
-from drivers.stg4002 import Stg4002Stimulator, load_mcs_usb
-from drivers.stg_waveform import render_channel
+from nmsid.drivers.errors import DeviceError, DeviceNotFound, DeviceRangeError, VendorLibraryMissing
+from nmsid.drivers.interfaces import CheckedWaveform, CurrentLimitError, StimulatorState
+from nmsid.drivers.stg4002 import Stg4002Stimulator, load_mcs_usb
+from nmsid.drivers.stg_waveform import render_channel
 
 FS = 2000.0
 FC = 1000.0
@@ -220,7 +220,7 @@ def test_rendered_never_exceeds_ceiling_and_demodulates_to_envelope(ceiling, res
 
 
 def test_last_check_refuses_a_rendered_point_above_the_ceiling():
-    from drivers.stg_waveform import RenderedChannel, check_rendered
+    from nmsid.drivers.stg_waveform import RenderedChannel, check_rendered
     ok = RenderedChannel(np.array([0, 4_000_000, -4_000_000, 0], dtype=np.int32),
                          np.array([20, 20, 20, 20], dtype=np.uint64), 20)
     check_rendered(ok, 4.0, "extensor")

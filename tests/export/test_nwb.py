@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from protocols.session_file import (Calibration, Event, SessionWriter, Trial, read_session)
+from nmsid.protocols.session_file import (Calibration, Event, SessionWriter, Trial, read_session)
 
 pynwb = pytest.importorskip("pynwb")
 pytest.importorskip("nwbinspector")
 
-from export.nwb import export_nwb, inspect_nwb, trial_start_times_s  # noqa: E402
+from nmsid.export.nwb import export_nwb, inspect_nwb, trial_start_times_s  # noqa: E402
 
 
 def _session(path, rng, *, fs_Hz, n, wrench=True, events=True, gzip_level=4):
@@ -125,7 +125,7 @@ def test_never_overwrites(tmp_path):
 
 
 def test_cli_export_and_bad_file(tmp_path, capsys):
-    from rig.cli import main
+    from nmsid.cli import main
     src = tmp_path / "s.h5"
     _session(src, np.random.default_rng(2), fs_Hz=1000.0, n=100)
     assert main(["export", "nwb", str(src), "--out", str(tmp_path / "o.nwb"), "--inspect"]) == 0

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from protocols.calibration import (Muscle, detect_thresholds, manual_calibration,
-                                   ramp_currents_mA, require_thresholds, settled_mean_N,
-                                   step_envelopes)
-from protocols.config import CalibrationConfig, ManualCurrents
-from protocols.errors import CalibrationError
+from nmsid.protocols.calibration import (Muscle, detect_thresholds, manual_calibration,
+                                         ramp_currents_mA, require_thresholds, settled_mean_N,
+                                         step_envelopes)
+from nmsid.protocols.config import CalibrationConfig, ManualCurrents
+from nmsid.protocols.errors import CalibrationError
 
 
 def test_ramp_plan_half_mA_steps_to_the_ceiling():

@@ -4,8 +4,8 @@ import json
 
 import pytest
 
-from protocols.config import (Config, ConfigError, PausePolicy, Randomisation, config_from_dict,
-                              config_from_json, load_config)
+from nmsid.protocols.config import (Config, ConfigError, PausePolicy, Randomisation, config_from_dict,
+                                    config_from_json, load_config)
 
 
 def test_defaults_are_the_papers_protocol():
@@ -110,6 +110,6 @@ def test_config_is_frozen():
 
 
 def test_missing_configuration_file_is_named(tmp_path):
-    from protocols.config import load_config
+    from nmsid.protocols.config import load_config
     with pytest.raises(FileNotFoundError, match="nope.toml: no such configuration file"):
         load_config(tmp_path / "nope.toml")

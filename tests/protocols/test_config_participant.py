@@ -2,9 +2,9 @@
 
 import pytest
 
-from protocols.config import (PARTICIPANT_MODELS, config_from_dict, config_from_json,
-                              load_config)
-from protocols.errors import ConfigError
+from nmsid.protocols.config import (PARTICIPANT_MODELS, config_from_dict, config_from_json,
+                                    load_config)
+from nmsid.protocols.errors import ConfigError
 
 
 def test_default_is_the_template_and_the_string_form_still_works():

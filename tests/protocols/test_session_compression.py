@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from protocols.session_file import (Calibration, SessionWriter, Trial, read_session,
-                                    validate_session)
+from nmsid.protocols.session_file import (Calibration, SessionWriter, Trial, read_session,
+                                          validate_session)
 
 
 def _trial(rng, n, *, scale, wrench_f32):
@@ -122,7 +122,7 @@ def test_old_uncompressed_file_reads_and_validates(tmp_path):
 
 
 def test_cli_validate_accepts_old_and_new(tmp_path, capsys):
-    from rig.cli import main
+    from nmsid.cli import main
     rng = np.random.default_rng(4)
     for name, level in (("old.h5", None), ("new.h5", 4)):
         _write(tmp_path / name, [_trial(rng, 1000, scale=1.0, wrench_f32=False)], level)

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from protocols.config import ProtocolConfig
-from protocols.waveforms import (chirp_frequency_Hz, chirp_phase_rad, chirp_time_s,
-                                 currents_mA, normalised_from_currents, rE_signal,
-                                 trial_waveform)
-from protocols.session_file import Calibration
+from nmsid.protocols.config import ProtocolConfig
+from nmsid.protocols.waveforms import (chirp_frequency_Hz, chirp_phase_rad, chirp_time_s,
+                                       currents_mA, normalised_from_currents, rE_signal,
+                                       trial_waveform)
+from nmsid.protocols.session_file import Calibration
 
 
 def test_chirp_frequency_is_the_phase_derivative():

@@ -6,13 +6,13 @@ import math
 import numpy as np
 import pytest
 
-from protocols.config import ConfigError, InputKind, config_from_dict, load_config
-from protocols.session_file import Calibration, SessionWriter, Trial, read_session, \
+from nmsid.protocols.config import ConfigError, InputKind, config_from_dict, load_config
+from nmsid.protocols.session_file import Calibration, SessionWriter, Trial, read_session, \
     trial_input, validate_session
-from protocols.waveforms import (chirp_phase_rad, excitation, input_attrs,
-                                 multisine_frequencies_Hz, multisine_unit, rE_signal,
-                                 trial_waveform)
-from rig.safety import check_waveform
+from nmsid.protocols.waveforms import (chirp_phase_rad, excitation, input_attrs,
+                                       multisine_frequencies_Hz, multisine_unit, rE_signal,
+                                       trial_waveform)
+from nmsid.rig.safety import check_waveform
 
 
 def _cfg(**protocol):
@@ -127,7 +127,7 @@ def test_input_attrs_are_written_read_and_default_to_the_chirp(tmp_path):
 
 
 def test_schroeder_phases_reduce_to_the_classic_formula_for_consecutive_harmonics():
-    from protocols.waveforms import schroeder_phases_rad
+    from nmsid.protocols.waveforms import schroeder_phases_rad
     K, T = 12, 2.0
     f = np.arange(1, K + 1) / T
     k = np.arange(1, K + 1)

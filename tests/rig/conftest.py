@@ -8,9 +8,9 @@ import threading
 import numpy as np
 import pytest
 
-from drivers.interfaces import (AcquisitionFlags, ForceChunk, RigDevices,
-                                StimulatorCapabilities, StimulatorState, StimulatorStatus)
-from protocols.config import config_from_dict
+from nmsid.drivers.interfaces import (AcquisitionFlags, ForceChunk, RigDevices,
+                                      StimulatorCapabilities, StimulatorState, StimulatorStatus)
+from nmsid.protocols.config import config_from_dict
 
 
 class FakeClock:

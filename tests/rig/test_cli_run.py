@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from rig.cli import main
-from protocols.session_file import read_session, validate_session
-from rig.session_log import journal_dir
+from nmsid.cli import main
+from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.session_log import journal_dir
 
 SHORT = """
 participant = "C01"
@@ -111,7 +111,7 @@ def test_ctrl_c_is_an_estop_and_leaves_a_valid_file(tmp_path):
                    'Iemax_mA = 9.5, Ifmin_mA = 1.5, Ifmax_mA = 8.0}\n')
     out = tmp_path / "cc.h5"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "rig.cli", "run", "--backend", "sim", "--realtime", "--config",
+        [sys.executable, "-m", "nmsid.cli", "run", "--backend", "sim", "--realtime", "--config",
          str(cfg), "--out", str(out), "--no-identify"], stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT, cwd=str(Path(__file__).resolve().parents[2]),
         env=dict(os.environ, PYTHONUNBUFFERED="1"))
@@ -134,7 +134,7 @@ def test_ctrl_c_is_an_estop_and_leaves_a_valid_file(tmp_path):
 
 def test_resume_uses_the_stored_virtual_participant(tmp_path, short_toml, monkeypatch,
                                                     capsys):
-    import rig.run_command as cli_run
+    import nmsid.cli.run_command as cli_run
 
     out = tmp_path / "s.h5"
     assert main(["run", "--backend", "sim", "--config", str(short_toml), "--out", str(out),

@@ -9,12 +9,12 @@ import pytest
 pytest.importorskip("mujoco")
 pytest.importorskip("myo_sim")
 
-from analysis.gap.effects import Effect  # noqa: E402
-from analysis.identify import identify_session  # noqa: E402
-from protocols.session_file import read_session, validate_session  # noqa: E402
-from rig.cli import main  # noqa: E402
-from rig.run_command import _seed_from_code  # noqa: E402
-from sim_backends.msk_participant import default_msk_participant  # noqa: E402
+from nmsid.analysis.gap.effects import Effect  # noqa: E402
+from nmsid.analysis.identify import identify_session  # noqa: E402
+from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
+from nmsid.cli import main  # noqa: E402
+from nmsid.cli.run_command import _seed_from_code  # noqa: E402
+from nmsid.sim_backends.msk_participant import default_msk_participant  # noqa: E402
 
 TOML = """
 [participant]

@@ -8,8 +8,8 @@ import sys
 import h5py
 import numpy as np
 
-from rig.cli import main
-from protocols.session_file import Calibration, SessionWriter, Trial
+from nmsid.cli import main
+from nmsid.protocols.session_file import Calibration, SessionWriter, Trial
 
 
 def _good(path):
@@ -42,7 +42,7 @@ def test_every_violation_is_printed(tmp_path, capsys):
 def test_console_script_gives_one_line_not_a_traceback(tmp_path):
     junk = tmp_path / "junk.h5"
     junk.write_text("nope")
-    proc = subprocess.run([sys.executable, "-m", "rig.cli", "validate", str(junk)],
+    proc = subprocess.run([sys.executable, "-m", "nmsid.cli", "validate", str(junk)],
                           capture_output=True, text=True)
     assert proc.returncode == 1
     assert "Traceback" not in proc.stdout + proc.stderr

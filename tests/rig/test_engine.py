@@ -5,12 +5,12 @@ import threading
 import numpy as np
 import pytest
 
-from protocols.config import ConfigError
-from protocols.schedule import TrialStatus
-from rig.engine import Engine, EngineObserver, TripPolicy, is_rerun_wait
-from protocols.session_file import Calibration, read_session, validate_session
-from rig.session_log import journal_dir
-from rig.states import State
+from nmsid.protocols.config import ConfigError
+from nmsid.protocols.schedule import TrialStatus
+from nmsid.rig.engine import Engine, EngineObserver, TripPolicy, is_rerun_wait
+from nmsid.protocols.session_file import Calibration, read_session, validate_session
+from nmsid.rig.session_log import journal_dir
+from nmsid.rig.states import State
 
 
 class Recorder(EngineObserver):
@@ -272,7 +272,7 @@ def test_manual_calibration_skips_ramps(tmp_path, fake_rig, small_config):
 
 def test_failed_calibration_stops_before_any_trial(tmp_path, fake_rig, small_config):
     rig = fake_rig(k_e=0.01)  # a muscle that never reaches Fmax under the ceiling
-    from protocols.errors import CalibrationError
+    from nmsid.protocols.errors import CalibrationError
     eng = Engine(small_config(), rig, tmp_path / "s.h5")
     with pytest.raises(CalibrationError, match="extensor"):
         eng.run()

@@ -2,7 +2,7 @@
 
 Every trial the process reported completed before the kill must be in the recovered file,
 bit for bit (CRC of its force samples, as printed), and the file must validate. Most kills
-hit forked children of this test process (``rig.cli.main`` runs in the child exactly as
+hit forked children of this test process (``nmsid.cli.main`` runs in the child exactly as
 the ``nmsid`` command would, without paying the interpreter start-up each time); two
 kill a genuine ``python -m rig.cli run`` subprocess.
 """
@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from protocols.session_file import read_session, validate_session
-from rig.session_log import PARTIAL_ABORT_REASON, journal_dir, recover
+from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.session_log import PARTIAL_ABORT_REASON, journal_dir, recover
 
 CONFIG = """
 participant = "K01"
@@ -57,7 +57,7 @@ def _fork_main(argv, log_path):
             sys.stdout = open(1, "w", buffering=1, closefd=False)
             sys.stderr = open(2, "w", buffering=1, closefd=False)
             signal.signal(signal.SIGINT, signal.default_int_handler)
-            from rig.cli import main
+            from nmsid.cli import main
             code = main(argv)
         except BaseException:
             import traceback
@@ -104,10 +104,10 @@ def _check_after_kill(path, printed):
 
 
 def test_sigkill_at_random_moments_loses_nothing_completed(tmp_path):
-    import rig.cli  # noqa: F401  (import once here, not in every child)
-    import rig.run_command  # noqa: F401
-    import rig.engine  # noqa: F401
-    import sim_backends.rig  # noqa: F401
+    import nmsid.cli  # noqa: F401  (import once here, not in every child)
+    import nmsid.cli.run_command  # noqa: F401
+    import nmsid.rig.engine  # noqa: F401
+    import nmsid.sim_backends.rig  # noqa: F401
     cfg = tmp_path / "k.toml"
     cfg.write_text(CONFIG)
     # a reference run: how long a whole session takes in a child here and now
@@ -167,7 +167,7 @@ def test_sigkill_a_real_nmsid_process(tmp_path):
         path = tmp_path / f"r{k}.h5"
         log = tmp_path / f"r{k}.txt"
         with open(log, "wb") as fh:
-            proc = subprocess.Popen([sys.executable, "-m", "rig.cli", *_argv(cfg, path)],
+            proc = subprocess.Popen([sys.executable, "-m", "nmsid.cli", *_argv(cfg, path)],
                                     stdout=fh, stderr=subprocess.STDOUT, env=env,
                                     cwd=str(Path(__file__).resolve().parents[2]))
             t0 = time.monotonic()

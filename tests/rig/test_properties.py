@@ -6,10 +6,10 @@ import itertools
 import numpy as np
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from protocols.config import config_from_dict
-from rig.engine import Engine, EngineObserver, TripPolicy
-from protocols.session_file import read_session, validate_session
-from rig.states import State
+from nmsid.protocols.config import config_from_dict
+from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
+from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.states import State
 
 _counter = itertools.count()
 

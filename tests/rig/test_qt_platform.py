@@ -9,10 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from rig import qt_platform
-from rig.cli import main
-from rig.qt_platform import (XCB_PLUGIN_LIBRARIES, QtPlatformLibrariesMissing, check_xcb,
-                             xcb_will_be_used)
+from nmsid.rig import qt_platform
+from nmsid.cli import main
+from nmsid.rig.qt_platform import (XCB_PLUGIN_LIBRARIES, QtPlatformLibrariesMissing, check_xcb,
+                                   xcb_will_be_used)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -89,7 +89,7 @@ def test_real_process_without_the_libraries_on_this_machine():
     if not absent:
         pytest.skip("this machine has every xcb plugin library; nothing to refuse")
     env = dict(os.environ, QT_QPA_PLATFORM="xcb", PYTHONPATH=str(ROOT))
-    proc = subprocess.run([sys.executable, "-m", "rig.cli", "gui", "--backend", "sim"],
+    proc = subprocess.run([sys.executable, "-m", "nmsid.cli", "gui", "--backend", "sim"],
                           env=env, capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()

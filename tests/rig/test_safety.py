@@ -6,11 +6,11 @@ import time
 import numpy as np
 import pytest
 
-from drivers.interfaces import (AcquisitionFlags, CurrentLimitError, ForceChunk,
-                                StimulatorState, StimulatorStatus)
-from protocols.config import InterlockConfig
-from rig.safety import (AcquisitionFlagsRule, ForceLimitRule, Interlock, InterlockTripped,
-                        StallRule, check_waveform)
+from nmsid.drivers.interfaces import (AcquisitionFlags, CurrentLimitError, ForceChunk,
+                                      StimulatorState, StimulatorStatus)
+from nmsid.protocols.config import InterlockConfig
+from nmsid.rig.safety import (AcquisitionFlagsRule, ForceLimitRule, Interlock, InterlockTripped,
+                              StallRule, check_waveform)
 
 
 class Stim:

@@ -8,8 +8,8 @@ import shutil
 import numpy as np
 import pytest
 
-from protocols.session_file import Calibration, SessionExistsError, SessionFileError, SessionWriter, Trial, read_session, validate_session
-from rig.session_log import PARTIAL_ABORT_REASON, SessionLog, journal_dir, recover
+from nmsid.protocols.session_file import Calibration, SessionExistsError, SessionFileError, SessionWriter, Trial, read_session, validate_session
+from nmsid.rig.session_log import PARTIAL_ABORT_REASON, SessionLog, journal_dir, recover
 
 
 def _trial(i, n=500, status="completed"):

@@ -9,17 +9,17 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from protocols.config import config_from_dict
-from rig.engine import Engine, EngineObserver, TripPolicy
-from protocols.session_file import read_session, validate_session
-from rig.states import State
-from sim_backends import Fault, FaultKind, make_sim_rig
+from nmsid.protocols.config import config_from_dict
+from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
+from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.states import State
+from nmsid.sim_backends import Fault, FaultKind, make_sim_rig
 
 _n = itertools.count()
 
 
 def test_full_session_recovers_the_participants_truth(tmp_path):
-    from analysis.identify import identify_session
+    from nmsid.analysis.identify import identify_session
 
     rig = make_sim_rig(seed=11)
     cfg = config_from_dict({"participant": "S11", "seed": 5, "protocol": {"rest_s": 0.0}})

@@ -2,7 +2,7 @@
 
 import pytest
 
-from rig.states import OUTPUT_STATES, TRANSITIONS, IllegalTransition, State, StateMachine
+from nmsid.rig.states import OUTPUT_STATES, TRANSITIONS, IllegalTransition, State, StateMachine
 
 
 def test_every_state_has_a_row_and_finished_is_terminal():

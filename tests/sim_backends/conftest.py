@@ -6,6 +6,6 @@ import pytest
 @pytest.fixture
 def ideal_participant():
     """The default participant with a noiseless, offset-free force chain."""
-    from sim_backends.participant import default_participant
-    from sim_backends.sensor import SensorModel
+    from nmsid.sim_backends.participant import default_participant
+    from nmsid.sim_backends.sensor import SensorModel
     return default_participant(sensor=SensorModel.ideal())

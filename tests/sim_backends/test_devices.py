@@ -8,15 +8,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.errors import DeviceRangeError
-from drivers.interfaces import CheckedWaveform, StimulatorState
-from sim_backends import make_sim_rig
-from sim_backends.direct_drive import currents_for, run_waveform, waveform
-from sim_backends.errors import DeviceStateError
-from sim_backends.faults import Fault, FaultKind
-from sim_backends.participant import default_participant
-from sim_backends.sensor import SensorModel
-from sim_backends.simulation import ParticipantSimulator
+from nmsid.drivers.errors import DeviceRangeError
+from nmsid.drivers.interfaces import CheckedWaveform, StimulatorState
+from nmsid.sim_backends import make_sim_rig
+from nmsid.sim_backends.direct_drive import currents_for, run_waveform, waveform
+from nmsid.sim_backends.errors import DeviceStateError
+from nmsid.sim_backends.faults import Fault, FaultKind
+from nmsid.sim_backends.participant import default_participant
+from nmsid.sim_backends.sensor import SensorModel
+from nmsid.sim_backends.simulation import ParticipantSimulator
 
 FS = 2000.0
 
@@ -231,7 +231,7 @@ def test_concurrent_stop_now_calls_while_reading_on_the_fast_clock():
 @given(st.sampled_from(list(FaultKind)), st.floats(0.0, 0.9), st.integers(0, 1))
 def test_after_any_fault_and_a_stop_the_output_is_zero(kind, at_s, trial):
     """An engine-like loop stops on any fault it can see; from then on nothing is output."""
-    from sim_backends.errors import StimulatorFault
+    from nmsid.sim_backends.errors import StimulatorFault
     p = default_participant(sensor=SensorModel.ideal())
     rig = make_sim_rig(p, faults=[Fault(kind, trial=trial, at_s=at_s, amplitude_N=80.0)],
                        connect=True)

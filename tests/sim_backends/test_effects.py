@@ -8,15 +8,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import signal
 
-from sim_backends import make_sim_rig
-from sim_backends.direct_drive import currents_for, ramp_thresholds, run_waveform, waveform
-from sim_backends.effects import (EFFECT_NAMES, ActivationDynamics, BaselineDrift, DeadTime,
-                                  Fatigue, FlexorExtensorAsymmetry, RecruitmentNonlinearity,
-                                  effect_from_dict, effects_from_list, effects_to_list)
-from sim_backends.errors import SimConfigError
-from sim_backends.filters import second_order_zoh
-from sim_backends.participant import default_participant
-from sim_backends.sensor import SensorModel
+from nmsid.sim_backends import make_sim_rig
+from nmsid.sim_backends.direct_drive import currents_for, ramp_thresholds, run_waveform, waveform
+from nmsid.sim_backends.effects import (EFFECT_NAMES, ActivationDynamics, BaselineDrift, DeadTime,
+                                        Fatigue, FlexorExtensorAsymmetry, RecruitmentNonlinearity,
+                                        effect_from_dict, effects_from_list, effects_to_list)
+from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.filters import second_order_zoh
+from nmsid.sim_backends.participant import default_participant
+from nmsid.sim_backends.sensor import SensorModel
 
 FS = 2000.0
 ATOL_N = 2e-3

@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from drivers.interfaces import StimulatorState
-from sim_backends import make_sim_rig
-from sim_backends.direct_drive import currents_for, run_waveform, waveform
-from sim_backends.errors import SimConfigError, StimulatorDisconnected, StimulatorFault
-from sim_backends.faults import Fault, FaultKind, FaultScript
-from sim_backends.participant import default_participant
-from sim_backends.sensor import SensorModel
+from nmsid.drivers.interfaces import StimulatorState
+from nmsid.sim_backends import make_sim_rig
+from nmsid.sim_backends.direct_drive import currents_for, run_waveform, waveform
+from nmsid.sim_backends.errors import SimConfigError, StimulatorDisconnected, StimulatorFault
+from nmsid.sim_backends.faults import Fault, FaultKind, FaultScript
+from nmsid.sim_backends.participant import default_participant
+from nmsid.sim_backends.sensor import SensorModel
 
 FS = 2000.0
 

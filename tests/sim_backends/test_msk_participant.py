@@ -11,17 +11,17 @@ import pytest
 pytest.importorskip("mujoco")
 pytest.importorskip("myo_sim")
 
-from protocols.waveforms import currents_mA, rE_signal  # noqa: E402
-from protocols.config import ProtocolConfig  # noqa: E402
-from sim_backends import make_sim_rig  # noqa: E402
-from sim_backends.msk_participant import MskParticipant, default_msk_participant  # noqa: E402
-from sim_backends.msk_physics import MuscleFatigue  # noqa: E402
-from sim_backends.msk_population import make_msk_population  # noqa: E402
-from sim_backends.msk_simulation import MskSimulator  # noqa: E402
-from sim_backends.msk_truth import fit_second_order_reference  # noqa: E402
-from sim_backends.participant import TrueParameters  # noqa: E402
-from sim_backends.sensor import SensorModel  # noqa: E402
-from sim_backends.simulation import ParticipantSimulator  # noqa: E402
+from nmsid.protocols.waveforms import currents_mA, rE_signal  # noqa: E402
+from nmsid.protocols.config import ProtocolConfig  # noqa: E402
+from nmsid.sim_backends import make_sim_rig  # noqa: E402
+from nmsid.sim_backends.msk_participant import MskParticipant, default_msk_participant  # noqa: E402
+from nmsid.sim_backends.msk_physics import MuscleFatigue  # noqa: E402
+from nmsid.sim_backends.msk_population import make_msk_population  # noqa: E402
+from nmsid.sim_backends.msk_simulation import MskSimulator  # noqa: E402
+from nmsid.sim_backends.msk_truth import fit_second_order_reference  # noqa: E402
+from nmsid.sim_backends.participant import TrueParameters  # noqa: E402
+from nmsid.sim_backends.sensor import SensorModel  # noqa: E402
+from nmsid.sim_backends.simulation import ParticipantSimulator  # noqa: E402
 
 SHORT = ProtocolConfig(steady_s=1.0, chirp_s=3.0)
 
@@ -163,7 +163,7 @@ def test_true_parameters_are_the_truths_first_three():
 
 
 def test_bad_participant_settings_are_refused():
-    from sim_backends.errors import SimConfigError
+    from nmsid.sim_backends.errors import SimConfigError
     with pytest.raises(SimConfigError, match="code"):
         MskParticipant(code="not ok")
     with pytest.raises(SimConfigError, match="tau_act_s"):
@@ -173,7 +173,7 @@ def test_bad_participant_settings_are_refused():
 
 
 def test_coactivation_stiffens_the_endpoint_dynamics():
-    from sim_backends.msk_physics import CoactivationStiffness
+    from nmsid.sim_backends.msk_physics import CoactivationStiffness
     bare = default_msk_participant(stiffening=CoactivationStiffness(gamma=0.0))
     stiff = default_msk_participant(stiffening=CoactivationStiffness(gamma=12.0))
     sim = MskSimulator(stiff)
@@ -192,7 +192,7 @@ def test_coactivation_stiffens_the_endpoint_dynamics():
 
 def test_trial_variant_moves_the_parameter_its_physics_drives():
     """gain -> Kp, speed -> wn, damping -> zeta, each mostly on its own; 1 changes nothing."""
-    from sim_backends.errors import SimConfigError
+    from nmsid.sim_backends.errors import SimConfigError
     p = default_msk_participant()
     cal = p.ramp_calibration()
     assert p.trial_variant() == p

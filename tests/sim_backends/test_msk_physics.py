@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from sim_backends.errors import SimConfigError
-from sim_backends.msk_physics import (MUSCLES, FixtureMount, MuscleDrive, MuscleFatigue,
-                                      Recruitment, default_drives)
+from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.msk_physics import (MUSCLES, FixtureMount, MuscleDrive, MuscleFatigue,
+                                            Recruitment, default_drives)
 
 
 @pytest.mark.parametrize("th, i50, w, a", [(2.0, 8.0, 1.5, 0.1), (0.5, 3.0, 0.4, 1.0),
@@ -90,10 +90,10 @@ def test_bad_settings_name_the_setting(make, word):
 def test_missing_extra_is_one_clear_error(monkeypatch, tmp_path, capsys):
     import sys
 
-    from rig.cli import main
-    from sim_backends.msk_model import MujocoUnavailable
-    from sim_backends.msk_participant import default_msk_participant
-    from sim_backends.msk_simulation import MskSimulator
+    from nmsid.cli import main
+    from nmsid.sim_backends.msk_model import MujocoUnavailable
+    from nmsid.sim_backends.msk_participant import default_msk_participant
+    from nmsid.sim_backends.msk_simulation import MskSimulator
 
     monkeypatch.setitem(sys.modules, "mujoco", None)      # as if not installed
     with pytest.raises(MujocoUnavailable, match=r"'mujoco' extra"):

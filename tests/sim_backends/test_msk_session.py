@@ -7,12 +7,12 @@ import pytest
 pytest.importorskip("mujoco")
 pytest.importorskip("myo_sim")
 
-from protocols.config import config_from_dict  # noqa: E402
-from protocols.session_file import read_session, validate_session  # noqa: E402
-from rig.engine import Engine, EngineObserver, TripPolicy  # noqa: E402
-from rig.states import State  # noqa: E402
-from sim_backends import Fault, FaultKind, make_sim_rig  # noqa: E402
-from sim_backends.msk_population import make_msk_population  # noqa: E402
+from nmsid.protocols.config import config_from_dict  # noqa: E402
+from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
+from nmsid.rig.engine import Engine, EngineObserver, TripPolicy  # noqa: E402
+from nmsid.rig.states import State  # noqa: E402
+from nmsid.sim_backends import Fault, FaultKind, make_sim_rig  # noqa: E402
+from nmsid.sim_backends.msk_population import make_msk_population  # noqa: E402
 
 
 @pytest.fixture(scope="module")

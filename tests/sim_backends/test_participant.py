@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from sim_backends import make_sim_rig
-from sim_backends.direct_drive import (chirp_rE, currents_for, ramp_thresholds,
-                                       run_waveform, waveform)
-from sim_backends.filters import second_order_zoh
-from sim_backends.participant import ReferenceCalibration, default_participant
-from sim_backends.population import make_population
-from sim_backends.sensor import SensorModel
+from nmsid.sim_backends import make_sim_rig
+from nmsid.sim_backends.direct_drive import (chirp_rE, currents_for, ramp_thresholds,
+                                             run_waveform, waveform)
+from nmsid.sim_backends.filters import second_order_zoh
+from nmsid.sim_backends.participant import ReferenceCalibration, default_participant
+from nmsid.sim_backends.population import make_population
+from nmsid.sim_backends.sensor import SensorModel
 
 FS = 2000.0
 ATOL_N = 2e-3   # 1 uA current quantisation moves rE by ~2e-4: Kp * 2e-4 < 2e-3 N

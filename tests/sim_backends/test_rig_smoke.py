@@ -1,10 +1,10 @@
 """The simulated rig runs a trial through the device interfaces, aligned to the trigger."""
 
 import numpy as np
-from drivers.interfaces import (EStopInput, ForceAcquisition, RigDevices, Stimulator,
-                                StimulatorState)
-from sim_backends import make_sim_rig
-from sim_backends.direct_drive import chirp_rE, currents_for, run_waveform, waveform
+from nmsid.drivers.interfaces import (EStopInput, ForceAcquisition, RigDevices, Stimulator,
+                                      StimulatorState)
+from nmsid.sim_backends import make_sim_rig
+from nmsid.sim_backends.direct_drive import chirp_rE, currents_for, run_waveform, waveform
 
 
 def test_rig_implements_the_interfaces():

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from sim_backends.errors import SimConfigError
-from sim_backends.sensor import SensorModel, SensorState
+from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.sensor import SensorModel, SensorState
 
 FS = 2000.0
 

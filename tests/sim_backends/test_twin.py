@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from sim_backends import make_sim_rig, participant_from_twin
-from sim_backends.direct_drive import chirp_rE, currents_for, run_waveform, waveform
-from sim_backends.errors import SimConfigError
-from sim_backends.filters import second_order_zoh
-from sim_backends.population import make_population
-from sim_backends.sensor import SensorModel
-from sim_backends.twin import write_twin
+from nmsid.sim_backends import make_sim_rig, participant_from_twin
+from nmsid.sim_backends.direct_drive import chirp_rE, currents_for, run_waveform, waveform
+from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.filters import second_order_zoh
+from nmsid.sim_backends.population import make_population
+from nmsid.sim_backends.sensor import SensorModel
+from nmsid.sim_backends.twin import write_twin
 
 TWIN = {
     "format": "nmsid-twin", "format_version": 1, "participant": "P01",

@@ -12,13 +12,13 @@ import pytest
 
 pytest.importorskip("distributed")
 
-from study.config import load_study  # noqa: E402
-from study.errors import StudyConfigError  # noqa: E402
-from study.group import gap_summary  # noqa: E402
-from study.runner import run_study  # noqa: E402
+from nmsid.study.config import load_study  # noqa: E402
+from nmsid.study.errors import StudyConfigError  # noqa: E402
+from nmsid.study.group import gap_summary  # noqa: E402
+from nmsid.study.runner import run_study  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-from testing.sessions import write_synthetic_session  # noqa: E402
+from nmsid.testing.sessions import write_synthetic_session  # noqa: E402
 
 LEVELS = (0.3, 0.4, 0.5, 0.6, 0.7, 0.8)
 
@@ -141,7 +141,7 @@ def test_unknown_identification_setting(folder):
 
 
 def test_cli_missing_folder_is_one_line(tmp_path, capsys):
-    from rig.cli import main
+    from nmsid.cli import main
     assert main(["study", str(tmp_path / "nope"), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "nope" in err and err.count("\n") == 1

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from analysis.settings import IdentificationSettings
-from study.tasks import run_session
-from testing.sessions import write_gap_session
+from nmsid.analysis.settings import IdentificationSettings
+from nmsid.study.tasks import run_session
+from nmsid.testing.sessions import write_gap_session
 
 
 def test_study_task_reads_its_session_once(tmp_path, session_reads):

@@ -6,16 +6,16 @@ import json
 import numpy as np
 import pytest
 
-from analysis.design.api import run_design
-from analysis.design.candidates import Candidate
-from analysis.design.errors import DesignError
-from analysis.design.predict import DEFAULT_SCATTER
-from analysis.design.prior import PARAMETERS, population_prior
-from analysis.design.search import parse_target
-from analysis.design.validate import alternative_scatter
-from protocols.config import load_config
-from protocols.session_file import read_session, trial_input, validate_session
-from rig.cli import main
+from nmsid.analysis.design.api import run_design
+from nmsid.analysis.design.candidates import Candidate
+from nmsid.analysis.design.errors import DesignError
+from nmsid.analysis.design.predict import DEFAULT_SCATTER
+from nmsid.analysis.design.prior import PARAMETERS, population_prior
+from nmsid.analysis.design.search import parse_target
+from nmsid.analysis.design.validate import alternative_scatter
+from nmsid.protocols.config import load_config
+from nmsid.protocols.session_file import read_session, trial_input, validate_session
+from nmsid.cli import main
 
 SMALL_MULTISINE = Candidate(sE_levels=(0.3, 0.45, 0.6, 0.8, 1.0), repeats=2, steady_s=1.0,
                             chirp_s=3.0, input_kind="multisine", multisine_tones=10,
@@ -85,9 +85,9 @@ def test_designed_protocol_runs_validates_identifies_and_gap_works(designed, tmp
 
 
 def test_multisine_session_identifies_close_to_the_truth(tmp_path):
-    from analysis.design.validate import simulate_session
-    from analysis.identify import identify_session
-    from sim_backends.population import make_population
+    from nmsid.analysis.design.validate import simulate_session
+    from nmsid.analysis.identify import identify_session
+    from nmsid.sim_backends.population import make_population
     vp = make_population(1, seed=11)[0]
     res = identify_session(simulate_session(vp, SMALL_MULTISINE, seed=2))
     for lv in res.levels:
@@ -97,7 +97,7 @@ def test_multisine_session_identifies_close_to_the_truth(tmp_path):
 
 
 def test_cli_design_writes_outputs_and_prints_the_ratio(tmp_path, capsys, monkeypatch):
-    import analysis.design.api as api
+    import nmsid.analysis.design.api as api
     real = api.search_space
     monkeypatch.setattr(api, "search_space", lambda **kw: [SMALL_CHIRP])
     code = main(["design", "--population", "--n-prior", "2", "--validate", "0",
@@ -132,7 +132,7 @@ def test_sd_target_parses_and_refuses_nonsense():
 
 
 def test_a_multisine_protocol_runs_and_identify_and_gap_work_on_it(tmp_path):
-    from analysis.design.report import protocol_toml
+    from nmsid.analysis.design.report import protocol_toml
     toml = tmp_path / "ms.toml"
     toml.write_text(protocol_toml(SMALL_MULTISINE, "a multisine protocol"))
     session = tmp_path / "M01.h5"

@@ -7,11 +7,11 @@ import json
 
 import pytest
 
-from analysis.design.candidates import (Candidate, paper_candidate, search_space,
-                                        with_paper_excitation)
-from analysis.design.errors import DesignError
-from analysis.design.prior import SECOND_ORDER_FIT_PCT, adequacy_from_parameters
-from rig.cli import main
+from nmsid.analysis.design.candidates import (Candidate, paper_candidate, search_space,
+                                              with_paper_excitation)
+from nmsid.analysis.design.errors import DesignError
+from nmsid.analysis.design.prior import SECOND_ORDER_FIT_PCT, adequacy_from_parameters
+from nmsid.cli import main
 
 FIRST = Candidate(sE_levels=(0.30, 0.45, 0.60, 0.80, 1.00), repeats=2, label="first")
 SHORT_INPUT = Candidate(sE_levels=(0.3, 0.45, 0.6, 0.8, 1.0), repeats=3, steady_s=2.0,
@@ -62,9 +62,9 @@ def test_paper_excitation_candidates_vary_only_what_leaves_the_twin_alone():
 def first_session(tmp_path_factory):
     """twin.json + parameters.csv of a first session on a second-order participant whose
     physiology scatters between trials (so a shorter input is enough for it)."""
-    from analysis.design.validate import simulate_session
-    from analysis.run import run_identification
-    from sim_backends.population import make_population
+    from nmsid.analysis.design.validate import simulate_session
+    from nmsid.analysis.run import run_identification
+    from nmsid.sim_backends.population import make_population
     out = tmp_path_factory.mktemp("first")
     vp = make_population(1, seed=12)[0]
     scatter = {"Kp": 0.1, "wn_rad_s": 0.05, "zeta": 0.05}
@@ -74,7 +74,7 @@ def first_session(tmp_path_factory):
 
 
 def _design(out_dir, first, monkeypatch, params, *extra):
-    import analysis.design.api as api
+    import nmsid.analysis.design.api as api
     monkeypatch.setattr(api, "search_space", lambda **kw: [SHORT_INPUT, PAPER_INPUT])
     code = main(["design", "--twin", str(first / "twin.json"), "--scatter-from",
                  str(params), "--validate", "0", "--out", str(out_dir), *extra])

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy.signal import lsim
 
-from analysis.second_order import fisher_information
-from analysis.settings import IdentificationSettings
+from nmsid.analysis.second_order import fisher_information
+from nmsid.analysis.settings import IdentificationSettings
 
 
 def _chirp(fs, T, f0=1.0, f1=10.0):
@@ -62,7 +62,7 @@ def test_information_scales_with_noise_amplitude_and_length():
 
 
 def test_information_is_symmetric_positive_definite_for_a_multisine():
-    from protocols.waveforms import multisine_frequencies_Hz, multisine_unit
+    from nmsid.protocols.waveforms import multisine_frequencies_Hz, multisine_unit
     fs, T = 200.0, 4.0
     t = np.arange(int(T * fs)) / fs
     u = 0.5 * multisine_unit(t, multisine_frequencies_Hz(1.0, 10.0, T, 12), T)

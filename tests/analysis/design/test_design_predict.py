@@ -5,10 +5,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from analysis.curves import fit_curve
-from analysis.design.candidates import PAPER_LEVELS, Candidate, paper_candidate
-from analysis.design.predict import Predictor, curve_gradient, derived_quantities, sd_ratio
-from analysis.design.prior import Prior, PriorCurve, PriorParticipant
+from nmsid.analysis.curves import fit_curve
+from nmsid.analysis.design.candidates import PAPER_LEVELS, Candidate, paper_candidate
+from nmsid.analysis.design.predict import Predictor, curve_gradient, derived_quantities, sd_ratio
+from nmsid.analysis.design.prior import Prior, PriorCurve, PriorParticipant
 
 
 def _prior(kp=("linear", (1.0, 8.0)), wn=("quadratic", (5.0, 60.0, -40.0)),
@@ -96,7 +96,7 @@ def test_selection_accuracy_high_when_precise_low_when_noisy():
 
 
 def test_population_prior_predicts_for_every_participant():
-    from analysis.design.prior import population_prior
+    from nmsid.analysis.design.prior import population_prior
     pr = Predictor(population_prior(3, seed=5))
     pred = pr.predict(SHORT)
     assert pred.curve_se.shape == (3, 15, 3) and np.all(np.isfinite(pred.curve_se))
@@ -113,7 +113,7 @@ def _write_params(path, x, values, ses, n_trials=3, code="T1"):
 
 @pytest.mark.parametrize("s_trial", [(0.1, 0.05, 0.02), (0.03, 0.2, 0.08)])
 def test_scatter_measured_on_a_first_session_recovers_the_per_trial_scatter(tmp_path, s_trial):
-    from analysis.design.prior import scatter_from_parameters
+    from nmsid.analysis.design.prior import scatter_from_parameters
     prior = _prior()
     who = prior.participants[0]
     x = np.linspace(0.3, 1.0, 400)
@@ -130,7 +130,7 @@ def test_scatter_measured_on_a_first_session_recovers_the_per_trial_scatter(tmp_
 
 
 def test_scatter_is_zero_when_the_standard_errors_explain_the_residuals(tmp_path):
-    from analysis.design.prior import scatter_from_parameters
+    from nmsid.analysis.design.prior import scatter_from_parameters
     prior = _prior()
     who = prior.participants[0]
     x = np.linspace(0.3, 1.0, 300)
@@ -143,8 +143,8 @@ def test_scatter_is_zero_when_the_standard_errors_explain_the_residuals(tmp_path
 
 
 def test_scatter_from_a_bad_file_names_it(tmp_path):
-    from analysis.design.errors import DesignError
-    from analysis.design.prior import scatter_from_parameters
+    from nmsid.analysis.design.errors import DesignError
+    from nmsid.analysis.design.prior import scatter_from_parameters
     with pytest.raises(DesignError, match="nope.csv"):
         scatter_from_parameters(tmp_path / "nope.csv", _prior())
     (tmp_path / "few.csv").write_text("participant,sE,Kp,wn_rad_s,zeta,n_trials,Kp_se,"

@@ -6,13 +6,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from analysis.design.candidates import Candidate, paper_candidate, rest_for, search_space
-from analysis.design.predict import Predictor
-from analysis.design.prior import population_prior
-from analysis.design.search import design, parse_target
-from protocols.session_file import Calibration
-from protocols.waveforms import trial_waveform
-from rig.safety import check_waveform
+from nmsid.analysis.design.candidates import Candidate, paper_candidate, rest_for, search_space
+from nmsid.analysis.design.predict import Predictor
+from nmsid.analysis.design.prior import population_prior
+from nmsid.analysis.design.search import design, parse_target
+from nmsid.protocols.session_file import Calibration
+from nmsid.protocols.waveforms import trial_waveform
+from nmsid.rig.safety import check_waveform
 
 
 def test_every_input_of_the_search_space_is_a_valid_config_under_the_ceilings():

@@ -5,13 +5,13 @@ validated ratio's Monte-Carlo standard error."""
 import numpy as np
 import pytest
 
-from analysis.design.api import validate_protocols
-from analysis.design.candidates import Candidate
-from analysis.design.errors import DesignError
-from analysis.design.predict import DEFAULT_SCATTER
-from analysis.design.prior import PARAMETERS
-from analysis.design.validate import (ProtocolOutcome, ScatterModel, alternative_scatter,
-                                      simulate_session, validated_ratio)
+from nmsid.analysis.design.api import validate_protocols
+from nmsid.analysis.design.candidates import Candidate
+from nmsid.analysis.design.errors import DesignError
+from nmsid.analysis.design.predict import DEFAULT_SCATTER
+from nmsid.analysis.design.prior import PARAMETERS
+from nmsid.analysis.design.validate import (ProtocolOutcome, ScatterModel, alternative_scatter,
+                                            simulate_session, validated_ratio)
 
 SHORT = Candidate(sE_levels=(0.5, 0.9), repeats=2, steady_s=1.0, chirp_s=3.0, rest_s=10.0)
 
@@ -23,10 +23,10 @@ def _swing(trial):
 
 
 def _participants():
-    from sim_backends.population import make_population
+    from nmsid.sim_backends.population import make_population
     out = [make_population(1, seed=4)[0]]
     try:
-        from sim_backends.msk_population import make_msk_population
+        from nmsid.sim_backends.msk_population import make_msk_population
     except ImportError:
         return out
     return out + [make_msk_population(1, seed=7)[0]]
@@ -49,7 +49,7 @@ def test_gain_scatter_changes_each_repeat_and_is_reproducible(vp):
 def test_streams_share_or_separate_the_draw_of_a_level_and_repeat():
     """The same stream: the same (sE, repeat) gets the same physiology whatever the
     protocol (a longer rest changes nothing else); another stream draws anew."""
-    from sim_backends.population import make_population
+    from nmsid.sim_backends.population import make_population
     vp = make_population(1, seed=4)[0]
     longer = Candidate(sE_levels=(0.5, 0.9), repeats=2, steady_s=1.0, chirp_s=3.0,
                        rest_s=30.0)
@@ -110,7 +110,7 @@ def test_one_protocol_against_itself_is_one_within_its_standard_error():
     """Independent draws per protocol (the validation as ``nmsid design`` runs it): a
     protocol compared with itself is 1 within its own Monte-Carlo SE, and not exactly 1
     (as it was when both protocols saw the same draws)."""
-    from sim_backends.population import make_population
+    from nmsid.sim_backends.population import make_population
     people = make_population(6, seed=1000)
     cand = Candidate(sE_levels=(0.3, 0.5, 0.7, 0.9), repeats=2, steady_s=1.0, chirp_s=3.0,
                      rest_s=10.0, label="same")

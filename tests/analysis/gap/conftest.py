@@ -1,6 +1,6 @@
 """Small synthetic sessions with known answers for the gap-diagnosis tests.
 
-The generator (:func:`testing.sessions.write_gap_session`) is deliberately independent of
+The generator (:func:`nmsid.testing.sessions.write_gap_session`) is deliberately independent of
 ``analysis.gap`` (scipy's zero-order-hold discretisation at the raw 2 kHz rate, an
 integer-sample dead time, its own chirp), so the tests do not check the code against
 itself.
@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import pytest
 
-from testing.sessions import gap_true_params, write_gap_session
+from nmsid.testing.sessions import gap_true_params, write_gap_session
 
-#: The generator moved to :mod:`testing.sessions`; the tests keep their short name.
+#: The generator moved to :mod:`nmsid.testing.sessions`; the tests keep their short name.
 write_session = write_gap_session
 _true_params = gap_true_params
 

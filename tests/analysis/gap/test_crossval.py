@@ -4,8 +4,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from analysis.gap.crossval import repeat_folds
-from analysis.gap.data import GapData, PreprocessSettings, TrialInfo
+from nmsid.analysis.gap.crossval import repeat_folds
+from nmsid.analysis.gap.data import GapData, PreprocessSettings, TrialInfo
 
 
 def _fake(levels, repeats):

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from analysis.gap.data import load_session, prepare_trials
-from analysis.gap.errors import GapInputError
-from protocols.session_file import Trial, read_session
+from nmsid.analysis.gap.data import load_session, prepare_trials
+from nmsid.analysis.gap.errors import GapInputError
+from nmsid.protocols.session_file import Trial, read_session
 
 
 def test_aborted_and_nan_trials_are_skipped_and_reported(nominal_session):

@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from analysis.gap.data import load_session
-from analysis.gap.diagnose import GapSettings, diagnose, effective_fraction
+from nmsid.analysis.gap.data import load_session
+from nmsid.analysis.gap.diagnose import GapSettings, diagnose, effective_fraction
 
 REQUIRED = ("best_effect", "ranking", "heldout", "localization")
 
@@ -14,7 +14,7 @@ REQUIRED = ("best_effect", "ranking", "heldout", "localization")
 @pytest.fixture(scope="module")
 def dead_report(dead_time_session, tmp_path_factory):
     """``nmsid gap`` through the command line (figures included)."""
-    from rig.cli import main
+    from nmsid.cli import main
     out = tmp_path_factory.mktemp("gap_dead")
     assert main(["gap", str(dead_time_session), "--out", str(out)]) == 0
     return out, json.loads((out / "gap_report.json").read_text())
@@ -40,7 +40,7 @@ def test_dead_time_footprint_is_a_phase_line(dead_report):
 
 
 def test_cli_refuses_a_missing_file(tmp_path, capsys):
-    from rig.cli import main
+    from nmsid.cli import main
     assert main(["gap", str(tmp_path / "nope.h5"), "--out", str(tmp_path / "o")]) == 2
     assert "nope.h5" in capsys.readouterr().err
 
@@ -69,7 +69,7 @@ def test_report_has_the_keys_and_files(dead_report):
 
 
 def test_twin_file_runs_in_the_simulator(dead_report):
-    from sim_backends import participant_from_twin
+    from nmsid.sim_backends import participant_from_twin
     out, _ = dead_report
     twin = json.loads((out / "twin.json").read_text())
     p = participant_from_twin(twin)
@@ -110,7 +110,7 @@ def test_external_simulation_under_test(dead_report, dead_time_session, tmp_path
     """--sim-session matches trials by sE and repeat; --twin runs the twin file with its
     effects: the augmented twin predicts the session, the same twin without its dead time
     does not."""
-    from analysis.gap.api import external_predictions
+    from nmsid.analysis.gap.api import external_predictions
     out, _ = dead_report
     data = load_session(dead_time_session)
     same = external_predictions(data, sim_session=dead_time_session)
@@ -133,7 +133,7 @@ def test_external_simulation_under_test(dead_report, dead_time_session, tmp_path
 
 
 def test_single_repeat_is_refused_with_a_clear_message(write_synthetic, tmp_path):
-    from analysis.gap.errors import GapInputError
+    from nmsid.analysis.gap.errors import GapInputError
     path = write_synthetic(tmp_path / "one.h5", levels=(0.3, 0.6), repeats=1)
     with pytest.raises(GapInputError, match="two repeats"):
         diagnose(load_session(path))

@@ -4,10 +4,10 @@ training and held-out trials."""
 import numpy as np
 import pytest
 
-from analysis.gap.data import load_session
-from analysis.gap.effects import Effect
-from analysis.gap.fit import fit_model, predict
-from analysis.gap.models import NOMINAL, candidate, kumaraswamy
+from nmsid.analysis.gap.data import load_session
+from nmsid.analysis.gap.effects import Effect
+from nmsid.analysis.gap.fit import fit_model, predict
+from nmsid.analysis.gap.models import NOMINAL, candidate, kumaraswamy
 
 
 def test_nominal_fit_recovers_parameters(nominal_session, true_params):

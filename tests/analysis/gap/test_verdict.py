@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from analysis.gap.api import run_gap
-from analysis.gap.data import load_session
-from analysis.gap.diagnose import diagnose
-from analysis.gap.verdict import decide, gap_test, narrow_band, sentence
+from nmsid.analysis.gap.api import run_gap
+from nmsid.analysis.gap.data import load_session
+from nmsid.analysis.gap.diagnose import diagnose
+from nmsid.analysis.gap.verdict import decide, gap_test, narrow_band, sentence
 
 
 @pytest.mark.parametrize("nominal,kind,remaining,expected", [

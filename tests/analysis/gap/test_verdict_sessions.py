@@ -2,7 +2,7 @@
 file, as ``nmsid gap`` runs it).
 
 Short sessions (3 sE x 2 repeats, 3 s lead-in + 8 s chirp) from
-:func:`testing.sessions.write_gap_session`, written independently of ``analysis.gap``:
+:func:`nmsid.testing.sessions.write_gap_session`, written independently of ``analysis.gap``:
 
 - ``none``: the exact second-order participant;
 - ``effect``: the force answers 30 ms late (a dead time);
@@ -17,8 +17,8 @@ import json
 
 import pytest
 
-from analysis.gap.api import run_gap
-from testing.sessions import write_gap_session
+from nmsid.analysis.gap.api import run_gap
+from nmsid.testing.sessions import write_gap_session
 
 SHORT = dict(levels=(0.3, 0.6, 0.9), repeats=2, steady_s=3.0, chirp_s=8.0, seed=1)
 

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from scipy.signal import lsim
 
-from analysis import identify as identify_module
-from analysis.identify import identify_session
-from analysis.qc import QCSettings, assess_level, assess_session
-from analysis.settings import IdentificationSettings
-from protocols.session_file import Calibration, SessionWriter, Trial, read_session
-from rig.cli import main
+from nmsid.analysis import identify as identify_module
+from nmsid.analysis.identify import identify_session
+from nmsid.analysis.qc import QCSettings, assess_level, assess_session
+from nmsid.analysis.settings import IdentificationSettings
+from nmsid.protocols.session_file import Calibration, SessionWriter, Trial, read_session
+from nmsid.cli import main
 
 FS = 2000.0
 STEADY, CHIRP = 5.0, 10.0

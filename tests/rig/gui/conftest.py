@@ -49,7 +49,7 @@ def fake_identify(trials):
 
 def no_model_selection(session_path):
     """Stand-in for the end-of-session model selection (tested on its own)."""
-    from rig.gui.results_panel import SelectionView
+    from nmsid.rig.gui.results_panel import SelectionView
     return SelectionView([], note="model selection skipped in this test")
 
 
@@ -64,7 +64,7 @@ def short_config(cfg, levels=(0.4, 0.6), repeats=1, steady_s=0.2, chirp_s=1.0, r
 @pytest.fixture
 def fake_window(qtbot):
     """A window over the fake engine (no devices) with fake identification."""
-    from rig.gui.main_window import MainWindow
+    from nmsid.rig.gui.main_window import MainWindow
 
     w = MainWindow(devices_factory=lambda req, cfg: _NoDevices(),
                    engine_factory=fake_engine.FakeEngine,
@@ -96,8 +96,8 @@ def sim_short_config(cfg):
 
 
 def _sim_window(qtbot, realtime: bool, config_transform, select_models=None, faults=None):
-    from rig.gui.main_window import MainWindow
-    from sim_backends.rig import make_sim_rig
+    from nmsid.rig.gui.main_window import MainWindow
+    from nmsid.sim_backends.rig import make_sim_rig
 
     rigs = []
 
@@ -137,7 +137,7 @@ def sim_levels_config(cfg):
 def fast_sim_window(qtbot):
     """A window over the real engine and the simulated rig on its fast clock, with a
     100 N force spike 1 s into the second trial (the force-limit rule must trip)."""
-    from sim_backends.faults import Fault, FaultKind
+    from nmsid.sim_backends.faults import Fault, FaultKind
     spike = Fault(FaultKind.FORCE_SPIKE, trial=1, at_s=1.0, amplitude_N=100.0)
     w = _sim_window(qtbot, False, sim_levels_config, faults=[spike])
     yield w
@@ -150,7 +150,7 @@ def sim_manual_config(cfg):
     """:func:`sim_short_config` with the four currents entered by hand (no ramps)."""
     import dataclasses
 
-    from protocols.config import ManualCurrents
+    from nmsid.protocols.config import ManualCurrents
     cfg = sim_short_config(cfg)
     c = dataclasses.replace(cfg.calibration, manual=ManualCurrents(2.0, 9.0, 1.0, 8.0))
     return cfg.replace(calibration=c)

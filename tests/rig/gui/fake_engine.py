@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from protocols.schedule import PlannedTrial, TrialStatus
-from rig.observer import rerun_wait_reason
-from protocols.session_file import Calibration, Event, SessionWriter, Trial, utc_now
-from rig.states import State
+from nmsid.protocols.schedule import PlannedTrial, TrialStatus
+from nmsid.rig.observer import rerun_wait_reason
+from nmsid.protocols.session_file import Calibration, Event, SessionWriter, Trial, utc_now
+from nmsid.rig.states import State
 
 
 @dataclass

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from rig.gui.live_buffer import LiveBuffer
+from nmsid.rig.gui.live_buffer import LiveBuffer
 
 
 def _chunk(start, n):

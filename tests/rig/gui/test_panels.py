@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from rig.observer import rerun_wait_reason
-from protocols.session_file import Calibration, SessionWriter, Trial
+from nmsid.rig.observer import rerun_wait_reason
+from nmsid.protocols.session_file import Calibration, SessionWriter, Trial
 
 
 # -- setup panel: the output file ----------------------------------------------------------
@@ -25,7 +25,7 @@ def _session(path, n_completed, n_planned, journal=False):
 
 
 def test_check_output_new_unfinished_finished_invalid(tmp_path):
-    from rig.gui.setup_panel import OutputState, check_output
+    from nmsid.rig.gui.setup_panel import OutputState, check_output
     assert check_output(tmp_path / "new.h5").state is OutputState.NEW
     _session(tmp_path / "part.h5", 1, 3)
     c = check_output(tmp_path / "part.h5")
@@ -41,7 +41,7 @@ def test_check_output_new_unfinished_finished_invalid(tmp_path):
 
 
 def test_setup_panel_refuses_bad_participant_code(qtbot, tmp_path):
-    from rig.gui.setup_panel import SetupPanel
+    from nmsid.rig.gui.setup_panel import SetupPanel
     got = []
     p = SetupPanel(on_start=got.append)
     qtbot.addWidget(p)
@@ -56,7 +56,7 @@ def test_setup_panel_refuses_bad_participant_code(qtbot, tmp_path):
 
 # -- safety panel --------------------------------------------------------------------------
 def test_lights_follow_the_engines_rule_names(qtbot):
-    from rig.gui.safety_panel import SafetyPanel
+    from nmsid.rig.gui.safety_panel import SafetyPanel
     p = SafetyPanel(on_estop=lambda: None, on_rearm=lambda: None)
     qtbot.addWidget(p)
     p.set_interlock({"force_limit": (True, "ok"), "sensor_stream": (True, "ok"),
@@ -82,8 +82,8 @@ def test_lights_follow_the_engines_rule_names(qtbot):
 
 
 def test_schedule_panel_in_the_wait_for_a_rerun(qtbot):
-    from protocols.schedule import PlannedTrial, TrialStatus
-    from rig.gui.schedule_panel import SchedulePanel
+    from nmsid.protocols.schedule import PlannedTrial, TrialStatus
+    from nmsid.rig.gui.schedule_panel import SchedulePanel
     p = SchedulePanel(on_pause=lambda: None, on_resume=lambda: None, on_skip=lambda: None,
                       on_rerun=lambda i: None, on_end=lambda: None)
     qtbot.addWidget(p)
@@ -103,7 +103,7 @@ def test_schedule_panel_in_the_wait_for_a_rerun(qtbot):
 
 # -- calibration panel ---------------------------------------------------------------------
 def test_calibration_panel_marks_detected_and_refuses_inverted_currents(qtbot):
-    from rig.gui.calibration_panel import CalibrationPanel
+    from nmsid.rig.gui.calibration_panel import CalibrationPanel
     confirmed = []
     p = CalibrationPanel(on_confirm=confirmed.append)
     qtbot.addWidget(p)
@@ -131,7 +131,7 @@ def test_calibration_panel_marks_detected_and_refuses_inverted_currents(qtbot):
 def test_identification_runs_in_a_worker_and_flags_poor_fits(qtbot):
     import threading
 
-    from rig.gui.identification_panel import IdentificationPanel
+    from nmsid.rig.gui.identification_panel import IdentificationPanel
     threads = []
 
     class R:
@@ -160,7 +160,7 @@ def test_identification_runs_in_a_worker_and_flags_poor_fits(qtbot):
 
 # -- results panel -------------------------------------------------------------------------
 def test_model_curves_match_the_twin_file_definitions():
-    from rig.gui.results_panel import model_curve
+    from nmsid.rig.gui.results_panel import model_curve
     sE = np.array([0.3, 0.7])
     np.testing.assert_allclose(model_curve("linear", [1, 2], sE), 1 + 2 * sE)
     np.testing.assert_allclose(model_curve("quadratic", [1, 2, 3], sE), 1 + 2 * sE + 3 * sE**2)
@@ -170,8 +170,8 @@ def test_model_curves_match_the_twin_file_definitions():
 
 
 def test_results_panel_shows_tables_and_saves_beside_the_session(qtbot, tmp_path):
-    from rig.gui.results_panel import (ModelFit, ParameterSelection, ResultsPanel,
-                                       SelectionView)
+    from nmsid.rig.gui.results_panel import (ModelFit, ParameterSelection, ResultsPanel,
+                                             SelectionView)
     sE = np.linspace(0.3, 1.0, 8)
     view = SelectionView([ParameterSelection(
         "Kp", "N", sE, 1 + 2 * sE,

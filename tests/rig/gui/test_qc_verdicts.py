@@ -7,10 +7,10 @@ import math
 import numpy as np
 from scipy.signal import lsim
 
-from protocols.schedule import PlannedTrial, TrialStatus
-from protocols.session_file import Trial
-from rig.gui import analysis_hooks
-from rig.gui.schedule_panel import COLUMNS, SchedulePanel
+from nmsid.protocols.schedule import PlannedTrial, TrialStatus
+from nmsid.protocols.session_file import Trial
+from nmsid.rig.gui import analysis_hooks
+from nmsid.rig.gui.schedule_panel import COLUMNS, SchedulePanel
 
 FS = 2000.0
 

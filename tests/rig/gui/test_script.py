@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from rig.gui.script import (DEMO_SCRIPT, Command, ScriptError, load_script, parse_script)
+from nmsid.rig.gui.script import (DEMO_SCRIPT, Command, ScriptError, load_script, parse_script)
 
 
 def test_parses_commands_arguments_and_comments():
@@ -57,13 +57,13 @@ def test_demo_script_is_valid_and_file_errors_name_the_file(tmp_path):
 def test_cli_registers_gui_with_its_options():
     import argparse
 
-    from rig import cli_gui
+    from nmsid.rig import cli_gui
     parser = argparse.ArgumentParser()
     sub = parser.add_subparsers()
     cli_gui.register(sub)
     args = parser.parse_args(["gui", "--backend", "sim", "--participant", "P01", "--out",
                               "x.h5", "--script", "demo", "--screenshot", "s.png", "--fast"])
-    assert args.handler == "rig.cli_gui:run"
+    assert args.handler == "nmsid.cli.gui:run"
     assert (args.backend, args.participant, args.out, args.script, args.screenshot,
             args.fast) == ("sim", "P01", "x.h5", "demo", "s.png", True)
 
@@ -71,7 +71,7 @@ def test_cli_registers_gui_with_its_options():
 def test_screenshot_without_script_is_refused():
     from pathlib import Path
 
-    from rig.gui.app import GuiOptions, run_gui
+    from nmsid.rig.gui.app import GuiOptions, run_gui
     with pytest.raises(ValueError, match="--script"):
         run_gui(GuiOptions(screenshot=Path("x.png")))
 

@@ -8,8 +8,8 @@ valid and complete.
 
 from __future__ import annotations
 
-from protocols.session_file import read_session, validate_session
-from rig.states import State
+from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.states import State
 
 
 def test_complete_session_with_estop_rearm_rerun(sim_window, qtbot, tmp_path):

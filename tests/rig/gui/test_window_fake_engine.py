@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from PySide6.QtCore import Qt
 
-from protocols.session_file import SessionWriter, read_session, validate_session
-from rig.states import State
+from nmsid.protocols.session_file import SessionWriter, read_session, validate_session
+from nmsid.rig.states import State
 
 
 def test_session_through_window_with_estop_rearm_rerun(fake_window, qtbot, tmp_path):
@@ -104,7 +104,7 @@ def test_refuses_existing_finished_file_and_offers_resume(fake_window, tmp_path)
 
 
 def test_script_runner_drives_a_session_and_saves_a_screenshot(fake_window, qtbot, tmp_path):
-    from rig.gui.script import ScriptRunner, parse_script
+    from nmsid.rig.gui.script import ScriptRunner, parse_script
     out, shot = tmp_path / "S01.h5", tmp_path / "shots" / "end.png"
     steps = parse_script(f"""
         start participant=S01 output={out}
@@ -134,7 +134,7 @@ def test_script_runner_drives_a_session_and_saves_a_screenshot(fake_window, qtbo
 
 
 def test_script_failure_names_the_line(fake_window, qtbot):
-    from rig.gui.script import ScriptRunner, parse_script
+    from nmsid.rig.gui.script import ScriptRunner, parse_script
     runner = ScriptRunner(fake_window, parse_script("rearm\n", "s"))
     with qtbot.waitSignal(runner.finished, timeout=5000) as sig:
         runner.start()
@@ -143,7 +143,7 @@ def test_script_failure_names_the_line(fake_window, qtbot):
 
 
 def test_estop_stops_the_stimulator_even_if_the_engine_call_fails(fake_window):
-    from rig.gui.session_controller import SessionController
+    from nmsid.rig.gui.session_controller import SessionController
 
     stopped = []
 

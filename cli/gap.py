@@ -3,7 +3,7 @@ far adding that effect shrinks the gap on held-out trials.
 
     nmsid gap SESSION.h5 [SESSION.h5 ...] --out DIR [--twin TWIN.json | --sim-session SIM.h5]
 
-Registration only (argparse); the handler is in :mod:`analysis.gap_command`.
+Registration only (argparse); the handler is in :mod:`nmsid.cli.gap_command`.
 """
 
 from __future__ import annotations
@@ -37,4 +37,4 @@ def register(sub) -> None:
                    help="an effect needs dIC below -D (default 10)")
     p.add_argument("--min-shrink-pct", type=float, default=10.0, metavar="P",
                    help="an effect must cut the held-out NRMSE by P %% (default 10)")
-    p.set_defaults(handler="analysis.gap_command:run")
+    p.set_defaults(handler="nmsid.cli.gap_command:run")

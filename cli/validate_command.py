@@ -1,8 +1,8 @@
-"""The handler of ``nmsid validate`` (registered by :mod:`rig.cli_validate`)."""
+"""The handler of ``nmsid validate`` (registered by :mod:`nmsid.cli.validate`)."""
 
 from __future__ import annotations
 
-from protocols.session_file import validate_session
+from nmsid.protocols.session_file import validate_session
 
 
 def run(args) -> int:

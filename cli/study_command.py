@@ -1,9 +1,9 @@
-"""Handler of ``nmsid study`` (registered by :mod:`study.cli_study`; Dask loads here)."""
+"""Handler of ``nmsid study`` (registered by :mod:`nmsid.cli.study`; Dask loads here)."""
 
 from __future__ import annotations
 
-from study.config import load_study
-from study.runner import run_study
+from nmsid.study.config import load_study
+from nmsid.study.runner import run_study
 
 
 def run(args) -> int:

@@ -1,10 +1,10 @@
-"""The handler of ``nmsid gap`` (registered by :mod:`analysis.cli_gap`)."""
+"""The handler of ``nmsid gap`` (registered by :mod:`nmsid.cli.gap`)."""
 
 from __future__ import annotations
 
 import argparse
 
-from analysis.gap.api import GapSettings, run_gap
+from nmsid.analysis.gap.api import GapSettings, run_gap
 
 
 def run(args: argparse.Namespace) -> int:

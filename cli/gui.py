@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rig.qt_platform import check_xcb
+from nmsid.rig.qt_platform import check_xcb
 
 
 def register(sub) -> None:
@@ -30,14 +30,14 @@ def register(sub) -> None:
                    "file, or 'demo' for the built-in one (docs/gui.md)")
     p.add_argument("--screenshot", metavar="PATH", help="after the scripted run, save a "
                    "PNG of the window here and quit")
-    p.set_defaults(handler="rig.cli_gui:run")
+    p.set_defaults(handler="nmsid.cli.gui:run")
 
 
 def run(args) -> int:
     # before Qt loads: a missing X11 library is one line naming the package, not a Qt abort
     check_xcb()
     # lazy: PySide6 and pyqtgraph (the optional gui extra) load only when the window opens
-    from rig.gui.app import GuiOptions, run_gui
+    from nmsid.rig.gui.app import GuiOptions, run_gui
 
     options = GuiOptions(
         backend=args.backend,

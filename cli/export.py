@@ -22,5 +22,5 @@ def register(sub) -> None:
     n.add_argument("--institution", default=None)
     n.add_argument("--inspect", action="store_true",
                    help="run nwbinspector on the result and print its findings")
-    n.set_defaults(handler="export.export_command:run_nwb")
-    p.set_defaults(handler="export.export_command:run_missing_format")
+    n.set_defaults(handler="nmsid.cli.export_command:run_nwb")
+    p.set_defaults(handler="nmsid.cli.export_command:run_missing_format")

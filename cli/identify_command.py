@@ -1,5 +1,5 @@
 """The handlers of ``nmsid identify`` and ``nmsid twin simulate`` (registered by
-:mod:`analysis.cli_identify`)."""
+:mod:`nmsid.cli.identify`)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import csv
 
 import numpy as np
 
-from analysis.run import run_identification, summary_line
-from analysis.settings import IdentificationSettings
-from analysis.twin import Twin
+from nmsid.analysis.run import run_identification, summary_line
+from nmsid.analysis.settings import IdentificationSettings
+from nmsid.analysis.twin import Twin
 
 
 def settings_from_args(args):

@@ -1,8 +1,8 @@
-"""Handlers of ``nmsid export`` (registered by :mod:`export.cli_export`; pynwb loads here)."""
+"""Handlers of ``nmsid export`` (registered by :mod:`nmsid.cli.export`; pynwb loads here)."""
 
 from __future__ import annotations
 
-from export.nwb import export_nwb, inspect_nwb
+from nmsid.export.nwb import export_nwb, inspect_nwb
 
 
 def run_missing_format(args) -> int:

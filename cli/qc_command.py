@@ -1,9 +1,9 @@
-"""Handler of ``nmsid qc`` (registered by :mod:`analysis.cli_qc`)."""
+"""Handler of ``nmsid qc`` (registered by :mod:`nmsid.cli.qc`)."""
 
 from __future__ import annotations
 
-from analysis.qc import assess_session
-from analysis.qc.table import as_json, format_table
+from nmsid.analysis.qc import assess_session
+from nmsid.analysis.qc.table import as_json, format_table
 
 
 def run(args) -> int:

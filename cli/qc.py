@@ -2,7 +2,7 @@
 
     nmsid qc SESSION.h5 [SESSION.h5 ...] [--json] [--all]
 
-Registration only (argparse); the handler is in :mod:`analysis.qc_command`.
+Registration only (argparse); the handler is in :mod:`nmsid.cli.qc_command`.
 """
 
 from __future__ import annotations
@@ -18,4 +18,4 @@ def register(sub) -> None:
     p.add_argument("sessions", nargs="+", metavar="SESSION.h5")
     p.add_argument("--json", action="store_true", help="print JSON instead of the table")
     p.add_argument("--all", action="store_true", help="list plainly used trials too")
-    p.set_defaults(handler="analysis.qc_command:run")
+    p.set_defaults(handler="nmsid.cli.qc_command:run")

@@ -1,4 +1,4 @@
-"""The handlers of ``nmsid run`` and ``nmsid recover`` (registered by :mod:`rig.cli_run`).
+"""The handlers of ``nmsid run`` and ``nmsid recover`` (registered by :mod:`nmsid.cli.run`).
 
 ``run`` builds the configuration and the rig (simulated or hardware), runs the engine in a
 worker thread (Ctrl+C is an E-stop), prints progress, then identifies the new file.
@@ -15,14 +15,14 @@ import threading
 import zlib
 from pathlib import Path
 
-from analysis.run import run_identification, summary_line
-from drivers.hardware import make_hw_rig
-from protocols.config import config_from_json, load_config
-from protocols.session_file import read_session, validate_session
-from rig.engine import Engine, TripPolicy
-from rig.session_log import journal_dir, recover
-from sim_backends import make_sim_rig
-from sim_backends.participant_models import participant_for_model
+from nmsid.analysis.run import run_identification, summary_line
+from nmsid.drivers.hardware import make_hw_rig
+from nmsid.protocols.config import config_from_json, load_config
+from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.engine import Engine, TripPolicy
+from nmsid.rig.session_log import journal_dir, recover
+from nmsid.sim_backends import make_sim_rig
+from nmsid.sim_backends.participant_models import participant_for_model
 
 
 def recover_cmd(args) -> int:
@@ -38,7 +38,7 @@ def recover_cmd(args) -> int:
 
 
 def run(args) -> int:
-    log = logging.getLogger("rig.run_command")
+    log = logging.getLogger("nmsid.cli.run_command")
     if args.resume and (args.config or args.participant or args.seed is not None
                         or args.participant_model):
         raise ValueError("--resume continues a session with the configuration stored in its "

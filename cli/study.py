@@ -34,4 +34,4 @@ def register(sub) -> None:
                        help="an existing Dask scheduler, e.g. tcp://10.0.0.5:8786 (workers "
                             "must see the files at the same paths)")
     p.add_argument("--no-gap", action="store_true", help="identification only")
-    p.set_defaults(handler="study.study_command:run")
+    p.set_defaults(handler="nmsid.cli.study_command:run")

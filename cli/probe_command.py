@@ -1,4 +1,4 @@
-"""The handler of ``nmsid probe`` (registered by :mod:`drivers.cli_probe`): connect to each
+"""The handler of ``nmsid probe`` (registered by :mod:`nmsid.cli.probe`): connect to each
 configured device, print what it reports and a few force samples, release it; nothing is
 stimulated."""
 
@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.hardware import build_devices
-from drivers.hw_config import load_hw_config
+from nmsid.drivers.hardware import build_devices
+from nmsid.drivers.hw_config import load_hw_config
 
 
 def probe(args) -> int:

@@ -1,13 +1,13 @@
-"""Handler of ``nmsid design`` (registered by :mod:`analysis.cli_design`)."""
+"""Handler of ``nmsid design`` (registered by :mod:`nmsid.cli.design`)."""
 
 from __future__ import annotations
 
 import argparse
 
-from analysis.design.api import run_design
-from analysis.design.errors import DesignError
-from analysis.design.prior import (adequacy_from_parameters, population_prior,
-                                   scatter_from_parameters, twin_prior)
+from nmsid.analysis.design.api import run_design
+from nmsid.analysis.design.errors import DesignError
+from nmsid.analysis.design.prior import (adequacy_from_parameters, population_prior,
+                                         scatter_from_parameters, twin_prior)
 
 
 def run(args: argparse.Namespace) -> int:

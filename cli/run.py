@@ -6,7 +6,7 @@ runs the identification on the file. Ctrl+C is an E-stop: output to zero, the se
 cleanly and the file stays valid; ``--resume FILE`` continues it.
 
 Registration only (argparse): ``nmsid --help`` imports nothing else; the handlers are in
-:mod:`rig.run_command`.
+:mod:`nmsid.cli.run_command`.
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ def register(sub) -> None:
     p.add_argument("--no-identify", action="store_true",
                    help="do not run the identification after the schedule")
     p.add_argument("--quiet", action="store_true", help="no progress output")
-    p.set_defaults(handler="rig.run_command:run")
+    p.set_defaults(handler="nmsid.cli.run_command:run")
 
     r = sub.add_parser("recover", help="rebuild a session file from its journal after a crash",
                        description="Bring a session file in line with its write-ahead journal "
@@ -55,4 +55,4 @@ def register(sub) -> None:
                        "file (kept aside as <file>.damaged-<time>). The trial in progress when "
                        "the program ended becomes an aborted trial.")
     r.add_argument("file", metavar="FILE", help="the session file (.h5)")
-    r.set_defaults(handler="rig.run_command:recover_cmd")
+    r.set_defaults(handler="nmsid.cli.run_command:recover_cmd")

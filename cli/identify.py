@@ -4,7 +4,7 @@
     nmsid twin simulate TWIN.json --sE 0.6 --rE-chirp --out force.csv
     nmsid twin simulate TWIN.json --input input.csv --out force.csv
 
-Registration only (argparse); the handlers are in :mod:`analysis.identify_command`.
+Registration only (argparse); the handlers are in :mod:`nmsid.cli.identify_command`.
 """
 
 from __future__ import annotations
@@ -64,7 +64,7 @@ def register(sub) -> None:
     g.add_argument("--iqr-k", type=float, default=1.5, metavar="K")
     g.add_argument("--aicc-count-noise", action="store_true",
                    help="count the noise variance as a parameter in AICc")
-    p.set_defaults(handler="analysis.identify_command:run_identify")
+    p.set_defaults(handler="nmsid.cli.identify_command:run_identify")
 
     t = sub.add_parser("twin", help="use a twin file (twin.json)",
                        description="Use a digital twin written by `nmsid identify`.")
@@ -89,5 +89,5 @@ def register(sub) -> None:
     sim.add_argument("--extrapolate", action="store_true",
                      help="evaluate the curves outside the tested sE range (default: clip)")
     sim.add_argument("--out", required=True, metavar="CSV")
-    sim.set_defaults(handler="analysis.identify_command:run_twin_simulate")
-    t.set_defaults(handler="analysis.identify_command:run_twin_help")
+    sim.set_defaults(handler="nmsid.cli.identify_command:run_twin_simulate")
+    t.set_defaults(handler="nmsid.cli.identify_command:run_twin_help")

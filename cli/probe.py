@@ -6,7 +6,7 @@ with a software-started acquisition, read the E-stop switch, and release everyth
 stimulator is connected and queried only: nothing is downloaded or started. A missing
 library or device ends in one line (exit status 2).
 
-Registration only (argparse); the handler is in :mod:`drivers.probe_command`.
+Registration only (argparse); the handler is in :mod:`nmsid.cli.probe_command`.
 """
 
 from __future__ import annotations
@@ -21,4 +21,4 @@ def register(sub) -> None:
                    help="the rig's hardware configuration (TOML)")
     p.add_argument("--samples", type=int, default=20, metavar="N",
                    help="force samples to read (default 20)")
-    p.set_defaults(handler="drivers.probe_command:probe")
+    p.set_defaults(handler="nmsid.cli.probe_command:probe")

@@ -1,6 +1,6 @@
 """``nmsid validate FILE ...``: check session files against the v1 contract.
 
-Registration only (argparse); the handler is in :mod:`rig.validate_command`.
+Registration only (argparse); the handler is in :mod:`nmsid.cli.validate_command`.
 """
 
 from __future__ import annotations
@@ -10,4 +10,4 @@ def register(sub) -> None:
     p = sub.add_parser("validate", help="check session files against the session-file "
                        "contract and print every violation")
     p.add_argument("files", nargs="+", metavar="FILE", help="session files (.h5)")
-    p.set_defaults(handler="rig.validate_command:run")
+    p.set_defaults(handler="nmsid.cli.validate_command:run")

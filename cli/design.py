@@ -2,7 +2,7 @@
 
     nmsid design (--twin TWIN.json | --population) [--target paper|SD-spec] --out DIR
 
-Registration only (argparse); the handler is in :mod:`analysis.design_command`.
+Registration only (argparse); the handler is in :mod:`nmsid.cli.design_command`.
 """
 
 from __future__ import annotations
@@ -74,4 +74,4 @@ def register(sub) -> None:
                    help="'no worse' allows standard errors this fraction above the paper's "
                         "(default 0.02)")
     p.add_argument("--seed", type=int, default=0, help="population and Monte-Carlo seed")
-    p.set_defaults(handler="analysis.design_command:run")
+    p.set_defaults(handler="nmsid.cli.design_command:run")

@@ -16,16 +16,16 @@ import sys
 
 #: Modules that each add one or more sub-commands.
 COMMAND_MODULES = (
-    "rig.cli_run",          # run, recover
-    "rig.cli_validate",     # validate
-    "analysis.cli_identify",  # identify, twin
-    "analysis.cli_qc",      # qc
-    "analysis.cli_gap",     # gap
-    "analysis.cli_design",  # design
-    "drivers.cli_probe",    # probe
-    "rig.cli_gui",          # gui
-    "export.cli_export",    # export nwb
-    "study.cli_study",      # study
+    "nmsid.cli.run",          # run, recover
+    "nmsid.cli.validate",     # validate
+    "nmsid.cli.identify",  # identify, twin
+    "nmsid.cli.qc",      # qc
+    "nmsid.cli.gap",     # gap
+    "nmsid.cli.design",  # design
+    "nmsid.cli.probe",    # probe
+    "nmsid.cli.gui",          # gui
+    "nmsid.cli.export",    # export nwb
+    "nmsid.cli.study",      # study
 )
 
 EXIT_USER_ERROR = 2
