@@ -23,6 +23,7 @@ from nmsid.analysis.report import (parameter_table, selection_tables, write_mode
 from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
 from nmsid.analysis.twin import Twin, source_entry, twin_from_selection
 from nmsid.errors import UserError
+from nmsid.protocols.session_file import Session
 
 logger = logging.getLogger(__name__)
 
@@ -39,6 +40,11 @@ class RunOutputs:
     tables_text: str = ""
 
 
+def _label(src) -> str:
+    """A session's file name, whether given as a path or as a session read already."""
+    return str(src.path) if isinstance(src, Session) else str(src)
+
+
 def _safe_name(label: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in label)
 
@@ -49,7 +55,7 @@ class _SourceEntries:
     beside the identification."""
 
     def __init__(self, sessions):
-        self._paths = [str(Path(s)) for s in sessions if isinstance(s, (str, os.PathLike))]
+        self._paths = [str(Path(_label(s))) for s in sessions]
         self._entries: dict[str, dict | str] = {}
         self._thread = threading.Thread(target=self._hash_all, daemon=True,
                                         name="nmsid-source-hash")
@@ -107,7 +113,8 @@ def run_identification(sessions, out_dir: str | os.PathLike,
             res = identify_session(src, s)
         except (UserError, OSError) as exc:  # a file or data problem; bugs propagate
             text = str(exc)  # file errors already start with the file's name
-            problems.append((text if text.startswith(str(src)) else f"{src}: {text}")
+            name = _label(src)
+            problems.append((text if text.startswith(name) else f"{name}: {text}")
                             + "; session skipped")
             continue
         results.append(res)

@@ -42,7 +42,7 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-from synthetic_sessions import write_synthetic_session  # noqa: E402
+from nmsid.testing.sessions import write_synthetic_session  # noqa: E402
 
 WALL_LIMIT_S = 15.0
 MEMORY_LIMIT_B = 4 * 2 ** 30

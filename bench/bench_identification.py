@@ -34,7 +34,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
 
-from synthetic_sessions import exact_response, write_synthetic_session  # noqa: E402
+from nmsid.testing.sessions import exact_response, write_synthetic_session  # noqa: E402
 
 from nmsid.analysis.identify import identify_level  # noqa: E402
 from nmsid.analysis.preprocess import preprocess_trials  # noqa: E402

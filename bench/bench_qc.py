@@ -2,7 +2,7 @@
 bias (issue: lab-grade data).
 
 Sessions come from two generators of different structure, so that QC is not tuned to one:
-* ``synthetic``: bench/synthetic_sessions.py (exact second order, drawn parameter curves,
+* ``synthetic``: testing/sessions.py (exact second order, drawn parameter curves,
   50 Hz mains, offsets and drifts, noise 0.02-0.06 N);
 * ``inline``: written here: a second-order response behind an input delay of 0-2 ms and a
   saturating static nonlinearity, with the physiology's scatter between repeats (uniform,
@@ -36,7 +36,7 @@ from nmsid.analysis.qc import assess_session  # noqa: E402
 from nmsid.analysis.settings import IdentificationSettings  # noqa: E402
 from nmsid.protocols.session_file import (Calibration, SessionWriter, Trial,  # noqa: E402
                                           read_session)
-from synthetic_sessions import SE_LEVELS, chirp_rE, write_synthetic_session  # noqa: E402
+from nmsid.testing.sessions import SE_LEVELS, chirp_rE, write_synthetic_session  # noqa: E402
 
 FS = 2000.0
 STEADY, CHIRP = 5.0, 10.0

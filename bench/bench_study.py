@@ -1,6 +1,6 @@
 """``nmsid study`` at scale: 40 generated sessions, serial in-process vs 2 Dask workers.
 
-Sessions come from ``bench/synthetic_sessions.py`` (15 sE x 3 repeats at 2 kHz, the
+Sessions come from ``testing/sessions.py`` (15 sE x 3 repeats at 2 kHz, the
 paper's protocol; 40 seeds = 40 participants with their own parameter curves, noise and
 mains levels). Two runs of the same study:
 
@@ -34,7 +34,7 @@ for p in (ROOT, HERE):
 
 from nmsid.study.config import StudyConfig  # noqa: E402
 from nmsid.study.runner import run_study  # noqa: E402
-from synthetic_sessions import write_synthetic_session  # noqa: E402
+from nmsid.testing.sessions import write_synthetic_session  # noqa: E402
 
 N_SESSIONS = 40
 GAP_SUBSET = 4

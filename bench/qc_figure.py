@@ -26,7 +26,7 @@ sys.path.insert(0, str(HERE))
 from nmsid.analysis.qc import assess_session  # noqa: E402
 from bench_qc import contaminate  # noqa: E402
 from nmsid.protocols.session_file import read_session  # noqa: E402
-from synthetic_sessions import write_synthetic_session  # noqa: E402
+from nmsid.testing.sessions import write_synthetic_session  # noqa: E402
 
 
 def main(out: str = str(HERE.parent / "docs" / "figures" / "qc_example.png")) -> None:

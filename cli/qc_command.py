@@ -12,8 +12,9 @@ def run(args) -> int:
     """Print each session's QC table (or JSON); 1 if any trial is excluded."""
     any_excluded = False
     for path in args.sessions:
-        check_session_data(read_session(path), path)  # absurd values: one line
-        qc = assess_session(path)
+        session = read_session(path)  # read once: checked, then judged
+        check_session_data(session, path)  # absurd values: one line
+        qc = assess_session(session)
         print(as_json(qc) if args.json else format_table(qc, all_trials=args.all))
         any_excluded |= bool(qc.excluded())
     return 1 if any_excluded else 0

@@ -132,12 +132,16 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
             "to the proposal's levels to that of the curve fitted to the paper protocol's "
             "levels (both evaluated at the paper's 15 levels, so level sets may differ)"),
         "validated_sd_ratio": None if validation is None else validation["validated_sd_ratio"],
+        "validated_sd_ratio_se": None if validation is None else
+        validation["validated_sd_ratio_se"],
         "validated_sd_ratio_definition": (
             "largest over parameters of the ratio of realised RMS relative curve errors "
             "(pooled over simulated participants and the paper's 15 levels), proposal / "
-            "paper, same participants and per-trial physiology for both; with few "
-            "participants it scatters by tens of per cent where errors are tiny and "
-            "noise-limited (use --validate 20 or more for a verdict)"),
+            "paper, same participants, each protocol with its own independent draws of "
+            "per-trial physiology (the assumed scatter) and sensor noise; "
+            "validated_sd_ratio_se is its Monte-Carlo standard error (from the spread "
+            "over participants). validation.without_scatter: sensor noise only; "
+            "validation.other_scatter: a scatter model the design did not assume"),
         "selection_accuracy": {"proposal": prop.selection["overall"],
                                "paper": paper.selection["overall"],
                                "kind": "predicted (Monte-Carlo on the predicted covariance)"},
@@ -164,6 +168,13 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
     fig = _figure(out / "design.png", rel_prop, rel_paper, c, paper.candidate, rel0)
     (out / "report.html").write_text(_html(text, fig), encoding="utf-8")
     return doc
+
+
+def _pm(v: dict) -> str:
+    """``ratio +- SE`` of one validation run (the SE needs two participants or more)."""
+    se = v.get("validated_sd_ratio_se")
+    return f"{v['validated_sd_ratio']:.4f} +- " + (f"{se:.4f}" if se is not None else
+                                                  "n/a (one participant)")
 
 
 def report_text(doc: dict, result) -> str:
@@ -200,8 +211,9 @@ def report_text(doc: dict, result) -> str:
               f"parameter and level; median participant {doc['predicted_sd_ratio_median_participant']:.4f}); "
               f"derived quantities {doc['predicted_derived_sd_ratio']:.4f}"]
     if v:
-        L.append(f"validated_sd_ratio {v['validated_sd_ratio']:.4f} over {v['n_participants']} "
-                 f"simulated participants ({v['population']})")
+        L.append(f"validated_sd_ratio {_pm(v)} (Monte-Carlo SE) over "
+                 f"{v['n_participants']} simulated participants ({v['population']}), "
+                 "under the assumed scatter, each protocol with its own draws")
         for name in PARAMETERS:
             L.append(f"  realised RMS curve error {name:<9} proposal "
                      f"{100 * v['curve_rms_rel']['proposal'][name]:.3f} %  paper "
@@ -209,7 +221,7 @@ def report_text(doc: dict, result) -> str:
         w = v.get("without_scatter")
         if w:
             L.append(f"without physiological scatter (sensor noise and model bias only): "
-                     f"validated_sd_ratio {w['validated_sd_ratio']:.4f}, selection "
+                     f"validated_sd_ratio {_pm(w)}, selection "
                      f"{w['selection_accuracy']['proposal']:.3f} vs paper "
                      f"{w['selection_accuracy']['paper']:.3f}")
             for name in PARAMETERS:
@@ -221,6 +233,12 @@ def report_text(doc: dict, result) -> str:
                          "protocol's error is larger (the bound's seconds-for-variance "
                          "trade); the design relies on trial-to-trial scatter dominating, "
                          "as it does in the paper's data. Check that on your first session.")
+        o = v.get("other_scatter")
+        if o:
+            L.append(f"under a scatter model the design did not assume ({o['model']}, same "
+                     f"SDs): validated_sd_ratio {_pm(o)}, selection "
+                     f"{o['selection_accuracy']['proposal']:.3f} vs paper "
+                     f"{o['selection_accuracy']['paper']:.3f}")
     L += ["", "predicted relative SE of the curves at the paper's levels, % (median over the "
               "prior's participants), proposal / paper:",
           f"{'sE':>6}" + "".join(f"{n:>22}" for n in PARAMETERS)]

@@ -6,11 +6,17 @@ participant), the session is identified by ``analysis.identify.identify_session`
 as ``nmsid identify`` does, and the curves are compared with the participant's truth.
 
 Physiological scatter: each trial's Kp, wn and zeta are the participant's curves times
-``1 + scatter z`` (z standard normal, one per trial and parameter), the variation the
-design's prediction assumes. The draws are keyed by (participant, sE, repeat), so two
-protocols that share a level and repeat see the same physiology there (common random
-numbers: the comparison measures the protocols, not the luck of the draw); sensor noise is
-keyed the same way. ``scatter=None`` runs the plain simulator.
+``1 + sd z`` (one draw per trial and parameter). The design's prediction assumes z
+independent standard normal (a plain ``{parameter: sd}`` dict here); a
+:class:`ScatterModel` draws z otherwise (correlated between the parameters, heavy-tailed),
+to validate the design under scatter it did not assume. ``scatter=None`` runs the plain
+simulator (sensor noise only).
+
+Draws are keyed by (participant seed, stream, sE, repeat); sensor noise is keyed the same
+way. :func:`validate_protocols` runs the two protocols on different streams, so each gets
+its own physiology and noise: the ratio of their errors is then a measurement with a
+Monte-Carlo standard error (:func:`validated_ratio`), not 1 by construction as it is when
+both see the same draws.
 
 Metrics, per protocol, pooled over participants:
 
@@ -30,6 +36,7 @@ import numpy as np
 
 from nmsid.analysis.curves import fit_curve
 from nmsid.analysis.design.candidates import PAPER_LEVELS, Candidate
+from nmsid.analysis.design.errors import DesignError
 from nmsid.analysis.design.prior import PARAMETERS
 from nmsid.analysis.identify import identify_session
 from nmsid.analysis.model_selection import compare_models
@@ -49,16 +56,84 @@ def _scaled(curve: ParameterCurve, factor: float) -> ParameterCurve:
     return ParameterCurve(curve.model, tuple(c))
 
 
-def simulate_session(vp, candidate: Candidate, *, scatter: dict | None = None,
-                     seed: int = 0) -> Session:
+@dataclass(frozen=True)
+class ScatterModel:
+    """How the per-trial relative scatter of (Kp, wn_rad_s, zeta) is drawn.
+
+    Parameters
+    ----------
+    sd : dict
+        Relative standard deviation per parameter (missing: 0).
+    correlation : float
+        Correlation between the three parameters' draws (same for every pair), in
+        [0, 1).
+    df : float, optional
+        Student-t degrees of freedom (> 2; scaled to unit variance, so ``sd`` stays the
+        standard deviation): heavier tails than the normal. None: normal.
+    label : str
+        How reports name it.
+
+    Factors ``1 + sd z`` are kept at or above :attr:`MIN_FACTOR` (a heavy tail must not
+    turn a gain negative).
+    """
+
+    sd: dict
+    correlation: float = 0.0
+    df: float | None = None
+    label: str = "independent normal"
+
+    MIN_FACTOR = 0.2
+
+    def __post_init__(self):
+        if not 0.0 <= self.correlation < 1.0:
+            raise DesignError(f"scatter correlation = {self.correlation!r}: use a value in "
+                              "[0, 1)")
+        if self.df is not None and not self.df > 2:
+            raise DesignError(f"scatter df = {self.df!r}: use degrees of freedom > 2 (finite "
+                              "variance) or None for the normal")
+        unknown = set(self.sd) - set(PARAMETERS)
+        if unknown:
+            raise DesignError(f"scatter names {sorted(unknown)}: use {list(PARAMETERS)}")
+
+    def factors(self, rng: np.random.Generator) -> list[float]:
+        """One trial's multiplicative factors for (Kp, wn_rad_s, zeta)."""
+        c = self.correlation
+        z = np.sqrt(1 - c) * rng.standard_normal(3) + np.sqrt(c) * rng.standard_normal()
+        if self.df is not None:       # the same chi-square for all three: a jointly-t draw
+            z = z * np.sqrt((self.df - 2) / rng.chisquare(self.df))
+        return [max(self.MIN_FACTOR, 1 + self.sd.get(name, 0.0) * z[j])
+                for j, name in enumerate(PARAMETERS)]
+
+
+def alternative_scatter(sd: dict) -> ScatterModel:
+    """A scatter model other than the design's own, with the same SDs: the three
+    parameters move together (correlation 0.6: a trial with poorer electrode contact is
+    weaker and slower) and the tails are heavy (Student-t, 3 degrees of freedom: now and
+    then a trial far off)."""
+    return ScatterModel(dict(sd), correlation=0.6, df=3.0,
+                        label="correlated (0.6), heavy-tailed (t, 3 df)")
+
+
+def _as_model(scatter) -> ScatterModel | None:
+    if scatter is None or isinstance(scatter, ScatterModel):
+        return scatter
+    return ScatterModel(dict(scatter)) if any(scatter.values()) else None
+
+
+def simulate_session(vp, candidate: Candidate, *, scatter: dict | ScatterModel | None = None,
+                     seed: int = 0, stream: int = 0) -> Session:
     """One session of ``candidate`` on virtual participant ``vp`` (in memory).
 
     ``vp`` is a template participant (``sim_backends.participant``) or a musculoskeletal
     one (``sim_backends.msk_participant``: its own MuJoCo simulator and the calibration its
-    ramp finds). ``scatter`` (relative SDs per trial of Kp, wn_rad_s, zeta) scales the
-    template's curves; on a musculoskeletal participant it scales the physics behind
-    them (:meth:`~nmsid.sim_backends.msk_participant.MskParticipant.trial_variant`: electrode
-    reach, muscle and mount speed, mount damping) by the same relative SDs."""
+    ramp finds). ``scatter`` (relative SDs per trial of Kp, wn_rad_s, zeta, drawn
+    independent normal; or a :class:`ScatterModel`) scales the template's curves; on a
+    musculoskeletal participant it scales the physics behind them
+    (:meth:`~nmsid.sim_backends.msk_participant.MskParticipant.trial_variant`: electrode reach,
+    muscle and mount speed, mount damping) by the same factors. ``stream``: two calls
+    with the same seed and stream draw the same physiology and noise for a shared
+    (sE, repeat); different streams draw independently."""
+    model = _as_model(scatter)
     cfg = candidate.config()
     p = cfg.protocol
     musculoskeletal = hasattr(vp, "make_simulator")  # MuJoCo participant: its own simulator
@@ -70,11 +145,12 @@ def simulate_session(vp, candidate: Candidate, *, scatter: dict | None = None,
         wf = trial_waveform(p, s, cal)
         for r in range(1, p.repeats + 1):
             key = [int(seed) & 0xFFFFFFFF, int(round(s * 1000)), r, 9173]
+            if stream:
+                key.append(int(stream))
             rng = np.random.default_rng(key)
             who = vp
-            if scatter:
-                z = rng.standard_normal(3)
-                f = [1 + scatter.get(name, 0.0) * z[j] for j, name in enumerate(PARAMETERS)]
+            if model is not None:
+                f = model.factors(rng)
                 if musculoskeletal:   # the same relative SDs on the physics behind them
                     who = vp.trial_variant(gain=f[0], speed=f[1], damping=f[2])
                 else:
@@ -123,17 +199,19 @@ class ProtocolOutcome:
         return acc
 
 
-def run_protocol(participants, candidate: Candidate, *, scatter: dict | None = None,
-                 seed: int = 0, settings: IdentificationSettings | None = None
-                 ) -> ProtocolOutcome:
-    """Simulate, identify and score ``candidate`` on every participant."""
+def run_protocol(participants, candidate: Candidate, *,
+                 scatter: dict | ScatterModel | None = None, seed: int = 0, stream: int = 0,
+                 settings: IdentificationSettings | None = None) -> ProtocolOutcome:
+    """Simulate, identify and score ``candidate`` on every participant (``scatter``,
+    ``stream``: see :func:`simulate_session`)."""
     s = settings or IdentificationSettings()
     grid = np.asarray(PAPER_LEVELS, dtype=float)
     curve_err = np.full((len(participants), len(grid), 3), np.nan)
     right = np.zeros((len(participants), 3), dtype=bool)
     level_err = []
     for i, vp in enumerate(participants):
-        session = simulate_session(vp, candidate, scatter=scatter, seed=seed * 100003 + i)
+        session = simulate_session(vp, candidate, scatter=scatter, seed=seed * 100003 + i,
+                                   stream=stream)
         result = identify_session(session, s)
         levels = np.array([lv.sE for lv in result.levels])
         est = np.array([[lv.fit.Kp, lv.fit.wn_rad_s, lv.fit.zeta] if lv.fit is not None
@@ -153,12 +231,39 @@ def run_protocol(participants, candidate: Candidate, *, scatter: dict | None = N
                            curve_err, level_err, right)
 
 
+def _per_participant_ms(outcome: ProtocolOutcome) -> np.ndarray:
+    """[participant, parameter] mean squared relative curve error over the 15 levels."""
+    with np.errstate(invalid="ignore"):
+        return np.nanmean(outcome.curve_err ** 2, axis=1)
+
+
 def validated_ratio(proposal: ProtocolOutcome, paper: ProtocolOutcome) -> dict:
-    """Ratios of the realised RMS curve errors, proposal / paper, per parameter; ``max``.
+    """Ratios of the realised RMS curve errors, proposal / paper, per parameter; ``max``;
+    and their Monte-Carlo standard errors.
 
     Pooled over participants and the paper's 15 levels before the ratio (a per-level ratio
     of RMS values from a few participants scatters too much to take its maximum).
+
+    Returns
+    -------
+    dict
+        ``max``, ``per_parameter``; ``se_per_parameter``: the ratio's standard error from
+        the spread of the participants' mean squared errors (delta method on
+        ``sqrt(A / B)``, the two protocols' draws independent, as
+        :func:`validate_protocols` runs them; NaN with one participant); ``max_se``: that
+        of the parameter giving ``max``.
     """
     a, b = proposal.curve_rms_rel(), paper.curve_rms_rel()
     per = {n: a[n] / b[n] for n in PARAMETERS}
-    return {"max": max(per.values()), "per_parameter": per}
+    ms_a, ms_b = _per_participant_ms(proposal), _per_participant_ms(paper)
+    se = {}
+    for j, n in enumerate(PARAMETERS):
+        rel_var = 0.0
+        for ms in (ms_a[:, j], ms_b[:, j]):
+            ms = ms[np.isfinite(ms)]
+            rel_var += (np.var(ms, ddof=1) / (len(ms) * np.mean(ms) ** 2)
+                        if len(ms) > 1 and np.mean(ms) > 0 else np.nan)
+        se[n] = float(per[n] * 0.5 * np.sqrt(rel_var))
+    worst = max(per, key=per.get)
+    return {"max": per[worst], "per_parameter": per, "se_per_parameter": se,
+            "max_se": se[worst]}

@@ -22,14 +22,15 @@ from pathlib import Path
 import numpy as np
 
 from nmsid.analysis.data_bounds import check_session_data
-from nmsid.analysis.gap.data import GapData, PreprocessSettings, load_session, prepare_trials
+from nmsid.analysis.gap.data import (GAP_DATASETS, GapData, PreprocessSettings, load_session,
+                                     prepare_trials)
 from nmsid.analysis.gap.diagnose import CandidateResult, Diagnosis, GapSettings, diagnose
 from nmsid.analysis.gap.errors import GapInputError
 from nmsid.analysis.gap.localize import by_location, frequency_view
 from nmsid.analysis.gap.models import NOMINAL, nuisance_basis
 from nmsid.analysis.gap.report import json_safe, write_outputs
 from nmsid.analysis.qc import assess_session
-from nmsid.protocols.session_file import read_session
+from nmsid.protocols.session_file import Session, read_session
 from nmsid.sim_backends.sensor import SensorModel
 from nmsid.sim_backends.simulation import ParticipantSimulator
 from nmsid.sim_backends.twin import participant_from_twin
@@ -39,9 +40,13 @@ log = logging.getLogger(__name__)
 __all__ = ["GapSettings", "run_gap", "external_predictions"]
 
 
-def external_predictions(data: GapData, *, twin=None, sim_session=None) -> np.ndarray:
+def external_predictions(data: GapData, *, twin=None, sim_session=None,
+                         session: Session | None = None) -> np.ndarray:
     """(n_trials, n_eval) force predicted by an external simulation, pre-processed like the
     measurement.
+
+    ``session``: the measured session already read (its rE and sE drive the twin); read
+    from ``data.path`` when not given.
 
     Raises
     ------
@@ -50,7 +55,7 @@ def external_predictions(data: GapData, *, twin=None, sim_session=None) -> np.nd
     """
 
     if sim_session is not None:
-        sim = read_session(sim_session)
+        sim = read_session(sim_session, datasets=GAP_DATASETS)
         table = {(round(t.sE, 6), t.repeat): t for t in sim.trials if t.completed}
         sim_trials = []
         for info in data.trials:  # in the measured file's order
@@ -66,10 +71,10 @@ def external_predictions(data: GapData, *, twin=None, sim_session=None) -> np.nd
             raise GapInputError(f"{sim_session}: simulated trials are shorter than the "
                                 "measured ones")
         return sim_data.y_N[:, :n]
-    return _twin_predictions(data, twin)
+    return _twin_predictions(data, twin, session)
 
 
-def _twin_predictions(data: GapData, twin) -> np.ndarray:
+def _twin_predictions(data: GapData, twin, session: Session | None = None) -> np.ndarray:
     """Every trial's commanded rE and sE run through the twin (effects included) on the
     simulator's virtual participant with an ideal sensor, in file order (aborted trials
     too: they count for fatigue)."""
@@ -79,7 +84,8 @@ def _twin_predictions(data: GapData, twin) -> np.ndarray:
     except (OSError, ValueError) as exc:
         raise GapInputError(f"{twin}: cannot be used as the simulation under test ({exc})"
                             ) from None
-    session = read_session(data.path)
+    if session is None:
+        session = read_session(data.path, datasets=GAP_DATASETS)
     cal = participant.calibration
     sim = ParticipantSimulator(participant, data.fs_raw_Hz)
     by_name = {}
@@ -123,7 +129,9 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
 
     Parameters
     ----------
-    sessions : list of path-like
+    sessions : list of path-like or protocols.session_file.Session
+        Session files (each read once, with :data:`nmsid.analysis.gap.data.GAP_DATASETS`), or
+        sessions read already (e.g. by a study task that identified them first).
     out_dir : path-like
     settings : GapSettings, optional
     twin, sim_session : path-like, optional
@@ -136,8 +144,8 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
         Trials excluded upstream, never held against the model: by default (``"qc"``)
         the ones the trial quality control (:func:`nmsid.analysis.qc.assess_session`) excludes;
         or a mapping trial name -> reason, or a callable ``path -> mapping`` for several
-        sessions; None keeps every completed trial. They are left out of every fit and
-        score and listed in the report.
+        sessions (called with the session's file path); None keeps every completed trial.
+        They are left out of every fit and score and listed in the report.
 
     Returns
     -------
@@ -149,19 +157,23 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
     out.mkdir(parents=True, exist_ok=True)
     reports = []
     multi = len(sessions) > 1
-    for path in sessions:
-        check_session_data(read_session(path), path)  # absurd values: one line, first
+    for entry in sessions:
+        # read once; QC, pre-processing, the report and the twin all use this session
+        session = entry if isinstance(entry, Session) else \
+            read_session(entry, datasets=GAP_DATASETS)
+        path = session.path
+        check_session_data(session, path)  # absurd values: one line, first
         if isinstance(excluded, str) and excluded == "qc":
-            excl = assess_session(path).excluded()
+            excl = assess_session(session).excluded()
         else:
             excl = excluded(path) if callable(excluded) else excluded
-        data = load_session(path, preprocess, excluded=excl)
+        data = load_session(session, preprocess, excluded=excl)
         diag = diagnose(data, settings)
-        cal = read_session(path, load_data=False).calibration
         target = out / Path(path).stem if multi else out
-        report = write_outputs(diag, target, cal, plots=plots)
+        report = write_outputs(diag, target, session.calibration, plots=plots)
         if twin is not None or sim_session is not None:
-            pred = external_predictions(data, twin=twin, sim_session=sim_session)
+            pred = external_predictions(data, twin=twin, sim_session=sim_session,
+                                        session=session)
             report["simulation_under_test"] = json_safe(
                 _under_test(diag, pred, str(twin or sim_session)))
             (target / "gap_report.json").write_text(json.dumps(report, indent=1) + "\n",

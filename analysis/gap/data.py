@@ -35,7 +35,7 @@ from nmsid.analysis.gap.errors import GapInputError
 from nmsid.analysis.input_timing import TimingEstimate, estimate_session_timing
 from nmsid.analysis.preprocess import delay_input, smooth_and_lowpass
 from nmsid.analysis.settings import IdentificationSettings
-from nmsid.protocols.session_file import read_session
+from nmsid.protocols.session_file import Session, read_session
 from nmsid.protocols.waveforms import chirp_frequency_Hz, chirp_phase_rad
 
 log = logging.getLogger(__name__)
@@ -189,14 +189,20 @@ def _filter_chain(x: np.ndarray, fs_Hz: float, s: PreprocessSettings) -> np.ndar
     return smooth_and_lowpass(x, fs_Hz, s.signal)
 
 
-def load_session(path, settings: PreprocessSettings | None = None, *,
+#: The trial datasets the diagnosis reads (currents, wrench and sync are not needed).
+GAP_DATASETS = ("rE", "force_N")
+
+
+def load_session(session, settings: PreprocessSettings | None = None, *,
                  excluded: dict | None = None) -> GapData:
-    """Read one session file and pre-process its completed trials.
+    """Pre-process the completed trials of one session (read here if given as a path).
 
     Parameters
     ----------
-    path : path-like
-        An ``nmsid-session`` HDF5 file.
+    session : path-like or protocols.session_file.Session
+        An ``nmsid-session`` HDF5 file (only :data:`GAP_DATASETS` are read), or a session
+        the caller has read already (with at least those datasets): a command reads its
+        file once and passes the session down.
     settings : PreprocessSettings, optional
     excluded : dict, optional
         Trials excluded upstream (name -> reason): left out and listed.
@@ -208,9 +214,10 @@ def load_session(path, settings: PreprocessSettings | None = None, *,
     """
 
     s = settings or PreprocessSettings()
-    session = read_session(path)
-    return prepare_trials(session.trials, path=str(path), participant=session.participant,
-                          settings=s, excluded=excluded)
+    if not isinstance(session, Session):
+        session = read_session(session, datasets=GAP_DATASETS)
+    return prepare_trials(session.trials, path=str(session.path),
+                          participant=session.participant, settings=s, excluded=excluded)
 
 
 def _cumulative_stim(trials) -> list[float]:

@@ -109,9 +109,11 @@ def run_gui(options: GuiOptions) -> int:
     def on_signal(signum, reason):  # main (Qt) thread, between Python bytecodes
         # output to zero first, then end the session; the window closes on the next turn
         # of the event loop (closing joins the engine thread, which writes the end record)
+        result["signal"] = signum
+        if steps is not None:
+            runner.interrupted = True
         controller = window.controller
         controller.estop(reason)
-        result["signal"] = signum
         if controller.engine is not None:
             controller.engine.abort(reason)
         QTimer.singleShot(0, lambda: (window.close(), app.quit()))

@@ -268,6 +268,9 @@ class ScriptRunner(QObject):
         self.ok: bool | None = None
         self.message = ""
         self.quit_requested = False
+        #: set when the session was ended from outside (a signal): a step that fails
+        #: because of it is not reported as a script failure
+        self.interrupted = False
         self._waiting: Step | None = None
         self._deadline = 0.0
         self._sleep_until = 0.0
@@ -299,7 +302,10 @@ class ScriptRunner(QObject):
                     self._waiting = step
                     self._deadline = time.monotonic() + _timeout(step)
         except Exception as exc:  # report, stop the script, leave the window usable
-            log.exception("GUI script failed")
+            if self.interrupted:  # the signal's own line says how the session ended
+                log.debug("GUI script stopped by an interrupted session: %s", exc)
+            else:
+                log.exception("GUI script failed")
             self._finish(False, f"GUI script failed: {exc}")
 
     def _finish(self, ok: bool, message: str) -> None:

@@ -2,30 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 
-BENCH = Path(__file__).resolve().parents[2] / "bench"
-
-
-def _load_synthetic():
-    name = "nmsid_bench_synthetic_sessions"
-    if name in sys.modules:
-        return sys.modules[name]
-    spec = importlib.util.spec_from_file_location(name, BENCH / "synthetic_sessions.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
+from nmsid.testing import sessions
 
 
 @pytest.fixture(scope="session")
 def synthetic():
-    """The ``bench/synthetic_sessions.py`` module."""
-    return _load_synthetic()
+    """The synthetic-session generators (:mod:`nmsid.testing.sessions`)."""
+    return sessions
 
 
 SMALL_LEVELS = (0.3, 0.45, 0.6, 0.75, 0.9, 1.0)

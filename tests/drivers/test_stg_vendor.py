@@ -279,8 +279,12 @@ def test_output_rate_setting_of_the_hardware_config(tmp_path):
     cfg = parse_hw_config({**base, "stimulator": {"output_rate_Hz": 25000.0}}, "hw.toml")
     assert cfg.stimulator.output_rate_Hz == 25000.0
     with pytest.raises(HardwareConfigError, match=r"hw.toml: stimulator.output_rate_Hz = "
-                                                  r"30000.0 is invalid; 1000 .. 50000 Hz"):
+                                                  r"30000.0 is invalid; a whole number of "
+                                                  r"microseconds per sample"):
         parse_hw_config({**base, "stimulator": {"output_rate_Hz": 30000.0}}, "hw.toml")
+    with pytest.raises(HardwareConfigError, match=r"stimulator.output_rate_Hz = 60000.0 .*"
+                                                  r"1000 \.\. 50000 Hz"):
+        parse_hw_config({**base, "stimulator": {"output_rate_Hz": 60000.0}}, "hw.toml")
 
 
 def test_a_busy_host_never_turns_a_normal_end_into_a_fault(fake_mcs):

@@ -9,6 +9,7 @@ import pytest
 pytest.importorskip("mujoco")
 pytest.importorskip("myo_sim")
 
+from nmsid.analysis.gap.effects import Effect  # noqa: E402
 from nmsid.analysis.identify import identify_session  # noqa: E402
 from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
 from nmsid.cli import main  # noqa: E402
@@ -53,7 +54,14 @@ def test_short_session_end_to_end(tmp_path, capsys):
     rep = json.loads((gap / "gap_report.json").read_text())
     held = rep["heldout"]
     assert held["nominal_nrmse_pct"] > 5 * held["noise_floor_nrmse_pct"]
-    assert rep["best_effect"] and held["augmented_nrmse_pct"] < held["nominal_nrmse_pct"]
+    # what explains it is named: a library effect, or the muscle twin when the template's
+    # best answer leaves a significant gap (the musculoskeletal physics behind this session)
+    assert rep["verdict"] in {"effect", "muscle_twin"}, rep["verdict"]
+    assert rep["best_effect"] in {e.value for e in Effect} - {"none"}
+    assert held["augmented_nrmse_pct"] < 0.5 * held["nominal_nrmse_pct"]
+    if rep["verdict"] == "muscle_twin":
+        m = rep["muscle_twin"]["heldout"]
+        assert m["muscle_nrmse_pct"] < m["template_nrmse_pct"] < m["nominal_nrmse_pct"]
 
 
 def test_participant_model_flag_overrides_and_resume_refuses_it(tmp_path, capsys):

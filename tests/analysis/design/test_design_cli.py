@@ -9,8 +9,10 @@ import pytest
 from nmsid.analysis.design.api import run_design
 from nmsid.analysis.design.candidates import Candidate
 from nmsid.analysis.design.errors import DesignError
-from nmsid.analysis.design.prior import population_prior
+from nmsid.analysis.design.predict import DEFAULT_SCATTER
+from nmsid.analysis.design.prior import PARAMETERS, population_prior
 from nmsid.analysis.design.search import parse_target
+from nmsid.analysis.design.validate import alternative_scatter
 from nmsid.protocols.config import load_config
 from nmsid.protocols.session_file import read_session, trial_input, validate_session
 from nmsid.cli import main
@@ -45,7 +47,19 @@ def test_outputs_have_the_promised_fields(designed):
     # and the design says so rather than pretending
     assert d["found"] is False and d["predicted_sd_ratio"] > 1.02
     assert "NO CANDIDATE MET THE TARGET" in (out / "report.txt").read_text()
-    assert d["validated_sd_ratio"] > 0 and np.isfinite(d["validated_sd_ratio"])
+    # three validation runs: the assumed scatter, sensor noise alone, another scatter model;
+    # each ratio is the proposal's realised curve error over the paper's, worst parameter
+    v = d["validation"]
+    assert v["other_scatter"]["model"] == alternative_scatter(DEFAULT_SCATTER).label
+    for run in (v, v["without_scatter"], v["other_scatter"]):
+        rms = run["curve_rms_rel"]
+        ratios = [rms["proposal"][n] / rms["paper"][n] for n in PARAMETERS]
+        assert run["validated_sd_ratio"] == pytest.approx(max(ratios), rel=1e-12)
+        assert run["validated_sd_ratio_se"] is None          # one participant: no SE
+    assert d["validated_sd_ratio"] == v["validated_sd_ratio"]
+    text = (out / "report.txt").read_text()
+    assert text.count("n/a (one participant)") == 3
+    assert "under a scatter model the design did not assume (correlated (0.6)" in text
     assert "what this does not promise" in (out / "report.txt").read_text()
 
 

@@ -53,8 +53,17 @@ def test_report_has_the_keys_and_files(dead_report):
         assert {"effect", "params", "heldout_nrmse_pct", "delta_ic"} <= set(row)
     assert {"nominal_nrmse_pct", "augmented_nrmse_pct", "shrink_pct"} <= set(rep["heldout"])
     loc = rep["localization"]
-    for key in ("sE", "band", "position", "deviation"):
-        assert loc["nominal"][key] and loc["augmented"][key]
+    g = GapSettings()
+    n_tested = len(loc["nominal"]["position"])
+    assert 1 <= n_tested <= 15          # 5 sE x 3 repeats; the held-out ones are listed
+    for model in ("nominal", "augmented"):
+        assert [row["sE"] for row in loc[model]["sE"]] == [0.3, 0.5, 0.7, 0.9, 1.0]
+        assert len(loc[model]["band"]) == len(g.bands_Hz) - 1
+        assert len(loc[model]["deviation"]) == len(g.deviation_edges) - 1
+        assert len(loc[model]["position"]) == n_tested
+    # the named dead time removes most of the gap at every sE
+    for nom, aug in zip(loc["nominal"]["sE"], loc["augmented"]["sE"]):
+        assert aug["nrmse_pct"] < nom["nrmse_pct"], (nom, aug)
     for name in ("report.html", "twin.json", "where.png", "frequency.png"):
         assert (out / name).stat().st_size > 0
 

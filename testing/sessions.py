@@ -1,4 +1,14 @@
-"""Synthetic session files with known second-order parameters (for tests and benchmarks).
+"""Synthetic session files with known answers, for tests, benchmarks and examples.
+
+Two generators, both written independently of the analysis code (their own chirp and
+discretisation), so that a test does not check the code against itself:
+
+* :func:`write_synthetic_session`: known second-order parameters per sE, drawn curves
+  (identification and QC).
+* :func:`write_gap_session`: one fixed participant with effects the gap diagnosis should
+  (or should not) name: a dead time, fatigue, a tremor outside its candidates.
+
+:func:`write_synthetic_session`
 
 Each trial: ``steady_s`` s at rE = 0.5, then an exponential chirp
 ``rE = 0.5 + 0.5 sin(phi)``, ``phi(t) = 2 pi f0 T / ln(f1/f0) ((f1/f0)^(t/T) - 1)``.
@@ -153,3 +163,123 @@ def write_synthetic_session(path: str | Path, seed: int = 0, *, participant: str
     return SyntheticTruth(participant=participant, sE=[float(x) for x in sE],
                           Kp=[float(x) for x in kp], wn_rad_s=[float(x) for x in wn],
                           zeta=[float(x) for x in zeta], shapes=shapes, noise_sd_N=sd)
+
+
+# -- sessions for the gap diagnosis ----------------------------------------------------
+
+GAP_FS_HZ = 2000.0
+
+
+def gap_true_params(sE):
+    """(Kp, wn_rad_s, zeta) of :func:`write_gap_session`'s participant at ``sE``."""
+    Kp = 1.2 * np.exp(1.5 * sE)
+    wn = 30 + 35 * sE - 15 * sE ** 2
+    zeta = 0.45 + 0.35 * sE
+    return Kp, wn, zeta
+
+
+def write_gap_session(path, *, levels=(0.3, 0.5, 0.7, 0.9, 1.0), repeats=3, seed=0,
+                      dead_time_s=0.0, noise_N=0.04, blocks=True, fatigue_per_100s=0.0,
+                      hold=True, step=None, bump=None, tremor=None, co_contraction=None,
+                      steady_s=5.0,
+                      chirp_s=10.0, fs_Hz=GAP_FS_HZ):
+    """Write a session of a fixed second-order participant with chosen effects.
+
+    The force is scipy's exact discretisation of ``Kp wn^2 / (s^2 + 2 zeta wn s + wn^2)``
+    (:func:`gap_true_params`) driven by ``rE - 0.5``, plus 50 Hz mains pick-up, white
+    noise, a per-trial offset and drift.
+
+    Parameters
+    ----------
+    path : path-like
+        Where to write (must not exist).
+    levels, repeats : sequence of float, int
+        The sE levels and repeats per level.
+    seed : int
+        Draws the trial order and the noise.
+    dead_time_s : float
+        The force answers the drive this late (whole samples).
+    noise_N : float
+        Standard deviation of the sensor's white noise, N.
+    blocks : bool
+        Repeats of a level run back to back (levels in random order); False: the whole
+        order is shuffled.
+    fatigue_per_100s : float
+        The gain falls linearly with cumulative stimulation, by this fraction per 100 s.
+    hold : bool
+        The stimulator holds each sample (zero-order hold, exact); False: the stimulation
+        is the smooth signal the record samples (first-order hold).
+    step : (int, float, float), optional
+        ``(k, t_s, height_N)``: a baseline step in the k-th trial written.
+    bump : (sequence of int, float, float, float), optional
+        ``(ks, t_s, duration_s, height_N)``: a voluntary contraction in those trials.
+    tremor : (float, float), optional
+        ``(f_Hz, rms_N)``: a physiological tremor (white noise through a resonator
+        0.8 Hz wide) added to every trial with that RMS scaled by sE; no candidate of the
+        gap diagnosis models it (but it differs between repeats, so it mostly raises
+        the noise floor).
+    co_contraction : (float, float), optional
+        ``(gain_N, tau_s)``: both muscles pulling at once when they share the drive,
+        ``gain_N sE (4 rE (1 - rE) - 1)`` through a first-order lag ``tau_s``. Even in
+        ``rE - 0.5`` (twice the chirp's frequency), so no candidate of the gap diagnosis
+        (each odd in the drive) explains it: a repeatable unexplained gap.
+    steady_s, chirp_s, fs_Hz : float
+        Trial timing: lead-in at rE = 0.5, then a 1-10 Hz exponential chirp.
+
+    Returns
+    -------
+    path-like
+        ``path``.
+    """
+    rng = np.random.default_rng(seed)
+    order = [(sE, r) for sE in levels for r in range(1, repeats + 1)]
+    if blocks:
+        perm = rng.permutation(len(levels))
+        order = [(levels[i], r) for i in perm for r in range(1, repeats + 1)]
+    else:
+        order = [order[i] for i in rng.permutation(len(order))]
+    w = SessionWriter.create(path, participant="T01", backend="test")
+    w.write_calibration(Calibration(2.0, 9.0, 1.5, 8.0))
+    n = int(round((steady_s + chirp_s) * fs_Hz))
+    t = np.arange(n) / fs_Hz
+    rE = chirp_rE(t, steady_s, chirp_s, 1.0, 10.0)
+    cum_s = 0.0
+    for k_trial, (sE, rep) in enumerate(order):
+        Kp, wn, zeta = gap_true_params(sE)
+        # exact for the stimulator's zero-order hold (each sample held for 1/fs)
+        b, a, _ = cont2discrete(([Kp * wn ** 2], [1, 2 * zeta * wn, wn ** 2]), 1 / fs_Hz,
+                                method="zoh" if hold else "foh")
+        u = rE - 0.5
+        if dead_time_s > 0:
+            k = int(round(dead_time_s * fs_Hz))
+            u = np.concatenate([np.zeros(k), u[:-k]])
+        y = lfilter(np.ravel(b), np.ravel(a), u)
+        if step is not None and step[0] == k_trial:
+            y = y + step[2] * (t >= step[1])
+        if bump is not None and k_trial in bump[0]:
+            m = (t >= bump[1]) & (t < bump[1] + bump[2])
+            y = y + bump[3] * m * np.sin(np.pi * (t - bump[1]) / bump[2]) ** 2
+        y = y * (1.0 - fatigue_per_100s * (cum_s + t) / 100.0)
+        cum_s += len(t) / fs_Hz
+        if co_contraction is not None:
+            both = 4 * rE * (1 - rE) - 1.0        # 0 when one muscle has all the drive
+            lag = np.exp(-1 / (co_contraction[1] * fs_Hz))
+            y = y + co_contraction[0] * sE * lfilter([1 - lag], [1, -lag], both)
+        if tremor is not None:
+            y = y + sE * _resonant_noise(rng, n, tremor[0], 0.8, tremor[1], fs_Hz)
+        noise = noise_N * rng.standard_normal(n) + 0.03 * np.sin(2 * np.pi * 50 * t)
+        force = y + noise + 0.3 * rng.standard_normal() + 0.01 * rng.standard_normal() * t
+        I_e = 2.0 + rE * sE * 7.0
+        I_f = 1.5 + (1 - rE) * sE * 6.5
+        w.append_trial(Trial(sE=float(sE), repeat=rep, fs_Hz=fs_Hz, rE=rE, I_ext_mA=I_e,
+                             I_flex_mA=I_f, force_N=force, steady_s=steady_s,
+                             chirp_s=chirp_s))
+    return path
+
+
+def _resonant_noise(rng, n, f_Hz, width_Hz, rms, fs_Hz):
+    """White noise through a resonator (AR(2)) at ``f_Hz``, scaled to ``rms``."""
+    r = np.exp(-np.pi * width_Hz / fs_Hz)
+    th = 2 * np.pi * f_Hz / fs_Hz
+    x = lfilter([1.0], [1.0, -2 * r * np.cos(th), r * r], rng.standard_normal(n + 4000))[4000:]
+    return rms * x / np.std(x)

@@ -1,0 +1,30 @@
+"""Fixtures shared by every test area."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+
+@pytest.fixture
+def session_reads(monkeypatch):
+    """Count how often each HDF5 file is opened for reading (``h5py.File`` in mode "r").
+
+    Returns a function ``reads(path) -> int``. Counted at h5py, below the session-file
+    reader, so the count stays right however that reader is organised.
+    """
+    import h5py
+
+    counts: dict[Path, int] = {}
+    original = h5py.File
+
+    class CountingFile(original):
+        def __init__(self, name, mode="r", *args, **kwargs):
+            if mode == "r" and isinstance(name, (str, Path)):
+                key = Path(name).resolve()
+                counts[key] = counts.get(key, 0) + 1
+            super().__init__(name, mode, *args, **kwargs)
+
+    monkeypatch.setattr(h5py, "File", CountingFile)
+    return lambda path: counts.get(Path(path).resolve(), 0)
