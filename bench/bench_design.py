@@ -4,7 +4,7 @@
    per-trial physiological scatter (Kp 10 %, wn 5 %, zeta 5 %): the proposal, its
    predicted standard-error ratio to the paper's protocol and the predicted probability of
    selecting the right curve family for both.
-2. Validation on 20 *other* simulated participants (seed 1000): both protocols simulated
+2. Validation on 12 *other* simulated participants (seed 1000): both protocols simulated
    trial by trial (with, under each, the bound's prediction for the same participants),
    identified by ``identify_session`` and scored against the truth (realised RMS
    relative error of the right-family curves at the paper's 15 levels, of the per-level
@@ -41,7 +41,7 @@ from nmsid.analysis.design.api import PAPER_STREAM, PROPOSAL_STREAM  # noqa: E40
 from nmsid.analysis.design.validate import alternative_scatter, run_protocol, validated_ratio  # noqa: E402,E501
 from nmsid.sim_backends.population import make_population  # noqa: E402
 
-N_PRIOR, N_VALID = 20, 20
+N_PRIOR, N_VALID = 20, 12
 
 
 def _row(label, out, stim):

@@ -290,9 +290,9 @@ def _found(diag) -> str:
 def main(argv: list[str] | None = None) -> None:
     import gap_sessions as gs
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=6, help="sessions per library effect")
-    ap.add_argument("--clean", type=int, default=40)
-    ap.add_argument("--per-kind", type=int, default=5,
+    ap.add_argument("--seeds", type=int, default=2, help="sessions per library effect")
+    ap.add_argument("--clean", type=int, default=12)
+    ap.add_argument("--per-kind", type=int, default=2,
                     help="sessions per nuisance and per outside effect")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--classes", nargs="*", default=list(CLASSES[1:]))

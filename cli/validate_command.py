@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import sys
+
+from nmsid.errors import EXIT_USER_ERROR
 from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.protocols.session_lock import live_writer
 
 
 def run(args) -> int:
-    """Print every contract violation of each file; exit 1 if any file is invalid.
+    """Print every contract violation of each file; exit 2 (a bad file: a user error, with
+    one line on stderr) if any file is invalid.
 
     A file that a run is writing now is checked as published so far (the writer
     publishes whole new versions atomically, so that is a consistent snapshot) and the
@@ -30,7 +34,11 @@ def run(args) -> int:
             n = _n_trials(path)
             print(f"{path}: valid nmsid session file (format version 1){live}"
                   + (f"; {n} trial(s) so far" if live and n is not None else ""))
-    return 1 if bad else 0
+    if bad:
+        print(f"nmsid: error: {bad} of {len(args.files)} file(s) invalid (see above)",
+              file=sys.stderr)
+        return EXIT_USER_ERROR
+    return 0
 
 
 def _n_trials(path) -> int | None:

@@ -164,7 +164,7 @@ def test_validate_and_identify_end_a_bad_file_in_one_line(tmp_path, capsys, case
     path = _good(tmp_path / "s.h5")
     with h5py.File(path, "a") as f:
         mutate(f)
-    assert main(["validate", str(path)]) == 1
+    assert main(["validate", str(path)]) == 2
     out = capsys.readouterr().out
     assert out.startswith(f"{path}: INVALID") and expected in out
     assert main(["identify", str(path), "--out", str(tmp_path / "out")]) == 2

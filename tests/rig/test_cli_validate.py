@@ -33,7 +33,7 @@ def test_every_violation_is_printed(tmp_path, capsys):
         del f.attrs["software"]
         del f["trials/t001/I_flex_mA"]
         f["calibration"].attrs["Ifmin_mA"] = -1.0
-    assert main(["validate", str(path)]) == 1
+    assert main(["validate", str(path)]) == 2
     out = capsys.readouterr().out
     assert "INVALID (3 problem(s))" in out
     assert "'software'" in out and "/trials/t001/I_flex_mA" in out and "Ifmin_mA" in out
@@ -44,6 +44,7 @@ def test_console_script_gives_one_line_not_a_traceback(tmp_path):
     junk.write_text("nope")
     proc = subprocess.run([sys.executable, "-m", "nmsid.cli", "validate", str(junk)],
                           capture_output=True, text=True)
-    assert proc.returncode == 1
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == ["nmsid: error: 1 of 1 file(s) invalid (see above)"]
     assert "Traceback" not in proc.stdout + proc.stderr
     assert "cannot be opened as HDF5" in proc.stdout
