@@ -94,8 +94,8 @@ def register(sub) -> None:
                      help="evaluate the curves outside the tested sE range (default: clip)")
     sim.add_argument("--without-effects", action="store_true",
                      help="simulate the parameter curves alone when the twin lists effects "
-                          "(otherwise such a twin is refused: this command cannot simulate "
-                          "effects)")
+                          "(by default its effects are simulated as its FMU steps them; an "
+                          "effect that cannot be, such as baseline_drift, is refused)")
     sim.add_argument("--out", required=True, metavar="CSV")
     sim.add_argument("--force", action="store_true",
                      help="replace an existing --out file (never a session file)")

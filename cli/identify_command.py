@@ -15,6 +15,8 @@ from nmsid.analysis.run import run_identification, summary_line
 from nmsid.analysis.settings import IdentificationSettings
 from nmsid.analysis.twin import Twin
 from nmsid.cli.errors import InputFileError, UsageError
+from nmsid.export.fmu.build import SUPPORTED_EFFECTS
+from nmsid.export.fmu.reference import TwinStepper
 from nmsid.protocols.output_paths import check_output, output_dir, output_file
 
 #: Exit status of ``nmsid identify`` when no sE level could be identified (docs/cli.md).
@@ -145,14 +147,29 @@ def _check_simulate_options(args) -> None:
 
 
 def _check_effects(twin, args) -> None:
-    """``Twin.simulate`` runs the curves only; refuse a twin with effects unless the user
-    says to leave them out."""
-    if twin.effects and not args.without_effects:
-        names = ", ".join(str(e.get("name")) for e in twin.effects)
+    """A twin's effects are simulated with the FMU's own definition of them
+    (:class:`nmsid.export.fmu.reference.TwinStepper`, one definition for both); an effect
+    it does not model is refused by name unless the user says to leave effects out."""
+    if not twin.effects or args.without_effects:
+        return
+    unsupported = sorted({str(e.get("name")) for e in twin.effects
+                          if e.get("name") not in SUPPORTED_EFFECTS
+                          and not (e.get("name") == "baseline_drift"
+                                   and e.get("amplitude_N", 1.0) == 0)})
+    if unsupported:
         raise SimulateOptionError(
-            f"{args.twin}: the twin has effects ({names}) that `nmsid twin simulate` cannot "
-            "simulate (it runs the parameter curves only); give --without-effects to "
+            f"{args.twin}: the twin's effect(s) {', '.join(unsupported)} cannot be simulated "
+            f"here (simulated: {', '.join(SUPPORTED_EFFECTS)}); give --without-effects to "
             "simulate the curves alone, or run the twin as a participant in `nmsid run`")
+
+
+def _simulate(twin, rE, sE, fs: float, args) -> np.ndarray:
+    """The twin's force: with its effects (when it has them and they are wanted) as the
+    FMU steps it, else the curves alone (:meth:`Twin.simulate`, which also runs a
+    muscle-model twin)."""
+    if twin.effects and not args.without_effects and twin.muscle_model is None:
+        return TwinStepper(twin, extrapolate=args.extrapolate).simulate(rE, sE, fs)
+    return twin.simulate(rE, sE, fs, clip=not args.extrapolate)
 
 
 def run_twin_simulate(args) -> int:
@@ -192,7 +209,7 @@ def run_twin_simulate(args) -> int:
         sE = np.full(len(rE), args.sE)
     if sE is None:
         raise UsageError("give --sE, or an 'sE' column in the --input CSV")
-    force = twin.simulate(rE, sE, fs, clip=not args.extrapolate)
+    force = _simulate(twin, rE, sE, fs, args)
     with output_file(args.out, force=args.force) as tmp:
         with open(tmp, "w", encoding="utf-8") as fh:
             fh.write("t_s,rE,sE,force_N\n")

@@ -64,13 +64,17 @@ def test_twin_simulate_never_overwrites_a_session_even_with_force(tmp_path, twin
 
 def test_twin_simulate_refuses_effects_it_cannot_simulate(tmp_path, twin_path, capsys):
     data = json.loads(twin_path.read_text())
-    data["effects"] = [{"name": "dead_time", "params": {"L_s": 0.02}}]
+    data["effects"] = [{"name": "dead_time", "params": {"L_s": 0.02}},
+                       {"name": "baseline_drift", "params": {"amplitude_N": 0.2}}]
     twin_path.write_text(json.dumps(data))
     argv = ["twin", "simulate", str(twin_path), "--sE", "0.5", "--rE-chirp", "--chirp-s",
             "1", "--out", str(tmp_path / "f.csv")]
     assert main(argv) == 2
-    assert "effects (dead_time)" in _one_line(capsys)
+    assert "effect(s) baseline_drift cannot be simulated" in _one_line(capsys)
     assert main([*argv, "--without-effects"]) == 0
+    data["effects"] = data["effects"][:1]          # a dead time alone is simulated
+    twin_path.write_text(json.dumps(data))
+    assert main([*argv[:-1], str(tmp_path / "g.csv")]) == 0
 
 
 def test_identify_out_refused_then_forced_and_a_repeated_file_counts_once(

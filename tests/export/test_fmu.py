@@ -165,6 +165,35 @@ def test_cosim_matches_the_cli_on_its_own_chirp(demo, tmp_path):
     assert err < 1e-6, err
 
 
+def test_cosim_matches_the_cli_on_an_augmented_twin(augmented, tmp_path):
+    """`nmsid twin simulate` runs a gap twin's effects with the FMU's definition of them."""
+    out = tmp_path / "force.csv"
+    assert main(["twin", "simulate", str(augmented.twin_path), "--rE-chirp", "--sE", "0.6",
+                 "--steady-s", "1.0", "--chirp-s", "3.0", "--out", str(out)]) == 0
+    cli = np.loadtxt(out, delimiter=",", skiprows=1)
+    res = _cosim(augmented.fmu, cli[:, 1], cli[:, 2], 2000.0)
+    err = np.max(np.abs(res["force_N"] - cli[:, 3])) / np.max(np.abs(cli[:, 3]))
+    assert err < 1e-6, err
+    curves = tmp_path / "curves.csv"
+    assert main(["twin", "simulate", str(augmented.twin_path), "--rE-chirp", "--sE", "0.6",
+                 "--steady-s", "1.0", "--chirp-s", "3.0", "--without-effects",
+                 "--out", str(curves)]) == 0
+    plain = np.loadtxt(curves, delimiter=",", skiprows=1)[:, 3]
+    assert np.max(np.abs(plain - cli[:, 3])) > 0.05 * np.max(np.abs(cli[:, 3]))
+
+
+def test_twin_simulate_refuses_an_effect_it_cannot_simulate(augmented, tmp_path, capsys):
+    data = json.loads(augmented.twin_path.read_text())
+    data["effects"].append({"name": "baseline_drift",
+                            "params": {"amplitude_N": 0.2, "corner_Hz": 0.05, "seed": 1}})
+    twin = tmp_path / "drift.json"
+    twin.write_text(json.dumps(data), encoding="utf-8")
+    assert main(["twin", "simulate", str(twin), "--rE-chirp", "--sE", "0.6",
+                 "--out", str(tmp_path / "f.csv")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "baseline_drift" in err[0] and "--without-effects" in err[0]
+
+
 def test_rest_lead_reproduces_a_record_that_starts_away_from_rest(demo):
     rng = np.random.default_rng(3)
     rE = 0.5 + 0.3 * np.sin(np.arange(400) / 25.0) + 0.05 * rng.standard_normal(400)
