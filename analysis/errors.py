@@ -40,3 +40,8 @@ class SimulateOptionError(SettingError):
 class DataRangeError(UserError):
     """A session file holds values no rig can record (a force of 1e300 N, an infinite
     sample): the file is refused as a whole, naming the file, the trial and the value."""
+
+
+class TwinInputError(UserError):
+    """A twin cannot be run on the input given (a non-finite input, an sE where its curves
+    give no valid dynamics); the message names the value and what would be valid."""

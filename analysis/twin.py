@@ -21,7 +21,7 @@ import numpy as np
 
 from nmsid.analysis.curves import evaluate_curve
 from nmsid.analysis.discretize import foh_coefficients, foh_state_matrices
-from nmsid.analysis.errors import IdentificationError, TwinFileError
+from nmsid.analysis.errors import IdentificationError, TwinFileError, TwinInputError
 from nmsid.analysis.signal_kernels import lfilter
 
 FORMAT = "nmsid-twin"
@@ -146,7 +146,7 @@ class Twin:
         zeta = self.parameters["zeta"](x)
         if np.any(~(wn > 0)) or np.any(~(zeta > 0)):
             bad = x[np.flatnonzero(~((wn > 0) & (zeta > 0)))[0]] if x.ndim else x
-            raise ValueError(f"twin of {self.participant}: wn or zeta is not positive at "
+            raise TwinInputError(f"twin of {self.participant}: wn or zeta is not positive at "
                              f"sE = {float(bad):g} (wn={np.ravel(wn)[0]:.3g}, "
                              f"zeta={np.ravel(zeta)[0]:.3g}); clip sE to the tested range "
                              f"{self.sE_range[0]:g}-{self.sE_range[1]:g}")
@@ -203,7 +203,8 @@ class Twin:
             raise ValueError(f"sE has {len(s)} values but rE has {len(r)}; give one sE or "
                              "one per sample")
         if not np.all(np.isfinite(r)) or not np.all(np.isfinite(s)):
-            raise ValueError("rE and sE must be finite")
+            raise TwinInputError("rE and sE must be finite numbers (a value in the input is "
+                                 "NaN or infinite)")
         dt = 1.0 / fs_Hz
         n = len(r)
         if s.ndim == 0 or np.all(s == s.flat[0]):

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nmsid.protocols.errors import DiskFullError, SessionLockedError
+from nmsid.protocols.errors import CalibrationError, DiskFullError, SessionLockedError
 from nmsid.protocols.session_file import (Calibration, Event, SessionExistsError, SessionFileError,
                                           SessionWriter, Trial, read_session, software_id, utc_now,
                                           validate_session)
@@ -199,7 +199,7 @@ class SessionLog:
             raise RuntimeError(f"{self.path}: calibration already written")
         problems = cal.problems()
         if problems:
-            raise ValueError(f"{self.path}: refusing calibration: " + "; ".join(problems))
+            raise CalibrationError(f"{self.path}: refusing calibration: " + "; ".join(problems))
         save_calibration(self.jdir / "calibration.npz", cal)
         self.calibration = cal
         self._writer = create_from_header(self.path, self.header)
