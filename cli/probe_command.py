@@ -16,7 +16,7 @@ import numpy as np
 from nmsid.cli.errors import UsageError
 from nmsid.drivers.dry_run import dry_run_probe
 from nmsid.drivers.hardware import (build_devices, load_acquisition_library, make_acquisition,
-                                    make_estop, make_stimulator, prepare)
+                                    make_estop, make_stimulator, prepare, with_monitor)
 from nmsid.drivers.hw_config import load_hw_config
 
 
@@ -29,6 +29,7 @@ def probe(args) -> int:
     if args.samples < 1:
         raise UsageError(f"--samples must be >= 1, got {args.samples}")
     cfg = load_hw_config(args.hw_config)
+    dry_cfg = with_monitor(cfg) if getattr(args, "dry_run", False) else None
     cfg, stack, clock = prepare(cfg)
     print(f"hardware configuration {cfg.source}: {cfg.describe()}")
     failed: list[str] = []
@@ -50,7 +51,7 @@ def probe(args) -> int:
         # the stimulator-side checks on the dummy load, once every device above passed
         if failed:
             print("dry run: not run (a device failed)")
-        elif not _dry_run(cfg, args):
+        elif not _dry_run(dry_cfg, args):
             failed.append("dry run")
     if failed:
         print(f"probe: {len(failed)} device(s) failed: {', '.join(failed)}")
@@ -60,6 +61,7 @@ def probe(args) -> int:
 
 
 def _dry_run(cfg, args) -> bool:
+    """One trial into the dummy load; ``cfg`` scans the monitor input too."""
     devices = build_devices(cfg)
     try:
         devices.stimulator.connect()

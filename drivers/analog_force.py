@@ -12,6 +12,10 @@ calibration certificate and is written in the hardware configuration:
 The endpoint force along the extension axis (extension positive) is
 ``extension_direction . (Fx, Fy, Fz)`` with a unit direction in the sensor frame.
 A sample within ``saturation_fraction`` of the A/D range is flagged as over-range.
+
+``monitor_channel`` (the dry run's only): the A/D input wired across the dummy-load
+resistor (``nmsid probe --dry-run``); its volts are passed on unconverted, like the sync's.
+A session's calibration has none.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ class AnalogCalibration:
     matrix: tuple[tuple[float, ...], ...] | None = None
     extension_direction: tuple[float, float, float] = (1.0, 0.0, 0.0)
     sync_channel: int | None = None
+    monitor_channel: int | None = None
 
     def __post_init__(self):
         unknown = set(self.channels) - set(AXES)
@@ -41,8 +46,8 @@ class AnalogCalibration:
             raise ValueError(f"unknown sensor axes {sorted(unknown)}; valid: {list(AXES)}")
         if not any(a in self.channels for a in AXES[:3]):
             raise ValueError("at least one force axis (Fx, Fy, Fz) must be wired to the A/D")
-        used = list(self.channels.values()) + ([self.sync_channel]
-                                               if self.sync_channel is not None else [])
+        used = list(self.channels.values()) + [c for c in (self.sync_channel,
+                                                           self.monitor_channel) if c is not None]
         if len(set(used)) != len(used):
             raise ValueError(f"A/D channels must be distinct, got {used}")
         if any(c < 0 for c in used):
@@ -72,8 +77,7 @@ class AnalogCalibration:
     def n_channels(self) -> int:
         """Channels the A/D must scan (0 .. highest used)."""
         used = list(self.channels.values())
-        if self.sync_channel is not None:
-            used.append(self.sync_channel)
+        used += [c for c in (self.sync_channel, self.monitor_channel) if c is not None]
         return max(used) + 1
 
     @property
@@ -113,6 +117,7 @@ class ConvertedBlock:
     wrench: np.ndarray | None
     sync_V: np.ndarray | None
     saturated: bool
+    monitor_V: np.ndarray | None = None
 
 
 def convert_block(volts: np.ndarray, cal: AnalogCalibration, range_V: float,
@@ -124,6 +129,7 @@ def convert_block(volts: np.ndarray, cal: AnalogCalibration, range_V: float,
     saturated = bool(volts.size and np.abs(volts[:, sensor_cols]).max()
                      >= saturation_fraction * range_V)
     sync = volts[:, cal.sync_channel].copy() if cal.sync_channel is not None else None
+    monitor = volts[:, cal.monitor_channel].copy() if cal.monitor_channel is not None else None
     return ConvertedBlock(force_N=cal.force_N(wrench),
                           wrench=wrench if cal.full_wrench else None,
-                          sync_V=sync, saturated=saturated)
+                          sync_V=sync, saturated=saturated, monitor_V=monitor)

@@ -28,6 +28,21 @@ Contec's ``libcpsaio.h``) the driver logs it and goes on with the device's fixed
 except for a configured range other than ``PM10``, which such a device cannot give (refused,
 naming ``acquisition.caio.range``). Every other error of these calls is fatal.
 
+Sampling clock vs channels: the device converts the scanned channels one after the other,
+``conversion_us`` apart (the AI-1608AY-USB's data sheet: 10 us per channel), so a sampling
+clock shorter than ``channels x conversion_us`` is "theoretically impossible to convert":
+the device then sets ``AIS_SCERR`` and stops (Contec's API-AIO(WDM) help, glossary
+"Sampling clock period error", whose example is 2 channels at 10 us/channel needing a
+20 us clock). :meth:`CaioAcquisition.configure` refuses such a rate before starting, naming
+the rate, the channels and the setting. The same sequential conversion delays channel k by
+``k x conversion_us`` after the scan's start (:meth:`CaioAcquisition.sample_delay_s`; the
+dry run corrects its onset figure for it). Both are inferred from that help page and the
+data sheet, not measured on a device.
+
+The dry run's monitor: with a calibration whose ``monitor_channel`` is set
+(:func:`nmsid.drivers.hardware.with_monitor`), the chunk also carries that channel's volts
+(``ForceChunk.monitor``), read in the same scan as force and sync.
+
 USB glitch: :meth:`CaioAcquisition.reconnect` calls ``AioExit`` on the old ID (its failure
 only logged), forgets it, and calls ``AioInit`` again for a NEW ID; no call is ever made
 with a stale ID.
@@ -148,11 +163,14 @@ class CaioAcquisition:
         Most samples (per channel) fetched per read.
     poll_s : float
         Status polling interval while waiting for samples.
+    conversion_us : float
+        Conversion time per scanned channel (us); the AI-1608AY-USB's data sheet says 10.
     """
 
     def __init__(self, calibration: AnalogCalibration, *, device_name: str = "AIO000",
                  ai_range: str = "PM10", input_method: str = "", library: str = "",
-                 lib=None, max_chunk: int = 4000, poll_s: float = 0.005):
+                 lib=None, max_chunk: int = 4000, poll_s: float = 0.005,
+                 conversion_us: float = 10.0):
         if ai_range not in RANGES_V:
             raise HardwareConfigError(f"acquisition.caio.range {ai_range!r} is not one of "
                              f"{sorted(RANGES_V)}")
@@ -167,6 +185,7 @@ class CaioAcquisition:
         self._lib = lib
         self.max_chunk = max_chunk
         self.poll_s = poll_s
+        self.conversion_us = float(conversion_us)
         self._id = c_short(-1)
         self._open = False
         self._fs_Hz = 0.0
@@ -259,6 +278,15 @@ class CaioAcquisition:
         """Set the sampling clock to ``1e6 / fs_Hz`` us; return the rate the device uses."""
         if not fs_Hz > 0:
             raise HardwareConfigError(f"acquisition.fs_Hz must be > 0, got {fs_Hz!r}")
+        n = self.cal.n_channels
+        if 1e6 / fs_Hz < n * self.conversion_us * (1 - 1e-9):
+            raise HardwareConfigError(
+                f"Contec {self.device_name!r}: {fs_Hz:g} Hz over {n} scanned channels (0 .. "
+                f"{n - 1}) needs {fs_Hz * n / 1000:g} kS/s, but at "
+                f"{self.conversion_us:g} us per channel (acquisition.caio.conversion_us) the "
+                f"device converts at most {1e3 / self.conversion_us:g} kS/s, i.e. "
+                f"{1e6 / (n * self.conversion_us):g} Hz for {n} channels; wire the channels to "
+                "lower inputs or lower the rate")
         self.open()
         self._call("AioSetAiSamplingClock", self._id, c_float(1e6 / fs_Hz))
         actual = c_float(0.0)
@@ -334,7 +362,8 @@ class CaioAcquisition:
                                      detail="; ".join(filter(None, [flags.detail,
                                          f"sensor output at the edge of +/-{self.range_V:g} V"])))
         chunk = ForceChunk(start_index=self._index, force_N=block.force_N,
-                           wrench=block.wrench, sync=block.sync_V, flags=flags)
+                           wrench=block.wrench, sync=block.sync_V, flags=flags,
+                           monitor=block.monitor_V)
         self._index += n
         if self._remaining is not None:
             self._remaining = max(0, self._remaining - n)
@@ -344,7 +373,13 @@ class CaioAcquisition:
         return ForceChunk(start_index=self._index, force_N=np.zeros(0),
                           wrench=np.zeros((0, 6)) if self.cal.full_wrench else None,
                           sync=np.zeros(0) if self.cal.sync_channel is not None else None,
-                          flags=flags)
+                          flags=flags,
+                          monitor=np.zeros(0) if self.cal.monitor_channel is not None else None)
+
+    def sample_delay_s(self, channel: int) -> float:
+        """How long after the scan's start channel ``channel`` is converted (sequential
+        conversion, ``conversion_us`` per channel; see the module docstring)."""
+        return channel * self.conversion_us * 1e-6
 
     def stop(self) -> None:
         if self._running and self._open:

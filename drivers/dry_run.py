@@ -5,14 +5,21 @@ resistor of ``load_ohm`` (1 kOhm, >= 0.25 W) instead of electrodes; the voltage 
 goes to a spare A/D input, the STG sync output to the A/D's trigger input and sync channel
 as in a session. The trial: 1 s at 1 kHz carrier on one channel (the other at 0 mA), an
 envelope that ramps up to ``amplitude_mA`` (default 2 mA = 2 V over 1 kOhm), holds, steps
-to half, ramps down. The monitor is sampled at ``monitor_fs_Hz`` (20 kHz: 20 samples per
-carrier period).
+to half, ramps down. Force, sync and the resistor's voltage are recorded in ONE triggered
+scan of the analog chain (``acquisition.monitor_channel`` added to the session's channels,
+:func:`nmsid.drivers.hardware.with_monitor`) at ``monitor_fs_Hz`` (``acquisition.
+monitor_fs_Hz``, 10 kHz by default: 10 samples per carrier period), through the same
+driver code as a session.
 
 What is compared with what the driver downloaded (``Stg4002Stimulator.last_download``,
 the exact samples), each printed with its figure and limit:
 
 * ``onset``: the recorded current lags the command by at most :data:`ONSET_LIMIT_S`
-  (cross-correlation; sample 0 of the record is the sync edge, as for the force record);
+  (cross-correlation to the sample, refined by the carrier's phase; sample 0 of the record
+  is the sync edge, as for the force record). A multiplexed A/D converts the monitor
+  input a little after the scan's clock edge (``sample_delay_s`` of the driver: channel x
+  conversion time on the CAIO, channel / convert clock on NI); that known delay is added
+  back and printed;
 * ``force record``: the force acquisition, triggered by the same sync, sees the sync high
   at its sample 0 (onset timing against the force record);
 * ``amplitude``: per carrier period (lock-in at the carrier), measured vs commanded, at
@@ -22,10 +29,12 @@ the exact samples), each printed with its figure and limit:
 * ``charge balance``: worst net charge of one carrier period, measured, at most
   :data:`CHARGE_LIMIT_NC` or 1 % of the largest phase charge.
 
-The monitor input: in fake mode the loop-back of ``testing.fakes.loopback`` (the fake
-STG's output through a simulated resistor into a simulated A/D input). On real hardware
-the spare A/D input is not read yet (the acquisition drivers expose force and sync only):
-the dry run then says so and fails, after the stimulator part has run.
+Before anything is stimulated the dry run needs an analog chain (caio / nidaq) with
+``acquisition.monitor_channel`` set; otherwise ``nmsid probe --dry-run`` says so in one line
+(:func:`nmsid.drivers.hardware.with_monitor`). A record that comes back short, flagged
+(overrun, over-range, sensor fault) or at another rate than asked fails with the reason.
+In fake mode (``fake = true``) the fake A/D's monitor input carries the fake STG's real
+output across a simulated resistor (``testing.fakes.bench.monitor_wiring``).
 """
 
 from __future__ import annotations
@@ -59,7 +68,7 @@ class DryRunSettings:
     channel: str = "extensor"
     amplitude_mA: float = 2.0
     duration_s: float = 1.0
-    monitor_fs_Hz: float = 20_000.0
+    monitor_fs_Hz: float = 10_000.0
 
     def __post_init__(self):
         if self.channel not in ("extensor", "flexor"):
@@ -125,10 +134,11 @@ def _per_period(i_A: np.ndarray, fs_Hz: float) -> np.ndarray:
 
 
 def lockin_amplitude_A(i_A: np.ndarray, fs_Hz: float) -> np.ndarray:
-    """Carrier amplitude per period: ``2 mean(i sin(2 pi f_c t))`` (phase 0 at onset)."""
+    """Carrier amplitude per period: ``2 |mean(i exp(-j 2 pi f_c t))|`` (independent of the
+    carrier's phase, so a known A/D scan delay does not bias it)."""
     per = _per_period(i_A, fs_Hz)
-    s = np.sin(2 * np.pi * CARRIER_HZ * np.arange(per.shape[1]) / fs_Hz)
-    return 2 * (per * s).mean(axis=1)
+    ref = np.exp(-2j * np.pi * CARRIER_HZ * np.arange(per.shape[1]) / fs_Hz)
+    return 2 * np.abs((per * ref).mean(axis=1))
 
 
 def _lag_samples(measured: np.ndarray, command: np.ndarray, max_lag: int) -> int:
@@ -142,25 +152,43 @@ def _lag_samples(measured: np.ndarray, command: np.ndarray, max_lag: int) -> int
     return best
 
 
+def _delay_s(measured: np.ndarray, command: np.ndarray, fs_Hz: float, max_lag: int) -> float:
+    """Delay of ``measured`` behind ``command`` (s): to the sample by cross-correlation,
+    refined by the phase of the carrier (within half a sample)."""
+    lag = _lag_samples(measured, command, max_lag)
+    a = measured[max(lag, 0):len(measured) + min(lag, 0)]
+    b = command[max(-lag, 0):len(command) - max(lag, 0)]
+    ref = np.exp(-2j * np.pi * CARRIER_HZ * np.arange(len(a)) / fs_Hz)
+    za, zb = complex(np.dot(a, ref)), complex(np.dot(b, ref))
+    fine = 0.0 if za == 0 or zb == 0 else -np.angle(za / zb) / (2 * np.pi * CARRIER_HZ)
+    return lag / fs_Hz + fine
+
+
 def check_loopback(monitor_V: np.ndarray, sync_V: np.ndarray, command_A: np.ndarray,
-                   s: DryRunSettings, force_sync_first_V: float | None) -> list[Check]:
-    """Compare the recorded resistor current with the command (see module docstring)."""
+                   s: DryRunSettings, force_sync_first_V: float | None, *,
+                   monitor_delay_s: float = 0.0) -> list[Check]:
+    """Compare the recorded resistor current with the command (see module docstring).
+
+    ``monitor_delay_s``: how long after the scan's clock edge the A/D converts the monitor
+    input (added back to the measured onset).
+    """
     fs = s.monitor_fs_Hz
     i_A = np.asarray(monitor_V, dtype=float) / s.load_ohm
     out = []
     high = np.flatnonzero(np.asarray(sync_V) > 1.5)
     edge = int(high[0]) if high.size else -1
-    lag = _lag_samples(i_A, command_A, int(2 * fs / CARRIER_HZ))
-    lag_s = lag / fs
+    lag_s = _delay_s(i_A, command_A, fs, int(2 * fs / CARRIER_HZ)) + monitor_delay_s
+    scan = f", scan delay {monitor_delay_s * 1e3:.3f} ms corrected" if monitor_delay_s else ""
     out.append(Check("onset", edge in (0, 1) and abs(lag_s) <= ONSET_LIMIT_S,
-                     f"current {lag_s * 1e3:+.3f} ms against the command, sync edge at "
-                     f"sample {edge}", f"+-{ONSET_LIMIT_S * 1e3:g} ms, edge at sample 0"))
+                     f"current {lag_s * 1e3:+.3f} ms against the command{scan}, sync edge "
+                     f"at sample {edge}", f"+-{ONSET_LIMIT_S * 1e3:g} ms, edge at sample 0"))
     if force_sync_first_V is None:
-        out.append(Check("force record", False, "no sync channel in the force record",
+        out.append(Check("force record", False, "no sync channel in the record",
                          "sync high at sample 0"))
     else:
         out.append(Check("force record", force_sync_first_V > 1.5,
-                         f"sync {force_sync_first_V:.2f} V at sample 0 of the force record",
+                         f"sync {force_sync_first_V:.2f} V at sample 0 of the force record "
+                         "(the same triggered scan)",
                          "> 1.5 V (triggered on the sync edge)"))
     meas = lockin_amplitude_A(i_A, fs)
     cmd = lockin_amplitude_A(command_A, fs)
@@ -195,16 +223,17 @@ def check_loopback(monitor_V: np.ndarray, sync_V: np.ndarray, command_A: np.ndar
     return out
 
 
-def run_dry_run(devices, s: DryRunSettings, recorder, *, fs_Hz: float = 2000.0,
-                out=print) -> bool:
+def run_dry_run(devices, s: DryRunSettings, *, out=print) -> bool:
     """Stimulate the dummy load once, record, compare, print; True if every check passed.
 
     Parameters
     ----------
     devices : drivers.interfaces.RigDevices
-        Connected stimulator (``Stg4002Stimulator``), acquisition, clock.
-    recorder : object with ``record(n_samples, fs_Hz) -> (monitor_V, sync_V)`` or None
-        The A/D's monitor and sync inputs (sample 0 = the sync edge); None: not available.
+        Connected stimulator (``Stg4002Stimulator``), clock, and an analog acquisition
+        whose calibration scans the monitor input
+        (:func:`nmsid.drivers.hardware.with_monitor`).
+    s : DryRunSettings
+        What is stimulated and the record's rate.
     """
     stim, acq, clock = devices.stimulator, devices.acquisition, devices.clock
     ext = s.channel == "extensor"
@@ -215,40 +244,52 @@ def run_dry_run(devices, s: DryRunSettings, recorder, *, fs_Hz: float = 2000.0,
                          CARRIER_HZ, s.amplitude_mA, s.amplitude_mA)
     out(f"dry run: {s.duration_s:g} s at up to {s.amplitude_mA:g} mA on the {s.channel} "
         f"channel ({ch}) into {s.load_ohm:g} Ohm")
-    fs_acq = acq.configure(fs_Hz)
-    n_acq = int(round(s.duration_s * fs_acq))
-    first_sync = None
+    fs = acq.configure(s.monitor_fs_Hz)
+    if abs(fs - s.monitor_fs_Hz) > 1e-6 * s.monitor_fs_Hz:
+        out(f"  [FAIL] record: the A/D gives {fs:g} Hz for the {s.monitor_fs_Hz:g} Hz asked; "
+            "set acquisition.monitor_fs_Hz to a rate it gives exactly")
+        return False
+    n = int(round(s.duration_s * fs))
+    force, sync, monitor, flags = [], [], [], []
     got = 0
-    acq.start(n_acq, triggered=True)
+    acq.start(n, triggered=True)
     try:
         stim.load(wf)
         stim.arm()
         stim.start()
-        t_end = clock.monotonic_s() + s.duration_s + 2.0 + 2.0
-        while got < n_acq and clock.monotonic_s() < t_end:
+        t_end = clock.monotonic_s() + s.duration_s + 4.0
+        while got < n and clock.monotonic_s() < t_end:
             chunk = acq.read(0.1)
             if chunk is None:
                 continue
-            if got == 0 and chunk.sync is not None and len(chunk.sync):
-                first_sync = float(np.asarray(chunk.sync)[0])
+            if chunk.flags.any:  # the record is spoilt: stop here and say why
+                flags.append(chunk.flags.detail or "flagged")
+                break
             got += chunk.n
+            force.append(chunk.force_N)
+            sync.append(np.zeros(chunk.n) if chunk.sync is None else chunk.sync)
+            monitor.append(None if chunk.monitor is None else chunk.monitor)
         while stim.status().state is StimulatorState.RUNNING and \
                 clock.monotonic_s() < t_end:
             clock.sleep(0.02)
     finally:
         stim.stop_now()
         acq.stop()
-    out(f"  force record: {got} of {n_acq} samples at {fs_acq:g} Hz")
-    if recorder is None:
-        out("  [FAIL] loop-back: the resistor monitor is read through the fake A/D only; "
-            "reading a spare CAIO / NI input is not implemented yet (docs/hardware.md)")
+    out(f"  record: {got} of {n} samples at {fs:g} Hz (force, sync and monitor in one scan)")
+    problem = _record_problem(got, n, flags, monitor)
+    if problem:
+        out(f"  [FAIL] record: {problem}")
+        out("dry run: FAILED (see above)")
         return False
+    monitor_V = np.concatenate(monitor)[:n]
+    sync_V = np.concatenate(sync)[:n]
     dl = stim.last_download
-    n_mon = int(round(s.duration_s * s.monitor_fs_Hz))
-    monitor_V, sync_V = recorder.record(n_mon, s.monitor_fs_Hz)
-    command = commanded_current_A(dl.channels[ch].expand(), dl.output_rate_Hz, n_mon,
-                                  s.monitor_fs_Hz)
-    checks = check_loopback(monitor_V, sync_V, command, s, first_sync)
+    command = commanded_current_A(dl.channels[ch].expand(), dl.output_rate_Hz, n, fs)
+    delay = getattr(acq, "sample_delay_s", None)
+    mon_ch = getattr(getattr(acq, "cal", None), "monitor_channel", None)
+    delay_s = float(delay(mon_ch)) if delay is not None and mon_ch is not None else 0.0
+    checks = check_loopback(monitor_V, sync_V, command, s, float(sync_V[0]),
+                            monitor_delay_s=delay_s)
     for c in checks:
         out(c.line())
     ok = all(c.passed for c in checks)
@@ -256,17 +297,29 @@ def run_dry_run(devices, s: DryRunSettings, recorder, *, fs_Hz: float = 2000.0,
     return ok
 
 
+def _record_problem(got: int, n: int, flags: list[str], monitor: list) -> str:
+    if flags:
+        return f"the A/D flagged the record: {flags[0]}"
+    if got < n:
+        return f"only {got} of {n} samples arrived (was the A/D triggered by the sync?)"
+    if any(m is None for m in monitor):
+        return "the record has no monitor channel (acquisition.monitor_channel)"
+    return ""
+
+
 def dry_run_probe(devices, cfg, args, *, out=print) -> bool:
-    """``nmsid probe --dry-run``: settings from the flags, the loop-back in fake mode."""
+    """``nmsid probe --dry-run``: settings from the flags and the hardware file.
+
+    ``devices`` are built from :func:`nmsid.drivers.hardware.with_monitor` ``(cfg)``. In fake
+    mode the simulated resistor is "wired" as the flags say (the fake STG's tested channel
+    into the fake A/D's monitor input).
+    """
     s = DryRunSettings(load_ohm=args.load_ohm, channel=args.dry_run_channel,
-                       amplitude_mA=args.dry_run_mA)
-    recorder = None
+                       amplitude_mA=args.dry_run_mA,
+                       monitor_fs_Hz=cfg.acquisition.monitor_fs_Hz)
     bench = getattr(devices.clock, "bench", None)
-    if bench is not None:  # fake mode: the simulated resistor and A/D input
-        from nmsid.drivers.fake_hardware import load_fake  # noqa: PLC0415 (fake mode only)
+    if bench is not None:  # fake mode: the operator wired the resistor as told
         ch = cfg.stimulator.extensor_channel if s.channel == "extensor" \
             else cfg.stimulator.flexor_channel
-        recorder = load_fake("loopback").BenchLoopback(
-            bench, channel=ch - 1, sync_out=cfg.stimulator.sync_out - 1,
-            load_ohm=s.load_ohm)
-    return run_dry_run(devices, s, recorder, fs_Hz=cfg.acquisition.fs_Hz, out=out)
+        bench.dummy_load = (ch - 1, s.load_ohm)
+    return run_dry_run(devices, s, out=out)

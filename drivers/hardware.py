@@ -14,11 +14,12 @@ For testing the software only: never with a participant.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from nmsid.drivers.caio import CaioAcquisition, declare
+from nmsid.drivers.errors import HardwareConfigError
 from nmsid.drivers.estop_switch import NidaqEStop, SerialEStop
 from nmsid.drivers.fake_hardware import fake_requested, load_fake
 from nmsid.drivers.hw_config import HardwareConfig, load_hw_config
@@ -135,6 +136,31 @@ def prepare(cfg: HardwareConfig):
     return cfg, stack, clock
 
 
+def with_monitor(cfg: HardwareConfig) -> HardwareConfig:
+    """The configuration the dry run acquires with: the analog chain scanning
+    ``acquisition.monitor_channel`` too, at ``acquisition.monitor_fs_Hz``.
+
+    Raises
+    ------
+    HardwareConfigError
+        If the chain has no analog input (Leptrino) or no monitor channel is configured.
+    """
+    a = cfg.acquisition
+    if a.kind not in ("caio", "nidaq"):
+        raise HardwareConfigError(
+            f"{cfg.source}: the dry run records the dummy-load resistor's voltage on a spare "
+            f"A/D input, and acquisition.kind = {a.kind!r} has none; use an analog chain "
+            "(caio or nidaq) for the dry run, or check the resistor with an oscilloscope "
+            "(docs/hardware.md, section 6)")
+    if a.monitor_channel is None:
+        raise HardwareConfigError(
+            f"{cfg.source}: acquisition.monitor_channel is not set; wire the dummy-load "
+            "resistor's voltage to a spare A/D input and name it there, e.g. "
+            "[acquisition] monitor_channel = 7 (docs/hardware.md, section 6)")
+    cal = replace(cfg.calibration, monitor_channel=a.monitor_channel)
+    return replace(cfg, calibration=cal, acquisition=replace(a, fs_Hz=a.monitor_fs_Hz))
+
+
 def make_stimulator(cfg: HardwareConfig, stack: FakeStack | None, clock) -> Stg4002Stimulator:
     """The STG4002 driver of the configuration (not connected, library not loaded)."""
     s = cfg.stimulator
@@ -173,7 +199,6 @@ def make_estop(cfg: HardwareConfig, stack: FakeStack | None):
 
 
 def _with_fake(cfg: HardwareConfig) -> HardwareConfig:
-    from dataclasses import replace
     return replace(cfg, fake=True)
 
 
@@ -212,7 +237,15 @@ def _estop(cfg: HardwareConfig, stack: FakeStack | None):
 
 # -- fake mode ---------------------------------------------------------------------------
 def _fake_wiring(cfg: HardwareConfig, bench) -> dict:
-    """Fake sensor outputs consistent with the configured calibration (fake mode only)."""
+    """Fake sensor outputs consistent with the configured calibration (fake mode only);
+    the monitor input, if configured, carries the fake dummy load's voltage."""
+    wiring = _fake_sensor_wiring(cfg, bench)
+    if cfg.acquisition.monitor_channel is not None:
+        wiring[cfg.acquisition.monitor_channel] = load_fake("bench").monitor_wiring(bench)
+    return wiring
+
+
+def _fake_sensor_wiring(cfg: HardwareConfig, bench) -> dict:
     cal = cfg.calibration
     d = cal.direction
     if cal.matrix is None:

@@ -89,6 +89,10 @@ class CaioSettings:
     range: Literal["PM10", "PM5", "PM25", "PM125", "PM1"] = "PM10"
     input_method: Literal["", "single_ended", "differential"] = ""
     library: StrictStr = ""
+    conversion_us: StrictFloat = bounded(10.0, ge=0.5, le=1000.0, why=(
+        "the A/D's conversion time per channel in us (AI-1608AY-USB data sheet: 10); the "
+        "sampling clock must be at least channels x this (Contec: 'sampling clock period "
+        "error')"))
 
 
 @settings_dataclass(hw_config_error, prefix="acquisition.nidaq")
@@ -121,9 +125,19 @@ class AcquisitionSettings:
     caio: CaioSettings = Field(default_factory=CaioSettings)
     nidaq: NidaqSettings = Field(default_factory=NidaqSettings)
     leptrino: LeptrinoSettings = Field(default_factory=LeptrinoSettings)
+    monitor_channel: StrictInt = bounded(-1, ge=-1, le=63, why=(
+        "the spare A/D input wired across the dry run's dummy-load resistor (0 .. 63; -1: "
+        "none wired). Read only by nmsid probe --dry-run, never during a session"))
+    monitor_fs_Hz: StrictFloat = bounded(10_000.0, ge=10_000.0, le=100_000.0, why=(
+        "the dry run's sampling rate: a whole multiple of the 1 kHz carrier, at least 10 "
+        "samples per carrier period (10000 .. 100000 Hz)"))
 
     @model_validator(mode="after")
     def _chain(self):
+        per = self.monitor_fs_Hz / 1000.0
+        if abs(per - round(per)) > 1e-9:
+            raise SettingProblem("monitor_fs_Hz", self.monitor_fs_Hz,
+                                 "a whole multiple of the 1000 Hz carrier (10000, 20000, ...)")
         if self.kind == "leptrino" and self.fs_Hz > LEPTRINO_MAX_RATE_HZ:
             raise SettingProblem(
                 "fs_Hz", self.fs_Hz,
@@ -201,6 +215,11 @@ class HardwareFile:
     def _wiring(self):
         se = self.sensor
         if self.acquisition.kind not in ("caio", "nidaq"):
+            if self.acquisition.monitor_channel >= 0:
+                raise SettingProblem("acquisition.monitor_channel",
+                                     self.acquisition.monitor_channel,
+                                     "only for analog chains (acquisition.kind caio or nidaq): "
+                                     "the Leptrino USB sensor has no spare analog input")
             for key in _ANALOG_ONLY:
                 value = getattr(se, key)
                 if value not in ({}, None, -1):
@@ -216,9 +235,13 @@ class HardwareFile:
                                  "missing; wire the stimulator's sync output to an A/D "
                                  "channel and name it (it is recorded with every trial)")
         seen: dict[int, str] = {}
-        for axis, ch in [*se.channels.items(), ("sync_channel", se.sync_channel)]:
+        monitor = [("monitor_channel", self.acquisition.monitor_channel)] \
+            if self.acquisition.monitor_channel >= 0 else []
+        keys = {"sync_channel": "sensor.sync_channel",
+                "monitor_channel": "acquisition.monitor_channel"}
+        for axis, ch in [*se.channels.items(), ("sync_channel", se.sync_channel), *monitor]:
             if ch in seen:
-                key = "sensor.sync_channel" if axis == "sync_channel" else f"sensor.channels.{axis}"
+                key = keys.get(axis, f"sensor.channels.{axis}")
                 raise SettingProblem(key, ch, f"A/D channels must be distinct ({seen[ch]} "
                                      f"uses {ch})")
             seen[ch] = axis
@@ -251,6 +274,9 @@ class AcquisitionConfig:
 
     kind: str = "caio"
     fs_Hz: float = 2000.0
+    monitor_channel: int | None = None
+    """The dry run's resistor monitor input (None: not wired)."""
+    monitor_fs_Hz: float = 10_000.0
     caio: dict = field(default_factory=dict)
     nidaq: dict = field(default_factory=dict)
     leptrino: dict = field(default_factory=dict)
@@ -299,8 +325,11 @@ def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
     a, se = f.acquisition, f.sensor
     acq = AcquisitionConfig(
         kind=a.kind, fs_Hz=a.fs_Hz,
+        monitor_channel=a.monitor_channel if a.monitor_channel >= 0 else None,
+        monitor_fs_Hz=a.monitor_fs_Hz,
         caio=dict(device_name=a.caio.device_name, ai_range=a.caio.range,
-                  input_method=a.caio.input_method, library=a.caio.library),
+                  input_method=a.caio.input_method, library=a.caio.library,
+                  conversion_us=a.caio.conversion_us),
         nidaq=dict(device=a.nidaq.device, start_trigger=a.nidaq.start_trigger,
                    terminal_config=a.nidaq.terminal_config, range_V=a.nidaq.range_V,
                    reads_per_s=a.nidaq.reads_per_s),

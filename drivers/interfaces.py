@@ -189,6 +189,8 @@ class ForceChunk:
     sync: np.ndarray | None = None
     """The stimulator's sync line as recorded by the A/D, if wired."""
     flags: AcquisitionFlags = field(default_factory=AcquisitionFlags)
+    monitor: np.ndarray | None = None
+    """Volts across the dummy-load resistor (``nmsid probe --dry-run`` only), if scanned."""
 
     @property
     def n(self) -> int:

@@ -28,6 +28,12 @@ WhenDMA``). The driver reads back the COERCED sample rate (``timing.samp_clk_rat
 derives the callback block from it, and sizes the buffer as a whole number of blocks
 (timing configured once more with that size), so any ``reads_per_s`` works.
 
+Multiplexed conversion: the channels of one sample are converted one after the other at
+the AI convert clock, read back as ``timing.ai_conv_rate``; channel k is sampled
+``k / ai_conv_rate`` after the sample clock edge (:meth:`NidaqAcquisition.sample_delay_s`,
+used by the dry run's onset figure). The dry run's monitor: with a calibration whose
+``monitor_channel`` is set the chunk also carries that channel's volts (``ForceChunk.monitor``).
+
 USB glitch: :meth:`NidaqAcquisition.reconnect` closes the old task and builds a new one.
 """
 
@@ -127,6 +133,7 @@ class NidaqAcquisition:
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._fs_Hz = 0.0
         self._n_block = 0
+        self._conv_Hz = 0.0
         self._buffer = 0
         self._running = False
         self._index = 0
@@ -171,6 +178,11 @@ class NidaqAcquisition:
                 raise DeviceError(f"NI DAQ {self.device!r} changed its sample rate from "
                                   f"{self._fs_Hz} to {task.timing.samp_clk_rate} Hz when "
                                   "the buffer was resized")
+            try:
+                self._conv_Hz = float(task.timing.ai_conv_rate)
+            except Exception as exc:  # a device without a convert clock (simultaneous)
+                log.info("NI DAQ %s: no AI convert clock to read (%s)", self.device, exc)
+                self._conv_Hz = 0.0
             self._reader = api.stream_readers.AnalogMultiChannelReader(task.in_stream)
             task.register_every_n_samples_acquired_into_buffer_event(self._n_block,
                                                                      self._on_samples)
@@ -233,6 +245,8 @@ class NidaqAcquisition:
             return ForceChunk(start_index=self._index, force_N=np.zeros(0),
                               wrench=np.zeros((0, 6)) if self.cal.full_wrench else None,
                               sync=np.zeros(0) if self.cal.sync_channel is not None else None,
+                              monitor=np.zeros(0) if self.cal.monitor_channel is not None
+                              else None,
                               flags=AcquisitionFlags(overrun=overrun, sensor_fault=not overrun,
                                                      detail=f"DAQmx error {code}: {text}"))
         if self._remaining is not None:
@@ -244,9 +258,15 @@ class NidaqAcquisition:
                                  detail=f"sensor output at the edge of +/-{self.range_V:g} V"
                                  if block.saturated else "")
         chunk = ForceChunk(start_index=self._index, force_N=block.force_N, wrench=block.wrench,
-                           sync=block.sync_V, flags=flags)
+                           sync=block.sync_V, flags=flags, monitor=block.monitor_V)
         self._index += n
         return chunk
+
+    def sample_delay_s(self, channel: int) -> float:
+        """How long after the sample clock edge ``channel`` (``ai<channel>``, the
+        ``channel``-th of the task) is converted: ``channel / ai_conv_rate``; 0 if the device
+        reported no convert clock."""
+        return channel / self._conv_Hz if self._conv_Hz > 0 else 0.0
 
     def stop(self) -> None:
         if self._task is not None and self._running:

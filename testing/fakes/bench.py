@@ -71,6 +71,8 @@ class FakeBench:
         self.extensor_channel = 0        # 0-based STG channels the sensor "feels"
         self.flexor_channel = 1
         self.sync_out = 0
+        self.dummy_load: tuple[int, float] | None = None
+        """``(0-based STG channel, ohm)`` of the dry run's resistor, when one is wired."""
 
     def now(self) -> float:
         return (time.monotonic() - self._t0) * self.speed
@@ -98,6 +100,14 @@ class FakeBench:
         if stg is None:
             return np.zeros(len(t))
         return stg.sync_at(self.sync_out, t) * self.sync_high_V
+
+    def monitor_V(self, t: np.ndarray) -> np.ndarray:
+        """Volts across the dummy load: the fake STG's output current there x the resistor."""
+        stg = self.stimulator
+        if stg is None or self.dummy_load is None:
+            return np.zeros(len(t))
+        channel, ohm = self.dummy_load
+        return stg.current_at(channel, t) * 1e-9 * ohm
 
     def force_N(self, t: np.ndarray, fs_Hz: float) -> np.ndarray:
         """Force at consecutive sample times ``t`` (call in time order)."""
@@ -132,3 +142,13 @@ def sensor_wiring(bench: FakeBench, channels: dict, volts_per_unit: dict, offset
     if sync_channel is not None:
         wiring[sync_channel] = lambda t, force: bench.sync_V(t)
     return wiring
+
+
+def monitor_wiring(bench: FakeBench, noise_V: float = 1e-3, seed: int = 2):
+    """A/D wiring of the dry run's monitor input: the voltage across ``bench.dummy_load``
+    (the fake STG's real output, sample by sample) plus ``noise_V`` rms input noise."""
+    rng = np.random.default_rng(seed)
+
+    def fn(t, force):
+        return bench.monitor_V(t) + noise_V * rng.standard_normal(len(t))
+    return fn

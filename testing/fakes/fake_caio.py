@@ -17,6 +17,15 @@ setters the device does not implement (they return ``AIO_ERR_SYS_NOT_SUPPORTED``
 Contec documents for functions a device lacks); :meth:`unplug` / :meth:`replug` model a
 USB glitch: every ID issued before it is invalid afterwards (``AIO_ERR_DLL_INVALID_ID``),
 only a new ``AioInit`` works. Error numbers: Contec's, see ``ERRORS``.
+
+Sequential conversion (``conversion_us`` per channel, 10 us as the AI-1608AY-USB's data
+sheet gives): channel k of a scan is converted ``k x conversion_us`` after the scan's
+clock edge, and a sampling clock shorter than ``channels x conversion_us`` cannot be
+converted: ``AioStartAi`` succeeds, then the status shows ``AIS_SCERR`` and conversion
+stops (Contec's API-AIO(WDM) help, glossary "Sampling clock period error": "when using 2
+channels and internal clock 10 us is set for a device with conversion speed 10 usec/channel
+... it is necessary to set an internal clock of at least 20 us"; "Conversion stops when
+this error occurs").
 """
 
 from __future__ import annotations
@@ -110,12 +119,13 @@ class FakeCaioLibrary:
     """Fake CAIO with one AI-1608AY-USB named ``device_name``."""
 
     def __init__(self, bench, *, device_name="AIO000", max_channels=16, fifo_samples=4096,
-                 wiring=None, range_V=10.0, resolution_bits=16):
+                 wiring=None, range_V=10.0, resolution_bits=16, conversion_us=10.0):
         self.bench = bench
         self.device_name = device_name
         self.max_channels = max_channels
         self.fifo_samples = fifo_samples
         self.wiring = wiring or {}
+        self.conversion_us = float(conversion_us)
         self.calls: list[tuple] = []
         self.plugged = True
         self.unsupported: set[str] = set()
@@ -177,6 +187,10 @@ class FakeCaioLibrary:
                     return
                 self._t_first = t_trig
         fs = 1e6 / self.clock_us
+        if self.clock_us < self.channels * self.conversion_us * (1 - 1e-9):
+            self._status_err |= AIS_SCERR  # "theoretically impossible to convert": stops
+            self.running = False
+            return
         due = int(np.floor((now - self._t_first) * fs)) + 1
         if self.stop_trigger == 0:
             due = min(due, self.stop_times)
@@ -187,8 +201,8 @@ class FakeCaioLibrary:
         force = self.bench.force_N(t, fs)
         scan = np.zeros((new, self.channels))
         for ch, fn in self.wiring.items():
-            if ch < self.channels:
-                scan[:, ch] = fn(t, force)
+            if ch < self.channels:  # converted one after the other within the scan
+                scan[:, ch] = fn(t + ch * self.conversion_us * 1e-6, force)
         scan = np.clip(np.round(scan / self.lsb_V) * self.lsb_V, -self.range_V,
                        self.range_V - self.lsb_V)
         self._generated = due

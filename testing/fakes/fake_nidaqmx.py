@@ -22,6 +22,12 @@ nidaqmx-python ``error_codes.DAQmxErrors``), not from ``drivers.nidaq``:
 * The sample clock is derived from a timebase (``timebase_Hz`` of the device entry,
   20 MHz by default as on M/X series boards), so the rate is COERCED to
   ``timebase / round(timebase / rate)``; ``timing.samp_clk_rate`` reads it back.
+* Multiplexed conversion: the channels of one sample are converted one after the other at
+  the AI convert clock (``timing.ai_conv_rate``, nidaqmx's property for "the rate at which
+  to clock the analog-to-digital converter" of multiplexed devices), so the i-th channel
+  of the task is sampled ``i / ai_conv_rate`` after the sample clock edge. The fake's
+  rate is the device entry's ``ai_conv_rate_Hz`` (80 kHz by default: a stand-in, the
+  real default depends on the device and the sample rate).
 * Starting a continuous task with an Every N Samples event whose buffer
   (``samps_per_chan``) is not a multiple of N fails with -200877
   (``BufferSizeNotMultipleOfEveryNSampsEventIntervalWhenDMA``).
@@ -145,6 +151,7 @@ class _Timing:
     def __init__(self, task):
         self.task = task
         self.samp_clk_rate = 0.0
+        self.ai_conv_rate = 0.0
 
     def cfg_samp_clk_timing(self, rate, source="", active_edge=Edge.RISING,
                             sample_mode=AcquisitionType.FINITE, samps_per_chan=1000):
@@ -156,6 +163,7 @@ class _Timing:
             else ""
         base = float(_State.devices.get(dev, {}).get("timebase_Hz", 20e6))
         self.samp_clk_rate = base / max(1, round(base / rate))  # coerced, as DAQmx does
+        self.ai_conv_rate = float(_State.devices.get(dev, {}).get("ai_conv_rate_Hz", 80e3))
         self.task.mode = sample_mode
         self.task.buffer = int(samps_per_chan)
 
@@ -258,8 +266,9 @@ class Task:
             for i, name in enumerate(self.ai_channels.names):
                 k = int(name.rsplit("ai", 1)[1])
                 fn = _State.wiring.get(k)
-                if fn is not None:
-                    block[i] = np.clip(fn(t, force), -self.range_V, self.range_V)
+                if fn is not None:  # converted one after the other (multiplexed ADC)
+                    block[i] = np.clip(fn(t + i / self.timing.ai_conv_rate, force),
+                                       -self.range_V, self.range_V)
             self._generated = due
             with self._lock:
                 self._data = np.concatenate([self._data, block], axis=1)

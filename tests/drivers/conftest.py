@@ -90,11 +90,13 @@ def write_hw_config():
 
 
 def _write_hw_config(path, *, kind="caio", speed=10.0, fake=True, estop="serial",
-                    fs_Hz=2000.0):
-    """A fake-mode hardware config for the end-to-end and probe tests."""
+                    fs_Hz=2000.0, monitor=None, extra=()):
+    """A fake-mode hardware config for the end-to-end and probe tests (``monitor``: the
+    dry run's resistor input; ``extra``: more lines of ``[acquisition]``)."""
     lines = ["[rig]", f"fake = {'true' if fake else 'false'}", f"fake_speed = {speed}",
              "[stimulator]", "ceiling_ext_mA = 16.0", "ceiling_flex_mA = 16.0",
-             "[acquisition]", f'kind = "{kind}"', f"fs_Hz = {fs_Hz}"]
+             "[acquisition]", f'kind = "{kind}"', f"fs_Hz = {fs_Hz}",
+             *([f"monitor_channel = {monitor}"] if monitor is not None else []), *extra]
     if kind == "leptrino":
         lines += ["[acquisition.leptrino]", 'port = "COM5"', "sync_on_external_input = true"]
     else:

@@ -9,7 +9,7 @@ import pytest
 
 from nmsid.drivers.analog_force import AnalogCalibration
 from nmsid.drivers.caio import CaioAcquisition, declare, load_caio
-from nmsid.drivers.errors import DeviceNotFound, VendorLibraryMissing
+from nmsid.drivers.errors import DeviceNotFound, HardwareConfigError, VendorLibraryMissing
 from nmsid.drivers.fake_hardware import load_fake
 from nmsid.drivers.interfaces import CheckedWaveform
 from nmsid.drivers.stg4002 import Stg4002Stimulator
@@ -171,3 +171,42 @@ def test_missing_library_is_one_clear_line():
         load_caio("/nonexistent/libcaio.so")
     msg = str(info.value)
     assert "\n" not in msg and "CAIO" in msg and "API-AIO" in msg
+
+
+def test_monitor_channel_rides_in_the_same_scan_and_channels_are_converted_in_turn(fake_mcs):
+    """The dry run's monitor input comes back raw (volts) in ``ForceChunk.monitor``; each
+    channel of a scan is converted ``conversion_us`` after the previous one (Contec's
+    10 us/channel; the driver's ``sample_delay_s`` says the same)."""
+    ramp_V_per_s = 1000.0                                   # 1 V per ms: 10 us = 10 mV
+    wiring = {ch: (lambda t, f: ramp_V_per_s * (t - t[0] // 1)) for ch in range(8)}
+    bench, lib = rig(fake_mcs, wiring=wiring)
+    cal = AnalogCalibration(**{**CAL.__dict__, "monitor_channel": 7})
+    assert cal.n_channels == 8
+    acq = CaioAcquisition(cal, lib=lib)
+    acq.configure(1000.0)
+    acq.start(5, triggered=False)
+    c = read_all(acq, 5, bench)[0]
+    assert c.monitor is not None and c.monitor.shape == (c.n,)
+    np.testing.assert_allclose(c.monitor - c.sync, (7 - 6) * 10e-6 * ramp_V_per_s,
+                               atol=2 * 20 / 65536)
+    assert acq.sample_delay_s(7) - acq.sample_delay_s(6) == pytest.approx(10e-6)
+    acq.close()
+
+
+@pytest.mark.parametrize("fs_Hz, channels, ok", [(12_500.0, 8, True), (12_600.0, 8, False),
+                                                 (50_000.0, 2, True), (2000.0, 16, True),
+                                                 (7000.0, 16, False)])
+def test_sampling_clock_faster_than_the_conversions_is_refused(fake_mcs, fs_Hz, channels, ok):
+    """Contec: the sampling clock must be at least channels x conversion speed (help,
+    "Sampling clock period error"); the driver says so before the device stops with
+    AIS_SCERR."""
+    bench, lib = rig(fake_mcs, wiring={})
+    cal = AnalogCalibration(channels={"Fx": 0}, rated={"Fx": 500}, rated_output_V={"Fx": 10},
+                            sync_channel=channels - 1)
+    acq = CaioAcquisition(cal, lib=lib)
+    if ok:
+        assert acq.configure(fs_Hz) == pytest.approx(fs_Hz, rel=1e-3)
+    else:
+        with pytest.raises(HardwareConfigError, match="acquisition.caio.conversion_us"):
+            acq.configure(fs_Hz)
+    acq.close()

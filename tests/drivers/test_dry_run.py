@@ -1,57 +1,91 @@
-"""``nmsid probe --dry-run`` end to end on the fake rig (fake STG -> simulated resistor ->
-simulated A/D input), and the checks failing when the loop-back does not match."""
+"""``nmsid probe --dry-run`` end to end on the fake rig: the fake STG's real output across a
+simulated resistor into the fake A/D's monitor input, read by the SAME CAIO / NI drivers
+as a session (one triggered scan of force, sync and monitor); the checks failing when the
+loop-back does not match; refusals before anything is stimulated."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from nmsid.drivers.dry_run import DryRunSettings, check_loopback, run_dry_run
-from nmsid.drivers.errors import StimulatorSettingError
-from nmsid.drivers.fake_hardware import load_fake
-from nmsid.drivers.hardware import make_hw_rig
 from nmsid.cli import main
+from nmsid.drivers.dry_run import DryRunSettings, check_loopback, run_dry_run
+from nmsid.drivers.errors import HardwareConfigError, StimulatorSettingError
+from nmsid.drivers.hardware import build_devices, with_monitor
+from nmsid.drivers.hw_config import load_hw_config
+
+CHECKS = ("onset", "force record", "amplitude", "carrier", "envelope", "charge balance")
 
 
-def test_probe_dry_run_passes_every_check_on_the_fake_rig(tmp_path, write_hw_config, capsys):
-    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", speed=4.0, estop="none")
+@pytest.mark.parametrize("kind, monitor", [("caio", 7), ("caio", 9), ("nidaq", 7)])
+def test_probe_dry_run_passes_every_check_on_the_fake_rig(tmp_path, write_hw_config, capsys,
+                                                          kind, monitor):
+    hw = write_hw_config(tmp_path / "hw.toml", kind=kind, speed=2.0, estop="none",
+                         monitor=monitor)
     assert main(["probe", "--hw-config", str(hw), "--dry-run"]) == 0
     out = capsys.readouterr().out
-    for name in ("onset", "force record", "amplitude", "carrier", "envelope",
-                 "charge balance"):
+    for name in CHECKS:
         assert f"[PASS] {name}:" in out
     assert "[FAIL]" not in out and "dry run: OK" in out
+    assert "10000 of 10000 samples at 10000 Hz" in out
     assert "1000.00 Hz" in out
+    # the fake A/Ds convert channel by channel: the monitor is sampled after the scan's
+    # edge (CAIO 10 us per channel, the fake NI's convert clock 80 kHz); corrected
+    delay_s = monitor * 10e-6 if kind == "caio" else monitor / 80e3
+    assert f"scan delay {delay_s * 1e3:.3f} ms corrected" in out
 
 
-def _run(tmp_path, write_hw_config, **loopback):
-    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", speed=4.0, estop="none")
-    devices = make_hw_rig(hw)
+def _run(tmp_path, write_hw_config, *, wired_channel=0, actual_ohm=1000.0, kind="caio",
+         extra=(), **settings):
+    hw = write_hw_config(tmp_path / "hw.toml", kind=kind, speed=2.0, estop="none",
+                         monitor=7, extra=extra)
+    devices = build_devices(with_monitor(load_hw_config(hw)))
     lines: list[str] = []
     try:
         devices.stimulator.connect()
-        rec = load_fake("loopback").BenchLoopback(devices.clock.bench, sync_out=0,
-                                                  load_ohm=1000.0, **loopback)
-        ok = run_dry_run(devices, DryRunSettings(), rec, out=lines.append)
+        devices.clock.bench.dummy_load = (wired_channel, actual_ohm)  # what is really wired
+        ok = run_dry_run(devices, DryRunSettings(**settings), out=lines.append)
     finally:
         devices.close()
     return ok, "\n".join(lines)
 
 
 def test_a_wrong_resistor_fails_the_amplitude_check(tmp_path, write_hw_config):
-    ok, text = _run(tmp_path, write_hw_config, channel=0, actual_ohm=1500.0)
+    ok, text = _run(tmp_path, write_hw_config, actual_ohm=1500.0)
     assert not ok
-    assert "[FAIL] amplitude: max error 1.000 mA (50.0 % of 2 mA)" in text
+    amp = next(line for line in text.splitlines() if "amplitude" in line)
+    assert amp.startswith("  [FAIL] amplitude: max error ")
+    pct = float(amp.split("(")[1].split("%")[0])
+    assert pct == pytest.approx(50.0, abs=1.0)        # 1.5 kOhm read as 1 kOhm: +50 %
     assert "[PASS] carrier" in text and "[PASS] envelope" in text
 
 
-def test_the_monitor_on_the_wrong_channel_fails(tmp_path, write_hw_config):
-    ok, text = _run(tmp_path, write_hw_config, channel=1)   # flexor output: 0 mA
+def test_the_resistor_on_the_other_channel_fails(tmp_path, write_hw_config):
+    ok, text = _run(tmp_path, write_hw_config, wired_channel=1)   # flexor output: 0 mA
     assert not ok and "[FAIL] amplitude" in text and "[FAIL] envelope" in text
 
 
-def test_unbalanced_or_late_current_is_caught():
-    s = DryRunSettings()
+def test_a_record_at_20_kHz_also_passes(tmp_path, write_hw_config):
+    ok, text = _run(tmp_path, write_hw_config, kind="nidaq", monitor_fs_Hz=20_000.0)
+    assert ok, text
+    assert "20000 of 20000 samples at 20000 Hz" in text
+
+
+def test_a_conversion_time_set_too_short_meets_the_devices_clock_error(tmp_path,
+                                                                      write_hw_config):
+    """With acquisition.caio.conversion_us = 5 the driver lets 12.5 kHz x 8 channels
+    through; the (fake) AI-1608AY-USB, at 10 us per channel, sets AIS_SCERR and stops
+    (Contec: "Sampling clock period error"): the dry run fails on the flagged record."""
+    ok, text = _run(tmp_path, write_hw_config, monitor_fs_Hz=16_000.0,
+                    extra=("[acquisition.caio]", "conversion_us = 5.0"))
+    assert not ok
+    assert "[FAIL] record: the A/D flagged the record: sampling clock error (AIS_SCERR)" \
+        in text
+    assert "[PASS]" not in text
+
+
+def test_unbalanced_late_or_untriggered_current_is_caught():
+    s = DryRunSettings(monitor_fs_Hz=20_000.0)
     fs, n = s.monitor_fs_Hz, 20_000
     t = np.arange(n) / fs
     cmd = 2e-3 * np.sin(2 * np.pi * 1000 * t)
@@ -70,10 +104,69 @@ def test_unbalanced_or_late_current_is_caught():
     assert not untriggered.passed
 
 
+@pytest.mark.parametrize("delay_us", [-80.0, -30.0, 12.5, 45.0, 95.0])
+def test_onset_is_measured_below_one_sample(delay_us):
+    """A current late by a fraction of a 100 us sample is measured to a few us (closed
+    form: the carrier's phase), and a known A/D scan delay is added back."""
+    s = DryRunSettings()
+    fs, n = s.monitor_fs_Hz, 10_000
+    t = np.arange(n) / fs
+    env = np.clip(t / 0.2, 0, 1) * 2e-3
+
+    def current(tt):
+        return np.interp(tt, t, env) * np.sin(2 * np.pi * 1000 * tt) * (tt >= 0)
+    cmd = current(t)
+    measured = current(t - delay_us * 1e-6)
+    onset = next(c for c in check_loopback(measured * 1000, np.full(n, 3.3), cmd, s, 3.3)
+                 if c.name == "onset")
+    got_ms = float(onset.figure.split()[1])
+    assert got_ms == pytest.approx(delay_us / 1000, abs=0.003)
+    # the same current sampled 70 us after each clock edge by a multiplexed A/D
+    skewed = current(t + 70e-6 - delay_us * 1e-6)
+    onset = next(c for c in check_loopback(skewed * 1000, np.full(n, 3.3), cmd, s, 3.3,
+                                           monitor_delay_s=70e-6) if c.name == "onset")
+    assert float(onset.figure.split()[1]) == pytest.approx(delay_us / 1000, abs=0.003)
+
+
+def test_no_monitor_channel_is_refused_before_any_device(tmp_path, write_hw_config, capsys):
+    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", speed=2.0, estop="none")
+    assert main(["probe", "--hw-config", str(hw), "--dry-run"]) == 2
+    err = capsys.readouterr()
+    assert "acquisition.monitor_channel is not set" in err.err
+    assert "stimulator:" not in err.out                  # no device was touched
+
+
+def test_a_leptrino_chain_has_no_monitor_input(tmp_path, write_hw_config):
+    hw = write_hw_config(tmp_path / "hw.toml", kind="leptrino", speed=2.0, estop="none",
+                         fs_Hz=1200.0)
+    with pytest.raises(HardwareConfigError, match="acquisition.kind = 'leptrino' has none"):
+        with_monitor(load_hw_config(hw))
+
+
+def test_a_monitor_on_a_sensor_channel_is_refused(tmp_path, write_hw_config):
+    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", monitor=6)   # the sync's
+    with pytest.raises(HardwareConfigError, match=r"acquisition\.monitor_channel.*distinct"):
+        load_hw_config(hw)
+
+
+def test_too_many_channels_for_the_rate_is_refused_before_stimulating(tmp_path,
+                                                                     write_hw_config, capsys):
+    """16 scanned channels at 10 kHz = 160 kS/s; at 10 us per channel the AI-1608AY-USB
+    converts 100 kS/s (Contec: "sampling clock period error")."""
+    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", speed=2.0, estop="none",
+                         monitor=15)
+    assert main(["probe", "--hw-config", str(hw), "--dry-run"]) == 2
+    captured = capsys.readouterr()
+    assert "needs 160 kS/s" in captured.err and "at most 100 kS/s" in captured.err
+    assert "6250 Hz for 16 channels" in captured.err
+    assert "dry run: 1 s" in captured.out and "record:" not in captured.out
+
+
 @pytest.mark.parametrize("kw, msg", [({"amplitude_mA": 8.0}, "<= 5 mA"),
                                      ({"load_ohm": 10.0}, "100 .. 10000 Ohm"),
                                      ({"amplitude_mA": 5.0, "load_ohm": 4700.0}, "above the A/D"),
-                                     ({"channel": "biceps"}, "'extensor' or 'flexor'")])
+                                     ({"channel": "biceps"}, "'extensor' or 'flexor'"),
+                                     ({"monitor_fs_Hz": 10_500.0}, "multiple of the 1000 Hz")])
 def test_settings_are_validated(kw, msg):
     with pytest.raises(StimulatorSettingError, match=msg):
         DryRunSettings(**kw)

@@ -50,6 +50,12 @@ def test_minimal_config_defaults():
     ({"estop": {"kind": "serial"}}, r"estop.port"),
     ({"estop": {"kind": "serial", "port": "COM3", "line": "RI"}}, r"estop.line = 'RI'"),
     ({"rig": {"fake": "yes"}}, r"rig.fake = 'yes'.*true or false"),
+    ({"acquisition": {"monitor_channel": 0}}, r"acquisition.monitor_channel.*distinct"),
+    ({"acquisition": {"monitor_channel": 1}}, r"acquisition.monitor_channel.*distinct"),
+    ({"acquisition": {"monitor_channel": 64}}, r"acquisition.monitor_channel = 64"),
+    ({"acquisition": {"monitor_fs_Hz": 10_500.0}}, r"monitor_fs_Hz = 10500.0.*multiple of"),
+    ({"acquisition": {"monitor_fs_Hz": 5000.0}}, r"monitor_fs_Hz = 5000.0"),
+    ({"acquisition": {"caio": {"conversion_us": 0.0}}}, r"acquisition.caio.conversion_us"),
 ])
 def test_bad_settings_are_named(patch, message):
     data = base()
@@ -110,3 +116,17 @@ def test_declared_choices_match_the_drivers_tables():
     assert set(get_args(fields["input_method"].annotation)) == set(INPUT_METHODS) | {""}
     assert set(get_args(NidaqSettings.__pydantic_fields__["terminal_config"].annotation)) == \
         set(TERMINAL_CONFIGS)
+
+
+def test_monitor_channel_is_for_analog_chains_and_off_by_default():
+    assert parse_hw_config(base()).acquisition.monitor_channel is None
+    data = base()
+    data["acquisition"]["monitor_channel"] = 5
+    cfg = parse_hw_config(data)
+    assert cfg.acquisition.monitor_channel == 5
+    assert cfg.calibration.monitor_channel is None          # a session never scans it
+    assert cfg.calibration.n_channels == 2
+    lep = {"acquisition": {"kind": "leptrino", "fs_Hz": 1200.0, "monitor_channel": 5,
+                           "leptrino": {"port": "COM5"}}}
+    with pytest.raises(HardwareConfigError, match="no spare analog input"):
+        parse_hw_config(lep, "rig.toml")
