@@ -28,6 +28,13 @@ WhenDMA``). The driver reads back the COERCED sample rate (``timing.samp_clk_rat
 derives the callback block from it, and sizes the buffer as a whole number of blocks
 (timing configured once more with that size), so any ``reads_per_s`` works.
 
+Aggregate rate: a multiplexed device converts every channel of a sample within the sample
+period, so channels x rate may not exceed the device's ``ai_max_multi_chan_rate``
+(nidaqmx ``Device`` property; NI in nidaqmx-python issue #349); DAQmx itself only warns
+(200012) and delivers unsettled samples, so :meth:`NidaqAcquisition.configure` refuses it
+first, naming the rate and the channels (not for simultaneous-sampling devices,
+``ai_simultaneous_sampling_supported``).
+
 Multiplexed conversion: the channels of one sample are converted one after the other at
 the AI convert clock, read back as ``timing.ai_conv_rate``; channel k is sampled
 ``k / ai_conv_rate`` after the sample clock edge (:meth:`NidaqAcquisition.sample_delay_s`,
@@ -156,6 +163,7 @@ class NidaqAcquisition:
         self.close()
         api = self.api
         c = api.constants
+        self._check_aggregate(fs_Hz)
         try:
             task = api.nidaqmx.Task("nmsid-force")
         except api.errors.DaqError as exc:
@@ -192,6 +200,23 @@ class NidaqAcquisition:
                                  "device and channels in NI MAX)") from None
         self._task = task
         return self._fs_Hz
+
+    def _check_aggregate(self, fs_Hz: float) -> None:
+        """Refuse channels x rate above the device's multichannel (aggregate) rate."""
+        try:
+            dev = self.api.nidaqmx.system.System.local().devices[self.device]
+            top = float(dev.ai_max_multi_chan_rate)
+            simultaneous = bool(getattr(dev, "ai_simultaneous_sampling_supported", False))
+        except Exception as exc:  # not readable: DAQmx will judge at start
+            log.info("NI DAQ %s: no multichannel rate to check (%s)", self.device, exc)
+            return
+        n = self.cal.n_channels
+        if not simultaneous and n > 1 and n * fs_Hz > top * (1 + 1e-9):
+            raise HardwareConfigError(
+                f"NI DAQ {self.device!r}: {fs_Hz:g} Hz over {n} channels (ai0 .. ai{n - 1}) "
+                f"needs {n * fs_Hz / 1000:g} kS/s; the device converts at most "
+                f"{top / 1000:g} kS/s over all channels, i.e. {top / n:g} Hz for {n} channels; "
+                "wire the channels to lower inputs or lower the rate")
 
     def _on_samples(self, task_handle, every_n_samples_event_type, number_of_samples,
                     callback_data):

@@ -27,7 +27,16 @@ nidaqmx-python ``error_codes.DAQmxErrors``), not from ``drivers.nidaq``:
   to clock the analog-to-digital converter" of multiplexed devices), so the i-th channel
   of the task is sampled ``i / ai_conv_rate`` after the sample clock edge. The fake's
   rate is the device entry's ``ai_conv_rate_Hz`` (80 kHz by default: a stand-in, the
-  real default depends on the device and the sample rate).
+  real default depends on the device and the sample rate); when the channels do not fit
+  into one sample period at that rate, the conversions are spread over it (channels x
+  sample rate), all channels having to be converted within the sample period (NI's
+  answer in nidaqmx-python issue #349: "you have to convert all 3 channels in that 2 us
+  sample period"). The device's ``ai_max_multi_chan_rate`` (nidaqmx's
+  ``Device.ai_max_multi_chan_rate``, the aggregate rate of a multiplexed device; 400
+  kS/s for the USB-6212 by default) is the most it converts; asking more makes DAQmx
+  warn (200012, "Clock rate specified exceeds the maximum conversion rate of the ADC",
+  as quoted in JaneliaSciComp/WaveSurfer issue #85) and the samples are not settled:
+  the fake warns likewise.
 * Starting a continuous task with an Every N Samples event whose buffer
   (``samps_per_chan``) is not a multiple of N fails with -200877
   (``BufferSizeNotMultipleOfEveryNSampsEventIntervalWhenDMA``).
@@ -46,6 +55,7 @@ import enum
 import sys
 import threading
 import types
+import warnings
 
 import numpy as np
 
@@ -56,11 +66,20 @@ class DaqError(Exception):
         self.error_code = error_code
 
 
+class DaqWarning(Warning):
+    """DAQmx's positive status codes, issued with :func:`warnings.warn` as nidaqmx does."""
+
+    def __init__(self, message, error_code):
+        super().__init__(message)
+        self.error_code = error_code
+
+
 class DaqReadError(DaqError):
     pass
 
 
 MESSAGES = {
+    200012: "Clock rate specified exceeds the maximum conversion rate of the ADC.",
     -200279: "The application is not able to keep up with the acquisition. Attempted to "
              "read samples that are no longer available.",
     -200019: "ADC conversion attempted before the prior conversion was complete.",
@@ -105,7 +124,9 @@ class _Devices:
     def __getitem__(self, name):
         if name not in self.state.devices:
             raise DaqError(f"Device identifier is invalid: {name}", -200220)
-        return types.SimpleNamespace(name=name, **self.state.devices[name])
+        entry = {"ai_max_multi_chan_rate": 400e3, "ai_simultaneous_sampling_supported": False,
+                 **self.state.devices[name]}   # the USB-6212's data sheet: 400 kS/s aggregate
+        return types.SimpleNamespace(name=name, **entry)
 
     def __iter__(self):
         return iter(self[n] for n in self.state.devices)
@@ -163,9 +184,23 @@ class _Timing:
             else ""
         base = float(_State.devices.get(dev, {}).get("timebase_Hz", 20e6))
         self.samp_clk_rate = base / max(1, round(base / rate))  # coerced, as DAQmx does
-        self.ai_conv_rate = float(_State.devices.get(dev, {}).get("ai_conv_rate_Hz", 80e3))
         self.task.mode = sample_mode
         self.task.buffer = int(samps_per_chan)
+        self._convert_clock(dev)
+
+    def _convert_clock(self, dev):
+        """``ai_conv_rate`` as DAQmx would choose it (see the module docstring)."""
+        entry = _State.devices.get(dev, {})
+        n = max(1, len(self.task.ai_channels.names))
+        if entry.get("ai_simultaneous_sampling_supported", False):
+            self.ai_conv_rate = 0.0   # one ADC per channel: no convert clock, no skew
+            return
+        conv = float(entry.get("ai_conv_rate_Hz", 80e3))
+        self.ai_conv_rate = max(conv, n * self.samp_clk_rate)  # all within one period
+        top = float(entry.get("ai_max_multi_chan_rate", 400e3))
+        if self.ai_conv_rate > top:
+            warnings.warn(DaqWarning(f"{MESSAGES[200012]} (device {dev}: {n} channels x "
+                                     f"{self.samp_clk_rate:g} Hz > {top:g} S/s)", 200012))
 
 
 class _StartTrigger:
@@ -267,7 +302,8 @@ class Task:
                 k = int(name.rsplit("ai", 1)[1])
                 fn = _State.wiring.get(k)
                 if fn is not None:  # converted one after the other (multiplexed ADC)
-                    block[i] = np.clip(fn(t + i / self.timing.ai_conv_rate, force),
+                    conv = self.timing.ai_conv_rate
+                    block[i] = np.clip(fn(t + (i / conv if conv else 0.0), force),
                                        -self.range_V, self.range_V)
             self._generated = due
             with self._lock:
@@ -343,6 +379,7 @@ def install(bench=None, devices=None, wiring=None, di_lines=None, modules=None) 
     constants.READ_ALL_AVAILABLE = READ_ALL_AVAILABLE
     errors = types.ModuleType("nidaqmx.errors")
     errors.DaqError, errors.DaqReadError = DaqError, DaqReadError
+    errors.DaqWarning = DaqWarning
     readers = types.ModuleType("nidaqmx.stream_readers")
     readers.AnalogMultiChannelReader = AnalogMultiChannelReader
     system = types.ModuleType("nidaqmx.system")

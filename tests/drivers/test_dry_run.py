@@ -36,9 +36,9 @@ def test_probe_dry_run_passes_every_check_on_the_fake_rig(tmp_path, write_hw_con
 
 
 def _run(tmp_path, write_hw_config, *, wired_channel=0, actual_ohm=1000.0, kind="caio",
-         extra=(), **settings):
+         extra=(), monitor=7, **settings):
     hw = write_hw_config(tmp_path / "hw.toml", kind=kind, speed=2.0, estop="none",
-                         monitor=7, extra=extra)
+                         monitor=monitor, extra=extra)
     devices = build_devices(with_monitor(load_hw_config(hw)))
     lines: list[str] = []
     try:
@@ -170,3 +170,23 @@ def test_too_many_channels_for_the_rate_is_refused_before_stimulating(tmp_path,
 def test_settings_are_validated(kw, msg):
     with pytest.raises(StimulatorSettingError, match=msg):
         DryRunSettings(**kw)
+
+
+def test_nidaq_aggregate_rate_is_refused_before_stimulating(tmp_path, write_hw_config,
+                                                             capsys):
+    """32 scanned channels at 20 kHz = 640 kS/s, above the (fake) USB-6212's 400 kS/s
+    multichannel rate (``Device.ai_max_multi_chan_rate``)."""
+    hw = write_hw_config(tmp_path / "hw.toml", kind="nidaq", speed=2.0, estop="none",
+                         monitor=31, extra=("monitor_fs_Hz = 20000.0",))
+    assert main(["probe", "--hw-config", str(hw), "--dry-run"]) == 2
+    err = capsys.readouterr().err
+    assert "needs 640 kS/s" in err and "at most 400 kS/s" in err
+
+
+def test_nidaq_spreads_conversions_over_the_sample_period(tmp_path, write_hw_config):
+    """16 channels at 20 kHz do not fit the 80 kHz default convert clock: the conversions
+    are spread over the 50 us period (320 kHz), and the dry run corrects for that delay."""
+    ok, text = _run(tmp_path, write_hw_config, kind="nidaq", monitor_fs_Hz=20_000.0,
+                    monitor=15)
+    assert ok, text
+    assert f"scan delay {15 / 320e3 * 1e3:.3f} ms corrected" in text

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from nmsid.drivers.analog_force import AnalogCalibration
-from nmsid.drivers.errors import DeviceNotFound, VendorLibraryMissing
+from nmsid.drivers.errors import DeviceNotFound, HardwareConfigError, VendorLibraryMissing
 from nmsid.drivers.fake_hardware import load_fake
 from nmsid.drivers.interfaces import CheckedWaveform
 from nmsid.drivers.nidaq import NidaqAcquisition, load_nidaqmx
@@ -121,3 +121,26 @@ def test_missing_nidaqmx_is_one_clear_line(monkeypatch):
     with pytest.raises(VendorLibraryMissing) as info:
         load_nidaqmx()
     assert "\n" not in str(info.value) and "nmsid[nidaq]" in str(info.value)
+
+
+@pytest.mark.parametrize("fs_Hz, simultaneous, refused", [(200e3, False, False),
+                                                          (200_001.0, False, True),
+                                                          (250e3, True, False)])
+def test_aggregate_rate_of_a_multiplexed_device(fake_mcs, fake_nidaqmx, fs_Hz, simultaneous,
+                                                refused):
+    """2 channels share a 400 kS/s multiplexed ADC (``ai_max_multi_chan_rate``): 200 kHz
+    each at most; a simultaneous-sampling device has no such limit."""
+    bench = load_fake("bench").FakeBench()
+    fake_mcs(bench=bench)
+    fake_nidaqmx(bench=bench, devices={"Dev1": {
+        "product_type": "USB-6212", "serial_num": 1,
+        "ai_simultaneous_sampling_supported": simultaneous}})
+    acq = NidaqAcquisition(CAL, device="Dev1")
+    if refused:
+        with pytest.raises(HardwareConfigError, match="at most 400 kS/s over all channels"):
+            acq.configure(fs_Hz)
+    else:
+        assert acq.configure(fs_Hz) == pytest.approx(fs_Hz, rel=1e-4)
+        expected_s = 0.0 if simultaneous else 1 / max(80e3, 2 * fs_Hz)
+        assert acq.sample_delay_s(1) == pytest.approx(expected_s)
+    acq.close()
