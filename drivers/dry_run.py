@@ -133,12 +133,16 @@ def _per_period(i_A: np.ndarray, fs_Hz: float) -> np.ndarray:
     return i_A[:m * P].reshape(m, P)
 
 
+def _carrier_ref(n: int, fs_Hz: float) -> np.ndarray:
+    """``exp(-j 2 pi f_c t)`` at ``n`` samples from t = 0: the lock-in's reference."""
+    return np.exp(-2j * np.pi * CARRIER_HZ * np.arange(n) / fs_Hz)
+
+
 def lockin_amplitude_A(i_A: np.ndarray, fs_Hz: float) -> np.ndarray:
     """Carrier amplitude per period: ``2 |mean(i exp(-j 2 pi f_c t))|`` (independent of the
     carrier's phase, so a known A/D scan delay does not bias it)."""
     per = _per_period(i_A, fs_Hz)
-    ref = np.exp(-2j * np.pi * CARRIER_HZ * np.arange(per.shape[1]) / fs_Hz)
-    return 2 * np.abs((per * ref).mean(axis=1))
+    return 2 * np.abs((per * _carrier_ref(per.shape[1], fs_Hz)).mean(axis=1))
 
 
 def _lag_samples(measured: np.ndarray, command: np.ndarray, max_lag: int) -> int:
@@ -158,7 +162,7 @@ def _delay_s(measured: np.ndarray, command: np.ndarray, fs_Hz: float, max_lag: i
     lag = _lag_samples(measured, command, max_lag)
     a = measured[max(lag, 0):len(measured) + min(lag, 0)]
     b = command[max(-lag, 0):len(command) - max(lag, 0)]
-    ref = np.exp(-2j * np.pi * CARRIER_HZ * np.arange(len(a)) / fs_Hz)
+    ref = _carrier_ref(len(a), fs_Hz)
     za, zb = complex(np.dot(a, ref)), complex(np.dot(b, ref))
     fine = 0.0 if za == 0 or zb == 0 else -np.angle(za / zb) / (2 * np.pi * CARRIER_HZ)
     return lag / fs_Hz + fine
@@ -268,7 +272,7 @@ def run_dry_run(devices, s: DryRunSettings, *, out=print) -> bool:
             got += chunk.n
             force.append(chunk.force_N)
             sync.append(np.zeros(chunk.n) if chunk.sync is None else chunk.sync)
-            monitor.append(None if chunk.monitor is None else chunk.monitor)
+            monitor.append(chunk.monitor)
         while stim.status().state is StimulatorState.RUNNING and \
                 clock.monotonic_s() < t_end:
             clock.sleep(0.02)

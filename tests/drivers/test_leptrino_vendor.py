@@ -8,7 +8,6 @@ and reconnecting after a USB glitch through a NEW port handle.
 from __future__ import annotations
 
 import logging
-import time
 
 import numpy as np
 import pytest
@@ -17,6 +16,7 @@ from nmsid.drivers.errors import ProtocolError
 from nmsid.drivers.leptrino import NOMINAL_RATE_HZ, LeptrinoAcquisition, LeptrinoSensor
 from nmsid.drivers.leptrino_protocol import (Frame, Status, parse_data_record, parse_product_info,
                                              parse_rate_text, parse_rated_values)
+from tests.drivers.test_leptrino_driver import collect
 
 RATED = (500.0, 500.0, 1000.0, 10.0, 10.0, 10.0)
 
@@ -26,17 +26,6 @@ def _info_frame(rate: bytes | None) -> Frame:
     if rate is not None:
         data += rate.ljust(6, b"\0")
     return Frame(bytes([4 + len(data), 0xFF, 0x2A, 0]) + data)
-
-
-def _collect(acq, n, timeout_s=3.0):
-    chunks, got = [], 0
-    deadline = time.monotonic() + timeout_s
-    while got < n and time.monotonic() < deadline:
-        c = acq.read(0.05)
-        if c is not None:
-            chunks.append(c)
-            got += c.n
-    return chunks
 
 
 def test_product_info_without_rate_field_is_accepted_as_not_stated():
@@ -90,7 +79,7 @@ def test_old_firmware_sensor_with_random_reserved_bits_connects_and_reads_force(
         assert acq.configure(1200.0) == NOMINAL_RATE_HZ
         assert "states no output rate" in caplog.text
         acq.start(300, triggered=False)
-        chunks = _collect(acq, 300)
+        chunks = collect(acq, 300)
         force = np.concatenate([c.force_N for c in chunks])
         assert len(force) == 300
         np.testing.assert_allclose(force, 12.5, atol=0.05)
@@ -112,7 +101,7 @@ def test_external_input_sync_starts_at_the_rising_edge_not_a_high_level(leptrino
     try:
         acq.configure(1200.0)
         acq.start(50, triggered=True)
-        chunks = _collect(acq, 50)
+        chunks = collect(acq, 50)
         first = chunks[0].force_N[0]
         assert first == pytest.approx(30.0, abs=0.2)  # t = 0.3 s, not t = 0
     finally:
@@ -134,9 +123,9 @@ def test_reconnect_after_usb_glitch_opens_a_new_handle(leptrino_emulator):
     try:
         acq.configure(1200.0)
         acq.start(None, triggered=False)
-        assert _collect(acq, 20)
+        assert collect(acq, 20)
         emu.unplug()
-        faults = [c for c in _collect(acq, 1, 1.0) if c.flags.sensor_fault]
+        faults = [c for c in collect(acq, 1, 1.0) if c.flags.sensor_fault]
         assert faults, "a dead port must read as a sensor fault"
         acq.stop()
         emu.replug()
@@ -144,7 +133,7 @@ def test_reconnect_after_usb_glitch_opens_a_new_handle(leptrino_emulator):
         assert len(opened) == 2 and opened[1] is not opened[0]
         assert opened[0].is_open is False
         acq.start(100, triggered=False)
-        chunks = _collect(acq, 100)
+        chunks = collect(acq, 100)
         assert sum(c.n for c in chunks) == 100
         assert not any(c.flags.any for c in chunks)
     finally:

@@ -21,6 +21,7 @@ import pytest
 
 from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.rig.session_log import PARTIAL_ABORT_REASON, journal_dir, recover
+from tests.rig.forked_cli import fork_main as _fork_main
 
 CONFIG = """
 participant = "K01"
@@ -44,27 +45,6 @@ pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="needs fork / SI
 def _argv(cfg, out, *extra):
     return ["run", "--backend", "sim", "--config", str(cfg), "--out", str(out),
             "--no-identify", *extra]
-
-
-def _fork_main(argv, log_path):
-    pid = os.fork()
-    if pid == 0:  # child: become `nmsid ...` with stdout/stderr to a file
-        code = 99
-        try:
-            fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-            os.dup2(fd, 1)
-            os.dup2(fd, 2)
-            sys.stdout = open(1, "w", buffering=1, closefd=False)
-            sys.stderr = open(2, "w", buffering=1, closefd=False)
-            signal.signal(signal.SIGINT, signal.default_int_handler)
-            from nmsid.cli import main
-            code = main(argv)
-        except BaseException:
-            import traceback
-            traceback.print_exc()
-        finally:
-            os._exit(code)
-    return pid
 
 
 def _printed(log_path):

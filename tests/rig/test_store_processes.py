@@ -14,6 +14,8 @@ import pytest
 
 from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.rig.session_log import journal_dir
+from tests.rig.forked_cli import fork_main as _fork_main
+from tests.rig.forked_cli import wait_child as _wait
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -41,36 +43,6 @@ def _nmsid(*argv, **kw):
     return subprocess.Popen([sys.executable, "-m", "nmsid.cli", *map(str, argv)], cwd=str(ROOT),
                             env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, **kw)
-
-
-def _fork_main(argv, log_path, fault=None):
-    """``nmsid argv`` in a forked child (stdout+stderr to ``log_path``); ``fault(…)``
-    runs in the child first (to plant a SIGKILL at a chosen moment)."""
-    pid = os.fork()
-    if pid == 0:
-        code = 99
-        try:
-            fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-            os.dup2(fd, 1)
-            os.dup2(fd, 2)
-            sys.stdout = open(1, "w", buffering=1, closefd=False)
-            sys.stderr = open(2, "w", buffering=1, closefd=False)
-            if fault is not None:
-                fault()
-            from nmsid.cli import main
-            code = main([str(a) for a in argv])
-        except BaseException:
-            import traceback
-            traceback.print_exc()
-        finally:
-            os._exit(code)
-    return pid
-
-
-def _wait(pid):
-    """(exit code, killed by signal?)"""
-    _, status = os.waitpid(pid, 0)
-    return os.waitstatus_to_exitcode(status), os.WIFSIGNALED(status)
 
 
 def _kill_self():
