@@ -157,6 +157,34 @@ class Stimulator(Protocol):
     def disconnect(self) -> None: ...
 
 
+@runtime_checkable
+class HostStreamedStimulator(Protocol):
+    """Capability: stimulation updated by the host while the output runs (closed loop).
+
+    Implemented by the simulated stimulator, the STG4002 in streaming mode
+    (``CStg200xStreamingNet``) and pulse stimulators (ScienceMode). The core
+    :class:`Stimulator` methods still apply: :meth:`Stimulator.stop_now` ends a stream with
+    output at zero, exactly as it ends a downloaded trial.
+
+    Safety: :meth:`open_stream` fixes the ceilings for the whole stream; every
+    :meth:`write_stream` is checked against them before anything reaches the device
+    (:class:`CurrentLimitError`, nothing sent), so no streamed amplitude can exceed them.
+    """
+
+    def open_stream(self, ceiling_ext_mA: float, ceiling_flex_mA: float,
+                    update_Hz: float) -> float:
+        """Prepare a stream of amplitude updates at ``update_Hz``; return the rate used."""
+
+    def write_stream(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> None:
+        """Queue the next carrier (or pulse) amplitudes per channel, mA, one per update."""
+
+    def stream_space(self) -> int:
+        """Updates that can be queued now without blocking."""
+
+    def close_stream(self) -> None:
+        """End the stream after the queued updates, output to zero. Idempotent."""
+
+
 # -- force acquisition --------------------------------------------------------------
 @dataclass(frozen=True)
 class AcquisitionFlags:
