@@ -1,28 +1,49 @@
-"""One writer per session: an advisory lock beside the session file, ``<file>.lock``.
+"""One writer per session: a lock beside the session file, ``<file>.lock``.
 
-The writer (``nmsid run``, ``run --resume``, ``recover``) holds ``flock(LOCK_EX)`` on
-``<file>.lock`` for as long as it writes the file or its journal. The kernel drops the lock
-when the process ends in any way (exit, exception, SIGKILL, power loss), so a crash can
-never leave a stale lock: a ``.lock`` file nobody holds means "no writer". The file holds
-the writer's PID, host, start time and command (JSON), so a refused second writer, and a
-reader (``nmsid validate``, ``identify``, ...), can name it.
+The writer (``nmsid run``, ``nmsid gui``, ``run --resume``, ``recover``) holds an exclusive
+lock on ``<file>.lock`` for as long as it writes the file or its journal. The system drops
+the lock when the process ends in any way (exit, exception, kill, power loss), so a crash
+can never leave a stale lock: a ``.lock`` file nobody holds means "no writer". The file's
+first :data:`INFO_BYTES` bytes hold the writer's PID, host, start time and kind of command
+(JSON, space-padded), so a refused second writer, and a reader (``nmsid validate``,
+``identify``, ...), can name it.
 
-Readers never take this lock for longer than a probe (``LOCK_SH | LOCK_NB``, released at
-once), and it is a separate file from the session file: HDF5's own file locks and
-ordinary HDF5 tools never see it.
+Two implementations, chosen at call time by :func:`nmsid.protocols.os_platform.is_windows`:
+
+- **POSIX**: ``flock(LOCK_EX | LOCK_NB)`` on the whole file (advisory: readers can still
+  read the information). On release the file is unlinked while still locked, so nobody can
+  be fooled by it.
+- **Windows**: ``msvcrt.locking(fd, LK_NBLCK, 1)`` on the single byte at
+  :data:`LOCK_OFFSET`, beyond the information. Windows byte-range locks are mandatory
+  (LockFileEx: locks "prevent other processes from reading from or writing to the locked
+  region"), so a lock over the information would hide it from the process it refuses; a
+  region may lie beyond the end of the file (docs.python.org/3/library/msvcrt.html,
+  ``locking``). A file held open cannot be deleted there (DeleteFileW), so on release the
+  lock is given up and the handle closed first, then the file is removed if nobody else has
+  it open (if someone does, it stays: an unheld lock file means "no writer").
+
+Why not filelock or portalocker: filelock opens its lock file with ``O_TRUNC`` on every
+attempt (the refused process would wipe the holder's name) and locks byte 0 on Windows;
+portalocker locks from the current position, i.e. over the information. Both would need
+the same byte-range care as the few lines here, which add no dependency.
+
+Readers never take this lock for longer than a probe (a non-blocking lock, released at
+once; a writer refused by a probe retries), and it is a separate file from the session
+file: HDF5's own file locks and ordinary HDF5 tools never see it.
 """
 
 from __future__ import annotations
 
 import errno
-import fcntl
 import json
 import os
 import socket
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from nmsid.protocols import os_platform
 from nmsid.protocols.errors import SessionLockedError
 from nmsid.protocols.session_model import utc_now
 
@@ -30,6 +51,15 @@ LOCK_SUFFIX = ".lock"
 _ACQUIRE_TRIES = 5
 """A probe holds LOCK_SH for microseconds: a refused LOCK_EX is retried a few times."""
 _RETRY_S = 0.05
+#: The writer information occupies bytes [0, INFO_BYTES) of the lock file.
+INFO_BYTES = 4096
+#: The byte locked on Windows: beyond the information, which stays readable.
+LOCK_OFFSET = INFO_BYTES
+
+
+def _binary() -> int:
+    """``os.O_BINARY`` where it exists: bytes as written, not a text-mode descriptor."""
+    return getattr(os, "O_BINARY", 0)
 
 
 def lock_path(path: str | os.PathLike) -> Path:
@@ -51,15 +81,96 @@ class WriterInfo:
         """``process 1234 on host lab-pc (nmsid run, started 2026-...Z)``."""
         if not self.pid:
             return "another process (it has not written its name yet)"
-        what = f", {self.command}" if self.command else ""
+        what = f", {self.command}" if self.command else ""  # the kind of writer
         return (f"process {self.pid} on host {self.host or '?'} (started "
                 f"{self.started_utc or '?'}{what})")
 
 
+def _cli_subcommand() -> str:
+    """The nmsid command this process runs (``gui`` for ``nmsid gui ...``), else ``""``."""
+    words = [a for a in sys.argv[1:] if not a.startswith("-")]
+    return words[0] if words else ""
+
+
+def writer_kind(command: str) -> str:
+    """The kind of writer to name to a refused process: ``nmsid run``, ``nmsid run
+    --resume``, ``nmsid gui`` or ``nmsid recover``.
+
+    ``command`` is what the caller says it does; a session started from the GUI says
+    ``nmsid run`` but the process is ``nmsid gui``, and that is what the operator sees.
+    """
+    if "recover" in command:
+        return "nmsid recover"
+    if _cli_subcommand() == "gui":
+        return "nmsid gui"
+    return command
+
+
+def _try_lock(fd: int) -> bool:
+    """Take the writer lock on ``fd`` without waiting; False if another process has it."""
+    if os_platform.is_windows():
+        msvcrt = os_platform.windows_api("msvcrt")
+        os.lseek(fd, LOCK_OFFSET, os.SEEK_SET)
+        try:
+            msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
+        except PermissionError:  # EACCES: "locking violation" (CRT _locking)
+            return False
+        return True
+    import fcntl  # POSIX only, behind the switch
+
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    return True
+
+
+def _probe(fd: int) -> bool:
+    """True if a writer holds the lock (a reader's instantaneous probe)."""
+    if os_platform.is_windows():
+        if not _try_lock(fd):
+            return True
+        _unlock(fd)
+        return False
+    import fcntl  # POSIX only, behind the switch
+
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    fcntl.flock(fd, fcntl.LOCK_UN)
+    return False
+
+
+def _unlock(fd: int) -> None:
+    if os_platform.is_windows():
+        msvcrt = os_platform.windows_api("msvcrt")
+        os.lseek(fd, LOCK_OFFSET, os.SEEK_SET)
+        msvcrt.locking(fd, msvcrt.LK_UNLCK, 1)
+        return
+    import fcntl  # POSIX only, behind the switch
+
+    fcntl.flock(fd, fcntl.LOCK_UN)
+
+
+def _write_info(fd: int, data: bytes) -> None:
+    """The information at offset 0, padded to INFO_BYTES (no truncation, no pwrite)."""
+    data = data[:INFO_BYTES].ljust(INFO_BYTES, b" ")
+    os.lseek(fd, 0, os.SEEK_SET)
+    while data:
+        data = data[os.write(fd, data):]
+
+
 def _read_info(fd: int) -> WriterInfo:
     try:
-        raw = os.pread(fd, 4096, 0)
-        d = json.loads(raw.decode("utf-8", "replace") or "{}")
+        os.lseek(fd, 0, os.SEEK_SET)
+        raw = b""
+        while len(raw) < INFO_BYTES:
+            chunk = os.read(fd, INFO_BYTES - len(raw))
+            if not chunk:
+                break
+            raw += chunk
+        d = json.loads(raw.decode("utf-8", "replace").strip() or "{}")
         return WriterInfo(int(d.get("pid", 0)), str(d.get("host", "")),
                           str(d.get("started_utc", "")), str(d.get("command", "")))
     except (OSError, ValueError, TypeError, AttributeError):
@@ -93,11 +204,10 @@ class SessionLock:
             _held[key][1] += 1
             return _held[key][0]
         lp.parent.mkdir(parents=True, exist_ok=True)
+        command = writer_kind(command)
         for attempt in range(_ACQUIRE_TRIES * 4):
-            fd = os.open(lp, os.O_RDWR | os.O_CREAT, 0o644)
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
+            fd = os.open(lp, os.O_RDWR | os.O_CREAT | _binary(), 0o644)
+            if not _try_lock(fd):
                 info = _read_info(fd)
                 os.close(fd)
                 if attempt + 1 >= _ACQUIRE_TRIES:
@@ -112,13 +222,12 @@ class SessionLock:
             if not same:
                 os.close(fd)
                 continue
-            info = {"pid": os.getpid(), "host": socket.gethostname(),
-                    "started_utc": utc_now(), "command": command}
+            record = {"pid": os.getpid(), "host": socket.gethostname(),
+                      "started_utc": utc_now(), "command": command}
             try:
-                os.ftruncate(fd, 0)
-                os.pwrite(fd, json.dumps(info).encode("utf-8"), 0)
+                _write_info(fd, json.dumps(record).encode("utf-8"))
             except OSError as exc:  # a full disk: the lock holds, the name stays unknown
-                if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+                if exc.errno not in (errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)):
                     raise
             lock = cls(lp, fd)
             _held[key] = [lock, 1]
@@ -136,12 +245,24 @@ class SessionLock:
         _held.pop(key, None)
         if self._fd is None:
             return
+        fd, self._fd = self._fd, None
+        if os_platform.is_windows():
+            # an open file cannot be deleted there: unlock and close, then remove it
+            # unless another process has it open (then it stays, unheld: "no writer")
+            try:
+                _unlock(fd)
+            finally:
+                os.close(fd)
+            try:
+                os.unlink(self.path)
+            except OSError:
+                pass
+            return
         try:
             os.unlink(self.path)  # while still locked: nobody can be fooled by it
         except OSError:
             pass
-        os.close(self._fd)
-        self._fd = None
+        os.close(fd)
 
     @property
     def held(self) -> bool:
@@ -158,15 +279,10 @@ def live_writer(session_path: str | os.PathLike) -> WriterInfo | None:
     if key in _held:
         return WriterInfo(os.getpid(), socket.gethostname(), "", "this process")
     try:
-        fd = os.open(lp, os.O_RDONLY)
+        fd = os.open(lp, os.O_RDONLY | _binary())
     except OSError:
         return None
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-        except BlockingIOError:
-            return _read_info(fd)
-        fcntl.flock(fd, fcntl.LOCK_UN)
-        return None
+        return _read_info(fd) if _probe(fd) else None
     finally:
         os.close(fd)

@@ -51,7 +51,10 @@ against this stand-in. Each behaviour below follows Microsoft's or Python's docu
 6. **No C compiler on PATH.** ``shutil.which`` finds no ``cc``, ``gcc``, ``clang``,
    ``c99``, ``c89`` or ``cl`` (a stock Windows PC has none).
 
-It also forces :mod:`nmsid.protocols.os_platform` to ``"windows"``. ``os.name`` and
+It also forces :mod:`nmsid.protocols.os_platform` to ``"windows"`` and answers its
+``windows_api("msvcrt")`` / ``windows_api("kernel32")`` with the fakes of
+:mod:`nmsid.testing.fake_windows_api` (mandatory byte-range locks, console control events;
+``emulation.kernel32.deliver(CTRL_CLOSE_EVENT)`` sends one). ``os.name`` and
 ``sys.platform`` are left alone (the standard library depends on them).
 
 Use it as a context manager (``with emulate_windows(): ...``), as the ``windows_emulation``
@@ -79,6 +82,7 @@ from pathlib import Path
 from typing import Any
 
 from nmsid.protocols import os_platform
+from nmsid.testing.fake_windows_api import FakeKernel32, FakeMsvcrt
 
 #: Windows' values of the CRT's mode flags (fcntl.h of the Universal CRT).
 O_BINARY = 0x8000
@@ -216,6 +220,9 @@ class WindowsEmulation:
         self._saved: list[tuple[Any, str, Any]] = []
         self._modules: dict[str, Any] = {}
         self._platform: contextlib.AbstractContextManager[None] | None = None
+        self._api: contextlib.AbstractContextManager[None] | None = None
+        self.msvcrt: Any = None
+        self.kernel32: Any = None
         self.installed = False
 
     # -- patching --------------------------------------------------------------------
@@ -232,6 +239,7 @@ class WindowsEmulation:
         """Switch the emulated behaviours on (idempotent per instance)."""
         if self.installed:
             return self
+        fake_msvcrt = FakeMsvcrt()  # it uses fcntl: made before fcntl is hidden
         o = {n: getattr(os, n) for n in ("rename", "replace", "remove", "unlink", "rmdir",
                                           "open", "write", "read", "close", "fdopen")}
         real_open, real_which = builtins.open, shutil.which
@@ -389,6 +397,9 @@ class WindowsEmulation:
         self._set(shutil, "which", which)
         self._platform = os_platform.forced("windows")
         self._platform.__enter__()
+        self.msvcrt, self.kernel32 = fake_msvcrt.enforce(), FakeKernel32()
+        self._api = os_platform.fake_windows_api(msvcrt=self.msvcrt, kernel32=self.kernel32)
+        self._api.__enter__()
         self.installed = True
         return self
 
@@ -396,6 +407,11 @@ class WindowsEmulation:
         """Restore everything :meth:`install` changed, in reverse order."""
         if not self.installed:
             return
+        if self._api is not None:
+            self._api.__exit__(None, None, None)
+            self._api = None
+        if self.msvcrt is not None:
+            self.msvcrt.unenforce()  # before the patches below are restored
         for obj, name, value in reversed(self._saved):
             if value is _MISSING:
                 if hasattr(obj, name):
