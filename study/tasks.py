@@ -10,7 +10,6 @@ file system that is one read per session instead of four.
 from __future__ import annotations
 
 import math
-import resource
 import time
 import traceback
 from pathlib import Path
@@ -21,6 +20,7 @@ from nmsid.analysis.identify import NEEDED_DATASETS
 from nmsid.analysis.model_selection import participant_parameters
 from nmsid.analysis.run import run_identification
 from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
+from nmsid.protocols import os_platform
 from nmsid.protocols.session_file import read_session
 
 
@@ -35,7 +35,21 @@ def session_folder_name(path: Path, index: int) -> str:
 
 
 def peak_rss_MB() -> float:
-    """Peak resident memory of this process in MB (Linux reports KiB)."""
+    """Peak resident memory of this process in MB (NaN where the platform cannot say).
+
+    POSIX: ``resource.getrusage`` (Linux reports KiB). Windows has no ``resource``
+    module: psutil's ``peak_wset`` (the peak working set; psutil comes with distributed,
+    which the study extra installs).
+    """
+    if os_platform.is_windows():
+        try:
+            import psutil  # Windows only, behind the switch; installed with distributed
+
+            return float(psutil.Process().memory_info().peak_wset) / 2**20
+        except (ImportError, AttributeError):  # peak_wset exists on Windows only
+            return float("nan")
+    import resource  # POSIX only, behind the switch
+
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
