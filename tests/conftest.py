@@ -6,6 +6,17 @@ from pathlib import Path
 
 import pytest
 
+# the Windows emulation (nmsid.testing.windows_emulation): --windows-emulation runs the
+# tests under it, @pytest.mark.posix_only("why") skips a test there, and the
+# windows_emulation fixture installs it for one test
+from nmsid.testing.windows_emulation import (  # noqa: F401
+    pytest_addoption,
+    pytest_collection_modifyitems,
+    pytest_configure,
+    pytest_unconfigure,
+    windows_emulation,
+)
+
 
 @pytest.fixture
 def session_reads(monkeypatch):
