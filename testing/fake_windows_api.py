@@ -142,13 +142,21 @@ class FakeMsvcrt:
         self._saved = real
         fake = self
 
+        def position(fd: int) -> int | None:
+            try:
+                return os.lseek(fd, 0, os.SEEK_CUR)
+            except OSError:  # a pipe or a terminal: no byte ranges
+                return None
+
         def read(fd: int, n: int) -> bytes:
-            if fake.conflicts(fd, os.lseek(fd, 0, os.SEEK_CUR), n):
+            pos = position(fd)
+            if pos is not None and fake.conflicts(fd, pos, n):
                 raise _lock_violation()
             return real["read"](fd, n)
 
         def write(fd: int, data: Any) -> int:
-            if fake.conflicts(fd, os.lseek(fd, 0, os.SEEK_CUR), len(data)):
+            pos = position(fd)
+            if pos is not None and fake.conflicts(fd, pos, len(data)):
                 raise _lock_violation()
             return real["write"](fd, data)
 

@@ -102,6 +102,8 @@ POSIX_ONLY_OS_FUNCTIONS = ("statvfs", "fstatvfs", "pread", "pwrite", "fork", "fo
 HIDDEN_COMMANDS = ("cc", "gcc", "clang", "c99", "c89", "cl")
 
 _MISSING = object()
+_active: WindowsEmulation | None = None
+"""The installed emulation (one at a time; a nested install reuses it)."""
 
 
 def _sharing_error(winerror: int, path: Any, path2: Any = None) -> PermissionError:
@@ -181,6 +183,10 @@ class _TextModeRaw(io.RawIOBase):
         return self._writable
 
     def seekable(self) -> bool:
+        try:
+            os.lseek(self._fd, 0, os.SEEK_CUR)
+        except OSError:
+            return False
         return True
 
     def seek(self, offset: int, whence: int = 0) -> int:
@@ -216,7 +222,7 @@ class WindowsEmulation:
                  timer_tick_s: float = TIMER_TICK_S) -> None:
         self.hidden_commands = frozenset(hidden_commands)
         self.timer_tick_s = timer_tick_s
-        self.text_fds: set[int] = set()
+        self.text_fds: dict[int, tuple[int, int]] = {}  # fd -> (st_dev, st_ino)
         self._saved: list[tuple[Any, str, Any]] = []
         self._modules: dict[str, Any] = {}
         self._platform: contextlib.AbstractContextManager[None] | None = None
@@ -224,6 +230,22 @@ class WindowsEmulation:
         self.msvcrt: Any = None
         self.kernel32: Any = None
         self.installed = False
+        self._nested = False
+
+    def is_text(self, fd: int) -> bool:
+        """True if ``fd`` is a text-mode descriptor opened under the emulation (a number
+        closed elsewhere, e.g. by C code, and reused for another file is not)."""
+        ident = self.text_fds.get(fd)
+        if ident is None:
+            return False
+        try:
+            st = os.fstat(fd)
+        except OSError:
+            st = None
+        if st is None or (st.st_dev, st.st_ino) != ident:
+            self.text_fds.pop(fd, None)
+            return False
+        return True
 
     # -- patching --------------------------------------------------------------------
     def _set(self, obj: Any, name: str, value: Any) -> None:
@@ -238,6 +260,12 @@ class WindowsEmulation:
     def install(self) -> WindowsEmulation:
         """Switch the emulated behaviours on (idempotent per instance)."""
         if self.installed:
+            return self
+        global _active
+        if _active is not None:  # nested inside another emulation: it already applies
+            self.msvcrt, self.kernel32 = _active.msvcrt, _active.kernel32
+            self.text_fds = _active.text_fds
+            self.installed, self._nested = True, True
             return self
         fake_msvcrt = FakeMsvcrt()  # it uses fcntl: made before fcntl is hidden
         o = {n: getattr(os, n) for n in ("rename", "replace", "remove", "unlink", "rmdir",
@@ -297,13 +325,14 @@ class WindowsEmulation:
                                       "CRT cannot open a directory)", os.fsdecode(path))
             fd = o["open"](path, flags & ~(O_BINARY | O_TEXT), mode, dir_fd=dir_fd)
             if not flags & O_BINARY:
-                emu.text_fds.add(fd)
+                st = os.fstat(fd)
+                emu.text_fds[fd] = (st.st_dev, st.st_ino)
             else:
-                emu.text_fds.discard(fd)
+                emu.text_fds.pop(fd, None)
             return fd
 
         def os_write(fd: int, data: Any) -> int:
-            if fd in emu.text_fds:
+            if emu.is_text(fd):
                 data = bytes(data)
                 o["write"](fd, data.replace(b"\n", b"\r\n"))
                 return len(data)
@@ -311,10 +340,10 @@ class WindowsEmulation:
 
         def os_read(fd: int, n: int) -> bytes:
             data = o["read"](fd, n)
-            return data.replace(b"\r\n", b"\n") if fd in emu.text_fds else data
+            return data.replace(b"\r\n", b"\n") if emu.is_text(fd) else data
 
         def os_close(fd: int) -> None:
-            emu.text_fds.discard(fd)
+            emu.text_fds.pop(fd, None)
             o["close"](fd)
 
         # 4. cp1252 and \r\n for text files opened without an encoding
@@ -322,7 +351,7 @@ class WindowsEmulation:
                           encoding: str | None = None, errors: str | None = None,
                           newline: str | None = None, closefd: bool = True,
                           opener: Any = None) -> Any:
-            if isinstance(file, int) and file in emu.text_fds:
+            if isinstance(file, int) and emu.is_text(file):
                 raw = _TextModeRaw(file, closefd, readable="r" in mode or "+" in mode,
                                    writable=any(c in mode for c in "wax+"))
                 binary: Any
@@ -364,6 +393,16 @@ class WindowsEmulation:
                                                 "implementation": "GetTickCount64()"})
             return info
 
+        # 3. shutil.disk_usage exists on Windows (GetDiskFreeSpaceExW); on Linux it calls
+        # the os.statvfs removed below, so it keeps a private reference
+        real_statvfs = os.statvfs
+
+        def disk_usage(path: Any) -> Any:
+            st = real_statvfs(path)
+            free, total = st.f_bavail * st.f_frsize, st.f_blocks * st.f_frsize
+            return shutil._ntuple_diskusage(total, (st.f_blocks - st.f_bfree)  # type: ignore[attr-defined]
+                                            * st.f_frsize, free)
+
         # 6. no C compiler
         def which(cmd: Any, mode: int = os.F_OK | os.X_OK, path: Any = None) -> Any:
             if Path(os.fsdecode(cmd)).stem.lower() in emu.hidden_commands:
@@ -395,18 +434,24 @@ class WindowsEmulation:
         self._set(time, "monotonic_ns", monotonic_ns)
         self._set(time, "get_clock_info", get_clock_info)
         self._set(shutil, "which", which)
+        self._set(shutil, "disk_usage", disk_usage)
         self._platform = os_platform.forced("windows")
         self._platform.__enter__()
         self.msvcrt, self.kernel32 = fake_msvcrt.enforce(), FakeKernel32()
         self._api = os_platform.fake_windows_api(msvcrt=self.msvcrt, kernel32=self.kernel32)
         self._api.__enter__()
-        self.installed = True
+        self.installed, _active = True, self
         return self
 
     def uninstall(self) -> None:
         """Restore everything :meth:`install` changed, in reverse order."""
         if not self.installed:
             return
+        if self._nested:
+            self.installed = self._nested = False
+            return
+        global _active
+        _active = None
         if self._api is not None:
             self._api.__exit__(None, None, None)
             self._api = None

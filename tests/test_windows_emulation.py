@@ -20,6 +20,10 @@ from nmsid.testing.windows_emulation import (
     windows_emulation,  # noqa: F401  (the fixture)
 )
 
+# these check that the emulation is installed and then removed again; a run-wide
+# emulation (--windows-emulation) is never removed during the run
+pytestmark = pytest.mark.posix_only("checks the emulation's own install and uninstall")
+
 
 def test_delete_of_a_file_open_in_this_process_is_a_sharing_violation(tmp_path):
     f = tmp_path / "live.h5"
