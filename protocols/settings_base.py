@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
+import re
 import tomllib
 import types
 import typing
@@ -328,9 +329,41 @@ def read_toml(path: str | os.PathLike, make_error: ErrorFactory, *, what: str) -
     except UnicodeDecodeError as exc:
         raise make_error(source, "(file)", "bytes", f"UTF-8 text ({exc.reason})") from None
     except tomllib.TOMLDecodeError as exc:
+        hint = _backslash_hint(raw.decode("utf-8"), str(exc))
+        if hint is not None:
+            raise make_error(source, *hint) from None
         raise make_error(source, "(file)", "TOML", f"not valid TOML: {exc}") from None
     except RecursionError:
         raise make_error(source, "(file)", "TOML", "a table nested less deeply") from None
+
+
+class _Verbatim(str):
+    """A value shown as written (a TOML line keeps its single backslashes)."""
+
+    def __repr__(self) -> str:
+        return str(self)
+
+
+_UNESCAPED = re.compile(r"Unescaped '\\' in a string \(at line (\d+)")
+
+
+def _backslash_hint(text: str, message: str) -> tuple[str, str, str] | None:
+    """``(where, value, valid)`` for a backslash TOML refused in a double-quoted string
+    (a Windows path such as ``"C:\\Program Files\\..."``, written with single
+    backslashes), else None.
+
+    TOML's basic strings ("...") treat a backslash as the start of an escape; literal
+    strings ('...') keep it (toml.io, "String").
+    """
+    m = _UNESCAPED.search(message)
+    if m is None:
+        return None
+    n = int(m.group(1))
+    lines = text.splitlines()
+    line = lines[n - 1].strip() if 0 < n <= len(lines) else ""
+    valid = ("a backslash in a double-quoted TOML string starts an escape: write a Windows "
+             "path in single quotes ('C:\\Program Files\\...') or with forward slashes")
+    return f"line {n}", _Verbatim(line), valid
 
 
 def settings_rows(cls, prefix: str = "") -> list[tuple[str, str, str, str]]:
