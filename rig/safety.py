@@ -138,7 +138,17 @@ class ForceLimitRule(Rule):
 
 
 class StallRule(Rule):
-    """Trip when no samples arrived for ``timeout_s`` (on the engine's clock)."""
+    """Trip when no samples arrived for ``timeout_s`` (on the engine's clock).
+
+    The limit applied is the longer of ``timeout_s`` and two chunk periods, plus two steps
+    of the monotonic clock: :meth:`limit_s`. Samples arrive a chunk at a time (NI's default: 10
+    reads a second, a chunk every 100 ms), and on Windows ``time.monotonic`` and queue
+    waits move in 15.625 ms steps (Python 3.11/3.12; ``time.get_clock_info``), so a limit
+    of one chunk period would trip on a healthy stream (issue 24). The chunk period is the
+    duration of the longest chunk seen (samples / ``fs_Hz``), or the one the acquisition
+    declares (``chunk_period_s``, given to :meth:`start`), which also covers the first
+    chunk.
+    """
 
     name = "sensor_stream"
 
@@ -148,24 +158,40 @@ class StallRule(Rule):
             raise ValueError(f"stall timeout must be a finite number > 0 s, got {timeout_s!r}")
         self.timeout_s = float(timeout_s)
         self._last_s: float | None = None
+        self._fs_Hz: float | None = None
+        self.chunk_period_s = 0.0
+        self.tick_s = 0.0
 
-    def start(self, now_s: float) -> None:
-        """Begin watching (acquisition started at ``now_s``)."""
+    def start(self, now_s: float, *, fs_Hz: float | None = None,
+              chunk_period_s: float | None = None) -> None:
+        """Begin watching (acquisition started at ``now_s``, sampling at ``fs_Hz``)."""
         self._last_s = now_s
+        self._fs_Hz = fs_Hz if fs_Hz and fs_Hz > 0 else None
+        self.chunk_period_s = float(chunk_period_s or 0.0)
+        # the clock's step, asked now: 1/64 s on Windows, about 1 ns on Linux
+        self.tick_s = float(time.get_clock_info("monotonic").resolution)
 
     def stop(self) -> None:
         self._last_s = None
 
-    def feed(self, now_s: float) -> None:
+    def feed(self, now_s: float, n_samples: int = 0) -> None:
         self._last_s = now_s
+        if self._fs_Hz and n_samples:
+            self.chunk_period_s = max(self.chunk_period_s, n_samples / self._fs_Hz)
+
+    def limit_s(self) -> float:
+        """The gap that trips: ``max(timeout_s, 2 chunk periods) + 2 clock steps`` (a gap
+        read on a stepped clock may read up to one step long at each end)."""
+        return max(self.timeout_s, 2 * self.chunk_period_s) + 2 * self.tick_s
 
     def check(self, now_s: float) -> str | None:
         if self._last_s is None:
             return None
         gap = now_s - self._last_s
-        if gap > self.timeout_s:
+        limit = self.limit_s()
+        if gap > limit:
             return self._verdict(f"no force samples for {gap * 1000:.0f} ms (limit "
-                                 f"{self.timeout_s * 1000:.0f} ms): stream stalled")
+                                 f"{limit * 1000:.0f} ms): stream stalled")
         return None
 
 
@@ -375,7 +401,7 @@ class Interlock:
     def check_chunk(self, chunk: ForceChunk, now_s: float,
                     expected_index: int | None = None) -> Trip | None:
         if chunk.n:
-            self.stall.feed(now_s)
+            self.stall.feed(now_s, chunk.n)
         for rule, reason in ((self.flags.name, self.flags.check(chunk, expected_index)),
                              (self.force.name, self.force.check(chunk))):
             if reason:

@@ -86,7 +86,10 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
     read_timeout = min(0.05, interlock.stall.timeout_s / 2)
     reason = ""
     try:
-        interlock.stall.start(clock.monotonic_s())
+        # the stall limit allows for chunked delivery and a stepped clock (Windows):
+        # drivers may declare their chunk period; otherwise it is learnt from the chunks
+        interlock.stall.start(clock.monotonic_s(), fs_Hz=getattr(checked, "fs_Hz", None),
+                              chunk_period_s=getattr(acq, "chunk_period_s", None))
         interlock.start_output()
         last_real = time.monotonic()
         while received < n:
