@@ -8,7 +8,6 @@ import math
 import time
 
 import numpy as np
-
 from nmsid.drivers.interfaces import ForceChunk
 from nmsid.rig.safety import StallRule
 from nmsid.testing.windows_emulation import TIMER_TICK_S, emulate_windows
