@@ -19,7 +19,7 @@ from nmsid.cli.errors import UsageError
 from nmsid.drivers.hardware import make_hw_rig
 from nmsid.protocols.config import config_from_json, load_config
 from nmsid.protocols.errors import OutputPathError
-from nmsid.protocols.output_paths import check_output, output_dir
+from nmsid.protocols.output_paths import check_output, default_sessions_dir, output_dir
 from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.rig.engine import Engine, TripPolicy
 from nmsid.rig.glitch_prompt import glitch_confirmation
@@ -62,8 +62,8 @@ def run(args) -> int:
         if args.backend == "sim" and not args.realtime and config.protocol.rest_s != 0:
             log.info("fast clock: rest_s %g -> 0", config.protocol.rest_s)
             config = config.with_protocol(rest_s=0.0)
-        path = Path(args.out) if args.out else _free_path(Path(args.outdir or "sessions"),
-                                                          config.participant)
+        outdir = Path(args.outdir) if args.outdir else default_sessions_dir()
+        path = Path(args.out) if args.out else _free_path(outdir, config.participant)
         # a taken, dangling or unwritable --out is refused before any device is touched
         check_output(path, kind="file", option="--out" if args.out else "--outdir")
         if journal_dir(path).exists():

@@ -13,6 +13,15 @@ copy per command):
   file is replaced by one ``os.replace`` (atomic); an existing folder is first renamed
   aside, the new one renamed in, then the old one deleted (two renames: atomic per rename,
   which is as far as POSIX goes for a non-empty folder).
+
+Windows (issue 24): a file another program holds open (a CSV in Excel, a figure in a
+viewer) cannot be replaced or deleted there (MoveFileExW / DeleteFileW fail with
+ERROR_ACCESS_DENIED or ERROR_SHARING_VIOLATION). Then the fresh result is kept beside the
+target under a free name (``twin-new.json``, ``twin-new-2.json``, ...) and the command ends
+with one line naming both; it is never deleted. ``os.access`` says nothing about a folder
+there (it checks only the read-only attribute), so writability is checked by creating and
+removing a temporary file. :func:`default_sessions_dir` keeps sessions out of the Windows
+folder (a shortcut's working directory is often ``C:\\Windows\\System32``).
 """
 
 from __future__ import annotations
@@ -20,10 +29,12 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import tempfile
 from pathlib import Path
 
 import h5py
 
+from nmsid.protocols import os_platform
 from nmsid.protocols.errors import OutputPathError
 from nmsid.protocols.session_file import FORMAT as SESSION_FORMAT
 
@@ -126,10 +137,80 @@ def check_output(path, *, force: bool = False, kind: str = "file",
     if not parent.is_dir():
         raise OutputPathError(f"{option} {p}: {parent} is not a folder; give a path inside "
                               "a folder")
-    if not os.access(parent, os.W_OK | os.X_OK):
+    if not _can_write_in(parent):
         raise OutputPathError(f"{option} {p}: cannot write in {parent} (permission denied); "
                               f"give a {kind} in a writable folder")
     return p
+
+
+def _can_write_in(folder: Path) -> bool:
+    """Whether a file can be created in ``folder``.
+
+    POSIX: ``os.access``. Windows: ``os.access`` looks only at the read-only attribute and
+    never refuses a folder (Python docs, os.access), so a temporary file is created and
+    removed instead.
+    """
+    if not os_platform.is_windows():
+        return os.access(folder, os.W_OK | os.X_OK)
+    try:
+        fd, name = tempfile.mkstemp(prefix=TMP_PREFIX, dir=folder)
+    except OSError:
+        return False
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        os.unlink(name)
+    return True
+
+
+def _free_name(p: Path, tag: str = "-new") -> Path:
+    """``p`` with ``tag`` (then ``-2``, ``-3``, ...) before its suffix: a name not taken."""
+    stem, suffix = (p.stem, p.suffix) if p.suffix and not p.is_dir() else (p.name, "")
+    candidate = p.with_name(f"{stem}{tag}{suffix}")
+    k = 2
+    while candidate.exists() or candidate.is_symlink():
+        candidate = p.with_name(f"{stem}{tag}-{k}{suffix}")
+        k += 1
+    return candidate
+
+
+def _held_open(p: Path, fresh: Path, option: str, exc: OSError) -> OutputPathError:
+    """Keep the fresh result ``fresh`` under a free name beside ``p``; the one-line error."""
+    kept = _free_name(p)
+    os.rename(fresh, kept)
+    return OutputPathError(f"{option} {p}: cannot be replaced ({exc.strerror or exc}: "
+                           f"is it open in another program, e.g. Excel?); the new result is "
+                           f"kept in {kept}: close the program and move it, or give "
+                           f"another {option}")
+
+
+def default_sessions_dir(cwd: str | os.PathLike | None = None,
+                         environ: dict | None = None) -> Path:
+    """Where ``nmsid run`` puts sessions when no ``--out`` / ``--outdir`` is given.
+
+    ``sessions`` in the working directory, except on Windows when the working directory
+    is inside the Windows folder (``%SystemRoot%``, e.g. ``C:\\Windows\\System32``, the
+    working directory of many shortcuts and of a console started as administrator):
+    then ``Documents\\nmsid\\sessions`` in the user's profile, so sessions are not
+    written among system files (or refused there) and are found again.
+
+    Parameters
+    ----------
+    cwd : path-like, optional
+        The working directory (default: the process's).
+    environ : dict, optional
+        The environment (default: ``os.environ``): ``SystemRoot`` / ``windir`` and
+        ``USERPROFILE``.
+    """
+    env = os.environ if environ is None else environ
+    here = Path(os.getcwd() if cwd is None else cwd)
+    if os_platform.is_windows():
+        system = env.get("SystemRoot") or env.get("windir") or "C:\\Windows"
+        norm = str(here).replace("/", "\\").rstrip("\\").lower()
+        root = system.replace("/", "\\").rstrip("\\").lower()
+        if norm == root or norm.startswith(root + "\\"):
+            profile = env.get("USERPROFILE") or str(Path.home())
+            return Path(profile) / "Documents" / "nmsid" / "sessions"
+    return Path("sessions")
 
 
 def _existing_ancestor(folder: Path) -> Path:
@@ -161,7 +242,10 @@ def output_file(path, *, force: bool = False, option: str = "--out"):
         if p.exists() and not force:
             raise OutputPathError(f"{option} {p}: appeared while the command ran; not "
                                   f"replaced (give --force)")
-        os.replace(tmp, p)
+        try:
+            os.replace(tmp, p)
+        except PermissionError as exc:  # Windows: p is open in another program
+            raise _held_open(p, tmp, option, exc) from None
     finally:
         with contextlib.suppress(FileNotFoundError):
             if tmp.exists() and not (p.exists() and p.samefile(tmp)):
@@ -185,8 +269,16 @@ def output_dir(path, *, force: bool = False, option: str = "--out"):
         if p.exists():
             check_output(p, force=force, kind="folder", option=option)  # still allowed?
             old = p.with_name(f"{TMP_PREFIX}{p.name}-old-{os.getpid()}")
-            os.rename(p, old)
-        os.rename(tmp, p)
+            try:
+                os.rename(p, old)
+            except PermissionError as exc:  # Windows: a file in p is open elsewhere
+                raise _held_open(p, tmp, option, exc) from None
+        try:
+            os.rename(tmp, p)
+        except OSError:
+            if old is not None:  # put the old results back where they were
+                os.rename(old, p)
+            raise
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
     finally:

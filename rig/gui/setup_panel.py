@@ -19,6 +19,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QFileDialog, QFormLayout, Q
                                QVBoxLayout, QWidget)
 
 from nmsid.protocols.config import config_from_json
+from nmsid.protocols.output_paths import default_sessions_dir
 from nmsid.protocols.session_file import PARTICIPANT_PATTERN, SessionWriter, read_session
 from nmsid.rig.errors import RequestError
 from nmsid.rig.gui.theme import Colour
@@ -127,11 +128,12 @@ def _planned_count(session) -> int:
     return 0
 
 
-def default_output(participant: str, outdir: str | os.PathLike = "sessions") -> Path:
-    """``sessions/<participant>-<UTC time>.h5`` (the name ``nmsid run`` uses)."""
+def default_output(participant: str, outdir: str | os.PathLike | None = None) -> Path:
+    """``sessions/<participant>-<UTC time>.h5`` (the name ``nmsid run`` uses; the folder
+    is ``default_sessions_dir()``, never inside the Windows folder)."""
     import datetime as dt
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-    return Path(outdir) / f"{participant}-{stamp}.h5"
+    return Path(outdir or default_sessions_dir()) / f"{participant}-{stamp}.h5"
 
 
 class SetupPanel(QWidget):
