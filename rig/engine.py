@@ -32,6 +32,7 @@ from nmsid.protocols.waveforms import input_attrs, trial_waveform
 from nmsid.rig.device_recovery import DeviceGlitchEnd, DeviceRecovery
 from nmsid.rig.engine_calibration import CalibrationSteps
 from nmsid.rig.engine_commands import OperatorCommands, _EndRun
+from nmsid.rig.keep_awake import SystemAwake
 from nmsid.rig.observer import (RERUN_WAIT_PREFIX, EngineObserver, RunSummary, TripPolicy,
                                 is_rerun_wait, rerun_wait_reason)
 from nmsid.protocols.session_file import Calibration, Trial, utc_now
@@ -141,6 +142,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         ended_by = "schedule complete"
         journal_removed = False
         error: BaseException | None = None
+        awake = SystemAwake().__enter__()  # Windows: no sleep mid-session (this thread)
         try:
             self._setup()
             self._calibrate()
@@ -169,6 +171,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
                         self._log.flush_events()
                     self._log.close()
             self._notify("on_finished", str(self.path))
+            awake.__exit__(None, None, None)
         summary = self._summary(ended_by, journal_removed, self.clock.monotonic_s() - t0)
         if error is not None:
             raise error

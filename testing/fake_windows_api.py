@@ -202,7 +202,8 @@ class FakeKernel32:
         self.terminated_with: int | None = None
         self.handler_threads: list[str] = []
         self.execution_state = 0
-        self.execution_state_calls: list[int] = []
+        self.execution_state_calls: list[tuple[int, int]] = []  # (flags, thread ident)
+        self.execution_state_fails = False
         self._lock = threading.Lock()
 
     # -- console control -------------------------------------------------------------
@@ -257,8 +258,11 @@ class FakeKernel32:
     # -- power -----------------------------------------------------------------------
     def SetThreadExecutionState(self, flags: int) -> int:
         """Set the thread's execution state; returns the previous one."""
+        flags = int(getattr(flags, "value", flags))  # a ctypes.c_uint, as a DWORD
+        self.execution_state_calls.append((flags, threading.get_ident()))
+        if self.execution_state_fails:
+            return 0  # NULL: failure
         previous = self.execution_state or ES_CONTINUOUS
-        self.execution_state_calls.append(flags)
         if flags & ES_CONTINUOUS:
             self.execution_state = flags
         return previous
