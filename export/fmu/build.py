@@ -26,6 +26,7 @@ from nmsid.analysis.twin import Twin, file_sha256
 from nmsid.export.errors import FmuExportError
 from nmsid.export.fmu.description import c_header, model_description
 from nmsid.export.fmu.variables import variables
+from nmsid.protocols import os_platform
 from nmsid.sim_backends.effects import effects_from_list
 from nmsid.sim_backends.errors import SimConfigError
 
@@ -65,7 +66,8 @@ def nmsid_version() -> str:
 
 
 def fmi_platform() -> str | None:
-    """The FMI 2.0 binaries folder name of this machine (None when it has none)."""
+    """The FMI 2.0 binaries folder name of this machine (None when it has none); the
+    binary's folder is the compiler's target instead (:func:`find_compiler`)."""
     system, machine = platform.system(), platform.machine().lower()
     if system == "Darwin":
         return "darwin64"
@@ -118,7 +120,114 @@ def _annotation(twin: Twin, twin_sha256: str, version: str) -> str:
             f'twinFileSha256="{twin_sha256}">{"".join(srcs)}{effects}</Twin>')
 
 
-def compile_binary(sources_dir: Path, out_file: Path, cc: str | None = None) -> None:
+@dataclass(frozen=True)
+class Compiler:
+    """A C compiler found for the FMU's binary.
+
+    Attributes
+    ----------
+    kind : {"msvc", "gcc"}
+        ``msvc``: Microsoft's ``cl``; ``gcc``: gcc, clang, cc or MinGW-w64's gcc (GCC's
+        command line).
+    path : str
+        The executable.
+    platform : str or None
+        The FMI 2.0 binaries folder of the compiler's TARGET (``win64``, ``linux64``,
+        ``darwin64``, ...), None when FMI 2.0 names none (e.g. ARM Linux).
+    """
+
+    kind: str
+    path: str
+    platform: str | None
+
+
+#: Tried in this order when neither ``cc`` nor $CC names one: Windows has no ``cc``; MSVC's
+#: ``cl`` is on PATH in a "Developer Command Prompt", MinGW-w64's ``gcc`` where installed.
+CANDIDATES = {"windows": ("cl", "gcc", "clang"), "posix": ("cc", "gcc", "clang")}
+
+
+def platform_of_target(target: str) -> str | None:
+    """The FMI 2.0 folder for a compiler target: a GCC triple (``gcc -dumpmachine``:
+    ``x86_64-w64-mingw32``, ``x86_64-linux-gnu``, ``arm64-apple-darwin23``) or MSVC's
+    banner architecture (``x64``, ``x86``, ``ARM64``).
+
+    Examples
+    --------
+    >>> platform_of_target("x86_64-w64-mingw32"), platform_of_target("x64")
+    ('win64', 'win64')
+    >>> platform_of_target("i686-linux-gnu"), platform_of_target("aarch64-linux-gnu")
+    ('linux32', None)
+    """
+    t = target.strip().lower()
+    if t in ("x64", "amd64"):
+        return "win64"
+    if t in ("x86", "80x86"):
+        return "win32"
+    if "darwin" in t or "apple" in t:
+        return "darwin64"
+    arch = t.split("-")[0]
+    bits = "64" if arch in ("x86_64", "amd64") else "32" if re.fullmatch(r"i[3-6]86", arch) \
+        else None
+    if bits is None:
+        return None
+    if any(w in t for w in ("mingw", "windows", "cygwin", "msvc", "win32")):
+        return "win" + bits
+    if "linux" in t:
+        return "linux" + bits
+    return None
+
+
+def _target(kind: str, path: str) -> str:
+    """What the compiler builds for: ``-dumpmachine``, or ``for x64`` in cl's banner."""
+    if kind == "msvc":
+        run = subprocess.run([path], capture_output=True, text=True, check=False)
+        m = re.search(r"\bfor\s+(\w+)", run.stderr + run.stdout)
+        return m.group(1) if m else ""
+    run = subprocess.run([path, "-dumpmachine"], capture_output=True, text=True, check=False)
+    return run.stdout.strip()
+
+
+def find_compiler(cc: str | None = None) -> Compiler:
+    """The C compiler to build the binary with: ``cc``, else $CC, else the first of
+    :data:`CANDIDATES` on PATH for this system (through the platform switch).
+
+    Raises
+    ------
+    FmuExportError
+        One line: none found (what was tried, what to install, ``--sources-only``).
+    """
+    wanted = cc or os.environ.get("CC")
+    names = (wanted,) if wanted else CANDIDATES[os_platform.platform_name()]
+    for name in names:
+        path = shutil.which(name)
+        if path is None:
+            continue
+        kind = "msvc" if Path(path).stem.lower() == "cl" else "gcc"
+        return Compiler(kind, path, platform_of_target(_target(kind, path)))
+    if os_platform.is_windows():
+        how = ("install Visual Studio Build Tools (C++) and run nmsid from the 'x64 Native "
+               "Tools Command Prompt', or MinGW-w64's gcc, or set CC")
+    else:
+        how = "install cc/gcc/clang, or set CC"
+    raise FmuExportError(f"no C compiler found on PATH (tried {', '.join(names)}) to build "
+                         f"the FMU's binary: {how}; or give --sources-only")
+
+
+def compile_command(compiler: Compiler, sources_dir: Path, out_file: Path) -> list[str]:
+    """The command that builds the shared library ``out_file`` from the sources."""
+    sources = [str(sources_dir / s) for s in C_SOURCES]
+    if compiler.kind == "msvc":
+        # /LD: a DLL; objects go to the working directory (a temporary one)
+        return [compiler.path, "/nologo", "/LD", "/O2", "/I", str(sources_dir), *sources,
+                f"/Fe:{out_file}"]
+    windows_target = (compiler.platform or "").startswith("win")
+    pic = [] if windows_target else ["-fPIC"]  # every Windows DLL is position independent
+    return [compiler.path, "-shared", *pic, "-O2", "-std=c99", "-fvisibility=hidden",
+            "-I", str(sources_dir), *sources, "-o", str(out_file), "-lm"]
+
+
+def compile_binary(sources_dir: Path, out_file: Path, cc: str | None = None,
+                   compiler: Compiler | None = None) -> None:
     """Compile the FMU's sources into a shared library with the system's C compiler.
 
     Raises
@@ -126,17 +235,13 @@ def compile_binary(sources_dir: Path, out_file: Path, cc: str | None = None) -> 
     FmuExportError
         No C compiler, or compilation failed (its message quoted).
     """
-    cc = cc or os.environ.get("CC") or "cc"
-    if shutil.which(cc) is None:
-        raise FmuExportError(f"no C compiler {cc!r} on PATH (set CC, or install cc/gcc/clang) "
-                             "to build the FMU's binary")
+    compiler = compiler or find_compiler(cc)
     out_file.parent.mkdir(parents=True, exist_ok=True)
-    cmd = [cc, "-shared", "-fPIC", "-O2", "-std=c99", "-fvisibility=hidden",
-           "-I", str(sources_dir), *[str(sources_dir / s) for s in C_SOURCES],
-           "-o", str(out_file), "-lm"]
-    run = subprocess.run(cmd, capture_output=True, text=True)
+    with tempfile.TemporaryDirectory(prefix="nmsid-cc-") as work:
+        run = subprocess.run(compile_command(compiler, sources_dir, out_file),
+                             capture_output=True, text=True, cwd=work, check=False)
     if run.returncode != 0:
-        raise FmuExportError(f"{cc} failed to build the FMU binary: "
+        raise FmuExportError(f"{Path(compiler.path).name} failed to build the FMU binary: "
                              f"{(run.stderr or run.stdout).strip().splitlines()[:3]}")
 
 
@@ -187,7 +292,8 @@ def export_fmu(twin_path: str | os.PathLike, out: str | os.PathLike, *, force: b
     desc = (f"nmsid digital twin of {twin.participant or 'an unnamed participant'}: force "
             f"from rE and sE, second-order dynamics with parameter curves of sE; effects: "
             f"{names}")
-    plat = fmi_platform() if binary else None
+    compiler = find_compiler() if binary else None
+    plat = compiler.platform if compiler is not None else None
     with tempfile.TemporaryDirectory(prefix="nmsid-fmu-") as tmp:
         root = Path(tmp)
         (root / "sources").mkdir()
@@ -206,7 +312,8 @@ def export_fmu(twin_path: str | os.PathLike, out: str | os.PathLike, *, force: b
         (root / "documentation" / "index.html").write_text(_doc_html(ident), encoding="utf-8")
         if plat:
             ext = {"linux": ".so", "darwin": ".dylib", "win": ".dll"}[plat.rstrip("0123456789")]
-            compile_binary(root / "sources", root / "binaries" / plat / (ident + ext))
+            compile_binary(root / "sources", root / "binaries" / plat / (ident + ext),
+                           compiler=compiler)
         fd, tmp_name = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".part")
         os.close(fd)
         tmp_out = Path(tmp_name)
