@@ -84,7 +84,12 @@ def run(args) -> int:
             engine.abort(reason)
         # before the engine exists nothing has been stimulated: run() checks `received`
 
-    with SessionSignals(on_signal) as signals:
+    def stop_output(reason):  # Windows console event: its own thread, at once
+        engine = box.get("engine")
+        if engine is not None:
+            engine.estop(reason)
+
+    with SessionSignals(on_signal, stop_output) as signals:
         devices = _make_devices(args, config, sim_seed)
         progress = _Progress(quiet=args.quiet)
         try:

@@ -26,9 +26,12 @@ routine returns, or after a time-out (5 s for a close event)
 (learn.microsoft.com/windows/console/handlerroutine, .../setconsolectrlhandler).
 :class:`SessionSignals` registers one routine that, for each of the five events:
 
-1. hands the event to the main thread (``_thread.interrupt_main``), where the same
-   ``on_signal`` callback as for a POSIX signal zeroes the output and ends the session, with
-   the reason ``"CTRL_CLOSE_EVENT received (console window closed)"`` etc.;
+1. zeroes the output at once on the routine's thread through ``stop_output(reason)`` when
+   the caller gives one (``nmsid run``: ``engine.estop``, which is thread-safe), then hands
+   the event to the main thread (``_thread.interrupt_main``), where the same ``on_signal``
+   callback as for a POSIX signal zeroes the output (again, idempotent) and ends the
+   session, with the reason ``"CTRL_CLOSE_EVENT received (console window closed)"`` etc.
+   Without ``stop_output`` (the GUI) the output waits for the main thread's next turn;
 2. returns TRUE at once for Ctrl+C / Ctrl+Break (the command then ends as above: exit
    status 130 / 149, one line); for close, logoff and shutdown it first waits, at most
    :data:`TERMINATING_WAIT_S`, until the session is closed (the ``with`` block is left),
@@ -134,6 +137,9 @@ class SessionSignals:
         Called in the main thread with the signal number and :func:`signal_reason`. It
         must stop the output first (``engine.estop(reason)``). Called again for a repeated
         signal (a second Ctrl+C): the E-stop is idempotent.
+    stop_output : callable(str), optional
+        Windows: called with the reason on the console routine's own thread, before the
+        main thread runs ``on_signal``; it must be thread-safe (``engine.estop``).
 
     Attributes
     ----------
@@ -141,8 +147,10 @@ class SessionSignals:
         The first signal received, if any.
     """
 
-    def __init__(self, on_signal: Callable[[int, str], None]):
+    def __init__(self, on_signal: Callable[[int, str], None],
+                 stop_output: Callable[[str], None] | None = None):
         self.on_signal = on_signal
+        self.stop_output = stop_output
         self.received: int | None = None
         self._old: dict[int, Any] = {}
         self._pending: list[ConsoleEvent] = []
@@ -165,6 +173,11 @@ class SessionSignals:
         ev = CONSOLE_EVENTS.get(int(event))
         if ev is None:
             return 0  # not ours: the next routine (or the default) handles it
+        if self.stop_output is not None:  # output to zero now, on this thread
+            try:
+                self.stop_output(signal_reason(ev))
+            except Exception:  # the main thread's on_signal still follows
+                log.exception("stop_output failed on the console event's thread")
         if self._old:  # the main thread runs on_signal, as for a POSIX signal
             with self._pending_lock:
                 self._pending.append(ev)

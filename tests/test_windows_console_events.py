@@ -167,3 +167,17 @@ def test_a_console_event_ends_a_real_nmsid_run_like_the_estop(tmp_path, event):
     trip = kinds.index("interlock_trip")
     assert reason in s.events[trip].detail
     assert trip < kinds.index("trial_aborted") < kinds.index("session_end")
+
+
+def test_stop_output_runs_on_the_routines_thread_before_the_main_thread():
+    k = FakeKernel32()
+    order = []
+    with _windows(k), SessionSignals(
+            lambda s, r: order.append(("on_signal", threading.current_thread().name)),
+            lambda r: order.append(("stop_output", threading.current_thread().name))):
+        k.deliver(CTRL_CLOSE_EVENT)
+        t0 = time.monotonic()
+        while len(order) < 2 and time.monotonic() - t0 < 5:
+            threading.Event().wait(0.05)
+    assert [o[0] for o in order] == ["stop_output", "on_signal"]
+    assert order[0][1].startswith("console-handler-") and order[1][1] == "MainThread"
