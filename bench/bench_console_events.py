@@ -1,11 +1,13 @@
-"""Windows console control events: from the event to the stimulator's output at zero.
+"""Windows console control events: from the event to the stimulator's ``stop_now``.
 
 A real-time simulated rig runs a long schedule of short trials in an engine thread, the
 main thread waits as ``nmsid run``'s does (0.1 s joins) inside ``SessionSignals``, and
 ``on_signal`` zeroes the output (``engine.estop(reason)``; an operator re-arms after each
 trip). While a trial stimulates, another thread sends an event at a random moment and
-records ``perf_counter()`` just before; the simulated stimulator records when its output
-went to zero (``SimRig.output_zero_events``). Sources, like for like:
+records ``perf_counter()`` just before; the simulated stimulator records every
+``stop_now`` call (``SimRig.world.stop_calls``): the latency is from the event to the
+first one after it (an event that lands just after a trial's natural end meets the next
+trial's, which is counted as it comes). Sources, like for like:
 
 * ``CTRL_C_EVENT`` / ``CTRL_CLOSE_EVENT`` through ``FakeKernel32`` (the routine on the
   system's own thread): with ``stop_output`` (``nmsid run``: ``engine.estop`` on that
@@ -102,14 +104,14 @@ def _measure(n: int, source: str, seed: int = 1) -> np.ndarray:
             while worker.is_alive():  # as nmsid run: short joins
                 worker.join(0.1)
     rig.close()
-    zeros = sorted(z.perf_counter_s for z in rig.output_zero_events)
+    zeros = sorted(perf for _, perf in rig.world.stop_calls)
     lat = [min((z for z in zeros if z >= t), default=np.nan) - t for t in sent]
     return np.asarray([x for x in lat if np.isfinite(x)]) * 1000.0
 
 
 def main(n: int = 40) -> None:
     logging.disable(logging.WARNING)
-    print(f"console event -> stimulator output zero, real-time simulated rig, {n} events "
+    print(f"console event -> stimulator stop_now, real-time simulated rig, {n} events "
           "each; main thread waiting in 0.1 s joins as nmsid run's")
     print(f"{'source':44s} {'n':>4s} {'p50 ms':>8s} {'p99 ms':>8s} {'max ms':>8s} "
           f"{'p50 / SIGINT':>13s}")
