@@ -104,7 +104,8 @@ def register(sub) -> None:
         "export", help="write the twin as an FMI 2.0 FMU (co-simulation + model exchange)",
         description="Write the twin as a Functional Mock-up Unit (FMI 2.0, co-simulation and "
                     "model exchange): C sources plus a binary for this platform built with "
-                    "the system's C compiler (cc, or $CC). See docs/fmu.md.")
+                    "the system's C compiler (cc, gcc or clang; on Windows cl or MinGW gcc; "
+                    "or $CC). See docs/fmu.md.")
     exp.add_argument("twin", metavar="TWIN.json")
     exp.add_argument("--fmu", action="store_true", required=True,
                      help="the format to write (FMI 2.0 FMU; the only one today)")
