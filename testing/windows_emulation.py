@@ -536,6 +536,61 @@ def pytest_unconfigure(config: Any) -> None:
         _session_emulation = None
 
 
+#: Uses that make a test module unable to run under the emulation (it has no fork, ...).
+_POSIX_ATTRIBUTES = {("os", n) for n in POSIX_ONLY_OS_FUNCTIONS} | {("signal", "SIGHUP")}
+
+
+def posix_only_uses(path: Any) -> list[str]:
+    """What in a test module needs POSIX (``os.fork``, ``signal.SIGHUP``, ``import pty``,
+    the forked-CLI helper), found in its syntax tree (strings and comments do not count).
+
+    Returns
+    -------
+    list of str
+        Sorted names; empty if the module can run under the emulation.
+    """
+    import ast
+
+    try:
+        tree = ast.parse(Path(path).read_text(encoding="utf-8"))
+    except (OSError, SyntaxError, UnicodeDecodeError):
+        return []
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) \
+                and (node.value.id, node.attr) in _POSIX_ATTRIBUTES:
+            found.add(f"{node.value.id}.{node.attr}")
+        elif isinstance(node, ast.Import):
+            found.update(a.name for a in node.names if a.name in POSIX_ONLY_MODULES)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            if node.module.split(".")[0] in POSIX_ONLY_MODULES and not node.level:
+                found.add(node.module)
+            if node.module.split(".")[-1] == "forked_cli":
+                found.add("forked_cli (os.fork)")
+    return sorted(found)
+
+
+def pytest_pycollect_makemodule(module_path: Any, parent: Any) -> Any:
+    """Under ``--windows-emulation``, a test module that uses ``os.fork``,
+    ``signal.SIGHUP``, ``pty``, ... is skipped as a whole, naming what it uses (it could not
+    even be imported: such names are evaluated at import)."""
+    if _session_emulation is None or not Path(str(module_path)).name.startswith("test"):
+        return None
+    uses = posix_only_uses(module_path)
+    if not uses:
+        return None
+    import pytest
+
+    reason = (f"Windows emulation: {Path(str(module_path)).name} uses {', '.join(uses)} "
+              "(POSIX only)")
+
+    class PosixOnlyModule(pytest.Module):
+        def collect(self) -> Any:
+            raise pytest.skip.Exception(reason, allow_module_level=True)
+
+    return PosixOnlyModule.from_parent(parent, path=Path(str(module_path)))
+
+
 def pytest_collection_modifyitems(config: Any, items: list[Any]) -> None:
     """Under ``--windows-emulation``, skip tests marked ``posix_only`` with their reason."""
     if _session_emulation is None:

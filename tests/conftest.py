@@ -13,6 +13,7 @@ from nmsid.testing.windows_emulation import (  # noqa: F401
     pytest_addoption,
     pytest_collection_modifyitems,
     pytest_configure,
+    pytest_pycollect_makemodule,
     pytest_unconfigure,
     windows_emulation,
 )

@@ -17,6 +17,7 @@ from nmsid.testing.windows_emulation import (
     ERROR_ACCESS_DENIED,
     ERROR_SHARING_VIOLATION,
     emulate_windows,
+    posix_only_uses,
     windows_emulation,  # noqa: F401  (the fixture)
 )
 
@@ -148,3 +149,13 @@ def test_monotonic_steps_by_the_windows_timer_tick():
 def test_the_fixture_installs_the_emulation(windows_emulation):  # noqa: F811
     assert windows_emulation.installed and os_platform.is_windows()
     assert not hasattr(os, "pwrite")
+
+
+def test_test_modules_that_need_posix_are_found_by_their_syntax(tmp_path):
+    f = tmp_path / "test_x.py"
+    f.write_text("import os, signal\nfrom tests.rig.forked_cli import fork_nmsid\n"
+                 "S = [signal.SIGHUP]\ndef t():\n    import pty\n    os.fork()\n"
+                 "X = 'os.statvfs in a string'\n", encoding="utf-8")
+    assert posix_only_uses(f) == ["forked_cli (os.fork)", "os.fork", "pty", "signal.SIGHUP"]
+    f.write_text("import os\nos.replace('a', 'b')\n", encoding="utf-8")
+    assert posix_only_uses(f) == []
