@@ -275,10 +275,16 @@ def output_dir(path, *, force: bool = False, option: str = "--out"):
                 raise _held_open(p, tmp, option, exc) from None
         try:
             os.rename(tmp, p)
-        except OSError:
+        except OSError as exc:
             if old is not None:  # put the old results back where they were
                 os.rename(old, p)
-            raise
+            if not isinstance(exc, PermissionError):
+                raise
+            try:  # Windows: a fresh file held open (a virus scanner): keep the results
+                error = _held_open(p, tmp, option, exc)
+            except OSError:
+                raise exc from None
+            raise error from None
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
     finally:

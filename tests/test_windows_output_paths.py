@@ -101,3 +101,24 @@ def test_default_sessions_folder_is_never_the_windows_folder(cwd, expected):
     assert str(got).replace("/", "\\") == expected
     with os_platform.forced("posix"):
         assert default_sessions_dir("/usr/lib", env) == Path("sessions")
+
+
+def test_a_failed_rename_in_puts_the_old_folder_back_and_keeps_the_new(tmp_path, monkeypatch):
+    import os
+
+    target = tmp_path / "gap"
+    target.mkdir()
+    (target / "report.csv").write_text("old\n", encoding="utf-8")
+    real_rename = os.rename
+
+    def rename(src, dst, *a, **k):
+        if Path(dst) == target and ".nmsid-tmp-" in Path(src).name and "-old-" not in str(src):
+            raise PermissionError(13, "Access is denied", str(src))
+        return real_rename(src, dst, *a, **k)
+
+    monkeypatch.setattr(os, "rename", rename)
+    with pytest.raises(OutputPathError, match="kept in"), \
+            output_dir(target, force=True) as tmp:
+        (Path(tmp) / "report.csv").write_text("new\n", encoding="utf-8")
+    assert (target / "report.csv").read_text(encoding="utf-8") == "old\n"
+    assert (tmp_path / "gap-new" / "report.csv").read_text(encoding="utf-8") == "new\n"
