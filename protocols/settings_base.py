@@ -325,7 +325,11 @@ def read_toml(path: str | os.PathLike, make_error: ErrorFactory, *, what: str) -
     with open(path, "rb") as fh:
         raw = fh.read()
     try:
-        return tomllib.loads(raw.decode("utf-8"))
+        data = tomllib.loads(raw.decode("utf-8"))
+        hint = _drive_path_hint(raw.decode("utf-8"))
+        if hint is not None:  # "C:\temp\new" parses, as C:<tab>emp<newline>ew
+            raise make_error(source, *hint)
+        return data
     except UnicodeDecodeError as exc:
         raise make_error(source, "(file)", "bytes", f"UTF-8 text ({exc.reason})") from None
     except tomllib.TOMLDecodeError as exc:
@@ -364,6 +368,19 @@ def _backslash_hint(text: str, message: str) -> tuple[str, str, str] | None:
     valid = ("a backslash in a double-quoted TOML string starts an escape: write a Windows "
              "path in single quotes ('C:\\Program Files\\...') or with forward slashes")
     return f"line {n}", _Verbatim(line), valid
+
+
+_DRIVE_PATH = re.compile(r'"[A-Za-z]:\\(?!\\)')
+
+
+def _drive_path_hint(text: str) -> tuple[str, str, str] | None:
+    """The :func:`_backslash_hint` refusal for a Windows path with single backslashes in a
+    double-quoted string that TOML accepted because each escape happened to be valid
+    (``"C:\\temp\\new"`` is ``C:`` + tab + ``emp`` + newline + ``ew``)."""
+    for n, line in enumerate(text.splitlines(), 1):
+        if _DRIVE_PATH.search(line.split("#", 1)[0]):
+            return _backslash_hint(text, f"Unescaped '\\' in a string (at line {n}")
+    return None
 
 
 def settings_rows(cls, prefix: str = "") -> list[tuple[str, str, str, str]]:

@@ -43,3 +43,16 @@ def test_the_command_line_prints_one_line(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and "line 2" in proc.stderr
     assert "single quotes" in proc.stderr and not (tmp_path / "s.h5").exists()
+
+
+def test_a_drive_path_that_happens_to_parse_is_refused_too(tmp_path):
+    """"C:\\temp\\new" is valid TOML (a tab and a newline), never the path typed."""
+    f = tmp_path / "c.toml"
+    f.write_text('participant = "X"\n# "C:\\in a comment" is fine\nout = "C:\\temp\\new"\n',
+                 encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"setting line 3 = .*single quotes"):
+        read_toml(f, ConfigError, what="x")
+    f.write_text("participant = \"X\"\na = \"C:\\\\temp\"\nb = 'C:\\temp'\nc = \"C:/temp\"\n",
+                 encoding="utf-8")
+    assert read_toml(f, ConfigError, what="x") == {"participant": "X", "a": "C:\\temp",
+                                                   "b": "C:\\temp", "c": "C:/temp"}
