@@ -55,10 +55,11 @@ def register(sub) -> None:
     p.add_argument("--realtime", action="store_true",
                    help="sim: pace the simulation in real time (default: as fast as possible)")
     p.add_argument("--hw-config", metavar="FILE", help="hw: the rig's hardware configuration")
-    p.add_argument("--participant-model", choices=("template", "musculoskeletal"),
+    p.add_argument("--participant-model", metavar="MODEL",
                    help="sim: the virtual participant: the paper's second-order model "
-                        "(template, default) or MyoSuite's MuJoCo elbow under FES "
-                        "(musculoskeletal; needs the 'mujoco' extra); overrides the "
+                        "(template, default), MyoSuite's MuJoCo elbow under FES "
+                        "(musculoskeletal; needs the 'mujoco' extra) or a lab's own model "
+                        "package.module:factory (docs/control.md); overrides the "
                         "config's [participant] model")
     p.add_argument("--sim-seed", type=_seed, metavar="N",
                    help="sim: seed of the virtual participant and its noise (default: from "
