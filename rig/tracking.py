@@ -29,6 +29,7 @@ root attributes hold ``session_kind = "tracking"`` and ``tracking_controller_jso
 
 from __future__ import annotations
 
+import functools
 import inspect
 import json
 import logging
@@ -47,7 +48,7 @@ from nmsid.analysis.control.controllers import (
 )
 from nmsid.analysis.control.design import ControllerDesign
 from nmsid.analysis.control.errors import ControlDesignError
-from nmsid.analysis.control.targets import Target
+from nmsid.analysis.control.targets import Target, load_target_csv
 from nmsid.protocols.schedule import PlannedTrial, TrialStatus
 from nmsid.protocols.session_file import Trial, utc_now
 from nmsid.protocols.waveforms import currents_mA
@@ -388,3 +389,29 @@ class TrackingEngine(Engine):
                                           "ultimate_gain": res.ultimate_gain,
                                           "n_periods": res.n_periods}),
                 "pid_json": json.dumps(gains.to_dict())}
+
+
+def tracking_engine(args):
+    """``nmsid run --track FILE [--target FILE.csv]``: a :class:`TrackingEngine` factory
+    with the design and targets read (errors in one line before any device is touched),
+    or None without ``--track``.
+
+    Raises
+    ------
+    ControllerFileError
+        A bad controller.json or target CSV.
+    ControlDesignError
+        ``--target`` without ``--track``, or ``--track`` with ``--resume``.
+    """
+    track, target = getattr(args, "track", None), getattr(args, "target", None)
+    if track is None:
+        if target is not None:
+            raise ControlDesignError("--target needs --track CONTROLLER.json (a target is "
+                                     "tracked by a controller)")
+        return None
+    if getattr(args, "resume", None):
+        raise ControlDesignError("--track starts a new tracking session; it cannot be "
+                                 "combined with --resume")
+    design = ControllerDesign.load(track)
+    targets = [load_target_csv(target)] if target is not None else None
+    return functools.partial(TrackingEngine, design=design, targets=targets)
