@@ -148,7 +148,7 @@ def main(argv=None) -> None:
             for seed in range(args.seeds):
                 try:
                     r = one(model, seed, tmp)
-                except Exception as exc:   # a bench prints what failed and goes on
+                except Exception as exc:  # noqa: BLE001 - a bench prints what failed, goes on
                     print(f"   {model} seed {seed}: FAILED ({type(exc).__name__}: {exc})")
                     continue
                 ratio = r["twin"] / r["baseline"]
