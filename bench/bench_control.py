@@ -1,10 +1,11 @@
 """The twin in the loop: twin-based force control against a twin-free baseline.
 
-For each participant (the template participant and the MuJoCo musculoskeletal one,
-several seeds each) the product path, in process:
+For each participant (the template participant and the MuJoCo musculoskeletal one: the
+default one and members of the simulator's seeded populations, each with its own
+physics) the product path, in process:
 
-1. ``nmsid run --backend sim --participant-model M --sim-seed S`` (calibration and the
-   paper's identification schedule, 15 sE x 3), ``nmsid identify`` -> ``twin.json``;
+1. an identification session (calibration and the paper's schedule, 15 sE x 3, the
+   engine of ``nmsid run``), ``nmsid identify`` -> ``twin.json``;
 2. ``nmsid control design twin.json`` -> ``controller.json``;
 3. a tracking session on the same participant (same seed): the relay-tuned
    Ziegler-Nichols PID (no twin) and the twin-based controller on the same targets
@@ -20,8 +21,8 @@ output (fast clock: the stream's design figure). Then a real-time tracking sessi
 (``SimRealClock``) measures the latency with the host's real scheduling, with its ratio
 to the design figure.
 
-    python bench/bench_control.py                  # 3 seeds per participant model
-    python bench/bench_control.py --seeds 1        # quicker
+    python bench/bench_control.py                  # 3 participants per model
+    python bench/bench_control.py --seeds 1        # quicker (the default ones)
 """
 
 from __future__ import annotations
@@ -48,9 +49,9 @@ from nmsid.analysis.twin import Twin
 from nmsid.cli import main as nmsid
 from nmsid.protocols.config import config_from_dict, load_config
 from nmsid.protocols.session_file import read_session
-from nmsid.rig.engine import TripPolicy
+from nmsid.rig.engine import Engine, TripPolicy
 from nmsid.rig.tracking import TrackingEngine
-from nmsid.sim_backends import make_sim_rig
+from nmsid.sim_backends import make_msk_population, make_population, make_sim_rig
 from nmsid.sim_backends.participant import default_participant
 from nmsid.sim_backends.participant_models import participant_for_model
 
@@ -75,19 +76,29 @@ def _above_ceiling(rig, session) -> tuple[int, int]:
     return commanded, delivered
 
 
-def one(model: str, seed: int, tmp: Path) -> dict:
+def participant(model: str, k: int, n: int):
+    """Participant k of a model: the default one (k = 0), then members of the simulator's
+    seeded population (population seed 28), each with its own physics."""
+    if k == 0:
+        return participant_for_model(model, 0)
+    if model == "template":
+        return make_population(n, seed=28)[k - 1]
+    return make_msk_population(n, seed=28)[k - 1]
+
+
+def one(model: str, seed: int, tmp: Path, n: int) -> dict:
     t0 = time.monotonic()
+    p = participant(model, seed, n)
     sess = tmp / f"{model}-{seed}-id.h5"
-    code = _quiet("run", "--backend", "sim", "--participant-model", model, "--sim-seed", seed,
-                  "--seed", seed, "--out", sess, "--no-identify", "--quiet")
-    assert code == 0, f"identification session failed ({code})"
+    cfg = load_config(None).replace(participant=f"B{seed:02d}", seed=seed)
+    Engine(cfg.with_protocol(rest_s=0.0), make_sim_rig(p), sess,
+           trip_policy=TripPolicy.END_SESSION).run()
     ana = tmp / f"{model}-{seed}-ana"
     _quiet("identify", sess, "--out", ana, "--no-figures")
     ctl = tmp / f"{model}-{seed}-ctl"
     assert _quiet("control", "design", ana / "twin.json", "--out", ctl) == 0
     design = ControllerDesign.load(ctl / "controller.json")
-    rig = make_sim_rig(participant_for_model(model, seed))
-    cfg = load_config(None).replace(participant=f"B{seed:02d}", seed=seed)
+    rig = make_sim_rig(p)
     cfg = cfg.with_protocol(rest_s=0.0)
     track = tmp / f"{model}-{seed}-track.h5"
     TrackingEngine(cfg, rig, track, design=design, trip_policy=TripPolicy.END_SESSION).run()
@@ -101,7 +112,8 @@ def one(model: str, seed: int, tmp: Path) -> dict:
             "baseline": rep["controllers"]["baseline"]["rmse_pct_of_range"],
             "aborted": sum(not t.completed for t in s.trials),
             "above_cmd": cmd, "above_dlv": dlv, "latency_s": float(np.median(lat)),
-            "sE": design.sE, "seconds": time.monotonic() - t0}
+            "sE": design.sE, "code": getattr(p, "code", ""),
+            "seconds": time.monotonic() - t0}
 
 
 def realtime_latency(tmp: Path) -> dict:
@@ -147,7 +159,7 @@ def main(argv=None) -> None:
         for model in args.models.split(","):
             for seed in range(args.seeds):
                 try:
-                    r = one(model, seed, tmp)
+                    r = one(model, seed, tmp, args.seeds)
                 except Exception as exc:  # noqa: BLE001 - a bench prints what failed, goes on
                     print(f"   {model} seed {seed}: FAILED ({type(exc).__name__}: {exc})")
                     continue
@@ -155,7 +167,8 @@ def main(argv=None) -> None:
                 all_ratios.append(ratio)
                 above_total += r["above_cmd"] + r["above_dlv"]
                 verdict = "met" if ratio <= 0.5 else "missed"
-                print(f"   {model + ' seed ' + str(seed):22s} {r['sE']:5.2f} {r['twin']:7.2f} "
+                label = f"{model} {r['code']}"
+                print(f"   {label:22s} {r['sE']:5.2f} {r['twin']:7.2f} "
                       f"{r['baseline']:7.2f} {ratio:6.3f} {verdict:8s} "
                       f"{str(r['above_cmd']) + ' / ' + str(r['above_dlv']):>20s} "
                       f"{1000 * r['latency_s']:10.2f} {r['seconds']:6.1f}"
