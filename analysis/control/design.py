@@ -207,7 +207,7 @@ def pi_tuning(plant: SecondOrderPlant, delay_s: float, lambda_s: float | None = 
 
 
 def simulate_tracking(controller, plant: SecondOrderPlant, target: np.ndarray, Ts_s: float,
-                      sub: int = 5) -> np.ndarray:
+                      sub: int = 5, target_id: str = "") -> np.ndarray:
     """The twin in closed loop with ``controller`` on ``target`` (held per update): the
     mean force over each update. The plant is integrated exactly (ZOH) on ``sub`` steps
     per update, delayed by its dead time; the controller's queue as on the rig."""
@@ -219,7 +219,7 @@ def simulate_tracking(controller, plant: SecondOrderPlant, target: np.ndarray, T
     nL = round(plant.L_s / h)
     queue = controller.queue
     v = [0.0] * (M + queue + 1)
-    first = controller.start(np.asarray(target, dtype=float))
+    first = controller.start(np.asarray(target, dtype=float), target_id)
     for i, u in enumerate(first):
         v[i] = float(u) - 0.5
     hist = [0.0] * (nL + 1)      # ring buffer of fine-step inputs for the dead time

@@ -126,6 +126,27 @@ def test_twin_controller_tracks_the_twin_at_half_the_relay_pid_error(twin):
             assert twin_err < 2.0
 
 
+def test_trial_to_trial_learning_reduces_the_error_of_a_repeated_target():
+    true = SecondOrderPlant(3.0, 20.0, 0.5, L_s=0.02)
+    wrong = SecondOrderPlant(4.2, 26.0, 0.5, L_s=0.02)    # the twin is 40 % off in Kp
+    Ts = 0.005
+    r = default_targets(-1.0, 1.0)[-1].samples(1 / Ts)     # the 2 Hz sine
+
+    def errors(gain):
+        c = TwinController(TwinControllerSettings(wrong, 0.05, 0.05, 0.02, gain), Ts, 2)
+        out = []
+        for _ in range(4):
+            y = simulate_tracking(c, true, r, Ts, target_id="sine")
+            out.append(rmse_pct_of_range(y, r, 200))
+            c.finish(y)
+        return out
+
+    learned, fixed = errors(0.5), errors(0.0)
+    assert fixed[0] == pytest.approx(fixed[-1], rel=1e-9)   # without learning: no change
+    assert learned[0] == pytest.approx(fixed[0], rel=1e-9)
+    assert learned[-1] < 0.5 * learned[0]
+
+
 def test_anti_windup_holds_the_integrator_while_saturated():
     p = SecondOrderPlant(2.0, 20.0, 0.5)
     s = TwinControllerSettings(p, Kc=0.2, Ti_s=0.05, smoothing_s=0.01)
