@@ -305,9 +305,13 @@ def design_controller(twin, *, sE: float | None = None, update_Hz: float = UPDAT
     if lambda_s is not None and not (math.isfinite(lambda_s) and 0.005 <= lambda_s <= 5.0):
         raise ControlDesignError(f"lambda {lambda_s!r} s must be within 0.005-5 s")
     grid = np.linspace(lo, hi, max(2, int(levels))) if hi > lo else np.array([lo])
-    if sE is None:
-        wn = np.array([float(twin.parameters_at(s)[1]) for s in grid])
-        sE = float(grid[int(np.argmax(wn))])
+    if sE is None:   # the fastest response among the levels that keep currents <= Imax
+        usable = grid[grid <= 1.0]
+        if usable.size == 0:
+            raise ControlDesignError(f"the twin's tested range {lo:g}-{hi:g} lies above sE = 1 "
+                                     "(a muscle would exceed its Imax); give --sE <= 1")
+        wn = np.array([float(twin.parameters_at(s)[1]) for s in usable])
+        sE = float(usable[int(np.argmax(wn))])
     elif not (math.isfinite(sE) and lo <= sE <= hi):
         raise ControlDesignError(f"sE {sE!r} is outside the twin's tested range "
                                  f"{lo:g}-{hi:g}")
