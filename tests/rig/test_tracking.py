@@ -29,7 +29,7 @@ SHORT_TARGETS = [Target("sine-1Hz", "sine", {"mean_N": 0.0, "amplitude_N": 1.5, 
 @pytest.fixture(scope="module")
 def design():
     d = design_controller(Twin.from_dict(default_participant().to_twin()), levels=2)
-    d.baseline["relay_s"] = 3.0
+    d.baseline["relay_s"] = 2.0
     return d
 
 

@@ -48,7 +48,7 @@ participant = "LAB01"
 sE_levels = [0.3, 0.45, 0.6, 0.75, 0.9]
 repeats = 1
 steady_s = 1.0
-chirp_s = 3.0
+chirp_s = 2.0
 [calibration]
 hold_s = 0.3
 baseline_s = 0.2
