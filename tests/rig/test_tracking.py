@@ -68,6 +68,8 @@ def test_tracking_session_records_validates_and_the_twin_wins(tmp_path, design):
         # the loop: one update queued ahead, 5 ms updates: 5 ms + one sample
         assert stream["latency_median_s"] == pytest.approx(0.005 + 1 / 2000, abs=1e-9)
         assert stream["late_updates"] == 0 and stream["n_updates"] > 0
+        # the stream's ceilings are the calibration's limits at the controller's sE
+        assert stream["ceiling_ext_mA"] <= ce + 1e-12 and stream["ceiling_flex_mA"] <= cf + 1e-12
         assert t.I_ext_mA.max() <= min(ce, stream["ceiling_ext_mA"]) + 1e-12
         assert t.I_flex_mA.max() <= min(cf, stream["ceiling_flex_mA"]) + 1e-12
         if t.extra_attrs["controller"] != "relay":
