@@ -88,6 +88,7 @@ with add-on effects (``sim_backends.participant``), or MyoSuite's MuJoCo elbow u
 
 PLUGIN_MODEL_PATTERN = r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*"
 """A lab's own simulated participant, ``package.module:factory`` (``sim_backends.plugin``)."""
+
 DEFAULT_SOURCE = "built-in defaults"
 
 __all__ = ["Config", "ConfigError", "ProtocolConfig", "CalibrationConfig", "InterlockConfig",
