@@ -41,6 +41,7 @@ COMMAND_MODULES = (
     "nmsid.cli.export",    # export nwb
     "nmsid.cli.study",      # study
     "nmsid.cli.stimulation",  # stimulation
+    "nmsid.cli.control",  # control design, control report
 )
 
 #: errno values of file-system errors that are the user's to fix (a path that does not

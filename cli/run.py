@@ -55,10 +55,11 @@ def register(sub) -> None:
     p.add_argument("--realtime", action="store_true",
                    help="sim: pace the simulation in real time (default: as fast as possible)")
     p.add_argument("--hw-config", metavar="FILE", help="hw: the rig's hardware configuration")
-    p.add_argument("--participant-model", choices=("template", "musculoskeletal"),
+    p.add_argument("--participant-model", metavar="MODEL",
                    help="sim: the virtual participant: the paper's second-order model "
-                        "(template, default) or MyoSuite's MuJoCo elbow under FES "
-                        "(musculoskeletal; needs the 'mujoco' extra); overrides the "
+                        "(template, default), MyoSuite's MuJoCo elbow under FES "
+                        "(musculoskeletal; needs the 'mujoco' extra) or a lab's own model "
+                        "package.module:factory (docs/control.md); overrides the "
                         "config's [participant] model")
     p.add_argument("--sim-seed", type=_seed, metavar="N",
                    help="sim: seed of the virtual participant and its noise (default: from "
@@ -70,6 +71,14 @@ def register(sub) -> None:
     p.add_argument("--allow-weakened-safety", action="store_true",
                    help="confirm settings that weaken the interlock (a trip_on_* = false, a "
                         "force_limit_N above the sensor's range); recorded in the session")
+    p.add_argument("--track", metavar="CONTROLLER.json",
+                   help="run force-tracking trials instead of the identification schedule: "
+                        "the controller of nmsid control design against a relay-tuned PID "
+                        "baseline, interleaved (docs/control.md); needs a stimulator that "
+                        "streams (the simulated one does)")
+    p.add_argument("--target", metavar="FILE.csv",
+                   help="with --track: track this target (columns t_s,force_N) instead of "
+                        "the default steps, ramp and sines")
     p.add_argument("--no-identify", action="store_true",
                    help="do not run the identification after the schedule")
     p.add_argument("--quiet", action="store_true", help="no progress output")

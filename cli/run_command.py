@@ -25,6 +25,7 @@ from nmsid.rig.engine import Engine, TripPolicy
 from nmsid.rig.glitch_prompt import glitch_confirmation
 from nmsid.rig.session_log import journal_dir, recover
 from nmsid.rig.session_signals import SessionSignals, signal_name
+from nmsid.rig.tracking import SESSION_KIND, tracking_engine
 from nmsid.sim_backends import make_sim_rig
 from nmsid.sim_backends.participant_models import participant_for_model
 
@@ -48,6 +49,7 @@ def run(args) -> int:
         raise UsageError("--resume continues a session with the configuration stored in its "
                          "file; do not give --config, --participant, --participant-model or "
                          "--seed with it")
+    track = tracking_engine(args)   # --track / --target: checked before any device
     if args.realtime and args.backend != "sim":
         raise UsageError("--realtime applies to --backend sim (hardware is always real time)")
     if args.resume:
@@ -71,6 +73,9 @@ def run(args) -> int:
                                   f"({journal_dir(path)}) is here; continue it with "
                                   f"--resume {path}, or give another --out")
     stored = _stored_attrs(path) if args.resume else {}
+    if stored.get("session_kind") == SESSION_KIND:
+        raise UsageError(f"{path}: a tracking session cannot be resumed; start a new one "
+                         "with --track (its completed trials stay in the file)")
     sim_seed = None
     if args.backend == "sim":
         sim_seed = (args.sim_seed if args.sim_seed is not None else
@@ -93,7 +98,7 @@ def run(args) -> int:
         devices = _make_devices(args, config, sim_seed)
         progress = _Progress(quiet=args.quiet)
         try:
-            engine = Engine(config, devices, path, resume=bool(args.resume),
+            engine = (track or Engine)(config, devices, path, resume=bool(args.resume),
                             observer=progress, trip_policy=TripPolicy.END_SESSION,
                             on_device_glitch=glitch_confirmation(
                                 getattr(args, "resume_after_reconnect", False)),
@@ -138,7 +143,7 @@ def run(args) -> int:
     if s.n_pending or s.n_aborted:
         print(f"  continue with: nmsid run --backend {args.backend} --resume {s.path}",
               flush=True)
-    if not args.no_identify and s.n_completed:
+    if not args.no_identify and s.n_completed and track is None:
         _identify(s.path)
     return 0 if s.ended_by == "schedule complete" else 1
 

@@ -85,6 +85,10 @@ PARTICIPANT_MODELS = ("template", "musculoskeletal")
 """Simulated participants ``[participant] model`` can name: the paper's second-order model
 with add-on effects (``sim_backends.participant``), or MyoSuite's MuJoCo elbow under FES
 (``sim_backends.msk_participant``). Hardware sessions ignore it."""
+
+PLUGIN_MODEL_PATTERN = r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*"
+"""A lab's own simulated participant, ``package.module:factory`` (``sim_backends.plugin``)."""
+
 DEFAULT_SOURCE = "built-in defaults"
 
 __all__ = ["Config", "ConfigError", "ProtocolConfig", "CalibrationConfig", "InterlockConfig",
@@ -317,9 +321,11 @@ class Config:
 
     @model_validator(mode="after")
     def _model_known(self):
-        if self.participant_model not in PARTICIPANT_MODELS:
+        if self.participant_model not in PARTICIPANT_MODELS and not re.fullmatch(
+                PLUGIN_MODEL_PATTERN, self.participant_model):
             raise SettingProblem("participant.model", self.participant_model,
-                                 "one of " + ", ".join(repr(m) for m in PARTICIPANT_MODELS))
+                                 "one of " + ", ".join(repr(m) for m in PARTICIPANT_MODELS)
+                                 + " or a plug-in 'package.module:factory'")
         return self
 
     # -- conversion ---------------------------------------------------------------

@@ -249,9 +249,10 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
                                         if round(q.sE, 9) == round(pt.sE, 9))}
 
     # -- stimulation of one block (a calibration step or a trial) ------------------------
-    def _stimulate(self, checked, *, n: int, on_samples=None, watch_commands: bool = False
-                   ) -> BlockResult:
-        """Run one block (:func:`nmsid.rig.stimulation.run_block`); operator commands stop it."""
+    def _stimulate(self, checked, *, n: int, on_samples=None, watch_commands: bool = False,
+                   stream=None) -> BlockResult:
+        """Run one block (:func:`nmsid.rig.stimulation.run_block`); operator commands stop it.
+        ``stream``: a closed-loop block (:mod:`nmsid.rig.tracking`)."""
 
         def should_stop() -> str:
             self._poll()
@@ -267,7 +268,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
             return ""
 
         return run_block(self.devices, self.interlock, checked, n, on_samples=on_samples,
-                         should_stop=should_stop)
+                         should_stop=should_stop, stream=stream)
 
     def _checked(self, I_ext_mA, I_flex_mA):
         c = self.config.calibration

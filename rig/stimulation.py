@@ -45,7 +45,8 @@ def _reason(trip) -> str:
 
 def run_block(devices, interlock: Interlock, checked, n: int, *,
               on_samples: Callable[..., None] | None = None,
-              should_stop: Callable[[], str] | None = None) -> BlockResult:
+              should_stop: Callable[[], str] | None = None,
+              stream=None) -> BlockResult:
     """Stimulate ``checked`` and record ``n`` samples of force.
 
     Parameters
@@ -60,6 +61,12 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
         ``sync`` are None when the acquisition does not record them.
     should_stop : callable() -> str, optional
         Asked after every chunk; a non-empty answer stops the block with that reason.
+    stream : optional
+        Closed loop (:mod:`nmsid.rig.tracking`): ``checked`` is None and the stimulation
+        is streamed: ``stream.open(stimulator)`` opens and prefills the stream instead
+        of loading a waveform, ``stream.update(received, force_N)`` writes the next
+        updates after each chunk's samples are stored (same interlock checks, same
+        stop), ``stream.close(stimulator)`` runs after the output went to zero.
 
     Returns
     -------
@@ -70,7 +77,10 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
     wrench = sync = None
     received = 0
     try:
-        stim.load(checked)
+        if stream is None:
+            stim.load(checked)
+        else:
+            stream.open(stim)
         stim.arm()
     except Exception as exc:  # a driver fault before any output: trip, nothing started
         trip = interlock.trip(interlock.stim.name, f"stimulator refused the waveform "
@@ -125,6 +135,8 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
                         on_samples(lo, hi, force[lo:hi],
                                    None if wrench is None else wrench[lo:hi],
                                    None if sync is None else sync[lo:hi])
+                    if stream is not None and trip is None:
+                        stream.update(received, force)
                 if trip is not None:
                     reason = _reason(trip)
                     break
@@ -160,6 +172,11 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
         except Exception:
             log.exception("stimulator.stop_now() failed")
         interlock.stall.stop()
+        if stream is not None:
+            try:
+                stream.close(stim)
+            except Exception:
+                log.exception("closing the stimulation stream failed")
         try:
             acq.stop()
         except Exception:

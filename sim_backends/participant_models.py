@@ -3,7 +3,8 @@
 ``template``: the paper's second-order model (:func:`sim_backends.participant.
 default_participant`); ``musculoskeletal``: MyoSuite's MuJoCo elbow under FES
 (:func:`nmsid.sim_backends.msk_participant.default_msk_participant`, needs the ``mujoco``
-extra). Both take the session's simulation seed for their sensor noise.
+extra). Both take the session's simulation seed for their sensor noise. A lab's own model:
+``package.module:factory`` (:mod:`nmsid.sim_backends.plugin`).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from nmsid.protocols.config import PARTICIPANT_MODELS
 from nmsid.sim_backends.errors import SimConfigError
 from nmsid.sim_backends.msk_participant import default_msk_participant
 from nmsid.sim_backends.participant import default_participant
+from nmsid.sim_backends.plugin import plugin_participant
 
 
 def participant_for_model(model: str, seed: int = 0):
@@ -26,5 +28,7 @@ def participant_for_model(model: str, seed: int = 0):
         return default_participant(seed=int(seed))
     if model == "musculoskeletal":
         return default_msk_participant(seed=int(seed))
+    if ":" in str(model):   # a lab's plug-in, package.module:factory
+        return plugin_participant(model, seed=int(seed))
     raise SimConfigError(f"participant model {model!r} is unknown; valid: "
                          + ", ".join(PARTICIPANT_MODELS))

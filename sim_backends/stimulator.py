@@ -12,6 +12,7 @@ from nmsid.drivers.interfaces import (CheckedWaveform, StimulatorCapabilities, S
 from nmsid.sim_backends.errors import (DeviceStateError, SimConfigError, StimulatorDisconnected,
                                        StimulatorFault)
 from nmsid.sim_backends.faults import FaultKind
+from nmsid.sim_backends.stim_stream import StreamingStimulator
 from nmsid.sim_backends.world import SimWorld
 
 log = logging.getLogger(__name__)
@@ -22,8 +23,11 @@ SIM_STG_CAPABILITIES = StimulatorCapabilities(
 """What the simulated stimulator reports: 2 channels, 0-16 mA, 1 uA, 50 kHz (STG4002-like)."""
 
 
-class SimStimulator:
+class SimStimulator(StreamingStimulator):
     """A current stimulator whose output drives the virtual participant.
+
+    It is also a :class:`~nmsid.drivers.interfaces.HostStreamedStimulator` (closed loop:
+    :mod:`nmsid.sim_backends.stim_stream`).
 
     Loading checks the waveform against the device (a :class:`CheckedWaveform` only, every
     sample within the device's range, envelope rate and carrier renderable) and quantises
@@ -64,6 +68,7 @@ class SimStimulator:
             if state is StimulatorState.RUNNING:
                 raise DeviceStateError("load() while the stimulator is running; stop_now() "
                                        "or wait for the waveform to end")
+            self._restore_stream_chunks()   # a stream left open ends here
             caps = self._caps
             for name, arr in (("I_ext_mA", waveform.I_ext_mA), ("I_flex_mA", waveform.I_flex_mA)):
                 if arr.size and arr.max() > caps.max_current_mA:
@@ -108,6 +113,7 @@ class SimStimulator:
             self._loaded = None
             self._w.start_run(q_e, q_f, fs, is_trial)
             self._state = StimulatorState.RUNNING
+            self._stream_started()
 
     def stop_now(self) -> None:
         try:
