@@ -236,15 +236,27 @@ def check_assembly(dll_path: str | Path, surface: tuple[Member, ...] = SURFACE,
         The file is missing, pythonnet or its .NET runtime is missing, or the metadata
         could not be read (the line says which).
     """
+    listing = read_listing(dll_path, sorted({m.type_name for m in surface}), timeout_s)
+    return AssemblyCheck(str(dll_path), tuple(compare(listing, surface)), len(surface))
+
+
+def read_listing(dll_path: str | Path, type_names: list[str],
+                 timeout_s: float = 120.0) -> dict:
+    """The members of ``type_names`` in the assembly (see :func:`compare`), read by
+    reflection in a subprocess.
+
+    Raises
+    ------
+    AssemblyUnreadable
+    """
     path = Path(dll_path)
     if not path.is_file():
         raise AssemblyUnreadable(f"{path}: no such file; set stimulator.dll_path in the "
                                  "hardware config to McsUsbNet.dll")
-    types = sorted({m.type_name for m in surface})
-    cmd = [sys.executable, "-m", "nmsid.drivers.mcs_surface", str(path), *types]
+    cmd = [sys.executable, "-m", "nmsid.drivers.mcs_surface", str(path), *type_names]
     try:
-        done = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s,
-                              encoding="utf-8", errors="replace")
+        done = subprocess.run(cmd, check=False, capture_output=True, text=True,
+                              timeout=timeout_s, encoding="utf-8", errors="replace")
     except subprocess.TimeoutExpired:
         raise AssemblyUnreadable(f"{path}: reading its metadata took more than "
                                  f"{timeout_s:g} s") from None
@@ -257,7 +269,7 @@ def check_assembly(dll_path: str | Path, surface: tuple[Member, ...] = SURFACE,
     listing = json.loads(lines[-1])
     if "error" in listing:
         raise AssemblyUnreadable(f"{path}: {listing['error']}; " + _runtime_hint())
-    return AssemblyCheck(str(path), tuple(compare(listing, surface)), len(surface))
+    return listing
 
 
 def assembly_report(dll_path: str | Path | None,
