@@ -105,7 +105,7 @@ def _check_acquisition(cfg, stack, clock, args) -> str:
         info = getattr(acq, "info", None)
         if info is not None:
             print(f"  sensor: {info.model}, serial {info.serial}, firmware {info.firmware}"
-                  + ("" if info.rate_stated else " (no rate stated: nominal rate used)"))
+                  + ("" if info.rate_stated else " (no rate stated: the rate is measured)"))
         return _read_samples(acq, args.samples)
     finally:
         acq.close()
