@@ -18,7 +18,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, model_validator
 
-from nmsid.drivers.analog_force import AXES, AnalogCalibration
+from nmsid.drivers.analog_force import AXES, SENSOR_SPAN_V, AnalogCalibration
 from nmsid.drivers.errors import HardwareConfigError, hw_config_error
 from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
                                            validate_settings)
@@ -169,6 +169,9 @@ class SensorSettings:
     sync_channel: StrictInt = bounded(-1, ge=-1, le=63, why=(
         "the A/D channel of the stimulator's sync output (0 .. 63); required for analog "
         "chains"))
+    output_span_V: tuple[StrictFloat, StrictFloat] = SENSOR_SPAN_V
+    """The sensor's analog output span, over-range at its edges (Leptrino manual 4.1:
+    0 .. 3.3 V); set another span only if an amplifier sits between sensor and A/D."""
 
     @model_validator(mode="after")
     def _direction(self):
@@ -342,7 +345,7 @@ def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
                 channels=dict(se.channels), rated=dict(se.rated),
                 rated_output_V=dict(se.rated_output_V), offset_V=dict(se.offset_V),
                 matrix=se.matrix, extension_direction=se.extension_direction,
-                sync_channel=se.sync_channel)
+                sync_channel=se.sync_channel, sensor_span_V=tuple(se.output_span_V))
         except (ValueError, TypeError) as exc:      # a rule of the driver's own
             raise HardwareConfigError(f"{source}: [sensor]: {exc}") from None
     return HardwareConfig(source=source, name=f.rig.name, fake=f.rig.fake,

@@ -128,6 +128,8 @@ class NidaqAcquisition:
             raise HardwareConfigError("acquisition.nidaq.reads_per_s must be > 0, got "
                                       f"{reads_per_s!r}")
         self.cal = calibration
+        for warning in calibration.implausible():
+            log.warning("%s", warning)
         self.device = device
         self.start_trigger = start_trigger
         self.terminal_config = terminal_config

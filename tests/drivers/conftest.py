@@ -103,8 +103,10 @@ def _write_hw_config(path, *, kind="caio", speed=10.0, fake=True, estop="serial"
         lines += ["[sensor]", "sync_channel = 6", "[sensor.channels]",
                   *[f"{a} = {i}" for i, a in enumerate(("Fx", "Fy", "Fz", "Mx", "My", "Mz"))],
                   "[sensor.rated]", "Fx = 500.0", "Fy = 500.0", "Fz = 1000.0", "Mx = 10.0",
-                  "My = 10.0", "Mz = 10.0", "[sensor.rated_output_V]",
-                  *[f"{a} = 10.0" for a in ("Fx", "Fy", "Fz", "Mx", "My", "Mz")]]
+                  "My = 10.0", "Mz = 10.0", "[sensor.rated_output_V]",   # manual 4.1
+                  *[f"{a} = 1.0" for a in ("Fx", "Fy", "Fz", "Mx", "My", "Mz")],
+                  "[sensor.offset_V]",
+                  *[f"{a} = 1.5" for a in ("Fx", "Fy", "Fz", "Mx", "My", "Mz")]]
     if estop == "serial":
         lines += ["[estop]", 'kind = "serial"', 'port = "COM7"', 'line = "CTS"']
     elif estop == "nidaq":
