@@ -100,7 +100,8 @@ class NidaqSettings:
     """``[acquisition.nidaq]``: an NI DAQ device."""
 
     device: StrictStr = "Dev1"
-    start_trigger: StrictStr = "/Dev1/PFI0"
+    start_trigger: StrictStr = ""
+    """The sync's terminal; "" = the device's own ``/<device>/PFI0`` (drivers.nidaq)."""
     terminal_config: Literal["DEFAULT", "RSE", "NRSE", "DIFF", "PSEUDO_DIFF"] = "DIFF"
     range_V: StrictFloat = bounded(10.0, gt=0.0, le=100.0, why="an input range of NI DAQs")
     reads_per_s: StrictFloat = bounded(10.0, ge=1.0, le=100.0, why="expected 1 .. 100")
@@ -213,6 +214,16 @@ class HardwareFile:
     acquisition: AcquisitionSettings = Field(default_factory=AcquisitionSettings)
     sensor: SensorSettings = Field(default_factory=SensorSettings)
     estop: EStopConfig = Field(default_factory=EStopConfig)
+
+    @model_validator(mode="after")
+    def _estop_pin(self):
+        a, e = self.acquisition, self.estop
+        if a.kind == "nidaq" and e.kind == "nidaq":
+            from nmsid.drivers.nidaq import shared_pin  # noqa: PLC0415 (vendor-free helper)
+            problem = shared_pin(e.line, a.nidaq.start_trigger or f"/{a.nidaq.device}/PFI0")
+            if problem:
+                raise SettingProblem("estop.line", e.line, problem)
+        return self
 
     @model_validator(mode="after")
     def _wiring(self):

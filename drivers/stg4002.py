@@ -489,6 +489,7 @@ class Stg4002Stimulator(StgStatusTracking):
         try:
             self._poll = None
             self._seen_running = False
+            self._foreign_start = False
             self._generation += 1
             # host times bracketing the start: the device starts between them (plus its
             # start delay), so an early end is judged from the first, a late one from the

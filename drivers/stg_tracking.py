@@ -36,9 +36,13 @@ class StgStatusTracking:
         self._poll = ds
         if ds.trigger(0) in (TriggerStatus.RUNNING, TriggerStatus.FINISHED):
             self._seen_running = True  # a short Running may fall between two queries
-        if self._state is not StimulatorState.RUNNING and any(
+        # Running reported while no trial of ours can be under way (a trial is loaded or
+        # nothing is): started by the front panel or Trigger In; stopped at the next
+        # status() (not on the library's thread). ARMED / RUNNING / STOPPED are left to the
+        # query in _check_between_trials (a start or a stop may be in flight).
+        if self._state in (StimulatorState.IDLE, StimulatorState.LOADED) and any(
                 t is TriggerStatus.RUNNING for t in ds.triggers):
-            self._foreign_start = True  # stopped at the next status() (not on this thread)
+            self._foreign_start = True
 
     def _query_locked(self) -> DeviceStatus | None:
         """``QueryTriggerstatus()`` decoded, or None if this McsUsbNet lacks it."""
