@@ -43,7 +43,7 @@ def _hw_config(tmp_path, dll):
 
 
 def _probe(*args):
-    return subprocess.run([sys.executable, "-m", "nmsid", "probe", *args],
+    return subprocess.run([sys.executable, "-m", "nmsid", "probe", *args], check=False,
                           capture_output=True, text=True, timeout=180)
 
 
@@ -54,14 +54,22 @@ def test_probe_check_assembly_on_the_real_5_3_15_assembly_finds_every_member(tmp
     assert f"all {len(SURFACE)} members" in done.stdout
 
 
+@pytest.fixture(scope="module")
+def real_listing():
+    """The real 5.3.15 assembly's members (one reflection subprocess for the module)."""
+    types_ = sorted({m.type_name for m in SURFACE} | {"CStg200xDownloadNet"})
+    return mcs_surface.read_listing(REAL_DLL, types_)
+
+
 @needs_mono
-def test_an_assembly_lacking_a_member_fails_with_a_line_naming_it():
+def test_an_assembly_lacking_a_member_fails_with_a_line_naming_it(real_listing, monkeypatch):
     # a doctored surface: what an older assembly without the save stop would lack, and
     # the download-mode capacity calls the real assembly does not have (vendor README)
     doctored = SURFACE + (
         Member("CStg200xDownloadNet", "method", "SetCapacity",
                ("System.UInt32[]", "System.UInt32[]"), "download-mode capacity"),
         Member("CStg200xDownloadNet", "method", "SendStop", ("System.UInt64",), "x"))
+    monkeypatch.setattr(mcs_surface, "read_listing", lambda *a, **k: real_listing)
     status, lines = mcs_surface.assembly_report(REAL_DLL, doctored)
     assert status == 1
     assert any("missing: Mcs.Usb.CStg200xDownloadNet.SetCapacity(System.UInt32[], "
@@ -110,6 +118,20 @@ def test_compare_names_a_member_the_stand_in_assembly_lacks():
 
 
 @needs_mono
-def test_surface_is_exactly_what_the_real_assembly_offers():
-    result = mcs_surface.check_assembly(REAL_DLL)
-    assert result.ok, result.problems
+def test_surface_is_exactly_what_the_real_assembly_offers(real_listing):
+    assert compare(real_listing) == []
+
+
+@needs_mono
+def test_the_fake_mcsusbnet_offers_nothing_the_real_assembly_lacks(real_listing):
+    from nmsid.drivers.fake_hardware import load_fake
+    fake = load_fake("fake_mcs_usb")
+    listing = real_listing
+    real = {name for name, _args in listing["CStg200xDownloadNet"]["methods"]}
+    offered = {n for n in vars(fake.CStg200xDownloadNet) if n[:1].isupper()}
+    assert offered - real == set()
+    for enum_name in ("RetriggerActionEnumNet", "Stg200xSegmentFlagsEnumNet"):
+        names = {m.name for m in getattr(fake, enum_name)}
+        assert names == set(listing[enum_name]["enum"])
+    assert {"channeldata_current", "syncoutdata"} <= set(listing["STG_DestinationEnumNet"]
+                                                        ["enum"])
