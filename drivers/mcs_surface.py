@@ -146,6 +146,13 @@ SURFACE: tuple[Member, ...] = (
     _m(ST, "StopLoop", why="stop streaming"),
     _m(ST, "SendStart", U32, why="start trigger"),
     _m(ST, "SendStop", U32, why="immediate stop"),
+    _m(ST, "GetNumberOfTriggerInputs", why="trigger arrays"),
+    _m(ST, "GetNumberOfSyncoutChannels", why="sync output check"),
+    _m(ST, "GetTotalMemory", why="STG ring buffer layout"),
+    _m(ST, "SetCapacity", U32A, why="STG ring buffer per trigger (streaming only)"),
+    _m(ST, "DisableContinousMode", why="stop, not zero-fill, when the data runs out"),
+    _m(ST, "EnqueueSyncout", U32, "System.UInt16[]", why="sync high while streaming"),
+    _m(ST, "GetSyncoutQueueSpace", U32, why="free sync queue space"),
 )
 """Everything the STG drivers call in McsUsbNet (see the module docstring)."""
 

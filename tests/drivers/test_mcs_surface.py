@@ -135,3 +135,12 @@ def test_the_fake_mcsusbnet_offers_nothing_the_real_assembly_lacks(real_listing)
         assert names == set(listing[enum_name]["enum"])
     assert {"channeldata_current", "syncoutdata"} <= set(listing["STG_DestinationEnumNet"]
                                                         ["enum"])
+
+
+@needs_mono
+def test_the_fake_streaming_class_offers_nothing_the_real_assembly_lacks(real_listing):
+    from nmsid.drivers.fake_hardware import load_fake
+    fake = load_fake("fake_stg_streaming").CStg200xStreamingNet
+    real = {name for name, _args in real_listing["CStg200xStreamingNet"]["methods"]}
+    offered = {n for n in vars(fake) if n[:1].isupper()}
+    assert offered and offered - real == set()
