@@ -212,7 +212,7 @@ class StgStreamingStimulator:
             if not 0 <= c <= self.rig_ceiling_mA[ch]:
                 raise DeviceRangeError(f"stream ceiling {c:g} mA on channel {ch} exceeds the "
                                        f"rig ceiling {self.rig_ceiling_mA[ch]:g} mA")
-        P = int(round(self.output_rate_Hz / update_Hz))
+        P = round(self.output_rate_Hz / update_Hz)
         if P < 4 or abs(self.output_rate_Hz / P - update_Hz) > 1e-6 * update_Hz:
             raise StimulatorSettingError(
                 f"carrier / update rate {update_Hz:g} Hz must divide the output rate "

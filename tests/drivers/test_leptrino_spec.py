@@ -186,8 +186,8 @@ def test_the_emulator_needs_no_pty_on_windows(monkeypatch):
 
 
 def test_the_pty_transport_imports_tty_only_when_used():
-    src = (load_fake("leptrino_emulator").__file__)
-    text = open(src, encoding="utf-8").read()
+    from pathlib import Path
+    text = Path(load_fake("leptrino_emulator").__file__).read_text(encoding="utf-8")
     top = [ln for ln in text.splitlines() if ln.startswith(("import ", "from "))]
     assert not any(m in ln for ln in top for m in ("tty", "pty", "termios", "select"))
 
