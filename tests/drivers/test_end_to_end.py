@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from nmsid.drivers.fake_hardware import load_fake
 from nmsid.drivers.hardware import make_hw_rig
@@ -195,3 +196,34 @@ def test_sensor_unplugged_mid_trial_aborts_it_and_stops_output(tmp_path, write_h
     assert 0 < len(s.trials[0].force_N) < 2400  # the samples before the fault are kept
     stg = load_fake("fake_mcs_usb").registry().devices[-1]
     assert stg.stopped_at is not None
+
+
+def test_session_time_axis_follows_a_leptrino_streaming_at_1000_hz(tmp_path, write_hw_config,
+                                                                   monkeypatch):
+    # issue 25 done-when: a sensor streaming at 1000 Hz, stating no rate, in a 1200 Hz
+    # session: the recorded force must follow the fake participant's model in time (the
+    # old driver stamped record k at k / 1200 s: 20 % too fast a time axis)
+    emu_mod = load_fake("leptrino_emulator")
+
+    class Sensor1000(emu_mod.LeptrinoEmulator):
+        def __init__(self, **kw):
+            super().__init__(**{**kw, "rate_Hz": 1000.0, "rate_text": None})
+    monkeypatch.setattr(emu_mod, "LeptrinoEmulator", Sensor1000)
+    devices = make_hw_rig(write_hw_config(tmp_path / "hw.toml", kind="leptrino", speed=1.0,
+                                          fs_Hz=1200.0))
+    cfg = config_from_dict({
+        "participant": "HW05", "seed": 1, "interlock": RELAXED_INTERLOCK,
+        "protocol": {"sE_levels": [0.7], "repeats": 1, "steady_s": 0.5, "chirp_s": 1.0,
+                     "rest_s": 0.0, "fs_Hz": 1200.0},
+        "calibration": {"manual": {"Iemin_mA": 2.5, "Iemax_mA": 7.0, "Ifmin_mA": 2.5,
+                                   "Ifmax_mA": 7.0}}})
+    path = tmp_path / "s.h5"
+    try:
+        assert devices.acquisition._inner.measured_rate_Hz is None
+        summary = Engine(cfg, devices, path, trip_policy=TripPolicy.END_SESSION).run()
+        measured = devices.acquisition._inner.measured_rate_Hz
+    finally:
+        devices.close()
+    assert measured == pytest.approx(1000.0, rel=0.01)
+    assert summary.n_completed == 1
+    check_session(path, 1, fs=1200.0)
