@@ -321,6 +321,27 @@ class LeptrinoSensor:
         self.request(Command.STOP_CONTINUOUS)
 
 
+def fit_record_rate(t_s: np.ndarray, counts: np.ndarray, rounds: int = 3) -> float:
+    """Records per second from (arrival time, cumulative count) pairs.
+
+    USB and host-scheduling delays only ever make a batch arrive LATE, so the points that
+    arrived earliest for their count lie closest to the true line: a least-squares fit,
+    then ``rounds`` refits on the half of the points that arrived earliest relative to the
+    previous line (the lower envelope of the delays).
+    """
+    keep = np.ones(len(t_s), dtype=bool)
+    slope, icpt = np.polyfit(t_s, counts, 1)
+    for _ in range(rounds):
+        resid = counts - (slope * t_s + icpt)      # early arrival = more records than the line
+        cut = np.median(resid[keep])
+        new = keep & (resid >= cut)
+        if new.sum() < 3:
+            break
+        keep = new
+        slope, icpt = np.polyfit(t_s[keep], counts[keep], 1)
+    return float(slope)
+
+
 class LeptrinoAcquisition:
     """:class:`~nmsid.drivers.interfaces.ForceAcquisition` over a Leptrino USB sensor."""
 
@@ -435,8 +456,9 @@ class LeptrinoAcquisition:
                         self._rate_Hz, fs_Hz)
         return self._fs_out
 
-    def measure_rate(self, seconds: float = RATE_MEASURE_S) -> float:
-        """Stream for ``seconds`` and measure the record rate (Hz).
+    def measure_rate(self, seconds: float | None = None) -> float:
+        """Stream for ``seconds`` (default :data:`RATE_MEASURE_S`) and measure the record
+        rate (Hz).
 
         The cumulative record count is regressed on the host time at which each batch
         arrived (least squares), so USB latency jitter averages out; the first batch is
@@ -447,6 +469,8 @@ class LeptrinoAcquisition:
         ProtocolError
             Fewer than :data:`MIN_RATE_RECORDS` records arrived.
         """
+        if seconds is None:
+            seconds = RATE_MEASURE_S
         self.sensor.start_continuous()
         t0 = time.monotonic()
         times, counts, n = [], [], 0
@@ -466,9 +490,7 @@ class LeptrinoAcquisition:
             raise ProtocolError(f"Leptrino {self.sensor.port!r}: only {n} records in "
                                 f"{seconds:g} s while streaming; the sensor is not "
                                 "streaming properly")
-        t = np.asarray(times) - times[0]
-        c = np.asarray(counts, dtype=float)
-        slope = float(np.polyfit(t, c, 1)[0])
+        slope = fit_record_rate(np.asarray(times) - times[0], np.asarray(counts, float))
         self.measured_rate_Hz = self._rate_Hz = slope
         info = self.info
         if info is not None and info.rate_stated and abs(slope / info.output_rate_Hz - 1) > 0.02:

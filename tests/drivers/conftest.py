@@ -7,6 +7,20 @@ import pytest
 from nmsid.drivers.fake_hardware import load_fake
 
 
+def pytest_configure(config):
+    config.addinivalue_line("markers", "full_rate_measurement: keep the Leptrino driver's "
+                            "1 s record-rate measurement (tests that check the figure)")
+
+
+@pytest.fixture(autouse=True)
+def _short_rate_measurement(request, monkeypatch):
+    """The Leptrino record rate is measured for 1 s at connect; 0.3 s is enough for tests
+    that do not check the figure (keeps the suite fast). Tests marked
+    ``full_rate_measurement`` keep the driver's 1 s."""
+    if request.node.get_closest_marker("full_rate_measurement") is None:
+        monkeypatch.setattr("nmsid.drivers.leptrino.RATE_MEASURE_S", 0.3)
+
+
 @pytest.fixture
 def leptrino_emulator():
     mod = load_fake("leptrino_emulator")

@@ -102,6 +102,7 @@ def test_session_on_fake_nidaq(tmp_path, write_hw_config):
     check_session(path, 2)
 
 
+@pytest.mark.full_rate_measurement
 def test_session_on_fake_leptrino_usb(tmp_path, write_hw_config):
     devices = make_hw_rig(write_hw_config(tmp_path / "hw.toml", kind="leptrino", speed=1.0,
                                           fs_Hz=1200.0))
@@ -198,6 +199,7 @@ def test_sensor_unplugged_mid_trial_aborts_it_and_stops_output(tmp_path, write_h
     assert stg.stopped_at is not None
 
 
+@pytest.mark.full_rate_measurement
 def test_session_time_axis_follows_a_leptrino_streaming_at_1000_hz(tmp_path, write_hw_config,
                                                                    monkeypatch):
     # issue 25 done-when: a sensor streaming at 1000 Hz, stating no rate, in a 1200 Hz

@@ -41,6 +41,7 @@ def make_acq(emu, **kw):
     return sensor, acq
 
 
+@pytest.mark.full_rate_measurement
 def test_connect_reads_product_info_and_rated_values_and_reports_real_rate(leptrino_emulator):
     emu = leptrino_emulator(rated=RATED)
     sensor, acq = make_acq(emu)

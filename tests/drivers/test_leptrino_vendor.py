@@ -66,6 +66,7 @@ def test_reserved_status_bits_are_masked_off():
                           | Status.EXTERNAL_INPUT)
 
 
+@pytest.mark.full_rate_measurement
 def test_old_firmware_sensor_with_random_reserved_bits_connects_and_reads_force(
         leptrino_emulator, caplog):
     """Done-when of issue 16: no error, no flag, the nominal rate said in the log."""
