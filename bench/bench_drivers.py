@@ -8,7 +8,12 @@ host-side costs of the drivers, not the devices' own latencies:
 * ``stop_now()`` call-to-return time on the fake STG while "running" (p50 / p99 over 200);
 * Leptrino frame decoding throughput (frames/s) against the sensor's 1200 frames/s;
 * the Leptrino driver reading the emulator through a real pseudo-terminal for 2 s:
-  records/s received and records lost.
+  records/s received and records lost;
+* the Leptrino record rate MEASURED at connect (emulator streaming at 1000 Hz, stating no
+  rate), its error against the true rate, and the ratio to the error of the rate the old
+  driver assumed (1200 Hz); target: within 1 %;
+* ``nmsid probe --check-assembly`` on the real McsUsbNet 5.3.15 (needs mono), wall time
+  against a bare ``python -c "import nmsid"`` in the same process tree.
 
     python bench/run.py drivers
 """
@@ -115,6 +120,7 @@ def bench_pty_stream(rows):
     with emu_mod.LeptrinoEmulator() as emu:
         acq = LeptrinoAcquisition(LeptrinoSensor(emu.port))
         acq.connect()
+        acq.configure(1200.0)
         acq.start(None, triggered=False)
         got, lost, t0 = 0, 0, time.monotonic()
         gaps = []
@@ -134,11 +140,50 @@ def bench_pty_stream(rows):
                      f"{statistics.median(gaps) * 1e3:.1f} ms"))
 
 
+def bench_measured_rate(rows, true_Hz=1000.0, repeats=5):
+    emu_mod = load_fake("leptrino_emulator")
+    errors = []
+    with emu_mod.LeptrinoEmulator(rate_Hz=true_Hz) as emu:
+        acq = LeptrinoAcquisition(LeptrinoSensor(emu.port))
+        acq.connect()
+        for _ in range(repeats):
+            errors.append(abs(acq.measure_rate() / true_Hz - 1))
+        acq.close()
+    worst = max(errors)
+    assumed = abs(1200.0 / true_Hz - 1)
+    rows.append(("Leptrino record rate measured (1 s, 1000 Hz emulator)",
+                 f"worst error {worst * 100:.2f} % of {repeats}",
+                 f"{assumed / max(worst, 1e-9):.0f}x smaller than the assumed 1200 Hz's "
+                 f"{assumed * 100:.0f} %; target 1 %: {'met' if worst <= 0.01 else 'missed'}"))
+
+
+def bench_check_assembly(rows):
+    import shutil
+    import subprocess
+    dll = Path("/work/shared/vendor/McsUsbNet-5.3.15/McsUsbNet.dll")
+    if shutil.which("mono") is None or not dll.is_file():
+        rows.append(("probe --check-assembly (real 5.3.15)", "not run",
+                     "needs mono and the vendor assembly"))
+        return
+    from nmsid.drivers.mcs_surface import check_assembly
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "import nmsid.drivers.mcs_surface"], check=True)
+    base = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    result = check_assembly(dll)
+    dt = time.perf_counter() - t0
+    rows.append(("probe --check-assembly (real 5.3.15, mono)",
+                 f"{dt:.2f} s, {result.n_checked - len(result.problems)}/{result.n_checked} "
+                 "found", f"{dt / base:.1f}x a bare interpreter importing nmsid ({base:.2f} s)"))
+
+
 def main() -> None:
     rows: list[tuple[str, str, str]] = []
     bench_render(rows)
     bench_decoder(rows)
     bench_pty_stream(rows)
+    bench_measured_rate(rows)
+    bench_check_assembly(rows)
     w = max(len(r[0]) for r in rows)
     v = max(len(r[1]) for r in rows)
     print(f"{'figure':<{w}}  {'value':<{v}}  note")

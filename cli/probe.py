@@ -32,4 +32,7 @@ def register(sub) -> None:
                    help="dry run: the STG channel wired to the resistor (default extensor)")
     p.add_argument("--dry-run-mA", type=float, default=2.0, metavar="MA",
                    help="dry run: peak current, at most 5 mA (default 2)")
+    p.add_argument("--check-assembly", action="store_true",
+                   help="only check that stimulator.dll_path (McsUsbNet.dll) has every "
+                   "member the STG driver uses, with its argument types; touches no device")
     p.set_defaults(handler="nmsid.cli.probe_command:probe")

@@ -29,6 +29,11 @@ def probe(args) -> int:
     if args.samples < 1:
         raise UsageError(f"--samples must be >= 1, got {args.samples}")
     cfg = load_hw_config(args.hw_config)
+    if getattr(args, "check_assembly", False):
+        from nmsid.drivers.mcs_surface import assembly_report  # noqa: PLC0415
+        status, lines = assembly_report(cfg.stimulator.dll_path)
+        print("\n".join(lines))
+        return status
     dry_cfg = with_monitor(cfg) if getattr(args, "dry_run", False) else None
     cfg, stack, clock = prepare(cfg)
     print(f"hardware configuration {cfg.source}: {cfg.describe()}")
@@ -100,7 +105,7 @@ def _check_acquisition(cfg, stack, clock, args) -> str:
         info = getattr(acq, "info", None)
         if info is not None:
             print(f"  sensor: {info.model}, serial {info.serial}, firmware {info.firmware}"
-                  + ("" if info.rate_stated else " (no rate stated: nominal rate used)"))
+                  + ("" if info.rate_stated else " (no rate stated: the rate is measured)"))
         return _read_samples(acq, args.samples)
     finally:
         acq.close()

@@ -11,7 +11,12 @@ calibration certificate and is written in the hardware configuration:
 
 The endpoint force along the extension axis (extension positive) is
 ``extension_direction . (Fx, Fy, Fz)`` with a unit direction in the sensor frame.
-A sample within ``saturation_fraction`` of the A/D range is flagged as over-range.
+A sample within ``saturation_fraction`` of the A/D range is flagged as over-range, and so
+is one at the edge of the SENSOR's own output span: the Leptrino analog outputs span
+0 .. 3.3 V, 1.5 V at no load, 1 V per rated load (CFS manual No.M000104, 4.1: "each signal
+line outputs 0 to 3.3 V; the offset voltage is 1.5 V ... rated voltage 1 V"), so a force
+beyond about -1.5 / +1.8 x rated clips there, far inside a +-10 V A/D range
+(:data:`SENSOR_SPAN_V`, ``sensor_span_V``).
 
 ``monitor_channel`` (the dry run's only): the A/D input wired across the dummy-load
 resistor (``nmsid probe --dry-run``); its volts are passed on unconverted, like the sync's.
@@ -25,6 +30,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 AXES = ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
+SENSOR_SPAN_V = (0.0, 3.3)
+"""CFS manual No.M000104, 4.1: each analog output spans 0 .. 3.3 V."""
+SENSOR_OFFSET_V = 1.5
+"""CFS manual 4.1: "the offset voltage is 1.5 V" (no load)."""
+SENSOR_RATED_OUTPUT_V = 1.0
+"""CFS manual 4.1: the change from the offset at rated load is 1 V ("rated voltage 1 V")."""
+SPAN_EDGE_V = 0.02
+"""A sample within this of either end of the sensor's span is taken as clipped."""
 
 
 @dataclass(frozen=True)
@@ -39,6 +52,9 @@ class AnalogCalibration:
     extension_direction: tuple[float, float, float] = (1.0, 0.0, 0.0)
     sync_channel: int | None = None
     monitor_channel: int | None = None
+    sensor_span_V: tuple[float, float] | None = None
+    """The sensor's output span, flagged as over-range at its edges (the hardware file
+    gives :data:`SENSOR_SPAN_V` by default, ``sensor.output_span_V``); None: not checked."""
 
     def __post_init__(self):
         unknown = set(self.channels) - set(AXES)
@@ -103,6 +119,22 @@ class AnalogCalibration:
                 out[:, AXES.index(a)] = v * (self.rated[a] / self.rated_output_V[a])
         return out
 
+    def implausible(self) -> list[str]:
+        """Warnings (not errors) for a per-axis scaling the sensor cannot produce: with
+        the outputs at 1.5 V at no load inside 0 .. 3.3 V (manual 4.1), a rated load cannot
+        move an output by more than 1.8 V; the vendor's figure is 1 V."""
+        out = []
+        if self.matrix is None and self.sensor_span_V is not None:
+            lo, hi = self.sensor_span_V
+            room = max(hi - SENSOR_OFFSET_V, SENSOR_OFFSET_V - lo)
+            for axis, v in self.rated_output_V.items():
+                if v > room:
+                    out.append(f"sensor.rated_output_V.{axis} = {v:g} V cannot be reached by "
+                               f"an output spanning {lo:g} .. {hi:g} V; the Leptrino manual "
+                               f"(4.1) gives {SENSOR_RATED_OUTPUT_V:g} V per rated load: forces "
+                               f"would read {v / SENSOR_RATED_OUTPUT_V:g} times too small")
+        return out
+
     def force_N(self, wrench: np.ndarray) -> np.ndarray:
         return wrench[:, :3] @ self.direction
 
@@ -126,8 +158,12 @@ def convert_block(volts: np.ndarray, cal: AnalogCalibration, range_V: float,
     volts = np.asarray(volts, dtype=float).reshape(-1, cal.n_channels)
     wrench = cal.wrench(volts)
     sensor_cols = list(cal.channels.values())
-    saturated = bool(volts.size and np.abs(volts[:, sensor_cols]).max()
-                     >= saturation_fraction * range_V)
+    sensor_V = volts[:, sensor_cols]
+    saturated = bool(volts.size and np.abs(sensor_V).max() >= saturation_fraction * range_V)
+    if volts.size and cal.sensor_span_V is not None:
+        lo, hi = cal.sensor_span_V
+        saturated = saturated or bool(sensor_V.min() <= lo + SPAN_EDGE_V
+                                      or sensor_V.max() >= hi - SPAN_EDGE_V)
     sync = volts[:, cal.sync_channel].copy() if cal.sync_channel is not None else None
     monitor = volts[:, cal.monitor_channel].copy() if cal.monitor_channel is not None else None
     return ConvertedBlock(force_N=cal.force_N(wrench),

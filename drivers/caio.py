@@ -51,6 +51,7 @@ with a stale ID.
 from __future__ import annotations
 
 import ctypes
+import locale
 import logging
 import sys
 import time
@@ -62,6 +63,7 @@ from nmsid.drivers.analog_force import AnalogCalibration, convert_block
 from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
                                   VendorLibraryMissing)
 from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
+from nmsid.protocols import os_platform
 
 log = logging.getLogger(__name__)
 
@@ -142,6 +144,31 @@ def declare(lib) -> object:
     return lib
 
 
+def encode_device_name(name: str) -> bytes:
+    """The device name as ``AioInit``'s ``char*`` wants it.
+
+    Contec's setting utility lets a lab name the device freely (``AIO000`` by default);
+    ``AioInit`` is an ANSI (``char*``) function, which on Windows takes the system's ANSI
+    code page (Microsoft, "Unicode in the Windows API": the "A" functions use the current
+    Windows code page; Python's ``mbcs`` codec), elsewhere the locale's encoding.
+
+    Raises
+    ------
+    HardwareConfigError
+        A name the code page cannot represent (one line naming it).
+    """
+    codec = "mbcs" if os_platform.is_windows() else locale.getpreferredencoding(False)
+    try:
+        return name.encode(codec)
+    except LookupError:  # the mbcs codec exists only on Windows itself
+        return name.encode("utf-8")
+    except UnicodeEncodeError:
+        raise HardwareConfigError(
+            f"acquisition.caio.device_name = {name!r} cannot be passed to AioInit in this "
+            f"system's code page ({codec}); rename the device in Contec's device manager to "
+            "plain letters and digits (e.g. AIO000)") from None
+
+
 class CaioAcquisition:
     """:class:`~nmsid.drivers.interfaces.ForceAcquisition` over a Contec AI-1608AY-USB.
 
@@ -178,6 +205,8 @@ class CaioAcquisition:
             raise HardwareConfigError(f"acquisition.caio.input_method {input_method!r} is not one of "
                              f"{sorted(INPUT_METHODS)} (or empty)")
         self.cal = calibration
+        for warning in calibration.implausible():
+            log.warning("%s", warning)
         self.device_name = device_name
         self.range_code, self.range_V = RANGES_V[ai_range]
         self.input_method = input_method
@@ -240,7 +269,7 @@ class CaioAcquisition:
     def open(self) -> None:
         if self._open:
             return
-        ret = self.lib.AioInit(self.device_name.encode("ascii"), ctypes.byref(self._id))
+        ret = self.lib.AioInit(encode_device_name(self.device_name), ctypes.byref(self._id))
         if ret != 0:
             raise DeviceNotFound(f"Contec device {self.device_name!r} not found (AioInit "
                                  f"error {ret}: {self._error_text(ret)}); check the device "
@@ -249,15 +278,19 @@ class CaioAcquisition:
         self._open = True
         try:
             self._call("AioResetDevice", self._id)
-            maxch = c_short(0)
-            self._call("AioGetAiMaxChannels", self._id, ctypes.byref(maxch))
-            self.max_channels = maxch.value
             if self.input_method:
                 self._call("AioSetAiInputMethod", self._id,
                            c_short(INPUT_METHODS[self.input_method]))
+            # after the input method: Contec's help, AioGetAiMaxChannels gives the channels
+            # of the CURRENT input method (differential pairs inputs: half of them)
+            maxch = c_short(0)
+            self._call("AioGetAiMaxChannels", self._id, ctypes.byref(maxch))
+            self.max_channels = maxch.value
             if self.cal.n_channels > self.max_channels:
                 raise DeviceError(f"the channel map needs {self.cal.n_channels} channels, "
-                                  f"{self.device_name!r} has {self.max_channels}")
+                                  f"{self.device_name!r} has {self.max_channels}"
+                                  + (f" in {self.input_method} input" if self.input_method
+                                     else ""))
             self._call("AioSetAiChannels", self._id, c_short(self.cal.n_channels))
             self.unsupported = []
             self._call_optional("AioSetAiRangeAll", self._id, c_short(self.range_code),

@@ -23,7 +23,7 @@ import threading
 import time
 
 from nmsid.drivers.errors import DeviceNotFound
-from nmsid.drivers.leptrino import _serial_module
+from nmsid.drivers.leptrino import _serial_module, port_in_use
 from nmsid.drivers.nidaq import load_nidaqmx
 
 log = logging.getLogger(__name__)
@@ -69,6 +69,11 @@ class SerialEStop:
             ser.open()
             setattr(ser, LINES[self.line], True)
         except (serial.SerialException, OSError, ValueError) as exc:
+            if port_in_use(exc):  # Windows: COM ports are exclusive (drivers.leptrino)
+                raise DeviceNotFound(
+                    f"the E-stop port {self.port!r} is in use by another program (Windows "
+                    "opens a COM port for one program at a time: close the other program); "
+                    "the adapter and cable are not the problem") from None
             raise DeviceNotFound(f"cannot open the E-stop port {self.port!r}: {exc}; check "
                                  "the USB-serial adapter and estop.port") from None
         self._ser = ser

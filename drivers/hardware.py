@@ -249,10 +249,10 @@ def _fake_sensor_wiring(cfg: HardwareConfig, bench) -> dict:
     cal = cfg.calibration
     d = cal.direction
     if cal.matrix is None:
-        return load_fake("bench").sensor_wiring(
-            bench, cal.channels, {a: cal.volts_per_unit(a) for a in cal.channels},
-            offset_V=dict(cal.offset_V), direction=tuple(d), sync_channel=cal.sync_channel,
-            noise_V=0.0005)
+        # the sensor per its manual, driven by force (not by the configured calibration)
+        return load_fake("bench").leptrino_analog_wiring(
+            bench, cal.channels, dict(cal.rated), direction=tuple(d),
+            sync_channel=cal.sync_channel)
     minv = np.linalg.inv(np.asarray(cal.matrix, dtype=float))
     axes = ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
     wiring = {}

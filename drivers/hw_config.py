@@ -18,7 +18,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, model_validator
 
-from nmsid.drivers.analog_force import AXES, AnalogCalibration
+from nmsid.drivers.analog_force import AXES, SENSOR_SPAN_V, AnalogCalibration
 from nmsid.drivers.errors import HardwareConfigError, hw_config_error
 from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
                                            validate_settings)
@@ -100,7 +100,8 @@ class NidaqSettings:
     """``[acquisition.nidaq]``: an NI DAQ device."""
 
     device: StrictStr = "Dev1"
-    start_trigger: StrictStr = "/Dev1/PFI0"
+    start_trigger: StrictStr = ""
+    """The sync's terminal; "" = the device's own ``/<device>/PFI0`` (drivers.nidaq)."""
     terminal_config: Literal["DEFAULT", "RSE", "NRSE", "DIFF", "PSEUDO_DIFF"] = "DIFF"
     range_V: StrictFloat = bounded(10.0, gt=0.0, le=100.0, why="an input range of NI DAQs")
     reads_per_s: StrictFloat = bounded(10.0, ge=1.0, le=100.0, why="expected 1 .. 100")
@@ -169,6 +170,9 @@ class SensorSettings:
     sync_channel: StrictInt = bounded(-1, ge=-1, le=63, why=(
         "the A/D channel of the stimulator's sync output (0 .. 63); required for analog "
         "chains"))
+    output_span_V: tuple[StrictFloat, StrictFloat] = SENSOR_SPAN_V
+    """The sensor's analog output span, over-range at its edges (Leptrino manual 4.1:
+    0 .. 3.3 V); set another span only if an amplifier sits between sensor and A/D."""
 
     @model_validator(mode="after")
     def _direction(self):
@@ -210,6 +214,16 @@ class HardwareFile:
     acquisition: AcquisitionSettings = Field(default_factory=AcquisitionSettings)
     sensor: SensorSettings = Field(default_factory=SensorSettings)
     estop: EStopConfig = Field(default_factory=EStopConfig)
+
+    @model_validator(mode="after")
+    def _estop_pin(self):
+        a, e = self.acquisition, self.estop
+        if a.kind == "nidaq" and e.kind == "nidaq":
+            from nmsid.drivers.nidaq import shared_pin  # noqa: PLC0415 (vendor-free helper)
+            problem = shared_pin(e.line, a.nidaq.start_trigger or f"/{a.nidaq.device}/PFI0")
+            if problem:
+                raise SettingProblem("estop.line", e.line, problem)
+        return self
 
     @model_validator(mode="after")
     def _wiring(self):
@@ -342,7 +356,7 @@ def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
                 channels=dict(se.channels), rated=dict(se.rated),
                 rated_output_V=dict(se.rated_output_V), offset_V=dict(se.offset_V),
                 matrix=se.matrix, extension_direction=se.extension_direction,
-                sync_channel=se.sync_channel)
+                sync_channel=se.sync_channel, sensor_span_V=tuple(se.output_span_V))
         except (ValueError, TypeError) as exc:      # a rule of the driver's own
             raise HardwareConfigError(f"{source}: [sensor]: {exc}") from None
     return HardwareConfig(source=source, name=f.rig.name, fake=f.rig.fake,

@@ -4,10 +4,20 @@
 (product information, rated values, start / stop continuous output) over a serial port;
 :class:`LeptrinoAcquisition` wraps it as a :class:`nmsid.drivers.interfaces.ForceAcquisition`.
 
-Rate: the sensor streams at its own fixed rate (about 1.2 kHz for this family; the
-product-information reply states it). :meth:`LeptrinoAcquisition.configure` returns that
-rate, never the one asked for, and ``drivers.hardware`` refuses a configuration that asks
-this chain for 2000 Hz.
+Rate: the sensor streams at its own fixed rate, which nothing in the protocol states
+(specification v1.13, 5.1: product information has model, serial and firmware only; a
+rate text some firmware adds is informative). :meth:`LeptrinoAcquisition.configure`
+MEASURES the record rate (:meth:`~LeptrinoAcquisition.measure_rate`: records counted
+against host time over :data:`RATE_MEASURE_S`, least-squares slope) and places record
+``k`` at ``k / measured rate``; the force is then resampled (linear interpolation) onto the
+session's grid ``n / fs_Hz``, so the session's time axis follows the measured rate and a
+sensor streaming at 1000 Hz is not stamped as 1200 Hz.
+
+The sensor's FIR digital filter (0xB6, 5.3: off, 10, 100 or 200 Hz; 100 Hz delays and
+band-limits the force) is read at connect and reported (:meth:`describe`). A tare for
+this chain: :meth:`LeptrinoAcquisition.tare` (mean of the unloaded records, subtracted).
+Records at +-32000 (6: "a force above 3.2 times the rating is also +-32000") are clipped:
+``over_range``.
 
 Time base: the digital interface has no hardware start trigger. With
 ``sync_on_external_input`` (set only for a model that has the external input: on the others
@@ -19,8 +29,7 @@ otherwise a triggered start is aligned to the first record after :meth:`start` (
 timing: one record plus USB latency, logged as a warning). Reserved status bits (3, 4, 6,
 7) are masked off by the protocol layer and never raise a flag.
 
-Older firmware answers product information without the rate field: the nominal rate
-(:data:`NOMINAL_RATE_HZ`) is used and the log says so. A USB glitch: :meth:`reconnect`
+A USB glitch: :meth:`reconnect`
 closes the dead port handle and opens the port anew (never reusing the old handle), then
 reads product information and rated values again.
 
@@ -46,16 +55,21 @@ from nmsid.drivers.errors import (DeviceNotFound, HardwareConfigError, ProtocolE
                                   VendorLibraryMissing)
 from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
 from nmsid.drivers.leptrino_protocol import (
-    DATA_RECORD_LEN, RAW_AT_RATED, Command, Corrupt, DataRecord, Frame, FrameDecoder, Nak, ProductInfo,
-    Result, Status, encode_command, parse_data_record, parse_product_info,
-    parse_rated_values)
+    DATA_RECORD_LEN, FULL_SCALE_RAW, RAW_AT_RATED, Command, Corrupt, DataRecord, FilterSetting,
+    Frame, FrameDecoder, Nak, ProductInfo, Result, Status, encode_command, parse_data_record,
+    parse_filter, parse_product_info, parse_rated_values)
+from nmsid.protocols import os_platform
 
 log = logging.getLogger(__name__)
 
 DEFAULT_BAUD = 460800
 NOMINAL_RATE_HZ = 1200.0
-"""Used when the product information states no rate (older firmware): "maximum 1.2 kHz" in
-Leptrino's sample as shipped in the ROS driver (``leptrino_force_torque.cpp``)."""
+"""Leptrino's sample as shipped in the ROS driver says "maximum 1.2 kHz"; only a plausibility
+reference now: the rate used is measured."""
+RATE_MEASURE_S = 1.0
+"""How long :meth:`LeptrinoAcquisition.measure_rate` counts records by default."""
+MIN_RATE_RECORDS = 50
+"""Fewer records than this in the measurement: the sensor is not streaming properly."""
 
 
 def _serial_module():
@@ -82,9 +96,34 @@ def open_serial(port: str, baudrate: int, timeout_s: float):
                                      stopbits=1, timeout=timeout_s, rtscts=False,
                                      xonxoff=False)
     except (serial.SerialException, OSError, ValueError) as exc:
-        raise DeviceNotFound(f"cannot open serial port {port!r} for the Leptrino sensor: "
-                             f"{exc}. Check the USB cable and the port name "
-                             "(acquisition.leptrino.port)") from None
+        raise port_open_error(port, exc, "the Leptrino sensor",
+                              "acquisition.leptrino.port") from None
+
+
+def port_in_use(exc: BaseException) -> bool:
+    """True if opening a port failed because another program holds it.
+
+    Windows opens a COM port exclusively (``CreateFile`` with share mode 0, Microsoft's
+    "Communications Resources" documentation): a second open fails with ERROR_ACCESS_DENIED
+    (5), which pyserial reports as ``could not open port 'COM5': PermissionError(13,
+    'Access is denied.', None, 5)``. Asked only on Windows (:mod:`nmsid.protocols.os_platform`).
+    """
+    if not os_platform.is_windows():
+        return False
+    text = str(exc)
+    return (isinstance(exc, PermissionError) or "Access is denied" in text
+            or "PermissionError" in text or "WinError 5" in text)
+
+
+def port_open_error(port: str, exc: BaseException, device: str, setting: str) -> DeviceNotFound:
+    """One line for a port that did not open: in use by another program, or not there."""
+    if port_in_use(exc):
+        return DeviceNotFound(
+            f"serial port {port!r} for {device} is in use by another program (Windows opens "
+            "a COM port for one program at a time: close the vendor's tool, a terminal "
+            "program or another nmsid); the cable is not the problem")
+    return DeviceNotFound(f"cannot open serial port {port!r} for {device}: {exc}. Check the "
+                          f"USB cable and the port name ({setting})")
 
 
 class LeptrinoSensor:
@@ -117,6 +156,7 @@ class LeptrinoSensor:
         self.sent: list[Command] = []
         self.corrupt_frames = 0
         self.naks = 0
+        self.start_naks = 0
 
     # -- port ---------------------------------------------------------------------
     def open(self) -> None:
@@ -229,13 +269,77 @@ class LeptrinoSensor:
         """One record by handshake (command 0x30); not used while streaming."""
         return parse_data_record(self.request(Command.HANDSHAKE), self.device)
 
+    def filter_setting(self) -> FilterSetting:
+        """The FIR digital filter (0xB6, specification v1.13 5.3)."""
+        return parse_filter(self.request(Command.FILTER), self.device)
+
     def start_continuous(self) -> None:
-        """Command 0x32. Records start to arrive; the sensor sends no separate reply."""
-        self._write(Command.START_CONTINUOUS)
+        """Command 0x32, confirmed: specification v1.13 6.2, "the sensor sends the response
+        to this command, then sends data"; a ``DLE NAK`` means "the host must resend the
+        command" (2.4.3). Records that arrive with or before the response are kept for
+        :meth:`poll`. A sensor that streams without the response is accepted (logged).
+
+        Raises
+        ------
+        ProtocolError
+            No response and no records after ``retries`` attempts, or an error result.
+        """
+        last_problem = "no reply"
+        for _attempt in range(self.retries):
+            self._write(Command.START_CONTINUOUS)
+            deadline = time.monotonic() + self.reply_timeout_s
+            keep: list = []
+            nak = False
+            while time.monotonic() < deadline and not nak:
+                for ev in self.poll(min(0.02, max(deadline - time.monotonic(), 0))):
+                    if isinstance(ev, Nak):
+                        nak, last_problem = True, "NAK (sensor rejected the frame)"
+                        self.start_naks += 1
+                    elif isinstance(ev, Frame) and ev.command == Command.START_CONTINUOUS:
+                        if ev.result != Result.OK:
+                            raise ProtocolError(
+                                f"Leptrino {self.port!r} answered START_CONTINUOUS (0x32) "
+                                f"with error result 0x{ev.result:02X}")
+                        if len(ev.payload) < DATA_RECORD_LEN:
+                            self._pending = keep + self._pending
+                            return           # the acknowledgement (LEN 4)
+                        keep.append(ev)      # a record: streaming without the response
+                    else:
+                        keep.append(ev)
+                if keep and any(isinstance(e, Frame) for e in keep) and not nak:
+                    log.warning("Leptrino %s streams without acknowledging 0x32",
+                                self.port)
+                    self._pending = keep + self._pending
+                    return
+            log.warning("Leptrino %s: %s to START_CONTINUOUS, resending", self.port,
+                        last_problem)
+        raise ProtocolError(f"Leptrino {self.port!r}: START_CONTINUOUS (0x32) not "
+                            f"acknowledged after {self.retries} attempts ({last_problem})")
 
     def stop_continuous(self) -> None:
         """Command 0x33, then drain until its reply (records still in flight are dropped)."""
         self.request(Command.STOP_CONTINUOUS)
+
+
+def fit_record_rate(t_s: np.ndarray, counts: np.ndarray, rounds: int = 3) -> float:
+    """Records per second from (arrival time, cumulative count) pairs.
+
+    USB and host-scheduling delays only ever make a batch arrive LATE, so the points that
+    arrived earliest for their count lie closest to the true line: a least-squares fit,
+    then ``rounds`` refits on the half of the points that arrived earliest relative to the
+    previous line (the lower envelope of the delays).
+    """
+    keep = np.ones(len(t_s), dtype=bool)
+    slope, icpt = np.polyfit(t_s, counts, 1)
+    for _ in range(rounds):
+        resid = counts - (slope * t_s + icpt)      # early arrival = more records than the line
+        cut = np.median(resid[keep])
+        new = keep & (resid >= cut)
+        if new.sum() < 3:
+            break
+        keep = new
+        slope, icpt = np.polyfit(t_s[keep], counts[keep], 1)
+    return float(slope)
 
 
 class LeptrinoAcquisition:
@@ -252,7 +356,14 @@ class LeptrinoAcquisition:
         self.sync_on_external_input = sync_on_external_input
         self.info: ProductInfo | None = None
         self.rated: np.ndarray | None = None
+        self.filter: FilterSetting | None = None
+        self.measured_rate_Hz: float | None = None
+        self.offset = np.zeros(6)
+        """Tare (:meth:`tare`): subtracted from every wrench (N, N m)."""
         self._rate_Hz = NOMINAL_RATE_HZ
+        self._fs_out = 0.0
+        self._n_rec = 0
+        self._last: tuple[float, np.ndarray] | None = None
         self._running = False
         self._armed_wait_sync = False
         self._sync_seen_low = False
@@ -270,14 +381,15 @@ class LeptrinoAcquisition:
             pass  # not streaming, or a sensor that does not ack 0x33 when idle
         info = self.sensor.product_info()
         self.rated = self.sensor.rated_values()
-        if info.rate_stated:
-            self._rate_Hz = info.output_rate_Hz
-        else:
-            self._rate_Hz = NOMINAL_RATE_HZ
-            log.info("Leptrino %s (%s, firmware %s) states no output rate in its product "
-                     "information (older firmware); the nominal %.0f Hz is used",
-                     self.sensor.port, info.model or "unknown model", info.firmware or "?",
-                     NOMINAL_RATE_HZ)
+        try:
+            self.filter = self.sensor.filter_setting()
+            log.info("Leptrino %s: digital filter %s", self.sensor.port,
+                     self.filter.describe())
+        except ProtocolError as exc:  # a model without 0xB6: said, not fatal
+            self.filter = None
+            log.warning("Leptrino %s: digital filter not readable (%s)", self.sensor.port,
+                        exc)
+        self.measured_rate_Hz = None
         if self.sync_on_external_input:
             log.info("Leptrino %s (%s): trials start at the rising edge of the external "
                      "input (status bit 5); acquisition.leptrino.sync_on_external_input "
@@ -325,12 +437,108 @@ class LeptrinoAcquisition:
         return ""
 
     def configure(self, fs_Hz: float) -> float:
+        """Measure the record rate (once per connection) and deliver ``fs_Hz``.
+
+        The records are placed at ``k / measured rate`` and resampled onto ``n / fs_Hz``;
+        ``fs_Hz`` well above the measured rate is allowed but warned about (no information
+        is added by interpolation).
+        """
         if self.info is None:
             self.connect()
-        if abs(fs_Hz - self._rate_Hz) > 1e-9:
-            log.warning("Leptrino %s streams at %.0f Hz; %.0f Hz was asked, the real rate "
-                        "is used", self.sensor.port, self._rate_Hz, fs_Hz)
-        return self._rate_Hz
+        if not fs_Hz > 0:
+            raise HardwareConfigError(f"acquisition rate must be positive, got {fs_Hz!r}")
+        if self.measured_rate_Hz is None:
+            self.measure_rate()
+        self._fs_out = float(fs_Hz)
+        if fs_Hz > 1.05 * self._rate_Hz:
+            log.warning("Leptrino %s streams at %.1f Hz (measured); %.0f Hz is asked: the "
+                        "force is interpolated, no faster than the sensor", self.sensor.port,
+                        self._rate_Hz, fs_Hz)
+        return self._fs_out
+
+    def measure_rate(self, seconds: float | None = None) -> float:
+        """Stream for ``seconds`` (default :data:`RATE_MEASURE_S`) and measure the record
+        rate (Hz).
+
+        The cumulative record count is regressed on the host time at which each batch
+        arrived (least squares), so USB latency jitter averages out; the first batch is
+        the time origin. The stated rate, if any, is compared and a difference logged.
+
+        Raises
+        ------
+        ProtocolError
+            Fewer than :data:`MIN_RATE_RECORDS` records arrived.
+        """
+        if seconds is None:
+            seconds = RATE_MEASURE_S
+        self.sensor.start_continuous()
+        t0 = time.monotonic()
+        times, counts, n = [], [], 0
+        try:
+            while time.monotonic() - t0 < seconds:
+                events = self.sensor.poll(0.02)
+                got = sum(1 for ev in events if isinstance(ev, Frame)
+                          and ev.command == Command.START_CONTINUOUS
+                          and len(ev.payload) >= DATA_RECORD_LEN)
+                if got:
+                    n += got
+                    times.append(time.monotonic())
+                    counts.append(n)
+        finally:
+            self.sensor.stop_continuous()
+        if n < MIN_RATE_RECORDS or len(times) < 3:
+            raise ProtocolError(f"Leptrino {self.sensor.port!r}: only {n} records in "
+                                f"{seconds:g} s while streaming; the sensor is not "
+                                "streaming properly")
+        slope = fit_record_rate(np.asarray(times) - times[0], np.asarray(counts, float))
+        self.measured_rate_Hz = self._rate_Hz = slope
+        info = self.info
+        if info is not None and info.rate_stated and abs(slope / info.output_rate_Hz - 1) > 0.02:
+            log.warning("Leptrino %s states %g Hz but streams at %.1f Hz (measured); the "
+                        "measured rate is used", self.sensor.port, info.output_rate_Hz, slope)
+        log.info("Leptrino %s: record rate %.2f Hz (measured over %d records)",
+                 self.sensor.port, slope, n)
+        return slope
+
+    def tare(self, seconds: float = 0.5) -> np.ndarray:
+        """Zero the USB chain: the mean wrench of ``seconds`` of unloaded records becomes the
+        offset subtracted from every later wrench. Call with the arm off the sensor.
+
+        Returns
+        -------
+        numpy.ndarray
+            The offset (Fx, Fy, Fz in N, Mx, My, Mz in N m).
+        """
+        if self.info is None:
+            self.connect()
+        self.sensor.start_continuous()
+        t0 = time.monotonic()
+        raws = []
+        try:
+            while time.monotonic() - t0 < seconds:
+                for ev in self.sensor.poll(0.02):
+                    if isinstance(ev, Frame) and ev.command == Command.START_CONTINUOUS \
+                            and len(ev.payload) >= DATA_RECORD_LEN:
+                        raws.append(parse_data_record(ev, self.sensor.device).raw)
+        finally:
+            self.sensor.stop_continuous()
+        if not raws:
+            raise ProtocolError(f"Leptrino {self.sensor.port!r}: no records for the tare")
+        self.offset = np.mean(np.asarray(raws, dtype=float), axis=0) * (self.rated / RAW_AT_RATED)
+        log.info("Leptrino %s: tare %s from %d records", self.sensor.port,
+                 np.round(self.offset, 4).tolist(), len(raws))
+        return self.offset.copy()
+
+    def describe(self) -> dict:
+        """What ``nmsid probe`` prints."""
+        info = self.info
+        return {"record_rate_Hz (measured)": (round(self.measured_rate_Hz, 2)
+                                              if self.measured_rate_Hz else "not measured"),
+                "rate stated by the sensor": (f"{info.output_rate_Hz:g} Hz ({info.rate_text})"
+                                              if info is not None and info.rate_stated
+                                              else "none (specification 5.1 has no rate)"),
+                "digital filter": self.filter.describe() if self.filter else "unknown",
+                "tare_N": np.round(self.offset[:3], 4).tolist()}
 
     @property
     def rate_Hz(self) -> float:
@@ -340,6 +548,10 @@ class LeptrinoAcquisition:
         if self.info is None:
             self.connect()
         self._index = 0
+        self._n_rec = 0
+        self._last = None
+        if not self._fs_out:
+            self._fs_out = self._rate_Hz
         self._remaining = n_samples
         self._dead = ""
         self._armed_wait_sync = bool(triggered and self.sync_on_external_input)
@@ -397,15 +609,36 @@ class LeptrinoAcquisition:
                     records.append(rec)
         if not records and not corrupt and not other_fault:
             return None
-        if self._remaining is not None:
-            records = records[:self._remaining]
-            self._remaining -= len(records)
         return self._chunk(records, corrupt, other_fault)
 
+    def _resample(self, wrench: np.ndarray) -> np.ndarray:
+        """Records at ``k / measured rate`` -> samples at ``n / fs``, linear interpolation;
+        keeps the last record for the next chunk. Returns the new samples (n, 6)."""
+        m = len(wrench)
+        k = self._n_rec + np.arange(m)
+        t_rec = k / self._rate_Hz
+        self._n_rec += m
+        if self._last is not None:
+            t_rec = np.concatenate(([self._last[0]], t_rec))
+            wrench = np.vstack([self._last[1][None, :], wrench])
+        self._last = (float(t_rec[-1]), wrench[-1].copy())
+        n_end = int(np.floor(t_rec[-1] * self._fs_out + 1e-9)) + 1
+        if self._remaining is not None:
+            n_end = min(n_end, self._index + self._remaining)
+        n = np.arange(self._index, max(n_end, self._index))
+        t_out = n / self._fs_out
+        out = np.empty((len(n), 6))
+        for j in range(6):
+            out[:, j] = np.interp(t_out, t_rec, wrench[:, j])
+        return out
+
     def _chunk(self, records: list[DataRecord], corrupt: int, other_fault: str) -> ForceChunk:
-        n = len(records)
-        raw = np.array([r.raw for r in records], dtype=np.float64).reshape(n, 6)
-        wrench = raw * (self.rated / RAW_AT_RATED)
+        raw = np.array([r.raw for r in records], dtype=np.float64).reshape(len(records), 6)
+        clipped = bool(np.any(np.abs(raw) >= FULL_SCALE_RAW))
+        wrench = self._resample(raw * (self.rated / RAW_AT_RATED)) - self.offset
+        n = len(wrench)
+        if self._remaining is not None:
+            self._remaining -= n
         force = wrench[:, :3] @ self.direction
         status = 0
         for r in records:
@@ -413,6 +646,8 @@ class LeptrinoAcquisition:
         details = []
         if corrupt:
             details.append(f"{corrupt} corrupt frame(s) dropped")
+        if clipped:
+            details.append(f"sensor output clipped at +-{FULL_SCALE_RAW} (above 3.2 x rated)")
         if status & Status.OVER_RATED:
             details.append("load above the sensor's rated value")
         if status & (Status.SENSOR_FAULT | Status.ROM_ERROR):
@@ -421,7 +656,7 @@ class LeptrinoAcquisition:
             details.append(other_fault)
         flags = AcquisitionFlags(
             overrun=corrupt > 0,
-            over_range=bool(status & Status.OVER_RATED),
+            over_range=bool(status & Status.OVER_RATED) or clipped,
             sensor_fault=bool(status & (Status.SENSOR_FAULT | Status.ROM_ERROR))
             or bool(other_fault),
             detail="; ".join(details))

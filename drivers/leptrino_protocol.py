@@ -16,8 +16,16 @@ Frame (both directions)::
   ``DLE`` of ``DLE ETX`` are not included.
 * ``DLE NAK`` (0x10 0x15) is the sensor's negative acknowledgement of a garbled command.
 
-Commands used here: 0x2A product information, 0x2B rated values, 0x30 one data record
-(handshake), 0x32 start continuous output, 0x33 stop continuous output.
+Commands used here: 0x2A product information, 0x2B rated values, 0xB6 digital filter,
+0x30 one data record (handshake), 0x32 start continuous output (acknowledged by a bare
+response before the records, specification v1.13 6.2), 0x33 stop continuous output. A
+command answered ``DLE NAK`` is sent again (2.4.3: "the host must resend the command").
+
+Source of record since round two: Leptrino's "力覚センサ通信フォーマット仕様書" (communication
+format specification) Ver 1.13 and the CFS-series manual No.M000104, public in
+``hiveground-ros-package/leptrino_force_torque`` (``doc/protocal.pdf``, ``doc/manual.pdf``).
+Specification 5.1's product information has NO rate field (LEN $20: model, serial,
+firmware); the rate field below comes from the C sample only.
 
 Data record (response to 0x30, and each frame of continuous output, LEN = 20): six int16
 little-endian force / moment values (Fx, Fy, Fz, Mx, My, Mz), int16 temperature, a status
@@ -83,6 +91,8 @@ RATED_VALUES_LEN = 4 + 6 * 4
 class Command(enum.IntEnum):
     PRODUCT_INFO = 0x2A
     RATED_VALUES = 0x2B
+    FILTER = 0xB6
+    """Specification v1.13, 5.3: read the FIR digital filter's cut-off (setting is 0xA6)."""
     HANDSHAKE = 0x30
     START_CONTINUOUS = 0x32
     STOP_CONTINUOUS = 0x33
@@ -102,6 +112,13 @@ class Status(enum.IntFlag):
     OVER_RATED = 0x04
     EXTERNAL_INPUT = 0x20
 
+
+FULL_SCALE_RAW = 32000
+"""Specification v1.13, 6: data "-32000 .. +32000"; "a force above 3.2 times the rating is
+also +-32000": a record at +-32000 is clipped, the true force is unknown."""
+
+FILTER_CUTOFF_HZ = {0x00: None, 0x01: 10.0, 0x02: 100.0, 0x03: 200.0}
+"""Specification v1.13, 5.3: filter setting $00 OFF, $01 10 Hz, $02 100 Hz, $03 200 Hz."""
 
 DOCUMENTED_STATUS_BITS = int(Status.ROM_ERROR | Status.SENSOR_FAULT | Status.OVER_RATED
                              | Status.EXTERNAL_INPUT)
@@ -273,6 +290,33 @@ class ProductInfo:
 
 
 @dataclass(frozen=True)
+class FilterSetting:
+    """The sensor's FIR digital filter (0xB6 reply, specification v1.13, 5.3)."""
+
+    code: int
+    cutoff_Hz: float | None
+    """None: filter OFF."""
+
+    def describe(self) -> str:
+        return "off" if self.cutoff_Hz is None else f"FIR low-pass {self.cutoff_Hz:g} Hz"
+
+
+def parse_filter(frame: Frame, device: str = "Leptrino sensor") -> FilterSetting:
+    """The filter setting from a 0xB6 reply (LEN 8: setting byte, 3 reserved bytes).
+
+    Raises
+    ------
+    ProtocolError
+        A reply without the setting byte or with a code outside $00..$03.
+    """
+    data = frame.data
+    if len(data) < 1 or data[0] not in FILTER_CUTOFF_HZ:
+        raise ProtocolError(f"{device}: digital-filter reply {data!r} is not one of $00 OFF, "
+                            "$01 10 Hz, $02 100 Hz, $03 200 Hz (specification 5.3)")
+    return FilterSetting(code=data[0], cutoff_Hz=FILTER_CUTOFF_HZ[data[0]])
+
+
+@dataclass(frozen=True)
 class DataRecord:
     raw: tuple[int, int, int, int, int, int]
     temperature_raw: int
@@ -284,14 +328,18 @@ def _text(data: bytes) -> str:
     return data.split(b"\x00", 1)[0].decode("ascii", errors="replace").strip()
 
 
-_RATE_RE = re.compile(r"(?P<num>[0-9]+(?:\.[0-9]+)?)\s*(?P<unit>k|kHz|Hz)?", re.IGNORECASE)
+_RATE_RE = re.compile(r"(?P<num>[0-9]+(?:\.[0-9]*)?|\.[0-9]+)\s*(?P<unit>k|kh|khz|h|hz)?",
+                      re.IGNORECASE)
 
 
 def parse_rate_text(text: str, device: str = "Leptrino sensor") -> float:
-    """The output rate in Hz from the product information's rate text, parsed strictly.
+    """The output rate in Hz from the product information's rate text, parsed leniently.
 
-    Accepted: a decimal number, optionally followed by ``Hz``, ``k`` or ``kHz`` (any case,
-    spaces allowed before the unit): ``1200``, ``1200Hz``, ``1.2k``, ``1.2 kHz``.
+    The field is 6 bytes of text (``FREQ_SIZE``), so a unit is often cut short. Accepted: a
+    decimal number, optionally followed by ``H``, ``Hz``, ``k``, ``kH`` or ``kHz`` (any
+    case, spaces allowed before the unit): ``1200``, ``1200 H``, ``1200Hz``, ``1.2k``,
+    ``1.2 kH``, ``1.2kHz``. The stated rate is informative only: the driver MEASURES the
+    record rate (:meth:`nmsid.drivers.leptrino.LeptrinoAcquisition.measure_rate`).
 
     Raises
     ------

@@ -9,9 +9,11 @@ McsUsbNet_Examples``: ``Examples/Python/Stimulation.py``, ``DeviceList.py``):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from types import SimpleNamespace
 
 from nmsid.drivers.errors import DeviceNotFound, VendorLibraryMissing
+from nmsid.protocols import os_platform
 
 DEFAULT_DLL = r"C:\Program Files\Multi Channel Systems\McsUsbNet\x64\McsUsbNet.dll"
 
@@ -19,12 +21,25 @@ DEFAULT_DLL = r"C:\Program Files\Multi Channel Systems\McsUsbNet\x64\McsUsbNet.d
 def load_mcs_usb(dll_path: str) -> SimpleNamespace:
     """Import pythonnet, load McsUsbNet.dll and return the names the driver uses.
 
+    On Windows pythonnet's runtime is pinned to .NET Framework first
+    (``pythonnet.load("netfx")``): McsUsbNet 5.3.15 is a C++/CLI assembly for .NET
+    Framework 4.7.2 (vendor README), which .NET Core / 5+ (pythonnet's other runtime)
+    cannot load.
+
     Raises
     ------
     VendorLibraryMissing
-        If pythonnet or the assembly is missing (one line saying how to install).
+        pythonnet missing, or the assembly missing, blocked by Windows (a downloaded file,
+        Mark-of-the-Web) or unloadable for want of the VC++ 2015-2022 x64 runtime: one line
+        saying which and what to do (:func:`diagnose_load_failure`).
     """
     try:
+        if os_platform.is_windows():
+            import pythonnet  # noqa: PLC0415 (lazy: Windows vendor library)
+            try:
+                pythonnet.load("netfx")
+            except RuntimeError:  # already loaded (a second driver in this process)
+                pass
         import clr  # noqa: PLC0415 (pythonnet; lazy: Windows vendor library)
     except ImportError:
         raise VendorLibraryMissing(
@@ -34,18 +49,74 @@ def load_mcs_usb(dll_path: str) -> SimpleNamespace:
     try:
         clr.AddReference(str(dll_path))
         from Mcs.Usb import (CMcsUsbListNet, CStg200xDownloadNet,  # noqa: PLC0415
-                             DeviceEnumNet, STG_DestinationEnumNet)
+                             DeviceEnumNet, RetriggerActionEnumNet, STG_DestinationEnumNet,
+                             Stg200xSegmentFlagsEnumNet)
         from System import Array, Int32, UInt32, UInt64  # noqa: PLC0415
     except Exception as exc:  # .NET FileNotFoundException is not a Python OSError
-        raise VendorLibraryMissing(
-            f"McsUsbNet.dll ({dll_path})", "the MCS STG4002 stimulator",
-            "get it from github.com/multichannelsystems/McsUsbNet (or MC_Stimulus II) and "
-            f"set stimulator.dll_path in the hardware config ({type(exc).__name__})"
-        ) from None
+        raise diagnose_load_failure(dll_path, exc) from None
     return SimpleNamespace(CMcsUsbListNet=CMcsUsbListNet, DeviceEnumNet=DeviceEnumNet,
                            CStg200xDownloadNet=CStg200xDownloadNet,
-                           STG_DestinationEnumNet=STG_DestinationEnumNet, Array=Array,
-                           Int32=Int32, UInt32=UInt32, UInt64=UInt64)
+                           STG_DestinationEnumNet=STG_DestinationEnumNet,
+                           RetriggerActionEnumNet=RetriggerActionEnumNet,
+                           Stg200xSegmentFlagsEnumNet=Stg200xSegmentFlagsEnumNet,
+                           Array=Array, Int32=Int32, UInt32=UInt32, UInt64=UInt64)
+
+
+def is_blocked_download(dll_path: str | Path) -> bool:
+    """True if Windows marked the file as downloaded (Mark-of-the-Web).
+
+    Windows stores the zone of a downloaded file in the NTFS alternate data stream
+    ``<file>:Zone.Identifier`` (Microsoft, "Attachment Manager" / [MS-FSCC] alternate
+    streams); .NET Framework refuses to load an assembly from such a file ("An attempt was
+    made to load an assembly from a network location", HRESULT 0x80131515) until it is
+    unblocked. Only asked on Windows (:mod:`nmsid.protocols.os_platform`); ``open`` of the
+    stream name is how the stream is read there.
+    """
+    if not os_platform.is_windows():
+        return False
+    try:
+        with open(f"{dll_path}:Zone.Identifier", encoding="utf-8", errors="replace") as f:
+            text = f.read()
+    except OSError:
+        return False
+    zone = [ln.split("=", 1)[1].strip() for ln in text.splitlines()
+            if ln.strip().lower().startswith("zoneid=")]
+    return not zone or zone[0] not in ("0", "1", "2")  # 3 Internet, 4 Restricted
+
+
+_BLOCKED_TEXT = ("0x80131515", "network location", "loadFromRemoteSources")
+_DEPENDENCY_TEXT = ("one of its dependencies", "0x8007007E", "0x8007007e",
+                    "specified module could not be found", "DllNotFoundException",
+                    "vcruntime140", "msvcp140")
+
+
+def diagnose_load_failure(dll_path: str | Path, exc: BaseException) -> VendorLibraryMissing:
+    """One line for a failed ``clr.AddReference``: missing file, blocked download or
+    missing VC++ 2015-2022 x64 runtime (the vendor README: the assembly "needs the VC++
+    2015-22 runtime and WinUSB on Windows"), else the .NET error itself."""
+    path = Path(dll_path)
+    text = f"{type(exc).__name__}: {exc}"
+    what, needed = f"McsUsbNet.dll ({path})", "the MCS STG4002 stimulator"
+    if not path.is_file():
+        return VendorLibraryMissing(
+            what, needed, "no such file: get it from github.com/multichannelsystems/McsUsbNet "
+            "(or the MC_Stimulus II install) and set stimulator.dll_path in the hardware "
+            "config")
+    if is_blocked_download(path) or any(t in text for t in _BLOCKED_TEXT):
+        return VendorLibraryMissing(
+            what, needed, "the file is there but Windows BLOCKED it (downloaded from the "
+            "internet, Mark-of-the-Web): right-click it > Properties > Unblock, or in "
+            f"PowerShell: Unblock-File '{path}'")
+    if any(t in text for t in _DEPENDENCY_TEXT) or "FileNotFoundException" in text:
+        return VendorLibraryMissing(
+            what, needed, "the file is there but could not be loaded: install the Microsoft "
+            "Visual C++ 2015-2022 Redistributable (x64), vc_redist.x64.exe, which this "
+            "mixed-mode assembly needs, and use 64-bit Python")
+    first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    return VendorLibraryMissing(
+        what, needed, f"the file is there but .NET refused it ({type(exc).__name__}: "
+        f"{first}); check it is the x64 McsUsbNet.dll and that .NET Framework 4.7.2 or later "
+        "is installed")
 
 
 @dataclass(frozen=True)

@@ -47,7 +47,10 @@ USB glitch: :meth:`NidaqAcquisition.reconnect` closes the old task and builds a 
 from __future__ import annotations
 
 import logging
+import os
 import queue
+import re
+import uuid
 from types import SimpleNamespace
 
 import numpy as np
@@ -70,6 +73,35 @@ OVERRUN_CODES = {
 COUNTER_OVERFLOW = -200141
 """``CounterOverflow``: a counter task's counter wrapped; not a buffer overrun."""
 TERMINAL_CONFIGS = ("DEFAULT", "RSE", "NRSE", "DIFF", "PSEUDO_DIFF")
+
+
+def _channel_order(name: str) -> tuple[int, str]:
+    tail = name.rsplit("ai", 1)[-1]
+    return (int(tail) if tail.isdigit() else 1 << 30, name)
+
+
+_PFI_OF_PORT = {1: 0, 2: 8}
+"""NI M- and X-series pinouts: "PFI 0/P1.0" .. "PFI 7/P1.7", "PFI 8/P2.0" .. "PFI 15/P2.7":
+port 1 and port 2 lines are the PFI pins (port 0 lines are separate)."""
+
+
+def shared_pin(estop_line: str, start_trigger: str) -> str:
+    """A description if the E-stop's digital line and the start trigger's PFI terminal are
+    the SAME pin (M/X-series pinout, :data:`_PFI_OF_PORT`), else ``""``.
+
+    ``estop_line`` as ``Dev1/port1/line0``; ``start_trigger`` as ``/Dev1/PFI0``.
+    """
+    m_line = re.fullmatch(r"/?([^/]+)/port(\d+)/line(\d+)", estop_line.strip(), re.I)
+    m_pfi = re.fullmatch(r"/?([^/]+)/PFI(\d+)", start_trigger.strip(), re.I)
+    if not m_line or not m_pfi or m_line.group(1) != m_pfi.group(1):
+        return ""
+    port, line = int(m_line.group(2)), int(m_line.group(3))
+    if port in _PFI_OF_PORT and _PFI_OF_PORT[port] + line == int(m_pfi.group(2)):
+        return (f"estop.line {estop_line!r} and acquisition.nidaq.start_trigger "
+                f"{start_trigger!r} are the same pin (PFI {m_pfi.group(2)}/P{port}.{line} on "
+                "NI M- and X-series devices): the stimulator's sync would read as the E-stop "
+                "and the E-stop as a start; wire the E-stop to a port 0 line")
+    return ""
 
 
 def load_nidaqmx() -> SimpleNamespace:
@@ -104,7 +136,8 @@ class NidaqAcquisition:
     device : str
         DAQmx device name (``Dev1``).
     start_trigger : str
-        Terminal carrying the stimulator's sync (``/Dev1/PFI0``).
+        Terminal carrying the stimulator's sync; ``""`` (default) is the device's own
+        ``/<device>/PFI0`` (not ``/Dev1/PFI0`` whatever the device is called).
     terminal_config : str
         One of ``DEFAULT``, ``RSE``, ``NRSE``, ``DIFF``, ``PSEUDO_DIFF``.
     range_V : float
@@ -116,7 +149,7 @@ class NidaqAcquisition:
     """
 
     def __init__(self, calibration: AnalogCalibration, *, device: str = "Dev1",
-                 start_trigger: str = "/Dev1/PFI0", terminal_config: str = "DIFF",
+                 start_trigger: str = "", terminal_config: str = "DIFF",
                  range_V: float = 10.0, reads_per_s: float = 10.0, buffer_s: float = 5.0,
                  api=None):
         if terminal_config not in TERMINAL_CONFIGS:
@@ -128,8 +161,10 @@ class NidaqAcquisition:
             raise HardwareConfigError("acquisition.nidaq.reads_per_s must be > 0, got "
                                       f"{reads_per_s!r}")
         self.cal = calibration
+        for warning in calibration.implausible():
+            log.warning("%s", warning)
         self.device = device
-        self.start_trigger = start_trigger
+        self.start_trigger = start_trigger or f"/{device}/PFI0"
         self.terminal_config = terminal_config
         self.range_V = float(range_V)
         self.reads_per_s = reads_per_s
@@ -164,8 +199,12 @@ class NidaqAcquisition:
         api = self.api
         c = api.constants
         self._check_aggregate(fs_Hz)
+        self._check_physical_channels()
+        # a unique name: DAQmx refuses a second task of the same name (-200089), e.g. one a
+        # crashed session left in this process or another nmsid holds
+        name = f"nmsid-force-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         try:
-            task = api.nidaqmx.Task("nmsid-force")
+            task = api.nidaqmx.Task(name)
         except api.errors.DaqError as exc:
             raise DeviceError(f"DAQmx could not create a task: {exc}") from None
         try:
@@ -200,6 +239,42 @@ class NidaqAcquisition:
                                  "device and channels in NI MAX)") from None
         self._task = task
         return self._fs_Hz
+
+    def _check_physical_channels(self) -> None:
+        """Refuse channels the device does not have, or a terminal configuration a channel
+        does not support, before any task is made (nidaqmx ``Device.ai_physical_chans``,
+        ``PhysicalChannel.ai_term_cfgs``; on M-series boards aiK pairs with aiK+8 in DIFF,
+        so ai8 .. ai15 have no DIFF)."""
+        try:
+            dev = self.api.nidaqmx.system.System.local().devices[self.device]
+            phys = {str(c.name): c for c in dev.ai_physical_chans}
+        except Exception as exc:  # not readable: DAQmx judges when the task is built
+            log.info("NI DAQ %s: physical channels not readable (%s)", self.device, exc)
+            return
+        wanted = self._channels()
+        missing = [n for n in wanted if n not in phys]
+        if missing:
+            have = ", ".join(sorted(phys, key=_channel_order)) or "none"
+            raise HardwareConfigError(
+                f"NI DAQ {self.device!r} has no {', '.join(missing)} (the sensor map scans "
+                f"ai0 .. ai{len(wanted) - 1}); it has {have}; fix [sensor.channels] / "
+                "sync_channel or acquisition.nidaq.device")
+        if self.terminal_config == "DEFAULT":
+            return
+        term = getattr(self.api.constants.TerminalConfiguration, self.terminal_config)
+        bad = []
+        for n in wanted:
+            try:
+                cfgs = list(phys[n].ai_term_cfgs)
+            except Exception:  # property not available: DAQmx judges
+                return
+            if term not in cfgs:
+                bad.append(f"{n} ({'/'.join(getattr(c, 'name', str(c)) for c in cfgs)})")
+        if bad:
+            raise HardwareConfigError(
+                f"acquisition.nidaq.terminal_config = {self.terminal_config!r} is not "
+                f"supported by {', '.join(bad)} on {self.device!r}; wire the sensor to "
+                "channels that support it or choose another terminal configuration")
 
     def _check_aggregate(self, fs_Hz: float) -> None:
         """Refuse channels x rate above the device's multichannel (aggregate) rate."""

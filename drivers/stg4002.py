@@ -12,10 +12,19 @@ the type metadata of ``x64/McsUsbNet.dll``, see :mod:`nmsid.drivers.stg_status`)
 McsUsbNet (``cstg200x_download_basic.m``) for ``GetCapacity`` / ``SetCapacity``.
 
 Sequence (each call's vendor source is cited where it is made; the whole story is in
-``docs/hardware.md``, section 4): connect -> ``SendStop`` on every trigger, status and
-overcurrent reset, current mode, range / resolution, output rate set and read back, memory,
-version; load -> ``ResetStatus``, memory layout, ``SetupTrigger``, ``PrepareAndSendData``
-per channel and for the sync; ``SendStart(1)``; ``SendStop(all)``; ``Disconnect``.
+``docs/hardware.md``, section 4): connect -> immediate ``SendStop`` on every trigger,
+status and overcurrent reset, retrigger mode (``SetupRetriggerMode``), current mode, range /
+resolution, memory, version; load -> ``ResetStatus``, ``SegmentSelect(0)`` and
+``GetAvailableMemory``, ``SetupTrigger``, ``PrepareAndSendData`` per channel and for the
+sync, memory use read back (``GetMemoryUsageDAC`` / ``GetMemoryUsageSyncout``);
+``SendStart(1)``; at an ordinary end or abort the save stop ``SendStop(all,
+STOP_OPTION_SAVESTOP)``, for an E-stop the immediate ``SendStop(all)``; ``Disconnect``.
+Every member called is declared in :mod:`nmsid.drivers.mcs_surface` and checked against the
+real assembly there.
+
+Download mode has a fixed 20 us time resolution (STG4000 manual p.16; McsUsbNet
+``PrepareAndSendData``: "The STG has a resolution of 20 us"): ``SetOutputRate`` is a
+streaming-mode setting and is never called here.
 
 Threads: every vendor call holds one lock, so a stop never runs concurrently with a
 download or a disconnect (McsUsbNet does not document its objects as thread-safe).
@@ -33,6 +42,7 @@ import logging
 import threading
 import time
 
+from nmsid.errors import SafetyError
 from nmsid.drivers.errors import (DeviceError, DeviceMemoryError, DeviceRangeError,
                                   StimulatorFault, StimulatorSettingError)
 from nmsid.drivers.interfaces import CheckedWaveform, StimulatorCapabilities, StimulatorState
@@ -40,7 +50,7 @@ from nmsid.drivers.mcs_usb import (DEFAULT_DLL, StgDeviceInfo, find_stg, list_st
                                    load_mcs_usb)
 from nmsid.drivers.stg_download import (BYTES_PER_POINT, STG4002_OUTPUT_RATE_HZ, ChannelPlan,
                                         PreparedDownload, check_output_rate, prepare_download)
-from nmsid.drivers.stg_memory import fit_memory
+from nmsid.drivers.stg_memory import fit_memory, read_usage
 from nmsid.drivers.stg_status import DeviceStatus, OvercurrentStatus, parse_version_info
 from nmsid.drivers.stg_tracking import StgStatusTracking
 from nmsid.drivers.stg_waveform import NA_PER_MA, RenderedChannel
@@ -49,6 +59,13 @@ from nmsid.drivers.stimulation_report import download_summary
 log = logging.getLogger(__name__)
 
 DEFAULT_OUTPUT_RATE_HZ = STG4002_OUTPUT_RATE_HZ
+STOP_OPTION_SAVESTOP = 0x80
+"""McsUsbNet ``SendStop(triggermap, options)``: "currently only STOP_OPTION_SAVESTOP (0x80) is
+defined, which bypasses the stop commands when a syncout ... has bit 1 (0x02) set. Can be
+used e.g. to prevent a stop while a biphasic stimulation pulse is active" (XML)."""
+SAVE_STOP_WAIT_S = 0.01
+"""After a save stop, how long the trigger may still run (the rest of one carrier period)
+before the immediate stop follows."""
 STOP_WAIT_S = 0.25
 """How long :meth:`Stg4002Stimulator.stop_now` waits for a vendor call in progress."""
 __all__ = ["Stg4002Stimulator", "load_mcs_usb", "list_stg_devices", "StgDeviceInfo",
@@ -93,6 +110,13 @@ class Stg4002Stimulator(StgStatusTracking):
         self.serial = serial
         self.dll_path = dll_path
         self.output_rate_Hz = check_output_rate(output_rate_Hz)
+        if self.output_rate_Hz != STG4002_OUTPUT_RATE_HZ:
+            # manual p.16 / XML PrepareAndSendData: download mode's resolution is 20 us
+            raise StimulatorSettingError(
+                f"stimulator.output_rate_Hz = {output_rate_Hz:g} cannot be used: the STG4002 "
+                "in download mode has a fixed 20 us resolution (50000 Hz; STG4000 manual "
+                "p.16); SetOutputRate applies to streaming mode only. Remove the setting "
+                "or set it to 50000")
         self._api = api
         self._now = clock or time.monotonic
         self._dev = None
@@ -102,6 +126,8 @@ class Stg4002Stimulator(StgStatusTracking):
         self._stop_pending = False
         """A stop_now() that found the device busy: the holder sends SendStop on release."""
         self._stop_count = 0
+        self._stop_failures = 0
+        """Failed SendStop calls (tests; each also sets the operator message)."""
         self._reset_session_state()
         self.last_loaded: dict[int, RenderedChannel] = {}
         self.last_download: PreparedDownload | None = None
@@ -124,7 +150,9 @@ class Stg4002Stimulator(StgStatusTracking):
         self._poll: DeviceStatus | None = None
         self._generation = 0
         self._capacity: dict[int, int] = {}
+        self._usage: dict[str, int] = {}
         self._error = ""
+        self._foreign_start = False
         self._stop_error = ""
         """A failed SendStop: the output may still be on; cleared only by connect()."""
 
@@ -151,18 +179,54 @@ class Stg4002Stimulator(StgStatusTracking):
         finally:
             self._io.release()
 
-    def _send_stop_locked(self, why: str) -> None:
-        """``SendStop(all triggers)``; the caller holds the device lock. Never raises."""
+    def _send_stop_locked(self, why: str, *, save: bool = False) -> None:
+        """Stop every trigger; the caller holds the device lock. Never raises.
+
+        ``save=False``: the immediate ``SendStop(triggermap)`` (E-stop, faults). ``save=True``
+        (an ordinary end or abort): ``SendStop(triggermap, STOP_OPTION_SAVESTOP)``, which the
+        device defers while the sync data's bit 1 marks a carrier period in progress
+        (:func:`nmsid.drivers.stg_download.save_stop_marks`); if a trigger still runs
+        :data:`SAVE_STOP_WAIT_S` later, the immediate stop follows.
+        """
         self._stop_pending = False
         dev = self._dev
         if dev is None:
             return
         try:
-            dev.SendStop(self._u32(self._all_triggers))
-            log.info("STG SendStop(0x%x) sent: %s", self._all_triggers, why)
+            if save:
+                dev.SendStop(self._u32(self._all_triggers),
+                             self.api.Int32(STOP_OPTION_SAVESTOP))
+                log.info("STG SendStop(0x%x, STOP_OPTION_SAVESTOP) sent: %s",
+                         self._all_triggers, why)
+                if not self._stopped_within(SAVE_STOP_WAIT_S):
+                    log.warning("STG still running %.0f ms after the save stop: immediate "
+                                "SendStop", SAVE_STOP_WAIT_S * 1e3)
+                    dev.SendStop(self._u32(self._all_triggers))
+            else:
+                dev.SendStop(self._u32(self._all_triggers))
+                log.info("STG SendStop(0x%x) (immediate) sent: %s", self._all_triggers, why)
         except Exception as exc:  # never raise from the safety path
-            self._stop_error = f"SendStop failed: {exc}"
-            log.error("STG SendStop failed (%s): %s", why, exc)
+            self._stop_error = (
+                f"SendStop failed ({exc}) during {why}: the STG may still be stimulating; "
+                "SWITCH THE STIMULATOR OFF at its power switch now, then check the USB cable "
+                "and connect again")
+            self._stop_failures += 1
+            log.critical("STG: %s", self._stop_error)
+
+    def _stopped_within(self, wait_s: float) -> bool:
+        """True once no trigger is Running or Armed (``QueryTriggerstatus``), within
+        ``wait_s`` of host time; True if this McsUsbNet cannot say."""
+        deadline = time.monotonic() + wait_s
+        while True:
+            try:
+                ds = self._query_locked()
+            except Exception:  # an unreadable status: let the immediate stop follow
+                return False
+            if ds is None or not ds.any_active:
+                return True
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.001)
 
     # -- connection -------------------------------------------------------------------
     def connect(self) -> None:
@@ -231,6 +295,13 @@ class Stg4002Stimulator(StgStatusTracking):
         self._n_channels, self._n_sync = n_channels, n_sync
         dev.SetCurrentMode()
         dev.DisableMultiFileMode()
+        # SetupRetriggerMode (XML): "The STG has three options how to handle a successive
+        # trigger while a trigger is active: stop this trigger (default action), restart
+        # this trigger, ignore the signal"; RetriggerActionEnumNet also has Gate and Single,
+        # which MC_Stimulus II may have left set. Set to the documented default: a second
+        # pulse on Trigger In ends the trial at zero and is reported as an early end.
+        stop = api_retrigger_stop(self.api)
+        dev.SetupRetriggerMode(stop, stop)
         for ch in (self.ext_ch, self.flex_ch):
             self._range_nA[ch] = float(dev.GetCurrentRangeInNanoAmp(self._u32(ch - 1)))
             self._res_nA[ch] = float(dev.GetCurrentResolutionInNanoAmp(self._u32(ch - 1)))
@@ -240,12 +311,8 @@ class Stg4002Stimulator(StgStatusTracking):
                     f"current ceiling {self.ceiling_mA[ch]:g} mA on stimulator channel {ch} "
                     f"exceeds the device's range {range_mA:g} mA; lower the ceiling in the "
                     "hardware config")
-        # McsUsbNet SetOutputRate / GetOutputRate: "Valid rates are from 1000 Hz to 50000 Hz"
-        dev.SetOutputRate(self._u32(int(self.output_rate_Hz)))
-        got = float(dev.GetOutputRate())
-        if abs(got - self.output_rate_Hz) > 0.5:
-            raise DeviceError(f"STG output rate set to {self.output_rate_Hz:g} Hz but the "
-                              f"device reports {got:g} Hz; nothing will be downloaded")
+        # no SetOutputRate: download mode's resolution is fixed at 20 us (module docstring)
+        got = STG4002_OUTPUT_RATE_HZ
         self._memory_bytes = int(dev.GetTotalMemory())
         try:  # void GetStgVersionInfo(out string SwVersion, out string HwVersion)
             self._software, self._hardware = parse_version_info(dev.GetStgVersionInfo("", ""))
@@ -272,13 +339,13 @@ class Stg4002Stimulator(StgStatusTracking):
             log.error("STG disconnect: a vendor call has not returned for 5 s; "
                       "disconnecting anyway")
         try:
-            dev, self._dev = self._dev, None
+            dev = self._dev
             if dev is None:
                 return
-            try:
-                dev.SendStop(self._u32(self._all_triggers))
-            except Exception as exc:  # the device may be gone (USB error)
-                log.warning("STG SendStop at disconnect failed: %s", exc)
+            if self._stop_pending:  # an E-stop is waiting: it goes first, immediately
+                self._send_stop_locked("deferred stop at disconnect")
+            self._send_stop_locked("disconnect (end of session)", save=True)
+            self._dev = None
             try:
                 dev.Stg200xPollStatusEvent -= self._on_poll
             except Exception:
@@ -318,6 +385,7 @@ class Stg4002Stimulator(StgStatusTracking):
         """
         if self._dev is None:
             raise DeviceError("the STG is not connected; call connect() first")
+        self._refuse_after_failed_stop()
         stops_before = self._stop_count
         state = self.status().state  # a finished trial turns RUNNING into STOPPED here
         if state is StimulatorState.RUNNING:
@@ -373,6 +441,10 @@ class Stg4002Stimulator(StgStatusTracking):
                         "(ResetOvercurrent) for a new download")
             dev.ResetOvercurrent()
         self._poll = None
+        # the previous trial's data first, so the segment's available memory is all ours
+        for ch in prepared.channels:
+            dev.ClearChannelData(self._u32(ch - 1))
+        dev.ClearSyncData(self._u32(self.sync_out - 1))
         self._capacity = fit_memory(dev, api, prepared, n_channels=self._n_channels,
                                     n_sync=self._n_sync, sync_out=self.sync_out,
                                     total_bytes=self._memory_bytes)
@@ -380,18 +452,17 @@ class Stg4002Stimulator(StgStatusTracking):
         self._setup_trigger()
         for ch, data in prepared.channels.items():
             check_stop()
-            dev.ClearChannelData(self._u32(ch - 1))
             dev.PrepareAndSendData(self._u32(ch - 1),
                                    api.Array[api.Int32](data.values_nA.tolist()),
                                    api.Array[api.UInt64](data.durations_us.tolist()),
                                    dest.channeldata_current)
         check_stop()
         sync = prepared.sync
-        dev.ClearSyncData(self._u32(self.sync_out - 1))
         dev.PrepareAndSendData(self._u32(self.sync_out - 1),
                                api.Array[api.Int32](sync.values_nA.tolist()),
                                api.Array[api.UInt64](sync.durations_us.tolist()),
                                dest.syncoutdata)
+        self._usage = read_usage(dev, api, prepared)
         check_stop()
 
     def _setup_trigger(self) -> None:
@@ -413,10 +484,12 @@ class Stg4002Stimulator(StgStatusTracking):
     def start(self) -> None:
         if self._state is not StimulatorState.ARMED:
             raise DeviceError(f"cannot start the STG while it is {self._state.value}")
+        self._refuse_after_failed_stop()
         self._io.acquire()
         try:
             self._poll = None
             self._seen_running = False
+            self._foreign_start = False
             self._generation += 1
             # host times bracketing the start: the device starts between them (plus its
             # start delay), so an early end is judged from the first, a late one from the
@@ -432,8 +505,35 @@ class Stg4002Stimulator(StgStatusTracking):
         self._t_start, self._t_sent = t_before, self._now()
         self._state = StimulatorState.RUNNING
 
+    def _refuse_after_failed_stop(self) -> None:
+        if self._stop_error:
+            raise SafetyError(f"STG: {self._stop_error}")
+
+    def stop_after_period(self) -> None:
+        """An ordinary end or abort: the save stop (never cuts a biphasic carrier period,
+        see :meth:`_send_stop_locked`), then the immediate stop if the device still runs.
+
+        For an E-stop use :meth:`stop_now`. Never raises.
+        """
+        with self._flags:
+            self._stop_count += 1
+        if self._dev is None:
+            return
+        if self._io.acquire(timeout=STOP_WAIT_S):
+            try:
+                self._send_stop_locked("ordinary end / abort", save=True)
+            finally:
+                self._io.release()
+        else:
+            self.stop_now()
+            return
+        if self._state in (StimulatorState.RUNNING, StimulatorState.ARMED,
+                           StimulatorState.LOADED):
+            self._state = StimulatorState.STOPPED
+
     def stop_now(self) -> None:
-        """``SendStop`` on every trigger at once. Thread-safe, idempotent, never raises.
+        """The immediate ``SendStop`` on every trigger (E-stop): output at zero at once, even
+        mid-pulse. Thread-safe, idempotent, never raises.
 
         Never concurrent with another vendor call: if one is in progress for longer than
         :data:`STOP_WAIT_S` (a download), its thread sends the stop as soon as that call
@@ -470,7 +570,10 @@ class Stg4002Stimulator(StgStatusTracking):
         ``stimulation_json``), or None before the first load."""
         if self.last_download is None:
             return None
-        return download_summary(self.last_download, self._capacity or None)
+        summary = download_summary(self.last_download, self._capacity or None)
+        if self._usage:
+            summary["memory_used_bytes"] = dict(self._usage)
+        return summary
 
     def describe(self) -> dict:
         """What ``nmsid probe`` prints (after :meth:`connect`)."""
@@ -481,7 +584,20 @@ class Stg4002Stimulator(StgStatusTracking):
                 "range_mA": {ch: r / NA_PER_MA for ch, r in self._range_nA.items()},
                 "resolution_uA": {ch: r / 1000 for ch, r in self._res_nA.items()},
                 "memory_MB": self._memory_bytes / 1e6,
-                "ceiling_mA": dict(self.ceiling_mA)}
+                "ceiling_mA": dict(self.ceiling_mA),
+                "electrode_off": ELECTRODE_OFF_NOTE}
+
+
+ELECTRODE_OFF_NOTE = (
+    "NOT detected by an STG4002: an open current output drives its output voltage to the "
+    "maximum (STG4000 manual 12.5) and no status reports it; check the electrodes before each "
+    "sE level (docs/hardware.md, 'Electrode contact')")
+"""What ``nmsid probe`` says about electrode-off (Stg5OvercurrentStatusEnumNet is STG5's)."""
+
+
+def api_retrigger_stop(api):
+    """``RetriggerActionEnumNet.Stop`` from the loaded names (the documented default)."""
+    return api.RetriggerActionEnumNet.Stop
 
 
 class _Aborted(Exception):

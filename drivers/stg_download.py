@@ -71,6 +71,40 @@ class PreparedDownload:
         return self.sync.n_points * BYTES_PER_POINT
 
 
+SYNC_HIGH = 0x01
+"""Sync output level bit: high for the whole trial (the A/D's trigger and sync channel)."""
+SYNC_SAVE_STOP = 0x02
+"""McsUsbNet ``SendStop(triggermap, options)``, STOP_OPTION_SAVESTOP: "bypasses the stop
+commands when a syncout ... has bit 1 (0x02) set. Can be used e.g. to prevent a stop while
+a biphasic stimulation pulse is active" (XML)."""
+
+
+def save_stop_marks(channels: list[RenderedChannel], n_ticks: int) -> np.ndarray:
+    """Sync samples of one trial: bit 0 high throughout, bit 1 inside carrier periods.
+
+    Bit 1 (:data:`SYNC_SAVE_STOP`) is set on every output tick of a carrier period in which
+    any channel is non-zero, except the period's first tick, where every channel is exactly
+    0 nA (``q[0] = 0``, :mod:`nmsid.drivers.stg_waveform`) and the period's net charge is
+    zero. A save stop (``STOP_OPTION_SAVESTOP``) therefore takes effect only at a period
+    boundary and never leaves the net charge of a cut biphasic period.
+    """
+    out = np.full(n_ticks, SYNC_HIGH, dtype=np.int64)
+    for ch in channels:
+        P = ch.period_ticks
+        samples = ch.expand()[:n_ticks]
+        if P <= 0 or not len(samples):
+            continue
+        n_periods = -(-len(samples) // P)
+        padded = np.zeros(n_periods * P, dtype=np.int64)
+        padded[:len(samples)] = samples
+        active = np.any(padded.reshape(n_periods, P) != 0, axis=1)
+        mark = np.repeat(active, P)
+        mark[::P] = False
+        mark = mark[:n_ticks]
+        out[:len(mark)] |= np.where(mark, SYNC_SAVE_STOP, 0)
+    return out
+
+
 def check_output_rate(output_rate_Hz: float) -> float:
     """Validate an output rate (1 kHz .. 50 kHz, whole microseconds per sample).
 
@@ -118,7 +152,7 @@ def prepare_download(waveform: CheckedWaveform, ext: ChannelPlan, flex: ChannelP
         rendered[plan.channel] = r
     tick = output_tick_us(output_rate_Hz)
     n_ticks = int(round(waveform.duration_s * output_rate_Hz))
-    sync = compress(np.ones(n_ticks, dtype=np.int64), tick)  # high, then final 0
+    sync = compress(save_stop_marks(list(rendered.values()), n_ticks), tick)
     return PreparedDownload(channels=rendered, names={ext.channel: ext.name,
                                                       flex.channel: flex.name},
                             sync=sync, sync_out=sync_out,

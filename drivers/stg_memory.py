@@ -1,12 +1,24 @@
-"""The STG's download memory: per-channel and sync capacities, checked before sending.
+"""The STG's download memory, checked through the members McsUsbNet documents for it.
 
-``SetCapacity(channelCapacity[], syncCapacity[])`` / ``GetCapacity(out, out)`` (the
-``mcs.stg.sdk`` MATLAB wrapper of McsUsbNet, ``cstg200x_download_basic.m``): "For each
-segment, the memory layout has to be defined. Each channel and sync output can be given an
-individual amount of memory space as needed by the application. Make sure the sum does not
-exceed the memory"; a download larger than its channel's capacity fails inside the vendor
-library, half-way through the download. McsUsbNet 5.3.15's metadata has no download-mode
-``GetCapacity``: then only the total (``GetTotalMemory``) can be checked.
+Sources (McsUsbNet 5.3.15 XML documentation and type metadata, ``shared/vendor/
+McsUsbNet-5.3.15/``):
+
+* ``CStg200xDownloadNet.SegmentSelect(UInt32 segment, Stg200xSegmentFlagsEnumNet
+  segmentflags)``: "Switchs segment"; ``SegmentDefine``: "On reset, the STG has one segment
+  containing all available memory". The driver works in segment 0 with flags ``None``.
+* ``CStg200xBasicNet.GetAvailableMemory()``: "the amount of memory available in the
+  currently selected segment of the STG ... in bytes"; ``GetTotalMemory()``: "(all
+  segments)".
+* ``CStg200xDownloadBasicNet.GetMemoryUsageDAC(UInt32 channel)`` /
+  ``GetMemoryUsageSyncout(UInt32 channel)``: "the memory usage of the current segment and
+  selected analog DAC (syncout) channel".
+
+``GetCapacity`` / ``SetCapacity`` are members of ``CStg200xStreamingNet`` only (the vendor
+README; the real assembly's metadata): they are never called in download mode.
+
+The download format's size per point is not documented: the check before sending uses the
+conservative :data:`~nmsid.drivers.stg_download.BYTES_PER_POINT`, and the real use is read
+back after the download and recorded (``stimulation_json`` ``memory_used_bytes``).
 """
 
 from __future__ import annotations
@@ -17,6 +29,9 @@ from nmsid.drivers.errors import DeviceMemoryError
 from nmsid.drivers.stg_download import BYTES_PER_POINT, PreparedDownload
 
 log = logging.getLogger(__name__)
+
+SEGMENT = 0
+"""The one segment the driver uses (``DisableMultiFileMode`` at connect)."""
 
 
 def needs(prepared: PreparedDownload, n_channels: int, n_sync: int,
@@ -30,57 +45,49 @@ def needs(prepared: PreparedDownload, n_channels: int, n_sync: int,
     return need_ch, need_sync
 
 
-def fits(need: list[int], capacity: list[int]) -> bool:
-    return all(n <= (capacity[i] if i < len(capacity) else 0) for i, n in enumerate(need))
-
-
-def read_capacity(dev) -> tuple[list[int], list[int]] | None:
-    """``GetCapacity(out UInt32[] channel, out UInt32[] sync)`` or None if absent."""
-    try:  # pythonnet: out parameters are placeholders and come back in the tuple
-        result = dev.GetCapacity(None, None)
-    except AttributeError:  # McsUsbNet 5.3.15 has no download-mode GetCapacity
-        return None
-    if isinstance(result, tuple) and len(result) >= 2:
-        return [int(x) for x in result[-2]], [int(x) for x in result[-1]]
-    return None
-
-
 def fit_memory(dev, api, prepared: PreparedDownload, *, n_channels: int, n_sync: int,
                sync_out: int, total_bytes: int) -> dict[int, int]:
-    """Check, and if needed lay out, the memory before anything is sent.
+    """Select segment 0 and check the trial fits its available memory, before sending.
 
     Returns
     -------
     dict
-        Capacity per output channel (numbered from 1), empty if the device cannot say.
+        ``{0: available bytes of the segment}`` (recorded with the download).
 
     Raises
     ------
     DeviceMemoryError
-        The trial does not fit the whole memory, or the layout did not take.
+        The trial does not fit; nothing was sent.
     """
     need_ch, need_sync = needs(prepared, n_channels, n_sync, sync_out)
     total_need = sum(need_ch) + sum(need_sync)
-    if total_need > total_bytes:
+    no_flags = getattr(api.Stg200xSegmentFlagsEnumNet, "None")  # a Python keyword
+    dev.SegmentSelect(api.UInt32(SEGMENT), no_flags)
+    available = int(dev.GetAvailableMemory())
+    if total_need > available:
         raise DeviceMemoryError(
-            f"trial needs about {total_need / 1e6:.1f} MB of STG memory (estimated "
-            f"{BYTES_PER_POINT} B/point), the device has {total_bytes / 1e6:.1f} MB; "
+            f"trial needs about {total_need / 1e6:.2f} MB of STG memory (estimated "
+            f"{BYTES_PER_POINT} B/point), segment {SEGMENT} has {available / 1e6:.2f} MB "
+            f"available (GetAvailableMemory; {total_bytes / 1e6:.1f} MB in all segments); "
             "shorten the trial; nothing was sent")
-    caps = read_capacity(dev)
-    if caps is None:
-        return {}
-    if fits(need_ch, caps[0]) and fits(need_sync, caps[1]):
-        return {ch + 1: c for ch, c in enumerate(caps[0])}
-    share = (total_bytes - total_need) // (len(need_ch) + len(need_sync))
-    new_ch = [need + share for need in need_ch]
-    new_sync = [need + share for need in need_sync]
-    dev.SetCapacity(api.Array[api.UInt32](new_ch), api.Array[api.UInt32](new_sync))
-    log.info("STG memory laid out per channel %s and sync %s bytes (SetCapacity)", new_ch,
-             new_sync)
-    caps = read_capacity(dev)
-    if caps is not None and not (fits(need_ch, caps[0]) and fits(need_sync, caps[1])):
-        raise DeviceMemoryError(
-            f"STG memory layout did not take: channels need {need_ch} bytes, sync "
-            f"{need_sync}; the device reports capacities {caps[0]} and {caps[1]}; nothing "
-            "was sent")
-    return {} if caps is None else {ch + 1: c for ch, c in enumerate(caps[0])}
+    return {SEGMENT: available}
+
+
+def read_usage(dev, api, prepared: PreparedDownload) -> dict[str, int]:
+    """Memory the device reports in use after a download (``GetMemoryUsageDAC`` per output
+    channel, ``GetMemoryUsageSyncout`` for the sync output), keyed ``"channel N"`` /
+    ``"sync N"`` (numbered from 1). Informative: a failed query is logged, not raised."""
+    usage: dict[str, int] = {}
+    try:
+        for ch, rendered in prepared.channels.items():
+            used = int(dev.GetMemoryUsageDAC(api.UInt32(ch - 1)))
+            usage[f"channel {ch}"] = used
+            if rendered.n_points and used > rendered.n_points * BYTES_PER_POINT:
+                log.warning("STG channel %d uses %d B for %d points: more than the %d B/point "
+                            "the memory check assumes", ch, used, rendered.n_points,
+                            BYTES_PER_POINT)
+        usage[f"sync {prepared.sync_out}"] = int(
+            dev.GetMemoryUsageSyncout(api.UInt32(prepared.sync_out - 1)))
+    except Exception as exc:  # informative only
+        log.warning("STG memory usage query failed: %s", exc)
+    return usage

@@ -43,7 +43,9 @@ class TriggerStatus(enum.IntEnum):
 
 
 class OvercurrentStatus(enum.IntEnum):
-    """``Mcs.Usb.Stg5OvercurrentStatusEnumNet``: Shutdown = an electrode lost contact."""
+    """``Mcs.Usb.Stg5OvercurrentStatusEnumNet`` (the type of ``StgStatusNet``'s field; an STG5
+    family enum). Not an electrode-off detector on an STG4002: an open current output drives
+    the output voltage to its maximum (STG4000 manual 12.5) and nothing reports it."""
 
     NORMAL = 0
     SHUTDOWN = 1

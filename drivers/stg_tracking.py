@@ -4,7 +4,7 @@ A mixin of :class:`nmsid.drivers.stg4002.Stg4002Stimulator` (kept apart to keep 
 small): the McsUsbNet poll-status callback, ``QueryTriggerstatus``, and the decision
 whether a started trial still runs, ended, or faulted (:func:`nmsid.drivers.stg_status.judge_trial`:
 trigger status enum Idle 0 / Running 1 / Finished 2 / Armed 3; ``OvercurrentStatus``
-Shutdown = an electrode lost contact, a fault). The attributes it uses (``_dev``, ``_io``,
+Shutdown a fault; an STG4002 does not report electrode-off, see ``docs/hardware.md``). The attributes it uses (``_dev``, ``_io``,
 ``_state``, ``_t_start``, ...) and ``_fault`` / ``_release`` belong to the driver.
 """
 
@@ -17,6 +17,9 @@ from nmsid.drivers.stg_status import (DeviceStatus, OvercurrentStatus, TrialProg
                                       TriggerStatus, UnknownStatus, decode_status, judge_trial)
 
 log = logging.getLogger("nmsid.drivers.stg4002")
+
+_BETWEEN_TRIALS = (StimulatorState.IDLE, StimulatorState.LOADED, StimulatorState.ARMED,
+                   StimulatorState.STOPPED)
 
 
 class StgStatusTracking:
@@ -33,6 +36,13 @@ class StgStatusTracking:
         self._poll = ds
         if ds.trigger(0) in (TriggerStatus.RUNNING, TriggerStatus.FINISHED):
             self._seen_running = True  # a short Running may fall between two queries
+        # Running reported while no trial of ours can be under way (a trial is loaded or
+        # nothing is): started by the front panel or Trigger In; stopped at the next
+        # status() (not on the library's thread). ARMED / RUNNING / STOPPED are left to the
+        # query in _check_between_trials (a start or a stop may be in flight).
+        if self._state in (StimulatorState.IDLE, StimulatorState.LOADED) and any(
+                t is TriggerStatus.RUNNING for t in ds.triggers):
+            self._foreign_start = True
 
     def _query_locked(self) -> DeviceStatus | None:
         """``QueryTriggerstatus()`` decoded, or None if this McsUsbNet lacks it."""
@@ -48,6 +58,12 @@ class StgStatusTracking:
                     self._update_running()
                 finally:
                     self._release()
+        elif self._state in _BETWEEN_TRIALS and self._dev is not None:
+            if self._io.acquire(blocking=False):
+                try:
+                    self._check_between_trials()
+                finally:
+                    self._release()
         state = self._state
         index = -1
         if state is StimulatorState.RUNNING and self._t_start is not None:
@@ -56,6 +72,28 @@ class StgStatusTracking:
                                 output_active=state is StimulatorState.RUNNING
                                 or bool(self._stop_error),
                                 error=self._stop_error or self._error, sample_index=index)
+
+    def _check_between_trials(self) -> None:
+        """Poll the device between trials: a pattern started by the front-panel Start button
+        or a pulse on Trigger In (the STG4000 manual: the STG plays its memory without a PC)
+        is stopped at once and becomes a fault the operator sees."""
+        foreign = self._foreign_start
+        self._foreign_start = False
+        try:
+            ds = self._query_locked()
+        except Exception as exc:  # the link is down: the engine's device check reports it
+            self._state = StimulatorState.ERROR
+            self._error = f"status query between trials failed: {exc}"
+            log.error("STG: %s", self._error)
+            return
+        running = [i + 1 for i, t in enumerate(ds.triggers) if t is TriggerStatus.RUNNING] \
+            if ds is not None else []
+        if running or foreign:
+            which = ", ".join(str(i) for i in running) or "?"
+            self._fault(f"the STG started output on trigger {which} between trials, not "
+                        "started by nmsid (front-panel Start button or a pulse on Trigger In?);"
+                        " output stopped; check the Trigger In wiring and keep the front "
+                        "panel untouched")
 
     def _update_running(self) -> None:
         """Decide from the device's own status whether the trial runs, ended or faulted."""
@@ -79,8 +117,12 @@ class StgStatusTracking:
                 self._state = StimulatorState.STOPPED
             return
         if ds.overcurrent is OvercurrentStatus.SHUTDOWN:
-            self._fault(f"overcurrent shutdown after {elapsed:.3f} s: an electrode lost "
-                        "contact (Stg5OvercurrentStatus Shutdown); check the electrodes")
+            # StgStatusNet's field is typed Stg5OvercurrentStatusEnumNet (an STG5 family
+            # status); an STG4002 does not report electrode-off through it: an open output
+            # drives the voltage to its maximum (STG4000 manual 12.5). A Shutdown reported
+            # here is still a fault, but not proof of lost contact.
+            self._fault(f"the STG reported an overcurrent shutdown after {elapsed:.3f} s "
+                        "(OvercurrentStatus Shutdown); check the electrodes and leads")
             return
         trig = ds.trigger(0)
         if trig is TriggerStatus.RUNNING:

@@ -118,6 +118,29 @@ class FakeBench:
             return self.force_model.step(I_ext, I_flex)
 
 
+LEPTRINO_OFFSET_V, LEPTRINO_RATED_OUTPUT_V, LEPTRINO_SPAN_V = 1.5, 1.0, (0.0, 3.3)
+"""Leptrino CFS manual No.M000104, 4.1: outputs 0 .. 3.3 V, 1.5 V offset at no load, 1 V
+change at rated load."""
+
+
+def leptrino_analog_wiring(bench: FakeBench, channels: dict, rated: dict,
+                           direction=(1.0, 0.0, 0.0), sync_channel=None,
+                           noise_V: float = 0.00005, seed: int = 1) -> dict:
+    """The Leptrino analog sensor as its manual describes it, driven by FORCE: each axis
+    outputs ``1.5 V + 1 V x load / rated`` clipped to 0 .. 3.3 V (manual 4.1), whatever
+    calibration the driver was given (``rated`` is the sensor's rating)."""
+    inner = sensor_wiring(bench, channels,
+                          {a: LEPTRINO_RATED_OUTPUT_V / rated[a] for a in channels},
+                          offset_V={a: LEPTRINO_OFFSET_V for a in channels},
+                          direction=direction, sync_channel=None, noise_V=noise_V, seed=seed)
+    lo, hi = LEPTRINO_SPAN_V
+    wiring = {ch: (lambda t, force, fn=fn: np.clip(fn(t, force), lo, hi))
+              for ch, fn in inner.items()}
+    if sync_channel is not None:
+        wiring[sync_channel] = lambda t, force: bench.sync_V(t)
+    return wiring
+
+
 def sensor_wiring(bench: FakeBench, channels: dict, volts_per_unit: dict, offset_V=None,
                   direction=(1.0, 0.0, 0.0), sync_channel=None, noise_V: float = 0.0,
                   seed: int = 1) -> dict:

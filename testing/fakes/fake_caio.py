@@ -54,6 +54,11 @@ AIO_ERR_SAMPLING_CLOCK_UNVERIFIED = 11300
 """NOT from a Contec header (none available to us lists the sampling-clock error): a
 stand-in number for a sampling clock out of range; the driver treats it as any error."""
 
+AIO_ERR_AI_TRIGGER_UNVERIFIED = 11140
+"""NOT from a Contec header: a stand-in number for a trigger code outside those modelled."""
+START_CODES = {"software": 0, "external rising": 1, "external falling": 2}
+STOP_CODES = {"times": 0, "command": 4}
+
 ERRORS = {
     AIO_ERR_DLL_DEVICE_NAME: "Device name not registered in the device manager",
     AIO_ERR_DLL_INVALID_ID: "Invalid ID",
@@ -140,6 +145,7 @@ class FakeCaioLibrary:
         self.clock_us = 1000.0
         self.start_trigger = 0
         self.stop_trigger = 4
+        self.input_method = 0
         self.stop_times = 0
         self.running = False
         self._fifo = np.zeros((0, 1))
@@ -179,8 +185,10 @@ class FakeCaioLibrary:
             return
         now = self.bench.now()
         if self._t_first is None:
-            if self.start_trigger == 0:
+            if self.start_trigger == START_CODES["software"]:
                 self._t_first = self._t_start_call
+            elif self.start_trigger == START_CODES["external falling"]:
+                return  # the fake bench's sync only rises at a trial's start
             else:
                 t_trig = self.bench.trigger_time()
                 if t_trig is None or t_trig < self._t_start_call:
@@ -243,20 +251,28 @@ class FakeCaioLibrary:
         return 0
 
     # -- analog input -------------------------------------------------------------------
+    def _ai_max(self) -> int:
+        """Contec's help, AioGetAiMaxChannels: the number of channels "in the current input
+        method"; differential input pairs two inputs per channel (half the single-ended)."""
+        return self.max_channels // 2 if self.input_method == 1 else self.max_channels
+
     def _AioGetAiMaxChannels(self, id_, ptr):
         err = self._check_id(id_)
         if not err:
-            _target(ptr).value = self.max_channels
+            _target(ptr).value = self._ai_max()
         return err
 
     def _AioSetAiInputMethod(self, id_, method):
-        return self._check_id(id_) or (0 if _val(method) in (0, 1) else AIO_ERR_AI_RANGE)
+        err = self._check_id(id_) or (0 if _val(method) in (0, 1) else AIO_ERR_AI_RANGE)
+        if not err:
+            self.input_method = _val(method)
+        return err
 
     def _AioSetAiChannels(self, id_, n):
         err = self._check_id(id_)
         if err:
             return err
-        if not 1 <= _val(n) <= self.max_channels:
+        if not 1 <= _val(n) <= self._ai_max():
             return AIO_ERR_AI_DEVICE_CHANNEL
         self.channels = _val(n)
         self._fifo = np.zeros((0, self.channels))
@@ -302,12 +318,26 @@ class FakeCaioLibrary:
         return err
 
     def _AioSetAiStartTrigger(self, id_, trig):
+        # caio.h / help AioSetAiStartTrigger: 0 software, 1 external trigger rising edge,
+        # 2 falling edge (level and in/out-of-range triggers are not modelled: refused)
+        err = self._check_id(id_)
+        if err:
+            return err
+        if _val(trig) not in START_CODES.values():
+            return AIO_ERR_AI_TRIGGER_UNVERIFIED
         self.start_trigger = _val(trig)
-        return self._check_id(id_)
+        return 0
 
     def _AioSetAiStopTrigger(self, id_, trig):
+        # caio.h / help AioSetAiStopTrigger: 0 after the set number of samplings, 4 by
+        # command (AioStopAi); the external and level stops are not modelled: refused
+        err = self._check_id(id_)
+        if err:
+            return err
+        if _val(trig) not in STOP_CODES.values():
+            return AIO_ERR_AI_TRIGGER_UNVERIFIED
         self.stop_trigger = _val(trig)
-        return self._check_id(id_)
+        return 0
 
     def _AioSetAiStopTimes(self, id_, times):
         self.stop_times = _val(times)

@@ -25,6 +25,14 @@ class UInt32(_NetInt):
     MIN, MAX, NAME = 0, 2 ** 32 - 1, "UInt32"
 
 
+class Int16(_NetInt):
+    MIN, MAX, NAME = -2 ** 15, 2 ** 15 - 1, "Int16"
+
+
+class UInt16(_NetInt):
+    MIN, MAX, NAME = 0, 2 ** 16 - 1, "UInt16"
+
+
 class UInt64(_NetInt):
     MIN, MAX, NAME = 0, 2 ** 64 - 1, "UInt64"
 

@@ -61,13 +61,14 @@ import types
 
 import numpy as np
 
-from nmsid.testing.fakes.fake_dotnet import (Int32, NetArray, ObjectDisposedException, UInt32,
+from nmsid.testing.fakes.fake_dotnet import (Int32, ObjectDisposedException, UInt32,
                                              UInt64, CUsbExceptionNet, _ArrayFactory, _require)
-from nmsid.testing.fakes.fake_stg_device import (_INF, DeviceEnumNet, FakeStgHardware,
-                                                 STG_DestinationEnumNet, Stg200xTriggerStatusEnumNet,
+from nmsid.testing.fakes.fake_stg_device import (_INF, POINT_BYTES, DeviceEnumNet,
+                                                 FakeStgHardware, RetriggerActionEnumNet,
+                                                 STG_DestinationEnumNet,
+                                                 Stg200xSegmentFlagsEnumNet,
+                                                 Stg200xTriggerStatusEnumNet,
                                                  Stg5OvercurrentStatusEnumNet, StgStatusNet)
-
-POINT_BYTES = 8  # ASSUMED (the download format's size on the device is not documented)
 
 
 class CMcsUsbListEntryNet:
@@ -279,17 +280,6 @@ class CStg200xDownloadNet:
         hw = self._need()
         return (hw.software, hw.hardware)  # void + 2 out strings, as pythonnet returns it
 
-    @_vendor
-    def SetOutputRate(self, rate):
-        r = _require(rate, UInt32, "rate")
-        if not 1000 <= r <= 50_000:
-            raise CUsbExceptionNet(f"Mcs.Usb.CUsbExceptionNet: output rate {r} Hz invalid "
-                                   "(valid 1000 .. 50000 Hz)")
-        self._need().output_rate_Hz = r
-
-    @_vendor
-    def GetOutputRate(self):
-        return UInt32(self._need().output_rate_Hz)
 
     # -- status ----------------------------------------------------------------------------
     @_vendor
@@ -320,31 +310,49 @@ class CStg200xDownloadNet:
         hw.overcurrent_after_s = None
 
     # -- memory ----------------------------------------------------------------------------
+    # Download mode has no GetCapacity / SetCapacity (members of CStg200xStreamingNet only,
+    # real 5.3.15 metadata): the documented members are these.
     @_vendor
-    def GetCapacity(self, channel_out, sync_out):
-        """void GetCapacity(out UInt32[], out UInt32[]) -> pythonnet's (channel, sync)."""
+    def SegmentSelect(self, segment, segmentflags):
+        """XML: "Switchs segment"; flags a Stg200xSegmentFlagsEnumNet."""
+        seg = _require(segment, UInt32, "segment")
+        if not isinstance(segmentflags, Stg200xSegmentFlagsEnumNet):
+            raise TypeError("segmentflags must be a Stg200xSegmentFlagsEnumNet")
         hw = self._need()
-        if not hw.has_capacity:
-            raise AttributeError("'CStg200xDownloadNet' object has no attribute "
-                                 "'GetCapacity' (McsUsbNet 5.3.15)")
-        return (NetArray(UInt32, hw.channel_capacity), NetArray(UInt32, hw.sync_capacity))
+        if seg >= len(hw.segment_bytes):
+            raise CUsbExceptionNet(f"Mcs.Usb.CUsbExceptionNet: no segment {seg}")
+        hw.segment = seg
 
     @_vendor
-    def SetCapacity(self, channel_capacity, sync_capacity):
+    def GetAvailableMemory(self):
+        """XML: "the amount of memory available in the currently selected segment ... in
+        bytes"; the free bytes (ASSUMED: the stricter reading, data already sent counts)."""
         hw = self._need()
-        if not hw.has_capacity:
-            raise AttributeError("SetCapacity")
-        ch = _require(channel_capacity, UInt32, "channelCapacity", array=True).tolist()
-        sy = _require(sync_capacity, UInt32, "syncCapacity", array=True).tolist()
-        if len(ch) != hw.n_channels or len(sy) != hw.n_sync:
-            raise CUsbExceptionNet("Mcs.Usb.CUsbExceptionNet: one capacity per channel and "
-                                   "per sync output")
-        if sum(ch) + sum(sy) > hw.memory_bytes:
-            raise CUsbExceptionNet("Mcs.Usb.CUsbExceptionNet: capacities exceed the memory")
-        hw.channel_capacity, hw.sync_capacity = ch, sy
-        # wrapper: "this currently clears both channel and sync memory"
-        hw.channel_data.clear(), hw.sync_data.clear(), hw.expanded.clear()
-        hw.envelope.clear(), hw.sync_expanded.clear()
+        return UInt32(max(hw.segment_bytes[hw.segment] - hw.memory_used(), 0))
+
+    @_vendor
+    def GetMemoryUsageDAC(self, channel):
+        """XML: "the memory usage of the current segment and selected analog DAC channel"."""
+        ch = _require(channel, UInt32, "Channel")
+        hw = self._need()
+        return UInt32(len(hw.channel_data.get(ch, ((),))[0]) * POINT_BYTES)
+
+    @_vendor
+    def GetMemoryUsageSyncout(self, channel):
+        ch = _require(channel, UInt32, "Channel")
+        hw = self._need()
+        return UInt32(len(hw.sync_data.get(ch, ((),))[0]) * POINT_BYTES)
+
+    @_vendor
+    def SetupRetriggerMode(self, *args):
+        """Two overloads (metadata): (same_trigger, other_trigger) and (SByte trigger,
+        same_trigger, other_trigger); RetriggerActionEnumNet values."""
+        acts = args[-2:]
+        if len(args) not in (2, 3) or not all(isinstance(a, RetriggerActionEnumNet)
+                                              for a in acts):
+            raise TypeError("SetupRetriggerMode(RetriggerActionEnumNet same_trigger, "
+                            "RetriggerActionEnumNet other_trigger)")
+        self._need().retrigger_mode = RetriggerActionEnumNet(acts[0])
 
     # -- download --------------------------------------------------------------------------
     @_vendor
@@ -392,16 +400,9 @@ class CStg200xDownloadNet:
                                    f"of {tick} us at {hw.output_rate_Hz} Hz")
         nbytes = len(values) * POINT_BYTES
         sync = destination is STG_DestinationEnumNet.syncoutdata
-        if hw.has_capacity:
-            cap = (hw.sync_capacity if sync else hw.channel_capacity)
-            if ch < len(cap) and nbytes > cap[ch]:
-                raise CUsbExceptionNet(
-                    f"Mcs.Usb.CUsbExceptionNet: {nbytes} bytes exceed the capacity "
-                    f"{cap[ch]} of {'sync' if sync else 'channel'} {ch}")
-        else:
-            used = sum(len(v) for v, _ in hw.channel_data.values()) * POINT_BYTES
-            if used + nbytes > hw.memory_bytes:
-                raise CUsbExceptionNet("Mcs.Usb.CUsbExceptionNet: STG memory full")
+        if hw.memory_used() + nbytes > hw.segment_bytes[hw.segment]:
+            raise CUsbExceptionNet("Mcs.Usb.CUsbExceptionNet: STG memory of the segment "
+                                   "full")
         expanded = np.repeat(values, durations.astype(np.int64) // tick)
         if destination is STG_DestinationEnumNet.channeldata_current:
             if not hw.current_mode:
@@ -431,30 +432,30 @@ class CStg200xDownloadNet:
         m = _require(trigger_map, UInt32, "trigger map")
         hw = self._need()
         t = hw.now()
-        for i, tr in enumerate(hw.triggers):
-            if not m >> i & 1:
-                continue
-            n = 0
-            for ch in range(hw.n_channels):
-                if hw.channelmap[i] >> ch & 1:
-                    n = max(n, len(hw.expanded.get(ch, ())))
-            for s in range(hw.n_sync):
-                if hw.syncoutmap[i] >> s & 1:
-                    n = max(n, len(hw.sync_expanded.get(s, ())))
-            rep = hw.repeat[i]
-            tr.start_t, tr.run_t = t, t + hw.start_delay_s
-            tr.length_s = _INF if rep == 0 else n * rep / hw.output_rate_Hz
-            tr.stop_t = tr.reset_t = None
+        for i in range(hw.n_triggers):
+            if m >> i & 1:
+                hw.start_trigger(i, t)
 
     @_vendor
-    def SendStop(self, trigger_map):
+    def SendStop(self, trigger_map, options=None):
+        """Two overloads (metadata): SendStop(UInt32 triggermap) stops at once;
+        SendStop(UInt32 triggermap, Int32 options) with STOP_OPTION_SAVESTOP (0x80)
+        "bypasses the stop commands when a syncout ... has bit 1 (0x02) set" (XML)."""
         m = _require(trigger_map, UInt32, "trigger map")
+        save = False
+        if options is not None:
+            if not isinstance(options, Int32) or isinstance(options, bool):
+                raise TypeError(f"options: expected System.Int32, got {options!r}")
+            save = bool(int(options) & 0x80)
         hw = self._need()
         t = hw.now()
         for i, tr in enumerate(hw.triggers):
             if m >> i & 1 and tr.start_t is not None and tr.stop_t is None \
                     and t < hw._end(tr):
-                tr.stop_t = t
+                tr.stop_t = hw.save_stop_time(i, t) if save else t
+                tr.armed = False
+                if save:
+                    hw.save_stops.append((t, tr.stop_t))
 
 
 def install(bench=None, hardware=None, modules=None) -> dict:
@@ -480,7 +481,8 @@ def install(bench=None, hardware=None, modules=None) -> dict:
     usb = types.ModuleType("Mcs.Usb")
     for cls in (CMcsUsbListNet, CMcsUsbListEntryNet, CStg200xDownloadNet, DeviceEnumNet,
                 STG_DestinationEnumNet, StgStatusNet, Stg200xTriggerStatusEnumNet,
-                Stg5OvercurrentStatusEnumNet, CUsbExceptionNet):
+                Stg5OvercurrentStatusEnumNet, CUsbExceptionNet, RetriggerActionEnumNet,
+                Stg200xSegmentFlagsEnumNet):
         setattr(usb, cls.__name__, cls)
     mcs.Usb = usb
     mods = {"clr": clr, "System": system, "Mcs": mcs, "Mcs.Usb": usb}

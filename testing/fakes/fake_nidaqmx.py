@@ -79,6 +79,15 @@ class DaqReadError(DaqError):
 
 
 MESSAGES = {
+    # DAQmx error texts as DAQmx prints them (nidaqmx error_codes.DAQmxErrors names in
+    # brackets): PhysicalChanDoesNotExist, InvalidAttributeValue, TaskNameConflict (the
+    # "Task name specified conflicts with an existing task name" of -200089),
+    # InvalidRoutingSourceTerminalName
+    -200170: "Physical channel specified does not exist on this device.",
+    -200077: "Requested value is not a supported value for this property. The property "
+             "value may be invalid because it conflicts with another property.",
+    -200089: "Task name specified conflicts with an existing task name.",
+    -89125: "Source terminal to be routed could not be found on the device.",
     200012: "Clock rate specified exceeds the maximum conversion rate of the ADC.",
     -200279: "The application is not able to keep up with the acquisition. Attempted to "
              "read samples that are no longer available.",
@@ -126,10 +135,32 @@ class _Devices:
             raise DaqError(f"Device identifier is invalid: {name}", -200220)
         entry = {"ai_max_multi_chan_rate": 400e3, "ai_simultaneous_sampling_supported": False,
                  **self.state.devices[name]}   # the USB-6212's data sheet: 400 kS/s aggregate
+        entry.setdefault("ai_physical_chans", physical_channels(name, entry.pop("n_ai", 16)))
         return types.SimpleNamespace(name=name, **entry)
 
     def __iter__(self):
         return iter(self[n] for n in self.state.devices)
+
+
+def physical_channels(device: str, n_ai: int = 16) -> list:
+    """``Device.ai_physical_chans`` of an M-series device with ``n_ai`` single-ended
+    inputs: ``PhysicalChannel.name`` ``Dev1/ai0`` ... and ``ai_term_cfgs`` (nidaqmx 1.x,
+    "the terminal configurations supported by the channel"). NI's M-series pinout pairs
+    aiK with aiK+8 for differential input: ai0..7 support RSE, NRSE and DIFF, ai8..15
+    only RSE and NRSE."""
+    T = TerminalConfiguration
+    half = n_ai // 2
+    return [types.SimpleNamespace(
+        name=f"{device}/ai{k}",
+        ai_term_cfgs=[T.RSE, T.NRSE, T.DIFF] if k < half else [T.RSE, T.NRSE])
+        for k in range(n_ai)]
+
+
+def sync_terminal(device: str) -> str:
+    """Where the fake bench's STG sync is wired: the device entry's ``sync_terminal``,
+    else ``/<device>/PFI0``."""
+    entry = _State.devices.get(device, {})
+    return entry.get("sync_terminal", f"/{device}/PFI0")
 
 
 class _State:
@@ -153,6 +184,15 @@ class _Channels:
         self._check(physical_channel)
         if not isinstance(terminal_config, TerminalConfiguration):
             raise TypeError("terminal_config must be a TerminalConfiguration")
+        dev = _Devices(_State)[physical_channel.split("/")[0]]
+        phys = {c.name: c for c in dev.ai_physical_chans}
+        if physical_channel not in phys:
+            raise DaqError(f"{MESSAGES[-200170]}\nPhysical Channel Name: {physical_channel}",
+                           -200170)
+        if terminal_config is not TerminalConfiguration.DEFAULT \
+                and terminal_config not in phys[physical_channel].ai_term_cfgs:
+            raise DaqError(f"{MESSAGES[-200077]}\nProperty: AI.TermCfg\nRequested Value: "
+                           f"{terminal_config.name}\nChannel Name: {physical_channel}", -200077)
         if not min_val < max_val:
             raise DaqError("min_val must be below max_val", -200082)
         self.names.append(physical_channel)
@@ -210,6 +250,11 @@ class _StartTrigger:
     def cfg_dig_edge_start_trig(self, trigger_source, trigger_edge=Edge.RISING):
         if not isinstance(trigger_edge, Edge):
             raise TypeError("trigger_edge must be an Edge")
+        parts = str(trigger_source).strip("/").split("/")
+        if len(parts) != 2 or parts[0] not in _State.devices \
+                or not parts[1].upper().startswith("PFI") or not parts[1][3:].isdigit() \
+                or int(parts[1][3:]) > 15:
+            raise DaqError(f"{MESSAGES[-89125]}\nSource Terminal: {trigger_source}", -89125)
         self.source = trigger_source
 
     def disable_start_trig(self):
@@ -218,6 +263,9 @@ class _StartTrigger:
 
 class Task:
     def __init__(self, new_task_name=""):
+        if new_task_name and any(t.name == new_task_name and not t.closed
+                                 for t in _State.tasks):
+            raise DaqError(f"{MESSAGES[-200089]}\nTask Name: {new_task_name}", -200089)
         self.name = new_task_name
         self.ai_channels = _Channels(self, "ai")
         self.di_channels = _Channels(self, "di")
@@ -286,6 +334,9 @@ class Task:
                 src = self.triggers.start_trigger.source
                 if src is None:
                     self._t_first = self._t_call
+                elif src.upper() != sync_terminal(
+                        self.ai_channels.names[0].split("/")[0]).upper():
+                    continue   # nothing wired to that terminal: the trigger never comes
                 else:
                     t = bench.trigger_time()
                     if t is None or t < self._t_call:

@@ -31,6 +31,24 @@ class Stg200xTriggerStatusEnumNet(enum.IntEnum):
     Armed = 3
 
 
+class RetriggerActionEnumNet(enum.IntEnum):
+    """Values from McsUsbNet 5.3.15's metadata (reflection: Stop 0 .. Single 4)."""
+
+    Stop = 0
+    Restart = 1
+    Ignore = 2
+    Gate = 3
+    Single = 4
+
+
+# "None" is a Python keyword: the functional API (metadata: None 0, UpdateTrigger 1,
+# DownloadOnly 2, TriggerOnly 4, SyncStart 8)
+Stg200xSegmentFlagsEnumNet = enum.IntEnum(
+    "Stg200xSegmentFlagsEnumNet",
+    [("None", 0), ("UpdateTrigger", 1), ("DownloadOnly", 2), ("TriggerOnly", 4),
+     ("SyncStart", 8)])
+
+
 class Stg5OvercurrentStatusEnumNet(enum.IntEnum):
     Normal = 0
     Shutdown = 1
@@ -48,6 +66,7 @@ class StgStatusNet:
 
 
 _INF = float("inf")
+POINT_BYTES = 8  # ASSUMED (the download format's size on the device is not documented)
 
 
 class _Trigger:
@@ -58,6 +77,7 @@ class _Trigger:
         self.run_t: float | None = None     # output began (after the start delay)
         self.length_s = 0.0
         self.stop_t: float | None = None    # SendStop / retrigger
+        self.armed = False                  # Single mode: waiting for Trigger In
         self.reset_t: float | None = None   # ResetStatus
 
 
@@ -67,7 +87,7 @@ class FakeStgHardware:
     def __init__(self, *, name="STG4002", serial="4002-0001", n_channels=2, n_sync=2,
                  n_triggers=2, range_nA=16_000_000, resolution_nA=500,
                  memory_bytes=64 * 1024 * 1024, software="1.34", hardware="Rev. B",
-                 output_rate_Hz=50_000, has_capacity=True, start_delay_s=0.003,
+                 start_delay_s=0.003, retrigger_mode=RetriggerActionEnumNet.Stop,
                  start_status=Stg200xTriggerStatusEnumNet.Idle, poll_period_s=0.05,
                  overcurrent_after_s=None, clock=None):
         self.name, self.serial = name, serial
@@ -75,11 +95,18 @@ class FakeStgHardware:
         self.range_nA, self.resolution_nA = range_nA, resolution_nA
         self.memory_bytes = memory_bytes
         self.software, self.hardware = software, hardware
-        self.output_rate_Hz = int(output_rate_Hz)
-        self.has_capacity = has_capacity
-        n = n_channels + n_sync
-        self.channel_capacity = [memory_bytes // n] * n_channels   # ASSUMED power-up layout
-        self.sync_capacity = [memory_bytes // n] * n_sync
+        # download mode: fixed 20 us resolution (STG4000 manual p.16; XML PrepareAndSendData
+        # "The STG has a resolution of 20 us"); no SetOutputRate in download mode
+        self.output_rate_Hz = 50_000
+        # SegmentDefine (XML): "On reset, the STG has one segment containing all available
+        # memory"; a layout left by another program: segment_bytes (tests)
+        self.segment_bytes = [memory_bytes]
+        self.segment = 0
+        # SetupRetriggerMode: whatever the device holds (MC_Stimulus II may leave Gate or
+        # Single); "stop this trigger (default action)" (XML) is only the power-up value
+        self.retrigger_mode = RetriggerActionEnumNet(retrigger_mode)
+        self.save_stops: list[tuple[float, float]] = []
+        """(requested, effective) bench times of each save stop (tests)."""
         self.start_delay_s = start_delay_s
         self.start_status = Stg200xTriggerStatusEnumNet(start_status)
         self.poll_period_s = poll_period_s
@@ -130,11 +157,86 @@ class FakeStgHardware:
         self.opened_by = None
 
     def trigger_pulse(self, trigger: int = 0) -> None:
-        """A pulse on a trigger input while it runs: "stop this trigger" (default)."""
+        """A pulse on Trigger In (or the front-panel start button) on ``trigger``.
+
+        While the trigger runs, per the retrigger mode (SetupRetriggerMode, XML): Stop "stop
+        this trigger (default action)", Restart "restart this trigger", Ignore "ignore the
+        signal". A trigger that is idle starts playing what is loaded (the STG4000 manual:
+        the trigger inputs and the Start button start the stimulus without a PC); in Single
+        mode an armed trigger starts (ASSUMED from the review: Single "sits Armed").
+        """
         t = self.now()
         tr = self.triggers[trigger]
-        if self.status_at(t)[trigger] == Stg200xTriggerStatusEnumNet.Running:
-            tr.stop_t = t
+        st = self.status_at(t)[trigger]
+        mode = self.retrigger_mode
+        if st == Stg200xTriggerStatusEnumNet.Running:
+            if mode in (RetriggerActionEnumNet.Stop, RetriggerActionEnumNet.Gate,
+                        RetriggerActionEnumNet.Single):
+                tr.stop_t = t
+            elif mode is RetriggerActionEnumNet.Restart:
+                tr.start_t = tr.run_t = t
+            return
+        if st == Stg200xTriggerStatusEnumNet.Armed and tr.armed:
+            tr.armed = False
+            tr.run_t = t
+            return
+        self.start_trigger(trigger, t)
+
+    def start_trigger(self, i: int, t: float) -> None:
+        """Start trigger ``i`` at ``t`` (SendStart, Trigger In or the Start button)."""
+        tr = self.triggers[i]
+        n = 0
+        for ch in range(self.n_channels):
+            if self.channelmap[i] >> ch & 1:
+                n = max(n, len(self.expanded.get(ch, ())))
+        for s in range(self.n_sync):
+            if self.syncoutmap[i] >> s & 1:
+                n = max(n, len(self.sync_expanded.get(s, ())))
+        rep = self.repeat[i]
+        tr.start_t, tr.run_t = t, t + self.start_delay_s
+        tr.length_s = _INF if rep == 0 else n * rep / self.output_rate_Hz
+        tr.stop_t = tr.reset_t = None
+        tr.armed = False
+        if self.retrigger_mode is RetriggerActionEnumNet.Gate:
+            # ASSUMED (review, issue 25): output only while the gate input is high; with no
+            # gate signal the pattern ends at once
+            tr.length_s = 0.0
+        elif self.retrigger_mode is RetriggerActionEnumNet.Single:
+            # ASSUMED (review, issue 25): sits Armed until a pulse on Trigger In
+            tr.armed = True
+            tr.run_t = _INF
+
+    def save_stop_marked(self, trigger: int, t: float) -> bool:
+        """True if a sync output of ``trigger`` has bit 1 (0x02) set at ``t`` (XML SendStop:
+        STOP_OPTION_SAVESTOP "bypasses the stop commands when a syncout ... has bit 1 (0x02)
+        set")."""
+        tr = self.triggers[trigger]
+        if tr.run_t is None or tr.run_t == _INF or t < tr.run_t:
+            return False
+        k = int(np.floor((t - tr.run_t) * self.output_rate_Hz + 1e-9))
+        for s in range(self.n_sync):
+            data = self.sync_expanded.get(s)
+            if self.syncoutmap[trigger] >> s & 1 and data is not None and len(data):
+                kk = k % len(data) if self.repeat[trigger] == 0 else k
+                if 0 <= kk < len(data) and int(data[kk]) & 0x02:
+                    return True
+        return False
+
+    def save_stop_time(self, trigger: int, t: float) -> float:
+        """When a save stop requested at ``t`` takes effect: at once, or (ASSUMED reading of
+        "bypasses ... while a biphasic stimulation pulse is active") at the first output
+        tick whose bit 1 is clear."""
+        tr = self.triggers[trigger]
+        if not self.save_stop_marked(trigger, t):
+            return t
+        k0 = int(np.floor((t - tr.run_t) * self.output_rate_Hz + 1e-9))
+        for s in range(self.n_sync):
+            data = self.sync_expanded.get(s)
+            if self.syncoutmap[trigger] >> s & 1 and data is not None and len(data):
+                clear = np.flatnonzero((np.asarray(data[k0:]) & 0x02) == 0)
+                k = k0 + (int(clear[0]) if len(clear) else len(data) - k0)
+                return tr.run_t + k / self.output_rate_Hz
+        return t
 
     def lose_contact(self) -> None:
         """An electrode loses contact: overcurrent shutdown now."""
@@ -173,6 +275,9 @@ class FakeStgHardware:
         for tr in self.triggers:
             if tr.start_t is None:
                 out.append(S.Idle)
+                continue
+            if tr.armed and tr.stop_t is None:
+                out.append(S.Armed)
                 continue
             end = self._end(tr)
             if t < tr.run_t and (tr.stop_t is None or t < tr.stop_t):
@@ -254,4 +359,13 @@ class FakeStgHardware:
         return self._play(self.envelope.get(channel), channel, t, False)
 
     def sync_at(self, sync: int, t) -> np.ndarray:
-        return self._play(self.sync_expanded.get(sync), sync, t, True)
+        """Sync output level at bench times ``t``: bit 0 of the sync data (bit 1 is the
+        save-stop flag, XML SendStop)."""
+        data = self.sync_expanded.get(sync)
+        return self._play(None if data is None else np.asarray(data) & 0x01, sync, t, True)
+
+    def memory_used(self) -> int:
+        """Bytes of the selected segment in use (POINT_BYTES per point, ASSUMED)."""
+        pts = sum(len(v) for v, _ in self.channel_data.values())
+        pts += sum(len(v) for v, _ in self.sync_data.values())
+        return pts * POINT_BYTES

@@ -1,8 +1,12 @@
-"""An emulated Leptrino 6-axis force sensor on a real pseudo-terminal.
+"""An emulated Leptrino 6-axis force sensor on a pseudo-terminal or an in-process port.
 
-The emulator owns the master side of an ``os.openpty()`` pair and runs in a thread; the
-driver opens the slave side (``emulator.port``) with pyserial exactly as it opens the
-sensor's virtual COM port. Its byte codec is written independently of
+Two transports, chosen through :func:`nmsid.protocols.os_platform.is_windows` (or
+``transport=``): on POSIX the emulator owns the master side of an ``os.openpty()`` pair
+and the driver opens the slave side (``emulator.port``, a path) with pyserial exactly as
+it opens the sensor's virtual COM port; on Windows, which has no ``pty`` / ``tty``
+(imported lazily, only for the POSIX transport), ``emulator.port`` is a pyserial URL
+``leptrinoemu://<name>`` served in-process by :mod:`nmsid.testing.fakes.protocol_leptrinoemu`
+(registered in pyserial's ``protocol_handler_packages``). Either way it runs in a thread. Its byte codec is written independently of
 ``drivers.leptrino_protocol`` (so a shared mistake cannot pass unnoticed): frames are
 ``DLE STX LEN TERM CMD RES DATA DLE ETX BCC`` with DLE doubled inside and BCC = XOR of the
 unstuffed payload and ETX; a command with a bad BCC is answered ``DLE NAK``.
@@ -12,20 +16,30 @@ NAK), ``corrupt_every`` (every Nth data frame gets a wrong BCC), ``garbage_every
 bytes between frames), ``fragment`` (write in 1..7-byte pieces with pauses, so the driver
 sees partial reads), ``error_result`` (answer a command with an error result code),
 ``status_fn`` (status byte per record), ``data_result`` (result code in data frames),
-``ack_start`` (acknowledge 0x32 with a bare header), ``corrupt_replies`` (break the BCC
+``corrupt_replies`` (break the BCC
 of the next N command replies), :meth:`inject` (raw bytes, e.g. a
 spontaneous ``DLE NAK``), :meth:`stall` (stop streaming but stay
 connected), :meth:`unplug` (close the master side: the driver's port errors out) and
 :meth:`replug` (a new pseudo-terminal behind the same ``port`` path, like a sensor that
 re-enumerates after a USB glitch; the old handle stays dead).
 
-Behaviour modelled from the vendor's material, not from ``drivers.leptrino``:
+Behaviour modelled from the vendor's material, not from ``drivers.leptrino`` (the
+specification is Leptrino's "communication format specification" Ver 1.13, ``doc/protocal.pdf``
+of ``hiveground-ros-package/leptrino_force_torque``; section numbers below are its):
 
-* Product information (``ST_R_GET_INF`` in Leptrino's ``pComResInternal.h``, sizes in
-  ``pCommon.h``: model 16, serial 8, firmware 4, rate 6 bytes of text). ``rate_text``
-  sets the rate field's text (``"1200Hz"`` by default; other spellings such as ``"1200"``
-  or ``"1.2k"``); ``rate_text=None`` ends the reply after the firmware version (28 data
-  bytes), as older firmware does.
+* Product information, 5.1: LEN $20, model 16, serial 8, firmware 4 bytes, and NO rate
+  field: ``rate_text=None`` is the default. The C sample's ``ST_R_GET_INF`` has a 6-byte
+  rate text after the firmware (``pCommon.h`` ``FREQ_SIZE``): ``rate_text="1.2 kH"`` etc.
+  adds it. Whatever it states, the records stream at ``rate_Hz`` (independent of it).
+* Start, 6.2: "the sensor sends the response to this command, then sends data until it
+  receives the stop command": a bare response (LEN 4, $32, result) precedes the records.
+* NAK, 2.4.3: a command with a bad BCC is answered ``DLE NAK`` and "the host must resend
+  the command"; ``nak_next`` NAKs the next N commands (0x32 included).
+* Digital filter, 5.3: $B6 answers LEN 8 with the setting ($00 OFF, $01 10 Hz, $02 100 Hz,
+  $03 200 Hz; ``filter_code``, 100 Hz = $02 by default, the issue's "100 Hz by default")
+  and 3 reserved bytes.
+* Data, 6: "-32000 .. +32000", rated = +-10000, "a force above 3.2 times the rating is also
+  +-32000": raw values are clipped at +-32000.
 * Status byte (``ucStatus``): bits 0, 1, 2 and 5 are documented; bits 3, 4, 6, 7 are
   reserved and indeterminate, so with ``reserved_bits_random`` each record carries random
   values there. Bit 5 (external input) exists only on models with the input:
@@ -34,16 +48,104 @@ Behaviour modelled from the vendor's material, not from ``drivers.leptrino``:
 
 from __future__ import annotations
 
+import itertools
 import os
 import random
-import tempfile
-import select
 import struct
+import tempfile
 import threading
 import time
-import tty
+
+from nmsid.protocols import os_platform
 
 DLE, STX, ETX, NAK = 0x10, 0x02, 0x03, 0x15
+FULL_SCALE = 32000
+
+
+class _PtyTransport:
+    """POSIX: a pseudo-terminal; the driver opens the slave's path (a stable symlink)."""
+
+    def __init__(self, port: str):
+        import tty  # noqa: PLC0415 (POSIX only; never imported on Windows)
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        os.set_blocking(self.master, False)
+        tmp = port + ".new"
+        os.symlink(os.ttyname(self.slave), tmp)
+        os.replace(tmp, port)
+
+    def recv(self, timeout_s: float) -> bytes:
+        import select  # noqa: PLC0415 (select on a pty fd: POSIX only)
+        ready, _, _ = select.select([self.master], [], [], timeout_s)
+        if not ready:
+            return b""
+        try:
+            return os.read(self.master, 4096)
+        except BlockingIOError:
+            return b""
+
+    def send(self, data: bytes) -> int:
+        return os.write(self.master, data)
+
+    def close(self) -> None:
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        self.master = self.slave = -1
+
+
+class InProcessTransport:
+    """Windows (and tests): two byte buffers between the emulator thread and the
+    pyserial handler :mod:`nmsid.testing.fakes.protocol_leptrinoemu`."""
+
+    def __init__(self):
+        self.to_host = bytearray()
+        self.to_sensor = bytearray()
+        self.cond = threading.Condition()
+        self.closed = False
+
+    def recv(self, timeout_s: float) -> bytes:
+        with self.cond:
+            if not self.to_sensor and not self.closed:
+                self.cond.wait(timeout_s)
+            if self.closed:
+                raise OSError("transport closed")
+            data, self.to_sensor[:] = bytes(self.to_sensor), b""
+            return data
+
+    def send(self, data: bytes) -> int:
+        with self.cond:
+            if self.closed:
+                raise OSError("transport closed")
+            self.to_host += data
+            self.cond.notify_all()
+            return len(data)
+
+    def close(self) -> None:
+        with self.cond:
+            self.closed = True
+            self.cond.notify_all()
+
+
+_INPROCESS: dict[str, "LeptrinoEmulator"] = {}
+"""In-process emulators by name (``leptrinoemu://<name>``)."""
+_names = itertools.count(1)
+
+
+def inprocess_transport(name: str) -> InProcessTransport:
+    """The current transport of the in-process emulator ``name`` (for the pyserial handler).
+
+    Raises
+    ------
+    OSError
+        No such emulator, or it is unplugged.
+    """
+    emu = _INPROCESS.get(name)
+    if emu is None or emu._unplugged or not isinstance(emu.transport, InProcessTransport):
+        raise OSError(f"could not open port leptrinoemu://{name}: no such device")
+    return emu.transport
 
 
 def _frame(payload: bytes) -> bytes:
@@ -63,23 +165,26 @@ class LeptrinoEmulator:
 
     def __init__(self, *, rate_Hz: float = 1200.0, rated=(500.0, 500.0, 1000.0, 10.0, 10.0, 10.0),
                  wrench_fn=None, model: str = "PFS080YA501G6", serial: str = "LT000042",
-                 firmware: str = "1.07", seed: int = 0, rate_text: str | None = "",
-                 reserved_bits_random: bool = False, has_external_input: bool = True):
+                 firmware: str = "1.07", seed: int = 0, rate_text: str | None = None,
+                 reserved_bits_random: bool = False, has_external_input: bool = True,
+                 filter_code: int = 0x02, transport: str | None = None):
         self.rate_Hz = rate_Hz
         self.rated = tuple(float(r) for r in rated)
         self.wrench_fn = wrench_fn or (lambda t: (2.0, -1.0, 0.5, 0.01, 0.0, -0.02))
         self.status_fn = lambda t: 0
         self.model, self.serial, self.firmware = model, serial, firmware
-        self.rate_text = f"{rate_Hz:.0f}Hz" if rate_text == "" else rate_text
+        self.rate_text = rate_text
+        self.filter_code = filter_code
         self.reserved_bits_random = reserved_bits_random
         self.has_external_input = has_external_input
         self.rng = random.Random(seed)
         self.nak_next = 0
+        self.nak_start = 0
+        """NAK the next N start commands (0x32) only (2.4.3: the host resends)."""
         self.corrupt_every = 0
         self.garbage_every = 0
         self.fragment = False
         self.error_result: dict[int, int] = {}
-        self.ack_start = False
         self.data_result = 0
         self.corrupt_replies = 0
         self.commands: list[int] = []
@@ -94,20 +199,30 @@ class LeptrinoEmulator:
         self._rx = bytearray()
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        self._dir = tempfile.mkdtemp(prefix="leptrino-emu-")
-        self.port = os.path.join(self._dir, "ttyLEPTRINO")
-        """A stable path (a symlink to the current pseudo-terminal), like a udev name."""
-        self._new_pty()
+        if transport is None:
+            transport = "inprocess" if os_platform.is_windows() else "pty"
+        if transport not in ("pty", "inprocess"):
+            raise ValueError(f"transport must be 'pty' or 'inprocess', not {transport!r}")
+        self.transport_kind = transport
+        self._dir = ""
+        if transport == "pty":
+            self._dir = tempfile.mkdtemp(prefix="leptrino-emu-")
+            self.port = os.path.join(self._dir, "ttyLEPTRINO")
+            """A stable path (a symlink to the current pseudo-terminal), like a udev name."""
+        else:
+            from nmsid.testing.fakes import protocol_leptrinoemu  # noqa: PLC0415
+            protocol_leptrinoemu.register()
+            self._name = f"sensor{next(_names)}"
+            self.port = f"leptrinoemu://{self._name}"
+            _INPROCESS[self._name] = self
         self._unplugged = False
+        self._new_pty()
         self.replugs = 0
 
     def _new_pty(self):
-        self.master, self.slave = os.openpty()
-        tty.setraw(self.slave)
-        os.set_blocking(self.master, False)
-        tmp = self.port + ".new"
-        os.symlink(os.ttyname(self.slave), tmp)
-        os.replace(tmp, self.port)
+        """A new transport behind the same ``port`` (named for the POSIX case)."""
+        self.transport = (_PtyTransport(self.port) if self.transport_kind == "pty"
+                          else InProcessTransport())
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="leptrino-emulator",
                                         daemon=True)
@@ -124,17 +239,15 @@ class LeptrinoEmulator:
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=2)
-        for fd in (self.master, self.slave):
+        self.transport.close()
+        if self.transport_kind == "pty":
             try:
-                os.close(fd)
+                os.unlink(self.port)
+                os.rmdir(self._dir)
             except OSError:
                 pass
-        self.master = self.slave = -1
-        try:
-            os.unlink(self.port)
-            os.rmdir(self._dir)
-        except OSError:
-            pass
+        else:
+            _INPROCESS.pop(self._name, None)
 
     def inject(self, data: bytes):
         with self._lock:
@@ -148,9 +261,7 @@ class LeptrinoEmulator:
         self._unplugged = True
         self._stop.set()
         self._thread.join(timeout=2)
-        os.close(self.master)
-        os.close(self.slave)
-        self.master = self.slave = -1
+        self.transport.close()
 
     def replug(self):
         """The sensor is back (after :meth:`unplug`): a new pseudo-terminal at ``port``.
@@ -175,16 +286,10 @@ class LeptrinoEmulator:
     def _run(self):
         while not self._stop.is_set():
             try:
-                ready, _, _ = select.select([self.master], [], [], 0.002)
+                data = self.transport.recv(0.002)
             except (OSError, ValueError):
                 return
-            if ready:
-                try:
-                    data = os.read(self.master, 4096)
-                except BlockingIOError:
-                    data = b""
-                except OSError:
-                    return
+            if data:
                 self._receive(data)
             self._stream()
             self._flush()
@@ -240,11 +345,17 @@ class LeptrinoEmulator:
             self.nak_next -= 1
             self._send(bytes([DLE, NAK]))
             return
+        if cmd == 0x32 and self.nak_start > 0:
+            self.nak_start -= 1
+            self._send(bytes([DLE, NAK]))
+            return
         result = self.error_result.get(cmd, 0)
         if result:
             self._send(_frame(bytes([4, 0xFF, cmd, result])))
             return
-        if cmd == 0x2A:
+        if cmd == 0xB6:  # 5.3: LEN 8, setting, 3 reserved bytes
+            self._reply(_frame(bytes([8, 0xFF, cmd, 0, self.filter_code, 0, 0, 0])))
+        elif cmd == 0x2A:
             data = (self.model.encode().ljust(16, b"\0") + self.serial.encode().ljust(8, b"\0")
                     + self.firmware.encode().ljust(4, b"\0"))
             if self.rate_text is not None:  # older firmware: no rate field at all
@@ -255,12 +366,11 @@ class LeptrinoEmulator:
             self._reply(_frame(bytes([4 + len(data), 0xFF, cmd, 0]) + data))
         elif cmd == 0x30:
             self._send(self._record(time.monotonic() - self._t0, cmd))
-        elif cmd == 0x32:
+        elif cmd == 0x32:  # 6.2: the response first, then the records
             with self._lock:
+                self._send(_frame(bytes([4, 0xFF, cmd, 0])))
                 self._streaming, self._stalled = True, False
                 self._t0, self._stream_sent = time.monotonic(), 0
-            if self.ack_start:
-                self._send(_frame(bytes([4, 0xFF, cmd, 0])))
         elif cmd == 0x33:
             with self._lock:
                 self._streaming = False
@@ -270,7 +380,7 @@ class LeptrinoEmulator:
 
     def _record(self, t: float, cmd: int = 0x32) -> bytes:
         wrench = self.wrench_fn(t)
-        raw = [max(-32768, min(32767, int(round(w / r * 10000.0))))
+        raw = [max(-FULL_SCALE, min(FULL_SCALE, int(round(w / r * 10000.0))))
                for w, r in zip(wrench, self.rated)]
         status = int(self.status_fn(t)) & 0xFF
         if self.reserved_bits_random:  # bits 3, 4, 6, 7: reserved, indeterminate
@@ -312,7 +422,7 @@ class LeptrinoEmulator:
         while self._out:
             n = self.rng.randint(1, 7) if self.fragment else len(self._out)
             try:
-                written = os.write(self.master, bytes(self._out[:n]))
+                written = self.transport.send(bytes(self._out[:n]))
             except BlockingIOError:
                 return
             except OSError:

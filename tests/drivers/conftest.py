@@ -7,6 +7,20 @@ import pytest
 from nmsid.drivers.fake_hardware import load_fake
 
 
+def pytest_configure(config):
+    config.addinivalue_line("markers", "full_rate_measurement: keep the Leptrino driver's "
+                            "1 s record-rate measurement (tests that check the figure)")
+
+
+@pytest.fixture(autouse=True)
+def _short_rate_measurement(request, monkeypatch):
+    """The Leptrino record rate is measured for 1 s at connect; 0.3 s is enough for tests
+    that do not check the figure (keeps the suite fast). Tests marked
+    ``full_rate_measurement`` keep the driver's 1 s."""
+    if request.node.get_closest_marker("full_rate_measurement") is None:
+        monkeypatch.setattr("nmsid.drivers.leptrino.RATE_MEASURE_S", 0.3)
+
+
 @pytest.fixture
 def leptrino_emulator():
     mod = load_fake("leptrino_emulator")
@@ -103,8 +117,10 @@ def _write_hw_config(path, *, kind="caio", speed=10.0, fake=True, estop="serial"
         lines += ["[sensor]", "sync_channel = 6", "[sensor.channels]",
                   *[f"{a} = {i}" for i, a in enumerate(("Fx", "Fy", "Fz", "Mx", "My", "Mz"))],
                   "[sensor.rated]", "Fx = 500.0", "Fy = 500.0", "Fz = 1000.0", "Mx = 10.0",
-                  "My = 10.0", "Mz = 10.0", "[sensor.rated_output_V]",
-                  *[f"{a} = 10.0" for a in ("Fx", "Fy", "Fz", "Mx", "My", "Mz")]]
+                  "My = 10.0", "Mz = 10.0", "[sensor.rated_output_V]",   # manual 4.1
+                  *[f"{a} = 1.0" for a in ("Fx", "Fy", "Fz", "Mx", "My", "Mz")],
+                  "[sensor.offset_V]",
+                  *[f"{a} = 1.5" for a in ("Fx", "Fy", "Fz", "Mx", "My", "Mz")]]
     if estop == "serial":
         lines += ["[estop]", 'kind = "serial"', 'port = "COM7"', 'line = "CTS"']
     elif estop == "nidaq":

@@ -186,7 +186,8 @@ def test_nidaq_aggregate_rate_is_refused_before_stimulating(tmp_path, write_hw_c
 def test_nidaq_spreads_conversions_over_the_sample_period(tmp_path, write_hw_config):
     """16 channels at 20 kHz do not fit the 80 kHz default convert clock: the conversions
     are spread over the 50 us period (320 kHz), and the dry run corrects for that delay."""
+    # 16 channels are single-ended only on a USB-6212 (ai8..15 have no DIFF): RSE
     ok, text = _run(tmp_path, write_hw_config, kind="nidaq", monitor_fs_Hz=20_000.0,
-                    monitor=15)
+                    monitor=15, extra=('nidaq.terminal_config = "RSE"',))
     assert ok, text
     assert f"scan delay {15 / 320e3 * 1e3:.3f} ms corrected" in text

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from nmsid.drivers.fake_hardware import load_fake
 from nmsid.drivers.hardware import make_hw_rig
@@ -101,6 +102,7 @@ def test_session_on_fake_nidaq(tmp_path, write_hw_config):
     check_session(path, 2)
 
 
+@pytest.mark.full_rate_measurement
 def test_session_on_fake_leptrino_usb(tmp_path, write_hw_config):
     devices = make_hw_rig(write_hw_config(tmp_path / "hw.toml", kind="leptrino", speed=1.0,
                                           fs_Hz=1200.0))
@@ -195,3 +197,47 @@ def test_sensor_unplugged_mid_trial_aborts_it_and_stops_output(tmp_path, write_h
     assert 0 < len(s.trials[0].force_N) < 2400  # the samples before the fault are kept
     stg = load_fake("fake_mcs_usb").registry().devices[-1]
     assert stg.stopped_at is not None
+
+
+@pytest.mark.full_rate_measurement
+def test_session_time_axis_follows_a_leptrino_streaming_at_1000_hz(tmp_path, write_hw_config,
+                                                                   monkeypatch):
+    # issue 25 done-when: a sensor streaming at 1000 Hz, stating no rate, in a 1200 Hz
+    # session: the recorded force must follow the fake participant's model in time (the
+    # old driver stamped record k at k / 1200 s: 20 % too fast a time axis)
+    emu_mod = load_fake("leptrino_emulator")
+
+    class Sensor1000(emu_mod.LeptrinoEmulator):
+        def __init__(self, **kw):
+            super().__init__(**{**kw, "rate_Hz": 1000.0, "rate_text": None})
+    monkeypatch.setattr(emu_mod, "LeptrinoEmulator", Sensor1000)
+    devices = make_hw_rig(write_hw_config(tmp_path / "hw.toml", kind="leptrino", speed=1.0,
+                                          fs_Hz=1200.0))
+    cfg = config_from_dict({
+        "participant": "HW05", "seed": 1, "interlock": RELAXED_INTERLOCK,
+        "protocol": {"sE_levels": [0.7], "repeats": 1, "steady_s": 0.5, "chirp_s": 1.0,
+                     "rest_s": 0.0, "fs_Hz": 1200.0},
+        "calibration": {"manual": {"Iemin_mA": 2.5, "Iemax_mA": 7.0, "Ifmin_mA": 2.5,
+                                   "Ifmax_mA": 7.0}}})
+    path = tmp_path / "s.h5"
+    try:
+        assert devices.acquisition._inner.measured_rate_Hz is None
+        summary = Engine(cfg, devices, path, trip_policy=TripPolicy.END_SESSION).run()
+        measured = devices.acquisition._inner.measured_rate_Hz
+    finally:
+        devices.close()
+    assert measured == pytest.approx(1000.0, rel=0.01)
+    assert summary.n_completed == 1
+    assert validate_session(path) == []
+    (t,) = [t for t in read_session(path).trials if t.status == "completed"]
+    assert len(t.force_N) == int(round(1.5 * 1200.0))
+    # against the fake participant's model on the file's currents (as check_session does);
+    # the limit is 0.5 N, not 0.25: the emulator evaluates the force when it writes a
+    # burst of records (a few ms of staircase on a busy host), and 1000 Hz records are
+    # interpolated onto the 1200 Hz grid. A 1200 Hz time axis gives about 1.3 N.
+    model = load_fake("bench").ForceModel(1200.0, noise_N=0.0)
+    expected = model.step(np.asarray(t.I_ext_mA), np.asarray(t.I_flex_mA))
+    k = int(0.4 * 1200.0)
+    err = np.asarray(t.force_N)[k:] - expected[k:]
+    assert np.sqrt(np.mean(err ** 2)) < 0.5, np.sqrt(np.mean(err ** 2))
+    assert np.corrcoef(expected[k:], t.force_N[k:])[0, 1] > 0.95

@@ -41,6 +41,7 @@ def make_acq(emu, **kw):
     return sensor, acq
 
 
+@pytest.mark.full_rate_measurement
 def test_connect_reads_product_info_and_rated_values_and_reports_real_rate(leptrino_emulator):
     emu = leptrino_emulator(rated=RATED)
     sensor, acq = make_acq(emu)
@@ -48,8 +49,10 @@ def test_connect_reads_product_info_and_rated_values_and_reports_real_rate(leptr
         info = acq.connect()
         assert (info.model, info.serial, info.firmware) == ("PFS080YA501G6", "LT000042", "1.07")
         np.testing.assert_allclose(acq.rated, RATED)
-        assert acq.configure(2000.0) == 1200.0
-        assert emu.commands[-2:] == [Command.PRODUCT_INFO, Command.RATED_VALUES]
+        assert emu.commands[-3:] == [Command.PRODUCT_INFO, Command.RATED_VALUES,
+                                     Command.FILTER]
+        assert acq.configure(1200.0) == 1200.0   # the session grid; the records resampled
+        assert acq.measured_rate_Hz == pytest.approx(1200.0, rel=0.01)
         rec = sensor.read_one()  # handshake 0x30
         assert emu.commands[-1] == Command.HANDSHAKE
         assert rec.raw[1] == -20  # -1 N of 500 N rated

@@ -85,7 +85,7 @@ def test_old_firmware_leptrino_with_random_reserved_bits_probes_clean(
     path = write_hw_config(tmp_path / "hw.toml", kind="leptrino", fs_Hz=1200.0)
     assert main(["probe", "--hw-config", str(path), "--samples", "200"]) == 0
     out = capsys.readouterr().out
-    assert "(no rate stated: nominal rate used)" in out
+    assert "(no rate stated: the rate is measured)" in out
     assert "acquisition: 1200 Hz" in out
     assert "200 samples: force mean" in out
     assert "flag:" not in out and "FAILED" not in out

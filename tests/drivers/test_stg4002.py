@@ -85,7 +85,7 @@ def test_vendor_sequence_and_waveform_reaching_the_device(fake_mcs):
         assert len(samples) == int(wf.duration_s * RATE) + 1 and samples[-1] == 0
         demodulation_check(samples[:-1], env, 12.0, 500)
     sync = dev._sync_expanded[0]
-    assert sync[:-1].tolist() == [1] * int(wf.duration_s * RATE) and sync[-1] == 0
+    assert (sync[:-1] & 1).tolist() == [1] * int(wf.duration_s * RATE) and sync[-1] == 0
     st_.arm()
     st_.start()
     assert [c for c in dev.calls if c[0] == "SendStart"][-1] == ("SendStart", 1)
@@ -95,7 +95,9 @@ def test_vendor_sequence_and_waveform_reaching_the_device(fake_mcs):
     assert dev.calls[-1] == ("SendStop", 0b11)  # every trigger input
     assert not st_.status().output_active
     st_.disconnect()
-    assert [c[0] for c in dev.calls[-3:]] == ["SendStop", "Disconnect", "Dispose"]
+    assert [c[0] for c in dev.calls[-4:]] == ["SendStop", "QueryTriggerstatus", "Disconnect",
+                                              "Dispose"]
+    assert dev.calls[-4][1:] == (0b11, 0x80)  # the save stop at an ordinary end
     assert reg.hardware[0].overlaps == []
 
 

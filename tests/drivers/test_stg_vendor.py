@@ -100,12 +100,13 @@ def test_overcurrent_shutdown_is_a_fault_with_output_stopped_and_logged(fake_mcs
     assert stim.status().error == "" and hw.overcurrent_status() == 0
 
 
-def test_output_rate_is_set_and_read_back(fake_mcs):
-    # a rate left at 25 kHz by another program: 20 us steps would be refused mid-download
-    reg, hw, stim = make(fake_mcs, output_rate_Hz=25_000)
+def test_output_rate_is_never_set_in_download_mode(fake_mcs):
+    # issue 25: SetOutputRate is documented for streaming mode; download mode has a fixed
+    # 20 us resolution (STG4000 manual p.16); the fake download handle has no SetOutputRate
+    reg, hw, stim = make(fake_mcs)
     stim.connect()
-    assert hw.output_rate_Hz == 50_000
-    assert ("SetOutputRate", 50_000) in reg.devices[-1].calls
+    names = [c[0] for c in reg.devices[-1].calls]
+    assert "SetOutputRate" not in names and "GetOutputRate" not in names
     assert stim.capabilities().output_rate_Hz == 50_000.0
     stim.load(waveform())
     assert stim.status().state is StimulatorState.LOADED
@@ -116,17 +117,9 @@ def test_output_rate_outside_the_vendor_range_is_refused():
         Stg4002Stimulator(ceiling_ext_mA=1, ceiling_flex_mA=1, output_rate_Hz=60_000)
 
 
-def test_read_back_mismatch_is_refused(fake_mcs):
-    reg, hw, stim = make(fake_mcs)
-
-    class Stubborn(fake_mcs.module.CStg200xDownloadNet):
-        def GetOutputRate(self):
-            return fake_mcs.module.UInt32(20_000)
-    import sys
-    sys.modules["Mcs.Usb"].CStg200xDownloadNet = Stubborn
-    stim._api = None
-    with pytest.raises(DeviceError, match="50000 Hz but the device reports 20000 Hz"):
-        stim.connect()
+def test_an_output_rate_other_than_20_us_is_refused_for_download_mode():
+    with pytest.raises(StimulatorSettingError, match="fixed 20 us resolution"):
+        Stg4002Stimulator(ceiling_ext_mA=1, ceiling_flex_mA=1, output_rate_Hz=25_000)
 
 
 def test_version_info_keeps_the_software_version(fake_mcs):
@@ -136,19 +129,25 @@ def test_version_info_keeps_the_software_version(fake_mcs):
     assert stim.describe()["software"] == "1.48"
 
 
-def test_memory_is_checked_per_channel_and_laid_out_before_sending(fake_mcs):
-    # 64 MB in total, but MC_Stimulus left channel 2 with 100 kB: the old check against
-    # the total let the download fail half-way with the vendor's exception
+def test_memory_is_checked_in_the_selected_segment_before_sending(fake_mcs):
+    # issue 25: GetCapacity / SetCapacity do not exist in download mode (CStg200xStreamingNet
+    # only); the documented members are SegmentSelect, GetAvailableMemory, GetMemoryUsageDAC
+    # and GetMemoryUsageSyncout. A layout left by another program: segment 0 holds 100 kB
     reg, hw, stim = make(fake_mcs)
-    hw.channel_capacity = [40_000_000, 100_000]
-    hw.sync_capacity = [10_000_000, 10_000_000]
+    hw.segment_bytes = [100_000, 64 * 1024 * 1024 - 100_000]
     stim.connect()
+    from nmsid.drivers.errors import DeviceMemoryError
+    with pytest.raises(DeviceMemoryError, match="segment 0 has 0.10 MB available"):
+        stim.load(waveform(seconds=1.0))
+    names = [c[0] for c in reg.devices[-1].calls]
+    assert "PrepareAndSendData" not in names
+    assert names.index("SegmentSelect") < names.index("GetAvailableMemory")
+    assert "GetCapacity" not in names and "SetCapacity" not in names
+    hw.segment_bytes = [64 * 1024 * 1024]
     stim.load(waveform(seconds=1.0))
     assert stim.status().state is StimulatorState.LOADED
-    assert set(hw.channel_data) == {0, 1} and 0 in hw.sync_data
-    names = [c[0] for c in reg.devices[-1].calls]
-    assert names.index("SetCapacity") < names.index("PrepareAndSendData")
-    assert hw.channel_capacity[1] >= len(hw.channel_data[1][0]) * 8
+    used = stim.delivery_summary()["memory_used_bytes"]
+    assert used["channel 1"] == len(hw.channel_data[0][0]) * 8 and used["sync 1"] > 0
 
 
 def test_trial_too_large_for_the_memory_sends_nothing(fake_mcs):

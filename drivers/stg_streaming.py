@@ -1,0 +1,386 @@
+"""The MCS STG4002 in STREAMING mode: stimulation updated while it runs (closed loop).
+
+:class:`StgStreamingStimulator` implements
+:class:`~nmsid.drivers.interfaces.HostStreamedStimulator` over McsUsbNet's
+``CStg200xStreamingNet`` (issue 28, item 1). Vendor sources, cited beside each behaviour:
+the McsUsbNet manual, section 6.3 "Streaming mode" (``McsUsbNet.pdf`` in
+``shared/vendor/McsUsbNet-5.3.15/``), and the XML documentation of the same release. Every
+member called is declared in :mod:`nmsid.drivers.mcs_surface` and held to the real
+assembly there.
+
+One update = one carrier period. :meth:`~StgStreamingStimulator.open_stream` fixes the
+ceilings and the carrier (``update_Hz``; a whole number ``P`` of output samples per period
+at the output rate, "maximum of 50 kHz", manual 6.3). :meth:`~StgStreamingStimulator.write_stream`
+takes one amplitude per channel per update, refuses any above its ceiling before anything
+reaches the device (:class:`~nmsid.drivers.interfaces.CurrentLimitError`, nothing
+enqueued), renders each period as a charge-balanced sine (:func:`render_periods`) and
+enqueues it with ``EnqueueData``.
+
+Charge balance after the device's truncation: "The values for the analog outputs are 16
+bits signed integers. The lower bits are truncated according to the resolution of the
+STG" (manual 6.3). Every value sent is a multiple of :func:`quantum` Int16 steps (the
+smallest power of two at or above the device's resolution), so truncating the lower bits
+changes nothing; the second half-wave is the exact negative mirror of the first and the
+first sample of a period is 0, so every period sums to exactly zero as played.
+
+Underrun: ``DisableContinousMode`` -- "the STG stops when it runs out of data. It has to be
+retriggered" (manual 6.3); an underrun therefore ends the output instead of holding a
+value. Stop: :meth:`~StgStreamingStimulator.stop_now` is the immediate ``SendStop`` and
+``StopLoop``; a failed ``SendStop`` tells the operator to switch the STG off, as in
+download mode.
+
+Latency: the STG keeps its ring buffer "about half full", so "latency = (ringbuffersize in
+bytes/4) / output rate" (manual 6.3); :attr:`~StgStreamingStimulator.latency_s` reports it
+for the ring size set with ``SetCapacity``.
+
+Not verified on hardware: written against ``testing/fakes/fake_stg_streaming.py`` (built
+from the same documents) only.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+
+import numpy as np
+
+from nmsid.drivers.errors import DeviceError, DeviceRangeError, StimulatorSettingError
+from nmsid.drivers.interfaces import (CurrentLimitError, StimulatorCapabilities,
+                                      StimulatorState, StimulatorStatus)
+from nmsid.drivers.mcs_usb import DEFAULT_DLL, find_stg, load_mcs_usb
+from nmsid.drivers.stg_waveform import NA_PER_MA
+from nmsid.errors import SafetyError
+
+log = logging.getLogger(__name__)
+
+INT16_FULL = 32768
+"""Int16 steps per full range (manual 6.3 example: ``(2^(16-1) - 1) * sin``)."""
+CALLBACK_THRESHOLD_PCT = 50
+"""``SetupTrigger`` callback_threshold: "in percent of the buffer level" (XML; the manual's
+example uses 50)."""
+
+
+def quantum(range_nA: float, resolution_nA: float) -> int:
+    """Int16 steps per value step: the smallest power of two at or above the device's
+    resolution, so that the device's truncation of the lower bits is a no-op."""
+    lsb_nA = range_nA / INT16_FULL
+    steps = max(resolution_nA / lsb_nA, 1.0)
+    return 1 << max(0, math.ceil(math.log2(steps) - 1e-12))
+
+
+def render_periods(amplitudes_mA: np.ndarray, P: int, range_nA: float, q: int) -> np.ndarray:
+    """One charge-balanced sine period of ``P`` samples per amplitude, as Int16 values.
+
+    ``v[0] = 0``; ``v[j]`` for ``1 <= j < P/2`` is ``A sin(2 pi j / P)`` in Int16 steps,
+    quantised TOWARD ZERO to a multiple of ``q`` (never above the amplitude, hence never
+    above the ceiling); ``v[P - j] = -v[j]`` and ``v[P/2] = 0`` for even ``P``. Every period
+    sums to exactly zero.
+    """
+    a = np.asarray(amplitudes_mA, dtype=float)
+    j = np.arange(1, (P + 1) // 2)
+    half = np.sin(2 * np.pi * j / P)[None, :] * (a[:, None] * NA_PER_MA / range_nA
+                                                 * (INT16_FULL - 1))
+    half = np.trunc(half / q) * q
+    out = np.zeros((len(a), P), dtype=np.int64)
+    out[:, j] = half
+    out[:, P - j] = -half
+    return out.reshape(-1).astype(np.int16)
+
+
+class StgStreamingStimulator:
+    """An STG4002 in streaming mode (see the module docstring).
+
+    Parameters
+    ----------
+    ceiling_ext_mA, ceiling_flex_mA : float
+        The rig's hard ceilings; a stream's own ceilings must be at or below them.
+    extensor_channel, flexor_channel, sync_out : int
+        Outputs numbered from 1.
+    serial, dll_path : str
+    output_rate_Hz : float
+        ``SetOutputRate`` (streaming mode only; "maximum of 50 kHz").
+    ring_samples : int
+        PC ring buffer per channel (the constructor's ``ringbuffer_size``).
+    stg_ring_bytes : int
+        STG-side ring buffer of trigger 1 (``SetCapacity``); sets the latency.
+    api : namespace, optional
+        Loaded vendor names (tests); default :func:`load_mcs_usb` plus the streaming class.
+    """
+
+    def __init__(self, *, ceiling_ext_mA: float, ceiling_flex_mA: float,
+                 extensor_channel: int = 1, flexor_channel: int = 2, sync_out: int = 1,
+                 serial: str = "", dll_path: str = DEFAULT_DLL,
+                 output_rate_Hz: float = 50_000.0, ring_samples: int = 10_000,
+                 stg_ring_bytes: int = 16_000, api=None):
+        if extensor_channel == flexor_channel:
+            raise StimulatorSettingError("extensor_channel and flexor_channel must differ")
+        if not 1000 <= output_rate_Hz <= 50_000:
+            raise StimulatorSettingError(f"streaming output rate {output_rate_Hz:g} Hz is "
+                                         "outside 1000 .. 50000 Hz (McsUsbNet SetOutputRate)")
+        self.rig_ceiling_mA = {extensor_channel: float(ceiling_ext_mA),
+                               flexor_channel: float(ceiling_flex_mA)}
+        self.ext_ch, self.flex_ch, self.sync_out = extensor_channel, flexor_channel, sync_out
+        self.serial, self.dll_path = serial, dll_path
+        self.output_rate_Hz = float(output_rate_Hz)
+        self.ring_samples = int(ring_samples)
+        self.stg_ring_bytes = int(stg_ring_bytes)
+        self._api = api
+        self._dev = None
+        self._io = threading.Lock()
+        self._state = StimulatorState.DISCONNECTED
+        self._range_nA: dict[int, float] = {}
+        self._res_nA: dict[int, float] = {}
+        self._caps: StimulatorCapabilities | None = None
+        self._stream_ceiling: dict[int, float] = {}
+        self._P = 0
+        self._q = 1
+        self._started = False
+        self._error = ""
+        self._stop_error = ""
+        self.enqueued_periods = 0
+
+    # -- vendor ---------------------------------------------------------------------------
+    @property
+    def api(self):
+        if self._api is None:
+            self._api = load_mcs_usb(self.dll_path)
+            from Mcs.Usb import CStg200xStreamingNet  # noqa: PLC0415 (pythonnet)
+            from System import Int16, UInt16  # noqa: PLC0415
+            self._api.CStg200xStreamingNet = CStg200xStreamingNet
+            self._api.Int16, self._api.UInt16 = Int16, UInt16
+        return self._api
+
+    def _u32(self, v: int):
+        return self.api.UInt32(int(v))
+
+    def connect(self) -> None:
+        """Open the streaming handle and read the device (no output)."""
+        if self._dev is not None:
+            self.disconnect()
+        api = self.api
+        entry = find_stg(api, self.serial)
+        # constructor (UInt32 ringbuffer_size): "the size of the ringbuffer in PC memory"
+        dev = api.CStg200xStreamingNet(self._u32(self.ring_samples))
+        status = dev.Connect(entry)
+        if status not in (None, 0):
+            raise DeviceError(f"McsUsbNet Connect (streaming) to STG {entry.SerialNumber} "
+                              f"failed with status {status}")
+        self._dev = dev
+        n_ch = int(dev.GetNumberOfAnalogChannels())
+        for ch in (self.ext_ch, self.flex_ch):
+            if not 1 <= ch <= n_ch:
+                raise StimulatorSettingError(f"stimulator channel {ch} does not exist "
+                                             f"({n_ch} channels)")
+        if not 1 <= self.sync_out <= int(dev.GetNumberOfSyncoutChannels()):
+            raise StimulatorSettingError(f"stimulator.sync_out = {self.sync_out} does not "
+                                         "exist")
+        dev.SetCurrentMode()
+        for ch in (self.ext_ch, self.flex_ch):
+            self._range_nA[ch] = float(dev.GetCurrentRangeInNanoAmp(self._u32(ch - 1)))
+            self._res_nA[ch] = float(dev.GetCurrentResolutionInNanoAmp(self._u32(ch - 1)))
+            if self.rig_ceiling_mA[ch] > self._range_nA[ch] / NA_PER_MA:
+                raise DeviceRangeError(f"current ceiling {self.rig_ceiling_mA[ch]:g} mA on "
+                                       f"channel {ch} exceeds the device's range")
+        self._caps = StimulatorCapabilities(
+            n_channels=n_ch, max_current_mA=min(self._range_nA.values()) / NA_PER_MA,
+            resolution_mA=max(self._res_nA.values()) / NA_PER_MA,
+            output_rate_Hz=self.output_rate_Hz, model=str(entry.DeviceName),
+            serial=str(entry.SerialNumber))
+        self._state = StimulatorState.IDLE
+
+    def capabilities(self) -> StimulatorCapabilities:
+        if self._caps is None:
+            raise DeviceError("the STG is not connected; call connect() first")
+        return self._caps
+
+    # -- the stream ----------------------------------------------------------------------
+    def open_stream(self, ceiling_ext_mA: float, ceiling_flex_mA: float,
+                    update_Hz: float) -> float:
+        """Configure streaming: ceilings, carrier (one update per period), output rate,
+        STG ring buffer, trigger 1 with the two channels and the sync; ``StartLoop``.
+
+        Returns
+        -------
+        float
+            The update (carrier) rate used: ``output_rate / P`` for a whole ``P``.
+        """
+        if self._dev is None:
+            self.connect()
+        for ch, c in ((self.ext_ch, ceiling_ext_mA), (self.flex_ch, ceiling_flex_mA)):
+            if not 0 <= c <= self.rig_ceiling_mA[ch]:
+                raise DeviceRangeError(f"stream ceiling {c:g} mA on channel {ch} exceeds the "
+                                       f"rig ceiling {self.rig_ceiling_mA[ch]:g} mA")
+        P = round(self.output_rate_Hz / update_Hz)
+        if P < 4 or abs(self.output_rate_Hz / P - update_Hz) > 1e-6 * update_Hz:
+            raise StimulatorSettingError(
+                f"carrier / update rate {update_Hz:g} Hz must divide the output rate "
+                f"{self.output_rate_Hz:g} Hz into a whole number (>= 4) of samples")
+        self._stream_ceiling = {self.ext_ch: float(ceiling_ext_mA),
+                                self.flex_ch: float(ceiling_flex_mA)}
+        self._P = P
+        self._q = max(quantum(self._range_nA[ch], self._res_nA[ch])
+                      for ch in (self.ext_ch, self.flex_ch))
+        api, dev = self.api, self._dev
+        if dev is None:
+            raise DeviceError("the STG did not connect")
+        with self._io:
+            dev.SetOutputRate(self._u32(int(self.output_rate_Hz)))   # manual 6.3
+            dev.DisableContinousMode()                               # manual 6.3: stop on empty
+            n_trig = int(dev.GetNumberOfTriggerInputs())
+            total = int(dev.GetTotalMemory())
+            cap = [0] * n_trig
+            cap[0] = min(self.stg_ring_bytes, total)                 # manual 6.3: SetCapacity
+            dev.SetCapacity(api.Array[api.UInt32](cap))
+            channelmap, syncmap, digout, autostart, threshold = ([0] * n_trig for _ in range(5))
+            channelmap[0] = (1 << (self.ext_ch - 1)) | (1 << (self.flex_ch - 1))
+            syncmap[0] = 1 << (self.sync_out - 1)
+            threshold[0] = CALLBACK_THRESHOLD_PCT
+            dev.SetupTrigger(*(api.Array[api.UInt32](a) for a in
+                               (channelmap, syncmap, digout, autostart, threshold)))
+            dev.StartLoop()
+        self._started = False
+        self._state = StimulatorState.ARMED
+        return self.output_rate_Hz / P
+
+    @property
+    def latency_s(self) -> float:
+        """Average output latency of the STG's ring buffer (manual 6.3 formula)."""
+        return (self.stg_ring_bytes / 4) / self.output_rate_Hz
+
+    def stream_space(self) -> int:
+        """Updates (carrier periods) that fit the PC queue of both channels now."""
+        if self._dev is None or not self._P:
+            return 0
+        with self._io:
+            space = min(int(self._dev.GetDataQueueSpace(self._u32(ch - 1)))
+                        for ch in (self.ext_ch, self.flex_ch))
+        return space // self._P
+
+    def write_stream(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> None:
+        """Queue one amplitude per channel per update; checked before anything is sent.
+
+        Raises
+        ------
+        CurrentLimitError
+            An amplitude above its stream ceiling, negative or not finite (nothing sent).
+        SafetyError
+            A previous stop failed (the STG may still run): switch it off first.
+        DeviceError
+            Not open, or the vendor refused the data.
+        """
+        if self._stop_error:
+            raise SafetyError(f"STG: {self._stop_error}")
+        if not self._P or self._dev is None or self._state not in (
+                StimulatorState.ARMED, StimulatorState.RUNNING):
+            raise DeviceError("no open stream; call open_stream() first")
+        ext = np.asarray(I_ext_mA, dtype=float).ravel()
+        flex = np.asarray(I_flex_mA, dtype=float).ravel()
+        if ext.shape != flex.shape:
+            raise CurrentLimitError("write_stream needs as many extensor as flexor "
+                                    f"amplitudes ({ext.size} vs {flex.size}); nothing sent")
+        for ch, a in ((self.ext_ch, ext), (self.flex_ch, flex)):
+            limit = self._stream_ceiling[ch]
+            bad = a[~np.isfinite(a) | (a < 0) | (a > limit)] if a.size else a
+            if bad.size:
+                raise CurrentLimitError(
+                    f"streamed amplitude {bad[0]:.4g} mA on channel {ch} is outside 0 .. "
+                    f"{limit:g} mA; nothing was sent")
+        data = {ch: render_periods(a, self._P, self._range_nA[ch], self._q)
+                for ch, a in ((self.ext_ch, ext), (self.flex_ch, flex))}
+        for ch, v in data.items():   # the last check, on exactly what is sent
+            peak_mA = np.abs(v.astype(np.int64)).max(initial=0) * self._range_nA[ch] \
+                / (INT16_FULL - 1) / NA_PER_MA
+            if peak_mA > self._stream_ceiling[ch] + 1e-9:
+                raise CurrentLimitError(f"rendered peak {peak_mA:.4f} mA above the ceiling "
+                                        f"on channel {ch}; nothing was sent")
+        api = self.api
+        with self._io:
+            for ch, v in data.items():
+                dev_data = api.Array[api.Int16](v.tolist())
+                self._dev.EnqueueData(self._u32(ch - 1), dev_data)
+            sync = np.ones(len(ext) * self._P, dtype=np.uint16)
+            self._dev.EnqueueSyncout(self._u32(self.sync_out - 1),
+                                     api.Array[api.UInt16](sync.tolist()))
+            if not self._started and len(ext):
+                self._dev.SendStart(self._u32(1))   # manual 6.3: "by Software SendStart(1)"
+                self._started = True
+                self._state = StimulatorState.RUNNING
+        self.enqueued_periods += len(ext)
+
+    def close_stream(self) -> None:
+        """End after the queued updates: one zero period, wait for the PC queue to drain
+        (bounded), then ``SendStop`` and ``StopLoop``. Idempotent, never raises."""
+        if self._dev is None or not self._P:
+            return
+        try:
+            if self._state is StimulatorState.RUNNING:
+                self.write_stream(np.zeros(1), np.zeros(1))
+                deadline = time.monotonic() + self.ring_samples / self.output_rate_Hz + 0.5
+                while time.monotonic() < deadline:
+                    with self._io:
+                        space = int(self._dev.GetDataQueueSpace(self._u32(self.ext_ch - 1)))
+                    if space >= self.ring_samples:
+                        break
+                    time.sleep(0.002)
+                time.sleep(self.latency_s)
+        except Exception as exc:  # closing must not raise: the stop below still runs
+            log.warning("STG stream close: %s", exc)
+        self._stop("close_stream")
+        self._P = 0
+
+    # -- stop / status -------------------------------------------------------------------
+    def _stop(self, why: str) -> None:
+        dev = self._dev
+        if dev is None:
+            return
+        with self._io:
+            try:
+                dev.SendStop(self._u32(1))
+                log.info("STG (streaming) SendStop(1): %s", why)
+            except Exception as exc:
+                self._stop_error = (
+                    f"SendStop failed ({exc}) during {why}: the STG may still be "
+                    "stimulating; SWITCH THE STIMULATOR OFF at its power switch now")
+                log.critical("STG: %s", self._stop_error)
+            try:
+                dev.StopLoop()
+            except Exception as exc:  # the loop may already be gone with the device
+                log.warning("STG StopLoop failed: %s", exc)
+        self._started = False
+        if self._state in (StimulatorState.RUNNING, StimulatorState.ARMED):
+            self._state = StimulatorState.STOPPED
+
+    def stop_now(self) -> None:
+        """The immediate stop (E-stop): output at zero, the stream ended. Never raises."""
+        self._stop("stop_now")
+        self._P = 0
+
+    def status(self) -> StimulatorStatus:
+        return StimulatorStatus(state=self._state,
+                                output_active=self._state is StimulatorState.RUNNING
+                                or bool(self._stop_error),
+                                error=self._stop_error or self._error)
+
+    def load(self, waveform) -> None:
+        raise DeviceError("the streaming STG driver takes no downloaded trials; use "
+                          "open_stream / write_stream (or the download-mode driver)")
+
+    def arm(self) -> None:
+        self.load(None)
+
+    def start(self) -> None:
+        self.load(None)
+
+    def disconnect(self) -> None:
+        if self._dev is None:
+            return
+        self.stop_now()
+        dev, self._dev = self._dev, None
+        for call in ("Disconnect", "Dispose"):
+            try:
+                getattr(dev, call)()
+            except Exception as exc:
+                log.warning("STG %s failed: %s", call, exc)
+        self._state = StimulatorState.DISCONNECTED

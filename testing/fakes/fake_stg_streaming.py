@@ -1,0 +1,270 @@
+"""A fake of McsUsbNet's ``CStg200xStreamingNet``, built from the McsUsbNet manual's
+section 6.3 "Streaming mode" and the XML documentation (5.3.15), not from
+``drivers.stg_streaming``.
+
+Modelled (each with its source):
+
+* Constructor ``(UInt32 ringbuffer_size[, dataHandler, errorHandler])``: "the size of the
+  ringbuffer in PC memory" (XML), per channel in samples (ASSUMED unit: samples, as
+  ``GetDataQueueSpace`` "returns number of data points for which there is space").
+* ``GetDataQueueSpace(channel)`` / ``GetSyncoutQueueSpace``: free points of the PC queue;
+  ``EnqueueData(channel, Int16[])`` "Sends data to the STG for a given channel", "Returns the
+  number of enqueued bytes" (XML); points beyond the free space are not taken (ASSUMED).
+* "The values for the analog outputs are 16 bits signed integers. The lower bits are
+  truncated according to the resolution of the STG" (manual 6.3): the fake keeps
+  ``value & ~(2^k - 1)`` (two's complement truncation) with ``2^k`` Int16 steps per
+  device resolution step (``resolution_nA`` of the hardware).
+* ``SetOutputRate`` ("maximum of 50 kHz"), ``SetCapacity(UInt32[])`` one STG ring size per
+  trigger, "must not exceed the total memory" (manual 6.3), ``SetupTrigger(channelmap,
+  syncoutmap, digoutmap, autostart, callback_threshold)`` one entry per trigger (XML),
+  ``StartLoop`` / ``StopLoop``, ``SendStart`` / ``SendStop``.
+* Playback: after ``StartLoop`` and ``SendStart(1)`` the queued samples play at the output
+  rate on the bench clock; "When DisableContinousMode is used, the STG stops when it runs
+  out of data" (manual 6.3); with continuous mode (the default, ASSUMED) it outputs zero.
+  The STG-side ring buffer's latency is not modelled (the samples leave the PC queue as
+  they play).
+"""
+
+from __future__ import annotations
+
+import types
+
+import numpy as np
+
+from nmsid.testing.fakes import fake_mcs_usb
+from nmsid.testing.fakes.fake_dotnet import (CUsbExceptionNet, Int16, NetArray, UInt16,
+                                             UInt32, _require)
+
+
+def _require_array(value, kind, what):
+    if not isinstance(value, NetArray) or value.element_type is not kind:
+        raise TypeError(f"{what}: expected System.{kind.NAME}[]")
+    return value.values
+
+
+class CStg200xStreamingNet:
+    """Fake streaming-mode handle on a :class:`FakeStgHardware` of ``fake_mcs_usb``."""
+
+    def __init__(self, ringbuffer_size, data_handler=None, error_handler=None):
+        self.ring = _require(ringbuffer_size, UInt32, "ringbuffer_size")
+        self.calls: list[tuple] = []
+        self.hw = None
+        self.rate_Hz = 50_000
+        self.continuous = True
+        self.capacity: list[int] = []
+        self.trigger = None
+        self.loop = False
+        self.queued: dict[int, list[int]] = {}
+        self.sync_queued: dict[int, list[int]] = {}
+        self.played: dict[int, list[int]] = {}
+        self.start_t: float | None = None
+        self.stop_t: float | None = None
+        self._done = 0
+        self.fail_next: dict[str, Exception] = {}
+        _registry.append(self)
+
+    def _log(self, name, *args):
+        self.calls.append((name, *args))
+        if name in self.fail_next:
+            raise self.fail_next.pop(name)
+
+    def _need(self):
+        hw = self.hw
+        if hw is None or not hw.plugged:
+            raise CUsbExceptionNet("Mcs.Usb.CUsbExceptionNet: device not connected")
+        return hw
+
+    # -- connection / device ---------------------------------------------------------------
+    def Connect(self, entry):
+        self._log("Connect", entry)
+        for hw in fake_mcs_usb._Registry.hardware:
+            if hw.serial == entry.SerialNumber and hw.plugged:
+                self.hw = hw
+                return 0
+        return 1
+
+    def Disconnect(self):
+        self._log("Disconnect")
+        self.hw = None
+
+    def Dispose(self):
+        self._log("Dispose")
+
+    def GetNumberOfAnalogChannels(self):
+        self._log("GetNumberOfAnalogChannels")
+        return UInt32(self._need().n_channels)
+
+    def GetNumberOfSyncoutChannels(self):
+        self._log("GetNumberOfSyncoutChannels")
+        return UInt32(self._need().n_sync)
+
+    def GetNumberOfTriggerInputs(self):
+        self._log("GetNumberOfTriggerInputs")
+        return UInt32(self._need().n_triggers)
+
+    def GetTotalMemory(self):
+        self._log("GetTotalMemory")
+        return UInt32(self._need().memory_bytes)
+
+    def SetCurrentMode(self, *channel):
+        self._log("SetCurrentMode")
+        self._need().current_mode = True
+
+    def GetCurrentRangeInNanoAmp(self, channel):
+        self._log("GetCurrentRangeInNanoAmp", channel)
+        _require(channel, UInt32, "channel")
+        return self._need().range_nA
+
+    def GetCurrentResolutionInNanoAmp(self, channel):
+        self._log("GetCurrentResolutionInNanoAmp", channel)
+        _require(channel, UInt32, "channel")
+        return self._need().resolution_nA
+
+    # -- streaming setup --------------------------------------------------------------------
+    def SetOutputRate(self, rate):
+        self._log("SetOutputRate", rate)
+        r = _require(rate, UInt32, "rate")
+        if not 1000 <= r <= 50_000:
+            raise CUsbExceptionNet("output rate outside 1000 .. 50000 Hz")
+        self._need()
+        self.rate_Hz = r
+
+    def DisableContinousMode(self):
+        self._log("DisableContinousMode")
+        self.continuous = False
+
+    def SetCapacity(self, capacity):
+        self._log("SetCapacity", capacity)
+        cap = _require_array(capacity, UInt32, "dwTriggerCapacity").tolist()
+        hw = self._need()
+        if len(cap) != hw.n_triggers or sum(cap) > hw.memory_bytes:
+            raise CUsbExceptionNet("one capacity per trigger, at most the total memory")
+        self.capacity = cap
+
+    def SetupTrigger(self, channelmap, syncoutmap, digoutmap, autostart, threshold):
+        self._log("SetupTrigger", channelmap, syncoutmap, digoutmap, autostart, threshold)
+        arrays = [_require_array(a, UInt32, n).tolist() for a, n in
+                  ((channelmap, "channelmap"), (syncoutmap, "syncoutmap"),
+                   (digoutmap, "digoutmap"), (autostart, "autostart"),
+                   (threshold, "callback_threshold"))]
+        if any(len(a) != self._need().n_triggers for a in arrays):
+            raise CUsbExceptionNet("one entry per trigger")
+        self.trigger = arrays
+
+    def StartLoop(self):
+        self._log("StartLoop")
+        self._need()
+        self.loop = True
+
+    def StopLoop(self):
+        self._log("StopLoop")
+        self.loop = False
+
+    # -- data ---------------------------------------------------------------------------------
+    def _advance(self):
+        """Move the samples due on the bench clock from the queues to ``played``."""
+        if self.start_t is None or self.hw is None:
+            return
+        now = self.hw.now() if self.stop_t is None else self.stop_t
+        due = int(np.floor((now - self.start_t) * self.rate_Hz))
+        new = due - self._done
+        if new <= 0:
+            return
+        chans = [ch for ch in range(self.hw.n_channels)
+                 if self.trigger and self.trigger[0][0] >> ch & 1]
+        avail = min((len(self.queued.get(ch, [])) for ch in chans), default=0)
+        take = min(new, avail)
+        for ch in chans:
+            q = self.queued.setdefault(ch, [])
+            self.played.setdefault(ch, []).extend(q[:take])
+            del q[:take]
+        for q in self.sync_queued.values():
+            del q[:take]
+        self._done += take
+        if take < new and not self.continuous and self.stop_t is None:
+            # manual 6.3: without continuous mode the STG stops when it runs out of data
+            self.stop_t = self.start_t + self._done / self.rate_Hz
+
+    def GetDataQueueSpace(self, channel):
+        self._log("GetDataQueueSpace", channel)
+        ch = _require(channel, UInt32, "channel")
+        self._advance()
+        return UInt32(max(self.ring - len(self.queued.get(ch, [])), 0))
+
+    def GetSyncoutQueueSpace(self, channel):
+        self._log("GetSyncoutQueueSpace", channel)
+        ch = _require(channel, UInt32, "channel")
+        self._advance()
+        return UInt32(max(self.ring - len(self.sync_queued.get(ch, [])), 0))
+
+    def _step(self) -> int:
+        hw = self._need()
+        lsb = hw.range_nA / 32768
+        k = max(0, int(np.ceil(np.log2(max(hw.resolution_nA / lsb, 1.0)) - 1e-12)))
+        return 1 << k
+
+    def EnqueueData(self, channel, data):
+        self._log("EnqueueData", channel, data)
+        ch = _require(channel, UInt32, "channel")
+        values = _require_array(data, Int16, "data").astype(np.int64)
+        self._advance()
+        space = self.ring - len(self.queued.get(ch, []))
+        take = values[:max(space, 0)]
+        step = self._step()
+        truncated = take & ~(step - 1)     # manual 6.3: lower bits truncated
+        self.queued.setdefault(ch, []).extend(truncated.tolist())
+        return UInt32(len(take) * 2)
+
+    def EnqueueSyncout(self, channel, data):
+        self._log("EnqueueSyncout", channel, data)
+        ch = _require(channel, UInt32, "channel")
+        values = _require_array(data, UInt16, "data")
+        self._advance()
+        self.sync_queued.setdefault(ch, []).extend(values.tolist())
+        return UInt32(0)
+
+    def SendStart(self, triggermap):
+        self._log("SendStart", triggermap)
+        _require(triggermap, UInt32, "triggermap")
+        if not self.loop:
+            raise CUsbExceptionNet("StartLoop first")
+        self.start_t = self._need().now()
+        self.stop_t = None
+        self._done = 0
+
+    def SendStop(self, triggermap):
+        self._log("SendStop", triggermap)
+        _require(triggermap, UInt32, "triggermap")
+        self._need()
+        self._advance()
+        if self.start_t is not None and self.stop_t is None:
+            self.stop_t = self.hw.now()
+
+    # -- what the bench sees -------------------------------------------------------------------
+    def output_at(self, channel: int) -> np.ndarray:
+        """Everything played on ``channel`` (0-based) so far, Int16 values."""
+        self._advance()
+        return np.asarray(self.played.get(channel, []), dtype=np.int64)
+
+    @property
+    def running(self) -> bool:
+        self._advance()
+        return self.start_t is not None and self.stop_t is None
+
+
+_registry: list[CStg200xStreamingNet] = []
+
+
+def install(modules: dict) -> types.ModuleType:
+    """Add ``CStg200xStreamingNet`` (and System.Int16 / UInt16) to fake modules installed
+    by ``fake_mcs_usb.install``; returns ``Mcs.Usb``."""
+    _registry.clear()
+    usb = modules["Mcs.Usb"]
+    usb.CStg200xStreamingNet = CStg200xStreamingNet
+    system = modules["System"]
+    system.Int16, system.UInt16 = Int16, UInt16
+    return usb
+
+
+def registry() -> list[CStg200xStreamingNet]:
+    return _registry

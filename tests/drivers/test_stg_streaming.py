@@ -1,0 +1,165 @@
+"""The STG4002 in streaming mode (drivers/stg_streaming.py; issue 28 item 1) against a fake
+built from the McsUsbNet manual's section 6.3 (testing/fakes/fake_stg_streaming.py).
+
+Ceilings checked before EnqueueData, zero net charge per carrier period AFTER the device's
+truncation of the lower bits, stop at zero, and every call held to the declared surface.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from nmsid.drivers import mcs_surface
+from nmsid.drivers.fake_hardware import load_fake
+from nmsid.drivers.interfaces import (CurrentLimitError, HostStreamedStimulator,
+                                      StimulatorState)
+from nmsid.drivers.stg_streaming import (INT16_FULL, StgStreamingStimulator, quantum,
+                                         render_periods)
+
+RANGE_NA, RES_NA = 16_000_000, 500
+
+
+@pytest.fixture
+def streaming(fake_mcs):
+    fake = load_fake("fake_stg_streaming")
+    fake.install(sys.modules)
+    stim = StgStreamingStimulator(ceiling_ext_mA=12.0, ceiling_flex_mA=12.0,
+                                  ring_samples=5000)
+    yield stim, fake, fake_mcs.bench
+    stim.disconnect()
+
+
+def _device(fake):
+    return fake.registry()[-1]
+
+
+def test_it_is_a_host_streamed_stimulator(streaming):
+    stim, fake, bench = streaming
+    assert isinstance(stim, HostStreamedStimulator)
+
+
+def test_open_stream_follows_the_manuals_sequence(streaming):
+    stim, fake, bench = streaming
+    assert stim.open_stream(8.0, 6.0, 1000.0) == pytest.approx(1000.0)
+    dev = _device(fake)
+    names = [c[0] for c in dev.calls]
+    for a, b in (("SetOutputRate", "SetupTrigger"), ("SetCapacity", "SetupTrigger"),
+                 ("SetupTrigger", "StartLoop")):
+        assert names.index(a) < names.index(b)
+    assert dev.continuous is False               # stop, not zero-fill, on an underrun
+    assert dev.trigger[0][0] == 0b11 and dev.trigger[4][0] == 50
+    assert stim.latency_s == pytest.approx(16_000 / 4 / 50_000)
+
+
+def test_an_amplitude_above_the_stream_ceiling_sends_nothing(streaming):
+    stim, fake, bench = streaming
+    stim.open_stream(8.0, 6.0, 1000.0)
+    with pytest.raises(CurrentLimitError, match="nothing was sent"):
+        stim.write_stream(np.array([1.0, 8.01]), np.array([1.0, 1.0]))
+    with pytest.raises(CurrentLimitError):
+        stim.write_stream(np.array([1.0]), np.array([np.nan]))
+    assert not any(c[0] == "EnqueueData" for c in _device(fake).calls)
+
+
+def test_stream_ceilings_above_the_rig_ceiling_are_refused(streaming):
+    stim, fake, bench = streaming
+    from nmsid.drivers.errors import DeviceRangeError
+    with pytest.raises(DeviceRangeError):
+        stim.open_stream(12.5, 6.0, 1000.0)
+
+
+def test_played_output_nets_zero_per_period_after_truncation_and_stops_at_zero(streaming):
+    stim, fake, bench = streaming
+    stim.open_stream(8.0, 6.0, 1000.0)
+    assert stim.stream_space() == 5000 // 50
+    amps = np.linspace(0.5, 8.0, 40)
+    stim.write_stream(amps, amps * 0.75)
+    dev = _device(fake)
+    assert dev.running
+    bench.sleep(0.02)
+    stim.stop_now()
+    assert not dev.running and dev.calls[-2][0] == "SendStop"
+    for ch, ceiling in ((0, 8.0), (1, 6.0)):
+        out = dev.output_at(ch)
+        whole = out[: len(out) // 50 * 50].reshape(-1, 50)
+        assert len(whole) >= 1 and np.all(whole.sum(axis=1) == 0)
+        assert np.abs(out).max() * RANGE_NA / (INT16_FULL - 1) / 1e6 <= ceiling + 1e-9
+    assert stim.status().state is StimulatorState.STOPPED
+    from nmsid.drivers.errors import DeviceError
+    with pytest.raises(DeviceError, match="no open stream"):
+        stim.write_stream(np.ones(1), np.ones(1))   # the stream is over
+
+
+@settings(max_examples=60, deadline=None)
+@given(amps=st.lists(st.floats(0.0, 16.0), min_size=1, max_size=8),
+       P=st.sampled_from([10, 20, 25, 50, 100]),
+       res=st.sampled_from([100, 250, 500, 1000, 2000]))
+def test_every_period_nets_zero_after_any_lower_bit_truncation(amps, P, res):
+    q = quantum(RANGE_NA, res)
+    v = render_periods(np.array(amps), P, RANGE_NA, q).astype(np.int64)
+    truncated = v & ~(q - 1)            # what the device keeps (manual 6.3)
+    assert np.array_equal(truncated, v)
+    assert np.all(truncated.reshape(-1, P).sum(axis=1) == 0)
+    peak_nA = np.abs(v).reshape(-1, P).max(axis=1) * RANGE_NA / (INT16_FULL - 1)
+    assert np.all(peak_nA <= np.array(amps) * 1e6 + 1e-6)
+
+
+def test_an_underrun_stops_the_output(streaming):
+    stim, fake, bench = streaming
+    stim.open_stream(8.0, 6.0, 1000.0)
+    stim.write_stream(np.full(5, 2.0), np.full(5, 2.0))   # 5 ms of data
+    bench.sleep(0.05)
+    dev = _device(fake)
+    assert not dev.running and len(dev.output_at(0)) == 250
+
+
+def test_a_failed_stop_tells_the_operator_to_switch_the_stg_off(streaming):
+    stim, fake, bench = streaming
+    stim.open_stream(8.0, 6.0, 1000.0)
+    stim.write_stream(np.full(50, 2.0), np.full(50, 2.0))
+    dev = _device(fake)
+    dev.hw.unplug()
+    stim.stop_now()   # never raises
+    assert "SWITCH THE STIMULATOR OFF" in stim.status().error
+    assert stim.status().output_active
+
+
+def test_close_stream_is_idempotent_and_ends_at_zero(streaming):
+    stim, fake, bench = streaming
+    stim.open_stream(8.0, 6.0, 1000.0)
+    stim.write_stream(np.full(10, 2.0), np.full(10, 2.0))
+    t0 = time.monotonic()
+    stim.close_stream()
+    stim.close_stream()
+    assert time.monotonic() - t0 < 2.0
+    dev = _device(fake)
+    out = dev.output_at(0)
+    assert not dev.running and (len(out) == 0 or out[-1] == 0)
+
+
+def test_every_streaming_call_is_in_the_declared_surface(streaming):
+    from nmsid.testing.fakes import fake_dotnet as fd
+    stim, fake, bench = streaming
+    stim.open_stream(8.0, 6.0, 1000.0)
+    stim.stream_space()
+    stim.write_stream(np.full(3, 2.0), np.full(3, 2.0))
+    stim.stop_now()
+    stim.disconnect()
+
+    def net(a):
+        if isinstance(a, fd.NetArray):
+            return f"System.{a.element_type.NAME}[]"
+        if isinstance(a, fd._NetInt):
+            return f"System.{type(a).NAME}"
+        return "Mcs.Usb.CMcsUsbListEntryNet"
+    calls = {(c[0], tuple(net(a) for a in c[1:])) for c in _device(fake).calls}
+    off = [c for c in calls if not mcs_surface.has_overload("CStg200xStreamingNet", *c)]
+    assert off == []
+    offered = {n for n in vars(fake.CStg200xStreamingNet) if n[:1].isupper()}
+    assert offered - mcs_surface.members_of("CStg200xStreamingNet") == set()
