@@ -39,6 +39,14 @@ class BlockResult:
     """Empty when every sample arrived."""
 
 
+def _has_trigger(stim) -> bool:
+    try:
+        return bool(stim.capabilities().hardware_trigger)
+    except Exception:  # a driver that cannot say: assume the trigger (the STG's behaviour)
+        log.exception("stimulator.capabilities() failed")
+        return True
+
+
 def _reason(trip) -> str:
     return f"{trip.rule}: {trip.detail}"
 
@@ -77,7 +85,10 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
                                                    f"({type(exc).__name__}: {exc})")
         return BlockResult(0, force, None, None, _reason(trip))
     try:
-        acq.start(n, triggered=True)  # sample 0 = the stimulator's start trigger
+        # sample 0 = the stimulator's start trigger; a device without a trigger output
+        # (capabilities().hardware_trigger False) gets the acquisition started by the host
+        # just before its output starts
+        acq.start(n, triggered=_has_trigger(stim))
     except Exception as exc:
         trip = interlock.trip(interlock.flags.name, f"acquisition could not start "
                                                     f"({type(exc).__name__}: {exc})")

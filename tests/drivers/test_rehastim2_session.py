@@ -1,0 +1,79 @@
+"""A whole session on a (fake) Hasomed RehaStim2 with the paper's CAIO force chain.
+
+The fake RehaStim2 (``testing/fakes/fake_rehastim2.py``) speaks ScienceMode2 at the byte
+level; the fake bench's force follows the pulse currents the fake device acknowledged. The
+engine, the interlock and the session file are the same as for the STG4002.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from nmsid.drivers.hardware import make_hw_rig
+from nmsid.protocols.config import config_from_dict
+from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.engine import Engine, TripPolicy
+
+RELAXED_INTERLOCK = {"stall_timeout_s": 2.0}
+
+
+def write_rs2_config(path, *, speed=10.0, extra=()):
+    lines = ["[rig]", "fake = true", f"fake_speed = {speed}",
+             "[stimulator]", 'kind = "rehastim2"', 'port = "COM5"', "extensor_channel = 1",
+             "flexor_channel = 5", "ceiling_ext_mA = 16.0", "ceiling_flex_mA = 16.0", *extra,
+             "[acquisition]", 'kind = "caio"', "fs_Hz = 2000.0",
+             "[sensor]", "sync_channel = 6", "[sensor.channels]", "Fx = 0",
+             "[sensor.rated]", "Fx = 500.0", "[sensor.rated_output_V]", "Fx = 10.0",
+             "[estop]", 'kind = "serial"', 'port = "COM7"', 'line = "CTS"']
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def small_config():
+    return config_from_dict({
+        "participant": "RS01", "seed": 3, "interlock": RELAXED_INTERLOCK,
+        "protocol": {"sE_levels": [0.5, 0.9], "repeats": 1, "steady_s": 0.5, "chirp_s": 1.0,
+                     "rest_s": 0.0},
+        "calibration": {"hold_s": 0.2, "baseline_s": 0.1, "ceiling_ext_mA": 15.0,
+                        "ceiling_flex_mA": 15.0}})
+
+
+def test_rehastim2_session_end_to_end(tmp_path):
+    devices = make_hw_rig(write_rs2_config(tmp_path / "rs2.toml"))
+    assert "Hasomed RehaStim2" in devices.backend
+    path = tmp_path / "s.h5"
+    try:
+        summary = Engine(small_config(), devices, path,
+                         trip_policy=TripPolicy.END_SESSION).run()
+    finally:
+        devices.close()
+    assert summary.n_completed == 2, summary
+    assert validate_session(path) == []
+    s = read_session(path)
+    cal = s.calibration
+    # fake participant: Kp = 8 N, I_min 2 mA, I_max 10 mA; whole-mA pulses
+    assert 2.0 <= cal.Iemin_mA <= 4.0 and 5.0 <= cal.Iemax_mA <= 9.0, cal
+    k_all = (np.arange(60) / 40.0 * 2000).astype(int)
+    for t in [t for t in s.trials if t.status == "completed"]:
+        stim = t.extra_attrs["stimulation_json"]
+        stim = json.loads(stim) if isinstance(stim, str) else stim
+        assert stim["device"] == "rehastim2"
+        assert stim["waveshape"]["kind"] == "biphasic_pulses"
+        ext = stim["channels"]["extensor"]
+        # which pulses were delivered: one update per 1/40 s of the trial was planned; the
+        # acquisition (host-started, no trigger output) ends the block, which may cut the
+        # last few pulses of the lead-out; every delivered pulse is listed
+        assert stim["updates_planned"] == 60
+        assert 50 <= ext["pulses_acknowledged"] <= 60
+        amps = np.asarray(ext["pulse_current_mA"])
+        assert len(amps) == ext["pulses_acknowledged"]
+        k = k_all[:len(amps)]
+        # whole mA, never above the envelope the file records (floor), never above ceiling
+        assert np.all(amps <= np.asarray(t.I_ext_mA)[k] + 1e-9)
+        assert np.all(amps >= np.asarray(t.I_ext_mA)[k] - 1.0)
+        assert amps.max() <= 15.0
+        # the force follows the stimulation (extension at high sE)
+        assert np.isfinite(t.force_N).all()
