@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -362,6 +362,14 @@ class SampleTiming(Protocol):
     """Capability: a multiplexed A/D reports each channel's delay after the clock edge."""
 
     def sample_delay_s(self, channel: int) -> float: ...
+
+
+@runtime_checkable
+class ReportsSensorInfo(Protocol):
+    """Capability: a digital sensor's product information (model, serial, firmware, rate)
+    as read from the device (the Leptrino); None until it was read."""
+
+    info: Any
 
 
 # -- emergency stop ----------------------------------------------------------------

@@ -144,8 +144,14 @@ class Rehastim2Stimulator:
         self._decoder = sm2.Decoder()
         deadline = self.clock() + CONNECT_TIMEOUT_S
         init = None
+        problem = ""
         while init is None and self.clock() < deadline:
-            for pkt in self._read_packets():
+            try:
+                packets = self._read_packets()
+            except Exception as exc:  # the port failed at once: reported below, one line
+                problem = f" ({type(exc).__name__}: {exc})"
+                break
+            for pkt in packets:
                 if pkt.command == sm2.INIT:
                     init = pkt
             if init is None:
@@ -153,8 +159,9 @@ class Rehastim2Stimulator:
         if init is None:
             self._close_port()
             raise DeviceNotFound(f"RehaStim2 on {self.port}: no Init packet within "
-                                 f"{CONNECT_TIMEOUT_S:g} s (SM2 2.3 InitRepetitionTime "
-                                 "0.5 s); is ScienceMode2 started on the device?")
+                                 f"{CONNECT_TIMEOUT_S:g} s{problem} (ScienceMode2 2.3 "
+                                 "InitRepetitionTime 0.5 s); is ScienceMode2 started on the "
+                                 "device?")
         self._write(sm2.INIT_ACK, bytes((0,)), number=init.number)   # SM2 4.1 InitAck
         with self._lock:
             self._error, self._acks = "", {}
@@ -352,6 +359,8 @@ class Rehastim2Stimulator:
                 "ceiling_flex_mA": self.ceilings[self.flexor_channel],
                 "pulse_rate_Hz": self.pulse_rate_Hz, "pulse_width_us": self.pulse_width_us,
                 "trigger_output": "none (ScienceMode2 has none): acquisition host-started",
+                "electrode_check": "the device tests the skin resistance before each pulse "
+                                   "and stops with an electrode error (ScienceMode2 1.2, 4.3)",
                 "state": self.status().state.value, "error": self._error}
 
     # -- internals ------------------------------------------------------------------------------
@@ -405,6 +414,12 @@ class Rehastim2Stimulator:
                 self._state = StimulatorState.ERROR
             return
         if not self._stream_stop.is_set():
+            deadline = time.monotonic() + 10 * sm2.MAX_RESPONSE_S
+            while time.monotonic() < deadline and not self._stream_stop.is_set():
+                with self._lock:    # the last updates' acknowledgements (SM2 2.3)
+                    if self._acked + len(self._ack_errors) >= len(self._sent) or self._error:
+                        break
+                time.sleep(0.002)
             try:
                 self._write(sm2.STOP_CLM)
             except Exception as exc:

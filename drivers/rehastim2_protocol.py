@@ -141,12 +141,18 @@ def encode(number: int, command: int, data: bytes = b"") -> bytes:
 
 
 class Decoder:
-    """Feed received bytes, take whole packets (SM2 2.2 and 5.2 "Packet frame error")."""
+    """Feed received bytes, take whole packets (SM2 2.2 and 5.2 "Packet frame error").
+
+    A packet is parsed by position: start byte, stuffing byte, checksum, stuffing byte,
+    data length, ``length`` bytes of stuffed payload, stop byte. The checksum and length
+    are XORed with the key (SM2 2.2: "always stuffed"), so either may equal a constant;
+    only the payload never does.
+    """
 
     def __init__(self):
         self._buf = bytearray()
         self.rejected = 0
-        """Packets dropped for a bad checksum or length (SM2 5.2)."""
+        """Packets dropped for a bad frame, checksum or length (SM2 5.2)."""
 
     def feed(self, data: bytes) -> list[Packet]:
         self._buf += data
@@ -158,30 +164,36 @@ class Decoder:
                 self._buf.clear()
                 return out
             del self._buf[:i]
-            try:
-                j = self._buf.index(STOP, 1)
-            except ValueError:
+            if len(self._buf) < 5:
                 return out
-            frame = bytes(self._buf[:j + 1])
-            second = frame.find(bytes((START,)), 1)
-            if second != -1:          # SM2 5.2: rejected up to the second start byte
-                del self._buf[:second]
+            if self._buf[1] != STUFFING_BYTE or self._buf[3] != STUFFING_BYTE:
+                del self._buf[:1]
                 self.rejected += 1
                 continue
-            del self._buf[:j + 1]
+            length = self._buf[4] ^ STUFFING_KEY
+            end = 5 + length
+            if len(self._buf) < end + 1:
+                second = self._buf.find(bytes((START,)), 5)
+                if second != -1:   # SM2 5.2: rejected up to the second start byte
+                    del self._buf[:second]
+                    self.rejected += 1
+                    continue
+                return out
+            frame = bytes(self._buf[:end + 1])
             pkt = _frame(frame)
             if pkt is None:
+                del self._buf[:1]
                 self.rejected += 1
-            else:
-                out.append(pkt)
+                continue
+            del self._buf[:end + 1]
+            out.append(pkt)
 
 
 def _frame(frame: bytes) -> Packet | None:
-    if len(frame) < 8 or frame[1] != STUFFING_BYTE or frame[3] != STUFFING_BYTE:
-        return None
     checksum, length = frame[2] ^ STUFFING_KEY, frame[4] ^ STUFFING_KEY
     payload = frame[5:-1]
-    if len(payload) != length or crc8(payload) != checksum:
+    if frame[-1] != STOP or len(payload) != length or START in payload or STOP in payload \
+            or crc8(payload) != checksum:
         return None
     try:
         raw = unstuff(payload)

@@ -90,33 +90,35 @@ class _Receiver:
                 self.buf.clear()
                 return out
             del self.buf[:self.buf.index(sm2.START)]
-            if sm2.STOP not in self.buf[1:]:
+            if len(self.buf) < 5:
                 return out
-            j = self.buf.index(sm2.STOP, 1)
-            frame = bytes(self.buf[:j + 1])
-            k = frame.find(bytes((sm2.START,)), 1)
-            if k != -1:                  # SM2 5.2 packet frame error: up to the 2nd start
-                del self.buf[:k]
+            # SM2 4 "The First Bytes": start, stuffing byte, checksum, stuffing byte, length
+            if self.buf[1] != sm2.STUFFING_BYTE or self.buf[3] != sm2.STUFFING_BYTE:
+                del self.buf[:1]
                 continue
-            del self.buf[:j + 1]
-            if len(frame) < 8:
+            n = self.buf[4] ^ sm2.STUFFING_KEY
+            cs = self.buf[2] ^ sm2.STUFFING_KEY
+            k = self.buf.find(bytes((sm2.START,)), 5)
+            if len(self.buf) < 6 + n:
+                if k != -1:              # SM2 5.2 packet frame error: up to the 2nd start
+                    del self.buf[:k]
+                    continue
+                return out
+            payload = bytes(self.buf[5:5 + n])
+            if self.buf[5 + n] != sm2.STOP:
+                del self.buf[:k if k != -1 else len(self.buf)]
                 continue
-            cs, n = frame[2] ^ sm2.STUFFING_KEY, frame[4] ^ sm2.STUFFING_KEY
-            payload = frame[5:-1]
+            del self.buf[:6 + n]
             raw = bytearray()
             it = iter(payload)
             for b in it:
                 raw.append(next(it, 0) ^ sm2.STUFFING_KEY if b == sm2.STUFFING_BYTE else b)
             if len(raw) < 2:
                 continue
-            if len(payload) != n or sm2.crc8(payload) != cs:
+            if sm2.crc8(payload) != cs:  # SM2 5.2 checksum error: Ack with transfer error
                 self.transfer_errors.append((raw[0], raw[1]))
                 continue
             out.append(_Packet(raw[0], raw[1], bytes(raw[2:])))
-
-
-class SerialGone(OSError):
-    """Raised by the fake port after :meth:`FakeRehastim2.unplug` (a USB glitch)."""
 
 
 class FakeRehastim2:
@@ -248,18 +250,16 @@ class FakeRehastim2:
         now = self.clock()
         if not self.plugged:
             return
-        if not self.connected:
-            if now >= self._next_init:       # SM2 2.3 InitRepetitionTime, 5.3
-                self._send(sm2.INIT, bytes((self.PROTOCOL_VERSION,)))
-                self._next_init = now + sm2.INIT_REPETITION_S
-            return
-        if now - self._last_valid > sm2.WATCHDOG_TIMEOUT_S:
+        if self.connected and now - self._last_valid > sm2.WATCHDOG_TIMEOUT_S:
             # SM2 5.2 "Data transfer physically broken / disturbed": stimulation stopped,
             # all modes reset, RehaStim2 sends the Init command
             self.watchdog_expiries += 1
             self._stop_output("watchdog", at=self._last_valid + sm2.WATCHDOG_TIMEOUT_S)
             self.mode, self.connected = 0, False
             self._next_init = now
+        if not self.connected and now >= self._next_init:   # SM2 2.3, 5.3
+            self._send(sm2.INIT, bytes((self.PROTOCOL_VERSION,)))
+            self._next_init = now + sm2.INIT_REPETITION_S
 
     def _ack(self, pkt: _Packet, result: int, extra: bytes = b"") -> None:
         # SM2 2.2: the response echoes the PC's packet number; 4.x: command + 1
