@@ -103,7 +103,7 @@ def _make_rs2(s: Rehastim2Config, clock, stack):
         s.port, ceiling_ext_mA=s.ceiling_ext_mA, ceiling_flex_mA=s.ceiling_flex_mA,
         extensor_channel=s.extensor_channel, flexor_channel=s.flexor_channel,
         pulse_rate_Hz=s.pulse_rate_Hz, pulse_width_us=s.pulse_width_us,
-        open_port=None if fake is None else (lambda port: fake),
+        open_port=None if fake is None else fake.open,
         clock=clock, sleep=None if stack is None else stack.bench.sleep)
 
 

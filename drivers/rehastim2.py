@@ -264,6 +264,14 @@ class Rehastim2Stimulator:
             t.join(timeout=1.0)
 
     def status(self) -> StimulatorStatus:
+        ser = self._ser
+        if ser is not None and not self._error:
+            try:      # ask the port itself: a lost USB link fails here at once
+                _ = ser.in_waiting
+            except Exception as exc:
+                with self._lock:
+                    self._error = f"RehaStim2 USB link lost ({type(exc).__name__}: {exc})"
+                    self._state = StimulatorState.ERROR
         with self._lock:
             st = self._state
             running = st is StimulatorState.RUNNING

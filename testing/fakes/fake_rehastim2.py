@@ -121,6 +121,40 @@ class _Receiver:
             out.append(_Packet(raw[0], raw[1], bytes(raw[2:])))
 
 
+class SerialGone(OSError):
+    """Raised by the fake port after :meth:`FakeRehastim2.unplug` (a USB glitch)."""
+
+
+class FakePort:
+    """One open handle of the device's FTDI serial port. A USB glitch
+    (:meth:`FakeRehastim2.unplug`) invalidates it for good, as a re-enumerated USB device
+    needs the port opened again."""
+
+    def __init__(self, device: FakeRehastim2):
+        self.device, self.generation = device, device.generation
+
+    def _check(self) -> FakeRehastim2:
+        if self.generation != self.device.generation:
+            raise SerialGone("RehaStim2 USB serial port handle is stale (device re-plugged)")
+        return self.device
+
+    @property
+    def in_waiting(self) -> int:
+        return self._check().in_waiting
+
+    def write(self, data: bytes) -> int:
+        return self._check().write(data)
+
+    def read(self, n: int = 1) -> bytes:
+        return self._check().read(n)
+
+    def reset_input_buffer(self) -> None:
+        self._check().reset_input_buffer()
+
+    def close(self) -> None:
+        self.generation = -1
+
+
 class FakeRehastim2:
     """The device: modes, acknowledgements, watchdog, stimulation errors, pulse output.
 
@@ -149,6 +183,7 @@ class FakeRehastim2:
         self._last_valid = clock()
         self._next_init = clock()            # SM2 2.3: Init every InitRepetitionTime
         self.plugged = True
+        self.generation = 0
         self.emergency_pressed = False
         self.electrode_error_channels: set[int] = set()
         # history of what was delivered: (time, {channel: (width_us, current_mA)})
@@ -159,6 +194,11 @@ class FakeRehastim2:
         self.watchdog_expiries = 0
 
     # -- the serial port surface ----------------------------------------------------------
+    def open(self, port: str = "") -> FakePort:
+        """Open the serial port (a new handle; fails while unplugged)."""
+        self._check_plugged()
+        return FakePort(self)
+
     @property
     def in_waiting(self) -> int:
         self._check_plugged()
@@ -208,6 +248,7 @@ class FakeRehastim2:
         WatchdogTimeout stops stimulation and resets all modes)."""
         with self.lock:
             self.plugged = False
+            self.generation += 1
             self._stop_output("unplugged")
             self.mode, self.connected = 0, False
 

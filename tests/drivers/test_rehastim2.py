@@ -64,7 +64,7 @@ def test_main_interval_code():
 def rig():
     dev = FakeRehastim2()
     stim = Rehastim2Stimulator("FAKE", ceiling_ext_mA=20.0, ceiling_flex_mA=12.0,
-                               extensor_channel=2, flexor_channel=6, open_port=lambda p: dev)
+                               extensor_channel=2, flexor_channel=6, open_port=dev.open)
     stim.connect()
     yield dev, stim
     stim.disconnect()
@@ -197,9 +197,15 @@ def test_no_device_answering_is_one_line():
     dev = FakeRehastim2()
     dev.unplug()
     stim = Rehastim2Stimulator("COM9", ceiling_ext_mA=10, ceiling_flex_mA=10,
-                               open_port=lambda p: dev)
-    with pytest.raises(DeviceNotFound, match="no Init packet"):
+                               open_port=dev.open)
+    with pytest.raises(DeviceNotFound, match="cannot open serial port"):
         stim.connect()
+    dev.replug()
+    dev.open = lambda port="": type("Mute", (), {"in_waiting": 0, "close": lambda s: None,
+                                                 "read": lambda s, n=1: b""})()
+    with pytest.raises(DeviceNotFound, match="no Init packet"):
+        Rehastim2Stimulator("COM9", ceiling_ext_mA=10, ceiling_flex_mA=10,
+                            open_port=dev.open).connect()
 
 
 @pytest.mark.parametrize("kw", [dict(pulse_rate_Hz=33.0), dict(pulse_width_us=10),

@@ -10,12 +10,11 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import pytest
-
 from nmsid.drivers.hardware import make_hw_rig
 from nmsid.protocols.config import config_from_dict
 from nmsid.protocols.session_file import read_session, validate_session
-from nmsid.rig.engine import Engine, TripPolicy
+from nmsid.cli import main
+from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
 
 RELAXED_INTERLOCK = {"stall_timeout_s": 2.0}
 
@@ -77,3 +76,63 @@ def test_rehastim2_session_end_to_end(tmp_path):
         assert amps.max() <= 15.0
         # the force follows the stimulation (extension at high sE)
         assert np.isfinite(t.force_N).all()
+
+
+def test_usb_glitch_and_estop_on_rehastim2(tmp_path):
+    devices = make_hw_rig(write_rs2_config(tmp_path / "rs2.toml", speed=4.0))
+    fake = devices.acquisition._stack.stimulator_fake
+    path = tmp_path / "s.h5"
+    pressed = {}
+
+    class Faults(EngineObserver):
+        def on_trial_finished(self, index, trial):
+            if index == 0:             # USB lost between trials: found, reconnected
+                fake.unplug()
+                fake.replug()
+
+        def on_chunk(self, index, start_index, force_N, *rest):
+            if index == 1 and start_index + len(force_N) >= 1200 and not pressed:
+                pressed["t"] = fake.clock()
+                devices.estop._ser.rts = False   # the NC switch opens the loop
+
+    cfg = config_from_dict({
+        "participant": "RS02", "seed": 1, "interlock": RELAXED_INTERLOCK,
+        "protocol": {"sE_levels": [0.5, 0.9], "repeats": 1, "steady_s": 0.3, "chirp_s": 0.7,
+                     "rest_s": 0.0},
+        "calibration": {"manual": {"Iemin_mA": 2.5, "Iemax_mA": 7.0, "Ifmin_mA": 2.5,
+                                   "Ifmax_mA": 7.0}}})
+    asked = []
+    try:
+        summary = Engine(cfg, devices, path, observer=Faults(),
+                         trip_policy=TripPolicy.END_SESSION,
+                         on_device_glitch=lambda what, ok: asked.append(what) or True).run()
+    finally:
+        devices.close()
+    assert asked and "stimulator" in asked[0] and "reconnected" in asked[0]
+    assert summary.n_completed == 1
+    s = read_session(path)
+    assert validate_session(path) == []
+    aborted = [t for t in s.trials if t.status == "aborted"]
+    assert aborted and "estop" in aborted[0].abort_reason.lower()
+    # the device stopped: no pulse current after the stop that followed the press
+    assert fake.stops and fake.stops[-1] >= pressed["t"]
+    after = np.linspace(fake.stops[-1] + 1e-6, fake.stops[-1] + 1.0, 50)
+    assert not fake.amplitude_mA_at(1, after).any()
+    assert not fake.amplitude_mA_at(5, after).any()
+
+
+def test_nmsid_run_and_identify_on_rehastim2(tmp_path, capsys):
+    hw = write_rs2_config(tmp_path / "rs2.toml", speed=20.0)
+    proto = tmp_path / "p.toml"
+    proto.write_text('participant = "RS03"\nseed = 5\n[protocol]\nsE_levels = [0.7]\n'
+                     'repeats = 2\nsteady_s = 0.5\nchirp_s = 2.0\nrest_s = 0.0\n'
+                     '[calibration]\nhold_s = 0.2\nbaseline_s = 0.1\n'
+                     '[interlock]\nstall_timeout_s = 2.0\n', encoding="utf-8")
+    out = tmp_path / "run.h5"
+    rc = main(["run", "--backend", "hw", "--hw-config", str(hw), "--config", str(proto),
+               "--out", str(out), "--no-identify", "--quiet"])
+    assert rc == 0, capsys.readouterr()
+    assert validate_session(out) == []
+    assert "RehaStim2" in read_session(out).backend
+    rc = main(["identify", str(out), "--out", str(tmp_path / "id")])
+    assert rc == 0, capsys.readouterr()
