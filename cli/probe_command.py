@@ -14,12 +14,12 @@ from __future__ import annotations
 import numpy as np
 
 from nmsid.cli.errors import UsageError
-from nmsid.drivers.dry_run import dry_run_probe
 from nmsid.drivers.hardware import (build_devices, load_acquisition_library, make_acquisition,
                                     make_estop, make_stimulator, prepare, with_monitor)
 from nmsid.drivers.hardware import load_stimulator_library
 from nmsid.drivers.hw_config import load_hw_config
 from nmsid.drivers.interfaces import Describable, ReportsSensorInfo
+from nmsid.rig.dry_run import dry_run_probe
 
 
 def _one_line(exc: BaseException) -> str:

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from nmsid.drivers.caio import CaioAcquisition
+from nmsid.drivers.dry_run import commanded_current_A
 from nmsid.drivers.errors import HardwareConfigError
 from nmsid.drivers.fake_hardware import load_fake
 from nmsid.drivers.hw_config import HardwareConfig, StimulatorConfig
@@ -50,6 +51,9 @@ class DryRunSupport:
     pulse currents."""
     hardware_sync: bool
     """The device has a sync output the dry run can check goes low after a stop."""
+    command_A: Callable[[Any, int, int, float], np.ndarray] | None = None
+    """``command_A(stim, channel, n, fs_Hz)``: the current the device was given for the
+    tested channel, as the monitor would see it (``lock-in`` only)."""
 
 
 @dataclass(frozen=True)
@@ -88,6 +92,13 @@ def _fake_stg(s: StimulatorConfig, bench):
 
 def _stg_library(stim) -> None:
     _ = stim.api
+
+
+def _stg_command_A(stim: Stg4002Stimulator, channel: int, n: int, fs_Hz: float) -> np.ndarray:
+    dl = stim.last_download   # the exact samples downloaded for the dry run's trial
+    if dl is None:
+        return np.zeros(n)
+    return commanded_current_A(dl.channels[channel].expand(), dl.output_rate_Hz, n, fs_Hz)
 
 
 def _stg_report(s: StimulatorConfig, checked: CheckedWaveform) -> dict:
@@ -142,7 +153,8 @@ STIMULATORS: dict[str, StimulatorKind] = {
     "stg4002": StimulatorKind(
         kind="stg4002", title="MCS STG4002", settings=StimulatorConfig, make=_make_stg,
         install_fake=_fake_stg, load_library=_stg_library, report=_stg_report,
-        dry_run=DryRunSupport(method="lock-in", hardware_sync=True)),
+        dry_run=DryRunSupport(method="lock-in", hardware_sync=True,
+                              command_A=_stg_command_A)),
     "rehastim2": StimulatorKind(
         kind="rehastim2", title="Hasomed RehaStim2", settings=Rehastim2Config, make=_make_rs2,
         install_fake=_fake_rs2, load_library=_rs2_library, report=_rs2_report,

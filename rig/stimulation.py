@@ -53,7 +53,8 @@ def _reason(trip) -> str:
 
 def run_block(devices, interlock: Interlock, checked, n: int, *,
               on_samples: Callable[..., None] | None = None,
-              should_stop: Callable[[], str] | None = None) -> BlockResult:
+              should_stop: Callable[[], str] | None = None,
+              on_chunk: Callable[..., None] | None = None) -> BlockResult:
     """Stimulate ``checked`` and record ``n`` samples of force.
 
     Parameters
@@ -68,6 +69,9 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
         ``sync`` are None when the acquisition does not record them.
     should_stop : callable() -> str, optional
         Asked after every chunk; a non-empty answer stops the block with that reason.
+    on_chunk : callable(ForceChunk), optional
+        Called with every chunk as the acquisition delivered it (the dry run keeps its
+        monitor input), before the interlock's checks of it.
 
     Returns
     -------
@@ -108,6 +112,8 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
                                                 f"failed ({type(exc).__name__}: {exc})"))
                 break
             now = clock.monotonic_s()
+            if chunk is not None and on_chunk is not None:
+                on_chunk(chunk)
             if chunk is not None and (chunk.n or chunk.flags.any):
                 # an empty chunk may still carry flags (overrun, sensor fault): check them
                 if chunk.n:

@@ -421,7 +421,6 @@ class FakeRehastim2:
         """Biphasic pulses (SM2 Figure 2): +I for the width, 100 us pause, -I for the width,
         one per main interval in the channel's 1.5 ms slot (SM2 1.3)."""
         t = np.atleast_1d(np.asarray(t, dtype=np.float64))
-        amp = self.amplitude_mA_at(channel + 1, t) * 1e6
         if self.main_interval_s <= 0 or not self.starts:
             return np.zeros(len(t))
         with self.lock:
@@ -430,6 +429,8 @@ class FakeRehastim2:
         pw = (widths[-1] if widths else 0) * 1e-6
         slot = self.active.index(channel + 1) * 1.5e-3 if channel + 1 in self.active else 0.0
         phase = np.mod(t - self.starts[-1] - slot, self.main_interval_s)
+        # a pulse is generated whole with the parameters in force when it begins (SM2 1.3)
+        amp = self.amplitude_mA_at(channel + 1, t - phase) * 1e6
         ip = sm2.INTERPHASE_US * 1e-6
         return np.where(phase < pw, amp, np.where((phase >= pw + ip) & (phase < 2 * pw + ip),
                                                   -amp, 0.0))

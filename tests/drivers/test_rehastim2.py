@@ -170,16 +170,35 @@ def test_electrode_error_trips(rig):
     assert "electrode error" in stim.status().error
 
 
-def test_keepalive_holds_the_watchdog_and_silence_trips_it(rig):
-    dev, stim = rig
-    time.sleep(1.5)                             # > WatchdogTimeout, idle: keep-alive sent
+class FastClock:
+    """Device and driver time at 5 x wall time (the protocol's 1.2 s in 0.24 s)."""
+
+    def __init__(self):
+        self.t0 = time.monotonic()
+
+    def __call__(self) -> float:
+        return (time.monotonic() - self.t0) * 5.0
+
+    @staticmethod
+    def sleep(s: float) -> None:
+        time.sleep(max(s, 0) / 5.0)
+
+
+def test_keepalive_holds_the_watchdog_and_silence_trips_it():
+    clock = FastClock()
+    dev = FakeRehastim2(clock=clock, sleep=clock.sleep)
+    stim = Rehastim2Stimulator("FAKE", ceiling_ext_mA=10.0, ceiling_flex_mA=10.0,
+                               open_port=dev.open, clock=clock, sleep=clock.sleep)
+    stim.connect()
+    time.sleep(0.4)                             # 2 s > WatchdogTimeout, idle: keep-alive
     assert dev.connected and dev.watchdog_expiries == 0
     assert any(p.command == sm2.WATCHDOG for p in dev.received)
     stim._link_stop.set()                       # the host goes silent (a hung program)
     stim._link.join()
-    time.sleep(1.4)
+    time.sleep(0.35)
     assert dev.in_waiting > 0                   # SM2 5.2: reset; the device sends Init
     assert dev.watchdog_expiries == 1 and not dev.connected
+    stim.disconnect()
 
 
 def test_usb_glitch_is_an_error_and_reconnect_recovers(rig):
@@ -203,9 +222,10 @@ def test_no_device_answering_is_one_line():
     dev.replug()
     dev.open = lambda port="": type("Mute", (), {"in_waiting": 0, "close": lambda s: None,
                                                  "read": lambda s, n=1: b""})()
+    clock = FastClock()
     with pytest.raises(DeviceNotFound, match="no Init packet"):
         Rehastim2Stimulator("COM9", ceiling_ext_mA=10, ceiling_flex_mA=10,
-                            open_port=dev.open).connect()
+                            open_port=dev.open, clock=clock, sleep=clock.sleep).connect()
 
 
 @pytest.mark.parametrize("kw", [dict(pulse_rate_Hz=33.0), dict(pulse_width_us=10),

@@ -136,3 +136,32 @@ def test_nmsid_run_and_identify_on_rehastim2(tmp_path, capsys):
     assert "RehaStim2" in read_session(out).backend
     rc = main(["identify", str(out), "--out", str(tmp_path / "id")])
     assert rc == 0, capsys.readouterr()
+
+
+def test_probe_and_dry_run_on_rehastim2(tmp_path, capsys):
+    hw = write_rs2_config(tmp_path / "rs2.toml", speed=2.0)
+    text = hw.read_text(encoding="utf-8").replace('fs_Hz = 2000.0', 'fs_Hz = 2000.0\n'
+                                                  'monitor_channel = 7')
+    hw.write_text(text, encoding="utf-8")
+    assert main(["probe", "--hw-config", str(hw), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "device: Hasomed RehaStim2 (ScienceMode2)" in out
+    for name in ("pulse count", "pulse amplitude", "charge balance", "E-stop: trial ended",
+                 "E-stop: output zero"):
+        assert f"[PASS] {name}:" in out
+    assert "sync low" not in out          # no sync output on a RehaStim2: not claimed
+
+
+def test_pulse_checks_catch_a_wrong_resistor():
+    from nmsid.drivers.dry_run import DryRunSettings, check_pulses
+    s = DryRunSettings()
+    fs = s.monitor_fs_Hz
+    i = np.zeros(int(fs))
+    for k, amp in enumerate([1, 2, 2, 1]):            # 3 samples +, 1 pause, 3 samples -
+        t0 = 100 + 250 * k
+        i[t0:t0 + 3], i[t0 + 4:t0 + 7] = amp * 1.5, -amp * 1.5
+    checks = {c.name: c.passed for c in check_pulses(i * 1.0, s, [1, 2, 2, 1], 300.0)}
+    assert checks == {"pulse count": True, "pulse amplitude": False, "charge balance": True}
+    i[100:103] *= 2                                  # an unbalanced pulse
+    checks = {c.name: c.passed for c in check_pulses(i / 1.5, s, [1, 2, 2, 1], 300.0)}
+    assert checks["charge balance"] is False
