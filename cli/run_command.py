@@ -16,7 +16,6 @@ from pathlib import Path
 
 from nmsid.analysis.run import run_identification, summary_line
 from nmsid.cli.errors import UsageError
-from nmsid.drivers.hardware import make_hw_rig
 from nmsid.protocols.config import config_from_json, load_config
 from nmsid.protocols.errors import OutputPathError
 from nmsid.protocols.output_paths import check_output, output_dir
@@ -24,9 +23,8 @@ from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.rig.engine import Engine, TripPolicy
 from nmsid.rig.glitch_prompt import glitch_confirmation
 from nmsid.rig.session_log import journal_dir, recover
+from nmsid.rig.session_service import RigRequest, prepare_rig, seed_from_code
 from nmsid.rig.session_signals import SessionSignals, signal_name
-from nmsid.sim_backends import make_sim_rig
-from nmsid.sim_backends.participant_models import participant_for_model
 
 
 def recover_cmd(args) -> int:
@@ -59,9 +57,6 @@ def run(args) -> int:
             "confirm_weakened_safety": getattr(args, "allow_weakened_safety", False)})
         if args.participant_model:
             config = config.replace(participant_model=args.participant_model)
-        if args.backend == "sim" and not args.realtime and config.protocol.rest_s != 0:
-            log.info("fast clock: rest_s %g -> 0", config.protocol.rest_s)
-            config = config.with_protocol(rest_s=0.0)
         path = Path(args.out) if args.out else _free_path(Path(args.outdir or "sessions"),
                                                           config.participant)
         # a taken, dangling or unwritable --out is refused before any device is touched
@@ -70,11 +65,14 @@ def run(args) -> int:
             raise OutputPathError(f"{path}: a journal of an unfinished session "
                                   f"({journal_dir(path)}) is here; continue it with "
                                   f"--resume {path}, or give another --out")
-    stored = _stored_attrs(path) if args.resume else {}
-    sim_seed = None
-    if args.backend == "sim":
-        sim_seed = (args.sim_seed if args.sim_seed is not None else
-                    stored.get("sim_seed", _seed_from_code(config.participant)))
+    stored, stored_backend = _stored_attrs(path) if args.resume else ({}, "")
+    request = RigRequest(backend=args.backend, session_path=path, resume=bool(args.resume),
+                         hw_config=Path(args.hw_config) if args.hw_config else None,
+                         sim_seed=args.sim_seed if args.backend == "sim" else None,
+                         realtime=bool(args.realtime), stored=stored,
+                         stored_backend=stored_backend)
+    if args.backend == "hw" and args.sim_seed is not None:
+        raise UsageError("--sim-seed applies to --backend sim (the simulated participant)")
     box: dict = {}
 
     def on_signal(signum, reason):  # main thread, which holds no engine lock
@@ -85,16 +83,17 @@ def run(args) -> int:
         # before the engine exists nothing has been stimulated: run() checks `received`
 
     with SessionSignals(on_signal) as signals:
-        devices = _make_devices(args, config, sim_seed)
+        rig = prepare_rig(request, config)   # a resume on another rig is refused here
+        devices, config = rig.devices, rig.config
+        if config.protocol.rest_s == 0 and rig.extra_attrs.get("configured_rest_s"):
+            log.info("fast clock: rest_s %g -> 0", rig.extra_attrs["configured_rest_s"])
         progress = _Progress(quiet=args.quiet)
         try:
             engine = Engine(config, devices, path, resume=bool(args.resume),
                             observer=progress, trip_policy=TripPolicy.END_SESSION,
                             on_device_glitch=glitch_confirmation(
                                 getattr(args, "resume_after_reconnect", False)),
-                            extra_attrs={} if sim_seed is None else {
-                                "sim_seed": int(sim_seed),
-                                "participant_model": config.participant_model})
+                            extra_attrs=rig.extra_attrs)
             if signals.received is not None:
                 print(f"nmsid: {signal_name(signals.received)} received before the session "
                       f"started: nothing stimulated, no session file written",
@@ -146,12 +145,15 @@ def _print_quietly(text: str) -> None:
         pass
 
 
-def _stored_attrs(path) -> dict:
-    """Extra root attributes of a session (journal header first, else the file)."""
+def _stored_attrs(path) -> tuple[dict, str]:
+    """Extra root attributes and the backend text of a session (journal header first,
+    else the file)."""
     j = journal_dir(path) / "header.json"
     if j.exists():
-        return dict(json.loads(j.read_text()).get("extra_attrs") or {})
-    return dict(read_session(path, load_data=False).attrs)
+        header = json.loads(j.read_text())
+        return dict(header.get("extra_attrs") or {}), str(header.get("backend", ""))
+    s = read_session(path, load_data=False)
+    return dict(s.attrs), str(s.backend)
 
 
 def _stored_config(path):
@@ -170,18 +172,8 @@ def _free_path(outdir, participant: str):
     raise UsageError(f"{outdir}: no free session file name for {participant}-{stamp}")
 
 
-def _make_devices(args, config, sim_seed):
-    if args.backend == "hw":
-        if not args.hw_config:
-            raise UsageError("--backend hw needs --hw-config FILE (the rig's hardware "
-                             "configuration)")
-        return make_hw_rig(args.hw_config)
-    return make_sim_rig(participant_for_model(config.participant_model, int(sim_seed)),
-                        realtime=args.realtime)
-
-
 def _seed_from_code(code: str) -> int:
-    return zlib.crc32(code.encode("utf-8"))
+    return seed_from_code(code)
 
 
 def _identify(path) -> None:

@@ -122,7 +122,7 @@ def test_usb_glitch_and_estop_on_rehastim2(tmp_path):
 
 
 def test_nmsid_run_and_identify_on_rehastim2(tmp_path, capsys):
-    hw = write_rs2_config(tmp_path / "rs2.toml", speed=20.0)
+    hw = write_rs2_config(tmp_path / "rs2.toml", speed=5.0)   # the 1.2 s watchdog: 0.24 s
     proto = tmp_path / "p.toml"
     proto.write_text('participant = "RS03"\nseed = 5\n[protocol]\nsE_levels = [0.7]\n'
                      'repeats = 2\nsteady_s = 0.5\nchirp_s = 2.0\nrest_s = 0.0\n'
