@@ -24,12 +24,15 @@ the configured rest (``configured_rest_s`` when the fast clock had zeroed it).
 from __future__ import annotations
 
 import hashlib
+import json
 import tomllib
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from nmsid.drivers.hardware import make_hw_rig
+from nmsid.protocols.session_file import read_session
+from nmsid.rig.journal import journal_dir
 from nmsid.rig.errors import RequestError
 from nmsid.sim_backends.participant_models import participant_for_model
 from nmsid.sim_backends.rig import make_sim_rig
@@ -87,6 +90,20 @@ class PreparedRig:
     extra_attrs: dict
     """Root attributes to record with a new session (see the module docstring)."""
     sim_seed: int | None
+
+
+def stored_session(path) -> tuple[dict, str]:
+    """A session's recorded root attributes and backend text (journal header first, else
+    the published file); ``({}, "")`` when neither can be read (recovery deals with it)."""
+    j = journal_dir(path) / "header.json"
+    try:
+        if j.exists():
+            header = json.loads(j.read_text(encoding="utf-8"))
+            return dict(header.get("extra_attrs") or {}), str(header.get("backend", ""))
+        s = read_session(path, load_data=False)
+        return dict(s.attrs), str(s.backend)
+    except (ValueError, OSError, AttributeError):
+        return {}, ""
 
 
 def seed_from_code(code: str) -> int:
