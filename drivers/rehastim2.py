@@ -123,6 +123,8 @@ class Rehastim2Stimulator:
         self._streaming_open = False
         self._trial_pulses: list[tuple[int, int]] = []
         self._sent: list[tuple[int, int]] = []
+        self._sent_index: list[int] = []
+        self._skipped = 0
         self._acked = 0
         self._ack_errors: list[str] = []
         self._onset_ack_s: float | None = None
@@ -237,6 +239,7 @@ class Rehastim2Stimulator:
                                   "load() and arm() first")
             self._queue = collections.deque(self._trial_pulses)
             self._sent, self._acked, self._ack_errors = [], 0, []
+            self._sent_index, self._skipped = [], 0
             self._onset_ack_s, self._ended_by = None, ""
             self._streaming_open = False
             self._state = StimulatorState.RUNNING
@@ -293,6 +296,7 @@ class Rehastim2Stimulator:
         with self._lock:
             self._queue.clear()
             self._sent, self._acked, self._ack_errors = [], 0, []
+            self._sent_index, self._skipped = [], 0
             self._streaming_open = True
             self._state = StimulatorState.RUNNING
         self._start_stream_thread()
@@ -328,10 +332,12 @@ class Rehastim2Stimulator:
     # -- what was delivered ---------------------------------------------------------------------
     def delivery_summary(self) -> dict | None:
         """The pulses of the last trial: per channel, the current of every update the device
-        acknowledged, the width, and the charge per phase (plain JSON types)."""
+        acknowledged (``pulse_index``: each one's slot, k / pulse_rate_Hz s after onset), the
+        width, the charge per phase, and the updates skipped because the host fell behind
+        the time base (plain JSON types)."""
         with self._lock:
-            sent = list(self._sent)
-            acked, errors = self._acked, list(self._ack_errors)
+            sent, index = list(self._sent), list(self._sent_index)
+            acked, errors, skipped = self._acked, list(self._ack_errors), self._skipped
             onset, ended = self._onset_ack_s, self._ended_by
         if self._loaded is None and not sent:
             return None
@@ -356,6 +362,7 @@ class Rehastim2Stimulator:
                 "charge_balanced": "by the device: equal biphasic phases (ScienceMode2 1.2)",
                 "updates_planned": len(self._trial_pulses), "updates_sent": len(sent),
                 "updates_acknowledged": acked, "update_errors": errors,
+                "updates_skipped_late": skipped, "pulse_index": index[:acked],
                 "onset_ack_s": onset, "ended_by": ended or "completed",
                 "channels": channels}
 
@@ -406,6 +413,16 @@ class Rehastim2Stimulator:
                 wait = t0 + k * period - self.clock()
                 if wait > 0:
                     self._sleep(wait)
+                elif not self._streaming_open and -wait > period:
+                    # behind the trial's time base (a busy host): skip to the update that
+                    # is due now, so the delivered amplitude keeps the recorded time axis;
+                    # the skipped updates are counted in the delivery summary
+                    late = min(int(-wait / period), len(self._queue))
+                    with self._lock:
+                        for _ in range(late):
+                            e, f = self._queue.popleft()
+                        self._skipped += late
+                    k += late
                 if self._stream_stop.is_set():
                     break
                 data = self._pulse_data(e, f)
@@ -413,6 +430,7 @@ class Rehastim2Stimulator:
                     if self._error:
                         break
                     self._sent.append((e, f))
+                    self._sent_index.append(k)
                 self._write(sm2.START_CLM, data)
                 k += 1
         except Exception as exc:   # a lost link: the watchdog stops the device (SM2 5.2)

@@ -256,3 +256,31 @@ def test_host_stream(rig):
     assert [(v[2][1], v[6][1]) for v in got] == [(1, 0), (2, 0), (3, 4)]
     with pytest.raises(CurrentLimitError):
         stim.open_stream(21.0, 5.0, 40.0)
+
+
+def test_a_host_falling_behind_skips_late_updates_and_says_so():
+    dev = FakeRehastim2()
+    stim = Rehastim2Stimulator("FAKE", ceiling_ext_mA=20.0, ceiling_flex_mA=20.0,
+                               open_port=dev.open)
+    stim.connect()
+    try:
+        t = np.arange(0, 0.5, 1e-3)
+        stim.load(waveform(np.floor(t * 10), np.zeros_like(t), ceil=(20.0, 20.0)))
+        stim.arm()
+        naps = []
+
+        def oversleep(s):               # a busy host: every wait lasts 0.1 s longer
+            naps.append(s)
+            time.sleep(s + 0.1)
+        stim._sleep = oversleep
+        stim.start()
+        assert wait_state(stim, StimulatorState.STOPPED) is StimulatorState.STOPPED
+        s = stim.delivery_summary()
+        assert s["updates_skipped_late"] > 0
+        assert s["updates_sent"] + s["updates_skipped_late"] == s["updates_planned"] == 20
+        idx = s["pulse_index"]
+        assert idx == sorted(idx) and len(set(idx)) == len(idx)
+        # each delivered update is the envelope at its own slot
+        assert s["channels"]["extensor"]["pulse_current_mA"] == [int(k / 40 * 10) for k in idx]
+    finally:
+        stim.disconnect()

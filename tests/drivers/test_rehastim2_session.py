@@ -65,11 +65,12 @@ def test_rehastim2_session_end_to_end(tmp_path):
         # which pulses were delivered: one update per 1/40 s of the trial was planned; the
         # acquisition (host-started, no trigger output) ends the block, which may cut the
         # last few pulses of the lead-out; every delivered pulse is listed
+        # (a busy host skips late updates to keep the time base: counted, never hidden)
         assert stim["updates_planned"] == 60
-        assert 50 <= ext["pulses_acknowledged"] <= 60
+        assert 50 <= ext["pulses_acknowledged"] + stim["updates_skipped_late"] <= 60
         amps = np.asarray(ext["pulse_current_mA"])
-        assert len(amps) == ext["pulses_acknowledged"]
-        k = k_all[:len(amps)]
+        assert len(amps) == ext["pulses_acknowledged"] == len(stim["pulse_index"])
+        k = k_all[np.asarray(stim["pulse_index"], dtype=int)]
         # whole mA, never above the envelope the file records (floor), never above ceiling
         assert np.all(amps <= np.asarray(t.I_ext_mA)[k] + 1e-9)
         assert np.all(amps >= np.asarray(t.I_ext_mA)[k] - 1.0)
