@@ -171,9 +171,10 @@ def stimulator_kind(settings) -> StimulatorKind:
     HardwareConfigError
         For a kind without an entry (a settings model added without its entry).
     """
-    entry = STIMULATORS.get(getattr(settings, "kind", ""))
+    kind = settings.kind
+    entry = STIMULATORS.get(kind)
     if entry is None or not isinstance(settings, entry.settings):
-        raise HardwareConfigError(f"[stimulator] kind {getattr(settings, 'kind', '?')!r}: "
+        raise HardwareConfigError(f"[stimulator] kind {kind!r}: "
                                   f"valid {', '.join(STIMULATORS)}")
     return entry
 

@@ -98,6 +98,8 @@ class Rehastim2Stimulator:
         self.port = port
         self.ceilings = {extensor_channel: float(ceiling_ext_mA),
                          flexor_channel: float(ceiling_flex_mA)}
+        self._stream_ceilings = dict(self.ceilings)
+        """The ceilings of the open stream (open_stream may lower the driver's)."""
         self.extensor_channel, self.flexor_channel = extensor_channel, flexor_channel
         self.channels = tuple(sorted((extensor_channel, flexor_channel)))
         self.pulse_rate_Hz, self.pulse_width_us = float(pulse_rate_Hz), int(pulse_width_us)
@@ -290,8 +292,8 @@ class Rehastim2Stimulator:
             if c > self.ceilings[ch] + 1e-9:
                 raise CurrentLimitError(f"stream ceiling {c:g} mA on channel {ch} is above "
                                         f"the driver's {self.ceilings[ch]:g} mA")
-        self._stream_ceilings = {self.extensor_channel: float(ceiling_ext_mA),
-                                 self.flexor_channel: float(ceiling_flex_mA)}
+        self._stream_ceilings.update({self.extensor_channel: float(ceiling_ext_mA),
+                                      self.flexor_channel: float(ceiling_flex_mA)})
         self.arm()
         with self._lock:
             self._queue.clear()
@@ -307,7 +309,7 @@ class Rehastim2Stimulator:
         flex = np.floor(np.asarray(I_flex_mA, float) + 1e-9).astype(int)
         if len(ext) != len(flex):
             raise CurrentLimitError("I_ext_mA and I_flex_mA must have the same length")
-        lim = getattr(self, "_stream_ceilings", self.ceilings)
+        lim = self._stream_ceilings
         for name, arr, ch in (("I_ext_mA", I_ext_mA, self.extensor_channel),
                               ("I_flex_mA", I_flex_mA, self.flexor_channel)):
             a = np.asarray(arr, float)

@@ -52,7 +52,7 @@ class _SM2:
         for b in raw:                    # SM2 2.2: escape the constants but the key
             payload += bytes((cls.STUFFING_BYTE, b ^ cls.STUFFING_KEY)) \
                 if b in (cls.START, cls.STOP, cls.STUFFING_BYTE) else bytes((b,))
-        return bytes((cls.START, cls.STUFFING_BYTE, cls.crc8(payload) ^ cls.STUFFING_KEY,
+        return bytes((cls.START, cls.STUFFING_BYTE, cls.crc8(bytes(payload)) ^ cls.STUFFING_KEY,
                       cls.STUFFING_BYTE, len(payload) ^ cls.STUFFING_KEY)) + \
             bytes(payload) + bytes((cls.STOP,))
 
@@ -84,7 +84,7 @@ class _Receiver:
 
     def feed(self, data: bytes) -> list[_Packet]:
         self.buf += data
-        out = []
+        out: list[_Packet] = []
         while True:
             if sm2.START not in self.buf:
                 self.buf.clear()
