@@ -258,8 +258,23 @@ def check_after_stop(monitor_V: np.ndarray, sync_V: np.ndarray | None, s: DryRun
     return out
 
 
+def pulses_in_force(pulses_mA: list[int], pulse_index: list[int] | None) -> list[int]:
+    """The current of every pulse period from the first update to the last: an update
+    stays in force until the next (ScienceMode2 1.3, continuous channel list mode), so a
+    skipped slot repeats the previous current."""
+    if not pulse_index:
+        return list(pulses_mA)
+    out, j = [], 0
+    for k in range(pulse_index[0], pulse_index[-1] + 1):
+        while j + 1 < len(pulse_index) and pulse_index[j + 1] <= k:
+            j += 1
+        out.append(pulses_mA[j])
+    return out
+
+
 def check_pulses(monitor_V: np.ndarray, s: DryRunSettings, pulses_mA: list[int],
-                 pulse_width_us: float, interphase_us: float = 100.0) -> list[Check]:
+                 pulse_width_us: float, interphase_us: float = 100.0,
+                 pulse_index: list[int] | None = None) -> list[Check]:
     """A pulse stimulator on the dummy load: the pulses found in the record (a rising edge
     above half a milliampere starts one) against the acknowledged updates.
 
@@ -276,10 +291,10 @@ def check_pulses(monitor_V: np.ndarray, s: DryRunSettings, pulses_mA: list[int],
     starts = np.flatnonzero(above[1:] & ~above[:-1]) + 1
     span = int(np.ceil((2 * pulse_width_us + interphase_us) * 1e-6 * fs)) + 2
     starts = starts[starts + span <= len(i_mA)]
-    cmd = [float(p) for p in pulses_mA if p > 0]
+    cmd = [float(p) for p in pulses_in_force(pulses_mA, pulse_index) if p > 0]
     count = Check("pulse count", len(cmd) > 0 and abs(len(starts) - len(cmd)) <= 2,
-                  f"{len(starts)} pulses found, {len(cmd)} non-zero updates acknowledged",
-                  "within 2, > 0")
+                  f"{len(starts)} pulses found, {len(cmd)} non-zero pulse periods from the "
+                  "acknowledged updates", "within 2, > 0")
     if not len(starts) or not cmd:
         return [count]
     win = np.stack([i_mA[k - 1:k - 1 + span] for k in starts])

@@ -121,7 +121,8 @@ def run_dry_run(devices, s: DryRunSettings, support, *, out=print,
             pulses = summary["channels"][s.channel]["pulse_current_mA"]
             shape = summary["waveshape"]
             checks = check_pulses(monitor_V, s, pulses, float(shape["pulse_width_us"]),
-                                  float(shape.get("interphase_us", 0.0)))
+                                  float(shape.get("interphase_us", 0.0)),
+                                  pulse_index=summary.get("pulse_index"))
     return _report(checks, out)
 
 

@@ -166,3 +166,9 @@ def test_pulse_checks_catch_a_wrong_resistor():
     i[100:103] *= 2                                  # an unbalanced pulse
     checks = {c.name: c.passed for c in check_pulses(i / 1.5, s, [1, 2, 2, 1], 300.0)}
     assert checks["charge balance"] is False
+
+
+def test_skipped_slots_repeat_the_update_in_force():
+    from nmsid.drivers.dry_run import pulses_in_force
+    assert pulses_in_force([1, 2, 3], [0, 1, 4]) == [1, 2, 2, 2, 3]
+    assert pulses_in_force([1, 2], None) == [1, 2]
