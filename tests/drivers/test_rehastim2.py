@@ -112,20 +112,27 @@ def test_trial_delivers_the_envelope_as_pulses(rig):
     assert dev.mode == 0 and dev.stops              # StopChannelListMode at the end
 
 
-@given(st.lists(st.floats(0, 20), min_size=1, max_size=60),
-       st.lists(st.floats(0, 12), min_size=1, max_size=60))
-@settings(max_examples=60, deadline=None)
-def test_no_pulse_above_its_ceiling_by_construction(ext, flex):
-    n = min(len(ext), len(flex))
-    stim = Rehastim2Stimulator("FAKE", ceiling_ext_mA=20.0, ceiling_flex_mA=12.0,
+@given(st.lists(st.floats(0, 19.5), min_size=1, max_size=30),
+       st.lists(st.floats(0, 11.7), min_size=1, max_size=30),
+       st.sampled_from([200.0, 1000.0, 2000.0, 1234.5]))
+@settings(max_examples=80, deadline=None)
+def test_no_pulse_above_its_ceiling_or_envelope_by_construction(ext, flex, fs):
+    m = min(len(ext), len(flex))
+    n = int(np.ceil(m * fs / 40.0))            # one value per pulse slot, held
+    hold = np.minimum((np.arange(n) / fs * 40.0).astype(int), m - 1)
+    stim = Rehastim2Stimulator("FAKE", ceiling_ext_mA=19.5, ceiling_flex_mA=11.7,
                                extensor_channel=2, flexor_channel=6)
-    w = CheckedWaveform(np.asarray(ext[:n]), np.asarray(flex[:n]), 40.0, 1000.0, 20.0, 12.0)
-    # what load() would send, without a device
-    k = np.minimum((np.arange(n) + 1e-9).astype(int), n - 1)
-    for e, f in zip(np.floor(w.I_ext_mA[k] + 1e-9).astype(int),
-                    np.floor(w.I_flex_mA[k] + 1e-9).astype(int)):
-        data = stim._pulse_data(int(e), int(f))
-        assert data[3] <= 20 and data[7] <= 12
+    stim._state = StimulatorState.IDLE          # load() needs no device
+    w = CheckedWaveform(np.asarray(ext[:m])[hold], np.asarray(flex[:m])[hold], fs, 1000.0,
+                        19.5, 11.7)
+    stim.load(w)
+    assert len(stim._trial_pulses) >= m - 1
+    for k, (e, f) in enumerate(stim._trial_pulses):
+        i = min(int(k / 40.0 * fs + 1e-9), n - 1)     # the envelope sample at pulse k
+        assert 0 <= e <= w.I_ext_mA[i] <= 19.5 and 0 <= f <= w.I_flex_mA[i] <= 11.7
+        assert e > w.I_ext_mA[i] - 1 and f > w.I_flex_mA[i] - 1   # whole mA, floor
+        data = stim._pulse_data(e, f)
+        assert data[3] == e and data[7] == f
 
 
 def test_a_current_above_the_ceiling_is_never_encoded(rig):

@@ -172,3 +172,22 @@ def test_skipped_slots_repeat_the_update_in_force():
     from nmsid.drivers.dry_run import pulses_in_force
     assert pulses_in_force([1, 2, 3], [0, 1, 4]) == [1, 2, 2, 2, 3]
     assert pulses_in_force([1, 2], None) == [1, 2]
+
+
+def test_nmsid_stimulation_for_rehastim2(tmp_path, capsys):
+    import json as _json
+    hw = write_rs2_config(tmp_path / "rs2.toml")
+    out = tmp_path / "stim"
+    assert main(["stimulation", "--hw-config", str(hw), "--calibration", "2,10,2,10",
+                 "--out", str(out)]) == 0
+    assert "as Hasomed RehaStim2 delivers them (biphasic_pulses)" in capsys.readouterr().out
+    report = _json.loads((out / "stimulation.json").read_text(encoding="utf-8"))
+    samples = np.load(out / "samples.npz")
+    assert len(report["levels"]) == 15
+    for lv in report["levels"]:
+        for name, short in (("extensor", "ext"), ("flexor", "flex")):
+            amps = samples[f"sE{lv['sE']:.2f}_{short}"]
+            ch = lv["channels"][name]
+            assert len(amps) == ch["pulses"] == 600          # 15 s at 40 Hz
+            assert amps.max() == ch["peak_current_mA"] <= 10  # whole mA, within calibration
+            assert ch["max_charge_per_phase_nC"] == ch["peak_current_mA"] * 300
