@@ -1,12 +1,20 @@
 """What the engine needs from the hardware: small interfaces, shared by real and sim devices.
 
 The engine talks only to these. ``sim_backends`` implements them over a virtual
-participant; ``drivers.stg4002``, ``drivers.caio``, ``drivers.nidaq``,
-``drivers.leptrino`` and ``drivers.estop_switch`` implement them over vendor libraries.
+participant; ``drivers.stg4002``, ``drivers.rehastim2``, ``drivers.caio``,
+``drivers.nidaq``, ``drivers.leptrino`` and ``drivers.estop_switch`` implement them over
+vendor libraries. Beyond the core :class:`Stimulator` and :class:`ForceAcquisition`, what a
+device may offer is a small runtime-checkable capability Protocol (:class:`Describable`,
+:class:`DeliveryReporting`, :class:`HostStreamedStimulator`,
+:class:`RecoverableAcquisition`, :class:`SampleTiming`, :class:`ReportsSensorInfo`),
+reached with ``isinstance``, never ``getattr``. :class:`StimulatorCapabilities` declares
+what the device renders (:class:`Waveshape`), checked by :func:`check_deliverable`.
 
 Time base: the stimulator's start is the trigger. An acquisition started with
 ``triggered=True`` waits for it, so sample index 0 of the acquisition is stimulation onset
-(hardware trigger / sync line, never host clock guesses).
+(hardware trigger / sync line). A stimulator without a trigger output declares
+``hardware_trigger=False``; the acquisition is then started by the host just before the
+output starts, and the driver records the onset delay it observed.
 
 Safety: a stimulator only accepts a :class:`CheckedWaveform`, whose constructor refuses any
 sample above the ceiling it carries, so a waveform over its ceiling cannot exist. Drivers
