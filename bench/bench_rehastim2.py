@@ -131,7 +131,7 @@ def main(n_trips: int = 20) -> None:
     base = None
     for kind, label in (("stg4002", "fake STG4002 (baseline)"),
                         ("rehastim2", "fake RehaStim2 (ScienceMode2)")):
-        lat, n, skipped = _measure(kind, n_trips)
+        lat, _n, skipped = _measure(kind, n_trips)
         if lat.size:
             p50, p99, mx = np.percentile(lat, 50), np.percentile(lat, 99), lat.max()
         else:

@@ -211,7 +211,7 @@ class Rehastim2Stimulator:
                 raise CurrentLimitError(
                     f"waveform ceiling {ceiling:g} mA on RehaStim2 channel {ch} is above the "
                     f"driver's {self.ceilings[ch]:g} mA; nothing was sent")
-        n = math.floor((waveform.duration_s * self.pulse_rate_Hz + 1e-9))
+        n = math.floor(waveform.duration_s * self.pulse_rate_Hz + 1e-9)
         k = np.minimum((np.arange(n) / self.pulse_rate_Hz * waveform.fs_Hz + 1e-9)
                        .astype(np.int64), waveform.n_samples - 1)
         ext = np.floor(np.asarray(waveform.I_ext_mA)[k] + 1e-9).astype(int)
@@ -569,8 +569,8 @@ class Rehastim2Stimulator:
         if ser is not None:
             try:
                 ser.close()
-            except Exception:
-                pass
+            except Exception as exc:  # a port already gone (USB glitch) may not close
+                log.info("RehaStim2 port close: %s", exc)
 
 
 def _open_serial(port: str):

@@ -76,11 +76,11 @@ def run_dry_run(devices, s: DryRunSettings, support, *, out=print,
         out(f"  [FAIL] record: the A/D gives {fs:g} Hz for the {s.monitor_fs_Hz:g} Hz asked; "
             "set acquisition.monitor_fs_Hz to a rate it gives exactly")
         return False
-    n = int(round(s.duration_s * fs))
+    n = round(s.duration_s * fs)
     monitor: list[np.ndarray | None] = []
     flags: list[str] = []
     interlock = Interlock(interlock_cfg, stim, estop_input=devices.estop)
-    press_at = None if estop_at_s is None else int(round(estop_at_s * fs))
+    press_at = None if estop_at_s is None else round(estop_at_s * fs)
 
     def on_chunk(chunk):
         if chunk.n:
@@ -134,7 +134,7 @@ def _estop_checks(devices, s, support, block, press_at, fs, out) -> bool:
                     f"({block.abort_reason or 'not stopped'})", f"by the E-stop near sample "
                     f"{press_at}")]
     acq = devices.acquisition
-    m = int(round(AFTER_STOP_S * fs))
+    m = round(AFTER_STOP_S * fs)
     mon, sync = [], []
     acq.start(m, triggered=False)
     try:

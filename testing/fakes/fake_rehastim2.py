@@ -16,6 +16,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from typing import ClassVar
 
 import numpy as np
 
@@ -33,8 +34,9 @@ class _SM2:
     MAX_CURRENT_MA, MIN_PULSE_WIDTH_US, MAX_PULSE_WIDTH_US = 130, 20, 500   # SM2 4.3
     MIN_MAIN_INTERVAL_MS = 8.0                                         # SM2 4.3
     INTERPHASE_US = 100                                                # SM2 Figure 2
-    STIM_ERROR_TEXT = {-1: "emergency switch", -2: "electrode error",
-                       -3: "stimulation module error"}                 # SM2 4.3
+    STIM_ERROR_TEXT: ClassVar[dict[int, str]] = {
+        -1: "emergency switch", -2: "electrode error",
+        -3: "stimulation module error"}                                # SM2 4.3
 
     @staticmethod
     def crc8(data: bytes) -> int:        # SM2 2.2: CRC-8-CCITT, polynomial 0x07
