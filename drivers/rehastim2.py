@@ -47,8 +47,10 @@ log = logging.getLogger(__name__)
 
 KEEPALIVE_S = 0.4
 """Send the Watchdog after this long without a packet (SM2 2.3: WatchdogTimeout 1.2 s)."""
-CONNECT_TIMEOUT_S = 1.5
-"""Wait for the device's Init this long: three InitRepetitionTimes (SM2 2.3)."""
+CONNECT_TIMEOUT_S = 2.5
+"""Wait for the device's Init this long. A device still attached to a previous connection
+sends Init only after its WatchdogTimeout (1.2 s) and then every InitRepetitionTime
+(0.5 s) (SM2 2.3, 5.2): 1.2 + 2 x 0.5 s, with margin."""
 SUMMARY_FORMAT = "nmsid-stimulation-1"
 
 

@@ -149,10 +149,10 @@ def test_a_current_above_the_ceiling_is_never_encoded(rig):
 
 def test_emergency_switch_stops_and_reports(rig):
     dev, stim = rig
-    stim.load(waveform(np.full(2000, 8.0), np.zeros(2000)))
+    stim.load(waveform(np.full(1000, 8.0), np.zeros(1000)))
     stim.arm()
     stim.start()
-    time.sleep(0.2)
+    time.sleep(0.1)
     dev.press_emergency_switch()
     assert wait_state(stim, StimulatorState.ERROR) is StimulatorState.ERROR
     assert "emergency switch" in stim.status().error
