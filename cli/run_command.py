@@ -72,7 +72,8 @@ def run(args) -> int:
                          realtime=bool(args.realtime), stored=stored,
                          stored_backend=stored_backend)
     if args.backend == "hw" and args.sim_seed is not None:
-        raise UsageError("--sim-seed applies to --backend sim (the simulated participant)")
+        log.warning("--sim-seed %s ignored: it applies to --backend sim (the simulated "
+                    "participant)", args.sim_seed)
     box: dict = {}
 
     def on_signal(signum, reason):  # main thread, which holds no engine lock
