@@ -225,7 +225,9 @@ class HardwareFile:
     """The whole hardware file; cross-table rules (analog wiring) live here."""
 
     rig: RigSettings = Field(default_factory=RigSettings)
-    stimulator: StimulatorSettings = Field(default_factory=StimulatorConfig)
+    stimulator: StimulatorConfig = Field(default_factory=StimulatorConfig)
+    """The default kind's table, for docs/settings.md; a file's ``[stimulator]`` is
+    validated on its own by the model of its ``kind`` (:data:`StimulatorSettings`)."""
     acquisition: AcquisitionSettings = Field(default_factory=AcquisitionSettings)
     sensor: SensorSettings = Field(default_factory=SensorSettings)
     estop: EStopConfig = Field(default_factory=EStopConfig)
@@ -341,9 +343,11 @@ def load_hw_config(path) -> HardwareConfig:
 
 def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
     """Validate a hardware file's tables (``load_hw_config`` without the reading)."""
+    stimulator = StimulatorConfig()
     if isinstance(data, dict) and "stimulator" in data:
         # the [stimulator] table on its own, by its kind: messages name "stimulator.<key>"
-        data = {**data, "stimulator": _stimulator_settings(data["stimulator"], source)}
+        stimulator = _stimulator_settings(data["stimulator"], source)
+        data = {k: v for k, v in data.items() if k != "stimulator"}
     f = validate_settings(HardwareFile, data, source=source, make_error=hw_config_error)
     a, se = f.acquisition, f.sensor
     acq = AcquisitionConfig(
@@ -369,14 +373,15 @@ def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
         except (ValueError, TypeError) as exc:      # a rule of the driver's own
             raise HardwareConfigError(f"{source}: [sensor]: {exc}") from None
     return HardwareConfig(source=source, name=f.rig.name, fake=f.rig.fake,
-                          fake_speed=f.rig.fake_speed, stimulator=f.stimulator,
+                          fake_speed=f.rig.fake_speed, stimulator=stimulator,
                           acquisition=acq, calibration=cal,
                           extension_direction=se.extension_direction, sensor_model=se.model,
                           estop=f.estop)
 
 
-def _stimulator_settings(table, source: str):
-    """``[stimulator]`` validated by the settings model of its ``kind`` (default stg4002)."""
+def _stimulator_settings(table, source: str) -> StimulatorConfig | Rehastim2Config:
+    """``[stimulator]`` validated by the settings model of its ``kind`` (default stg4002):
+    the discriminated union :data:`StimulatorSettings`, one model per kind."""
     if not isinstance(table, dict):
         raise hw_config_error(source, "stimulator", table, "a table of settings")
     kind = table.get("kind", "stg4002")
