@@ -151,7 +151,7 @@ def _stored_attrs(path) -> tuple[dict, str]:
     else the file)."""
     j = journal_dir(path) / "header.json"
     if j.exists():
-        header = json.loads(j.read_text())
+        header = json.loads(j.read_text(encoding="utf-8"))
         return dict(header.get("extra_attrs") or {}), str(header.get("backend", ""))
     s = read_session(path, load_data=False)
     return dict(s.attrs), str(s.backend)
@@ -160,7 +160,8 @@ def _stored_attrs(path) -> tuple[dict, str]:
 def _stored_config(path):
     j = journal_dir(path) / "header.json"
     if j.exists():
-        return config_from_json(json.loads(j.read_text())["config_json"], source=str(j))
+        return config_from_json(json.loads(j.read_text(encoding="utf-8"))["config_json"],
+                                source=str(j))
     return config_from_json(read_session(path, load_data=False).config_json, source=str(path))
 
 

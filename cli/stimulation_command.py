@@ -132,7 +132,8 @@ def run(args) -> int:
         return _run_registry(args, out, calibration, stim)
     report, samples = render_protocol(args.config, calibration, stim, stim.output_rate_Hz)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "stimulation.json").write_text(json.dumps(report, indent=1) + "\n")
+    (out / "stimulation.json").write_text(json.dumps(report, indent=1) + "\n",
+                                          encoding="utf-8")
     np.savez_compressed(out / "samples.npz", **samples)
     n = len(report["levels"])
     print(f"stimulation: {n} sE levels rendered at {report['output_rate_Hz']:g} Hz, carrier "
