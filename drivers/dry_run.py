@@ -118,6 +118,19 @@ def dry_run_envelope(s: DryRunSettings, fs_Hz: float = ENVELOPE_FS_HZ) -> np.nda
     return np.clip(env, 0.0, A)
 
 
+def dry_run_chirp_envelope(s: DryRunSettings, fs_Hz: float = ENVELOPE_FS_HZ,
+                           f0_Hz: float = 0.5, f1_Hz: float = 10.0) -> np.ndarray:
+    """The E-stop test's envelope: ``amplitude_mA`` x (1 + sin(exponential chirp)) / 2, the
+    chirp sweeping ``f0_Hz`` .. ``f1_Hz`` over ``duration_s`` (the shape of a session's
+    trial, at dry-run currents)."""
+    n = int(round(s.duration_s * fs_Hz))
+    t = np.arange(n) / fs_Hz
+    T = s.duration_s
+    k = (f1_Hz / f0_Hz) ** (1 / T)
+    phase = 2 * np.pi * f0_Hz * (k ** t - 1) / np.log(k)
+    return np.clip(s.amplitude_mA * 0.5 * (1 - np.cos(phase)), 0.0, s.amplitude_mA)
+
+
 def commanded_current_A(values_nA: np.ndarray, output_rate_Hz: float, n: int,
                         fs_Hz: float) -> np.ndarray:
     """The downloaded samples (nA at the output rate) as the monitor would see them (A)."""

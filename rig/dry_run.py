@@ -8,8 +8,9 @@ recorded resistor current is then compared with what the device was given
 (:mod:`nmsid.drivers.dry_run` holds the comparisons; wiring and limits are described there
 and in docs/hardware.md).
 
-``estop_at_s``: the E-stop test. The interlock's E-stop is pressed that long into the
-trial (mid-chirp of the dry run's envelope); the block must end by the E-stop, and a short
+``estop_at_s``: the E-stop test. The trial's envelope is a chirp (0.5 .. 10 Hz, the shape of
+a session's trial at dry-run currents) and the interlock's E-stop is pressed that long into
+it (mid-chirp); the block must end by the E-stop, and a short
 record taken right after shows the resistor current at zero and, for a device with a sync
 output, the sync line low.
 """
@@ -22,7 +23,7 @@ import numpy as np
 
 from nmsid.drivers.dry_run import (CARRIER_HZ, ENVELOPE_FS_HZ, Check, DryRunSettings,
                                    check_after_stop, check_loopback, check_pulses,
-                                   dry_run_envelope, record_problem)
+                                   dry_run_chirp_envelope, dry_run_envelope, record_problem)
 from nmsid.drivers.hardware import BenchClock
 from nmsid.drivers.interfaces import CheckedWaveform, DeliveryReporting, SampleTiming
 from nmsid.drivers.registry import stimulator_kind
@@ -64,13 +65,14 @@ def run_dry_run(devices, s: DryRunSettings, support, *, out=print,
     stim, acq = devices.stimulator, devices.acquisition
     ext = s.channel == "extensor"
     ch = devices.extensor_channel if ext else devices.flexor_channel
-    env = dry_run_envelope(s)
+    env = dry_run_envelope(s) if estop_at_s is None else dry_run_chirp_envelope(s)
     zeros = np.zeros_like(env)
     wf = CheckedWaveform(env if ext else zeros, zeros if ext else env, ENVELOPE_FS_HZ,
                          CARRIER_HZ, s.amplitude_mA, s.amplitude_mA)
     out(f"dry run: {s.duration_s:g} s at up to {s.amplitude_mA:g} mA on the {s.channel} "
         f"channel ({ch}) into {s.load_ohm:g} Ohm, through the interlock"
-        + (f"; E-stop at {estop_at_s:g} s" if estop_at_s is not None else ""))
+        + (f"; chirp envelope, E-stop at {estop_at_s:g} s (mid-chirp)"
+           if estop_at_s is not None else ""))
     fs = acq.configure(s.monitor_fs_Hz)
     if abs(fs - s.monitor_fs_Hz) > 1e-6 * s.monitor_fs_Hz:
         out(f"  [FAIL] record: the A/D gives {fs:g} Hz for the {s.monitor_fs_Hz:g} Hz asked; "

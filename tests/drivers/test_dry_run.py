@@ -211,7 +211,7 @@ def test_probe_dry_run_includes_the_estop_test(tmp_path, write_hw_config, capsys
                          monitor=7)
     assert main(["probe", "--hw-config", str(hw), "--dry-run"]) == 0
     out = capsys.readouterr().out
-    assert "E-stop at 0.5 s" in out and "[PASS] E-stop: output zero" in out
+    assert "E-stop at 0.5 s (mid-chirp)" in out and "[PASS] E-stop: output zero" in out
 
 
 def test_estop_checks_fail_when_output_continues():
