@@ -136,6 +136,11 @@ def check_deliverable(caps: StimulatorCapabilities, *, ceiling_ext_mA: float,
                                  f"{caps.waveshape.kind!r}")
     if not envelope_fs_Hz > 0:
         raise DeliveryCheckError(f"envelope rate {envelope_fs_Hz!r} Hz: expected > 0")
+    if caps.resolution_mA >= 0.1:
+        warnings.append(f"{name} sets currents in steps of {caps.resolution_mA:g} mA: it "
+                        "delivers each envelope value rounded down to a step; the trial "
+                        "records the envelope (I_ext_mA, I_flex_mA) and its stimulation_json "
+                        "the currents delivered")
     return warnings
 
 

@@ -32,11 +32,13 @@ def test_a_pulse_device_is_not_refused_for_a_carrier_it_does_not_render():
     warnings = check_deliverable(RS2, ceiling_ext_mA=16.0, ceiling_flex_mA=16.0,
                                  carrier_Hz=1000.0, envelope_fs_Hz=2000.0,
                                  highest_envelope_Hz=10.0)
-    assert warnings == []
+    assert len(warnings) == 1 and "steps of 1 mA" in warnings[0]     # coarse resolution
     warnings = check_deliverable(RS2, ceiling_ext_mA=16.0, ceiling_flex_mA=16.0,
                                  carrier_Hz=1000.0, envelope_fs_Hz=2000.0,
                                  highest_envelope_Hz=30.0)
-    assert len(warnings) == 1 and "updates its pulses at 40 Hz" in warnings[0]
+    assert len(warnings) == 2 and "updates its pulses at 40 Hz" in warnings[0]
+    assert check_deliverable(STG, ceiling_ext_mA=16.0, ceiling_flex_mA=16.0,
+                             carrier_Hz=1000.0, envelope_fs_Hz=2000.0) == []
 
 
 def test_capabilities_are_structural():
