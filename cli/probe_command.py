@@ -14,10 +14,12 @@ from __future__ import annotations
 import numpy as np
 
 from nmsid.cli.errors import UsageError
-from nmsid.drivers.dry_run import dry_run_probe
 from nmsid.drivers.hardware import (build_devices, load_acquisition_library, make_acquisition,
                                     make_estop, make_stimulator, prepare, with_monitor)
+from nmsid.drivers.hardware import load_stimulator_library
 from nmsid.drivers.hw_config import load_hw_config
+from nmsid.drivers.interfaces import Describable, ReportsSensorInfo
+from nmsid.rig.dry_run import dry_run_probe
 
 
 def _one_line(exc: BaseException) -> str:
@@ -31,7 +33,11 @@ def probe(args) -> int:
     cfg = load_hw_config(args.hw_config)
     if getattr(args, "check_assembly", False):
         from nmsid.drivers.mcs_surface import assembly_report  # noqa: PLC0415
-        status, lines = assembly_report(cfg.stimulator.dll_path)
+        dll_path = getattr(cfg.stimulator, "dll_path", None)
+        if dll_path is None:   # a stimulator kind driven without McsUsbNet
+            raise UsageError(f"{cfg.source}: --check-assembly checks the McsUsbNet assembly "
+                             "named by stimulator.dll_path; this [stimulator] has none")
+        status, lines = assembly_report(dll_path)
         print("\n".join(lines))
         return status
     dry_cfg = with_monitor(cfg) if getattr(args, "dry_run", False) else None
@@ -78,10 +84,10 @@ def _dry_run(cfg, args) -> bool:
 def _check_stimulator(cfg, stack, clock, args) -> str:
     stim = make_stimulator(cfg, stack, clock)
     try:
-        _ = stim.api
+        load_stimulator_library(cfg, stim)
         stim.connect()
         print("stimulator:")
-        for key, value in stim.describe().items():
+        for key, value in (stim.describe() if isinstance(stim, Describable) else {}).items():
             print(f"  {key}: {value}")
     finally:
         try:
@@ -98,11 +104,10 @@ def _check_acquisition(cfg, stack, clock, args) -> str:
         load_acquisition_library(cfg, acq)
         rate = acq.configure(cfg.acquisition.fs_Hz)
         print(f"acquisition: {rate:g} Hz")
-        describe = getattr(acq, "describe", None)
-        if describe is not None:
-            for key, value in describe().items():
+        if isinstance(acq, Describable):
+            for key, value in acq.describe().items():
                 print(f"  {key}: {value}")
-        info = getattr(acq, "info", None)
+        info = acq.info if isinstance(acq, ReportsSensorInfo) else None
         if info is not None:
             print(f"  sensor: {info.model}, serial {info.serial}, firmware {info.firmware}"
                   + ("" if info.rate_stated else " (no rate stated: the rate is measured)"))

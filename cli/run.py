@@ -51,7 +51,9 @@ def register(sub) -> None:
                      help="folder for <participant>-<UTC time>.h5 (default: sessions)")
     out.add_argument("--resume", metavar="FILE",
                      help="continue this session (recovering it first if needed): skip its "
-                          "completed trials, re-run its aborted ones")
+                          "completed trials, re-run its aborted ones; on the rig it started "
+                          "on (same --backend, the same --hw-config file, the recorded "
+                          "simulated participant and seed), else refused")
     p.add_argument("--realtime", action="store_true",
                    help="sim: pace the simulation in real time (default: as fast as possible)")
     p.add_argument("--hw-config", metavar="FILE", help="hw: the rig's hardware configuration")
@@ -63,7 +65,7 @@ def register(sub) -> None:
                         "config's [participant] model")
     p.add_argument("--sim-seed", type=_seed, metavar="N",
                    help="sim: seed of the virtual participant and its noise (default: from "
-                        "the participant code)")
+                        "the participant code; on --resume the recorded one)")
     p.add_argument("--resume-after-reconnect", action="store_true",
                    help="hw: after a USB glitch between trials, resume as soon as the device "
                         "is reconnected (default: ask on a terminal, else end the session "

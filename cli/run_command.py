@@ -16,7 +16,6 @@ from pathlib import Path
 
 from nmsid.analysis.run import run_identification, summary_line
 from nmsid.cli.errors import UsageError
-from nmsid.drivers.hardware import make_hw_rig
 from nmsid.protocols.config import config_from_json, load_config
 from nmsid.protocols.errors import OutputPathError
 from nmsid.protocols.output_paths import check_output, default_sessions_dir, output_dir
@@ -24,10 +23,9 @@ from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.rig.engine import Engine, TripPolicy
 from nmsid.rig.glitch_prompt import glitch_confirmation
 from nmsid.rig.session_log import journal_dir, recover
+from nmsid.rig.session_service import RigRequest, prepare_rig, seed_from_code
 from nmsid.rig.session_signals import SessionSignals, signal_name
 from nmsid.rig.tracking import SESSION_KIND, tracking_engine
-from nmsid.sim_backends import make_sim_rig
-from nmsid.sim_backends.participant_models import participant_for_model
 
 
 def recover_cmd(args) -> int:
@@ -49,9 +47,9 @@ def run(args) -> int:
         raise UsageError("--resume continues a session with the configuration stored in its "
                          "file; do not give --config, --participant, --participant-model or "
                          "--seed with it")
-    track = tracking_engine(args)   # --track / --target: checked before any device
     if args.realtime and args.backend != "sim":
         raise UsageError("--realtime applies to --backend sim (hardware is always real time)")
+    track = tracking_engine(args)   # --track / --target: checked before any device
     if args.resume:
         path = Path(args.resume)
         config = _stored_config(path)
@@ -61,9 +59,6 @@ def run(args) -> int:
             "confirm_weakened_safety": getattr(args, "allow_weakened_safety", False)})
         if args.participant_model:
             config = config.replace(participant_model=args.participant_model)
-        if args.backend == "sim" and not args.realtime and config.protocol.rest_s != 0:
-            log.info("fast clock: rest_s %g -> 0", config.protocol.rest_s)
-            config = config.with_protocol(rest_s=0.0)
         outdir = Path(args.outdir) if args.outdir else default_sessions_dir()
         path = Path(args.out) if args.out else _free_path(outdir, config.participant)
         # a taken, dangling or unwritable --out is refused before any device is touched
@@ -72,14 +67,18 @@ def run(args) -> int:
             raise OutputPathError(f"{path}: a journal of an unfinished session "
                                   f"({journal_dir(path)}) is here; continue it with "
                                   f"--resume {path}, or give another --out")
-    stored = _stored_attrs(path) if args.resume else {}
+    stored, stored_backend = _stored_attrs(path) if args.resume else ({}, "")
     if stored.get("session_kind") == SESSION_KIND:
         raise UsageError(f"{path}: a tracking session cannot be resumed; start a new one "
                          "with --track (its completed trials stay in the file)")
-    sim_seed = None
-    if args.backend == "sim":
-        sim_seed = (args.sim_seed if args.sim_seed is not None else
-                    stored.get("sim_seed", _seed_from_code(config.participant)))
+    request = RigRequest(backend=args.backend, session_path=path, resume=bool(args.resume),
+                         hw_config=Path(args.hw_config) if args.hw_config else None,
+                         sim_seed=args.sim_seed if args.backend == "sim" else None,
+                         realtime=bool(args.realtime), stored=stored,
+                         stored_backend=stored_backend)
+    if args.backend == "hw" and args.sim_seed is not None:
+        log.warning("--sim-seed %s ignored: it applies to --backend sim (the simulated "
+                    "participant)", args.sim_seed)
     box: dict = {}
 
     def on_signal(signum, reason):  # main thread, which holds no engine lock
@@ -95,16 +94,17 @@ def run(args) -> int:
             engine.estop(reason)
 
     with SessionSignals(on_signal, stop_output) as signals:
-        devices = _make_devices(args, config, sim_seed)
+        rig = prepare_rig(request, config)   # a resume on another rig is refused here
+        devices, config = rig.devices, rig.config
+        if config.protocol.rest_s == 0 and rig.extra_attrs.get("configured_rest_s"):
+            log.info("fast clock: rest_s %g -> 0", rig.extra_attrs["configured_rest_s"])
         progress = _Progress(quiet=args.quiet)
         try:
             engine = (track or Engine)(config, devices, path, resume=bool(args.resume),
                             observer=progress, trip_policy=TripPolicy.END_SESSION,
                             on_device_glitch=glitch_confirmation(
                                 getattr(args, "resume_after_reconnect", False)),
-                            extra_attrs={} if sim_seed is None else {
-                                "sim_seed": int(sim_seed),
-                                "participant_model": config.participant_model})
+                            extra_attrs=rig.extra_attrs)
             if signals.received is not None:
                 print(f"nmsid: {signal_name(signals.received)} received before the session "
                       f"started: nothing stimulated, no session file written",
@@ -156,18 +156,22 @@ def _print_quietly(text: str) -> None:
         pass
 
 
-def _stored_attrs(path) -> dict:
-    """Extra root attributes of a session (journal header first, else the file)."""
+def _stored_attrs(path) -> tuple[dict, str]:
+    """Extra root attributes and the backend text of a session (journal header first,
+    else the file)."""
     j = journal_dir(path) / "header.json"
     if j.exists():
-        return dict(json.loads(j.read_text()).get("extra_attrs") or {})
-    return dict(read_session(path, load_data=False).attrs)
+        header = json.loads(j.read_text(encoding="utf-8"))
+        return dict(header.get("extra_attrs") or {}), str(header.get("backend", ""))
+    s = read_session(path, load_data=False)
+    return dict(s.attrs), str(s.backend)
 
 
 def _stored_config(path):
     j = journal_dir(path) / "header.json"
     if j.exists():
-        return config_from_json(json.loads(j.read_text())["config_json"], source=str(j))
+        return config_from_json(json.loads(j.read_text(encoding="utf-8"))["config_json"],
+                                source=str(j))
     return config_from_json(read_session(path, load_data=False).config_json, source=str(path))
 
 
@@ -180,18 +184,8 @@ def _free_path(outdir, participant: str):
     raise UsageError(f"{outdir}: no free session file name for {participant}-{stamp}")
 
 
-def _make_devices(args, config, sim_seed):
-    if args.backend == "hw":
-        if not args.hw_config:
-            raise UsageError("--backend hw needs --hw-config FILE (the rig's hardware "
-                             "configuration)")
-        return make_hw_rig(args.hw_config)
-    return make_sim_rig(participant_for_model(config.participant_model, int(sim_seed)),
-                        realtime=args.realtime)
-
-
 def _seed_from_code(code: str) -> int:
-    return zlib.crc32(code.encode("utf-8"))
+    return seed_from_code(code)
 
 
 def _identify(path) -> None:

@@ -1,4 +1,5 @@
-"""``nmsid stimulation``: what the STG4002 would deliver, per sE level, without hardware.
+"""``nmsid stimulation``: what the configured stimulator would deliver, per sE level, without
+hardware.
 
 Registration only (argparse); the handler is in :mod:`nmsid.cli.stimulation_command`.
 """
@@ -14,7 +15,9 @@ def register(sub) -> None:
         "would download it (same code path) and write DIR/stimulation.json (per channel: "
         "peak current, charge per phase, worst net charge per carrier period, net charge "
         "per trial, points, memory) and DIR/samples.npz (current samples in nA at the "
-        "output rate, one trial per level and channel). No device is used.")
+        "output rate, one trial per level and channel). For a pulse stimulator "
+        "([stimulator] kind = \"rehastim2\") the same per level: the current of each "
+        "pulse, peak current and charge per phase. No device is used.")
     p.add_argument("--config", metavar="TOML", default=None,
                    help="protocol configuration (default: the built-in paper protocol)")
     p.add_argument("--calibration", metavar="Iemin,Iemax,Ifmin,Ifmax", required=True,

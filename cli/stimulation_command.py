@@ -20,6 +20,7 @@ import numpy as np
 
 from nmsid.drivers.hw_config import StimulatorConfig, load_hw_config
 from nmsid.drivers.interfaces import CheckedWaveform, CurrentLimitError
+from nmsid.drivers.registry import stimulator_kind
 from nmsid.drivers.stg_download import (STG4002_OUTPUT_RATE_HZ, STG4002_RANGE_NA,
                                         STG4002_RESOLUTION_NA, ChannelPlan, prepare_download)
 from nmsid.drivers.stimulation_report import SUMMARY_FORMAT, download_summary
@@ -127,13 +128,74 @@ def run(args) -> int:
     calibration = parse_calibration(args.calibration)
     stim = (load_hw_config(args.hw_config).stimulator if args.hw_config
             else StimulatorConfig())
+    if not isinstance(stim, StimulatorConfig):   # another kind: its registry entry's report
+        return _run_registry(args, out, calibration, stim)
     report, samples = render_protocol(args.config, calibration, stim, stim.output_rate_Hz)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "stimulation.json").write_text(json.dumps(report, indent=1) + "\n")
+    (out / "stimulation.json").write_text(json.dumps(report, indent=1) + "\n",
+                                          encoding="utf-8")
     np.savez_compressed(out / "samples.npz", **samples)
     n = len(report["levels"])
     print(f"stimulation: {n} sE levels rendered at {report['output_rate_Hz']:g} Hz, carrier "
           f"{report['carrier_Hz']:g} Hz; worst net charge per carrier period "
           f"{report['worst_net_charge_per_period_nC']:.3f} nC; wrote {out / FILES[0]} and "
           f"{out / FILES[1]}")
+    return 0
+
+
+def render_levels(config_path, calibration: tuple[float, float, float, float], stim):
+    """Every level as the configured stimulator kind would deliver it (its registry entry's
+    ``report``), for kinds other than the STG4002.
+
+    Returns
+    -------
+    report : dict
+        What ``stimulation.json`` holds.
+    samples : dict[str, ndarray]
+        Per level and channel, the current of each pulse in mA (int32).
+    """
+    entry = stimulator_kind(stim)
+    cfg = load_config(config_path)
+    p = cfg.protocol
+    Iemin, Iemax, Ifmin, Ifmax = calibration
+    cal = make_calibration((Iemin, Iemax), (Ifmin, Ifmax), cfg.calibration)
+    ceil_e = min(stim.ceiling_ext_mA, cfg.calibration.ceiling_ext_mA)
+    ceil_f = min(stim.ceiling_flex_mA, cfg.calibration.ceiling_flex_mA)
+    levels, samples = [], {}
+    for sE in p.sE_levels:
+        wf = trial_waveform(p, sE, cal)
+        try:
+            checked = CheckedWaveform(wf.I_ext_mA, wf.I_flex_mA, p.fs_Hz, p.carrier_Hz,
+                                      ceil_e, ceil_f)
+        except CurrentLimitError as exc:
+            raise CurrentLimitError(f"sE {sE:g}: {exc}") from None
+        summary = entry.report(stim, checked)
+        summary["sE"] = float(sE)
+        for name, short in (("extensor", "ext"), ("flexor", "flex")):
+            samples[level_key(sE, short)] = np.asarray(
+                summary["channels"][name].pop("pulse_current_mA"), dtype=np.int32)
+        levels.append(summary)
+    report = {"format": SUMMARY_FORMAT, "protocol": cfg.source, "device": entry.title,
+              "calibration_mA": {"Iemin_mA": Iemin, "Iemax_mA": Iemax, "Ifmin_mA": Ifmin,
+                                 "Ifmax_mA": Ifmax},
+              "carrier_Hz": float(p.carrier_Hz),
+              "carrier_Hz_note": "the protocol's setting; a pulse stimulator renders none",
+              "ceilings_mA": {"extensor": ceil_e, "flexor": ceil_f},
+              "samples_npz": "samples.npz: per level and channel (keys sE0.30_ext, ...) the "
+                             "current of each pulse in mA",
+              "levels": levels}
+    return report, samples
+
+
+def _run_registry(args, out: Path, calibration, stim) -> int:
+    report, samples = render_levels(args.config, calibration, stim)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "stimulation.json").write_text(json.dumps(report, indent=1) + "\n",
+                                          encoding="utf-8")
+    np.savez_compressed(out / "samples.npz", **samples)
+    peak = max(ch["peak_current_mA"] for lv in report["levels"]
+               for ch in lv["channels"].values())
+    print(f"stimulation: {len(report['levels'])} sE levels as {report['device']} delivers "
+          f"them ({report['levels'][0]['waveshape']['kind']}); peak pulse current "
+          f"{peak:g} mA; wrote {out / FILES[0]} and {out / FILES[1]}")
     return 0

@@ -45,7 +45,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from nmsid.drivers.errors import StimulatorSettingError
-from nmsid.drivers.interfaces import CheckedWaveform, StimulatorState
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +116,19 @@ def dry_run_envelope(s: DryRunSettings, fs_Hz: float = ENVELOPE_FS_HZ) -> np.nda
     env = np.select([x < 0.2, x < 0.6, x < 0.8], [A * x / 0.2, A, A / 2],
                     A / 2 * (1 - (x - 0.8) / 0.2))
     return np.clip(env, 0.0, A)
+
+
+def dry_run_chirp_envelope(s: DryRunSettings, fs_Hz: float = ENVELOPE_FS_HZ,
+                           f0_Hz: float = 0.5, f1_Hz: float = 10.0) -> np.ndarray:
+    """The E-stop test's envelope: ``amplitude_mA`` x (1 + sin(exponential chirp)) / 2, the
+    chirp sweeping ``f0_Hz`` .. ``f1_Hz`` over ``duration_s`` (the shape of a session's
+    trial, at dry-run currents)."""
+    n = int(round(s.duration_s * fs_Hz))
+    t = np.arange(n) / fs_Hz
+    T = s.duration_s
+    k = (f1_Hz / f0_Hz) ** (1 / T)
+    phase = 2 * np.pi * f0_Hz * (k ** t - 1) / np.log(k)
+    return np.clip(s.amplitude_mA * 0.5 * (1 - np.cos(phase)), 0.0, s.amplitude_mA)
 
 
 def commanded_current_A(values_nA: np.ndarray, output_rate_Hz: float, n: int,
@@ -227,81 +239,7 @@ def check_loopback(monitor_V: np.ndarray, sync_V: np.ndarray, command_A: np.ndar
     return out
 
 
-def run_dry_run(devices, s: DryRunSettings, *, out=print) -> bool:
-    """Stimulate the dummy load once, record, compare, print; True if every check passed.
-
-    Parameters
-    ----------
-    devices : drivers.interfaces.RigDevices
-        Connected stimulator (``Stg4002Stimulator``), clock, and an analog acquisition
-        whose calibration scans the monitor input
-        (:func:`nmsid.drivers.hardware.with_monitor`).
-    s : DryRunSettings
-        What is stimulated and the record's rate.
-    """
-    stim, acq, clock = devices.stimulator, devices.acquisition, devices.clock
-    ext = s.channel == "extensor"
-    ch = devices.extensor_channel if ext else devices.flexor_channel
-    env = dry_run_envelope(s)
-    zeros = np.zeros_like(env)
-    wf = CheckedWaveform(env if ext else zeros, zeros if ext else env, ENVELOPE_FS_HZ,
-                         CARRIER_HZ, s.amplitude_mA, s.amplitude_mA)
-    out(f"dry run: {s.duration_s:g} s at up to {s.amplitude_mA:g} mA on the {s.channel} "
-        f"channel ({ch}) into {s.load_ohm:g} Ohm")
-    fs = acq.configure(s.monitor_fs_Hz)
-    if abs(fs - s.monitor_fs_Hz) > 1e-6 * s.monitor_fs_Hz:
-        out(f"  [FAIL] record: the A/D gives {fs:g} Hz for the {s.monitor_fs_Hz:g} Hz asked; "
-            "set acquisition.monitor_fs_Hz to a rate it gives exactly")
-        return False
-    n = int(round(s.duration_s * fs))
-    force, sync, monitor, flags = [], [], [], []
-    got = 0
-    acq.start(n, triggered=True)
-    try:
-        stim.load(wf)
-        stim.arm()
-        stim.start()
-        t_end = clock.monotonic_s() + s.duration_s + 4.0
-        while got < n and clock.monotonic_s() < t_end:
-            chunk = acq.read(0.1)
-            if chunk is None:
-                continue
-            if chunk.flags.any:  # the record is spoilt: stop here and say why
-                flags.append(chunk.flags.detail or "flagged")
-                break
-            got += chunk.n
-            force.append(chunk.force_N)
-            sync.append(np.zeros(chunk.n) if chunk.sync is None else chunk.sync)
-            monitor.append(chunk.monitor)
-        while stim.status().state is StimulatorState.RUNNING and \
-                clock.monotonic_s() < t_end:
-            clock.sleep(0.02)
-    finally:
-        stim.stop_now()
-        acq.stop()
-    out(f"  record: {got} of {n} samples at {fs:g} Hz (force, sync and monitor in one scan)")
-    problem = _record_problem(got, n, flags, monitor)
-    if problem:
-        out(f"  [FAIL] record: {problem}")
-        out("dry run: FAILED (see above)")
-        return False
-    monitor_V = np.concatenate(monitor)[:n]
-    sync_V = np.concatenate(sync)[:n]
-    dl = stim.last_download
-    command = commanded_current_A(dl.channels[ch].expand(), dl.output_rate_Hz, n, fs)
-    delay = getattr(acq, "sample_delay_s", None)
-    mon_ch = getattr(getattr(acq, "cal", None), "monitor_channel", None)
-    delay_s = float(delay(mon_ch)) if delay is not None and mon_ch is not None else 0.0
-    checks = check_loopback(monitor_V, sync_V, command, s, float(sync_V[0]),
-                            monitor_delay_s=delay_s)
-    for c in checks:
-        out(c.line())
-    ok = all(c.passed for c in checks)
-    out("dry run: OK" if ok else "dry run: FAILED (see above)")
-    return ok
-
-
-def _record_problem(got: int, n: int, flags: list[str], monitor: list) -> str:
+def record_problem(got: int, n: int, flags: list[str], monitor: list) -> str:
     if flags:
         return f"the A/D flagged the record: {flags[0]}"
     if got < n:
@@ -311,19 +249,81 @@ def _record_problem(got: int, n: int, flags: list[str], monitor: list) -> str:
     return ""
 
 
-def dry_run_probe(devices, cfg, args, *, out=print) -> bool:
-    """``nmsid probe --dry-run``: settings from the flags and the hardware file.
+ESTOP_ZERO_LIMIT_MA = 0.05
+"""After an E-stop the resistor current stays below this (A/D noise: 1 mV / 1 kOhm = 1 uA)."""
+PULSE_AMPLITUDE_LIMIT_MA = 0.25
+"""A pulse's measured peak within this of the acknowledged current (RehaStim2: whole mA)."""
 
-    ``devices`` are built from :func:`nmsid.drivers.hardware.with_monitor` ``(cfg)``. In fake
-    mode the simulated resistor is "wired" as the flags say (the fake STG's tested channel
-    into the fake A/D's monitor input).
+
+def check_after_stop(monitor_V: np.ndarray, sync_V: np.ndarray | None, s: DryRunSettings,
+                     *, has_sync: bool) -> list[Check]:
+    """After an E-stop: the resistor current is zero and (if the device has one) the sync
+    output is low, over the whole record taken after the stop."""
+    i_mA = np.abs(np.asarray(monitor_V, float)) / s.load_ohm * 1e3
+    worst = float(i_mA.max()) if i_mA.size else np.inf
+    out = [Check("E-stop: output zero", worst <= ESTOP_ZERO_LIMIT_MA,
+                 f"max {worst:.4f} mA over {len(i_mA)} samples after the stop",
+                 f"<= {ESTOP_ZERO_LIMIT_MA:g} mA")]
+    if has_sync:
+        high = float(np.max(sync_V)) if sync_V is not None and len(sync_V) else np.inf
+        out.append(Check("E-stop: sync low", high < 1.5, f"max {high:.2f} V after the stop",
+                         "< 1.5 V"))
+    return out
+
+
+def pulses_in_force(pulses_mA: list[int], pulse_index: list[int] | None) -> list[int]:
+    """The current of every pulse period from the first update to the last: an update
+    stays in force until the next (ScienceMode2 1.3, continuous channel list mode), so a
+    skipped slot repeats the previous current."""
+    if not pulse_index:
+        return list(pulses_mA)
+    out, j = [], 0
+    for k in range(pulse_index[0], pulse_index[-1] + 1):
+        while j + 1 < len(pulse_index) and pulse_index[j + 1] <= k:
+            j += 1
+        out.append(pulses_mA[j])
+    return out
+
+
+def check_pulses(monitor_V: np.ndarray, s: DryRunSettings, pulses_mA: list[int],
+                 pulse_width_us: float, interphase_us: float = 100.0,
+                 pulse_index: list[int] | None = None) -> list[Check]:
+    """A pulse stimulator on the dummy load: the pulses found in the record (a rising edge
+    above half a milliampere starts one) against the acknowledged updates.
+
+    In the continuous channel list mode (ScienceMode2 1.3) the device repeats the last
+    parameters every main interval until the next update or the stop, so the pulses found
+    are matched to the updates in order (each pulse's peak within
+    :data:`PULSE_AMPLITUDE_LIMIT_MA` of the update in force, the updates advancing
+    monotonically), their number is within two of the non-zero updates, and each pulse's
+    two phases cancel (charge balance).
     """
-    s = DryRunSettings(load_ohm=args.load_ohm, channel=args.dry_run_channel,
-                       amplitude_mA=args.dry_run_mA,
-                       monitor_fs_Hz=cfg.acquisition.monitor_fs_Hz)
-    bench = getattr(devices.clock, "bench", None)
-    if bench is not None:  # fake mode: the operator wired the resistor as told
-        ch = cfg.stimulator.extensor_channel if s.channel == "extensor" \
-            else cfg.stimulator.flexor_channel
-        bench.dummy_load = (ch - 1, s.load_ohm)
-    return run_dry_run(devices, s, out=out)
+    fs = s.monitor_fs_Hz
+    i_mA = np.asarray(monitor_V, float) / s.load_ohm * 1e3
+    above = i_mA > 0.5
+    starts = np.flatnonzero(above[1:] & ~above[:-1]) + 1
+    span = int(np.ceil((2 * pulse_width_us + interphase_us) * 1e-6 * fs)) + 2
+    starts = starts[starts + span <= len(i_mA)]
+    cmd = [float(p) for p in pulses_in_force(pulses_mA, pulse_index) if p > 0]
+    count = Check("pulse count", len(cmd) > 0 and abs(len(starts) - len(cmd)) <= 2,
+                  f"{len(starts)} pulses found, {len(cmd)} non-zero pulse periods from the "
+                  "acknowledged updates", "within 2, > 0")
+    if not len(starts) or not cmd:
+        return [count]
+    win = np.stack([i_mA[k - 1:k - 1 + span] for k in starts])
+    peaks = win.max(axis=1)
+    j, worst = 0, 0.0
+    for pk in peaks:
+        while j < len(cmd) - 1 and abs(pk - cmd[j]) > PULSE_AMPLITUDE_LIMIT_MA:
+            j += 1
+        worst = max(worst, abs(pk - cmd[j]))
+    net_nC = np.abs(win.sum(axis=1)) / fs * 1e6
+    phase_nC = float(np.where(win > 0, win, 0).sum(axis=1).max() / fs * 1e6)
+    limit = max(CHARGE_LIMIT_NC, 0.05 * phase_nC)
+    return [count,
+            Check("pulse amplitude", worst <= PULSE_AMPLITUDE_LIMIT_MA,
+                  f"max error {worst:.3f} mA over {len(peaks)} pulses, matched in order",
+                  f"{PULSE_AMPLITUDE_LIMIT_MA:g} mA"),
+            Check("charge balance", float(net_nC.max()) <= limit,
+                  f"worst net {float(net_nC.max()):.3f} nC per pulse (phase {phase_nC:.0f} nC)",
+                  f"{limit:.2f} nC per pulse")]

@@ -23,10 +23,10 @@ from nmsid.drivers.errors import HardwareConfigError
 from nmsid.drivers.estop_switch import NidaqEStop, SerialEStop
 from nmsid.drivers.fake_hardware import fake_requested, load_fake
 from nmsid.drivers.hw_config import HardwareConfig, load_hw_config
-from nmsid.drivers.interfaces import RealClock, RigDevices
+from nmsid.drivers.interfaces import RealClock, RigDevices, Stimulator
 from nmsid.drivers.leptrino import LeptrinoAcquisition, LeptrinoSensor, _serial_module
 from nmsid.drivers.nidaq import NidaqAcquisition
-from nmsid.drivers.stg4002 import DEFAULT_DLL, Stg4002Stimulator
+from nmsid.drivers.registry import acquisition_kind, stimulator_kind
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +50,8 @@ class FakeStack:
 
     bench: object
     emulator: object = None
+    stimulator_fake: object = None
+    """The fake stimulator device installed for the configured kind (registry)."""
 
     def close(self) -> None:
         if self.emulator is not None:
@@ -106,7 +108,7 @@ def build_devices(cfg: HardwareConfig) -> RigDevices:
     acq = make_acquisition(cfg, stack)
     # load every vendor library now: a missing one is reported (one line) before any port
     # is opened or anything else is tried
-    _ = stim.api
+    stimulator_kind(s).load_library(stim)
     load_acquisition_library(cfg, acq)
     if cfg.estop.kind == "serial":
         _serial_module()
@@ -146,7 +148,7 @@ def with_monitor(cfg: HardwareConfig) -> HardwareConfig:
         If the chain has no analog input (Leptrino) or no monitor channel is configured.
     """
     a = cfg.acquisition
-    if a.kind not in ("caio", "nidaq"):
+    if not acquisition_kind(cfg).analog:
         raise HardwareConfigError(
             f"{cfg.source}: the dry run records the dummy-load resistor's voltage on a spare "
             f"A/D input, and acquisition.kind = {a.kind!r} has none; use an analog chain "
@@ -161,15 +163,15 @@ def with_monitor(cfg: HardwareConfig) -> HardwareConfig:
     return replace(cfg, calibration=cal, acquisition=replace(a, fs_Hz=a.monitor_fs_Hz))
 
 
-def make_stimulator(cfg: HardwareConfig, stack: FakeStack | None, clock) -> Stg4002Stimulator:
-    """The STG4002 driver of the configuration (not connected, library not loaded)."""
-    s = cfg.stimulator
-    return Stg4002Stimulator(
-        ceiling_ext_mA=s.ceiling_ext_mA, ceiling_flex_mA=s.ceiling_flex_mA,
-        extensor_channel=s.extensor_channel, flexor_channel=s.flexor_channel,
-        sync_out=s.sync_out, serial=s.serial, dll_path=s.dll_path or DEFAULT_DLL,
-        output_rate_Hz=s.output_rate_Hz,
-        clock=clock.monotonic_s if stack is not None else None)
+def make_stimulator(cfg: HardwareConfig, stack: FakeStack | None, clock) -> Stimulator:
+    """The configured kind's stimulator driver (not connected, library not loaded)."""
+    return stimulator_kind(cfg.stimulator).make(
+        cfg.stimulator, clock.monotonic_s if stack is not None else None, stack)
+
+
+def load_stimulator_library(cfg: HardwareConfig, stim) -> None:
+    """Load the stimulator's vendor library now (raises VendorLibraryMissing)."""
+    stimulator_kind(cfg.stimulator).load_library(stim)
 
 
 def make_acquisition(cfg: HardwareConfig, stack: FakeStack | None):
@@ -179,13 +181,8 @@ def make_acquisition(cfg: HardwareConfig, stack: FakeStack | None):
 
 def load_acquisition_library(cfg: HardwareConfig, acq) -> None:
     """Load the acquisition's vendor library now (raises VendorLibraryMissing)."""
-    inner = getattr(acq, "_inner", acq)
-    if isinstance(inner, CaioAcquisition):
-        _ = inner.lib
-    elif isinstance(inner, NidaqAcquisition):
-        _ = inner.api
-    elif cfg.acquisition.kind == "leptrino":
-        _serial_module()
+    inner = acq._inner if isinstance(acq, _OwningAcquisition) else acq
+    acquisition_kind(cfg).load_library(inner)
 
 
 def make_estop(cfg: HardwareConfig, stack: FakeStack | None):
@@ -272,10 +269,7 @@ def _install_fakes(cfg: HardwareConfig) -> FakeStack:
     s = cfg.stimulator
     bench.extensor_channel = s.extensor_channel - 1
     bench.flexor_channel = s.flexor_channel - 1
-    bench.sync_out = s.sync_out - 1
-    mcs = load_fake("fake_mcs_usb")
-    mcs.install(bench=bench, hardware=[mcs.FakeStgHardware(serial=s.serial or "4002-0001")])
-    stack = FakeStack(bench=bench)
+    stack = FakeStack(bench=bench, stimulator_fake=stimulator_kind(s).install_fake(s, bench))
     a = cfg.acquisition
     if a.kind == "nidaq" or cfg.estop.kind == "nidaq":
         wiring = _fake_wiring(cfg, bench) if a.kind == "nidaq" else {}

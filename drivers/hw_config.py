@@ -16,10 +16,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Annotated, Literal
 
-from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, model_validator
+from pydantic import (Discriminator, Field, StrictBool, StrictFloat, StrictInt, StrictStr, Tag,
+                      model_validator)
 
 from nmsid.drivers.analog_force import AXES, SENSOR_SPAN_V, AnalogCalibration
 from nmsid.drivers.errors import HardwareConfigError, hw_config_error
+from nmsid.drivers.rehastim2_settings import Rehastim2Config
 from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
                                            validate_settings)
 
@@ -79,6 +81,23 @@ class StimulatorConfig:
                                  "a whole number of microseconds per sample (50000, 25000, "
                                  "20000, 10000 ... Hz; McsUsbNet SetOutputRate)")
         return self
+
+
+def _stimulator_kind(value) -> str:
+    """The ``kind`` of a ``[stimulator]`` table (absent: the STG4002, as before kinds)."""
+    if isinstance(value, dict):
+        return str(value.get("kind", "stg4002"))
+    return str(getattr(value, "kind", "stg4002"))
+
+
+StimulatorSettings = Annotated[
+    Annotated[StimulatorConfig, Tag("stg4002")] | Annotated[Rehastim2Config, Tag("rehastim2")],
+    Discriminator(_stimulator_kind)]
+"""``[stimulator]``: one settings model per device kind, chosen by ``kind`` (one member per
+entry of :data:`nmsid.drivers.registry.STIMULATORS`; a test checks they agree)."""
+STIMULATOR_MODELS = {"stg4002": StimulatorConfig, "rehastim2": Rehastim2Config}
+"""The settings model of each ``[stimulator] kind`` (the members of the union above)."""
+STIMULATOR_TITLES = {"stg4002": "MCS STG4002", "rehastim2": "Hasomed RehaStim2"}
 
 
 @settings_dataclass(hw_config_error, prefix="acquisition.caio")
@@ -211,6 +230,8 @@ class HardwareFile:
 
     rig: RigSettings = Field(default_factory=RigSettings)
     stimulator: StimulatorConfig = Field(default_factory=StimulatorConfig)
+    """The default kind's table, for docs/settings.md; a file's ``[stimulator]`` is
+    validated on its own by the model of its ``kind`` (:data:`StimulatorSettings`)."""
     acquisition: AcquisitionSettings = Field(default_factory=AcquisitionSettings)
     sensor: SensorSettings = Field(default_factory=SensorSettings)
     estop: EStopConfig = Field(default_factory=EStopConfig)
@@ -304,7 +325,8 @@ class HardwareConfig:
     name: str
     fake: bool
     fake_speed: float
-    stimulator: StimulatorConfig
+    stimulator: StimulatorConfig | Rehastim2Config
+    """Typed by ``kind``; :mod:`nmsid.drivers.registry` knows what each kind needs."""
     acquisition: AcquisitionConfig
     calibration: AnalogCalibration | None
     """Analog chains only (caio, nidaq)."""
@@ -315,7 +337,7 @@ class HardwareConfig:
     def describe(self) -> str:
         acq = {"caio": "Contec AI-1608AY-USB", "nidaq": "NI DAQ",
                "leptrino": "Leptrino USB"}[self.acquisition.kind]
-        text = f"hw: MCS STG4002 + {acq} ({self.sensor_model})"
+        text = f"hw: {STIMULATOR_TITLES[self.stimulator.kind]} + {acq} ({self.sensor_model})"
         return text + (" [FAKE devices]" if self.fake else "")
 
 
@@ -335,6 +357,11 @@ def load_hw_config(path) -> HardwareConfig:
 
 def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
     """Validate a hardware file's tables (``load_hw_config`` without the reading)."""
+    stimulator = StimulatorConfig()
+    if isinstance(data, dict) and "stimulator" in data:
+        # the [stimulator] table on its own, by its kind: messages name "stimulator.<key>"
+        stimulator = _stimulator_settings(data["stimulator"], source)
+        data = {k: v for k, v in data.items() if k != "stimulator"}
     f = validate_settings(HardwareFile, data, source=source, make_error=hw_config_error)
     a, se = f.acquisition, f.sensor
     acq = AcquisitionConfig(
@@ -360,7 +387,21 @@ def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
         except (ValueError, TypeError) as exc:      # a rule of the driver's own
             raise HardwareConfigError(f"{source}: [sensor]: {exc}") from None
     return HardwareConfig(source=source, name=f.rig.name, fake=f.rig.fake,
-                          fake_speed=f.rig.fake_speed, stimulator=f.stimulator,
+                          fake_speed=f.rig.fake_speed, stimulator=stimulator,
                           acquisition=acq, calibration=cal,
                           extension_direction=se.extension_direction, sensor_model=se.model,
                           estop=f.estop)
+
+
+def _stimulator_settings(table, source: str) -> StimulatorConfig | Rehastim2Config:
+    """``[stimulator]`` validated by the settings model of its ``kind`` (default stg4002):
+    the discriminated union :data:`StimulatorSettings`, one model per kind."""
+    if not isinstance(table, dict):
+        raise hw_config_error(source, "stimulator", table, "a table of settings")
+    kind = table.get("kind", "stg4002")
+    model = STIMULATOR_MODELS.get(kind) if isinstance(kind, str) else None
+    if model is None:
+        raise hw_config_error(source, "stimulator.kind", kind,
+                              "one of " + ", ".join(repr(k) for k in STIMULATOR_MODELS))
+    return validate_settings(model, table, source=source, make_error=hw_config_error,
+                             prefix="stimulator")

@@ -1,12 +1,20 @@
 """What the engine needs from the hardware: small interfaces, shared by real and sim devices.
 
 The engine talks only to these. ``sim_backends`` implements them over a virtual
-participant; ``drivers.stg4002``, ``drivers.caio``, ``drivers.nidaq``,
-``drivers.leptrino`` and ``drivers.estop_switch`` implement them over vendor libraries.
+participant; ``drivers.stg4002``, ``drivers.rehastim2``, ``drivers.caio``,
+``drivers.nidaq``, ``drivers.leptrino`` and ``drivers.estop_switch`` implement them over
+vendor libraries. Beyond the core :class:`Stimulator` and :class:`ForceAcquisition`, what a
+device may offer is a small runtime-checkable capability Protocol (:class:`Describable`,
+:class:`DeliveryReporting`, :class:`HostStreamedStimulator`,
+:class:`RecoverableAcquisition`, :class:`SampleTiming`, :class:`ReportsSensorInfo`),
+reached with ``isinstance``, never ``getattr``. :class:`StimulatorCapabilities` declares
+what the device renders (:class:`Waveshape`), checked by :func:`check_deliverable`.
 
 Time base: the stimulator's start is the trigger. An acquisition started with
 ``triggered=True`` waits for it, so sample index 0 of the acquisition is stimulation onset
-(hardware trigger / sync line, never host clock guesses).
+(hardware trigger / sync line). A stimulator without a trigger output declares
+``hardware_trigger=False``; the acquisition is then started by the host just before the
+output starts, and the driver records the onset delay it observed.
 
 Safety: a stimulator only accepts a :class:`CheckedWaveform`, whose constructor refuses any
 sample above the ceiling it carries, so a waveform over its ceiling cannot exist. Drivers
@@ -17,7 +25,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -29,6 +37,37 @@ class CurrentLimitError(SafetyError, ValueError):
 
 
 # -- stimulator ---------------------------------------------------------------------
+SINE_CARRIER = "sine_carrier"
+BIPHASIC_PULSES = "biphasic_pulses"
+
+
+@dataclass(frozen=True)
+class Waveshape:
+    """What the device makes of a current envelope: the device-neutral description.
+
+    A trial is always per-channel current envelopes (:class:`CheckedWaveform`); the
+    waveshape says how the device renders them: a sine carrier at ``carrier_Hz`` whose
+    amplitude follows the envelope (the STG4002), or charge-balanced biphasic pulses at
+    ``pulse_rate_Hz`` of ``pulse_width_us`` per phase whose amplitude (or width) follows it
+    (ScienceMode devices).
+    """
+
+    kind: str = SINE_CARRIER
+    """:data:`SINE_CARRIER` or :data:`BIPHASIC_PULSES`."""
+    carrier_Hz: float = 0.0
+    """Sine carrier frequency (``SINE_CARRIER``); 0 when the protocol's carrier is used."""
+    pulse_rate_Hz: float = 0.0
+    pulse_width_us: float = 0.0
+    """Width of each phase (``BIPHASIC_PULSES``)."""
+    interphase_us: float = 0.0
+    modulation: str = "amplitude"
+    """``amplitude`` (the envelope sets each pulse's current) or ``width``."""
+
+    def to_json(self) -> dict:
+        return {k: v for k, v in self.__dict__.items()
+                if not (isinstance(v, float) and v == 0.0)}
+
+
 @dataclass(frozen=True)
 class StimulatorCapabilities:
     """What a stimulator can do, as reported by the device (or the simulator)."""
@@ -39,10 +78,70 @@ class StimulatorCapabilities:
     resolution_mA: float
     """Smallest current step of the device's DAC."""
     output_rate_Hz: float
-    """Sample rate at which the device renders waveforms (carrier included)."""
+    """Rate at which the device renders the envelope: DAC samples for a sine carrier
+    (carrier included), pulses per second for a pulse stimulator."""
     model: str = ""
     serial: str = ""
     firmware: str = ""
+    waveshape: Waveshape = field(default_factory=Waveshape)
+    """How the device renders an envelope (see :class:`Waveshape`)."""
+    hardware_trigger: bool = True
+    """The device's start emits a trigger / sync edge the acquisition starts on. When
+    False (RehaStim2: no trigger output in ScienceMode2), the acquisition is started by the
+    host just before the output and the trial's ``stimulation_json`` records the delay."""
+
+
+class DeliveryCheckError(CurrentLimitError):
+    """A trial's stimulation is beyond what the device declares it can deliver."""
+
+
+def check_deliverable(caps: StimulatorCapabilities, *, ceiling_ext_mA: float,
+                      ceiling_flex_mA: float, carrier_Hz: float, envelope_fs_Hz: float,
+                      highest_envelope_Hz: float = 0.0) -> list[str]:
+    """Check a session's stimulation against the device's capabilities before any output.
+
+    Ceilings above the device's range are refused; a sine carrier the device cannot render
+    (output rate below twice the carrier) is refused only for a sine-carrier device (a
+    pulse stimulator does not render the protocol's carrier); an envelope varying faster
+    than half a pulse device's update rate is returned as a warning.
+
+    Returns
+    -------
+    list of str
+        Warnings (implausible, not forbidden).
+
+    Raises
+    ------
+    DeliveryCheckError
+        Naming the value and what the device allows.
+    """
+    name = caps.model or "the stimulator"
+    for key, ceiling in (("ceiling_ext_mA", ceiling_ext_mA),
+                         ("ceiling_flex_mA", ceiling_flex_mA)):
+        if ceiling > caps.max_current_mA + 1e-9:
+            raise DeliveryCheckError(f"{key} = {ceiling:g} mA exceeds what {name} delivers "
+                                     f"({caps.max_current_mA:g} mA); nothing was sent")
+    warnings: list[str] = []
+    if caps.waveshape.kind == SINE_CARRIER:
+        if caps.output_rate_Hz < 2 * carrier_Hz:
+            raise DeliveryCheckError(f"carrier_Hz = {carrier_Hz:g} Hz is above half the "
+                                     f"output rate of {name} ({caps.output_rate_Hz:g} Hz)")
+    elif caps.waveshape.kind == BIPHASIC_PULSES:
+        if highest_envelope_Hz > caps.output_rate_Hz / 2:
+            warnings.append(f"the envelope varies up to {highest_envelope_Hz:g} Hz but "
+                            f"{name} updates its pulses at {caps.output_rate_Hz:g} Hz: "
+                            "components above half that rate are not delivered")
+    else:
+        raise DeliveryCheckError(f"{name} declares the unknown waveshape "
+                                 f"{caps.waveshape.kind!r}")
+    if not envelope_fs_Hz > 0:
+        raise DeliveryCheckError(f"envelope rate {envelope_fs_Hz!r} Hz: expected > 0")
+    if caps.resolution_mA >= 0.1:
+        warnings.append(f"{name} sets currents in steps of {caps.resolution_mA:g} mA: it "
+                        "delivers each envelope value rounded down to a step; the trial "
+                        "records the envelope (I_ext_mA, I_flex_mA) and its stimulation_json "
+                        "the currents delivered")
+    return warnings
 
 
 class StimulatorState(enum.Enum):
@@ -185,6 +284,21 @@ class HostStreamedStimulator(Protocol):
         """End the stream after the queued updates, output to zero. Idempotent."""
 
 
+@runtime_checkable
+class Describable(Protocol):
+    """Capability: the device describes itself (model, serial, settings) for ``nmsid probe``."""
+
+    def describe(self) -> dict: ...
+
+
+@runtime_checkable
+class DeliveryReporting(Protocol):
+    """Capability: the stimulator reports what it was given to deliver in the last trial
+    (plain JSON types; stored as the trial's optional ``stimulation_json``)."""
+
+    def delivery_summary(self) -> dict | None: ...
+
+
 # -- force acquisition --------------------------------------------------------------
 @dataclass(frozen=True)
 class AcquisitionFlags:
@@ -242,6 +356,33 @@ class ForceAcquisition(Protocol):
     def stop(self) -> None: ...
 
     def close(self) -> None: ...
+
+
+@runtime_checkable
+class RecoverableAcquisition(Protocol):
+    """Capability every acquisition driver of nmsid has (sim, CAIO, NI, Leptrino): say
+    whether its link is down, and reconnect it."""
+
+    def device_fault(self) -> str:
+        """Empty when the link is fine, else what is wrong (one line)."""
+
+    def reconnect(self, fs_Hz: float) -> float:
+        """Open the device again (new handle / task / port); return the rate used."""
+
+
+@runtime_checkable
+class SampleTiming(Protocol):
+    """Capability: a multiplexed A/D reports each channel's delay after the clock edge."""
+
+    def sample_delay_s(self, channel: int) -> float: ...
+
+
+@runtime_checkable
+class ReportsSensorInfo(Protocol):
+    """Capability: a digital sensor's product information (model, serial, firmware, rate)
+    as read from the device (the Leptrino); None until it was read."""
+
+    info: Any
 
 
 # -- emergency stop ----------------------------------------------------------------

@@ -28,7 +28,7 @@ import logging
 import math
 from typing import Callable
 
-from nmsid.drivers.interfaces import StimulatorState
+from nmsid.drivers.interfaces import RecoverableAcquisition, StimulatorState
 from nmsid.rig.states import State
 
 log = logging.getLogger(__name__)
@@ -60,10 +60,10 @@ class DeviceRecovery:
             return "stimulator", f"status unavailable ({type(exc).__name__}: {exc})"
         if st.state in (StimulatorState.ERROR, StimulatorState.DISCONNECTED) or st.error:
             return "stimulator", st.error or st.state.value
-        probe = getattr(self.devices.acquisition, "device_fault", None)
-        if probe is not None:
+        acq = self.devices.acquisition
+        if isinstance(acq, RecoverableAcquisition):
             try:
-                text = probe()
+                text = acq.device_fault()
             except Exception as exc:
                 text = f"device check failed ({type(exc).__name__}: {exc})"
             if text:
@@ -112,6 +112,8 @@ class DeviceRecovery:
                     stim.connect()
                 else:
                     acq = self.devices.acquisition
+                    if not isinstance(acq, RecoverableAcquisition):
+                        raise RuntimeError("this acquisition cannot reconnect")
                     actual = acq.reconnect(fs_Hz)
                     if not math.isclose(actual, fs_Hz, rel_tol=1e-6):
                         raise RuntimeError(f"the acquisition came back at {actual:g} Hz, "

@@ -24,7 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from nmsid.drivers.interfaces import RigDevices
+from nmsid.drivers.interfaces import (SINE_CARRIER, DeliveryReporting, RigDevices,
+                                      check_deliverable)
 from nmsid.protocols.config import Config, ConfigError, PausePolicy, config_from_json
 from nmsid.protocols.schedule import (PlannedTrial, TrialStatus, make_schedule, schedule_from_json,
                                       schedule_to_json)
@@ -202,10 +203,15 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         if caps.n_channels < 2:
             raise ConfigError(cfg.source, "stimulator", caps.n_channels,
                               "a stimulator with at least 2 channels (extensor, flexor)")
-        if caps.output_rate_Hz < 2 * p.carrier_Hz:
+        if caps.waveshape.kind == SINE_CARRIER and caps.output_rate_Hz < 2 * p.carrier_Hz:
             raise ConfigError(cfg.source, "protocol.carrier_Hz", p.carrier_Hz,
                               f"below half the stimulator's output rate "
                               f"({caps.output_rate_Hz:g} Hz)")
+        for text in check_deliverable(
+                caps, ceiling_ext_mA=cfg.calibration.ceiling_ext_mA,
+                ceiling_flex_mA=cfg.calibration.ceiling_flex_mA, carrier_Hz=p.carrier_Hz,
+                envelope_fs_Hz=p.fs_Hz, highest_envelope_Hz=p.chirp_f1_Hz):
+            self._event("warning", text)
         actual = acq.configure(p.fs_Hz)
         if not math.isclose(actual, p.fs_Hz, rel_tol=1e-6):
             raise ConfigError(cfg.source, "protocol.fs_Hz", p.fs_Hz,
@@ -424,9 +430,9 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
     def _stimulation_attrs(self) -> dict:
         """Optional ``stimulation_json``: the stimulator's charge summary of what it was
         given to deliver (drivers that offer ``delivery_summary``, e.g. the STG4002)."""
-        summary = getattr(self.devices.stimulator, "delivery_summary", None)
+        stim = self.devices.stimulator
         try:
-            value = summary() if summary is not None else None
+            value = stim.delivery_summary() if isinstance(stim, DeliveryReporting) else None
         except Exception:  # informative only: never lose a trial over it
             log.exception("stimulator delivery_summary() failed")
             value = None

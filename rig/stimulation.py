@@ -39,6 +39,14 @@ class BlockResult:
     """Empty when every sample arrived."""
 
 
+def _has_trigger(stim) -> bool:
+    try:
+        return bool(stim.capabilities().hardware_trigger)
+    except Exception:  # a driver that cannot say: assume the trigger (the STG's behaviour)
+        log.exception("stimulator.capabilities() failed")
+        return True
+
+
 def _reason(trip) -> str:
     return f"{trip.rule}: {trip.detail}"
 
@@ -46,6 +54,7 @@ def _reason(trip) -> str:
 def run_block(devices, interlock: Interlock, checked, n: int, *,
               on_samples: Callable[..., None] | None = None,
               should_stop: Callable[[], str] | None = None,
+              on_chunk: Callable[..., None] | None = None,
               stream=None) -> BlockResult:
     """Stimulate ``checked`` and record ``n`` samples of force.
 
@@ -61,6 +70,9 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
         ``sync`` are None when the acquisition does not record them.
     should_stop : callable() -> str, optional
         Asked after every chunk; a non-empty answer stops the block with that reason.
+    on_chunk : callable(ForceChunk), optional
+        Called with every chunk as the acquisition delivered it (the dry run keeps its
+        monitor input), before the interlock's checks of it.
     stream : optional
         Closed loop (:mod:`nmsid.rig.tracking`): ``checked`` is None and the stimulation
         is streamed: ``stream.open(stimulator)`` opens and prefills the stream instead
@@ -87,7 +99,10 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
                                                    f"({type(exc).__name__}: {exc})")
         return BlockResult(0, force, None, None, _reason(trip))
     try:
-        acq.start(n, triggered=True)  # sample 0 = the stimulator's start trigger
+        # sample 0 = the stimulator's start trigger; a device without a trigger output
+        # (capabilities().hardware_trigger False) gets the acquisition started by the host
+        # just before its output starts
+        acq.start(n, triggered=_has_trigger(stim))
     except Exception as exc:
         trip = interlock.trip(interlock.flags.name, f"acquisition could not start "
                                                     f"({type(exc).__name__}: {exc})")
@@ -110,6 +125,8 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
                                                 f"failed ({type(exc).__name__}: {exc})"))
                 break
             now = clock.monotonic_s()
+            if chunk is not None and on_chunk is not None:
+                on_chunk(chunk)
             if chunk is not None and (chunk.n or chunk.flags.any):
                 # an empty chunk may still carry flags (overrun, sensor fault): check them
                 if chunk.n:

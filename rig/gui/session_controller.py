@@ -16,16 +16,13 @@ from typing import Callable
 
 from PySide6.QtCore import QObject, Qt, Signal
 
-from nmsid.drivers.hardware import make_hw_rig
 from nmsid.protocols.config import config_from_json, load_config
 from nmsid.protocols.session_file import read_session
 from nmsid.rig.engine import Engine
-from nmsid.rig.errors import RequestError
 from nmsid.rig.gui.live_buffer import LiveBuffer
 from nmsid.rig.gui.observer import EngineSignals, QtEngineObserver
 from nmsid.rig.gui.setup_panel import Backend, SessionRequest
-from nmsid.sim_backends.participant_models import participant_for_model
-from nmsid.sim_backends.rig import make_sim_rig
+from nmsid.rig.session_service import PreparedRig, RigRequest, prepare_rig, stored_session
 
 log = logging.getLogger(__name__)
 
@@ -33,18 +30,21 @@ log = logging.getLogger(__name__)
 DevicesFactory = Callable[[SessionRequest, object], object]
 
 
+def rig_request(request: SessionRequest) -> RigRequest:
+    """The session service's request for what the setup panel asked (the recorded rig of a
+    resumed session read from its file)."""
+    stored, backend = stored_session(request.output_path) if request.resume else ({}, "")
+    return RigRequest(backend="sim" if request.backend is Backend.SIM else "hw",
+                      session_path=Path(request.output_path), resume=request.resume,
+                      hw_config=None if request.hw_config_path is None
+                      else Path(request.hw_config_path),
+                      sim_seed=None if request.resume else request.seed,
+                      realtime=request.realtime, stored=stored, stored_backend=backend)
+
+
 def default_devices(request: SessionRequest, config) -> object:
-    """Build the rig the request names: the simulator or the hardware chain."""
-    if request.backend is Backend.SIM:
-        seed = request.seed if request.seed is not None else 0
-        return make_sim_rig(participant_for_model(getattr(config, "participant_model",
-                                                          "template"), seed),
-                            realtime=request.realtime, fs_Hz=config.protocol.fs_Hz)
-    if request.hw_config_path is None:
-        raise RequestError("--backend hw needs a hardware configuration file (--hw-config "
-                         "FILE, or 'Hardware configuration' on the setup panel; see "
-                         "docs/hardware.md)")
-    return make_hw_rig(request.hw_config_path)
+    """Build the rig the request names, as ``nmsid run`` does (the session service)."""
+    return prepare_rig(rig_request(request), config).devices
 
 
 def load_session_config(request: SessionRequest, *, confirm_calibration: bool = True):
@@ -130,14 +130,21 @@ class SessionController(QObject):
         self.config = config if config is not None else load_session_config(request)
         self.buffer.fs_Hz = float(self.config.protocol.fs_Hz)
         self.observer = QtEngineObserver(self.signals, self.buffer)
-        self.devices = self.devices_factory(request, self.config)
-        if self.engine_factory is not None:
-            factory = self.engine_factory
+        extra: dict = {}
+        if self.devices_factory is default_devices:   # the session service, as the CLI
+            rig = self.prepare(request, self.config)
+            self.devices, self.config, extra = rig.devices, rig.config, rig.extra_attrs
         else:
-            factory = Engine
+            self.devices = self.devices_factory(request, self.config)
         try:
-            self.engine = factory(self.config, self.devices, request.output_path,
-                                  resume=request.resume, observer=self.observer)
+            if self.engine_factory is not None:
+                self.engine = self.engine_factory(self.config, self.devices,
+                                                  request.output_path, resume=request.resume,
+                                                  observer=self.observer)
+            else:
+                self.engine = Engine(self.config, self.devices, request.output_path,
+                                     resume=request.resume, observer=self.observer,
+                                     extra_attrs=extra)
         except BaseException:
             self.devices.close()
             self.devices = None
@@ -146,6 +153,12 @@ class SessionController(QObject):
         self.thread = threading.Thread(target=self._run, name="nmsid-engine", daemon=True)
         self.thread.start()
         log.info("session started: %s -> %s", request.participant, request.output_path)
+
+    @staticmethod
+    def prepare(request: SessionRequest, config) -> PreparedRig:
+        """Devices, paced configuration and recorded attributes for ``request`` (the
+        session service: a resume on another rig is refused in one line)."""
+        return prepare_rig(rig_request(request), config)
 
     def _run(self) -> None:
         summary, error = None, None

@@ -1,6 +1,8 @@
 """The fake bench: one clock and one simple participant shared by the fake devices.
 
-The fake stimulator (``fake_mcs_usb``) plays what was downloaded to it on this clock; the
+The fake stimulator (``fake_mcs_usb``, or ``fake_rehastim2`` for a RehaStim2: any object
+with ``started_at``, ``envelope_at``, ``current_at`` and ``sync_at``, installed as
+``bench.stimulator`` by the registry's fake) plays what it was given on this clock; the
 fake A/D converters (``fake_caio``, ``fake_nidaqmx``) sample, on the same clock, the sync
 line and the analog outputs of a fake force sensor whose force follows what the fake
 stimulator really outputs: each channel's delivered current is demodulated (peak of |I|

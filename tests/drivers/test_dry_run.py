@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from nmsid.cli import main
-from nmsid.drivers.dry_run import DryRunSettings, check_loopback, run_dry_run
+from nmsid.drivers.dry_run import DryRunSettings, check_loopback
+from nmsid.drivers.registry import stimulator_kind
+from nmsid.rig.dry_run import run_dry_run
 from nmsid.drivers.errors import HardwareConfigError, StimulatorSettingError
 from nmsid.drivers.hardware import build_devices, with_monitor
 from nmsid.drivers.hw_config import load_hw_config
@@ -36,15 +38,18 @@ def test_probe_dry_run_passes_every_check_on_the_fake_rig(tmp_path, write_hw_con
 
 
 def _run(tmp_path, write_hw_config, *, wired_channel=0, actual_ohm=1000.0, kind="caio",
-         extra=(), monitor=7, **settings):
+         extra=(), monitor=7, estop_at_s=None, **settings):
     hw = write_hw_config(tmp_path / "hw.toml", kind=kind, speed=2.0, estop="none",
                          monitor=monitor, extra=extra)
-    devices = build_devices(with_monitor(load_hw_config(hw)))
+    cfg = with_monitor(load_hw_config(hw))
+    devices = build_devices(cfg)
     lines: list[str] = []
     try:
         devices.stimulator.connect()
         devices.clock.bench.dummy_load = (wired_channel, actual_ohm)  # what is really wired
-        ok = run_dry_run(devices, DryRunSettings(**settings), out=lines.append)
+        ok = run_dry_run(devices, DryRunSettings(**settings),
+                         stimulator_kind(cfg.stimulator).dry_run, out=lines.append,
+                         monitor_channel=monitor, estop_at_s=estop_at_s)
     finally:
         devices.close()
     return ok, "\n".join(lines)
@@ -191,3 +196,29 @@ def test_nidaq_spreads_conversions_over_the_sample_period(tmp_path, write_hw_con
                     monitor=15, extra=('nidaq.terminal_config = "RSE"',))
     assert ok, text
     assert f"scan delay {15 / 320e3 * 1e3:.3f} ms corrected" in text
+
+
+def test_the_dry_run_trips_on_the_estop_mid_trial(tmp_path, write_hw_config):
+    """25, 4: through run_block and the interlock; after the E-stop the resistor current is
+    zero and the sync output low, recorded by the same A/D."""
+    ok, text = _run(tmp_path, write_hw_config, estop_at_s=0.5)
+    assert ok, text
+    assert "[PASS] E-stop: trial ended: after" in text and "estop" in text
+    assert "[PASS] E-stop: output zero" in text and "[PASS] E-stop: sync low" in text
+
+
+def test_probe_dry_run_includes_the_estop_test(tmp_path, write_hw_config, capsys):
+    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", speed=2.0, estop="none",
+                         monitor=7)
+    assert main(["probe", "--hw-config", str(hw), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "E-stop at 0.5 s (mid-chirp)" in out and "[PASS] E-stop: output zero" in out
+
+
+def test_estop_checks_fail_when_output_continues():
+    from nmsid.drivers.dry_run import check_after_stop
+    s = DryRunSettings()
+    bad = check_after_stop(np.full(100, 1.0), np.full(100, 3.3), s, has_sync=True)
+    assert [c.passed for c in bad] == [False, False]
+    good = check_after_stop(np.full(100, 1e-3), np.zeros(100), s, has_sync=True)
+    assert [c.passed for c in good] == [True, True]

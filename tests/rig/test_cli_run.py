@@ -142,12 +142,13 @@ def test_resume_uses_the_stored_virtual_participant(tmp_path, short_toml, monkey
                  "--sim-seed", "9", "--no-identify", "--quiet"]) == 0
     assert int(read_session(out, load_data=False).attrs["sim_seed"]) == 9
     seen = []
-    real = cli_run._make_devices
+    real = cli_run.prepare_rig
 
-    def spy(args, config, sim_seed):
-        seen.append(sim_seed)
-        return real(args, config, sim_seed)
-    monkeypatch.setattr(cli_run, "_make_devices", spy)
+    def spy(request, config):
+        rig = real(request, config)
+        seen.append(rig.sim_seed)
+        return rig
+    monkeypatch.setattr(cli_run, "prepare_rig", spy)
     assert main(["run", "--backend", "sim", "--resume", str(out), "--no-identify"]) == 0
     assert seen == [9]
     assert "4 completed, 0 aborted, 0 not run" in capsys.readouterr().out

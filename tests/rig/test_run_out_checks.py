@@ -10,7 +10,7 @@ from nmsid.rig.session_log import journal_dir
 @pytest.fixture
 def no_devices(monkeypatch):
     touched = []
-    monkeypatch.setattr(run_command, "_make_devices",
+    monkeypatch.setattr(run_command, "prepare_rig",
                         lambda *a: touched.append(a) or pytest.fail("devices touched"))
     return touched
 

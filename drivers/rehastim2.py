@@ -1,0 +1,583 @@
+"""Hasomed RehaStim2 over ScienceMode2: biphasic pulses streamed by the host.
+
+The device (8 channels, two current sources, 0 .. 130 mA, 20 .. 500 us, biphasic
+charge-balanced pulses: SM2 1.2, Table 1) is driven in the continuous channel list mode
+(SM2 1.3): ``arm`` sends InitChannelListMode with the extensor and flexor channels at the
+configured pulse rate; ``start`` streams one StartChannelListMode update per main interval,
+each carrying the envelope's current at that pulse (amplitude modulation at a fixed width);
+the trial ends with StopChannelListMode. A link thread reads every packet, answers the
+device's Init (SM2 4.1), sends the Watchdog (SM2 4.1) whenever nothing was sent for
+:data:`KEEPALIVE_S` (< the 1.2 s WatchdogTimeout of SM2 2.3), and turns a StimulationError
+(emergency switch, electrode error, module error: SM2 4.3) into the ERROR state the
+interlock trips on.
+
+Safety, by construction: each update's current is ``floor`` of the envelope (whole mA, the
+device's resolution), the envelope was already checked against its ceilings
+(:class:`~nmsid.drivers.interfaces.CheckedWaveform`), and :meth:`_pulse_data` refuses any
+current above the driver's own ceilings before a byte is written
+(:class:`~nmsid.drivers.interfaces.CurrentLimitError`). Charge balance is the device's:
+SM2 1.2 (Figure 2) fixes both phases at the same current and width, plus an active
+short-cut at the end of each pulse.
+
+Time base: ScienceMode2 has no trigger output, so ``capabilities().hardware_trigger`` is
+False; the engine starts the acquisition from the host just before ``start``, and the
+trial's ``stimulation_json`` records the host time from that start to the first update's
+acknowledgement (``onset_ack_s``).
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from nmsid.drivers import rehastim2_protocol as sm2
+from nmsid.drivers.errors import DeviceError, DeviceNotFound, StimulatorSettingError
+from nmsid.drivers.interfaces import (BIPHASIC_PULSES, CheckedWaveform, CurrentLimitError,
+                                      StimulatorCapabilities, StimulatorState,
+                                      StimulatorStatus, Waveshape)
+from nmsid.drivers.leptrino import _serial_module
+
+log = logging.getLogger(__name__)
+
+KEEPALIVE_S = 0.4
+"""Send the Watchdog after this long without a packet (SM2 2.3: WatchdogTimeout 1.2 s)."""
+CONNECT_TIMEOUT_S = 2.5
+"""Wait for the device's Init this long. A device still attached to a previous connection
+sends Init only after its WatchdogTimeout (1.2 s) and then every InitRepetitionTime
+(0.5 s) (SM2 2.3, 5.2): 1.2 + 2 x 0.5 s, with margin."""
+SUMMARY_FORMAT = "nmsid-stimulation-1"
+
+
+class Rehastim2Stimulator:
+    """The RehaStim2 as a :class:`~nmsid.drivers.interfaces.Stimulator` and a
+    :class:`~nmsid.drivers.interfaces.HostStreamedStimulator`.
+
+    Parameters
+    ----------
+    port : str
+        The FTDI serial port (``COM5``, ``/dev/ttyUSB0``).
+    ceiling_ext_mA, ceiling_flex_mA : float
+        The session's ceilings; no update above them is ever written.
+    extensor_channel, flexor_channel : int
+        RehaStim2 channels 1 .. 8 (SM2 Table 3).
+    pulse_rate_Hz : float
+        Pulses per second per channel (SM2 Table 1: 1 .. 50 Hz; the main interval is
+        1 ms + k x 0.5 ms, SM2 4.3).
+    pulse_width_us : int
+        Width of each phase, 20 .. 500 us (SM2 4.3).
+    open_port : callable(port) -> serial-like, optional
+        How the port is opened (the fake in fake mode); default pyserial at 460800 8E1.
+    clock, sleep : callables, optional
+        Time source and wait (the fake bench's in fake mode).
+    """
+
+    def __init__(self, port: str, *, ceiling_ext_mA: float, ceiling_flex_mA: float,
+                 extensor_channel: int = 1, flexor_channel: int = 2,
+                 pulse_rate_Hz: float = 40.0, pulse_width_us: int = 300,
+                 open_port: Callable | None = None, clock: Callable[[], float] | None = None,
+                 sleep: Callable[[float], None] | None = None):
+        if extensor_channel == flexor_channel:
+            raise StimulatorSettingError(f"RehaStim2: extensor_channel and flexor_channel "
+                                         f"are both {extensor_channel}; they must differ")
+        try:
+            sm2.main_interval_code(pulse_rate_Hz)
+            sm2.start_clm_data([(int(pulse_width_us), 0)])
+        except ValueError as exc:
+            raise StimulatorSettingError(f"RehaStim2: {exc}") from None
+        if not 1.0 <= pulse_rate_Hz <= sm2.MAX_RATE_HZ:
+            raise StimulatorSettingError(f"RehaStim2: pulse_rate_Hz {pulse_rate_Hz:g}: valid "
+                                         "1 .. 50 Hz (SM2 Table 1)")
+        for name, c in (("ceiling_ext_mA", ceiling_ext_mA), ("ceiling_flex_mA", ceiling_flex_mA)):
+            if not (math.isfinite(c) and 0 < c <= sm2.MAX_CURRENT_MA):
+                raise StimulatorSettingError(f"RehaStim2: {name} = {c!r}: valid > 0 and "
+                                             f"<= {sm2.MAX_CURRENT_MA} mA (SM2 Table 1)")
+        self.port = port
+        self.ceilings = {extensor_channel: float(ceiling_ext_mA),
+                         flexor_channel: float(ceiling_flex_mA)}
+        self._stream_ceilings = dict(self.ceilings)
+        """The ceilings of the open stream (open_stream may lower the driver's)."""
+        self.extensor_channel, self.flexor_channel = extensor_channel, flexor_channel
+        self.channels = tuple(sorted((extensor_channel, flexor_channel)))
+        self.pulse_rate_Hz, self.pulse_width_us = float(pulse_rate_Hz), int(pulse_width_us)
+        self._open_port = open_port or _open_serial
+        self.clock = clock or time.monotonic
+        self._sleep = sleep or time.sleep
+        self._ser = None
+        self._decoder = sm2.Decoder()
+        self._wlock = threading.Lock()
+        self._lock = threading.RLock()
+        self._number = 0
+        self._last_sent = 0.0
+        self._acks: dict[int, sm2.Packet] = {}
+        self._waiting: set[int] = set()
+        self._ack_cv = threading.Condition(self._lock)
+        self._error = ""
+        self._state = StimulatorState.DISCONNECTED
+        self._link: threading.Thread | None = None
+        self._link_stop = threading.Event()
+        self._stream: threading.Thread | None = None
+        self._stream_stop = threading.Event()
+        self._queue: collections.deque[tuple[int, int]] = collections.deque()
+        self._streaming_open = False
+        self._trial_pulses: list[tuple[int, int]] = []
+        self._sent: list[tuple[int, int]] = []
+        self._sent_index: list[int] = []
+        self._skipped = 0
+        self._acked = 0
+        self._ack_errors: list[str] = []
+        self._onset_ack_s: float | None = None
+        self._t_start_call = 0.0
+        self._ended_by = ""
+        self._loaded: CheckedWaveform | None = None
+
+    # -- connection ------------------------------------------------------------------------
+    def connect(self) -> None:
+        """Open the port, answer the device's Init (SM2 4.1, 3.5), start the link thread."""
+        self._close_link()
+        try:
+            self._ser = self._open_port(self.port)
+        except Exception as exc:
+            raise DeviceNotFound(f"RehaStim2: cannot open serial port {self.port!r} "
+                                 f"({type(exc).__name__}: {exc}); check the USB cable, the "
+                                 "FTDI driver and that ScienceMode2 is selected on the "
+                                 "device's start screen (SM2 1.5, 2.1)") from None
+        self._decoder = sm2.Decoder()
+        deadline = self.clock() + CONNECT_TIMEOUT_S
+        init = None
+        problem = ""
+        while init is None and self.clock() < deadline:
+            try:
+                packets = self._read_packets()
+            except Exception as exc:  # the port failed at once: reported below, one line
+                problem = f" ({type(exc).__name__}: {exc})"
+                break
+            for pkt in packets:
+                if pkt.command == sm2.INIT:
+                    init = pkt
+            if init is None:
+                self._sleep(0.01)
+        if init is None:
+            self._close_port()
+            raise DeviceNotFound(f"RehaStim2 on {self.port}: no Init packet within "
+                                 f"{CONNECT_TIMEOUT_S:g} s{problem} (ScienceMode2 2.3 "
+                                 "InitRepetitionTime 0.5 s); is ScienceMode2 started on the "
+                                 "device?")
+        self._write(sm2.INIT_ACK, bytes((0,)), number=init.number)   # SM2 4.1 InitAck
+        with self._lock:
+            self._error, self._acks = "", {}
+            self._state = StimulatorState.IDLE
+        self._link_stop.clear()
+        self._link = threading.Thread(target=self._link_loop, name="rehastim2-link",
+                                      daemon=True)
+        self._link.start()
+        mode = self.stimulation_mode()
+        if mode != 0:                        # left running by a previous program: stop
+            self._request(sm2.STOP_CLM)
+
+    def capabilities(self) -> StimulatorCapabilities:
+        return StimulatorCapabilities(
+            n_channels=sm2.N_CHANNELS, max_current_mA=float(sm2.MAX_CURRENT_MA),
+            resolution_mA=1.0, output_rate_Hz=self.pulse_rate_Hz, model="Hasomed RehaStim2",
+            waveshape=self.waveshape(), hardware_trigger=False)
+
+    def waveshape(self) -> Waveshape:
+        return Waveshape(kind=BIPHASIC_PULSES, pulse_rate_Hz=self.pulse_rate_Hz,
+                         pulse_width_us=float(self.pulse_width_us),
+                         interphase_us=float(sm2.INTERPHASE_US), modulation="amplitude")
+
+    def disconnect(self) -> None:
+        self.stop_now()
+        self._close_link()
+        with self._lock:
+            self._state = StimulatorState.DISCONNECTED
+
+    def stimulation_mode(self) -> int:
+        """GetStimulationMode (SM2 4.2): 0 start, 1 initialized, 2 started."""
+        ack = self._request(sm2.GET_STIM_MODE)
+        return ack.data[1] if len(ack.data) > 1 else 0
+
+    # -- one trial ---------------------------------------------------------------------------
+    def load(self, waveform: CheckedWaveform) -> None:
+        """Sample the envelopes at each pulse and keep the per-pulse currents (whole mA,
+        rounded down, so never above the envelope and so never above its ceiling)."""
+        self._check_usable("load")
+        for ch, ceiling in ((self.extensor_channel, waveform.ceiling_ext_mA),
+                            (self.flexor_channel, waveform.ceiling_flex_mA)):
+            if ceiling > self.ceilings[ch] + 1e-9:
+                raise CurrentLimitError(
+                    f"waveform ceiling {ceiling:g} mA on RehaStim2 channel {ch} is above the "
+                    f"driver's {self.ceilings[ch]:g} mA; nothing was sent")
+        n = math.floor(waveform.duration_s * self.pulse_rate_Hz + 1e-9)
+        k = np.minimum((np.arange(n) / self.pulse_rate_Hz * waveform.fs_Hz + 1e-9)
+                       .astype(np.int64), waveform.n_samples - 1)
+        ext = np.floor(np.asarray(waveform.I_ext_mA)[k] + 1e-9).astype(int)
+        flex = np.floor(np.asarray(waveform.I_flex_mA)[k] + 1e-9).astype(int)
+        pulses = list(zip(ext.tolist(), flex.tolist()))
+        for e, f in pulses:                  # by construction; checked once more
+            self._pulse_data(e, f)
+        with self._lock:
+            self._trial_pulses = pulses
+            self._loaded = waveform
+            self._state = StimulatorState.LOADED
+
+    def arm(self) -> None:
+        """InitChannelListMode for the two channels at the pulse rate (SM2 4.3)."""
+        self._check_usable("arm")
+        if self.stimulation_mode() != 0:
+            self._request(sm2.STOP_CLM)
+        self._request(sm2.INIT_CLM, sm2.init_clm_data(self.channels, self.pulse_rate_Hz))
+        with self._lock:
+            self._state = StimulatorState.ARMED
+
+    def start(self) -> None:
+        """Stream the loaded pulses, one StartChannelListMode per main interval."""
+        with self._lock:
+            if self._state is not StimulatorState.ARMED:
+                raise DeviceError(f"RehaStim2: start() in state {self._state.value}; "
+                                  "load() and arm() first")
+            self._queue = collections.deque(self._trial_pulses)
+            self._sent, self._acked, self._ack_errors = [], 0, []
+            self._sent_index, self._skipped = [], 0
+            self._onset_ack_s, self._ended_by = None, ""
+            self._streaming_open = False
+            self._state = StimulatorState.RUNNING
+        self._t_start_call = time.monotonic()
+        self._start_stream_thread()
+
+    def stop_now(self) -> None:
+        """StopChannelListMode now (SM2 4.3). Thread-safe, idempotent, never raises."""
+        self._stream_stop.set()
+        with self._lock:
+            self._queue.clear()
+            if not self._ended_by and self._state is StimulatorState.RUNNING:
+                self._ended_by = "stop_now"
+            if self._state in (StimulatorState.RUNNING, StimulatorState.ARMED,
+                               StimulatorState.LOADED):
+                self._state = StimulatorState.STOPPED
+        if self._ser is not None:
+            try:
+                self._write(sm2.STOP_CLM)
+            except Exception as exc:   # link gone: the device's watchdog stops it (SM2 5.2)
+                log.warning("RehaStim2 stop could not be sent (%s); the device stops by its "
+                            "watchdog within %.1f s (SM2 5.2)", exc, sm2.WATCHDOG_TIMEOUT_S)
+        t = self._stream
+        if t is not None and t is not threading.current_thread():
+            t.join(timeout=1.0)
+
+    def status(self) -> StimulatorStatus:
+        ser = self._ser
+        if ser is not None and not self._error:
+            try:      # ask the port itself: a lost USB link fails here at once
+                _ = ser.in_waiting
+            except Exception as exc:
+                with self._lock:
+                    self._error = f"RehaStim2 USB link lost ({type(exc).__name__}: {exc})"
+                    self._state = StimulatorState.ERROR
+        with self._lock:
+            st = self._state
+            running = st is StimulatorState.RUNNING
+            return StimulatorStatus(state=st, output_active=running, error=self._error,
+                                    sample_index=len(self._sent) if running else -1)
+
+    # -- host-streamed capability (closed loop) ------------------------------------------------
+    def open_stream(self, ceiling_ext_mA: float, ceiling_flex_mA: float,
+                    update_Hz: float) -> float:
+        """Initialise the channel list and stream updates at the pulse rate; returns it."""
+        for ch, c in ((self.extensor_channel, ceiling_ext_mA),
+                      (self.flexor_channel, ceiling_flex_mA)):
+            if c > self.ceilings[ch] + 1e-9:
+                raise CurrentLimitError(f"stream ceiling {c:g} mA on channel {ch} is above "
+                                        f"the driver's {self.ceilings[ch]:g} mA")
+        self._stream_ceilings.update({self.extensor_channel: float(ceiling_ext_mA),
+                                      self.flexor_channel: float(ceiling_flex_mA)})
+        self.arm()
+        with self._lock:
+            self._queue.clear()
+            self._sent, self._acked, self._ack_errors = [], 0, []
+            self._sent_index, self._skipped = [], 0
+            self._streaming_open = True
+            self._state = StimulatorState.RUNNING
+        self._start_stream_thread()
+        return self.pulse_rate_Hz
+
+    def write_stream(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> None:
+        ext = np.floor(np.asarray(I_ext_mA, float) + 1e-9).astype(int)
+        flex = np.floor(np.asarray(I_flex_mA, float) + 1e-9).astype(int)
+        if len(ext) != len(flex):
+            raise CurrentLimitError("I_ext_mA and I_flex_mA must have the same length")
+        lim = self._stream_ceilings
+        for name, arr, ch in (("I_ext_mA", I_ext_mA, self.extensor_channel),
+                              ("I_flex_mA", I_flex_mA, self.flexor_channel)):
+            a = np.asarray(arr, float)
+            if a.size and (not np.all(np.isfinite(a)) or a.min() < 0 or a.max() > lim[ch]):
+                raise CurrentLimitError(f"{name} outside 0 .. {lim[ch]:g} mA (or not finite); "
+                                        "nothing was sent")
+        with self._lock:
+            self._queue.extend(zip(ext.tolist(), flex.tolist()))
+
+    def stream_space(self) -> int:
+        with self._lock:
+            return max(0, int(self.pulse_rate_Hz) - len(self._queue))
+
+    def close_stream(self) -> None:
+        with self._lock:
+            self._streaming_open = False
+        t = self._stream
+        if t is not None:
+            t.join(timeout=2.0 + len(self._queue) / self.pulse_rate_Hz)
+        self.stop_now()
+
+    # -- what was delivered ---------------------------------------------------------------------
+    def delivery_summary(self) -> dict | None:
+        """The pulses of the last trial: per channel, the current of every update the device
+        acknowledged (``pulse_index``: each one's slot, k / pulse_rate_Hz s after onset), the
+        width, the charge per phase, and the updates skipped because the host fell behind
+        the time base (plain JSON types)."""
+        with self._lock:
+            sent, index = list(self._sent), list(self._sent_index)
+            acked, errors, skipped = self._acked, list(self._ack_errors), self._skipped
+            onset, ended = self._onset_ack_s, self._ended_by
+        if self._loaded is None and not sent:
+            return None
+        delivered = sent[:acked]
+        channels = {}
+        for name, idx, ch in (("extensor", 0, self.extensor_channel),
+                              ("flexor", 1, self.flexor_channel)):
+            amps = [p[idx] for p in delivered]
+            peak = max(amps, default=0)
+            channels[name] = {
+                "name": name, "channel": ch, "pulses_acknowledged": len(amps),
+                "pulses_sent": len(sent), "pulse_current_mA": amps,
+                "peak_current_mA": float(peak),
+                "max_charge_per_phase_nC": float(peak * self.pulse_width_us),
+                "net_charge_per_trial_uC": 0.0,
+                "ceiling_mA": self.ceilings[ch]}
+        return {"format": SUMMARY_FORMAT, "device": "rehastim2",
+                "waveshape": self.waveshape().to_json(),
+                "carrier_Hz_note": "a pulse device renders no carrier: the session's "
+                                   "carrier_Hz is the protocol setting, not delivered",
+                "pulse_rate_Hz": self.pulse_rate_Hz, "pulse_width_us": self.pulse_width_us,
+                "charge_balanced": "by the device: equal biphasic phases (ScienceMode2 1.2)",
+                "updates_planned": len(self._trial_pulses), "updates_sent": len(sent),
+                "updates_acknowledged": acked, "update_errors": errors,
+                "updates_skipped_late": skipped, "pulse_index": index[:acked],
+                "onset_ack_s": onset, "ended_by": ended or "completed",
+                "channels": channels}
+
+    def describe(self) -> dict:
+        return {"device": "Hasomed RehaStim2 (ScienceMode2)", "port": self.port,
+                "extensor_channel": self.extensor_channel,
+                "flexor_channel": self.flexor_channel,
+                "ceiling_ext_mA": self.ceilings[self.extensor_channel],
+                "ceiling_flex_mA": self.ceilings[self.flexor_channel],
+                "pulse_rate_Hz": self.pulse_rate_Hz, "pulse_width_us": self.pulse_width_us,
+                "trigger_output": "none (ScienceMode2 has none): acquisition host-started",
+                "electrode_check": "the device tests the skin resistance before each pulse "
+                                   "and stops with an electrode error (ScienceMode2 1.2, 4.3)",
+                "state": self.status().state.value, "error": self._error}
+
+    # -- internals ------------------------------------------------------------------------------
+    def _pulse_data(self, I_ext: int, I_flex: int) -> bytes:
+        """The StartChannelListMode data of one update; refuses a current above a ceiling."""
+        by_ch = {self.extensor_channel: I_ext, self.flexor_channel: I_flex}
+        for ch, cur in by_ch.items():
+            if cur < 0 or cur > self.ceilings[ch] + 1e-9:
+                raise CurrentLimitError(f"RehaStim2 channel {ch}: {cur} mA outside 0 .. "
+                                        f"{self.ceilings[ch]:g} mA; nothing was sent")
+        return sm2.start_clm_data([(self.pulse_width_us, by_ch[ch]) for ch in self.channels])
+
+    def _start_stream_thread(self) -> None:
+        self._stream_stop.clear()
+        self._stream = threading.Thread(target=self._stream_loop, name="rehastim2-stream",
+                                        daemon=True)
+        self._stream.start()
+
+    def _stream_loop(self) -> None:
+        period = 1.0 / self.pulse_rate_Hz
+        t0 = self.clock()
+        k = 0
+        try:
+            while not self._stream_stop.is_set():
+                with self._lock:
+                    if self._queue:
+                        e, f = self._queue.popleft()
+                    elif self._streaming_open:
+                        e = f = -1           # nothing queued in a stream: wait
+                    else:
+                        break
+                if e < 0:
+                    self._sleep(period / 4)
+                    continue
+                wait = t0 + k * period - self.clock()
+                if wait > 0:
+                    self._sleep(wait)
+                elif not self._streaming_open and -wait > period:
+                    # behind the trial's time base (a busy host): skip to the update that
+                    # is due now, so the delivered amplitude keeps the recorded time axis;
+                    # the skipped updates are counted in the delivery summary
+                    late = min(int(-wait / period), len(self._queue))
+                    with self._lock:
+                        for _ in range(late):
+                            e, f = self._queue.popleft()
+                        self._skipped += late
+                    k += late
+                if self._stream_stop.is_set():
+                    break
+                data = self._pulse_data(e, f)
+                with self._lock:
+                    if self._error:
+                        break
+                    self._sent.append((e, f))
+                    self._sent_index.append(k)
+                self._write(sm2.START_CLM, data)
+                k += 1
+        except Exception as exc:   # a lost link: the watchdog stops the device (SM2 5.2)
+            with self._lock:
+                self._error = self._error or (f"RehaStim2 link lost while stimulating "
+                                              f"({type(exc).__name__}: {exc})")
+                self._state = StimulatorState.ERROR
+            return
+        if not self._stream_stop.is_set():
+            deadline = time.monotonic() + 10 * sm2.MAX_RESPONSE_S
+            while time.monotonic() < deadline and not self._stream_stop.is_set():
+                with self._lock:    # the last updates' acknowledgements (SM2 2.3)
+                    if self._acked + len(self._ack_errors) >= len(self._sent) or self._error:
+                        break
+                time.sleep(0.002)
+            try:
+                self._write(sm2.STOP_CLM)
+            except Exception as exc:
+                with self._lock:
+                    self._error = self._error or f"RehaStim2 stop failed ({exc})"
+                    self._state = StimulatorState.ERROR
+                return
+            with self._lock:
+                if self._state is StimulatorState.RUNNING:
+                    self._state = StimulatorState.STOPPED
+
+    def _link_loop(self) -> None:
+        while not self._link_stop.is_set():
+            try:
+                for pkt in self._read_packets():
+                    self._on_packet(pkt)
+                if self.clock() - self._last_sent > KEEPALIVE_S:
+                    self._write(sm2.WATCHDOG)     # SM2 4.1 Watchdog, 2.3 WatchdogTimeout
+            except Exception as exc:
+                with self._lock:
+                    self._error = self._error or (f"RehaStim2 USB link lost "
+                                                  f"({type(exc).__name__}: {exc})")
+                    self._state = StimulatorState.ERROR
+                    self._ack_cv.notify_all()
+                return
+            time.sleep(0.002)
+
+    def _on_packet(self, pkt: sm2.Packet) -> None:
+        with self._lock:
+            if pkt.command == sm2.STIMULATION_ERROR:          # SM2 4.3
+                text = sm2.STIM_ERROR_TEXT.get(pkt.result, f"code {pkt.result}")
+                self._error = f"RehaStim2 stimulation error: {text} (ScienceMode2 4.3)"
+                self._state = StimulatorState.ERROR
+            elif pkt.command == sm2.INIT:    # SM2 5.2: the device reset (watchdog expired)
+                self._error = self._error or ("RehaStim2 reset its connection (watchdog "
+                                              "expired, ScienceMode2 5.2)")
+                self._state = StimulatorState.ERROR
+            elif pkt.command == sm2.START_CLM_ACK:
+                if pkt.result == 0:
+                    self._acked += 1
+                    if self._onset_ack_s is None:
+                        self._onset_ack_s = time.monotonic() - self._t_start_call
+                else:
+                    text = sm2.RESULT_TEXT.get(pkt.result, str(pkt.result))
+                    self._ack_errors.append(text)
+                    self._error = self._error or (f"RehaStim2 refused an update: {text} "
+                                                  "(ScienceMode2 5.1)")
+                    self._state = StimulatorState.ERROR
+            elif pkt.number in self._waiting:  # a response someone waits for
+                self._acks[pkt.number] = pkt
+            self._ack_cv.notify_all()
+
+    def _request(self, command: int, data: bytes = b"") -> sm2.Packet:
+        """Send a command and wait for its response (SM2 2.3 MaxResponseTime, 5.3: one
+        resend)."""
+        for attempt in range(2):
+            with self._wlock:
+                number = self._number
+                self._waiting.add(number)
+            self._write(command, data, number=number)
+            deadline = time.monotonic() + 10 * sm2.MAX_RESPONSE_S
+            with self._lock:
+                while number not in self._acks and not self._error and \
+                        time.monotonic() < deadline:
+                    self._ack_cv.wait(0.01)
+                ack = self._acks.pop(number, None)
+                self._waiting.discard(number)
+                if self._error and ack is None:
+                    raise DeviceError(self._error)
+            if ack is None:
+                continue
+            if ack.command == sm2.UNKNOWN_COMMAND:
+                raise DeviceError(f"RehaStim2 does not know command {command} "
+                                  "(ScienceMode2 5.2)")
+            if ack.result != 0:
+                raise DeviceError(f"RehaStim2 refused command {command}: "
+                                  f"{sm2.RESULT_TEXT.get(ack.result, ack.result)} "
+                                  "(ScienceMode2 5.1)")
+            return ack
+        raise DeviceError(f"RehaStim2: no response to command {command} within "
+                          f"{10 * sm2.MAX_RESPONSE_S:g} s, twice (ScienceMode2 2.3)")
+
+    def _write(self, command: int, data: bytes = b"", number: int | None = None) -> int:
+        ser = self._ser
+        if ser is None:
+            raise DeviceError("RehaStim2 is not connected")
+        with self._wlock:
+            if number is None or number == self._number:
+                number = self._number
+                self._number = (self._number + 1) & 0xFF
+            ser.write(sm2.encode(number, command, data))
+            self._last_sent = self.clock()
+        return number
+
+    def _read_packets(self) -> list[sm2.Packet]:
+        ser = self._ser
+        if ser is None:
+            return []
+        n = ser.in_waiting
+        return self._decoder.feed(ser.read(n)) if n else []
+
+    def _check_usable(self, what: str) -> None:
+        with self._lock:
+            if self._state is StimulatorState.DISCONNECTED:
+                raise DeviceError(f"RehaStim2: {what}() before connect()")
+            if self._error:
+                raise DeviceError(self._error)
+
+    def _close_link(self) -> None:
+        self._link_stop.set()
+        t = self._link
+        if t is not None and t is not threading.current_thread():
+            t.join(timeout=1.0)
+        self._link = None
+        self._close_port()
+
+    def _close_port(self) -> None:
+        ser, self._ser = self._ser, None
+        if ser is not None:
+            try:
+                ser.close()
+            except Exception as exc:  # a port already gone (USB glitch) may not close
+                log.info("RehaStim2 port close: %s", exc)
+
+
+def _open_serial(port: str):
+    """pyserial at the settings of SM2 Table 4 (460800 baud, 8 data bits, even parity,
+    1 stop bit, no flow control)."""
+    serial = _serial_module()
+    return serial.Serial(port, baudrate=sm2.BAUDRATE, bytesize=8, parity="E", stopbits=1,
+                         timeout=0.02, write_timeout=0.5, rtscts=False)

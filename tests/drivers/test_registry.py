@@ -1,0 +1,96 @@
+"""The device registry: one entry per kind, the hardware file's union agrees with it, and no
+code outside the registry, the settings union and a kind's own modules names a kind."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+from nmsid.drivers import registry
+from nmsid.drivers.errors import HardwareConfigError
+from nmsid.drivers.hardware import make_stimulator, prepare
+from nmsid.drivers.hw_config import (STIMULATOR_MODELS, STIMULATOR_TITLES, StimulatorConfig,
+                                     parse_hw_config)
+from nmsid.drivers.interfaces import Stimulator
+from nmsid.drivers.rehastim2 import Rehastim2Stimulator
+from nmsid.drivers.rehastim2_settings import Rehastim2Config
+
+ROOT = Path(__file__).resolve().parents[2]
+PACKAGES = ("analysis", "cli", "drivers", "export", "nmsid", "protocols", "rig",
+            "sim_backends", "study", "testing")
+#: where a kind may be named: the registry, the settings union, each kind's own modules
+ALLOWED = {"drivers/registry.py", "drivers/hw_config.py"}
+OWN_PREFIXES = {"stg4002": ("drivers/stg", "drivers/mcs_usb", "testing/fakes/fake_mcs_usb",
+                            "testing/fakes/fake_stg"),
+                "rehastim2": ("drivers/rehastim2", "testing/fakes/fake_rehastim2")}
+
+
+def test_union_and_registry_agree():
+    assert set(registry.STIMULATORS) == set(STIMULATOR_MODELS) == set(STIMULATOR_TITLES)
+    for kind, entry in registry.STIMULATORS.items():
+        assert entry.kind == kind and entry.settings is STIMULATOR_MODELS[kind]
+
+
+def test_no_kind_named_outside_the_registry():
+    offenders = []
+    for pkg in PACKAGES:
+        for path in (ROOT / pkg).rglob("*.py"):
+            rel = path.relative_to(ROOT).as_posix()
+            if rel in ALLOWED:
+                continue
+            text = path.read_text(encoding="utf-8")
+            if not any(kind in text for kind in registry.STIMULATORS):
+                continue            # no kind named at all: nothing to parse
+            tree = ast.parse(text)
+            for node in ast.walk(tree):
+                if isinstance(node, ast.Constant) and node.value in registry.STIMULATORS:
+                    if not rel.startswith(OWN_PREFIXES[node.value]):
+                        offenders.append(f"{rel}:{node.lineno}: {node.value!r}")
+    assert offenders == []
+
+
+def test_kind_defaults_to_the_stg4002_and_rehastim2_is_typed():
+    base = {"acquisition": {"kind": "leptrino", "fs_Hz": 1200.0,
+                            "leptrino": {"port": "COM5"}}}
+    assert isinstance(parse_hw_config(base, "x").stimulator, StimulatorConfig)
+    cfg = parse_hw_config({**base, "stimulator": {"kind": "rehastim2", "port": "COM4"}}, "x")
+    assert isinstance(cfg.stimulator, Rehastim2Config)
+    assert cfg.stimulator.pulse_rate_Hz == 40.0 and cfg.stimulator.pulse_width_us == 300
+    assert "Hasomed RehaStim2" in cfg.describe()
+    stim = make_stimulator(cfg, None, None)
+    assert isinstance(stim, Rehastim2Stimulator) and isinstance(stim, Stimulator)
+
+
+@pytest.mark.parametrize("table, key", [
+    ({"kind": "rehastim9"}, "stimulator.kind"),
+    ({"kind": "rehastim2"}, "stimulator.port"),
+    ({"kind": "rehastim2", "port": "COM4", "pulse_rate_Hz": 33.0}, "stimulator.pulse_rate_Hz"),
+    ({"kind": "rehastim2", "port": "COM4", "ceiling_ext_mA": 131.0}, "stimulator.ceiling_ext_mA"),
+    ({"kind": "rehastim2", "port": "COM4", "sync_out": 1}, "stimulator.sync_out"),
+    ({"kind": "stg4002", "pulse_width_us": 300}, "stimulator.pulse_width_us"),
+])
+def test_bad_stimulator_tables_are_one_line_naming_the_key(table, key):
+    base = {"acquisition": {"kind": "leptrino", "fs_Hz": 1200.0,
+                            "leptrino": {"port": "COM5"}}}
+    with pytest.raises(HardwareConfigError) as e:
+        parse_hw_config({**base, "stimulator": table}, "rig.toml")
+    msg = str(e.value)
+    assert msg.startswith(f"rig.toml: {key} = ") and "\n" not in msg
+
+
+def test_fake_mode_installs_the_configured_kinds_fake():
+    base = {"rig": {"fake": True},
+            "acquisition": {"kind": "leptrino", "fs_Hz": 1200.0, "leptrino": {"port": "COM5"}},
+            "stimulator": {"kind": "rehastim2", "port": "COM4"}}
+    cfg, stack, clock = prepare(parse_hw_config(base, "x"))
+    try:
+        fake = stack.stimulator_fake
+        assert stack.bench.stimulator is fake
+        stim = make_stimulator(cfg, stack, clock)
+        stim.connect()
+        assert fake.connected
+        stim.disconnect()
+    finally:
+        stack.close()
