@@ -49,7 +49,8 @@ def _hw_file(folder: Path, kind: str) -> Path:
              "ceiling_ext_mA = 16.0", "ceiling_flex_mA = 16.0",
              "[acquisition]", 'kind = "caio"', "[sensor]", "sync_channel = 6",
              "[sensor.channels]", "Fx = 0", "[sensor.rated]", "Fx = 500.0",
-             "[sensor.rated_output_V]", "Fx = 10.0"]
+             "[sensor.rated_output_V]", "Fx = 1.0",   # manual 4.1
+             "[sensor.offset_V]", "Fx = 1.5"]
     path = folder / f"{kind}.toml"
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path

@@ -25,7 +25,8 @@ def write_rs2_config(path, *, speed=10.0, extra=()):
              "flexor_channel = 5", "ceiling_ext_mA = 16.0", "ceiling_flex_mA = 16.0", *extra,
              "[acquisition]", 'kind = "caio"', "fs_Hz = 2000.0",
              "[sensor]", "sync_channel = 6", "[sensor.channels]", "Fx = 0",
-             "[sensor.rated]", "Fx = 500.0", "[sensor.rated_output_V]", "Fx = 10.0",
+             "[sensor.rated]", "Fx = 500.0", "[sensor.rated_output_V]", "Fx = 1.0",   # manual 4.1
+             "[sensor.offset_V]", "Fx = 1.5",
              "[estop]", 'kind = "serial"', 'port = "COM7"', 'line = "CTS"']
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
