@@ -25,16 +25,22 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from nmsid.drivers.dry_run import DryRunSettings, run_dry_run  # noqa: E402
+from nmsid.drivers.dry_run import DryRunSettings  # noqa: E402
 from nmsid.drivers.hardware import build_devices, with_monitor  # noqa: E402
 from nmsid.drivers.hw_config import parse_hw_config  # noqa: E402
+from nmsid.drivers.registry import stimulator_kind  # noqa: E402
+from nmsid.rig.dry_run import run_dry_run  # noqa: E402
 
 AXES = ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
 
 
 def hw_file(kind: str, monitor: int) -> dict:
+    acquisition: dict = {"kind": kind, "monitor_channel": monitor}
+    if kind == "nidaq" and monitor >= 8:
+        # AI8-15 exist as single-ended inputs only (in DIFF they pair with AI0-7)
+        acquisition["nidaq"] = {"terminal_config": "RSE"}
     return {"rig": {"fake": True, "fake_speed": 2.0},
-            "acquisition": {"kind": kind, "monitor_channel": monitor},
+            "acquisition": acquisition,
             "sensor": {"channels": {a: i for i, a in enumerate(AXES)}, "sync_channel": 6,
                        "rated": dict(zip(AXES, (500.0, 500.0, 1000.0, 10.0, 10.0, 10.0))),
                        "rated_output_V": {a: 1.0 for a in AXES},   # manual 4.1
@@ -49,7 +55,9 @@ def dry_run(kind: str, monitor: int, fs_Hz: float, *, wired=0, ohm=1000.0):
     try:
         devices.stimulator.connect()
         devices.clock.bench.dummy_load = (wired, ohm)
-        ok = run_dry_run(devices, DryRunSettings(monitor_fs_Hz=fs_Hz), out=lines.append)
+        ok = run_dry_run(devices, DryRunSettings(monitor_fs_Hz=fs_Hz),
+                         stimulator_kind(cfg.stimulator).dry_run, out=lines.append,
+                         monitor_channel=monitor)
     finally:
         devices.close()
     return ok, "\n".join(lines), time.perf_counter() - t0
