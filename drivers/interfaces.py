@@ -285,6 +285,22 @@ class HostStreamedStimulator(Protocol):
 
 
 @runtime_checkable
+class PeriodSafeStop(Protocol):
+    """Capability: an ordinary end or abort that never cuts a carrier period or pulse.
+
+    The STG4002's save stop (``SendStop`` with ``STOP_OPTION_SAVESTOP``, McsUsbNet 5.3.15)
+    lets the running carrier period finish, so no net charge is left on the tissue; the
+    immediate stop (:meth:`Stimulator.stop_now`) may cut a biphasic period mid-phase and
+    is kept for an E-stop or a fault. ``run_block`` uses this for an ordinary end or an
+    operator's abort, and ``stop_now`` whenever the interlock is latched.
+    """
+
+    def stop_after_period(self) -> None:
+        """Stop at the end of the running period (then at once if still running). Never
+        raises."""
+
+
+@runtime_checkable
 class Describable(Protocol):
     """Capability: the device describes itself (model, serial, settings) for ``nmsid probe``."""
 

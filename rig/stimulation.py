@@ -16,6 +16,7 @@ from typing import Callable
 
 import numpy as np
 
+from nmsid.drivers.interfaces import PeriodSafeStop
 from nmsid.rig.safety import Interlock, InterlockTripped
 
 log = logging.getLogger(__name__)
@@ -185,9 +186,17 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
                                         f"({type(exc).__name__}: {exc})"))
     finally:
         try:
-            stim.stop_now()
+            if not interlock.latched and isinstance(stim, PeriodSafeStop):
+                # an ordinary end or an operator's abort: never cut a carrier period
+                stim.stop_after_period()
+            else:   # an E-stop, a trip or a fault: output to zero at once
+                stim.stop_now()
         except Exception:
-            log.exception("stimulator.stop_now() failed")
+            log.exception("stopping the stimulator failed")
+            try:
+                stim.stop_now()
+            except Exception:
+                log.exception("stimulator.stop_now() failed")
         interlock.stall.stop()
         if stream is not None:
             try:
