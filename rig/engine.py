@@ -15,6 +15,7 @@ thread-safe and callable from any thread. Calibration steps are in
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import queue
@@ -24,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from nmsid.drivers.interfaces import (SINE_CARRIER, DeliveryReporting, RigDevices,
-                                      check_deliverable)
+from nmsid.drivers.interfaces import (SINE_CARRIER, DeliveryReporting, Describable,
+                                      RigDevices, check_deliverable)
 from nmsid.protocols.config import Config, ConfigError, PausePolicy, config_from_json
 from nmsid.protocols.schedule import (PlannedTrial, TrialStatus, make_schedule, schedule_from_json,
                                       schedule_to_json)
@@ -217,6 +218,14 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
             raise ConfigError(cfg.source, "protocol.fs_Hz", p.fs_Hz,
                               f"a rate the acquisition supports (it would use {actual:g} Hz)")
         self.caps = caps
+        if self._log is None and isinstance(acq, Describable):
+            # optional root attribute: what the force chain says of itself once configured
+            # (a Leptrino's MEASURED record rate and its digital filter, issue 25)
+            try:
+                self.extra_attrs.setdefault("acquisition_json",
+                                            json.dumps(acq.describe(), default=str))
+            except Exception:  # informative only: never refuse a session over it
+                log.exception("acquisition describe() failed")
         if self._log is None:
             self._log = SessionLog.create(
                 self.path, participant=cfg.participant, config_json=cfg.to_json(),

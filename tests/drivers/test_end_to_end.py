@@ -229,6 +229,10 @@ def test_session_time_axis_follows_a_leptrino_streaming_at_1000_hz(tmp_path, wri
     assert measured == pytest.approx(1000.0, rel=0.01)
     assert summary.n_completed == 1
     assert validate_session(path) == []
+    # the measured rate and the digital filter are recorded (optional root attribute)
+    described = json.loads(read_session(path, load_data=False).attrs["acquisition_json"])
+    assert float(described["record_rate_Hz (measured)"]) == pytest.approx(1000.0, rel=0.01)
+    assert described["digital filter"] != "unknown"
     (t,) = [t for t in read_session(path).trials if t.status == "completed"]
     assert len(t.force_N) == int(round(1.5 * 1200.0))
     # against the fake participant's model on the file's currents (as check_session does);
