@@ -2,7 +2,7 @@
 
 Examples
 --------
->>> from analysis.design.prior import population_prior
+>>> from nmsid.analysis.design.prior import population_prior
 >>> prior = population_prior(2, seed=0)
 >>> # run_design(prior, "paper", "out/", validate_n=2)   # writes protocol.toml, ...
 """

@@ -58,13 +58,6 @@ def protocol_toml(c: Candidate, header: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-def _table_rows(pred, stat) -> list[list]:
-    """Median over prior participants of ``stat`` ([participant, level, parameter])."""
-    med = np.median(stat, axis=0)
-    return [[f"{s:.2f}"] + [f"{100 * med[i, j]:.3g}" for j in range(3)]
-            for i, s in enumerate(PAPER_LEVELS)]
-
-
 def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
                   validation: dict | None, noise_only=None,
                   excitation: dict | None = None) -> dict:
