@@ -24,7 +24,7 @@ from nmsid.analysis.gap.diagnose import Diagnosis
 from nmsid.analysis.gap.effects import Effect
 from nmsid.analysis.gap.fit import Problem
 from nmsid.analysis.gap.harmonics import local_harmonics
-from nmsid.analysis.gap.models import NOMINAL
+from nmsid.analysis.gap.models import FORMS, NOMINAL
 
 CONFUSABLE = (
     (Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS),
@@ -122,37 +122,8 @@ def explain(diag: Diagnosis, sig: dict) -> list[str]:
                  f"{final.delta_ic:.0f} (N_eff = {final.nu:.2f} N).")
     tf = sig["effect_footprint"] or sig["transfer_function"]
     e = diag.best_effect
-    if e is Effect.DEAD_TIME:
-        lines.append(f"signature: the effect's footprint on the transfer function is a phase "
-                     f"line (R^2 {tf['r2_linear_phase']:.3f} vs {tf['r2_atan_phase']:.3f} for "
-                     f"an arctangent; slope = {1000 * tf['dead_time_equivalent_s']:.1f} ms) with "
-                     f"a gain error of {tf['gain_error_at_top_dB']:.2f} dB at the top of the "
-                     f"band (a lag with that phase would roll off "
-                     f"{tf['gain_rolloff_expected_for_lag_dB']:.2f} dB).")
-    elif e is Effect.ACTIVATION_DYNAMICS:
-        lines.append(f"signature: the footprint's phase is an arctangent (R^2 "
-                     f"{tf['r2_atan_phase']:.3f} vs {tf['r2_linear_phase']:.3f} for a line; tau "
-                     f"= {1000 * tf['lag_equivalent_s']:.1f} ms) with a gain roll-off of "
-                     f"{tf['gain_error_at_top_dB']:.2f} dB at the top of the band (expected "
-                     f"{tf['gain_rolloff_expected_for_lag_dB']:.2f} dB).")
-    elif e is Effect.FATIGUE:
-        g = sig["gain_vs_stimulation"]
-        lines.append(f"signature: trial gain changes by {g['slope_per_100s']:+.4f} per 100 s of "
-                     f"cumulative stimulation (correlation {g['correlation']:+.2f}).")
-    elif e is Effect.RECRUITMENT_NONLINEARITY:
-        hm = sig["harmonics"]
-        lines.append(f"signature: residual 3f harmonic {hm['median_3f_pct']:.2f} % and 2f "
-                     f"{hm['median_2f_pct']:.2f} % of the fundamental against "
-                     f"{hm['median_1.5f_noise_reference_pct']:.2f} % at the non-harmonic 1.5f.")
-    elif e is Effect.BASELINE_DRIFT:
-        lf = sig["low_frequency"]
-        lines.append(f"signature: {100 * lf['share_below_chirp']:.0f} % of the residual power "
-                     f"lies below the chirp band, {lf['excess']:.0f} x the white-noise share.")
-    elif e is Effect.FLEXOR_EXTENSOR_ASYMMETRY:
-        lines.append(f"signature: gain/phase error of resonance shape (max phase error "
-                     f"{tf['max_abs_phase_error_deg']:.1f} deg, not linear: R^2 "
-                     f"{tf['r2_linear_phase']:.2f}); the mixture of two second-order "
-                     "responses explains it.")
+    if e in FORMS:
+        lines.append(FORMS[e].signature(sig, tf))
     by = {r.candidate.effect: r for r in diag.candidates}
     for a, b in CONFUSABLE:
         if e not in (a, b) or a not in by or b not in by:

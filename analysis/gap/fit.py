@@ -54,7 +54,7 @@ class ModelFit:
     @property
     def params(self) -> dict[str, float]:
         out = self.candidate.params(self.p_shared)
-        if Effect.BASELINE_DRIFT in self.candidate.effects:
+        if self.candidate.fits_baseline:
             out["corner_Hz"] = self.corner_Hz
         return out
 
@@ -241,7 +241,7 @@ def fit_model(data: GapData, cand: Candidate, *, start: ModelFit | None = None,
     lo = np.concatenate([np.full(nL, np.log(3.0)), np.full(nL, np.log(0.03)), lo_s])
     hi = np.concatenate([np.full(nL, np.log(600.0)), np.full(nL, np.log(10.0)), hi_s])
     x0 = np.clip(x0, lo, hi)
-    if Effect.BASELINE_DRIFT in cand.effects:
+    if cand.fits_baseline:
         # steps are found on the starting model's residual and kept during the search
         prob.set_steps(fun(x0))
     x, converged = _levenberg_marquardt(fun, x0, prob.rows, nL, ns, lo, hi,
@@ -360,7 +360,7 @@ def predict(fit: ModelFit, data: GapData) -> tuple[np.ndarray, np.ndarray, np.nd
     Kp_rows = fit.Kp[data.level][:, None]
     model = Kp_rows * x
     r = prob.project(data.y_N - model)
-    if Effect.BASELINE_DRIFT in fit.candidate.effects:
+    if fit.candidate.fits_baseline:
         # a held-out trial's own baseline step is found like its offset: folds keep it
         prob.steps = find_steps(r, prob.Q, data)
         r = prob.project(data.y_N - model)

@@ -13,32 +13,17 @@ import numpy as np
 
 from nmsid.analysis.muscle.report import muscle_section, plot_muscle, twin_item
 from nmsid.analysis.gap.diagnose import Diagnosis, ranking
-from nmsid.analysis.gap.effects import Effect
 from nmsid.analysis.gap.evidence import confusable_pairs, explain, signatures
 from nmsid.analysis.gap import plots
 from nmsid.analysis.gap.fit import Problem
 from nmsid.analysis.gap.localize import localization
-from nmsid.analysis.gap.models import nuisance_basis, recruitment_curve
-from nmsid.analysis.gap.twin_out import (effect_entries, fatigue_loss_pct, nonlinearity_index_pct,
-                                         twin_dict, write_twin)
+from nmsid.analysis.gap.models import FORMS, FinalContext, fatigue_loss_pct, nuisance_basis
+from nmsid.analysis.gap.models import canonical_asymmetry  # noqa: F401 (re-exported)
+from nmsid.analysis.gap.twin_out import effect_entries, twin_dict, write_twin
 from nmsid.analysis.twin import source_entry
 from nmsid.protocols.printable import escape_controls
 
 log = logging.getLogger(__name__)
-
-
-def canonical_asymmetry(wn_ratio: float, zeta_ratio: float) -> tuple[float, float, bool]:
-    """Orientation convention for the asymmetry ratios.
-
-    With linear recruitment the net response to ``rE - 0.5`` is the *mean* of the two
-    muscles' responses, so the chirp window cannot tell which muscle is the faster one:
-    ``(wn, zeta, rho_w, rho_z)`` and ``(wn rho_w, zeta rho_z, 1/rho_w, 1/rho_z)`` predict
-    the same force. We report the orientation with ``wn_ratio >= 1`` (flexor the faster);
-    returns the ratios and whether they were flipped.
-    """
-    if wn_ratio < 1.0:
-        return 1.0 / wn_ratio, 1.0 / zeta_ratio, True
-    return wn_ratio, zeta_ratio, False
 
 
 def _drift_amplitude(diag: Diagnosis) -> tuple[float, float]:
@@ -71,30 +56,17 @@ def final_params(diag: Diagnosis) -> dict:
     effs = fit.candidate.effects
     session_s = diag.data.timing.delay_s if diag.data.timing else 0.0
     p["input_timing_s"] = session_s + p.pop("timing_correction_s", 0.0)
-    if Effect.DEAD_TIME in effs:
-        # counted from the rE record: the rig's timing and the participant's latency
-        # together (the two are one delay to the data)
-        p["L_s"] = p["L_s"] + p["input_timing_s"]
-    if Effect.FATIGUE in effs:
-        p["gain_loss_pct"] = fatigue_loss_pct(p["rate_per_s"])
-    if Effect.RECRUITMENT_NONLINEARITY in effs:
-        h = recruitment_curve(fit.candidate.sub(fit.p_shared,
-                                                Effect.RECRUITMENT_NONLINEARITY))
-        p["nonlinearity_index_pct"] = nonlinearity_index_pct(h, diag.data.sE_levels)
-        p["_curve"] = h
-    if Effect.FLEXOR_EXTENSOR_ASYMMETRY in effs:
-        wr, zr, flipped = canonical_asymmetry(p["wn_ratio"], p["zeta_ratio"])
-        p["wn_ratio"], p["zeta_ratio"] = wr, zr
-        p["orientation_flipped"] = flipped
-    if Effect.BASELINE_DRIFT in effs:
-        p["window_nonlinear_rms_N"], p["amplitude_N"] = _drift_amplitude(diag)
+    for e in effs:
+        FORMS[e].final(p, FinalContext(q=fit.candidate.sub(fit.p_shared, e),
+                                       sE_levels=diag.data.sE_levels,
+                                       drift_amplitude=lambda: _drift_amplitude(diag)))
     return p
 
 
 def _level_params(diag: Diagnosis):
     fit = diag.full_fit
     Kp, wn, zeta = fit.Kp.copy(), fit.wn_rad_s.copy(), fit.zeta.copy()
-    if Effect.FLEXOR_EXTENSOR_ASYMMETRY in fit.candidate.effects:
+    if "wn_ratio" in fit.params:  # a flexor/extensor asymmetry
         wr = fit.params["wn_ratio"]
         if wr < 1.0:  # flip to the reported orientation: the other muscle is "extensor"
             wn = wn * wr
