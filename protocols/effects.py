@@ -80,7 +80,13 @@ class ParamSpec:
     lower_open: bool = False
     choices: tuple[str, ...] = ()
     required: bool = True
-    default: float | str | None = None
+    default: float | None = None
+
+    def default_value(self) -> float:
+        """The default of an optional numeric parameter (KeyError if it has none)."""
+        if self.default is None:
+            raise KeyError(f"parameter {self.name} has no default")
+        return float(self.default)
 
     def bounds_text(self) -> str:
         """The valid range in words (``'> 0 and <= 10'``)."""

@@ -75,7 +75,7 @@ class Fatigue:
 
     shape: FatigueShape
     gain_loss_pct: float
-    reference_stim_s: float = float(spec(_Name.FATIGUE).param("reference_stim_s").default)
+    reference_stim_s: float = spec(_Name.FATIGUE).param("reference_stim_s").default_value()
     name = _Name.FATIGUE.value
 
     def __post_init__(self):

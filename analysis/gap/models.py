@@ -47,7 +47,7 @@ from nmsid.sim_backends.effects import RecruitmentNonlinearity
 TIMING_CORRECTION_MS = 1.0
 
 #: The twin file's default fatigue reference (45 trials x 15 s), from the registry.
-REFERENCE_STIM_S = float(spec(Effect.FATIGUE).param("reference_stim_s").default)
+REFERENCE_STIM_S = spec(Effect.FATIGUE).param("reference_stim_s").default_value()
 
 
 def nuisance_basis(t_s: np.ndarray, corner_Hz: float = 0.0) -> np.ndarray:
