@@ -152,11 +152,13 @@ def levenberg_marquardt(evaluate: Callable[[np.ndarray], tuple[float, Any]],
         d = np.diag(H).copy()
         d[~(d > 0)] = damping.zero_diag
         accepted = False
+        step = np.zeros(x.size)
         while mu < damping.ceiling:
-            step = _step(H, g, d, mu, x, lo, hi)
-            if step is None:
+            trial = _step(H, g, d, mu, x, lo, hi)
+            if trial is None:
                 mu *= damping.up_singular
                 continue
+            step = trial
             x_new = np.clip(x + step, lo, hi) if bounded else x + step
             cost_new, state_new = evaluate(x_new)
             if np.isfinite(cost_new) and (cost_new < cost or
