@@ -19,23 +19,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nmsid.sim_backends.curves import CurveModel, curve_values
+
 N_COEFFICIENTS = {"linear": 2, "quadratic": 3, "exponential": 2}
 
 
 def evaluate_curve(model: str, coefficients, sE) -> np.ndarray:
     """Value of a curve (``linear``, ``quadratic``, ``exponential``, ``constant``) at sE."""
-    x = np.asarray(sE, dtype=float)
-    c = [float(v) for v in coefficients]
-    if model == "linear":
-        return c[0] + c[1] * x
-    if model == "quadratic":
-        return c[0] + c[1] * x + c[2] * x * x
-    if model == "exponential":
-        return c[0] * np.exp(c[1] * x)
-    if model == "constant":
-        return c[0] + 0.0 * x
-    raise ValueError(f"unknown curve model {model!r}: use linear, quadratic, exponential "
-                     "or constant")
+    try:
+        family = CurveModel(model)
+    except ValueError:
+        raise ValueError(f"unknown curve model {model!r}: use linear, quadratic, exponential "
+                         "or constant") from None
+    return curve_values(family, coefficients, sE)
 
 
 def aicc(n: int, rss: float, k: int) -> float | None:

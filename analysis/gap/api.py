@@ -31,6 +31,7 @@ from nmsid.analysis.gap.models import NOMINAL, nuisance_basis
 from nmsid.analysis.gap.report import json_safe, write_outputs
 from nmsid.analysis.qc import assess_session
 from nmsid.protocols.session_file import Session, read_session
+from nmsid.protocols.waveforms import currents_mA
 from nmsid.sim_backends.sensor import SensorModel
 from nmsid.sim_backends.simulation import ParticipantSimulator
 from nmsid.sim_backends.twin import participant_from_twin
@@ -90,8 +91,8 @@ def _twin_predictions(data: GapData, twin, session: Session | None = None) -> np
     sim = ParticipantSimulator(participant, data.fs_raw_Hz)
     by_name = {}
     for t in session.trials:
-        I_e = cal.Iemin_mA + t.rE * t.sE * (cal.Iemax_mA - cal.Iemin_mA)
-        I_f = cal.Ifmin_mA + (1.0 - t.rE) * t.sE * (cal.Ifmax_mA - cal.Ifmin_mA)
+        I_e, I_f = currents_mA(t.rE, t.sE, cal.Iemin_mA, cal.Iemax_mA, cal.Ifmin_mA,
+                               cal.Ifmax_mA)
         by_name[t.name] = _with_force(t, sim.simulate(I_e, I_f).force_N)
     trials = [by_name[info.name] for info in data.trials]
     return prepare_trials(trials, path=str(twin), settings=data.settings,

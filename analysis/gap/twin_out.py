@@ -17,12 +17,11 @@ effect(s) are translated from this package's own parameterisation to the simulat
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
 
 import numpy as np
 
 from nmsid.analysis.curves import fit_curve
+from nmsid.analysis.twin import Twin
 from nmsid.analysis.gap.models import FORMS
 # re-exported: the translations live with each effect's form (analysis.gap.models)
 from nmsid.analysis.gap.models import (fatigue_loss_pct, net_static_map,  # noqa: F401
@@ -72,5 +71,6 @@ def twin_dict(*, participant: str, source: list[str], calibration, sE_levels, Kp
 
 
 def write_twin(path, twin: dict) -> None:
-    """Write the twin file (UTF-8 JSON)."""
-    Path(path).write_text(json.dumps(twin, indent=2) + "\n", encoding="utf-8")
+    """Write the twin file through the one twin writer (:meth:`nmsid.analysis.twin.Twin.save`,
+    which checks it as every reader will)."""
+    Twin.from_dict(twin, path).save(path)
