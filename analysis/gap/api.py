@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import logging
+from dataclasses import dataclass
 from collections import Counter
 from pathlib import Path
 
@@ -123,9 +124,25 @@ def _under_test(diag: Diagnosis, pred: np.ndarray, label: str) -> dict:
     return out
 
 
+@dataclass
+class GapRun:
+    """What :func:`run_gap` wrote.
+
+    Attributes
+    ----------
+    sessions : list of dict
+        Each session's ``gap_report.json`` document, in the order given.
+    report : pathlib.Path
+        The top-level ``gap_report.json`` (a group summary for several sessions).
+    """
+
+    sessions: list[dict]
+    report: Path
+
+
 def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None,
             sim_session=None, plots: bool = True,
-            preprocess: PreprocessSettings | None = None, excluded="qc") -> dict:
+            preprocess: PreprocessSettings | None = None, excluded="qc") -> GapRun:
     """Diagnose each session and write the outputs.
 
     Parameters
@@ -150,8 +167,7 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
 
     Returns
     -------
-    dict
-        ``{"sessions": [report, ...], "report": path of the top-level JSON}``.
+    GapRun
     """
 
     out = Path(out_dir)
@@ -190,4 +206,4 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
                                  "heldout": r["heldout"],
                                  "folder": Path(r["session"]).stem} for r in reports]}
         top.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
-    return {"sessions": reports, "report": str(top)}
+    return GapRun(sessions=reports, report=top)

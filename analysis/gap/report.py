@@ -9,6 +9,8 @@ import logging
 import math
 from pathlib import Path
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from nmsid.analysis.muscle.report import muscle_section, plot_muscle, twin_item
@@ -24,6 +26,26 @@ from nmsid.analysis.twin import source_entry
 from nmsid.protocols.printable import escape_controls
 
 log = logging.getLogger(__name__)
+
+
+@dataclass
+class GapReport:
+    """What :func:`build_report` makes of one diagnosis.
+
+    Attributes
+    ----------
+    report : dict
+        The ``gap_report.json`` document (JSON-safe; its fields: docs/gap.md).
+    localization : dict
+        Where the gap sits (:func:`nmsid.analysis.gap.localize.localization`), with the
+        winner's footprint on the transfer function; what the figures draw.
+    twin : dict or None
+        The augmented ``twin.json`` document (None without a calibration).
+    """
+
+    report: dict
+    localization: dict
+    twin: dict | None
 
 
 def _drift_amplitude(diag: Diagnosis) -> tuple[float, float]:
@@ -108,8 +130,20 @@ def json_safe(obj):
     return obj
 
 
-def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | None]:
-    """(gap_report dict, localization dict, twin dict or None)."""
+def build_report(diag: Diagnosis, calibration=None) -> GapReport:
+    """The report, the localization and (with a calibration) the augmented twin of one
+    diagnosis.
+
+    Parameters
+    ----------
+    diag : Diagnosis
+    calibration : protocols.session_file.Calibration, optional
+        The session's calibration; without it no twin is made.
+
+    Returns
+    -------
+    GapReport
+    """
     loc = localization(diag)
     sig = signatures(diag, loc)
     if sig["effect_footprint"] is not None:
@@ -175,7 +209,7 @@ def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | 
     report["muscle_twin"] = muscle_section(diag)
     if twin is not None and diag.muscle is not None:
         twin["muscle_model"] = twin_item(diag)
-    return json_safe(report), loc, twin
+    return GapReport(json_safe(report), loc, twin)
 
 
 def write_outputs(diag: Diagnosis, out_dir, calibration=None, *, plots: bool = True) -> dict:
@@ -183,7 +217,8 @@ def write_outputs(diag: Diagnosis, out_dir, calibration=None, *, plots: bool = T
     ``report.html`` into ``out_dir``; returns the report dict."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    report, loc, twin = build_report(diag, calibration)
+    built = build_report(diag, calibration)
+    report, loc, twin = built.report, built.localization, built.twin
     if twin is not None:
         write_twin(out / "twin.json", twin)
         report["twin_file"] = "twin.json"
