@@ -180,8 +180,7 @@ class Candidate:
         sl = self._slices()
         u = data.drive_sim
         if Effect.RECRUITMENT_NONLINEARITY in sl:
-            h = recruitment_curve(p[sl[Effect.RECRUITMENT_NONLINEARITY]])
-            u = u + recruitment_excess(data, h)
+            u = u + recruitment_basis(data).excess(p[sl[Effect.RECRUITMENT_NONLINEARITY]])
         delay_s = self.timing_s(p)
         if Effect.DEAD_TIME in sl:
             delay_s += float(np.exp(p[sl[Effect.DEAD_TIME]][0]))
@@ -212,6 +211,84 @@ def recruitment_excess(data: GapData, h) -> np.ndarray:
     rE = data.rE_sim
     x = (h(rE * sE) - h((1 - rE) * sE)) / (2 * sE)
     return smooth_hold_input(signal.sosfiltfilt(_lowpass_sos(data), x - (rE - 0.5), axis=-1))
+
+
+class RecruitmentBasis:
+    """:func:`recruitment_excess` of our knot curve as a linear combination, for one data set.
+
+    The knot curve is a cubic Hermite spline: on each knot interval ``h(I)`` is linear in the
+    knot values ``v_j`` and slopes ``d_j`` (PCHIP chooses the slopes from the values; the
+    spline is linear in both). The net drive, the low-pass and the hold correction are linear
+    too, so the excess is ``sum_j v_j P_j + d_j Q_j + C`` with ``P_j``, ``Q_j``, ``C`` the
+    filtered responses to the Hermite basis functions, computed once per data set: a fit's
+    hundreds of evaluations then cost one weighted sum each instead of a spline evaluation
+    and a zero-phase filter of every trial (equal to rounding; tests compare both).
+    """
+
+    def __init__(self, data: GapData):
+        x = RECRUITMENT_KNOTS
+        sE = np.array([t.sE for t in data.trials])[:, None]
+        rE = data.rE_sim
+        sos = _lowpass_sos(data)
+
+        def filtered(sig):
+            return smooth_hold_input(signal.sosfiltfilt(sos, sig, axis=-1))
+
+        parts = []
+        for intensity in (rE * sE, (1 - rE) * sE):
+            ic = np.clip(intensity, 0.0, 1.0)
+            k = np.clip(np.searchsorted(x, ic, side="right") - 1, 0, len(x) - 2)
+            width = x[k + 1] - x[k]
+            t = (ic - x[k]) / width
+            parts.append((k, width, t, intensity - ic))
+        values, slopes = [], []
+        for j in range(len(x)):
+            pv, pd = [], []
+            for k, width, t, _ in parts:
+                t2, t3 = t * t, t * t * t
+                v = np.where(k == j, 2 * t3 - 3 * t2 + 1, 0.0) + \
+                    np.where(k + 1 == j, -2 * t3 + 3 * t2, 0.0)
+                d = np.where(k == j, (t3 - 2 * t2 + t) * width, 0.0) + \
+                    np.where(k + 1 == j, (t3 - t2) * width, 0.0)
+                pv.append(v)
+                pd.append(d)
+            values.append((pv[0] - pv[1]) / (2 * sE))
+            slopes.append((pd[0] - pd[1]) / (2 * sE))
+        # outside [0, 1] the curve continues with unit slope; the linear drive is taken off
+        const = (parts[0][3] - parts[1][3]) / (2 * sE) - (rE - 0.5)
+        # v_0 = 0 and v_last = 1 for every curve: the last value's term is constant
+        self._const = filtered(const + values[-1])
+        self._values = [filtered(v) for v in values[1:-1]]
+        self._slopes = [filtered(d) for d in slopes]
+
+    def excess(self, q: np.ndarray) -> np.ndarray:
+        """(n_trials, n_sim) :func:`recruitment_excess` of :func:`recruitment_curve` (q)."""
+        from scipy.interpolate import PchipInterpolator  # the curve's own slopes
+        v = recruitment_knot_values(q)
+        d = PchipInterpolator(RECRUITMENT_KNOTS, v).derivative()(RECRUITMENT_KNOTS)
+        out = self._const.copy()
+        for vj, basis in zip(v[1:-1], self._values):
+            out += vj * basis
+        for dj, basis in zip(d, self._slopes):
+            out += dj * basis
+        return out
+
+
+#: The basis of the latest data sets (a fit evaluates the model hundreds of times on one
+#: data set; its folds and held-out sets are others): id -> (data, basis), newest last.
+_BASES: list[tuple[GapData, RecruitmentBasis]] = []
+
+
+def recruitment_basis(data: GapData) -> RecruitmentBasis:
+    """The :class:`RecruitmentBasis` of ``data`` (kept for the two latest data sets)."""
+    for i, (d, b) in enumerate(_BASES):
+        if d is data:
+            _BASES.append(_BASES.pop(i))
+            return b
+    b = RecruitmentBasis(data)
+    _BASES.append((data, b))
+    del _BASES[:-2]
+    return b
 
 
 #: Knots of our recruitment curve (normalised intensity).
