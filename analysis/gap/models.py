@@ -258,20 +258,17 @@ class RecruitmentBasis:
         const = (parts[0][3] - parts[1][3]) / (2 * sE) - (rE - 0.5)
         # v_0 = 0 and v_last = 1 for every curve: the last value's term is constant
         self._const = filtered(const + values[-1])
-        self._values = [filtered(v) for v in values[1:-1]]
-        self._slopes = [filtered(d) for d in slopes]
+        self._shape = self._const.shape
+        # one (n_terms, n_samples) matrix: an evaluation is one matrix-vector product
+        self._terms = np.stack([filtered(v).ravel() for v in values[1:-1]]
+                               + [filtered(d).ravel() for d in slopes])
 
     def excess(self, q: np.ndarray) -> np.ndarray:
         """(n_trials, n_sim) :func:`recruitment_excess` of :func:`recruitment_curve` (q)."""
         from scipy.interpolate import PchipInterpolator  # the curve's own slopes
         v = recruitment_knot_values(q)
-        d = PchipInterpolator(RECRUITMENT_KNOTS, v).derivative()(RECRUITMENT_KNOTS)
-        out = self._const.copy()
-        for vj, basis in zip(v[1:-1], self._values):
-            out += vj * basis
-        for dj, basis in zip(d, self._slopes):
-            out += dj * basis
-        return out
+        d = PchipInterpolator(RECRUITMENT_KNOTS, v)(RECRUITMENT_KNOTS, 1)
+        return self._const + (np.concatenate([v[1:-1], d]) @ self._terms).reshape(self._shape)
 
 
 #: The basis of the latest data sets (a fit evaluates the model hundreds of times on one
