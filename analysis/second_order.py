@@ -298,7 +298,7 @@ def fit_second_order(u: np.ndarray, y: np.ndarray, fs_Hz: float,
         if not start_est:
             notes.append("instrumental-variable start failed; started from a grid")
     else:
-        starts = [tuple(start)]
+        starts = [(float(start[0]), float(start[1]))]
 
     def run(wn_z):
         p0 = np.log(np.array(wn_z, dtype=float))
@@ -328,6 +328,8 @@ def fit_second_order(u: np.ndarray, y: np.ndarray, fs_Hz: float,
         if tried:
             notes.append(f"searched from {tried} grid point(s) as well (start did not "
                          f"converge or fit below {s.retry_below_fit_pct:g} %)")
+    if best is None:  # pragma: no cover - the grid search runs whenever there is no start
+        raise IdentificationError("no starting point of the search could be evaluated")
     p, ev, converged, message, iterations = best
     wn, zeta = math.exp(p[0]), math.exp(p[1])
     coef = ev["coef"]

@@ -372,12 +372,13 @@ class Interlock:
         perf = time.perf_counter()
         with self._lock:
             first = self._trip is None
+            trip = self._trip if self._trip is not None else \
+                Trip(rule, detail, _utc_ms(), perf)
             if first:
-                self._trip = Trip(rule, detail, _utc_ms(), perf)
+                self._trip = trip
                 self._latched.set()
             # a start() racing this trip finished before we took the lock: stop again
             self._stop_output()
-            trip = self._trip
         if rule in self._by_name and self._by_name[rule].ok:
             self._by_name[rule]._verdict(detail)
         if first:

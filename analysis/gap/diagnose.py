@@ -168,6 +168,9 @@ def noise_floor_pct(data: GapData, reference: np.ndarray) -> float:
 
 
 class _Runner:
+    #: the held-out reference signal (set by :func:`diagnose`)
+    reference: np.ndarray
+
     def __init__(self, data: GapData, settings: GapSettings):
         self.data = data
         self.s = settings

@@ -13,6 +13,8 @@ chirp band.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from nmsid.analysis.gap.diagnose import CandidateResult, Diagnosis
@@ -126,7 +128,7 @@ def residual_spectrum(diag: Diagnosis, res: CandidateResult) -> dict:
 def localization(diag: Diagnosis) -> dict:
     """Everything above for the nominal model and (if any) the winner, plus per-location
     tables for every candidate (how far each shrinks the gap where)."""
-    out = {"nominal": by_location(diag, diag.nominal)}
+    out: dict[str, Any] = {"nominal": by_location(diag, diag.nominal)}
     final = diag.best_pair or diag.best
     if final is not None:
         out["augmented"] = by_location(diag, final)

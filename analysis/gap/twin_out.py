@@ -45,14 +45,15 @@ def _curve(sE: np.ndarray, values: np.ndarray) -> dict:
             f = fit_curve(model, sE[ok], values[ok])
         except (ValueError, RuntimeError, np.linalg.LinAlgError):
             continue
-        if f.selectable and (best is None or f.aicc < best.aicc):
+        if f.selectable and f.aicc is not None and (best is None or best.aicc is None
+                                                    or f.aicc < best.aicc):
             best = f
     if best is None:
         return {"model": "constant", "coefficients": [float(np.nanmean(values))]}
     return {"model": best.model, "coefficients": [float(c) for c in best.coefficients]}
 
 
-def twin_dict(*, participant: str, source: list[str], calibration, sE_levels, Kp, wn_rad_s,
+def twin_dict(*, participant: str, source: list[dict | str], calibration, sE_levels, Kp, wn_rad_s,
               zeta, effects: list[dict]) -> dict:
     """A twin file's content (``docs/twin-file.md``)."""
     sE = np.asarray(sE_levels, float)
