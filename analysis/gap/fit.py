@@ -15,7 +15,7 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import signal
+from nmsid.analysis.signal_kernels import compiled as signal
 
 from nmsid.analysis.damped_lstsq import Damping, levenberg_marquardt
 from nmsid.analysis.gap.data import GapData

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from typing import Callable, ClassVar
 
 import numpy as np
-from scipy import signal
+from nmsid.analysis.signal_kernels import compiled as signal
 
 from nmsid.analysis.discretize import (fractional_delay, lagged_second_order_tf, parallel_tf,
                                        second_order_tf, smooth_hold_input)
