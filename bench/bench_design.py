@@ -118,9 +118,9 @@ def main() -> None:
         print(_row("proposal", a, c.stimulation_s))
         print(_predicted_row("predicted", _attach_values(pv.predict(c), valid_prior),
                              c.stimulation_s))
-        print(f"   validated_sd_ratio {ratio['max']:.3f} +- {ratio['max_se']:.3f} (MC SE; "
-              + ", ".join(f"{k} {v:.3f} +- {ratio['se_per_parameter'][k]:.3f}"
-                          for k, v in ratio["per_parameter"].items()) + ")")
+        print(f"   validated_sd_ratio {ratio.max:.3f} +- {ratio.max_se:.3f} (MC SE; "
+              + ", ".join(f"{k} {v:.3f} +- {ratio.se_per_parameter[k]:.3f}"
+                          for k, v in ratio.per_parameter.items()) + ")")
 
     t2 = time.perf_counter()
     zero = {n: 0.0 for n in PARAMETERS}
