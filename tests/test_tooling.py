@@ -123,10 +123,13 @@ def test_the_mypy_copy_maps_every_package_folder(tmp_path, monkeypatch):
 
 def test_no_file_names_a_path_on_the_machine_it_was_written_on():
     # links go inside the repository (the session-file contract is docs/session-file.md)
-    files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True,
-                           check=True).stdout.split()
+    try:
+        files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True,
+                               text=True, check=True).stdout.split()
+    except (OSError, subprocess.CalledProcessError):
+        files = []
     if not files:
-        pytest.skip("not a git checkout")
+        pytest.skip("not a git checkout (or no git): the tracked files are unknown")
     found = []
     for name in files:
         path = ROOT / name
