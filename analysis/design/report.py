@@ -115,9 +115,9 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
         "stimulation_fraction": c.stimulation_s / paper.candidate.stimulation_s,
         "session_s": c.session_s, "paper_session_s": paper.candidate.session_s,
         "n_trials": c.n_trials, "paper_n_trials": paper.candidate.n_trials,
-        "predicted_sd_ratio": prop.ratio["max"],
-        "predicted_sd_ratio_per_parameter": prop.ratio["per_parameter"],
-        "predicted_sd_ratio_median_participant": prop.ratio["median_participant_max"],
+        "predicted_sd_ratio": prop.ratio.max,
+        "predicted_sd_ratio_per_parameter": prop.ratio.per_parameter,
+        "predicted_sd_ratio_median_participant": prop.ratio.median_participant_max,
         "predicted_derived_sd_ratio": prop.derived_ratio,
         "predicted_sd_ratio_definition": (
             "largest ratio, over prior participants, parameters (Kp, wn, zeta) and the "
