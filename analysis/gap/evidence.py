@@ -24,6 +24,7 @@ from nmsid.analysis.gap.diagnose import Diagnosis
 from nmsid.analysis.gap.effects import Effect
 from nmsid.analysis.gap.fit import Problem
 from nmsid.analysis.gap.harmonics import local_harmonics
+from nmsid.analysis.gap.localize import Localization
 from nmsid.analysis.gap.models import FORMS, NOMINAL
 
 CONFUSABLE = (
@@ -81,13 +82,13 @@ def effect_footprint(diag: Diagnosis) -> dict | None:
     return view
 
 
-def signatures(diag: Diagnosis, loc: dict) -> dict:
+def signatures(diag: Diagnosis, loc: Localization) -> dict:
     """Every signature, from the nominal model's held-out residual (and the winner's
     footprint)."""
-    fn = loc["frequency"]["nominal"]
+    fn = loc.frequency["nominal"]
     h = fn["residual_harmonic_pct"]
-    gs = loc["gain_vs_stimulation"]
-    sp = loc["spectrum"]["nominal"]
+    gs = loc.gain_vs_stimulation
+    sp = loc.spectrum["nominal"]
     return {
         "transfer_function": phase_shape(fn),
         "effect_footprint": effect_footprint(diag),

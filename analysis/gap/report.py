@@ -18,7 +18,7 @@ from nmsid.analysis.gap.diagnose import Diagnosis, ranking
 from nmsid.analysis.gap.evidence import confusable_pairs, explain, signatures
 from nmsid.analysis.gap import plots
 from nmsid.analysis.gap.fit import Problem
-from nmsid.analysis.gap.localize import localization
+from nmsid.analysis.gap.localize import Localization, localization
 from nmsid.analysis.gap.models import FORMS, FinalContext, fatigue_loss_pct, nuisance_basis
 from nmsid.analysis.gap.models import canonical_asymmetry  # noqa: F401 (re-exported)
 from nmsid.analysis.gap.twin_out import effect_entries, twin_dict, write_twin
@@ -36,7 +36,7 @@ class GapReport:
     ----------
     report : dict
         The ``gap_report.json`` document (JSON-safe; its fields: docs/gap.md).
-    localization : dict
+    localization : Localization
         Where the gap sits (:func:`nmsid.analysis.gap.localize.localization`), with the
         winner's footprint on the transfer function; what the figures draw.
     twin : dict or None
@@ -44,7 +44,7 @@ class GapReport:
     """
 
     report: dict
-    localization: dict
+    localization: Localization
     twin: dict | None
 
 
@@ -147,7 +147,7 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
     loc = localization(diag)
     sig = signatures(diag, loc)
     if sig["effect_footprint"] is not None:
-        loc["frequency"]["footprint"] = {k: sig["effect_footprint"][k] for k in
+        loc.frequency["footprint"] = {k: sig["effect_footprint"][k] for k in
                                          ("f_Hz", "gain_error_dB", "phase_error_deg")}
     final = diag.best_pair or diag.best
     fp = final_params(diag)
@@ -195,10 +195,11 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
                     "excess_shrink_pct": _excess_shrink(diag, nom.heldout_nrmse_pct, aug_pct)},
         "insample": {"nominal_nrmse_pct": nom.insample_nrmse_pct,
                      "augmented_nrmse_pct": in_aug},
-        "localization": {k: v for k, v in loc.items() if k not in ("frequency", "spectrum")},
-        "frequency": loc["frequency"],
+        "localization": {k: v for k, v in loc.to_dict().items()
+                         if k not in ("frequency", "spectrum")},
+        "frequency": loc.frequency,
         "low_frequency": {k: {kk: vv for kk, vv in v.items() if kk not in ("f_Hz", "power")}
-                          for k, v in loc["spectrum"].items()},
+                          for k, v in loc.spectrum.items()},
         "evidence": {"summary": explain(diag, sig), "signatures": sig,
                      "confusable_pairs": confusable_pairs(diag, sig)},
         "settings": {k: (list(v) if isinstance(v, tuple) else v)
@@ -234,7 +235,8 @@ def write_outputs(diag: Diagnosis, out_dir, calibration=None, *, plots: bool = T
     return report
 
 
-def _figures(diag: Diagnosis, report: dict, loc: dict, out: Path) -> list[str]:
+def _figures(diag: Diagnosis, report: dict, localized: Localization, out: Path) -> list[str]:
+    loc = localized.to_dict()    # the figures draw the report's form
     names = []
     plots.plot_where(loc, out / "where.png", diag.noise_floor_nrmse_pct)
     names.append("where.png")
