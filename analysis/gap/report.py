@@ -10,6 +10,7 @@ import math
 from pathlib import Path
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -167,7 +168,7 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
                          effects=effects)
     in_aug = final.insample_nrmse_pct if final else nom.insample_nrmse_pct
     a = diag.assessment
-    report = {
+    report: dict[str, Any] = {
         "format": "nmsid-gap-report", "format_version": 1,
         "session": diag.data.path, "participant": diag.data.participant,
         "verdict": a.get("verdict"), "verdict_sentence": a.get("sentence"),
