@@ -51,7 +51,9 @@ def _wall(cmd: list[str]) -> float:
     subprocess.run(cmd, check=True, env=_env(), cwd=ROOT, stdout=subprocess.DEVNULL)
     wall = time.perf_counter() - t0
     after = os.times()
-    _CPU.append((after.children_user - before.children_user)
+    # Windows' os.times does not count children: CPU shown as nan there
+    _CPU.append(float("nan") if os.name == "nt" else
+                (after.children_user - before.children_user)
                 + (after.children_system - before.children_system))
     return wall
 
