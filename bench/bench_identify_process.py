@@ -32,6 +32,10 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from nmsid.protocols.os_platform import is_windows  # noqa: E402
 
 
 def _env() -> dict:
@@ -52,7 +56,7 @@ def _wall(cmd: list[str]) -> float:
     wall = time.perf_counter() - t0
     after = os.times()
     # Windows' os.times does not count children: CPU shown as nan there
-    _CPU.append(float("nan") if os.name == "nt" else
+    _CPU.append(float("nan") if is_windows() else
                 (after.children_user - before.children_user)
                 + (after.children_system - before.children_system))
     return wall
