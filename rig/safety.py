@@ -431,6 +431,33 @@ class Interlock:
                                        f"{self._trip.rule}: {self._trip.detail}")
             self.stimulator.start()
 
+    # -- the stream watch and the faults a block reports ---------------------------------
+    @property
+    def stall_timeout_s(self) -> float:
+        """How long the force stream may be silent before the interlock trips, s."""
+        return self.stall.timeout_s
+
+    def watch_stream(self, now_s: float) -> None:
+        """Acquisition started at ``now_s``: the stall watch begins."""
+        self.stall.start(now_s)
+
+    def unwatch_stream(self) -> None:
+        """Acquisition stopped: the stall watch ends."""
+        self.stall.stop()
+
+    def stimulator_fault(self, detail: str) -> Trip:
+        """Trip for a stimulator that failed outside a status check (a refused waveform,
+        a driver that raised)."""
+        return self.trip(self.stim.name, detail)
+
+    def acquisition_fault(self, detail: str) -> Trip:
+        """Trip for an acquisition that failed to start or to read."""
+        return self.trip(self.flags.name, detail)
+
+    def stream_stalled(self, detail: str) -> Trip:
+        """Trip for a stream found silent by a clock other than the engine's."""
+        return self.trip(self.stall.name, detail)
+
     # -- checks the engine calls -----------------------------------------------------
     def check(self, obs: Observation) -> Trip | None:
         """Ask every rule about ``obs``, in :attr:`rules` order; the first reason trips.

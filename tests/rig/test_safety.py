@@ -188,3 +188,21 @@ def test_estop_from_another_thread():
     th.start()
     th.join()
     assert il.latched and stim.log[0] == "stop" and il.trip_info.detail == "GUI button"
+
+
+def test_the_block_level_faults_trip_the_named_rule_with_output_zero_first():
+    stim = Stim()
+    il = Interlock(InterlockConfig(stall_timeout_s=0.2), stim)
+    assert il.stall_timeout_s == 0.2
+    for fault, rule in ((il.stimulator_fault, "stimulator"),
+                        (il.acquisition_fault, "acquisition"),
+                        (il.stream_stalled, "sensor_stream")):
+        trip = fault("what happened")
+        assert (trip.rule, trip.detail) == (rule, "what happened")
+        assert il.latched and stim.log[-1] == "stop"
+        il.rearm()
+    il.watch_stream(1.0)
+    assert il.check_stall(1.1) is None and il.check_stall(1.3).rule == "sensor_stream"
+    il.rearm()
+    il.unwatch_stream()
+    assert il.check_stall(9.0) is None
