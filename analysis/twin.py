@@ -23,6 +23,7 @@ from nmsid.analysis.curves import evaluate_curve
 from nmsid.analysis.discretize import foh_coefficients, foh_state_matrices
 from nmsid.analysis.errors import IdentificationError, TwinFileError, TwinInputError
 from nmsid.analysis.signal_kernels import lfilter
+from nmsid.sim_backends.twin_file import TwinReadError, read_twin_file
 
 FORMAT = "nmsid-twin"
 FORMAT_VERSION = 1
@@ -322,12 +323,10 @@ class Twin:
     def load(cls, path: str | os.PathLike) -> Twin:
         """Read a twin file; errors name the file and the item."""
         p = Path(path)
-        if not p.exists():
-            raise TwinFileError(p, "no such file")
         try:
-            data = json.loads(p.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise TwinFileError(p, f"is not readable JSON ({exc})") from None
+            data = read_twin_file(p)      # the one reader of twin files
+        except TwinReadError as exc:
+            raise TwinFileError(p, exc.problem) from None
         return cls.from_dict(data, p)
 
 

@@ -28,6 +28,7 @@ from nmsid.errors import OutputExistsError
 from nmsid.sim_backends.curves import ParameterCurve
 from nmsid.sim_backends.effects import effects_from_list
 from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.twin_file import read_twin_file
 from nmsid.sim_backends.participant import ReferenceCalibration, VirtualParticipant
 from nmsid.sim_backends.sensor import SensorModel
 
@@ -40,10 +41,7 @@ def load_twin(path_or_dict) -> dict:
         twin, where = path_or_dict, "twin"
     else:
         where = os.fspath(path_or_dict)
-        try:
-            twin = json.loads(Path(where).read_text(encoding="utf-8"))
-        except json.JSONDecodeError as exc:
-            raise SimConfigError(f"{where}: not valid JSON ({exc})") from None
+        twin = read_twin_file(where)
     if not isinstance(twin, dict):
         raise SimConfigError(f"{where}: a twin file holds a JSON object")
     if twin.get("format") != "nmsid-twin":

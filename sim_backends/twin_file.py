@@ -1,0 +1,41 @@
+"""Reading a twin file (``docs/twin-file.md``): the one place its bytes become a dict.
+
+The simulator (:func:`nmsid.sim_backends.twin.load_twin`) and the analysis
+(:meth:`nmsid.analysis.twin.Twin.load`) both read through :func:`read_twin_file`; each then
+checks what it needs of the content. Light on purpose (json and pathlib only): the analysis
+imports it without loading the simulator.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from nmsid.sim_backends.errors import SimConfigError
+
+
+class TwinReadError(SimConfigError):
+    """A twin file is missing or not readable JSON (``problem`` says which)."""
+
+    def __init__(self, path, problem: str):
+        self.path = os.fspath(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
+def read_twin_file(path) -> object:
+    """The JSON content of a twin file.
+
+    Raises
+    ------
+    TwinReadError
+        No such file, or not readable UTF-8 JSON.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise TwinReadError(p, "no such file")
+    try:
+        return json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise TwinReadError(p, f"is not readable JSON ({exc})") from None
