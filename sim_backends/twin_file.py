@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 from nmsid.sim_backends.errors import SimConfigError
 
@@ -24,7 +25,7 @@ class TwinReadError(SimConfigError):
         super().__init__(f"{self.path}: {problem}")
 
 
-def read_twin_file(path) -> object:
+def read_twin_file(path) -> Any:
     """The JSON content of a twin file.
 
     Raises
