@@ -11,7 +11,6 @@ kept as data; ``sim_backends`` applies it.
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -23,7 +22,7 @@ from nmsid.analysis.curves import evaluate_curve
 from nmsid.analysis.discretize import foh_coefficients, foh_state_matrices
 from nmsid.analysis.errors import IdentificationError, TwinFileError, TwinInputError
 from nmsid.analysis.signal_kernels import lfilter
-from nmsid.sim_backends.twin_file import TwinReadError, read_twin_file
+from nmsid.sim_backends.twin_file import TwinReadError, read_twin_file, write_twin_file
 
 FORMAT = "nmsid-twin"
 FORMAT_VERSION = 1
@@ -273,8 +272,7 @@ class Twin:
                                "hold): written as null")
         if caveats:
             data["caveats"] = caveats
-        text = json.dumps(data, indent=2, allow_nan=False)
-        Path(path).write_text(text + "\n", encoding="utf-8")
+        write_twin_file(path, data)      # the one writer of twin files
 
     @classmethod
     def from_dict(cls, data: dict, path: str | os.PathLike = "<twin>") -> Twin:

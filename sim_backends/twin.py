@@ -18,7 +18,6 @@ Examples
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
@@ -28,7 +27,7 @@ from nmsid.errors import OutputExistsError
 from nmsid.sim_backends.curves import ParameterCurve
 from nmsid.sim_backends.effects import effects_from_list
 from nmsid.sim_backends.errors import SimConfigError
-from nmsid.sim_backends.twin_file import read_twin_file
+from nmsid.sim_backends.twin_file import read_twin_file, write_twin_file
 from nmsid.sim_backends.participant import ReferenceCalibration, VirtualParticipant
 from nmsid.sim_backends.sensor import SensorModel
 
@@ -136,4 +135,4 @@ def write_twin(participant: VirtualParticipant, path) -> None:
     path = Path(path)
     if path.exists():
         raise OutputExistsError(f"{path}: already exists; choose another path")
-    path.write_text(json.dumps(participant.to_twin(), indent=2), encoding="utf-8")
+    write_twin_file(path, participant.to_twin())

@@ -1,9 +1,10 @@
-"""Reading a twin file (``docs/twin-file.md``): the one place its bytes become a dict.
+"""Twin files (``docs/twin-file.md``) on disk: the one place they are read and written.
 
-The simulator (:func:`nmsid.sim_backends.twin.load_twin`) and the analysis
-(:meth:`nmsid.analysis.twin.Twin.load`) both read through :func:`read_twin_file`; each then
-checks what it needs of the content. Light on purpose (json and pathlib only): the analysis
-imports it without loading the simulator.
+The simulator (:func:`nmsid.sim_backends.twin.load_twin`, ``write_twin``) and the analysis
+(:meth:`nmsid.analysis.twin.Twin.load`, ``Twin.save``, which ``nmsid gap`` uses too) read
+through :func:`read_twin_file` and write through :func:`write_twin_file`; each checks what it
+needs of the content. Light on purpose (json and pathlib only): the analysis imports it
+without loading the simulator.
 """
 
 from __future__ import annotations
@@ -23,6 +24,13 @@ class TwinReadError(SimConfigError):
         self.path = os.fspath(path)
         self.problem = problem
         super().__init__(f"{self.path}: {problem}")
+
+
+def write_twin_file(path, twin: dict) -> None:
+    """Write ``twin`` as the file's UTF-8 JSON (indented; no NaN: the callers replace or
+    refuse non-finite values first, as ``Twin.save`` does)."""
+    Path(path).write_text(json.dumps(twin, indent=2, allow_nan=False) + "\n",
+                          encoding="utf-8")
 
 
 def read_twin_file(path) -> Any:
