@@ -157,7 +157,7 @@ def fit_exponential(x, y) -> tuple[list[float], list[str]]:
     """
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
-    notes = []
+    notes: list[str] = []
     span = max(float(np.ptp(x)), 1e-12)
     b_max = 50.0 / span                     # e^50 over the range: beyond any data
     starts = []
@@ -170,7 +170,7 @@ def fit_exponential(x, y) -> tuple[list[float], list[str]]:
     a_grid = (e * y).sum(axis=1) / (e * e).sum(axis=1)
     costs = ((y - a_grid[:, None] * e) ** 2).sum(axis=1)
     starts.append(float(grid[int(np.argmin(costs))]))
-    best_b, best_cost = None, math.inf
+    best_b, best_cost = starts[0], math.inf      # starts is never empty (the grid's best)
     for b in starts:
         # Newton on the projected cost with numerical derivatives, safeguarded by halving
         cost = _exp_projected(x, y, b)[1]
@@ -222,7 +222,7 @@ def fit_curve(model: str, sE, values, count_noise_variance: bool = False) -> Cur
     n = len(x)
     n_coef = N_COEFFICIENTS[model]
     k = n_coef + (1 if count_noise_variance else 0)
-    notes = []
+    notes: list[str] = []
     if n < n_coef:
         return CurveFit(model, [], float("nan"), n, k, None,
                         [f"{n} point(s) cannot determine the {n_coef} coefficients of the "

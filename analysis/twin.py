@@ -209,10 +209,10 @@ class Twin:
         n = len(r)
         if s.ndim == 0 or np.all(s == s.flat[0]):
             s0 = float(s.flat[0]) if s.size else 0.5
-            kp, wn, zeta = (float(v) for v in self.parameters_at(s0, clip))
-            num, den = foh_coefficients(wn, zeta, dt)
+            kp0, wn0, zeta0 = (float(v) for v in self.parameters_at(s0, clip))
+            num, den = foh_coefficients(wn0, zeta0, dt)
             # prepend the rest state (rE = 0.5 before the first sample)
-            y = lfilter(num, den, np.concatenate([[0.0], kp * (r - 0.5)]))[1:]
+            y = lfilter(num, den, np.concatenate([[0.0], kp0 * (r - 0.5)]))[1:]
             return y + float(self.offset_N(np.clip(s0, *self.sE_range) if clip else s0))
         kp, wn, zeta = self.parameters_at(s, clip)
         # as in the constant path, the record is preceded by one sample at rest

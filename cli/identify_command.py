@@ -42,6 +42,7 @@ def unique_sessions(paths) -> list[str]:
     seen: dict[tuple, str] = {}
     kept = []
     for p in paths:
+        key: tuple[object, object]
         try:
             st = os.stat(p)
             key = (st.st_dev, st.st_ino)

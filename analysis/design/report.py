@@ -95,7 +95,7 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
     rel_paper = paper.prediction.curve_se / np.abs(paper.prediction.curve_value)
     per_level = []
     for i, s in enumerate(PAPER_LEVELS):
-        row = {"sE": s}
+        row: dict[str, object] = {"sE": s}
         for j, name in enumerate(PARAMETERS):
             row[name] = {"proposal_rel_se": float(np.median(rel_prop[:, i, j])),
                          "paper_rel_se": float(np.median(rel_paper[:, i, j])),

@@ -139,7 +139,7 @@ def simulate_session(vp, candidate: Candidate, *, scatter: dict | ScatterModel |
     musculoskeletal = hasattr(vp, "make_simulator")  # MuJoCo participant: its own simulator
     cal = vp.ramp_calibration() if musculoskeletal else \
         vp.calibration.as_session_calibration()
-    trials = []
+    trials: list = []
     attrs = input_attrs(p)
     for s in p.sE_levels:
         wf = trial_waveform(p, s, cal)
@@ -194,8 +194,11 @@ class ProtocolOutcome:
         return {n: float(np.sqrt(np.nanmean(e[:, j] ** 2))) for j, n in enumerate(PARAMETERS)}
 
     def selection_accuracy(self) -> dict:
-        acc = {n: float(self.selected_right[:, j].mean()) for j, n in enumerate(PARAMETERS)}
-        acc["overall"] = float(self.selected_right.mean())
+        right = self.selected_right
+        if right is None:
+            raise ValueError("no selection was recorded for this outcome")
+        acc = {n: float(right[:, j].mean()) for j, n in enumerate(PARAMETERS)}
+        acc["overall"] = float(right.mean())
         return acc
 
 
