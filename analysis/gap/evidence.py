@@ -18,6 +18,8 @@ the signatures say *why* and let a reader check it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from nmsid.analysis.gap.diagnose import Diagnosis
@@ -82,28 +84,65 @@ def effect_footprint(diag: Diagnosis) -> dict | None:
     return view
 
 
-def signatures(diag: Diagnosis, loc: Localization) -> dict:
+@dataclass
+class Signatures:
+    """What each effect would leave in the nominal model's held-out residual.
+
+    Attributes
+    ----------
+    transfer_function : dict
+        :func:`phase_shape` of the nominal model's gain and phase errors.
+    effect_footprint : dict or None
+        :func:`effect_footprint` of the winner (None: no winner).
+    gain_vs_stimulation : dict
+        ``slope_per_100s`` and ``correlation`` of the trials' gain with cumulative
+        stimulation (fatigue).
+    harmonics : dict
+        Median residual 2f and 3f harmonics and the non-harmonic 1.5f reference, % of the
+        fundamental (recruitment).
+    low_frequency : dict
+        The residual power's share below the chirp band, that of white noise and their
+        ratio (baseline drift).
+    """
+
+    transfer_function: dict
+    effect_footprint: dict | None
+    gain_vs_stimulation: dict
+    harmonics: dict
+    low_frequency: dict
+
+    @property
+    def phase(self) -> dict:
+        """The transfer-function view an effect is judged on: the winner's footprint when
+        there is one, else the nominal model's."""
+        return self.effect_footprint or self.transfer_function
+
+    def to_dict(self) -> dict:
+        """The report's form (``gap_report.json``, ``evidence.signatures``)."""
+        return dict(vars(self))
+
+
+def signatures(diag: Diagnosis, loc: Localization) -> Signatures:
     """Every signature, from the nominal model's held-out residual (and the winner's
     footprint)."""
     fn = loc.frequency["nominal"]
     h = fn["residual_harmonic_pct"]
     gs = loc.gain_vs_stimulation
     sp = loc.spectrum["nominal"]
-    return {
-        "transfer_function": phase_shape(fn),
-        "effect_footprint": effect_footprint(diag),
-        "gain_vs_stimulation": {"slope_per_100s": gs["slope_per_100s"],
-                                "correlation": gs["correlation"]},
-        "harmonics": {"median_2f_pct": float(np.median(h["2f"])),
-                      "median_3f_pct": float(np.median(h["3f"])),
-                      "median_1.5f_noise_reference_pct": float(np.median(h["1.5f"]))},
-        "low_frequency": {"share_below_chirp": sp["low_share"],
-                          "share_if_white": sp["low_share_if_white"],
-                          "excess": sp["low_excess"]},
-    }
+    return Signatures(
+        transfer_function=phase_shape(fn),
+        effect_footprint=effect_footprint(diag),
+        gain_vs_stimulation={"slope_per_100s": gs["slope_per_100s"],
+                             "correlation": gs["correlation"]},
+        harmonics={"median_2f_pct": float(np.median(h["2f"])),
+                   "median_3f_pct": float(np.median(h["3f"])),
+                   "median_1.5f_noise_reference_pct": float(np.median(h["1.5f"]))},
+        low_frequency={"share_below_chirp": sp["low_share"],
+                       "share_if_white": sp["low_share_if_white"],
+                       "excess": sp["low_excess"]})
 
 
-def explain(diag: Diagnosis, sig: dict) -> list[str]:
+def explain(diag: Diagnosis, sig: Signatures) -> list[str]:
     """Plain-language lines: the verdict, the signature seen, how rivals were ruled out."""
     lines = []
     nom = diag.nominal
@@ -121,10 +160,9 @@ def explain(diag: Diagnosis, sig: dict) -> list[str]:
     lines.append(f"{final.label}: held-out NRMSE {nom.heldout_nrmse_pct:.3g} % -> "
                  f"{final.heldout_nrmse_pct:.3g} % ({final.shrink_pct:.0f} % smaller), dIC "
                  f"{final.delta_ic:.0f} (N_eff = {final.nu:.2f} N).")
-    tf = sig["effect_footprint"] or sig["transfer_function"]
     e = diag.best_effect
     if e in FORMS:
-        lines.append(FORMS[e].signature(sig, tf))
+        lines.append(FORMS[e].signature(sig))
     by = {r.candidate.effect: r for r in diag.candidates}
     for a, b in CONFUSABLE:
         if e not in (a, b) or a not in by or b not in by:
@@ -139,7 +177,7 @@ def explain(diag: Diagnosis, sig: dict) -> list[str]:
     return lines
 
 
-def confusable_pairs(diag: Diagnosis, sig: dict) -> list[dict]:
+def confusable_pairs(diag: Diagnosis, sig: Signatures) -> list[dict]:
     """For each confusable pair: both candidates' scores and which one the data prefer."""
     by = {r.candidate.effect: r for r in diag.candidates}
     out = []
@@ -153,7 +191,7 @@ def confusable_pairs(diag: Diagnosis, sig: dict) -> list[dict]:
                 "delta_ic": [ra.delta_ic, rb.delta_ic],
                 "preferred": pref.value if (ra.supported or rb.supported) else "neither"}
         if {a, b} == {Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS}:
-            tf = sig["effect_footprint"] or sig["transfer_function"]
+            tf = sig.phase
             item["phase_shape"] = {"r2_linear": tf["r2_linear_phase"],
                                    "r2_atan": tf["r2_atan_phase"],
                                    "gain_error_at_top_dB": tf["gain_error_at_top_dB"]}

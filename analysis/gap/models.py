@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, ClassVar
+from typing import TYPE_CHECKING, Callable, ClassVar
 
 import numpy as np
 from nmsid.analysis.signal_kernels import compiled as signal
@@ -42,6 +42,9 @@ from nmsid.analysis.discretize import (fractional_delay, lagged_second_order_tf,
 from nmsid.analysis.gap.data import GapData
 from nmsid.protocols.effects import CANDIDATES, Effect, spec
 from nmsid.sim_backends.effects import RecruitmentNonlinearity
+
+if TYPE_CHECKING:  # the evidence module imports this one
+    from nmsid.analysis.gap.evidence import Signatures
 
 #: Bound of every model's correction of the session's input timing, ms.
 TIMING_CORRECTION_MS = 1.0
@@ -479,8 +482,9 @@ class EffectForm:
         """The twin file's ``params`` of the effect (the registry's names)."""
         raise NotImplementedError
 
-    def signature(self, sig: dict, tf: dict) -> str:
-        """One line: the signature in the data that points at this effect."""
+    def signature(self, sig: Signatures) -> str:
+        """One line: the signature in the data that points at this effect (``sig.phase``:
+        the transfer-function view it is judged on)."""
         raise NotImplementedError
 
 
@@ -508,7 +512,8 @@ class DeadTimeForm(EffectForm):
     def twin_params(self, p, sE_levels):
         return {"L_s": p["L_s"]}
 
-    def signature(self, sig, tf):
+    def signature(self, sig):
+        tf = sig.phase
         return (f"signature: the effect's footprint on the transfer function is a phase "
                 f"line (R^2 {tf['r2_linear_phase']:.3f} vs {tf['r2_atan_phase']:.3f} for "
                 f"an arctangent; slope = {1000 * tf['dead_time_equivalent_s']:.1f} ms) with "
@@ -532,7 +537,8 @@ class ActivationDynamicsForm(EffectForm):
     def twin_params(self, p, sE_levels):
         return {"tau_s": p["tau_s"]}
 
-    def signature(self, sig, tf):
+    def signature(self, sig):
+        tf = sig.phase
         return (f"signature: the footprint's phase is an arctangent (R^2 "
                 f"{tf['r2_atan_phase']:.3f} vs {tf['r2_linear_phase']:.3f} for a line; tau "
                 f"= {1000 * tf['lag_equivalent_s']:.1f} ms) with a gain roll-off of "
@@ -560,8 +566,8 @@ class FatigueForm(EffectForm):
                 "gain_loss_pct": max(0.0, fatigue_loss_pct(p["rate_per_s"])),
                 "reference_stim_s": REFERENCE_STIM_S}
 
-    def signature(self, sig, tf):
-        g = sig["gain_vs_stimulation"]
+    def signature(self, sig):
+        g = sig.gain_vs_stimulation
         return (f"signature: trial gain changes by {g['slope_per_100s']:+.4f} per 100 s of "
                 f"cumulative stimulation (correlation {g['correlation']:+.2f}).")
 
@@ -588,8 +594,8 @@ class RecruitmentForm(EffectForm):
     def twin_params(self, p, sE_levels):
         return project_recruitment(p["_curve"], sE_levels)
 
-    def signature(self, sig, tf):
-        hm = sig["harmonics"]
+    def signature(self, sig):
+        hm = sig.harmonics
         return (f"signature: residual 3f harmonic {hm['median_3f_pct']:.2f} % and 2f "
                 f"{hm['median_2f_pct']:.2f} % of the fundamental against "
                 f"{hm['median_1.5f_noise_reference_pct']:.2f} % at the non-harmonic 1.5f.")
@@ -617,7 +623,8 @@ class AsymmetryForm(EffectForm):
     def twin_params(self, p, sE_levels):
         return {"wn_ratio": p["wn_ratio"], "zeta_ratio": p["zeta_ratio"]}
 
-    def signature(self, sig, tf):
+    def signature(self, sig):
+        tf = sig.phase
         return (f"signature: gain/phase error of resonance shape (max phase error "
                 f"{tf['max_abs_phase_error_deg']:.1f} deg, not linear: R^2 "
                 f"{tf['r2_linear_phase']:.2f}); the mixture of two second-order "
@@ -637,8 +644,8 @@ class BaselineDriftForm(EffectForm):
     def twin_params(self, p, sE_levels):
         return {"amplitude_N": p.get("amplitude_N", 0.0), "corner_Hz": p["corner_Hz"]}
 
-    def signature(self, sig, tf):
-        lf = sig["low_frequency"]
+    def signature(self, sig):
+        lf = sig.low_frequency
         return (f"signature: {100 * lf['share_below_chirp']:.0f} % of the residual power "
                 f"lies below the chirp band, {lf['excess']:.0f} x the white-noise share.")
 

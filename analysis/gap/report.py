@@ -147,8 +147,8 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
     """
     loc = localization(diag)
     sig = signatures(diag, loc)
-    if sig["effect_footprint"] is not None:
-        loc.frequency["footprint"] = {k: sig["effect_footprint"][k] for k in
+    if sig.effect_footprint is not None:
+        loc.frequency["footprint"] = {k: sig.effect_footprint[k] for k in
                                          ("f_Hz", "gain_error_dB", "phase_error_deg")}
     final = diag.best_pair or diag.best
     fp = final_params(diag)
@@ -201,7 +201,7 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
         "frequency": loc.frequency,
         "low_frequency": {k: {kk: vv for kk, vv in v.items() if kk not in ("f_Hz", "power")}
                           for k, v in loc.spectrum.items()},
-        "evidence": {"summary": explain(diag, sig), "signatures": sig,
+        "evidence": {"summary": explain(diag, sig), "signatures": sig.to_dict(),
                      "confusable_pairs": confusable_pairs(diag, sig)},
         "settings": {k: (list(v) if isinstance(v, tuple) else v)
                      for k, v in vars(diag.settings).items() if k != "candidates"},
