@@ -19,23 +19,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nmsid.sim_backends.curves import CurveModel, curve_values
+
 N_COEFFICIENTS = {"linear": 2, "quadratic": 3, "exponential": 2}
 
 
 def evaluate_curve(model: str, coefficients, sE) -> np.ndarray:
     """Value of a curve (``linear``, ``quadratic``, ``exponential``, ``constant``) at sE."""
-    x = np.asarray(sE, dtype=float)
-    c = [float(v) for v in coefficients]
-    if model == "linear":
-        return c[0] + c[1] * x
-    if model == "quadratic":
-        return c[0] + c[1] * x + c[2] * x * x
-    if model == "exponential":
-        return c[0] * np.exp(c[1] * x)
-    if model == "constant":
-        return c[0] + 0.0 * x
-    raise ValueError(f"unknown curve model {model!r}: use linear, quadratic, exponential "
-                     "or constant")
+    try:
+        family = CurveModel(model)
+    except ValueError:
+        raise ValueError(f"unknown curve model {model!r}: use linear, quadratic, exponential "
+                         "or constant") from None
+    return curve_values(family, coefficients, sE)
 
 
 def aicc(n: int, rss: float, k: int) -> float | None:
@@ -161,7 +157,7 @@ def fit_exponential(x, y) -> tuple[list[float], list[str]]:
     """
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
-    notes = []
+    notes: list[str] = []
     span = max(float(np.ptp(x)), 1e-12)
     b_max = 50.0 / span                     # e^50 over the range: beyond any data
     starts = []
@@ -174,7 +170,7 @@ def fit_exponential(x, y) -> tuple[list[float], list[str]]:
     a_grid = (e * y).sum(axis=1) / (e * e).sum(axis=1)
     costs = ((y - a_grid[:, None] * e) ** 2).sum(axis=1)
     starts.append(float(grid[int(np.argmin(costs))]))
-    best_b, best_cost = None, math.inf
+    best_b, best_cost = starts[0], math.inf      # starts is never empty (the grid's best)
     for b in starts:
         # Newton on the projected cost with numerical derivatives, safeguarded by halving
         cost = _exp_projected(x, y, b)[1]
@@ -226,7 +222,7 @@ def fit_curve(model: str, sE, values, count_noise_variance: bool = False) -> Cur
     n = len(x)
     n_coef = N_COEFFICIENTS[model]
     k = n_coef + (1 if count_noise_variance else 0)
-    notes = []
+    notes: list[str] = []
     if n < n_coef:
         return CurveFit(model, [], float("nan"), n, k, None,
                         [f"{n} point(s) cannot determine the {n_coef} coefficients of the "

@@ -31,13 +31,6 @@ from nmsid.analysis.signal_kernels import expm
 _FD_STEP = 1e-6
 
 
-def second_order_state_space(wn_rad_s: float, zeta: float):
-    """(A, B) of y'' + 2 zeta wn y' + wn^2 y = wn^2 u with state [y, y']."""
-    A = np.array([[0.0, 1.0], [-wn_rad_s ** 2, -2.0 * zeta * wn_rad_s]])
-    B = np.array([0.0, wn_rad_s ** 2])
-    return A, B
-
-
 def _decay_cos_sin(sigma: float, wd2: float, t: float) -> tuple[float, float]:
     """e^{-sigma t} cos(wd t) and e^{-sigma t} sin(wd t) / wd for wd^2 = wd2 of any sign
     (cosh / sinh when overdamped, the limit t e^{-sigma t} at critical damping)."""

@@ -116,7 +116,8 @@ def compare_models(sE, values, parameter: str, label: str,
         keep = finite & inl
     points = [Point(float(a), float(b), bool(k), n) for a, b, k, n in zip(x, y, keep, notes)]
     xs, ys = x[keep], y[keep]
-    fits = {m: fit_curve(m, xs, ys, s.aicc_count_noise_variance) for m in s.models}
+    fits: dict[str, CurveFit] = {m: fit_curve(m, xs, ys, s.aicc_count_noise_variance)
+                                 for m in s.models}
     selectable = {m: f for m, f in fits.items() if f.selectable}
     problems = []
     where = f"{label} {parameter}"
@@ -204,7 +205,8 @@ def select_models(participants, settings: IdentificationSettings | None = None
     s = settings or IdentificationSettings()
     people = [p if isinstance(p, ParticipantParameters) else participant_parameters(p)
               for p in participants]
-    labels, seen = [], {}
+    labels: list[str] = []
+    seen: dict[str, int] = {}
     for p in people:
         seen[p.participant] = seen.get(p.participant, 0) + 1
         labels.append(p.participant if seen[p.participant] == 1
@@ -212,8 +214,10 @@ def select_models(participants, settings: IdentificationSettings | None = None
     comparisons: list[ModelComparison] = []
     problems: list[str] = []
     grid = sorted({round(float(x), 6) for p in people for x in p.sE})
-    sums = {name: {m: 0.0 for m in s.models} for name in PARAMETER_NAMES}
-    counts = {name: {m: 0 for m in s.models} for name in PARAMETER_NAMES}
+    sums: dict[str, dict[str, float]] = {name: {m: 0.0 for m in s.models}
+                                         for name in PARAMETER_NAMES}
+    counts: dict[str, dict[str, int]] = {name: {m: 0 for m in s.models}
+                                         for name in PARAMETER_NAMES}
     for name in PARAMETER_NAMES:
         cleaned = np.full((len(people), len(grid)), np.nan)
         for i, (p, label) in enumerate(zip(people, labels)):
@@ -221,7 +225,7 @@ def select_models(participants, settings: IdentificationSettings | None = None
             comparisons.append(c)
             problems.extend(c.problems)
             for m, f in c.fits.items():
-                if f.selectable:
+                if f.selectable and f.aicc is not None:
                     sums[name][m] += f.aicc
                     counts[name][m] += 1
             for pt in c.points:

@@ -29,6 +29,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from nmsid.analysis.damped_lstsq import Damping, levenberg_marquardt
 from nmsid.analysis.discretize import foh_coefficients_with_derivatives, smooth_hold_input
 from nmsid.analysis.errors import IdentificationError
 from nmsid.analysis.initial_estimate import StartEstimate, srivc_start
@@ -154,54 +155,40 @@ class _Problem:
 
 
 def _levenberg_marquardt(problem: _Problem, p0: np.ndarray, max_iter: int, tol: float):
-    """Minimise the projected cost over p = (ln wn, ln zeta)."""
-    p = np.array(p0, dtype=float)
-    ev = problem.evaluate(p, jacobian=True)
-    lam = 1e-3
-    message = "iteration limit reached"
-    converged = False
-    it = 0
-    for it in range(1, max_iter + 1):
-        jr, r = ev["j_reduced"], ev["resid"]
-        a = gram(jr)
-        g = cross(jr, r[None, :])[:, 0]
-        diag = np.maximum(np.diag(a), 1e-300)
-        improved = False
-        while lam < 1e12:
-            try:
-                step = np.linalg.solve(a + lam * np.diag(diag), g)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            trial_p = p + step
-            if np.all((trial_p > _P_LOW) & (trial_p < problem.p_high)):
-                trial = problem.evaluate(trial_p, jacobian=True)
-                if np.isfinite(trial["cost"]) and trial["cost"] <= ev["cost"]:
-                    improved = True
-                    break
-            lam *= 10
-        if not improved:
-            # no step lowers the cost: a minimum if a full Gauss-Newton step could not
-            # gain more than rounding does
-            try:
-                gain = float(g @ np.linalg.solve(a, g))
-            except np.linalg.LinAlgError:
-                gain = math.inf
-            converged = gain <= max(tol, 1e-12) * ev["cost"] or \
-                ev["cost"] <= 1e-28 * max(dot(problem.y, problem.y), 1e-300)
-            message = ("converged (at a minimum to rounding)" if converged else
-                       "stopped: no step decreases the cost (flat or ill-conditioned)")
-            break
-        decrease = ev["cost"] - trial["cost"]
-        p = trial_p
-        ev = trial
-        lam = max(lam / 10, 1e-12)
-        if np.max(np.abs(step)) < 1e-10 or decrease <= tol * ev["cost"] and \
-                np.max(np.abs(step)) < math.sqrt(tol):
-            converged = True
-            message = f"converged after {it} iteration(s)"
-            break
-    return p, ev, converged, message, it
+    """Minimise the projected cost over p = (ln wn, ln zeta) with the analysis's one damped
+    solver (:func:`nmsid.analysis.damped_lstsq.levenberg_marquardt`); the open bounds of p
+    refuse a step beyond them."""
+
+    def evaluate(p):
+        if not np.all((p > _P_LOW) & (p < problem.p_high)):
+            return math.inf, None
+        ev = problem.evaluate(p, jacobian=True)
+        return ev["cost"], ev
+
+    def normal(p, ev):
+        jr = ev["j_reduced"]     # d(fit)/dp: the residual's Jacobian is -jr
+        return gram(jr), -cross(jr, ev["resid"][None, :])[:, 0]
+
+    def at_minimum(a, g, cost):
+        # no step lowers the cost: a minimum if a full Gauss-Newton step could not gain
+        # more than rounding does
+        try:
+            gain = float(g @ np.linalg.solve(a, g))
+        except np.linalg.LinAlgError:
+            gain = math.inf
+        return gain <= max(tol, 1e-12) * cost or \
+            cost <= 1e-28 * max(dot(problem.y, problem.y), 1e-300)
+
+    p0 = np.array(p0, dtype=float)
+    ev0 = problem.evaluate(p0, jacobian=True)      # the start itself is never refused
+    res = levenberg_marquardt(
+        evaluate, normal, p0, max_iter=max_iter, stalled_converged=at_minimum,
+        evaluated=(ev0["cost"], ev0),
+        damping=Damping(start=1e-3, up=10.0, down=10.0, floor=1e-12, ceiling=1e12,
+                        step_tol=1e-10, rel_tol=tol, rel_step_tol=math.sqrt(tol),
+                        relative_to="after", accept_equal=True, up_singular=10.0,
+                        zero_diag=1e-300))
+    return res.x, res.state, res.converged, res.message, res.iterations
 
 
 def _noise_variance(resid: np.ndarray, fs_Hz: float, n_params: int, level: NoiseLevel,
@@ -311,7 +298,7 @@ def fit_second_order(u: np.ndarray, y: np.ndarray, fs_Hz: float,
         if not start_est:
             notes.append("instrumental-variable start failed; started from a grid")
     else:
-        starts = [tuple(start)]
+        starts = [(float(start[0]), float(start[1]))]
 
     def run(wn_z):
         p0 = np.log(np.array(wn_z, dtype=float))
@@ -341,6 +328,8 @@ def fit_second_order(u: np.ndarray, y: np.ndarray, fs_Hz: float,
         if tried:
             notes.append(f"searched from {tried} grid point(s) as well (start did not "
                          f"converge or fit below {s.retry_below_fit_pct:g} %)")
+    if best is None:  # pragma: no cover - the grid search runs whenever there is no start
+        raise IdentificationError("no starting point of the search could be evaluated")
     p, ev, converged, message, iterations = best
     wn, zeta = math.exp(p[0]), math.exp(p[1])
     coef = ev["coef"]

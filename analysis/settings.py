@@ -15,7 +15,7 @@ Examples
 >>> IdentificationSettings(iqr_k=-1)
 Traceback (most recent call last):
 ...
-analysis.errors.SettingError: (in code): iqr_k = -1 is not valid: a value > 0 (the outlier fence's width in IQRs; 1.5 in the paper)
+nmsid.analysis.errors.SettingError: (in code): iqr_k = -1 is not valid: a value > 0 (the outlier fence's width in IQRs; 1.5 in the paper)
 """
 
 from __future__ import annotations

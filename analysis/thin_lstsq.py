@@ -81,12 +81,6 @@ def orthonormalise(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return _mgs(a)
 
 
-def project_out(q: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """x minus its projection on the span of the orthonormal rows q."""
-    x = np.asarray(x, dtype=float)
-    return x - (q @ x) @ q
-
-
 def solve_triangular_upper(r: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Back substitution; a zero pivot gives a zero coefficient (dependent regressor)."""
     m = len(b)

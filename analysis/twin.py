@@ -11,7 +11,6 @@ kept as data; ``sim_backends`` applies it.
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -23,6 +22,7 @@ from nmsid.analysis.curves import evaluate_curve
 from nmsid.analysis.discretize import foh_coefficients, foh_state_matrices
 from nmsid.analysis.errors import IdentificationError, TwinFileError, TwinInputError
 from nmsid.analysis.signal_kernels import lfilter
+from nmsid.sim_backends.twin_file import TwinReadError, read_twin_file, write_twin_file
 
 FORMAT = "nmsid-twin"
 FORMAT_VERSION = 1
@@ -209,10 +209,10 @@ class Twin:
         n = len(r)
         if s.ndim == 0 or np.all(s == s.flat[0]):
             s0 = float(s.flat[0]) if s.size else 0.5
-            kp, wn, zeta = (float(v) for v in self.parameters_at(s0, clip))
-            num, den = foh_coefficients(wn, zeta, dt)
+            kp0, wn0, zeta0 = (float(v) for v in self.parameters_at(s0, clip))
+            num, den = foh_coefficients(wn0, zeta0, dt)
             # prepend the rest state (rE = 0.5 before the first sample)
-            y = lfilter(num, den, np.concatenate([[0.0], kp * (r - 0.5)]))[1:]
+            y = lfilter(num, den, np.concatenate([[0.0], kp0 * (r - 0.5)]))[1:]
             return y + float(self.offset_N(np.clip(s0, *self.sE_range) if clip else s0))
         kp, wn, zeta = self.parameters_at(s, clip)
         # as in the constant path, the record is preceded by one sample at rest
@@ -272,8 +272,7 @@ class Twin:
                                "hold): written as null")
         if caveats:
             data["caveats"] = caveats
-        text = json.dumps(data, indent=2, allow_nan=False)
-        Path(path).write_text(text + "\n", encoding="utf-8")
+        write_twin_file(path, data)      # the one writer of twin files
 
     @classmethod
     def from_dict(cls, data: dict, path: str | os.PathLike = "<twin>") -> Twin:
@@ -322,12 +321,10 @@ class Twin:
     def load(cls, path: str | os.PathLike) -> Twin:
         """Read a twin file; errors name the file and the item."""
         p = Path(path)
-        if not p.exists():
-            raise TwinFileError(p, "no such file")
         try:
-            data = json.loads(p.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise TwinFileError(p, f"is not readable JSON ({exc})") from None
+            data = read_twin_file(p)      # the one reader of twin files
+        except TwinReadError as exc:
+            raise TwinFileError(p, exc.problem) from None
         return cls.from_dict(data, p)
 
 

@@ -84,8 +84,8 @@ def main() -> None:
           f"({100 * c.stimulation_s / paper.candidate.stimulation_s:.0f} %); session "
           f"{c.session_s / 60:.1f} min vs {paper.candidate.session_s / 60:.1f} min "
           f"(calibration excluded)")
-    print(f"   predicted_sd_ratio {prop.ratio['max']:.4f} (median participant "
-          f"{prop.ratio['median_participant_max']:.4f}; derived quantities "
+    print(f"   predicted_sd_ratio {prop.ratio.max:.4f} (median participant "
+          f"{prop.ratio.median_participant_max:.4f}; derived quantities "
           f"{prop.derived_ratio:.4f}); predicted selection accuracy proposal "
           f"{prop.selection['overall']:.3f} vs paper {paper.selection['overall']:.3f}")
 
@@ -118,9 +118,9 @@ def main() -> None:
         print(_row("proposal", a, c.stimulation_s))
         print(_predicted_row("predicted", _attach_values(pv.predict(c), valid_prior),
                              c.stimulation_s))
-        print(f"   validated_sd_ratio {ratio['max']:.3f} +- {ratio['max_se']:.3f} (MC SE; "
-              + ", ".join(f"{k} {v:.3f} +- {ratio['se_per_parameter'][k]:.3f}"
-                          for k, v in ratio["per_parameter"].items()) + ")")
+        print(f"   validated_sd_ratio {ratio.max:.3f} +- {ratio.max_se:.3f} (MC SE; "
+              + ", ".join(f"{k} {v:.3f} +- {ratio.se_per_parameter[k]:.3f}"
+                          for k, v in ratio.per_parameter.items()) + ")")
 
     t2 = time.perf_counter()
     zero = {n: 0.0 for n in PARAMETERS}
@@ -130,13 +130,13 @@ def main() -> None:
     for cand in search_space():
         if cand.stimulation_s > 0.4 * 675:
             break
-        r = sd_ratio(pz.predict(cand, derived=False), paper_z)["max"]
+        r = sd_ratio(pz.predict(cand, derived=False), paper_z).max
         if best is None or r < best[0]:
             best = (r, cand)
     needed = None
     for T in (10.0, 12.0, 14.0, 16.0, 18.0, 20.0):
         cand = Candidate(steady_s=2.0, chirp_s=T, rest_s=60.0)
-        if sd_ratio(pz.predict(cand, derived=False), paper_z)["max"] <= 1.0:
+        if sd_ratio(pz.predict(cand, derived=False), paper_z).max <= 1.0:
             needed = cand
             break
     print(f"\n3. Sensor noise only (no physiological scatter): best candidate within 40 % "

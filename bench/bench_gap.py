@@ -331,7 +331,7 @@ def report(results: list[dict], classes) -> None:
           f"{'nom %':>8s}{'aug %':>8s}{'shrink %':>9s}{'xs shr %':>9s}{'floor %':>8s}"
           f"{'sensor %':>9s}{'gap s':>7s}")
     for r in results:
-        fmt = (lambda v: f"{v:10.4g}" if isinstance(v, float) else f"{'-':>10s}")
+        fmt = (lambda v: f"{v:10.4g}" if isinstance(v, float) else f"{'-':>10s}")  # noqa: E731
         print(f"{r['class']:27s}{r['seed']:5d}{r['found']:>27s}{fmt(r.get('true_main'))}"
               f"{fmt(r.get('est_main'))}"
               + (f"{r['main_err_pct']:8.1f}" if r.get("main_err_pct") is not None else

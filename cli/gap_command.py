@@ -24,8 +24,8 @@ def run(args: argparse.Namespace) -> int:
     with output_dir(args.out, force=args.force) as tmp:
         summary = run_gap(args.sessions, tmp, settings=settings, twin=args.twin,
                           sim_session=args.sim_session, plots=not args.no_figures)
-    summary["report"] = str(summary["report"]).replace(str(tmp), str(args.out))
-    for s in summary["sessions"]:
+    report_path = str(summary.report).replace(str(tmp), str(args.out))
+    for s in summary.sessions:
         h = s["heldout"]
         print(f"{s['session']}: verdict = {s['verdict']}, best_effect = {s['best_effect']}"
               + (f" (pair {' + '.join(s['best_pair'])})" if s.get("best_pair") else "")
@@ -51,5 +51,5 @@ def run(args: argparse.Namespace) -> int:
             u = s["simulation_under_test"]
             print(f"  simulation under test {u['source']}: NRMSE {u['nrmse_pct']:.3g} % on all "
                   "trials (nothing of it fitted here)")
-    print(f"report: {summary['report']}")
+    print(f"report: {report_path}")
     return 0

@@ -15,8 +15,6 @@ from nmsid.analysis.run import run_identification, summary_line
 from nmsid.analysis.settings import IdentificationSettings
 from nmsid.analysis.twin import Twin
 from nmsid.cli.errors import InputFileError, UsageError
-from nmsid.export.fmu.build import SUPPORTED_EFFECTS
-from nmsid.export.fmu.reference import TwinStepper
 from nmsid.protocols.output_paths import check_output, output_dir, output_file
 
 #: Exit status of ``nmsid identify`` when no sE level could be identified (docs/cli.md).
@@ -44,6 +42,7 @@ def unique_sessions(paths) -> list[str]:
     seen: dict[tuple, str] = {}
     kept = []
     for p in paths:
+        key: tuple[object, object]
         try:
             st = os.stat(p)
             key = (st.st_dev, st.st_ino)
@@ -152,6 +151,9 @@ def _check_effects(twin, args) -> None:
     it does not model is refused by name unless the user says to leave effects out."""
     if not twin.effects or args.without_effects:
         return
+    # `twin simulate` only, and only for a twin with effects: `nmsid identify` (this
+    # module's other handler) must not load the FMU exporter and scipy.linalg
+    from nmsid.export.fmu.build import SUPPORTED_EFFECTS
     unsupported = sorted({str(e.get("name")) for e in twin.effects
                           if e.get("name") not in SUPPORTED_EFFECTS
                           and not (e.get("name") == "baseline_drift"
@@ -168,6 +170,8 @@ def _simulate(twin, rE, sE, fs: float, args) -> np.ndarray:
     FMU steps it, else the curves alone (:meth:`Twin.simulate`, which also runs a
     muscle-model twin)."""
     if twin.effects and not args.without_effects and twin.muscle_model is None:
+        # lazy, as in _check_effects: scipy.linalg stays out of `nmsid identify`
+        from nmsid.export.fmu.reference import TwinStepper
         return TwinStepper(twin, extrapolate=args.extrapolate).simulate(rE, sE, fs)
     return twin.simulate(rE, sE, fs, clip=not args.extrapolate)
 

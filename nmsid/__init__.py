@@ -9,9 +9,17 @@ first (``docs/architecture.md``): ``nmsid.protocols`` and ``nmsid.testing``,
 
 from __future__ import annotations
 
-from importlib import metadata as _metadata
 
-try:
-    __version__ = _metadata.version("nmsid")
-except _metadata.PackageNotFoundError:  # a source tree that was never installed
-    __version__ = "0+unknown"
+
+def __getattr__(name: str) -> str:
+    # __version__ on first use: importlib.metadata costs ~20-50 ms at every start-up
+    # (`nmsid identify`'s budget is 0.3 s), and most commands never ask for it
+    if name != "__version__":
+        raise AttributeError(f"module 'nmsid' has no attribute {name!r}")
+    from importlib import metadata
+    try:
+        version = metadata.version("nmsid")
+    except metadata.PackageNotFoundError:  # a source tree that was never installed
+        version = "0+unknown"
+    globals()["__version__"] = version
+    return version

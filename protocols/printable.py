@@ -32,7 +32,3 @@ def escape_controls(text: str) -> str:
     """
     return _CONTROLS.sub(_escape, text)
 
-
-def has_controls(text: str) -> bool:
-    """True if :func:`escape_controls` would change ``text``."""
-    return _CONTROLS.search(text) is not None

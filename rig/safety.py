@@ -5,7 +5,9 @@
   checked against ``min(protocol ceiling, device maximum)`` per channel, so a waveform
   above its ceiling cannot reach a stimulator.
 * Rule objects watch the force stream, the acquisition flags, the stimulator status and
-  the E-stop; each validates its thresholds in ``__init__`` and says why it tripped.
+  the E-stop; each validates its thresholds in ``__init__``, and each answers one question
+  the same way, ``check(observation) -> reason | None``, about an :class:`Observation`
+  (what the engine saw at one moment); the interlock holds them in a list and asks each.
 * :class:`Interlock` executes a trip: ``stimulator.stop_now()`` FIRST, in the tripping
   thread, then latches (no output can start until :meth:`Interlock.rearm`), then reports
   the trip (logging + the engine's callback, which writes the event and aborts the trial).
@@ -83,6 +85,38 @@ def check_waveform(I_ext_mA, I_flex_mA, *, fs_Hz: float, carrier_Hz: float,
 
 
 # -- rules ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Observation:
+    """What the engine saw at one moment; a rule looks at the parts it watches and answers
+    None (nothing wrong, or nothing it watches) or the reason to trip.
+
+    Attributes
+    ----------
+    now_s : float
+        The engine's clock, s.
+    chunk : ForceChunk or None
+        The acquisition's latest chunk (None: none arrived).
+    expected_index : int or None
+        The sample index the chunk should start at (None: not checked).
+    stimulator_status : StimulatorStatus or None
+        The stimulator's answer (None: not asked).
+    stimulator_unavailable : str or None
+        Why the stimulator could not be asked (its exception), when it could not.
+    switch_pressed : bool or None
+        The hardware E-stop switch (None: not read, or no switch).
+    no_samples : bool
+        The acquisition was read and gave no samples (the stall watch's moment).
+    """
+
+    now_s: float
+    chunk: ForceChunk | None = None
+    expected_index: int | None = None
+    stimulator_status: StimulatorStatus | None = None
+    stimulator_unavailable: str | None = None
+    switch_pressed: bool | None = None
+    no_samples: bool = False
+
+
 class Rule:
     """An interlock rule: a name, its last verdict and why."""
 
@@ -91,6 +125,10 @@ class Rule:
     def __init__(self):
         self.ok = True
         self.detail = "ok"
+
+    def check(self, obs: Observation) -> str | None:
+        """The reason to trip on ``obs``, or None."""
+        return None
 
     def _verdict(self, reason: str | None) -> str | None:
         if reason is None:
@@ -117,7 +155,10 @@ class ForceLimitRule(Rule):
         self.limit_N = float(limit_N)
         self.detail = f"ok (limit {self.limit_N:g} N)"
 
-    def check(self, chunk: ForceChunk) -> str | None:
+    def check(self, obs: Observation) -> str | None:
+        chunk = obs.chunk
+        if chunk is None:
+            return None
         f = np.asarray(chunk.force_N, dtype=float)
         if f.size == 0:
             return None
@@ -184,10 +225,15 @@ class StallRule(Rule):
         read on a stepped clock may read up to one step long at each end)."""
         return max(self.timeout_s, 2 * self.chunk_period_s) + 2 * self.tick_s
 
-    def check(self, now_s: float) -> str | None:
-        if self._last_s is None:
+    def check(self, obs: Observation) -> str | None:
+        """A chunk with samples feeds the watch; a read without samples checks the time
+        since the last one."""
+        if obs.chunk is not None and obs.chunk.n:
+            self.feed(obs.now_s, obs.chunk.n)
             return None
-        gap = now_s - self._last_s
+        if not obs.no_samples or self._last_s is None:
+            return None
+        gap = obs.now_s - self._last_s
         limit = self.limit_s()
         if gap > limit:
             return self._verdict(f"no force samples for {gap * 1000:.0f} ms (limit "
@@ -206,7 +252,10 @@ class AcquisitionFlagsRule(Rule):
         super().__init__()
         self.overrun, self.over_range, self.sensor_fault = overrun, over_range, sensor_fault
 
-    def check(self, chunk: ForceChunk, expected_index: int | None = None) -> str | None:
+    def check(self, obs: Observation) -> str | None:
+        chunk, expected_index = obs.chunk, obs.expected_index
+        if chunk is None:
+            return None
         fl = chunk.flags
         what = []
         if fl.overrun and self.overrun:
@@ -231,12 +280,13 @@ class StimulatorRule(Rule):
 
     name = "stimulator"
 
-    def check(self, status_fn: Callable[[], StimulatorStatus]) -> str | None:
-        try:
-            st = status_fn()
-        except Exception as exc:  # a driver that cannot answer is a fault
-            return self._verdict(f"stimulator status unavailable ({type(exc).__name__}: "
-                                 f"{exc}): disconnected?")
+    def check(self, obs: Observation) -> str | None:
+        if obs.stimulator_unavailable is not None:  # a driver that cannot answer: a fault
+            return self._verdict(f"stimulator status unavailable "
+                                 f"({obs.stimulator_unavailable}): disconnected?")
+        st = obs.stimulator_status
+        if st is None:
+            return None
         if st.state is StimulatorState.ERROR or st.error:
             return self._verdict(f"stimulator error: {st.error or st.state.value}")
         if st.state is StimulatorState.DISCONNECTED:
@@ -254,6 +304,12 @@ class EStopRule(Rule):
         self.has_switch = has_switch
         self.detail = "ok (switch released)" if has_switch else "ok (no hardware switch)"
         self.switch_pressed = False
+
+    def check(self, obs: Observation) -> str | None:
+        if not obs.switch_pressed:
+            return None
+        self.switch_pressed = True
+        return self._verdict("hardware E-stop switch pressed (or unreadable)")
 
     def reset(self) -> None:
         super().reset()
@@ -298,8 +354,11 @@ class Interlock:
                                           cfg.trip_on_sensor_fault)
         self.stim = StimulatorRule()
         self.estop_rule = EStopRule(estop_input is not None)
-        self.rules: dict[str, Rule] = {r.name: r for r in (
-            self.force, self.stall, self.flags, self.stim, self.estop_rule)}
+        #: Every rule, asked in this order by :meth:`check` (flags before the force: a
+        #: flagged chunk's samples are not to be judged as forces)
+        self.rules: list[Rule] = [self.flags, self.force, self.stall, self.stim,
+                                  self.estop_rule]
+        self._by_name: dict[str, Rule] = {r.name: r for r in self.rules}
         self._lock = threading.Lock()
         self._latched = threading.Event()
         self._trip: Trip | None = None
@@ -318,7 +377,7 @@ class Interlock:
 
     def status(self) -> dict[str, tuple[bool, str]]:
         """Rule name -> (ok, detail)."""
-        out = {name: r.status() for name, r in self.rules.items()}
+        out = {r.name: r.status() for r in self.rules}
         t = self._trip
         out["latch"] = (t is None, "clear" if t is None else f"latched by {t.rule}: {t.detail}")
         return out
@@ -339,14 +398,15 @@ class Interlock:
         perf = time.perf_counter()
         with self._lock:
             first = self._trip is None
+            trip = self._trip if self._trip is not None else \
+                Trip(rule, detail, _utc_ms(), perf)
             if first:
-                self._trip = Trip(rule, detail, _utc_ms(), perf)
+                self._trip = trip
                 self._latched.set()
             # a start() racing this trip finished before we took the lock: stop again
             self._stop_output()
-            trip = self._trip
-        if rule in self.rules and self.rules[rule].ok:
-            self.rules[rule]._verdict(detail)
+        if rule in self._by_name and self._by_name[rule].ok:
+            self._by_name[rule]._verdict(detail)
         if first:
             # the E-stop is the operator's (or a signal's) own act, reported by the UI that
             # took it; a fault trip is news: a warning
@@ -379,7 +439,7 @@ class Interlock:
         with self._lock:
             self._trip = None
             self._latched.clear()
-            for r in self.rules.values():
+            for r in self.rules:
                 r.reset()
         log.info("interlock re-armed")
 
@@ -397,35 +457,77 @@ class Interlock:
                                        f"{self._trip.rule}: {self._trip.detail}")
             self.stimulator.start()
 
+    # -- the stream watch and the faults a block reports ---------------------------------
+    @property
+    def stall_timeout_s(self) -> float:
+        """How long the force stream may be silent before the interlock trips, s."""
+        return self.stall.timeout_s
+
+    def watch_stream(self, now_s: float, *, fs_Hz: float | None = None,
+                     chunk_period_s: float | None = None) -> None:
+        """Acquisition started at ``now_s``: the stall watch begins (:meth:`StallRule.start`)."""
+        self.stall.start(now_s, fs_Hz=fs_Hz, chunk_period_s=chunk_period_s)
+
+    def unwatch_stream(self) -> None:
+        """Acquisition stopped: the stall watch ends."""
+        self.stall.stop()
+
+    def stimulator_fault(self, detail: str) -> Trip:
+        """Trip for a stimulator that failed outside a status check (a refused waveform,
+        a driver that raised)."""
+        return self.trip(self.stim.name, detail)
+
+    def acquisition_fault(self, detail: str) -> Trip:
+        """Trip for an acquisition that failed to start or to read."""
+        return self.trip(self.flags.name, detail)
+
+    def stream_stalled(self, detail: str) -> Trip:
+        """Trip for a stream found silent by a clock other than the engine's."""
+        return self.trip(self.stall.name, detail)
+
     # -- checks the engine calls -----------------------------------------------------
-    def check_chunk(self, chunk: ForceChunk, now_s: float,
-                    expected_index: int | None = None) -> Trip | None:
-        if chunk.n:
-            self.stall.feed(now_s, chunk.n)
-        for rule, reason in ((self.flags.name, self.flags.check(chunk, expected_index)),
-                             (self.force.name, self.force.check(chunk))):
+    def check(self, obs: Observation) -> Trip | None:
+        """Ask every rule about ``obs``, in :attr:`rules` order; the first reason trips.
+
+        Returns
+        -------
+        Trip or None
+            The trip that latched the interlock (None: every rule is content).
+        """
+        for rule in self.rules:
+            reason = rule.check(obs)
             if reason:
-                return self.trip(rule, reason)
+                return self.trip(rule.name, reason)
         return None
 
+    def check_chunk(self, chunk: ForceChunk, now_s: float,
+                    expected_index: int | None = None) -> Trip | None:
+        """:meth:`check` of a chunk (flags, index continuity, force; feeds the stall
+        watch)."""
+        return self.check(Observation(now_s, chunk=chunk, expected_index=expected_index))
+
     def check_stall(self, now_s: float) -> Trip | None:
-        reason = self.stall.check(now_s)
-        return self.trip(self.stall.name, reason) if reason else None
+        """:meth:`check` of a moment without samples (the stall watch)."""
+        return self.check(Observation(now_s, no_samples=True))
 
-    def check_stimulator(self) -> Trip | None:
-        reason = self.stim.check(self.stimulator.status)
-        return self.trip(self.stim.name, reason) if reason else None
+    def check_stimulator(self, now_s: float = 0.0) -> Trip | None:
+        """Ask the stimulator its status now and :meth:`check` it."""
+        try:
+            status = self.stimulator.status()
+        except Exception as exc:  # a driver that cannot answer is a fault
+            return self.check(Observation(now_s, stimulator_unavailable=f"{type(exc).__name__}"
+                                                                        f": {exc}"))
+        return self.check(Observation(now_s, stimulator_status=status))
 
-    def check_switch(self) -> Trip | None:
+    def check_switch(self, now_s: float = 0.0) -> Trip | None:
         """Read the hardware switch now (the engine does it once per chunk, besides the
         watcher thread, so a press is also seen on the engine's own clock)."""
         if self.estop_input is None or not self._switch_pressed():
             return None
-        self.estop_rule.switch_pressed = True
         if self._latched.is_set():
+            self.estop_rule.switch_pressed = True
             return self._trip
-        return self.trip(self.estop_rule.name, "hardware E-stop switch pressed (or "
-                                               "unreadable)")
+        return self.check(Observation(now_s, switch_pressed=True))
 
     # -- the hardware switch ---------------------------------------------------------
     def _switch_pressed(self) -> bool:

@@ -96,8 +96,8 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
             stream.open(stim)
         stim.arm()
     except Exception as exc:  # a driver fault before any output: trip, nothing started
-        trip = interlock.trip(interlock.stim.name, f"stimulator refused the waveform "
-                                                   f"({type(exc).__name__}: {exc})")
+        trip = interlock.stimulator_fault(f"stimulator refused the waveform "
+                                          f"({type(exc).__name__}: {exc})")
         return BlockResult(0, force, None, None, _reason(trip))
     try:
         # sample 0 = the stimulator's start trigger; a device without a trigger output
@@ -105,25 +105,25 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
         # just before its output starts
         acq.start(n, triggered=_has_trigger(stim))
     except Exception as exc:
-        trip = interlock.trip(interlock.flags.name, f"acquisition could not start "
-                                                    f"({type(exc).__name__}: {exc})")
+        trip = interlock.acquisition_fault(f"acquisition could not start "
+                                           f"({type(exc).__name__}: {exc})")
         return BlockResult(0, force, None, None, _reason(trip))
-    stall_limit_real = max(STALL_BACKSTOP_S, 10 * interlock.stall.timeout_s)
-    read_timeout = min(0.05, interlock.stall.timeout_s / 2)
+    stall_limit_real = max(STALL_BACKSTOP_S, 10 * interlock.stall_timeout_s)
+    read_timeout = min(0.05, interlock.stall_timeout_s / 2)
     reason = ""
     try:
         # the stall limit allows for chunked delivery and a stepped clock (Windows):
         # drivers may declare their chunk period; otherwise it is learnt from the chunks
-        interlock.stall.start(clock.monotonic_s(), fs_Hz=getattr(checked, "fs_Hz", None),
-                              chunk_period_s=getattr(acq, "chunk_period_s", None))
+        interlock.watch_stream(clock.monotonic_s(), fs_Hz=getattr(checked, "fs_Hz", None),
+                               chunk_period_s=getattr(acq, "chunk_period_s", None))
         interlock.start_output()
         last_real = time.monotonic()
         while received < n:
             try:
                 chunk = acq.read(read_timeout)
             except Exception as exc:  # the force chain failed: a sensor fault
-                reason = _reason(interlock.trip(interlock.flags.name, f"acquisition read "
-                                                f"failed ({type(exc).__name__}: {exc})"))
+                reason = _reason(interlock.acquisition_fault(
+                    f"acquisition read failed ({type(exc).__name__}: {exc})"))
                 break
             now = clock.monotonic_s()
             if chunk is not None and on_chunk is not None:
@@ -162,8 +162,8 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
                 trip = interlock.check_stall(now)
                 gap_real = time.monotonic() - last_real
                 if trip is None and gap_real > stall_limit_real:
-                    trip = interlock.trip(interlock.stall.name, f"no force samples for "
-                                                                f"{gap_real:.1f} s (real time)")
+                    trip = interlock.stream_stalled(f"no force samples for "
+                                                    f"{gap_real:.1f} s (real time)")
                 if trip is not None:
                     reason = _reason(trip)
                     break
@@ -182,8 +182,8 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
     except InterlockTripped as exc:
         reason = str(exc)
     except Exception as exc:  # a driver raised mid-run: a fault like any other
-        reason = _reason(interlock.trip(interlock.stim.name, f"device error "
-                                        f"({type(exc).__name__}: {exc})"))
+        reason = _reason(interlock.stimulator_fault(f"device error "
+                                                    f"({type(exc).__name__}: {exc})"))
     finally:
         try:
             if not interlock.latched and isinstance(stim, PeriodSafeStop):
@@ -197,7 +197,7 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
                 stim.stop_now()
             except Exception:
                 log.exception("stimulator.stop_now() failed")
-        interlock.stall.stop()
+        interlock.unwatch_stream()
         if stream is not None:
             try:
                 stream.close(stim)

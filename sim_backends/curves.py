@@ -31,6 +31,20 @@ class CurveModel(enum.Enum):
         return {"constant": 1, "linear": 2, "quadratic": 3, "exponential": 2}[self.value]
 
 
+def curve_values(model: CurveModel, coefficients, sE) -> np.ndarray:
+    """The one evaluation of a twin-file curve family at ``sE`` (array in, array out);
+    the analysis's :func:`nmsid.analysis.curves.evaluate_curve` uses it too."""
+    s = np.asarray(sE, dtype=float)
+    c = [float(v) for v in coefficients]
+    if model is CurveModel.CONSTANT:
+        return np.full_like(s, c[0])
+    if model is CurveModel.LINEAR:
+        return c[0] + c[1] * s
+    if model is CurveModel.QUADRATIC:
+        return c[0] + c[1] * s + c[2] * s * s
+    return c[0] * np.exp(c[1] * s)
+
+
 @dataclass(frozen=True)
 class ParameterCurve:
     """A parameter as a function of sE.
@@ -62,16 +76,7 @@ class ParameterCurve:
         object.__setattr__(self, "coefficients", coeffs)
 
     def __call__(self, sE):
-        s = np.asarray(sE, dtype=float)
-        c = self.coefficients
-        if self.model is CurveModel.CONSTANT:
-            out = np.full_like(s, c[0])
-        elif self.model is CurveModel.LINEAR:
-            out = c[0] + c[1] * s
-        elif self.model is CurveModel.QUADRATIC:
-            out = c[0] + c[1] * s + c[2] * s * s
-        else:
-            out = c[0] * np.exp(c[1] * s)
+        out = curve_values(self.model, self.coefficients, sE)
         return float(out) if np.ndim(out) == 0 else out
 
     def to_dict(self) -> dict:

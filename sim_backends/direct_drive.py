@@ -10,16 +10,14 @@ from __future__ import annotations
 import numpy as np
 
 from nmsid.drivers.interfaces import CheckedWaveform
+from nmsid.protocols.waveforms import currents_mA
 
 FS_HZ = 2000.0
 
 
 def currents_for(cal, sE: float, rE: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Extensor / flexor currents of eqs. 1-4 inverted (I_e = rE sE, I_f = (1-rE) sE)."""
-    rE = np.asarray(rE, dtype=float)
-    I_e = cal.Iemin_mA + rE * sE * (cal.Iemax_mA - cal.Iemin_mA)
-    I_f = cal.Ifmin_mA + (1.0 - rE) * sE * (cal.Ifmax_mA - cal.Ifmin_mA)
-    return I_e, I_f
+    return currents_mA(rE, sE, cal.Iemin_mA, cal.Iemax_mA, cal.Ifmin_mA, cal.Ifmax_mA)
 
 
 def chirp_rE(fs_Hz: float = FS_HZ, steady_s: float = 5.0, chirp_s: float = 10.0,

@@ -1,6 +1,7 @@
 """The optional unmodelled effects of the virtual participant (all off by default).
 
-Names and parameters are exactly those of ``docs/twin-file.md``; an effect list in a
+Names, parameters and their bounds come from the registry
+(:mod:`nmsid.protocols.effects`, as ``docs/twin-file.md`` lists them); an effect list in a
 twin file (``[{"name": ..., "params": {...}}, ...]``) parses with :func:`effects_from_list`
 and prints back with :func:`effects_to_list`. The simulator applies them in the twin's order
 of physics: recruitment -> activation -> (asymmetric) dynamics -> dead time -> fatigue gain
@@ -18,27 +19,23 @@ DeadTime(L_s=0.03)
 from __future__ import annotations
 
 import enum
-import math
 from dataclasses import dataclass, fields
 
 import numpy as np
 
+from nmsid.protocols.effects import EFFECT_NAMES, EffectParamError, check_param, spec
+from nmsid.protocols.effects import Effect as _Name
 from nmsid.sim_backends.errors import SimConfigError
 
 
-def _positive(name: str, value: float, *, allow_zero: bool = False, upper: float | None = None
-              ) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise SimConfigError(f"{name} must be a number, got {value!r}") from None
-    ok = math.isfinite(v) and (v >= 0 if allow_zero else v > 0)
-    if upper is not None:
-        ok = ok and v <= upper
-    if not ok:
-        rng = f"{'>= 0' if allow_zero else '> 0'}" + (f" and <= {upper:g}" if upper else "")
-        raise SimConfigError(f"{name} must be a finite number {rng}, got {value!r}")
-    return v
+def _checked(obj, *names: str) -> None:
+    """Set each named field of the frozen dataclass ``obj`` to its value checked against
+    the registry's bounds (:func:`nmsid.protocols.effects.check_param`)."""
+    for n in names:
+        try:
+            object.__setattr__(obj, n, check_param(obj.name, n, getattr(obj, n)))
+        except EffectParamError as exc:
+            raise SimConfigError(str(exc)) from None
 
 
 @dataclass(frozen=True)
@@ -46,11 +43,10 @@ class DeadTime:
     """The force responds to the stimulation ``L_s`` seconds late."""
 
     L_s: float
-    name = "dead_time"
+    name = _Name.DEAD_TIME.value
 
     def __post_init__(self):
-        object.__setattr__(self, "L_s", _positive("dead_time.L_s", self.L_s,
-                                                  allow_zero=True, upper=2.0))
+        _checked(self, "L_s")
 
 
 @dataclass(frozen=True)
@@ -58,11 +54,10 @@ class ActivationDynamics:
     """An extra first-order lag ``1 / (tau_s s + 1)`` of each muscle's activation."""
 
     tau_s: float
-    name = "activation_dynamics"
+    name = _Name.ACTIVATION_DYNAMICS.value
 
     def __post_init__(self):
-        object.__setattr__(self, "tau_s", _positive("activation_dynamics.tau_s",
-                                                    self.tau_s, allow_zero=True, upper=5.0))
+        _checked(self, "tau_s")
 
 
 class FatigueShape(enum.Enum):
@@ -80,8 +75,8 @@ class Fatigue:
 
     shape: FatigueShape
     gain_loss_pct: float
-    reference_stim_s: float = 675.0
-    name = "fatigue"
+    reference_stim_s: float = spec(_Name.FATIGUE).param("reference_stim_s").default_value()
+    name = _Name.FATIGUE.value
 
     def __post_init__(self):
         try:
@@ -90,10 +85,7 @@ class Fatigue:
         except ValueError:
             raise SimConfigError(f"fatigue.shape {self.shape!r} is unknown; valid: "
                                  "exponential, linear") from None
-        object.__setattr__(self, "gain_loss_pct", _positive(
-            "fatigue.gain_loss_pct", self.gain_loss_pct, allow_zero=True, upper=99.0))
-        object.__setattr__(self, "reference_stim_s", _positive(
-            "fatigue.reference_stim_s", self.reference_stim_s))
+        _checked(self, "gain_loss_pct", "reference_stim_s")
 
     def gain(self, cumulative_stim_s):
         """g(c) for c in seconds of cumulative stimulation (array or scalar)."""
@@ -133,7 +125,7 @@ class RecruitmentNonlinearity:
     midpoint: float | None = None
     threshold: float | None = None
     saturation: float | None = None
-    name = "recruitment_nonlinearity"
+    name = _Name.RECRUITMENT_NONLINEARITY.value
 
     def __post_init__(self):
         try:
@@ -148,14 +140,9 @@ class RecruitmentNonlinearity:
                 raise SimConfigError(f"recruitment_nonlinearity with shape {shape.value} "
                                      f"needs {', '.join(_SHAPE_PARAMS[shape])}; {p} missing")
         if shape is RecruitmentShape.POWER:
-            object.__setattr__(self, "gamma", _positive("recruitment_nonlinearity.gamma",
-                                                        self.gamma, upper=10.0))
+            _checked(self, "gamma")
         elif shape is RecruitmentShape.SIGMOID:
-            object.__setattr__(self, "slope", _positive("recruitment_nonlinearity.slope",
-                                                        self.slope, upper=200.0))
-            object.__setattr__(self, "midpoint", float(self.midpoint))
-            if not math.isfinite(self.midpoint):
-                raise SimConfigError("recruitment_nonlinearity.midpoint must be finite")
+            _checked(self, "slope", "midpoint")
         else:
             th, sat = float(self.threshold), float(self.saturation)
             if not (0.0 <= th < sat <= 1.0):
@@ -196,13 +183,10 @@ class BaselineDrift:
 
     amplitude_N: float
     corner_Hz: float
-    name = "baseline_drift"
+    name = _Name.BASELINE_DRIFT.value
 
     def __post_init__(self):
-        object.__setattr__(self, "amplitude_N", _positive(
-            "baseline_drift.amplitude_N", self.amplitude_N, allow_zero=True, upper=100.0))
-        object.__setattr__(self, "corner_Hz", _positive(
-            "baseline_drift.corner_Hz", self.corner_Hz, upper=50.0))
+        _checked(self, "amplitude_N", "corner_Hz")
 
 
 @dataclass(frozen=True)
@@ -212,21 +196,21 @@ class FlexorExtensorAsymmetry:
 
     wn_ratio: float
     zeta_ratio: float
-    name = "flexor_extensor_asymmetry"
+    name = _Name.FLEXOR_EXTENSOR_ASYMMETRY.value
 
     def __post_init__(self):
-        object.__setattr__(self, "wn_ratio", _positive(
-            "flexor_extensor_asymmetry.wn_ratio", self.wn_ratio, upper=10.0))
-        object.__setattr__(self, "zeta_ratio", _positive(
-            "flexor_extensor_asymmetry.zeta_ratio", self.zeta_ratio, upper=10.0))
+        _checked(self, "wn_ratio", "zeta_ratio")
 
 
-EFFECT_TYPES = {cls.name: cls for cls in (DeadTime, ActivationDynamics, Fatigue,
-                                          RecruitmentNonlinearity, BaselineDrift,
-                                          FlexorExtensorAsymmetry)}
-"""Effect name (as in twin files) -> dataclass."""
+_CLASSES = {cls.name: cls for cls in (DeadTime, ActivationDynamics, Fatigue,
+                                      RecruitmentNonlinearity, BaselineDrift,
+                                      FlexorExtensorAsymmetry)}
+if set(_CLASSES) != set(EFFECT_NAMES):  # pragma: no cover - a registry entry without a class
+    raise ImportError("sim_backends.effects: the dataclasses "
+                      f"{sorted(_CLASSES)} differ from the registry {sorted(EFFECT_NAMES)}")
 
-EFFECT_NAMES = tuple(EFFECT_TYPES)
+EFFECT_TYPES = {name: _CLASSES[name] for name in EFFECT_NAMES}
+"""Effect name (as in twin files) -> dataclass, in the registry's order of physics."""
 
 Effect = (DeadTime | ActivationDynamics | Fatigue | RecruitmentNonlinearity | BaselineDrift
           | FlexorExtensorAsymmetry)

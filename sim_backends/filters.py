@@ -60,17 +60,6 @@ def dynamics_zoh(wn_rad_s: float, zeta: float, tau_s: float, fs_Hz: float
     return b, a
 
 
-@lru_cache(maxsize=256)
-def first_order_zoh(tau_s: float, fs_Hz: float) -> tuple[np.ndarray, np.ndarray]:
-    """ZOH discretisation of ``1 / (tau s + 1)``."""
-    p = np.exp(-1.0 / (tau_s * fs_Hz))
-    b = np.array([0.0, 1.0 - p])
-    a = np.array([1.0, -p])
-    b.setflags(write=False)
-    a.setflags(write=False)
-    return b, a
-
-
 class StatefulFilter:
     """``lfilter`` with state carried across calls and across coefficient changes."""
 

@@ -18,7 +18,6 @@ Examples
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
@@ -28,6 +27,7 @@ from nmsid.errors import OutputExistsError
 from nmsid.sim_backends.curves import ParameterCurve
 from nmsid.sim_backends.effects import effects_from_list
 from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.twin_file import read_twin_file, write_twin_file
 from nmsid.sim_backends.participant import ReferenceCalibration, VirtualParticipant
 from nmsid.sim_backends.sensor import SensorModel
 
@@ -40,10 +40,7 @@ def load_twin(path_or_dict) -> dict:
         twin, where = path_or_dict, "twin"
     else:
         where = os.fspath(path_or_dict)
-        try:
-            twin = json.loads(Path(where).read_text(encoding="utf-8"))
-        except json.JSONDecodeError as exc:
-            raise SimConfigError(f"{where}: not valid JSON ({exc})") from None
+        twin = read_twin_file(where)
     if not isinstance(twin, dict):
         raise SimConfigError(f"{where}: a twin file holds a JSON object")
     if twin.get("format") != "nmsid-twin":
@@ -138,4 +135,4 @@ def write_twin(participant: VirtualParticipant, path) -> None:
     path = Path(path)
     if path.exists():
         raise OutputExistsError(f"{path}: already exists; choose another path")
-    path.write_text(json.dumps(participant.to_twin(), indent=2), encoding="utf-8")
+    write_twin_file(path, participant.to_twin())

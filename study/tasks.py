@@ -105,7 +105,7 @@ def run_session(path: str, out_dir: str, settings: IdentificationSettings, *,
         result["ok"] = True
         if gap:
             stage = "gap diagnosis"
-            rep = run_gap([session], out / "gap", plots=False)["sessions"][0]
+            rep = run_gap([session], out / "gap", plots=False).sessions[0]
             result["gap"] = {
                 "best_effect": rep["best_effect"],
                 "best_pair": rep.get("best_pair"),

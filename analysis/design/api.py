@@ -2,7 +2,7 @@
 
 Examples
 --------
->>> from analysis.design.prior import population_prior
+>>> from nmsid.analysis.design.prior import population_prior
 >>> prior = population_prior(2, seed=0)
 >>> # run_design(prior, "paper", "out/", validate_n=2)   # writes protocol.toml, ...
 """
@@ -56,11 +56,11 @@ def validate_protocols(participants, proposal, paper, scatter, seed: int = 0) ->
                      stream=PROPOSAL_STREAM)
     b = run_protocol(participants, paper, scatter=scatter, seed=seed, stream=PAPER_STREAM)
     ratio = validated_ratio(a, b)
-    return {"validated_sd_ratio": ratio["max"],
-            "validated_sd_ratio_se": _finite_or_none(ratio["max_se"]),
-            "validated_sd_ratio_per_parameter": ratio["per_parameter"],
+    return {"validated_sd_ratio": ratio.max,
+            "validated_sd_ratio_se": _finite_or_none(ratio.max_se),
+            "validated_sd_ratio_per_parameter": ratio.per_parameter,
             "validated_sd_ratio_se_per_parameter": {
-                k: _finite_or_none(v) for k, v in ratio["se_per_parameter"].items()},
+                k: _finite_or_none(v) for k, v in ratio.se_per_parameter.items()},
             "curve_rms_rel": {"proposal": a.curve_rms_rel(), "paper": b.curve_rms_rel()},
             "level_rms_rel": {"proposal": a.level_rms_rel(), "paper": b.level_rms_rel()},
             "selection_accuracy": {"proposal": a.selection_accuracy()["overall"],

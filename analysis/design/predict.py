@@ -227,19 +227,41 @@ class Predictor:
         return acc
 
 
-def sd_ratio(proposal: Prediction, paper: Prediction) -> dict:
+@dataclass(frozen=True)
+class SdRatio:
+    """Predicted curve standard errors, proposal / paper (:func:`sd_ratio`).
+
+    Attributes
+    ----------
+    max : float
+        The largest ratio over participants, parameters and levels (the designer's
+        constraint).
+    per_parameter : dict of str to float
+        The largest ratio per parameter.
+    median_participant_max : float
+        The largest over parameters and levels of the median over participants.
+    """
+
+    max: float
+    per_parameter: dict[str, float]
+    median_participant_max: float
+
+
+def sd_ratio(proposal: Prediction, paper: Prediction) -> SdRatio:
     """Ratios of the proposal's predicted curve standard errors to the paper protocol's.
 
     Compared on the paper's 15 levels through the curves (protocols with different level
     sets estimate different points; both estimate the same curve), per participant,
-    parameter and level. ``max`` is the largest ratio over all of them (the designer's
-    constraint); ``median_participant_max`` the largest over parameters and levels of the
-    median over participants.
+    parameter and level.
+
+    Returns
+    -------
+    SdRatio
     """
     r = proposal.curve_se / paper.curve_se
     per_param = {name: float(r[:, :, j].max()) for j, name in enumerate(PARAMETERS)}
-    return {"max": float(r.max()), "per_parameter": per_param,
-            "median_participant_max": float(np.median(r, axis=0).max())}
+    return SdRatio(max=float(r.max()), per_parameter=per_param,
+                   median_participant_max=float(np.median(r, axis=0).max()))
 
 
 def derived_ratio(proposal: Prediction, paper: Prediction) -> float:

@@ -56,7 +56,8 @@ class PriorParticipant:
     sE_range: tuple[float, float] = (0.30, 1.00)
 
     def parameters_at(self, sE: float) -> tuple[float, float, float]:
-        return tuple(float(self.curves[name](sE)) for name in PARAMETERS)
+        kp, wn, zeta = (float(self.curves[name](sE)) for name in PARAMETERS)
+        return kp, wn, zeta
 
 
 @dataclass(frozen=True)
@@ -102,8 +103,9 @@ def twin_prior(path, noise_N: float = DEFAULT_NOISE_N) -> Prior:
                                tuple(float(v) for v in twin.parameters[name].coefficients))
               for name in PARAMETERS}
     _check(twin.participant, curves, str(path))
+    lo, hi = twin.sE_range
     return Prior((PriorParticipant(twin.participant, curves, float(noise_N),
-                                   tuple(twin.sE_range)),), source=str(path))
+                                   (float(lo), float(hi))),), source=str(path))
 
 
 def population_prior(n: int = 20, seed: int = 0) -> Prior:
@@ -113,8 +115,9 @@ def population_prior(n: int = 20, seed: int = 0) -> Prior:
         curves = {name: PriorCurve(getattr(vp, name).model.value,
                                    tuple(getattr(vp, name).coefficients))
                   for name in PARAMETERS}
+        lo, hi = vp.sE_range
         out.append(PriorParticipant(vp.code, curves, float(vp.sensor.noise_N),
-                                    tuple(vp.sE_range)))
+                                    (float(lo), float(hi))))
     return Prior(tuple(out), source=f"simulator population (n={n}, seed={seed})")
 
 
@@ -155,7 +158,8 @@ def scatter_from_parameters(path, prior: Prior) -> dict:
                               "parameters.csv that nmsid identify wrote)")
         data = [(float(r["sE"]), float(r[name]), float(r[_SE_COLUMNS[name]]),
                  float(r["n_trials"])) for r in rows if r[name] not in ("", "nan")]
-        x, y, se, nt = (np.array(v) for v in zip(*data)) if data else ([],) * 4
+        cols = [np.array(v) for v in zip(*data)] if data else [np.zeros(0)] * 4
+        x, y, se, nt = cols
         k = len(who.curves[name].coefficients)
         if len(x) < k + 2:
             raise DesignError(f"{path}: {len(x)} identified level(s) of {name}; at least "

@@ -58,13 +58,6 @@ def protocol_toml(c: Candidate, header: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-def _table_rows(pred, stat) -> list[list]:
-    """Median over prior participants of ``stat`` ([participant, level, parameter])."""
-    med = np.median(stat, axis=0)
-    return [[f"{s:.2f}"] + [f"{100 * med[i, j]:.3g}" for j in range(3)]
-            for i, s in enumerate(PAPER_LEVELS)]
-
-
 def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
                   validation: dict | None, noise_only=None,
                   excitation: dict | None = None) -> dict:
@@ -102,7 +95,7 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
     rel_paper = paper.prediction.curve_se / np.abs(paper.prediction.curve_value)
     per_level = []
     for i, s in enumerate(PAPER_LEVELS):
-        row = {"sE": s}
+        row: dict[str, object] = {"sE": s}
         for j, name in enumerate(PARAMETERS):
             row[name] = {"proposal_rel_se": float(np.median(rel_prop[:, i, j])),
                          "paper_rel_se": float(np.median(rel_paper[:, i, j])),
@@ -122,9 +115,9 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
         "stimulation_fraction": c.stimulation_s / paper.candidate.stimulation_s,
         "session_s": c.session_s, "paper_session_s": paper.candidate.session_s,
         "n_trials": c.n_trials, "paper_n_trials": paper.candidate.n_trials,
-        "predicted_sd_ratio": prop.ratio["max"],
-        "predicted_sd_ratio_per_parameter": prop.ratio["per_parameter"],
-        "predicted_sd_ratio_median_participant": prop.ratio["median_participant_max"],
+        "predicted_sd_ratio": prop.ratio.max,
+        "predicted_sd_ratio_per_parameter": prop.ratio.per_parameter,
+        "predicted_sd_ratio_median_participant": prop.ratio.median_participant_max,
         "predicted_derived_sd_ratio": prop.derived_ratio,
         "predicted_sd_ratio_definition": (
             "largest ratio, over prior participants, parameters (Kp, wn, zeta) and the "

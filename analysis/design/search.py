@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 
 from nmsid.analysis.design.candidates import Candidate, paper_candidate, search_space
 from nmsid.analysis.design.errors import DesignError
-from nmsid.analysis.design.predict import (Prediction, Predictor, derived_ratio, relative_curve_se,
-                                           sd_ratio)
+from nmsid.analysis.design.predict import (Prediction, Predictor, SdRatio, derived_ratio,
+                                           relative_curve_se, sd_ratio)
 from nmsid.analysis.design.prior import PARAMETERS
 
 #: "No worse than the paper" allows this relative excess of a predicted standard error:
@@ -90,7 +90,7 @@ class Evaluation:
 
     candidate: Candidate
     prediction: Prediction
-    ratio: dict
+    ratio: SdRatio
     derived_ratio: float
     relative_se: dict
     meets_precision: bool
@@ -114,9 +114,9 @@ class DesignResult:
     notes: list[str] = field(default_factory=list)
 
 
-def _precision_ok(target: Target, ratio: dict, dratio: float, rel: dict) -> bool:
+def _precision_ok(target: Target, ratio: SdRatio, dratio: float, rel: dict) -> bool:
     if target.kind == "paper":
-        return ratio["max"] <= 1 + target.tolerance and dratio <= 1 + target.tolerance
+        return ratio.max <= 1 + target.tolerance and dratio <= 1 + target.tolerance
     return all(rel[k] <= v for k, v in target.sd.items())
 
 
@@ -167,7 +167,7 @@ def design(predictor: Predictor, target: Target, candidates: list[Candidate] | N
             continue      # a candidate the configuration refuses is never proposed
         n += 1
         ev = evaluate(predictor, c, paper_pred, target)
-        if best_miss is None or ev.ratio["max"] < best_miss.ratio["max"]:
+        if best_miss is None or ev.ratio.max < best_miss.ratio.max:
             best_miss = ev
         if not ev.meets_precision:
             continue

@@ -139,7 +139,7 @@ def simulate_session(vp, candidate: Candidate, *, scatter: dict | ScatterModel |
     musculoskeletal = hasattr(vp, "make_simulator")  # MuJoCo participant: its own simulator
     cal = vp.ramp_calibration() if musculoskeletal else \
         vp.calibration.as_session_calibration()
-    trials = []
+    trials: list = []
     attrs = input_attrs(p)
     for s in p.sE_levels:
         wf = trial_waveform(p, s, cal)
@@ -194,8 +194,11 @@ class ProtocolOutcome:
         return {n: float(np.sqrt(np.nanmean(e[:, j] ** 2))) for j, n in enumerate(PARAMETERS)}
 
     def selection_accuracy(self) -> dict:
-        acc = {n: float(self.selected_right[:, j].mean()) for j, n in enumerate(PARAMETERS)}
-        acc["overall"] = float(self.selected_right.mean())
+        right = self.selected_right
+        if right is None:
+            raise ValueError("no selection was recorded for this outcome")
+        acc = {n: float(right[:, j].mean()) for j, n in enumerate(PARAMETERS)}
+        acc["overall"] = float(right.mean())
         return acc
 
 
@@ -237,7 +240,29 @@ def _per_participant_ms(outcome: ProtocolOutcome) -> np.ndarray:
         return np.nanmean(outcome.curve_err ** 2, axis=1)
 
 
-def validated_ratio(proposal: ProtocolOutcome, paper: ProtocolOutcome) -> dict:
+@dataclass(frozen=True)
+class ValidatedRatio:
+    """Realised RMS curve errors, proposal / paper (:func:`validated_ratio`).
+
+    Attributes
+    ----------
+    max : float
+        The largest ratio over the parameters.
+    per_parameter : dict of str to float
+        The ratio per parameter (``Kp``, ``wn_rad_s``, ``zeta``).
+    se_per_parameter : dict of str to float
+        Its Monte-Carlo standard error (NaN with one participant).
+    max_se : float
+        The standard error of the parameter giving ``max``.
+    """
+
+    max: float
+    per_parameter: dict[str, float]
+    se_per_parameter: dict[str, float]
+    max_se: float
+
+
+def validated_ratio(proposal: ProtocolOutcome, paper: ProtocolOutcome) -> ValidatedRatio:
     """Ratios of the realised RMS curve errors, proposal / paper, per parameter; ``max``;
     and their Monte-Carlo standard errors.
 
@@ -246,12 +271,10 @@ def validated_ratio(proposal: ProtocolOutcome, paper: ProtocolOutcome) -> dict:
 
     Returns
     -------
-    dict
-        ``max``, ``per_parameter``; ``se_per_parameter``: the ratio's standard error from
-        the spread of the participants' mean squared errors (delta method on
-        ``sqrt(A / B)``, the two protocols' draws independent, as
-        :func:`validate_protocols` runs them; NaN with one participant); ``max_se``: that
-        of the parameter giving ``max``.
+    ValidatedRatio
+        The standard errors come from the spread of the participants' mean squared errors
+        (delta method on ``sqrt(A / B)``, the two protocols' draws independent, as
+        :func:`validate_protocols` runs them).
     """
     a, b = proposal.curve_rms_rel(), paper.curve_rms_rel()
     per = {n: a[n] / b[n] for n in PARAMETERS}
@@ -264,6 +287,6 @@ def validated_ratio(proposal: ProtocolOutcome, paper: ProtocolOutcome) -> dict:
             rel_var += (np.var(ms, ddof=1) / (len(ms) * np.mean(ms) ** 2)
                         if len(ms) > 1 and np.mean(ms) > 0 else np.nan)
         se[n] = float(per[n] * 0.5 * np.sqrt(rel_var))
-    worst = max(per, key=per.get)
-    return {"max": per[worst], "per_parameter": per, "se_per_parameter": se,
-            "max_se": se[worst]}
+    worst = max(per, key=lambda n: per[n])
+    return ValidatedRatio(max=per[worst], per_parameter=per, se_per_parameter=se,
+                          max_se=se[worst])

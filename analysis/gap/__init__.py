@@ -24,7 +24,7 @@ Modules, each with one job:
 
 Examples
 --------
->>> from analysis.gap import Effect
+>>> from nmsid.analysis.gap import Effect
 >>> Effect("dead_time").value
 'dead_time'
 """

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import logging
+from dataclasses import dataclass
 from collections import Counter
 from pathlib import Path
 
@@ -31,6 +32,7 @@ from nmsid.analysis.gap.models import NOMINAL, nuisance_basis
 from nmsid.analysis.gap.report import json_safe, write_outputs
 from nmsid.analysis.qc import assess_session
 from nmsid.protocols.session_file import Session, read_session
+from nmsid.protocols.waveforms import currents_mA
 from nmsid.sim_backends.sensor import SensorModel
 from nmsid.sim_backends.simulation import ParticipantSimulator
 from nmsid.sim_backends.twin import participant_from_twin
@@ -90,8 +92,8 @@ def _twin_predictions(data: GapData, twin, session: Session | None = None) -> np
     sim = ParticipantSimulator(participant, data.fs_raw_Hz)
     by_name = {}
     for t in session.trials:
-        I_e = cal.Iemin_mA + t.rE * t.sE * (cal.Iemax_mA - cal.Iemin_mA)
-        I_f = cal.Ifmin_mA + (1.0 - t.rE) * t.sE * (cal.Ifmax_mA - cal.Ifmin_mA)
+        I_e, I_f = currents_mA(t.rE, t.sE, cal.Iemin_mA, cal.Iemax_mA, cal.Ifmin_mA,
+                               cal.Ifmax_mA)
         by_name[t.name] = _with_force(t, sim.simulate(I_e, I_f).force_N)
     trials = [by_name[info.name] for info in data.trials]
     return prepare_trials(trials, path=str(twin), settings=data.settings,
@@ -122,9 +124,25 @@ def _under_test(diag: Diagnosis, pred: np.ndarray, label: str) -> dict:
     return out
 
 
+@dataclass
+class GapRun:
+    """What :func:`run_gap` wrote.
+
+    Attributes
+    ----------
+    sessions : list of dict
+        Each session's ``gap_report.json`` document, in the order given.
+    report : pathlib.Path
+        The top-level ``gap_report.json`` (a group summary for several sessions).
+    """
+
+    sessions: list[dict]
+    report: Path
+
+
 def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None,
             sim_session=None, plots: bool = True,
-            preprocess: PreprocessSettings | None = None, excluded="qc") -> dict:
+            preprocess: PreprocessSettings | None = None, excluded="qc") -> GapRun:
     """Diagnose each session and write the outputs.
 
     Parameters
@@ -149,8 +167,7 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
 
     Returns
     -------
-    dict
-        ``{"sessions": [report, ...], "report": path of the top-level JSON}``.
+    GapRun
     """
 
     out = Path(out_dir)
@@ -189,4 +206,4 @@ def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None
                                  "heldout": r["heldout"],
                                  "folder": Path(r["session"]).stem} for r in reports]}
         top.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
-    return {"sessions": reports, "report": str(top)}
+    return GapRun(sessions=reports, report=top)

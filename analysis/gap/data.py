@@ -303,13 +303,12 @@ def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
             steady_rows.append(res)
         else:
             steady.append(float("nan"))
-        seg = slice(i_win - lead, i_win - lead + n_raw_used)
         rows_draw.append(np.asarray(t.rE, float)[:n_min])
     rE_full = delay_input(np.vstack(rows_draw), timing.delay_s, fs)
     drive_full = _filter_chain(rE_full - 0.5, fs, s)
-    seg = slice(i_win - lead, i_win - lead + n_raw_used)
-    drive_raw = drive_full[:, seg]
-    rE_raw = rE_full[:, seg]
+    window = slice(i_win - lead, i_win - lead + n_raw_used)
+    drive_raw = drive_full[:, window]
+    rE_raw = rE_full[:, window]
     levels = np.array(sorted({round(float(t.sE), 10) for _, t in usable}))
     infos = []
     for k, t in usable:

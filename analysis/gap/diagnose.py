@@ -168,6 +168,9 @@ def noise_floor_pct(data: GapData, reference: np.ndarray) -> float:
 
 
 class _Runner:
+    #: the held-out reference signal (set by :func:`diagnose`)
+    reference: np.ndarray
+
     def __init__(self, data: GapData, settings: GapSettings):
         self.data = data
         self.s = settings
@@ -208,7 +211,7 @@ class _Runner:
             for fit, nom_fit, tr in zip(fits, nominal.fold_fits, self.train):
                 nu = self.nu
                 k = cand.n_shared()
-                if Effect.BASELINE_DRIFT in cand.effects:
+                if cand.fits_baseline:
                     k += n_drift_columns(d.t_eval_s, fit.corner_Hz) * tr.n_trials
                     k += 2 * fit.n_steps      # a step's time and height
                 n_eff = nu * fit.n_samples
@@ -223,7 +226,7 @@ class _Runner:
                                  and res.shrink_pct >= self.s.min_shrink_pct)
         return res
 
-    def drift_fits(self, nominal_fits: list[ModelFit]) -> list[ModelFit]:
+    def drift_fits(self, nominal_fits: list[ModelFit], cand: Candidate) -> list[ModelFit]:
         """Per fold: the baseline bandwidth with the lowest training IC."""
         out = []
         d = self.data
@@ -233,15 +236,14 @@ class _Runner:
             for fc in self.s.drift_corners_Hz:
                 # the baseline is nearly orthogonal to the 1-10 Hz response: a few
                 # iterations from the nominal fit settle the dynamics
-                fit = fit_model(tr, candidate(Effect.BASELINE_DRIFT), start=nom,
-                                corner_Hz=fc, max_iter=4)
+                fit = fit_model(tr, cand, start=nom, corner_Hz=fc, max_iter=4)
                 nu = self.nu
                 k = n_drift_columns(d.t_eval_s, fc) * tr.n_trials + 2 * fit.n_steps
                 ic = nu * fit.n_samples * np.log(fit.rss / nom.rss) + 2 * k
                 if ic < best_ic:
                     best, best_ic = fit, ic
             if best is nom:  # nothing better: the smallest bandwidth (scored as is)
-                best = fit_model(tr, candidate(Effect.BASELINE_DRIFT), start=nom,
+                best = fit_model(tr, cand, start=nom,
                                  corner_Hz=self.s.drift_corners_Hz[0], max_iter=4)
             out.append(best)
         return out
@@ -280,8 +282,8 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
     for e in s.candidates:
         t1 = time.perf_counter()
         cand = candidate(e)
-        if e is Effect.BASELINE_DRIFT:
-            fits = run.drift_fits(nom_fits)
+        if cand.fits_baseline:  # its bandwidth is chosen on a grid, not by the solver
+            fits = run.drift_fits(nom_fits, cand)
         else:
             fits = [fit_model(tr, cand, start=nf, max_iter=s.max_iter)
                     for tr, nf in zip(run.train, nom_fits)]
@@ -315,8 +317,7 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
             screen = pair_fit(0, 10)
             nu = run.nu
             dk = cand.n_shared() - best.candidate.n_shared()
-            if Effect.BASELINE_DRIFT in effs and best.candidate.effect is not \
-                    Effect.BASELINE_DRIFT:
+            if cand.fits_baseline and not best.candidate.fits_baseline:
                 dk += n_drift_columns(data.t_eval_s, screen.corner_Hz) * run.train[0].n_trials
             gain = nu * screen.n_samples * np.log(screen.rss / best.fold_fits[0].rss) + 2 * dk
             if not gain < -s.ic_margin:

@@ -18,13 +18,16 @@ the signatures say *why* and let a reader check it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from nmsid.analysis.gap.diagnose import Diagnosis
 from nmsid.analysis.gap.effects import Effect
 from nmsid.analysis.gap.fit import Problem
 from nmsid.analysis.gap.harmonics import local_harmonics
-from nmsid.analysis.gap.models import NOMINAL
+from nmsid.analysis.gap.localize import Localization
+from nmsid.analysis.gap.models import FORMS, NOMINAL
 
 CONFUSABLE = (
     (Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS),
@@ -81,28 +84,65 @@ def effect_footprint(diag: Diagnosis) -> dict | None:
     return view
 
 
-def signatures(diag: Diagnosis, loc: dict) -> dict:
+@dataclass
+class Signatures:
+    """What each effect would leave in the nominal model's held-out residual.
+
+    Attributes
+    ----------
+    transfer_function : dict
+        :func:`phase_shape` of the nominal model's gain and phase errors.
+    effect_footprint : dict or None
+        :func:`effect_footprint` of the winner (None: no winner).
+    gain_vs_stimulation : dict
+        ``slope_per_100s`` and ``correlation`` of the trials' gain with cumulative
+        stimulation (fatigue).
+    harmonics : dict
+        Median residual 2f and 3f harmonics and the non-harmonic 1.5f reference, % of the
+        fundamental (recruitment).
+    low_frequency : dict
+        The residual power's share below the chirp band, that of white noise and their
+        ratio (baseline drift).
+    """
+
+    transfer_function: dict
+    effect_footprint: dict | None
+    gain_vs_stimulation: dict
+    harmonics: dict
+    low_frequency: dict
+
+    @property
+    def phase(self) -> dict:
+        """The transfer-function view an effect is judged on: the winner's footprint when
+        there is one, else the nominal model's."""
+        return self.effect_footprint or self.transfer_function
+
+    def to_dict(self) -> dict:
+        """The report's form (``gap_report.json``, ``evidence.signatures``)."""
+        return dict(vars(self))
+
+
+def signatures(diag: Diagnosis, loc: Localization) -> Signatures:
     """Every signature, from the nominal model's held-out residual (and the winner's
     footprint)."""
-    fn = loc["frequency"]["nominal"]
+    fn = loc.frequency["nominal"]
     h = fn["residual_harmonic_pct"]
-    gs = loc["gain_vs_stimulation"]
-    sp = loc["spectrum"]["nominal"]
-    return {
-        "transfer_function": phase_shape(fn),
-        "effect_footprint": effect_footprint(diag),
-        "gain_vs_stimulation": {"slope_per_100s": gs["slope_per_100s"],
-                                "correlation": gs["correlation"]},
-        "harmonics": {"median_2f_pct": float(np.median(h["2f"])),
-                      "median_3f_pct": float(np.median(h["3f"])),
-                      "median_1.5f_noise_reference_pct": float(np.median(h["1.5f"]))},
-        "low_frequency": {"share_below_chirp": sp["low_share"],
-                          "share_if_white": sp["low_share_if_white"],
-                          "excess": sp["low_excess"]},
-    }
+    gs = loc.gain_vs_stimulation
+    sp = loc.spectrum["nominal"]
+    return Signatures(
+        transfer_function=phase_shape(fn),
+        effect_footprint=effect_footprint(diag),
+        gain_vs_stimulation={"slope_per_100s": gs["slope_per_100s"],
+                             "correlation": gs["correlation"]},
+        harmonics={"median_2f_pct": float(np.median(h["2f"])),
+                   "median_3f_pct": float(np.median(h["3f"])),
+                   "median_1.5f_noise_reference_pct": float(np.median(h["1.5f"]))},
+        low_frequency={"share_below_chirp": sp["low_share"],
+                       "share_if_white": sp["low_share_if_white"],
+                       "excess": sp["low_excess"]})
 
 
-def explain(diag: Diagnosis, sig: dict) -> list[str]:
+def explain(diag: Diagnosis, sig: Signatures) -> list[str]:
     """Plain-language lines: the verdict, the signature seen, how rivals were ruled out."""
     lines = []
     nom = diag.nominal
@@ -120,39 +160,9 @@ def explain(diag: Diagnosis, sig: dict) -> list[str]:
     lines.append(f"{final.label}: held-out NRMSE {nom.heldout_nrmse_pct:.3g} % -> "
                  f"{final.heldout_nrmse_pct:.3g} % ({final.shrink_pct:.0f} % smaller), dIC "
                  f"{final.delta_ic:.0f} (N_eff = {final.nu:.2f} N).")
-    tf = sig["effect_footprint"] or sig["transfer_function"]
     e = diag.best_effect
-    if e is Effect.DEAD_TIME:
-        lines.append(f"signature: the effect's footprint on the transfer function is a phase "
-                     f"line (R^2 {tf['r2_linear_phase']:.3f} vs {tf['r2_atan_phase']:.3f} for "
-                     f"an arctangent; slope = {1000 * tf['dead_time_equivalent_s']:.1f} ms) with "
-                     f"a gain error of {tf['gain_error_at_top_dB']:.2f} dB at the top of the "
-                     f"band (a lag with that phase would roll off "
-                     f"{tf['gain_rolloff_expected_for_lag_dB']:.2f} dB).")
-    elif e is Effect.ACTIVATION_DYNAMICS:
-        lines.append(f"signature: the footprint's phase is an arctangent (R^2 "
-                     f"{tf['r2_atan_phase']:.3f} vs {tf['r2_linear_phase']:.3f} for a line; tau "
-                     f"= {1000 * tf['lag_equivalent_s']:.1f} ms) with a gain roll-off of "
-                     f"{tf['gain_error_at_top_dB']:.2f} dB at the top of the band (expected "
-                     f"{tf['gain_rolloff_expected_for_lag_dB']:.2f} dB).")
-    elif e is Effect.FATIGUE:
-        g = sig["gain_vs_stimulation"]
-        lines.append(f"signature: trial gain changes by {g['slope_per_100s']:+.4f} per 100 s of "
-                     f"cumulative stimulation (correlation {g['correlation']:+.2f}).")
-    elif e is Effect.RECRUITMENT_NONLINEARITY:
-        hm = sig["harmonics"]
-        lines.append(f"signature: residual 3f harmonic {hm['median_3f_pct']:.2f} % and 2f "
-                     f"{hm['median_2f_pct']:.2f} % of the fundamental against "
-                     f"{hm['median_1.5f_noise_reference_pct']:.2f} % at the non-harmonic 1.5f.")
-    elif e is Effect.BASELINE_DRIFT:
-        lf = sig["low_frequency"]
-        lines.append(f"signature: {100 * lf['share_below_chirp']:.0f} % of the residual power "
-                     f"lies below the chirp band, {lf['excess']:.0f} x the white-noise share.")
-    elif e is Effect.FLEXOR_EXTENSOR_ASYMMETRY:
-        lines.append(f"signature: gain/phase error of resonance shape (max phase error "
-                     f"{tf['max_abs_phase_error_deg']:.1f} deg, not linear: R^2 "
-                     f"{tf['r2_linear_phase']:.2f}); the mixture of two second-order "
-                     "responses explains it.")
+    if e in FORMS:
+        lines.append(FORMS[e].signature(sig))
     by = {r.candidate.effect: r for r in diag.candidates}
     for a, b in CONFUSABLE:
         if e not in (a, b) or a not in by or b not in by:
@@ -167,7 +177,7 @@ def explain(diag: Diagnosis, sig: dict) -> list[str]:
     return lines
 
 
-def confusable_pairs(diag: Diagnosis, sig: dict) -> list[dict]:
+def confusable_pairs(diag: Diagnosis, sig: Signatures) -> list[dict]:
     """For each confusable pair: both candidates' scores and which one the data prefer."""
     by = {r.candidate.effect: r for r in diag.candidates}
     out = []
@@ -181,7 +191,7 @@ def confusable_pairs(diag: Diagnosis, sig: dict) -> list[dict]:
                 "delta_ic": [ra.delta_ic, rb.delta_ic],
                 "preferred": pref.value if (ra.supported or rb.supported) else "neither"}
         if {a, b} == {Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS}:
-            tf = sig["effect_footprint"] or sig["transfer_function"]
+            tf = sig.phase
             item["phase_shape"] = {"r2_linear": tf["r2_linear_phase"],
                                    "r2_atan": tf["r2_atan_phase"],
                                    "gain_error_at_top_dB": tf["gain_error_at_top_dB"]}

@@ -15,8 +15,9 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import signal
+from nmsid.analysis.signal_kernels import compiled as signal
 
+from nmsid.analysis.damped_lstsq import Damping, levenberg_marquardt
 from nmsid.analysis.gap.data import GapData
 from nmsid.analysis.gap.effects import Effect
 from nmsid.analysis.gap.harmonics import levy_second_order, local_harmonics
@@ -54,7 +55,7 @@ class ModelFit:
     @property
     def params(self) -> dict[str, float]:
         out = self.candidate.params(self.p_shared)
-        if Effect.BASELINE_DRIFT in self.candidate.effects:
+        if self.candidate.fits_baseline:
             out["corner_Hz"] = self.corner_Hz
         return out
 
@@ -241,7 +242,7 @@ def fit_model(data: GapData, cand: Candidate, *, start: ModelFit | None = None,
     lo = np.concatenate([np.full(nL, np.log(3.0)), np.full(nL, np.log(0.03)), lo_s])
     hi = np.concatenate([np.full(nL, np.log(600.0)), np.full(nL, np.log(10.0)), hi_s])
     x0 = np.clip(x0, lo, hi)
-    if Effect.BASELINE_DRIFT in cand.effects:
+    if cand.fits_baseline:
         # steps are found on the starting model's residual and kept during the search
         prob.set_steps(fun(x0))
     x, converged = _levenberg_marquardt(fun, x0, prob.rows, nL, ns, lo, hi,
@@ -290,53 +291,22 @@ def _normal_equations(fun, x, r0, rows, nL, ns):
 
 
 def _levenberg_marquardt(fun, x0, rows, nL, ns, lo, hi, *, max_iter=30, rtol=1e-7):
-    """Minimise ``sum(fun(x)**2)`` (Levenberg-Marquardt with Marquardt scaling)."""
-    x = x0.copy()
-    r = fun(x)
-    cost = float(np.sum(r ** 2))
-    mu = 1e-3
-    converged = False
-    for _ in range(max_iter):
-        H, g = _normal_equations(fun, x, r, rows, nL, ns)
-        d = np.diag(H).copy()
-        d[d <= 0] = 1.0
-        improved = False
-        while mu < 1e10:
-            # parameters at a bound that the step would push outward stay there
-            free = np.ones(x.size, dtype=bool)
-            step = np.zeros(x.size)
-            for _ in range(3):
-                try:
-                    sub = np.linalg.solve((H + mu * np.diag(d))[np.ix_(free, free)], -g[free])
-                except np.linalg.LinAlgError:
-                    sub = None
-                    break
-                step[:] = 0.0
-                step[free] = sub
-                blocked = ((x <= lo + 1e-12) & (step < 0)) | ((x >= hi - 1e-12) & (step > 0))
-                if not np.any(blocked & free):
-                    break
-                free &= ~blocked
-            if sub is None:
-                mu *= 10
-                continue
-            x_new = np.clip(x + step, lo, hi)
-            r_new = fun(x_new)
-            cost_new = float(np.sum(r_new ** 2))
-            if np.isfinite(cost_new) and cost_new < cost:
-                improved = True
-                break
-            mu *= 8
-        if not improved:
-            converged = True  # no descent direction left: at a minimum (to FD accuracy)
-            break
-        rel = (cost - cost_new) / max(cost, 1e-300)
-        x, r, cost = x_new, r_new, cost_new
-        mu = max(mu / 5, 1e-9)
-        if rel < rtol or np.max(np.abs(step)) < 1e-7:
-            converged = True
-            break
-    return x, converged
+    """Minimise ``sum(fun(x)**2)`` within [lo, hi] with the analysis's one damped solver
+    (:func:`nmsid.analysis.damped_lstsq.levenberg_marquardt`) on grouped forward-difference
+    normal equations (:func:`_normal_equations`)."""
+
+    def evaluate(x):
+        r = fun(x)
+        return float(np.sum(r ** 2)), r
+
+    res = levenberg_marquardt(
+        evaluate, lambda x, r: _normal_equations(fun, x, r, rows, nL, ns), x0, lo=lo, hi=hi,
+        max_iter=max_iter,
+        damping=Damping(start=1e-3, up=8.0, up_singular=10.0, down=5.0, floor=1e-9,
+                        ceiling=1e10, step_tol=1e-7, rel_tol=rtol, relative_to="before",
+                        zero_diag=1.0))
+    # no descent direction left counts as a minimum (to the differences' accuracy)
+    return res.x, res.converged
 
 
 def predict(fit: ModelFit, data: GapData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -360,7 +330,7 @@ def predict(fit: ModelFit, data: GapData) -> tuple[np.ndarray, np.ndarray, np.nd
     Kp_rows = fit.Kp[data.level][:, None]
     model = Kp_rows * x
     r = prob.project(data.y_N - model)
-    if Effect.BASELINE_DRIFT in fit.candidate.effects:
+    if fit.candidate.fits_baseline:
         # a held-out trial's own baseline step is found like its offset: folds keep it
         prob.steps = find_steps(r, prob.Q, data)
         r = prob.project(data.y_N - model)

@@ -24,7 +24,7 @@ class HarmonicWindows:
     amplitude: np.ndarray
     """(n_signals, n_windows, n_orders) complex amplitude ``A`` with
     ``signal ~ Re(A exp(i h phi))``."""
-    orders: tuple[int, ...]
+    orders: tuple[float, ...]
     coherence: np.ndarray
     """(n_signals, n_windows) variance share explained by the fundamental (after the local
     offset and slope)."""
@@ -46,7 +46,7 @@ def window_edges(phase_rad: np.ndarray, cycles_per_window: float) -> list[np.nda
 
 def local_harmonics(sig: np.ndarray, phase_rad: np.ndarray, f_inst_Hz: np.ndarray,
                     t_s: np.ndarray, *, cycles_per_window: float = 2.0,
-                    orders: tuple[int, ...] = (1, 2, 3)) -> HarmonicWindows:
+                    orders: tuple[float, ...] = (1, 2, 3)) -> HarmonicWindows:
     """Regress each row of ``sig`` on the chirp's harmonics window by window.
 
     Parameters

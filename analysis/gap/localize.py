@@ -13,6 +13,9 @@ chirp band.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
 
 from nmsid.analysis.gap.diagnose import CandidateResult, Diagnosis
@@ -123,10 +126,47 @@ def residual_spectrum(diag: Diagnosis, res: CandidateResult) -> dict:
             "low_share_if_white": white, "low_excess": share / white if white else None}
 
 
-def localization(diag: Diagnosis) -> dict:
+@dataclass
+class Localization:
+    """Where the gap sits, for the nominal model and (if any) the winner.
+
+    Attributes
+    ----------
+    nominal : dict
+        :func:`by_location` of the nominal model.
+    candidates : dict of str to dict
+        :func:`by_location` of every candidate and pair, by label (how far each shrinks
+        the gap where).
+    gain_vs_stimulation : dict
+        Each trial's gain relative to its level against cumulative stimulation
+        (``cum_stim_s``, ``gain_ratio``, ``slope_per_100s``, ``correlation``).
+    frequency, spectrum : dict
+        :func:`frequency_view` and :func:`residual_spectrum`, under ``nominal`` and
+        ``augmented`` (the report adds the winner's ``footprint`` to ``frequency``).
+    augmented : dict or None
+        :func:`by_location` of the winner (None: nothing beat the nominal model).
+    augmented_effect : str or None
+        The winner's label.
+    """
+
+    nominal: dict
+    candidates: dict[str, dict]
+    gain_vs_stimulation: dict
+    frequency: dict
+    spectrum: dict
+    augmented: dict | None = None
+    augmented_effect: str | None = None
+
+    def to_dict(self) -> dict:
+        """The report's form (``augmented`` keys only when there is a winner)."""
+        out = {k: v for k, v in vars(self).items() if v is not None}
+        return out
+
+
+def localization(diag: Diagnosis) -> Localization:
     """Everything above for the nominal model and (if any) the winner, plus per-location
-    tables for every candidate (how far each shrinks the gap where)."""
-    out = {"nominal": by_location(diag, diag.nominal)}
+    tables for every candidate."""
+    out: dict[str, Any] = {"nominal": by_location(diag, diag.nominal)}
     final = diag.best_pair or diag.best
     if final is not None:
         out["augmented"] = by_location(diag, final)
@@ -146,4 +186,4 @@ def localization(diag: Diagnosis) -> dict:
     if final is not None:
         out["frequency"]["augmented"] = frequency_view(diag, final)
         out["spectrum"]["augmented"] = residual_spectrum(diag, final)
-    return out
+    return Localization(**out)

@@ -10,6 +10,7 @@ beyond the background is material is an unexplained component (``analysis.gap.ve
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -81,7 +82,7 @@ def narrow_band(resid: np.ndarray, reference: np.ndarray, noise: np.ndarray | No
         else:
             groups.append([int(k)])
     Pt = np.abs(np.fft.rfft(resid * win, axis=1)) ** 2          # per trial
-    out = []
+    out: list[dict[str, Any]] = []
     for g in groups:
         i, j = g[0], g[-1]
         sl = slice(i, j + 1)

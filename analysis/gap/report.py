@@ -9,36 +9,44 @@ import logging
 import math
 from pathlib import Path
 
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
 
 from nmsid.analysis.muscle.report import muscle_section, plot_muscle, twin_item
 from nmsid.analysis.gap.diagnose import Diagnosis, ranking
-from nmsid.analysis.gap.effects import Effect
 from nmsid.analysis.gap.evidence import confusable_pairs, explain, signatures
 from nmsid.analysis.gap import plots
 from nmsid.analysis.gap.fit import Problem
-from nmsid.analysis.gap.localize import localization
-from nmsid.analysis.gap.models import nuisance_basis, recruitment_curve
-from nmsid.analysis.gap.twin_out import (effect_entries, fatigue_loss_pct, nonlinearity_index_pct,
-                                         twin_dict, write_twin)
+from nmsid.analysis.gap.localize import Localization, localization
+from nmsid.analysis.gap.models import FORMS, FinalContext, fatigue_loss_pct, nuisance_basis
+from nmsid.analysis.gap.models import canonical_asymmetry  # noqa: F401 (re-exported)
+from nmsid.analysis.gap.twin_out import effect_entries, twin_dict, write_twin
 from nmsid.analysis.twin import source_entry
 from nmsid.protocols.printable import escape_controls
 
 log = logging.getLogger(__name__)
 
 
-def canonical_asymmetry(wn_ratio: float, zeta_ratio: float) -> tuple[float, float, bool]:
-    """Orientation convention for the asymmetry ratios.
+@dataclass
+class GapReport:
+    """What :func:`build_report` makes of one diagnosis.
 
-    With linear recruitment the net response to ``rE - 0.5`` is the *mean* of the two
-    muscles' responses, so the chirp window cannot tell which muscle is the faster one:
-    ``(wn, zeta, rho_w, rho_z)`` and ``(wn rho_w, zeta rho_z, 1/rho_w, 1/rho_z)`` predict
-    the same force. We report the orientation with ``wn_ratio >= 1`` (flexor the faster);
-    returns the ratios and whether they were flipped.
+    Attributes
+    ----------
+    report : dict
+        The ``gap_report.json`` document (JSON-safe; its fields: docs/gap.md).
+    localization : Localization
+        Where the gap sits (:func:`nmsid.analysis.gap.localize.localization`), with the
+        winner's footprint on the transfer function; what the figures draw.
+    twin : dict or None
+        The augmented ``twin.json`` document (None without a calibration).
     """
-    if wn_ratio < 1.0:
-        return 1.0 / wn_ratio, 1.0 / zeta_ratio, True
-    return wn_ratio, zeta_ratio, False
+
+    report: dict
+    localization: Localization
+    twin: dict | None
 
 
 def _drift_amplitude(diag: Diagnosis) -> tuple[float, float]:
@@ -71,30 +79,17 @@ def final_params(diag: Diagnosis) -> dict:
     effs = fit.candidate.effects
     session_s = diag.data.timing.delay_s if diag.data.timing else 0.0
     p["input_timing_s"] = session_s + p.pop("timing_correction_s", 0.0)
-    if Effect.DEAD_TIME in effs:
-        # counted from the rE record: the rig's timing and the participant's latency
-        # together (the two are one delay to the data)
-        p["L_s"] = p["L_s"] + p["input_timing_s"]
-    if Effect.FATIGUE in effs:
-        p["gain_loss_pct"] = fatigue_loss_pct(p["rate_per_s"])
-    if Effect.RECRUITMENT_NONLINEARITY in effs:
-        h = recruitment_curve(fit.candidate.sub(fit.p_shared,
-                                                Effect.RECRUITMENT_NONLINEARITY))
-        p["nonlinearity_index_pct"] = nonlinearity_index_pct(h, diag.data.sE_levels)
-        p["_curve"] = h
-    if Effect.FLEXOR_EXTENSOR_ASYMMETRY in effs:
-        wr, zr, flipped = canonical_asymmetry(p["wn_ratio"], p["zeta_ratio"])
-        p["wn_ratio"], p["zeta_ratio"] = wr, zr
-        p["orientation_flipped"] = flipped
-    if Effect.BASELINE_DRIFT in effs:
-        p["window_nonlinear_rms_N"], p["amplitude_N"] = _drift_amplitude(diag)
+    for e in effs:
+        FORMS[e].final(p, FinalContext(q=fit.candidate.sub(fit.p_shared, e),
+                                       sE_levels=diag.data.sE_levels,
+                                       drift_amplitude=lambda: _drift_amplitude(diag)))
     return p
 
 
 def _level_params(diag: Diagnosis):
     fit = diag.full_fit
     Kp, wn, zeta = fit.Kp.copy(), fit.wn_rad_s.copy(), fit.zeta.copy()
-    if Effect.FLEXOR_EXTENSOR_ASYMMETRY in fit.candidate.effects:
+    if "wn_ratio" in fit.params:  # a flexor/extensor asymmetry
         wr = fit.params["wn_ratio"]
         if wr < 1.0:  # flip to the reported orientation: the other muscle is "extensor"
             wn = wn * wr
@@ -136,12 +131,24 @@ def json_safe(obj):
     return obj
 
 
-def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | None]:
-    """(gap_report dict, localization dict, twin dict or None)."""
+def build_report(diag: Diagnosis, calibration=None) -> GapReport:
+    """The report, the localization and (with a calibration) the augmented twin of one
+    diagnosis.
+
+    Parameters
+    ----------
+    diag : Diagnosis
+    calibration : protocols.session_file.Calibration, optional
+        The session's calibration; without it no twin is made.
+
+    Returns
+    -------
+    GapReport
+    """
     loc = localization(diag)
     sig = signatures(diag, loc)
-    if sig["effect_footprint"] is not None:
-        loc["frequency"]["footprint"] = {k: sig["effect_footprint"][k] for k in
+    if sig.effect_footprint is not None:
+        loc.frequency["footprint"] = {k: sig.effect_footprint[k] for k in
                                          ("f_Hz", "gain_error_dB", "phase_error_deg")}
     final = diag.best_pair or diag.best
     fp = final_params(diag)
@@ -161,7 +168,7 @@ def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | 
                          effects=effects)
     in_aug = final.insample_nrmse_pct if final else nom.insample_nrmse_pct
     a = diag.assessment
-    report = {
+    report: dict[str, Any] = {
         "format": "nmsid-gap-report", "format_version": 1,
         "session": diag.data.path, "participant": diag.data.participant,
         "verdict": a.get("verdict"), "verdict_sentence": a.get("sentence"),
@@ -189,11 +196,12 @@ def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | 
                     "excess_shrink_pct": _excess_shrink(diag, nom.heldout_nrmse_pct, aug_pct)},
         "insample": {"nominal_nrmse_pct": nom.insample_nrmse_pct,
                      "augmented_nrmse_pct": in_aug},
-        "localization": {k: v for k, v in loc.items() if k not in ("frequency", "spectrum")},
-        "frequency": loc["frequency"],
+        "localization": {k: v for k, v in loc.to_dict().items()
+                         if k not in ("frequency", "spectrum")},
+        "frequency": loc.frequency,
         "low_frequency": {k: {kk: vv for kk, vv in v.items() if kk not in ("f_Hz", "power")}
-                          for k, v in loc["spectrum"].items()},
-        "evidence": {"summary": explain(diag, sig), "signatures": sig,
+                          for k, v in loc.spectrum.items()},
+        "evidence": {"summary": explain(diag, sig), "signatures": sig.to_dict(),
                      "confusable_pairs": confusable_pairs(diag, sig)},
         "settings": {k: (list(v) if isinstance(v, tuple) else v)
                      for k, v in vars(diag.settings).items() if k != "candidates"},
@@ -203,7 +211,7 @@ def build_report(diag: Diagnosis, calibration=None) -> tuple[dict, dict, dict | 
     report["muscle_twin"] = muscle_section(diag)
     if twin is not None and diag.muscle is not None:
         twin["muscle_model"] = twin_item(diag)
-    return json_safe(report), loc, twin
+    return GapReport(json_safe(report), loc, twin)
 
 
 def write_outputs(diag: Diagnosis, out_dir, calibration=None, *, plots: bool = True) -> dict:
@@ -211,7 +219,8 @@ def write_outputs(diag: Diagnosis, out_dir, calibration=None, *, plots: bool = T
     ``report.html`` into ``out_dir``; returns the report dict."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    report, loc, twin = build_report(diag, calibration)
+    built = build_report(diag, calibration)
+    report, loc, twin = built.report, built.localization, built.twin
     if twin is not None:
         write_twin(out / "twin.json", twin)
         report["twin_file"] = "twin.json"
@@ -227,7 +236,8 @@ def write_outputs(diag: Diagnosis, out_dir, calibration=None, *, plots: bool = T
     return report
 
 
-def _figures(diag: Diagnosis, report: dict, loc: dict, out: Path) -> list[str]:
+def _figures(diag: Diagnosis, report: dict, localized: Localization, out: Path) -> list[str]:
+    loc = localized.to_dict()    # the figures draw the report's form
     names = []
     plots.plot_where(loc, out / "where.png", diag.noise_floor_nrmse_pct)
     names.append("where.png")

@@ -10,7 +10,7 @@ the verdicts (``nmsid qc``, ``qc.csv``).
 
 Examples
 --------
->>> from analysis.qc import QCSettings
+>>> from nmsid.analysis.qc import QCSettings
 >>> QCSettings().spike_k
 8.0
 """

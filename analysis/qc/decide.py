@@ -218,7 +218,6 @@ def _compare(works: list[_Work], s: QCSettings, neighbour: np.ndarray | None) ->
             live[0].verdict.reasons.append("single repeat: only the single-trial checks "
                                            "apply")
         return ""
-    fs = float(same[0].trial.fs_Hz)
     sig = []
     for w in same:
         y, fs_s = w.smoothed(n, s)

@@ -13,7 +13,7 @@ from xml.sax.saxutils import quoteattr
 
 from nmsid.export.fmu.variables import STATE_NAMES, Var, value_references
 
-_UNITS = {  # name -> SI base unit exponents (FMI 2.0.x section 2.2.2 BaseUnit)
+_UNITS: dict[str, dict[str, float]] = {  # name -> SI base unit exponents (FMI 2.0.x section 2.2.2 BaseUnit)
     "N": {"kg": 1, "m": 1, "s": -2}, "N/s": {"kg": 1, "m": 1, "s": -3},
     "N/s2": {"kg": 1, "m": 1, "s": -4}, "rad/s": {"rad": 1, "s": -1}, "s": {"s": 1},
     "1": {}, "%": {"factor": 0.01},
@@ -66,11 +66,11 @@ def model_description(vs: list[Var], *, model_name: str, model_identifier: str, 
     out.append('  </VendorAnnotations>')
     out.append('  <ModelVariables>')
     for v in vs:
-        attrs = [f'name={quoteattr(v.name)}', f'valueReference="{vr[v.name]}"',
-                 f'description={quoteattr(v.description)}', f'causality="{v.causality}"',
-                 f'variability="{v.variability}"']
+        vattrs = [f'name={quoteattr(v.name)}', f'valueReference="{vr[v.name]}"',
+                  f'description={quoteattr(v.description)}', f'causality="{v.causality}"',
+                  f'variability="{v.variability}"']
         if v.initial:
-            attrs.append(f'initial="{v.initial}"')
+            vattrs.append(f'initial="{v.initial}"')
         inner = []
         if v.unit and v.type == "Real":
             inner.append(f'unit="{v.unit}"')
@@ -78,7 +78,7 @@ def model_description(vs: list[Var], *, model_name: str, model_identifier: str, 
             inner.append(f'derivative="{index[v.derivative_of]}"')
         if v.start is not None:
             inner.append(f'start="{_fmt(v.start)}"')
-        out.append(f'    <ScalarVariable {" ".join(attrs)}>')
+        out.append(f'    <ScalarVariable {" ".join(vattrs)}>')
         out.append(f'      <{v.type} {" ".join(inner)}/>')
         out.append('    </ScalarVariable>')
     out.append('  </ModelVariables>')

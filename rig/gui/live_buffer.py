@@ -63,7 +63,7 @@ class LiveBuffer:
     >>> buf.start_trial(0)
     >>> buf.append(0, 0, np.arange(15.0), np.zeros(15), np.zeros(15), np.zeros(15))
     >>> snap = buf.snapshot()
-    >>> snap.n, snap.force_N[0], snap.t_s[-1]
+    >>> snap.n, float(snap.force_N[0]), float(snap.t_s[-1])
     (10, 5.0, 1.4)
     """
 

@@ -4,7 +4,6 @@ import csv
 import json
 
 import numpy as np
-import pytest
 
 from nmsid.analysis.twin import file_sha256
 from nmsid.cli import main

@@ -8,6 +8,18 @@ import scipy.signal as ss
 from nmsid.analysis import signal_kernels as k
 
 
+def test_the_compiled_calls_match_the_numpy_ones_and_share_the_design():
+    rng = np.random.default_rng(11)
+    x = rng.standard_normal((4, 3000))
+    sos = k.compiled.butter(4, 25.0, fs=1000.0)
+    np.testing.assert_array_equal(sos, k.butter(4, 25.0, fs=1000.0))
+    np.testing.assert_allclose(k.compiled.sosfiltfilt(sos, x, axis=-1),
+                               k.sosfiltfilt(sos, x, axis=-1), atol=1e-10)
+    b, a = ss.butter(2, 0.1)
+    np.testing.assert_allclose(k.compiled.lfilter(b, a, x, axis=-1), k.lfilter(b, a, x),
+                               atol=1e-10)
+
+
 def random_stable(rng, order):
     """A random stable, possibly resonant, denominator and numerator of an order."""
     poles = []
@@ -133,7 +145,7 @@ def test_unsupported_designs_are_refused_with_a_reason():
 def test_identification_path_does_not_import_scipy_signal():
     import subprocess
     import sys
-    code = ("import sys, analysis.run; "
+    code = ("import sys, nmsid.analysis.run, nmsid.cli.identify_command; "
             "print(sorted(m for m in sys.modules if m.startswith(('scipy.signal', 'scipy.linalg', "
             "'scipy.ndimage', 'scipy.special', 'matplotlib'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

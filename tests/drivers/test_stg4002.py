@@ -102,7 +102,7 @@ def test_vendor_sequence_and_waveform_reaching_the_device(fake_mcs):
 
 
 def test_status_ends_after_the_trial(fake_mcs):
-    reg = fake_mcs()
+    fake_mcs()
     bench = fake_mcs.bench
     st_ = stim(clock=bench.now)
     st_.connect()

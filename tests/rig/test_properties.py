@@ -3,7 +3,6 @@ the stimulator exceeds its ceiling; after any fault, output is zero."""
 
 import itertools
 
-import numpy as np
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from nmsid.protocols.config import config_from_dict

@@ -9,8 +9,9 @@ import pytest
 from nmsid.drivers.interfaces import (AcquisitionFlags, CurrentLimitError, ForceChunk,
                                       StimulatorState, StimulatorStatus)
 from nmsid.protocols.config import InterlockConfig
-from nmsid.rig.safety import (AcquisitionFlagsRule, ForceLimitRule, Interlock, InterlockTripped,
-                              StallRule, check_waveform)
+from nmsid.rig.safety import (AcquisitionFlagsRule, EStopRule, ForceLimitRule, Interlock,
+                              InterlockTripped, Observation, StallRule, StimulatorRule,
+                              check_waveform)
 
 
 class Stim:
@@ -51,20 +52,53 @@ def test_rules_validate_thresholds_and_say_why():
     with pytest.raises(ValueError):
         StallRule(float("nan"))
     r = ForceLimitRule(10)
-    assert r.check(ForceChunk(100, np.array([1.0, -12.0]))).startswith("force -12.00 N at "
-                                                                      "sample 101")
-    assert "not finite" in ForceLimitRule(10).check(ForceChunk(0, np.array([np.nan])))
+    assert r.check(Observation(0.0, chunk=ForceChunk(100, np.array([1.0, -12.0])))
+                   ).startswith("force -12.00 N at sample 101")
+    assert "not finite" in ForceLimitRule(10).check(
+        Observation(0.0, chunk=ForceChunk(0, np.array([np.nan]))))
     s = StallRule(0.1)
     s.start(1.0)
-    assert s.check(1.05) is None
-    assert "no force samples for 150 ms" in s.check(1.15)
+    assert s.check(Observation(1.05, no_samples=True)) is None
+    assert s.check(Observation(1.15)) is None              # not a read without samples
+    assert "no force samples for 150 ms" in s.check(Observation(1.15, no_samples=True))
+    s.reset()
+    assert s.check(Observation(1.16, chunk=ForceChunk(0, np.zeros(3)))) is None  # fed
+    assert s.check(Observation(1.20, no_samples=True)) is None
     f = AcquisitionFlagsRule()
-    assert "over-range" in f.check(ForceChunk(0, np.zeros(2), flags=AcquisitionFlags(
-        over_range=True)))
-    assert "jumped" in AcquisitionFlagsRule().check(ForceChunk(50, np.zeros(2)),
-                                                    expected_index=40)
-    assert AcquisitionFlagsRule(over_range=False).check(
-        ForceChunk(0, np.zeros(2), flags=AcquisitionFlags(over_range=True))) is None
+    assert "over-range" in f.check(Observation(0.0, chunk=ForceChunk(
+        0, np.zeros(2), flags=AcquisitionFlags(over_range=True))))
+    assert "jumped" in AcquisitionFlagsRule().check(
+        Observation(0.0, chunk=ForceChunk(50, np.zeros(2)), expected_index=40))
+    assert AcquisitionFlagsRule(over_range=False).check(Observation(0.0, chunk=ForceChunk(
+        0, np.zeros(2), flags=AcquisitionFlags(over_range=True)))) is None
+
+
+# one observation that each rule, and only it, finds wrong
+_WRONG = {
+    "acquisition": Observation(0.0, chunk=ForceChunk(
+        0, np.zeros(2), flags=AcquisitionFlags(overrun=True))),
+    "force_limit": Observation(0.0, chunk=ForceChunk(0, np.array([0.0, 1e6]))),
+    "sensor_stream": Observation(99.0, no_samples=True),
+    "stimulator": Observation(0.0, stimulator_status=StimulatorStatus(
+        StimulatorState.DISCONNECTED, False, "")),
+    "estop": Observation(0.0, switch_pressed=True),
+}
+
+
+def test_every_rule_has_one_check_signature_and_the_interlock_asks_each():
+    il = Interlock(InterlockConfig(), Stim())
+    assert [type(r) for r in il.rules] == [AcquisitionFlagsRule, ForceLimitRule, StallRule,
+                                           StimulatorRule, EStopRule]
+    il.stall.start(0.0)
+    for name, obs in _WRONG.items():
+        # only the rule it is meant for objects to each observation
+        assert [r.name for r in il.rules if r.check(obs)] == [name]
+        trip = il.check(obs)
+        assert trip is not None and trip.rule == name, name
+        assert il.latched and il.stimulator.log[-1] == "stop"
+        il.rearm()
+        il.stall.start(0.0)
+    assert il.check(Observation(0.5, chunk=ForceChunk(0, np.zeros(4)))) is None
 
 
 def test_trip_stops_first_latches_and_reports_once():
@@ -154,3 +188,21 @@ def test_estop_from_another_thread():
     th.start()
     th.join()
     assert il.latched and stim.log[0] == "stop" and il.trip_info.detail == "GUI button"
+
+
+def test_the_block_level_faults_trip_the_named_rule_with_output_zero_first():
+    stim = Stim()
+    il = Interlock(InterlockConfig(stall_timeout_s=0.2), stim)
+    assert il.stall_timeout_s == 0.2
+    for fault, rule in ((il.stimulator_fault, "stimulator"),
+                        (il.acquisition_fault, "acquisition"),
+                        (il.stream_stalled, "sensor_stream")):
+        trip = fault("what happened")
+        assert (trip.rule, trip.detail) == (rule, "what happened")
+        assert il.latched and stim.log[-1] == "stop"
+        il.rearm()
+    il.watch_stream(1.0)
+    assert il.check_stall(1.1) is None and il.check_stall(1.3).rule == "sensor_stream"
+    il.rearm()
+    il.unwatch_stream()
+    assert il.check_stall(9.0) is None

@@ -1,9 +1,7 @@
 """Crash-safe logging: the journal, recovery of damaged / incomplete files, never
 overwriting, the partial trial."""
 
-import json
 import os
-import shutil
 
 import numpy as np
 import pytest

@@ -19,7 +19,7 @@ def test_recruitment_threshold_sigmoid_saturation(th, i50, w, a):
     assert np.all(f[I <= th] == 0)                       # nothing below threshold
     assert np.all(np.diff(f) >= 0)                        # monotonic
     assert f[-1] == pytest.approx(a, rel=1e-4)            # saturates at the reach
-    s = lambda x: 1 / (1 + math.exp(-(x - i50) / w))      # closed form at the midpoint
+    s = lambda x: 1 / (1 + math.exp(-(x - i50) / w))  # noqa: E731 (closed form at the midpoint)
     want = a * (0.5 - s(th)) / (1 - s(th))
     assert float(r(i50)) == pytest.approx(want, rel=1e-12)
     # steepest rise at the midpoint (sigmoid), not at the threshold

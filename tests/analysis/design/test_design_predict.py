@@ -42,7 +42,7 @@ def test_repeats_and_amplitude_scale_as_the_bound_says():
         one = pr.predict(SHORT)
         three = pr.predict(dataclasses.replace(SHORT, repeats=3))
         assert np.allclose(one.level_se / three.level_se, np.sqrt(3), rtol=1e-9)
-        assert sd_ratio(one, three)["max"] == pytest.approx(np.sqrt(3), rel=1e-9)
+        assert sd_ratio(one, three).max == pytest.approx(np.sqrt(3), rel=1e-9)
     pr = Predictor(_prior(), scatter=no_scatter)
     half = pr.predict(dataclasses.replace(SHORT, rE_amplitude=0.25))
     assert np.allclose(half.level_se / pr.predict(SHORT).level_se, 2.0, rtol=1e-9)

@@ -55,7 +55,7 @@ def test_cheapest_candidate_meeting_the_target_wins_and_invalid_ones_are_skipped
     res = design(predictor, parse_target("paper"), [dearer, invalid, good, too_few], draws=20)
     assert res.found and res.proposal.candidate.label == "good"
     assert res.n_evaluated == 2                  # too-few, then good; invalid never counted
-    assert res.proposal.ratio["max"] <= 1.02
+    assert res.proposal.ratio.max <= 1.02
 
 
 def test_an_unreachable_target_is_reported_with_the_closest_candidate(predictor):

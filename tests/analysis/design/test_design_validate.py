@@ -99,8 +99,8 @@ def test_the_ratio_standard_error_matches_its_monte_carlo_spread():
     ratios, ses = [], []
     for _ in range(400):
         r = validated_ratio(_outcome(rng, 0.02, 20), _outcome(rng, 0.01, 20))
-        ratios.append([r["per_parameter"][n] for n in PARAMETERS])
-        ses.append([r["se_per_parameter"][n] for n in PARAMETERS])
+        ratios.append([r.per_parameter[n] for n in PARAMETERS])
+        ses.append([r.se_per_parameter[n] for n in PARAMETERS])
     ratios, ses = np.array(ratios), np.array(ses)
     assert np.median(ratios) == pytest.approx(2.0, rel=0.05)
     np.testing.assert_allclose(np.std(ratios, axis=0), np.median(ses, axis=0), rtol=0.2)

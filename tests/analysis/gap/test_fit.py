@@ -51,3 +51,15 @@ def test_predict_uses_only_the_trials_given(nominal_session):
     r, pred, ref = predict(fit, data.subset(np.flatnonzero(data.repeat == 1)))
     assert r.shape == ref.shape == (5, data.y_N.shape[1])
     assert 100 * np.sqrt(np.sum(r ** 2) / np.sum(ref ** 2)) < 2.0
+
+
+def test_recruitment_basis_equals_the_spline_and_filter_it_replaces(nominal_session):
+    from nmsid.analysis.gap.models import (RECRUITMENT_KNOTS, RecruitmentBasis, recruitment_curve,
+                                           recruitment_excess)
+    data = load_session(nominal_session)
+    basis = RecruitmentBasis(data)
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        q = rng.uniform(-4, 4, len(RECRUITMENT_KNOTS) - 2)
+        want = recruitment_excess(data, recruitment_curve(q))
+        np.testing.assert_allclose(basis.excess(q), want, atol=1e-12 * np.abs(want).max())

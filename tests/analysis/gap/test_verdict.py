@@ -160,7 +160,7 @@ def test_contaminated_trial_is_not_named_drift_and_exclusion_is_honoured(write_s
     assert rep["n_trials"] == 14 and rep["verdict"] == "none"
     assert "t005" not in [p["trial"] for p in rep["localization"]["nominal"]["position"]]
     assert not rep["nominal_gap"]["concentrated_in"]
-    assert "no unmodelled effect is needed" in out["sessions"][0]["verdict_sentence"]
+    assert "no unmodelled effect is needed" in out.sessions[0]["verdict_sentence"]
 
 
 def test_excluded_trials_never_reach_a_fit(nominal_session):

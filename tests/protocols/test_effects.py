@@ -1,0 +1,178 @@
+"""The effect registry is the one declaration of each effect: the simulator's dataclasses,
+the gap diagnosis's forms and the FMU's reference step are held to it here (the FMU's C
+step is held to the reference step by tests/export/test_fmu.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from nmsid.analysis.gap.effects import CANDIDATES as GAP_CANDIDATES
+from nmsid.analysis.gap.effects import Effect as GapEffect
+from nmsid.analysis.gap.models import FORMS, FinalContext, candidate
+from nmsid.analysis.twin import Twin
+from nmsid.export.fmu.reference import TwinStepper
+from nmsid.protocols.effects import (CANDIDATES, EFFECT_NAMES, EFFECTS, Effect, EffectParamError,
+                                     check_param, spec)
+from nmsid.sim_backends.effects import (EFFECT_TYPES, FatigueShape, RecruitmentShape,
+                                        effect_from_dict)
+from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.participant import default_participant
+
+RNG = np.random.default_rng(20261124)
+
+
+def test_every_name_is_declared_once_and_used_everywhere():
+    assert list(EFFECT_NAMES) == [e.value for e in Effect if e is not Effect.NONE]
+    assert list(EFFECT_TYPES) == list(EFFECT_NAMES)          # the simulator's names
+    assert GapEffect is Effect and GAP_CANDIDATES == CANDIDATES   # the diagnosis's names
+    assert list(FORMS) == list(CANDIDATES)                   # each has a fitted form
+
+
+@pytest.mark.parametrize("s", EFFECTS, ids=lambda s: s.name)
+def test_the_simulators_dataclass_has_the_registry_parameters(s):
+    cls = EFFECT_TYPES[s.name]
+    assert cls.name == s.name
+    assert {f.name for f in dataclasses.fields(cls)} == set(s.param_names)
+    shapes = {"fatigue": FatigueShape, "recruitment_nonlinearity": RecruitmentShape}
+    if s.name in shapes:
+        assert s.param("shape").choices == tuple(m.value for m in shapes[s.name])
+
+
+def _valid_params(s) -> dict:
+    """Mid-range values of every required numeric parameter (plus a shape)."""
+    out: dict = {}
+    for p in s.params:
+        if p.choices:
+            out[p.name] = p.choices[0]
+        elif p.required:
+            lo = p.lower if p.lower is not None else -1.0
+            hi = p.upper if p.upper is not None else lo + 10.0
+            out[p.name] = 0.5 * (lo + hi)
+    if s.name == "recruitment_nonlinearity":     # power needs its exponent
+        out["gamma"] = 2.0
+    return out
+
+
+@pytest.mark.parametrize("s", EFFECTS, ids=lambda s: s.name)
+def test_the_simulator_refuses_exactly_outside_the_registry_bounds(s):
+    base = _valid_params(s)
+    effect_from_dict({"name": s.name, "params": base})
+    for p in s.params:
+        if p.choices or p.name not in base:
+            continue
+        if p.upper is not None:
+            effect_from_dict({"name": s.name, "params": {**base, p.name: p.upper}})
+            with pytest.raises(SimConfigError, match=f"{s.name}.{p.name}"):
+                effect_from_dict({"name": s.name, "params": {**base, p.name: p.upper * 1.01}})
+        if p.lower is not None:
+            below = p.lower - 1e-9
+            with pytest.raises(SimConfigError, match=f"{s.name}.{p.name}"):
+                effect_from_dict({"name": s.name, "params": {**base, p.name: below}})
+            if p.lower_open:
+                with pytest.raises(SimConfigError):
+                    effect_from_dict({"name": s.name, "params": {**base, p.name: p.lower}})
+            else:
+                effect_from_dict({"name": s.name, "params": {**base, p.name: p.lower}})
+
+
+def test_check_param_names_the_value_and_the_range():
+    assert check_param("dead_time", "L_s", "0.5") == 0.5
+    with pytest.raises(EffectParamError, match=r"dead_time.L_s .*>= 0 and <= 2, got 3"):
+        check_param("dead_time", "L_s", 3)
+    with pytest.raises(EffectParamError, match="valid: recruitment_nonlinearity"):
+        spec("refractory")
+
+
+@pytest.mark.parametrize("e", CANDIDATES, ids=lambda e: e.value)
+def test_each_form_fits_its_declared_parameters_and_writes_the_registry_names(e):
+    form = FORMS[e]
+    assert len(form.bounds) == form.n
+    assert all(len(g) == form.n for g in form.grid())
+    cand = candidate(e)
+    lo, hi = cand.bounds()
+    q = np.array([RNG.uniform(a, b) for a, b in zip(lo[:-1], hi[:-1])])
+    p = cand.params(np.append(q, 0.0))
+    p.update({"input_timing_s": 0.0, "corner_Hz": 0.2, "amplitude_N": 0.05})
+    form.final(p, FinalContext(q=q, sE_levels=np.array([0.3, 0.6, 0.9]),
+                               drift_amplitude=lambda: (0.04, 0.05)))
+    entry = {"name": e.value, "params": form.twin_params(p, np.array([0.3, 0.6, 0.9]))}
+    assert set(entry["params"]) <= set(spec(e).param_names)
+    effect_from_dict(entry)          # the simulator accepts what the diagnosis writes
+
+
+# -- the FMU's reference step against the registry's continuous-time definitions ----------
+
+def _twin(effects: list[dict]) -> Twin:
+    data = default_participant().to_twin()
+    data["effects"] = effects
+    return Twin.from_dict(data)
+
+
+def _random_input(n: int) -> np.ndarray:
+    """A smooth random rE: a few sinusoids around 0.5 within [0, 1]."""
+    t = np.arange(n) / 1000.0
+    f = RNG.uniform(0.5, 8.0, 3)
+    ph = RNG.uniform(0, 2 * np.pi, 3)
+    return 0.5 + 0.15 * np.sum(np.sin(2 * np.pi * f[:, None] * t + ph[:, None]), axis=0)
+
+
+@pytest.mark.parametrize("trial", range(3))
+def test_fmu_reference_dead_time_is_the_nominal_response_delayed(trial):
+    fs, k = 1000.0, int(RNG.integers(5, 60))
+    rE, sE = _random_input(1500), float(RNG.uniform(0.4, 0.9))
+    nominal = TwinStepper(_twin([])).simulate(rE, sE, fs)
+    late = TwinStepper(_twin([{"name": "dead_time", "params": {"L_s": k / fs}}])).simulate(
+        rE, sE, fs)
+    np.testing.assert_allclose(late[k:], nominal[:-k], atol=1e-9)
+
+
+@pytest.mark.parametrize("shape", ["exponential", "linear"])
+def test_fmu_reference_fatigue_is_the_registry_gain_law(shape):
+    fs = 1000.0
+    rE, sE = _random_input(1200), float(RNG.uniform(0.4, 0.9))
+    loss, cref = float(RNG.uniform(5, 60)), float(RNG.uniform(0.5, 2.0))
+    tw = _twin([])
+    base = TwinStepper(tw).simulate(rE, sE, fs)
+    tired = TwinStepper(_twin([{"name": "fatigue", "params": {
+        "shape": shape, "gain_loss_pct": loss, "reference_stim_s": cref}}])).simulate(rE, sE, fs)
+    c = np.arange(len(rE)) / fs             # stimulated since the first sample
+    p = loss / 100.0
+    g = (1 - p) ** (c / cref) if shape == "exponential" else np.maximum(0.05, 1 - p * c / cref)
+    off = float(tw.offset_N(sE))
+    np.testing.assert_allclose(tired - off, g * (base - off), atol=1e-9)
+
+
+@pytest.mark.parametrize("trial", range(3))
+def test_fmu_reference_activation_lag_is_g_over_tau_s_plus_one(trial):
+    fs = 1000.0
+    rE, sE = _random_input(2000), float(RNG.uniform(0.4, 0.9))
+    tau = float(RNG.uniform(0.005, 0.1))
+    tw = _twin([{"name": "activation_dynamics", "params": {"tau_s": tau}}])
+    got = TwinStepper(tw).simulate(rE, sE, fs, rest_lead_s=0.0)
+    Kp, wn, zeta = TwinStepper(tw).params(sE)
+    # the registry's definition, independently: Kp wn^2 / ((s^2 + 2 zeta wn s + wn^2)
+    # (tau s + 1)) of rE - 0.5, inputs straight between samples (lsim's interpolation)
+    sys = signal.lti([Kp * wn * wn], np.polymul([1, 2 * zeta * wn, wn * wn], [tau, 1]))
+    t = np.arange(len(rE)) / fs
+    _, want, _ = signal.lsim(sys, rE - 0.5, t, interp=True)
+    np.testing.assert_allclose(got - float(tw.offset_N(sE)), want, atol=1e-6 * np.ptp(want))
+
+
+@pytest.mark.parametrize("e", CANDIDATES, ids=lambda e: e.value)
+def test_each_form_says_its_signature_in_one_line(e):
+    from nmsid.analysis.gap.evidence import Signatures
+    tf = {"r2_linear_phase": 0.9, "r2_atan_phase": 0.5, "dead_time_equivalent_s": 0.02,
+          "lag_equivalent_s": 0.03, "gain_error_at_top_dB": -1.0,
+          "gain_rolloff_expected_for_lag_dB": -2.0, "max_abs_phase_error_deg": 12.0}
+    sig = Signatures(transfer_function=tf, effect_footprint=None,
+                     gain_vs_stimulation={"slope_per_100s": -0.01, "correlation": -0.8},
+                     harmonics={"median_2f_pct": 1.0, "median_3f_pct": 2.0,
+                                "median_1.5f_noise_reference_pct": 0.1},
+                     low_frequency={"share_below_chirp": 0.5, "share_if_white": 0.1,
+                                    "excess": 5.0})
+    line = FORMS[e].signature(sig)
+    assert line.startswith("signature: ") and "\n" not in line
