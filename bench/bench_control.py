@@ -44,17 +44,17 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from nmsid.analysis.control.design import ControllerDesign, design_controller
-from nmsid.analysis.control.targets import Target
-from nmsid.analysis.twin import Twin
-from nmsid.cli import main as nmsid
-from nmsid.protocols.config import config_from_dict, load_config
-from nmsid.protocols.session_file import read_session
-from nmsid.rig.engine import Engine, TripPolicy
-from nmsid.rig.tracking import TrackingEngine
-from nmsid.sim_backends import make_msk_population, make_population, make_sim_rig
-from nmsid.sim_backends.participant import default_participant
-from nmsid.sim_backends.participant_models import participant_for_model
+from nmsid.analysis.control.design import ControllerDesign, design_controller  # noqa: E402
+from nmsid.analysis.control.targets import Target  # noqa: E402
+from nmsid.analysis.twin import Twin  # noqa: E402
+from nmsid.cli import main as nmsid  # noqa: E402
+from nmsid.protocols.config import config_from_dict, load_config  # noqa: E402
+from nmsid.protocols.session_file import read_session  # noqa: E402
+from nmsid.rig.engine import Engine, TripPolicy  # noqa: E402
+from nmsid.rig.tracking import TrackingEngine  # noqa: E402
+from nmsid.sim_backends import make_msk_population, make_population, make_sim_rig  # noqa: E402
+from nmsid.sim_backends.participant import default_participant  # noqa: E402
+from nmsid.sim_backends.participant_models import participant_for_model  # noqa: E402
 
 MODELS = ("template", "musculoskeletal")
 

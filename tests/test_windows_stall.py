@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 from nmsid.drivers.interfaces import ForceChunk
-from nmsid.rig.safety import StallRule
+from nmsid.rig.safety import Observation, StallRule
 from nmsid.testing.windows_emulation import TIMER_TICK_S, emulate_windows
 
 FS_HZ = 1000.0
@@ -33,7 +33,7 @@ def _healthy_gaps(rule: StallRule, start_s: float, jitter_s: float, n: int = 200
         # the engine checks while it waits (read timeouts of 50 ms)
         for wait in (0.05, CHUNK_S - 0.05 + rng.uniform(0, jitter_s)):
             t += wait
-            verdicts.append(rule.check(_quantised(t)))
+            verdicts.append(rule.check(Observation(_quantised(t), no_samples=True)))
         rule.feed(_quantised(t), int(CHUNK_S * FS_HZ))
     return [v for v in verdicts if v]
 
@@ -60,8 +60,8 @@ def test_a_real_stall_still_trips_within_two_chunks_and_two_ticks():
         rule = StallRule(0.1)
         rule.start(_quantised(10.0), fs_Hz=FS_HZ)
         rule.feed(_quantised(10.1), 100)
-        assert rule.check(_quantised(10.1 + 0.2)) is None
-        verdict = rule.check(_quantised(10.1 + 0.25))
+        assert rule.check(Observation(_quantised(10.1 + 0.2), no_samples=True)) is None
+        verdict = rule.check(Observation(_quantised(10.1 + 0.25), no_samples=True))
     assert verdict is not None and "(limit 231 ms): stream stalled" in verdict
     assert "no force samples for 250 ms" in verdict
 
