@@ -37,7 +37,8 @@ from nmsid.drivers.nidaq import NidaqAcquisition
 from nmsid.drivers.rehastim2 import Rehastim2Stimulator
 from nmsid.drivers.rehastim2_settings import Rehastim2Config
 from nmsid.drivers.stg4002 import DEFAULT_DLL, Stg4002Stimulator
-from nmsid.drivers.stg_download import ChannelPlan, prepare_download
+from nmsid.drivers.stg_download import (STG4002_RANGE_NA, STG4002_RESOLUTION_NA, ChannelPlan,
+                                        prepare_download)
 from nmsid.drivers.stimulation_report import download_summary
 
 
@@ -102,8 +103,10 @@ def _stg_command_A(stim: Stg4002Stimulator, channel: int, n: int, fs_Hz: float) 
 
 
 def _stg_report(s: StimulatorConfig, checked: CheckedWaveform) -> dict:
-    ext = ChannelPlan(s.extensor_channel, "extensor")
-    flex = ChannelPlan(s.flexor_channel, "flexor")
+    ext = ChannelPlan(s.extensor_channel, "extensor", s.ceiling_ext_mA, STG4002_RANGE_NA,
+                      STG4002_RESOLUTION_NA)
+    flex = ChannelPlan(s.flexor_channel, "flexor", s.ceiling_flex_mA, STG4002_RANGE_NA,
+                       STG4002_RESOLUTION_NA)
     return download_summary(prepare_download(checked, ext, flex, s.sync_out, s.output_rate_Hz))
 
 

@@ -94,3 +94,20 @@ def test_fake_mode_installs_the_configured_kinds_fake():
         stim.disconnect()
     finally:
         stack.close()
+
+
+@pytest.mark.parametrize("kind", sorted(registry.STIMULATORS))
+def test_every_kind_reports_what_a_checked_trial_would_deliver(kind):
+    """Each entry's charge report runs on its own settings (the STG's was never called)."""
+    import numpy as np  # noqa: PLC0415
+
+    from nmsid.drivers.interfaces import CheckedWaveform  # noqa: PLC0415
+    entry = registry.STIMULATORS[kind]
+    import dataclasses  # noqa: PLC0415
+    names = {f.name for f in dataclasses.fields(entry.settings)}
+    extra = {"port": "COM5"} if "port" in names else {}
+    settings = entry.settings(ceiling_ext_mA=10.0, ceiling_flex_mA=10.0, **extra)
+    env = np.linspace(0.0, 8.0, 2000)
+    report = entry.report(settings, CheckedWaveform(env, env[::-1].copy(), 2000.0, 1000.0,
+                                                    10.0, 10.0))
+    assert set(report["channels"]) >= {"extensor", "flexor"}
