@@ -20,6 +20,7 @@ host-side costs of the drivers, not the devices' own latencies:
 
 from __future__ import annotations
 
+import os
 import statistics
 import struct
 import sys
@@ -160,7 +161,8 @@ def bench_measured_rate(rows, true_Hz=1000.0, repeats=5):
 def bench_check_assembly(rows):
     import shutil
     import subprocess
-    dll = Path("/work/shared/vendor/McsUsbNet-5.3.15/McsUsbNet.dll")
+    dll = Path(os.environ.get("NMSID_MCSUSBNET_DLL") or (
+        ROOT.parent / "shared" / "vendor" / "McsUsbNet-5.3.15" / "McsUsbNet.dll"))
     if shutil.which("mono") is None or not dll.is_file():
         rows.append(("probe --check-assembly (real 5.3.15)", "not run",
                      "needs mono and the vendor assembly"))

@@ -357,7 +357,7 @@ def load_hw_config(path) -> HardwareConfig:
 
 def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
     """Validate a hardware file's tables (``load_hw_config`` without the reading)."""
-    stimulator = StimulatorConfig()
+    stimulator: StimulatorConfig | Rehastim2Config = StimulatorConfig()
     if isinstance(data, dict) and "stimulator" in data:
         # the [stimulator] table on its own, by its kind: messages name "stimulator.<key>"
         stimulator = _stimulator_settings(data["stimulator"], source)

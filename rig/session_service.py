@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from nmsid.drivers.hardware import make_hw_rig
+from nmsid.drivers.interfaces import RigDevices
+from nmsid.protocols.config import Config
 from nmsid.protocols.session_file import read_session
 from nmsid.rig.journal import journal_dir
 from nmsid.rig.errors import RequestError
@@ -84,8 +86,8 @@ class RigRequest:
 class PreparedRig:
     """What :func:`prepare_rig` built."""
 
-    devices: object
-    config: object
+    devices: RigDevices
+    config: Config
     """The configuration to run (the rest between trials set for this rig's pacing)."""
     extra_attrs: dict
     """Root attributes to record with a new session (see the module docstring)."""
@@ -157,7 +159,9 @@ def prepare_rig(request: RigRequest, config) -> PreparedRig:
         attrs.update(hw_config_sha256=digest, hw_config_toml=text)
     config, rest_attrs = _paced(config, request)
     attrs.update(rest_attrs)
+    devices: RigDevices
     if request.backend == "sim":
+        assert sim_seed is not None   # set above for a simulated rig
         devices = make_sim_rig(participant_for_model(config.participant_model, sim_seed),
                                realtime=request.realtime, fs_Hz=config.protocol.fs_Hz)
     else:

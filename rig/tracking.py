@@ -295,6 +295,7 @@ class TrackingEngine(Engine):
         return PIDController(self.pid_gains, Ts, d.queue)
 
     def _run_trial(self, planned: PlannedTrial) -> None:
+        assert self._log is not None   # opened by the engine's setup, before any trial
         entry = self.plan[planned.index]
         p = self.config.protocol
         d = self.design

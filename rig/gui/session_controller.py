@@ -133,16 +133,17 @@ class SessionController(QObject):
         extra: dict = {}
         if self.devices_factory is default_devices:   # the session service, as the CLI
             rig = self.prepare(request, self.config)
-            self.devices, self.config, extra = rig.devices, rig.config, rig.extra_attrs
+            devices, self.config, extra = rig.devices, rig.config, rig.extra_attrs
         else:
-            self.devices = self.devices_factory(request, self.config)
+            devices = self.devices_factory(request, self.config)
+        self.devices = devices
         try:
             if self.engine_factory is not None:
-                self.engine = self.engine_factory(self.config, self.devices,
+                self.engine = self.engine_factory(self.config, devices,
                                                   request.output_path, resume=request.resume,
                                                   observer=self.observer)
             else:
-                self.engine = Engine(self.config, self.devices, request.output_path,
+                self.engine = Engine(self.config, devices, request.output_path,
                                      resume=request.resume, observer=self.observer,
                                      extra_attrs=extra)
         except BaseException:

@@ -9,6 +9,7 @@ elsewhere. The comparison itself runs everywhere against a small stand-in listin
 from __future__ import annotations
 
 import importlib.util
+import os
 import shutil
 import subprocess
 import sys
@@ -19,10 +20,10 @@ import pytest
 from nmsid.drivers import mcs_surface
 from nmsid.drivers.mcs_surface import SURFACE, Member, compare
 
-REAL_DLL = Path(__file__).resolve().parents[3] / "shared" / "vendor" / "McsUsbNet-5.3.15" \
-    / "McsUsbNet.dll"
-if not REAL_DLL.is_file():  # the worktree may sit elsewhere: the shared folder is fixed
-    REAL_DLL = Path("/work/shared/vendor/McsUsbNet-5.3.15/McsUsbNet.dll")
+# the shared folder beside the checkout (as CI clones it); NMSID_MCSUSBNET_DLL names another
+REAL_DLL = Path(os.environ.get("NMSID_MCSUSBNET_DLL") or (
+    Path(__file__).resolve().parents[3] / "shared" / "vendor" / "McsUsbNet-5.3.15"
+    / "McsUsbNet.dll"))
 
 _why_not = ("" if REAL_DLL.is_file() else f"the vendor assembly {REAL_DLL} is not here")
 if not _why_not and importlib.util.find_spec("pythonnet") is None:
