@@ -10,7 +10,8 @@ analytically (``rE = 0.5 + 0.5 sin(phi)``, ``phi = 2 pi f0 T / ln(f1/f0) ((f1/f0
 * fatigue multiplies the gain by ``g(c)``, ``c`` the cumulative stimulation at the trial,
   linear (``1 - p c / C``) or exponential (``(1 - p)^(c / C)``) in ``C``, the session's
   total stimulation, so that ``p`` is the loss over the session;
-* optional library effects: a dead time (the force moved later by ``dead_time_s``) or a
+* optional library effects: a dead time (the force moved later by ``dead_time_s``), a
+  first-order activation lag (``activation_tau_s``), or a
   saturating output (``s tanh(f / s)`` with ``s`` set so that the largest level's peak is
   compressed by ``saturation_pct``);
 * the sensor: white noise, 50 Hz mains, an offset and a drift per trial.
@@ -44,6 +45,8 @@ class TrialPhysiology:
     fatigue_pct: float = 0.0
     fatigue_shape: str = "linear"
     dead_time_s: float = 0.0
+    activation_tau_s: float = 0.0
+    """A first-order activation lag before the second-order dynamics (s; 0: none)."""
     saturation_pct: float = 0.0
     noise_N: float = 0.03
     fs_Hz: float = FS_HZ
@@ -69,12 +72,20 @@ def chirp(t: np.ndarray, steady_s: float, chirp_s: float, f0=1.0, f1=10.0) -> np
     return np.where(t < steady_s, 0.5, 0.5 + 0.5 * np.sin(phi))
 
 
-def response(Kp: float, wn: float, zeta: float, t: np.ndarray, u: np.ndarray) -> np.ndarray:
+def response(Kp: float, wn: float, zeta: float, t: np.ndarray, u: np.ndarray,
+             tau_s: float = 0.0) -> np.ndarray:
     """Exact second-order response to ``u`` (at rest at t = 0, input linear between
     samples): scipy's first-order-hold discretisation of the continuous state space (what
-    ``scipy.signal.lsim`` computes), run as a filter."""
-    A = np.array([[0.0, 1.0], [-wn * wn, -2 * zeta * wn]])
-    B, C, D = np.array([[0.0], [Kp * wn * wn]]), np.array([[1.0, 0.0]]), np.zeros((1, 1))
+    ``scipy.signal.lsim`` computes), run as a filter. ``tau_s > 0`` puts a first-order
+    activation lag ``1 / (tau s + 1)`` before it."""
+    if tau_s > 0:
+        A = np.array([[0.0, 1.0, 0.0], [-wn * wn, -2 * zeta * wn, Kp * wn * wn],
+                      [0.0, 0.0, -1.0 / tau_s]])
+        B, C = np.array([[0.0], [0.0], [1.0 / tau_s]]), np.array([[1.0, 0.0, 0.0]])
+    else:
+        A = np.array([[0.0, 1.0], [-wn * wn, -2 * zeta * wn]])
+        B, C = np.array([[0.0], [Kp * wn * wn]]), np.array([[1.0, 0.0]])
+    D = np.zeros((1, 1))
     ad, bd, cd, dd, _ = signal.cont2discrete((A, B, C, D), float(t[1] - t[0]), method="foh")
     b, a = signal.ss2tf(ad, bd, cd, dd)
     return signal.lfilter(np.ravel(b), a, u)
@@ -145,7 +156,7 @@ def write_session(path, phys: TrialPhysiology, seed: int, *, reference=None, eve
         else:
             g = (1.0 - p) ** (c_centre / total)
         K, W, Z = kp[j] * d[0] * g, wn[j] * d[1], zeta[j] * d[2]
-        yf = response(K, W, Z, tf, uf)
+        yf = response(K, W, Z, tf, uf, phys.activation_tau_s)
         if phys.dead_time_s > 0:
             shift = round(phys.dead_time_s * fs * up)
             yf = np.concatenate([np.zeros(shift), yf[:-shift]])
