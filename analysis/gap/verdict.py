@@ -320,6 +320,12 @@ class GapVerdict:
             return getattr(self, key)
         return self.extra[key]
 
+    def __contains__(self, key: object) -> bool:
+        return key in self.as_dict()
+
+    def keys(self):
+        return self.as_dict().keys()
+
     def get(self, key: str, default=None):
         try:
             return self[key]
