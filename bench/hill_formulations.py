@@ -111,7 +111,7 @@ def simulate(p: HillParticipant, form: str, rE: np.ndarray, sE: np.ndarray, fs_H
     if form not in FORMULATIONS:
         raise ValueError(f"formulation {form!r}: use one of {FORMULATIONS}")
     n_tr, n = rE.shape
-    sub = max(1, int(round(4000.0 / fs_Hz)))
+    sub = max(1, round(4000.0 / fs_Hz))
     h = 1.0 / (fs_Hz * sub)
     sE = np.asarray(sE, float)[:, None]
 
