@@ -107,16 +107,29 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--lag-seeds", type=int, default=None,
+                    help="seeds of the activation-lag family (default: --seeds)")
     a = ap.parse_args(argv if argv is not None else [])
+    n_lag = a.seeds if a.lag_seeds is None else a.lag_seeds
     t0 = time.perf_counter()
     load0 = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     with tempfile.TemporaryDirectory() as tmp:
-        cases = [(f, s, tmp) for f in FAMILIES for s in range(a.seeds)]
+        cases = [(f, s, tmp) for f in FAMILIES
+                 for s in range(n_lag if f == "activation_dynamics" else a.seeds)]
+        rows = []
         if a.jobs > 1:
+            # bench/run.py loads this file without registering it: workers need a real import
+            import bench_gap_scatter as registered
             with ProcessPoolExecutor(a.jobs) as ex:
-                rows = list(ex.map(run_case, cases))
+                for r in ex.map(registered.run_case, cases):
+                    rows.append(r)
+                    print(f"  [{len(rows)}/{len(cases)}] {r['family']} {r['seed']}: "
+                          f"{r['verdict']} {r['label']}", file=sys.stderr, flush=True)
         else:
-            rows = [run_case(c) for c in cases]
+            for c in cases:
+                rows.append(run_case(c))
+                print(f"  [{len(rows)}/{len(cases)}] {c[0]} {c[1]}: {rows[-1]['verdict']}",
+                      file=sys.stderr, flush=True)
     print("Gap verdict under trial-to-trial scatter (Kp / wn / zeta 10 / 5 / 5 %), sessions "
           "of bench/trial_sessions.py (independent of nmsid's simulator), 15 sE x 3 repeats")
     print(f"{'family':<20} {'seed':>4} {'effect ms':>9} {'verdict':<12} {'label':<40} "
