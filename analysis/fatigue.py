@@ -34,7 +34,6 @@ import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy import stats
 
 #: Standard errors a rate must exceed to be called fatigue (or potentiation).
 Z_CRIT = 3.0
@@ -112,6 +111,94 @@ class FatigueResult:
         return asdict(self)
 
 
+def _bisect(cdf, p: float, lo: float, hi: float) -> float:
+    while cdf(hi) < p:
+        hi *= 2.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if cdf(mid) < p:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-13 * max(1.0, hi):
+            break
+    return 0.5 * (lo + hi)
+
+
+def t_ppf(p: float, dof: int) -> float:
+    """Quantile of Student's t with integer ``dof`` (exact finite series of Abramowitz &
+    Stegun 26.7.3-4, inverted by bisection): no scipy.stats, which would load
+    scipy.special into every ``nmsid identify`` start.
+
+    Examples
+    --------
+    >>> round(t_ppf(0.975, 1), 4), round(t_ppf(0.975, 10), 4), round(t_ppf(0.5, 3), 4)
+    (12.7062, 2.2281, 0.0)
+    """
+    if dof < 1:
+        raise ValueError(f"dof = {dof}: at least 1")
+    if p == 0.5:
+        return 0.0
+    if p < 0.5:
+        return -t_ppf(1.0 - p, dof)
+    n = int(dof)
+
+    def central(t: float) -> float:          # P(|T| < t)
+        th = math.atan(t / math.sqrt(n))
+        c2 = math.cos(th) ** 2
+        if n % 2 == 0:
+            term = acc = 1.0
+            for k in range(1, (n - 2) // 2 + 1):
+                term *= c2 * (2 * k - 1) / (2 * k)
+                acc += term
+            return math.sin(th) * acc
+        if n == 1:
+            return 2.0 * th / math.pi
+        term = acc = math.cos(th)
+        for k in range(1, (n - 3) // 2 + 1):
+            term *= c2 * (2 * k) / (2 * k + 1)
+            acc += term
+        return 2.0 / math.pi * (th + math.sin(th) * acc)
+
+    return _bisect(central, 2.0 * p - 1.0, 0.0, 10.0)
+
+
+def chi2_ppf(p: float, dof: int) -> float:
+    """Quantile of the chi-square distribution with integer ``dof`` (exact finite series,
+    inverted by bisection; see :func:`t_ppf` for why not scipy.stats).
+
+    Examples
+    --------
+    >>> round(chi2_ppf(0.025, 2), 5), round(chi2_ppf(0.975, 30), 3), round(chi2_ppf(0.5, 1), 4)
+    (0.05064, 46.979, 0.4549)
+    """
+    if dof < 1:
+        raise ValueError(f"dof = {dof}: at least 1")
+    k = int(dof)
+
+    def cdf(x: float) -> float:
+        if x <= 0:
+            return 0.0
+        h = 0.5 * x
+        if k % 2 == 0:
+            term = math.exp(-h)
+            acc = term
+            for j in range(1, k // 2):
+                term *= h / j
+                acc += term
+            return 1.0 - acc
+        q = math.erfc(math.sqrt(h))             # 2 (1 - Phi(sqrt x))
+        term = math.sqrt(2.0 * x / math.pi) * math.exp(-h)   # j = 1: x^(1/2) / 1
+        acc = 0.0
+        for j in range(1, (k - 1) // 2 + 1):
+            if j > 1:
+                term *= x / (2 * j - 1)
+            acc += term
+        return 1.0 - q - acc
+
+    return _bisect(cdf, p, 0.0, max(1.0, 2.0 * k))
+
+
 def _not_estimated(note: str, n: int, total: float, source: str) -> FatigueResult:
     nan = float("nan")
     return FatigueResult(nan, nan, nan, nan, nan, nan, False, total, n, 0, 0, nan, source,
@@ -186,7 +273,7 @@ def fit_fatigue(gain, level, cum_stim_s, *, total_stim_s: float | None = None,
     resid = Y - slope * X
     s2 = float(resid @ resid) / dof
     se = math.sqrt(s2 / sxx)
-    lam, t = -slope, stats.t.ppf(0.975, dof)
+    lam, t = -slope, t_ppf(0.975, dof)
 
     def loss(rate: float) -> float:
         return 100.0 * -math.expm1(-rate * total)
@@ -235,3 +322,48 @@ def cumulative_stimulation_s(trials) -> tuple[np.ndarray, float]:
         centre.append(before + min(float(tr.steady_s) + 0.5 * float(tr.chirp_s), dur))
         before += dur
     return np.asarray(centre, dtype=float), before
+
+
+def gains_between_repeats(trials, steady_s: float | None = None) -> np.ndarray:
+    """Each trial's gain relative to the mean of its level's repeats, without a model.
+
+    Per level, the chirp part of every trial (from ``steady_s``, linear trend removed) is
+    projected on the level's mean: ``g_i = <y_i, ybar> / <ybar, ybar>`` (1 = an average
+    repeat). Sensor noise averages out of the dot products; a level with one trial gets
+    NaN.
+
+    Parameters
+    ----------
+    trials : sequence of Trial
+        Completed trials with finite force (any order, several levels).
+    steady_s : float, optional
+        Start of the chirp window (default: each trial's ``steady_s``).
+
+    Returns
+    -------
+    (n_trials,) ndarray
+    """
+    out = np.full(len(trials), np.nan)
+    groups: dict[float, list[int]] = {}
+    for i, t in enumerate(trials):
+        groups.setdefault(round(float(t.sE), 9), []).append(i)
+    for idx in groups.values():
+        if len(idx) < 2:
+            continue
+        rows = []
+        for i in idx:
+            t = trials[i]
+            k0 = int(round((t.steady_s if steady_s is None else steady_s) * t.fs_Hz))
+            rows.append(np.asarray(t.force_N, float)[k0:])
+        n = min(len(r) for r in rows)
+        if n < 16:
+            continue
+        x = np.arange(n, dtype=float)
+        Y = np.vstack([r[:n] for r in rows])
+        A = np.column_stack([np.ones(n), x])
+        Y = Y - (Y @ np.linalg.pinv(A).T) @ A.T
+        ybar = Y.mean(axis=0)
+        den = float(ybar @ ybar)
+        if den > 0:
+            out[idx] = (Y @ ybar) / den
+    return out

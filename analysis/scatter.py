@@ -31,10 +31,9 @@ import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy import stats
 
 from nmsid.analysis.errors import IdentificationError
-from nmsid.analysis.fatigue import FatigueResult
+from nmsid.analysis.fatigue import FatigueResult, chi2_ppf
 from nmsid.analysis.preprocess import preprocess_trials
 from nmsid.analysis.second_order import fit_second_order
 from nmsid.analysis.settings import IdentificationSettings
@@ -159,8 +158,8 @@ class ScatterResult:
 def _chi2_ci(s: float, dof: int) -> tuple[float, float]:
     if dof < 1 or not math.isfinite(s):
         return float("nan"), float("nan")
-    return (s * math.sqrt(dof / stats.chi2.ppf(0.975, dof)),
-            s * math.sqrt(dof / stats.chi2.ppf(0.025, dof)))
+    return (s * math.sqrt(dof / chi2_ppf(0.975, dof)),
+            s * math.sqrt(dof / chi2_ppf(0.025, dof)))
 
 
 def _summary(name: str, groups: list[np.ndarray], rel_se: list[np.ndarray]
