@@ -353,7 +353,7 @@ def gains_between_repeats(trials, steady_s: float | None = None) -> np.ndarray:
         rows = []
         for i in idx:
             t = trials[i]
-            k0 = int(round((t.steady_s if steady_s is None else steady_s) * t.fs_Hz))
+            k0 = round((t.steady_s if steady_s is None else steady_s) * t.fs_Hz)
             rows.append(np.asarray(t.force_N, float)[k0:])
         n = min(len(r) for r in rows)
         if n < 16:
