@@ -89,10 +89,10 @@ def run_case(args) -> dict:
     for t in phys.truth["trials"]:
         by.setdefault(t["sE"], []).append((t["Kp"], t["wn"], t["zeta"]))
     ss, dof = np.zeros(3), 0
-    for v in by.values():
-        lv = np.log(np.array(v))
+    for vals in by.values():
+        lv = np.log(np.array(vals))
         ss += ((lv - lv.mean(axis=0)) ** 2).sum(axis=0)
-        dof += len(v) - 1
+        dof += len(vals) - 1
     realised = 100 * np.sqrt(ss / dof)
     return {"family": family, "seed": seed, "verdict": v.verdict, "label": v.label or "",
             "former": former, "within": bool(nom["within_scatter"]),
