@@ -15,7 +15,7 @@ whole session: target, fatigue reported (significant); the muscles' fatigue stat
 end is printed beside it (the force lost is not exactly that state: recruitment and the
 passive force stay). Control: the same participant without fatigue.
 
-    python bench/bench_fatigue.py [--seeds 12] [--jobs 1] [--no-msk]
+    python bench/bench_fatigue.py [--seeds 6] [--jobs 1] [--no-msk]
 """
 
 from __future__ import annotations
@@ -117,7 +117,7 @@ def run_msk(args) -> dict:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=12)
+    ap.add_argument("--seeds", type=int, default=6)
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--no-msk", action="store_true")
     a = ap.parse_args(argv if argv is not None else [])
