@@ -23,10 +23,12 @@ import numpy as np
 
 from nmsid.analysis.data_bounds import check_session_data
 from nmsid.analysis.errors import IdentificationError
+from nmsid.analysis.fatigue import FatigueResult, cumulative_stimulation_s, fit_fatigue
 from nmsid.analysis.input_timing import fit_level
 from nmsid.analysis.preprocess import LevelData
 from nmsid.analysis.qc import SessionQC, assess_level, assess_session
 from nmsid.analysis.qc.decide import EXCLUDED, REPAIRED, LevelQC
+from nmsid.analysis.scatter import ScatterResult, fit_trials, summarise
 from nmsid.analysis.second_order import SecondOrderFit
 from nmsid.analysis.settings import IdentificationSettings
 from nmsid.protocols.session_file import read_session
@@ -46,6 +48,8 @@ class LevelResult:
     problems: list[str] = field(default_factory=list)
     qc: LevelQC | None = None
     """The quality control's verdicts on this level's trials (None when QC is off)."""
+    used_trials: list = field(default_factory=list, repr=False)
+    """The trials the fit used (the repeats each fitted on its own for the scatter)."""
 
     @property
     def ok(self) -> bool:
@@ -86,6 +90,12 @@ class SessionResult:
     calibration: dict = field(default_factory=dict)
     qc: SessionQC | None = None
     """The quality control's verdict on every trial (None when QC is off)."""
+    scatter: ScatterResult | None = None
+    """Trial-to-trial scatter of Kp, wn, zeta per sE and pooled
+    (:mod:`nmsid.analysis.scatter`; None when not computed)."""
+    fatigue: FatigueResult | None = None
+    """The gain lost with accumulated stimulation over the session
+    (:mod:`nmsid.analysis.fatigue`; None when not computed)."""
 
     def rows(self) -> list[dict]:
         return [lv.row(self.participant) for lv in self.levels]
@@ -211,7 +221,7 @@ def identify_level(trials, settings: IdentificationSettings | None = None,
         problems.append(f"sE={sE:g}: {note}")
     if not math.isfinite(fit.fit_pct) or fit.fit_pct < 50:
         problems.append(f"sE={sE:g}: poor fit ({fit.fit_pct:.1f} %); check the force signal")
-    return LevelResult(sE, fit, data, len(usable), names, problems, qc)
+    return LevelResult(sE, fit, data, len(usable), names, problems, qc, used_trials=usable)
 
 
 #: The datasets the identification needs; the others (currents, wrench, sync) are not read
@@ -235,7 +245,7 @@ def _read_for_identification(path, read_session):
 
 
 def identify_session(session, settings: IdentificationSettings | None = None,
-                     progress=None) -> SessionResult:
+                     progress=None, *, trial_scatter: bool = True) -> SessionResult:
     """Identify every sE level of a session.
 
     Parameters
@@ -245,6 +255,10 @@ def identify_session(session, settings: IdentificationSettings | None = None,
     settings : IdentificationSettings, optional
     progress : callable(sE, LevelResult), optional
         Called after each level (e.g. to update a GUI).
+    trial_scatter : bool
+        Also fit every repeat on its own: the trial-to-trial scatter
+        (:mod:`nmsid.analysis.scatter`) and the within-session fatigue
+        (:mod:`nmsid.analysis.fatigue`) of the result; a significant fatigue is a problem.
 
     Returns
     -------
@@ -300,6 +314,11 @@ def identify_session(session, settings: IdentificationSettings | None = None,
         missing = sorted({round(float(x), 9) for x in planned} - set(groups))
         for m in missing:
             problems.append(f"sE={m:g}: planned but no trial in the file (session incomplete?)")
+    scatter, fatigue = (session_scatter(session.trials, levels, s) if trial_scatter
+                        else (None, None))
+    if fatigue is not None and fatigue.significant:
+        problems.append(f"{fatigue.sentence()}: each sE's parameters average repeats taken "
+                        "at different fatigue (see the scatter and docs/identification.md)")
     for p in problems:
         logger.info("%s: %s", session.participant, p)
     cal = session.calibration
@@ -307,4 +326,36 @@ def identify_session(session, settings: IdentificationSettings | None = None,
                 ("Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA", "Fmin_N", "Fmax_N")}
     return SessionResult(participant=session.participant, source=str(session.path),
                          levels=levels, problems=problems, settings=s, calibration=cal_dict,
-                         qc=session_qc)
+                         qc=session_qc, scatter=scatter, fatigue=fatigue)
+
+
+def session_scatter(all_trials, levels: list[LevelResult],
+                    settings: IdentificationSettings | None = None
+                    ) -> tuple[ScatterResult, FatigueResult]:
+    """Each used repeat fitted on its own; the fatigue those fits show; their scatter.
+
+    Parameters
+    ----------
+    all_trials : sequence of Trial
+        Every trial of the session in file order (their durations give the cumulative
+        stimulation).
+    levels : list of LevelResult
+        The identified levels (their used trials and fits).
+    settings : IdentificationSettings, optional
+
+    Returns
+    -------
+    scatter : ScatterResult
+        Kp corrected for the fatigue when it is significant.
+    fatigue : FatigueResult
+        From the per-trial Kp.
+    """
+    centre, total = cumulative_stimulation_s(all_trials)
+    cum = {id(t): float(c) for t, c in zip(all_trials, centre)}
+    ok = [lv for lv in levels if lv.fit is not None and lv.data is not None]
+    fits, notes = fit_trials([lv.used_trials for lv in ok], [(lv.data, lv.fit) for lv in ok],
+                             cum, settings)
+    fatigue = fit_fatigue([f.Kp for f in fits], [round(f.sE, 9) for f in fits],
+                          [f.cum_stim_s for f in fits], total_stim_s=total,
+                          source="per-trial Kp")
+    return summarise(fits, fatigue, notes), fatigue

@@ -82,7 +82,39 @@ def parameter_table(session_result) -> str:
         lines.append(f"{lv.sE:5.2f} {f.Kp:9.4f} {f.Kp_se:7.4f} {f.wn_rad_s:10.3f} "
                      f"{f.wn_se:7.3f} {f.zeta:7.4f} {f.zeta_se:7.4f} {f.fit_pct:6.2f} "
                      f"{lv.n_trials:2d}  {', '.join(flags)}")
+    sc = getattr(session_result, "scatter", None)
+    if sc is not None:
+        lines += ["", ("trial-to-trial scatter (each repeat fitted on its own; SD of the "
+                       "log-parameter between repeats, %)"), sc.table()]
+    fat = getattr(session_result, "fatigue", None)
+    if fat is not None:
+        lines.append(fat.sentence())
     return "\n".join(lines)
+
+
+SCATTER_COLUMNS = ("participant", "sE", "n_trials", "parameter", "cv_pct", "ci_low_pct",
+                   "ci_high_pct", "estimation_cv_pct", "physiological_cv_pct", "dof")
+
+
+def write_scatter_csv(session_results, path: str | Path) -> Path:
+    """Trial-to-trial scatter per participant, sE (``all``: pooled) and parameter
+    (columns ``SCATTER_COLUMNS``; see :mod:`nmsid.analysis.scatter`)."""
+    path = Path(path)
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(SCATTER_COLUMNS)
+        for res in session_results:
+            sc = getattr(res, "scatter", None)
+            if sc is None:
+                continue
+            rows = [(f"{lv.sE:g}", lv.n_trials, getattr(lv, p)) for lv in sc.levels
+                    for p in PARAMETER_NAMES]
+            rows += [("all", sc.pooled(p).n_trials, sc.pooled(p)) for p in PARAMETER_NAMES]
+            for sE, n, ps in rows:
+                w.writerow([escape_controls(str(res.participant)), sE, n, ps.parameter]
+                           + [_fmt(float(getattr(ps, c)), 4) for c in SCATTER_COLUMNS[4:9]]
+                           + [ps.dof])
+    return path
 
 
 def selection_tables(selection: SelectionResult) -> str:

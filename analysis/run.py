@@ -19,7 +19,7 @@ from nmsid.analysis.identify import SessionResult, identify_session
 from nmsid.analysis.model_selection import AVERAGE_LABEL, SelectionResult, select_models
 from nmsid.analysis.qc.table import write_qc_csv
 from nmsid.analysis.report import (parameter_table, selection_tables, write_model_selection_json,
-                                   write_parameters_csv, write_text)
+                                   write_parameters_csv, write_scatter_csv, write_text)
 from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
 from nmsid.analysis.twin import Twin, source_entry, twin_from_selection
 from nmsid.errors import UserError
@@ -125,6 +125,8 @@ def run_identification(sessions, out_dir: str | os.PathLike,
     if any(r.qc is not None for r in results):
         files.append(write_qc_csv([r.qc for r in results if r.qc is not None],
                                   out / "qc.csv"))
+    if any(r.scatter is not None for r in results):
+        files.append(write_scatter_csv(results, out / "scatter.csv"))
     selection = select_models(results, s)
     problems.extend(selection.problems)
     files.append(write_model_selection_json(

@@ -10,7 +10,14 @@ chirp), handed to the gap diagnosis (QC not run: the sessions are clean by const
   trial-to-trial scatter (``analysis.design.predict.DEFAULT_SCATTER``: electrode reach,
   muscle and mount speed, mount damping);
 - ``HILL``: the independent compliant-tendon Hill formulation (``bench/hill_participant.py``),
-  neither MuJoCo's equations nor the twin's.
+  neither MuJoCo's equations nor the twin's (Zajac 1989 style);
+- ``THELEN2003`` (rigid tendon), ``DEGROOTE2016`` (compliant tendon), ``MILLARD2012``
+  (rigid tendon): other activation, force-length, force-velocity and tendon curves on the
+  same geometry (``bench/hill_formulations.py``).
+
+Target per formulation: the muscle twin within 3x the noise floor, or the verdict not
+``muscle_twin`` (an honest "not supported", the remainder reported); printed "missed"
+when the twin is called supported beyond 3x the floor.
 
 Printed per participant: held-out NRMSE of the nominal template, of the template's best
 answer (effect or pair), of the muscle twin, the noise floor (between repeats) and the
@@ -46,6 +53,10 @@ CANDIDATES = (Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS, Effect.RECRUITMENT_N
 
 
 def _session(code: str):
+    if code in ("THELEN2003", "DEGROOTE2016", "MILLARD2012"):
+        from hill_formulations import session as form_session
+        from hill_participant import HillParticipant
+        return form_session(HillParticipant(), code.lower(), seed=4)
     if code == "HILL":
         from hill_participant import HillParticipant, session
         return session(HillParticipant(), seed=4)
@@ -84,7 +95,15 @@ def run_one(code: str) -> dict:
             "remaining_sig": diag.assessment["remaining"]["significant"]}
 
 
-def main(codes=("MSK-A", "MSK-B", "HILL")) -> None:
+def _target(r: dict) -> str:
+    ratio = r["muscle"] / r["floor"]
+    if r["verdict"] != "muscle_twin":
+        return f"not supported ({r['verdict']}; remainder reported)"
+    return "OK (<= 3x floor)" if ratio <= 3 else "missed (> 3x floor)"
+
+
+def main(codes=("MSK-A", "MSK-B", "HILL", "THELEN2003", "DEGROOTE2016", "MILLARD2012")
+         ) -> None:
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=2) as ex:
         rows = list(ex.map(run_one, codes))
@@ -92,12 +111,13 @@ def main(codes=("MSK-A", "MSK-B", "HILL")) -> None:
           "(held-out NRMSE %, 45-trial sessions)\n")
     print(f"{'participant':12s} {'nominal':>8s} {'template best':>28s} {'muscle':>8s} "
           f"{'floor':>7s} {'sensor':>7s} {'muscle/floor':>12s} {'muscle/template':>15s} "
-          f"{'verdict':>12s} {'rem.sig':>7s}")
+          f"{'verdict':>12s} {'rem.sig':>7s}  target")
     for r in rows:
         print(f"{r['code']:12s} {r['nominal']:8.3f} {r['template_label'][:19]:>19s} "
               f"{r['template']:8.3f} {r['muscle']:8.3f} {r['floor']:7.3f} {r['sensor']:7.3f} "
               f"{r['muscle'] / r['floor']:12.2f} {r['muscle'] / r['template']:15.2f} "
-              f"{r['verdict']:>12s} {str(r['remaining_sig']):>7s}")
+              f"{r['verdict']:>12s} {str(r['remaining_sig']):>7s}  "
+              + _target(r))
     print()
     for r in rows:
         print(f"{r['code']}: session simulated in {r['sim_s']:.0f} s; "

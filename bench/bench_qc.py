@@ -186,17 +186,30 @@ def main(n_sessions: int = 40) -> None:
     print(f"clean trials excluded, same sessions: {n_clean_ex}/{n_clean} = "
           f"{100 * n_clean_ex / max(n_clean, 1):.2f} %; uncontaminated sessions: {n_cs_ex}/"
           f"{n_cs} = {100 * n_cs_ex / max(n_cs, 1):.2f} % (target <= 2 %)")
-    for label, key, gens in (
-            ("with QC", "err_qc", ("synthetic", "inline")),
-            ("with QC, identical-gain generator only", "err_qc", ("synthetic",)),
-            ("with QC vs the clean session on the same kept repeats", "err_same",
-             ("synthetic", "inline")),
-            ("without QC (the paper's average)", "err_raw", ("synthetic", "inline"))):
-        e = np.array([x for r in rows if r["gen"] in gens for x in r[key]])
-        print(f"contaminated levels {label}: |error| vs the uncontaminated session, % "
-              f"(Kp, wn, zeta): median {np.round(np.median(e, axis=0), 3).tolist()}, "
-              f"max {np.round(np.max(e, axis=0), 3).tolist()}; within 0.2 %: "
+    # like for like: "with QC" and "without QC" against ONE reference, the uncontaminated
+    # session identified in full (what the lab would have got without the artefacts)
+    both = ("synthetic", "inline")
+    e_qc = np.array([x for r in rows if r["gen"] in both for x in r["err_qc"]])
+    e_raw = np.array([x for r in rows if r["gen"] in both for x in r["err_raw"]])
+    for label, e in (("with QC", e_qc), ("without QC (the paper's average)", e_raw)):
+        print(f"contaminated levels {label}: |error| vs the uncontaminated session "
+              f"(all repeats), % (Kp, wn, zeta): median "
+              f"{np.round(np.median(e, axis=0), 3).tolist()}, max "
+              f"{np.round(np.max(e, axis=0), 3).tolist()}; within 0.2 %: "
               f"{np.mean(np.all(e <= 0.2, axis=1)) * 100:.0f} % of {len(e)} levels")
+    ratio = np.median(e_raw, axis=0) / np.maximum(np.median(e_qc, axis=0), 1e-12)
+    print(f"  like for like (same reference): median error without QC / with QC = "
+          f"{', '.join(f'x{v:.0f}' for v in ratio)} (Kp, wn, zeta); the largest errors with "
+          f"QC ({', '.join(f'{v:.2f}' for v in np.max(e_qc, axis=0))} %) are the information "
+          "of the excluded repeat, lost with it")
+    e_syn = np.array([x for r in rows if r["gen"] == "synthetic" for x in r["err_qc"]])
+    print(f"  with QC, identical-gain generator only (repeats differ by noise alone): max "
+          f"{np.round(np.max(e_syn, axis=0), 3).tolist()} %, same reference")
+    e_same = np.array([x for r in rows for x in r["err_same"]])
+    print(f"  not like for like, for QC's own fidelity: with QC vs the clean session "
+          f"restricted to the same kept repeats: max {np.round(np.max(e_same, axis=0), 3)"
+          f".tolist()} % (measures the repair, not the loss of a repeat: do not set it "
+          f"against the 'without QC' row)")
     e = np.array([x for r in rows for x in r["err_truth_qc"]])
     if e.size:
         print(f"  synthetic generator, with QC vs its truth: median "

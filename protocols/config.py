@@ -15,6 +15,8 @@ Layout of the TOML file (every key optional; unknown keys are refused)::
     sE_levels = [0.30, 0.35, ...]  # or sE_min / sE_max / sE_step
     repeats = 3
     randomisation = "blocks"       # "blocks" | "full"
+    reference_sE = 0.6             # reference trials to track fatigue (default: none)
+    reference_every = 9            # ... first, after every 9 scheduled trials, and last
     steady_s = 5.0
     chirp_s = 10.0
     chirp_f0_Hz = 1.0
@@ -197,6 +199,12 @@ class ProtocolConfig:
     pause_policy: PausePolicy = PausePolicy.FINISH
     input_kind: InputKind = InputKind.CHIRP
     multisine_tones: StrictInt = bounded(24, ge=2, le=1000, why="tones of a multisine")
+    reference_sE: SELevel | None = None
+    """Reference trials (off by default): a trial at this sE first, after every
+    ``reference_every`` scheduled trials, and last, so fatigue is tracked at one fixed sE
+    (``docs/identification.md``)."""
+    reference_every: StrictInt = bounded(0, ge=0, le=MAX_TRIALS, why=(
+        "scheduled trials between two reference trials (0: none)"))
 
     @model_validator(mode="before")
     @classmethod
@@ -226,7 +234,11 @@ class ProtocolConfig:
         if len(set(round(v, 9) for v in self.sE_levels)) != len(self.sE_levels):
             raise SettingProblem("sE_levels", list(self.sE_levels),
                                  "each sE level once (use repeats for repetitions)")
-        n_trials = len(self.sE_levels) * self.repeats
+        if (self.reference_sE is None) != (self.reference_every == 0):
+            raise SettingProblem("reference_every", self.reference_every,
+                                 "reference trials need both reference_sE (in (0, 1]) and "
+                                 "reference_every >= 1; give neither for none")
+        n_trials = self.n_trials
         if n_trials > MAX_TRIALS:
             raise SettingProblem("repeats", self.repeats,
                                  f"at most {MAX_TRIALS} trials in all (levels x repeats = "
@@ -278,9 +290,15 @@ class ProtocolConfig:
         return int(round(self.trial_s * self.fs_Hz))
 
     @property
+    def n_trials(self) -> int:
+        """Scheduled trials, reference trials included."""
+        n = len(self.sE_levels) * self.repeats
+        return n + (0 if self.reference_sE is None else -(-n // self.reference_every) + 1)
+
+    @property
     def session_s(self) -> float:
         """Stimulation plus rest time of the whole schedule in s."""
-        return len(self.sE_levels) * self.repeats * (self.trial_s + self.rest_s)
+        return self.n_trials * (self.trial_s + self.rest_s)
 
 
 _LEVEL_RANGE_KEYS = ("sE_min", "sE_max", "sE_step")

@@ -49,13 +49,20 @@ class PlannedTrial:
     """Why it was aborted (empty otherwise)."""
     attempts: int = 0
     """How many times it was started (re-runs count)."""
+    reference: bool = False
+    """A reference trial (fixed sE spread through the session to track fatigue)."""
 
     def to_dict(self) -> dict:
-        return {"index": self.index, "sE": self.sE, "repeat": self.repeat}
+        d = {"index": self.index, "sE": self.sE, "repeat": self.repeat}
+        if self.reference:
+            d["reference"] = True
+        return d
 
 
 def make_schedule(sE_levels: Iterable[float], repeats: int,
-                  randomisation: Randomisation, seed: int) -> list[PlannedTrial]:
+                  randomisation: Randomisation, seed: int, *,
+                  reference_sE: float | None = None,
+                  reference_every: int = 0) -> list[PlannedTrial]:
     """Build the randomised schedule.
 
     Parameters
@@ -70,11 +77,26 @@ def make_schedule(sE_levels: Iterable[float], repeats: int,
         are numbered in the order they run.
     seed : int
         The recorded random seed (>= 0).
+    reference_sE, reference_every : float or None, int
+        Reference trials (off by default): one trial at ``reference_sE`` first, after every
+        ``reference_every`` scheduled trials, and last, so the gain at one fixed sE is
+        measured through the session (fatigue, :mod:`nmsid.analysis.fatigue`). Their repeat
+        numbers continue those of their level (a new level starts at 1).
 
     Returns
     -------
     list of PlannedTrial
-        ``len(sE_levels) * repeats`` entries, all pending, ``index`` = position.
+        ``len(sE_levels) * repeats`` entries (plus the reference trials), all pending,
+        ``index`` = position.
+
+    Examples
+    --------
+    >>> s = make_schedule([0.3, 0.5], 2, Randomisation.FULL, 3, reference_sE=0.5,
+    ...                   reference_every=2)
+    >>> [(t.sE, t.repeat, t.reference) for t in s][::3]
+    [(0.5, 3, True), (0.5, 4, True), (0.5, 5, True)]
+    >>> len(s)
+    7
     """
     levels = [float(v) for v in sE_levels]
     if not levels:
@@ -99,7 +121,27 @@ def make_schedule(sE_levels: Iterable[float], repeats: int,
     else:
         raise ScheduleError(f"unknown randomisation {randomisation!r}; use one of "
                             + ", ".join(m.value for m in Randomisation))
-    return [PlannedTrial(index=i, sE=sE, repeat=r) for i, (sE, r) in enumerate(pairs)]
+    refs = [False] * len(pairs)
+    if reference_sE is not None:
+        if not (0.0 < float(reference_sE) <= 1.0) or reference_every < 1:
+            raise ScheduleError(f"reference trials need reference_sE in (0, 1] and "
+                                f"reference_every >= 1, got {reference_sE!r}, "
+                                f"{reference_every!r}")
+        ref = float(reference_sE)
+        n_ref = max((r for s, r in pairs if abs(s - ref) < 1e-9), default=0)
+        out, flags = [], []
+        for k, pair in enumerate(pairs):
+            if k % reference_every == 0:
+                n_ref += 1
+                out.append((ref, n_ref))
+                flags.append(True)
+            out.append(pair)
+            flags.append(False)
+        out.append((ref, n_ref + 1))
+        flags.append(True)
+        pairs, refs = out, flags
+    return [PlannedTrial(index=i, sE=sE, repeat=r, reference=f)
+            for i, ((sE, r), f) in enumerate(zip(pairs, refs))]
 
 
 def schedule_to_json(schedule: list[PlannedTrial]) -> str:
@@ -111,7 +153,8 @@ def schedule_from_json(text: str) -> list[PlannedTrial]:
     """Inverse of :func:`schedule_to_json` (statuses all pending)."""
     try:
         items = json.loads(text)
-        return [PlannedTrial(index=int(d["index"]), sE=float(d["sE"]), repeat=int(d["repeat"]))
+        return [PlannedTrial(index=int(d["index"]), sE=float(d["sE"]), repeat=int(d["repeat"]),
+                             reference=bool(d.get("reference", False)))
                 for d in items]
     except (ValueError, KeyError, TypeError) as exc:
         raise ScheduleError(f"stored schedule is not readable: {exc}") from None

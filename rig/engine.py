@@ -122,7 +122,9 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
             self.config = config.replace(seed=seed) if config.seed is None else config
             self.seed = seed
             p = self.config.protocol
-            self.schedule = make_schedule(p.sE_levels, p.repeats, p.randomisation, seed)
+            self.schedule = make_schedule(p.sE_levels, p.repeats, p.randomisation, seed,
+                                          reference_sE=p.reference_sE,
+                                          reference_every=p.reference_every)
         self.interlock = Interlock(self.config.interlock, devices.stimulator,
                                    estop_input=devices.estop, on_trip=self._on_trip)
 

@@ -37,7 +37,7 @@ from nmsid.analysis.gap.errors import GapInputError
 from nmsid.analysis.gap.fit import ModelFit, fit_model, predict
 from nmsid.analysis.gap.models import NOMINAL, Candidate, candidate, n_drift_columns, nuisance_basis
 from nmsid.analysis.gap.samples import effective_fraction
-from nmsid.analysis.gap.verdict import assess
+from nmsid.analysis.gap.verdict import GapVerdict, assess
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +66,10 @@ class GapSettings:
     min_beyond_noise_pct: float = 0.1
     """... and the gap beyond noise is at least this (NRMSE points of the response): a
     twin 99.9 % right is not wrong in any way a physiologist would act on."""
+    min_common_share: float = 0.05
+    """The part of the misfit common to the repeats of each sE is a model gap only when it
+    is at least this share (NRMSE ratio) of the part that differs between repeats; below,
+    the misfit is trial-to-trial variability (``analysis.gap.verdict``)."""
     deviation_edges: tuple[float, ...] = (-0.5, -0.25, 0.0, 0.25, 0.5)
     try_muscle: bool = True
     """When the template's answer leaves a significant gap, also try the physiological
@@ -123,7 +127,7 @@ class Diagnosis:
     """Noise in the steady lead-in (no stimulation change, no model involved) as an NRMSE
     of the held-out trials: the part of any model's error that is measurement noise."""
     elapsed_s: float = 0.0
-    assessment: dict = field(default_factory=dict)
+    assessment: GapVerdict | dict = field(default_factory=dict)
     """Verdict, nominal and remaining gap (``analysis.gap.verdict.assess``)."""
     not_named: CandidateResult | None = None
     """A candidate (or pair) that was supported on a gap within noise, hence not named."""

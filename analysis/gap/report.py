@@ -174,6 +174,7 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
         "verdict": a.get("verdict"), "verdict_sentence": a.get("sentence"),
         "remaining": a.get("remaining"), "nominal_gap": a.get("nominal_gap"),
         "not_named": a.get("not_named"),
+        "fatigue": a.fatigue.as_dict() if getattr(a, "fatigue", None) is not None else None,
         "n_trials": diag.data.n_trials, "skipped_trials": diag.data.skipped,
         "excluded_trials": [{"trial": k, "reason": v} for k, v in diag.data.excluded.items()],
         "input_timing": diag.data.timing.as_dict() if diag.data.timing else None,

@@ -15,6 +15,29 @@ trials' log-ratios. A gap is *significant* when the median exceeds ``significanc
 standard errors and the gap beyond noise is at least ``min_beyond_noise_pct`` (NRMSE
 points of the response: below that no physiologist would call the twin wrong).
 
+Trial-to-trial variability. Muscles do not answer two identical stimulations identically:
+Kp, wn and zeta move between repeats (:mod:`nmsid.analysis.scatter`), so a held-out repeat
+differs from any model of the others by that scatter even when the model is exactly right,
+and the test above alone would call it a gap. The misfit is therefore split into the part
+*common to the repeats* of an sE (what a better model could capture) and the part that
+differs between them. Per level, the mean of the repeats' held-out residuals carries the
+common part plus the sensor noise averaged over ``n`` repeats (lead-in noise power / ``n``);
+trial-to-trial deviations that a second-order model can follow cancel in it (each repeat is
+predicted from the others, whose deviations average out). The same median-log-ratio test
+is applied to these level means against ``N / n`` (:func:`common_test`): a broadband gap is
+significant only when the per-trial test *and* this common-part test are (for the nominal
+model when no candidate is supported: a supported candidate - fatigue, a drift - may
+explain what differs between repeats, and is named on the per-trial test). A misfit beyond
+sensor noise whose common part is not significant is reported as trial-to-trial
+variability, with both figures: the common part (``systematic_pct``) and the part that
+differs between repeats (``trial_to_trial_pct``), beside the scatter between repeats measured
+without a model (``Diagnosis.noise_floor_nrmse_pct``).
+
+Fatigue. The gain of each trial relative to the nominal model fitted on all trials, against the
+cumulative stimulation before it, gives the session's fatigue
+(:func:`nmsid.analysis.fatigue.fit_fatigue`, levels as fixed effects): reported with its
+magnitude and confidence interval, and named in the sentence when significant.
+
 Narrow-band components. The mean periodogram of the held-out residual is searched for
 peaks above a running-median background. A peak as narrow as the frequency resolution, at
 the same frequency in every trial, is an instrument line (mains, the stimulator's carrier or
@@ -35,10 +58,13 @@ Narrow-band components: :mod:`nmsid.analysis.gap.narrowband`.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from nmsid.analysis.gap.fit import find_steps
+from nmsid.analysis.fatigue import FatigueResult, fit_fatigue
+
+from nmsid.analysis.gap.fit import find_steps, predict
 from nmsid.analysis.gap.harmonics import local_harmonics
 from nmsid.analysis.gap.models import nuisance_basis
 from nmsid.analysis.gap.narrowband import narrow_band
@@ -143,6 +169,177 @@ def gap_test(resid: np.ndarray, noise_N2: np.ndarray, reference: np.ndarray,
     return out
 
 
+def common_test(resid: np.ndarray, noise_N2: np.ndarray, reference: np.ndarray,
+                level: np.ndarray, sE_levels, nu: float, n_lead: int, *, z_crit: float = 3.0,
+                min_beyond_noise_pct: float = 0.1) -> dict | None:
+    """Is the part of a residual common to the repeats of each sE beyond noise? (see module)
+
+    Parameters
+    ----------
+    resid, reference : (n_trials, n_eval) ndarray
+        Held-out residuals and the measured force of the tested trials.
+    noise_N2 : (n_trials,) ndarray
+        Each trial's lead-in noise power.
+    level : (n_trials,) ndarray of int
+        Each trial's sE level index.
+    sE_levels : sequence of float
+        The sE of each level index (names in the output).
+    nu, n_lead : float, int
+        As for :func:`gap_test`.
+
+    Returns
+    -------
+    dict or None
+        :func:`gap_test`'s answer on the level means (one row per level with at least two
+        repeats, noise ``mean(N) / n``); None with fewer than three such levels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> x = np.sin(np.linspace(0, 60, 800))
+    >>> lev = np.repeat(np.arange(8), 3)
+    >>> dev = rng.normal(0, 0.1, (24, 1)) * x            # each repeat's own gain error
+    >>> dev -= np.repeat(dev.reshape(8, 3, -1).mean(1), 3, axis=0)   # predicted from others
+    >>> noise = rng.normal(0, 0.01, (24, 800))
+    >>> ref = np.tile(x, (24, 1))
+    >>> common_test(dev + noise, np.full(24, 1e-4), ref, lev, range(8), 0.5, 300)["significant"]
+    False
+    >>> common_test(dev + noise + 0.05 * x ** 2, np.full(24, 1e-4), ref, lev, range(8), 0.5,
+    ...             300)["significant"]
+    True
+    """
+    rows, refs, noise, names = [], [], [], []
+    for j in np.unique(level):
+        m = (level == j) & np.isfinite(noise_N2) & (noise_N2 > 0)
+        n = int(m.sum())
+        if n < 2:
+            continue
+        rows.append(resid[m].mean(axis=0))
+        refs.append(reference[m].mean(axis=0))
+        noise.append(float(np.mean(noise_N2[m])) / n)
+        names.append(f"sE={float(list(sE_levels)[int(j)]):g}")
+    if len(rows) < 3:
+        return None
+    return gap_test(np.vstack(rows), np.asarray(noise), np.vstack(refs), nu, nu, n_lead,
+                    z_crit=z_crit, min_beyond_noise_pct=min_beyond_noise_pct, names=names)
+
+
+def split_misfit(per_trial: dict, common: dict | None, min_common_share: float = 0.05
+                 ) -> dict:
+    """The misfit beyond noise split into its common and trial-to-trial parts.
+
+    Parameters
+    ----------
+    per_trial, common : dict
+        :func:`gap_test` on the trials and :func:`common_test` on the level means.
+    min_common_share : float
+        The common part counts only when it is at least this share of the trial-to-trial
+        part (NRMSE ratio): the scatter itself leaves a little in the repeats' mean, since
+        the response depends non-linearly on wn and zeta (second order in the scatter:
+        about 1-2 % of a 10 % trial-to-trial part).
+
+    Returns
+    -------
+    dict
+        ``systematic_pct`` and ``trial_to_trial_pct`` (% of the response, beyond noise),
+        ``systematic_significant`` and ``within_scatter`` (the per-trial test is
+        significant, the common part is not).
+    """
+    total = per_trial.get("beyond_noise_pct_typical") or 0.0
+    if common is None:
+        return {"systematic_pct": None, "trial_to_trial_pct": None, "within_scatter": False,
+                "systematic_significant": None}
+    sysm = common.get("beyond_noise_pct_typical") or 0.0
+    t2t = math.sqrt(max(total ** 2 - sysm ** 2, 0.0))
+    sig = bool(common["significant"] and sysm >= min_common_share * t2t)
+    return {"systematic_pct": sysm, "trial_to_trial_pct": t2t,
+            "within_scatter": bool(per_trial.get("significant") and not sig),
+            "systematic_significant": sig}
+
+
+def gap_fatigue(diag) -> FatigueResult:
+    """Fatigue from each trial's gain relative to the nominal model fitted on all trials
+    (see module): cumulative stimulation at the window's centre, the session's total taken
+    as the last window's end.
+
+    The in-sample fit is used, not the held-out prediction: a repeat predicted from the
+    others compares its gain with theirs only, which stretches a trend by ``n / (n - 1)``.
+    """
+    d = diag.data
+    r, _, ref = predict(diag.nominal_full, d)
+    pred = ref - r
+    num = np.sum(pred * ref, axis=1)
+    den = np.sum(pred * pred, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        g = np.where(den > 0, num / den, np.nan)
+    c = d.cum_stim_s + 0.5 * d.chirp_s
+    total = float(np.max(d.cum_stim_s)) + d.chirp_s if len(c) else float("nan")
+    return fit_fatigue(g, d.level, c, total_stim_s=total, source="gain of each trial")
+
+
+@dataclass
+class GapVerdict:
+    """The verdict of a diagnosis (:func:`assess`).
+
+    Read as attributes; ``verdict["key"]`` and ``verdict.get("key")`` still work for callers
+    written against the former dict.
+
+    Attributes
+    ----------
+    verdict : str
+        ``none``, ``effect``, ``pair``, ``unexplained`` or ``muscle_twin``.
+    label : str or None
+        The effect (pair) named.
+    remaining, nominal_gap : dict
+        The final and the nominal model's gap: beyond noise (``beyond_noise_pct_typical``),
+        its common part (``systematic_pct``) and trial-to-trial part
+        (``trial_to_trial_pct``), significance, where.
+    sentence : str
+        The verdict in words.
+    not_named : str or None
+        A candidate that fitted a gap within noise or trial-to-trial variability.
+    repeat_scatter_pct : float
+        Scatter between repeats without a model (NRMSE %; ``noise_floor_nrmse_pct``).
+    fatigue : FatigueResult or None
+        The session's fatigue from the held-out gains.
+    """
+
+    verdict: str
+    label: str | None
+    remaining: dict
+    nominal_gap: dict
+    sentence: str
+    not_named: str | None = None
+    repeat_scatter_pct: float = float("nan")
+    fatigue: FatigueResult | None = None
+    extra: dict = field(default_factory=dict)
+
+    def __getitem__(self, key: str):
+        if key in {f.name for f in fields(self)}:
+            return getattr(self, key)
+        return self.extra[key]
+
+    def __contains__(self, key: object) -> bool:
+        return key in self.as_dict()
+
+    def keys(self):
+        return self.as_dict().keys()
+
+    def get(self, key: str, default=None):
+        try:
+            return self[key]
+        except KeyError:
+            return default
+
+    def as_dict(self) -> dict:
+        """Plain JSON-able form (the report's ``verdict`` part)."""
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "extra"}
+        out["fatigue"] = self.fatigue.as_dict() if self.fatigue is not None else None
+        out.update(self.extra)
+        return out
+
+
 def decide(nominal_significant: bool, kind: str, remaining_significant: bool) -> str:
     """The verdict from three facts (see module).
 
@@ -171,7 +368,17 @@ def decide(nominal_significant: bool, kind: str, remaining_significant: bool) ->
     return kind if nominal_significant else "none"
 
 
-def sentence(verdict: str, label: str | None, nominal: dict, remaining: dict) -> str:
+def _scatter_words(fig: dict, scatter_pct: float | None) -> str:
+    between = (f"; repeats of one sE differ by {scatter_pct:.2f} % of the response without "
+               "any model" if scatter_pct is not None and math.isfinite(scatter_pct) else "")
+    return (f"trial-to-trial variability, not a model gap: the part common to the repeats "
+            f"of each sE, which a better model could capture, is "
+            f"{fig.get('systematic_pct') or 0.0:.2f} % (not significant), the part that differs "
+            f"between repeats {fig.get('trial_to_trial_pct') or 0.0:.2f} %{between}")
+
+
+def sentence(verdict: str, label: str | None, nominal: dict, remaining: dict,
+             scatter_pct: float | None = None) -> str:
     """The verdict in one or two sentences a physiologist understands."""
     rem = remaining.get("beyond_noise_pct_typical") or 0.0
     nom = nominal.get("beyond_noise_pct_typical") or 0.0
@@ -191,13 +398,22 @@ def sentence(verdict: str, label: str | None, nominal: dict, remaining: dict) ->
         if len(explained) < len(conc):
             tail += " - check those trials for a voluntary contraction or an artefact"
         tail += "."
+    if verdict == "none" and nominal.get("within_scatter"):
+        return ("The nominal second-order model predicts held-out repeats as well as their "
+                f"trial-to-trial variability allows: what it misses beyond sensor noise, "
+                f"{nom:.2f} % of the response, is {_scatter_words(nominal, scatter_pct)}. No "
+                "unmodelled effect is needed." + tail)
     if verdict == "none":
         return ("The nominal second-order model predicts held-out repeats as well as the "
                 f"measurement noise allows (what it misses beyond noise, {nom:.2f} % of the "
                 "response, is not significant): no unmodelled effect is needed." + tail)
     if verdict == "unexplained":
+        common = nominal.get("systematic_pct")
+        split = (f"; {common:.2f} % common to the repeats of each sE, "
+                 f"{nominal.get('trial_to_trial_pct') or 0.0:.2f} % differing between them"
+                 if common is not None else "")
         return ("The nominal model misses part of the response "
-                f"({nom:.2f} % of the response beyond noise, significant), and none of the "
+                f"({nom:.2f} % of the response beyond noise, significant{split}), and none of the "
                 "six candidate effects, alone or in pairs, explains it: something else is at "
                 f"work{(' - ' + where) if where else ''}." + tail)
     if verdict == "muscle_twin":
@@ -210,6 +426,8 @@ def sentence(verdict: str, label: str | None, nominal: dict, remaining: dict) ->
         if remaining.get("significant"):
             text += (f", still significant{(' - ' + where) if where else ''}: the muscle "
                      "model is not the whole story either.")
+        elif remaining.get("within_scatter"):
+            text += f", which is {_scatter_words(remaining, scatter_pct)}."
         else:
             text += ", which is within noise."
         return text + tail
@@ -219,6 +437,8 @@ def sentence(verdict: str, label: str | None, nominal: dict, remaining: dict) ->
     if remaining.get("significant"):
         text += (f", but that remainder is still significant{(' - ' + where) if where else ''}"
                  f": {words.split(' (')[0]} is only part of the story.")
+    elif remaining.get("within_scatter"):
+        text += f", which is {_scatter_words(remaining, scatter_pct)}."
     else:
         text += ", which is within noise."
     return text + tail
@@ -344,7 +564,7 @@ def _harmonics(diag, res) -> dict | None:
     return {"median_residual_pct": h, "excess": excess}
 
 
-def assess(diag, muscle=None) -> dict:
+def assess(diag, muscle=None) -> GapVerdict:
     """Verdict, the nominal gap and the remaining gap of a diagnosis (see module).
 
     ``muscle``: a supported :class:`nmsid.analysis.muscle.candidate.MuscleResult`, which then
@@ -368,8 +588,13 @@ def assess(diag, muscle=None) -> dict:
                      min_beyond_noise_pct=s.min_beyond_noise_pct, names=names)
         comps = narrow_band(r, diag.reference[ok], rest, d.fs_eval_Hz, band_top,
                             f_min_Hz=d.chirp_f0_Hz, min_beyond_noise_pct=s.min_beyond_noise_pct)
+        common = common_test(r, noise[ok], diag.reference[ok], d.level[ok], d.sE_levels, nu,
+                             n_lead, z_crit=s.significance_z,
+                             min_beyond_noise_pct=s.min_beyond_noise_pct)
+        t.update(split_misfit(t, common, s.min_common_share))
         t["narrow_band_significant"] = any(c["significant"] for c in comps)
-        t["significant_total"] = bool(t["significant"] or t["narrow_band_significant"])
+        broadband = bool(t["significant"] and not t["within_scatter"])
+        t["significant_total"] = bool(broadband or t["narrow_band_significant"])
         return t, comps
 
     nom, nom_comps = test(diag.nominal)
@@ -381,7 +606,11 @@ def assess(diag, muscle=None) -> dict:
         rem, comps, res = nom, nom_comps, diag.nominal
     else:
         (rem, comps), res = test(final), final
-    verdict = decide(nom["significant_total"], kind, rem["significant_total"])
+    # a supported candidate explains (part of) what differs between repeats (fatigue,
+    # drift move each repeat differently): the nominal gap is then judged against noise
+    nominal_sig = nom["significant_total"] if kind == "none" else \
+        bool(nom["significant"] or nom["narrow_band_significant"])
+    verdict = decide(nominal_sig, kind, rem["significant_total"])
     if verdict == "none":      # nothing named: what remains is the nominal model's gap
         rem, comps, res = nom, nom_comps, diag.nominal
     w = where(diag, res.heldout_resid, comps, _harmonics(diag, res))
@@ -393,7 +622,12 @@ def assess(diag, muscle=None) -> dict:
     remaining = {"beyond_noise_pct": rem["beyond_noise_pct"],
                  "beyond_noise_pct_typical": rem["beyond_noise_pct_typical"],
                  "significant": rem["significant_total"],
-                 "broadband_significant": rem["significant"],
+                 "broadband_significant": bool(rem["significant"]
+                                               and not rem["within_scatter"]),
+                 "systematic_pct": rem["systematic_pct"],
+                 "trial_to_trial_pct": rem["trial_to_trial_pct"],
+                 "within_scatter": rem["within_scatter"],
+                 "systematic_significant": rem["systematic_significant"],
                  "narrow_band_significant": rem["narrow_band_significant"],
                  "median_ratio_to_noise": rem["median_ratio"], "z": rem["z"],
                  "concentrated_in": rem["concentrated_in"],
@@ -402,16 +636,32 @@ def assess(diag, muscle=None) -> dict:
     nominal = {k: nom.get(k) for k in ("beyond_noise_pct", "beyond_noise_pct_typical",
                                         "median_ratio", "z", "significant_total",
                                         "concentrated_in", "concentrated_share_pct",
-                                        "n_trials")}
+                                        "n_trials", "systematic_pct", "trial_to_trial_pct",
+                                        "systematic_significant", "within_scatter")}
     nominal["significant"] = nominal.pop("significant_total")
     if verdict == "none" and final is not None:
-        note = (f"{label} would fit, but the gap it would explain is within noise "
+        within = ("trial-to-trial variability" if nom.get("within_scatter") else "noise")
+        note = (f"{label} would fit, but the gap it would explain is within {within} "
                 f"(nominal gap beyond noise {nom['beyond_noise_pct_typical'] or 0:.2f} %, "
                 "not significant): not named")
     else:
         note = None
-    text = sentence(verdict, label, nom, dict(rem, where_summary=w["summary"], where=w))
-    return {"verdict": verdict,
-            "label": label if verdict in ("effect", "pair", "muscle_twin") else None,
-            "remaining": remaining, "nominal_gap": nominal, "sentence": text,
-            "not_named": note}
+    scatter_pct = getattr(diag, "noise_floor_nrmse_pct", None)
+    text = sentence(verdict, label, nom, dict(rem, where_summary=w["summary"], where=w,
+                                              significant=rem["significant_total"]),
+                    scatter_pct)
+    try:
+        fatigue = gap_fatigue(diag)
+    except (ValueError, FloatingPointError):
+        fatigue = None
+    named = verdict in ("effect", "pair", "muscle_twin")
+    if fatigue is not None and fatigue.significant:
+        if named and "fatigue" in (label or ""):
+            text += f" Measured from each trial's gain: {fatigue.sentence()}."
+        else:
+            text += (f" Beside it, the session shows {fatigue.sentence()}: each trial's gain "
+                     "against the stimulation given before it, the levels' own gains aside.")
+    return GapVerdict(verdict=verdict, label=label if named else None, remaining=remaining,
+                      nominal_gap=nominal, sentence=text, not_named=note,
+                      repeat_scatter_pct=float(scatter_pct) if scatter_pct is not None
+                      else float("nan"), fatigue=fatigue)

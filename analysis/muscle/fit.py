@@ -7,11 +7,13 @@ the mid-step value, so halving the rate moves no phase) from the commanded rE, a
 force passes the same zero-phase low-pass as the measured force. The per-trial offset and
 linear trend are nuisance terms, projected out exactly as in every gap model.
 
-Levenberg-Marquardt on the fitted scale (logs of the positive parameters) with the weak
-literature priors of :mod:`nmsid.analysis.muscle.literature` as extra residual rows, weighted by
-the noise per *effective* sample (:func:`nmsid.analysis.gap.samples.effective_fraction`). The
-finite-difference Jacobian costs one batched simulation (all perturbations stacked), so an
-iteration costs about as much as two model runs.
+``scipy.optimize.least_squares`` (trust-region reflective, the literature ranges as
+bounds, ``x_scale="jac"``) on the fitted scale (logs of the positive parameters) with the
+weak literature priors of :mod:`nmsid.analysis.muscle.literature` as extra residual rows,
+weighted by the noise per *effective* sample
+(:func:`nmsid.analysis.gap.samples.effective_fraction`). The finite-difference Jacobian is
+passed as ``jac``: one batched simulation (all perturbations stacked), so an iteration costs
+about as much as two model runs.
 
 Uncertainty: the Gauss-Newton covariance at the optimum, ``s^2 / nu (J'J + prior)^-1``
 (``s^2`` the residual variance, ``nu`` the effective-sample fraction). A parameter is *not
@@ -28,7 +30,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import signal
+from scipy import optimize, signal
 
 from nmsid.analysis.gap.data import GapData
 from nmsid.analysis.gap.fit import initial_levels
@@ -46,8 +48,9 @@ class MuscleFitSettings:
     fs_fit_Hz: float = 100.0
     """Simulation rate of the fit; must divide the gap data's simulation rate."""
     max_iter: int = 40
+    """At most this many Jacobians (least_squares' ``max_nfev`` is twice it)."""
     rtol: float = 2e-4
-    """Stop when the objective improves by less than this fraction."""
+    """Stop when the objective improves by less than this fraction (``ftol``)."""
     progress: bool = False
     """Write one line per iteration to stderr."""
 
@@ -201,45 +204,40 @@ def fit_muscle(data: GapData, settings: MuscleFitSettings | None = None, *,
         with np.errstate(over="ignore", invalid="ignore"):
             r = prob.residuals(lit.to_theta(z_rows)).reshape(len(z_rows), -1)
         # a trial step into an unstable corner (huge damping at the fit rate) diverges:
-        # a large finite residual makes LM reject it instead of failing on NaN
+        # a large finite residual makes the solver reject it instead of failing on NaN
         r = np.where(np.isfinite(r), np.clip(r, -1e6, 1e6), 1e6)
         pr = w_prior * (z_rows[:, has_prior] - z0[has_prior]) / lit.PRIOR_SD[has_prior]
         return np.concatenate([r, pr], axis=1)
 
-    lam = 1e-2
-    hist = []
-    r = cost_parts(z[None])[0]
-    cost = float(r @ r)
-    it = 0
-    J = None
-    for it in range(1, s.max_iter + 1):
-        Z = np.vstack([z] + [z + steps[k] * np.eye(n_p)[k] for k in range(n_p)])
-        R = cost_parts(Z)
-        r = R[0]
-        J = ((R[1:] - r) / steps[:, None]).T            # (rows, n_p)
-        A = J.T @ J
-        g = J.T @ r
-        improved = False
-        for _ in range(8):
-            dz = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), -g)
-            z_new = np.clip(z + dz, lo, hi)
-            r_new = cost_parts(z_new[None])[0]
-            c_new = float(r_new @ r_new)
-            if c_new < cost:
-                improved = True
-                rel = (cost - c_new) / cost
-                z, cost = z_new, c_new
-                lam = max(lam / 3.0, 1e-7)
-                break
-            lam *= 4.0
-        nrmse = 100.0 * np.sqrt(max(cost, 0.0) / np.sum(prob.ref ** 2))
+    hist: list[float] = []
+    ref2 = float(np.sum(prob.ref ** 2))
+    span = hi - lo
+    z = np.clip(z, lo + 1e-9 * span, hi - 1e-9 * span)    # strictly inside for TRF
+    njev = [0]
+
+    def fun(zv):
+        r = cost_parts(zv[None])[0]
+        nrmse = 100.0 * float(np.sqrt(max(float(r @ r), 0.0) / ref2))
         hist.append(nrmse)
         if s.progress:
-            print(f"\rmuscle twin{(' ' + label) if label else ''}: iteration {it}, "
+            print(f"\rmuscle twin{(' ' + label) if label else ''}: evaluation {len(hist)}, "
                   f"NRMSE {nrmse:.3f} %, {time.perf_counter() - t0:.0f} s   ",
                   end="", file=sys.stderr, flush=True)
-        if not improved or rel < s.rtol:
-            break
+        return r
+
+    def jac(zv):
+        # forward differences, stepping away from a bound, in one batched simulation
+        njev[0] += 1
+        h = np.where(zv + steps <= hi, steps, -steps)
+        R = cost_parts(np.vstack([zv] + [zv + h[k] * np.eye(n_p)[k] for k in range(n_p)]))
+        return ((R[1:] - R[0]) / h[:, None]).T
+
+    res = optimize.least_squares(fun, z, jac=jac, bounds=(lo, hi), method="trf",
+                                 x_scale="jac", ftol=s.rtol, xtol=1e-8, gtol=1e-10,
+                                 max_nfev=2 * s.max_iter)
+    z = res.x
+    J = res.jac
+    it = njev[0]
     if s.progress:
         print(file=sys.stderr, flush=True)
     rd = prob.residuals(lit.to_theta(z[None]))[0]
@@ -255,7 +253,7 @@ def fit_muscle(data: GapData, settings: MuscleFitSettings | None = None, *,
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     determined = np.where(has_prior, sd < 0.5 * np.where(has_prior, lit.PRIOR_SD, 1.0),
                           sd < 0.5)
-    at_bound = (z <= lo + 1e-9) | (z >= hi - 1e-9)
+    at_bound = (z <= lo + 1e-6 * span) | (z >= hi - 1e-6 * span)
     determined &= ~at_bound     # a parameter held by its bound is not the data's answer
     D = np.sqrt(np.maximum(np.diag(A_data), 1e-300))
     sv = np.linalg.svd(A_data / np.outer(D, D), compute_uv=False)

@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nmsid.analysis.fatigue import FatigueResult, cumulative_stimulation_s, fit_fatigue, \
+    gains_between_repeats
 from nmsid.analysis.qc import checks
 from nmsid.analysis.qc.repeats import Deviation, attribute_pair, deviations, fit_jump, smoothed, unshared
 from nmsid.analysis.qc.settings import QCSettings
@@ -89,6 +91,10 @@ class SessionQC:
     participant: str
     source: str
     levels: list[LevelQC]
+    fatigue: FatigueResult | None = None
+    """Gain lost with accumulated stimulation, from each kept trial's gain against its
+    level's other repeats (no model; :func:`nmsid.analysis.fatigue.gains_between_repeats`).
+    A problem line of ``nmsid qc`` when significant."""
 
     @property
     def trials(self) -> list[TrialQC]:
@@ -387,4 +393,20 @@ def assess_session(session, settings: QCSettings | None = None) -> SessionQC:
                 neighbour = np.mean([x[:m] for x in near], axis=0)
         note = _compare(works[k], s, neighbour)
         levels.append(_finish(float(groups[k][0].sE), works[k], note, s))
-    return SessionQC(session.participant, str(session.path), levels)
+    return SessionQC(session.participant, str(session.path), levels,
+                     fatigue=_session_fatigue(session.trials, levels))
+
+
+def _session_fatigue(all_trials, levels: list[LevelQC]) -> FatigueResult | None:
+    """Fatigue from the trials QC keeps (see :class:`SessionQC`)."""
+    centre, total = cumulative_stimulation_s(all_trials)
+    cum = {id(t): float(c) for t, c in zip(all_trials, centre)}
+    kept = [t for lv in levels for t in lv.kept]
+    # a repaired trial is a copy with its bridged force: find its place by name
+    by_name = {t.name: cum[id(t)] for t in all_trials if t.name}
+    c = [cum.get(id(t), by_name.get(t.name, float("nan"))) for t in kept]
+    if len(kept) < 3:
+        return None
+    g = gains_between_repeats(kept)
+    return fit_fatigue(g, [round(float(t.sE), 9) for t in kept], c, total_stim_s=total,
+                       source="each kept repeat against its level's mean")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 from pathlib import Path
 
 from nmsid.analysis.qc.decide import SessionQC
@@ -42,7 +43,14 @@ def as_json(qc: SessionQC) -> str:
     return json.dumps({"participant": qc.participant, "source": qc.source,
                        "counts": qc.counts(), "trials": rows(qc),
                        "levels": [{"sE": lv.sE, "n_kept": len(lv.kept), "flag": lv.flag}
-                                  for lv in qc.levels]}, indent=2)
+                                  for lv in qc.levels],
+                       "fatigue": _finite(qc.fatigue.as_dict()) if qc.fatigue else None},
+                      indent=2)
+
+
+def _finite(d: dict) -> dict:
+    return {k: (v if not isinstance(v, float) or math.isfinite(v) else None)
+            for k, v in d.items()}
 
 
 def format_table(qc: SessionQC, all_trials: bool = False) -> str:
@@ -66,4 +74,7 @@ def format_table(qc: SessionQC, all_trials: bool = False) -> str:
     for lv in qc.levels:
         if lv.flag:
             lines.append(f"sE={lv.sE:g}: {lv.flag}")
+    if qc.fatigue is not None and qc.fatigue.significant:
+        lines.append(f"{qc.fatigue.sentence()} - each sE's average mixes repeats taken at "
+                     "different fatigue")
     return "\n".join(lines)
