@@ -36,8 +36,8 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-from bench_gap import CHIRP_S, FS_HZ, LEVELS, STEADY_S, chirp_rE, simulate_session
-from bench_gap_scatter import wilson
+from bench_gap import CHIRP_S, FS_HZ, LEVELS, STEADY_S, chirp_rE, simulate_session  # noqa: E402
+from bench_gap_scatter import wilson  # noqa: E402
 
 
 def _analyse(path: str) -> dict:

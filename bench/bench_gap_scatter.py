@@ -38,7 +38,7 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-from trial_sessions import TrialPhysiology, write_session
+from trial_sessions import TrialPhysiology, write_session  # noqa: E402
 
 FAMILIES = ("scatter", "dead_time", "activation_dynamics")
 CV = (0.10, 0.05, 0.05)

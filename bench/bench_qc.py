@@ -206,9 +206,10 @@ def main(n_sessions: int = 40) -> None:
     print(f"  with QC, identical-gain generator only (repeats differ by noise alone): max "
           f"{np.round(np.max(e_syn, axis=0), 3).tolist()} %, same reference")
     e_same = np.array([x for r in rows for x in r["err_same"]])
+    worst_same = np.round(np.max(e_same, axis=0), 3).tolist()
     print(f"  not like for like, for QC's own fidelity: with QC vs the clean session "
-          f"restricted to the same kept repeats: max {np.round(np.max(e_same, axis=0), 3)"
-          f".tolist()} % (measures the repair, not the loss of a repeat: do not set it "
+          f"restricted to the same kept repeats: max {worst_same} % "
+          f"(measures the repair, not the loss of a repeat: do not set it "
           f"against the 'without QC' row)")
     e = np.array([x for r in rows for x in r["err_truth_qc"]])
     if e.size:

@@ -131,6 +131,12 @@ def json_safe(obj):
     return obj
 
 
+def _fatigue_entry(assessment) -> dict | None:
+    """The verdict's fatigue estimate as plain JSON (None when there is none)."""
+    fatigue = getattr(assessment, "fatigue", None)
+    return None if fatigue is None else fatigue.as_dict()
+
+
 def build_report(diag: Diagnosis, calibration=None) -> GapReport:
     """The report, the localization and (with a calibration) the augmented twin of one
     diagnosis.
@@ -174,7 +180,7 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
         "verdict": a.get("verdict"), "verdict_sentence": a.get("sentence"),
         "remaining": a.get("remaining"), "nominal_gap": a.get("nominal_gap"),
         "not_named": a.get("not_named"),
-        "fatigue": a.fatigue.as_dict() if getattr(a, "fatigue", None) is not None else None,
+        "fatigue": _fatigue_entry(a),
         "n_trials": diag.data.n_trials, "skipped_trials": diag.data.skipped,
         "excluded_trials": [{"trial": k, "reason": v} for k, v in diag.data.excluded.items()],
         "input_timing": diag.data.timing.as_dict() if diag.data.timing else None,
