@@ -1,0 +1,508 @@
+"""An emulation, on Linux, of the Windows behaviours that break POSIX-minded Python code.
+
+No Windows machine is available to the project, so the Windows code paths are run here
+against this stand-in. Each behaviour below follows Microsoft's or Python's documentation
+(cited beside it); none was observed on a Windows machine. While installed:
+
+1. **Files held open cannot be renamed, replaced or deleted.** ``os.rename``,
+   ``os.replace``, ``os.remove``, ``os.unlink``, ``os.rmdir`` (and so ``shutil.rmtree``,
+   ``shutil.move`` and ``pathlib``) raise ``PermissionError`` with ``winerror`` 32
+   (ERROR_SHARING_VIOLATION) when the file they would move or delete is open in ANY process,
+   and ``winerror`` 5 (ERROR_ACCESS_DENIED) when the target of a replace is open or a
+   directory to be moved holds an open file. Open files are found by scanning
+   ``/proc/*/fd`` (and ``/proc/*/cwd`` for directories). This models files opened WITHOUT
+   ``FILE_SHARE_DELETE``, which is how CPython's ``open``/``os.open`` and HDF5 open them:
+   CreateFileW, dwShareMode: "If this flag is not specified, but the file or device has
+   been opened for delete access, the function fails" and DeleteFileW: "fails if an
+   application attempts to delete a file that has other handles open for normal I/O"
+   (learn.microsoft.com/windows/win32/api/fileapi/nf-fileapi-createfilew,
+   .../nf-fileapi-deletefilew; system error codes 5 and 32:
+   learn.microsoft.com/windows/win32/debug/system-error-codes--0-499-).
+   ``os.rename`` onto an existing file raises ``FileExistsError`` (winerror 183): Python
+   docs, os.rename: "On Windows, if dst exists a FileExistsError is always raised".
+2. **Descriptors are text-mode unless ``O_BINARY`` is given.** ``os.O_BINARY`` (0x8000)
+   and ``os.O_TEXT`` (0x4000) exist; ``os.open`` without ``O_BINARY`` gives a descriptor
+   whose writes turn every ``\\n`` into ``\\r\\n`` and whose reads turn ``\\r\\n`` back
+   into ``\\n`` (CRT ``_open``: "_O_TEXT ... the default"; ``_write``: "in text mode, each
+   line feed character is replaced with a carriage return-line feed pair";
+   learn.microsoft.com/cpp/c-runtime-library/reference/open-wopen and .../write). This is
+   followed by ``os.write``/``os.read`` and by files built on the descriptor with
+   ``open(fd)``/``os.fdopen(fd)``. ``os.open`` of a directory raises ``PermissionError``
+   (the CRT cannot open a directory: CreateFileW needs FILE_FLAG_BACKUP_SEMANTICS for one),
+   so "fsync the directory" code fails as it does there.
+3. **POSIX-only functions and modules are absent.** ``os.statvfs``, ``os.fstatvfs``,
+   ``os.pread``, ``os.pwrite``, ``os.fork``, ``os.forkpty``, ``os.openpty`` and
+   ``signal.SIGHUP`` are removed, and ``import`` of ``pty``, ``tty``, ``fcntl``,
+   ``resource``, ``termios``, ``pwd``, ``grp`` fails with ``ModuleNotFoundError`` (Python
+   docs mark each "Availability: Unix"; signal: "On Windows, signal() can only be called
+   with SIGABRT, SIGFPE, SIGILL, SIGINT, SIGSEGV, SIGTERM, or SIGBREAK").
+   ``shutil.rmtree`` uses its non-descriptor walk, as on Windows.
+4. **The default text encoding is cp1252.** ``locale.getpreferredencoding()`` and
+   ``locale.getencoding()`` answer ``"cp1252"`` (the ANSI code page of Western-European
+   Windows), and ``open``/``io.open``/``pathlib`` in text mode without ``encoding=`` use it
+   and write ``\\r\\n`` line ends (Python docs, open: "the default encoding is platform
+   dependent (whatever locale.getencoding() returns)"; newline: "translated to the system
+   default line separator, os.linesep").
+5. **``time.monotonic`` steps by 15.625 ms** (Python 3.11/3.12 on Windows read
+   GetTickCount64, whose resolution is the 64 Hz system timer: Python docs,
+   time.get_clock_info; learn.microsoft.com/windows/win32/api/sysinfoapi/
+   nf-sysinfoapi-gettickcount64). Code that bound ``from time import monotonic`` before
+   the emulation was installed keeps the fine clock.
+6. **No C compiler on PATH.** ``shutil.which`` finds no ``cc``, ``gcc``, ``clang``,
+   ``c99``, ``c89`` or ``cl`` (a stock Windows PC has none).
+
+It also forces :mod:`nmsid.protocols.os_platform` to ``"windows"``. ``os.name`` and
+``sys.platform`` are left alone (the standard library depends on them).
+
+Use it as a context manager (``with emulate_windows(): ...``), as the ``windows_emulation``
+fixture, or for a whole run with pytest's ``--windows-emulation`` option (the hooks below,
+re-exported by ``tests/conftest.py``); tests that cannot apply under it are marked
+``@pytest.mark.posix_only("reason")`` and skipped with that reason.
+"""
+
+from __future__ import annotations
+
+import builtins
+import contextlib
+import errno
+import io
+import locale
+import math
+import os
+import shutil
+import signal
+import sys
+import time
+import types
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+from nmsid.protocols import os_platform
+
+#: Windows' values of the CRT's mode flags (fcntl.h of the Universal CRT).
+O_BINARY = 0x8000
+O_TEXT = 0x4000
+#: Windows system error codes (learn.microsoft.com/windows/win32/debug/system-error-codes).
+ERROR_ACCESS_DENIED = 5
+ERROR_SHARING_VIOLATION = 32
+ERROR_ALREADY_EXISTS = 183
+#: The default Windows timer tick, 1/64 s.
+TIMER_TICK_S = 0.015625
+#: Modules Windows' Python does not have ("Availability: Unix").
+POSIX_ONLY_MODULES = ("fcntl", "resource", "termios", "pty", "tty", "pwd", "grp")
+#: Functions of ``os`` Windows' Python does not have.
+POSIX_ONLY_OS_FUNCTIONS = ("statvfs", "fstatvfs", "pread", "pwrite", "fork", "forkpty",
+                           "openpty")
+#: Commands a stock Windows PC does not have on PATH.
+HIDDEN_COMMANDS = ("cc", "gcc", "clang", "c99", "c89", "cl")
+
+_MISSING = object()
+
+
+def _sharing_error(winerror: int, path: Any, path2: Any = None) -> PermissionError:
+    text = {ERROR_SHARING_VIOLATION: "The process cannot access the file because it is "
+                                     "being used by another process",
+            ERROR_ACCESS_DENIED: "Access is denied"}[winerror]
+    exc = PermissionError(errno.EACCES, f"[WinError {winerror}] {text} (emulated)",
+                          os.fsdecode(path) if path is not None else None, None,
+                          os.fsdecode(path2) if path2 is not None else None)
+    exc.winerror = winerror  # type: ignore[attr-defined]
+    return exc
+
+
+def _resolve(path: Any, dir_fd: int | None) -> str:
+    """The absolute, symlink-free path of ``path`` (relative to ``dir_fd`` if given)."""
+    p = os.fsdecode(path)
+    if dir_fd is not None and not os.path.isabs(p):
+        p = os.path.join(os.readlink(f"/proc/self/fd/{dir_fd}"), p)
+    return os.path.realpath(p)
+
+
+def held_open_paths() -> set[str]:
+    """Paths that any process holds open now (``/proc/*/fd``), plus working directories.
+
+    Returns
+    -------
+    set of str
+        Absolute paths; processes whose tables cannot be read are skipped.
+    """
+    held: set[str] = set()
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            held.add(os.readlink(f"/proc/{pid}/cwd"))
+        except OSError:
+            pass
+        try:
+            fds = os.listdir(f"/proc/{pid}/fd")
+        except OSError:
+            continue
+        for fd in fds:
+            try:
+                target = os.readlink(f"/proc/{pid}/fd/{fd}")
+            except OSError:
+                continue
+            if target.startswith("/"):
+                held.add(target)
+    return held
+
+
+def _is_held(path: str, held: set[str]) -> bool:
+    return path in held
+
+
+def _holds_inside(directory: str, held: set[str]) -> bool:
+    prefix = directory.rstrip("/") + "/"
+    return directory in held or any(h.startswith(prefix) for h in held)
+
+
+class _TextModeRaw(io.RawIOBase):
+    """A raw file over a text-mode descriptor: writes ``\\n`` as ``\\r\\n`` (CRT _write)."""
+
+    def __init__(self, fd: int, closefd: bool = True, readable: bool = True,
+                 writable: bool = True) -> None:
+        super().__init__()
+        self._fd, self._closefd = fd, closefd
+        self._readable, self._writable = readable, writable
+
+    def fileno(self) -> int:
+        return self._fd
+
+    def readable(self) -> bool:
+        return self._readable
+
+    def writable(self) -> bool:
+        return self._writable
+
+    def seekable(self) -> bool:
+        return True
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        return os.lseek(self._fd, offset, whence)
+
+    def readinto(self, b: Any) -> int:
+        data = os.read(self._fd, len(b))
+        b[:len(data)] = data
+        return len(data)
+
+    def write(self, b: Any) -> int:
+        os.write(self._fd, bytes(b))
+        return len(b)
+
+    def close(self) -> None:
+        if not self.closed and self._closefd:
+            os.close(self._fd)
+        super().close()
+
+
+class WindowsEmulation:
+    """Installs and removes the emulated Windows behaviours (module docstring).
+
+    Parameters
+    ----------
+    hidden_commands : tuple of str
+        Commands ``shutil.which`` does not find (default: the C compilers).
+    timer_tick_s : float
+        Step of ``time.monotonic``, s (default 1/64 s).
+    """
+
+    def __init__(self, hidden_commands: tuple[str, ...] = HIDDEN_COMMANDS,
+                 timer_tick_s: float = TIMER_TICK_S) -> None:
+        self.hidden_commands = frozenset(hidden_commands)
+        self.timer_tick_s = timer_tick_s
+        self.text_fds: set[int] = set()
+        self._saved: list[tuple[Any, str, Any]] = []
+        self._modules: dict[str, Any] = {}
+        self._platform: contextlib.AbstractContextManager[None] | None = None
+        self.installed = False
+
+    # -- patching --------------------------------------------------------------------
+    def _set(self, obj: Any, name: str, value: Any) -> None:
+        self._saved.append((obj, name, getattr(obj, name, _MISSING)))
+        setattr(obj, name, value)
+
+    def _remove(self, obj: Any, name: str) -> None:
+        if hasattr(obj, name):
+            self._saved.append((obj, name, getattr(obj, name)))
+            delattr(obj, name)
+
+    def install(self) -> WindowsEmulation:
+        """Switch the emulated behaviours on (idempotent per instance)."""
+        if self.installed:
+            return self
+        o = {n: getattr(os, n) for n in ("rename", "replace", "remove", "unlink", "rmdir",
+                                          "open", "write", "read", "close", "fdopen")}
+        real_open, real_which = builtins.open, shutil.which
+        real_monotonic, real_monotonic_ns = time.monotonic, time.monotonic_ns
+        real_clock_info = time.get_clock_info
+        emu = self
+
+        # 1. files held open cannot be moved or deleted (CreateFileW share modes)
+        def check_move(src: Any, dst: Any, src_dir_fd: int | None,
+                       dst_dir_fd: int | None, replace: bool) -> None:
+            s, d = _resolve(src, src_dir_fd), _resolve(dst, dst_dir_fd)
+            if not replace and os.path.lexists(d) and s != d:
+                exc = FileExistsError(errno.EEXIST, "[WinError 183] Cannot create a file "
+                                      "when that file already exists (emulated)",
+                                      os.fsdecode(src), None, os.fsdecode(dst))
+                exc.winerror = ERROR_ALREADY_EXISTS  # type: ignore[attr-defined]
+                raise exc
+            held = held_open_paths()
+            if os.path.isdir(s) and not os.path.islink(s):
+                if _holds_inside(s, held):
+                    raise _sharing_error(ERROR_ACCESS_DENIED, src, dst)
+            elif _is_held(s, held):
+                raise _sharing_error(ERROR_SHARING_VIOLATION, src, dst)
+            if s != d and _is_held(d, held):
+                raise _sharing_error(ERROR_ACCESS_DENIED, src, dst)
+
+        def rename(src: Any, dst: Any, *, src_dir_fd: int | None = None,
+                   dst_dir_fd: int | None = None) -> None:
+            check_move(src, dst, src_dir_fd, dst_dir_fd, replace=False)
+            o["rename"](src, dst, src_dir_fd=src_dir_fd, dst_dir_fd=dst_dir_fd)
+
+        def replace(src: Any, dst: Any, *, src_dir_fd: int | None = None,
+                    dst_dir_fd: int | None = None) -> None:
+            check_move(src, dst, src_dir_fd, dst_dir_fd, replace=True)
+            o["replace"](src, dst, src_dir_fd=src_dir_fd, dst_dir_fd=dst_dir_fd)
+
+        def make_delete(name: str) -> Callable[..., None]:
+            def delete(path: Any, *, dir_fd: int | None = None) -> None:
+                if _is_held(_resolve(path, dir_fd), held_open_paths()):
+                    raise _sharing_error(ERROR_SHARING_VIOLATION, path)
+                o[name](path, dir_fd=dir_fd)
+            delete.__name__ = name
+            return delete
+
+        def rmdir(path: Any, *, dir_fd: int | None = None) -> None:
+            if _holds_inside(_resolve(path, dir_fd), held_open_paths()):
+                raise _sharing_error(ERROR_SHARING_VIOLATION, path)
+            o["rmdir"](path, dir_fd=dir_fd)
+
+        # 2. text-mode descriptors (CRT _open / _write / _read)
+        def os_open(path: Any, flags: int, mode: int = 0o777, *,
+                    dir_fd: int | None = None) -> int:
+            if os.path.isdir(_resolve(path, dir_fd)):
+                raise PermissionError(errno.EACCES, "Permission denied (emulated: the "
+                                      "CRT cannot open a directory)", os.fsdecode(path))
+            fd = o["open"](path, flags & ~(O_BINARY | O_TEXT), mode, dir_fd=dir_fd)
+            if not flags & O_BINARY:
+                emu.text_fds.add(fd)
+            else:
+                emu.text_fds.discard(fd)
+            return fd
+
+        def os_write(fd: int, data: Any) -> int:
+            if fd in emu.text_fds:
+                data = bytes(data)
+                o["write"](fd, data.replace(b"\n", b"\r\n"))
+                return len(data)
+            return o["write"](fd, data)
+
+        def os_read(fd: int, n: int) -> bytes:
+            data = o["read"](fd, n)
+            return data.replace(b"\r\n", b"\n") if fd in emu.text_fds else data
+
+        def os_close(fd: int) -> None:
+            emu.text_fds.discard(fd)
+            o["close"](fd)
+
+        # 4. cp1252 and \r\n for text files opened without an encoding
+        def emulated_open(file: Any, mode: str = "r", buffering: int = -1,
+                          encoding: str | None = None, errors: str | None = None,
+                          newline: str | None = None, closefd: bool = True,
+                          opener: Any = None) -> Any:
+            if isinstance(file, int) and file in emu.text_fds:
+                raw = _TextModeRaw(file, closefd, readable="r" in mode or "+" in mode,
+                                   writable=any(c in mode for c in "wax+"))
+                binary: Any
+                if "+" in mode:
+                    binary = io.BufferedRandom(raw)
+                elif raw.writable():
+                    binary = io.BufferedWriter(raw)
+                else:
+                    binary = io.BufferedReader(raw)
+                if "b" in mode:
+                    return raw if buffering == 0 else binary
+                return io.TextIOWrapper(binary, encoding or "cp1252", errors, newline)
+            if "b" not in mode:
+                if encoding is None or encoding == "locale":
+                    encoding = "cp1252"
+                if newline is None and "+" not in mode and "r" not in mode:
+                    newline = "\r\n"
+            return real_open(file, mode, buffering, encoding, errors, newline, closefd,
+                             opener)
+
+        def fdopen(fd: int, mode: str = "r", buffering: int = -1, *args: Any,
+                   **kwargs: Any) -> Any:
+            return emulated_open(fd, mode, buffering, *args, **kwargs)
+
+        # 5. the 64 Hz timer
+        tick = self.timer_tick_s
+        tick_ns = round(tick * 1e9)
+
+        def monotonic() -> float:
+            return math.floor(real_monotonic() / tick) * tick
+
+        def monotonic_ns() -> int:
+            return real_monotonic_ns() // tick_ns * tick_ns
+
+        def get_clock_info(name: Any) -> Any:
+            info = real_clock_info(name)
+            if name == "monotonic":
+                return types.SimpleNamespace(**{**vars(info), "resolution": tick,
+                                                "implementation": "GetTickCount64()"})
+            return info
+
+        # 6. no C compiler
+        def which(cmd: Any, mode: int = os.F_OK | os.X_OK, path: Any = None) -> Any:
+            if Path(os.fsdecode(cmd)).stem.lower() in emu.hidden_commands:
+                return None
+            return real_which(cmd, mode, path)
+
+        for name, fn in (("rename", rename), ("replace", replace),
+                         ("remove", make_delete("remove")),
+                         ("unlink", make_delete("unlink")), ("rmdir", rmdir),
+                         ("open", os_open), ("write", os_write), ("read", os_read),
+                         ("close", os_close), ("fdopen", fdopen)):
+            self._set(os, name, fn)
+        self._set(os, "O_BINARY", O_BINARY)
+        self._set(os, "O_TEXT", O_TEXT)
+        self._set(shutil, "_use_fd_functions", False)
+        self._set(builtins, "open", emulated_open)
+        self._set(io, "open", emulated_open)
+        # 3. POSIX-only functions and modules
+        for name in POSIX_ONLY_OS_FUNCTIONS:
+            self._remove(os, name)
+        self._remove(signal, "SIGHUP")
+        for name in POSIX_ONLY_MODULES:
+            self._modules[name] = sys.modules.get(name, _MISSING)
+            sys.modules[name] = None  # type: ignore[assignment]  # import -> ImportError
+        self._set(locale, "getpreferredencoding", lambda do_setlocale=True: "cp1252")
+        if hasattr(locale, "getencoding"):
+            self._set(locale, "getencoding", lambda: "cp1252")
+        self._set(time, "monotonic", monotonic)
+        self._set(time, "monotonic_ns", monotonic_ns)
+        self._set(time, "get_clock_info", get_clock_info)
+        self._set(shutil, "which", which)
+        self._platform = os_platform.forced("windows")
+        self._platform.__enter__()
+        self.installed = True
+        return self
+
+    def uninstall(self) -> None:
+        """Restore everything :meth:`install` changed, in reverse order."""
+        if not self.installed:
+            return
+        for obj, name, value in reversed(self._saved):
+            if value is _MISSING:
+                if hasattr(obj, name):
+                    delattr(obj, name)
+            else:
+                setattr(obj, name, value)
+        self._saved.clear()
+        for name, module in self._modules.items():
+            if module is _MISSING:
+                sys.modules.pop(name, None)
+            else:
+                sys.modules[name] = module
+        self._modules.clear()
+        self.text_fds.clear()
+        if self._platform is not None:
+            self._platform.__exit__(None, None, None)
+            self._platform = None
+        self.installed = False
+
+    def __enter__(self) -> WindowsEmulation:  # noqa: PYI034
+        return self.install()
+
+    def __exit__(self, *exc: object) -> None:
+        self.uninstall()
+
+
+@contextlib.contextmanager
+def emulate_windows(**options: Any) -> Iterator[WindowsEmulation]:
+    """Run the ``with`` block under the emulated Windows behaviours.
+
+    Parameters
+    ----------
+    **options
+        Passed to :class:`WindowsEmulation`.
+
+    Examples
+    --------
+    >>> import os
+    >>> from nmsid.testing.windows_emulation import emulate_windows
+    >>> with emulate_windows():
+    ...     hasattr(os, "statvfs")
+    False
+    """
+    emulation = WindowsEmulation(**options).install()
+    try:
+        yield emulation
+    finally:
+        emulation.uninstall()
+
+
+# -- pytest plugin: re-export these names from a conftest.py to use them -------------------
+_session_emulation: WindowsEmulation | None = None
+
+
+def pytest_addoption(parser: Any) -> None:
+    """Add ``--windows-emulation``: run the tests under :class:`WindowsEmulation`."""
+    parser.addoption("--windows-emulation", action="store_true", default=False,
+                     help="run the tests under an emulation of Windows' documented file, "
+                          "descriptor, clock and module behaviours "
+                          "(nmsid.testing.windows_emulation)")
+
+
+def pytest_configure(config: Any) -> None:
+    """Register the ``posix_only`` marker; install the emulation if asked."""
+    global _session_emulation
+    config.addinivalue_line("markers", "posix_only(reason): cannot apply under the "
+                                       "Windows emulation; skipped there with the reason")
+    if config.getoption("--windows-emulation", default=False) and _session_emulation is None:
+        _session_emulation = WindowsEmulation().install()
+
+
+def pytest_unconfigure(config: Any) -> None:
+    """Remove the run-wide emulation."""
+    global _session_emulation
+    if _session_emulation is not None:
+        _session_emulation.uninstall()
+        _session_emulation = None
+
+
+def pytest_collection_modifyitems(config: Any, items: list[Any]) -> None:
+    """Under ``--windows-emulation``, skip tests marked ``posix_only`` with their reason."""
+    if _session_emulation is None:
+        return
+    import pytest
+
+    for item in items:
+        mark = item.get_closest_marker("posix_only")
+        if mark is not None:
+            reason = mark.args[0] if mark.args else mark.kwargs.get("reason", "POSIX only")
+            item.add_marker(pytest.mark.skip(reason=f"Windows emulation: {reason}"))
+
+
+def under_emulation() -> bool:
+    """True while a run-wide ``--windows-emulation`` is installed."""
+    return _session_emulation is not None
+
+
+try:  # the fixture needs pytest, which users of the context manager may not have
+    import pytest as _pytest
+except ImportError:  # pragma: no cover
+    pass
+else:
+    @_pytest.fixture
+    def windows_emulation() -> Iterator[WindowsEmulation]:
+        """The test runs under :class:`WindowsEmulation` (a no-op re-install if run-wide)."""
+        if _session_emulation is not None:
+            yield _session_emulation
+            return
+        with emulate_windows() as emulation:
+            yield emulation
