@@ -48,12 +48,16 @@ SPACE_MARGIN_BYTES = 1 << 20
 """Free space kept beyond each new version (metadata, the journal's next event lines)."""
 _TEMP_NAME = re.compile(r"\.(writing|recovering)-\d+$")
 
-O_BINARY = getattr(os, "O_BINARY", 0)
-"""``os.O_BINARY`` on Windows, 0 elsewhere. Python's ``os.open`` documentation: "the
-``O_BINARY`` flag is needed on Windows to open files in binary mode"; without it the C
-runtime's ``_open`` gives a text-mode descriptor that writes every 0x0A byte as 0x0D 0x0A
-(Microsoft, "_open, _wopen": ``_O_TEXT`` is the default translation mode), which would
-corrupt an HDF5 signature and every float64 stream."""
+def o_binary() -> int:
+    """``os.O_BINARY`` on Windows, 0 elsewhere (looked up at each call).
+
+    Python's ``os.open`` documentation: on Windows, ``O_BINARY`` is needed to open a file
+    in binary mode; without it the C runtime's ``_open`` gives a text-mode descriptor
+    (Microsoft, "_open, _wopen": text mode is the default translation) whose ``_write``
+    replaces every line feed with a carriage return-line feed pair, which would corrupt an
+    HDF5 signature (0x0A bytes) and every float64 stream."""
+    return getattr(os, "O_BINARY", 0)
+
 
 RETRY_DELAYS_S: tuple[float, ...] = (0.01, 0.02, 0.05, 0.1, 0.2, 0.4, 0.8, 1.6)
 """Backoff between attempts of a rename / replace refused by a transient sharing
@@ -207,7 +211,7 @@ def publish_image(path: str | os.PathLike, image: bytes | memoryview, *,
     tmp = path.with_name(f"{path.name}{TEMP_TAG}{os.getpid()}")
     fd = None
     try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | O_BINARY, 0o644)
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | o_binary(), 0o644)
         _write_all(fd, data)
         os.fsync(fd)
         os.close(fd)

@@ -26,7 +26,6 @@ from nmsid.protocols.session_codec import _as_counts, counts_to_values
 from nmsid.protocols.session_file import Calibration, Event, SessionFileError, Trial
 from nmsid.protocols.session_model import GZIP_LEVEL
 from nmsid.protocols.session_publish import (  # noqa: F401 (re-export)
-    O_BINARY,
     FileHeldError,
     free_bytes,
     fsync_dir,
@@ -274,19 +273,32 @@ class JournalContents:
         return [load_trial_meta(p) for p in self.trial_files]
 
 
-def read_journal(jdir: Path) -> JournalContents:
+def read_journal(jdir: Path, *, allow_gaps: bool = False) -> JournalContents:
     """Read a journal directory (tolerating a torn last event line).
+
+    Parameters
+    ----------
+    allow_gaps : bool
+        Accept trial entries not numbered 1, 2, ... (a deleted entry; recovery merges
+        such a journal with the file).
 
     Raises
     ------
     SessionFileError
-        If the header is missing or unreadable.
+        If the header is missing or damaged (with what to do), or (``allow_gaps``
+        False) an entry is missing.
     """
     header_path = jdir / "header.json"
     try:
         header = json.loads(header_path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise SessionFileError(jdir, f"journal header unreadable ({exc})") from None
+        if not isinstance(header, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, ValueError) as exc:
+        state = "missing" if not header_path.exists() else f"damaged ({exc})"
+        raise SessionFileError(header_path, f"is {state}; run `nmsid recover "
+                                            f"{jdir.with_name(jdir.name[:-len('.journal')])}`"
+                                            ", which rebuilds it from the session file"
+                               ) from None
     cal = None
     cal_error = ""
     if (jdir / "calibration.npz").exists():
@@ -306,7 +318,7 @@ def read_journal(jdir: Path) -> JournalContents:
     files = sorted((p for p in jdir.iterdir() if _TRIAL_FILE.match(p.name)),
                    key=lambda p: int(_TRIAL_FILE.match(p.name).group(1)))
     for i, p in enumerate(files):
-        if int(_TRIAL_FILE.match(p.name).group(1)) != i + 1:
+        if not allow_gaps and int(_TRIAL_FILE.match(p.name).group(1)) != i + 1:
             raise SessionFileError(jdir, f"journal trial files are not numbered 1, 2, ... "
                                          f"(found {p.name} at position {i + 1})")
     pmeta = None

@@ -43,7 +43,7 @@ from nmsid.protocols.session_file import (Calibration, Event, SessionExistsError
 from nmsid.protocols.session_lock import SessionLock, live_writer
 from nmsid.protocols.session_model import PARTICIPANT_PATTERN
 from nmsid.protocols.session_writer import check_seed
-from nmsid.protocols.session_publish import (SPACE_MARGIN_BYTES, FileHeldError, O_BINARY,
+from nmsid.protocols.session_publish import (SPACE_MARGIN_BYTES, FileHeldError, o_binary,
                                              free_bytes, publish_image, rename_retrying,
                                              replace_retrying)
 # re-exported names (callers import them from here)
@@ -153,14 +153,13 @@ class SessionLog:
         try:
             report = None
             remove_leftovers(path)
-            if jdir.is_dir() and not (jdir / "header.json").exists():
-                os.rename(jdir, unique_aside(jdir, "headerless"))  # keep it, but aside
-            if jdir.is_dir():
+            if jdir.is_dir():  # a missing or damaged header is rebuilt from the file
                 report = recover(path)
-            elif path.exists():
+            if not jdir.is_dir():
+                if not path.exists():
+                    raise SessionFileError(path, "no such file and no journal to resume "
+                                                 "from")
                 _journal_from_file(path, jdir)
-            else:
-                raise SessionFileError(path, "no such file and no journal to resume from")
             jc = read_journal(jdir)
             if jc.calibration is None and jc.calibration_error:
                 raise SessionFileError(jdir, jc.calibration_error)
@@ -247,7 +246,7 @@ class SessionLog:
         self._partial_cols = tuple(columns)
         self._partial_fd = os.open(self.jdir / "partial.f64",  # O_BINARY: see session_publish
                                    os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_APPEND
-                                   | O_BINARY, 0o644)
+                                   | o_binary(), 0o644)
         self._partial_meta = pmeta
         self._partial_rows = 0
         self._write_partial_meta()
