@@ -297,7 +297,7 @@ class SessionWriter:
         """An optional signal (``wrench``, ``sync``) as integer counts with ``scale`` /
         ``offset`` attributes when every sample is ``offset + scale * count`` bit for bit
         (A/D readings), else float32 when float32-exact, else float64."""
-        grid = _as_counts(values) if self.store_counts else None
+        grid = as_counts_memo(values) if self.store_counts else None
         if grid is None:
             self._create_dataset(group, name, _narrowest_exact(values))
             return
@@ -322,6 +322,36 @@ class SessionWriter:
         with self._edit("writing attributes") as f:
             for key, value in attrs.items():
                 _set_attr(f.attrs, key, value)
+
+
+_MEMO: list[tuple[Any, Any]] | None = None
+
+
+@contextmanager
+def counts_memo():
+    """Inside the ``with`` block, :func:`as_counts_memo` computes the A/D grid of each
+    array object once (the journal entry and the file encode the same trial the same way;
+    the grid search is the costliest step of a trial end). The arrays must not change
+    inside the block."""
+    global _MEMO
+    previous, _MEMO = _MEMO, []
+    try:
+        yield
+    finally:
+        _MEMO = previous
+
+
+def as_counts_memo(values):
+    """:func:`~nmsid.protocols.session_codec._as_counts`, remembered per array object
+    inside :func:`counts_memo`."""
+    if _MEMO is None:
+        return _as_counts(values)
+    for obj, result in _MEMO:
+        if obj is values:
+            return result
+    result = _as_counts(values)
+    _MEMO.append((values, result))
+    return result
 
 
 def check_seed(path, seed) -> None:

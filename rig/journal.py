@@ -20,17 +20,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
 from nmsid.protocols.errors import DiskFullError, SessionWriteError
-from nmsid.protocols.session_codec import _as_counts, counts_to_values
+from nmsid.protocols.session_codec import counts_to_values
 from nmsid.protocols.session_file import Calibration, Event, SessionFileError, Trial
 from nmsid.protocols.session_model import GZIP_LEVEL
-from nmsid.protocols.session_publish import (  # noqa: F401 (re-export)
+from nmsid.protocols.session_publish import (
     FileHeldError,
     free_bytes,
     fsync_dir,
     replace_retrying,
 )
+from nmsid.protocols.session_writer import as_counts_memo
 
 PARTIAL_ABORT_REASON = "process ended during trial"
 _TRIAL_FILE = re.compile(r"^trial-(\d{4,})\.npz$")
@@ -43,7 +43,7 @@ PARTIAL_COLUMNS = ("force_N", "rE", "I_ext_mA", "I_flex_mA")
 
 def utc_now_ms() -> str:
     """The current time as ISO 8601 UTC with milliseconds (event time stamps)."""
-    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+    return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
 
 
 def journal_dir(path: str | os.PathLike) -> Path:
@@ -145,9 +145,9 @@ def save_trial_npz(target: Path, trial: Trial) -> None:
         values = getattr(trial, k)
         if values is None:
             continue
+        grid = as_counts_memo(values) if k in ("wrench", "sync") else None
         arr = np.ascontiguousarray(values, dtype=np.float64)
         info: dict[str, Any] = {"shape": list(arr.shape)}
-        grid = _as_counts(arr) if k in ("wrench", "sync") else None
         if grid is not None:
             counts, scale, offset = grid
             info.update(scale=np.asarray(scale).tolist(), offset=np.asarray(offset).tolist())
@@ -292,8 +292,8 @@ def read_journal(jdir: Path, *, allow_gaps: bool = False) -> JournalContents:
     try:
         header = json.loads(header_path.read_text(encoding="utf-8"))
         if not isinstance(header, dict):
-            raise ValueError("not a JSON object")
-    except (OSError, ValueError) as exc:
+            raise TypeError("not a JSON object")
+    except (OSError, ValueError, TypeError) as exc:
         state = "missing" if not header_path.exists() else f"damaged ({exc})"
         raise SessionFileError(header_path, f"is {state}; run `nmsid recover "
                                             f"{jdir.with_name(jdir.name[:-len('.journal')])}`"

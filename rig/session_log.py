@@ -42,7 +42,7 @@ from nmsid.protocols.session_file import (Calibration, Event, SessionExistsError
                                           validate_session)
 from nmsid.protocols.session_lock import SessionLock, live_writer
 from nmsid.protocols.session_model import PARTICIPANT_PATTERN
-from nmsid.protocols.session_writer import check_seed
+from nmsid.protocols.session_writer import check_seed, counts_memo
 from nmsid.protocols.session_publish import (SPACE_MARGIN_BYTES, FileHeldError, o_binary,
                                              free_bytes, publish_image, rename_retrying,
                                              replace_retrying)
@@ -315,13 +315,14 @@ class SessionLog:
         self._close_partial()
         seq = len(self.trials) + 1
         trial.name = f"t{seq:03d}"
-        save_trial_npz(self.jdir / f"trial-{seq:04d}.npz", trial)
-        # partial.json / partial.f64 stay: their seq now names a journaled trial, which
-        # recovery ignores; the next begin_trial reuses them
-        self.trials.append(trial_meta(trial))
-        self._digests.append(trial_digest(trial))
-        pending = self._pending_events()
-        name = self._writer.append_trial(trial, events=pending)
+        with counts_memo():  # the journal and the file find the A/D grid once
+            save_trial_npz(self.jdir / f"trial-{seq:04d}.npz", trial)
+            # partial.json / partial.f64 stay: their seq now names a journaled trial,
+            # which recovery ignores; the next begin_trial reuses them
+            self.trials.append(trial_meta(trial))
+            self._digests.append(trial_digest(trial))
+            pending = self._pending_events()
+            name = self._writer.append_trial(trial, events=pending)
         self._events_in_h5 += len(pending)
         return name
 
