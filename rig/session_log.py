@@ -51,6 +51,7 @@ from nmsid.rig.journal import (PARTIAL_ABORT_REASON, PARTIAL_COLUMNS, JournalCon
                                disk_error, trial_digest, fsync_dir, json_default, save_calibration,
                                save_trial_npz, write_durable, journal_dir, load_trial_npz,
                                read_journal, trial_meta, utc_now_ms)
+from nmsid.rig.session_clock import SessionClock
 from nmsid.rig.recovery import (RecoveryReport, _header_kwargs, create_from_header,  # noqa: F401
                                 read_fully,
                                 remove_leftovers, unique_aside, recover)
@@ -88,6 +89,10 @@ class SessionLog:
         self._partial_cols: tuple[str, ...] = ()
         self._partial_meta: dict = {}
         self._partial_rows = 0
+        self.clock = SessionClock()
+        """Trial and event times: monotonic offsets from the UTC time read now (a step of
+        the computer's clock is recorded as a ``clock_step`` event, not followed)."""
+        self._started_utc: str | None = None
 
     # -- opening -------------------------------------------------------------------
     @classmethod
@@ -170,16 +175,31 @@ class SessionLog:
             raise
 
     # -- writing ---------------------------------------------------------------------
+    def utc(self) -> str:
+        """The session's time now (see :attr:`clock`), after recording a step of the
+        computer's clock if there was one."""
+        self._note_clock_step()
+        return self.clock.utc()
+
+    def _note_clock_step(self) -> None:
+        detail = self.clock.step()
+        if detail:
+            self._record(Event(self.clock.utc(), "clock_step", detail))
+
     def event(self, kind: str, detail: str = "", utc: str | None = None) -> Event:
-        """Record an event: journal now; HDF5 with the next trial / calibration / flush."""
-        ev = Event(utc or utc_now_ms(), str(kind), str(detail))
+        """Record an event: journal now; HDF5 with the next trial / calibration / flush.
+        ``utc`` defaults to the session's monotonic time (:meth:`utc`)."""
+        ev = Event(utc or self.utc(), str(kind), str(detail))
+        return self._record(ev)
+
+    def _record(self, ev: Event) -> Event:
         self.events.append(ev)
         try:
             self._ev_fh.write(json.dumps({"utc": ev.utc, "kind": ev.kind,
                                           "detail": ev.detail}) + "\n")
             self._ev_fh.flush()
         except OSError as exc:  # a full disk: the event stays in memory (and the log)
-            log.warning("%s: event %s not journaled (%s)", self.path, kind,
+            log.warning("%s: event %s not journaled (%s)", self.path, ev.kind,
                         exc.strerror or exc)
         return ev
 
@@ -238,6 +258,10 @@ class SessionLog:
     def begin_trial(self, meta: Trial, columns: tuple[str, ...] = PARTIAL_COLUMNS) -> None:
         """Start streaming the trial in progress to ``partial.f64``."""
         self._close_partial()
+        # the trial starts now on the session's clock (monotonic offset; not the wall
+        # clock, which may step): end_trial gives the stored trial this time
+        self._started_utc = self.utc()
+        meta.started_utc = self._started_utc
         pmeta = trial_meta(meta)
         pmeta["columns"] = list(columns)
         pmeta["seq"] = len(self.trials) + 1
@@ -313,6 +337,10 @@ class SessionLog:
         if self._writer is None:
             raise RuntimeError(f"{self.path}: no calibration yet; cannot write a trial")
         self._close_partial()
+        self._note_clock_step()
+        if self._started_utc is not None:
+            trial.started_utc = self._started_utc
+            self._started_utc = None
         seq = len(self.trials) + 1
         trial.name = f"t{seq:03d}"
         with counts_memo():  # the journal and the file find the A/D grid once
