@@ -240,3 +240,25 @@ def test_the_longest_derived_name_fits_or_the_name_is_refused(tmp_path):
         in problem and "\n" not in problem
     with pytest.raises(OSError):
         (tmp_path / (bad.name + max(DERIVED_SUFFIXES, key=len))).write_bytes(b"")
+
+
+def test_a_rebuild_keeps_the_damaged_file_in_place_until_the_new_one_replaces_it(
+        tmp_path, monkeypatch):
+    """A kill during the rebuild's publish must leave the session file where it was (a
+    hard link keeps the aside copy; moving it aside first would leave no file)."""
+    import nmsid.protocols.session_writer as sw
+    path = tmp_path / "S.h5"
+    _session(path, 2)
+    data = bytearray(path.read_bytes())
+    data[:8] = b"\0" * 8  # the HDF5 signature scribbled over
+    path.write_bytes(bytes(data))
+    seen = []
+    real = sw.publish_image
+
+    def spy(p, image, **kw):
+        seen.append(os.path.exists(p))
+        return real(p, image, **kw)
+    monkeypatch.setattr(sw, "publish_image", spy)
+    rep = recover(path)
+    assert rep.action == "rebuilt" and seen == [True]
+    assert os.path.getsize(rep.damaged_kept_at) == len(data)
