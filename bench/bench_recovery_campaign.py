@@ -136,8 +136,8 @@ def one_run(folder: Path, k: int, rng: random.Random, *, levels=(0.4, 0.6, 0.8),
         time.sleep(0.002)
     res.notes.append(f"killed {res.kill_after_s:.2f} s after {after_entries} trial end(s)")
     try:
-        proc.wait(timeout=res.kill_after_s)
-        res.notes.append("the session ended before the kill")
+        code = proc.wait(timeout=res.kill_after_s)
+        res.notes.append(f"the session ended before the kill (exit {code})")
     except subprocess.TimeoutExpired:
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
