@@ -141,16 +141,17 @@ class SessionWriter:
         if self._held is not None:
             self._held[1].flush()
             return self._held[0].getbuffer().nbytes
-        self._load()
-        return len(self._image)
+        return len(self._load())
 
-    def _load(self) -> None:
+    def _load(self) -> bytes:
+        """The published image (read once from the file)."""
         if self._image is None:
             try:
                 self._image = self.path.read_bytes()
             except OSError as exc:
                 raise SessionFileError(self.path, f"cannot be read ({exc.strerror or exc})") \
                     from None
+        return self._image
 
     @contextmanager
     def _edit(self, doing: str):
@@ -172,8 +173,7 @@ class SessionWriter:
 
     def _open_held(self):
         if self._held is None:
-            self._load()
-            bio = io.BytesIO(self._image)
+            bio = io.BytesIO(self._load())
             self._image = None  # the held file is the image now (no second copy)
             self._held = (bio, _h5py().File(bio, "a"))
         return self._held[1]
@@ -183,8 +183,7 @@ class SessionWriter:
         if self._held is not None:
             self._held[1].flush()  # HDF5 writes its metadata: the image is a valid file
             return self._held[0].getvalue()
-        self._load()
-        return self._image
+        return self._load()
 
     def publish(self, doing: str = "writing it", *,
                 delays_s: tuple[float, ...] | None = None) -> None:

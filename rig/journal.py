@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import datetime as _dt
 import errno
+import io
 import json
 import os
 import re
@@ -160,13 +161,30 @@ def save_trial_npz(target: Path, trial: Trial) -> None:
     members["__meta__"] = meta
 
     def write(fh) -> None:
-        with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED,
-                             compresslevel=GZIP_LEVEL) as zf:
+        with zipfile.ZipFile(fh, "w", allowZip64=True) as zf:
             for name, arr in members.items():
-                with zf.open(name + ".npy", "w", force_zip64=True) as out:
-                    np.lib.format.write_array(out, arr, allow_pickle=False)
+                buf = io.BytesIO()
+                np.lib.format.write_array(buf, arr, allow_pickle=False)
+                zf.writestr(name + ".npy", buf.getbuffer(),
+                            compress_type=zipfile.ZIP_DEFLATED if _deflates_well(arr)
+                            else zipfile.ZIP_STORED, compresslevel=JOURNAL_DEFLATE_LEVEL)
 
     write_durable(target, write)
+
+
+JOURNAL_DEFLATE_LEVEL = GZIP_LEVEL
+"""zlib level of journal entries: the file's (level 1 is faster but makes the journal
+about 5 % larger, which brings the peak disk use of a session to 1.97x the file)."""
+
+
+def _deflates_well(arr: np.ndarray, probe_bytes: int = 1 << 16) -> bool:
+    """True if deflating ``arr`` (shuffled bytes) saves at least 10 %, judged on a sample
+    of each byte plane (random-noise planes are stored as they are: no time spent)."""
+    if arr.ndim != 2 or arr.size == 0:
+        return True
+    per_plane = max(1, probe_bytes // arr.shape[0])
+    probe = np.ascontiguousarray(arr[:, :per_plane]).tobytes()
+    return len(zlib.compress(probe, 1)) <= 0.9 * len(probe)
 
 
 def _decode(z, enc: dict[str, Any]) -> dict[str, np.ndarray]:

@@ -320,7 +320,7 @@ def _recover_locked(path: Path) -> RecoveryReport:
     else:
         _check_space(path, jc)
         w = _build_from_journal(path, jc, merged, events)
-        aside = None
+        aside: Path | None = None
         if os.path.lexists(path):
             aside = unique_aside(path, "damaged")
             _keep_aside(path, aside)
@@ -414,9 +414,8 @@ def _journal_as(jdir: Path, merged: list[Trial], origin: list[int | None]) -> No
         _aside_if_unreadable(jdir, numbers.get(pos))
         save_trial_npz(target, t)
     for pos, p in numbers.items():
-        if pos > len(merged) and p.exists():
-            if not _aside_if_unreadable(jdir, p):
-                p.unlink()
+        if pos > len(merged) and p.exists() and not _aside_if_unreadable(jdir, p):
+            p.unlink()  # a readable entry past the end: its trial moved up
     fsync_dir(jdir)
 
 

@@ -53,8 +53,8 @@ class _Forked:
 @pytest.mark.timeout(240)
 def test_three_kills_with_damage_keep_every_intact_trial_and_repeat_none(tmp_path):
     camp = _campaign_module()
-    import nmsid.cli  # noqa: F401 (imported once; the forked children share it)
-    import nmsid.rig.engine  # noqa: F401
+    import nmsid.cli
+    import nmsid.rig.engine
     import nmsid.sim_backends.rig  # noqa: F401
     rng = random.Random(2611)
     results = [camp.one_run(tmp_path, k, rng, levels=(0.5,), max_kill_s=0.1,
