@@ -416,7 +416,8 @@ class SessionLog:
 
     def check_space(self, need_bytes: int) -> None:
         """Refuse to start (before calibration) unless the folder holds ``need_bytes``
-        plus the margin: the protocol's file, its journal and one temp version.
+        plus the margin: the protocol's journal and the file's final version
+        (:func:`expected_session_bytes`).
 
         Raises
         ------
@@ -426,8 +427,8 @@ class SessionLog:
         need = int(need_bytes) + SPACE_MARGIN_BYTES
         free = free_bytes(self.path.parent)
         if free < need:
-            raise DiskFullError(self.path, need, free, "the session (file, journal and a "
-                                "temporary copy, with a 20 % margin)")
+            raise DiskFullError(self.path, need, free, "the session (its journal and the "
+                                "final file, with a 20 % margin)")
 
     def release(self) -> None:
         """Give up the writer lock (after the last write)."""

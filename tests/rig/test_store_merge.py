@@ -262,3 +262,12 @@ def test_a_rebuild_keeps_the_damaged_file_in_place_until_the_new_one_replaces_it
     rep = recover(path)
     assert rep.action == "rebuilt" and seen == [True]
     assert os.path.getsize(rep.damaged_kept_at) == len(data)
+
+
+def test_the_preflight_asks_for_the_journal_and_one_final_file_not_three_copies():
+    from nmsid.rig.session_log import expected_session_bytes
+    trial = 8 * 30_000 * 11 + 64 * 1024  # one trial as float64 at worst, 11 columns
+    assert expected_session_bytes(45, 30_000) == int(1.2 * 45 * trial * 2) + (4 << 20)
+    # resuming: the file already there stays until the new version replaces it
+    assert expected_session_bytes(10, 30_000, file_bytes=5_000_000) == \
+        int(1.2 * (10 * trial * 2 + 2 * 5_000_000)) + (4 << 20)
