@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from nmsid.protocols.session_lock import live_writer
+from nmsid.protocols.session_model import TRIAL_NAME_PATTERN, _h5py
 
 _TRIAL_ENTRY = re.compile(r"^trial-(\d{4,})\.npz$")
 _LEFTOVER = re.compile(r"\.(writing-\d+|recovering-\d+|journal\.(done|tmp)-\d+"
@@ -82,7 +83,6 @@ class SessionState:
 
 
 def _count_file_trials(path: Path) -> int | None:
-    from nmsid.protocols.session_model import TRIAL_NAME_PATTERN, _h5py
     try:
         with _h5py().File(path, "r") as f:
             return len([k for k in f["trials"] if TRIAL_NAME_PATTERN.match(k)])

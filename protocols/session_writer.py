@@ -202,12 +202,13 @@ class SessionWriter:
         self.unpublished = False
 
     def close(self) -> None:
-        """Drop the in-memory image (unpublished changes are lost: publish first)."""
+        """Drop the in-memory image (unpublished changes are lost: publish first); a later
+        write reads the published file again. Frees the memory of a finished session."""
         if self._held is not None:
-            bio, f = self._held
+            _, f = self._held
             self._held = None
             f.close()
-            self._image = bio.getvalue()
+        self._image = None
 
     # -- writing ------------------------------------------------------------------
     def write_calibration(self, cal: Calibration, events: list[Event] = ()) -> None:

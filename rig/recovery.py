@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nmsid.protocols.errors import DiskFullError
+from nmsid.protocols.errors import DiskFullError, SessionLockedError
 from nmsid.protocols.session_file import (Calibration, Event, SessionFileError, SessionWriter,
                                           Trial, read_session, utc_now, validate_session)
 from nmsid.protocols.session_lock import SessionLock
@@ -31,6 +31,7 @@ from nmsid.protocols.session_model import (_DAMAGE_ERRORS, CALIBRATION_ATTRS,
 from nmsid.protocols.session_publish import (SPACE_MARGIN_BYTES, free_bytes, fsync_dir,
                                              remove_stale_temps, rename_retrying)
 from nmsid.protocols.session_reader import _read_events, _read_trial
+from nmsid.protocols.session_state import session_state
 from nmsid.rig.journal import (PARTIAL_ABORT_REASON, JournalContents, JournalEntryError,
                                append_event_line, journal_dir, json_default, load_trial_meta,
                                load_trial_npz, partial_trial, read_journal, save_trial_npz,
@@ -623,8 +624,6 @@ def clean_leftovers_if_idle(path: str | os.PathLike) -> list[str]:
     """Remove the leftovers of :func:`remove_leftovers` if nobody writes the session now
     (the lock is taken for the moment; a live session is left alone). For commands that
     only read a session (``nmsid validate``). Returns what was removed (names)."""
-    from nmsid.protocols.errors import SessionLockedError
-    from nmsid.protocols.session_state import session_state
     before = session_state(path, count_file_trials=False).leftovers
     if not before:
         return []
