@@ -1,7 +1,7 @@
 """Kill-and-damage campaign (issue 26, 7): recovery keeps every good trial.
 
 Each run: a fast-clock simulated session (``nmsid run --backend sim``, a real
-subprocess) is killed with SIGKILL at a random moment (0-0.4 s after a random number of
+subprocess) is killed with SIGKILL at a random moment (0-0.15 s after a random number of
 trial ends, 0 meaning after the journal appears: from calibration to the end); then one journal entry or the
 journal's ``header.json`` is damaged (overwritten with random bytes, truncated, or
 deleted); then ``nmsid recover`` and ``nmsid run --resume`` run to the end. Counted:
@@ -58,6 +58,10 @@ class RunResult:
     tracebacks: int = 0
     valid: bool = False
     all_done: bool = False
+    resumable: bool = True
+    """False when the damage left nothing to resume from: no session file yet (killed
+    before calibration ended) and its journal header damaged, so the configuration is
+    gone; recover and resume must then say so in one line (exit 2)."""
     notes: list[str] = field(default_factory=list)
 
 
@@ -112,7 +116,7 @@ def _start(argv: list, log: Path, env: dict) -> subprocess.Popen:
 
 
 def one_run(folder: Path, k: int, rng: random.Random, *, levels=(0.4, 0.6, 0.8),
-            max_kill_s: float = 0.4, launch=None) -> RunResult:
+            max_kill_s: float = 0.15, launch=None) -> RunResult:
     """Run, kill, damage, recover, resume one session in ``folder``.
 
     ``launch(argv, log_path, env)`` starts ``nmsid argv`` and returns an object with
@@ -160,8 +164,10 @@ def one_run(folder: Path, k: int, rng: random.Random, *, levels=(0.4, 0.6, 0.8),
         if code not in (0, 2):
             res.notes.append(f"{step} exit {code}")
         if step == "recover" and code == 2:
-            res.notes.append("recover: " + log.read_text(encoding="utf-8").strip()
-                             .splitlines()[-1][:160])
+            last = log.read_text(encoding="utf-8").strip().splitlines()[-1]
+            res.notes.append("recover: " + last[:160])
+            if not out.exists() and "header.json: is" in last and not completed:
+                res.resumable = False  # the run then must refuse in one line too
     res.tracebacks = sum(p.read_text(encoding="utf-8", errors="replace").count("Traceback")
                          for p in logs if p.exists())
     if out.exists():
@@ -177,9 +183,22 @@ def one_run(folder: Path, k: int, rng: random.Random, *, levels=(0.4, 0.6, 0.8),
     return res
 
 
+def damaged(r: RunResult) -> bool:
+    """The run reached the damage step (the session was killed with its journal)."""
+    return bool(r.damage) and not r.damage.startswith("none") and \
+        "nothing to damage" not in r.damage
+
+
 def campaign(n_runs: int, folder: Path, seed: int = 26, **kw) -> list[RunResult]:
+    """Runs until ``n_runs`` of them were killed with a journal to damage (a kill that
+    lands after the clean end removed the journal does not count; at most 3 x n_runs)."""
     rng = random.Random(seed)
-    return [one_run(folder, k, rng, **kw) for k in range(n_runs)]
+    out: list[RunResult] = []
+    k = 0
+    while sum(damaged(r) for r in out) < n_runs and k < 3 * n_runs:
+        out.append(one_run(folder, k, rng, **kw))
+        k += 1
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -188,7 +207,8 @@ def main(argv: list[str] | None = None) -> None:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(dir=os.environ.get("BENCH_TMP")) as tmp:
         results = campaign(n_runs, Path(tmp))
-    print(f"bench_recovery_campaign: {n_runs} runs (SIGKILL at a random moment of a "
+    print(f"bench_recovery_campaign: {len(results)} runs, {sum(map(damaged, results))} of "
+          f"them killed with a journal to damage (SIGKILL at a random moment of a "
           f"6-trial fast-clock sim session, one damage, recover, run --resume), "
           f"{time.perf_counter() - t0:.0f} s")
     for k, r in enumerate(results):
@@ -201,12 +221,15 @@ def main(argv: list[str] | None = None) -> None:
     kept = sum(r.kept for r in results)
     twice = sum(r.twice for r in results)
     tb = sum(r.tracebacks for r in results)
-    invalid = sum(1 for r in results if not r.valid)
+    invalid = sum(1 for r in results if r.resumable and not r.valid)
+    unresumable = [r for r in results if not r.resumable]
     print(f"  trials completed before the kill: {completed}; intact after the damage: "
           f"{intact}; kept in the recovered file: {kept} ({kept}/{intact}); lost to the "
           f"damage (their only copy): {completed - intact}")
     print(f"  stimulated twice: {twice}; tracebacks: {tb}; final files invalid: {invalid}; "
-          f"schedules completed: {sum(r.all_done for r in results)}/{len(results)}")
+          f"schedules completed: {sum(r.all_done for r in results)}/{len(results)}; "
+          f"nothing to resume (no trial completed, the configuration only in the damaged "
+          f"header; refused in one line): {len(unresumable)}")
     ok = kept == intact and twice == 0 and tb == 0 and invalid == 0
     print(f"  target (every intact trial kept, none twice, 0 tracebacks): "
           f"{'met' if ok else 'missed'}")

@@ -637,3 +637,26 @@ def clean_leftovers_if_idle(path: str | os.PathLike) -> list[str]:
         lock.release()
     after = set(session_state(path, count_file_trials=False).leftovers)
     return [n for n in before if n not in after]
+
+
+def check_stored_header(path: str | os.PathLike) -> None:
+    """Before ``run --resume`` reads the stored configuration: a journal ``header.json``
+    that exists but cannot be read is rebuilt from the session file (under the session's
+    lock), or refused in one line saying what to do (never a JSONDecodeError).
+
+    Raises
+    ------
+    SessionFileError
+        If the header is damaged and the file cannot give it back (see
+        :func:`rebuild_header`); SessionLockedError if another process writes the session.
+    """
+    path = Path(path)
+    jdir = journal_dir(path)
+    if not (jdir / "header.json").exists() or _header_readable(jdir):
+        return
+    lock = SessionLock.acquire(path, "nmsid run --resume")
+    try:
+        if not _header_readable(jdir):
+            rebuild_header(path, jdir)
+    finally:
+        lock.release()

@@ -61,9 +61,9 @@ def test_three_kills_with_damage_keep_every_intact_trial_and_repeat_none(tmp_pat
                             launch=_Forked) for k in range(3)]
     for r in results:
         assert r.tracebacks == 0, r
-        assert r.valid and r.all_done, r
+        assert (r.valid and r.all_done) or not r.resumable, r
         assert r.kept == r.intact, r        # every intact completed trial kept
         assert r.twice == 0, r              # no completed trial stimulated again
     # the campaign really killed sessions with trials completed, and damaged them
     assert sum(r.completed for r in results) >= 1
-    assert any(r.damage and not r.damage.startswith("none") for r in results), results
+    assert any(camp.damaged(r) for r in results), results

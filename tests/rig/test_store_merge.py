@@ -271,3 +271,20 @@ def test_the_preflight_asks_for_the_journal_and_one_final_file_not_three_copies(
     # resuming: the file already there stays until the new version replaces it
     assert expected_session_bytes(10, 30_000, file_bytes=5_000_000) == \
         int(1.2 * (10 * trial * 2 + 2 * 5_000_000)) + (4 << 20)
+
+
+def test_run_resume_with_a_damaged_header_is_one_line_or_rebuilds_it(tmp_path, capsys):
+    from nmsid.cli import main
+    from nmsid.rig.recovery import check_stored_header
+    path = tmp_path / "S.h5"
+    _session(path, 2)
+    hp = journal_dir(path) / "header.json"
+    hp.write_text('{"partic', "utf-8")
+    check_stored_header(path)  # the file gives it back
+    assert json.loads(hp.read_text("utf-8"))["participant"] == "P01"
+    hp.write_text('{"partic', "utf-8")
+    path.unlink()
+    code = main(["run", "--backend", "sim", "--resume", str(path), "--no-identify"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err and "JSONDecodeError" not in err
+    assert err.strip().splitlines()[-1].startswith(f"nmsid: error: {hp}: is damaged")
