@@ -60,8 +60,8 @@ class RunResult:
     all_done: bool = False
     resumable: bool = True
     """False when the damage left nothing to resume from: no session file yet (killed
-    before calibration ended) and its journal header damaged, so the configuration is
-    gone; recover and resume must then say so in one line (exit 2)."""
+    before calibration ended) and its journal header damaged or deleted, so the
+    configuration is gone; recover and resume must then say so in one line."""
     notes: list[str] = field(default_factory=list)
 
 
@@ -157,6 +157,7 @@ def one_run(folder: Path, k: int, rng: random.Random, *, levels=(0.4, 0.6, 0.8),
                                    "--no-identify"])):
         if not out.exists() and not out.with_name(out.name + ".journal").exists():
             res.notes.append(f"{step}: nothing on disk (killed before the session started)")
+            res.resumable = bool(completed)  # nothing was recorded: nothing to resume
             break
         log = folder / f"{step}{k}.txt"
         code = _nmsid(argv, log, env).wait(timeout=600)
@@ -228,8 +229,8 @@ def main(argv: list[str] | None = None) -> None:
           f"damage (their only copy): {completed - intact}")
     print(f"  stimulated twice: {twice}; tracebacks: {tb}; final files invalid: {invalid}; "
           f"schedules completed: {sum(r.all_done for r in results)}/{len(results)}; "
-          f"nothing to resume (no trial completed, the configuration only in the damaged "
-          f"header; refused in one line): {len(unresumable)}")
+          f"nothing to resume (killed before any trial, the configuration only in the "
+          f"damaged header): {len(unresumable)}")
     ok = kept == intact and twice == 0 and tb == 0 and invalid == 0
     print(f"  target (every intact trial kept, none twice, 0 tracebacks): "
           f"{'met' if ok else 'missed'}")
