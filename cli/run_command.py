@@ -22,6 +22,7 @@ from nmsid.protocols.output_paths import check_output, default_sessions_dir, out
 from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.rig.engine import Engine, TripPolicy
 from nmsid.rig.glitch_prompt import glitch_confirmation
+from nmsid.rig.recovery import check_stored_header
 from nmsid.rig.session_log import journal_dir, recover
 from nmsid.rig.session_service import RigRequest, prepare_rig, seed_from_code
 from nmsid.rig.session_signals import SessionSignals, signal_name
@@ -52,6 +53,7 @@ def run(args) -> int:
     track = tracking_engine(args)   # --track / --target: checked before any device
     if args.resume:
         path = Path(args.resume)
+        check_stored_header(path)  # a damaged journal header: rebuilt, or one line
         config = _stored_config(path)
     else:
         config = load_config(args.config, overrides={

@@ -22,9 +22,12 @@ Layout of the NWB file (a choice, documented in README "Sharing"):
   ``calibration_<ramp>`` table per calibration ramp.
 
 Trial start times: seconds from ``created_utc`` to the trial's ``started_utc``, raised
-when needed so that a trial never starts before the previous one ended (``started_utc``
-has one-second resolution); trials without ``started_utc`` follow the previous one
-directly.
+when needed so that a trial never starts before the previous one ended; trials without
+``started_utc`` follow the previous one directly. The rig writes ``started_utc`` and event
+times as monotonic offsets (millisecond resolution) from the UTC time read when the
+writer opened the session (:mod:`nmsid.rig.session_clock`), so a step of the computer's
+clock (recorded as a ``clock_step`` event) shifts no trial; files written before that
+have one-second wall-clock times, which the "raised when needed" rule keeps in order.
 
 pynwb is an optional dependency (extra ``nwb``), imported inside the functions.
 """
@@ -203,8 +206,9 @@ def build_nwbfile(session: Session, *, subject_age: str = DEFAULT_SUBJECT_AGE,
     if session.events:
         table = nwb.create_events_table(
             name="events", description="the session's event log (E-stops, interlock trips, "
-            "pauses, resumes, notes); timestamp = the event's UTC time minus the session "
-            "start (one-second resolution)", source_description="nmsid rig engine")
+            "pauses, resumes, clock steps, notes); timestamp = the event's UTC time (the "
+            "session's monotonic clock) minus the session start",
+            source_description="nmsid rig engine")
         table.add_column(name="kind", description="what happened (estop, pause, ...)")
         table.add_column(name="detail", description="free-text detail")
         rows = []

@@ -21,7 +21,8 @@ from nmsid.protocols.session_publish import publish_image
 from nmsid.protocols.session_reader import _open_read
 
 class SessionWriter:
-    """Write a session file incrementally; every call publishes a complete new version.
+    """Write a session file incrementally; every call publishes a complete new version,
+    or, while :attr:`deferred`, changes the in-memory image until :meth:`publish`.
 
     The writer keeps the file's HDF5 image in memory, changes it there and publishes the
     new image by temp file + fsync + atomic rename (:mod:`nmsid.protocols.session_publish`): it
@@ -49,8 +50,13 @@ class SessionWriter:
         self._image = image
         """The published file's bytes (read once, then kept in step with each write)."""
         self.deferred = False
-        """True: writes change the in-memory image only, until :meth:`publish` (recovery
-        builds a whole file this way and publishes it once)."""
+        """True: writes change the in-memory image only, until :meth:`publish` (a
+        recorded session publishes at its end; recovery builds a whole file this way and
+        publishes it once)."""
+        self.unpublished = False
+        """True when the in-memory image holds changes not yet published."""
+        self._held: tuple[io.BytesIO, Any] | None = None
+        """(buffer, open h5py file) of the deferred image, kept open between edits."""
 
     # -- creation -----------------------------------------------------------------
     @classmethod
@@ -131,35 +137,78 @@ class SessionWriter:
     # -- the in-memory image --------------------------------------------------------
     @property
     def image_bytes(self) -> int:
-        """Size of the file as last published (bytes)."""
-        self._load()
-        return len(self._image)
+        """Size of the file as it would be published now (bytes)."""
+        if self._held is not None:
+            self._held[1].flush()
+            return self._held[0].getbuffer().nbytes
+        return len(self._load())
 
-    def _load(self) -> None:
+    def _load(self) -> bytes:
+        """The published image (read once from the file)."""
         if self._image is None:
             try:
                 self._image = self.path.read_bytes()
             except OSError as exc:
                 raise SessionFileError(self.path, f"cannot be read ({exc.strerror or exc})") \
                     from None
+        return self._image
 
     @contextmanager
     def _edit(self, doing: str):
         """``with self._edit(...) as f``: change the file in memory, then publish it (not
-        if the body raises)."""
+        if the body raises). While :attr:`deferred`, the in-memory file stays open between
+        edits, so an edit costs what it adds, not the size of the file."""
+        if self.deferred:
+            yield self._open_held()
+            self.unpublished = True
+            return
         self._load()
         bio = io.BytesIO(self._image)
         with _h5py().File(bio, "a") as f:
             yield f
         image = bio.getvalue()
-        if not self.deferred:
-            publish_image(self.path, image, doing=doing)
+        publish_image(self.path, image, doing=doing)
         self._image = image
+        self.unpublished = False
 
-    def publish(self, doing: str = "writing it") -> None:
-        """Publish the in-memory image as the file (after deferred writes)."""
-        self._load()
-        publish_image(self.path, self._image, doing=doing)
+    def _open_held(self):
+        if self._held is None:
+            bio = io.BytesIO(self._load())
+            self._image = None  # the held file is the image now (no second copy)
+            self._held = (bio, _h5py().File(bio, "a"))
+        return self._held[1]
+
+    def image(self) -> bytes:
+        """The file's bytes as they would be published now."""
+        if self._held is not None:
+            self._held[1].flush()  # HDF5 writes its metadata: the image is a valid file
+            return self._held[0].getvalue()
+        return self._load()
+
+    def publish(self, doing: str = "writing it", *,
+                delays_s: tuple[float, ...] | None = None) -> None:
+        """Publish the in-memory image as the file (after deferred writes).
+
+        Raises what :func:`~nmsid.protocols.session_publish.publish_image` raises
+        (``FileHeldError`` on Windows while a reader holds the file); the in-memory image
+        is kept, so a later call can publish it."""
+        if self._held is not None:
+            self._held[1].flush()
+            publish_image(self.path, self._held[0].getvalue(), doing=doing,
+                          delays_s=delays_s)
+        else:
+            self._load()
+            publish_image(self.path, self._image, doing=doing, delays_s=delays_s)
+        self.unpublished = False
+
+    def close(self) -> None:
+        """Drop the in-memory image (unpublished changes are lost: publish first); a later
+        write reads the published file again. Frees the memory of a finished session."""
+        if self._held is not None:
+            _, f = self._held
+            self._held = None
+            f.close()
+        self._image = None
 
     # -- writing ------------------------------------------------------------------
     def write_calibration(self, cal: Calibration, events: list[Event] = ()) -> None:
@@ -179,6 +228,10 @@ class SessionWriter:
             _add_events(f, events)
 
     def next_trial_name(self) -> str:
+        if self._held is not None:
+            f = self._held[1]
+            n = len([k for k in f.get("trials", {}) if TRIAL_NAME_PATTERN.match(k)])
+            return f"t{n + 1:03d}"
         self._load()
         with _h5py().File(io.BytesIO(self._image), "r") as f:
             n = len([k for k in f.get("trials", {}) if TRIAL_NAME_PATTERN.match(k)])
@@ -244,7 +297,7 @@ class SessionWriter:
         """An optional signal (``wrench``, ``sync``) as integer counts with ``scale`` /
         ``offset`` attributes when every sample is ``offset + scale * count`` bit for bit
         (A/D readings), else float32 when float32-exact, else float64."""
-        grid = _as_counts(values) if self.store_counts else None
+        grid = as_counts_memo(values) if self.store_counts else None
         if grid is None:
             self._create_dataset(group, name, _narrowest_exact(values))
             return
@@ -269,6 +322,36 @@ class SessionWriter:
         with self._edit("writing attributes") as f:
             for key, value in attrs.items():
                 _set_attr(f.attrs, key, value)
+
+
+_MEMO: list[tuple[Any, Any]] | None = None
+
+
+@contextmanager
+def counts_memo():
+    """Inside the ``with`` block, :func:`as_counts_memo` computes the A/D grid of each
+    array object once (the journal entry and the file encode the same trial the same way;
+    the grid search is the costliest step of a trial end). The arrays must not change
+    inside the block."""
+    global _MEMO
+    previous, _MEMO = _MEMO, []
+    try:
+        yield
+    finally:
+        _MEMO = previous
+
+
+def as_counts_memo(values):
+    """:func:`~nmsid.protocols.session_codec._as_counts`, remembered per array object
+    inside :func:`counts_memo`."""
+    if _MEMO is None:
+        return _as_counts(values)
+    for obj, result in _MEMO:
+        if obj is values:
+            return result
+    result = _as_counts(values)
+    _MEMO.append((values, result))
+    return result
 
 
 def check_seed(path, seed) -> None:

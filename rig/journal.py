@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import datetime as _dt
 import errno
+import io
 import json
 import os
 import re
@@ -20,10 +21,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
 from nmsid.protocols.errors import DiskFullError, SessionWriteError
+from nmsid.protocols.session_codec import counts_to_values
 from nmsid.protocols.session_file import Calibration, Event, SessionFileError, Trial
-from nmsid.protocols.session_publish import free_bytes, fsync_dir  # noqa: F401 (re-export)
+from nmsid.protocols.session_model import GZIP_LEVEL
+from nmsid.protocols.session_publish import (
+    FileHeldError,
+    free_bytes,
+    fsync_dir,
+    replace_retrying,
+)
+from nmsid.protocols.session_writer import as_counts_memo
 
 PARTIAL_ABORT_REASON = "process ended during trial"
 _TRIAL_FILE = re.compile(r"^trial-(\d{4,})\.npz$")
@@ -36,7 +44,7 @@ PARTIAL_COLUMNS = ("force_N", "rE", "I_ext_mA", "I_flex_mA")
 
 def utc_now_ms() -> str:
     """The current time as ISO 8601 UTC with milliseconds (event time stamps)."""
-    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+    return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
 
 
 def journal_dir(path: str | os.PathLike) -> Path:
@@ -67,6 +75,9 @@ def disk_error(path: Path, exc: OSError, need_bytes: int = 0,
 def write_durable(target: Path, write) -> None:
     """Write via ``write(fileobj)`` to a temp file, fsync, rename onto ``target``.
 
+    The rename is retried on Windows while a scanner or indexer holds the new file
+    (:func:`nmsid.protocols.session_publish.replace_retrying`).
+
     Raises
     ------
     DiskFullError, SessionWriteError
@@ -78,20 +89,24 @@ def write_durable(target: Path, write) -> None:
             write(fh)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, target)
+        replace_retrying(tmp, target)
+    except FileHeldError:
+        _unlink_quietly(tmp)
+        raise
     except OSError as exc:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
+        _unlink_quietly(tmp)
         raise disk_error(target, exc) from None
     except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
+        _unlink_quietly(tmp)
         raise
     fsync_dir(target.parent)
+
+
+def _unlink_quietly(p: Path) -> None:
+    try:
+        os.unlink(p)
+    except OSError:
+        pass
 
 
 def json_default(obj):
@@ -111,22 +126,95 @@ def trial_meta(trial: Trial) -> dict[str, Any]:
                                  default=json_default))
 
 
+_SIGNALS = ("rE", "I_ext_mA", "I_flex_mA", "force_N", "wrench", "sync")
+
+
 def save_trial_npz(target: Path, trial: Trial) -> None:
-    """Write a trial (arrays + metadata as JSON) durably: temp file, fsync, rename."""
-    arrays = {k: np.asarray(getattr(trial, k), dtype=np.float64)
-              for k in ("rE", "I_ext_mA", "I_flex_mA", "force_N")}
-    if trial.wrench is not None:
-        arrays["wrench"] = np.asarray(trial.wrench, dtype=np.float64)
-    if trial.sync is not None:
-        arrays["sync"] = np.asarray(trial.sync, dtype=np.float64)
+    """Write a trial (arrays + metadata as JSON) durably: temp file, fsync, rename.
+
+    The entry is a ``.npz`` (zip) whose arrays are encoded the way the session file
+    stores them, so the journal takes about as much disk as the file: an optional signal
+    on an exact A/D grid (``wrench``, ``sync``) as integer counts with its scale (bit-exact,
+    :func:`nmsid.protocols.session_codec._as_counts`), every array byte-shuffled and
+    deflated (HDF5's shuffle + deflate). ``__enc__`` (JSON) says how to decode each one;
+    :func:`load_trial_npz` also reads plain entries (no ``__enc__``).
+    """
     meta = np.array(json.dumps(trial_meta(trial)))
-    write_durable(target, lambda fh: np.savez(fh, __meta__=meta, **arrays))
+    enc: dict[str, dict[str, Any]] = {}
+    members: dict[str, np.ndarray] = {}
+    for k in _SIGNALS:
+        values = getattr(trial, k)
+        if values is None:
+            continue
+        grid = as_counts_memo(values) if k in ("wrench", "sync") else None
+        arr = np.ascontiguousarray(values, dtype=np.float64)
+        info: dict[str, Any] = {"shape": list(arr.shape)}
+        if grid is not None:
+            counts, scale, offset = grid
+            info.update(scale=np.asarray(scale).tolist(), offset=np.asarray(offset).tolist())
+            arr = np.ascontiguousarray(counts)
+        info["dtype"] = arr.dtype.str
+        enc[k] = info
+        # the shuffle filter: byte j of every element together (deflates far better)
+        members[k] = arr.reshape(-1).view(np.uint8).reshape(-1, arr.dtype.itemsize).T.copy()
+    members["__enc__"] = np.array(json.dumps(enc))
+    members["__meta__"] = meta
+
+    def write(fh) -> None:
+        with zipfile.ZipFile(fh, "w", allowZip64=True) as zf:
+            for name, arr in members.items():
+                buf = io.BytesIO()
+                np.lib.format.write_array(buf, arr, allow_pickle=False)
+                zf.writestr(name + ".npy", buf.getbuffer(),
+                            compress_type=zipfile.ZIP_DEFLATED if _deflates_well(arr)
+                            else zipfile.ZIP_STORED, compresslevel=JOURNAL_DEFLATE_LEVEL)
+
+    write_durable(target, write)
+
+
+JOURNAL_DEFLATE_LEVEL = GZIP_LEVEL
+"""zlib level of journal entries: the file's (level 1 is faster but makes the journal
+about 5 % larger, which brings the peak disk use of a session to 1.97x the file)."""
+
+
+def _deflates_well(arr: np.ndarray, probe_bytes: int = 1 << 16) -> bool:
+    """True if deflating ``arr`` (shuffled bytes) saves at least 3 %, judged on a sample
+    of each byte plane (random-noise planes are stored as they are: no time spent)."""
+    if arr.ndim != 2 or arr.size == 0:
+        return True
+    per_plane = max(1, probe_bytes // arr.shape[0])
+    probe = np.ascontiguousarray(arr[:, :per_plane]).tobytes()
+    return len(zlib.compress(probe, 1)) <= 0.97 * len(probe)
+
+
+def _decode(z, enc: dict[str, Any]) -> dict[str, np.ndarray]:
+    out = {}
+    for k, info in enc.items():
+        dtype = np.dtype(info["dtype"])
+        arr = np.ascontiguousarray(np.array(z[k]).T).view(dtype).reshape(info["shape"])
+        if "scale" in info:
+            arr = counts_to_values(arr, info["scale"], info["offset"])
+        out[k] = np.asarray(arr, dtype=np.float64)
+    return out
 
 
 _NPZ_ERRORS = (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile,
                zlib.error)
 """What reading a truncated or damaged ``.npz`` raises (BadZipFile, a short read, a bad
 JSON or a missing member)."""
+
+
+def _open_npz(path: Path, read):
+    """``read(z)`` on the ``.npz`` at ``path``, with the file closed on every outcome.
+
+    ``np.load(path)`` of a damaged zip raises with its own file object still open (it
+    hands the handle to ``NpzFile`` before the zip is checked), and the exception's
+    traceback keeps it alive in an ``except`` block: on Windows, a later ``os.replace``
+    of that entry then fails with a sharing violation (Microsoft, "MoveFileExW"). Opening
+    the file here, in a ``with`` block, closes it before the exception leaves.
+    """
+    with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
+        return read(z)
 
 
 def load_trial_npz(path: Path) -> Trial:
@@ -137,13 +225,18 @@ def load_trial_npz(path: Path) -> Trial:
     JournalEntryError
         If the file is truncated or damaged (names the file).
     """
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(str(z["__meta__"]))
+    def read(z):
+        meta = json.loads(str(z["__meta__"]))
+        if "__enc__" in z.files:
+            arrays = _decode(z, json.loads(str(z["__enc__"])))
+        else:
             arrays = {k: np.array(z[k]) for k in z.files if k != "__meta__"}
+        return meta, arrays
+
+    try:
+        meta, arrays = _open_npz(path, read)
         kw = {k: v for k, v in meta.items() if k in _TRIAL_META_FIELDS}
-        return Trial(**kw, **{k: arrays.get(k) for k in ("rE", "I_ext_mA", "I_flex_mA",
-                                                           "force_N", "wrench", "sync")})
+        return Trial(**kw, **{k: arrays.get(k) for k in _SIGNALS})
     except _NPZ_ERRORS as exc:
         raise JournalEntryError(path, f"journal entry unreadable ({type(exc).__name__}: "
                                       f"{exc})") from None
@@ -152,8 +245,7 @@ def load_trial_npz(path: Path) -> Trial:
 def load_trial_meta(path: Path) -> dict[str, Any]:
     """Only the metadata of a journaled trial (raises :class:`JournalEntryError`)."""
     try:
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(str(z["__meta__"]))
+        meta = _open_npz(path, lambda z: json.loads(str(z["__meta__"])))
         if not isinstance(meta, dict):
             raise TypeError("metadata is not an object")
         return meta
@@ -172,10 +264,9 @@ def save_calibration(target: Path, cal: Calibration) -> None:
 def load_calibration(path: Path) -> Calibration:
     """Read a calibration written by :func:`save_calibration`."""
     try:
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(str(z["__meta__"]))
-            ramps = {k[len("ramp__"):]: np.array(z[k]) for k in z.files
-                     if k.startswith("ramp__")}
+        meta, ramps = _open_npz(path, lambda z: (
+            json.loads(str(z["__meta__"])),
+            {k[len("ramp__"):]: np.array(z[k]) for k in z.files if k.startswith("ramp__")}))
         return Calibration(**{k: float(meta[k]) for k in _CAL_FIELDS}, ramps=ramps)
     except _NPZ_ERRORS as exc:
         raise JournalEntryError(path, f"journal calibration unreadable ({type(exc).__name__}:"
@@ -200,19 +291,32 @@ class JournalContents:
         return [load_trial_meta(p) for p in self.trial_files]
 
 
-def read_journal(jdir: Path) -> JournalContents:
+def read_journal(jdir: Path, *, allow_gaps: bool = False) -> JournalContents:
     """Read a journal directory (tolerating a torn last event line).
+
+    Parameters
+    ----------
+    allow_gaps : bool
+        Accept trial entries not numbered 1, 2, ... (a deleted entry; recovery merges
+        such a journal with the file).
 
     Raises
     ------
     SessionFileError
-        If the header is missing or unreadable.
+        If the header is missing or damaged (with what to do), or (``allow_gaps``
+        False) an entry is missing.
     """
     header_path = jdir / "header.json"
     try:
         header = json.loads(header_path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise SessionFileError(jdir, f"journal header unreadable ({exc})") from None
+        if not isinstance(header, dict):
+            raise TypeError("not a JSON object")
+    except (OSError, ValueError, TypeError) as exc:
+        state = "missing" if not header_path.exists() else f"damaged ({exc})"
+        raise SessionFileError(header_path, f"is {state}; run `nmsid recover "
+                                            f"{jdir.with_name(jdir.name[:-len('.journal')])}`"
+                                            ", which rebuilds it from the session file"
+                               ) from None
     cal = None
     cal_error = ""
     if (jdir / "calibration.npz").exists():
@@ -232,7 +336,7 @@ def read_journal(jdir: Path) -> JournalContents:
     files = sorted((p for p in jdir.iterdir() if _TRIAL_FILE.match(p.name)),
                    key=lambda p: int(_TRIAL_FILE.match(p.name).group(1)))
     for i, p in enumerate(files):
-        if int(_TRIAL_FILE.match(p.name).group(1)) != i + 1:
+        if not allow_gaps and int(_TRIAL_FILE.match(p.name).group(1)) != i + 1:
             raise SessionFileError(jdir, f"journal trial files are not numbered 1, 2, ... "
                                          f"(found {p.name} at position {i + 1})")
     pmeta = None

@@ -42,14 +42,18 @@ from nmsid.protocols.session_file import (Calibration, Event, SessionExistsError
                                           validate_session)
 from nmsid.protocols.session_lock import SessionLock, live_writer
 from nmsid.protocols.session_model import PARTICIPANT_PATTERN
-from nmsid.protocols.session_writer import check_seed
-from nmsid.protocols.session_publish import SPACE_MARGIN_BYTES, free_bytes
+from nmsid.protocols.session_writer import check_seed, counts_memo
+from nmsid.protocols.session_publish import (SPACE_MARGIN_BYTES, FileHeldError, o_binary,
+                                             free_bytes, publish_image, rename_retrying,
+                                             replace_retrying)
 # re-exported names (callers import them from here)
 from nmsid.rig.journal import (PARTIAL_ABORT_REASON, PARTIAL_COLUMNS, JournalContents,  # noqa: F401
                                disk_error, trial_digest, fsync_dir, json_default, save_calibration,
                                save_trial_npz, write_durable, journal_dir, load_trial_npz,
                                read_journal, trial_meta, utc_now_ms)
-from nmsid.rig.recovery import (RecoveryReport, create_from_header, read_fully,  # noqa: F401
+from nmsid.rig.session_clock import SessionClock
+from nmsid.rig.recovery import (RecoveryReport, _header_kwargs, create_from_header,  # noqa: F401
+                                read_fully,
                                 remove_leftovers, unique_aside, recover)
 
 log = logging.getLogger(__name__)
@@ -76,13 +80,19 @@ class SessionLog:
         self._digests: list[int] = []
         """CRC of the samples of each trial written by this process."""
         """Metadata of every trial written (journal order = file order)."""
-        self._writer: SessionWriter | None = (SessionWriter(self.path)
-                                              if calibration is not None else None)
+        self._writer: SessionWriter | None = None
+        if calibration is not None:
+            self._writer = SessionWriter(self.path)
+            self._writer.deferred = True  # trials go to the journal; the file at the end
         self._ev_fh = open(self.jdir / "events.jsonl", "a", encoding="utf-8")
         self._partial_fd: int | None = None
         self._partial_cols: tuple[str, ...] = ()
         self._partial_meta: dict = {}
         self._partial_rows = 0
+        self.clock = SessionClock()
+        """Trial and event times: monotonic offsets from the UTC time read now (a step of
+        the computer's clock is recorded as a ``clock_step`` event, not followed)."""
+        self._started_utc: str | None = None
 
     # -- opening -------------------------------------------------------------------
     @classmethod
@@ -130,7 +140,7 @@ class SessionLog:
         if jdir.exists():
             shutil.rmtree(tmp)
             raise SessionExistsError(jdir)
-        os.rename(tmp, jdir)
+        rename_retrying(tmp, jdir)
         fsync_dir(jdir.parent)
         return cls(path, header, lock=lock)
 
@@ -148,14 +158,13 @@ class SessionLog:
         try:
             report = None
             remove_leftovers(path)
-            if jdir.is_dir() and not (jdir / "header.json").exists():
-                os.rename(jdir, unique_aside(jdir, "headerless"))  # keep it, but aside
-            if jdir.is_dir():
+            if jdir.is_dir():  # a missing or damaged header is rebuilt from the file
                 report = recover(path)
-            elif path.exists():
+            if not jdir.is_dir():
+                if not path.exists():
+                    raise SessionFileError(path, "no such file and no journal to resume "
+                                                 "from")
                 _journal_from_file(path, jdir)
-            else:
-                raise SessionFileError(path, "no such file and no journal to resume from")
             jc = read_journal(jdir)
             if jc.calibration is None and jc.calibration_error:
                 raise SessionFileError(jdir, jc.calibration_error)
@@ -166,29 +175,61 @@ class SessionLog:
             raise
 
     # -- writing ---------------------------------------------------------------------
+    def utc(self) -> str:
+        """The session's time now (see :attr:`clock`), after recording a step of the
+        computer's clock if there was one."""
+        self._note_clock_step()
+        return self.clock.utc()
+
+    def _note_clock_step(self) -> None:
+        detail = self.clock.step()
+        if detail:
+            self._record(Event(self.clock.utc(), "clock_step", detail))
+
     def event(self, kind: str, detail: str = "", utc: str | None = None) -> Event:
-        """Record an event: journal now; HDF5 with the next trial / calibration / flush."""
-        ev = Event(utc or utc_now_ms(), str(kind), str(detail))
+        """Record an event: journal now; HDF5 with the next trial / calibration / flush.
+        ``utc`` defaults to the session's monotonic time (:meth:`utc`)."""
+        ev = Event(utc or self.utc(), str(kind), str(detail))
+        return self._record(ev)
+
+    def _record(self, ev: Event) -> Event:
         self.events.append(ev)
         try:
             self._ev_fh.write(json.dumps({"utc": ev.utc, "kind": ev.kind,
                                           "detail": ev.detail}) + "\n")
             self._ev_fh.flush()
         except OSError as exc:  # a full disk: the event stays in memory (and the log)
-            log.warning("%s: event %s not journaled (%s)", self.path, kind,
+            log.warning("%s: event %s not journaled (%s)", self.path, ev.kind,
                         exc.strerror or exc)
         return ev
 
     def flush_events(self) -> None:
-        """Copy the events not yet in the HDF5 file to it (once the file exists)."""
+        """Copy the events not yet in the in-memory file to it (once the file exists);
+        :meth:`publish` writes them to disk."""
         if self._writer is None or self._events_in_h5 >= len(self.events):
             return
-        try:
-            self._writer.append_events(self.events[self._events_in_h5:])
-        except DiskFullError as exc:  # the journal keeps them; recover puts them in
-            log.warning("%s", exc)
-            return
+        self._writer.append_events(self.events[self._events_in_h5:])
         self._events_in_h5 = len(self.events)
+
+    def publish(self, *, delays_s: tuple[float, ...] | None = None) -> bool:
+        """Publish the in-memory file (every trial and event so far) as a new version.
+
+        Returns
+        -------
+        bool
+            True if published. False if the disk is full or (Windows) another program
+            holds the file open: the reason is logged, naming the file, and nothing is
+            lost (the journal holds every trial; ``nmsid recover`` publishes it).
+        """
+        if self._writer is None:
+            return False
+        self.flush_events()
+        try:
+            self._writer.publish("publishing the session", delays_s=delays_s)
+        except SessionFileError as exc:  # DiskFullError, FileHeldError, SessionWriteError
+            log.error("%s", exc)
+            return False
+        return True
 
     def _pending_events(self) -> list[Event]:
         return self.events[self._events_in_h5:]
@@ -202,22 +243,34 @@ class SessionLog:
             raise CalibrationError(f"{self.path}: refusing calibration: " + "; ".join(problems))
         save_calibration(self.jdir / "calibration.npz", cal)
         self.calibration = cal
-        self._writer = create_from_header(self.path, self.header)
+        w = SessionWriter(self.path, image=SessionWriter.new_image(
+            self.path, **_header_kwargs(self.header)))
+        w.deferred = True
         pending = self._pending_events()
-        self._writer.write_calibration(cal, events=pending)
+        w.write_calibration(cal, events=pending)
+        # the file appears once, complete with its calibration, and never over another
+        publish_image(self.path, w.image(), exclusive=True,
+                      doing="creating the session file")
+        w.unpublished = False
+        self._writer = w
         self._events_in_h5 += len(pending)
 
     def begin_trial(self, meta: Trial, columns: tuple[str, ...] = PARTIAL_COLUMNS) -> None:
         """Start streaming the trial in progress to ``partial.f64``."""
         self._close_partial()
+        # the trial starts now on the session's clock (monotonic offset; not the wall
+        # clock, which may step): end_trial gives the stored trial this time
+        self._started_utc = self.utc()
+        meta.started_utc = self._started_utc
         pmeta = trial_meta(meta)
         pmeta["columns"] = list(columns)
         pmeta["seq"] = len(self.trials) + 1
         # empty the stream BEFORE the new metadata names it: a kill in between leaves the
         # previous trial's metadata (already journaled, so ignored) over an empty stream
         self._partial_cols = tuple(columns)
-        self._partial_fd = os.open(self.jdir / "partial.f64",
-                                   os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_APPEND, 0o644)
+        self._partial_fd = os.open(self.jdir / "partial.f64",  # O_BINARY: see session_publish
+                                   os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_APPEND
+                                   | o_binary(), 0o644)
         self._partial_meta = pmeta
         self._partial_rows = 0
         self._write_partial_meta()
@@ -226,7 +279,11 @@ class SessionLog:
         tmp = self.jdir / "partial.json.tmp"
         try:
             tmp.write_text(json.dumps(self._partial_meta), encoding="utf-8")
-            os.replace(tmp, self.jdir / "partial.json")  # atomic; no fsync: a kill keeps it
+            # atomic; no fsync: a kill keeps it; retried while Windows' scanners hold it
+            replace_retrying(tmp, self.jdir / "partial.json")
+        except FileHeldError:
+            tmp.unlink(missing_ok=True)
+            raise
         except OSError as exc:
             tmp.unlink(missing_ok=True)
             raise disk_error(self.jdir / "partial.json", exc) from None
@@ -271,22 +328,29 @@ class SessionLog:
             self._partial_fd = None
 
     def end_trial(self, trial: Trial) -> str:
-        """Make the trial durable in the journal, then append it to the HDF5 file.
+        """Make the trial durable in the journal, then append it to the in-memory file
+        (published at the end of the session: a trial end costs the same at the first
+        trial as at the last, and a reader holding the file never stops the session).
 
         Returns the trial's name in the file (``t001``, ...).
         """
         if self._writer is None:
             raise RuntimeError(f"{self.path}: no calibration yet; cannot write a trial")
         self._close_partial()
+        self._note_clock_step()
+        if self._started_utc is not None:
+            trial.started_utc = self._started_utc
+            self._started_utc = None
         seq = len(self.trials) + 1
         trial.name = f"t{seq:03d}"
-        save_trial_npz(self.jdir / f"trial-{seq:04d}.npz", trial)
-        # partial.json / partial.f64 stay: their seq now names a journaled trial, which
-        # recovery ignores; the next begin_trial reuses them
-        self.trials.append(trial_meta(trial))
-        self._digests.append(trial_digest(trial))
-        pending = self._pending_events()
-        name = self._writer.append_trial(trial, events=pending)
+        with counts_memo():  # the journal and the file find the A/D grid once
+            save_trial_npz(self.jdir / f"trial-{seq:04d}.npz", trial)
+            # partial.json / partial.f64 stay: their seq now names a journaled trial,
+            # which recovery ignores; the next begin_trial reuses them
+            self.trials.append(trial_meta(trial))
+            self._digests.append(trial_digest(trial))
+            pending = self._pending_events()
+            name = self._writer.append_trial(trial, events=pending)
         self._events_in_h5 += len(pending)
         return name
 
@@ -301,20 +365,28 @@ class SessionLog:
             self._writer.set_root_attrs(**attrs)
 
     def finish(self) -> bool:
-        """After a clean end: put every event in the file, check it, remove the journal.
+        """After a clean end: publish the file with every trial and event, check it,
+        remove the journal.
 
         Returns True if the journal was removed (the file validated and holds every
-        journaled trial); otherwise the journal is kept for ``nmsid recover``.
+        journaled trial); otherwise the journal is kept for ``nmsid recover`` (a full disk,
+        or on Windows another program holding the file: both are logged, naming it).
         """
-        self.flush_events()
         try:
             return self._finish()
         finally:
             self.release()
 
     def _finish(self) -> bool:
-        self.close(release=False)
         if self._writer is None:
+            self.close(release=False)
+            return False
+        published = self.publish()
+        self.close(release=False, publish=False)
+        if not published:
+            log.error("%s: the journal %s is kept: it holds every trial; run `nmsid recover "
+                      "%s` once the file can be written", self.path, self.jdir.name,
+                      self.path)
             return False
         s, problems = read_fully(self.path)
         if s is None:
@@ -333,13 +405,19 @@ class SessionLog:
             return False
         # rename first (atomic), then delete: a kill never leaves half a journal behind
         gone = self.jdir.with_name(f"{self.jdir.name}.done-{os.getpid()}")
-        os.rename(self.jdir, gone)
+        try:
+            rename_retrying(self.jdir, gone)
+        except OSError as exc:  # FileHeldError included: the journal stays, harmless
+            log.warning("%s: journal not removed (%s); the next nmsid command on this "
+                        "session removes it", self.path, exc)
+            return False
         shutil.rmtree(gone, ignore_errors=True)
         return True
 
     def check_space(self, need_bytes: int) -> None:
         """Refuse to start (before calibration) unless the folder holds ``need_bytes``
-        plus the margin: the protocol's file, its journal and one temp version.
+        plus the margin: the protocol's journal and the file's final version
+        (:func:`expected_session_bytes`).
 
         Raises
         ------
@@ -349,8 +427,8 @@ class SessionLog:
         need = int(need_bytes) + SPACE_MARGIN_BYTES
         free = free_bytes(self.path.parent)
         if free < need:
-            raise DiskFullError(self.path, need, free, "the session (file, journal and a "
-                                "temporary copy, with a 20 % margin)")
+            raise DiskFullError(self.path, need, free, "the session (its journal and the "
+                                "final file, with a 20 % margin)")
 
     def release(self) -> None:
         """Give up the writer lock (after the last write)."""
@@ -358,8 +436,15 @@ class SessionLog:
             self.lock.release()
             self.lock = None
 
-    def close(self, release: bool = True) -> None:
+    def close(self, release: bool = True, publish: bool = True) -> None:
+        """End writing: publish what is not yet in the file (best effort; the journal
+        keeps it anyway), close the streams and (``release``) give up the lock."""
         self._close_partial()
+        if publish and self._writer is not None and (
+                self._writer.unpublished or self._events_in_h5 < len(self.events)):
+            self.publish()
+        if self._writer is not None:
+            self._writer.close()
         if release:
             self.release()
         if not self._ev_fh.closed:
@@ -373,12 +458,13 @@ class SessionLog:
 
 def expected_session_bytes(n_trials: int, samples_per_trial: int, file_bytes: int = 0,
                            n_columns: int = 11) -> int:
-    """Disk space a session needs, with a 20 % margin: each trial once in the journal
-    (``.npz``, float64) and once in the file (stored plain at worst), plus one temporary
-    copy of the whole file while a new version is published; ``n_columns``: rE, two
-    currents, force, a 6-axis wrench and sync."""
+    """Disk space a session needs, with a 20 % margin: each trial once in the journal and
+    once in the new version of the file published at the end (both stored as float64 at
+    worst: incompressible data), plus, when resuming, the file already there until the new
+    version replaces it; ``n_columns``: rE, two currents, force, a 6-axis wrench and
+    sync. Compressible data (A/D counts) needs far less (docs/benchmarks.md)."""
     trial = 8 * int(samples_per_trial) * int(n_columns) + 64 * 1024
-    return int(1.2 * (int(n_trials) * trial * 3 + 2 * int(file_bytes))) + (4 << 20)
+    return int(1.2 * (int(n_trials) * trial * 2 + 2 * int(file_bytes))) + (4 << 20)
 
 
 def check_new_session_path(path: Path) -> None:
@@ -419,5 +505,5 @@ def _journal_from_file(path: Path, jdir: Path) -> None:
             fh.write(json.dumps({"utc": ev.utc, "kind": ev.kind, "detail": ev.detail}) + "\n")
         fh.flush()
         os.fsync(fh.fileno())
-    os.rename(jdir, final)
+    rename_retrying(jdir, final)
     fsync_dir(final.parent)

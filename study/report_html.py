@@ -26,6 +26,13 @@ def _table(header: list[str], rows: list[list]) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
+def _state_mark(r: dict) -> str:
+    """`` (LIVE)`` / `` (INCOMPLETE)`` after a session that a run writes now or that was
+    killed and not recovered (:mod:`nmsid.protocols.session_state`)."""
+    state = r.get("session_state")
+    return f" ({state.upper()})" if state in ("live", "incomplete") else ""
+
+
 def write_report(path: Path, results: list[dict], group: GroupResult, figures: list[Path],
                  *, title: str, elapsed_s: float, mode: str) -> Path:
     """Write ``report.html`` (figures embedded, so the file stands alone)."""
@@ -36,6 +43,11 @@ def write_report(path: Path, results: list[dict], group: GroupResult, figures: l
              f"{sum(1 for r in results if not r.get('ok'))} failed; "
              f"{group.gap.get('n_sessions_diagnosed', 0)} gap-diagnosed. "
              f"Wall time {elapsed_s:.1f} s ({html.escape(mode)}).</p>"]
+    marked = [r for r in results if _state_mark(r)]
+    if marked:
+        parts.append("<h2>Live or incomplete sessions</h2><ul>" + "".join(
+            f"<li><b>{html.escape(Path(r['path']).name)}</b>: "
+            f"{html.escape(r.get('state_note', ''))}</li>" for r in marked) + "</ul>")
     if failed:
         parts.append("<h2>Problems</h2><ul>" + "".join(
             f"<li><b>{html.escape(Path(r['path']).name)}</b>: {html.escape(r['error'])}</li>"
@@ -43,7 +55,7 @@ def write_report(path: Path, results: list[dict], group: GroupResult, figures: l
     parts.append("<h2>Sessions</h2>" + _table(
         ["session", "participant", "levels identified", "lowest fit %", "gap best effect",
          "time s"],
-        [[Path(r["path"]).name, r.get("label") or r.get("participant", ""),
+        [[Path(r["path"]).name + _state_mark(r), r.get("label") or r.get("participant", ""),
           f"{r.get('levels_identified', 0)}/{r.get('levels', 0)}" if r.get("ok") else "failed",
           r.get("lowest_fit_pct"), (r.get("gap") or {}).get("best_effect", "-"),
           r["elapsed_s"]] for r in results]))

@@ -39,6 +39,8 @@ class StudyOutputs:
 
 def _line(i: int, n: int, r: dict) -> str:
     name = Path(r["path"]).name
+    if r.get("session_state") in ("live", "incomplete"):
+        name += f" [{r['session_state'].upper()}: {r.get('state_note', '')}]"
     if not r.get("ok"):
         return f"[{i}/{n}] {name}: FAILED ({r['error']}) {r['elapsed_s']:.1f} s"
     gap = r.get("gap")

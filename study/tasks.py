@@ -22,6 +22,7 @@ from nmsid.analysis.run import run_identification
 from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
 from nmsid.protocols import os_platform
 from nmsid.protocols.session_file import read_session
+from nmsid.protocols.session_state import session_state
 
 
 #: What one task reads of a session file: the datasets of identification (and its QC) and
@@ -86,9 +87,15 @@ def run_session(path: str, out_dir: str, settings: IdentificationSettings, *,
     result: dict = {"path": str(path), "ok": False, "error": "", "participant": "",
                     "gap": None, "problems": []}
     stage = "reading"
+    # a live or killed (incomplete) session is marked (the file's trials counted from the
+    # one read below: the file is read once)
+    state = session_state(path, count_file_trials=False)
+    result["session_state"], result["state_note"] = state.label, state.describe()
     try:
         # an unreadable file: say so in one line; identify, QC and gap use this one read
         session = read_session(path, datasets=SESSION_DATASETS)
+        state.file_trials = len(session.trials)
+        result["session_state"], result["state_note"] = state.label, state.describe()
         stage = "identification"
         ident = run_identification([session], out / "identify", settings, figures=False)
         res = ident.sessions[0]

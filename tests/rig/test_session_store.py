@@ -51,11 +51,14 @@ def test_a_reader_holding_the_file_open_never_disturbs_the_writer(tmp_path):
         seen = len(reader["trials"])
         for i in range(1, 4):
             log.end_trial(_trial(i))
-            # the reader keeps its consistent snapshot
-            assert len(reader["trials"]) == seen == 1
-            assert reader["trials/t001/force_N"].shape == (400,)
-        assert len(read_session(path).trials) == 4  # a new reader sees the new version
-    assert log.finish() is True
+            # the reader keeps its consistent snapshot (the file as published with the
+            # calibration; trials are journaled, and published at the end)
+            assert len(reader["trials"]) == seen == 0
+            assert reader["calibration"].attrs["Iemax_mA"] == 9
+        assert len(read_session(path).trials) == 0
+        assert len(list(journal_dir(path).glob("trial-*.npz"))) == 4
+        assert log.finish() is True  # publishing while the reader holds its snapshot
+        assert len(reader["trials"]) == 0
     assert validate_session(path) == [] and len(read_session(path).trials) == 4
     assert leftovers(tmp_path) == []
 
@@ -198,12 +201,16 @@ def test_a_full_disk_before_the_write_changes_nothing_and_says_so(tmp_path, monk
     before = path.read_bytes()
     import nmsid.protocols.session_publish as pub
     monkeypatch.setattr(pub, "free_bytes", lambda folder: 1000)
+    log.end_trial(_trial(1))  # journaled (and in memory): the file is published at the end
     with pytest.raises(DiskFullError) as err:
-        log._writer.append_trial(_trial(1))
+        log._writer.publish("writing trial sE 0.35 repeat 1")
     text = str(err.value)
     assert text.startswith(f"{path}: disk full") and "MB free" in text and "\n" not in text
     # the published file is unchanged; only the live writer's lock file is there
     assert path.read_bytes() == before and leftovers(tmp_path) == ["P01.h5.lock"]
+    # the session's end then keeps the journal (logged), nothing is lost
+    assert log.finish() is False and path.read_bytes() == before
+    assert len(list(journal_dir(path).glob("trial-*.npz"))) == 2
 
 
 def test_check_space_names_folder_need_and_free(tmp_path, monkeypatch):

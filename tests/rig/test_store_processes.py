@@ -128,7 +128,7 @@ def test_sigkill_at_a_chosen_moment_loses_nothing_and_leaves_no_temp_file(tmp_pa
     out = tmp_path / "k.h5"
     argv = ["run", "--backend", "sim", "--config", cfg, "--out", out, "--no-identify"]
     if moment == "calibration":  # calibration journaled, file not yet published
-        fault = _fault_in("nmsid.rig.session_log", "create_from_header")
+        fault = _fault_in("nmsid.rig.session_log", "publish_image")
     elif moment == "end of session":  # journal renamed to .done-PID, not yet removed
         fault = _fault_in("nmsid.rig.session_log", "shutil.rmtree")
     else:  # the first trial journaled, not yet in the file: recover must append it
@@ -236,6 +236,7 @@ def test_disk_filled_mid_session_at_ten_sizes(tmp_path, small_fs):
         assert {t.extra_attrs["schedule_index"] for t in s.trials if t.completed} == \
             set(range(6)), k
         assert _leftovers(folder) == [] and not journal_dir(out).exists(), k
-    # most sizes really ended the session on the full disk (the rest finished first)
-    assert sum(1 for run, _ in outcomes if run == 2) >= 7, outcomes
+    # most sizes really ended the session on the full disk (the rest finished first: the
+    # journal is deflated and the file published once, so small sessions fit more often)
+    assert sum(1 for run, _ in outcomes if run == 2) >= 5, outcomes
     print("disk-full outcomes (run exit, recover-on-full-disk exit):", outcomes)
