@@ -291,9 +291,9 @@ def _recover_locked(path: Path) -> RecoveryReport:
             jc.calibration = fs.calibration
         elif fs.calibration is None or not fs.trials and not _entries(jdir):
             if path.exists() and validate_session(path):
-                aside = unique_aside(path, "damaged")
-                rename_retrying(path, aside)
-                report.damaged_kept_at = str(aside)
+                invalid_aside = unique_aside(path, "damaged")
+                rename_retrying(path, invalid_aside)
+                report.damaged_kept_at = str(invalid_aside)
             report.action = "no-calibration"
             return report
         else:  # calibration.npz deleted: the file still has it
