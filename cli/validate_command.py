@@ -19,7 +19,8 @@ def run(args) -> int:
     """
     bad = 0
     for path in args.files:
-        problems = validate_session(path)
+        warnings: list[str] = []
+        problems = validate_session(path, warnings=warnings)
         writer = live_writer(path)
         live = ""
         if writer is not None:
@@ -33,7 +34,10 @@ def run(args) -> int:
         else:
             n = _n_trials(path)
             print(f"{path}: valid nmsid session file (format version 1){live}"
-                  + (f"; {n} trial(s) so far" if live and n is not None else ""))
+                  + (f"; {n} trial(s) so far" if live and n is not None else "")
+                  + (f"; {len(warnings)} warning(s)" if warnings else ""))
+        for w in warnings:  # implausible but allowed by the contract: read and analysed
+            print(f"  warning: {w}")
     if bad:
         print(f"nmsid: error: {bad} of {len(args.files)} file(s) invalid (see above)",
               file=sys.stderr)
