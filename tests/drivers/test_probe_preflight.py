@@ -4,7 +4,6 @@ current or dummy load out of range is one line, exit 2, and no device was probed
 from __future__ import annotations
 
 import pytest
-
 from nmsid.cli import main
 
 
@@ -15,7 +14,7 @@ from nmsid.cli import main
 ])
 def test_dry_run_flags_are_refused_before_any_device(write_hw_config, tmp_path, capsys,
                                                      monkeypatch, flags, says):
-    import nmsid.cli.probe_command as probe_command
+    from nmsid.cli import probe_command
 
     def never(*a, **kw):
         raise AssertionError("a device was probed before the flags were checked")

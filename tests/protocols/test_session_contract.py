@@ -10,9 +10,14 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-from nmsid.protocols.session_file import (Calibration, SessionFileError, SessionWriter, Trial,
-                                          read_session, validate_session)
+from nmsid.protocols.session_file import (
+    Calibration,
+    SessionFileError,
+    SessionWriter,
+    Trial,
+    read_session,
+    validate_session,
+)
 
 N = 200
 CAL = {"Iemin_mA": 2.0, "Iemax_mA": 9.5, "Ifmin_mA": 1.5, "Ifmax_mA": 8.0, "Fmin_N": 0.5,
