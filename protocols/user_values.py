@@ -95,3 +95,10 @@ def parse_seed(text: str, *, empty_is_random: bool = False) -> tuple[int | None,
         return None, (f"seed {value} is outside [0, {SEED_MAX}] (seeds are stored as 64-bit "
                       "integers; no seed means a random one, recorded)")
     return value, None
+
+
+def one_line(exc: BaseException | str) -> str:
+    """An error as one line for a log or a panel: its message with newlines shown as
+    `` | `` (never a traceback), or its type's name when it has no message."""
+    text = str(exc).strip() or (type(exc).__name__ if isinstance(exc, BaseException) else "")
+    return " | ".join(part.strip() for part in text.splitlines() if part.strip())

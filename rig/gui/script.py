@@ -35,9 +35,10 @@ from pathlib import Path
 
 from PySide6.QtCore import QObject, QTimer, Signal
 
-from nmsid.errors import InputFileMissing, UserError
+from nmsid.errors import InputFileMissing, NmsidError, UserError
 from nmsid.protocols.config import SEED_MAX
 from nmsid.protocols.settings_base import bounded, settings_dataclass, validate_settings
+from nmsid.protocols.user_values import one_line
 
 log = logging.getLogger(__name__)
 
@@ -304,6 +305,9 @@ class ScriptRunner(QObject):
         except Exception as exc:  # report, stop the script, leave the window usable
             if self.interrupted:  # the signal's own line says how the session ended
                 log.debug("GUI script stopped by an interrupted session: %s", exc)
+            elif isinstance(exc, (NmsidError, ValueError, OSError)):
+                # an operator's or a device's mistake: one line, no traceback
+                log.error("GUI script failed: %s", one_line(exc))
             else:
                 log.exception("GUI script failed")
             self._finish(False, f"GUI script failed: {exc}")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import enum
 import json
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,15 +19,18 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QFileDialog, QFormLayout, Q
                                QHBoxLayout, QLabel, QLineEdit, QPushButton, QVBoxLayout,
                                QWidget)
 
+from nmsid.errors import NmsidError
 from nmsid.protocols.config import config_from_json
 from nmsid.protocols.errors import OutputPathError
 from nmsid.protocols.output_paths import check_output as check_output_place
 from nmsid.protocols.output_paths import check_session_name
 from nmsid.protocols.session_file import PARTICIPANT_PATTERN, SessionWriter, read_session
 from nmsid.rig.errors import RequestError
+from nmsid.protocols.user_values import one_line, parse_seed
 from nmsid.rig.gui.theme import Colour
-from nmsid.protocols.user_values import parse_seed
 from nmsid.rig.session_log import journal_dir
+
+log = logging.getLogger(__name__)
 
 
 class Backend(enum.Enum):
@@ -341,5 +345,6 @@ class SetupPanel(QWidget):
         try:
             req = self.request(resume=resume)
             self._on_start(req)
-        except (ValueError, OSError) as exc:
-            self._show(str(exc), error=True)
+        except (NmsidError, ValueError, OSError) as exc:  # one line on the panel and log
+            log.error("start refused: %s", one_line(exc))
+            self._show(one_line(exc), error=True)
