@@ -135,7 +135,7 @@ TRIAL_FIELDS = st.fixed_dictionaries({}, optional={
 DATA_FIELDS = st.dictionaries(st.sampled_from(sorted(DATA)), EDGY, max_size=2)
 
 
-@settings(max_examples=80, deadline=None,
+@settings(max_examples=60, deadline=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(cal=CAL_FIELDS, trial=TRIAL_FIELDS, data=DATA_FIELDS)
 def test_the_writer_refuses_every_record_the_reader_refuses(tmp_path_factory, cal, trial, data):
@@ -155,3 +155,20 @@ def test_the_writer_refuses_every_record_the_reader_refuses(tmp_path_factory, ca
     assert writer_refuses == reader_refuses, (cal, trial, data)
     if not writer_refuses:  # what the writer wrote, the reader reads
         assert len(read_session(d / "nmsid.h5").trials) == 1
+
+
+def test_validate_calls_a_130_mA_file_valid_and_identify_analyses_it(tmp_path, capsys):
+    """Issue 29: every contract-valid file is analysed; the implausible is a warning."""
+    from nmsid.cli import main
+    from nmsid.testing.sessions import write_synthetic_session
+    path = tmp_path / "rehastim.h5"
+    write_synthetic_session(path, seed=5, sE_levels=(0.4, 0.7), repeats=2, steady_s=1.0,
+                            chirp_s=4.0)
+    with h5py.File(path, "a") as f:        # another stimulator's calibration (RehaStim2)
+        f["calibration"].attrs["Iemax_mA"] = 130.0
+    assert main(["validate", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "valid nmsid session file" in out and "1 warning(s)" in out
+    assert "warning: /calibration attribute Iemax_mA = 130 is above" in out
+    assert main(["identify", str(path), "--out", str(tmp_path / "out"), "--no-figures"]) == 0
+    assert (tmp_path / "out" / "parameters.csv").exists()
