@@ -320,8 +320,8 @@ def memory_child(release: bool) -> None:
     global SIM_LEVELS, SIM_STEADY_S, SIM_CHIRP_S
     SIM_LEVELS, SIM_STEADY_S, SIM_CHIRP_S = MEM_LEVELS, 5.0, 10.0
     import gc
-    import nmsid.rig.gui.main_window as main_window
-    import nmsid.rig.gui.results_panel as results_panel
+
+    from nmsid.rig.gui import main_window, results_panel
     if not release:  # the baseline: garbage collected, the C heap kept
         main_window.release_freed_memory = gc.collect
         results_panel.release_freed_memory = gc.collect
