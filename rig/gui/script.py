@@ -267,6 +267,9 @@ class ScriptRunner(QObject):
         self.pos = 0
         self.done = False
         self.ok: bool | None = None
+        self.exit_code = 0
+        """How ``nmsid gui --script`` ends (as the README's exit statuses): 0 done, 2 a
+        script or operator mistake, 3 a device fault, 4 a safety refusal, 1 a bug."""
         self.message = ""
         self.quit_requested = False
         #: set when the session was ended from outside (a signal): a step that fails
@@ -310,6 +313,8 @@ class ScriptRunner(QObject):
                 log.error("GUI script failed: %s", one_line(exc))
             else:
                 log.exception("GUI script failed")
+            self.exit_code = int(getattr(exc, "exit_code", 0)) or (
+                2 if isinstance(exc, (ValueError, OSError)) else 1)
             self._finish(False, f"GUI script failed: {exc}")
 
     def _finish(self, ok: bool, message: str) -> None:

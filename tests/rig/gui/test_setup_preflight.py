@@ -102,3 +102,25 @@ def test_freed_memory_is_given_back_through_the_platform_switch():
     if platform.libc_ver()[0] == "glibc":
         with forced("posix"):
             assert release_freed_memory() is True        # malloc_trim(0) asked
+
+
+@pytest.mark.parametrize("make_error, code, traceback", [
+    (lambda: ValueError("no aborted trial to re-run"), 2, False),
+    (lambda: __import__("nmsid.errors").errors.SafetyError("interlock latched"), 4, False),
+    (lambda: KeyError("a bug"), 1, True),
+])
+def test_a_failed_script_step_is_one_line_and_exits_as_the_readme_says(
+        fake_window, qtbot, caplog, monkeypatch, make_error, code, traceback):
+    from nmsid.rig.gui.script import ScriptRunner, parse_script
+
+    def fail(*a, **kw):
+        raise make_error()
+
+    monkeypatch.setattr(fake_window, "rerun", fail)
+    runner = ScriptRunner(fake_window, parse_script("rerun 1\n", "t"), parent=fake_window)
+    with caplog.at_level(logging.ERROR):
+        runner.start()
+        qtbot.waitUntil(lambda: runner.done, timeout=5000)
+    assert runner.ok is False and runner.exit_code == code
+    failed = [r for r in caplog.records if "GUI script failed" in r.getMessage()]
+    assert len(failed) == 1 and (failed[0].exc_info is not None) is traceback
