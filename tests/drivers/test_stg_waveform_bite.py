@@ -60,3 +60,43 @@ def test_prepare_download_refuses_a_rendering_over_the_ceiling_on_either_half(mo
                             lambda *a, _p=pos, _n=neg, **kw: _channel(_p, _n))
         with pytest.raises(CurrentLimitError):
             prepare_download(_waveform(), *PLANS, sync_out=1, output_rate_Hz=RATE)
+
+
+@pytest.mark.parametrize("rate, ok", [(999.0, False), (1000.0, True), (50_000.0, True),
+                                      (50_001.0, False), (30_000.0, False),
+                                      (40_000.0, True)])
+def test_output_rates_are_the_vendors_whole_microsecond_ones(rate, ok):
+    from nmsid.drivers.errors import StimulatorSettingError
+    from nmsid.drivers.stg_download import check_output_rate
+    if ok:
+        assert check_output_rate(rate) == rate
+    else:
+        with pytest.raises(StimulatorSettingError):
+            check_output_rate(rate)
+
+
+@pytest.mark.parametrize("rate", [30_000.0, 3e6])   # 33.3 us; 0.33 us rounds to 0
+def test_a_tick_that_is_not_a_whole_microsecond_is_refused(rate):
+    from nmsid.drivers.errors import StimulatorSettingError
+    from nmsid.drivers.stg_waveform import output_tick_us
+    with pytest.raises(StimulatorSettingError):
+        output_tick_us(rate)
+    assert output_tick_us(50_000.0) == 20 and output_tick_us(1000.0) == 1000
+
+
+def test_an_envelope_above_the_ceiling_is_refused_before_rendering(monkeypatch):
+    def never(*a, **kw):
+        raise AssertionError("rendered an envelope above the ceiling")
+
+    monkeypatch.setattr(stg_download, "render_channel", never)
+    small = (ChannelPlan(1, "extensor", 10.0, 2e6, RES), ChannelPlan(2, "flexor", 10.0, 2e6,
+                                                                     RES))  # a 2 mA range
+    with pytest.raises(CurrentLimitError, match="envelope peak"):
+        prepare_download(_waveform(mA=3.0), *small, sync_out=1, output_rate_Hz=RATE)
+
+
+def test_device_memory_is_estimated_per_point():
+    d = prepare_download(_waveform(), *PLANS, sync_out=1, output_rate_Hz=RATE)
+    assert d.channel_bytes() == {ch: r.n_points * stg_download.BYTES_PER_POINT
+                                 for ch, r in d.channels.items()}
+    assert all(v > 0 for v in d.channel_bytes().values())

@@ -67,3 +67,25 @@ def test_a_trip_stops_again_after_a_start_that_raced_it():
     start_done = stim.calls[0][1] + START_BLOCKS_S
     assert kinds[-1] == "stop" and stim.calls[-1][1] >= start_done - 0.01, kinds
     assert kinds.count("stop") >= 2
+
+
+def _chunk(force, **flags):
+    import numpy as np
+    from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
+    return ForceChunk(0, np.asarray(force, dtype=float), flags=AcquisitionFlags(**flags))
+
+
+def test_check_chunk_trips_on_force_and_on_each_flag_through_the_interlock():
+    from nmsid.rig.safety import Interlock
+    for chunk, rule in ((_chunk([1.0, 40.0]), "force_limit"),
+                        (_chunk([0.0], sensor_fault=True, detail="AD error"), "acq_flags"),
+                        (_chunk([0.0], over_range=True), "acq_flags"),
+                        (_chunk([0.0], overrun=True), "acq_flags")):
+        stim = BlockingStim()
+        lock = Interlock(InterlockConfig(), stim)
+        trip = lock.check_chunk(chunk, 0.0)
+        assert trip is not None and lock.latched, rule
+        assert trip.rule == lock.rules[trip.rule].name
+        assert any(k == "stop" for k, _ in stim.calls)
+    quiet = Interlock(InterlockConfig(), BlockingStim())
+    assert quiet.check_chunk(_chunk([1.0, -2.0]), 0.0) is None and not quiet.latched

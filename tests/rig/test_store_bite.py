@@ -11,7 +11,9 @@ opened for writing, whatever module does it.
 from __future__ import annotations
 
 import builtins
+import errno
 import os
+import stat
 
 import h5py
 import numpy as np
@@ -34,6 +36,7 @@ class DurabilitySpy:
         self.fsynced: set[tuple[int, int]] = set()
         self.arrived: dict[str, tuple[int, int]] = {}
         self.opened_for_write: list[str] = []
+        self.dir_synced_after: dict[tuple[int, int], int] = {}
         real_fsync, real_replace, real_rename = os.fsync, os.replace, os.rename
         real_link, real_open, real_os_open = os.link, builtins.open, os.open
 
@@ -41,7 +44,10 @@ class DurabilitySpy:
             return st.st_dev, st.st_ino
 
         def fsync(fd):
-            self.fsynced.add(ident(os.fstat(fd if isinstance(fd, int) else fd.fileno())))
+            st = os.fstat(fd if isinstance(fd, int) else fd.fileno())
+            self.fsynced.add(ident(st))
+            if stat.S_ISDIR(st.st_mode):  # a folder made durable: after which arrivals?
+                self.dir_synced_after[ident(st)] = len(self.arrived)
             return real_fsync(fd)
 
         def moved(real):
@@ -54,7 +60,9 @@ class DurabilitySpy:
                     before = {"": ident(os.stat(src))} if os.path.isfile(src) else {}
                 out = real(src, dst, *a, **kw)
                 for name, st in before.items():
-                    self.arrived[os.path.join(dst, name) if name else dst] = st
+                    key = os.path.join(dst, name) if name else dst
+                    self.arrived.pop(key, None)  # re-inserted: its order is this rename's
+                    self.arrived[key] = st
                 return out
             return move
 
@@ -76,11 +84,16 @@ class DurabilitySpy:
         monkeypatch.setattr(os, "open", os_open)
 
     def landed_durably(self, path) -> bool:
-        """``path`` arrived by a rename or link of a file that had been fsynced."""
+        """``path`` arrived by a rename or link of a file that had been fsynced, and its
+        folder was fsynced after that rename (so the new name survives a power cut)."""
         p = os.path.abspath(os.fspath(path))
         st = os.stat(p)
+        folder = os.stat(os.path.dirname(p))
+        order = list(self.arrived)
         return self.arrived.get(p) == (st.st_dev, st.st_ino) and \
-            (st.st_dev, st.st_ino) in self.fsynced
+            (st.st_dev, st.st_ino) in self.fsynced and \
+            self.dir_synced_after.get((folder.st_dev, folder.st_ino), -1) > \
+            max(i for i, k in enumerate(order) if k == p)
 
 
 def _trial(i, n=400):
@@ -153,3 +166,45 @@ def test_recovery_compares_the_files_samples_with_the_journals(tmp_path):
     assert rep.action != "none"       # a difference is never called "nothing to recover"
     s = read_session(path)
     assert np.array_equal(s.trials[0].force_N, trials[0].force_N)  # the journal's samples
+
+
+@pytest.mark.parametrize("fault, raised", [(OSError(errno.ENOSPC, "No space left"), "disk"),
+                                           (KeyboardInterrupt(), "interrupt")])
+def test_a_failed_publish_leaves_the_file_and_no_temp(tmp_path, monkeypatch, fault, raised):
+    from nmsid.protocols.errors import DiskFullError
+    path = tmp_path / "P01.h5"
+    w = SessionWriter.create(path, participant="P01")
+    before = path.read_bytes()
+
+    def fail(fd):
+        raise fault
+
+    monkeypatch.setattr(os, "fsync", fail)
+    with pytest.raises(DiskFullError if raised == "disk" else KeyboardInterrupt):
+        w.write_calibration(Calibration(1, 9, 1.5, 10))
+    monkeypatch.undo()
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["P01.h5"]
+
+
+@pytest.mark.parametrize("fault, raised", [(OSError(errno.ENOSPC, "No space left"), "disk"),
+                                           (KeyboardInterrupt(), "interrupt")])
+def test_a_failed_journal_entry_leaves_no_temp(tmp_path, monkeypatch, fault, raised):
+    from nmsid.protocols.errors import DiskFullError
+    path = tmp_path / "P01.h5"
+    log = _log(path)
+    jdir = journal_dir(path)
+    before = sorted(p.name for p in jdir.iterdir())
+
+    def fail(fd):
+        raise fault
+
+    monkeypatch.setattr(os, "fsync", fail)
+    with pytest.raises(DiskFullError if raised == "disk" else KeyboardInterrupt):
+        log.end_trial(_trial(0))
+    monkeypatch.undo()
+    after = sorted(p.name for p in jdir.iterdir())
+    assert not [n for n in after if n.endswith(".tmp")], after
+    assert [n for n in after if n.startswith("trial-")] == \
+        [n for n in before if n.startswith("trial-")]
+    log.close()
