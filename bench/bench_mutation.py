@@ -60,7 +60,7 @@ MODULES: dict[str, list[str]] = {
                                      "tests/rig/test_store_bite.py"],
     "rig/journal.py": ["tests/rig/test_session_log.py", "tests/rig/test_store_bite.py"],
     "rig/recovery.py": ["tests/rig/test_session_log.py", "tests/rig/test_session_store.py",
-                        "tests/rig/test_store_bite.py"],
+                        "tests/rig/test_store_bite.py", "tests/rig/test_recovery_bite.py"],
 }
 
 #: The named survivors of issue 29: (module, function, kind, text the mutated line holds).

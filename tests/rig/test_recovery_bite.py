@@ -1,0 +1,68 @@
+"""Tests that bite (issue 29, 5) for recovery: what it says it did (a damaged file kept
+aside, named in its summary), and what killed writers left beside a session is cleaned
+by the next recovery. Behaviour only: files on disk and the report's words."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from nmsid.protocols.session_file import Calibration, Trial, read_session
+from nmsid.rig.session_log import SessionLog, journal_dir, recover
+
+
+def _trial(i, n=300):
+    rng = np.random.default_rng(i)
+    return Trial(sE=0.3 + 0.05 * i, repeat=1, fs_Hz=2000.0, rE=rng.random(n),
+                 I_ext_mA=rng.random(n), I_flex_mA=rng.random(n), force_N=rng.normal(size=n),
+                 started_utc="2026-11-22T01:00:00Z", extra_attrs={"schedule_index": i})
+
+
+def _killed_session(tmp_path, n_trials=2):
+    path = tmp_path / "P01.h5"
+    log = SessionLog.create(path, participant="P01", config_json="{}", seed=3,
+                            backend="test", schedule_json="[]")
+    log.write_calibration(Calibration(1, 9, 1.5, 10))
+    for i in range(n_trials):
+        log.end_trial(_trial(i))
+    log.close()                       # a kill: the journal stays
+    return path
+
+
+def test_the_summary_names_the_damaged_file_kept_aside(tmp_path):
+    path = _killed_session(tmp_path)
+    with open(path, "r+b") as fh:     # scribble over the superblock
+        fh.write(b"\0" * 64)
+    rep = recover(path)
+    assert rep.action == "rebuilt" and rep.damaged_kept_at
+    assert os.path.exists(rep.damaged_kept_at)
+    assert f"the damaged file was kept as {rep.damaged_kept_at}" in rep.summary()
+    assert "rebuilt from the journal; 2 trials in the file" in rep.summary()
+    assert len(read_session(path).trials) == 2
+
+
+def test_a_complete_file_is_said_to_be_complete(tmp_path):
+    path = _killed_session(tmp_path)
+    rep = recover(path)
+    assert rep.action == "none"
+    assert rep.summary() == f"{path}: complete (2 trials); nothing to recover"
+    assert "kept as" not in rep.summary() and "kept as aborted" not in rep.summary()
+
+
+def test_recovery_removes_what_killed_writers_left(tmp_path):
+    path = _killed_session(tmp_path)
+    jdir = journal_dir(path)
+    left = [path.with_name(path.name + ".writing-4242"),
+            path.with_name(path.name + ".recovering-4243"),
+            jdir.with_name(jdir.name + ".done-4244"), jdir.with_name(jdir.name + ".tmp-4245"),
+            jdir / "trial-0009.npz.tmp"]
+    for p in left[:2] + left[4:]:
+        p.write_bytes(b"half")
+    for p in left[2:4]:
+        p.mkdir()
+        (p / "x").write_bytes(b"x")
+    rep = recover(path)
+    assert not any(os.path.lexists(p) for p in left), [p.name for p in left if p.exists()]
+    assert rep.leftovers_removed == len(left)
+    assert len(read_session(path).trials) == 2
