@@ -7,7 +7,6 @@ from __future__ import annotations
 import os
 
 import numpy as np
-
 from nmsid.protocols.session_file import Calibration, Trial, read_session
 from nmsid.rig.session_log import SessionLog, journal_dir, recover
 
