@@ -57,8 +57,10 @@ MODULES: dict[str, list[str]] = {
     "drivers/stg_download.py": ["tests/drivers/test_stg_charge_balance.py",
                                 "tests/drivers/test_stg_waveform_bite.py"],
     "protocols/session_publish.py": ["tests/rig/test_session_store.py",
-                                     "tests/rig/test_store_bite.py"],
-    "rig/journal.py": ["tests/rig/test_session_log.py", "tests/rig/test_store_bite.py"],
+                                     "tests/rig/test_store_bite.py",
+                                     "tests/rig/test_recovery_bite.py"],
+    "rig/journal.py": ["tests/rig/test_session_log.py", "tests/rig/test_store_bite.py",
+                       "tests/rig/test_recovery_bite.py"],
     "rig/recovery.py": ["tests/rig/test_session_log.py", "tests/rig/test_session_store.py",
                         "tests/rig/test_store_bite.py", "tests/rig/test_recovery_bite.py"],
 }

@@ -65,3 +65,27 @@ def test_recovery_removes_what_killed_writers_left(tmp_path):
     assert not any(os.path.lexists(p) for p in left), [p.name for p in left if p.exists()]
     assert rep.leftovers_removed == len(left)
     assert len(read_session(path).trials) == 2
+
+
+def test_trial_digest_tells_trials_apart_sample_for_sample():
+    from nmsid.rig.journal import trial_digest
+    a, b = _trial(0), _trial(0)
+    assert trial_digest(a) == trial_digest(b) != 0
+    b.force_N = b.force_N.copy()
+    b.force_N[7] += 1e-9
+    assert trial_digest(a) != trial_digest(b)
+    for k in ("rE", "I_ext_mA", "I_flex_mA"):
+        c = _trial(0)
+        setattr(c, k, getattr(c, k)[::-1].copy())
+        assert trial_digest(c) != trial_digest(a), k
+
+
+def test_stale_temps_are_found_for_a_path_given_as_text(tmp_path):
+    from nmsid.protocols.session_publish import stale_temps
+    path = tmp_path / "P01.h5"
+    path.write_bytes(b"")
+    for name in ("P01.h5.writing-12", "P01.h5.recovering-13", "P01.h5.writing-x",
+                 "P02.h5.writing-14"):
+        (tmp_path / name).write_bytes(b"")
+    found = sorted(p.name for p in stale_temps(str(path)))
+    assert found == ["P01.h5.recovering-13", "P01.h5.writing-12"]

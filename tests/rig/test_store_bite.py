@@ -176,8 +176,13 @@ def test_a_failed_publish_leaves_the_file_and_no_temp(tmp_path, monkeypatch, fau
     w = SessionWriter.create(path, participant="P01")
     before = path.read_bytes()
 
-    def fail(fd):
-        raise fault
+    real_fsync, calls = os.fsync, []
+
+    def fail(fd):  # the first fsync fails (the file's data); the rest work
+        calls.append(fd)
+        if len(calls) == 1:
+            raise fault
+        return real_fsync(fd)
 
     monkeypatch.setattr(os, "fsync", fail)
     with pytest.raises(DiskFullError if raised == "disk" else KeyboardInterrupt):
@@ -196,8 +201,13 @@ def test_a_failed_journal_entry_leaves_no_temp(tmp_path, monkeypatch, fault, rai
     jdir = journal_dir(path)
     before = sorted(p.name for p in jdir.iterdir())
 
-    def fail(fd):
-        raise fault
+    real_fsync, calls = os.fsync, []
+
+    def fail(fd):  # the first fsync fails (the file's data); the rest work
+        calls.append(fd)
+        if len(calls) == 1:
+            raise fault
+        return real_fsync(fd)
 
     monkeypatch.setattr(os, "fsync", fail)
     with pytest.raises(DiskFullError if raised == "disk" else KeyboardInterrupt):
