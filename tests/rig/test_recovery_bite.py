@@ -89,3 +89,29 @@ def test_stale_temps_are_found_for_a_path_given_as_text(tmp_path):
         (tmp_path / name).write_bytes(b"")
     found = sorted(p.name for p in stale_temps(str(path)))
     assert found == ["P01.h5.recovering-13", "P01.h5.writing-12"]
+
+
+def test_a_trial_in_progress_whose_stream_is_gone_is_kept_as_aborted_and_empty(tmp_path):
+    path = tmp_path / "P01.h5"
+    log = SessionLog.create(path, participant="P01", config_json="{}", seed=3,
+                            backend="test", schedule_json="[]")
+    log.write_calibration(Calibration(1, 9, 1.5, 10))
+    log.end_trial(_trial(0))
+    log.begin_trial(_trial(1))
+    log.close()                                       # a kill during trial 2
+    (journal_dir(path) / "partial.f64").unlink()       # its stream lost, its metadata kept
+    rep = recover(path)
+    s = read_session(path)
+    assert len(s.trials) == 2 and s.trials[1].status == "aborted"
+    assert s.trials[1].n_samples == 0 and rep.partial_recovered
+    assert "the trial in progress was kept as aborted (0 samples)" in rep.summary()
+
+
+def test_the_report_keeps_what_was_wrong_before_recovery(tmp_path):
+    from nmsid.protocols.session_file import validate_session
+    path = _killed_session(tmp_path)
+    with open(path, "r+b") as fh:
+        fh.write(b"\0" * 64)
+    before = validate_session(path)
+    rep = recover(path)
+    assert before and rep.problems_before == before
