@@ -3,12 +3,15 @@
 Three kinds of bad input, each run as a real ``python -m rig.cli`` subprocess (two at a
 time), with a 15 s wall limit and a 4 GB address-space limit per process:
 
-* command-line arguments (non-finite, negative, huge, garbage, dangling/occupied paths);
+* command-line arguments (non-finite, negative, huge, garbage, dangling/occupied paths;
+  issue 26's plain mistakes: empty paths, folders, FIFOs, names that are not UTF-8 or too
+  long for the journal, negative or huge seeds, ``probe --samples 1e9``, an age that is not
+  ISO 8601, an empty experimenter, an input rE of 1e308);
 * protocol and hardware TOML configurations (wrong types, unknown keys, out-of-range
   values, huge counts), given to ``nmsid run`` (``--backend sim`` / ``--backend hw`` with
   the fakes) before any stimulation would start;
-* mutated session files (truncated, bit flips, string ``fs_Hz``, repeat 1.5, Iemax 100 mA,
-  sE = 5, NaN/1e300 force, an external link, terminal escapes in the participant) given
+* mutated session files (truncated, bit flips, string ``fs_Hz``, repeat 1.5, Iemax below Iemin,
+  sE = 0, NaN/1e300 force, an external link, terminal escapes in the participant) given
   to ``nmsid qc`` and ``nmsid validate``.
 
 Expected: exit 2 and exactly one line on stderr (``validate``: a non-zero exit, i.e. the
@@ -113,6 +116,31 @@ def cli_corpus(d: Path, twin: Path, good: Path) -> list[list[str]]:
              ["run", "--out", str(good)],
              ["export", "nwb", str(good), "--out", str(good), "--force"],
              ["recover", str(d / "missing.h5")]]
+    # issue 26: plain mistakes, each one line and exit 2 before anything is read
+    big_rE = d / "rE-1e308.csv"
+    big_rE.write_text("rE,sE\n0.5,0.5\n1e308,0.5\n-1e308,0.5\n", encoding="utf-8")
+    long_name = str(d / ("a" * 230 + ".h5"))
+    args += [["validate", ""], ["validate", "."], ["recover", "."], ["recover", "/"],
+             ["run", "--backend", "sim", "--resume", "."],
+             ["run", "--backend", "sim", "--out", long_name],
+             ["recover", long_name],
+             ["design", "--population", "--seed", "-5", "--out", str(d / "d")],
+             ["gui", "--seed", "-1"], ["gui", "--seed", str(2 ** 63)],
+             ["probe", "--hw-config", str(d / "hw.toml"), "--samples", "1000000000"],
+             ["export", "nwb", str(good), "--out", str(d / "x.nwb"), "--subject-age",
+              "notaduration"],
+             ["export", "nwb", str(good), "--out", str(d / "x.nwb"), "--experimenter", ""],
+             ["twin", "simulate", str(twin), "--input", str(big_rE), "--out", out]]
+    if hasattr(os, "mkfifo"):  # a FIFO: refused before any read (reading one waits)
+        fifo = d / "fifo"
+        os.mkfifo(fifo)
+        args += [[cmd, str(fifo)] for cmd in ("validate", "recover", "qc")]
+    if sys.platform != "win32":  # a file name whose bytes are not UTF-8
+        raw = os.fsdecode(os.fsencode(str(d)) + b"/\xff\xfe.h5")
+        shutil.copy(good, os.fsencode(raw))
+        args += [["identify", raw, "--out", str(d / "o")], ["gap", raw, "--out", str(d / "g")],
+                 ["export", "nwb", raw, "--out", str(d / "x.nwb")], ["validate", raw],
+                 ["run", "--backend", "sim", "--out", raw]]
     return args
 
 
@@ -203,8 +231,10 @@ def _mutations(good: Path, d: Path) -> dict[str, Path]:
     edits = {
         "fs_string": lambda f: trial0(f).attrs.__setitem__("fs_Hz", "2000"),
         "repeat_1.5": lambda f: trial0(f).attrs.__setitem__("repeat", 1.5),
-        "Iemax_100": lambda f: f["calibration"].attrs.__setitem__("Iemax_mA", 100.0),
-        "sE_5": lambda f: trial0(f).attrs.__setitem__("sE", 5.0),
+        # (a current of 100 mA or an sE of 5 is allowed by the contract since issue 29: a
+        # warning, not a refusal; these break what the contract sets)
+        "Iemax_below_Iemin": lambda f: f["calibration"].attrs.__setitem__("Iemax_mA", 0.5),
+        "sE_0": lambda f: trial0(f).attrs.__setitem__("sE", 0.0),
         "force_nan": lambda f: trial0(f)["force_N"].__setitem__(Ellipsis, np.nan),
         "force_1e300": lambda f: trial0(f)["force_N"].__setitem__(
             Ellipsis, trial0(f)["force_N"][...] * 1e300),
@@ -240,7 +270,8 @@ def main() -> None:
                         '"zeta": {"model": "constant", "coefficients": [0.7]}}}')
         jobs: list[tuple[str, str, list[str]]] = []
         for argv in cli_corpus(d, twin, good):
-            jobs.append(("args", " ".join(argv[:1] + argv[-2:]), argv))
+            label = " ".join(argv[:1] + argv[-2:]).encode("utf-8", "backslashreplace")
+            jobs.append(("args", label.decode("utf-8"), argv))
         for label, argv in config_corpus(d):
             jobs.append(("configs", label, argv))
         for name, p in _mutations(good, d).items():

@@ -11,7 +11,14 @@ Scenarios (each prints one row):
   the wall time the sample clock predicts from the trial's first chunk.
 * ``sim session headless``: the same session without any GUI (baseline for the two above).
 
-Goals (issue 5): >= 30 frames per second; no chunk delayed by more than 50 ms.
+* ``eight sessions, one window``: eight sessions (``MEM_LEVELS`` x 15 s trials, fast clock)
+  run one after the other in one window, with the identification and the model selection
+  of each; the process's resident memory after the 8th against after the 1st. Baseline,
+  in a second fresh process: the same without giving the C heap's freed pages back after
+  each session (:mod:`nmsid.rig.gui.memory`), i.e. the window before issue 26.
+
+Goals (issue 5): >= 30 frames per second; no chunk delayed by more than 50 ms. Issue 26:
+memory after eight sessions within 1.5x of after the first.
 """
 
 from __future__ import annotations
@@ -33,6 +40,9 @@ SYNTH_S = 10.0
 SIM_LEVELS = (0.5, 0.8)
 SIM_STEADY_S = 1.0
 SIM_CHIRP_S = 5.0
+MEM_SESSIONS = 8
+MEM_LEVELS = (0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
+"""One repeat each, 5 s lead-in + 10 s chirp (the paper's trial): 8 trials per session."""
 
 
 class Row(NamedTuple):
@@ -292,6 +302,76 @@ def bench_sim_headless() -> Row | None:
                float(late.max()), cpu, int(np.sum(late > 50)))
 
 
+def _rss_MB() -> float:
+    """Resident memory of this process, MB (Linux /proc; else the peak, from resource)."""
+    try:
+        with open("/proc/self/status", encoding="utf-8") as fh:
+            for line in fh:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    import resource
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def memory_child(release: bool) -> None:
+    """Eight sessions in one window; print the RSS after each (run in a fresh process)."""
+    global SIM_LEVELS, SIM_STEADY_S, SIM_CHIRP_S
+    SIM_LEVELS, SIM_STEADY_S, SIM_CHIRP_S = MEM_LEVELS, 5.0, 10.0
+    import gc
+
+    from nmsid.rig.gui import main_window, results_panel
+    if not release:  # the baseline: garbage collected, the C heap kept
+        main_window.release_freed_memory = gc.collect
+        results_panel.release_freed_memory = gc.collect
+    app = _app()
+    w = main_window.MainWindow(config_transform=_short_config, auto_tabs=False)
+    w.resize(1560, 980)
+    w.show()
+    folder = Path(tempfile.mkdtemp())
+    for i in range(MEM_SESSIONS):
+        t0 = time.perf_counter()
+        w.start_session(participant=f"MEM{i}", output=folder / f"MEM{i}.h5", backend="sim",
+                        realtime=False, seed=i)
+        _spin(app, 300.0, until=lambda: (w.run_result is not None or w.run_error is not None)
+              and not w.results.busy)
+        _spin(app, 0.3)
+        print(f"session {i + 1} {_rss_MB():.1f} {time.perf_counter() - t0:.1f} "
+              f"{w.run_error is None}", flush=True)
+    w.close()
+
+
+def bench_memory() -> None:
+    import subprocess
+    import sys
+    runs = {}
+    for label, arg in (("released after each session", "release"),
+                       ("baseline: C heap kept", "keep")):
+        p = subprocess.run([sys.executable, __file__, "--memory-child", arg],
+                           capture_output=True, text=True, timeout=1800, check=False,
+                           env=dict(os.environ, QT_QPA_PLATFORM="offscreen"))
+        rows = [ln.split() for ln in p.stdout.splitlines() if ln.startswith("session ")]
+        if len(rows) != MEM_SESSIONS or not all(r[4] == "True" for r in rows):
+            print(f"eight sessions ({label}): did not complete (exit {p.returncode}): "
+                  f"{(p.stderr.strip().splitlines() or [''])[-1][:120]}")
+            continue
+        runs[label] = [float(r[2]) for r in rows], [float(r[3]) for r in rows]
+    if not runs:
+        return
+    print(f"eight sessions in one window ({len(MEM_LEVELS)} trials x 15 s each, fast "
+          "clock, identification and model selection of each): resident memory, MB")
+    print(f"{'':30s}" + "".join(f"{k:>7d}" for k in range(1, MEM_SESSIONS + 1))
+          + f"{'8th/1st':>9s}")
+    for label, (mb, _) in runs.items():
+        print(f"{label:30s}" + "".join(f"{m:7.0f}" for m in mb) + f"{mb[-1] / mb[0]:9.2f}")
+    mb = runs.get("released after each session", ([0.0], []))[0]
+    if len(mb) == MEM_SESSIONS:
+        ok = mb[-1] / mb[0] <= 1.5
+        print(f"goal (issue 26) memory after the 8th session <= 1.5x after the 1st: "
+              f"{'met' if ok else 'missed'} ({mb[-1] / mb[0]:.2f}x)")
+
+
 def main() -> None:
     import logging
     logging.basicConfig(level=logging.WARNING)
@@ -324,7 +404,14 @@ def main() -> None:
     ok_late = all(r.late_ms_max <= 50 for r in gui_rows)
     print(f"goal >= 30 fps: {'met' if ok_fps else 'NOT met'}; goal no chunk delayed > "
           f"50 ms: {'met' if ok_late else 'NOT met'}")
+    bench_memory()
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+    if sys.argv[1:2] == ["--memory-child"]:
+        memory_child(sys.argv[2] == "release")
+    elif sys.argv[1:2] == ["--memory"]:
+        bench_memory()
+    else:
+        main()

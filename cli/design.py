@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 
+from nmsid.cli.arguments import seed
+
 
 def _scatter(text: str) -> dict:
     out = {}
@@ -76,5 +78,6 @@ def register(sub) -> None:
     p.add_argument("--tolerance", type=float, default=0.02, metavar="F",
                    help="'no worse' allows standard errors this fraction above the paper's "
                         "(default 0.02)")
-    p.add_argument("--seed", type=int, default=0, help="population and Monte-Carlo seed")
+    p.add_argument("--seed", type=seed, default=0,
+                   help="population and Monte-Carlo seed, 0 ... 2**63-1 (default 0)")
     p.set_defaults(handler="nmsid.cli.design_command:run")

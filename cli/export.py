@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from nmsid.cli.arguments import input_file, iso_age, non_empty_text, output_path
+
 
 def register(sub) -> None:
     """Add the ``export`` sub-command."""
@@ -12,14 +14,15 @@ def register(sub) -> None:
                        description="Write one session as NWB: subject, devices, stimulus "
                                    "and acquisition series per trial, trials table, events, "
                                    "calibration and configuration. See README 'Sharing'.")
-    n.add_argument("session", metavar="SESSION.h5")
-    n.add_argument("--out", required=True, metavar="SESSION.nwb")
+    n.add_argument("session", metavar="SESSION.h5", type=input_file)
+    n.add_argument("--out", required=True, metavar="SESSION.nwb", type=output_path)
     n.add_argument("--force", action="store_true",
                    help="replace an existing --out file (never a session file)")
-    n.add_argument("--subject-age", default="P18Y/", metavar="ISO8601",
+    n.add_argument("--subject-age", default="P18Y/", metavar="ISO8601", type=iso_age,
                    help="participant age as an ISO 8601 duration or range (default P18Y/: "
                         "adult, exact age unknown; nmsid does not record age)")
     n.add_argument("--experimenter", action="append", default=None, metavar="NAME",
+                   type=non_empty_text,
                    help="experimenter (repeatable; 'Last, First')")
     n.add_argument("--institution", default=None)
     n.add_argument("--inspect", action="store_true",

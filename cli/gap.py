@@ -8,6 +8,8 @@ Registration only (argparse); the handler is in :mod:`nmsid.cli.gap_command`.
 
 from __future__ import annotations
 
+from nmsid.cli.arguments import folder_to_write, input_file
+
 
 def register(sub) -> None:
     """Add the ``gap`` sub-command."""
@@ -21,16 +23,17 @@ def register(sub) -> None:
                     "effective number of samples, localise the gap, and write "
                     "gap_report.json, report.html with figures, and the augmented twin.json. "
                     "See docs/gap.md.")
-    p.add_argument("sessions", nargs="+", metavar="SESSION.h5", help="session file(s)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("sessions", nargs="+", metavar="SESSION.h5", type=input_file, help="session file(s)")
+    p.add_argument("--out", required=True, metavar="DIR", type=folder_to_write,
+                   help="output folder")
     p.add_argument("--force", action="store_true",
                    help="replace an existing --out folder (atomically; never one holding "
                         "a session file)")
     src = p.add_mutually_exclusive_group()
-    src.add_argument("--twin", metavar="TWIN.json",
+    src.add_argument("--twin", metavar="TWIN.json", type=input_file,
                      help="simulation under test: this twin file instead of the nominal "
                           "twin fitted on the training trials (used for the 'where' part)")
-    src.add_argument("--sim-session", metavar="SIM.h5",
+    src.add_argument("--sim-session", metavar="SIM.h5", type=input_file,
                      help="simulation under test: a simulated session (trials matched by "
                           "sE and repeat)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from nmsid.cli.arguments import input_file, output_path, seed
 from nmsid.rig.qt_platform import check_xcb
 
 
@@ -13,17 +14,17 @@ def register(sub) -> None:
         "big E-STOP (docs/gui.md)")
     p.add_argument("--backend", choices=("sim", "hw"), default="sim",
                    help="simulated rig (default) or the hardware chain")
-    p.add_argument("--config", metavar="FILE", help="protocol configuration (TOML); "
+    p.add_argument("--config", metavar="FILE", type=input_file, help="protocol configuration (TOML); "
                    "default: built-in (15 sE x 3 repeats)")
-    p.add_argument("--hw-config", metavar="FILE", help="hardware chain configuration "
+    p.add_argument("--hw-config", metavar="FILE", type=input_file, help="hardware chain configuration "
                    "(with --backend hw)")
     p.add_argument("--participant", metavar="P", help="participant code "
                    "([A-Za-z0-9_-]{1,64})")
-    p.add_argument("--out", metavar="FILE", help="session file to write (never "
+    p.add_argument("--out", metavar="FILE", type=output_path, help="session file to write (never "
                    "overwritten; an unfinished one is offered for resume); default "
                    "sessions/<participant>-<UTC time>.h5")
-    p.add_argument("--seed", type=int, metavar="N", help="schedule randomisation seed "
-                   "(default: drawn and recorded)")
+    p.add_argument("--seed", type=seed, metavar="N", help="schedule randomisation seed, "
+                   "0 ... 2**63-1 as in `nmsid run` (default: drawn and recorded)")
     p.add_argument("--fast", action="store_true", help="run the simulator as fast as "
                    "possible instead of in real time")
     p.add_argument("--script", metavar="SCRIPT", help="drive the window from a script "

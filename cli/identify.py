@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import argparse
 
+from nmsid.cli.arguments import folder_to_write, input_file, output_path
+
 
 def _float_or_none(text: str):
     if text.lower() in ("none", "off", "no"):
@@ -39,8 +41,9 @@ def register(sub) -> None:
                     "for every sE level of each session, select linear / quadratic / "
                     "exponential curves of each parameter by AICc, write the twin. Several "
                     "sessions give the group analysis. See docs/identification.md.")
-    p.add_argument("sessions", nargs="+", metavar="SESSION.h5", help="session file(s)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("sessions", nargs="+", metavar="SESSION.h5", type=input_file, help="session file(s)")
+    p.add_argument("--out", required=True, metavar="DIR", type=folder_to_write,
+                   help="output folder")
     p.add_argument("--force", action="store_true",
                    help="replace an existing --out folder (atomically; never one holding "
                         "a session file)")
@@ -77,7 +80,7 @@ def register(sub) -> None:
         "simulate", help="predict force for an rE(t) and sE",
         description="Predict the force of the twin for an input rE(t) at a constant sE "
                     "(--sE) or a per-sample sE (an 'sE' column of --input).")
-    sim.add_argument("twin", metavar="TWIN.json")
+    sim.add_argument("twin", metavar="TWIN.json", type=input_file)
     src = sim.add_mutually_exclusive_group(required=True)
     src.add_argument("--rE-chirp", action="store_true",
                      help="the paper's input: steady rE = 0.5, then a 0.5 + 0.5 sin chirp")
@@ -96,7 +99,7 @@ def register(sub) -> None:
                      help="simulate the parameter curves alone when the twin lists effects "
                           "(by default its effects are simulated as its FMU steps them; an "
                           "effect that cannot be, such as baseline_drift, is refused)")
-    sim.add_argument("--out", required=True, metavar="CSV")
+    sim.add_argument("--out", required=True, metavar="CSV", type=output_path)
     sim.add_argument("--force", action="store_true",
                      help="replace an existing --out file (never a session file)")
     sim.set_defaults(handler="nmsid.cli.identify_command:run_twin_simulate")
@@ -106,10 +109,10 @@ def register(sub) -> None:
                     "model exchange): C sources plus a binary for this platform built with "
                     "the system's C compiler (cc, gcc or clang; on Windows cl or MinGW gcc; "
                     "or $CC). See docs/fmu.md.")
-    exp.add_argument("twin", metavar="TWIN.json")
+    exp.add_argument("twin", metavar="TWIN.json", type=input_file)
     exp.add_argument("--fmu", action="store_true", required=True,
                      help="the format to write (FMI 2.0 FMU; the only one today)")
-    exp.add_argument("--out", required=True, metavar="P01.fmu")
+    exp.add_argument("--out", required=True, metavar="P01.fmu", type=output_path)
     exp.add_argument("--force", action="store_true", help="replace an existing --out")
     exp.add_argument("--extrapolate", action="store_true",
                      help="start value of the FMU's extrapolate parameter: evaluate the "

@@ -145,6 +145,19 @@ def _check_simulate_options(args) -> None:
                 "--fs-Hz)")
 
 
+def _check_input_columns(path, rE: np.ndarray, sE: np.ndarray) -> None:
+    """Refuse, in one line naming the row, an rE outside [0, 1] (a ratio, the paper's
+    Eq. 3) or an sE that is not finite and > 0, before any force is simulated."""
+    for name, values, ok, valid in (
+            ("rE", rE, lambda v: np.isfinite(v) & (v >= 0.0) & (v <= 1.0), "in [0, 1]"),
+            ("sE", sE, lambda v: np.isfinite(v) & (v > 0.0), "finite and > 0")):
+        bad = np.flatnonzero(~ok(np.asarray(values, dtype=float)))
+        if bad.size:
+            raise InputFileError(f"{path}: column {name!r} row {int(bad[0]) + 2} is "
+                                 f"{float(values[bad[0]])!r} ({bad.size} bad row(s)); valid: "
+                                 f"{valid}")
+
+
 def _check_effects(twin, args) -> None:
     """A twin's effects are simulated with the FMU's own definition of them
     (:class:`nmsid.export.fmu.reference.TwinStepper`, one definition for both); an effect
@@ -213,6 +226,7 @@ def run_twin_simulate(args) -> int:
         sE = np.full(len(rE), args.sE)
     if sE is None:
         raise UsageError("give --sE, or an 'sE' column in the --input CSV")
+    _check_input_columns(args.input, rE, sE)
     force = _simulate(twin, rE, sE, fs, args)
     with output_file(args.out, force=args.force) as tmp:
         with open(tmp, "w", encoding="utf-8") as fh:

@@ -13,6 +13,8 @@ Registration only (argparse); the handler is in :mod:`nmsid.cli.probe_command`.
 
 from __future__ import annotations
 
+from nmsid.cli.arguments import bounded_int
+
 
 def register(sub) -> None:
     p = sub.add_parser("probe", help="list and check the configured hardware (no stimulation)",
@@ -21,8 +23,9 @@ def register(sub) -> None:
                        "Nothing is stimulated.")
     p.add_argument("--hw-config", metavar="FILE", required=True,
                    help="the rig's hardware configuration (TOML)")
-    p.add_argument("--samples", type=int, default=20, metavar="N",
-                   help="force samples to read (default 20)")
+    p.add_argument("--samples", type=bounded_int(1, 10_000, " (the probe reads for at most "
+                                                    "5 s)"), default=20, metavar="N",
+                   help="force samples to read, 1 ... 10000 (default 20)")
     p.add_argument("--dry-run", action="store_true",
                    help="also run one short low-current trial into a dummy-load resistor "
                    "and check the recorded current against the command (docs/hardware.md)")

@@ -14,12 +14,17 @@ from __future__ import annotations
 import numpy as np
 
 from nmsid.cli.errors import UsageError
+from nmsid.drivers.dry_run import DryRunSettings
 from nmsid.drivers.hardware import (build_devices, load_acquisition_library, make_acquisition,
                                     make_estop, make_stimulator, prepare, with_monitor)
 from nmsid.drivers.hardware import load_stimulator_library
 from nmsid.drivers.hw_config import load_hw_config
 from nmsid.drivers.interfaces import Describable, ReportsSensorInfo
 from nmsid.rig.dry_run import dry_run_probe
+
+MAX_PROBE_SAMPLES = 10_000
+"""Most force samples ``--samples`` may ask for: the probe reads for at most 5 s (100
+reads of 50 ms), 10000 samples at the paper's 2 kHz."""
 
 
 def _one_line(exc: BaseException) -> str:
@@ -28,8 +33,9 @@ def _one_line(exc: BaseException) -> str:
 
 
 def probe(args) -> int:
-    if args.samples < 1:
-        raise UsageError(f"--samples must be >= 1, got {args.samples}")
+    if not 1 <= args.samples <= MAX_PROBE_SAMPLES:
+        raise UsageError(f"--samples {args.samples} is outside [1, {MAX_PROBE_SAMPLES}] (the "
+                         "probe reads for at most 5 s: 10000 samples at 2 kHz)")
     cfg = load_hw_config(args.hw_config)
     if getattr(args, "check_assembly", False):
         from nmsid.drivers.mcs_surface import assembly_report  # noqa: PLC0415
@@ -41,6 +47,10 @@ def probe(args) -> int:
         print("\n".join(lines))
         return status
     dry_cfg = with_monitor(cfg) if getattr(args, "dry_run", False) else None
+    if dry_cfg is not None:  # the dry run's flags, before any device is probed
+        DryRunSettings(load_ohm=args.load_ohm, channel=args.dry_run_channel,
+                       amplitude_mA=args.dry_run_mA,
+                       monitor_fs_Hz=dry_cfg.acquisition.monitor_fs_Hz)
     cfg, stack, clock = prepare(cfg)
     print(f"hardware configuration {cfg.source}: {cfg.describe()}")
     failed: list[str] = []

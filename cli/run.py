@@ -13,6 +13,12 @@ from __future__ import annotations
 
 import argparse
 
+from nmsid.cli.arguments import (
+    folder_to_write,
+    input_file,
+    output_path,
+    session_to_continue,
+)
 
 #: Seeds are stored as 64-bit signed integers in the session file.
 SEED_MAX = 2 ** 63 - 1
@@ -41,22 +47,24 @@ def register(sub) -> None:
                    help="sim: the simulated rig; hw: the hardware in --hw-config")
     p.add_argument("--participant", metavar="CODE",
                    help="participant code [A-Za-z0-9_-]{1,64} (overrides the config)")
-    p.add_argument("--config", metavar="FILE", help="protocol configuration (TOML)")
+    p.add_argument("--config", metavar="FILE", type=input_file,
+                   help="protocol configuration (TOML)")
     p.add_argument("--seed", type=_seed, metavar="N",
                    help="schedule randomisation seed (overrides the config; default: drawn "
                         "and recorded)")
     out = p.add_mutually_exclusive_group()
-    out.add_argument("--out", metavar="FILE", help="session file to write (must not exist)")
-    out.add_argument("--outdir", metavar="DIR",
+    out.add_argument("--out", metavar="FILE", type=output_path, help="session file to write (must not exist)")
+    out.add_argument("--outdir", metavar="DIR", type=folder_to_write,
                      help="folder for <participant>-<UTC time>.h5 (default: sessions)")
-    out.add_argument("--resume", metavar="FILE",
+    out.add_argument("--resume", metavar="FILE", type=session_to_continue,
                      help="continue this session (recovering it first if needed): skip its "
                           "completed trials, re-run its aborted ones; on the rig it started "
                           "on (same --backend, the same --hw-config file, the recorded "
                           "simulated participant and seed), else refused")
     p.add_argument("--realtime", action="store_true",
                    help="sim: pace the simulation in real time (default: as fast as possible)")
-    p.add_argument("--hw-config", metavar="FILE", help="hw: the rig's hardware configuration")
+    p.add_argument("--hw-config", metavar="FILE", type=input_file,
+                   help="hw: the rig's hardware configuration")
     p.add_argument("--participant-model", metavar="MODEL",
                    help="sim: the virtual participant: the paper's second-order model "
                         "(template, default), MyoSuite's MuJoCo elbow under FES "
@@ -91,5 +99,5 @@ def register(sub) -> None:
                        "(<file>.journal/): append trials missing from it, or rebuild a damaged "
                        "file (kept aside as <file>.damaged-<time>). The trial in progress when "
                        "the program ended becomes an aborted trial.")
-    r.add_argument("file", metavar="FILE", help="the session file (.h5)")
+    r.add_argument("file", metavar="FILE", type=session_to_continue, help="the session file (.h5)")
     r.set_defaults(handler="nmsid.cli.run_command:recover_cmd")

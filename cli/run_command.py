@@ -16,6 +16,7 @@ from pathlib import Path
 
 from nmsid.analysis.run import run_identification, summary_line
 from nmsid.cli.errors import UsageError
+from nmsid.cli.exit_status import EXIT_NOTHING_TO_RECOVER, run_exit_status
 from nmsid.protocols.config import config_from_json, load_config
 from nmsid.protocols.errors import OutputPathError
 from nmsid.protocols.output_paths import check_output, default_sessions_dir, output_dir
@@ -33,11 +34,11 @@ def recover_cmd(args) -> int:
     report = recover(args.file)
     print(report.summary())
     if report.action == "no-calibration":
-        return 1
+        return EXIT_NOTHING_TO_RECOVER
     problems = validate_session(args.file)
     if problems:
         print(f"{args.file}: still INVALID after recovery: {problems[0]}")
-        return 1
+        return EXIT_NOTHING_TO_RECOVER
     return 0
 
 
@@ -147,7 +148,7 @@ def run(args) -> int:
               flush=True)
     if not args.no_identify and s.n_completed and track is None:
         _identify(s.path)
-    return 0 if s.ended_by == "schedule complete" else 1
+    return run_exit_status(s)
 
 
 def _print_quietly(text: str) -> None:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from nmsid.cli.arguments import folder_to_write, input_path
+
 
 def _workers(text: str) -> int:
     try:
@@ -24,8 +26,8 @@ def register(sub) -> None:
                     "diagnosis run as Dask tasks; then the group analysis (Tables 1-9, "
                     "Figures 4-6, the group gap summary) in DIR/report.html plus CSV/JSON. "
                     "A failing session is reported and the others go on. See docs/study.md.")
-    p.add_argument("study", metavar="STUDY.toml|FOLDER")
-    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("study", metavar="STUDY.toml|FOLDER", type=input_path)
+    p.add_argument("--out", required=True, metavar="DIR", type=folder_to_write)
     p.add_argument("--force", action="store_true",
                    help="replace an existing --out folder (atomically; never one holding "
                         "a session file)")

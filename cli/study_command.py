@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from nmsid.cli.errors import UsageError
+from nmsid.protocols.user_values import non_utf8_problem
 from nmsid.study.config import load_study
 from nmsid.study.runner import run_study
 from nmsid.protocols.output_paths import check_output, output_dir
@@ -10,6 +12,10 @@ from nmsid.protocols.output_paths import check_output, output_dir
 def run(args) -> int:
     check_output(args.out, force=args.force, kind="folder")
     cfg = load_study(args.study)
+    for session in cfg.sessions:  # one line, before any session is read or reported
+        problem = non_utf8_problem(str(session))
+        if problem:
+            raise UsageError(f"{args.study}: session {problem}")
     if args.no_gap:
         cfg.gap = False
     with output_dir(args.out, force=args.force) as tmp:

@@ -23,7 +23,8 @@ def run(args) -> int:
     """
     bad = 0
     for path in args.files:
-        problems = validate_session(path)
+        warnings: list[str] = []
+        problems = validate_session(path, warnings=warnings)
         removed = clean_leftovers_if_idle(path)
         state = session_state(path)
         note = state.describe()
@@ -42,7 +43,10 @@ def run(args) -> int:
                                                      "version 1)")
             print(f"{path}: {label}{note}"
                   + (f"; {n} trial(s) in the file" if state.label != "finished"
-                     and n is not None else ""))
+                     and n is not None else "")
+                  + (f"; {len(warnings)} warning(s)" if warnings else ""))
+        for w in warnings:  # implausible but allowed by the contract: read and analysed
+            print(f"  warning: {w}")
         if removed:
             print(f"{path}: removed leftovers of an interrupted end: {', '.join(removed)}")
     if bad:

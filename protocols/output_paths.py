@@ -37,6 +37,9 @@ import h5py
 from nmsid.protocols import os_platform
 from nmsid.protocols.errors import OutputPathError
 from nmsid.protocols.session_file import FORMAT as SESSION_FORMAT
+from nmsid.protocols.user_values import (  # noqa: F401 (re-exported: the name limits)
+    DERIVED_SUFFIXES, LONGEST_SUFFIX_BYTES, MAX_SESSION_NAME_BYTES, name_length_problem,
+    non_utf8_problem)
 
 #: HDF5's format signature; it sits at byte 0, 512, 1024, 2048, ... of a file.
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
@@ -211,6 +214,25 @@ def default_sessions_dir(cwd: str | os.PathLike | None = None,
             profile = env.get("USERPROFILE") or str(Path.home())
             return Path(profile) / "Documents" / "nmsid" / "sessions"
     return Path("sessions")
+
+
+def check_session_name(path, *, option: str = "--out") -> Path:
+    """Refuse, before any device is connected, a session file name that the journal and
+    recovery could not derive their names from: longer than
+    :data:`MAX_SESSION_NAME_BYTES` (UTF-8 bytes; the longest derived name adds
+    :data:`LONGEST_SUFFIX_BYTES`, see :data:`DERIVED_SUFFIXES`), or holding bytes that
+    are not UTF-8.
+
+    Raises
+    ------
+    OutputPathError
+        One line naming the option, the name and the limit.
+    """
+    text = os.fspath(path)
+    problem = non_utf8_problem(text) or name_length_problem(text)
+    if problem:
+        raise OutputPathError(f"{option}: {problem}")
+    return Path(text)
 
 
 def _existing_ancestor(folder: Path) -> Path:

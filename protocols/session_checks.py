@@ -1,9 +1,19 @@
-"""Value checks shared by the session-file reader and validator: types, ranges, finite
-values, printable strings, links, and the samples themselves.
+"""The one definition of a valid session record, shared by the writer, the reader and the
+validator: types, ranges, finite values, links, and the samples themselves.
 
-Every function appends one line per problem to ``out``; each line names the item and
-says what would be valid. The bounds are physical: no session of this protocol needs
-more, and a value beyond them is a typo or a damaged file.
+Two kinds of finding, kept apart on purpose:
+
+* a **problem** breaks the contract as written (``shared/spec/session-file-v1.md``): a
+  missing item, a wrong type, ``repeat`` 0, ``Iemax_mA <= Iemin_mA``, a non-finite value,
+  a ratio outside [0, 1]. The reader refuses it and the writer refuses to write it
+  (:func:`calibration_findings`, :func:`trial_attr_findings`, :func:`value_problem` are
+  called by all three, so they cannot disagree);
+* a **warning** is physically implausible but allowed by the contract: a current above the
+  recording stimulator's declared range (another stimulator reaches more: a RehaStim2
+  130 mA), a force beyond any elbow's, sE above the paper's 1.00, a chirp above Nyquist.
+  ``nmsid validate`` prints it and the reader logs it; the file is still read and analysed.
+
+Each line names the item and says what would be valid.
 """
 
 from __future__ import annotations
@@ -11,6 +21,8 @@ from __future__ import annotations
 import json
 import math
 import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -18,19 +30,29 @@ import numpy as np
 from nmsid.protocols.session_model import _as_str, _h5py
 
 DEFAULT_MAX_CURRENT_mA = 16.0
-"""Highest current a file may hold when its stored configuration names no ceiling: the
-STG4002's range (Multi Channel Systems STG4000 series manual, 16 mA per channel), the
-stimulator of the paper. A file whose ``config_json`` has higher ``ceiling_*_mA`` (other
-hardware) is checked against those."""
+"""Above this current a file gets a WARNING (never a refusal) when its stored configuration
+names no ceiling: the STG4002's range (Multi Channel Systems STG4000 series manual, 16 mA
+per channel), the stimulator of the paper. A file whose ``config_json`` has higher
+``ceiling_*_mA`` (other hardware) is compared with those. The contract sets no upper bound
+on a current."""
 FS_RANGE_Hz = (1.0, 1.0e6)
-"""Sampling rates a trial may have (the paper: 2000 Hz; A/D cards: at most about 1 MHz)."""
+"""Plausible sampling rates (the paper: 2000 Hz; A/D cards: at most about 1 MHz): outside,
+a warning; the contract only needs a rate > 0."""
 MAX_TRIAL_S = 3600.0
-"""Longest steady_s + chirp_s (the configuration refuses longer trials too)."""
-MAX_FORCE_N = 1.0e12
-"""Largest |force| (and wrench component, N or N m) a sample may have. Not a sensor
-range (those are far lower; the interlock guards them during a session) but a bound
-against damage and unit errors (force x 1e300) that would overflow the identification."""
+"""Plausible longest steady_s / chirp_s (warning above; the configuration refuses longer
+trials for sessions this rig runs)."""
+PLAUSIBLE_FORCE_N = 1000.0
+"""Above this |force| (or wrench component) a file gets a warning: more than an elbow
+produces and more than the paper's 6-axis sensor's class of ranges (its Fmax was 5 N)."""
+MAX_FORCE_N = 1.0e100
+"""Largest |force| a sample may have: a numeric bound, not a physical one (a force in N
+cannot be larger than any float64 sum of squares over 10**8 samples can hold: beyond it the
+identification's least squares overflow to inf). Physical plausibility is
+:data:`PLAUSIBLE_FORCE_N`, a warning."""
 MAX_CARRIER_Hz = 1.0e6
+PLAUSIBLE_SE = 1.0
+"""Largest sE of the paper's protocol (0.30 ... 1.00). sE = Ie + If (the paper's Eq. 4) may
+exceed it when currents pass Imax: a warning, not a refusal."""
 READ_BLOCK = 1 << 20
 """Samples read at a time when checking data (bounded memory whatever a file declares)."""
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
@@ -58,6 +80,8 @@ def number_problem(where: str, name: str, value: Any, low: float | None = None,
     if not math.isfinite(x):
         return f"{where} attribute {name} = {x!r} is not a finite number"
     bad_low = low is not None and (x <= low if low_open else x < low)
+    if bad_low and high is None and valid:
+        return f"{where} attribute {name} = {x:g} is not valid (valid: {valid})"
     if bad_low or (high is not None and x > high):
         shown = valid or _range(low, high, low_open)
         return f"{where} attribute {name} = {x:g} is outside {shown}"
@@ -146,15 +170,17 @@ def link_problems(f) -> list[str]:
     return out
 
 
-def samples_problems(where: str, d, *, max_current: float, n_max: int | None) -> list[str]:
+def samples_problems(where: str, d, *, max_current: float, n_max: int | None,
+                     warnings: list[str] | None = None) -> list[str]:
     """Read a dataset block by block (verifying its Fletcher-32 checksums) and check its
-    values: rE in [0, 1], currents in [0, max_current], all finite; force / wrench finite
-    or NaN (a gap) and within +-:data:`MAX_FORCE_N`; sync finite or NaN."""
+    values (:func:`value_problem`); implausible values (:func:`value_warning`) and more
+    samples than ``n_max`` are appended to ``warnings``."""
     name = d.name.rsplit("/", 1)[-1]
-    if n_max is not None and d.shape and d.shape[0] > n_max:
-        return [f"{where}/{name} has {d.shape[0]} samples, more than the trial's "
-                f"length allows (at most 4 x (steady_s + chirp_s) * fs_Hz + 10**6 = {n_max})"]
+    if n_max is not None and d.shape and d.shape[0] > n_max and warnings is not None:
+        warnings.append(f"{where}/{name} has {d.shape[0]} samples, more than the trial's "
+                        f"length needs (4 x (steady_s + chirp_s) * fs_Hz + 10**6 = {n_max})")
     out: list[str] = []
+    warned = False
     n = d.shape[0] if d.shape else 1
     scale = offset = None
     if d.dtype.kind in "iu" and "scale" in d.attrs:
@@ -170,28 +196,174 @@ def samples_problems(where: str, d, *, max_current: float, n_max: int | None) ->
         if scale is not None:
             block = block * np.asarray(scale, dtype=np.float64) + np.asarray(offset,
                                                                              dtype=np.float64)
-        problem = value_problem(name, block, max_current)
+        problem = value_problem(name, block)
         if problem:
             out.append(f"{where}/{name} {problem}")
             break
+        warning = None if warned else value_warning(name, block, max_current)
+        if warning and warnings is not None:
+            warnings.append(f"{where}/{name} {warning}")
+            warned = True
     return out
 
 
-def value_problem(name: str, block: np.ndarray, max_current: float) -> str | None:
-    """What is wrong with the samples ``block`` of dataset ``name`` (words without the
-    item's path), or None."""
+def value_problem(name: str, block: np.ndarray, max_current: float | None = None) -> str | None:
+    """What breaks the contract in the samples ``block`` of dataset ``name`` (words without
+    the item's path), or None: rE outside [0, 1] (a ratio, the paper's Eq. 3), a current
+    below 0 (an amplitude), a non-finite command; an infinite measurement (NaN is a gap),
+    |force| beyond :data:`MAX_FORCE_N`. ``max_current`` is not used here: a current above
+    the stimulator's range is :func:`value_warning`'s."""
     if name in ("rE", "I_ext_mA", "I_flex_mA"):
         if not np.isfinite(block).all():
             return "holds NaN or infinite values (valid: finite)"
-        low, high = (0.0, 1.0) if name == "rE" else (0.0, max_current)
-        if block.size and (block.min() < low or block.max() > high):
-            return (f"holds values in [{block.min():g}, {block.max():g}], outside "
-                    f"[{low:g}, {high:g}]")
+        if name == "rE":
+            if block.size and (block.min() < 0.0 or block.max() > 1.0):
+                return (f"holds values in [{block.min():g}, {block.max():g}], outside "
+                        "[0, 1] (a ratio)")
+        elif block.size and block.min() < 0.0:
+            return f"holds values down to {block.min():g}, below 0 (valid: an amplitude >= 0)"
         return None
     if np.isinf(block).any():
         return "holds infinite values (valid: finite, or NaN for a gap)"
     if name in ("force_N", "wrench"):
-        peak = np.nanmax(np.abs(block)) if block.size and not np.isnan(block).all() else 0.0
+        peak = _peak(block)
         if peak > MAX_FORCE_N:
             return f"holds |values| up to {peak:g}, beyond {MAX_FORCE_N:g} (valid: a force)"
     return None
+
+
+def value_warning(name: str, block: np.ndarray, max_current: float) -> str | None:
+    """What is implausible (allowed by the contract) in the samples ``block``, or None."""
+    if name in ("I_ext_mA", "I_flex_mA"):
+        finite = block[np.isfinite(block)]
+        if finite.size and finite.max() > max_current:
+            return (f"reaches {finite.max():g} mA, above the recording stimulator's declared "
+                    f"range {max_current:g} mA (a warning: other stimulators reach more)")
+    if name in ("force_N", "wrench"):
+        peak = _peak(block)
+        if math.isfinite(peak) and peak > PLAUSIBLE_FORCE_N:
+            return (f"reaches |{peak:g}| N, beyond {PLAUSIBLE_FORCE_N:g} N (more than an "
+                    "elbow produces: a unit or scale error?)")
+    return None
+
+
+def _peak(block: np.ndarray) -> float:
+    return float(np.nanmax(np.abs(block))) if block.size and not np.isnan(block).all() \
+        else 0.0
+
+
+@dataclass
+class Findings:
+    """What a record breaks (``problems``: refused by reader and writer) and what is
+    merely implausible (``warnings``: reported, the record is read)."""
+
+    problems: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
+def calibration_findings(attrs: Mapping[str, Any], max_mA: float = DEFAULT_MAX_CURRENT_mA,
+                         where: str = "/calibration") -> Findings:
+    """Check the calibration's six attributes (as stored, or as the writer would store them).
+
+    The contract: each a float; ``Iemax_mA > Iemin_mA >= 0`` and ``Ifmax_mA > Ifmin_mA >= 0``
+    (its "Required" line); ``Fmin_N`` / ``Fmax_N`` are the forces the currents produced, the
+    smaller and the larger (their names: the paper's Fmin, contraction onset, and Fmax, the
+    force the ramp rose to), so ``Fmax_N > Fmin_N``. A current above the stimulator's range
+    and a force beyond 1000 N or below 0 are warnings.
+    """
+    out = Findings()
+    values: dict[str, float] = {}
+    for name in ("Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA", "Fmin_N", "Fmax_N"):
+        if name not in attrs:
+            out.problems.append(f"missing required attribute {where}/{name}")
+            continue
+        p = number_problem(where, name, attrs[name])
+        if p:
+            out.problems.append(p)
+            continue
+        values[name] = float(np.asarray(attrs[name]).reshape(()))
+    for hi, lo in (("Iemax_mA", "Iemin_mA"), ("Ifmax_mA", "Ifmin_mA")):
+        if {hi, lo} <= set(values) and not values[hi] > values[lo] >= 0:
+            out.problems.append(f"{where} needs {hi} > {lo} >= 0, got {lo}="
+                                f"{values[lo]:g}, {hi}={values[hi]:g}")
+        if hi in values and values[hi] > max_mA:
+            out.warnings.append(f"{where} attribute {hi} = {values[hi]:g} is above the "
+                                f"recording stimulator's declared range {max_mA:g} mA "
+                                "(a warning: other stimulators reach more)")
+    if {"Fmin_N", "Fmax_N"} <= set(values) and not values["Fmax_N"] > values["Fmin_N"]:
+        out.problems.append(f"{where} needs Fmax_N > Fmin_N, got Fmin_N="
+                            f"{values['Fmin_N']:g}, Fmax_N={values['Fmax_N']:g}")
+    for name in ("Fmin_N", "Fmax_N"):
+        if name in values and not 0 <= values[name] <= PLAUSIBLE_FORCE_N:
+            out.warnings.append(f"{where} attribute {name} = {values[name]:g} is outside "
+                                f"[0, {PLAUSIBLE_FORCE_N:g}] N (implausible; the paper: "
+                                "0.5 and 5 N)")
+    return out
+
+
+#: Per float attribute of a trial: (lowest valid, open?, what is valid) from the contract's
+#: meaning (a rate or a frequency > 0, a length >= 0, sE > 0 since rE = Ie / sE), and the
+#: plausible upper bound beyond which it is a warning.
+TRIAL_BOUNDS: dict[str, tuple[float, bool, str, float]] = {
+    "sE": (0.0, True, "> 0 (rE = Ie / sE, the paper's Eq. 3)", PLAUSIBLE_SE),
+    "fs_Hz": (0.0, True, "> 0 Hz", FS_RANGE_Hz[1]),
+    "steady_s": (0.0, False, ">= 0 s (a length)", MAX_TRIAL_S),
+    "chirp_s": (0.0, False, ">= 0 s (a length)", MAX_TRIAL_S),
+    "chirp_f0_Hz": (0.0, False, ">= 0 Hz", FS_RANGE_Hz[1] / 2),
+    "chirp_f1_Hz": (0.0, False, ">= 0 Hz", FS_RANGE_Hz[1] / 2),
+    "carrier_Hz": (0.0, False, ">= 0 Hz", MAX_CARRIER_Hz),
+}
+
+
+def trial_attr_findings(attrs: Mapping[str, Any], where: str) -> Findings:
+    """Check a trial's contract attributes (as stored, or as the writer would store them):
+    each float attribute a finite number with its meaning's sign (:data:`TRIAL_BOUNDS`),
+    ``repeat`` an integer 1, 2, 3, ..., ``status`` ``completed`` or ``aborted``, the strings
+    strings UTF-8 text. Beyond the plausible bounds, and non-printable strings, are warnings."""
+    out = Findings()
+    values: dict[str, float] = {}
+    for key, (low, low_open, valid, plausible) in TRIAL_BOUNDS.items():
+        if key not in attrs:
+            out.problems.append(f"missing required attribute {where}/{key}")
+            continue
+        p = number_problem(where, key, attrs[key], low, None, low_open=low_open, valid=valid)
+        if p:
+            out.problems.append(p)
+            continue
+        values[key] = float(np.asarray(attrs[key]).reshape(()))
+        if values[key] > plausible:
+            out.warnings.append(f"{where} attribute {key} = {values[key]:g} is above "
+                                f"{plausible:g} (implausible for this protocol)")
+    for key in ("chirp_f0_Hz", "chirp_f1_Hz"):
+        if key in values and "fs_Hz" in values and values[key] > values["fs_Hz"] / 2:
+            out.warnings.append(f"{where} attribute {key} = {values[key]:g} is above "
+                                f"fs_Hz / 2 = {values['fs_Hz'] / 2:g} (not resolved by "
+                                "the samples)")
+    if "repeat" not in attrs:
+        out.problems.append(f"missing required attribute {where}/repeat")
+    elif not is_int_attr(attrs["repeat"]) or int(np.asarray(attrs["repeat"]).reshape(())) < 1:
+        out.problems.append(f"{where} attribute repeat = {short_repr(attrs['repeat'])} is not "
+                            "valid: an integer 1, 2, 3, ...")
+    for key in ("status", "abort_reason", "started_utc"):
+        if key not in attrs:
+            out.problems.append(f"missing required attribute {where}/{key}")
+        elif not _is_str_attr(attrs[key]):
+            out.problems.append(f"{where} attribute {key} = {short_repr(attrs[key])} is not "
+                                "a string")
+        else:
+            p = printable_problem(where, key, attrs[key])
+            if p:
+                out.warnings.append(p)
+    if "status" in attrs and _is_str_attr(attrs["status"]) and \
+            _as_str(attrs["status"]) not in ("completed", "aborted"):
+        out.problems.append(f"{where} status {_as_str(attrs['status'])!r} is not "
+                            "'completed' or 'aborted'")
+    return out
+
+
+def _is_str_attr(value: Any) -> bool:
+    if isinstance(value, (str, bytes, np.bytes_, np.str_)):
+        return True
+    arr = np.asarray(value)
+    return arr.shape == () and arr.dtype.kind in "OSU" and \
+        isinstance(arr[()], (str, bytes))

@@ -115,19 +115,12 @@ class Calibration:
     """Optional datasets stored under ``/calibration`` (e.g. ``ext_I_mA``, ``ext_force_N``)."""
 
     def problems(self) -> list[str]:
-        """Every way these values break the contract (empty when valid)."""
-        out = []
-        for name in CALIBRATION_ATTRS:
-            value = getattr(self, name)
-            if not np.isfinite(value):
-                out.append(f"/calibration attribute {name} = {value!r} is not a finite number")
-        if not (self.Iemax_mA > self.Iemin_mA >= 0):
-            out.append(f"/calibration needs Iemax_mA > Iemin_mA >= 0, got Iemin_mA="
-                       f"{self.Iemin_mA:g}, Iemax_mA={self.Iemax_mA:g}")
-        if not (self.Ifmax_mA > self.Ifmin_mA >= 0):
-            out.append(f"/calibration needs Ifmax_mA > Ifmin_mA >= 0, got Ifmin_mA="
-                       f"{self.Ifmin_mA:g}, Ifmax_mA={self.Ifmax_mA:g}")
-        return out
+        """Every way these values break the contract (empty when valid): the same checks
+        the reader applies to a stored calibration
+        (:func:`nmsid.protocols.session_checks.calibration_findings`)."""
+        # function-local: session_checks imports this module (the contract's names)
+        from nmsid.protocols.session_checks import calibration_findings
+        return calibration_findings({k: getattr(self, k) for k in CALIBRATION_ATTRS}).problems
 
 
 @dataclass
@@ -194,6 +187,9 @@ class Session:
     seed: int | None = None
     backend: str = ""
     attrs: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    """Implausible values the contract allows (a current above the recording stimulator's
+    range, a force beyond an elbow's): the file is read; analyses repeat these."""
 
     @property
     def config(self) -> dict:

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from nmsid.protocols.session_checks import value_problem, max_current_mA
+from nmsid.protocols.session_checks import max_current_mA, value_problem, value_warning
 from nmsid.protocols.session_codec import counts_to_values
 from nmsid.protocols.session_lock import live_writer
 from nmsid.protocols.session_model import (CALIBRATION_ATTRS, OPTIONAL_SIGNALS, ROOT_ATTRS,
@@ -71,7 +71,8 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
     path = Path(path)
     with _open_read(path) as f:
         try:
-            problems = _problems(f, fatal_only=True)
+            warnings: list[str] = []
+            problems = _problems(f, fatal_only=True, warnings=warnings)
         except _DAMAGE_ERRORS as exc:
             raise SessionFileError(path, f"damaged: an item cannot be read ({type(exc).__name__}"
                                          f": {exc}); if it was being written when a program "
@@ -101,9 +102,17 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
         for t in trials:
             for key in (*TRIAL_DATASETS, *OPTIONAL_SIGNALS):
                 values = getattr(t, key)
-                problem = None if values is None else value_problem(key, values, max_mA)
+                problem = None if values is None else value_problem(key, values)
                 if problem:
                     raise SessionFileError(path, f"/trials/{t.name}/{key} {problem}")
+                warning = None if values is None else value_warning(key, values, max_mA)
+                if warning:
+                    warnings.append(f"/trials/{t.name}/{key} {warning}")
+        for w in warnings[:5]:  # allowed by the contract, implausible: said, then analysed
+            log.warning("%s: %s", path, w)
+        if len(warnings) > 5:
+            log.warning("%s: and %d more warning(s); run `nmsid validate %s`", path,
+                        len(warnings) - 5, path)
         writer = live_writer(path)
         if writer is not None and writer.pid != os.getpid():
             log.warning("%s: live session: written now by %s; read %d trial(s) so far",
@@ -122,6 +131,7 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
             seed=int(np.asarray(seed)) if seed is not None else None,
             backend=_as_str(a.get("backend", "")),
             attrs={k: a[k] for k in a if k not in known},
+            warnings=warnings,
         )
 
 

@@ -15,19 +15,18 @@ from pathlib import Path
 
 import numpy as np
 
-from nmsid.protocols.session_checks import (FS_RANGE_Hz, MAX_CARRIER_Hz, MAX_TRIAL_S,
-                                            is_int_attr, is_number_attr, link_problems, max_current_mA,
-                                            number_problem, printable_problem, samples_problems,
-                                            short_repr)
-from nmsid.protocols.session_model import (CALIBRATION_ATTRS, FORMAT, FORMAT_VERSION,
-                                           OPTIONAL_SIGNALS, PARTICIPANT_PATTERN, ROOT_ATTRS,
-                                           STATUSES, TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
-                                           TRIAL_STR_ATTRS, _DAMAGE_ERRORS, _as_float, _as_str,
-                                           _h5py, _trial_names)
+from nmsid.protocols.session_checks import (FS_RANGE_Hz, MAX_TRIAL_S, _is_str_attr,
+                                            calibration_findings, is_int_attr, link_problems,
+                                            max_current_mA, printable_problem, samples_problems,
+                                            trial_attr_findings)
+from nmsid.protocols.session_model import (FORMAT, FORMAT_VERSION, OPTIONAL_SIGNALS,
+                                           PARTICIPANT_PATTERN, ROOT_ATTRS, TRIAL_DATASETS,
+                                           _DAMAGE_ERRORS, _as_float, _as_str, _h5py,
+                                           _trial_names)
 
 
 def validate_session(path: str | os.PathLike, *, fatal_only: bool = False,
-                     read_data: bool = True) -> list[str]:
+                     read_data: bool = True, warnings: list[str] | None = None) -> list[str]:
     """Check a file against the session-file contract.
 
     Parameters
@@ -39,6 +38,9 @@ def validate_session(path: str | os.PathLike, *, fatal_only: bool = False,
         values out of range, links), not cosmetic ones (time formats, numbering).
     read_data : bool
         Also read every dataset (checksums, values); a damaged file is never valid.
+    warnings : list of str, optional
+        Receives one line per implausible value the contract allows (a current above the
+        recording stimulator's range, a force beyond an elbow's, ...): such a file is valid.
 
     Returns
     -------
@@ -55,32 +57,36 @@ def validate_session(path: str | os.PathLike, *, fatal_only: bool = False,
                 "stopped, try `nmsid recover`"]
     with f:
         try:
-            out = _problems(f, fatal_only)
+            out = _problems(f, fatal_only, warnings)
             if read_data and not any(p.startswith("/") and "link" in p for p in out):
-                out += _data_problems(f)
+                out += _data_problems(f, warnings)
             return out
         except _DAMAGE_ERRORS as exc:  # an object the structural checks reached is torn
             return [f"damaged: an item cannot be read ({type(exc).__name__}: {exc}); if it "
                     "was being written when a program stopped, try `nmsid recover`"]
 
 
-def _problems(f, fatal_only: bool) -> list[str]:
-    """The contract violations of an open file (see :func:`validate_session`)."""
+def _problems(f, fatal_only: bool, warnings: list[str] | None = None) -> list[str]:
+    """The contract violations of an open file (see :func:`validate_session`); warnings
+    (implausible, allowed) go to ``warnings``."""
     links = link_problems(f)
     if links:
         return links  # nothing else is looked at: that could follow a link
     out: list[str] = []
-    _validate_root(f, out, fatal_only)
+    warn: list[str] = [] if warnings is None else warnings
+    _validate_root(f, out, fatal_only, warn)
     if "calibration" not in f or not isinstance(f["calibration"], _h5py().Group):
         out.append("missing required group /calibration")
     else:
-        _validate_calibration(f["calibration"], out, _max_current(f))
+        found = calibration_findings(f["calibration"].attrs, _max_current(f))
+        out += found.problems
+        warn += found.warnings
     if "trials" not in f or not isinstance(f["trials"], _h5py().Group):
         out.append("missing required group /trials")
     else:
-        _validate_trials(f["trials"], out, fatal_only)
+        _validate_trials(f["trials"], out, fatal_only, warn)
     if "events" in f and isinstance(f["events"], _h5py().Group):
-        _validate_events(f["events"], out)
+        _validate_events(f["events"], warn)
     return out
 
 
@@ -88,16 +94,19 @@ def _max_current(f) -> float:
     return max_current_mA(_as_str(f.attrs.get("config_json", "")))
 
 
-def _validate_root(f, out: list[str], fatal_only: bool) -> None:
+def _validate_root(f, out: list[str], fatal_only: bool, warn: list[str]) -> None:
     a = f.attrs
     for name in ROOT_ATTRS:
         if name not in a:
             out.append(f"missing required root attribute {name!r}")
     for name in ("format", "participant", "created_utc", "software", "backend"):
         if name in a:
+            if not _is_str_attr(a[name]):
+                out.append(f"root attribute {name} = {a[name]!r} is not a string")
+                continue
             p = printable_problem("root", name, a[name])
-            if p:
-                out.append(p)
+            if p and name != "participant":  # the participant's pattern refuses it
+                warn.append(p)
     if "format" in a and _as_str(a["format"]) != FORMAT:
         out.append(f"root attribute format is {_as_str(a['format'])!r}, expected {FORMAT!r}")
     if "format_version" in a:
@@ -126,48 +135,7 @@ def _is_utc(text: str) -> bool:
     return t.utcoffset() == _dt.timedelta(0)
 
 
-def _validate_calibration(g, out: list[str], max_mA: float) -> None:
-    values = {}
-    for name in CALIBRATION_ATTRS:
-        if name not in g.attrs:
-            out.append(f"missing required attribute /calibration/{name}")
-            continue
-        if name.endswith("_mA"):
-            p = number_problem("/calibration", name, g.attrs[name], None, max_mA,  # >= 0:
-                               valid=f"[0, {max_mA:g}] mA (the stimulator's range)")  # below
-        else:
-            p = number_problem("/calibration", name, g.attrs[name], 0.0, 1000.0,
-                               valid="[0, 1000] N")
-        if p:
-            out.append(p)
-        if is_number_attr(g.attrs[name]) and np.isfinite(_as_float(g.attrs[name])):
-            values[name] = _as_float(g.attrs[name])
-    if {"Iemin_mA", "Iemax_mA"} <= set(values) and not (
-            values["Iemax_mA"] > values["Iemin_mA"] >= 0):
-        out.append(f"/calibration needs Iemax_mA > Iemin_mA >= 0, got Iemin_mA="
-                   f"{values['Iemin_mA']:g}, Iemax_mA={values['Iemax_mA']:g}")
-    if {"Ifmin_mA", "Ifmax_mA"} <= set(values) and not (
-            values["Ifmax_mA"] > values["Ifmin_mA"] >= 0):
-        out.append(f"/calibration needs Ifmax_mA > Ifmin_mA >= 0, got Ifmin_mA="
-                   f"{values['Ifmin_mA']:g}, Ifmax_mA={values['Ifmax_mA']:g}")
-    if {"Fmin_N", "Fmax_N"} <= set(values) and not values["Fmax_N"] > values["Fmin_N"]:
-        out.append(f"/calibration needs Fmax_N > Fmin_N, got Fmin_N={values['Fmin_N']:g}, "
-                   f"Fmax_N={values['Fmax_N']:g}")
-
-
-_TRIAL_RANGES = {
-    "sE": (0.0, 1.0, True, "(0, 1]"),
-    "fs_Hz": (FS_RANGE_Hz[0], FS_RANGE_Hz[1], False,
-              f"[{FS_RANGE_Hz[0]:g}, {FS_RANGE_Hz[1]:g}] Hz"),
-    "steady_s": (0.0, MAX_TRIAL_S, False, f"[0, {MAX_TRIAL_S:g}] s"),
-    "chirp_s": (0.0, MAX_TRIAL_S, True, f"(0, {MAX_TRIAL_S:g}] s"),
-    "chirp_f0_Hz": (0.0, FS_RANGE_Hz[1] / 2, True, "(0, fs_Hz / 2] Hz"),
-    "chirp_f1_Hz": (0.0, FS_RANGE_Hz[1] / 2, True, "(0, fs_Hz / 2] Hz"),
-    "carrier_Hz": (0.0, MAX_CARRIER_Hz, True, f"(0, {MAX_CARRIER_Hz:g}] Hz"),
-}
-
-
-def _validate_trials(g, out: list[str], fatal_only: bool) -> None:
+def _validate_trials(g, out: list[str], fatal_only: bool, warn: list[str]) -> None:
     h5py = _h5py()
     names = _trial_names(g)
     others = [k for k in g if k not in names]
@@ -185,7 +153,7 @@ def _validate_trials(g, out: list[str], fatal_only: bool) -> None:
         if not isinstance(t, h5py.Group):
             out.append(f"{where} is not a group")
             continue
-        _validate_trial_attrs(t, where, out, fatal_only)
+        _validate_trial_attrs(t, where, out, fatal_only, warn)
         lengths = {}
         for key in TRIAL_DATASETS:
             if key not in t:
@@ -219,38 +187,13 @@ def _validate_trials(g, out: list[str], fatal_only: bool) -> None:
                            "(value = offset + scale * count)")
 
 
-def _validate_trial_attrs(t, where: str, out: list[str], fatal_only: bool) -> None:
+def _validate_trial_attrs(t, where: str, out: list[str], fatal_only: bool,
+                          warn: list[str]) -> None:
     a = t.attrs
-    for key in TRIAL_FLOAT_ATTRS:
-        if key not in a:
-            out.append(f"missing required attribute {where}/{key}")
-            continue
-        low, high, low_open, valid = _TRIAL_RANGES[key]
-        p = number_problem(where, key, a[key], low, high, low_open=low_open, valid=valid)
-        if p:
-            out.append(p)
-    if "repeat" not in a:
-        out.append(f"missing required attribute {where}/repeat")
-    elif not is_int_attr(a["repeat"]) or int(np.asarray(a["repeat"]).reshape(())) < 1:
-        out.append(f"{where} attribute repeat = {short_repr(a['repeat'])} is not valid: an "
-                   "integer 1, 2, 3, ...")
-    for key in TRIAL_STR_ATTRS:
-        if key not in a:
-            out.append(f"missing required attribute {where}/{key}")
-        else:
-            p = printable_problem(where, key, a[key])
-            if p:
-                out.append(p)
-    for key in ("chirp_f1_Hz", "chirp_f0_Hz"):
-        try:
-            if key in a and "fs_Hz" in a and _as_float(a[key]) > _as_float(a["fs_Hz"]) / 2:
-                out.append(f"{where} attribute {key} = {_as_float(a[key]):g} is above "
-                           f"fs_Hz / 2 = {_as_float(a['fs_Hz']) / 2:g}")
-        except (TypeError, ValueError):
-            pass
+    found = trial_attr_findings(a, where)
+    out += found.problems
+    warn += found.warnings
     status = _as_str(a.get("status", "completed"))
-    if "status" in a and status not in STATUSES:
-        out.append(f"{where} status {status!r} is not 'completed' or 'aborted'")
     if fatal_only:
         return
     if status == "completed" and _as_str(a.get("abort_reason", "")):
@@ -262,7 +205,7 @@ def _validate_trial_attrs(t, where: str, out: list[str], fatal_only: bool) -> No
         out.append(f"{where} started_utc {_as_str(a['started_utc'])!r} is not ISO 8601 UTC")
 
 
-def _validate_events(g, out: list[str]) -> None:
+def _validate_events(g, warn: list[str]) -> None:
     h5py = _h5py()
     for key in g:
         e = g[key]
@@ -272,7 +215,7 @@ def _validate_events(g, out: list[str]) -> None:
             if name in e.attrs:
                 p = printable_problem(f"/events/{key}", name, e.attrs[name])
                 if p:
-                    out.append(p)
+                    warn.append(p)
 
 
 def _trial_n_max(t) -> int | None:
@@ -289,7 +232,7 @@ def _trial_n_max(t) -> int | None:
     return int(4 * min(dur, MAX_TRIAL_S) * min(fs, FS_RANGE_Hz[1])) + 10 ** 6
 
 
-def _data_problems(f) -> list[str]:
+def _data_problems(f, warnings: list[str] | None = None) -> list[str]:
     """Read every dataset this validator vouches for (block by block: bounded memory)
     and check its values; a damaged chunk or checksum mismatch is reported."""
     h5py = _h5py()
@@ -300,7 +243,7 @@ def _data_problems(f) -> list[str]:
         for key in cal:
             if isinstance(cal[key], h5py.Dataset):
                 out += samples_problems("/calibration", cal[key], max_current=max_mA,
-                                        n_max=None)
+                                        n_max=None, warnings=warnings)
     trials = f.get("trials")
     if isinstance(trials, h5py.Group):
         for name in _trial_names(trials):
@@ -311,5 +254,5 @@ def _data_problems(f) -> list[str]:
             for key in (*TRIAL_DATASETS, *OPTIONAL_SIGNALS):
                 if key in t and isinstance(t[key], h5py.Dataset):
                     out += samples_problems(f"/trials/{name}", t[key], max_current=max_mA,
-                                            n_max=n_max)
+                                            n_max=n_max, warnings=warnings)
     return out

@@ -10,10 +10,11 @@ from typing import Any
 
 import numpy as np
 
+from nmsid.protocols.session_checks import trial_attr_findings, value_problem
 from nmsid.protocols.session_codec import _as_counts, _deflates, _narrowest_exact, _set_attr
 from nmsid.protocols.session_model import (CALIBRATION_ATTRS, CHUNK_SAMPLES, FORMAT, FORMAT_VERSION,
                                            GZIP_LEVEL, OPTIONAL_SIGNALS, PARTICIPANT_PATTERN,
-                                           ROOT_ATTRS, STATUSES, TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
+                                           ROOT_ATTRS, TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
                                            TRIAL_NAME_PATTERN, TRIAL_STR_ATTRS, Calibration, Event,
                                            SessionExistsError, SessionFileError, Trial, _as_str,
                                            _h5py, software_id, utc_now)
@@ -384,7 +385,20 @@ def _add_events(f, events) -> None:
 
 
 def _check_trial(trial: Trial, path) -> None:
-    n = len(trial.force_N)
+    """Refuse a trial the reader would refuse: the same checks
+    (:mod:`nmsid.protocols.session_checks`) on the attributes and samples as they would
+    be stored."""
+    attrs: dict[str, Any] = {k: getattr(trial, k) for k in TRIAL_FLOAT_ATTRS}
+    attrs["repeat"] = trial.repeat
+    attrs.update({k: getattr(trial, k) or "" for k in TRIAL_STR_ATTRS})
+    found = trial_attr_findings(attrs, "trial")
+    if found.problems:
+        raise SessionFileError(path, "refusing to write " + "; ".join(found.problems))
+    try:
+        n = len(trial.force_N)
+    except TypeError:
+        raise SessionFileError(path, "refusing to write trial: force_N is not an array") \
+            from None
     for key in TRIAL_DATASETS:
         arr = np.asarray(getattr(trial, key))
         if arr.ndim != 1 or len(arr) != n:
@@ -393,9 +407,18 @@ def _check_trial(trial: Trial, path) -> None:
     if trial.wrench is not None and np.asarray(trial.wrench).shape != (n, 6):
         raise SessionFileError(path, f"trial dataset wrench must have shape ({n}, 6), "
                          f"got {np.asarray(trial.wrench).shape}")
-    if trial.status not in STATUSES:
-        raise SessionFileError(path, f"trial status {trial.status!r} is not one of {STATUSES}")
-    if not (trial.fs_Hz > 0):
-        raise SessionFileError(path, f"trial fs_Hz must be > 0, got {trial.fs_Hz!r}")
+    for key in (*TRIAL_DATASETS, *OPTIONAL_SIGNALS):
+        values = getattr(trial, key)
+        if values is None:
+            continue
+        try:
+            block = np.asarray(values, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise SessionFileError(path, f"refusing to write trial dataset {key}: not "
+                                         "numbers") from None
+        problem = value_problem(key, block)
+        if problem:
+            raise SessionFileError(path, f"refusing to write trial dataset {key}: it "
+                                         f"{problem}")
 
 

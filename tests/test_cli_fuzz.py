@@ -177,3 +177,81 @@ def test_real_subprocesses_refuse_in_one_line(files):
         p = subprocess.run([sys.executable, "-m", "nmsid.cli", *argv], capture_output=True,
                            text=True, timeout=60, cwd=str(ROOT), env=env)
         assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1, (argv, p.stderr)
+
+
+# -- issue 26: every plain mistake in one line with exit 2 -----------------------------------
+def _mistakes(files):
+    d = files["dir"]
+    long_name = str(d / ("a" * 216 + ".h5"))       # 219 bytes: the aside names would pass 255
+    out = [
+        ["validate", ""], ["validate", "."], ["validate", str(d)], ["recover", "."],
+        ["recover", "/"], ["recover", ""], ["qc", "."], ["identify", "", "--out", str(d / "o")],
+        ["run", "--backend", "sim", "--resume", "."],
+        ["run", "--backend", "sim", "--out", long_name],
+        ["run", "--backend", "sim", "--resume", long_name],
+        ["recover", long_name],
+        ["gui", "--out", long_name],
+        ["design", "--population", "--seed", "-5", "--out", str(d / "d")],
+        ["design", "--population", "--seed", str(2 ** 63), "--out", str(d / "d")],
+        ["gui", "--seed", "-1"], ["gui", "--seed", str(2 ** 63)], ["gui", "--seed", "x"],
+        ["probe", "--hw-config", str(d / "hw.toml"), "--samples", "1000000000"],
+        ["probe", "--hw-config", str(d / "hw.toml"), "--samples", "0"],
+        ["export", "nwb", str(files["session"]), "--out", str(d / "x.nwb"),
+         "--subject-age", "notaduration"],
+        ["export", "nwb", str(files["session"]), "--out", str(d / "x.nwb"),
+         "--subject-age", "P30"],
+        ["export", "nwb", str(files["session"]), "--out", str(d / "x.nwb"),
+         "--experimenter", ""],
+        ["export", "nwb", str(files["session"]), "--out", str(d / "x.nwb"),
+         "--experimenter", "  "],
+    ]
+    if hasattr(os, "mkfifo"):  # POSIX: a FIFO is refused before anything reads (it waits)
+        fifo = d / "fifo"
+        if not fifo.exists():
+            os.mkfifo(fifo)
+        out += [["validate", str(fifo)], ["recover", str(fifo)], ["qc", str(fifo)],
+                ["identify", str(fifo), "--out", str(d / "o")],
+                ["run", "--backend", "sim", "--resume", str(fifo)]]
+    if sys.platform != "win32":  # bytes that are not UTF-8 reach argv as surrogate escapes
+        raw = os.fsdecode(str(d).encode() + b"/\xff\xfe.h5")
+        out += [["validate", raw], ["identify", raw, "--out", str(d / "o")],
+                ["gap", raw, "--out", str(d / "g")], ["qc", raw],
+                ["export", "nwb", raw, "--out", str(d / "x.nwb")],
+                ["export", "nwb", str(files["session"]), "--out", raw],
+                ["run", "--backend", "sim", "--out", raw], ["study", raw, "--out", str(d / "s")],
+                ["identify", str(files["session"]), "--out", raw]]
+    return out
+
+
+@settings(max_examples=40, deadline=5000, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(data=st.data())
+def test_plain_mistakes_of_issue_26(files, data):
+    argv = data.draw(st.sampled_from(_mistakes(files)))
+    line = _refused(argv)
+    assert "internal error" not in line and "\udcff" not in line, line
+    assert not any((files["dir"] / x).exists() for x in ("o", "d", "g", "s", "x.nwb"))
+
+
+@FUZZ
+@given(rE=st.one_of(st.floats(max_value=-1e-12, allow_nan=False),
+                    st.floats(min_value=1.0, exclude_min=True, allow_nan=False),
+                    st.sampled_from([math.nan, 1e308, -1e308, math.inf, -math.inf])))
+def test_twin_simulate_refuses_an_input_rE_outside_0_1(files, rE):
+    d = files["dir"]
+    csv = d / "in.csv"
+    csv.write_text("rE,sE\n0.5,0.5\n" + f"{rE!r},0.5\n" + "0.5,0.5\n", encoding="utf-8")
+    line = _refused(["twin", "simulate", str(files["twin"]), "--input", str(csv),
+                     "--out", str(d / "f.csv")])
+    assert "'rE' row 3" in line and "[0, 1]" in line, line
+    assert not (d / "f.csv").exists()
+
+
+def test_study_of_a_folder_with_a_name_that_is_not_utf8(tmp_path):
+    if sys.platform == "win32":
+        pytest.skip("Windows file names are always Unicode")
+    folder = tmp_path / "sessions"
+    folder.mkdir()
+    (folder / os.fsdecode(b"\xff.h5")).write_bytes(b"")
+    line = _refused(["study", str(folder), "--out", str(tmp_path / "st")])
+    assert "not UTF-8" in line and "\\xff" in line

@@ -98,7 +98,7 @@ def run_gui(options: GuiOptions) -> int:
                 return
             print(("nmsid gui: " if ok else "nmsid gui: error: ") + message,
                   file=sys.stdout if ok else sys.stderr)
-            result["code"] = 0 if ok else 1
+            result["code"] = 0 if ok else (runner.exit_code or 1)
             if options.screenshot is not None or runner.quit_requested or not ok \
                     and os.environ.get("QT_QPA_PLATFORM") == "offscreen":
                 window.close()

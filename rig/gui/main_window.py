@@ -31,6 +31,7 @@ from nmsid.rig.gui.event_log import EventLog
 from nmsid.rig.gui.identification_panel import IdentificationPanel
 from nmsid.rig.gui.live_buffer import LiveBuffer
 from nmsid.rig.gui.live_plots import LivePlots
+from nmsid.rig.gui.memory import release_freed_memory
 from nmsid.rig.gui.observer import EngineSignals
 from nmsid.rig.gui.results_panel import ResultsPanel
 from nmsid.rig.gui.safety_panel import SafetyPanel, install_estop_shortcuts
@@ -215,6 +216,7 @@ class MainWindow(QMainWindow):
         self.results.reset()
         self.buffer.start_trial(-1)
         self.live.reset_view()
+        release_freed_memory()  # the last session's freed heap back to the system
 
     def confirm_calibration(self, **currents_mA: float) -> None:
         """Optionally edit the currents (Iemin_mA=..., ...), then press Confirm."""

@@ -26,6 +26,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QHeaderView, QLabel, QPlainTex
                                QTableWidget, QTableWidgetItem, QTabWidget, QVBoxLayout,
                                QWidget)
 
+from nmsid.rig.gui.memory import release_freed_memory
 from nmsid.rig.gui.theme import Colour
 
 log = logging.getLogger(__name__)
@@ -179,6 +180,7 @@ class ResultsPanel(QWidget):
 
     def _on_done(self, view, error) -> None:
         self.busy = False
+        release_freed_memory()  # the model selection's freed heap back to the system
         if error:
             self.error = error
             self.status.setText(error)

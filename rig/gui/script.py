@@ -35,9 +35,10 @@ from pathlib import Path
 
 from PySide6.QtCore import QObject, QTimer, Signal
 
-from nmsid.errors import InputFileMissing, UserError
+from nmsid.errors import InputFileMissing, NmsidError, UserError
 from nmsid.protocols.config import SEED_MAX
 from nmsid.protocols.settings_base import bounded, settings_dataclass, validate_settings
+from nmsid.protocols.user_values import one_line
 
 log = logging.getLogger(__name__)
 
@@ -266,6 +267,9 @@ class ScriptRunner(QObject):
         self.pos = 0
         self.done = False
         self.ok: bool | None = None
+        self.exit_code = 0
+        """How ``nmsid gui --script`` ends (as the README's exit statuses): 0 done, 2 a
+        script or operator mistake, 3 a device fault, 4 a safety refusal, 1 a bug."""
         self.message = ""
         self.quit_requested = False
         #: set when the session was ended from outside (a signal): a step that fails
@@ -304,8 +308,13 @@ class ScriptRunner(QObject):
         except Exception as exc:  # report, stop the script, leave the window usable
             if self.interrupted:  # the signal's own line says how the session ended
                 log.debug("GUI script stopped by an interrupted session: %s", exc)
+            elif isinstance(exc, (NmsidError, ValueError, OSError)):
+                # an operator's or a device's mistake: one line, no traceback
+                log.error("GUI script failed: %s", one_line(exc))
             else:
                 log.exception("GUI script failed")
+            self.exit_code = int(getattr(exc, "exit_code", 0)) or (
+                2 if isinstance(exc, (ValueError, OSError)) else 1)
             self._finish(False, f"GUI script failed: {exc}")
 
     def _finish(self, ok: bool, message: str) -> None:

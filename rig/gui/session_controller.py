@@ -16,8 +16,10 @@ from typing import Callable
 
 from PySide6.QtCore import QObject, Qt, Signal
 
+from nmsid.errors import NmsidError
 from nmsid.protocols.config import config_from_json, load_config
 from nmsid.protocols.session_file import read_session
+from nmsid.protocols.user_values import one_line
 from nmsid.rig.engine import Engine
 from nmsid.rig.gui.live_buffer import LiveBuffer
 from nmsid.rig.gui.observer import EngineSignals, QtEngineObserver
@@ -166,7 +168,10 @@ class SessionController(QObject):
         try:
             summary = self.engine.run()
         except BaseException as exc:  # reported to the operator; output is already off
-            log.exception("engine run ended with an error")
+            if isinstance(exc, NmsidError):  # a user, device or safety stop: one line
+                log.error("engine run ended: %s", one_line(exc))
+            else:
+                log.exception("engine run ended with an error")
             error = exc
         finally:
             try:

@@ -9,21 +9,28 @@ from __future__ import annotations
 
 import enum
 import json
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QFileDialog, QFormLayout, QGroupBox,
-                               QHBoxLayout, QLabel, QLineEdit, QPushButton, QSpinBox,
-                               QVBoxLayout, QWidget)
+                               QHBoxLayout, QLabel, QLineEdit, QPushButton, QVBoxLayout,
+                               QWidget)
 
+from nmsid.errors import NmsidError
 from nmsid.protocols.config import config_from_json
-from nmsid.protocols.output_paths import default_sessions_dir
+from nmsid.protocols.errors import OutputPathError
+from nmsid.protocols.output_paths import check_output as check_output_place
+from nmsid.protocols.output_paths import check_session_name, default_sessions_dir
 from nmsid.protocols.session_file import PARTICIPANT_PATTERN, SessionWriter, read_session
 from nmsid.rig.errors import RequestError
+from nmsid.protocols.user_values import one_line, parse_seed
 from nmsid.rig.gui.theme import Colour
 from nmsid.rig.session_log import journal_dir
+
+log = logging.getLogger(__name__)
 
 
 class Backend(enum.Enum):
@@ -70,6 +77,16 @@ def check_output(path: str | os.PathLike) -> OutputCheck:
     are not completed; the engine's resume recovers the journal and re-runs the rest.
     """
     path = Path(path)
+    try:  # the CLI's preflight: a name the journal can derive from, a writable folder
+        check_session_name(path, option="output file")
+        if not path.exists() and not journal_dir(path).is_dir():
+            check_output_place(path, kind="file", option="output file")
+        elif not os.access(path.absolute().parent, os.W_OK | os.X_OK):
+            raise OutputPathError(f"output file {path}: cannot write in "
+                                  f"{path.absolute().parent} (permission denied); resume "
+                                  "needs to write beside the file")
+    except OutputPathError as exc:
+        return OutputCheck(OutputState.INVALID, f"{exc}")
     jdir = journal_dir(path)
     if not path.exists():
         if jdir.is_dir():
@@ -109,6 +126,14 @@ def check_output(path: str | os.PathLike) -> OutputCheck:
                        " trials completed). Press Resume to continue it (completed trials "
                        "are kept, aborted ones re-run), or choose another output file.",
                        len(done), planned)
+
+
+def _seed_of(text: str) -> int | None:
+    """The seed field's value (None: random, recorded); a bad value names what is valid."""
+    value, problem = parse_seed(text, empty_is_random=True)
+    if problem:
+        raise RequestError(problem)
+    return value
 
 
 def _planned_count(session) -> int:
@@ -159,10 +184,9 @@ class SetupPanel(QWidget):
         self.hw_config_path = QLineEdit()
         self.hw_config_path.setPlaceholderText("hardware chain configuration (hw only)")
         self.output_path = QLineEdit()
-        self.seed = QSpinBox()
-        self.seed.setRange(-1, 2**31 - 1)
-        self.seed.setSpecialValueText("random (recorded)")
-        self.seed.setValue(-1)
+        self.seed = QLineEdit()  # 0 ... 2**63-1 as on the command line (a QSpinBox is int32)
+        self.seed.setPlaceholderText("random (recorded)")
+        self.seed.textChanged.connect(lambda _: self.refresh())
         self.realtime = QCheckBox("pace the simulator in real time")
         self.realtime.setChecked(True)
         self.message = QLabel("")
@@ -253,7 +277,7 @@ class SetupPanel(QWidget):
             self._out_touched = True
             self.output_path.setText(str(output))
         if seed is not None:
-            self.seed.setValue(int(seed))
+            self.seed.setText(str(int(seed)))
         if realtime is not None:
             self.realtime.setChecked(bool(realtime))
         self.refresh()
@@ -273,6 +297,12 @@ class SetupPanel(QWidget):
         if not out:
             self._show("Choose an output file.", error=True)
             self.start_button.setEnabled(False)
+            return None
+        _, seed_problem = parse_seed(self.seed.text(), empty_is_random=True)
+        if seed_problem:
+            self._show(f"Schedule {seed_problem}.", error=True)
+            self.start_button.setEnabled(False)
+            self.resume_button.setVisible(False)
             return None
         check = check_output(out)
         self.start_button.setEnabled(check.state == OutputState.NEW)
@@ -298,7 +328,7 @@ class SetupPanel(QWidget):
         return SessionRequest(
             participant=code, backend=self.backend.currentData(), output_path=Path(out),
             config_path=Path(cfg) if cfg else None, hw_config_path=Path(hw) if hw else None,
-            seed=None if self.seed.value() < 0 else int(self.seed.value()),
+            seed=_seed_of(self.seed.text()),
             realtime=self.realtime.isChecked(), resume=resume)
 
     def press_start(self, resume: bool = False) -> None:
@@ -316,5 +346,6 @@ class SetupPanel(QWidget):
         try:
             req = self.request(resume=resume)
             self._on_start(req)
-        except (ValueError, OSError) as exc:
-            self._show(str(exc), error=True)
+        except (NmsidError, ValueError, OSError) as exc:  # one line on the panel and log
+            log.error("start refused: %s", one_line(exc))
+            self._show(one_line(exc), error=True)

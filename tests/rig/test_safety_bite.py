@@ -1,0 +1,91 @@
+"""Tests that bite (issue 29, 5): the interlock's trip stops the output FIRST, in the
+tripping thread, without waiting for a ``start()`` that blocks inside the gate; and a
+second stop follows a start that raced the trip. Through :class:`Interlock` only."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+from nmsid.drivers.interfaces import StimulatorState, StimulatorStatus
+from nmsid.protocols.config import InterlockConfig
+from nmsid.rig.safety import Interlock
+
+START_BLOCKS_S = 0.5
+
+
+class BlockingStim:
+    """A stimulator whose ``start()`` takes half a second (a USB round trip that hangs),
+    recording when each call arrives."""
+
+    def __init__(self):
+        self.calls: list[tuple[str, float]] = []
+        self.started = threading.Event()
+
+    def start(self):
+        self.calls.append(("start", time.perf_counter()))
+        self.started.set()
+        time.sleep(START_BLOCKS_S)
+
+    def stop_now(self):
+        self.calls.append(("stop", time.perf_counter()))
+
+    def status(self):
+        return StimulatorStatus(StimulatorState.IDLE, False, "")
+
+
+def test_a_trip_stops_output_at_once_while_start_blocks_in_the_gate():
+    stim = BlockingStim()
+    lock = Interlock(InterlockConfig(), stim)
+    starter = threading.Thread(target=lock.start_output)
+    starter.start()
+    assert stim.started.wait(2.0)
+    t0 = time.perf_counter()
+    tripper = threading.Thread(target=lock.trip, args=("force_limit", "test"))
+    tripper.start()
+    deadline = time.perf_counter() + 2.0
+    while not any(k == "stop" for k, _ in stim.calls) and time.perf_counter() < deadline:
+        time.sleep(0.001)
+    stops = [t for k, t in stim.calls if k == "stop"]
+    starter.join()
+    tripper.join()
+    # output told to stop within 100 ms of the trip, not after start() let go (500 ms)
+    assert stops and stops[0] - t0 < 0.1, [(k, t - t0) for k, t in stim.calls]
+    assert lock.latched
+
+
+def test_a_trip_stops_again_after_a_start_that_raced_it():
+    stim = BlockingStim()
+    lock = Interlock(InterlockConfig(), stim)
+    starter = threading.Thread(target=lock.start_output)
+    starter.start()
+    assert stim.started.wait(2.0)
+    lock.trip("force_limit", "test")
+    starter.join()
+    kinds = [k for k, _ in stim.calls]
+    # the last word is a stop that came after the start completed
+    start_done = stim.calls[0][1] + START_BLOCKS_S
+    assert kinds[-1] == "stop" and stim.calls[-1][1] >= start_done - 0.01, kinds
+    assert kinds.count("stop") >= 2
+
+
+def _chunk(force, **flags):
+    import numpy as np
+    from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
+    return ForceChunk(0, np.asarray(force, dtype=float), flags=AcquisitionFlags(**flags))
+
+
+def test_check_chunk_trips_on_force_and_on_each_flag_through_the_interlock():
+    from nmsid.rig.safety import Interlock
+    for chunk, rule in ((_chunk([1.0, 40.0]), "force_limit"),
+                        (_chunk([0.0], sensor_fault=True, detail="AD error"), "acq_flags"),
+                        (_chunk([0.0], over_range=True), "acq_flags"),
+                        (_chunk([0.0], overrun=True), "acq_flags")):
+        stim = BlockingStim()
+        lock = Interlock(InterlockConfig(), stim)
+        trip = lock.check_chunk(chunk, 0.0)
+        assert trip is not None and lock.latched, rule
+        assert trip.rule == lock.rules[trip.rule].name
+        assert any(k == "stop" for k, _ in stim.calls)
+    quiet = Interlock(InterlockConfig(), BlockingStim())
+    assert quiet.check_chunk(_chunk([1.0, -2.0]), 0.0) is None and not quiet.latched
