@@ -29,6 +29,7 @@ import math
 from typing import Callable
 
 from nmsid.drivers.interfaces import RecoverableAcquisition, StimulatorState
+from nmsid.rig.observer import TripPolicy
 from nmsid.rig.states import State
 
 log = logging.getLogger(__name__)
@@ -50,6 +51,7 @@ class DeviceRecovery:
     """Mixin of :class:`nmsid.rig.engine.Engine` (uses its devices, events, state machine)."""
 
     on_device_glitch: GlitchConfirm | None = None
+    trip_policy: TripPolicy = TripPolicy.WAIT_FOR_REARM
 
     def _device_problem(self) -> tuple[str, str] | None:
         """``(device, what)`` for the first device whose link is down, else None."""
@@ -138,6 +140,8 @@ class DeviceRecovery:
                 return bool(self.on_device_glitch(what, reconnected))
             except (EOFError, KeyboardInterrupt):
                 return False
+        if self.trip_policy is TripPolicy.END_SESSION:
+            return False   # headless, nobody to confirm: end the session for --resume
         self._resume_req = False
         self._wait_operator(lambda: self._resume_req, "confirm after " + what)
         self._resume_req = self._pause_req = False

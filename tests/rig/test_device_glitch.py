@@ -147,3 +147,14 @@ def test_headless_confirmation_flag_terminal_and_no_terminal():
     refuse = glitch_confirmation(False, stdin=_Tty("y\n", tty=False), stdout=out)
     assert refuse("x", True) is False
     assert "--resume" in out.getvalue()
+
+
+def test_headless_without_a_confirmation_callback_ends_instead_of_waiting(tmp_path):
+    """END_SESSION means no operator: a glitch between trials ends the session for
+    --resume (it used to wait for a confirmation nobody could give, forever)."""
+    path = tmp_path / "g.h5"
+    rig = make_sim_rig(seed=1, faults=[_between_trials(FaultKind.STIM_DISCONNECT)])
+    s = Engine(_cfg(), rig, path, trip_policy=TripPolicy.END_SESSION).run()
+    assert s.n_completed == 1 and "session ended for --resume" in s.ended_by
+    assert validate_session(path) == []
+    assert not rig.world.output_active_at(rig.clock.monotonic_s())

@@ -41,7 +41,9 @@ Fx = 0
 [sensor.rated]
 Fx = 500.0
 [sensor.rated_output_V]
-Fx = 10.0
+Fx = 1.0
+[sensor.offset_V]
+Fx = 1.5
 """
 
 
