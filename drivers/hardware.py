@@ -16,17 +16,11 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, replace
 
-import numpy as np
-
-from nmsid.drivers.caio import CaioAcquisition, declare
 from nmsid.drivers.errors import HardwareConfigError
-from nmsid.drivers.estop_switch import NidaqEStop, SerialEStop
 from nmsid.drivers.fake_hardware import fake_requested, load_fake
 from nmsid.drivers.hw_config import HardwareConfig, load_hw_config
 from nmsid.drivers.interfaces import RealClock, RigDevices, Stimulator
-from nmsid.drivers.leptrino import LeptrinoAcquisition, LeptrinoSensor, _serial_module
-from nmsid.drivers.nidaq import NidaqAcquisition
-from nmsid.drivers.registry import acquisition_kind, stimulator_kind
+from nmsid.drivers.registry import ACQUISITIONS, acquisition_kind, estop_kind, stimulator_kind
 
 log = logging.getLogger(__name__)
 
@@ -110,8 +104,7 @@ def build_devices(cfg: HardwareConfig) -> RigDevices:
     # is opened or anything else is tried
     stimulator_kind(s).load_library(stim)
     load_acquisition_library(cfg, acq)
-    if cfg.estop.kind == "serial":
-        _serial_module()
+    estop_kind(cfg).load_library()
     estop = _estop(cfg, stack)
     if estop is None:
         log.warning("no hardware E-stop switch configured ([estop] kind = \"none\"): only "
@@ -149,10 +142,11 @@ def with_monitor(cfg: HardwareConfig) -> HardwareConfig:
     """
     a = cfg.acquisition
     if not acquisition_kind(cfg).analog:
+        analog = " or ".join(k for k, e in ACQUISITIONS.items() if e.analog)
         raise HardwareConfigError(
             f"{cfg.source}: the dry run records the dummy-load resistor's voltage on a spare "
             f"A/D input, and acquisition.kind = {a.kind!r} has none; use an analog chain "
-            "(caio or nidaq) for the dry run, or check the resistor with an oscilloscope "
+            f"({analog}) for the dry run, or check the resistor with an oscilloscope "
             "(docs/hardware.md, section 6)")
     if a.monitor_channel is None:
         raise HardwareConfigError(
@@ -176,7 +170,7 @@ def load_stimulator_library(cfg: HardwareConfig, stim) -> None:
 
 def make_acquisition(cfg: HardwareConfig, stack: FakeStack | None):
     """The configured force acquisition (not configured yet)."""
-    return _acquisition(cfg, stack)
+    return _own(acquisition_kind(cfg).make(cfg, stack), stack)
 
 
 def load_acquisition_library(cfg: HardwareConfig, acq) -> None:
@@ -187,8 +181,7 @@ def load_acquisition_library(cfg: HardwareConfig, acq) -> None:
 
 def make_estop(cfg: HardwareConfig, stack: FakeStack | None):
     """The configured E-stop switch, opened (None if none is configured)."""
-    if cfg.estop.kind == "serial":
-        _serial_module()
+    estop_kind(cfg).load_library()
     estop = _estop(cfg, stack)
     if estop is not None:
         estop.open()
@@ -199,68 +192,15 @@ def _with_fake(cfg: HardwareConfig) -> HardwareConfig:
     return replace(cfg, fake=True)
 
 
-def _acquisition(cfg: HardwareConfig, stack: FakeStack | None):
-    a = cfg.acquisition
-    if a.kind == "caio":
-        lib = None
-        if stack is not None:
-            lib = declare(load_fake("fake_caio").FakeCaioLibrary(
-                stack.bench, device_name=a.caio["device_name"],
-                wiring=_fake_wiring(cfg, stack.bench)))
-        return _own(CaioAcquisition(cfg.calibration, lib=lib, **a.caio), stack)
-    if a.kind == "nidaq":
-        return _own(NidaqAcquisition(cfg.calibration, **a.nidaq), stack)
-    port = a.leptrino["port"]
-    if stack is not None:
-        port = stack.emulator.port
-    sensor = LeptrinoSensor(port, baudrate=a.leptrino["baudrate"])
-    return _own(LeptrinoAcquisition(sensor, extension_direction=cfg.extension_direction,
-                                    sync_on_external_input=a.leptrino["sync_on_external_input"]),
-                stack)
-
-
 def _own(acq, stack):
     return acq if stack is None else _OwningAcquisition(acq, stack)
 
 
 def _estop(cfg: HardwareConfig, stack: FakeStack | None):
-    e = cfg.estop
-    if e.kind == "serial":
-        return SerialEStop("loop://" if stack is not None else e.port, line=e.line)
-    if e.kind == "nidaq":
-        return NidaqEStop(e.line, released_level=e.released_level)
-    return None
+    return estop_kind(cfg).make(cfg, stack)
 
 
 # -- fake mode ---------------------------------------------------------------------------
-def _fake_wiring(cfg: HardwareConfig, bench) -> dict:
-    """Fake sensor outputs consistent with the configured calibration (fake mode only);
-    the monitor input, if configured, carries the fake dummy load's voltage."""
-    wiring = _fake_sensor_wiring(cfg, bench)
-    if cfg.acquisition.monitor_channel is not None:
-        wiring[cfg.acquisition.monitor_channel] = load_fake("bench").monitor_wiring(bench)
-    return wiring
-
-
-def _fake_sensor_wiring(cfg: HardwareConfig, bench) -> dict:
-    cal = cfg.calibration
-    d = cal.direction
-    if cal.matrix is None:
-        # the sensor per its manual, driven by force (not by the configured calibration)
-        return load_fake("bench").leptrino_analog_wiring(
-            bench, cal.channels, dict(cal.rated), direction=tuple(d),
-            sync_channel=cal.sync_channel)
-    minv = np.linalg.inv(np.asarray(cal.matrix, dtype=float))
-    axes = ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
-    wiring = {}
-    for axis, ch in cal.channels.items():
-        gain = float(minv[axes.index(axis), :3] @ d)
-        off = cal.offset_V.get(axis, 0.0)
-        wiring[ch] = lambda t, force, g=gain, o=off: force * g + o
-    wiring[cal.sync_channel] = lambda t, force: bench.sync_V(t)
-    return wiring
-
-
 def _install_fakes(cfg: HardwareConfig) -> FakeStack:
     """Put the fake vendor modules in place and wire the fake bench (fake mode only)."""
     log.warning("FAKE hardware: %s runs against the fakes in testing/fakes, "
@@ -270,30 +210,8 @@ def _install_fakes(cfg: HardwareConfig) -> FakeStack:
     bench.extensor_channel = s.extensor_channel - 1
     bench.flexor_channel = s.flexor_channel - 1
     stack = FakeStack(bench=bench, stimulator_fake=stimulator_kind(s).install_fake(s, bench))
-    a = cfg.acquisition
-    if a.kind == "nidaq" or cfg.estop.kind == "nidaq":
-        wiring = _fake_wiring(cfg, bench) if a.kind == "nidaq" else {}
-        dev = a.nidaq["device"]
-        load_fake("fake_nidaqmx").install(
-            bench=bench, devices={dev: {"product_type": "USB-6212", "serial_num": 0x1A2B3C}},
-            wiring=wiring,
-            di_lines={cfg.estop.line: cfg.estop.released_level} if cfg.estop.kind == "nidaq"
-            else {})
-    if a.kind == "leptrino":
-        emu_mod = load_fake("leptrino_emulator")
-        d = np.asarray(cfg.extension_direction, float)
-        d = d / np.linalg.norm(d)
-        state = {"rate": 1200.0}
-
-        def wrench(t):
-            f = float(bench.force_N(np.array([bench.now()]), state["rate"])[0])
-            return (*(f * d), 0.0, 0.0, 0.0)
-
-        def status(t):
-            return 0x20 if float(bench.sync_V(np.array([bench.now()]))[0]) > 1.0 else 0
-
-        emu = emu_mod.LeptrinoEmulator(wrench_fn=wrench)
-        emu.status_fn = status
-        emu.__enter__()
-        stack.emulator = emu
+    # each kind's fake in place and wired to the bench before any device is made
+    for install in (acquisition_kind(cfg).install_fake, estop_kind(cfg).install_fake):
+        if install is not None:
+            install(cfg, stack)
     return stack

@@ -158,17 +158,23 @@ class AcquisitionSettings:
         if abs(per - round(per)) > 1e-9:
             raise SettingProblem("monitor_fs_Hz", self.monitor_fs_Hz,
                                  "a whole multiple of the 1000 Hz carrier (10000, 20000, ...)")
-        if self.kind == "leptrino" and self.fs_Hz > LEPTRINO_MAX_RATE_HZ:
-            raise SettingProblem(
-                "fs_Hz", self.fs_Hz,
-                f"the Leptrino USB interface streams at about {LEPTRINO_MAX_RATE_HZ:g} Hz and "
-                f"cannot give {self.fs_Hz:g} Hz; use an analog chain (acquisition.kind = "
-                "\"caio\" or \"nidaq\") for the paper's 2000 Hz, or set acquisition.fs_Hz (and "
-                f"the protocol's fs_Hz) to {LEPTRINO_MAX_RATE_HZ:g}")
-        if self.kind == "leptrino" and not self.leptrino.port:
-            raise SettingProblem("leptrino.port", "", "the serial port of the sensor is "
-                                 "needed (COM5, /dev/ttyACM0)")
+        problem = _acquisition_entry(self.kind).check(self)
+        if problem:
+            raise SettingProblem(*problem)
         return self
+
+
+def _acquisition_entry(kind: str):
+    """The registry entry of an ``[acquisition] kind`` (:data:`nmsid.drivers.registry.
+    ACQUISITIONS`: its title, analog support and per-kind rules)."""
+    # imported here: the registry imports this module (its settings models)
+    from nmsid.drivers.registry import acquisition_entry  # noqa: PLC0415
+    return acquisition_entry(kind)
+
+
+def _analog_kinds() -> list[str]:
+    from nmsid.drivers.registry import ACQUISITIONS  # noqa: PLC0415 (as above)
+    return [k for k, e in ACQUISITIONS.items() if e.analog]
 
 
 _ANALOG_ONLY = ("channels", "rated", "rated_output_V", "offset_V", "matrix", "sync_channel")
@@ -213,14 +219,10 @@ class EStopConfig:
 
     @model_validator(mode="after")
     def _wired(self):
-        if self.kind == "serial":
-            if not self.port:
-                raise SettingProblem("port", "", "the USB-serial adapter's port is needed")
-            if self.line not in ("CTS", "DSR"):
-                raise SettingProblem("line", self.line, "valid: CTS, DSR")
-        if self.kind == "nidaq" and "/" not in self.line:
-            raise SettingProblem("line", self.line,
-                                 "a DAQmx digital line such as Dev1/port0/line0")
+        from nmsid.drivers.registry import ESTOPS  # noqa: PLC0415 (it imports this module)
+        problem = ESTOPS[self.kind].check(self)
+        if problem:
+            raise SettingProblem(*problem)
         return self
 
 
@@ -238,28 +240,28 @@ class HardwareFile:
 
     @model_validator(mode="after")
     def _estop_pin(self):
-        a, e = self.acquisition, self.estop
-        if a.kind == "nidaq" and e.kind == "nidaq":
-            from nmsid.drivers.nidaq import shared_pin  # noqa: PLC0415 (vendor-free helper)
-            problem = shared_pin(e.line, a.nidaq.start_trigger or f"/{a.nidaq.device}/PFI0")
-            if problem:
-                raise SettingProblem("estop.line", e.line, problem)
+        problem = _acquisition_entry(self.acquisition.kind).check_file(self.acquisition,
+                                                                       self.estop)
+        if problem:
+            raise SettingProblem(*problem)
         return self
 
     @model_validator(mode="after")
     def _wiring(self):
         se = self.sensor
-        if self.acquisition.kind not in ("caio", "nidaq"):
+        entry = _acquisition_entry(self.acquisition.kind)
+        if not entry.analog:
+            analog = " or ".join(_analog_kinds())
             if self.acquisition.monitor_channel >= 0:
                 raise SettingProblem("acquisition.monitor_channel",
                                      self.acquisition.monitor_channel,
-                                     "only for analog chains (acquisition.kind caio or nidaq): "
-                                     "the Leptrino USB sensor has no spare analog input")
+                                     f"only for analog chains (acquisition.kind {analog}): "
+                                     f"the {entry.title} sensor has no spare analog input")
             for key in _ANALOG_ONLY:
                 value = getattr(se, key)
                 if value not in ({}, None, -1):
                     raise SettingProblem(f"sensor.{key}", value, "only for analog chains "
-                                         "(acquisition.kind caio or nidaq); the Leptrino USB "
+                                         f"(acquisition.kind {analog}); the {entry.title} "
                                          "sensor reports its own rated values")
             return self
         if not se.channels:
@@ -329,14 +331,13 @@ class HardwareConfig:
     """Typed by ``kind``; :mod:`nmsid.drivers.registry` knows what each kind needs."""
     acquisition: AcquisitionConfig
     calibration: AnalogCalibration | None
-    """Analog chains only (caio, nidaq)."""
+    """Analog chains only (``analog`` in the acquisition kind's registry entry)."""
     extension_direction: tuple[float, float, float]
     sensor_model: str
     estop: EStopConfig
 
     def describe(self) -> str:
-        acq = {"caio": "Contec AI-1608AY-USB", "nidaq": "NI DAQ",
-               "leptrino": "Leptrino USB"}[self.acquisition.kind]
+        acq = _acquisition_entry(self.acquisition.kind).title
         text = f"hw: {STIMULATOR_TITLES[self.stimulator.kind]} + {acq} ({self.sensor_model})"
         return text + (" [FAKE devices]" if self.fake else "")
 
@@ -377,7 +378,7 @@ def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
         leptrino=dict(port=a.leptrino.port, baudrate=a.leptrino.baudrate,
                       sync_on_external_input=a.leptrino.sync_on_external_input))
     cal = None
-    if a.kind in ("caio", "nidaq"):
+    if _acquisition_entry(a.kind).analog:
         try:
             cal = AnalogCalibration(
                 channels=dict(se.channels), rated=dict(se.rated),

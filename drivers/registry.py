@@ -13,9 +13,10 @@ and the kind's own driver and fake modules). An entry holds:
 * ``report``: ``nmsid stimulation``'s figures of one level (what the device will deliver);
 * ``dry_run``: what the dry run can check on a dummy load with this device.
 
-The acquisition kind is dispatched in one place too: :data:`ACQUISITIONS`.
+The acquisition and E-stop kinds are dispatched here too: :data:`ACQUISITIONS` (settings
+rules, driver, fake and its bench wiring, title, analog support) and :data:`ESTOPS`.
 
-Adding a stimulator kind: docs/architecture.md, "Adding a stimulator kind".
+Adding a kind: docs/architecture.md, "Adding a stimulator kind" (and an acquisition kind).
 """
 
 from __future__ import annotations
@@ -26,14 +27,16 @@ from typing import Any
 
 import numpy as np
 
-from nmsid.drivers.caio import CaioAcquisition
+from nmsid.drivers.analog_force import AnalogCalibration
+from nmsid.drivers.caio import CaioAcquisition, declare
 from nmsid.drivers.dry_run import commanded_current_A
 from nmsid.drivers.errors import HardwareConfigError
-from nmsid.drivers.fake_hardware import load_fake
-from nmsid.drivers.hw_config import HardwareConfig, StimulatorConfig
+from nmsid.drivers.estop_switch import NidaqEStop, SerialEStop
+from nmsid.drivers.fake_hardware import analog_wiring, load_fake
+from nmsid.drivers.hw_config import LEPTRINO_MAX_RATE_HZ, HardwareConfig, StimulatorConfig
 from nmsid.drivers.interfaces import CheckedWaveform
-from nmsid.drivers.leptrino import _serial_module
-from nmsid.drivers.nidaq import NidaqAcquisition
+from nmsid.drivers.leptrino import LeptrinoAcquisition, LeptrinoSensor, _serial_module
+from nmsid.drivers.nidaq import NidaqAcquisition, shared_pin
 from nmsid.drivers.rehastim2 import Rehastim2Stimulator
 from nmsid.drivers.rehastim2_settings import Rehastim2Config
 from nmsid.drivers.stg4002 import DEFAULT_DLL, Stg4002Stimulator
@@ -183,9 +186,46 @@ def stimulator_kind(settings) -> StimulatorKind:
 
 
 # -- acquisition kinds ------------------------------------------------------------------------
+# ``[acquisition] kind`` picks an entry of ACQUISITIONS; its per-kind table
+# ([acquisition.caio], [acquisition.nidaq], [acquisition.leptrino]) is read by its ``make``.
+def _calibration(cfg: HardwareConfig) -> AnalogCalibration:
+    """An analog chain's calibration (``parse_hw_config`` makes one for every analog kind)."""
+    if cfg.calibration is None:
+        raise HardwareConfigError(f"{cfg.source}: acquisition.kind = "
+                                  f"{cfg.acquisition.kind!r} has no [sensor] calibration")
+    return cfg.calibration
+
+
+def _make_caio(cfg: HardwareConfig, stack):
+    a = cfg.acquisition
+    lib = None
+    if stack is not None:
+        lib = declare(load_fake("fake_caio").FakeCaioLibrary(
+            stack.bench, device_name=a.caio["device_name"],
+            wiring=analog_wiring(cfg, stack.bench)))
+    return CaioAcquisition(_calibration(cfg), lib=lib, **a.caio)
+
+
 def _caio_library(acq) -> None:
     if isinstance(acq, CaioAcquisition):
         _ = acq.lib
+
+
+def _make_nidaq(cfg: HardwareConfig, stack):
+    return NidaqAcquisition(_calibration(cfg), **cfg.acquisition.nidaq)
+
+
+def _fake_nidaqmx(cfg: HardwareConfig, stack) -> None:
+    """The fake nidaqmx (one module for both users): the acquisition's analog inputs if it
+    is the A/D, the E-stop's digital line if the E-stop is a DAQmx line."""
+    analog = cfg.acquisition.kind == "nidaq"
+    digital = cfg.estop.kind == "nidaq"
+    load_fake("fake_nidaqmx").install(
+        bench=stack.bench,
+        devices={cfg.acquisition.nidaq["device"]: {"product_type": "USB-6212",
+                                                   "serial_num": 0x1A2B3C}},
+        wiring=analog_wiring(cfg, stack.bench) if analog else {},
+        di_lines={cfg.estop.line: cfg.estop.released_level} if digital else {})
 
 
 def _nidaq_library(acq) -> None:
@@ -193,26 +233,174 @@ def _nidaq_library(acq) -> None:
         _ = acq.api
 
 
+def _check_nidaq_file(a, estop) -> tuple[str, object, str] | None:
+    """The E-stop's DAQmx line must not be the acquisition's start-trigger pin."""
+    if estop.kind != "nidaq":
+        return None
+    problem = shared_pin(estop.line, a.nidaq.start_trigger or f"/{a.nidaq.device}/PFI0")
+    return ("estop.line", estop.line, problem) if problem else None
+
+
+def _make_leptrino(cfg: HardwareConfig, stack):
+    a = cfg.acquisition
+    port = a.leptrino["port"] if stack is None else stack.emulator.port
+    sensor = LeptrinoSensor(port, baudrate=a.leptrino["baudrate"])
+    return LeptrinoAcquisition(sensor, extension_direction=cfg.extension_direction,
+                               sync_on_external_input=a.leptrino["sync_on_external_input"])
+
+
+def _fake_leptrino(cfg: HardwareConfig, stack) -> None:
+    """A Leptrino emulator on a pseudo-terminal, its force from the bench (fake mode)."""
+    bench = stack.bench
+    d = np.asarray(cfg.extension_direction, float)
+    d = d / np.linalg.norm(d)
+    state = {"rate": 1200.0}
+
+    def wrench(t):
+        f = float(bench.force_N(np.array([bench.now()]), state["rate"])[0])
+        return (*(f * d), 0.0, 0.0, 0.0)
+
+    def status(t):
+        return 0x20 if float(bench.sync_V(np.array([bench.now()]))[0]) > 1.0 else 0
+
+    emu = load_fake("leptrino_emulator").LeptrinoEmulator(wrench_fn=wrench)
+    emu.status_fn = status
+    emu.__enter__()
+    stack.emulator = emu
+
+
 def _leptrino_library(acq) -> None:
     _serial_module()
 
 
+def _check_leptrino(a) -> tuple[str, object, str] | None:
+    if a.fs_Hz > LEPTRINO_MAX_RATE_HZ:
+        analog = " or ".join(f'"{k}"' for k, e in ACQUISITIONS.items() if e.analog)
+        return ("fs_Hz", a.fs_Hz,
+                f"the Leptrino USB interface streams at about {LEPTRINO_MAX_RATE_HZ:g} Hz and "
+                f"cannot give {a.fs_Hz:g} Hz; use an analog chain (acquisition.kind = "
+                f"{analog}) for the paper's 2000 Hz, or set acquisition.fs_Hz (and "
+                f"the protocol's fs_Hz) to {LEPTRINO_MAX_RATE_HZ:g}")
+    if not a.leptrino.port:
+        return ("leptrino.port", "", "the serial port of the sensor is needed (COM5, "
+                "/dev/ttyACM0)")
+    return None
+
+
+def _no_check(*_) -> tuple[str, object, str] | None:
+    return None
+
+
 @dataclass(frozen=True)
 class AcquisitionKind:
+    """One force acquisition chain, by ``[acquisition] kind``.
+
+    ``check`` and ``check_file`` return ``(key, value, what is valid)`` for a bad setting
+    (None if fine); :mod:`nmsid.drivers.hw_config` raises it in the file's one-line form.
+    """
+
     kind: str
     title: str
     analog: bool
-    """An A/D with spare inputs (the dry run's monitor, a sync channel)."""
+    """An A/D with spare inputs (the sensor's analog outputs, the sync, the dry run's
+    monitor): ``[sensor]`` wiring and calibration apply, ``monitor_channel`` may be set."""
     load_library: Callable[[Any], None]
+    make: Callable[[HardwareConfig, Any], Any]
+    """``make(cfg, fake_stack or None) -> Acquisition``, not configured."""
+    install_fake: Callable[[HardwareConfig, Any], None] | None
+    """``install_fake(cfg, stack)``: the faithful fake in place and wired to the bench before
+    any device is made (None: ``make`` builds its fake itself)."""
+    check: Callable[[Any], tuple[str, object, str] | None] = _no_check
+    """``check(acquisition_settings)``: per-kind rules; keys relative to ``[acquisition]``."""
+    check_file: Callable[[Any, Any], tuple[str, object, str] | None] = _no_check
+    """``check_file(acquisition_settings, estop)``: rules across tables; full keys."""
 
 
 ACQUISITIONS: dict[str, AcquisitionKind] = {
-    "caio": AcquisitionKind("caio", "Contec AI-1608AY-USB", True, _caio_library),
-    "nidaq": AcquisitionKind("nidaq", "NI DAQ", True, _nidaq_library),
-    "leptrino": AcquisitionKind("leptrino", "Leptrino USB", False, _leptrino_library),
+    "caio": AcquisitionKind("caio", "Contec AI-1608AY-USB", True, _caio_library,
+                            make=_make_caio, install_fake=None),
+    "nidaq": AcquisitionKind("nidaq", "NI DAQ", True, _nidaq_library, make=_make_nidaq,
+                             install_fake=_fake_nidaqmx, check_file=_check_nidaq_file),
+    "leptrino": AcquisitionKind("leptrino", "Leptrino USB", False, _leptrino_library,
+                                make=_make_leptrino, install_fake=_fake_leptrino,
+                                check=_check_leptrino),
 }
+"""Every force acquisition chain nmsid reads, by ``[acquisition] kind`` (the members of
+``hw_config.AcquisitionSettings.kind``; a test checks they agree)."""
 
 
 def acquisition_kind(cfg: HardwareConfig) -> AcquisitionKind:
-    return ACQUISITIONS[cfg.acquisition.kind]
+    """The registry entry of a validated hardware file's ``[acquisition]``."""
+    return acquisition_entry(cfg.acquisition.kind)
 
+
+def acquisition_entry(kind: str) -> AcquisitionKind:
+    """The registry entry of an ``[acquisition] kind``.
+
+    Raises
+    ------
+    HardwareConfigError
+        For a kind without an entry (a kind added to the settings without its entry).
+    """
+    entry = ACQUISITIONS.get(kind)
+    if entry is None:
+        raise HardwareConfigError(f"[acquisition] kind {kind!r}: "
+                                  f"valid {', '.join(ACQUISITIONS)}")
+    return entry
+
+
+# -- E-stop kinds -----------------------------------------------------------------------------
+def _make_serial_estop(cfg: HardwareConfig, stack):
+    return SerialEStop("loop://" if stack is not None else cfg.estop.port, line=cfg.estop.line)
+
+
+def _make_nidaq_estop(cfg: HardwareConfig, stack):
+    return NidaqEStop(cfg.estop.line, released_level=cfg.estop.released_level)
+
+
+def _check_serial_estop(e) -> tuple[str, object, str] | None:
+    if not e.port:
+        return ("port", "", "the USB-serial adapter's port is needed")
+    if e.line not in ("CTS", "DSR"):
+        return ("line", e.line, "valid: CTS, DSR")
+    return None
+
+
+def _check_nidaq_estop(e) -> tuple[str, object, str] | None:
+    if "/" not in e.line:
+        return ("line", e.line, "a DAQmx digital line such as Dev1/port0/line0")
+    return None
+
+
+def _fake_nidaq_estop(cfg: HardwareConfig, stack) -> None:
+    if acquisition_kind(cfg).install_fake is not _fake_nidaqmx:   # not installed already
+        _fake_nidaqmx(cfg, stack)
+
+
+@dataclass(frozen=True)
+class EStopKind:
+    """One hardware E-stop switch, by ``[estop] kind``."""
+
+    kind: str
+    make: Callable[[HardwareConfig, Any], Any]
+    """``make(cfg, fake_stack or None) -> EStopSwitch or None`` (not opened)."""
+    load_library: Callable[[], None]
+    install_fake: Callable[[HardwareConfig, Any], None] | None = None
+    check: Callable[[Any], tuple[str, object, str] | None] = _no_check
+    """``check(estop_settings)``: per-kind rules; keys relative to ``[estop]``."""
+
+
+ESTOPS: dict[str, EStopKind] = {
+    "none": EStopKind("none", make=lambda cfg, stack: None, load_library=lambda: None),
+    "serial": EStopKind("serial", make=_make_serial_estop, load_library=_serial_module,
+                        check=_check_serial_estop),
+    "nidaq": EStopKind("nidaq", make=_make_nidaq_estop, load_library=lambda: None,
+                       install_fake=_fake_nidaq_estop, check=_check_nidaq_estop),
+}
+"""Every hardware E-stop switch, by ``[estop] kind`` (the members of
+``hw_config.EStopConfig.kind``; a test checks they agree)."""
+
+
+def estop_kind(cfg: HardwareConfig) -> EStopKind:
+    """The registry entry of a validated hardware file's ``[estop]``."""
+    return ESTOPS[cfg.estop.kind]
