@@ -57,11 +57,15 @@ MODULES: dict[str, list[str]] = {
     "drivers/stg_download.py": ["tests/drivers/test_stg_charge_balance.py",
                                 "tests/drivers/test_stg_waveform_bite.py"],
     "protocols/session_publish.py": ["tests/rig/test_session_store.py",
+                                     "tests/protocols/test_session_publish.py",
+                                     "tests/rig/test_store_windows.py",
                                      "tests/rig/test_store_bite.py",
                                      "tests/rig/test_recovery_bite.py"],
     "rig/journal.py": ["tests/rig/test_session_log.py", "tests/rig/test_store_bite.py",
+                       "tests/rig/test_store_windows.py", "tests/rig/test_store_merge.py",
                        "tests/rig/test_recovery_bite.py"],
     "rig/recovery.py": ["tests/rig/test_session_log.py", "tests/rig/test_session_store.py",
+                        "tests/rig/test_store_merge.py", "tests/rig/test_store_windows.py",
                         "tests/rig/test_store_bite.py", "tests/rig/test_recovery_bite.py"],
 }
 
@@ -75,7 +79,7 @@ NAMED: list[tuple[str, str, str, str]] = [
     ("protocols/session_publish.py", "publish_image", "call", "os.link("),
     ("rig/journal.py", "write_durable", "delete", "os.fsync("),
     ("rig/journal.py", "write_durable", "call", "with_name("),
-    ("rig/recovery.py", "_same_trial", "call", "array_equal"),
+    ("rig/recovery.py", "_identity", "call", "trial_digest("),
 ]
 
 
