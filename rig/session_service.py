@@ -126,7 +126,10 @@ def hw_fingerprint(path) -> tuple[str, str]:
     except OSError as exc:
         raise RequestError(f"--hw-config {path}: cannot be read ({exc.strerror or exc})"
                            ) from None
-    return hashlib.sha256(raw).hexdigest(), raw.decode("utf-8", errors="replace")
+    # line ends normalised: the same file checked out with CRLF (Windows, git's autocrlf)
+    # or LF is the same rig
+    text = raw.decode("utf-8", errors="replace").replace("\r\n", "\n")
+    return hashlib.sha256(text.encode("utf-8")).hexdigest(), text
 
 
 def prepare_rig(request: RigRequest, config) -> PreparedRig:

@@ -37,6 +37,7 @@ def _spy(monkeypatch, module_os):
     return calls
 
 
+@pytest.mark.posix_only('the folder fsync is POSIX (Windows cannot fsync a directory handle)')
 def test_publish_fsyncs_the_new_version_before_replacing_then_the_folder(tmp_path,
                                                                         monkeypatch):
     path = tmp_path / "s.h5"
@@ -83,6 +84,7 @@ def test_a_new_file_is_linked_never_replaced_and_never_overwrites(tmp_path, monk
     assert not list(tmp_path.glob("*.writing-*"))
 
 
+@pytest.mark.posix_only('the folder fsync is POSIX (Windows cannot fsync a directory handle)')
 def test_a_journal_entry_is_written_aside_fsynced_then_renamed(tmp_path, monkeypatch):
     target = tmp_path / "trial-0001.npz"
     target.write_bytes(b"previous entry")

@@ -148,3 +148,16 @@ def test_service_refuses_before_building_devices(tmp_path, monkeypatch):
     with pytest.raises(ResumeMismatch):
         prepare_rig(RigRequest(backend="sim", session_path=tmp_path / "x.h5", resume=True,
                                stored={}, stored_backend="hw: MCS STG4002 + ..."), cfg)
+
+
+def test_a_hardware_file_with_crlf_line_ends_is_the_same_rig(tmp_path):
+    """Windows and git's autocrlf turn LF into CRLF: the resume check must not call that
+    another hardware file."""
+    from nmsid.rig.session_service import hw_fingerprint  # noqa: PLC0415
+    lf, crlf = tmp_path / "lf.toml", tmp_path / "crlf.toml"
+    lf.write_bytes(b"[rig]\nfake = true\n")
+    crlf.write_bytes(b"[rig]\r\nfake = true\r\n")
+    assert hw_fingerprint(lf) == hw_fingerprint(crlf)
+    other = tmp_path / "other.toml"
+    other.write_bytes(b"[rig]\nfake = false\n")
+    assert hw_fingerprint(other)[0] != hw_fingerprint(lf)[0]

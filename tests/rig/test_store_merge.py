@@ -15,11 +15,10 @@ from nmsid.protocols.session_file import (
     read_session,
     validate_session,
 )
-from nmsid.protocols.session_publish import (
+from nmsid.protocols.user_values import (
     DERIVED_SUFFIXES,
-    NAME_MAX_BYTES,
-    derived_name_problem,
-    longest_derived_name_bytes,
+    MAX_SESSION_NAME_BYTES,
+    name_length_problem,
 )
 from nmsid.protocols.session_state import session_state
 from nmsid.rig.journal import load_trial_npz, save_trial_npz, trial_digest
@@ -228,18 +227,15 @@ def test_validate_says_incomplete_then_live_and_cleans_leftovers(tmp_path, capsy
 
 
 def test_the_longest_derived_name_fits_or_the_name_is_refused(tmp_path):
-    longest = max(len(s) for s in DERIVED_SUFFIXES)
-    ok = tmp_path / ("a" * (NAME_MAX_BYTES - longest) + "")
-    assert longest_derived_name_bytes(ok) == NAME_MAX_BYTES and derived_name_problem(ok) == ""
-    # every derived name of the longest accepted name can really be created
-    for suffix in DERIVED_SUFFIXES:
-        (tmp_path / (ok.name + suffix)).write_bytes(b"")
-    bad = tmp_path / ("é" * ((NAME_MAX_BYTES - longest) // 2 + 1))  # 2 bytes each
-    problem = derived_name_problem(bad)
-    assert problem.startswith("the file name is too long") and "shorten it by at least" \
-        in problem and "\n" not in problem
-    with pytest.raises(OSError):
-        (tmp_path / (bad.name + max(DERIVED_SUFFIXES, key=len))).write_bytes(b"")
+    """The one name limit (protocols.user_values): the longest accepted session name plus
+    each derived suffix can really be created; one byte more is refused in one line."""
+    ok = tmp_path / ("a" * MAX_SESSION_NAME_BYTES)
+    assert name_length_problem(str(ok)) is None
+    for length in DERIVED_SUFFIXES.values():
+        (tmp_path / (ok.name + "x" * length)).write_bytes(b"")
+    bad = tmp_path / ("é" * (MAX_SESSION_NAME_BYTES // 2 + 1))  # 2 bytes each
+    problem = name_length_problem(str(bad))
+    assert problem is not None and "bytes long" in problem and "\n" not in problem
 
 
 def test_a_rebuild_keeps_the_damaged_file_in_place_until_the_new_one_replaces_it(
