@@ -530,6 +530,13 @@ class Stg4002WithStreaming(Stg4002Stimulator):
             if err and not getattr(self, "_stop_error", ""):
                 self._stop_error = err   # a failed stop stays: this driver refuses to start
             self._streaming_open = False
+        if self._was_connected and not err:
+            # the download handle back at once: between trials the engine asks status()
+            # of a connected stimulator (a disconnected one reads as a lost link)
+            try:
+                self.connect()
+            except Exception as exc:
+                log.error("STG: download connection after the stream failed: %s", exc)
 
     @property
     def streaming_open(self) -> bool:
