@@ -42,6 +42,7 @@ from nmsid.drivers.rehastim2_settings import Rehastim2Config
 from nmsid.drivers.stg4002 import DEFAULT_DLL, Stg4002Stimulator
 from nmsid.drivers.stg_download import (STG4002_RANGE_NA, STG4002_RESOLUTION_NA, ChannelPlan,
                                         prepare_download)
+from nmsid.drivers.stg_streaming import Stg4002WithStreaming, StgStreamingStimulator
 from nmsid.drivers.stimulation_report import download_summary
 
 
@@ -79,23 +80,28 @@ class StimulatorKind:
 
 # -- MCS STG4002 -----------------------------------------------------------------------------
 def _make_stg(s: StimulatorConfig, clock, stack):
-    return Stg4002Stimulator(
-        ceiling_ext_mA=s.ceiling_ext_mA, ceiling_flex_mA=s.ceiling_flex_mA,
-        extensor_channel=s.extensor_channel, flexor_channel=s.flexor_channel,
-        sync_out=s.sync_out, serial=s.serial, dll_path=s.dll_path or DEFAULT_DLL,
-        output_rate_Hz=s.output_rate_Hz, clock=clock)
+    # download mode for calibration and identification trials; streaming mode (handed the
+    # device by open_stream) for tracking trials: docs/hardware.md, "Streaming"
+    common: dict[str, Any] = dict(ceiling_ext_mA=s.ceiling_ext_mA,
+                                  ceiling_flex_mA=s.ceiling_flex_mA,
+                                  extensor_channel=s.extensor_channel,
+                                  flexor_channel=s.flexor_channel, sync_out=s.sync_out,
+                                  serial=s.serial, dll_path=s.dll_path or DEFAULT_DLL)
+    return Stg4002WithStreaming(streaming=StgStreamingStimulator(**common),
+                                output_rate_Hz=s.output_rate_Hz, clock=clock, **common)
 
 
 def _fake_stg(s: StimulatorConfig, bench):
     bench.sync_out = s.sync_out - 1
     mcs = load_fake("fake_mcs_usb")
     hw = mcs.FakeStgHardware(serial=s.serial or "4002-0001")
-    mcs.install(bench=bench, hardware=[hw])
+    mods = mcs.install(bench=bench, hardware=[hw])
+    load_fake("fake_stg_streaming").install(mods)   # the same modules, the same device
     return hw
 
 
 def _stg_library(stim) -> None:
-    _ = stim.api
+    _ = stim.api   # the streaming class (same assembly) is loaded at the first stream
 
 
 def _stg_command_A(stim: Stg4002Stimulator, channel: int, n: int, fs_Hz: float) -> np.ndarray:

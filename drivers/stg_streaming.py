@@ -50,6 +50,7 @@ from nmsid.drivers.errors import DeviceError, DeviceRangeError, StimulatorSettin
 from nmsid.drivers.interfaces import (CurrentLimitError, StimulatorCapabilities,
                                       StimulatorState, StimulatorStatus)
 from nmsid.drivers.mcs_usb import DEFAULT_DLL, find_stg, load_mcs_usb
+from nmsid.drivers.stg4002 import Stg4002Stimulator
 from nmsid.drivers.stg_waveform import NA_PER_MA
 from nmsid.errors import SafetyError
 
@@ -135,6 +136,7 @@ class StgStreamingStimulator:
         self._caps: StimulatorCapabilities | None = None
         self._stream_ceiling: dict[int, float] = {}
         self._P = 0
+        self._K = 1
         self._q = 1
         self._started = False
         self._error = ""
@@ -197,14 +199,35 @@ class StgStreamingStimulator:
 
     # -- the stream ----------------------------------------------------------------------
     def open_stream(self, ceiling_ext_mA: float, ceiling_flex_mA: float,
-                    update_Hz: float) -> float:
-        """Configure streaming: ceilings, carrier (one update per period), output rate,
-        STG ring buffer, trigger 1 with the two channels and the sync; ``StartLoop``.
+                    update_Hz: float, carrier_Hz: float | None = None) -> float:
+        """Configure streaming: ceilings, carrier, output rate, STG ring buffer, trigger 1
+        with the two channels and the sync; ``StartLoop``. Nothing plays before
+        :meth:`start` (``SendStart``), so the acquisition can be armed on the sync first.
+
+        Parameters
+        ----------
+        ceiling_ext_mA, ceiling_flex_mA : float
+            The stream's ceilings, at or below the rig's.
+        update_Hz : float
+            Amplitude updates per second (the controller's rate).
+        carrier_Hz : float, optional
+            The protocol's carrier; default ``update_Hz`` (one period per update). Each
+            update lasts ``carrier_Hz / update_Hz`` whole carrier periods, each period a
+            whole number ``P`` (>= 4) of output samples, so the amplitude is constant over
+            every charge-balanced period.
 
         Returns
         -------
         float
-            The update (carrier) rate used: ``output_rate / P`` for a whole ``P``.
+            ``update_Hz`` exactly (a rate that does not fit is refused, never rounded).
+
+        Raises
+        ------
+        DeviceRangeError
+            A ceiling above the rig's.
+        StimulatorSettingError
+            A carrier that does not divide the output rate, or an update rate that does
+            not divide the carrier (one line naming the rates).
         """
         if self._dev is None:
             self.connect()
@@ -212,14 +235,21 @@ class StgStreamingStimulator:
             if not 0 <= c <= self.rig_ceiling_mA[ch]:
                 raise DeviceRangeError(f"stream ceiling {c:g} mA on channel {ch} exceeds the "
                                        f"rig ceiling {self.rig_ceiling_mA[ch]:g} mA")
-        P = round(self.output_rate_Hz / update_Hz)
-        if P < 4 or abs(self.output_rate_Hz / P - update_Hz) > 1e-6 * update_Hz:
+        carrier = float(update_Hz if carrier_Hz is None else carrier_Hz)
+        P = round(self.output_rate_Hz / carrier)
+        if P < 4 or abs(self.output_rate_Hz / P - carrier) > 1e-9 * carrier:
             raise StimulatorSettingError(
-                f"carrier / update rate {update_Hz:g} Hz must divide the output rate "
+                f"carrier {carrier:g} Hz must divide the STG's streaming output rate "
                 f"{self.output_rate_Hz:g} Hz into a whole number (>= 4) of samples")
+        K = round(carrier / update_Hz)
+        if K < 1 or abs(carrier / K - update_Hz) > 1e-9 * update_Hz:
+            raise StimulatorSettingError(
+                f"update rate {update_Hz:g} Hz must divide the carrier {carrier:g} Hz into a "
+                "whole number of periods per update (design the controller with "
+                "--update-hz at such a rate)")
         self._stream_ceiling = {self.ext_ch: float(ceiling_ext_mA),
                                 self.flex_ch: float(ceiling_flex_mA)}
-        self._P = P
+        self._P, self._K = P, K
         self._q = max(quantum(self._range_nA[ch], self._res_nA[ch])
                       for ch in (self.ext_ch, self.flex_ch))
         api, dev = self.api, self._dev
@@ -242,7 +272,12 @@ class StgStreamingStimulator:
             dev.StartLoop()
         self._started = False
         self._state = StimulatorState.ARMED
-        return self.output_rate_Hz / P
+        return float(update_Hz)
+
+    @property
+    def samples_per_update(self) -> int:
+        """Output samples per update of the open stream (``P`` x periods per update)."""
+        return self._P * self._K
 
     @property
     def latency_s(self) -> float:
@@ -256,7 +291,7 @@ class StgStreamingStimulator:
         with self._io:
             space = min(int(self._dev.GetDataQueueSpace(self._u32(ch - 1)))
                         for ch in (self.ext_ch, self.flex_ch))
-        return space // self._P
+        return space // (self._P * self._K)
 
     def write_stream(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> None:
         """Queue one amplitude per channel per update; checked before anything is sent.
@@ -287,7 +322,7 @@ class StgStreamingStimulator:
                 raise CurrentLimitError(
                     f"streamed amplitude {bad[0]:.4g} mA on channel {ch} is outside 0 .. "
                     f"{limit:g} mA; nothing was sent")
-        data = {ch: render_periods(a, self._P, self._range_nA[ch], self._q)
+        data = {ch: render_periods(np.repeat(a, self._K), self._P, self._range_nA[ch], self._q)
                 for ch, a in ((self.ext_ch, ext), (self.flex_ch, flex))}
         for ch, v in data.items():   # the last check, on exactly what is sent
             peak_mA = np.abs(v.astype(np.int64)).max(initial=0) * self._range_nA[ch] \
@@ -296,18 +331,61 @@ class StgStreamingStimulator:
                 raise CurrentLimitError(f"rendered peak {peak_mA:.4f} mA above the ceiling "
                                         f"on channel {ch}; nothing was sent")
         api = self.api
+        n = len(ext) * self._P * self._K
         with self._io:
+            # all or nothing: EnqueueData takes at most the free space (XML: "Returns the
+            # number of enqueued bytes"), so a write that does not fit is refused whole
+            space = min(int(self._dev.GetDataQueueSpace(self._u32(ch - 1))) for ch in data)
+            if n > space:
+                raise DeviceError(f"the STG's PC ring buffer has room for {space} samples, "
+                                  f"{n} were written; nothing was sent (ring_samples "
+                                  f"{self.ring_samples})")
             for ch, v in data.items():
                 dev_data = api.Array[api.Int16](v.tolist())
-                self._dev.EnqueueData(self._u32(ch - 1), dev_data)
-            sync = np.ones(len(ext) * self._P, dtype=np.uint16)
+                got = int(self._dev.EnqueueData(self._u32(ch - 1), dev_data))
+                if got != 2 * len(v):
+                    self._error = (f"EnqueueData took {got} of {2 * len(v)} bytes on "
+                                   f"channel {ch}")
+                    raise DeviceError(f"STG streaming: {self._error}")
+            sync = np.ones(n, dtype=np.uint16)
             self._dev.EnqueueSyncout(self._u32(self.sync_out - 1),
                                      api.Array[api.UInt16](sync.tolist()))
-            if not self._started and len(ext):
-                self._dev.SendStart(self._u32(1))   # manual 6.3: "by Software SendStart(1)"
-                self._started = True
-                self._state = StimulatorState.RUNNING
-        self.enqueued_periods += len(ext)
+        self.enqueued_periods += len(ext) * self._K
+
+    def start(self) -> None:
+        """``SendStart(1)`` (manual 6.3: "by Software SendStart(1)"): the queued updates
+        and the sync begin; sample 0 of the acquisition is this edge.
+
+        Raises
+        ------
+        SafetyError
+            A previous stop failed.
+        DeviceError
+            No open stream, or the vendor refused.
+        """
+        if self._stop_error:
+            raise SafetyError(f"STG: {self._stop_error}")
+        if self._dev is None or not self._P or self._state is not StimulatorState.ARMED:
+            raise DeviceError("no open stream to start; call open_stream() first")
+        with self._io:
+            try:
+                self._dev.SendStart(self._u32(1))
+            except Exception as exc:
+                self._state = StimulatorState.ERROR
+                self._error = f"SendStart failed: {exc}"
+                raise DeviceError(f"STG SendStart (streaming) failed: {exc}") from exc
+        self._started = True
+        self._state = StimulatorState.RUNNING
+
+    def arm(self) -> None:
+        """Nothing to do: :meth:`open_stream` armed trigger 1 (``StartLoop``)."""
+        if self._state is not StimulatorState.ARMED:
+            raise DeviceError("no open stream to arm; call open_stream() first")
+
+    def stop_after_period(self) -> None:
+        """An ordinary end or abort: the queued updates play out (whole carrier periods,
+        then one at zero) before ``SendStop``; see :meth:`close_stream`. Never raises."""
+        self.close_stream()
 
     def close_stream(self) -> None:
         """End after the queued updates: one zero period, wait for the PC queue to drain
@@ -316,19 +394,27 @@ class StgStreamingStimulator:
             return
         try:
             if self._state is StimulatorState.RUNNING:
-                self.write_stream(np.zeros(1), np.zeros(1))
-                deadline = time.monotonic() + self.ring_samples / self.output_rate_Hz + 0.5
-                while time.monotonic() < deadline:
-                    with self._io:
-                        space = int(self._dev.GetDataQueueSpace(self._u32(self.ext_ch - 1)))
-                    if space >= self.ring_samples:
-                        break
-                    time.sleep(0.002)
-                time.sleep(self.latency_s)
+                space = self._queue_space()
+                if space < self.ring_samples:   # updates still queued: a zero one after them
+                    self.write_stream(np.zeros(1), np.zeros(1))
+                    queued = self.ring_samples - self._queue_space()
+                    deadline = time.monotonic() + queued / self.output_rate_Hz + 0.2
+                    while time.monotonic() < deadline:
+                        if self._queue_space() >= self.ring_samples:
+                            break
+                        time.sleep(0.002)
+                time.sleep(self.latency_s)   # the STG's own ring plays out
         except Exception as exc:  # closing must not raise: the stop below still runs
             log.warning("STG stream close: %s", exc)
         self._stop("close_stream")
         self._P = 0
+
+    def _queue_space(self) -> int:
+        dev = self._dev
+        if dev is None:
+            return self.ring_samples
+        with self._io:
+            return int(dev.GetDataQueueSpace(self._u32(self.ext_ch - 1)))
 
     # -- stop / status -------------------------------------------------------------------
     def _stop(self, why: str) -> None:
@@ -367,12 +453,6 @@ class StgStreamingStimulator:
         raise DeviceError("the streaming STG driver takes no downloaded trials; use "
                           "open_stream / write_stream (or the download-mode driver)")
 
-    def arm(self) -> None:
-        self.load(None)
-
-    def start(self) -> None:
-        self.load(None)
-
     def disconnect(self) -> None:
         if self._dev is None:
             return
@@ -384,3 +464,131 @@ class StgStreamingStimulator:
             except Exception as exc:
                 log.warning("STG %s failed: %s", call, exc)
         self._state = StimulatorState.DISCONNECTED
+
+
+class Stg4002WithStreaming(Stg4002Stimulator):
+    """The STG4002 driver of download mode that also streams (the registry's driver).
+
+    Trials and calibration steps are downloaded exactly as by
+    :class:`~nmsid.drivers.stg4002.Stg4002Stimulator`; :meth:`open_stream` hands the device
+    over to a :class:`StgStreamingStimulator` (one McsUsbNet connection at a time: the
+    download handle is released first, its ``disconnect`` stops every trigger) and
+    :meth:`close_stream` hands it back (the download handle connects again at the next
+    :meth:`load`). While a stream is open, ``arm`` / ``start`` / ``stop_now`` /
+    ``stop_after_period`` / ``status`` are the streaming driver's; ``stop_now`` always
+    stops both, so an E-stop reaches whichever handle holds the device.
+
+    Parameters
+    ----------
+    streaming : StgStreamingStimulator
+        Built with the same channels, sync output, serial and ceilings.
+    **kw
+        As :class:`~nmsid.drivers.stg4002.Stg4002Stimulator`.
+    """
+
+    def __init__(self, *, streaming: StgStreamingStimulator, **kw):
+        super().__init__(**kw)
+        self.streaming = streaming
+        self._streaming_open = False
+        self._was_connected = False
+
+    # -- the stream: the device handed over ------------------------------------------------
+    def open_stream(self, ceiling_ext_mA: float, ceiling_flex_mA: float, update_Hz: float,
+                    carrier_Hz: float | None = None) -> float:
+        """Release the download handle, open the stream (see
+        :meth:`StgStreamingStimulator.open_stream`)."""
+        self._refuse_after_failed_stop()
+        if self._dev is not None:
+            self._was_connected = True
+            self.disconnect()
+        self._streaming_open = True
+        try:
+            return self.streaming.open_stream(ceiling_ext_mA, ceiling_flex_mA, update_Hz,
+                                              carrier_Hz)
+        except BaseException:
+            self.close_stream()
+            raise
+
+    def write_stream(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> None:
+        if not self._streaming_open:
+            raise DeviceError("no open stream; call open_stream() first")
+        self.streaming.write_stream(I_ext_mA, I_flex_mA)
+
+    def stream_space(self) -> int:
+        return self.streaming.stream_space() if self._streaming_open else 0
+
+    def close_stream(self) -> None:
+        """End the stream (output to zero) and release its handle. Idempotent, never
+        raises."""
+        if not self._streaming_open:
+            return
+        try:
+            self.streaming.close_stream()
+        finally:
+            err = str(getattr(self.streaming, "_stop_error", ""))
+            self.streaming.disconnect()
+            if err and not getattr(self, "_stop_error", ""):
+                self._stop_error = err   # a failed stop stays: this driver refuses to start
+            self._streaming_open = False
+        if self._was_connected and not err:
+            # the download handle back at once: between trials the engine asks status()
+            # of a connected stimulator (a disconnected one reads as a lost link)
+            try:
+                self.connect()
+            except Exception as exc:
+                log.error("STG: download connection after the stream failed: %s", exc)
+
+    @property
+    def streaming_open(self) -> bool:
+        """A stream holds the device."""
+        return self._streaming_open
+
+    # -- the Stimulator methods, routed ----------------------------------------------------
+    def load(self, waveform) -> None:
+        if self._streaming_open:
+            raise DeviceError("a stream is open on the STG; close it before loading a trial")
+        if self._dev is None and self._was_connected:
+            self.connect()
+        super().load(waveform)
+
+    def arm(self) -> None:
+        if self._streaming_open:
+            self.streaming.arm()
+        else:
+            super().arm()
+
+    def start(self) -> None:
+        if self._streaming_open:
+            self._refuse_after_failed_stop()
+            self.streaming.start()
+        else:
+            super().start()
+
+    def stop_after_period(self) -> None:
+        if self._streaming_open:
+            self.streaming.stop_after_period()
+        else:
+            super().stop_after_period()
+
+    def stop_now(self) -> None:
+        """The immediate stop of whichever handle holds the device (both asked). Never
+        raises."""
+        try:
+            self.streaming.stop_now()
+        finally:
+            super().stop_now()
+
+    def status(self) -> StimulatorStatus:
+        if self._streaming_open:
+            return self.streaming.status()
+        return super().status()
+
+    def capabilities(self) -> StimulatorCapabilities:
+        if self._caps is None and self._streaming_open:
+            return self.streaming.capabilities()
+        return super().capabilities()
+
+    def disconnect(self) -> None:
+        if self._streaming_open:
+            self.close_stream()
+        super().disconnect()

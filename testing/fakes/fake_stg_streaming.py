@@ -61,6 +61,9 @@ class CStg200xStreamingNet:
         self.stop_t: float | None = None
         self._done = 0
         self.fail_next: dict[str, Exception] = {}
+        self.disposed = False
+        self._generation = -1
+        self._hw_seen = None
         _registry.append(self)
 
     def _log(self, name, *args):
@@ -70,6 +73,8 @@ class CStg200xStreamingNet:
 
     def _need(self):
         hw = self.hw
+        if hw is not None:
+            self._hw_seen = hw
         if hw is None or not hw.plugged:
             raise CUsbExceptionNet("Mcs.Usb.CUsbExceptionNet: device not connected")
         return hw
@@ -79,16 +84,30 @@ class CStg200xStreamingNet:
         self._log("Connect", entry)
         for hw in fake_mcs_usb._Registry.hardware:
             if hw.serial == entry.SerialNumber and hw.plugged:
+                owner = hw.opened_by
+                if owner is not None and owner is not self and \
+                        not getattr(owner, "disposed", False) and owner.hw is hw and \
+                        getattr(owner, "_generation", None) == hw.plug_generation:
+                    return 1   # ASSUMED (as fake_mcs_usb): open in another connection
                 self.hw = hw
+                self._generation = hw.plug_generation
+                hw.opened_by = self
+                bench = fake_mcs_usb._Registry.bench
+                if bench is not None:   # the bench's sensor now feels this handle's output
+                    bench.stimulator = self
                 return 0
         return 1
 
     def Disconnect(self):
         self._log("Disconnect")
+        hw = self.hw
+        if hw is not None and hw.opened_by is self:
+            hw.opened_by = None
         self.hw = None
 
     def Dispose(self):
         self._log("Dispose")
+        self.disposed = True
 
     def GetNumberOfAnalogChannels(self):
         self._log("GetNumberOfAnalogChannels")
@@ -245,6 +264,67 @@ class CStg200xStreamingNet:
         """Everything played on ``channel`` (0-based) so far, Int16 values."""
         self._advance()
         return np.asarray(self.played.get(channel, []), dtype=np.int64)
+
+    # -- what the bench's sensor and A/D see (FakeBench.stimulator) ---------------------------
+    demod_window_s = 0.002
+    """The bench's demodulator: peak of |I| over the last 2 ms (two periods of the 1 kHz
+    default carrier; a property of the fake sensor chain, not of the STG)."""
+
+    @property
+    def started_at(self) -> float | None:
+        """Bench time of ``SendStart`` (the sync's rising edge)."""
+        return self.start_t
+
+    @property
+    def stopped_at(self) -> float | None:
+        return self.stop_t
+
+    def _range_nA(self) -> float:
+        hw = self.hw or self._hw_seen
+        return float(hw.range_nA) if hw is not None else 0.0
+
+    def _samples_at(self, values: list, t) -> tuple[np.ndarray, np.ndarray]:
+        t = np.asarray(t, dtype=np.float64)
+        if self.hw is not None:
+            self._advance()
+        if self.start_t is None or not values:
+            return np.zeros(len(t), dtype=np.int64), np.zeros(len(t), dtype=bool)
+        k = np.floor((t - self.start_t) * self.rate_Hz + 1e-9).astype(np.int64)
+        live = (k >= 0) & (k < len(values))
+        if self.stop_t is not None:
+            live &= t < self.stop_t
+        if not live.any():
+            return np.zeros(len(t), dtype=np.int64), live
+        lo, hi = int(k[live].min()), int(k[live].max())
+        arr = np.asarray(values[lo:hi + 1], dtype=np.int64)
+        return np.where(live, arr[np.clip(k - lo, 0, len(arr) - 1)], 0), live
+
+    def current_at(self, channel: int, t) -> np.ndarray:
+        """Output current (nA) of ``channel`` (0-based) at bench times ``t``: the played
+        Int16 values x range / (2^15 - 1) (manual 6.3's full scale)."""
+        v, _ = self._samples_at(self.played.get(channel, []), t)
+        return v * self._range_nA() / 32767.0
+
+    def envelope_at(self, channel: int, t) -> np.ndarray:
+        """Demodulated amplitude (nA): peak |I| over the last :data:`demod_window_s`."""
+        t = np.asarray(t, dtype=np.float64)
+        w = max(1, int(round(self.demod_window_s * self.rate_Hz)))
+        offs = np.arange(w) / self.rate_Hz
+        cur = np.abs(self.current_at(channel, (t[:, None] - offs[None, :]).ravel()))
+        return cur.reshape(len(t), w).max(axis=1) if len(t) else np.zeros(0)
+
+    def sync_at(self, sync: int, t) -> np.ndarray:
+        """Sync level: high while streamed samples play (the enqueued sync is all ones)."""
+        _, live = self._samples_at(self.played.get(self._first_channel(), []), t)
+        return live.astype(np.float64)
+
+    def _first_channel(self) -> int:
+        hw = self.hw or self._hw_seen
+        n = hw.n_channels if hw is not None else 0
+        for ch in range(n):
+            if self.trigger and self.trigger[0][0] >> ch & 1:
+                return ch
+        return 0
 
     @property
     def running(self) -> bool:

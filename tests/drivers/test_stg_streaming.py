@@ -81,6 +81,8 @@ def test_played_output_nets_zero_per_period_after_truncation_and_stops_at_zero(s
     amps = np.linspace(0.5, 8.0, 40)
     stim.write_stream(amps, amps * 0.75)
     dev = _device(fake)
+    assert not dev.running                       # nothing plays before start()
+    stim.start()
     assert dev.running
     bench.sleep(0.02)
     stim.stop_now()
@@ -114,6 +116,7 @@ def test_an_underrun_stops_the_output(streaming):
     stim, fake, bench = streaming
     stim.open_stream(8.0, 6.0, 1000.0)
     stim.write_stream(np.full(5, 2.0), np.full(5, 2.0))   # 5 ms of data
+    stim.start()
     bench.sleep(0.05)
     dev = _device(fake)
     assert not dev.running and len(dev.output_at(0)) == 250
@@ -123,6 +126,7 @@ def test_a_failed_stop_tells_the_operator_to_switch_the_stg_off(streaming):
     stim, fake, bench = streaming
     stim.open_stream(8.0, 6.0, 1000.0)
     stim.write_stream(np.full(50, 2.0), np.full(50, 2.0))
+    stim.start()
     dev = _device(fake)
     dev.hw.unplug()
     stim.stop_now()   # never raises
@@ -134,6 +138,7 @@ def test_close_stream_is_idempotent_and_ends_at_zero(streaming):
     stim, fake, bench = streaming
     stim.open_stream(8.0, 6.0, 1000.0)
     stim.write_stream(np.full(10, 2.0), np.full(10, 2.0))
+    stim.start()
     t0 = time.monotonic()
     stim.close_stream()
     stim.close_stream()
@@ -149,6 +154,7 @@ def test_every_streaming_call_is_in_the_declared_surface(streaming):
     stim.open_stream(8.0, 6.0, 1000.0)
     stim.stream_space()
     stim.write_stream(np.full(3, 2.0), np.full(3, 2.0))
+    stim.start()
     stim.stop_now()
     stim.disconnect()
 
