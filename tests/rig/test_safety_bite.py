@@ -89,3 +89,33 @@ def test_check_chunk_trips_on_force_and_on_each_flag_through_the_interlock():
         assert any(k == "stop" for k, _ in stim.calls)
     quiet = Interlock(InterlockConfig(), BlockingStim())
     assert quiet.check_chunk(_chunk([1.0, -2.0]), 0.0) is None and not quiet.latched
+
+
+def test_stop_watcher_ends_the_switch_thread_and_a_restart_watches_again():
+    """stop_watcher must end the polling thread (a session's end); start_watcher after it
+    must poll again (the next session in the same GUI window)."""
+    import threading  # noqa: PLC0415
+    import time  # noqa: PLC0415
+
+    class Switch:
+        pressed = False
+
+        def is_pressed(self) -> bool:
+            return self.pressed
+
+        def close(self) -> None:
+            pass
+
+    sw = Switch()
+    lock = Interlock(InterlockConfig(), BlockingStim(), estop_input=sw)
+    lock.start_watcher()
+    assert any(t.name == "nmsid-estop-watcher" for t in threading.enumerate())
+    lock.stop_watcher()
+    assert not any(t.name == "nmsid-estop-watcher" for t in threading.enumerate())
+    lock.start_watcher()
+    sw.pressed = True
+    deadline = time.monotonic() + 2.0
+    while not lock.latched and time.monotonic() < deadline:
+        time.sleep(0.005)
+    lock.stop_watcher()
+    assert lock.latched
