@@ -73,6 +73,10 @@ class EngineObserver:
     def on_chunk(self, index: int, start_index: int, force_N: np.ndarray, rE: np.ndarray,
                  I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> None: ...
 
+    def on_target(self, index: int, start_index: int, target_N: np.ndarray) -> None:
+        """A tracking trial's target force for the samples of the chunk just reported by
+        :meth:`on_chunk` (N, from ``start_index``); identification trials have none."""
+
     def on_trial_finished(self, index: int, trial: Trial) -> None: ...
 
     def on_level_completed(self, sE: float, trials: list[Trial]) -> None: ...

@@ -336,6 +336,11 @@ class TrackingEngine(Engine):
                                    sync=sync_seg)
             self._notify("on_chunk", planned.index, lo, force_seg, stream.rE[lo:hi],
                          stream.I_ext_mA[lo:hi], stream.I_flex_mA[lo:hi])
+            # the target held over each update, at the sample rate (the live plots)
+            k0, k1 = lo // stream.spu, -(-hi // stream.spu)
+            held = np.repeat(stream.target[k0:k1], stream.spu)
+            self._notify("on_target", planned.index, lo,
+                         held[lo - k0 * stream.spu:hi - k0 * stream.spu])
 
         blk = self._stimulate(None, n=n, on_samples=on_samples, watch_commands=True,
                               stream=stream)

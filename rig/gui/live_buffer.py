@@ -40,6 +40,9 @@ class LiveSnapshot:
     I_ext_mA: np.ndarray
     I_flex_mA: np.ndarray
     generation: int
+    target_N: np.ndarray | None = None
+    """A tracking trial's target force at those times (NaN where none was given; None:
+    no target in the window)."""
 
     @property
     def n(self) -> int:
@@ -77,6 +80,10 @@ class LiveBuffer:
         self.capacity = max(1, int(round(window_s * fs_Hz)))
         self._data = np.zeros((len(SIGNALS), self.capacity))
         self._index = np.zeros(self.capacity, dtype=np.int64)
+        self._target = np.full(self.capacity, np.nan)
+        self._has_target = False
+        self._last_chunk: tuple[int, int, int, int] | None = None
+        """(trial, start index, ring position, samples) of the last chunk appended."""
         self._n_total = 0          # samples written since the trial started
         self._trial_index = -1
         self._generation = 0
@@ -88,6 +95,7 @@ class LiveBuffer:
         with self._lock:
             self._n_total = 0
             self._trial_index = int(trial_index)
+            self._has_target = False
             self._generation += 1
 
     def append(self, trial_index: int, start_index: int, force_N, rE, I_ext_mA,
@@ -121,6 +129,7 @@ class LiveBuffer:
             if trial_index != self._trial_index:
                 self._n_total = 0
                 self._trial_index = int(trial_index)
+                self._has_target = False
             pos = self._n_total % self.capacity
             first = min(n, self.capacity - pos)
             for row, a in enumerate(arrays):
@@ -128,9 +137,33 @@ class LiveBuffer:
                 self._data[row, :n - first] = a[first:]
             self._index[pos:pos + first] = idx[:first]
             self._index[:n - first] = idx[first:]
+            self._target[pos:pos + first] = np.nan
+            self._target[:n - first] = np.nan
+            self._last_chunk = (int(trial_index), int(idx[0]), pos, n)
             self._n_total += n
             self._generation += 1
             self.n_chunks += 1
+
+    def set_target(self, trial_index: int, start_index: int, target_N) -> None:
+        """The target force of the chunk just appended (a tracking trial; engine thread).
+
+        Ignored unless it matches that chunk's trial and first sample.
+        """
+        target = np.asarray(target_N, dtype=np.float64).reshape(-1)
+        with self._lock:
+            last = self._last_chunk
+            if last is None or last[0] != trial_index or trial_index != self._trial_index:
+                return
+            _trial, first_index, pos, n = last
+            skip = first_index - int(start_index)   # the chunk kept only its last samples
+            if skip < 0 or len(target) - skip < n:
+                return
+            target = target[skip:skip + n]
+            first = min(n, self.capacity - pos)
+            self._target[pos:pos + first] = target[:first]
+            self._target[:n - first] = target[first:]
+            self._has_target = True
+            self._generation += 1
 
     @property
     def generation(self) -> int:
@@ -144,8 +177,11 @@ class LiveBuffer:
             if self._n_total <= self.capacity:
                 data = self._data[:, :n].copy()
                 idx = self._index[:n].copy()
+                target = self._target[:n].copy()
             else:
                 data = np.concatenate((self._data[:, pos:], self._data[:, :pos]), axis=1)
                 idx = np.concatenate((self._index[pos:], self._index[:pos]))
-            trial, gen = self._trial_index, self._generation
-        return LiveSnapshot(trial, idx / self.fs_Hz, *data, generation=gen)
+                target = np.concatenate((self._target[pos:], self._target[:pos]))
+            trial, gen, has_target = self._trial_index, self._generation, self._has_target
+        return LiveSnapshot(trial, idx / self.fs_Hz, *data, generation=gen,
+                            target_N=target if has_target else None)

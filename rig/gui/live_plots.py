@@ -73,6 +73,10 @@ class LivePlots(QWidget):
         self.re_plot.setXLink(self.force_plot)
         self.i_plot.setXLink(self.force_plot)
         self.force_curve = self.force_plot.plot(pen=pg.mkPen(Colour.FORCE, width=1))
+        # a tracking trial's target force (dashed), empty during identification trials
+        self.target_curve = self.force_plot.plot(
+            pen=pg.mkPen(Colour.TARGET, width=2, style=Qt.PenStyle.DashLine),
+            connect="finite")
         self.re_curve = self.re_plot.plot(pen=pg.mkPen(Colour.RE, width=1))
         self.iext_curve = self.i_plot.plot(pen=pg.mkPen(Colour.I_EXT, width=1),
                                            name="I_ext")
@@ -133,13 +137,19 @@ class LivePlots(QWidget):
     def draw(self, snap: LiveSnapshot) -> None:
         t = snap.t_s
         self.force_curve.setData(t, snap.force_N)
+        if snap.target_N is None:
+            self.target_curve.setData([], [])
+        else:
+            self.target_curve.setData(t, snap.target_N)
         self.re_curve.setData(t, snap.rE)
         self.iext_curve.setData(t, snap.I_ext_mA * 1e-3)
         self.iflex_curve.setData(t, snap.I_flex_mA * 1e-3)
         if snap.n:
             self._update_elapsed(float(t[-1]))
             self._follow_x(float(t[0]), float(t[-1]))
-            self._fit_y(self.force_plot, snap.force_N)
+            self._fit_y(self.force_plot, snap.force_N if snap.target_N is None else
+                        np.concatenate((snap.force_N,
+                                        snap.target_N[np.isfinite(snap.target_N)])))
             self._fit_y(self.i_plot, np.concatenate((snap.I_ext_mA, snap.I_flex_mA)) * 1e-3)
         self.frames_drawn += 1
 

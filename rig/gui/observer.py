@@ -70,6 +70,9 @@ class QtEngineObserver(EngineObserver):
     def on_chunk(self, index, start_index, force_N, rE, I_ext_mA, I_flex_mA) -> None:
         self.buffer.append(index, start_index, force_N, rE, I_ext_mA, I_flex_mA)
 
+    def on_target(self, index, start_index, target_N) -> None:
+        self.buffer.set_target(index, start_index, target_N)
+
     def on_trial_finished(self, index, trial) -> None:
         self.signals.trial_finished.emit(int(index), trial)
 

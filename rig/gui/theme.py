@@ -10,6 +10,7 @@ class Colour:
     UNKNOWN = "#9a9a9a"
     RUNNING = "#1f5fbf"
     FORCE = "#1f77b4"
+    TARGET = "#ff7f0e"
     RE = "#6a3d9a"
     I_EXT = "#d62728"
     I_FLEX = "#2ca02c"

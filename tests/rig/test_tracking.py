@@ -33,12 +33,12 @@ def design():
     return d
 
 
-def _session(tmp_path, design, faults=(), name="t.h5"):
+def _session(tmp_path, design, faults=(), name="t.h5", observer=None):
     rig = make_sim_rig(default_participant(seed=2), faults=list(faults))
     cfg = load_config(None).with_protocol(rest_s=0.0)
     path = tmp_path / name
     eng = TrackingEngine(cfg, rig, path, design=design, targets=SHORT_TARGETS,
-                         trip_policy=TripPolicy.END_SESSION)
+                         trip_policy=TripPolicy.END_SESSION, observer=observer)
     return rig, path, eng.run()
 
 
@@ -152,3 +152,27 @@ def test_a_nan_from_the_controller_trips_and_stops_output(tmp_path, design, monk
     s = read_session(path)
     assert s.trials[-1].status == "aborted" and validate_session(path) == []
     assert rig.output_zero_events
+
+
+def test_each_chunk_of_a_tracking_trial_reports_its_target_for_the_live_plots(tmp_path,
+                                                                              design):
+    from nmsid.rig.observer import EngineObserver  # noqa: PLC0415
+
+    class Recorder(EngineObserver):
+        def __init__(self):
+            self.chunks, self.targets = [], []
+
+        def on_chunk(self, index, start_index, force_N, *rest):
+            self.chunks.append((index, start_index, len(force_N)))
+
+        def on_target(self, index, start_index, target_N):
+            self.targets.append((index, start_index, np.asarray(target_N)))
+
+    rec = Recorder()
+    _rig, _path, summary = _session(tmp_path, design, observer=rec)
+    assert summary.n_completed == 3
+    # one target per chunk, same trial, first sample and length
+    assert [(i, lo, len(t)) for i, lo, t in rec.targets] == rec.chunks
+    # the sine target of SHORT_TARGETS: mean 0, amplitude 1.5 N around the operating point
+    values = np.concatenate([t for _, _, t in rec.targets])
+    assert np.all(np.isfinite(values)) and np.ptp(values) > 1.0
