@@ -154,7 +154,7 @@ def test_a_console_event_ends_a_real_nmsid_run_like_the_estop(tmp_path, event):
         # the system ends the process once the routine returns (the session closed): the
         # command may or may not have printed its line and exited first
         assert proc.returncode in (129, 0xC000013A & 0xFF), proc.stderr
-        assert proc.stderr in ("", f"{proc.stderr.splitlines()[0]}\n")
+        assert len(proc.stderr.splitlines()) <= 1, proc.stderr   # at most its one line
     else:
         assert proc.returncode == 130, proc.stderr
         assert proc.stderr.splitlines() == [proc.stderr.strip()]
