@@ -58,7 +58,7 @@ def _measure(n: int, source: str, seed: int = 1) -> np.ndarray:
     cfg = config_from_dict({
         "participant": "BENCH", "seed": seed,
         "protocol": {"sE_levels": [round(0.3 + 0.05 * k, 2) for k in range(15)],
-                     "repeats": int(np.ceil((n + 5) / 15)), "steady_s": 0.0,
+                     "repeats": int(np.ceil((2 * n + 5) / 15)), "steady_s": 0.0,
                      "chirp_s": 0.5, "rest_s": 0.0},
         "calibration": {"manual": {"Iemin_mA": 2.0, "Iemax_mA": 9.5, "Ifmin_mA": 1.5,
                                    "Ifmax_mA": 8.0}}})
@@ -83,6 +83,8 @@ def _measure(n: int, source: str, seed: int = 1) -> np.ndarray:
         def sender():
             while len(sent) < n:
                 if not stimulating.wait(1.0):
+                    if eng.state is State.PAUSED:   # schedule done, aborted trials left
+                        break
                     continue
                 stimulating.clear()
                 time.sleep(rng.uniform(0.02, 0.3))
