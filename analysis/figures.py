@@ -104,7 +104,8 @@ def envelope(x, y, n_columns: int) -> tuple[np.ndarray, np.ndarray]:
 class _Axes:
     """A rectangle of the image with data limits: frame, ticks, lines, markers, text."""
 
-    def __init__(self, draw, font, box, xlim, ylim):
+    def __init__(self, draw, font, box, xlim: tuple[float, float],
+                 ylim: tuple[float, float]):
         self.draw, self.font = draw, font
         self.x0, self.y0, self.x1, self.y1 = box
         self.xlim, self.ylim = xlim, ylim
@@ -246,10 +247,12 @@ def plot_parameter_curves(selection, parameter: str, path: str | Path,
         legend.append((f"{MODEL_TITLES.get(m, m)} (AICc {fit.aicc:.3g})"
                        + ("  * selected" if bold else ""), colour, "bold" if bold else "line"))
     if used:
-        ax.markers(*zip(*used), _BLACK, "o")
+        used_x, used_y = zip(*used)
+        ax.markers(used_x, used_y, _BLACK, "o")
         legend.append(("points used", _BLACK, "o"))
     if removed:
-        ax.markers(*zip(*removed), _LIGHT, "x", r=4)
+        removed_x, removed_y = zip(*removed)
+        ax.markers(removed_x, removed_y, _LIGHT, "x", r=4)
         legend.append(("IQR outliers", _LIGHT, "x"))
     if comp is not None and comp.trend is not None:
         for i, text in enumerate(textwrap.wrap(f"{label}: {comp.trend.text}", 95)[:3]):

@@ -254,7 +254,7 @@ class IdentificationSettings:
                 value = value.value
             elif isinstance(value, tuple):
                 value = list(value)
-            elif dataclasses.is_dataclass(value):
+            elif dataclasses.is_dataclass(value) and not isinstance(value, type):
                 value = dataclasses.asdict(value)
             out[f.name] = value
         return out

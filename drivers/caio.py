@@ -126,7 +126,10 @@ def load_caio(path: str = "") -> object:
     """
     name = path or ("caio.dll" if sys.platform.startswith("win") else "libcaio.so")
     try:
-        lib = ctypes.WinDLL(name) if sys.platform.startswith("win") else ctypes.CDLL(name)
+        if sys.platform == "win32":  # the real OS decides which loader (not the switch)
+            lib = ctypes.WinDLL(name)
+        else:
+            lib = ctypes.CDLL(name)
     except OSError:
         raise VendorLibraryMissing(
             f"the Contec CAIO library ({name})", "the Contec AI-1608AY-USB",
@@ -221,7 +224,7 @@ class CaioAcquisition:
         self._running = False
         self._index = 0
         self._remaining: int | None = None
-        self._buf = None
+        self._buf: ctypes.Array[c_float] | None = None
         self._fault = ""
         self.max_channels = 0
         self.ai_range = ai_range

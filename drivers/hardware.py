@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, replace
+from typing import Any
 
 from nmsid.drivers.errors import HardwareConfigError
 from nmsid.drivers.fake_hardware import fake_requested, load_fake
@@ -43,7 +44,8 @@ class FakeStack:
     """What fake mode set up (kept alive with the devices; closed with them)."""
 
     bench: object
-    emulator: object = None
+    emulator: Any = None
+    """The Leptrino serial emulator of a fake Leptrino chain (closed with the stack)."""
     stimulator_fake: object = None
     """The fake stimulator device installed for the configured kind (registry)."""
 
@@ -153,6 +155,9 @@ def with_monitor(cfg: HardwareConfig) -> HardwareConfig:
             f"{cfg.source}: acquisition.monitor_channel is not set; wire the dummy-load "
             "resistor's voltage to a spare A/D input and name it there, e.g. "
             "[acquisition] monitor_channel = 7 (docs/hardware.md, section 6)")
+    if cfg.calibration is None:  # an analog chain always has one (hw_config builds it)
+        raise HardwareConfigError(f"{cfg.source}: the analog chain has no [sensor] "
+                                  "calibration; the dry run needs one")
     cal = replace(cfg.calibration, monitor_channel=a.monitor_channel)
     return replace(cfg, calibration=cal, acquisition=replace(a, fs_Hz=a.monitor_fs_Hz))
 

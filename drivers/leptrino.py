@@ -51,8 +51,8 @@ from typing import Callable
 
 import numpy as np
 
-from nmsid.drivers.errors import (DeviceNotFound, HardwareConfigError, ProtocolError,
-                                  VendorLibraryMissing)
+from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
+                                  ProtocolError, VendorLibraryMissing)
 from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
 from nmsid.drivers.leptrino_protocol import (
     DATA_RECORD_LEN, FULL_SCALE_RAW, RAW_AT_RATED, Command, Corrupt, DataRecord, FilterSetting,
@@ -371,6 +371,13 @@ class LeptrinoAcquisition:
         self._remaining: int | None = None
         self._dead: str = ""
 
+    def _rated_values(self) -> np.ndarray:
+        """The rated values read at :meth:`connect` (DeviceError before it)."""
+        if self.rated is None:
+            raise DeviceError(f"Leptrino {self.sensor.port!r}: not connected (its rated "
+                              "values are unknown); call connect() first")
+        return self.rated
+
     # -- lifecycle ------------------------------------------------------------------
     def connect(self) -> ProductInfo:
         """Open the port, stop any stream left running, read product info and ratings."""
@@ -524,7 +531,8 @@ class LeptrinoAcquisition:
             self.sensor.stop_continuous()
         if not raws:
             raise ProtocolError(f"Leptrino {self.sensor.port!r}: no records for the tare")
-        self.offset = np.mean(np.asarray(raws, dtype=float), axis=0) * (self.rated / RAW_AT_RATED)
+        self.offset = np.mean(np.asarray(raws, dtype=float), axis=0) * (self._rated_values()
+                                                                       / RAW_AT_RATED)
         log.info("Leptrino %s: tare %s from %d records", self.sensor.port,
                  np.round(self.offset, 4).tolist(), len(raws))
         return self.offset.copy()
@@ -635,7 +643,7 @@ class LeptrinoAcquisition:
     def _chunk(self, records: list[DataRecord], corrupt: int, other_fault: str) -> ForceChunk:
         raw = np.array([r.raw for r in records], dtype=np.float64).reshape(len(records), 6)
         clipped = bool(np.any(np.abs(raw) >= FULL_SCALE_RAW))
-        wrench = self._resample(raw * (self.rated / RAW_AT_RATED)) - self.offset
+        wrench = self._resample(raw * (self._rated_values() / RAW_AT_RATED)) - self.offset
         n = len(wrench)
         if self._remaining is not None:
             self._remaining -= n

@@ -364,9 +364,10 @@ class Stg4002Stimulator(StgStatusTracking):
     # -- trial ----------------------------------------------------------------------
     def plans(self) -> tuple[ChannelPlan, ChannelPlan]:
         """The extensor and flexor channels as :func:`prepare_download` needs them."""
-        return tuple(ChannelPlan(ch, name, self.ceiling_mA[ch], self._range_nA[ch],
+        ext, flex = (ChannelPlan(ch, name, self.ceiling_mA[ch], self._range_nA[ch],
                                  self._res_nA[ch])
                      for ch, name in ((self.ext_ch, "extensor"), (self.flex_ch, "flexor")))
+        return ext, flex
 
     def load(self, waveform: CheckedWaveform) -> None:
         """Render, check and download one trial (does not start it).

@@ -11,6 +11,9 @@ Shutdown a fault; an STG4002 does not report electrode-off, see ``docs/hardware.
 from __future__ import annotations
 
 import logging
+import threading
+from collections.abc import Callable
+from typing import Any
 
 from nmsid.drivers.interfaces import StimulatorState, StimulatorStatus
 from nmsid.drivers.stg_status import (DeviceStatus, OvercurrentStatus, TrialProgress,
@@ -24,6 +27,24 @@ _BETWEEN_TRIALS = (StimulatorState.IDLE, StimulatorState.LOADED, StimulatorState
 
 class StgStatusTracking:
     """Status of a started trial, from the device (see the module docstring)."""
+
+    # The driver's state this mixin reads and writes (set by Stg4002Stimulator).
+    _dev: Any
+    """The McsUsbNet CStg200xDownloadNet (a .NET object, untyped), None when disconnected."""
+    _io: threading.Lock
+    _state: StimulatorState
+    _t_start: float | None
+    _t_sent: float | None
+    _fs_Hz: float
+    _duration_s: float
+    _error: str
+    _stop_error: str
+    _seen_running: bool
+    _foreign_start: bool
+    _poll: DeviceStatus | None
+    _now: Callable[[], float]
+    _fault: Callable[[str], None]
+    _release: Callable[[], None]
 
     def _on_poll(self, status, stg_status, index_list) -> None:
         """McsUsbNet poll-status callback (runs on the library's thread)."""
@@ -97,9 +118,12 @@ class StgStatusTracking:
 
     def _update_running(self) -> None:
         """Decide from the device's own status whether the trial runs, ended or faulted."""
+        t_start = self._t_start
+        if t_start is None:  # no trial started (status() asks only while one runs)
+            return
         now = self._now()
-        elapsed = now - self._t_start                      # since just before SendStart
-        elapsed_sent = now - (self._t_sent or self._t_start)  # since it returned
+        elapsed = now - t_start                      # since just before SendStart
+        elapsed_sent = now - (self._t_sent or t_start)  # since it returned
         ds = None
         if self._dev is not None:
             try:

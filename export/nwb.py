@@ -216,8 +216,8 @@ def build_nwbfile(session: Session, *, subject_age: str = DEFAULT_SUBJECT_AGE,
             t = _parse_utc(ev.utc)
             rows.append((max(0.0, (t - start).total_seconds()) if t is not None else 0.0,
                          ev.kind, ev.detail or ""))
-        for t, kind, detail in sorted(rows, key=lambda r: r[0]):
-            table.add_row(timestamp=t, kind=kind, detail=detail)
+        for t_s, kind, detail in sorted(rows, key=lambda r: r[0]):
+            table.add_row(timestamp=t_s, kind=kind, detail=detail)
 
     module = ProcessingModule(name="misc", description="nmsid session calibration and "
                               "configuration")

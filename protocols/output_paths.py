@@ -75,7 +75,7 @@ def is_session_file(path) -> bool:
 
 
 def _session_files_in(folder: Path, depth: int = 2) -> list[Path]:
-    found = []
+    found: list[Path] = []
     try:
         entries = list(folder.iterdir())
     except OSError:

@@ -239,5 +239,5 @@ from an exception inside an HDF5 link-visit callback."""
 
 
 def _trial_names(group) -> list[str]:
-    names = [k for k in group if TRIAL_NAME_PATTERN.match(k)]
-    return sorted(names, key=lambda k: int(TRIAL_NAME_PATTERN.match(k).group(1)))
+    numbered = [(int(m.group(1)), k) for k in group if (m := TRIAL_NAME_PATTERN.match(k))]
+    return [k for _, k in sorted(numbered)]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import os
+from collections.abc import Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -163,8 +164,7 @@ class SessionWriter:
             yield self._open_held()
             self.unpublished = True
             return
-        self._load()
-        bio = io.BytesIO(self._image)
+        bio = io.BytesIO(self._load())
         with _h5py().File(bio, "a") as f:
             yield f
         image = bio.getvalue()
@@ -198,8 +198,7 @@ class SessionWriter:
             publish_image(self.path, self._held[0].getvalue(), doing=doing,
                           delays_s=delays_s)
         else:
-            self._load()
-            publish_image(self.path, self._image, doing=doing, delays_s=delays_s)
+            publish_image(self.path, self._load(), doing=doing, delays_s=delays_s)
         self.unpublished = False
 
     def close(self) -> None:
@@ -212,7 +211,7 @@ class SessionWriter:
         self._image = None
 
     # -- writing ------------------------------------------------------------------
-    def write_calibration(self, cal: Calibration, events: list[Event] = ()) -> None:
+    def write_calibration(self, cal: Calibration, events: Sequence[Event] = ()) -> None:
         """Store the calibration (attributes and optional ramp datasets) and ``events``."""
         problems = cal.problems()
         if problems:
@@ -233,17 +232,16 @@ class SessionWriter:
             f = self._held[1]
             n = len([k for k in f.get("trials", {}) if TRIAL_NAME_PATTERN.match(k)])
             return f"t{n + 1:03d}"
-        self._load()
-        with _h5py().File(io.BytesIO(self._image), "r") as f:
+        with _h5py().File(io.BytesIO(self._load()), "r") as f:
             n = len([k for k in f.get("trials", {}) if TRIAL_NAME_PATTERN.match(k)])
         return f"t{n + 1:03d}"
 
-    def append_trial(self, trial: Trial, events: list[Event] = ()) -> str:
+    def append_trial(self, trial: Trial, events: Sequence[Event] = ()) -> str:
         """Append one trial as the next ``tNNN`` group (and ``events``, in the same new
         version of the file); return the trial's name."""
         return self.append_trials([trial], events)[-1]
 
-    def append_trials(self, trials: list[Trial], events: list[Event] = ()) -> list[str]:
+    def append_trials(self, trials: list[Trial], events: Sequence[Event] = ()) -> list[str]:
         """Append trials (and events) in one new version of the file; return their names."""
         for trial in trials:
             _check_trial(trial, self.path)

@@ -18,7 +18,7 @@ import re
 import tomllib
 import types
 import typing
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
@@ -61,6 +61,21 @@ IN_CODE = "(in code)"
 """The source named for settings built in Python rather than read from a file."""
 
 
+def bounded(default=dataclasses.MISSING, *, why: str, **bounds):
+    """A field with bounds (``ge``, ``gt``, ``le``, ``lt``, ``max_length``) and the reason.
+
+    The reason is stored as the field's description and appended to the message of a
+    value outside the bounds, so a refusal says the limit and why it is there.
+    """
+    if default is dataclasses.MISSING:
+        return Field(description=why, **bounds)
+    return Field(default, description=why, **bounds)
+
+
+# dataclass_transform: type checkers see the keyword constructor and dataclasses.replace;
+# no field_specifiers, so `bounded(...)` / `Field(...)` count as defaults (a missing
+# required key is refused by pydantic at run time, in one line)
+@typing.dataclass_transform(frozen_default=True)
 def settings_dataclass(make_error: ErrorFactory, *, frozen: bool = True, prefix: str = ""):
     """Declare a settings class: a pydantic dataclass with :data:`SETTINGS_CONFIG`.
 
@@ -91,17 +106,6 @@ def settings_dataclass(make_error: ErrorFactory, *, frozen: bool = True, prefix:
         model.__init__ = __init__
         return model
     return wrap
-
-
-def bounded(default=dataclasses.MISSING, *, why: str, **bounds):
-    """A field with bounds (``ge``, ``gt``, ``le``, ``lt``, ``max_length``) and the reason.
-
-    The reason is stored as the field's description and appended to the message of a
-    value outside the bounds, so a refusal says the limit and why it is there.
-    """
-    if default is dataclasses.MISSING:
-        return Field(description=why, **bounds)
-    return Field(default, description=why, **bounds)
 
 
 def reason_of(cls, key: str) -> str:
@@ -150,7 +154,7 @@ _TYPE_WORDS = {
 }
 
 
-def _valid_words(err: dict, model, key: str) -> str:
+def _valid_words(err: Mapping[str, Any], model, key: str) -> str:
     kind, ctx = err["type"], err.get("ctx") or {}
     if kind in ("extra_forbidden", "unexpected_keyword_argument"):
         parent = key.rsplit(".", 1)[0] if "." in key else ""

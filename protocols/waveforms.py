@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -178,7 +179,7 @@ def input_attrs(p: ProtocolConfig) -> dict[str, str]:
     ``chirp_s``, ``chirp_f0_Hz``, ``chirp_f1_Hz`` keep their meaning for a chirp and are the
     excitation's length and band for any other input.
     """
-    d = {"kind": p.input_kind.value, "steady_s": p.steady_s, "duration_s": p.chirp_s,
+    d: dict[str, Any] = {"kind": p.input_kind.value, "steady_s": p.steady_s, "duration_s": p.chirp_s,
          "f0_Hz": p.chirp_f0_Hz, "f1_Hz": p.chirp_f1_Hz, "rE_centre": p.rE_centre,
          "rE_amplitude": p.rE_amplitude}
     if p.input_kind is InputKind.MULTISINE:

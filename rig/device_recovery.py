@@ -26,11 +26,16 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 from nmsid.drivers.interfaces import RecoverableAcquisition, StimulatorState
 from nmsid.rig.observer import TripPolicy
 from nmsid.rig.states import State
+
+if TYPE_CHECKING:
+    from nmsid.drivers.interfaces import Clock, RigDevices
+    from nmsid.protocols.config import Config
+    from nmsid.rig.states import StateMachine
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +57,17 @@ class DeviceRecovery:
 
     on_device_glitch: GlitchConfirm | None = None
     trip_policy: TripPolicy = TripPolicy.WAIT_FOR_REARM
+
+    # The engine's state and steps this mixin uses (set and defined by Engine).
+    devices: RigDevices
+    config: Config
+    clock: Clock
+    _sm: StateMachine
+    _resume_req: bool
+    _pause_req: bool
+    _event: Callable[..., None]
+    _stop_output: Callable[[], None]
+    _wait_operator: Callable[[Callable[[], bool], str], None]
 
     def _device_problem(self) -> tuple[str, str] | None:
         """``(device, what)`` for the first device whose link is down, else None."""

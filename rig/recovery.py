@@ -173,7 +173,7 @@ def remove_leftovers(path: str | os.PathLike) -> int:
 def orphan_journals(path: Path) -> list[str]:
     """Journals beside ``path`` whose own session file is missing, each described in
     words (with a hint when it matches this file's participant and start time)."""
-    out = []
+    out: list[str] = []
     try:
         entries = sorted(os.listdir(path.parent))
     except OSError:
@@ -611,6 +611,9 @@ def _build_from_journal(path: Path, jc: JournalContents, trials: list[Trial] | N
     except (KeyError, TypeError) as exc:
         raise SessionFileError(journal_dir(path) / "header.json",
                                f"journal header lacks {exc}") from None
+    if jc.calibration is None:  # the callers restore it first: a session needs one
+        raise SessionFileError(journal_dir(path), "the journal holds no calibration to "
+                               "rebuild the session file from")
     w = SessionWriter(path, image=image)
     w.deferred = True
     w.write_calibration(jc.calibration)

@@ -17,7 +17,7 @@ from typing import Callable
 import numpy as np
 
 from nmsid.drivers.interfaces import PeriodSafeStop
-from nmsid.rig.safety import Interlock, InterlockTripped
+from nmsid.rig.safety import Interlock, InterlockTripped, Trip
 
 log = logging.getLogger(__name__)
 
@@ -96,7 +96,7 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
             stream.open(stim)
         stim.arm()
     except Exception as exc:  # a driver fault before any output: trip, nothing started
-        trip = interlock.stimulator_fault(f"stimulator refused the waveform "
+        trip: Trip | None = interlock.stimulator_fault(f"stimulator refused the waveform "
                                           f"({type(exc).__name__}: {exc})")
         return BlockResult(0, force, None, None, _reason(trip))
     try:

@@ -131,7 +131,8 @@ def write_group(results: list[dict], out_dir: Path, settings: IdentificationSett
                 f = c.fits.get(m)
                 aicc_rows.append([name, label, m, _cell(f.aicc) if f and f.selectable else ""])
             sel_rows.append([name, label, c.selected or "",
-                             c.trend.text if c.selected else "no model selectable"])
+                             c.trend.text if c.selected and c.trend is not None
+                             else "no model selectable"])
     files.append(_write_csv(out / "aicc.csv", ["parameter", "participant", "model", "aicc"],
                             aicc_rows))
     files.append(_write_csv(out / "selected_models.csv",

@@ -75,12 +75,12 @@ def run_study(config: StudyConfig, out_dir: str | os.PathLike, *, workers: int |
             for i, p in enumerate(config.sessions)]
     say = progress or (lambda _text: None)
     t0 = time.perf_counter()
-    results: list[dict | None] = [None] * len(jobs)
+    results: list[dict] = []
     rss: dict[str, float] = {}
     if scheduler is None and not workers:
         mode = "serial, in-process"
         for i, (path, folder, gap) in enumerate(jobs):
-            results[i] = run_session(path, folder, settings, gap=gap)
+            results.append(run_session(path, folder, settings, gap=gap))
             say(_line(i + 1, len(jobs), results[i]))
         rss["in-process"] = peak_rss_MB()
         startup = 0.0

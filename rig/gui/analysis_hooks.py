@@ -88,7 +88,8 @@ def select_models(session_path: Path) -> SelectionView:
         used = [(p.sE, p.value) for p in comp.points if p.used]
         excluded = [(p.sE, p.value) for p in comp.points if not p.used
                     and p.value == p.value]
-        fits = [ModelFit(m, float(f.aicc) if f.selectable else float("nan"),
+        fits = [ModelFit(m, float(f.aicc) if f.selectable and f.aicc is not None
+                         else float("nan"),
                          tuple(float(c) for c in f.coefficients))
                 for m, f in comp.fits.items()]
         params.append(ParameterSelection(

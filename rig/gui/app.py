@@ -7,6 +7,7 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pyqtgraph as pg
 from PySide6.QtCore import QTimer
@@ -50,7 +51,7 @@ def build_window(options: GuiOptions, **window_kwargs):
     """Create the main window with the setup form filled from ``options``."""
     pg.setConfigOptions(antialias=False, foreground="k")
     window = MainWindow(**window_kwargs)
-    values = {"backend": options.backend, "realtime": options.realtime}
+    values: dict[str, Any] = {"backend": options.backend, "realtime": options.realtime}
     if options.participant:
         values["participant"] = options.participant
     if options.config:
@@ -89,7 +90,7 @@ def run_gui(options: GuiOptions) -> int:
     app = _application()
     window = build_window(options)
     window.show()
-    result = {"code": 0}
+    result: dict[str, int] = {"code": 0}
     if steps is not None:
         runner = ScriptRunner(window, steps, screenshot=options.screenshot, parent=window)
 
@@ -128,9 +129,10 @@ def run_gui(options: GuiOptions) -> int:
         wake.stop()
         session = window.controller.session_path if window.controller else None
         _dispose(app, window)
-    if signals.received is not None:
+    signal_code = signals.exit_code  # None unless a signal was received
+    if signal_code is not None:
         print(signals.stderr_line(session), file=sys.stderr, flush=True)
-        return signals.exit_code
+        return signal_code
     return result["code"]
 
 

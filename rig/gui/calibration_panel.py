@@ -10,7 +10,7 @@ hand); nothing else runs before that.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 import pyqtgraph as pg
@@ -168,7 +168,7 @@ class CalibrationPanel(QWidget):
         line.setVisible(True)
 
     # -- operator ---------------------------------------------------------------------
-    def current_values(self) -> dict[str, float]:
+    def current_values(self) -> dict[str, Any]:
         return {attr: float(spin.value()) for attr, spin in self.fields.items()}
 
     def set_values(self, **currents_mA: float) -> None:

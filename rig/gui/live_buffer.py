@@ -183,5 +183,6 @@ class LiveBuffer:
                 idx = np.concatenate((self._index[pos:], self._index[:pos]))
                 target = np.concatenate((self._target[pos:], self._target[:pos]))
             trial, gen, has_target = self._trial_index, self._generation, self._has_target
-        return LiveSnapshot(trial, idx / self.fs_Hz, *data, generation=gen,
+        return LiveSnapshot(trial, idx / self.fs_Hz, data[0], data[1], data[2], data[3],
+                            generation=gen,
                             target_N=target if has_target else None)

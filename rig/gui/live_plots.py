@@ -68,7 +68,7 @@ class LivePlots(QWidget):
                 # axes (with their grid) are redrawn only when their range changes
                 p.getAxis(name).setCacheMode(
                     pg.QtWidgets.QGraphicsItem.CacheMode.DeviceCoordinateCache)
-        self._x0 = None
+        self._x0: float | None = None
         self._y_ranges: dict[int, tuple[float, float]] = {}
         self.re_plot.setXLink(self.force_plot)
         self.i_plot.setXLink(self.force_plot)
@@ -114,7 +114,7 @@ class LivePlots(QWidget):
         (updated every half second while samples arrive)."""
         self._title = text
         self._duration_s = duration_s
-        self._shown_half_s = None
+        self._shown_half_s: int | None = None
         self.title.setText(text)
 
     def _update_elapsed(self, t_last: float) -> None:

@@ -161,7 +161,7 @@ class MainWindow(QMainWindow):
         q = Qt.ConnectionType.QueuedConnection
         s = self.signals
         s.state_changed.connect(self._on_state, q)
-        s.event.connect(self._on_event, q)
+        s.event_logged.connect(self._on_event, q)
         s.calibration_step.connect(self.calibration_panel.add_step, q)
         s.calibration_result.connect(self._on_calibration_result, q)
         s.trial_started.connect(self._on_trial_started, q)
@@ -209,7 +209,7 @@ class MainWindow(QMainWindow):
         self.current_index = -1
         self.run_result = self.run_error = None
         self.session_finished = False
-        self._qc_trials: dict[float, dict] = {}
+        self._qc_trials = {}
         self.schedule_panel.qc.clear()
         self.calibration_panel.reset()
         self.identification.reset()

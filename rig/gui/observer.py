@@ -25,7 +25,7 @@ class EngineSignals(QObject):
     """Qt signals carrying engine notifications into the GUI thread."""
 
     state_changed = Signal(object, object, str)      # old, new, reason
-    event = Signal(object)                           # protocols.session_file.Event-like
+    event_logged = Signal(object)   # protocols.session_file.Event-like (not `event`: QObject's)
     calibration_step = Signal(str, float, float)     # muscle, current_mA, force_N
     calibration_result = Signal(object)              # Calibration
     trial_started = Signal(int, object)              # schedule index, PlannedTrial
@@ -54,7 +54,7 @@ class QtEngineObserver(EngineObserver):
         self.signals.state_changed.emit(old, new, str(reason or ""))
 
     def on_event(self, event) -> None:
-        self.signals.event.emit(event)
+        self.signals.event_logged.emit(event)
 
     def on_calibration_step(self, muscle, current_mA, force_N) -> None:
         self.signals.calibration_step.emit(str(getattr(muscle, "value", muscle)),

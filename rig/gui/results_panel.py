@@ -130,7 +130,7 @@ class ResultsPanel(QWidget):
         self.table.setMaximumHeight(130)
         self.graphics = pg.GraphicsLayoutWidget()
         self.graphics.setBackground("w")
-        self.plots = {}
+        self.plots: dict[str, pg.PlotItem] = {}
         self.tables_text = QPlainTextEdit()
         self.tables_text.setReadOnly(True)
         self.tables_text.setStyleSheet("font-family: monospace; font-size: 11px;")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Callable
 
-from PySide6.QtCore import QObject, Qt
+from PySide6.QtCore import Qt
 from PySide6.QtGui import QKeySequence, QShortcut
 from PySide6.QtWidgets import (QFrame, QGridLayout, QHBoxLayout, QLabel, QPushButton,
                                QSizePolicy, QVBoxLayout, QWidget)
@@ -197,7 +197,7 @@ class SafetyPanel(QFrame):
         return {label: light.ok for label, light in self.lights.items()}
 
 
-def install_estop_shortcuts(window: QWidget, on_estop: Callable[[], None]) -> list[QObject]:
+def install_estop_shortcuts(window: QWidget, on_estop: Callable[[], None]) -> list[QShortcut]:
     """Bind Space and Escape to the E-stop for the whole application.
 
     Returns the shortcut objects (kept alive by their parent ``window``). A text field

@@ -194,9 +194,10 @@ class SchedulePanel(QWidget):
         if rows:
             self.time_left.setText(
                 f"time left: ~{format_duration(left * self.trial_s + max(0, left - 1) * self.rest_s)}")
-        if 0 <= self.current_index < len(rows):
-            self.table.scrollToItem(self.table.item(self.current_index, 0),
-                                    QAbstractItemView.ScrollHint.EnsureVisible)
+        item = self.table.item(self.current_index, 0) if 0 <= self.current_index < len(rows) \
+            else None
+        if item is not None:
+            self.table.scrollToItem(item, QAbstractItemView.ScrollHint.EnsureVisible)
         self._selection_changed()
 
     def set_state(self, state: str, reason: str = "") -> None:

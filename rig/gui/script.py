@@ -139,8 +139,9 @@ class Step:
     text: str = ""
 
 
-def _split_kwargs(words: list[str]) -> tuple[tuple[str, ...], dict]:
-    args, kwargs = [], {}
+def _split_kwargs(words: list[str]) -> tuple[tuple[str, ...], dict[str, str]]:
+    args: list[str] = []
+    kwargs: dict[str, str] = {}
     for w in words:
         if "=" in w and not w.startswith("="):
             k, v = w.split("=", 1)
@@ -171,6 +172,8 @@ def parse_script(text: str, source: str = "script") -> list[Step]:
         except ValueError:
             raise ScriptError(f"{source}:{n}: unknown command {words[0]!r}; known: "
                               + ", ".join(c.value for c in Command)) from None
+        args: tuple[str, ...]
+        kwargs: dict[str, str]
         if cmd is Command.NOTE:
             args, kwargs = (" ".join(words[1:]),), {}
         else:
@@ -384,7 +387,7 @@ class ScriptRunner(QObject):
         w = self.window
         c = step.command
         if c not in (Command.WAIT_FINISHED, Command.SLEEP) and w.run_result is not None \
-                and w.controller.thread is not None and not w.controller.running:
+                and w.controller.worker is not None and not w.controller.running:
             raise ScriptError(f"line {step.line}: {step.text!r}: the session ended before "
                               "this happened (on the fast clock trials pass quicker than a "
                               "script can react; use the real-time clock)")
@@ -417,7 +420,7 @@ class ScriptRunner(QObject):
         if c is Command.WAIT_FINISHED:
             if w.run_error is not None:
                 raise ScriptError(f"the engine stopped with an error: {w.run_error}")
-            return (w.controller.thread is not None and not w.controller.running
+            return (w.controller.worker is not None and not w.controller.running
                     and w.run_result is not None and not w.results.busy
                     and w.identification.pending == 0)
         return True

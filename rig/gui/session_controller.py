@@ -17,10 +17,12 @@ from typing import Callable
 from PySide6.QtCore import QObject, Qt, Signal
 
 from nmsid.errors import NmsidError
-from nmsid.protocols.config import config_from_json, load_config
+from nmsid.drivers.interfaces import RigDevices
+from nmsid.protocols.config import Config, config_from_json, load_config
 from nmsid.protocols.session_file import read_session
 from nmsid.protocols.user_values import one_line
 from nmsid.rig.engine import Engine
+from nmsid.rig.observer import RunSummary
 from nmsid.rig.gui.live_buffer import LiveBuffer
 from nmsid.rig.gui.observer import EngineSignals, QtEngineObserver
 from nmsid.rig.gui.setup_panel import Backend, SessionRequest
@@ -29,7 +31,7 @@ from nmsid.rig.session_service import PreparedRig, RigRequest, prepare_rig, stor
 log = logging.getLogger(__name__)
 
 #: ``devices_factory(request, config) -> RigDevices``; tests and the bench pass their own.
-DevicesFactory = Callable[[SessionRequest, object], object]
+DevicesFactory = Callable[[SessionRequest, Config], RigDevices]
 
 
 def rig_request(request: SessionRequest) -> RigRequest:
@@ -44,12 +46,12 @@ def rig_request(request: SessionRequest) -> RigRequest:
                       realtime=request.realtime, stored=stored, stored_backend=backend)
 
 
-def default_devices(request: SessionRequest, config) -> object:
+def default_devices(request: SessionRequest, config: Config) -> RigDevices:
     """Build the rig the request names, as ``nmsid run`` does (the session service)."""
     return prepare_rig(rig_request(request), config).devices
 
 
-def load_session_config(request: SessionRequest, *, confirm_calibration: bool = True):
+def load_session_config(request: SessionRequest, *, confirm_calibration: bool = True) -> Config:
     """The validated protocol configuration for ``request``.
 
     A resumed session keeps the configuration stored in its file (the engine uses that
@@ -100,13 +102,14 @@ class SessionController(QObject):
         self.buffer = buffer
         self.devices_factory = devices_factory or default_devices
         self.engine_factory = engine_factory
-        self.engine = None
-        self.devices = None
-        self.config = None
+        self.engine: Engine | None = None
+        self.devices: RigDevices | None = None
+        self.config: Config | None = None
         self.request: SessionRequest | None = None
         self.observer: QtEngineObserver | None = None
-        self.thread: threading.Thread | None = None
-        self.summary = None
+        self.worker: threading.Thread | None = None
+        """The thread running ``engine.run()`` (not ``thread``: QObject.thread() is Qt's)."""
+        self.summary: RunSummary | None = None
         self.error: BaseException | None = None
         self._relay = _RunRelay()
         self._relay.run_ended.connect(self.signals.run_ended,
@@ -115,7 +118,7 @@ class SessionController(QObject):
     # -- lifecycle --------------------------------------------------------------------
     @property
     def running(self) -> bool:
-        return self.thread is not None and self.thread.is_alive()
+        return self.worker is not None and self.worker.is_alive()
 
     def start(self, request: SessionRequest, config=None) -> None:
         """Build config, devices and engine, then run the engine in a worker thread.
@@ -129,32 +132,34 @@ class SessionController(QObject):
         if self.running:
             raise RuntimeError("a session is already running in this window")
         self.request = request
-        self.config = config if config is not None else load_session_config(request)
-        self.buffer.fs_Hz = float(self.config.protocol.fs_Hz)
+        cfg = config if config is not None else load_session_config(request)
+        self.config = cfg
+        self.buffer.fs_Hz = float(cfg.protocol.fs_Hz)
         self.observer = QtEngineObserver(self.signals, self.buffer)
         extra: dict = {}
         if self.devices_factory is default_devices:   # the session service, as the CLI
-            rig = self.prepare(request, self.config)
-            devices, self.config, extra = rig.devices, rig.config, rig.extra_attrs
+            rig = self.prepare(request, cfg)
+            devices, cfg, extra = rig.devices, rig.config, rig.extra_attrs
+            self.config = cfg
         else:
-            devices = self.devices_factory(request, self.config)
+            devices = self.devices_factory(request, cfg)
         self.devices = devices
         try:
             if self.engine_factory is not None:
-                self.engine = self.engine_factory(self.config, devices,
+                self.engine = self.engine_factory(cfg, devices,
                                                   request.output_path, resume=request.resume,
                                                   observer=self.observer)
             else:
-                self.engine = Engine(self.config, devices, request.output_path,
+                self.engine = Engine(cfg, devices, request.output_path,
                                      resume=request.resume, observer=self.observer,
                                      extra_attrs=extra)
         except BaseException:
-            self.devices.close()
+            devices.close()
             self.devices = None
             raise
         self.summary, self.error = None, None
-        self.thread = threading.Thread(target=self._run, name="nmsid-engine", daemon=True)
-        self.thread.start()
+        self.worker = threading.Thread(target=self._run, name="nmsid-engine", daemon=True)
+        self.worker.start()
         log.info("session started: %s -> %s", request.participant, request.output_path)
 
     @staticmethod
@@ -165,8 +170,12 @@ class SessionController(QObject):
 
     def _run(self) -> None:
         summary, error = None, None
+        engine, devices = self.engine, self.devices
         try:
-            summary = self.engine.run()
+            if engine is None or devices is None:
+                raise RuntimeError("the session controller's worker started without an "
+                                   "engine (start() builds it)")
+            summary = engine.run()
         except BaseException as exc:  # reported to the operator; output is already off
             if isinstance(exc, NmsidError):  # a user, device or safety stop: one line
                 log.error("engine run ended: %s", one_line(exc))
@@ -175,7 +184,8 @@ class SessionController(QObject):
             error = exc
         finally:
             try:
-                self.devices.close()
+                if devices is not None:
+                    devices.close()
             except Exception:  # close() never raises by contract; be sure anyway
                 log.exception("closing devices")
         self.summary, self.error = summary, error
@@ -186,8 +196,8 @@ class SessionController(QObject):
         if self.engine is not None and self.running:
             self.engine.estop("operator closed the GUI window")
             self.engine.abort()
-        if self.thread is not None:
-            self.thread.join(timeout_s)
+        if self.worker is not None:
+            self.worker.join(timeout_s)
 
     # -- operator commands (GUI thread; each returns at once) --------------------------
     def estop(self, reason: str = "operator E-stop (GUI)") -> bool:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -136,7 +137,8 @@ def leptrino_analog_wiring(bench: FakeBench, channels: dict, rated: dict,
                           offset_V={a: LEPTRINO_OFFSET_V for a in channels},
                           direction=direction, sync_channel=None, noise_V=noise_V, seed=seed)
     lo, hi = LEPTRINO_SPAN_V
-    wiring = {ch: (lambda t, force, fn=fn: np.clip(fn(t, force), lo, hi))
+    wiring: dict[int, Callable[..., np.ndarray]] = {
+        ch: (lambda t, force, fn=fn: np.clip(fn(t, force), lo, hi))
               for ch, fn in inner.items()}
     if sync_channel is not None:
         wiring[sync_channel] = lambda t, force: bench.sync_V(t)
@@ -156,7 +158,7 @@ def sensor_wiring(bench: FakeBench, channels: dict, volts_per_unit: dict, offset
     d = np.asarray(direction, float) / np.linalg.norm(direction)
     offset_V = offset_V or {}
     rng = np.random.default_rng(seed)
-    wiring = {}
+    wiring: dict[int, Callable[..., np.ndarray]] = {}
     for axis, ch in channels.items():
         i = axes.index(axis)
         comp = d[i] if i < 3 else 0.0

@@ -458,6 +458,14 @@ class CStg200xDownloadNet:
                     hw.save_stops.append((t, tr.stop_t))
 
 
+def _module(name: str, **attrs: object) -> types.ModuleType:
+    """A stand-in module ``name`` holding ``attrs``."""
+    module = types.ModuleType(name)
+    for key, value in attrs.items():
+        setattr(module, key, value)
+    return module
+
+
 def install(bench=None, hardware=None, modules=None) -> dict:
     """Build the fake ``clr``, ``System``, ``Mcs``, ``Mcs.Usb`` modules.
 
@@ -471,25 +479,20 @@ def install(bench=None, hardware=None, modules=None) -> dict:
             hw.clock = bench.now
     _Registry.references = []
     _Registry.devices = []
-    clr = types.ModuleType("clr")
-    clr.AddReference = lambda path: _Registry.references.append(str(path))
-    system = types.ModuleType("System")
-    system.Array = _ArrayFactory()
-    system.Int32, system.UInt32, system.UInt64 = Int32, UInt32, UInt64
-    system.ObjectDisposedException = ObjectDisposedException
-    mcs = types.ModuleType("Mcs")
-    usb = types.ModuleType("Mcs.Usb")
-    for cls in (CMcsUsbListNet, CMcsUsbListEntryNet, CStg200xDownloadNet, DeviceEnumNet,
-                STG_DestinationEnumNet, StgStatusNet, Stg200xTriggerStatusEnumNet,
-                Stg5OvercurrentStatusEnumNet, CUsbExceptionNet, RetriggerActionEnumNet,
-                Stg200xSegmentFlagsEnumNet):
-        setattr(usb, cls.__name__, cls)
-    mcs.Usb = usb
+    clr = _module("clr", AddReference=lambda path: _Registry.references.append(str(path)))
+    system = _module("System", Array=_ArrayFactory(), Int32=Int32, UInt32=UInt32,
+                     UInt64=UInt64, ObjectDisposedException=ObjectDisposedException)
+    usb = _module("Mcs.Usb", **{cls.__name__: cls for cls in (
+        CMcsUsbListNet, CMcsUsbListEntryNet, CStg200xDownloadNet, DeviceEnumNet,
+        STG_DestinationEnumNet, StgStatusNet, Stg200xTriggerStatusEnumNet,
+        Stg5OvercurrentStatusEnumNet, CUsbExceptionNet, RetriggerActionEnumNet,
+        Stg200xSegmentFlagsEnumNet)})
+    mcs = _module("Mcs", Usb=usb)
     mods = {"clr": clr, "System": system, "Mcs": mcs, "Mcs.Usb": usb}
     target = sys.modules if modules is None else modules
     target.update(mods)
     return mods
 
 
-def registry() -> _Registry:
+def registry() -> type[_Registry]:
     return _Registry

@@ -413,6 +413,14 @@ class AnalogMultiChannelReader:
         return block.shape[1]
 
 
+def _module(name: str, **attrs: object) -> types.ModuleType:
+    """A stand-in module ``name`` holding ``attrs``."""
+    module = types.ModuleType(name)
+    for key, value in attrs.items():
+        setattr(module, key, value)
+    return module
+
+
 def install(bench=None, devices=None, wiring=None, di_lines=None, modules=None) -> dict:
     _State.bench = bench
     _State.devices = devices if devices is not None else {
@@ -423,22 +431,15 @@ def install(bench=None, devices=None, wiring=None, di_lines=None, modules=None) 
     _State.inject_read_error = None
     _State.unplugged = False
     _State.generation = 0
-    root = types.ModuleType("nidaqmx")
-    constants = types.ModuleType("nidaqmx.constants")
-    for c in (AcquisitionType, Edge, TerminalConfiguration):
-        setattr(constants, c.__name__, c)
-    constants.READ_ALL_AVAILABLE = READ_ALL_AVAILABLE
-    errors = types.ModuleType("nidaqmx.errors")
-    errors.DaqError, errors.DaqReadError = DaqError, DaqReadError
-    errors.DaqWarning = DaqWarning
-    readers = types.ModuleType("nidaqmx.stream_readers")
-    readers.AnalogMultiChannelReader = AnalogMultiChannelReader
-    system = types.ModuleType("nidaqmx.system")
-    system.System = types.SimpleNamespace(
-        local=lambda: types.SimpleNamespace(devices=_Devices(_State)))
-    root.Task = Task
-    root.constants, root.errors, root.stream_readers, root.system = constants, errors, readers, system
-    root.DaqError = DaqError
+    constants = _module("nidaqmx.constants", READ_ALL_AVAILABLE=READ_ALL_AVAILABLE,
+                        **{c.__name__: c for c in (AcquisitionType, Edge, TerminalConfiguration)})
+    errors = _module("nidaqmx.errors", DaqError=DaqError, DaqReadError=DaqReadError,
+                     DaqWarning=DaqWarning)
+    readers = _module("nidaqmx.stream_readers", AnalogMultiChannelReader=AnalogMultiChannelReader)
+    system = _module("nidaqmx.system", System=types.SimpleNamespace(
+        local=lambda: types.SimpleNamespace(devices=_Devices(_State))))
+    root = _module("nidaqmx", Task=Task, constants=constants, errors=errors,
+                   stream_readers=readers, system=system, DaqError=DaqError)
     mods = {"nidaqmx": root, "nidaqmx.constants": constants, "nidaqmx.errors": errors,
             "nidaqmx.stream_readers": readers, "nidaqmx.system": system}
     (sys.modules if modules is None else modules).update(mods)

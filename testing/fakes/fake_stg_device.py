@@ -266,8 +266,12 @@ class FakeStgHardware:
         return self.overcurrent_t
 
     def _end(self, tr: _Trigger) -> float:
+        if tr.run_t is None:
+            raise ValueError("a trigger that never ran has no end")
         natural = tr.run_t + tr.length_s
-        return natural if tr.stop_t is None else min(natural, max(tr.stop_t, tr.start_t))
+        if tr.stop_t is None:
+            return natural
+        return min(natural, tr.stop_t if tr.start_t is None else max(tr.stop_t, tr.start_t))
 
     def status_at(self, t: float) -> list:
         S = Stg200xTriggerStatusEnumNet

@@ -303,6 +303,7 @@ class LeptrinoEmulator:
                 return
             del self._rx[:start]
             # find the terminating DLE ETX (not a doubled DLE)
+            payload: bytearray | None
             i, payload, end = 2, bytearray(), None
             while i < len(self._rx):
                 b = self._rx[i]
