@@ -45,7 +45,8 @@ N_PRIOR, N_VALID = 20, 12
 
 
 def _row(label, out, stim):
-    c, lv, sel = out.curve_rms_rel(), out.level_rms_rel(), out.selection_accuracy()
+    c, lv = out.curve_rms_rel().to_dict(), out.level_rms_rel().to_dict()
+    sel = out.selection_accuracy().to_dict()
     return (f"   {label:<10}{stim:>7.0f} s" + "".join(f"{100 * c[n]:>9.3f}" for n in PARAMETERS)
             + "".join(f"{100 * lv[n]:>9.3f}" for n in PARAMETERS)
             + f"{sel['overall']:>9.3f}  (" + ", ".join(f"{sel[n]:.2f}" for n in PARAMETERS)
@@ -87,7 +88,7 @@ def main() -> None:
     print(f"   predicted_sd_ratio {prop.ratio.max:.4f} (median participant "
           f"{prop.ratio.median_participant_max:.4f}; derived quantities "
           f"{prop.derived_ratio:.4f}); predicted selection accuracy proposal "
-          f"{prop.selection['overall']:.3f} vs paper {paper.selection['overall']:.3f}")
+          f"{prop.selection.overall:.3f} vs paper {paper.selection.overall:.3f}")
 
     people = make_population(N_VALID, seed=1000)
     valid_prior = population_prior(N_VALID, seed=1000)     # the same participants

@@ -101,7 +101,7 @@ def lab_design(vp, scatter, seed: int) -> tuple[Candidate, dict]:
         session = simulate_session(vp, FIRST_SESSION, scatter=scatter, seed=seed)
         run_identification([session], tmp, figures=False)
         prior = twin_prior(Path(tmp) / "twin.json", noise_N=float(vp.sensor.noise_N))
-        measured = scatter_from_parameters(Path(tmp) / "parameters.csv", prior)
+        measured = scatter_from_parameters(Path(tmp) / "parameters.csv", prior).to_dict()
         adequacy = adequacy_from_parameters(Path(tmp) / "parameters.csv")
     cands = search_space() if adequacy.second_order else with_paper_excitation(search_space())
     result = design(Predictor(prior, scatter=measured), parse_target("paper"), cands,

@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
         if not args.twin:
             raise DesignError("--scatter-from needs --twin (the curves the scatter is "
                               "measured about)")
-        scatter = scatter_from_parameters(args.scatter_from, prior)
+        scatter = scatter_from_parameters(args.scatter_from, prior).to_dict()
         print("scatter measured on the first session: " + ", ".join(
             f"{k} {100 * v:.2g} %" for k, v in scatter.items()))
     keep, note = args.excitation == "paper", ""

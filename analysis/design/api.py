@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass
 
 from nmsid.analysis.design.candidates import paper_candidate, search_space, with_paper_excitation
 from nmsid.analysis.design.predict import DEFAULT_SCATTER, Predictor
 from nmsid.analysis.design.prior import Prior
 from nmsid.analysis.design.report import write_outputs
 from nmsid.analysis.design.search import DEFAULT_TOLERANCE, design, parse_target
-from nmsid.analysis.design.validate import alternative_scatter, run_protocol, validated_ratio
+from nmsid.analysis.design.validate import (ProtocolOutcome, ValidatedRatio,
+                                           alternative_scatter, run_protocol, validated_ratio)
 from nmsid.sim_backends.population import make_population
 from nmsid.sim_backends.sensor import SensorModel
 from nmsid.sim_backends.twin import participant_from_twin
@@ -48,26 +50,60 @@ def _finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def validate_protocols(participants, proposal, paper, scatter, seed: int = 0) -> dict:
+@dataclass(frozen=True)
+class ProtocolValidation:
+    """The proposal and the paper protocol run on the same simulated participants
+    (:func:`validate_protocols`).
+
+    Attributes
+    ----------
+    ratio : ValidatedRatio
+        Realised RMS curve errors, proposal / paper, with Monte-Carlo standard errors.
+    proposal, paper : ProtocolOutcome
+        Each protocol's realised errors and selections.
+    n_participants : int
+    """
+
+    ratio: ValidatedRatio
+    proposal: ProtocolOutcome
+    paper: ProtocolOutcome
+    n_participants: int
+
+    def to_dict(self) -> dict:
+        """The ``validation`` section of ``design.json`` (JSON-ready; NaN standard errors
+        as null)."""
+        a, b, ratio = self.proposal, self.paper, self.ratio
+        return {"validated_sd_ratio": ratio.max,
+                "validated_sd_ratio_se": _finite_or_none(ratio.max_se),
+                "validated_sd_ratio_per_parameter": ratio.per_parameter,
+                "validated_sd_ratio_se_per_parameter": {
+                    k: _finite_or_none(v) for k, v in ratio.se_per_parameter.items()},
+                "curve_rms_rel": {"proposal": a.curve_rms_rel().to_dict(),
+                                  "paper": b.curve_rms_rel().to_dict()},
+                "level_rms_rel": {"proposal": a.level_rms_rel().to_dict(),
+                                  "paper": b.level_rms_rel().to_dict()},
+                "selection_accuracy": {"proposal": a.selection_accuracy().overall,
+                                       "paper": b.selection_accuracy().overall},
+                "selection_accuracy_per_parameter": {
+                    "proposal": a.selection_accuracy().to_dict(),
+                    "paper": b.selection_accuracy().to_dict()},
+                "n_participants": self.n_participants}
+
+
+def validate_protocols(participants, proposal, paper, scatter,
+                       seed: int = 0) -> ProtocolValidation:
     """Run both protocols on the same participants, each with its own independent draws
     of per-trial physiology and noise; realised errors, their ratio with its Monte-Carlo
-    standard error, and selection."""
+    standard error, and selection.
+
+    Returns
+    -------
+    ProtocolValidation
+    """
     a = run_protocol(participants, proposal, scatter=scatter, seed=seed,
                      stream=PROPOSAL_STREAM)
     b = run_protocol(participants, paper, scatter=scatter, seed=seed, stream=PAPER_STREAM)
-    ratio = validated_ratio(a, b)
-    return {"validated_sd_ratio": ratio.max,
-            "validated_sd_ratio_se": _finite_or_none(ratio.max_se),
-            "validated_sd_ratio_per_parameter": ratio.per_parameter,
-            "validated_sd_ratio_se_per_parameter": {
-                k: _finite_or_none(v) for k, v in ratio.se_per_parameter.items()},
-            "curve_rms_rel": {"proposal": a.curve_rms_rel(), "paper": b.curve_rms_rel()},
-            "level_rms_rel": {"proposal": a.level_rms_rel(), "paper": b.level_rms_rel()},
-            "selection_accuracy": {"proposal": a.selection_accuracy()["overall"],
-                                   "paper": b.selection_accuracy()["overall"]},
-            "selection_accuracy_per_parameter": {"proposal": a.selection_accuracy(),
-                                                 "paper": b.selection_accuracy()},
-            "n_participants": len(participants)}
+    return ProtocolValidation(validated_ratio(a, b), a, b, len(participants))
 
 
 def run_design(prior: Prior, target: str, out_dir, *, validate_n: int = 10,
@@ -109,18 +145,21 @@ def run_design(prior: Prior, target: str, out_dir, *, validate_n: int = 10,
                                                 population_seed=population_seed)
         prop = dataclasses.replace(result.proposal.candidate,
                                    label=result.proposal.candidate.label or "proposal")
-        validation = validate_protocols(people, prop, result.paper.candidate, sc, seed)
+        validation = validate_protocols(people, prop, result.paper.candidate, sc,
+                                        seed).to_dict()
         validation["population"] = label
         # the same without physiological scatter: where sensor noise and model bias are
         # all there is, the bound's seconds-for-variance trade shows (said, not hidden)
         keep = ("validated_sd_ratio", "validated_sd_ratio_se",
                 "validated_sd_ratio_per_parameter", "curve_rms_rel", "selection_accuracy")
-        plain = validate_protocols(people, prop, result.paper.candidate, None, seed)
+        plain = validate_protocols(people, prop, result.paper.candidate, None,
+                                   seed).to_dict()
         validation["without_scatter"] = {k: plain[k] for k in keep}
         # and under a scatter model the design did not assume (same SDs, correlated and
         # heavy-tailed): does the saving survive physiology other than its own assumption?
         other = alternative_scatter(sc)
-        alt = validate_protocols(people, prop, result.paper.candidate, other, seed)
+        alt = validate_protocols(people, prop, result.paper.candidate, other,
+                                 seed).to_dict()
         validation["other_scatter"] = dict({k: alt[k] for k in keep}, model=other.label)
     noise_only = (predictor.predict(result.proposal.candidate, derived=False,
                                     with_scatter=False),

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from nmsid.analysis.design.candidates import PAPER_LEVELS, Candidate
-from nmsid.analysis.design.prior import PARAMETERS, Prior, PriorParticipant
+from nmsid.analysis.design.prior import PARAMETERS, PerParameter, Prior, PriorParticipant
 from nmsid.analysis.model_selection import compare_models
 from nmsid.analysis.second_order import fisher_information
 from nmsid.analysis.settings import IdentificationSettings
@@ -64,9 +64,9 @@ class Prediction:
     level_se: np.ndarray
     curve_se: np.ndarray
     curve_value: np.ndarray
-    derived: list[dict] = field(default_factory=list)
-    """Per participant: {parameter: {quantity: (value, se)}}."""
-    selection: dict | None = None
+    derived: list[dict[str, DerivedQuantities]] = field(default_factory=list)
+    """Per participant: {parameter: its curve's :class:`DerivedQuantities`}."""
+    selection: SelectionAccuracy | None = None
     """Monte-Carlo probability of selecting the right family (``overall``, per parameter)."""
 
 
@@ -84,25 +84,91 @@ def curve_gradient(model: str, coefficients, sE) -> np.ndarray:
     raise ValueError(f"curve model {model!r}: valid are linear, quadratic, exponential")
 
 
-def derived_quantities(model: str, coefficients, cov: np.ndarray) -> dict:
+@dataclass(frozen=True)
+class DerivedQuantities:
+    """The quantities a study reads off one curve, each ``(estimate, standard error)``.
+
+    Attributes
+    ----------
+    model : str
+        The curve's family (``linear``, ``quadratic``, ``exponential``).
+    extremum_sE, extremum_value : tuple of float or None
+        Quadratic: the vertex -b / 2c and the value there, a - b^2 / 4c (None otherwise).
+    rate : tuple of float or None
+        Exponential: b, per unit sE (None otherwise).
+    slope : tuple of float or None
+        Linear: b (None otherwise).
+    """
+
+    model: str
+    extremum_sE: tuple[float, float] | None = None
+    extremum_value: tuple[float, float] | None = None
+    rate: tuple[float, float] | None = None
+    slope: tuple[float, float] | None = None
+
+    def to_dict(self) -> dict[str, tuple[float, float]]:
+        """``{quantity: (estimate, se)}`` of the quantities this family has (JSON-ready)."""
+        out = {}
+        for name in ("extremum_sE", "extremum_value", "rate", "slope"):
+            value = getattr(self, name)
+            if value is not None:
+                out[name] = value
+        return out
+
+
+def derived_quantities(model: str, coefficients, cov: np.ndarray) -> DerivedQuantities:
     """The quantities a study reads off a curve, with delta-method standard errors.
 
     quadratic: ``extremum_sE`` = -b / 2c and ``extremum_value`` = a - b^2 / 4c;
     exponential: ``rate`` b (per unit sE); linear: ``slope`` b.
+
+    Returns
+    -------
+    DerivedQuantities
     """
     c = np.asarray(coefficients, dtype=float)
-    out = {}
     if model == "quadratic":
         a, b, q = c
         g_x = np.array([0.0, -1 / (2 * q), b / (2 * q * q)])
         g_v = np.array([1.0, -b / (2 * q), b * b / (4 * q * q)])
-        out["extremum_sE"] = (float(-b / (2 * q)), float(np.sqrt(g_x @ cov @ g_x)))
-        out["extremum_value"] = (float(a - b * b / (4 * q)), float(np.sqrt(g_v @ cov @ g_v)))
-    elif model == "exponential":
-        out["rate"] = (float(c[1]), float(np.sqrt(cov[1, 1])))
-    else:
-        out["slope"] = (float(c[1]), float(np.sqrt(cov[1, 1])))
-    return out
+        return DerivedQuantities(
+            model, extremum_sE=(float(-b / (2 * q)), float(np.sqrt(g_x @ cov @ g_x))),
+            extremum_value=(float(a - b * b / (4 * q)), float(np.sqrt(g_v @ cov @ g_v))))
+    if model == "exponential":
+        return DerivedQuantities(model, rate=(float(c[1]), float(np.sqrt(cov[1, 1]))))
+    return DerivedQuantities(model, slope=(float(c[1]), float(np.sqrt(cov[1, 1]))))
+
+
+@dataclass(frozen=True)
+class SelectionAccuracy:
+    """Share of choices where AICc selects the right (the prior's) family: predicted by
+    Monte-Carlo (:meth:`Predictor.selection_accuracy`) or realised in a validation
+    (:meth:`~nmsid.analysis.design.validate.ProtocolOutcome.selection_accuracy`).
+
+    Attributes
+    ----------
+    per_parameter : dict of str to float
+        Per parameter (Kp, wn_rad_s, zeta).
+    overall : float
+        Over all parameters.
+    draws_per_participant : int or None
+        Monte-Carlo draws per prior participant (None: realised, not drawn).
+    """
+
+    per_parameter: dict[str, float]
+    overall: float
+    draws_per_participant: int | None = None
+
+    def to_dict(self) -> dict[str, float]:
+        """``{parameter: p, ..., "overall": p[, "draws_per_participant": n]}`` (JSON-ready,
+        the layout of ``design.json``)."""
+        out = {**self.per_parameter, "overall": self.overall}
+        if self.draws_per_participant is not None:
+            out["draws_per_participant"] = self.draws_per_participant
+        return out
+
+
+
 
 
 class Predictor:
@@ -200,7 +266,8 @@ class Predictor:
         return Prediction(c, [p.code for p in people], level_se, curve_se, curve_val, der)
 
     # -- stage 3 --------------------------------------------------------------------
-    def selection_accuracy(self, pred: Prediction, draws: int = 100, seed: int = 0) -> dict:
+    def selection_accuracy(self, pred: Prediction, draws: int = 100,
+                           seed: int = 0) -> SelectionAccuracy:
         """Probability that AICc selects the prior's family, per parameter and overall.
 
         Each draw perturbs the per-level values of one participant by independent normal
@@ -221,10 +288,9 @@ class Predictor:
                                          who.code, self.settings)
                     hits[j] += cmp.selected == model
             total += draws
-        acc = {name: float(hits[j] / total) for j, name in enumerate(PARAMETERS)}
-        acc["overall"] = float(hits.sum() / (3 * total))
-        acc["draws_per_participant"] = int(draws)
-        return acc
+        return SelectionAccuracy(
+            per_parameter={name: float(hits[j] / total) for j, name in enumerate(PARAMETERS)},
+            overall=float(hits.sum() / (3 * total)), draws_per_participant=int(draws))
 
 
 @dataclass(frozen=True)
@@ -269,14 +335,16 @@ def derived_ratio(proposal: Prediction, paper: Prediction) -> float:
     worst = 0.0
     for a, b in zip(proposal.derived, paper.derived):
         for name in a:
-            for q, (_, se) in a[name].items():
-                ref = b[name][q][1]
+            ref_of = b[name].to_dict()
+            for q, (_, se) in a[name].to_dict().items():
+                ref = ref_of[q][1]
                 if ref > 0 and np.isfinite(se):
                     worst = max(worst, se / ref)
     return float(worst)
 
 
-def relative_curve_se(pred: Prediction) -> dict:
+def relative_curve_se(pred: Prediction) -> PerParameter:
     """Largest relative curve standard error (SE / |value|) per parameter."""
     rel = pred.curve_se / np.abs(pred.curve_value)
-    return {name: float(rel[:, :, j].max()) for j, name in enumerate(PARAMETERS)}
+    return PerParameter(**{name: float(rel[:, :, j].max())
+                           for j, name in enumerate(PARAMETERS)})

@@ -124,14 +124,38 @@ def population_prior(n: int = 20, seed: int = 0) -> Prior:
 _SE_COLUMNS = {"Kp": "Kp_se", "wn_rad_s": "wn_se", "zeta": "zeta_se"}
 
 
-def scatter_from_parameters(path, prior: Prior) -> dict:
+@dataclass(frozen=True)
+class PerParameter:
+    """One number per second-order parameter (a relative SD, a relative error, ...).
+
+    Attributes
+    ----------
+    Kp, wn_rad_s, zeta : float
+    """
+
+    Kp: float
+    wn_rad_s: float
+    zeta: float
+
+    def to_dict(self) -> dict[str, float]:
+        """``{"Kp": ..., "wn_rad_s": ..., "zeta": ...}`` (JSON-ready; the ``scatter`` that
+        :class:`~nmsid.analysis.design.predict.Predictor` and ``run_design`` take)."""
+        return {name: getattr(self, name) for name in PARAMETERS}
+
+
+def scatter_from_parameters(path, prior: Prior) -> PerParameter:
     """Per-trial relative scatter measured on a first session (``parameters.csv``).
 
     For each parameter: the identified values' relative residuals about the prior's curve
     (the twin fitted to the same session), mean square corrected for the k fitted
     coefficients, minus the part the fit's own standard errors explain (sensor noise),
-    times the trials averaged per level. Returns relative SDs per trial (0 when the
-    residuals are all explained by the standard errors).
+    times the trials averaged per level.
+
+    Returns
+    -------
+    PerParameter
+        Relative SDs per trial (0 when the residuals are all explained by the standard
+        errors).
 
     Raises
     ------
@@ -149,7 +173,7 @@ def scatter_from_parameters(path, prior: Prior) -> dict:
                           f"({exc.strerror or exc})") from None
     if not rows:
         raise DesignError(f"{path}: no rows for participant {who.code}")
-    out = {}
+    out: dict[str, float] = {}
     for name in PARAMETERS:
         need = ("sE", name, _SE_COLUMNS[name], "n_trials")
         missing = [c for c in need if c not in rows[0]]
@@ -168,7 +192,7 @@ def scatter_from_parameters(path, prior: Prior) -> dict:
         rel = y / fit - 1.0
         excess = np.sum(rel ** 2) / (len(x) - k) - np.mean((se / fit) ** 2)
         out[name] = float(np.sqrt(max(excess, 0.0) * np.mean(nt)))
-    return out
+    return PerParameter(**out)
 
 
 #: A first session whose levels fit (median over levels, ``fit_pct`` of parameters.csv)

@@ -15,7 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from nmsid.analysis.design.candidates import PAPER_LEVELS, Candidate
+from nmsid.analysis.design.predict import DerivedQuantities, SelectionAccuracy
 from nmsid.analysis.design.prior import PARAMETERS
+from nmsid.analysis.design.search import Evaluation
 from nmsid.protocols.config import load_config
 
 #: Caveats printed in every report (the design's model does not see these).
@@ -56,6 +58,18 @@ def protocol_toml(c: Candidate, header: str = "") -> str:
             text = repr(float(value))
         lines.append(f"{key} = {text}")
     return "\n".join(lines) + "\n"
+
+
+def _selection(ev: Evaluation) -> SelectionAccuracy:
+    if ev.selection is None:  # design() computes it for the proposal and the paper
+        raise ValueError(f"{ev.candidate.label or 'candidate'}: no selection accuracy "
+                         "was computed")
+    return ev.selection
+
+
+def _derived_json(derived: list[dict[str, DerivedQuantities]]) -> list[dict]:
+    """Per participant ``{parameter: {quantity: (value, se)}}`` (the design.json layout)."""
+    return [{name: q.to_dict() for name, q in who.items()} for who in derived]
 
 
 def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
@@ -135,14 +149,15 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
             "validated_sd_ratio_se is its Monte-Carlo standard error (from the spread "
             "over participants). validation.without_scatter: sensor noise only; "
             "validation.other_scatter: a scatter model the design did not assume"),
-        "selection_accuracy": {"proposal": prop.selection["overall"],
-                               "paper": paper.selection["overall"],
+        "selection_accuracy": {"proposal": _selection(prop).overall,
+                               "paper": _selection(paper).overall,
                                "kind": "predicted (Monte-Carlo on the predicted covariance)"},
-        "selection_accuracy_per_parameter": {"proposal": prop.selection,
-                                             "paper": paper.selection},
+        "selection_accuracy_per_parameter": {"proposal": _selection(prop).to_dict(),
+                                             "paper": _selection(paper).to_dict()},
         "validation": validation,
         "predicted_per_level": per_level,
-        "derived": {"proposal": prop.prediction.derived, "paper": paper.prediction.derived},
+        "derived": {"proposal": _derived_json(prop.prediction.derived),
+                    "paper": _derived_json(paper.prediction.derived)},
         "search": {"candidates_evaluated": result.n_evaluated, "notes": result.notes},
         "caveats": list(CAVEATS) + ([
             "The proposal is a multisine: nmsid gap's localisation by chirp band and its "

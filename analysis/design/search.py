@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 
 from nmsid.analysis.design.candidates import Candidate, paper_candidate, search_space
 from nmsid.analysis.design.errors import DesignError
-from nmsid.analysis.design.predict import (Prediction, Predictor, SdRatio, derived_ratio,
-                                           relative_curve_se, sd_ratio)
-from nmsid.analysis.design.prior import PARAMETERS
+from nmsid.analysis.design.predict import (Prediction, Predictor, SdRatio, SelectionAccuracy,
+                                           derived_ratio, relative_curve_se, sd_ratio)
+from nmsid.analysis.design.prior import PARAMETERS, PerParameter
 
 #: "No worse than the paper" allows this relative excess of a predicted standard error:
 #: a 2 % difference is far below what a study of ten participants can detect, and below
@@ -92,9 +92,9 @@ class Evaluation:
     prediction: Prediction
     ratio: SdRatio
     derived_ratio: float
-    relative_se: dict
+    relative_se: PerParameter
     meets_precision: bool
-    selection: dict | None = None
+    selection: SelectionAccuracy | None = None
     meets_selection: bool | None = None
 
     @property
@@ -114,10 +114,11 @@ class DesignResult:
     notes: list[str] = field(default_factory=list)
 
 
-def _precision_ok(target: Target, ratio: SdRatio, dratio: float, rel: dict) -> bool:
+def _precision_ok(target: Target, ratio: SdRatio, dratio: float,
+                  rel: PerParameter) -> bool:
     if target.kind == "paper":
         return ratio.max <= 1 + target.tolerance and dratio <= 1 + target.tolerance
-    return all(rel[k] <= v for k, v in target.sd.items())
+    return all(getattr(rel, k) <= v for k, v in target.sd.items())
 
 
 def evaluate(predictor: Predictor, c: Candidate, paper: Prediction, target: Target
@@ -154,7 +155,7 @@ def design(predictor: Predictor, target: Target, candidates: list[Candidate] | N
                             relative_curve_se(paper_pred), True)
     paper_eval.selection = predictor.selection_accuracy(paper_pred, draws, seed)
     paper_eval.meets_selection = True
-    need = paper_eval.selection["overall"] - target.selection_tolerance
+    need = paper_eval.selection.overall - target.selection_tolerance
     cands = candidates if candidates is not None else search_space()
     best_miss: Evaluation | None = None
     n = 0
@@ -172,7 +173,7 @@ def design(predictor: Predictor, target: Target, candidates: list[Candidate] | N
         if not ev.meets_precision:
             continue
         ev.selection = predictor.selection_accuracy(ev.prediction, draws, seed)
-        ev.meets_selection = ev.selection["overall"] >= need
+        ev.meets_selection = ev.selection.overall >= need
         if ev.meets_selection:
             return DesignResult(target, paper_eval, ev, True, n)
     notes = ["no candidate met the target; the proposal is the candidate with the smallest "
@@ -181,5 +182,5 @@ def design(predictor: Predictor, target: Target, candidates: list[Candidate] | N
         raise DesignError("no candidate protocol to evaluate (every one was refused by the "
                           "configuration checks)")
     best_miss.selection = predictor.selection_accuracy(best_miss.prediction, draws, seed)
-    best_miss.meets_selection = best_miss.selection["overall"] >= need
+    best_miss.meets_selection = best_miss.selection.overall >= need
     return DesignResult(target, paper_eval, best_miss, False, n, notes)

@@ -37,7 +37,8 @@ import numpy as np
 from nmsid.analysis.curves import fit_curve
 from nmsid.analysis.design.candidates import PAPER_LEVELS, Candidate
 from nmsid.analysis.design.errors import DesignError
-from nmsid.analysis.design.prior import PARAMETERS
+from nmsid.analysis.design.predict import SelectionAccuracy
+from nmsid.analysis.design.prior import PARAMETERS, PerParameter
 from nmsid.analysis.identify import identify_session
 from nmsid.analysis.model_selection import compare_models
 from nmsid.analysis.settings import IdentificationSettings
@@ -185,21 +186,26 @@ class ProtocolOutcome:
     selected_right: np.ndarray | None = None
     """[participant, parameter] True where AICc picked the right family."""
 
-    def curve_rms_rel(self) -> dict:
-        return {n: float(np.sqrt(np.nanmean(self.curve_err[:, :, j] ** 2)))
-                for j, n in enumerate(PARAMETERS)}
+    def curve_rms_rel(self) -> PerParameter:
+        """RMS relative error of the right-family curve, pooled over participants and the
+        paper's 15 levels."""
+        return PerParameter(**{n: float(np.sqrt(np.nanmean(self.curve_err[:, :, j] ** 2)))
+                               for j, n in enumerate(PARAMETERS)})
 
-    def level_rms_rel(self) -> dict:
+    def level_rms_rel(self) -> PerParameter:
+        """RMS relative error of the identified per-level values."""
         e = np.concatenate(self.level_err, axis=0)
-        return {n: float(np.sqrt(np.nanmean(e[:, j] ** 2))) for j, n in enumerate(PARAMETERS)}
+        return PerParameter(**{n: float(np.sqrt(np.nanmean(e[:, j] ** 2)))
+                               for j, n in enumerate(PARAMETERS)})
 
-    def selection_accuracy(self) -> dict:
+    def selection_accuracy(self) -> SelectionAccuracy:
+        """Share of (participant, parameter) where AICc picked the right family."""
         right = self.selected_right
         if right is None:
             raise ValueError("no selection was recorded for this outcome")
-        acc = {n: float(right[:, j].mean()) for j, n in enumerate(PARAMETERS)}
-        acc["overall"] = float(right.mean())
-        return acc
+        return SelectionAccuracy(
+            per_parameter={n: float(right[:, j].mean()) for j, n in enumerate(PARAMETERS)},
+            overall=float(right.mean()))
 
 
 def run_protocol(participants, candidate: Candidate, *,
@@ -276,7 +282,7 @@ def validated_ratio(proposal: ProtocolOutcome, paper: ProtocolOutcome) -> Valida
         (delta method on ``sqrt(A / B)``, the two protocols' draws independent, as
         :func:`validate_protocols` runs them).
     """
-    a, b = proposal.curve_rms_rel(), paper.curve_rms_rel()
+    a, b = proposal.curve_rms_rel().to_dict(), paper.curve_rms_rel().to_dict()
     per = {n: a[n] / b[n] for n in PARAMETERS}
     ms_a, ms_b = _per_participant_ms(proposal), _per_participant_ms(paper)
     se = {}

@@ -75,13 +75,16 @@ def test_extremum_standard_error_matches_monte_carlo_refits(coeffs):
     for _ in range(3000):
         c = fit_curve("quadratic", x, truth + sd * rng.standard_normal(len(x))).coefficients
         xs.append(-c[1] / (2 * c[2]))
-    assert np.std(xs) == pytest.approx(pred["extremum_sE"][1], rel=0.1)
-    assert pred["extremum_sE"][0] == pytest.approx(-coeffs[1] / (2 * coeffs[2]))
+    assert pred.extremum_sE is not None and pred.rate is None and pred.slope is None
+    assert np.std(xs) == pytest.approx(pred.extremum_sE[1], rel=0.1)
+    assert pred.extremum_sE[0] == pytest.approx(-coeffs[1] / (2 * coeffs[2]))
+    assert list(pred.to_dict()) == ["extremum_sE", "extremum_value"]
 
 
 def test_exponential_rate_se_is_the_coefficient_se():
     cov = np.array([[0.04, 0.01], [0.01, 0.09]])
-    assert derived_quantities("exponential", (1.0, 2.0), cov)["rate"] == (2.0, 0.3)
+    got = derived_quantities("exponential", (1.0, 2.0), cov)
+    assert got.rate == (2.0, 0.3) and got.to_dict() == {"rate": (2.0, 0.3)}
 
 
 def test_selection_accuracy_high_when_precise_low_when_noisy():
@@ -89,10 +92,11 @@ def test_selection_accuracy_high_when_precise_low_when_noisy():
                    zeta=("linear", (0.3, 0.4)))
     precise = Predictor(prior, scatter={"Kp": 0.0, "wn_rad_s": 0.0, "zeta": 0.0})
     acc = precise.selection_accuracy(precise.predict(paper_candidate()), draws=40)
-    assert acc["Kp"] >= 0.95 and acc["wn_rad_s"] >= 0.95
+    assert acc.per_parameter["Kp"] >= 0.95 and acc.per_parameter["wn_rad_s"] >= 0.95
+    assert acc.to_dict()["overall"] == acc.overall and acc.draws_per_participant == 40
     noisy = Predictor(prior, scatter={"Kp": 0.5, "wn_rad_s": 0.5, "zeta": 0.5})
     acc_n = noisy.selection_accuracy(noisy.predict(SHORT), draws=40)
-    assert acc_n["overall"] < acc["overall"] - 0.15
+    assert acc_n.overall < acc.overall - 0.15
 
 
 def test_population_prior_predicts_for_every_participant():
@@ -126,7 +130,7 @@ def test_scatter_measured_on_a_first_session_recovers_the_per_trial_scatter(tmp_
     _write_params(tmp_path / "p.csv", x, values, ses)
     got = scatter_from_parameters(tmp_path / "p.csv", prior)
     for name, want in zip(("Kp", "wn_rad_s", "zeta"), s_trial):
-        assert got[name] == pytest.approx(want, rel=0.12)
+        assert getattr(got, name) == pytest.approx(want, rel=0.12)
 
 
 def test_scatter_is_zero_when_the_standard_errors_explain_the_residuals(tmp_path):
@@ -139,7 +143,7 @@ def test_scatter_is_zero_when_the_standard_errors_explain_the_residuals(tmp_path
     values = truth + ses * np.random.default_rng(1).standard_normal(truth.shape)
     _write_params(tmp_path / "p.csv", x, values, ses)
     got = scatter_from_parameters(tmp_path / "p.csv", prior)
-    assert all(v < 0.01 for v in got.values())
+    assert all(v < 0.01 for v in got.to_dict().values())
 
 
 def test_scatter_from_a_bad_file_names_it(tmp_path):

@@ -114,7 +114,10 @@ def test_one_protocol_against_itself_is_one_within_its_standard_error():
     people = make_population(6, seed=1000)
     cand = Candidate(sE_levels=(0.3, 0.5, 0.7, 0.9), repeats=2, steady_s=1.0, chirp_s=3.0,
                      rest_s=10.0, label="same")
-    v = validate_protocols(people, cand, cand, DEFAULT_SCATTER, seed=0)
+    result = validate_protocols(people, cand, cand, DEFAULT_SCATTER, seed=0)
+    v = result.to_dict()   # design.json's validation section
+    assert v["validated_sd_ratio"] == result.ratio.max and v["n_participants"] == 6
+    assert v["selection_accuracy"]["paper"] == result.paper.selection_accuracy().overall
     for n in PARAMETERS:
         r, se = v["validated_sd_ratio_per_parameter"][n], \
             v["validated_sd_ratio_se_per_parameter"][n]
