@@ -25,7 +25,6 @@ import math
 
 import numpy as np
 
-from nmsid.analysis.signal_kernels import expm
 
 #: Relative step of the central differences used for coefficient derivatives.
 _FD_STEP = 1e-6
@@ -289,47 +288,6 @@ def fractional_delay(x: np.ndarray, delay_samples: float) -> np.ndarray:
         start = pad - shift
         out += tap * xp[..., start:start + n]
     return out
-
-
-def foh_tf(A: np.ndarray, B: np.ndarray, C: np.ndarray, dt_s: float
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """First-order-hold discretisation of a SISO state-space model.
-
-    Parameters
-    ----------
-    A : (n, n) ndarray
-    B : (n,) ndarray
-    C : (n,) ndarray
-        ``x' = A x + B u``, ``y = C x`` (no direct feed-through).
-    dt_s : float
-        Sample interval in s.
-
-    Returns
-    -------
-    b, a : ndarray
-        Numerator and denominator (length n + 1, ``a[0] = 1``) for ``lfilter``.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> b, a = foh_tf(np.array([[-2.0]]), np.array([2.0]), np.array([1.0]), 0.01)
-    >>> round(float(b.sum() / a.sum()), 12)   # unit DC gain
-    1.0
-    """
-    n = A.shape[0]
-    em = np.zeros((n + 2, n + 2))
-    em[:n, :n] = A * dt_s
-    em[:n, n] = B * dt_s
-    em[n, n + 1] = 1.0
-    ms = expm(em)
-    ad = ms[:n, :n]
-    m12 = ms[:n, n]
-    m13 = ms[:n, n + 1]
-    bd = m12 - m13 + ad @ m13
-    dd = float(C @ m13)
-    den = np.real(np.poly(ad))
-    num = np.real(np.poly(ad - np.outer(bd, C))) - den + dd * den
-    return num, den
 
 
 def foh_allpole(gain: np.ndarray, poles: np.ndarray, dt_s: float

@@ -85,7 +85,6 @@ DATA_RECORD_LEN = 20
 PRODUCT_INFO_LEN = 4 + PRODUCT_NAME_SIZE + SERIAL_SIZE + FIRMWARE_SIZE + RATE_SIZE
 PRODUCT_INFO_LEN_NO_RATE = PRODUCT_INFO_LEN - RATE_SIZE
 """Older firmware: the reply ends after the firmware version (28 data bytes)."""
-RATED_VALUES_LEN = 4 + 6 * 4
 
 
 class Command(enum.IntEnum):

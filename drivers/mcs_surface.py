@@ -77,7 +77,6 @@ def _m(type_name: str, name: str, *args: str, why: str = "") -> Member:
 
 DL = "CStg200xDownloadNet"
 ST = "CStg200xStreamingNet"
-RETRIGGER = f"{NS}.RetriggerActionEnumNet"
 SEGFLAGS = f"{NS}.Stg200xSegmentFlagsEnumNet"
 
 SURFACE: tuple[Member, ...] = (
@@ -155,8 +154,6 @@ SURFACE: tuple[Member, ...] = (
     _m(ST, "GetSyncoutQueueSpace", U32, why="free sync queue space"),
 )
 """Everything the STG drivers call in McsUsbNet (see the module docstring)."""
-
-_SYSTEM_NAMES = {"UInt32": U32, "Int32": I32, "UInt64": U64, "Int16": "System.Int16"}
 
 
 def members_of(type_name: str, kind: str = "method") -> set[str]:

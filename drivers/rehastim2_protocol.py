@@ -69,8 +69,6 @@ RESULT_TEXT = {0: "no error", -1: "transfer error (checksum or length)", -2: "pa
 #: SM2 4.3 StimulationError: the device has stopped stimulation and reset to start mode.
 STIM_ERROR_TEXT = {-1: "emergency switch activated / not connected", -2: "electrode error",
                    -3: "stimulation module error"}
-#: SM2 4.2 GetStimulationModeAck: byte 8.
-STIM_MODES = {0: "start mode", 1: "stimulation initialized", 2: "stimulation started"}
 
 
 def crc8(data: bytes) -> int:
@@ -254,9 +252,3 @@ def start_clm_data(pulses: list[tuple[int, int]]) -> bytes:
     return bytes(out)
 
 
-def parse_start_clm_data(data: bytes, n_active: int) -> list[tuple[int, int, int]] | None:
-    """``(mode, width_us, current_mA)`` per active channel, or None if the length is wrong."""
-    if len(data) != 4 * n_active:
-        return None
-    return [(data[4 * i], (data[4 * i + 1] << 8) | data[4 * i + 2], data[4 * i + 3])
-            for i in range(n_active)]

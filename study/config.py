@@ -72,9 +72,6 @@ class StudyFile:
     identification: IdentificationSettings = Field(default_factory=IdentificationSettings)
 
 
-SETTING_DEFAULTS = {"gap": True, "gap_max_sessions": 0, "figures": True}
-
-
 @settings_dataclass(study_config_error, frozen=False)
 class StudyConfig:
     """A resolved study: absolute session paths plus settings."""

@@ -623,11 +623,6 @@ def pytest_collection_modifyitems(config: Any, items: list[Any]) -> None:
             item.add_marker(pytest.mark.skip(reason=f"Windows emulation: {reason}"))
 
 
-def under_emulation() -> bool:
-    """True while a run-wide ``--windows-emulation`` is installed."""
-    return _session_emulation is not None
-
-
 try:  # the fixture needs pytest, which users of the context manager may not have
     import pytest as _pytest
 except ImportError:  # pragma: no cover

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import re
 import shutil
 import subprocess
@@ -63,19 +62,6 @@ def nmsid_version() -> str:
         return metadata.version("nmsid")
     except metadata.PackageNotFoundError:
         return "unknown"
-
-
-def fmi_platform() -> str | None:
-    """The FMI 2.0 binaries folder name of this machine (None when it has none); the
-    binary's folder is the compiler's target instead (:func:`find_compiler`)."""
-    system, machine = platform.system(), platform.machine().lower()
-    if system == "Darwin":
-        return "darwin64"
-    if machine in ("x86_64", "amd64"):
-        return {"Linux": "linux64", "Windows": "win64"}.get(system)
-    if machine in ("i386", "i686", "x86"):
-        return {"Linux": "linux32", "Windows": "win32"}.get(system)
-    return None      # FMI 2.0 names no folder for, e.g., Linux on ARM: sources only
 
 
 def check_exportable(data: dict, where: str) -> Twin:
