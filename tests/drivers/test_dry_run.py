@@ -148,6 +148,18 @@ def test_a_leptrino_chain_has_no_monitor_input(tmp_path, write_hw_config):
         with_monitor(load_hw_config(hw))
 
 
+def test_an_analog_chain_without_its_calibration_is_refused_in_one_line(tmp_path,
+                                                                       write_hw_config):
+    # load_hw_config always builds one for an analog chain: a configuration built in code
+    # without it is refused by name, not with an AttributeError
+    import dataclasses
+    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", speed=2.0, estop="none",
+                         monitor=7)
+    cfg = dataclasses.replace(load_hw_config(hw), calibration=None)
+    with pytest.raises(HardwareConfigError, match=r"hw\.toml: the analog chain has no"):
+        with_monitor(cfg)
+
+
 def test_a_monitor_on_a_sensor_channel_is_refused(tmp_path, write_hw_config):
     hw = write_hw_config(tmp_path / "hw.toml", kind="caio", monitor=6)   # the sync's
     with pytest.raises(HardwareConfigError, match=r"acquisition\.monitor_channel.*distinct"):

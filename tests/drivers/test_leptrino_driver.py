@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from nmsid.drivers.errors import DeviceNotFound, ProtocolError
+from nmsid.drivers.errors import DeviceError, DeviceNotFound, ProtocolError
 from nmsid.drivers.leptrino import LeptrinoAcquisition, LeptrinoSensor
 from nmsid.drivers.leptrino_protocol import Command
 
@@ -214,6 +214,12 @@ def test_unplugged_port_reads_as_sensor_fault_and_close_is_safe(leptrino_emulato
     again = acq.read(0.01)
     assert again.flags.sensor_fault and again.n == 0
     acq.close()  # must not raise
+
+
+def test_rated_values_before_connect_are_a_device_error_naming_the_port():
+    acq = LeptrinoAcquisition(LeptrinoSensor("COM9"))
+    with pytest.raises(DeviceError, match=r"'COM9': not connected .*call connect\(\) first"):
+        acq._chunk([], 0, "")
 
 
 def test_port_that_cannot_be_opened():

@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 
 import numpy as np
+import pytest
 from nmsid.protocols.session_file import Calibration, Trial, read_session
 from nmsid.rig.session_log import SessionLog, journal_dir, recover
 
@@ -115,3 +116,16 @@ def test_the_report_keeps_what_was_wrong_before_recovery(tmp_path):
     before = validate_session(path)
     rep = recover(path)
     assert before and rep.problems_before == before
+
+
+def test_a_journal_without_its_calibration_is_refused_not_built_into_a_file(tmp_path):
+    # the callers restore the calibration first; a journal that still has none is refused
+    # by name (it used to reach write_calibration(None): an AttributeError)
+    from nmsid.protocols.session_file import SessionFileError
+    from nmsid.rig.journal import JournalContents
+    from nmsid.rig.recovery import _build_from_journal
+    jc = JournalContents(header={"participant": "P01", "created_utc": "2026-01-01T00:00:00Z"},
+                         calibration=None, events=[], trial_files=[])
+    with pytest.raises(SessionFileError, match="no calibration to rebuild"):
+        _build_from_journal(tmp_path / "s.h5", jc)
+    assert not (tmp_path / "s.h5").exists()
