@@ -23,17 +23,31 @@ def _set_attr(attrs, key: str, value: Any) -> None:
         attrs[key] = value
 
 
+_PROBE_BLOCKS, _PROBE_SAMPLES = 3, 2048
+""":func:`_deflates` judges a long column on this many blocks of this many samples
+(start, middle, end): deflating a whole trial only to decide took as long as storing it."""
+
+
 def _deflates(data: np.ndarray) -> bool:
     """True if shuffle + deflate saves at least :data:`MIN_SAVING` of ``data``, judged
-    the way it is chunked (each column of a 2-D dataset on its own)."""
+    the way it is chunked (each column of a 2-D dataset on its own), on blocks spread
+    through each long column (:data:`_PROBE_BLOCKS`)."""
     raw = np.asarray(data)
     columns = [raw] if raw.ndim == 1 else [raw[:, k] for k in range(raw.shape[1])]
-    packed = 0
+    packed = probed = 0
     for col in columns:
-        col = np.ascontiguousarray(col)
-        shuffled = col.view(np.uint8).reshape(-1, col.dtype.itemsize).T.tobytes()
-        packed += len(zlib.compress(shuffled, 1))
-    return packed <= (1.0 - MIN_SAVING) * raw.nbytes
+        n = col.shape[0]
+        if n > _PROBE_BLOCKS * _PROBE_SAMPLES:
+            starts = np.linspace(0, n - _PROBE_SAMPLES, _PROBE_BLOCKS).astype(int)
+            blocks = [col[k:k + _PROBE_SAMPLES] for k in starts]
+        else:
+            blocks = [col]
+        for block in blocks:
+            block = np.ascontiguousarray(block)
+            shuffled = block.view(np.uint8).reshape(-1, block.dtype.itemsize).T.tobytes()
+            packed += len(zlib.compress(shuffled, 1))
+            probed += block.nbytes
+    return packed <= (1.0 - MIN_SAVING) * probed
 
 
 def counts_to_values(counts: np.ndarray, scale, offset) -> np.ndarray:
