@@ -21,6 +21,7 @@ import math
 import queue
 import secrets
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +49,15 @@ __all__ = ["Engine", "EngineObserver", "RunSummary", "TripPolicy", "RERUN_WAIT_P
            "is_rerun_wait", "rerun_wait_reason"]
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class _Written:
+    """A trial of this run whose level was reported: what the run's summary needs."""
+
+    name: str
+    completed: bool
+
 
 #: Rest is slept in slices of this many engine-clock seconds, checking commands between.
 REST_SLICE_S = 0.05
@@ -95,7 +105,10 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         self._wake = threading.Event()
         self._sm = StateMachine(self._on_transition)
         self._pending_events: list[tuple[str, str, str]] = []
-        self._trials_this_run: dict[int, Trial] = {}
+        self._trials_this_run: dict[int, Trial | _Written] = {}
+        """Each schedule index's trial of this run; once its level is reported, only its
+        name and status (the samples are in the journal: a session keeps a few trials in
+        memory, not all of them)."""
         self._levels_reported: set[float] = set()
         self._ran = False
         # operator flags (engine thread only)
@@ -459,11 +472,15 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         trials = []
         for pt in entries:
             t = self._trials_this_run.get(pt.index)
-            if t is None:
+            if not isinstance(t, Trial):
                 t = self._load_completed(pt.index)
             if t is not None:
                 trials.append(t)
         self._notify("on_level_completed", sE, trials)
+        for pt in entries:  # reported: the samples are no longer needed here
+            t = self._trials_this_run.get(pt.index)
+            if isinstance(t, Trial):
+                self._trials_this_run[pt.index] = _Written(t.name, t.completed)
 
     def _load_completed(self, index: int) -> Trial | None:
         jdir = journal_dir(self.path)
