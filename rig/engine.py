@@ -263,16 +263,23 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
             self._event("recovered", self.recovery.summary())
         self.interlock.start_watcher()
 
+    @property
+    def _open_log(self) -> SessionLog:
+        """The session's log (open from :meth:`_setup` on, or from a resume)."""
+        if self._log is None:
+            raise RuntimeError(f"{self.path}: the session log is not open yet")
+        return self._log
+
     def _restore_statuses(self) -> None:
         done = set()
-        for meta in self._log.trials:
+        for meta in self._open_log.trials:
             idx = (meta.get("extra_attrs") or {}).get("schedule_index")
             if idx is not None and meta["status"] == "completed":
                 done.add(int(idx))
         for pt in self.schedule:
             if pt.index in done:
                 pt.status = TrialStatus.DONE
-            pt.attempts = sum(1 for m in self._log.trials
+            pt.attempts = sum(1 for m in self._open_log.trials
                               if (m.get("extra_attrs") or {}).get("schedule_index") == pt.index)
         self._levels_reported = {round(pt.sE, 9) for pt in self.schedule
                                  if all(q.status is TrialStatus.DONE for q in self.schedule
@@ -413,7 +420,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
                      chirp_f1_Hz=p.chirp_f1_Hz, carrier_Hz=p.carrier_Hz, started_utc=started,
                      extra_attrs={"schedule_index": planned.index,
                                   "attempt": planned.attempts, **input_attrs(p)})
-        self._log.begin_trial(meta)
+        self._open_log.begin_trial(meta)
         self._event("trial_start", f"schedule index {planned.index}: sE {planned.sE:g}, "
                                    f"repeat {planned.repeat}, attempt {planned.attempts}")
         self._notify("on_trial_started", planned.index, planned)
@@ -421,7 +428,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         rE, Ie, If = wf.rE, checked.I_ext_mA, checked.I_flex_mA
 
         def on_samples(lo, hi, force_seg, wrench_seg=None, sync_seg=None):
-            self._log.append_chunk(force_N=force_seg, rE=rE[lo:hi], I_ext_mA=Ie[lo:hi],
+            self._open_log.append_chunk(force_N=force_seg, rE=rE[lo:hi], I_ext_mA=Ie[lo:hi],
                                    I_flex_mA=If[lo:hi], wrench=wrench_seg, sync=sync_seg)
             self._notify("on_chunk", planned.index, lo, force_seg, rE[lo:hi], Ie[lo:hi],
                          If[lo:hi])
@@ -439,7 +446,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
                       sync=None if sync is None else sync[:got],
                       extra_attrs={**meta.extra_attrs, **self._stimulation_attrs()})
         self._poll()  # log the trip event (if any) before the trial's own event
-        name = self._log.end_trial(trial)
+        name = self._open_log.end_trial(trial)
         planned.status = TrialStatus.ABORTED if reason else TrialStatus.DONE
         planned.reason = reason
         self._trials_this_run[planned.index] = trial
@@ -484,7 +491,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
 
     def _load_completed(self, index: int) -> Trial | None:
         jdir = journal_dir(self.path)
-        for i, meta in enumerate(self._log.trials):
+        for i, meta in enumerate(self._open_log.trials):
             if (meta.get("extra_attrs") or {}).get("schedule_index") == index and \
                     meta["status"] == "completed":
                 p = jdir / f"trial-{i + 1:04d}.npz"

@@ -330,8 +330,9 @@ def load_trial_meta(path: Path) -> dict[str, Any]:
 def save_calibration(target: Path, cal: Calibration) -> None:
     """Write the calibration (currents, forces, ramps) durably."""
     meta = np.array(json.dumps({k: float(getattr(cal, k)) for k in _CAL_FIELDS}))
-    ramps = {f"ramp__{k}": np.asarray(v, dtype=float) for k, v in cal.ramps.items()}
-    write_durable(target, lambda fh: np.savez(fh, __meta__=meta, **ramps))
+    arrays: dict[str, Any] = {"__meta__": meta}
+    arrays.update({f"ramp__{k}": np.asarray(v, dtype=float) for k, v in cal.ramps.items()})
+    write_durable(target, lambda fh: np.savez(fh, **arrays))
 
 
 def load_calibration(path: Path) -> Calibration:
@@ -407,9 +408,9 @@ def read_journal(jdir: Path, *, allow_gaps: bool = False) -> JournalContents:
             except (json.JSONDecodeError, KeyError, TypeError):
                 continue  # a line torn by a kill
     files = sorted((p for p in jdir.iterdir() if _TRIAL_FILE.match(p.name)),
-                   key=lambda p: int(_TRIAL_FILE.match(p.name).group(1)))
+                   key=lambda p: _entry_number(p.name))
     for i, p in enumerate(files):
-        if not allow_gaps and int(_TRIAL_FILE.match(p.name).group(1)) != i + 1:
+        if not allow_gaps and _entry_number(p.name) != i + 1:
             raise SessionFileError(jdir, f"journal trial files are not numbered 1, 2, ... "
                                          f"(found {p.name} at position {i + 1})")
     pmeta = None
@@ -426,9 +427,19 @@ def read_journal(jdir: Path, *, allow_gaps: bool = False) -> JournalContents:
                            calibration_error=cal_error)
 
 
+def _entry_number(name: str) -> int:
+    """The number of a journal entry's name ``trial-NNNN.npz`` (which it must match)."""
+    m = _TRIAL_FILE.match(name)
+    if m is None:
+        raise ValueError(f"{name!r} is not a journal trial entry")
+    return int(m.group(1))
+
+
 def partial_trial(jc: JournalContents) -> Trial:
     """The streamed trial in progress as an aborted trial (whole rows only; a row torn
     by a kill is dropped)."""
+    if jc.partial_meta is None:
+        raise ValueError("the journal holds no trial in progress")
     meta = dict(jc.partial_meta)
     columns = meta.pop("columns")
     meta.pop("seq", None)

@@ -478,8 +478,8 @@ def file_trial_digests(path: Path) -> list[int]:
     out = []
     with _h5py().File(path, "r") as f:
         trials = f["trials"]
-        names = sorted((k for k in trials if TRIAL_NAME_PATTERN.match(k)),
-                       key=lambda k: int(TRIAL_NAME_PATTERN.match(k).group(1)))
+        numbered = [(TRIAL_NAME_PATTERN.match(k), k) for k in trials]
+        names = [k for m, k in sorted((int(m.group(1)), k) for m, k in numbered if m)]
         for name in names:
             g = trials[name]
             out.append(arrays_digest([g[k][()] for k in DIGEST_SIGNALS]))
