@@ -8,12 +8,20 @@ under 3 s on the fast clock (issue 30; 10 s before), every parameter within 2 % 
 sE. The baseline beside it is the same session's identification, timed in the same
 process (what the session exists for).
 
+Then the same session as a user runs it, a whole process timed from outside:
+``nmsid run --backend sim --participant P01 --outdir D --no-identify`` (wall and CPU time,
+and its peak resident memory, POSIX only), with start-up shown separately (a process that
+only imports the command's handler, beside ``python -c pass``).
+
     python bench/bench_session.py
+    python bench/bench_session.py --seeds 1     # one in-process session (quick look)
 """
 
 from __future__ import annotations
 
 import logging
+import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -29,6 +37,7 @@ from nmsid.protocols.config import config_from_dict  # noqa: E402
 from nmsid.rig.engine import Engine, TripPolicy  # noqa: E402
 from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
 from nmsid.sim_backends import make_sim_rig  # noqa: E402
+from nmsid.protocols.os_platform import is_windows  # noqa: E402
 
 
 def _one(seed: int, tmp: Path) -> dict:
@@ -61,6 +70,58 @@ def _one(seed: int, tmp: Path) -> dict:
             len(result.levels), **{f"err_{k}": v for k, v in worst.items()}}
 
 
+def _env() -> dict:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"]
+                                     if env.get("PYTHONPATH") else "")
+    return env
+
+
+def _process(cmd: list[str]) -> tuple[float, float]:
+    """(wall s, CPU s) of one process; CPU is nan on Windows (os.times does not count
+    children there)."""
+    before = os.times()
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, env=_env(), cwd=ROOT, stdout=subprocess.DEVNULL)
+    wall = time.perf_counter() - t0
+    after = os.times()
+    cpu = float("nan") if is_windows() else (
+        after.children_user - before.children_user
+        + after.children_system - before.children_system)
+    return wall, cpu
+
+
+def _children_peak_MB() -> float:
+    """Peak resident memory of the largest child process so far (POSIX; nan on Windows)."""
+    if is_windows():
+        return float("nan")
+    import resource  # POSIX only: imported under the platform switch
+    kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    return kb / 1024 / (1024 if sys.platform == "darwin" else 1)  # macOS: bytes
+
+
+def whole_process(tmp: Path) -> None:
+    """The session as a user runs it, and the start-up of such a process."""
+    out = tmp / "process"
+    out.mkdir()
+    wall, cpu = _process([sys.executable, "-m", "nmsid", "run", "--backend", "sim",
+                          "--participant", "P01", "--outdir", str(out), "--no-identify"])
+    peak = _children_peak_MB()
+    start = [_process([sys.executable, "-c", "import nmsid.cli.run_command"])[0]
+             for _ in range(3)]
+    bare = [_process([sys.executable, "-c", "pass"])[0] for _ in range(3)]
+    t_start, t_bare = sorted(start)[1], sorted(bare)[1]
+    met = "< 3" if wall < 3.0 else "missed"
+    print("\nWhole process: nmsid run --backend sim --participant P01 --no-identify "
+          "(15 sE x 3 repeats, fast clock)")
+    print(f"{'wall s':>7s} {'cpu s':>6s} {'goal':>6s} {'peak MB':>8s} {'start-up s':>10s} "
+          f"{'python s':>8s} {'session - start-up s':>20s}")
+    print(f"{wall:7.2f} {cpu:6.2f} {met:>6s} {peak:8.0f} {t_start:10.2f} {t_bare:8.2f} "
+          f"{wall - t_start:20.2f}")
+    print("(start-up: median of 3 processes that only import the command's handler; "
+          "python: median of 3 `python -c pass`)")
+
+
 def main(seeds=(0, 1, 2)) -> None:
     logging.disable(logging.WARNING)
     tmp = Path(tempfile.mkdtemp(prefix="nmsid-bench-session-"))
@@ -86,7 +147,9 @@ def main(seeds=(0, 1, 2)) -> None:
               f"{r['session_s'] / r['identify_s']:6.1f} "
               f"{r['err_Kp']:6.2f} {r['err_wn_rad_s']:6.2f} {r['err_zeta']:6.2f} "
               f"{'< 2':>5s}", flush=True)
+    whole_process(tmp)
 
 
 if __name__ == "__main__":
-    main()
+    n_seeds = int(sys.argv[sys.argv.index("--seeds") + 1]) if "--seeds" in sys.argv else 3
+    main(tuple(range(n_seeds)))

@@ -23,17 +23,31 @@ def _set_attr(attrs, key: str, value: Any) -> None:
         attrs[key] = value
 
 
+_PROBE_BLOCKS, _PROBE_SAMPLES = 3, 2048
+""":func:`_deflates` judges a long column on this many blocks of this many samples
+(start, middle, end): deflating a whole trial only to decide took as long as storing it."""
+
+
 def _deflates(data: np.ndarray) -> bool:
     """True if shuffle + deflate saves at least :data:`MIN_SAVING` of ``data``, judged
-    the way it is chunked (each column of a 2-D dataset on its own)."""
+    the way it is chunked (each column of a 2-D dataset on its own), on blocks spread
+    through each long column (:data:`_PROBE_BLOCKS`)."""
     raw = np.asarray(data)
     columns = [raw] if raw.ndim == 1 else [raw[:, k] for k in range(raw.shape[1])]
-    packed = 0
+    packed = probed = 0
     for col in columns:
-        col = np.ascontiguousarray(col)
-        shuffled = col.view(np.uint8).reshape(-1, col.dtype.itemsize).T.tobytes()
-        packed += len(zlib.compress(shuffled, 1))
-    return packed <= (1.0 - MIN_SAVING) * raw.nbytes
+        n = col.shape[0]
+        if n > _PROBE_BLOCKS * _PROBE_SAMPLES:
+            starts = np.linspace(0, n - _PROBE_SAMPLES, _PROBE_BLOCKS).astype(int)
+            blocks = [col[k:k + _PROBE_SAMPLES] for k in starts]
+        else:
+            blocks = [col]
+        for block in blocks:
+            block = np.ascontiguousarray(block)
+            shuffled = block.view(np.uint8).reshape(-1, block.dtype.itemsize).T.tobytes()
+            packed += len(zlib.compress(shuffled, 1))
+            probed += block.nbytes
+    return packed <= (1.0 - MIN_SAVING) * probed
 
 
 def counts_to_values(counts: np.ndarray, scale, offset) -> np.ndarray:
@@ -64,6 +78,12 @@ def _column_step(col: np.ndarray) -> float | None:
     step0 = float(diffs.min())
     if not step0 > 0 or nz[-1] / step0 >= 2 ** 31:
         return None
+    # the common case first (an A/D whose codes are dense): the smallest gap is the step.
+    # Exactly what the search below tries first whenever this succeeds (then every gap is
+    # a whole number of steps, so one sub-step passes its test): only faster.
+    q = _exact_step_near(col, nz, step0)
+    if q is not None:
+        return q
     # sparse codes: the smallest gap may be several steps; the step divides every gap.
     # A gap between floats is off by up to ~2 ulps of its upper end, so the test that
     # ``m * gap / step0`` is whole allows for that error (and step0's own) times m.

@@ -21,6 +21,7 @@ import math
 import queue
 import secrets
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +49,15 @@ __all__ = ["Engine", "EngineObserver", "RunSummary", "TripPolicy", "RERUN_WAIT_P
            "is_rerun_wait", "rerun_wait_reason"]
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class _Written:
+    """A trial of this run whose level was reported: what the run's summary needs."""
+
+    name: str
+    completed: bool
+
 
 #: Rest is slept in slices of this many engine-clock seconds, checking commands between.
 REST_SLICE_S = 0.05
@@ -95,7 +105,10 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         self._wake = threading.Event()
         self._sm = StateMachine(self._on_transition)
         self._pending_events: list[tuple[str, str, str]] = []
-        self._trials_this_run: dict[int, Trial] = {}
+        self._trials_this_run: dict[int, Trial | _Written] = {}
+        """Each schedule index's trial of this run; once its level is reported, only its
+        name and status (the samples are in the journal: a session keeps a few trials in
+        memory, not all of them)."""
         self._levels_reported: set[float] = set()
         self._ran = False
         # operator flags (engine thread only)
@@ -250,16 +263,23 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
             self._event("recovered", self.recovery.summary())
         self.interlock.start_watcher()
 
+    @property
+    def _open_log(self) -> SessionLog:
+        """The session's log (open from :meth:`_setup` on, or from a resume)."""
+        if self._log is None:
+            raise RuntimeError(f"{self.path}: the session log is not open yet")
+        return self._log
+
     def _restore_statuses(self) -> None:
         done = set()
-        for meta in self._log.trials:
+        for meta in self._open_log.trials:
             idx = (meta.get("extra_attrs") or {}).get("schedule_index")
             if idx is not None and meta["status"] == "completed":
                 done.add(int(idx))
         for pt in self.schedule:
             if pt.index in done:
                 pt.status = TrialStatus.DONE
-            pt.attempts = sum(1 for m in self._log.trials
+            pt.attempts = sum(1 for m in self._open_log.trials
                               if (m.get("extra_attrs") or {}).get("schedule_index") == pt.index)
         self._levels_reported = {round(pt.sE, 9) for pt in self.schedule
                                  if all(q.status is TrialStatus.DONE for q in self.schedule
@@ -400,7 +420,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
                      chirp_f1_Hz=p.chirp_f1_Hz, carrier_Hz=p.carrier_Hz, started_utc=started,
                      extra_attrs={"schedule_index": planned.index,
                                   "attempt": planned.attempts, **input_attrs(p)})
-        self._log.begin_trial(meta)
+        self._open_log.begin_trial(meta)
         self._event("trial_start", f"schedule index {planned.index}: sE {planned.sE:g}, "
                                    f"repeat {planned.repeat}, attempt {planned.attempts}")
         self._notify("on_trial_started", planned.index, planned)
@@ -408,7 +428,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         rE, Ie, If = wf.rE, checked.I_ext_mA, checked.I_flex_mA
 
         def on_samples(lo, hi, force_seg, wrench_seg=None, sync_seg=None):
-            self._log.append_chunk(force_N=force_seg, rE=rE[lo:hi], I_ext_mA=Ie[lo:hi],
+            self._open_log.append_chunk(force_N=force_seg, rE=rE[lo:hi], I_ext_mA=Ie[lo:hi],
                                    I_flex_mA=If[lo:hi], wrench=wrench_seg, sync=sync_seg)
             self._notify("on_chunk", planned.index, lo, force_seg, rE[lo:hi], Ie[lo:hi],
                          If[lo:hi])
@@ -426,7 +446,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
                       sync=None if sync is None else sync[:got],
                       extra_attrs={**meta.extra_attrs, **self._stimulation_attrs()})
         self._poll()  # log the trip event (if any) before the trial's own event
-        name = self._log.end_trial(trial)
+        name = self._open_log.end_trial(trial)
         planned.status = TrialStatus.ABORTED if reason else TrialStatus.DONE
         planned.reason = reason
         self._trials_this_run[planned.index] = trial
@@ -459,15 +479,19 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         trials = []
         for pt in entries:
             t = self._trials_this_run.get(pt.index)
-            if t is None:
+            if not isinstance(t, Trial):
                 t = self._load_completed(pt.index)
             if t is not None:
                 trials.append(t)
         self._notify("on_level_completed", sE, trials)
+        for pt in entries:  # reported: the samples are no longer needed here
+            t = self._trials_this_run.get(pt.index)
+            if isinstance(t, Trial):
+                self._trials_this_run[pt.index] = _Written(t.name, t.completed)
 
     def _load_completed(self, index: int) -> Trial | None:
         jdir = journal_dir(self.path)
-        for i, meta in enumerate(self._log.trials):
+        for i, meta in enumerate(self._open_log.trials):
             if (meta.get("extra_attrs") or {}).get("schedule_index") == index and \
                     meta["status"] == "completed":
                 p = jdir / f"trial-{i + 1:04d}.npz"

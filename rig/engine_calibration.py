@@ -7,6 +7,8 @@ journal and command flags); the pure parts (ramp plans, threshold detection) liv
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from nmsid.protocols.calibration import (Muscle, check_calibration, detect_thresholds,
@@ -16,9 +18,49 @@ from nmsid.protocols.errors import CalibrationError
 from nmsid.protocols.session_file import Calibration
 from nmsid.rig.states import State
 
+if TYPE_CHECKING:  # the engine this mixes into (nmsid.rig.engine imports this module)
+    from nmsid.protocols.config import Config
+    from nmsid.rig.session_log import SessionLog
+    from nmsid.rig.states import StateMachine
+    from nmsid.rig.stimulation import BlockResult
+
 
 class CalibrationSteps:
     """The engine's calibration phase (mixin)."""
+
+    # what it uses of the engine (set by :class:`nmsid.rig.engine.Engine`)
+    config: Config
+    calibration: Calibration | None
+    _sm: StateMachine
+    _confirmations: list[Calibration]
+    _skip_req: bool
+
+    if TYPE_CHECKING:
+        @property
+        def _open_log(self) -> SessionLog:
+            raise NotImplementedError
+
+        def _event(self, kind: str, detail: str = "") -> None:
+            raise NotImplementedError
+
+        def _notify(self, name: str, *args) -> None:
+            raise NotImplementedError
+
+        def _wait_operator(self, until, what: str) -> None:
+            raise NotImplementedError
+
+        def _check_interrupts(self, *, calibrating: bool = False) -> bool:
+            raise NotImplementedError
+
+        def _sleep_checking(self, duration_s: float) -> None:
+            raise NotImplementedError
+
+        def _stimulate(self, checked, *, n: int, on_samples=None,
+                       watch_commands: bool = False, stream=None) -> BlockResult:
+            raise NotImplementedError
+
+        def _checked(self, I_ext_mA, I_flex_mA):
+            raise NotImplementedError
 
     # -- calibration -------------------------------------------------------------------
     def _calibrate(self) -> None:
@@ -58,7 +100,7 @@ class CalibrationSteps:
             self._event("calibration_confirmed", _cal_text(cal))
         self._skip_req = False  # a skip pressed during calibration means nothing
         self.calibration = cal
-        self._log.write_calibration(cal)
+        self._open_log.write_calibration(cal)
         self._event("calibration", _cal_text(cal))
         self._sm.to(State.ARMED, "calibrated")
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 import enum
 import logging
 import queue
+import threading
+from typing import TYPE_CHECKING
 
 from nmsid.protocols.schedule import TrialStatus
 from nmsid.protocols.session_file import Calibration
@@ -19,6 +21,15 @@ from nmsid.rig.observer import TripPolicy
 from nmsid.rig.safety import InterlockTripped, Trip
 from nmsid.rig.session_log import utc_now_ms
 from nmsid.rig.states import State
+
+if TYPE_CHECKING:  # the engine this mixes into (nmsid.rig.engine imports this module)
+    from nmsid.drivers.interfaces import RigDevices
+    from nmsid.protocols.config import Config
+    from nmsid.protocols.schedule import PlannedTrial
+    from nmsid.rig.observer import EngineObserver
+    from nmsid.rig.safety import Interlock
+    from nmsid.rig.session_log import SessionLog
+    from nmsid.rig.states import StateMachine
 
 log = logging.getLogger("nmsid.rig.engine")
 
@@ -44,6 +55,33 @@ class _EndRun(Exception):
 
 class OperatorCommands:
     """Commands, their queue and the handling of trips and pauses (engine mixin)."""
+
+    # what it uses of the engine (set by :class:`nmsid.rig.engine.Engine`)
+    config: Config
+    devices: RigDevices
+    interlock: Interlock
+    observer: EngineObserver
+    schedule: list[PlannedTrial]
+    trip_policy: TripPolicy
+    calibration: Calibration | None
+    _log: SessionLog | None
+    _sm: StateMachine
+    _cmds: queue.SimpleQueue
+    _wake: threading.Event
+    _pending_events: list[tuple[str, str, str]]
+    _confirmations: list[Calibration]
+    _rerun_first: list[int]
+    _levels_reported: set[float]
+    _pause_req: bool
+    _resume_req: bool
+    _abort_req: bool
+    _abort_by: str
+    _skip_req: bool
+    _rearm_req: bool
+
+    if TYPE_CHECKING:
+        def _stop_output(self) -> None:
+            raise NotImplementedError
 
     # -- public state ----------------------------------------------------------------
     @property

@@ -41,19 +41,20 @@ from nmsid.protocols.session_file import (Calibration, Event, SessionExistsError
                                           SessionWriter, Trial, read_session, software_id, utc_now,
                                           validate_session)
 from nmsid.protocols.session_lock import SessionLock, live_writer
-from nmsid.protocols.session_model import PARTICIPANT_PATTERN
+from nmsid.protocols.session_model import PARTICIPANT_PATTERN, TRIAL_NAME_PATTERN, _h5py
 from nmsid.protocols.session_writer import check_seed, counts_memo
 from nmsid.protocols.session_publish import (SPACE_MARGIN_BYTES, FileHeldError, o_binary,
                                              free_bytes, publish_image, rename_retrying,
                                              replace_retrying)
 # re-exported names (callers import them from here)
-from nmsid.rig.journal import (PARTIAL_ABORT_REASON, PARTIAL_COLUMNS, JournalContents,  # noqa: F401
+from nmsid.rig.journal import (DIGEST_SIGNALS, PARTIAL_ABORT_REASON, PARTIAL_COLUMNS,  # noqa: F401
+                               JournalContents, arrays_digest,
                                disk_error, trial_digest, fsync_dir, json_default, save_calibration,
                                save_trial_npz, write_durable, journal_dir, load_trial_npz,
                                read_journal, trial_meta, utc_now_ms)
 from nmsid.rig.session_clock import SessionClock
 from nmsid.rig.recovery import (RecoveryReport, _header_kwargs, create_from_header,  # noqa: F401
-                                read_fully,
+                                read_fully,  # noqa: F401
                                 remove_leftovers, unique_aside, recover)
 
 log = logging.getLogger(__name__)
@@ -388,8 +389,15 @@ class SessionLog:
                       "%s` once the file can be written", self.path, self.jdir.name,
                       self.path)
             return False
-        s, problems = read_fully(self.path)
-        if s is None:
+        # the file validates (every dataset read, its checksum verified, its values
+        # checked) and holds, bit for bit, every trial the journal holds
+        problems = validate_session(self.path)
+        if not problems:
+            try:
+                in_file = file_trial_digests(self.path)
+            except Exception as exc:  # h5py raises KeyError / OSError / RuntimeError
+                problems = [f"data unreadable ({type(exc).__name__}: {exc})"]
+        if problems:
             log.error("%s: not removing the journal, the file has problems: %s", self.path,
                       problems[0])
             return False
@@ -399,9 +407,9 @@ class SessionLog:
             digests = [trial_digest(load_trial_npz(p))
                        for p in files[:len(files) - len(digests)]] \
                 + digests
-        if len(s.trials) != len(files) or [trial_digest(t) for t in s.trials] != digests:
+        if len(in_file) != len(files) or in_file != digests:
             log.error("%s: file and journal differ (%d / %d trials); journal kept", self.path,
-                      len(s.trials), len(files))
+                      len(in_file), len(files))
             return False
         # rename first (atomic), then delete: a kill never leaves half a journal behind
         gone = self.jdir.with_name(f"{self.jdir.name}.done-{os.getpid()}")
@@ -454,6 +462,28 @@ class SessionLog:
             except OSError:
                 pass
             self._ev_fh.close()
+
+
+def file_trial_digests(path: Path) -> list[int]:
+    """:func:`~nmsid.rig.journal.trial_digest` of every trial of a session file, in the
+    file's order (``t001``, ``t002``, ...), read one trial at a time (only the four
+    sample datasets, no attributes: the check after :func:`validate_session` at the end
+    of a session, without a second full read of the file).
+
+    Raises
+    ------
+    KeyError, OSError, RuntimeError
+        As h5py does on a damaged file.
+    """
+    out = []
+    with _h5py().File(path, "r") as f:
+        trials = f["trials"]
+        numbered = [(TRIAL_NAME_PATTERN.match(k), k) for k in trials]
+        names = [k for m, k in sorted((int(m.group(1)), k) for m, k in numbered if m)]
+        for name in names:
+            g = trials[name]
+            out.append(arrays_digest([g[k][()] for k in DIGEST_SIGNALS]))
+    return out
 
 
 def expected_session_bytes(n_trials: int, samples_per_trial: int, file_bytes: int = 0,

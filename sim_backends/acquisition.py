@@ -74,11 +74,14 @@ class SimForceAcquisition:
                     if sf is not None and not acq.stalled:
                         w.start_stall(acq, sf)
                     if acq.stalled:
+                        if sf is None:  # a stall lasts while its fault is pending
+                            raise DeviceStateError("simulated stall without its fault")
                         if acq.stall_end_s is not None and clock.monotonic_s() >= acq.stall_end_s:
                             acq.stalled = False
                             sf.done = True
-                            lost = int(round(min(sf.fault.lost_s, sf.fault.duration_s)
-                                             * w.fs_Hz))
+                            dur = sf.fault.duration_s  # set: the stall ends (stall_end_s)
+                            lost = int(round(min(sf.fault.lost_s, sf.fault.lost_s if dur is None
+                                                 else dur) * w.fs_Hz))
                             if lost:   # a dropout: the stalled samples never arrive
                                 acq.next_k += lost
                                 acq.lost_detail = (f"sensor dropout: {lost} samples lost "

@@ -65,13 +65,15 @@ class StatefulFilter:
 
     def __init__(self, order: int = 2):
         self.order = order
-        self._b = self._a = None
-        self._zi = None
+        self._b: np.ndarray | None = None
+        self._a: np.ndarray | None = None
+        self._zi: np.ndarray | None = None
         self._x_hist = np.zeros(order)   # most recent first
         self._y_hist = np.zeros(order)
 
     def set_coefficients(self, b: np.ndarray, a: np.ndarray) -> None:
-        if self._b is not None and np.array_equal(b, self._b) and np.array_equal(a, self._a):
+        if self._b is not None and self._a is not None and np.array_equal(b, self._b) \
+                and np.array_equal(a, self._a):
             return
         n = max(len(a), len(b)) - 1
         if n != self.order:

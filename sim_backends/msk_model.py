@@ -25,6 +25,7 @@ from __future__ import annotations
 import copy
 import math
 import threading
+from typing import Any
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,7 +98,7 @@ def load_elbow_model():
 class ConfiguredModel:
     """A participant's own copy of the model and what the simulator derives from it."""
 
-    model: object
+    model: Any
     """mujoco.MjModel (private: fatigue changes its gains)."""
     q_fixture_rad: float
     inertia_kgm2: float

@@ -99,14 +99,15 @@ def fit_second_order_reference(u: np.ndarray, y: np.ndarray, fs_Hz: float
         return y - X @ theta
 
     q = max(1, int(fs_Hz // 200))          # coarse start on a decimated copy
-    best = None
+    best: tuple[float, float, float] | None = None
     for wn in np.geomspace(4.0, 120.0, 11):
         for z in np.geomspace(0.12, 3.0, 8):
             X = _model_columns(u[::q], wn, z, dt * q)
             theta, *_ = np.linalg.lstsq(X, y[::q], rcond=None)
             r = float(np.sum((y[::q] - X @ theta) ** 2))
             if best is None or r < best[0]:
-                best = (r, wn, z)
+                best = (r, float(wn), float(z))
+    assert best is not None  # the grid above is not empty
     sol = optimize.least_squares(resid, [math.log(best[1]), math.log(best[2])],
                                  x_scale=[0.1, 0.1], xtol=1e-12, ftol=1e-14, gtol=1e-14)
     wn, z = math.exp(sol.x[0]), math.exp(sol.x[1])

@@ -152,7 +152,8 @@ def make_population(n: int, seed: int = 0) -> list[VirtualParticipant]:
     for i in range(int(n)):
         rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, i, 4242])
         p_seed = int(rng.integers(0, 2 ** 31 - 1))
-        families = tuple(table[order[i % 10]] for table, order in
-                         zip((KP_FAMILIES, WN_FAMILIES, ZETA_FAMILIES), orders))
+        kp, wn, zeta = (table[order[i % 10]] for table, order in
+                        zip((KP_FAMILIES, WN_FAMILIES, ZETA_FAMILIES), orders))
+        families = (kp, wn, zeta)
         out.append(make_participant(rng, f"S{i + 1:02d}", p_seed, families))
     return out

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from nmsid.drivers.interfaces import RigDevices
 from nmsid.sim_backends.acquisition import SimForceAcquisition
 from nmsid.sim_backends.clocks import FastClock, SimRealClock
-from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.errors import DeviceStateError, SimConfigError
 from nmsid.sim_backends.estop import SimEStop
 from nmsid.sim_backends.faults import Fault, FaultScript
 from nmsid.sim_backends.participant import VirtualParticipant, default_participant
@@ -41,38 +41,48 @@ class SimRig(RigDevices):
     @property
     def max_sent_mA(self) -> tuple[float, float]:
         """Largest current ever loaded per channel (extensor, flexor), mA."""
-        return tuple(self.world.max_sent_mA)
+        w = self._sim_world()
+        return float(w.max_sent_mA[0]), float(w.max_sent_mA[1])
 
     @property
     def max_delivered_mA(self) -> tuple[float, float]:
         """Largest current ever output per channel (extensor, flexor), mA."""
-        return tuple(self.world.max_delivered_mA)
+        w = self._sim_world()
+        return float(w.max_delivered_mA[0]), float(w.max_delivered_mA[1])
 
     @property
     def output_zero_events(self):
         """Every time the output became zero by ``stop_now`` or a stimulator fault."""
-        with self.world.lock:
-            self.world.update()      # a stop requested a moment ago is recorded now
-            return list(self.world.output_zero)
+        w = self._sim_world()
+        with w.lock:
+            w.update()      # a stop requested a moment ago is recorded now
+            return list(w.output_zero)
 
     @property
     def run_records(self):
         """One record per stimulator start: trigger time and sample, end, reason, peaks."""
-        return list(self.world.records)
+        return list(self._sim_world().records)
 
     @property
     def cumulative_stim_s(self) -> float:
         """Stimulation time the participant has received since the rig was made, s."""
-        return self.world.sim.cumulative_stim_s
+        return self._sim_world().sim.cumulative_stim_s
 
     def add_fault(self, fault: Fault) -> None:
         """Schedule a fault after the rig was made (``session_s`` counts from the rig's
         creation; a ``trial`` / ``run`` index must not have started yet)."""
-        self.world.add_fault(fault)
+        self._sim_world().add_fault(fault)
 
     def true_parameters(self, sE: float, calibration=None):
         """Shortcut for ``participant.true_parameters``."""
+        if self.participant is None:
+            raise DeviceStateError("this simulated rig has no participant")
         return self.participant.true_parameters(sE, calibration)
+
+    def _sim_world(self) -> SimWorld:
+        if self.world is None:
+            raise DeviceStateError("this simulated rig has no simulated world")
+        return self.world
 
 
 def make_sim_rig(participant: VirtualParticipant | None = None, *, realtime: bool = False,

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nmsid.sim_backends.errors import DeviceStateError
 from nmsid.sim_backends.faults import Fault
 
 
@@ -114,6 +115,19 @@ class AcqRun:
     @property
     def waiting(self) -> bool:
         return self.N0 is None
+
+    @property
+    def origin(self) -> tuple[int, float]:
+        """``(N0, t0_s)``: the absolute sample and clock time of sample 0 (once triggered).
+
+        Raises
+        ------
+        DeviceStateError
+            While the acquisition still waits for its trigger.
+        """
+        if self.N0 is None or self.t0_s is None:
+            raise DeviceStateError("the acquisition has not been triggered yet")
+        return self.N0, self.t0_s
 
     @property
     def done(self) -> bool:

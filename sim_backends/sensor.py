@@ -13,7 +13,7 @@ whatever the chunking (fast clock: long chunks; real time: short chunks).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -117,10 +117,10 @@ class SensorModel:
         ``round(value / lsb)`` clipped to the A/D's codes (saturation at its range).
         Without quantisation (``adc_bits`` None) a float64 copy."""
         w = np.array(wrench, dtype=np.float64)
-        lsb = self.lsb
-        if lsb is None:
+        lsb, bits = self.lsb, self.adc_bits
+        if lsb is None or bits is None:
             return w
-        half = 2 ** (int(self.adc_bits) - 1)
+        half = 2 ** (int(bits) - 1)
         code = np.clip(np.rint(w / lsb), -half, half - 1).astype(np.int64)
         return code * lsb     # integer codes: never -0.0, exactly code * lsb per channel
 
@@ -265,6 +265,9 @@ class BaselineWander:
     corner_Hz: float
     seed: int
     n_components: int = 8
+    _f: np.ndarray = field(init=False, repr=False, compare=False)
+    _ph: np.ndarray = field(init=False, repr=False, compare=False)
+    _a: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         rng = np.random.default_rng([int(self.seed) & 0xFFFFFFFF, 77])

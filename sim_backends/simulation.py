@@ -59,7 +59,7 @@ class ParticipantSimulator:
         """Next absolute sample index to simulate."""
         self.stim_samples = 0
         """Samples with current on either channel since the session began."""
-        self._op: OperatingPoint | None = None
+        self._op: OperatingPoint  # set by _set_op at the end of __init__
         self._s_raw: float | None = None
         self._ops: dict[float, OperatingPoint] = {}
         self._asym: FlexorExtensorAsymmetry | None = participant.effect(

@@ -181,12 +181,12 @@ class SimStimulator(StreamingStimulator):
     @property
     def max_sent_mA(self) -> tuple[float, float]:
         """Largest current ever loaded on (extensor, flexor), after quantisation."""
-        return tuple(self._w.max_sent_mA)
+        return float(self._w.max_sent_mA[0]), float(self._w.max_sent_mA[1])
 
     @property
     def max_delivered_mA(self) -> tuple[float, float]:
         """Largest current ever output on (extensor, flexor) during a simulated sample."""
-        return tuple(self._w.max_delivered_mA)
+        return float(self._w.max_delivered_mA[0]), float(self._w.max_delivered_mA[1])
 
     @property
     def output_zero_events(self):

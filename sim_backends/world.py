@@ -329,10 +329,11 @@ class SimWorld:
 
     def next_range(self, acq: AcqRun) -> tuple[int, int]:
         """Absolute [Na, Nb) of the next chunk, cut at fault boundaries."""
-        Na = acq.N0 + acq.next_k
+        N0 = acq.origin[0]
+        Na = N0 + acq.next_k
         Nb = Na + self.chunk_n
         if acq.n_samples is not None:
-            Nb = min(Nb, acq.N0 + acq.n_samples)
+            Nb = min(Nb, N0 + acq.n_samples)
         for sf in self._sample:
             if sf.done:
                 continue
@@ -349,7 +350,8 @@ class SimWorld:
         return None
 
     def due_time(self, acq: AcqRun, Nb: int) -> float:
-        return acq.t0_s + (Nb - acq.N0) / self.fs_Hz
+        N0, t0_s = acq.origin
+        return t0_s + (Nb - N0) / self.fs_Hz
 
     # -- simulation ahead, with rollback -------------------------------------------------
     def invalidate(self) -> None:
@@ -397,7 +399,7 @@ class SimWorld:
         self._advance_to(Na)
         n = self.block_n
         if acq.n_samples is not None:
-            n = min(n, acq.N0 + acq.n_samples - Na)
+            n = min(n, acq.origin[0] + acq.n_samples - Na)
         n = max(n, Nb - Na)
         N1 = Na + n
         I_e, I_f, sync = self.output(Na, N1)
@@ -444,7 +446,7 @@ class SimWorld:
                 Na = sf.N + lost
                 Nb = Na + self.chunk_n
                 if acq.n_samples is not None:
-                    Nb = min(Nb, acq.N0 + acq.n_samples)
+                    Nb = min(Nb, acq.origin[0] + acq.n_samples)
                 Na = min(Na, Nb)
                 flags["overrun"] = True
                 details.append(f"simulated overrun: {lost} samples lost")
@@ -477,9 +479,10 @@ class SimWorld:
                            f"{self.participant.sensor.range_N:g} N")
         self._count_delivered(blk.I_e[a:b], blk.I_f[a:b], (blk.peak_e, blk.peak_f))
         self.committed = max(self.committed, Nb)
-        acq.next_k = Nb - acq.N0
+        N0 = acq.origin[0]
+        acq.next_k = Nb - N0
         fl = AcquisitionFlags(detail="; ".join(details), **flags) if details else _NO_FLAGS
-        return blk.force_N[a:b], blk.wrench[a:b], blk.sync[a:b], fl, Na - acq.N0
+        return blk.force_N[a:b], blk.wrench[a:b], blk.sync[a:b], fl, Na - N0
 
     def start_stall(self, acq: AcqRun, sf: SampleFault) -> None:
         if not any(ff.fault is sf.fault for ff in self.script.fired):

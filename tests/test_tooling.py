@@ -278,16 +278,9 @@ def test_the_list_of_known_bare_dicts_only_shrinks():
 #: are fixing them (issue 30, 4). This list only shrinks; the integrator empties it.
 KNOWN_TYPE_DEBTS = {
     "nmsid.analysis.gap.verdict", "nmsid.analysis.identify", "nmsid.analysis.muscle.report",
-    "nmsid.analysis.preprocess", "nmsid.analysis.qc.decide", "nmsid.analysis.qc.settings",
+    "nmsid.analysis.preprocess", "nmsid.analysis.qc.decide",
     "nmsid.analysis.report", "nmsid.cli", "nmsid.cli.probe_command",
     "nmsid.cli.run_command", "nmsid.cli.stimulation_command", "nmsid.cli.study_command",
-    "nmsid.rig.engine", "nmsid.rig.engine_calibration", "nmsid.rig.engine_commands",
-    "nmsid.rig.journal", "nmsid.rig.session_signals", "nmsid.sim_backends.acquisition",
-    "nmsid.sim_backends.filters", "nmsid.sim_backends.msk_model",
-    "nmsid.sim_backends.msk_simulation", "nmsid.sim_backends.msk_truth",
-    "nmsid.sim_backends.population", "nmsid.sim_backends.rig", "nmsid.sim_backends.sensor",
-    "nmsid.sim_backends.simulation", "nmsid.sim_backends.stimulator",
-    "nmsid.sim_backends.world",
 }
 
 
