@@ -190,7 +190,7 @@ def report(exc: BaseException, command: str) -> int:
     if isinstance(exc, (UserError, MissingDependency)):
         print(f"nmsid: error: {_one_line(str(exc))}", file=sys.stderr)
         return EXIT_USER_ERROR
-    if _user_os_error(exc):
+    if isinstance(exc, OSError) and _user_os_error(exc):
         print(f"nmsid: error: {_one_line(str(exc.filename))}: {exc.strerror}", file=sys.stderr)
         return EXIT_USER_ERROR
     if isinstance(exc, DeviceFault):
