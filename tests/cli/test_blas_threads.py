@@ -1,6 +1,6 @@
 """``nmsid identify`` and ``nmsid qc`` start with one BLAS thread unless the user chose a
 count: their many small solves lose more to worker threads than they gain (on a loaded
-2-core machine 6.9 s of CPU instead of 1.3 s for a 45-trial session)."""
+2-core machine 5.9-8.3 s of CPU instead of 1.3-1.5 s for a 45-trial session)."""
 
 from __future__ import annotations
 
