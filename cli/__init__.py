@@ -60,7 +60,7 @@ COMMAND_OF = {
 #: Commands whose linear algebra is many small solves (a few dozen columns): BLAS worker
 #: threads cost them more in start-up and hand-over than they gain, and on a loaded
 #: machine much more (``nmsid identify`` of a 45-trial session on 2 busy cores: 5.9-8.3 s of
-#: CPU with OpenBLAS's default threads, 1.3 s with one). They start single-threaded unless
+#: CPU with OpenBLAS's default threads, 1.3-1.5 s with one). They start single-threaded unless
 #: the user set a thread count.
 SINGLE_THREAD_COMMANDS = frozenset({"identify", "qc"})
 #: The thread-count variables of the BLAS builds numpy ships with (OpenBLAS) or may be
