@@ -28,6 +28,7 @@ recursion up to rounding (tests compare with scipy on random filters and signals
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -69,6 +70,15 @@ def _powers(A, count):
     return out
 
 
+@functools.lru_cache(maxsize=8)
+def _toeplitz_index(L: int) -> tuple[np.ndarray, np.ndarray]:
+    """(causal mask, clipped lag) of an L x L block's Toeplitz matrix (read-only: cached)."""
+    idx = np.arange(L)[None, :] - np.arange(L)[:, None]
+    causal, clipped = idx >= 0, np.clip(idx, 0, L - 1)
+    causal.flags.writeable = clipped.flags.writeable = False
+    return causal, clipped
+
+
 def _run(A, B, D, x, s0):
     """Filter x (..., N) from states s0 (..., n); returns (y, final states)."""
     n = A.shape[0]
@@ -80,8 +90,8 @@ def _run(A, B, D, x, s0):
     L = max(1, min(_BLOCK, N))
     P = _powers(A, L + 1)                           # A^0 .. A^L
     h = np.concatenate([[D], P[:L - 1, 0, :] @ B])  # impulse response, first L samples
-    idx = np.arange(L)[None, :] - np.arange(L)[:, None]
-    TT = np.where(idx >= 0, h[np.clip(idx, 0, L - 1)], 0.0)     # y_block = x_block @ TT
+    causal, clipped = _toeplitz_index(L)
+    TT = np.where(causal, h[clipped], 0.0)          # y_block = x_block @ TT
     G = P[L - 1::-1] @ B                            # (L, n): A^(L-1-j) B
     OT = np.ascontiguousarray(P[:L, 0, :].T)        # (n, L): row 0 of A^i
     K, r = divmod(N, L)
@@ -96,8 +106,8 @@ def _run(A, B, D, x, s0):
         e = f
         M = P[L]
         d = 1
-        while d < K:
-            e = np.concatenate([e[:, :d, :], e[:, d:, :] + e[:, :-d, :] @ M.T], axis=1)
+        while d < K:   # in place: the product is formed from the old e before the sum
+            e[:, d:, :] += e[:, :-d, :] @ M.T
             M = M @ M
             d *= 2
         starts = np.concatenate([s0[:, None, :], e[:, :-1, :]], axis=1)
