@@ -293,7 +293,7 @@ def identify_session(session, settings: IdentificationSettings | None = None,
     completed = Counter(round(float(t.sE), 9) for t in session.trials
                         if t.completed and id(t) not in {id(o) for o in outside})
     config = session.config if isinstance(session.config, dict) else {}
-    protocol = config.get("protocol") if isinstance(config.get("protocol"), dict) else config
+    protocol: dict = config["protocol"] if isinstance(config.get("protocol"), dict) else config
     planned = protocol.get("sE_levels")
     planned_repeats = protocol.get("repeats")
     expected = int(planned_repeats) if isinstance(planned_repeats, int) and planned_repeats > 0 \

@@ -143,7 +143,7 @@ def smooth_and_lowpass(x: np.ndarray, fs_Hz: float,
                                  2 * last - y[..., -2:-half - 2:-1]], axis=-1)
         y = convolve1d(padded, taps, axis=-1, mode="constant")[..., half:half + n]
     sos = lowpass_sos(fs_Hz, settings)
-    if sos is not None:
+    if sos is not None and settings.lowpass_Hz is not None:   # a cut-off gives the sos
         if settings.zero_phase:
             # pad by odd reflection long enough (3 / cut-off) for the start-up transient
             # of the filter to die out inside the padding: lines then pass exactly

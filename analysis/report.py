@@ -148,7 +148,8 @@ def selection_tables(selection: SelectionResult) -> str:
             if c.selected is None:
                 out.append(f"{label:<14}no model selectable{extra}")
             else:
-                out.append(f"{label:<14}{MODEL_TITLES[c.selected]:<12} {c.trend.text}{extra}")
+                trend = c.trend.text if c.trend is not None else ""
+                out.append(f"{label:<14}{MODEL_TITLES[c.selected]:<12} {trend}{extra}")
         out.append("")
         out.append(f"== {title}: sum of AICc across participants ==")
         for m in models:

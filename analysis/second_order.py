@@ -120,8 +120,8 @@ class _Problem:
         """
         num, den, dnum, dden = foh_coefficients_with_derivatives(p[0], p[1], self.dt_s)
         v = self.v
-        h = lfilter([1.0], den, self.impulse)
-        w = lfilter([1.0], den, v)
+        # the impulse response and the filtered input in one call (one filter set-up)
+        h, w = lfilter([1.0], den, np.vstack([self.impulse, v]))
         h1 = _shift(h, 1)
         s0 = w - v[0] * h - v[1] * h1
         s1 = _shift(w, 1) - v[0] * h1

@@ -21,6 +21,7 @@ import contextlib
 import errno
 import importlib
 import logging
+import os
 import sys
 import traceback
 
@@ -43,6 +44,42 @@ COMMAND_MODULES = (
     "nmsid.cli.stimulation",  # stimulation
     "nmsid.cli.control",  # control design, control report
 )
+
+#: The registration module of each sub-command: a command line that names one imports only
+#: that module (``nmsid identify`` does not register the eleven others); ``nmsid --help``
+#: and anything unrecognised register them all. A test holds it equal to what the
+#: modules register.
+COMMAND_OF = {
+    "run": "nmsid.cli.run", "recover": "nmsid.cli.run", "validate": "nmsid.cli.validate",
+    "identify": "nmsid.cli.identify", "twin": "nmsid.cli.identify", "qc": "nmsid.cli.qc",
+    "gap": "nmsid.cli.gap", "design": "nmsid.cli.design", "probe": "nmsid.cli.probe",
+    "gui": "nmsid.cli.gui", "export": "nmsid.cli.export", "study": "nmsid.cli.study",
+    "stimulation": "nmsid.cli.stimulation", "control": "nmsid.cli.control",
+}
+
+#: Commands whose linear algebra is many small solves (a few dozen columns): BLAS worker
+#: threads cost them more in start-up and hand-over than they gain, and on a loaded
+#: machine much more (``nmsid identify`` of a 45-trial session on 2 busy cores: 5.9-8.3 s of
+#: CPU with OpenBLAS's default threads, 1.3-1.5 s with one). They start single-threaded unless
+#: the user set a thread count.
+SINGLE_THREAD_COMMANDS = frozenset({"identify", "qc"})
+#: The thread-count variables of the BLAS builds numpy ships with (OpenBLAS) or may be
+#: built against (MKL, OpenMP); read when numpy is first imported.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS")
+
+
+def limit_blas_threads(environ=None) -> list[str]:
+    """Set each BLAS thread-count variable the user left unset to 1; returns those set.
+
+    Effective only before numpy is imported (the CLI calls it before the handler's
+    import); a count the user chose is kept.
+    """
+    env = os.environ if environ is None else environ
+    chosen = [name for name in BLAS_THREAD_VARIABLES if name not in env]
+    for name in chosen:
+        env[name] = "1"
+    return chosen
+
 
 #: errno values of file-system errors that are the user's to fix (a path that does not
 #: exist, is not allowed, is full, is read-only, ...), not bugs.
@@ -89,7 +126,20 @@ def _one_line(text: str) -> str:
     return escape_controls(text).replace("\n", "\\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _named_command(argv: list[str]) -> str | None:
+    """The sub-command an argument list names before any other word, or None."""
+    for word in argv:
+        if word in ("--debug", "--verbose") or (word.startswith("-v")
+                                                and set(word[1:]) == {"v"}):
+            continue
+        return word if word in COMMAND_OF else None
+    return None
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The ``nmsid`` parser: every sub-command, or only the one ``argv`` names."""
+    named = _named_command(argv) if argv is not None else None  # None: all
+    modules = (COMMAND_OF[named],) if named else COMMAND_MODULES
     parser = _OneLineParser(
         prog="nmsid",
         description="FES neuromuscular-system identification: run sessions on a simulated "
@@ -100,7 +150,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="count", default=0,
                         help="more log output (-v info, -vv debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMAND_MODULES:
+    for name in modules:
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:
@@ -140,7 +190,7 @@ def report(exc: BaseException, command: str) -> int:
     if isinstance(exc, (UserError, MissingDependency)):
         print(f"nmsid: error: {_one_line(str(exc))}", file=sys.stderr)
         return EXIT_USER_ERROR
-    if _user_os_error(exc):
+    if isinstance(exc, OSError) and _user_os_error(exc):
         print(f"nmsid: error: {_one_line(str(exc.filename))}: {exc.strerror}", file=sys.stderr)
         return EXIT_USER_ERROR
     if isinstance(exc, DeviceFault):
@@ -153,7 +203,8 @@ def report(exc: BaseException, command: str) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     logging.basicConfig(
         level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
@@ -163,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return EXIT_USER_ERROR
     module_name, func_name = handler.split(":")
+    if args.command in SINGLE_THREAD_COMMANDS:
+        limit_blas_threads()      # before the handler imports numpy
     try:
         func = getattr(importlib.import_module(module_name), func_name)
         with _escaped_output():

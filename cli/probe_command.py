@@ -11,13 +11,15 @@ configuration file is still one line and exit 2, raised before any device is tri
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from nmsid.cli.errors import UsageError
 from nmsid.drivers.dry_run import DryRunSettings
 from nmsid.drivers.hardware import (build_devices, load_acquisition_library, make_acquisition,
                                     make_estop, make_stimulator, prepare, with_monitor)
-from nmsid.drivers.hardware import load_stimulator_library
+from nmsid.drivers.hardware import FakeStack, load_stimulator_library
 from nmsid.drivers.hw_config import load_hw_config
 from nmsid.drivers.interfaces import Describable, ReportsSensorInfo
 from nmsid.rig.dry_run import dry_run_probe
@@ -109,7 +111,8 @@ def _check_stimulator(cfg, stack, clock, args) -> str:
 
 def _check_acquisition(cfg, stack, clock, args) -> str:
     # a fake stack is closed by probe() itself, not by the acquisition it wraps
-    acq = make_acquisition(cfg, None if stack is None else _Borrowed(stack))
+    # _Borrowed is the stack in all but close (duck-typed)
+    acq = make_acquisition(cfg, None if stack is None else cast(FakeStack, _Borrowed(stack)))
     try:
         load_acquisition_library(cfg, acq)
         rate = acq.configure(cfg.acquisition.fs_Hz)

@@ -26,7 +26,8 @@ from nmsid.rig.glitch_prompt import glitch_confirmation
 from nmsid.rig.recovery import check_stored_header
 from nmsid.rig.session_log import journal_dir, recover
 from nmsid.rig.session_service import RigRequest, prepare_rig, seed_from_code
-from nmsid.rig.session_signals import SessionSignals, signal_name
+from nmsid.rig.observer import EngineObserver
+from nmsid.rig.session_signals import SessionSignals, exit_code, signal_name
 from nmsid.rig.tracking import SESSION_KIND, tracking_engine
 
 
@@ -112,7 +113,7 @@ def run(args) -> int:
                 print(f"nmsid: {signal_name(signals.received)} received before the session "
                       f"started: nothing stimulated, no session file written",
                       file=sys.stderr, flush=True)
-                return signals.exit_code
+                return exit_code(signals.received)
             box["engine"] = engine
             progress.total = len(engine.schedule)
             progress.done = sum(1 for t in engine.schedule if t.status.value == "done")
@@ -204,7 +205,7 @@ def _identify(path) -> None:
     print(f"identification written to {out}", flush=True)
 
 
-class _Progress:
+class _Progress(EngineObserver):
     """Engine observer that prints a progress bar and one line per finished trial."""
 
     def __init__(self, quiet: bool = False):

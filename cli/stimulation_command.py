@@ -84,8 +84,9 @@ def render_protocol(config_path, calibration: tuple[float, float, float, float],
     flex = ChannelPlan(stim.flexor_channel, "flexor", stim.ceiling_flex_mA,
                        STG4002_RANGE_NA, STG4002_RESOLUTION_NA)
     capacity = STG4002_MEMORY_BYTES // 4
-    levels, samples = [], {"output_rate_Hz": np.float64(output_rate_Hz),
-                           "carrier_Hz": np.float64(p.carrier_Hz)}
+    levels: list[dict] = []
+    samples: dict[str, np.generic | np.ndarray] = {
+        "output_rate_Hz": np.float64(output_rate_Hz), "carrier_Hz": np.float64(p.carrier_Hz)}
     worst = 0.0
     for sE in p.sE_levels:
         wf = trial_waveform(p, sE, cal)

@@ -20,8 +20,8 @@ def run(args) -> int:
         cfg.gap = False
     with output_dir(args.out, force=args.force) as tmp:
         out = run_study(cfg, tmp, workers=args.workers, scheduler=args.scheduler)
-    out.report = str(out.report).replace(str(tmp.resolve()), str(args.out))
+    report = str(out.report).replace(str(tmp.resolve()), str(args.out))
     n_bad = sum(1 for r in out.results if not r.get("ok"))
     print(f"{len(out.results)} session(s), {n_bad} failed, {out.elapsed_s:.1f} s "
-          f"({out.mode}); report: {out.report}")
+          f"({out.mode}); report: {report}")
     return 1 if n_bad else 0

@@ -29,7 +29,7 @@ from nmsid.analysis.fatigue import FatigueResult, cumulative_stimulation_s, fit_
 from nmsid.analysis.qc import checks
 from nmsid.analysis.qc.repeats import Deviation, attribute_pair, deviations, fit_jump, smoothed, unshared
 from nmsid.analysis.qc.settings import QCSettings
-from nmsid.protocols.session_file import read_session
+from nmsid.protocols.session_file import Trial, read_session
 
 USED, REPAIRED, EXCLUDED = "used", "repaired", "excluded"
 
@@ -120,7 +120,7 @@ class SessionQC:
 # -- one trial on its own ---------------------------------------------------------------
 @dataclass
 class _Work:
-    trial: object
+    trial: Trial
     verdict: TrialQC
     force: np.ndarray
     noise_sd: float = float("nan")

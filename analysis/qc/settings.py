@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Annotated
+from typing import Annotated, Any, cast
 
 from pydantic import Field, StrictFloat, StrictInt
 
@@ -92,4 +92,5 @@ class QCSettings:
     """Repeats are compared only when their commanded rE agree to this tolerance."""
 
     def replace(self, **changes) -> "QCSettings":
-        return dataclasses.replace(self, **changes)
+        # settings_dataclass hides the dataclass from the type checker
+        return cast("QCSettings", dataclasses.replace(cast(Any, self), **changes))
