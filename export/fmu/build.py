@@ -38,8 +38,11 @@ C_HEADERS = ("nmsid_model.h", "fmi2Functions.h", "fmi2FunctionTypes.h",
 #: FMU does not model (such as the muscle form), and the export refuses it
 KNOWN_ITEMS = frozenset({"format", "format_version", "participant", "source", "calibration",
                          "sE_range", "parameters", "offset_N", "effects"})
+#: the effects whose step c/nmsid_model.c implements (held to the Python reference step,
+#: export/fmu/reference.py, by tests/export/test_fmu.py); any other effect is refused
 SUPPORTED_EFFECTS = ("recruitment_nonlinearity", "activation_dynamics",
                      "flexor_extensor_asymmetry", "dead_time", "fatigue")
+#: why an effect has no C step, where there is more to say than that it was not written
 _REFUSED = {
     "baseline_drift": "the wander is a random signal seeded per simulated participant, not a "
                       "deterministic model",
@@ -92,9 +95,12 @@ def check_exportable(data: dict, where: str) -> Twin:
     except SimConfigError as exc:
         raise FmuExportError(f"{where}: {exc}") from None
     for e in effects:
-        inert = e.name == "baseline_drift" and e.amplitude_N == 0
-        if e.name in _REFUSED and not inert:
-            raise FmuExportError(f"{where}: effect {e.name} is not in the FMU ({_REFUSED[e.name]}); "
+        # an additive term that is off (zero amplitude) changes nothing: nothing to refuse
+        inert = e.slots == {"additive"} and e.additive(0) is None
+        if e.name not in SUPPORTED_EFFECTS and not inert:
+            why = _REFUSED.get(e.name, "its step is not written in C in "
+                                       "export/fmu/c/nmsid_model.c")
+            raise FmuExportError(f"{where}: effect {e.name} is not in the FMU ({why}); "
                                  f"the FMU models {', '.join(SUPPORTED_EFFECTS)}; remove "
                                  f"{e.name} from the twin's effects to export the rest")
     return twin
