@@ -261,7 +261,7 @@ def dead_time_session(tmp_path_factory):
     """A synthetic session with a 30 ms dead time, made without ``analysis.gap``."""
     from nmsid.testing.sessions import write_gap_session
     return write_gap_session(tmp_path_factory.mktemp("gap") / "dead.h5", seed=2,
-                             dead_time_s=0.030)
+                             levels=(0.5, 0.9), repeats=2, dead_time_s=0.030)
 
 
 @pytest.fixture
