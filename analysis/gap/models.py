@@ -17,8 +17,9 @@ from the registry (:data:`FORMS`); :class:`Candidate` composes them at the chain
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import functools
 from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -147,8 +148,17 @@ class Candidate:
     # -- the model: the effects' forms composed at the chain's slots -------------------
     def _at(self, slot: str, p: np.ndarray) -> list[tuple[FittedForm, np.ndarray]]:
         """(form, its part of ``p``) of each effect acting at ``slot``, in order."""
-        return [(FORMS[e], p[sl]) for e, sl in self._slices().items()
-                if slot in spec(e).source.slots]
+        return [(f, p[sl]) for f, sl in self._slot_parts.get(slot, ())]
+
+    @functools.cached_property
+    def _slot_parts(self) -> dict[str, tuple[tuple[FittedForm, slice], ...]]:
+        """slot -> (form, its slice of ``p``) of each effect acting there (made once: the
+        model is evaluated hundreds of times per fit)."""
+        out: dict[str, list[tuple[FittedForm, slice]]] = {}
+        for e, sl in self._slices().items():
+            for slot in spec(e).source.slots:
+                out.setdefault(slot, []).append((FORMS[e], sl))
+        return {k: tuple(v) for k, v in out.items()}
 
     def level_tfs(self, wn: np.ndarray, zeta: np.ndarray, p: np.ndarray, dt_s: float):
         """Difference equations ``(b, a)``, one row per sE level, of the unit-gain
