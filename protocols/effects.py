@@ -109,8 +109,9 @@ class Effect(str, metaclass=_EffectMeta):
         cls._interned[key] = out
         return out
 
-    def __getnewargs__(self) -> tuple[str]:  # type: ignore[override]
-        return (str(self),)
+    def __reduce__(self) -> tuple[type[Effect], tuple[str]]:
+        # every pickle protocol and copy: back through __new__, so the name stays one object
+        return (Effect, (self.value,))
 
     @property
     def value(self) -> str:

@@ -342,3 +342,19 @@ def test_registering_refuses_a_taken_name_and_the_chain_one_lag(toy):
     c = chain_of([cls(delay_ms=5.0), DeadTime(0.01), ActivationDynamics(0.02)])
     assert c.delay_s == pytest.approx(0.015) and c.lag_s == 0.02     # delays add up
     assert [e.name for e in c.effects] == ["activation_dynamics", "dead_time", name.value]
+
+
+def test_an_effect_name_is_one_object_through_pickle_and_copy():
+    import copy
+    import json
+    import pickle
+    e = Effect.DEAD_TIME
+    assert e is Effect("dead_time") is Effect(e) and e == "dead_time" and e.value == "dead_time"
+    for proto in range(pickle.HIGHEST_PROTOCOL + 1):       # the gap's worker processes
+        assert pickle.loads(pickle.dumps(e, proto)) is e
+    assert copy.deepcopy(e) is e and json.dumps([e]) == '["dead_time"]' and f"{e}" == "dead_time"
+    assert Effect.NONE.value == "none" and Effect.NONE not in CANDIDATES
+    with pytest.raises(EffectParamError, match="'refractory' is unknown; valid: recruitment"):
+        Effect("refractory")
+    with pytest.raises(AttributeError, match="refractory"):
+        Effect.REFRACTORY  # noqa: B018
