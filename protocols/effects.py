@@ -270,6 +270,20 @@ def form(effect: Effect | str) -> FittedForm:
     return spec(effect).source.form
 
 
+def words(effect: Effect | str) -> str:
+    """Plain words for ``effect`` (the gap report's sentence); the name if it has none,
+    or if it is not registered."""
+    try:
+        w = params_type(effect).words
+    except EffectParamError:
+        w = None
+    return w if w is not None else str(effect)
+
+
+#: Effect name -> its plain words, in the order of physics.
+WORDS: Mapping[str, str] = _LiveMapping(lambda: {n: words(n) for n in _snapshot().names})
+
+
 def check_param(effect: Effect | str, name: str, value) -> float:
     """``value`` as a float if the registry's bounds allow it for ``effect.name``.
 
@@ -414,5 +428,6 @@ def chain_of(effects: Iterable[EffectParams]) -> Chain:
 
 __all__ = ["Effect", "EffectSpec", "ParamSpec", "EffectParamError", "EffectParams",
            "FittedForm", "EffectDefinition", "SLOTS", "EFFECT_MODULES", "EFFECTS", "BY_NAME",
-           "EFFECT_NAMES", "CANDIDATES", "spec", "params_type", "form", "check_param",
+           "EFFECT_NAMES", "CANDIDATES", "WORDS", "spec", "params_type", "form", "words",
+           "check_param",
            "register", "unregister", "Chain", "chain_of"]

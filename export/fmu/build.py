@@ -81,6 +81,26 @@ def fmi_platform() -> str | None:
     return None      # FMI 2.0 names no folder for, e.g., Linux on ARM: sources only
 
 
+def unsupported_effects(effects) -> list[str]:
+    """The names of the effects (parsed, or a twin file's entries) that the FMU's step (C
+    and its Python reference) does not run; an additive term that is off (zero
+    amplitude) changes nothing and is not listed.
+    """
+    out = []
+    for e in effects:
+        name = str(e.get("name")) if isinstance(e, dict) else e.name
+        if name in SUPPORTED_EFFECTS:
+            continue
+        try:
+            parsed = effects_from_list([e])[0]
+        except SimConfigError:       # not even a valid entry: certainly not runnable
+            out.append(name)
+            continue
+        if not (parsed.slots == {"additive"} and parsed.additive(0) is None):
+            out.append(name)
+    return out
+
+
 def check_exportable(data: dict, where: str) -> Twin:
     """The twin of a twin file's JSON object, or :class:`FmuExportError` naming the form or
     effect the FMU does not model."""
@@ -94,15 +114,11 @@ def check_exportable(data: dict, where: str) -> Twin:
         effects = effects_from_list(twin.effects)
     except SimConfigError as exc:
         raise FmuExportError(f"{where}: {exc}") from None
-    for e in effects:
-        # an additive term that is off (zero amplitude) changes nothing: nothing to refuse
-        inert = e.slots == {"additive"} and e.additive(0) is None
-        if e.name not in SUPPORTED_EFFECTS and not inert:
-            why = _REFUSED.get(e.name, "its step is not written in C in "
-                                       "export/fmu/c/nmsid_model.c")
-            raise FmuExportError(f"{where}: effect {e.name} is not in the FMU ({why}); "
-                                 f"the FMU models {', '.join(SUPPORTED_EFFECTS)}; remove "
-                                 f"{e.name} from the twin's effects to export the rest")
+    for name in unsupported_effects(effects):
+        why = _REFUSED.get(name, "its step is not written in C in export/fmu/c/nmsid_model.c")
+        raise FmuExportError(f"{where}: effect {name} is not in the FMU ({why}); "
+                             f"the FMU models {', '.join(SUPPORTED_EFFECTS)}; remove "
+                             f"{name} from the twin's effects to export the rest")
     return twin
 
 

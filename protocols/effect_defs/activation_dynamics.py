@@ -24,6 +24,8 @@ class ActivationDynamics(EffectParams):
     definition: ClassVar[str] = ("a(s) = u(s) / (tau_s s + 1) for each muscle, so the force is "
                                  "G(s) / (tau_s s + 1) of the drive")
     slots: ClassVar[frozenset[str]] = frozenset({"lag"})
+    words: ClassVar[str | None] = ("slower muscle activation (a first-order lag before the "
+                                       "force dynamics)")
 
     def lag_s(self) -> float:
         return self.tau_s

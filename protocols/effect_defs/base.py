@@ -29,7 +29,8 @@ An effect module holds (see ``dead_time.py`` for the smallest one):
 
 - a frozen dataclass subclassing :class:`EffectParams`: one field per parameter declared
   with :func:`param` (meaning, unit in the name, bounds), the class attributes ``name``,
-  ``summary``, ``definition`` and ``slots``, and its slot functions;
+  ``summary``, ``definition``, ``slots`` (and ``words`` for the report), and its slot
+  functions;
 - a :class:`FittedForm` subclass: the gap fit's parameter vector ``q`` <-> physical values,
   bounds, starting grid, the same slots as functions of ``q``, the twin file's parameters
   and its signature in the data;
@@ -164,6 +165,9 @@ class EffectParams:
     summary: ClassVar[str]
     definition: ClassVar[str]
     slots: ClassVar[frozenset[str]] = frozenset()
+    #: Plain words for the gap report's sentence ("the gap is explained by <words>");
+    #: None: the name.
+    words: ClassVar[str | None] = None
 
     @classmethod
     def param_specs(cls) -> tuple[ParamSpec, ...]:

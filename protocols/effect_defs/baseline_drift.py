@@ -55,6 +55,7 @@ class BaselineDrift(EffectParams):
     definition: ClassVar[str] = ("F = F_0 + b(t), b band-limited below corner_Hz with RMS "
                                  "amplitude_N")
     slots: ClassVar[frozenset[str]] = frozenset({"additive"})
+    words: ClassVar[str | None] = "a wandering or jumping baseline force"
 
     def additive(self, seed):
         if self.amplitude_N <= 0:

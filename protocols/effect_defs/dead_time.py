@@ -29,6 +29,7 @@ class DeadTime(EffectParams):
     summary: ClassVar[str] = "the force answers the stimulation late"
     definition: ClassVar[str] = "F(t) = F_0(t - L_s), i.e. G(s) e^{-L_s s}"
     slots: ClassVar[frozenset[str]] = frozenset({"delay"})
+    words: ClassVar[str | None] = "a dead time (the force answers the stimulation late)"
 
     def delay_s(self) -> float:
         return self.L_s

@@ -45,6 +45,7 @@ class Fatigue(EffectParams):
         "F = g(c) F_0 with p = gain_loss_pct / 100; exponential: g = (1 - p)^(c / "
         "reference_stim_s); linear: g = max(0.05, 1 - p c / reference_stim_s)")
     slots: ClassVar[frozenset[str]] = frozenset({"gain"})
+    words: ClassVar[str | None] = "fatigue (the response weakens with accumulated stimulation)"
 
     def gain(self, cumulative_stim_s):
         """g(c) for c in seconds of cumulative stimulation (array or scalar)."""

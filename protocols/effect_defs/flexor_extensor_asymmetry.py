@@ -24,6 +24,7 @@ class FlexorExtensorAsymmetry(EffectParams):
     definition: ClassVar[str] = ("F = Kp (G_e(s) u_e - G_f(s) u_f) with G_e = G(wn, zeta) and "
                                  "G_f = G(wn wn_ratio, zeta zeta_ratio)")
     slots: ClassVar[frozenset[str]] = frozenset({"flexor"})
+    words: ClassVar[str | None] = "different dynamics of flexor and extensor"
 
     def flexor_ratios(self) -> tuple[float, float]:
         return self.wn_ratio, self.zeta_ratio

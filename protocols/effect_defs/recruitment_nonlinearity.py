@@ -68,6 +68,7 @@ class RecruitmentNonlinearity(EffectParams):
         "and (1, 1); threshold_saturation: clip((I - threshold) / (saturation - threshold), "
         "0, 1)")
     slots: ClassVar[frozenset[str]] = frozenset({"intensity"})
+    words: ClassVar[str | None] = "non-linear motor-unit recruitment"
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -358,3 +358,20 @@ def test_an_effect_name_is_one_object_through_pickle_and_copy():
         Effect("refractory")
     with pytest.raises(AttributeError, match="refractory"):
         Effect.REFRACTORY  # noqa: B018
+
+
+def test_the_fmu_and_twin_simulate_share_one_list_of_what_they_cannot_run():
+    from nmsid.export.fmu.build import unsupported_effects
+    off = {"name": "baseline_drift", "params": {"amplitude_N": 0.0, "corner_Hz": 0.2}}
+    on = {"name": "baseline_drift", "params": {"amplitude_N": 0.1, "corner_Hz": 0.2}}
+    dead = {"name": "dead_time", "params": {"L_s": 0.02}}
+    assert unsupported_effects([dead, off]) == []          # a wander that is off changes nothing
+    assert unsupported_effects([dead, on]) == ["baseline_drift"]
+
+
+def test_the_reports_words_come_from_each_effect():
+    from nmsid.analysis.gap.verdict import effect_words
+    assert effect_words("dead_time+fatigue") == (
+        spec("dead_time").source.params_type.words + " together with "
+        + spec("fatigue").source.params_type.words)
+    assert all(s.source.params_type.words for s in EFFECTS)
