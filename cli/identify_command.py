@@ -166,11 +166,8 @@ def _check_effects(twin, args) -> None:
         return
     # `twin simulate` only, and only for a twin with effects: `nmsid identify` (this
     # module's other handler) must not load the FMU exporter and scipy.linalg
-    from nmsid.export.fmu.build import SUPPORTED_EFFECTS
-    unsupported = sorted({str(e.get("name")) for e in twin.effects
-                          if e.get("name") not in SUPPORTED_EFFECTS
-                          and not (e.get("name") == "baseline_drift"
-                                   and e.get("amplitude_N", 1.0) == 0)})
+    from nmsid.export.fmu.build import SUPPORTED_EFFECTS, unsupported_effects
+    unsupported = sorted(unsupported_effects(twin.effects))
     if unsupported:
         raise SimulateOptionError(
             f"{args.twin}: the twin's effect(s) {', '.join(unsupported)} cannot be simulated "

@@ -1,21 +1,24 @@
-"""The registry of unmodelled effects: each declared once, here.
+"""The registry of unmodelled effects: the list of effect modules, in the order of physics.
 
 An effect is something the nominal second-order model leaves out that the simulator can
 add to a virtual participant, the gap diagnosis can fit and name, a twin file can carry and
-the FMU can run (``docs/twin-file.md``). This module declares, for each one, its name (the
-twin file's), its parameters with their units and bounds, and its continuous-time
-definition; everything else is derived from it or held to it by tests:
+the FMU can run (``docs/twin-file.md``). Each is defined once, in its own module of
+:mod:`nmsid.protocols.effect_defs` (name, parameters with units and bounds, its
+continuous-time definition as functions at the chain's slots, its fitted form; see
+:mod:`nmsid.protocols.effect_defs.base`). This module lists them (:data:`EFFECT_MODULES`,
+the one registry entry of an effect) and derives what the rest of nmsid reads:
 
-- :class:`Effect` (the names) is what ``nmsid.analysis.gap`` fits and reports and what
-  ``nmsid.sim_backends.effects`` registers its dataclasses under;
-- :func:`check_param` is the one bounds check of a parameter, used by the simulator's
-  dataclasses (so a twin file is refused with the bounds stated here);
-- ``tests/protocols/test_effects.py`` holds the simulator's dataclasses, the gap
-  diagnosis's fitted forms and the FMU's reference step to this list.
+- :class:`Effect` (the names) is what ``nmsid.analysis.gap`` fits and reports, what the
+  simulator and twin files call the effects;
+- :func:`params_type` (the parameter dataclass the simulator builds from a twin file),
+  :func:`form` (what the gap fit fits), :func:`chain_of` (the effects composed at the
+  chain's slots, for the simulator and the FMU's reference step);
+- :func:`check_param`, the one bounds check of a parameter.
 
-The order of :data:`EFFECTS` is the order of physics in which the simulator and the FMU
-apply them: recruitment -> activation -> (asymmetric) dynamics -> dead time -> fatigue
-gain -> baseline. Adding an effect: docs/architecture.md, "Adding an effect".
+The order of :data:`EFFECT_MODULES` is the order of physics: recruitment -> activation ->
+(asymmetric) dynamics -> dead time -> fatigue gain -> baseline. :func:`register` adds an
+effect at run time (a lab's own, or a test's). Adding an effect: docs/architecture.md,
+"Adding an effect".
 
 Examples
 --------
@@ -25,93 +28,112 @@ Examples
 '>= 0 and <= 2'
 >>> check_param("dead_time", "L_s", 0.03)
 0.03
+>>> chain_of([params_type("dead_time")(L_s=0.03)]).delay_s
+0.03
 """
 
 from __future__ import annotations
 
-import math
+import functools
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from enum import Enum
+from typing import Any, Callable
+
+import numpy as np
+
+from nmsid.protocols.effect_defs import (activation_dynamics, baseline_drift, dead_time, fatigue,
+                                         flexor_extensor_asymmetry, recruitment_nonlinearity)
+from nmsid.protocols.effect_defs.base import (SLOTS, EffectDefinition, EffectParamError,
+                                              EffectParams, FittedForm, ParamSpec)
+
+#: THE REGISTRY: every effect's module, in the order of physics (the simulator and the FMU
+#: apply them in this order). Adding an effect = its module + one line here.
+EFFECT_MODULES = (
+    recruitment_nonlinearity,
+    activation_dynamics,
+    flexor_extensor_asymmetry,
+    dead_time,
+    fatigue,
+    baseline_drift,
+)
+
+_REGISTRY: list[EffectDefinition] = [m.EFFECT for m in EFFECT_MODULES]
+_version = [0]
 
 
-class EffectParamError(ValueError):
-    """A value of an effect parameter is outside what the registry allows.
-
-    The message names the parameter (``effect.param``), the value and the valid range; the
-    simulator re-raises it as its own configuration error.
-    """
+def _bump() -> None:
+    _version[0] += 1
+    _snapshot.cache_clear()
+    _chain.cache_clear()
 
 
-class Effect(str, Enum):
+# -- the names ---------------------------------------------------------------------------
+
+class _EffectMeta(type):
+    """``Effect.DEAD_TIME`` (any registered name in capitals), ``for e in Effect``."""
+
+    def __getattr__(cls, attr: str) -> Effect:
+        name = attr.lower()
+        if attr.isupper() and (name == "none" or name in {d.name for d in _REGISTRY}):
+            return cls(name)  # type: ignore[no-any-return]
+        raise AttributeError(f"no effect called {name!r}; valid: "
+                             f"{', '.join(_snapshot().names)}")
+
+    def __iter__(cls) -> Iterator[Effect]:
+        return iter((cls("none"), *_snapshot().effects))
+
+    def __len__(cls) -> int:
+        return 1 + len(_snapshot().names)
+
+
+class Effect(str, metaclass=_EffectMeta):
     """An effect's name as twin files, the simulator and the gap report write it
-    (``NONE``: the nominal model, no effect)."""
+    (``Effect.NONE``: the nominal model, no effect); one object per name, so ``is`` works.
 
-    NONE = "none"
-    RECRUITMENT_NONLINEARITY = "recruitment_nonlinearity"
-    ACTIVATION_DYNAMICS = "activation_dynamics"
-    FLEXOR_EXTENSOR_ASYMMETRY = "flexor_extensor_asymmetry"
-    DEAD_TIME = "dead_time"
-    FATIGUE = "fatigue"
-    BASELINE_DRIFT = "baseline_drift"
-
-
-@dataclass(frozen=True)
-class ParamSpec:
-    """One parameter of an effect, as a twin file writes it.
-
-    Attributes
-    ----------
-    name : str
-        The twin file's key (unit in the name where it has one).
-    meaning : str
-        What it is, in words.
-    lower, upper : float or None
-        Bounds (None: unbounded on that side). ``lower_open``: ``lower`` itself refused.
-    choices : tuple of str
-        For a categorical parameter (a shape): its valid values; bounds are unused.
-    required : bool
-        False when a default applies (``default``) or when only some shapes need it.
+    ``Effect("dead_time")`` or ``Effect.DEAD_TIME``; an unknown name is a
+    :class:`EffectParamError` (a ``ValueError``) listing the valid ones.
     """
 
-    name: str
-    meaning: str
-    lower: float | None = None
-    upper: float | None = None
-    lower_open: bool = False
-    choices: tuple[str, ...] = ()
-    required: bool = True
-    default: float | None = None
+    __slots__ = ()
+    _interned: dict[str, Effect] = {}
 
-    def default_value(self) -> float:
-        """The default of an optional numeric parameter (KeyError if it has none)."""
-        if self.default is None:
-            raise KeyError(f"parameter {self.name} has no default")
-        return float(self.default)
+    def __new__(cls, name: Any) -> Effect:
+        key = str(name.value if isinstance(name, Effect) else name)
+        out = cls._interned.get(key)
+        if out is not None:
+            return out
+        if key != "none" and key not in {d.name for d in _REGISTRY}:
+            raise EffectParamError(f"effect name {key!r} is unknown; valid: "
+                                   f"{', '.join(d.name for d in _REGISTRY)}")
+        out = str.__new__(cls, key)
+        cls._interned[key] = out
+        return out
 
-    def bounds_text(self) -> str:
-        """The valid range in words (``'> 0 and <= 10'``)."""
-        if self.choices:
-            return "one of " + ", ".join(self.choices)
-        parts = []
-        if self.lower is not None:
-            parts.append(f"{'>' if self.lower_open else '>='} {self.lower:g}")
-        if self.upper is not None:
-            parts.append(f"<= {self.upper:g}")
-        return " and ".join(parts) or "a finite number"
+    def __reduce__(self) -> tuple[type[Effect], tuple[str]]:
+        # every pickle protocol and copy: back through __new__, so the name stays one object
+        return (Effect, (self.value,))
 
-    def contains(self, value: float) -> bool:
-        """True if ``value`` is finite and within the bounds."""
-        if not math.isfinite(value):
-            return False
-        if self.lower is not None and (value <= self.lower if self.lower_open
-                                       else value < self.lower):
-            return False
-        return self.upper is None or value <= self.upper
+    @property
+    def value(self) -> str:
+        """The name (as a plain string)."""
+        return str.__str__(self)
 
+    def __repr__(self) -> str:
+        return f"<Effect {self.value}>"
+
+    def __str__(self) -> str:
+        return self.value
+
+    def __format__(self, spec: str) -> str:
+        return format(self.value, spec)
+
+
+# -- the specs -------------------------------------------------------------------------
 
 @dataclass(frozen=True)
 class EffectSpec:
-    """One effect: its name, parameters and continuous-time definition.
+    """One effect: its name, parameters and continuous-time definition (read from its
+    module).
 
     Attributes
     ----------
@@ -123,12 +145,15 @@ class EffectSpec:
         ``I_e = rE sE``, ``I_f = (1 - rE) sE``, the nominal ``G(s) = wn^2 / (s^2 + 2 zeta wn
         s + wn^2)``, cumulative stimulation time ``c``).
     params : tuple of ParamSpec
+    source : EffectDefinition
+        The module's definition (parameter dataclass and fitted form).
     """
 
     effect: Effect
     summary: str
     definition: str
     params: tuple[ParamSpec, ...]
+    source: EffectDefinition
 
     @property
     def name(self) -> str:
@@ -147,72 +172,76 @@ class EffectSpec:
         return tuple(p.name for p in self.params)
 
 
-#: Every effect, in the order of physics (the order the simulator and the FMU apply them).
-EFFECTS: tuple[EffectSpec, ...] = (
-    EffectSpec(
-        Effect.RECRUITMENT_NONLINEARITY,
-        "each muscle's activation is a monotone, non-linear function of its intensity",
-        "a_e = h(I_e), a_f = h(I_f) with h(0) = 0, h(1) = 1 on the normalised intensity "
-        "(unit slope outside [0, 1]); net drive (h(I_e) - h(I_f)) / (2 sE). "
-        "power: h = I^gamma; sigmoid: logistic(slope (I - midpoint)) rescaled through (0, 0) "
-        "and (1, 1); threshold_saturation: clip((I - threshold) / (saturation - threshold), "
-        "0, 1)",
-        (ParamSpec("shape", "the curve's family",
-                   choices=("power", "sigmoid", "threshold_saturation")),
-         ParamSpec("gamma", "power: the exponent", 0.0, 10.0, lower_open=True,
-                   required=False),
-         ParamSpec("slope", "sigmoid: steepness per unit intensity", 0.0, 200.0,
-                   lower_open=True, required=False),
-         ParamSpec("midpoint", "sigmoid: intensity at half rise", required=False),
-         ParamSpec("threshold", "threshold_saturation: intensity where force begins",
-                   0.0, 1.0, required=False),
-         ParamSpec("saturation", "threshold_saturation: intensity where force stops rising",
-                   0.0, 1.0, required=False))),
-    EffectSpec(
-        Effect.ACTIVATION_DYNAMICS,
-        "each muscle's activation lags its drive by a first-order filter",
-        "a(s) = u(s) / (tau_s s + 1) for each muscle, so the force is "
-        "G(s) / (tau_s s + 1) of the drive",
-        (ParamSpec("tau_s", "the activation time constant, s", 0.0, 5.0),)),
-    EffectSpec(
-        Effect.FLEXOR_EXTENSOR_ASYMMETRY,
-        "the flexor's dynamics differ from the extensor's",
-        "F = Kp (G_e(s) u_e - G_f(s) u_f) with G_e = G(wn, zeta) and "
-        "G_f = G(wn wn_ratio, zeta zeta_ratio)",
-        (ParamSpec("wn_ratio", "flexor wn / extensor wn", 0.0, 10.0, lower_open=True),
-         ParamSpec("zeta_ratio", "flexor zeta / extensor zeta", 0.0, 10.0,
-                   lower_open=True))),
-    EffectSpec(
-        Effect.DEAD_TIME,
-        "the force answers the stimulation late",
-        "F(t) = F_0(t - L_s), i.e. G(s) e^{-L_s s}",
-        (ParamSpec("L_s", "the delay, s", 0.0, 2.0),)),
-    EffectSpec(
-        Effect.FATIGUE,
-        "the force's gain falls with cumulative stimulation",
-        "F = g(c) F_0 with p = gain_loss_pct / 100; exponential: g = (1 - p)^(c / "
-        "reference_stim_s); linear: g = max(0.05, 1 - p c / reference_stim_s)",
-        (ParamSpec("shape", "the decline's form", choices=("exponential", "linear")),
-         ParamSpec("gain_loss_pct", "gain lost over reference_stim_s, %", 0.0, 99.0),
-         ParamSpec("reference_stim_s", "cumulative stimulation the loss refers to, s",
-                   0.0, None, lower_open=True, required=False, default=675.0))),
-    EffectSpec(
-        Effect.BASELINE_DRIFT,
-        "the force baseline wanders slowly and non-linearly",
-        "F = F_0 + b(t), b band-limited below corner_Hz with RMS amplitude_N",
-        (ParamSpec("amplitude_N", "RMS of the wander, N", 0.0, 100.0),
-         ParamSpec("corner_Hz", "highest frequency of the wander, Hz", 0.0, 50.0,
-                   lower_open=True))),
-)
+@dataclass(frozen=True)
+class _Snapshot:
+    specs: tuple[EffectSpec, ...]
+    by_name: dict[str, EffectSpec]
+    names: tuple[str, ...]
+    effects: tuple[Effect, ...]
+
+
+@functools.lru_cache(maxsize=1)
+def _snapshot() -> _Snapshot:
+    names = tuple(d.name for d in _REGISTRY)
+    effects = tuple(Effect(n) for n in names)
+    specs = tuple(EffectSpec(e, d.params_type.summary, d.params_type.definition,
+                             d.params_type.param_specs(), d)
+                  for e, d in zip(effects, _REGISTRY))
+    return _Snapshot(specs, {s.name: s for s in specs}, names, effects)
+
+
+class _LiveSequence(Sequence):
+    """A read-only view of the registry that follows :func:`register`."""
+
+    def __init__(self, get: Callable[[], tuple]):
+        self._get = get
+
+    def __getitem__(self, i):  # type: ignore[override]
+        return self._get()[i]
+
+    def __len__(self) -> int:
+        return len(self._get())
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Sequence) and tuple(self) == tuple(other)
+
+    def __hash__(self) -> int:
+        return hash(tuple(self))
+
+    def __repr__(self) -> str:
+        return repr(self._get())
+
+
+class _LiveMapping(Mapping):
+    """A read-only name -> value view of the registry that follows :func:`register`."""
+
+    def __init__(self, get: Callable[[], Mapping]):
+        self._get = get
+
+    def __getitem__(self, key):
+        return self._get()[key]
+
+    def __iter__(self):
+        return iter(self._get())
+
+    def __len__(self) -> int:
+        return len(self._get())
+
+    def __repr__(self) -> str:
+        return repr(dict(self._get()))
+
+
+#: Every effect's spec, in the order of physics.
+EFFECTS: Sequence[EffectSpec] = _LiveSequence(lambda: _snapshot().specs)
 
 #: Effect name -> its spec.
-BY_NAME: dict[str, EffectSpec] = {s.name: s for s in EFFECTS}
+BY_NAME: Mapping[str, EffectSpec] = _LiveMapping(lambda: _snapshot().by_name)
 
 #: The effect names in the order of physics.
-EFFECT_NAMES: tuple[str, ...] = tuple(BY_NAME)
+EFFECT_NAMES: Sequence[str] = _LiveSequence(lambda: _snapshot().names)
 
 #: The effects the gap diagnosis tries (all of them), in the order of physics.
-CANDIDATES: tuple[Effect, ...] = tuple(s.effect for s in EFFECTS)
+CANDIDATES: Sequence[Effect] = _LiveSequence(lambda: _snapshot().effects)
 
 
 def spec(effect: Effect | str) -> EffectSpec:
@@ -225,10 +254,34 @@ def spec(effect: Effect | str) -> EffectSpec:
     """
     name = effect.value if isinstance(effect, Effect) else str(effect)
     try:
-        return BY_NAME[name]
+        return _snapshot().by_name[name]
     except KeyError:
         raise EffectParamError(f"effect name {name!r} is unknown; valid: "
-                               f"{', '.join(EFFECT_NAMES)}") from None
+                               f"{', '.join(_snapshot().names)}") from None
+
+
+def params_type(effect: Effect | str) -> type[EffectParams]:
+    """The parameter dataclass of ``effect`` (what a twin file's entry becomes)."""
+    return spec(effect).source.params_type
+
+
+def form(effect: Effect | str) -> FittedForm:
+    """The gap diagnosis's fitted form of ``effect``."""
+    return spec(effect).source.form
+
+
+def words(effect: Effect | str) -> str:
+    """Plain words for ``effect`` (the gap report's sentence); the name if it has none,
+    or if it is not registered."""
+    try:
+        w = params_type(effect).words
+    except EffectParamError:
+        w = None
+    return w if w is not None else str(effect)
+
+
+#: Effect name -> its plain words, in the order of physics.
+WORDS: Mapping[str, str] = _LiveMapping(lambda: {n: words(n) for n in _snapshot().names})
 
 
 def check_param(effect: Effect | str, name: str, value) -> float:
@@ -239,17 +292,142 @@ def check_param(effect: Effect | str, name: str, value) -> float:
     EffectParamError
         Not a number, not finite or out of bounds; the message says what is valid.
     """
-    p = spec(effect).param(name)
-    label = f"{spec(effect).name}.{name}"
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise EffectParamError(f"{label} must be a number, got {value!r}") from None
-    if not p.contains(v):
-        raise EffectParamError(f"{label} must be a finite number {p.bounds_text()}, "
-                               f"got {value!r}")
-    return v
+    s = spec(effect)
+    return s.param(name).checked(s.name, value)
 
 
-__all__ = ["Effect", "EffectSpec", "ParamSpec", "EffectParamError", "EFFECTS", "BY_NAME",
-           "EFFECT_NAMES", "CANDIDATES", "spec", "check_param"]
+# -- adding at run time ----------------------------------------------------------------
+
+def register(definition: EffectDefinition, *, before: str | None = None) -> Effect:
+    """Add an effect (a module's ``EFFECT``) to the registry, at the end of the order of
+    physics or before the effect called ``before``; returns its name.
+
+    Raises
+    ------
+    EffectParamError
+        The name is taken, or ``before`` is unknown.
+    """
+    if definition.name in _snapshot().by_name or definition.name == "none":
+        raise EffectParamError(f"effect name {definition.name!r} is already registered")
+    names = [d.name for d in _REGISTRY]
+    if before is not None and before not in names:
+        raise EffectParamError(f"effect name {before!r} is unknown; valid: {', '.join(names)}")
+    _REGISTRY.insert(names.index(before) if before is not None else len(names), definition)
+    _bump()
+    return Effect(definition.name)
+
+
+def unregister(name: str) -> None:
+    """Remove an effect added by :func:`register` (the built-in ones stay)."""
+    if name in {m.EFFECT.name for m in EFFECT_MODULES}:
+        raise EffectParamError(f"effect {name} is built in (EFFECT_MODULES); it stays")
+    _REGISTRY[:] = [d for d in _REGISTRY if d.name != name]
+    Effect._interned.pop(name, None)
+    _bump()
+
+
+# -- the effects composed at the chain's slots --------------------------------------------
+
+@dataclass(frozen=True)
+class Chain:
+    """A participant's effects composed at the chain's slots (:data:`SLOTS`): what the
+    simulator and the FMU's reference step run.
+
+    Attributes
+    ----------
+    effects : tuple of EffectParams
+        The effects, in the order of physics.
+    lag_s : float
+        The activation's first-order lag (0: none).
+    flexor_ratios : (float, float)
+        The flexor path's (wn, zeta) multipliers.
+    two_paths : bool
+        An effect acts on the flexor path (even with ratios 1).
+    delay_s : float
+        The force's delay.
+    """
+
+    effects: tuple[EffectParams, ...]
+    lag_s: float
+    flexor_ratios: tuple[float, float]
+    two_paths: bool
+    delay_s: float
+
+    def acting(self, slot: str) -> tuple[EffectParams, ...]:
+        """The effects that act at ``slot``, in the order of physics."""
+        return tuple(e for e in self.effects if slot in e.slots)
+
+    @property
+    def maps_intensity(self) -> bool:
+        return bool(self.acting("intensity"))
+
+    def h(self, intensity):
+        """Each muscle's activation of its normalised intensity (composed maps)."""
+        x = intensity
+        for e in self.acting("intensity"):
+            x = e.h(x)
+        return x
+
+    @property
+    def has_gain(self) -> bool:
+        return bool(self.acting("gain"))
+
+    def gain(self, cumulative_stim_s):
+        """The force's gain at cumulative stimulation (product of the gain laws; 1
+        without one)."""
+        gains = self.acting("gain")
+        if not gains:
+            return np.ones_like(np.asarray(cumulative_stim_s, dtype=float)) \
+                if np.ndim(cumulative_stim_s) else 1.0
+        g = gains[0].gain(cumulative_stim_s)
+        for e in gains[1:]:
+            g = g * e.gain(cumulative_stim_s)
+        return g
+
+    def additive(self, seed: int) -> Callable[[np.ndarray], np.ndarray] | None:
+        """``b(t_s)``: the sum of the additive terms (None without one)."""
+        parts = [b for b in (e.additive(seed) for e in self.acting("additive")) if b is not None]
+        if not parts:
+            return None
+        if len(parts) == 1:
+            return parts[0]
+        return lambda t: sum((b(t) for b in parts[1:]), parts[0](t))
+
+
+@functools.lru_cache(maxsize=256)
+def _chain(effects: tuple[EffectParams, ...]) -> Chain:
+    order = {n: i for i, n in enumerate(_snapshot().names)}
+    ordered = tuple(sorted(effects, key=lambda e: order.get(e.name, len(order))))
+    lags = [e for e in ordered if "lag" in e.slots]
+    if len(lags) > 1:
+        raise EffectParamError(f"effects {', '.join(e.name for e in lags)} all act on the "
+                               "activation lag; the chain has one lag: give one of them")
+    rw, rz = 1.0, 1.0
+    for e in ordered:
+        if "flexor" in e.slots:
+            a, b = e.flexor_ratios()
+            rw, rz = rw * a, rz * b
+    delay = 0.0
+    for e in ordered:
+        if "delay" in e.slots:
+            delay += e.delay_s()
+    return Chain(ordered, lags[0].lag_s() if lags else 0.0, (rw, rz),
+                 any("flexor" in e.slots for e in ordered), delay)
+
+
+def chain_of(effects: Iterable[EffectParams]) -> Chain:
+    """The effects composed at the chain's slots (in the registry's order of physics).
+
+    Raises
+    ------
+    EffectParamError
+        More than one effect acts on the activation lag.
+    """
+    return _chain(tuple(effects))
+
+
+__all__ = ["Effect", "EffectSpec", "ParamSpec", "EffectParamError", "EffectParams",
+           "FittedForm", "EffectDefinition", "SLOTS", "EFFECT_MODULES", "EFFECTS", "BY_NAME",
+           "EFFECT_NAMES", "CANDIDATES", "WORDS", "spec", "params_type", "form", "words",
+           "check_param",
+           "register", "unregister", "Chain", "chain_of"]

@@ -44,8 +44,8 @@ from typing import NamedTuple
 import numpy as np
 
 from nmsid.sim_backends.curves import CurveModel, ParameterCurve
-from nmsid.sim_backends.effects import (EFFECT_TYPES, Fatigue, RecruitmentNonlinearity,
-                                        effects_from_list, effects_to_list)
+from nmsid.protocols.effects import chain_of
+from nmsid.sim_backends.effects import EFFECT_TYPES, effects_from_list, effects_to_list
 from nmsid.sim_backends.errors import SimConfigError
 from nmsid.sim_backends.sensor import SensorModel
 from nmsid.protocols.session_file import Calibration
@@ -277,12 +277,8 @@ class VirtualParticipant:
         return effects_to_list(self.effects)
 
     def fatigue_gain(self, cumulative_stim_s):
-        """g(c) of the fatigue effect (1 when it is off)."""
-        fat: Fatigue | None = self.effect("fatigue")
-        if fat is None:
-            return np.ones_like(np.asarray(cumulative_stim_s, dtype=float)) \
-                if np.ndim(cumulative_stim_s) else 1.0
-        return fat.gain(cumulative_stim_s)
+        """g(c) of the effects acting on the gain, e.g. fatigue (1 when none is on)."""
+        return chain_of(self.effects).gain(cumulative_stim_s)
 
     # -- static recruitment ------------------------------------------------------------
     def ramp_force_at_imin_N(self, muscle: str) -> float:
@@ -340,21 +336,21 @@ class VirtualParticipant:
         u_f = self.normalised("flex", I_flex_mA)
         co = ((u_e >= -COACTIVE_TOL_MA / cal.span_mA("ext"))
               & (u_f >= -COACTIVE_TOL_MA / cal.span_mA("flex")))
-        rec: RecruitmentNonlinearity | None = self.effect("recruitment_nonlinearity")
+        chain = chain_of(self.effects)     # the effects' intensity maps (recruitment)
         Fmin = self.calibration.Fmin_N
         if np.all(co):
             ue = np.minimum(u_e, self.u_saturation)
             uf = np.minimum(u_f, self.u_saturation)
-            if rec is not None:
-                ue, uf = rec.h(ue), rec.h(uf)
+            if chain.maps_intensity:
+                ue, uf = chain.h(ue), chain.h(uf)
             return Fmin + op.offset_N + op.k_N * ue, Fmin + op.k_N * uf
         f_e = self.single_muscle_force_N("ext", I_ext_mA)
         f_f = self.single_muscle_force_N("flex", I_flex_mA)
         if np.any(co):
             ue = np.minimum(u_e[co], self.u_saturation)
             uf = np.minimum(u_f[co], self.u_saturation)
-            if rec is not None:
-                ue, uf = rec.h(ue), rec.h(uf)
+            if chain.maps_intensity:
+                ue, uf = chain.h(ue), chain.h(uf)
             f_e = np.array(f_e, dtype=float)
             f_f = np.array(f_f, dtype=float)
             f_e[co] = Fmin + op.offset_N + op.k_N * ue

@@ -13,10 +13,12 @@ whatever the chunking (fast clock: long chunks; real time: short chunks).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
+# the baseline_drift effect's wander is defined with the effect; re-exported for its users
+from nmsid.protocols.effect_defs.baseline_drift import BaselineWander  # noqa: F401
 from nmsid.sim_backends.errors import SimConfigError
 
 NOISE_BLOCK = 4096
@@ -255,30 +257,3 @@ class SensorState:
             f = wrench[:, :3] @ np.asarray(m.axis)
         return f, wrench, over
 
-
-@dataclass(frozen=True)
-class BaselineWander:
-    """Band-limited wander: a sum of ``n_components`` sinusoids with log-uniform
-    frequencies in [corner/10, corner] and random phases, RMS ``amplitude_N``."""
-
-    amplitude_N: float
-    corner_Hz: float
-    seed: int
-    n_components: int = 8
-    _f: np.ndarray = field(init=False, repr=False, compare=False)
-    _ph: np.ndarray = field(init=False, repr=False, compare=False)
-    _a: np.ndarray = field(init=False, repr=False, compare=False)
-
-    def __post_init__(self):
-        rng = np.random.default_rng([int(self.seed) & 0xFFFFFFFF, 77])
-        f = self.corner_Hz * 10 ** rng.uniform(-1.0, 0.0, self.n_components)
-        ph = rng.uniform(0, 2 * np.pi, self.n_components)
-        a = np.full(self.n_components, self.amplitude_N * math.sqrt(2.0 / self.n_components))
-        object.__setattr__(self, "_f", f)
-        object.__setattr__(self, "_ph", ph)
-        object.__setattr__(self, "_a", a)
-
-    def __call__(self, t_s: np.ndarray) -> np.ndarray:
-        t = np.asarray(t_s, dtype=float)
-        return (self._a[:, None] * np.sin(2 * np.pi * self._f[:, None] * t[None, :]
-                                          + self._ph[:, None])).sum(axis=0)

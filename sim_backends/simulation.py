@@ -19,12 +19,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nmsid.sim_backends.effects import (ActivationDynamics, BaselineDrift, DeadTime, Fatigue,
-                                        FlexorExtensorAsymmetry)
+from nmsid.protocols.effects import chain_of
 from nmsid.sim_backends.filters import DelayLine, StatefulFilter, dynamics_zoh
 from nmsid.sim_backends.participant import (SE_RESOLUTION, OperatingPoint, VirtualParticipant,
                                             sensed_sE)
-from nmsid.sim_backends.sensor import BaselineWander, SensorState
+from nmsid.sim_backends.sensor import SensorState
 
 
 QUIET_SKIP_SAMPLES = 20000
@@ -52,6 +51,9 @@ class SimulatedBlock:
 class ParticipantSimulator:
     """Stateful simulation of one participant at ``fs_Hz``."""
 
+    _op: OperatingPoint
+    """The co-activation's parameters in use (set at construction)."""
+
     def __init__(self, participant: VirtualParticipant, fs_Hz: float = 2000.0):
         self.p = participant
         self.fs_Hz = float(fs_Hz)
@@ -62,19 +64,19 @@ class ParticipantSimulator:
         self._op: OperatingPoint  # set by _set_op at the end of __init__
         self._s_raw: float | None = None
         self._ops: dict[float, OperatingPoint] = {}
-        self._asym: FlexorExtensorAsymmetry | None = participant.effect(
-            "flexor_extensor_asymmetry")
-        act: ActivationDynamics | None = participant.effect("activation_dynamics")
-        self._tau_s = act.tau_s if act is not None else 0.0
-        n_paths = 2 if self._asym is not None else 1
+        # the participant's effects composed at the chain's slots (nmsid.protocols.effects):
+        # intensity maps (in participant.muscle_forces_N) -> lag -> one path per muscle when
+        # an effect acts on the flexor's dynamics -> delay -> gain -> additive baseline
+        self._chain = chain_of(participant.effects)
+        self._lag_s = self._chain.lag_s
+        self._two_paths = self._chain.two_paths
+        n_paths = 2 if self._two_paths else 1
         # one filter per muscle path: activation lag (if any) and dynamics in cascade
-        self._dyn = [StatefulFilter(3 if self._tau_s > 0 else 2) for _ in range(n_paths)]
-        dead: DeadTime | None = participant.effect("dead_time")
-        self._delay = DelayLine(dead.L_s * self.fs_Hz) if dead and dead.L_s > 0 else None
-        self._fatigue: Fatigue | None = participant.effect("fatigue")
-        drift: BaselineDrift | None = participant.effect("baseline_drift")
-        self._wander = BaselineWander(drift.amplitude_N, drift.corner_Hz, participant.seed) \
-            if drift and drift.amplitude_N > 0 else None
+        self._dyn = [StatefulFilter(3 if self._lag_s > 0 else 2) for _ in range(n_paths)]
+        L_s = self._chain.delay_s
+        self._delay = DelayLine(L_s * self.fs_Hz) if L_s > 0 else None
+        self._has_gain = self._chain.has_gain
+        self._wander = self._chain.additive(participant.seed)
         self.sensor = SensorState(participant.sensor, participant.seed, self.fs_Hz)
         self._set_op(self._sense_default())
 
@@ -92,11 +94,11 @@ class ParticipantSimulator:
     def _set_op(self, s: float) -> None:
         op = self._operating_point(s)
         self._op = op
-        b, a = dynamics_zoh(op.wn_rad_s, op.zeta, self._tau_s, self.fs_Hz)
+        b, a = dynamics_zoh(op.wn_rad_s, op.zeta, self._lag_s, self.fs_Hz)
         self._dyn[0].set_coefficients(b, a)
-        if self._asym is not None:
-            b2, a2 = dynamics_zoh(op.wn_rad_s * self._asym.wn_ratio,
-                                  op.zeta * self._asym.zeta_ratio, self._tau_s, self.fs_Hz)
+        if self._two_paths:
+            rw, rz = self._chain.flexor_ratios
+            b2, a2 = dynamics_zoh(op.wn_rad_s * rw, op.zeta * rz, self._lag_s, self.fs_Hz)
             self._dyn[1].set_coefficients(b2, a2)
 
     def _sense(self, I_e: np.ndarray, I_f: np.ndarray, on: np.ndarray) -> None:
@@ -140,7 +142,7 @@ class ParticipantSimulator:
         self._sense(I_e, I_f, on)
         op = self._op
         f_e, f_f = self.p.muscle_forces_N(I_e, I_f, op)
-        if self._asym is None:
+        if not self._two_paths:
             y = self._dyn[0](f_e - f_f)
         else:
             y = self._dyn[0](f_e) - self._dyn[1](f_f)
@@ -150,8 +152,8 @@ class ParticipantSimulator:
         if n:
             c_samples = c_prev + np.cumsum(on)
             self.stim_samples = int(c_samples[-1])
-        if self._fatigue is not None and n:
-            y = y * self._fatigue.gain(c_samples / self.fs_Hz)
+        if self._has_gain and n:
+            y = y * self._chain.gain(c_samples / self.fs_Hz)
         if self._wander is not None:
             y = y + self._wander((n0 + np.arange(n)) / self.fs_Hz)
         force, wrench, over = self.sensor.measure(y if spike_N is None else y + spike_N, n0)
@@ -176,7 +178,7 @@ class ParticipantSimulator:
                 f.reset()
 
     def _filter_only(self, d: np.ndarray) -> None:
-        if self._asym is None:
+        if not self._two_paths:
             y = self._dyn[0](d)
         else:
             y = self._dyn[0](d) - self._dyn[1](d)

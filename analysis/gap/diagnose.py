@@ -46,7 +46,7 @@ log = logging.getLogger(__name__)
 class GapSettings:
     """Settings of the diagnosis (defaults documented in ``docs/gap.md``)."""
 
-    candidates: tuple[Effect, ...] = CANDIDATES
+    candidates: tuple[Effect, ...] = field(default_factory=lambda: tuple(CANDIDATES))
     drift_corners_Hz: tuple[float, ...] = (0.1, 0.2, 0.35, 0.5)
     """Baseline bandwidths tried for ``baseline_drift`` (below the 1 Hz chirp start)."""
     ic_margin: float = 10.0

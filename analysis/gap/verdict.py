@@ -69,20 +69,13 @@ from nmsid.analysis.gap.harmonics import local_harmonics
 from nmsid.analysis.gap.models import nuisance_basis
 from nmsid.analysis.gap.narrowband import narrow_band
 from nmsid.analysis.gap.samples import effective_fraction
+from nmsid.protocols.effects import WORDS
 
 #: Residual harmonics examined (1.5f: a non-harmonic reference).
 HARMONIC_ORDERS = (1, 1.5, 2, 3)
 
-#: Plain words for each effect (the report's sentence).
-EFFECT_WORDS = {
-    "dead_time": "a dead time (the force answers the stimulation late)",
-    "activation_dynamics": "slower muscle activation (a first-order lag before the "
-                           "force dynamics)",
-    "fatigue": "fatigue (the response weakens with accumulated stimulation)",
-    "recruitment_nonlinearity": "non-linear motor-unit recruitment",
-    "baseline_drift": "a wandering or jumping baseline force",
-    "flexor_extensor_asymmetry": "different dynamics of flexor and extensor",
-}
+#: Plain words for each effect (the report's sentence), declared with each effect.
+EFFECT_WORDS = WORDS
 
 
 def effect_words(label: str) -> str:

@@ -37,8 +37,11 @@ C_HEADERS = ("nmsid_model.h", "fmi2Functions.h", "fmi2FunctionTypes.h",
 #: FMU does not model (such as the muscle form), and the export refuses it
 KNOWN_ITEMS = frozenset({"format", "format_version", "participant", "source", "calibration",
                          "sE_range", "parameters", "offset_N", "effects"})
+#: the effects whose step c/nmsid_model.c implements (held to the Python reference step,
+#: export/fmu/reference.py, by tests/export/test_fmu.py); any other effect is refused
 SUPPORTED_EFFECTS = ("recruitment_nonlinearity", "activation_dynamics",
                      "flexor_extensor_asymmetry", "dead_time", "fatigue")
+#: why an effect has no C step, where there is more to say than that it was not written
 _REFUSED = {
     "baseline_drift": "the wander is a random signal seeded per simulated participant, not a "
                       "deterministic model",
@@ -64,6 +67,26 @@ def nmsid_version() -> str:
         return "unknown"
 
 
+def unsupported_effects(effects) -> list[str]:
+    """The names of the effects (parsed, or a twin file's entries) that the FMU's step (C
+    and its Python reference) does not run; an additive term that is off (zero
+    amplitude) changes nothing and is not listed.
+    """
+    out = []
+    for e in effects:
+        name = str(e.get("name")) if isinstance(e, dict) else e.name
+        if name in SUPPORTED_EFFECTS:
+            continue
+        try:
+            parsed = effects_from_list([e])[0]
+        except SimConfigError:       # not even a valid entry: certainly not runnable
+            out.append(name)
+            continue
+        if not (parsed.slots == {"additive"} and parsed.additive(0) is None):
+            out.append(name)
+    return out
+
+
 def check_exportable(data: dict, where: str) -> Twin:
     """The twin of a twin file's JSON object, or :class:`FmuExportError` naming the form or
     effect the FMU does not model."""
@@ -77,12 +100,11 @@ def check_exportable(data: dict, where: str) -> Twin:
         effects = effects_from_list(twin.effects)
     except SimConfigError as exc:
         raise FmuExportError(f"{where}: {exc}") from None
-    for e in effects:
-        inert = e.name == "baseline_drift" and e.amplitude_N == 0
-        if e.name in _REFUSED and not inert:
-            raise FmuExportError(f"{where}: effect {e.name} is not in the FMU ({_REFUSED[e.name]}); "
-                                 f"the FMU models {', '.join(SUPPORTED_EFFECTS)}; remove "
-                                 f"{e.name} from the twin's effects to export the rest")
+    for name in unsupported_effects(effects):
+        why = _REFUSED.get(name, "its step is not written in C in export/fmu/c/nmsid_model.c")
+        raise FmuExportError(f"{where}: effect {name} is not in the FMU ({why}); "
+                             f"the FMU models {', '.join(SUPPORTED_EFFECTS)}; remove "
+                             f"{name} from the twin's effects to export the rest")
     return twin
 
 

@@ -4,7 +4,10 @@
 Without effects this is :meth:`nmsid.analysis.twin.Twin.simulate` (``nmsid twin simulate``),
 which the tests also hold it to (one definition of the nominal dynamics; the effects
 extend it as ``docs/twin-file.md`` describes them: recruitment map on each muscle's
-intensity, activation lag, flexor/extensor dynamics, fatigue gain on the dynamic force).
+intensity, activation lag, flexor/extensor dynamics, fatigue gain on the dynamic force),
+composed at the chain's slots by :func:`nmsid.protocols.effects.chain_of` from each
+effect's one definition. An effect at the ``additive`` slot (a random baseline) has no FMU
+step: ``build.py`` refuses it.
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from nmsid.analysis.twin import Twin
+from nmsid.protocols.effects import chain_of
 from nmsid.sim_backends.effects import effects_from_list
 
 
@@ -22,16 +26,14 @@ class TwinStepper:
     def __init__(self, twin: Twin, *, extrapolate: bool = False):
         self.twin = twin
         self.extrapolate = extrapolate
-        eff = {e.name: e for e in effects_from_list(twin.effects)}
-        self.rec = eff.get("recruitment_nonlinearity")
-        act = eff.get("activation_dynamics")
-        self.tau_s = act.tau_s if act else 0.0
-        asym = eff.get("flexor_extensor_asymmetry")
-        self.ratios = (asym.wn_ratio, asym.zeta_ratio) if asym else (1.0, 1.0)
+        # the twin's effects composed at the chain's slots (nmsid.protocols.effects)
+        self.chain = chain_of(effects_from_list(twin.effects))
+        self.maps_intensity = self.chain.maps_intensity
+        self.lag_s = self.chain.lag_s
+        self.ratios = self.chain.flexor_ratios
         self.two_paths = self.ratios != (1.0, 1.0)
-        self.fatigue = eff.get("fatigue")
-        dead = eff.get("dead_time")
-        self.dead_s = dead.L_s if dead else 0.0
+        self.has_gain = self.chain.has_gain
+        self.delay_s = self.chain.delay_s
         self._cache: dict[tuple, np.ndarray] = {}
 
     def _s(self, sE: float) -> float:
@@ -49,11 +51,11 @@ class TwinStepper:
     def drives(self, rE: float, sE: float) -> tuple[float, float]:
         """(extensor, flexor) path drives, as ``drives()`` in the C source."""
         kp = self.params(sE)[0]
-        if self.rec is None and not self.two_paths:
+        if not self.maps_intensity and not self.two_paths:
             return kp * (rE - 0.5), 0.0
         if not sE > 0:
             return 0.0, 0.0
-        h = self.rec.h if self.rec is not None else (lambda x: np.asarray(x, float))
+        h = self.chain.h
         k, h0 = kp / (2.0 * sE), float(h(0.5 * sE))
         we = k * (float(h(rE * sE)) - h0)
         wf = -k * (float(h((1.0 - rE) * sE)) - h0)
@@ -76,7 +78,7 @@ class TwinStepper:
             m[0, 1] = h
             m[1, 0], m[1, 1], m[1, 2] = -wn * wn * h, -2 * zeta * wn * h, wn * wn * h
         else:
-            tau = self.tau_s
+            tau = self.lag_s
             m[0, 0], m[0, 3] = -h / tau, h / tau
             m[1, 2] = h
             m[2, 0], m[2, 1], m[2, 2] = wn * wn * h, -wn * wn * h, -2 * zeta * wn * h
@@ -93,13 +95,13 @@ class TwinStepper:
         s = np.broadcast_to(np.asarray(sE, float), r.shape)
         dt = 1.0 / fs_Hz
         lead = dt if rest_lead_s is None else rest_lead_s
-        L = self.dead_s
+        L = self.delay_s
         # the input history: straight segments (t0, r0, s0, t1, r1, s1); rest before them
         segs = [(-lead, 0.5, s[0], 0.0, r[0], s[0])] if lead > 0 else []
         segs += [((k - 1) * dt, r[k - 1], s[k - 1], k * dt, r[k], s[k])
                  for k in range(1, len(r))]
         starts = np.array([g[0] for g in segs])
-        nx = 3 if self.tau_s > 0 else 2
+        nx = 3 if self.lag_s > 0 else 2
         state = {"e": np.zeros(nx), "f": np.zeros(nx)}
 
         def value(k, t):
@@ -133,7 +135,7 @@ class TwinStepper:
                 advance((k - 1) * dt - L, k * dt - L)
                 if s[k - 1] > 0:
                     c += dt
-            g = self.fatigue.gain(c) if self.fatigue is not None else 1.0
+            g = self.chain.gain(c) if self.has_gain else 1.0
             out[k] = self.offset(s[k]) + g * (state["e"][-2] + state["f"][-2])
         return out
 

@@ -8,6 +8,7 @@ Variables"): causality, variability, initial; value references are per base type
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from nmsid.analysis.twin import Twin
 from nmsid.sim_backends.effects import effects_from_list
@@ -52,7 +53,8 @@ def variables(twin: Twin, *, extrapolate: bool = False) -> list[Var]:
     """Every scalar variable of the FMU for this twin, Reals first (value reference =
     position among its type)."""
     lo, hi = twin.sE_range
-    effects = {e.name: e for e in effects_from_list(twin.effects)}
+    # the C step's parameters of each effect it implements (by name: the C interface)
+    effects: dict[str, Any] = {e.name: e for e in effects_from_list(twin.effects)}
     rec = effects.get("recruitment_nonlinearity")
     act = effects.get("activation_dynamics")
     asym = effects.get("flexor_extensor_asymmetry")

@@ -5,6 +5,7 @@ step is held to the reference step by tests/export/test_fmu.py)."""
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -176,3 +177,201 @@ def test_each_form_says_its_signature_in_one_line(e):
                                     "excess": 5.0})
     line = FORMS[e].signature(sig)
     assert line.startswith("signature: ") and "\n" not in line
+
+
+# -- adding an effect takes its module and its registry entry, nothing else ----------------
+
+def _code_words(path) -> tuple[set[str], set[str]]:
+    """(identifiers, string constants) of a module's code, docstrings left out."""
+    import ast
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    docs = {id(n.body[0].value) for n in ast.walk(tree)
+            if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef))
+            and n.body and isinstance(n.body[0], ast.Expr)
+            and isinstance(n.body[0].value, ast.Constant)}
+    names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
+    names |= {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
+    strings = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant)
+               and isinstance(n.value, str) and id(n) not in docs}
+    return names, strings
+
+
+def test_no_consumer_names_an_effect_or_its_parameters():
+    """The simulator's step, the gap fit's model and the FMU's reference step are loops over
+    the registry: none names an effect, its class or (as a twin-file key) one of its
+    parameters (the C step and its FMU variables are the one exception, held to the
+    reference step by tests/export)."""
+    from pathlib import Path
+
+    import nmsid.analysis.gap.models as models
+    import nmsid.export.fmu.reference as reference
+    import nmsid.sim_backends.participant as participant
+    import nmsid.sim_backends.simulation as simulation
+    effects = set(EFFECT_NAMES) | {s.source.params_type.__name__ for s in EFFECTS}
+    effects |= {n.upper() for n in EFFECT_NAMES}              # Effect.DEAD_TIME
+    params = {p.name for s in EFFECTS for p in s.params}
+    for mod in (simulation, participant, models, reference):
+        names, strings = _code_words(Path(mod.__file__))
+        found = sorted((names | strings) & effects | strings & params)
+        assert not found, f"{mod.__name__} names {found}"
+
+
+def _toy_module():
+    """A new effect, written as docs/architecture.md says: one module's worth of code (a
+    transport delay given in ms, fitted on a linear scale), acting at the ``delay`` slot."""
+    from dataclasses import dataclass
+
+    from nmsid.protocols.effect_defs.base import (EffectDefinition, EffectParams, FittedForm,
+                                                  param)
+
+    @dataclass(frozen=True)
+    class TransportDelay(EffectParams):
+        delay_ms: float = param("the transport delay, ms", 0.0, 500.0)
+        name: ClassVar[str] = "toy_transport_delay"
+        summary: ClassVar[str] = "a toy: the force arrives delay_ms late"
+        definition: ClassVar[str] = "F(t) = F_0(t - delay_ms / 1000)"
+        slots: ClassVar[frozenset[str]] = frozenset({"delay"})
+
+        def delay_s(self) -> float:
+            return self.delay_ms * 1e-3
+
+    class TransportDelayForm(FittedForm):
+        bounds = ((0.0, 150.0),)
+
+        def grid(self):
+            return [[v] for v in (5.0, 20.0, 60.0)]
+
+        def physical(self, q):
+            return {"delay_ms": float(q[0])}
+
+        def fit_delay_s(self, q):
+            return float(q[0]) * 1e-3
+
+        def twin_params(self, p, sE_levels):
+            return {"delay_ms": p["delay_ms"]}
+
+        def signature(self, sig):
+            return f"signature: a phase line of slope {sig.phase['dead_time_equivalent_s']:g} s."
+
+    return EffectDefinition(TransportDelay, TransportDelayForm())
+
+
+@pytest.fixture(scope="module")
+def dead_time_session(tmp_path_factory):
+    """A synthetic session with a 30 ms dead time, made without ``analysis.gap``."""
+    from nmsid.testing.sessions import write_gap_session
+    return write_gap_session(tmp_path_factory.mktemp("gap") / "dead.h5", seed=2,
+                             levels=(0.5, 0.9), repeats=2, dead_time_s=0.030)
+
+
+@pytest.fixture
+def toy():
+    from nmsid.protocols.effects import register, unregister
+    defn = _toy_module()
+    name = register(defn)
+    try:
+        yield name, defn.params_type
+    finally:
+        unregister(name.value)
+    assert "toy_transport_delay" not in EFFECT_NAMES
+
+
+def test_a_registered_effect_is_named_simulated_fitted_and_written_with_no_other_change(
+        toy, dead_time_session):
+    from nmsid.analysis.gap.data import load_session
+    from nmsid.analysis.gap.diagnose import GapSettings
+    from nmsid.analysis.gap.fit import fit_model
+    from nmsid.analysis.gap.models import NOMINAL
+    from nmsid.analysis.gap.twin_out import effect_entries
+    from nmsid.export.fmu.build import FmuExportError, check_exportable
+    from nmsid.sim_backends.direct_drive import currents_for, run_waveform, waveform
+    from nmsid.sim_backends.effects import effects_from_list
+    from nmsid.sim_backends.rig import make_sim_rig
+    from nmsid.sim_backends.sensor import SensorModel
+    from nmsid.sim_backends.twin import participant_from_twin
+
+    name, cls = toy
+    # the names: everywhere the registry is read
+    assert name is Effect("toy_transport_delay") and name is Effect.TOY_TRANSPORT_DELAY
+    assert EFFECT_NAMES[-1] == name and CANDIDATES[-1] is name and name in list(Effect)
+    assert name in GapSettings().candidates and FORMS[name] is not None
+    assert spec(name).param("delay_ms").bounds_text() == ">= 0 and <= 500"
+    with pytest.raises(SimConfigError, match="toy_transport_delay.delay_ms"):
+        effect_from_dict({"name": name.value, "params": {"delay_ms": -1}})
+
+    # the simulator runs it: 12 ms late is the registry's own dead time of 12 ms
+    p0 = default_participant(sensor=SensorModel.ideal())
+    I_e, I_f = currents_for(p0.calibration, 0.6, np.r_[np.full(400, 0.5), np.full(1600, 0.8)])
+
+    def run(p):
+        return run_waveform(make_sim_rig(p, connect=True), waveform(I_e, I_f))[0]
+    got = run(p0.with_effects(cls(delay_ms=12.0)))
+    want = run(p0.with_effects({"name": "dead_time", "params": {"L_s": 0.012}}))
+    np.testing.assert_array_equal(got, want)
+    assert not np.allclose(got, run(p0))
+
+    # the gap diagnosis fits it: the synthetic session's 30 ms (made without analysis.gap)
+    data = load_session(dead_time_session)
+    nom = fit_model(data, NOMINAL)
+    fit = fit_model(data, candidate(name), start=nom)
+    assert fit.params["delay_ms"] + 1e3 * fit.params["timing_correction_s"] == \
+        pytest.approx(30.0, rel=0.05)
+    assert fit.rss < 0.01 * nom.rss
+
+    # a twin file carries it, the simulator reads it back, the FMU refuses it by name
+    entries = effect_entries(fit.params, (name,), data.sE_levels)
+    assert entries == [{"name": "toy_transport_delay",
+                        "params": {"delay_ms": fit.params["delay_ms"]}}]
+    twin = default_participant().to_twin()
+    twin["effects"] = entries
+    tw = Twin.from_dict(twin)
+    assert participant_from_twin(twin).effect_truth() == entries
+    assert effects_from_list(tw.effects)[0] == cls(delay_ms=fit.params["delay_ms"])
+    with pytest.raises(FmuExportError, match="effect toy_transport_delay is not in the FMU"):
+        check_exportable(twin, "twin.json")
+
+
+def test_registering_refuses_a_taken_name_and_the_chain_one_lag(toy):
+    from nmsid.protocols.effects import chain_of, register, unregister
+    with pytest.raises(EffectParamError, match="already registered"):
+        register(_toy_module())
+    with pytest.raises(EffectParamError, match="built in"):
+        unregister("dead_time")
+    from nmsid.sim_backends.effects import ActivationDynamics, DeadTime
+    name, cls = toy
+    c = chain_of([cls(delay_ms=5.0), DeadTime(0.01), ActivationDynamics(0.02)])
+    assert c.delay_s == pytest.approx(0.015) and c.lag_s == 0.02     # delays add up
+    assert [e.name for e in c.effects] == ["activation_dynamics", "dead_time", name.value]
+
+
+def test_an_effect_name_is_one_object_through_pickle_and_copy():
+    import copy
+    import json
+    import pickle
+    e = Effect.DEAD_TIME
+    assert e is Effect("dead_time") is Effect(e) and e == "dead_time" and e.value == "dead_time"
+    for proto in range(pickle.HIGHEST_PROTOCOL + 1):       # the gap's worker processes
+        assert pickle.loads(pickle.dumps(e, proto)) is e
+    assert copy.deepcopy(e) is e and json.dumps([e]) == '["dead_time"]' and f"{e}" == "dead_time"
+    assert Effect.NONE.value == "none" and Effect.NONE not in CANDIDATES
+    with pytest.raises(EffectParamError, match="'refractory' is unknown; valid: recruitment"):
+        Effect("refractory")
+    with pytest.raises(AttributeError, match="refractory"):
+        Effect.REFRACTORY  # noqa: B018
+
+
+def test_the_fmu_and_twin_simulate_share_one_list_of_what_they_cannot_run():
+    from nmsid.export.fmu.build import unsupported_effects
+    off = {"name": "baseline_drift", "params": {"amplitude_N": 0.0, "corner_Hz": 0.2}}
+    on = {"name": "baseline_drift", "params": {"amplitude_N": 0.1, "corner_Hz": 0.2}}
+    dead = {"name": "dead_time", "params": {"L_s": 0.02}}
+    assert unsupported_effects([dead, off]) == []          # a wander that is off changes nothing
+    assert unsupported_effects([dead, on]) == ["baseline_drift"]
+
+
+def test_the_reports_words_come_from_each_effect():
+    from nmsid.analysis.gap.verdict import effect_words
+    assert effect_words("dead_time+fatigue") == (
+        spec("dead_time").source.params_type.words + " together with "
+        + spec("fatigue").source.params_type.words)
+    assert all(s.source.params_type.words for s in EFFECTS)

@@ -13,6 +13,8 @@ from nmsid.sim_backends.direct_drive import currents_for, ramp_thresholds, run_w
 from nmsid.sim_backends.effects import (EFFECT_NAMES, ActivationDynamics, BaselineDrift, DeadTime,
                                         Fatigue, FlexorExtensorAsymmetry, RecruitmentNonlinearity,
                                         effect_from_dict, effects_from_list, effects_to_list)
+from nmsid.errors import UserError
+from nmsid.protocols.effects import EffectParamError
 from nmsid.sim_backends.errors import SimConfigError
 from nmsid.sim_backends.filters import second_order_zoh
 from nmsid.sim_backends.participant import default_participant
@@ -187,5 +189,7 @@ def test_effect_parsing_round_trips_and_refuses_unknowns():
         effect_from_dict({"name": "recruitment_nonlinearity", "params": {"shape": "power"}})
     with pytest.raises(SimConfigError, match="more than once"):
         effects_from_list([items[0], items[0]])
-    with pytest.raises(SimConfigError, match="L_s"):
+    # built directly, the registry's dataclass refuses with its own user error (exit 2)
+    with pytest.raises(EffectParamError, match="L_s"):
         DeadTime(-1.0)
+    assert issubclass(EffectParamError, UserError)
