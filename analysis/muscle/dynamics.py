@@ -67,6 +67,43 @@ def recruitment(I: np.ndarray, c: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.clip((S(np.maximum(I, 0.0)) - s0) / (s1 - s0), 0.0, None)
 
 
+def _activation(U: np.ndarray, ta: np.ndarray, td: np.ndarray, am15: np.ndarray, h: float
+                ) -> np.ndarray:
+    """Activation at every step boundary, ``(T + 1, ...)``, from the excitation ``U``
+    ``(T, ...)`` held per step: exact for each step's frozen time constant."""
+    A = np.empty((U.shape[0] + 1,) + U.shape[1:])
+    a = U[0].copy()                                   # steady state of the lead-in
+    A[0] = a
+    for k in range(U.shape[0]):
+        uk = U[k]
+        g = 0.5 + am15 * a
+        tau = np.where(uk > a, ta * g, td / g)
+        a = uk + (a - uk) * np.exp(-h / tau)
+        A[k + 1] = a
+    return A
+
+
+def _rk4_affine(K0, C0, d0, Km, Cm, dm, K1, C1, d1, h):
+    """One classical Runge-Kutta step of ``x' = v, v' = d - K x - C v`` (coefficients at
+    the step's start, middle and end) written as the affine map ``y+ = Phi y + psi``:
+    returns ``(P11, P12, P21, P22, q1, q2)``, vectorised over any shape."""
+    def step(x, v, f0, fm, f1):
+        k1x, k1v = v, f0 - K0 * x - C0 * v
+        x2, v2 = x + 0.5 * h * k1x, v + 0.5 * h * k1v
+        k2x, k2v = v2, fm - Km * x2 - Cm * v2
+        x3, v3 = x + 0.5 * h * k2x, v + 0.5 * h * k2v
+        k3x, k3v = v3, fm - Km * x3 - Cm * v3
+        x4, v4 = x + h * k3x, v + h * k3v
+        k4x, k4v = v4, f1 - K1 * x4 - C1 * v4
+        return (x + h / 6.0 * (k1x + 2 * k2x + 2 * k3x + k4x),
+                v + h / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v))
+    zero = 0.0
+    P11, P21 = step(1.0, 0.0, zero, zero, zero)
+    P12, P22 = step(0.0, 1.0, zero, zero, zero)
+    q1, q2 = step(0.0, 0.0, d0, dm, d1)
+    return P11, P12, P21, P22, q1, q2
+
+
 def simulate_batch(theta: np.ndarray, rE: np.ndarray, sE: np.ndarray, dt_s: float
                    ) -> np.ndarray:
     """Sensor force of the twin for a batch of parameter sets and trials.
@@ -85,53 +122,45 @@ def simulate_batch(theta: np.ndarray, rE: np.ndarray, sE: np.ndarray, dt_s: floa
     -------
     ndarray, (P, n_trials, n_steps)
         Force ``x`` at the start of every step (before the step's input acts).
+
+    Notes
+    -----
+    The activation is stepped first (the only non-linear recurrence: a few array
+    operations per step); the mechanics are then linear with known time-varying
+    coefficients, so each step's Runge-Kutta map is formed for all steps at once and only
+    its affine recurrence runs step by step.
     """
     th = np.asarray(theta, float)[:, :, None]        # (P, 14, 1)
     Fe, Ff, ce, cf, we, wf, ta, td, wn0, z0, ks, cs, ts, am = (th[:, k] for k in range(14))
-    # stiffness and damping of active muscle grow with its force (short-range stiffness
-    # gamma F / L0; the force-velocity slope F (1 + 1/A) / v_max): per unit of force,
-    # relative to the mean of the two maximal forces
-    ke, kf = ks * Fe / (0.5 * (Fe + Ff)), ks * Ff / (0.5 * (Fe + Ff))
-    de, df = cs * Fe / (0.5 * (Fe + Ff)), cs * Ff / (0.5 * (Fe + Ff))
     rE = np.asarray(rE, float)
     sE = np.asarray(sE, float)
     sE = sE[:, None] if sE.ndim == 1 else sE          # per trial, or per trial and step
     u_e = recruitment((rE * sE)[None], ce[..., None], we[..., None])   # (P, n, T)
     u_f = recruitment(((1.0 - rE) * sE)[None], cf[..., None], wf[..., None])
     P, n, T = u_e.shape
-    u = np.stack([u_e, u_f], axis=1)                  # (P, 2, n, T)
-    # one matrix product per activation state gives the drive (F_e a_e - F_f a_f), the
-    # stiffness and the damping terms
-    M = np.stack([np.stack([Fe, -Ff], -1), np.stack([ke, kf], -1),
-                  np.stack([de, df], -1)], axis=1)[:, :, 0, :]      # (P, 3, 2)
-    w2 = (wn0 ** 2)
-    c0 = 2.0 * z0 * wn0
-    ta_, td_, am_ = ta[..., None], td[..., None], am[..., None]
+    # time first, so that each step reads a contiguous block
+    U = np.ascontiguousarray(np.stack([u_e, u_f], axis=0).transpose(3, 0, 1, 2))  # (T,2,P,n)
     h = dt_s
-    a = u[..., 0].copy()                               # steady state of the lead-in
-    m0 = M @ a
-    x = m0[:, 0] / (1.0 + m0[:, 1])
+    A = _activation(U, ta[None], td[None], 1.5 * am[None], h)      # (T+1, 2, P, n)
+    # drive F_e a_e - F_f a_f and the relative active force phi; stiffness and damping of
+    # active muscle grow with its force (short-range stiffness gamma F / L0; the
+    # force-velocity slope F (1 + 1/A) / v_max), relative to the mean maximal force
+    Fm = 0.5 * (Fe + Ff)
+    D = Fe * A[:, 0] - Ff * A[:, 1]                                # (T+1, P, n)
+    S = (Fe * A[:, 0] + Ff * A[:, 1]) / Fm
+    Dm, Sm = 0.5 * (D[1:] + D[:-1]), 0.5 * (S[1:] + S[:-1])        # activation linear
+    w2 = wn0 ** 2
+    c0 = 2.0 * z0 * wn0
+    P11, P12, P21, P22, q1, q2 = _rk4_affine(
+        w2 * (1 + ks * S[:-1]), c0 + cs * S[:-1], w2 * D[:-1],
+        w2 * (1 + ks * Sm), c0 + cs * Sm, w2 * Dm,
+        w2 * (1 + ks * S[1:]), c0 + cs * S[1:], w2 * D[1:], h)
+    x = D[0] / (1.0 + ks * S[0])                     # steady state of the lead-in
     v = np.zeros_like(x)
-    out = np.empty((P, n, T))
+    X = np.empty((T, P, n))
+    V = np.empty((T, P, n))
     for k in range(T):
-        out[:, :, k] = x + ts * v
-        uk = u[..., k]
-        g = 0.5 + 1.5 * am_ * a
-        tau = np.where(uk > a, ta_ * g, td_ / g)
-        a1 = uk + (a - uk) * np.exp(-h / tau)         # exact for the frozen time constant
-        m0, mm, m1 = M @ a, M @ (0.5 * (a + a1)), M @ a1
-        d0, dm, d1 = w2 * m0[:, 0], w2 * mm[:, 0], w2 * m1[:, 0]
-        K0, Km, K1 = w2 * (1 + m0[:, 1]), w2 * (1 + mm[:, 1]), w2 * (1 + m1[:, 1])
-        C0, Cm, C1 = c0 + m0[:, 2], c0 + mm[:, 2], c0 + m1[:, 2]
-        # mechanics: classical Runge-Kutta with the activation linear over the step
-        k1v = d0 - K0 * x - C0 * v
-        x2, v2 = x + 0.5 * h * v, v + 0.5 * h * k1v
-        k2v = dm - Km * x2 - Cm * v2
-        x3, v3 = x + 0.5 * h * v2, v + 0.5 * h * k2v
-        k3v = dm - Km * x3 - Cm * v3
-        x4, v4 = x + h * v3, v + h * k3v
-        k4v = d1 - K1 * x4 - C1 * v4
-        x = x + h / 6.0 * (v + 2 * v2 + 2 * v3 + v4)
-        v = v + h / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v)
-        a = a1
-    return out
+        X[k] = x
+        V[k] = v
+        x, v = P11[k] * x + P12[k] * v + q1[k], P21[k] * x + P22[k] * v + q2[k]
+    return (X + ts * V).transpose(1, 2, 0)

@@ -73,6 +73,15 @@ class MuscleFit:
     iterations: int
     elapsed_s: float
     history: list = field(default_factory=list)
+    z: np.ndarray | None = None
+    """The optimum on the fitted scale."""
+    jac: np.ndarray | None = None
+    """Jacobian of the weighted residual (trial-major data rows, then the prior rows) at
+    the optimum, on the fitted scale: the linearisation :func:`subset_step` uses."""
+    fun: np.ndarray | None = None
+    """The weighted residual at the optimum (the rows of ``jac``)."""
+    resid_shape: tuple[int, int] = (0, 0)
+    """(n_trials, n_eval) of the data rows of ``jac`` and ``fun``."""
 
     @property
     def params(self) -> dict[str, float]:
@@ -109,6 +118,13 @@ class _Problem:
         n = (rE.shape[1] // dec) * dec
         self.rE = rE[:, :n].reshape(rE.shape[0], -1, dec).mean(axis=2)
         self.sE = np.array([t.sE for t in data.trials])
+        # repeats of one sE with the same commanded rE have the same model response:
+        # each distinct (sE, rE) is simulated once (a 45-trial session: 15 simulations)
+        keys: dict[tuple[float, bytes], int] = {}
+        self.inverse = np.array([keys.setdefault((float(sv), r.tobytes()), len(keys))
+                                 for sv, r in zip(self.sE, self.rE)])
+        first = np.unique(self.inverse, return_index=True)[1]
+        self.rE_u, self.sE_u = self.rE[first], self.sE[first]
         self.idx = (data.n_lead_sim + np.arange(data.y_N.shape[1]) * data.sim_step) // dec
         if self.idx[-1] >= self.rE.shape[1]:
             self.idx = self.idx[self.idx < self.rE.shape[1]]
@@ -124,9 +140,9 @@ class _Problem:
 
     def predict(self, theta: np.ndarray) -> np.ndarray:
         """(P, n_trials, n_eval) filtered force at the evaluation samples."""
-        x = simulate_batch(np.atleast_2d(theta), self.rE, self.sE, self.dt_s)
+        x = simulate_batch(np.atleast_2d(theta), self.rE_u, self.sE_u, self.dt_s)
         x = signal.sosfiltfilt(self.sos, x, axis=-1)
-        return x[..., self.idx]
+        return x[:, self.inverse][..., self.idx]
 
     def residuals(self, theta: np.ndarray) -> np.ndarray:
         """(P, n_trials, n_eval) measured minus predicted, offset and trend removed."""
@@ -260,7 +276,102 @@ def fit_muscle(data: GapData, settings: MuscleFitSettings | None = None, *,
     return MuscleFit(theta=lit.to_theta(z), rss=rss, n_samples=n,
                      nrmse_pct=100.0 * np.sqrt(rss / np.sum(prob.ref ** 2)), sd_z=sd,
                      determined=determined, singular_values=sv, iterations=it,
-                     elapsed_s=time.perf_counter() - t0, history=hist)
+                     elapsed_s=time.perf_counter() - t0, history=hist, z=z, jac=J,
+                     fun=np.asarray(res.fun), resid_shape=rd.shape)
+
+
+@dataclass
+class FoldStep:
+    """The twin refitted on a subset of the trials by one Gauss-Newton step."""
+
+    theta: np.ndarray
+    """Physical parameters after the step."""
+    rss: float
+    """Residual sum of squares on the subset's trials (offset and trend removed)."""
+    n_samples: int
+    elapsed_s: float
+
+
+#: Levenberg damping factors tried by :func:`subset_refit` (relative to diag(J'J)).
+SUBSET_DAMPING = (0.0, 1e-3, 1e-2, 0.1, 1.0)
+
+
+def subset_refit(full: MuscleFit, data: GapData, subsets: list[np.ndarray],
+                 settings: MuscleFitSettings | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters refitted on each subset of the trials, and their residuals on every trial.
+
+    From the optimum of all trials, for each subset a Levenberg-Marquardt step of the
+    subset's rows (its trials and the priors) is formed with the Jacobian of the full fit
+    for each damping of :data:`SUBSET_DAMPING`; all of them, and the full fit itself,
+    are simulated in one batch, and each subset keeps the one with the lowest cost on
+    *its own* trials (the left-out trials play no part in the choice). The influence of
+    the left-out trials is so removed to first order at the cost of one Jacobian's worth
+    of simulation; ``docs/muscle-twin.md`` compares it with full refits.
+
+    Parameters
+    ----------
+    full : MuscleFit
+        Fit on every trial of ``data`` (with its Jacobian).
+    data : GapData
+        The data ``full`` was fitted on.
+    subsets : list of ndarray of int
+        The trials (rows of ``data``) of each subset.
+    settings : MuscleFitSettings, optional
+
+    Returns
+    -------
+    thetas : ndarray, (n_subsets, n_params)
+        Physical parameters of each subset's twin.
+    resid : ndarray, (n_subsets, n_trials, n_eval')
+        Their residuals on every trial (offset and trend removed).
+    """
+    if full.jac is None or full.fun is None or full.z is None:
+        raise ValueError("subset_refit needs a fit with its Jacobian (fit_muscle's result)")
+    n_tr, n_ev = full.resid_shape
+    n_data = n_tr * n_ev
+    lo, hi = lit.bounds_z()
+    span = hi - lo
+    zs = [full.z]
+    for keep in subsets:
+        rows = np.ones(full.fun.size, bool)
+        sel = np.zeros(n_tr, bool)
+        sel[keep] = True
+        rows[:n_data] = np.repeat(sel, n_ev)
+        J, c = full.jac[rows], full.fun[rows]
+        A, g = J.T @ J, J.T @ c
+        dA = np.diag(np.maximum(np.diag(A), 1e-300))
+        for lam in SUBSET_DAMPING:
+            dz = -np.linalg.lstsq(A + lam * dA, g, rcond=1e-12)[0]
+            zs.append(np.clip(full.z + dz, lo + 1e-9 * span, hi - 1e-9 * span))
+    Z = np.vstack(zs)
+    R = residual_matrix(lit.to_theta(Z), data, settings)
+    prior_rows = full.fun[n_data:]
+    has_prior = np.isfinite(lit.PRIOR_SD)
+    # the prior rows' weight is the full fit's: recover it from its rows at its optimum
+    z0 = lit.prior_centre_z()[has_prior]
+    dzp = (full.z[has_prior] - z0) / lit.PRIOR_SD[has_prior]
+    w = float(np.sum(prior_rows * dzp) / max(float(np.sum(dzp ** 2)), 1e-300))
+    prior_cost = w ** 2 * np.sum(((Z[:, has_prior] - z0) / lit.PRIOR_SD[has_prior]) ** 2,
+                                 axis=1)
+    n_try = len(SUBSET_DAMPING)
+    thetas, resid = [], []
+    for k, keep in enumerate(subsets):
+        cand = [0] + list(range(1 + k * n_try, 1 + (k + 1) * n_try))
+        cost = [float(np.sum(R[i][keep] ** 2)) + prior_cost[i] for i in cand]
+        best = cand[int(np.argmin(cost))]
+        thetas.append(lit.to_theta(Z[best]))
+        resid.append(R[best])
+    return np.vstack(thetas), np.stack(resid)
+
+
+def residual_matrix(theta_rows: np.ndarray, data: GapData,
+                    settings: MuscleFitSettings | None = None) -> np.ndarray:
+    """(P, n_trials, n_eval') residual of each parameter set on ``data`` (offset and trend
+    removed), one batched simulation; ``n_eval'`` stops at the fit grid's last sample."""
+    prob = _Problem(data, settings or MuscleFitSettings())
+    with np.errstate(over="ignore", invalid="ignore"):
+        return prob.residuals(np.atleast_2d(theta_rows))
 
 
 def predict_muscle(theta: np.ndarray, data: GapData,
