@@ -4,7 +4,7 @@ Tried only when the template's best answer (nominal, effect or pair) still leave
 significant gap. Scored exactly like the library's candidates: fitted on each fold's
 training trials (one parameter set for every sE), held-out repeats predicted, held-out
 NRMSE and ``dIC = N_eff ln(RSS / RSS_nominal) + 2 dk`` on the training trials with the same
-effective-sample fraction ``nu``. ``dk`` is its 14 parameters minus the nominal model's
+effective-sample fraction ``nu``. ``dk`` is its 18 parameters minus the nominal model's
 three per sE level and its timing correction: the muscle twin has *fewer* parameters than
 the per-level template. It is *supported* when, like a pair against its single effect, it
 beats the nominal model (``dIC < -ic_margin``, held-out shrink >= ``min_shrink_pct``) and

@@ -30,7 +30,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize, signal
+from scipy import fft, optimize, signal
 
 from nmsid.analysis.gap.data import GapData
 from nmsid.analysis.gap.fit import initial_levels
@@ -39,6 +39,48 @@ from nmsid.analysis.gap.samples import effective_fraction
 from nmsid.analysis.muscle import literature as lit
 from nmsid.analysis.muscle.dynamics import PARAM_NAMES, simulate_batch
 from nmsid.analysis.muscle.errors import MuscleFitError
+from nmsid.analysis.preprocess import lowpass_sos
+
+
+def chain_response(f_Hz: np.ndarray, fs_raw_Hz: float, sig) -> np.ndarray:
+    """Frequency response of the force's filter chain at the raw rate.
+
+    The identification's Savitzky-Golay smoothing (a symmetric FIR: a real response) and
+    its Butterworth low-pass (squared magnitude when run forwards and backwards), as
+    :func:`nmsid.analysis.preprocess.smooth_and_lowpass` applies them to the measured force.
+
+    Parameters
+    ----------
+    f_Hz : ndarray
+        Frequencies, Hz.
+    fs_raw_Hz : float
+        The session's sampling rate.
+    sig : IdentificationSettings
+        ``savgol_window``, ``savgol_order``, ``lowpass_Hz``, ``butter_order``, ``zero_phase``.
+
+    Returns
+    -------
+    ndarray (complex)
+
+    Examples
+    --------
+    >>> from nmsid.analysis.preprocess import IdentificationSettings
+    >>> H = chain_response(np.array([0.0, 10.0]), 1000.0, IdentificationSettings())
+    >>> bool(abs(H[0] - 1) < 1e-9 and 0.98 < H[1].real < 0.999)
+    True
+    """
+    f = np.asarray(f_Hz, float)
+    H = np.ones(f.shape, complex)
+    if sig.savgol_window is not None:
+        taps = signal.savgol_coeffs(sig.savgol_window, sig.savgol_order)
+        half = sig.savgol_window // 2
+        k = np.arange(len(taps)) - half
+        H = H * (np.cos(2 * np.pi * np.outer(f, k) / fs_raw_Hz) @ taps)
+    sos = lowpass_sos(fs_raw_Hz, sig)
+    if sos is not None:
+        _, hb = signal.sosfreqz(sos, worN=f, fs=fs_raw_Hz)
+        H = H * (np.abs(hb) ** 2 if sig.zero_phase else hb)
+    return H
 
 
 @dataclass(frozen=True)
@@ -130,9 +172,14 @@ class _Problem:
             self.idx = self.idx[self.idx < self.rE.shape[1]]
         self.y = data.y_N[:, : len(self.idx)]
         self.Q = nuisance_basis(data.t_eval_s[: len(self.idx)], 0.0)
-        st = data.settings
-        self.sos = signal.butter(st.lowpass_order, st.lowpass_Hz, fs=data.fs_sim_Hz / dec,
-                                 output="sos")
+        # the measured force's filter chain (Savitzky-Golay and low-pass at the raw rate),
+        # applied to the model's force by its exact frequency response at the fit rate:
+        # a Butterworth redesigned at the fit rate would differ by 1 % at 10 Hz
+        T = self.rE.shape[1]
+        self.pad = min(T - 1, int(round(s.fs_fit_Hz)))       # 1 s, odd reflection
+        self.n_fft = int(fft.next_fast_len(T + 2 * self.pad, real=True))
+        self.f_Hz = np.fft.rfftfreq(self.n_fft, self.dt_s)
+        self.H = chain_response(self.f_Hz, data.fs_raw_Hz, data.settings.signal)
         self.ref = self._project(self.y)
 
     def _project(self, v):
@@ -140,9 +187,22 @@ class _Problem:
 
     def predict(self, theta: np.ndarray) -> np.ndarray:
         """(P, n_trials, n_eval) filtered force at the evaluation samples."""
-        x = simulate_batch(np.atleast_2d(theta), self.rE_u, self.sE_u, self.dt_s)
-        x = signal.sosfiltfilt(self.sos, x, axis=-1)
+        th = np.atleast_2d(theta)
+        x = simulate_batch(th, self.rE_u, self.sE_u, self.dt_s)
+        x = self.filter(x, th[:, PARAM_NAMES.index("delay_s")])
         return x[:, self.inverse][..., self.idx]
+
+    def filter(self, x: np.ndarray, delay_s: np.ndarray) -> np.ndarray:
+        """The measured force's filter chain (``self.H``) and each parameter set's delay
+        (an exact band-limited time shift) along the last axis of ``x`` (P, n, T)."""
+        p, T = self.pad, x.shape[-1]
+        a, b = x[..., :1], x[..., -1:]
+        xp = np.concatenate([2 * a - x[..., p:0:-1], x, 2 * b - x[..., -2:-p - 2:-1]],
+                            axis=-1)
+        shift = np.exp(-2j * np.pi * np.outer(delay_s, self.f_Hz))[:, None, :]
+        y = fft.irfft(fft.rfft(xp, n=self.n_fft, axis=-1) * (self.H * shift), n=self.n_fft,
+                      axis=-1)
+        return y[..., p:p + T]
 
     def residuals(self, theta: np.ndarray) -> np.ndarray:
         """(P, n_trials, n_eval) measured minus predicted, offset and trend removed."""
