@@ -54,6 +54,8 @@ class MuscleResult:
     shrink_vs_template_pct: float = 0.0
     supported: bool = False
     fit_s: float = 0.0
+    cpu_s: float = 0.0
+    """CPU time of this process spent on the muscle twin (fit_s is wall time)."""
     params: dict = field(default_factory=dict)
     label: str = LABEL
 
@@ -81,6 +83,7 @@ def score_muscle(run, nominal, final, settings, *, fit_settings: MuscleFitSettin
     MuscleResult
     """
     t0 = time.perf_counter()
+    c0 = time.process_time()
     fs = fit_settings or MuscleFitSettings()
     d = run.data
     full = fit_muscle(d, fs, label="all trials")
@@ -122,6 +125,7 @@ def score_muscle(run, nominal, final, settings, *, fit_settings: MuscleFitSettin
                          and res.shrink_vs_template_pct >= settings.min_shrink_pct
                          and res.delta_ic < final_dic - settings.ic_margin)
     res.fit_s = time.perf_counter() - t0
+    res.cpu_s = time.process_time() - c0
     log.info("muscle twin: held-out NRMSE %.3f %% (nominal %.3f %%, template %.3f %%), "
              "dIC %.1f, %.1f s", res.heldout_nrmse_pct, nominal.heldout_nrmse_pct,
              final.heldout_nrmse_pct, res.delta_ic, res.fit_s)
