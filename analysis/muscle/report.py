@@ -23,7 +23,7 @@ def _where(diag, resid) -> dict:
     d = diag.data
     ok = diag.tested
     ref = diag.reference
-    out = {"sE": [], "band": [], "abs_deviation": []}
+    out: dict[str, list[dict]] = {"sE": [], "band": [], "abs_deviation": []}
     for j, sE in enumerate(d.sE_levels):
         rows = np.flatnonzero(ok & (d.level == j))
         if len(rows):
