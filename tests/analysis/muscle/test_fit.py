@@ -61,6 +61,13 @@ def test_independent_formulation_is_scored_and_reported(hill_data):
     else:
         assert v["verdict"] in ("effect", "unexplained")
     assert "remaining" in v and v["remaining"]["n_trials"] == int(diag.tested.sum())
+    # the report says how much the muscle twin leaves and where most of it lies
+    from nmsid.analysis.muscle.report import muscle_section
+    rem = muscle_section(diag)["remainder"]
+    assert abs(rem["to_noise_floor"] * diag.noise_floor_nrmse_pct - m.heldout_nrmse_pct) \
+        < 1e-9
+    assert rem["worst_sE"]["sE"] in diag.data.sE_levels and rem["worst_band"] is not None
+    assert f"{m.heldout_nrmse_pct:.2f} % held-out" in rem["sentence"]
 
 
 def test_model_filter_is_the_measured_force_chain(twin_data):
