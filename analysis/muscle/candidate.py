@@ -88,8 +88,8 @@ def score_muscle(run, nominal, final, settings, *, fit_settings: MuscleFitSettin
     d = run.data
     full = fit_muscle(d, fs, label="all trials")
     # each fold's twin: one damped Gauss-Newton step from the fit on every trial towards the
-    # optimum of its training trials (fit.subset_step), then one batched simulation of
-    # every fold's twin on every trial gives the held-out and the training residuals
+    # optimum of its training trials (fit.subset_refit: one batched simulation of
+    # every candidate step on every trial gives the held-out and training residuals)
     t1 = time.perf_counter()
     thetas, R = subset_refit(full, d, [fold.train for fold in run.folds], fs)
     resid = np.full_like(d.y_N, np.nan)
