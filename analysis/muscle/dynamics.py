@@ -105,21 +105,41 @@ def _activation(U: np.ndarray, ta: np.ndarray, td: np.ndarray, am15: np.ndarray,
 def _rk4_affine(K0, C0, d0, Km, Cm, dm, K1, C1, d1, h):
     """One classical Runge-Kutta step of ``x' = v, v' = d - K x - C v`` (coefficients at
     the step's start, middle and end) written as the affine map ``y+ = Phi y + psi``:
-    returns ``(P11, P12, P21, P22, q1, q2)``, vectorised over any shape."""
-    def step(x, v, f0, fm, f1):
-        k1x, k1v = v, f0 - K0 * x - C0 * v
-        x2, v2 = x + 0.5 * h * k1x, v + 0.5 * h * k1v
-        k2x, k2v = v2, fm - Km * x2 - Cm * v2
-        x3, v3 = x + 0.5 * h * k2x, v + 0.5 * h * k2v
-        k3x, k3v = v3, fm - Km * x3 - Cm * v3
-        x4, v4 = x + h * k3x, v + h * k3v
-        k4x, k4v = v4, f1 - K1 * x4 - C1 * v4
-        return (x + h / 6.0 * (k1x + 2 * k2x + 2 * k3x + k4x),
-                v + h / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v))
-    zero = 0.0
-    P11, P21 = step(1.0, 0.0, zero, zero, zero)
-    P12, P22 = step(0.0, 1.0, zero, zero, zero)
-    q1, q2 = step(0.0, 0.0, d0, dm, d1)
+    returns ``(P11, P12, P21, P22, q1, q2)``, vectorised over any shape.
+
+    The step applied to ``y = (1, 0)`` and ``(0, 1)`` without forcing gives the columns of
+    ``Phi``, to ``y = 0`` with the forcing ``psi``; written out with the zeros and ones
+    of those inputs eliminated (``tests/analysis/muscle/test_dynamics.py`` holds it to the
+    step-by-step form).
+    """
+    h2, h6 = 0.5 * h, h / 6.0
+    # column 1: y = (1, 0)
+    v2 = -h2 * K0
+    k2v = -Km - Cm * v2
+    v3 = h2 * k2v
+    k3v = -Km * (1.0 + h2 * v2) - Cm * v3
+    v4 = h * k3v
+    k4v = -K1 * (1.0 + h * v3) - C1 * v4
+    P11 = 1.0 + h6 * (2.0 * v2 + 2.0 * v3 + v4)
+    P21 = h6 * (-K0 + 2.0 * k2v + 2.0 * k3v + k4v)
+    # column 2: y = (0, 1)
+    v2 = 1.0 - h2 * C0
+    k2v = -Km * h2 - Cm * v2
+    v3 = 1.0 + h2 * k2v
+    k3v = -Km * (h2 * v2) - Cm * v3
+    v4 = 1.0 + h * k3v
+    k4v = -K1 * (h * v3) - C1 * v4
+    P12 = h6 * (1.0 + 2.0 * v2 + 2.0 * v3 + v4)
+    P22 = 1.0 + h6 * (-C0 + 2.0 * k2v + 2.0 * k3v + k4v)
+    # forcing: y = 0
+    v2 = h2 * d0
+    k2v = dm - Cm * v2
+    v3 = h2 * k2v
+    k3v = dm - Km * (h2 * v2) - Cm * v3
+    v4 = h * k3v
+    k4v = d1 - K1 * (h * v3) - C1 * v4
+    q1 = h6 * (2.0 * v2 + 2.0 * v3 + v4)
+    q2 = h6 * (d0 + 2.0 * k2v + 2.0 * k3v + k4v)
     return P11, P12, P21, P22, q1, q2
 
 
