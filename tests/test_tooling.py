@@ -278,7 +278,7 @@ def test_the_list_of_known_bare_dicts_only_shrinks():
 #: Modules whose [[tool.mypy.overrides]] table still disables error codes: their owners
 #: are fixing them (issue 30, 4). This list only shrinks; the integrator empties it.
 KNOWN_TYPE_DEBTS = {
-    "nmsid.analysis.gap.verdict", "nmsid.analysis.muscle.report",
+    "nmsid.analysis.gap.verdict",
 }
 
 

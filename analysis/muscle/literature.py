@@ -49,10 +49,14 @@ TABLE = {
     "tau_deact_s": (0.05, 0.002, 0.5, True, 0.9),
     "wn0_rad_s": (25.0, 3.0, 300.0, True, None),
     "zeta0": (0.5, 0.02, 5.0, True, None),
-    "k_s": (0.5, 1e-3, 50.0, True, math.log(5.0)),
+    "k_e": (0.1, -0.45, 20.0, False, 1.0),
+    "k_f": (0.1, -0.45, 20.0, False, 1.0),
     "c_s_per_s": (5.0, 1e-2, 500.0, True, math.log(5.0)),
     "sensor_zero_s": (0.005, 1e-5, 0.1, True, None),
     "a_max": (0.1, 0.005, 1.0, True, math.log(4.0)),
+    "delay_s": (0.0, -0.02, 0.05, False, 0.01),
+    "th_e": (0.0, -0.3, 0.6, False, 0.15),
+    "th_f": (0.0, -0.3, 0.6, False, 0.15),
 }
 
 LOG = np.array([TABLE[n][3] for n in PARAM_NAMES])

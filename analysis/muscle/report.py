@@ -23,7 +23,7 @@ def _where(diag, resid) -> dict:
     d = diag.data
     ok = diag.tested
     ref = diag.reference
-    out = {"sE": [], "band": [], "abs_deviation": []}
+    out: dict[str, list[dict]] = {"sE": [], "band": [], "abs_deviation": []}
     for j, sE in enumerate(d.sE_levels):
         rows = np.flatnonzero(ok & (d.level == j))
         if len(rows):
@@ -54,6 +54,7 @@ def muscle_section(diag) -> dict | None:
     final = diag.best_pair or diag.best
     tmpl = final if final is not None else diag.nominal
     floor = diag.noise_floor_nrmse_pct
+    where_m = _where(diag, m.heldout_resid)
     return {
         "supported": bool(m.supported),
         "heldout": {"nominal_nrmse_pct": diag.nominal.heldout_nrmse_pct,
@@ -70,9 +71,37 @@ def muscle_section(diag) -> dict | None:
         "not_determined": [r["name"] for r in m.full.table() if not r["determined"]],
         "singular_values": [float(v) for v in m.full.singular_values],
         "fit_s": m.fit_s,
-        "where": {"muscle": _where(diag, m.heldout_resid),
-                  "template": _where(diag, tmpl.heldout_resid)},
+        "where": {"muscle": where_m, "template": _where(diag, tmpl.heldout_resid)},
+        "remainder": _remainder_section(m.heldout_nrmse_pct, floor, where_m),
     }
+
+
+def _remainder_section(muscle_pct: float, floor_pct: float, where: dict) -> dict:
+    """How much the muscle twin leaves beyond the noise floor and where most of it lies
+    (the sE level and the chirp band with the highest held-out NRMSE), with a sentence.
+
+    Examples
+    --------
+    >>> w = {"sE": [{"sE": 0.3, "nrmse_pct": 3.0}, {"sE": 1.0, "nrmse_pct": 1.0}],
+    ...      "band": [{"f_lo_Hz": 1, "f_hi_Hz": 4, "nrmse_pct": 0.5},
+    ...               {"f_lo_Hz": 4, "f_hi_Hz": 10, "nrmse_pct": 2.5}]}
+    >>> _remainder_section(1.2, 0.1, w)["sentence"]
+    'the muscle twin leaves 1.20 % held-out, 12.0x the noise floor (0.10 %); most at sE 0.3 (3.00 %) and in the 4-10 Hz band (2.50 %)'
+    """
+    ratio = muscle_pct / floor_pct if floor_pct > 0 else float("nan")
+    worst_s = max(where.get("sE", []), key=lambda r: r["nrmse_pct"], default=None)
+    worst_b = max(where.get("band", []), key=lambda r: r["nrmse_pct"], default=None)
+    parts = []
+    if worst_s is not None:
+        parts.append(f"at sE {worst_s['sE']:g} ({worst_s['nrmse_pct']:.2f} %)")
+    if worst_b is not None:
+        parts.append(f"in the {worst_b['f_lo_Hz']:g}-{worst_b['f_hi_Hz']:g} Hz band "
+                     f"({worst_b['nrmse_pct']:.2f} %)")
+    sentence = (f"the muscle twin leaves {muscle_pct:.2f} % held-out, {ratio:.1f}x the noise "
+                f"floor ({floor_pct:.2f} %)" + ("; most " + " and ".join(parts) if parts
+                                                else ""))
+    return {"heldout_nrmse_pct": muscle_pct, "to_noise_floor": ratio,
+            "worst_sE": worst_s, "worst_band": worst_b, "sentence": sentence}
 
 
 def twin_item(diag) -> dict | None:

@@ -20,7 +20,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "bench"))
 FS = 1000.0
 TRUE = {"F_e_N": 6.0, "F_f_N": 4.5, "c_e": 0.55, "c_f": 0.4, "w_e": 0.18, "w_f": 0.25,
         "tau_act_s": 0.02, "tau_deact_s": 0.06, "wn0_rad_s": 22.0, "zeta0": 0.4,
-        "k_s": 0.6, "c_s_per_s": 6.0, "sensor_zero_s": 0.004, "a_max": 0.5}
+        "k_e": 0.6, "k_f": -0.2, "c_s_per_s": 6.0, "sensor_zero_s": 0.004, "a_max": 0.5,
+        "delay_s": 0.0, "th_e": 0.08, "th_f": 0.0}
 
 
 def _chirp(steady_s=3.0, chirp_s=6.0, f0=1.0, f1=8.0):

@@ -24,7 +24,7 @@ def test_own_equations_are_recovered_with_their_uncertainty(twin_data):
     assert fit.nrmse_pct < 1.0
     rows = {r["name"]: r for r in fit.table()}
     tol = {"wn0_rad_s": 0.02, "zeta0": 0.02, "F_e_N": 0.03, "F_f_N": 0.03,
-           "tau_deact_s": 0.05, "k_s": 0.05, "c_s_per_s": 0.05, "w_e": 0.03, "w_f": 0.03,
+           "tau_deact_s": 0.05, "k_e": 0.1, "k_f": 0.3, "c_s_per_s": 0.05, "w_e": 0.03, "w_f": 0.03,
            "tau_act_s": 0.2}
     for name, t in tol.items():
         k = PARAM_NAMES.index(name)
@@ -53,10 +53,60 @@ def test_independent_formulation_is_scored_and_reported(hill_data):
     m = diag.muscle_tried
     assert m is not None
     assert m.heldout_nrmse_pct < 0.5 * diag.nominal.heldout_nrmse_pct
-    assert np.isfinite(m.delta_ic) and m.delta_k < 0
+    # one parameter set against 3 per sE level and the timing: 18 - (3 x 5 + 1)
+    assert np.isfinite(m.delta_ic) and m.delta_k == len(PARAM_NAMES) - (3 * 5 + 1)
     v = diag.assessment
     if m.supported:
         assert v["verdict"] == "muscle_twin"
     else:
         assert v["verdict"] in ("effect", "unexplained")
     assert "remaining" in v and v["remaining"]["n_trials"] == int(diag.tested.sum())
+    # the report says how much the muscle twin leaves and where most of it lies
+    from nmsid.analysis.muscle.report import muscle_section
+    rem = muscle_section(diag)["remainder"]
+    assert abs(rem["to_noise_floor"] * diag.noise_floor_nrmse_pct - m.heldout_nrmse_pct) \
+        < 1e-9
+    assert rem["worst_sE"]["sE"] in diag.data.sE_levels and rem["worst_band"] is not None
+    assert f"{m.heldout_nrmse_pct:.2f} % held-out" in rem["sentence"]
+
+
+def test_model_filter_is_the_measured_force_chain(twin_data):
+    """The model's force passes the measured force's chain (Savitzky-Golay and low-pass
+    at the raw rate) by its frequency response: a sinusoid through both agrees."""
+    from nmsid.analysis.muscle.fit import _Problem, chain_response
+    from nmsid.analysis.preprocess import smooth_and_lowpass
+    sig = twin_data.settings.signal
+    fs = twin_data.fs_raw_Hz
+    t = np.arange(int(20 * fs)) / fs
+    for f in (2.0, 8.0, 15.0):
+        x = np.sin(2 * np.pi * f * t)
+        y = smooth_and_lowpass(x, fs, sig)[5000:-5000]
+        gain = np.sum(y * x[5000:-5000]) / np.sum(x[5000:-5000] ** 2)
+        assert abs(chain_response(np.array([f]), fs, sig)[0].real - gain) < 2e-4
+    prob = _Problem(twin_data, MuscleFitSettings())
+    tt = np.arange(prob.rE.shape[1]) * prob.dt_s
+    x = np.sin(2 * np.pi * 8.0 * tt)[None, None]
+    y = prob.filter(x, np.array([0.0]))[0, 0]
+    H = chain_response(np.array([8.0]), fs, sig)[0].real
+    mid = slice(200, -200)
+    assert np.max(np.abs(y[mid] - H * x[0, 0][mid])) < 1e-3
+    y_d = prob.filter(x, np.array([0.02]))[0, 0]        # a delay of two fit steps
+    assert np.max(np.abs(y_d[mid] - H * np.sin(2 * np.pi * 8.0 * (tt - 0.02))[mid])) < 1e-3
+
+
+def test_subset_refit_matches_a_full_refit_and_never_raises_its_own_cost(twin_data):
+    """Each fold's twin (one damped Gauss-Newton step from the fit on every trial, chosen
+    on the fold's own trials) predicts the left-out trials as a full refit does."""
+    from nmsid.analysis.muscle.fit import residual_matrix, subset_refit
+    full = fit_muscle(twin_data, MuscleFitSettings(max_iter=40))
+    keep = np.flatnonzero(twin_data.repeat == 1)
+    out = np.flatnonzero(twin_data.repeat != 1)
+    thetas, R = subset_refit(full, twin_data, [keep])
+    refit = fit_muscle(twin_data.subset(keep), MuscleFitSettings(max_iter=40),
+                       start=full.theta)
+    R_refit = residual_matrix(refit.theta, twin_data)[0]
+    R_full = residual_matrix(full.theta, twin_data)[0]
+    held = np.sqrt(np.mean(R[0][out] ** 2))
+    assert held <= 1.1 * np.sqrt(np.mean(R_refit[out] ** 2)) + 1e-4
+    assert np.sum(R[0][keep] ** 2) <= np.sum(R_full[keep] ** 2) * (1 + 1e-9)
+    assert thetas.shape == (1, len(PARAM_NAMES))

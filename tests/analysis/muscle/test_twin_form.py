@@ -24,8 +24,32 @@ BASE = {"format": "nmsid-twin", "format_version": 1, "participant": "P",
 
 
 def _muscle():
-    return {"form": "hill2-isometric", "form_version": 1, "fit_fs_Hz": 100.0,
+    return {"form": "hill2-isometric", "form_version": 2, "fit_fs_Hz": 100.0,
             "params": dict(zip(PARAM_NAMES, map(float, lit.start_theta())))}
+
+
+def test_version_1_items_are_read_as_version_2_with_their_meaning():
+    """A version-1 item (one k_s, no threshold, no delay) simulates as the version-2 item
+    with k_e = k_f = k_s and zero thresholds and delay; a version-2 item's threshold and
+    delay change the force."""
+    from nmsid.analysis.muscle.twin_form import V1_NAMES, parse_muscle_model, simulate_muscle
+    v2 = _muscle()
+    p = dict(v2["params"], k_e=0.4, k_f=0.4, th_e=0.0, th_f=0.0, delay_s=0.0)
+    v1 = {"form": "hill2-isometric", "form_version": 1, "fit_fs_Hz": 100.0,
+          "params": {n: (0.4 if n == "k_s" else p[n]) for n in V1_NAMES}}
+    parse_muscle_model(v1, "t.json")
+    rE = 0.5 + 0.4 * np.sin(2 * np.pi * 3.0 * np.arange(3000) / 1000.0)
+    y1 = simulate_muscle(v1, rE, 0.8, 1000.0)
+    y2 = simulate_muscle(dict(v2, params=p), rE, 0.8, 1000.0)
+    assert np.array_equal(y1, y2)
+    y_th = simulate_muscle(dict(v2, params=dict(p, th_e=0.2)), rE, 0.8, 1000.0)
+    y_d = simulate_muscle(dict(v2, params=dict(p, delay_s=0.01)), rE, 0.8, 1000.0)
+    assert np.ptp(y_th - y2) > 0.01 * np.ptp(y2)
+    assert np.allclose(y_d[20:], y2[10:-10], atol=1e-9)       # a 10-sample shift
+    with pytest.raises(TwinFileError, match="params.k_s"):
+        parse_muscle_model(dict(v1, params=dict(v1["params"], k_s=None)), "t.json")
+    with pytest.raises(TwinFileError, match="th_e"):
+        parse_muscle_model(dict(v2, params=dict(p, th_e=1.5)), "t.json")
 
 
 def test_existing_form_stays_valid_and_muscle_form_runs(tmp_path):
