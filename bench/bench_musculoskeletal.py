@@ -100,6 +100,12 @@ def _print_sessions(results) -> None:
     print("(worst over the 15 sE levels; truth: template = its curves, musculoskeletal = "
           "best 2nd-order fit of its noise-free response, computed in "
           + ", ".join(f"{r['t_truth']:.1f} s" for n, r in results if "musc" in n) + ")")
+    slow = max(r["wall"] for _, r in results)
+    worst = max(max(abs(row["err"][k]) for row in r["rows"] for k in range(3))
+                for _, r in results)
+    print(f"goals: session < 30 s: {'met' if slow < 30 else 'missed'} (slowest {slow:.1f} s); "
+          f"identification within 1 % of the truth: {'met' if worst <= 1 else 'missed'} "
+          f"(worst {worst:.3f} %)")
 
 
 def _print_levels(r) -> None:

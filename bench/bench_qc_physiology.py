@@ -22,11 +22,13 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE))
 
 from nmsid.analysis.design.candidates import paper_candidate  # noqa: E402
 from nmsid.analysis.design.validate import simulate_session  # noqa: E402
 from nmsid.analysis.qc import QCSettings, assess_session  # noqa: E402
 from nmsid.sim_backends.population import make_population  # noqa: E402
+from rates import rate  # noqa: E402
 
 SCATTERS = [None, {"Kp": 0.1, "wn_rad_s": 0.05, "zeta": 0.05}, {"wn_rad_s": 0.1},
             {"zeta": 0.1}, {"Kp": 0.2, "wn_rad_s": 0.1, "zeta": 0.1}]
@@ -58,6 +60,7 @@ def main() -> None:
     except ImportError as exc:
         print(f"(musculoskeletal participants unavailable: {exc})")
     total = [0, 0]
+    base_total = []
     for name, people, scatters in groups:
         for sc in scatters:
             sessions = [simulate_session(vp, paper_candidate(), scatter=sc, seed=k)
@@ -66,10 +69,15 @@ def main() -> None:
             b, _ = _excluded(sessions, old)
             total[0] += a
             total[1] += n
+            base_total.append(b)
             print(f"{name:16s} {_label(sc):36s} {f'{a}/{n} = {100 * a / n:.1f} %':>20s} "
                   f"{f'{b}/{n} = {100 * b / n:.1f} %':>28s}")
-    print(f"all: {total[0]}/{total[1]} = {100 * total[0] / total[1]:.2f} % of clean trials "
-          f"excluded (target <= 2 %)   ({time.perf_counter() - t0:.0f} s)")
+    print(f"all, clean trials excluded: {rate(total[0], total[1], '<=', 2.0)}   "
+          f"({time.perf_counter() - t0:.0f} s)")
+    base = sum(base_total)
+    print(f"  baseline in the same run (gain + time shift only): {base}/{total[1]} = "
+          f"{100 * base / total[1]:.1f} %, "
+          + (f"x{base / total[0]:.0f} the default's" if total[0] else "the default: none"))
 
 
 if __name__ == "__main__":
