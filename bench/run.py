@@ -159,7 +159,7 @@ def run_one(path: Path) -> Section:
     with contextlib.redirect_stdout(tee):
         try:
             _load(path).main()
-        except Exception:  # noqa: BLE001 - one benchmark's bug must not cost the whole run
+        except (Exception, SystemExit):  # noqa: BLE001 - one bug must not cost the run
             failed = True
             print(f"FAILED:\n{traceback.format_exc()}")
     return Section(path.stem, time.perf_counter() - t0, la, _load_average(),

@@ -40,7 +40,12 @@ def _benches(tmp_path: Path) -> Path:
         "    print('all targets met')\n"
         "    raise RuntimeError('a bug in beta')\n", encoding="utf-8")
     (d / "bench_gamma.py").write_text(
+        "import sys\n"
         "def main():\n    print('Missed: 1 of 3')\n", encoding="utf-8")
+    (d / "bench_delta.py").write_text(
+        "import argparse\n"
+        "def main():\n    argparse.ArgumentParser().parse_args(['--unknown'])\n",
+        encoding="utf-8")
     (d / "helper.py").write_text("raise SystemExit('not a benchmark: never run')\n",
                                  encoding="utf-8")
     return d
@@ -63,6 +68,7 @@ def test_results_file_has_table_budget_misses_and_failures(bench_run, tmp_path, 
     assert "- bench_alpha: speed x3.0 against the plain loop (target >= 5x: missed)" in misses
     assert "- bench_gamma: Missed: 1 of 3" in misses
     assert "- bench_beta: FAILED" in misses
+    assert "- bench_delta: FAILED" in misses  # a SystemExit (argparse) ends only its bench
     assert "point estimate only" not in misses  # only lines that say missed
     budget = text.split("## Time budget")[1].split("## Missed targets")[0]
     assert "budget 0.0005 min: missed" in budget  # 0.03 s < the run's time
