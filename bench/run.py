@@ -142,9 +142,13 @@ def budget_lines(sections: list[Section], budget_min: float) -> list[str]:
     return out
 
 
-def miss_lines(sections: list[Section]) -> list[str]:
-    """Every "missed" line of the run, each behind its benchmark's name; failures too."""
-    out = [f"{s.name}: FAILED (see its section)" for s in sections if s.failed]
+def miss_lines(sections: list[Section], budget_min: float = BUDGET_MIN) -> list[str]:
+    """Every "missed" line of the run, each behind its benchmark's name; failures and a
+    whole run over its budget too."""
+    total = sum(s.took_s for s in sections)
+    out = [f"run.py: whole run {total / 60:.1f} min, budget {budget_min:g} min: missed"] \
+        if total > budget_min * 60 else []
+    out += [f"{s.name}: FAILED (see its section)" for s in sections if s.failed]
     for s in sections:
         out += [f"{s.name}: {ln}" for ln in s.misses()]
     return out
@@ -172,7 +176,7 @@ def write_results(out: Path, sections: list[Section], started: _dt.datetime, loa
     commit = _git("rev-parse", "HEAD")
     dirty = _code_changes()
     total = sum(s.took_s for s in sections)
-    misses = miss_lines(sections)
+    misses = miss_lines(sections, budget_min)
     head = [
         "# Benchmark results",
         "",
@@ -232,7 +236,7 @@ def run(names: list[str], out: Path | None, budget_min: float = BUDGET_MIN,
     print("\n=== time budget ===")
     print("\n".join(budget_lines(sections, budget_min)))
     print("\n=== missed targets ===")
-    print("\n".join(miss_lines(sections)) or "none")
+    print("\n".join(miss_lines(sections, budget_min)) or "none")
     if out is not None:
         write_results(out, sections, started, load0, budget_min)
         print(f"\nwrote {out}", flush=True)

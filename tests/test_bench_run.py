@@ -68,6 +68,7 @@ def test_results_file_has_table_budget_misses_and_failures(bench_run, tmp_path, 
     assert "- bench_alpha: speed x3.0 against the plain loop (target >= 5x: missed)" in misses
     assert "- bench_gamma: Missed: 1 of 3" in misses
     assert "- bench_beta: FAILED" in misses
+    assert "- run.py: whole run 0.0 min, budget 0.0005 min: missed" in misses
     assert "- bench_delta: FAILED" in misses  # a SystemExit (argparse) ends only its bench
     assert "point estimate only" not in misses  # only lines that say missed
     budget = text.split("## Time budget")[1].split("## Missed targets")[0]
