@@ -185,16 +185,16 @@ def main(argv=None) -> None:
             if r is None:
                 print(f"   {model} seed {seed}: FAILED ({failure})")
                 continue
-                ratio = r["twin"] / r["baseline"]
-                all_ratios.append(ratio)
-                above_total += r["above_cmd"] + r["above_dlv"]
-                verdict = "met" if ratio <= 0.5 else "missed"
-                label = f"{model} {r['code']}"
-                print(f"   {label:22s} {r['sE']:5.2f} {r['twin']:7.2f} "
-                      f"{r['baseline']:7.2f} {ratio:6.3f} {verdict:8s} "
-                      f"{str(r['above_cmd']) + ' / ' + str(r['above_dlv']):>20s} "
-                      f"{1000 * r['latency_s']:10.2f} {r['seconds']:6.1f}"
-                      + (f"  ({r['aborted']} aborted)" if r["aborted"] else ""))
+            ratio = r["twin"] / r["baseline"]
+            all_ratios.append(ratio)
+            above_total += r["above_cmd"] + r["above_dlv"]
+            verdict = "met" if ratio <= 0.5 else "missed"
+            label = f"{model} {r['code']}"
+            print(f"   {label:22s} {r['sE']:5.2f} {r['twin']:7.2f} "
+                  f"{r['baseline']:7.2f} {ratio:6.3f} {verdict:8s} "
+                  f"{str(r['above_cmd']) + ' / ' + str(r['above_dlv']):>20s} "
+                  f"{1000 * r['latency_s']:10.2f} {r['seconds']:6.1f}"
+                  + (f"  ({r['aborted']} aborted)" if r["aborted"] else ""))
         if all_ratios:
             print(f"   worst ratio {max(all_ratios):.3f} over {len(all_ratios)} participants: "
                   f"{'met' if max(all_ratios) <= 0.5 else 'missed'} (target <= 0.5); samples "
