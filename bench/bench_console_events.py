@@ -3,8 +3,9 @@
 A real-time simulated rig runs a long schedule of short trials in an engine thread, the
 main thread waits as ``nmsid run``'s does (0.1 s joins) inside ``SessionSignals``, and
 ``on_signal`` zeroes the output (``engine.estop(reason)``; an operator re-arms after each
-trip). While a trial stimulates, another thread sends an event at a random moment and
-records ``perf_counter()`` just before; the simulated stimulator records every
+trip). While a trial stimulates, another thread sends an event at a random moment
+(10-130 ms into the trial: any phase of the 0.1 s chunks; 20-300 ms before, idle waits)
+and records ``perf_counter()`` just before; the simulated stimulator records every
 ``stop_now`` call (``SimRig.world.stop_calls``): the latency is from the event to the
 first one after it (an event that lands just after a trial's natural end meets the next
 trial's, which is counted as it comes). Sources, like for like:
@@ -87,7 +88,7 @@ def _measure(n: int, source: str, seed: int = 1) -> np.ndarray:
                         break
                     continue
                 stimulating.clear()
-                time.sleep(rng.uniform(0.02, 0.3))
+                time.sleep(rng.uniform(0.01, 0.13))  # any phase of a 0.1 s chunk
                 if eng.state is not State.STIMULATING:
                     continue
                 sent.append(time.perf_counter())

@@ -23,6 +23,7 @@ to the design figure.
 
     python bench/bench_control.py                  # 3 participants per model
     python bench/bench_control.py --seeds 1        # quicker (the default ones)
+    python bench/bench_control.py --jobs 1         # participants one after another
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ import os
 import sys
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -117,6 +119,16 @@ def one(model: str, seed: int, tmp: Path, n: int) -> dict:
             "seconds": time.monotonic() - t0}
 
 
+def _one_safe(args: tuple) -> tuple[dict | None, str]:
+    """``one`` in a worker: (result, "") or (None, what failed): a bench prints what
+    failed and goes on."""
+    model, seed, tmp, n = args
+    try:
+        return one(model, seed, Path(tmp), n), ""
+    except Exception as exc:  # noqa: BLE001
+        return None, f"{type(exc).__name__}: {exc}"
+
+
 def realtime_latency(tmp: Path) -> dict:
     """A short tracking session on the real-time clock (manual calibration)."""
     p = default_participant(seed=0)
@@ -147,6 +159,9 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--models", default=",".join(MODELS))
+    ap.add_argument("--jobs", type=int, default=2,
+                    help="worker processes for the fast-clock participants (2: the bench "
+                         "machine's cores); the real-time part runs alone afterwards")
     args = ap.parse_args([] if argv is None else argv)   # bench/run.py calls main()
     logging.disable(logging.WARNING)
     print("1. twin-based controller vs relay-tuned PID (no twin), same participant, session "
@@ -154,27 +169,32 @@ def main(argv=None) -> None:
     print("   target: twin RMSE <= 0.5 x baseline; 0 samples above a ceiling")
     print(f"   {'participant':22s} {'sE':>5s} {'twin %':>7s} {'base %':>7s} {'ratio':>6s} "
           f"{'verdict':8s} {'above ceil (cmd/dlv)':>20s} {'latency ms':>10s} {'s':>6s}")
-    all_ratios = []
+    all_ratios: list[float] = []
     above_total = 0
     with tempfile.TemporaryDirectory(prefix="nmsid-bench-control-") as d:
         tmp = Path(d)
-        for model in [m for m in args.models.split(",") if m]:
-            for seed in range(args.seeds):
-                try:
-                    r = one(model, seed, tmp, args.seeds)
-                except Exception as exc:  # noqa: BLE001 - a bench prints what failed, goes on
-                    print(f"   {model} seed {seed}: FAILED ({type(exc).__name__}: {exc})")
-                    continue
-                ratio = r["twin"] / r["baseline"]
-                all_ratios.append(ratio)
-                above_total += r["above_cmd"] + r["above_dlv"]
-                verdict = "met" if ratio <= 0.5 else "missed"
-                label = f"{model} {r['code']}"
-                print(f"   {label:22s} {r['sE']:5.2f} {r['twin']:7.2f} "
-                      f"{r['baseline']:7.2f} {ratio:6.3f} {verdict:8s} "
-                      f"{str(r['above_cmd']) + ' / ' + str(r['above_dlv']):>20s} "
-                      f"{1000 * r['latency_s']:10.2f} {r['seconds']:6.1f}"
-                      + (f"  ({r['aborted']} aborted)" if r["aborted"] else ""))
+        work = [(model, seed, str(tmp), args.seeds)
+                for model in [m for m in args.models.split(",") if m]
+                for seed in range(args.seeds)]
+        if args.jobs > 1:   # participants are independent (own files, own seeds)
+            with ProcessPoolExecutor(args.jobs) as ex:
+                outcomes = list(ex.map(_one_safe, work))
+        else:
+            outcomes = [_one_safe(w) for w in work]
+        for (model, seed, _, _), (r, failure) in zip(work, outcomes):
+            if r is None:
+                print(f"   {model} seed {seed}: FAILED ({failure})")
+                continue
+            ratio = r["twin"] / r["baseline"]
+            all_ratios.append(ratio)
+            above_total += r["above_cmd"] + r["above_dlv"]
+            verdict = "met" if ratio <= 0.5 else "missed"
+            label = f"{model} {r['code']}"
+            print(f"   {label:22s} {r['sE']:5.2f} {r['twin']:7.2f} "
+                  f"{r['baseline']:7.2f} {ratio:6.3f} {verdict:8s} "
+                  f"{str(r['above_cmd']) + ' / ' + str(r['above_dlv']):>20s} "
+                  f"{1000 * r['latency_s']:10.2f} {r['seconds']:6.1f}"
+                  + (f"  ({r['aborted']} aborted)" if r["aborted"] else ""))
         if all_ratios:
             print(f"   worst ratio {max(all_ratios):.3f} over {len(all_ratios)} participants: "
                   f"{'met' if max(all_ratios) <= 0.5 else 'missed'} (target <= 0.5); samples "

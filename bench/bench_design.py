@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -69,8 +70,55 @@ def _attach_values(pred, prior):
     return pred
 
 
-def main() -> None:
+def validation(args) -> tuple:
+    """The proposal and the paper's protocol run on the validation participants under one
+    scatter: (proposal outcome, paper outcome, seconds)."""
+    proposal, paper, scatter = args
+    t1 = time.perf_counter()
+    people = make_population(N_VALID, seed=1000)
+    a = run_protocol(people, proposal, scatter=scatter, seed=7, stream=PROPOSAL_STREAM)
+    b = run_protocol(people, paper, scatter=scatter, seed=7, stream=PAPER_STREAM)
+    return a, b, time.perf_counter() - t1
+
+
+def sensor_noise_only() -> tuple:
+    """Part 3: the best candidate within 40 % of the paper's stimulation and the chirp
+    length a 15 x 3 protocol needs, sensor noise only: (best (ratio, candidate), needed
+    candidate or None, seconds). Depends on nothing else: runs in a worker beside part 1."""
+    t2 = time.perf_counter()
+    pz = Predictor(population_prior(N_PRIOR, seed=0), scatter={n: 0.0 for n in PARAMETERS})
+    paper_z = pz.predict(paper_candidate())
+    best = None
+    for cand in search_space():
+        if cand.stimulation_s > 0.4 * 675:
+            break
+        r = sd_ratio(pz.predict(cand, derived=False), paper_z).max
+        if best is None or r < best[0]:
+            best = (r, cand)
+    assert best is not None, "the search space has a candidate within 40 %"
+    needed = None
+    for T in (10.0, 12.0, 14.0, 16.0, 18.0, 20.0):
+        cand = Candidate(steady_s=2.0, chirp_s=T, rest_s=60.0)
+        if sd_ratio(pz.predict(cand, derived=False), paper_z).max <= 1.0:
+            needed = cand
+            break
+    return best, needed, time.perf_counter() - t2
+
+
+def main(jobs: int = 2) -> None:
+    """``jobs``: worker processes (2: the bench machine's cores) for part 3 (beside part 1)
+    and the validation's three scatter models; the figures do not depend on it."""
     t0 = time.perf_counter()
+    pool = ProcessPoolExecutor(jobs) if jobs > 1 else None
+    part3 = pool.submit(sensor_noise_only) if pool is not None else None
+    try:
+        _main(t0, pool, part3)
+    finally:
+        if pool is not None:
+            pool.shutdown()
+
+
+def _main(t0: float, pool, part3) -> None:
     prior = population_prior(N_PRIOR, seed=0)
     predictor = Predictor(prior, scatter=DEFAULT_SCATTER)
     res = design(predictor, parse_target("paper"), search_space(), draws=100)
@@ -90,7 +138,6 @@ def main() -> None:
           f"{prop.derived_ratio:.4f}); predicted selection accuracy proposal "
           f"{prop.selection.overall:.3f} vs paper {paper.selection.overall:.3f}")
 
-    people = make_population(N_VALID, seed=1000)
     valid_prior = population_prior(N_VALID, seed=1000)     # the same participants
     print(f"\n2. Validation on {N_VALID} other simulated participants (population seed 1000; "
           "template participants; musculoskeletal ones: bench_design_msk)")
@@ -99,16 +146,18 @@ def main() -> None:
             f"   {'protocol':<10}{'stim':>9}" + "".join(f"{short[n]:>9}" for n in PARAMETERS) * 2
             + f"{'select':>9}  (Kp, wn, zeta)")
     other = alternative_scatter(DEFAULT_SCATTER)
-    for title, scatter in (("under the assumed per-trial scatter", DEFAULT_SCATTER),
-                           ("sensor noise alone (plain simulator)", None),
-                           (f"under another scatter model ({other.label})", other)):
-        t1 = time.perf_counter()
-        a = run_protocol(people, c, scatter=scatter, seed=7, stream=PROPOSAL_STREAM)
-        b = run_protocol(people, paper.candidate, scatter=scatter, seed=7,
-                         stream=PAPER_STREAM)
+    scenarios = (("under the assumed per-trial scatter", DEFAULT_SCATTER),
+                 ("sensor noise alone (plain simulator)", None),
+                 (f"under another scatter model ({other.label})", other))
+    work = [(c, paper.candidate, scatter) for _, scatter in scenarios]
+    if pool is not None:   # each scenario depends on its own arguments only: same figures
+        outcomes = list(pool.map(validation, work))
+    else:
+        outcomes = [validation(w) for w in work]
+    for (title, scatter), (a, b, took_s) in zip(scenarios, outcomes):
         ratio = validated_ratio(a, b)
         print(f"   {title}: realised RMS relative error, % (curves at the paper's 15 "
-              f"levels; identified levels), selection accuracy ({time.perf_counter() - t1:.0f} s)")
+              f"levels; identified levels), selection accuracy ({took_s:.0f} s)")
         print(head)
         pv = Predictor(valid_prior, scatter=(scatter.sd if scatter is other else scatter)
                        or {n: 0.0 for n in PARAMETERS})
@@ -123,23 +172,9 @@ def main() -> None:
               + ", ".join(f"{k} {v:.3f} +- {ratio.se_per_parameter[k]:.3f}"
                           for k, v in ratio.per_parameter.items()) + ")")
 
-    t2 = time.perf_counter()
+    best, needed, t_part3 = part3.result() if part3 is not None else sensor_noise_only()
     zero = {n: 0.0 for n in PARAMETERS}
     pz = Predictor(prior, scatter=zero)
-    paper_z = pz.predict(paper_candidate())
-    best = None
-    for cand in search_space():
-        if cand.stimulation_s > 0.4 * 675:
-            break
-        r = sd_ratio(pz.predict(cand, derived=False), paper_z).max
-        if best is None or r < best[0]:
-            best = (r, cand)
-    needed = None
-    for T in (10.0, 12.0, 14.0, 16.0, 18.0, 20.0):
-        cand = Candidate(steady_s=2.0, chirp_s=T, rest_s=60.0)
-        if sd_ratio(pz.predict(cand, derived=False), paper_z).max <= 1.0:
-            needed = cand
-            break
     print(f"\n3. Sensor noise only (no physiological scatter): best candidate within 40 % "
           f"({best[1].describe()}, {best[1].stimulation_s:g} s) has predicted_sd_ratio "
           f"{best[0]:.3f}: information grows with excitation seconds, and both protocols "
@@ -147,7 +182,7 @@ def main() -> None:
           f"saving. 15 x 3 with a 2 s lead-in needs a "
           + (f"{needed.chirp_s:g} s excitation ({needed.stimulation_s:g} s, "
              f"{100 * needed.stimulation_s / 675:.0f} %)" if needed else "longer excitation")
-          + f" to reach ratio <= 1 ({time.perf_counter() - t2:.0f} s)")
+          + f" to reach ratio <= 1 ({t_part3:.0f} s)")
 
     rows = []
     for T in (4.0, 10.0):

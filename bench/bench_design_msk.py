@@ -31,7 +31,9 @@ from __future__ import annotations
 import sys
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -67,10 +69,25 @@ def reference_families(vp, reference: dict) -> list[str]:
             for j, name in enumerate(PARAMETERS)]
 
 
+_RUNS: dict = {}
+"""errors() of this process by (participant, protocol without its label, scatter, seed): a
+protocol run twice with the same draws (part 2's paper protocol, a lab proposal equal to
+a part-1 protocol) is simulated and identified once."""
+
+
 def errors(vp, cand: Candidate, scatter, seed: int, reference: dict, families) -> dict:
     """Per-level and curve relative errors of ``cand`` on ``vp`` against ``reference``
     {sE: (Kp, wn, zeta)}; the curve is the reference's family fitted to the protocol's
-    level estimates; ``right``: AICc on those estimates picks that family."""
+    level estimates; ``right``: AICc on those estimates picks that family. Memoised
+    (``_RUNS``): the same inputs give the same draws, so the same result."""
+    key = (vp.code, repr({k: v for k, v in sorted(cand.__dict__.items()) if k != "label"}),
+           repr(scatter), seed)
+    if key not in _RUNS:
+        _RUNS[key] = _errors(vp, cand, scatter, seed, reference, families)
+    return _RUNS[key]
+
+
+def _errors(vp, cand: Candidate, scatter, seed: int, reference: dict, families) -> dict:
     res = identify_session(simulate_session(vp, cand, scatter=scatter, seed=seed))
     lv = [(x.sE, (x.fit.Kp, x.fit.wn_rad_s, x.fit.zeta)) for x in res.levels
           if x.fit is not None]
@@ -95,7 +112,7 @@ def rms(rows: list, key: str) -> np.ndarray:
     return np.sqrt(np.nanmean(e ** 2, axis=0)) * 100
 
 
-def lab_design(vp, scatter, seed: int) -> tuple[Candidate, dict]:
+def lab_design(vp, scatter, seed: int) -> tuple[Candidate, dict, Any]:
     """What ``nmsid design --twin --scatter-from`` proposes after a first session."""
     with tempfile.TemporaryDirectory() as tmp:
         session = simulate_session(vp, FIRST_SESSION, scatter=scatter, seed=seed)
@@ -113,33 +130,65 @@ def selection(rows: list) -> float:
     return float(np.mean([r["right"] for r in rows]))
 
 
-def main(n_participants: int = 4) -> None:
+SCENARIOS = (("with physiological scatter 10/5/5 %", dict(DEFAULT_SCATTER)),
+             ("without scatter (sensor noise only)", None))
+
+
+def participant(args: tuple[int, int]) -> dict:
+    """Everything one participant contributes (both scenarios, both parts): its reference,
+    its families, its part-1 runs, the lab's design and its part-2 runs. A participant
+    depends on its index only, so participants run in any process, in any order."""
+    from nmsid.sim_backends.msk_population import make_msk_population
+    k, n_participants = args
+    vp = make_msk_population(n_participants, seed=7)[k]
+    paper = paper_candidate()
+    cal = vp.ramp_calibration()
+    ref = {round(s, 6): tuple(vp.true_parameters(s, cal, paper.config().protocol))
+           for s in GRID}
+    fam = reference_families(vp, ref)
+    out: dict = {"code": vp.code, "family": fam, "scenarios": []}
+    for _, scatter in SCENARIOS:
+        part1 = {cand.label: errors(vp, cand, scatter, 11 + k, ref, fam)
+                 for cand in (paper, PAPER_SHORT_LEADIN, POPULATION_PROPOSAL)}
+        prop, measured, adequacy = lab_design(vp, scatter, 500 + k)
+        prop = Candidate(**{**prop.__dict__, "label": "lab"})
+        # the same draws as part 1 (seed 11 + k): a proposal equal to a part-1 protocol,
+        # and the paper's protocol, reuse part 1's runs (``errors``)
+        out["scenarios"].append({
+            "part1": part1, "proposal": prop, "measured": measured,
+            "fit_pct": adequacy.median_fit_pct,
+            "lab": errors(vp, prop, scatter, 11 + k, ref, fam),
+            "paper": errors(vp, paper, scatter, 11 + k, ref, fam)})
+    out["runs"] = len([key for key in _RUNS if key[0] == vp.code])
+    return out
+
+
+def main(n_participants: int = 4, jobs: int = 2) -> None:
+    """``jobs`` worker processes, one participant at a time each (2: the bench machine's
+    cores); the figures do not depend on it."""
     try:
-        from nmsid.sim_backends.msk_population import make_msk_population  # mujoco extra
+        import nmsid.sim_backends.msk_population  # noqa: F401 - the mujoco extra
     except ImportError as exc:
         print(f"musculoskeletal participant unavailable ({exc}); install the mujoco extra")
         return
     t0 = time.perf_counter()
-    people = make_msk_population(n_participants, seed=7)
+    _RUNS.clear()
+    work = [(k, n_participants) for k in range(n_participants)]
+    if jobs > 1:
+        with ProcessPoolExecutor(min(jobs, n_participants)) as ex:
+            people = list(ex.map(participant, work))
+    else:
+        people = [participant(w) for w in work]
     paper = paper_candidate()
-    refs, fams = [], []
-    for vp in people:
-        cal = vp.ramp_calibration()
-        refs.append({round(s, 6): tuple(vp.true_parameters(s, cal, paper.config().protocol))
-                     for s in GRID})
-        fams.append(reference_families(vp, refs[-1]))
     print(f"{n_participants} musculoskeletal participants (population seed 7); reference: "
           "each one's best second-order description of the paper's trial; families "
-          f"(Kp, wn, zeta) by AICc on it: {fams}")
-    for label, scatter in (("with physiological scatter 10/5/5 %", dict(DEFAULT_SCATTER)),
-                           ("without scatter (sensor noise only)", None)):
+          f"(Kp, wn, zeta) by AICc on it: {[p['family'] for p in people]}")
+    for i, (label, _) in enumerate(SCENARIOS):
         print(f"\n1. population proposal, {label}")
         print(f"  {'protocol':22s} {'stim s':>6s}  {'level RMS % (Kp, wn, zeta)':27s} "
               f"{'curve RMS % (Kp, wn, zeta)':27s} {'curve ratio to paper':22s} selection")
-        rows = {}
-        for cand in (paper, PAPER_SHORT_LEADIN, POPULATION_PROPOSAL):
-            rows[cand.label] = [errors(vp, cand, scatter, 11 + k, refs[k], fams[k])
-                                for k, vp in enumerate(people)]
+        rows = {cand.label: [p["scenarios"][i]["part1"][cand.label] for p in people]
+                for cand in (paper, PAPER_SHORT_LEADIN, POPULATION_PROPOSAL)}
         base = rms(rows["paper"], "curve")
         for cand in (paper, PAPER_SHORT_LEADIN, POPULATION_PROPOSAL):
             r = rows[cand.label]
@@ -148,21 +197,21 @@ def main(n_participants: int = 4) -> None:
                   f"{np.round(rms(r, 'level'), 3).tolist()!s:27s} "
                   f"{np.round(rms(r, 'curve'), 3).tolist()!s:27s} "
                   f"{np.round(rms(r, 'curve') / base, 3).tolist()!s:22s} {selection(r):.3f}")
-        print(f"\n2. the lab's flow (first session 5 x 2 -> design -> run), {label}")
+        print(f"\n2. the lab's flow (first session 5 x 2 -> design -> run), {label}; the "
+              "protocols run with part 1's draws (a protocol already run there is reused)")
         print(f"  {'participant':11s} {'scatter measured':22s} {'fit %':>6s} "
               f"{'proposal':30s} {'stim s':>6s}")
-        prop_rows, paper_rows = [], []
-        for k, vp in enumerate(people):
-            prop, measured, adequacy = lab_design(vp, scatter, 500 + k)
-            prop = Candidate(**{**prop.__dict__, "label": "lab"})
-            prop_rows.append(errors(vp, prop, scatter, 21 + k, refs[k], fams[k]))
-            paper_rows.append(errors(vp, paper, scatter, 21 + k, refs[k], fams[k]))
+        for p in people:
+            sc = p["scenarios"][i]
+            prop, measured = sc["proposal"], sc["measured"]
             m = [round(measured[n], 3) for n in PARAMETERS]
             what = (f"{len(prop.sE_levels)} lv x{prop.repeats}, {prop.steady_s:g}+"
                     f"{prop.chirp_s:g} s {prop.input_kind} {prop.chirp_f0_Hz:g}-"
                     f"{prop.chirp_f1_Hz:g} Hz")
-            print(f"  {vp.code:11s} {m!s:22s} {adequacy.median_fit_pct:6.1f} {what:30s} "
+            print(f"  {p['code']:11s} {m!s:22s} {sc['fit_pct']:6.1f} {what:30s} "
                   f"{prop.stimulation_s:6.0f}")
+        prop_rows = [p["scenarios"][i]["lab"] for p in people]
+        paper_rows = [p["scenarios"][i]["paper"] for p in people]
         a, b = rms(prop_rows, "curve"), rms(paper_rows, "curve")
         la, lb = rms(prop_rows, "level"), rms(paper_rows, "level")
         print(f"  level RMS %: designed {np.round(la, 3).tolist()} vs paper "
@@ -170,7 +219,8 @@ def main(n_participants: int = 4) -> None:
         print(f"  curve RMS %: designed {np.round(a, 3).tolist()} vs paper "
               f"{np.round(b, 3).tolist()}, ratio {np.round(a / b, 3).tolist()}; selection "
               f"{selection(prop_rows):.3f} vs {selection(paper_rows):.3f}")
-    print(f"\n({time.perf_counter() - t0:.0f} s)")
+    print(f"\n({time.perf_counter() - t0:.0f} s, {jobs} worker process(es); "
+          f"{sum(p['runs'] for p in people)} protocol runs simulated and identified)")
 
 
 if __name__ == "__main__":

@@ -95,7 +95,8 @@ def main() -> None:
               f"{figure(text, 'charge balance', r'worst net ([0-9.]+) nC'):10.3f} {wall:6.1f}")
     print(f"worst |onset| with the scan delay added back: {worst_onset * 1e3:.1f} us; "
           f"without adding it back: {worst_plain * 1e3:.1f} us "
-          f"(ratio {worst_plain / max(worst_onset, 1e-9):.1f}x; limit 100 us)")
+          f"(ratio {worst_plain / max(worst_onset, 1e-9):.1f}x; limit 100 us: "
+          f"{'met' if worst_onset * 1e3 <= 100 else 'missed'})")
     print()
     faults = [("1.5 kOhm fitted, 1 kOhm declared", dict(ohm=1500.0), "amplitude"),
               ("resistor on the other STG channel", dict(wired=1), "amplitude")]
@@ -106,7 +107,8 @@ def main() -> None:
         caught += (not ok) and check in failed
         print(f"fault: {label:36} verdict {'OK' if ok else 'FAIL'}; failed checks: "
               f"{', '.join(failed) or 'none'}")
-    print(f"wiring faults caught: {caught}/{len(faults)}")
+    print(f"wiring faults caught: {caught}/{len(faults)} "
+          f"({'met' if caught == len(faults) else 'missed'}: every one)")
 
 
 if __name__ == "__main__":

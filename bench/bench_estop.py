@@ -1,7 +1,9 @@
 """E-stop latency on the real-time clock: from the E-stop to the stimulator's output at zero.
 
 A real-time simulated rig runs a long schedule of short trials; while a trial stimulates,
-another thread presses the E-stop at a random moment and records ``perf_counter()`` just
+another thread presses the E-stop at a random moment (10-130 ms into the trial: every
+phase of the simulated acquisition's 0.1 s chunks, without the idle waits of the
+20-300 ms range of earlier runs, 85 s of the whole run) and records ``perf_counter()`` just
 before the call; the simulated stimulator records the instant its output went to zero
 (``SimRig.output_zero_events``). An operator thread re-arms after each trip. Two sources:
 
@@ -62,7 +64,7 @@ def _measure(n_trips: int, source: str, seed: int = 1) -> np.ndarray:
             if not stimulating.wait(1.0):
                 continue
             stimulating.clear()
-            time.sleep(rng.uniform(0.02, 0.3))
+            time.sleep(rng.uniform(0.01, 0.13))  # a random phase over > 1 chunk (0.1 s)
             if eng.state is not State.STIMULATING:
                 continue
             calls.append(time.perf_counter())
@@ -93,15 +95,21 @@ def main(n_trips: int = 200) -> None:
     logging.disable(logging.WARNING)
     print(f"E-stop -> stimulator output zero, real-time simulated rig, {n_trips} trips each")
     print(f"{'source':34s} {'n':>5s} {'p50 ms':>8s} {'p99 ms':>8s} {'max ms':>8s} "
-          f"{'goal':>8s}")
+          f"{'goal p99':>9s}")
+    p99s = {}
     for source, label in (("estop()", "engine.estop() from another thread"),
                           ("switch", "hardware switch (1 kHz watcher)")):
         lat = _measure(n_trips, source)
         p50, p99, mx = (np.percentile(lat, 50), np.percentile(lat, 99), lat.max()) \
             if lat.size else (float("nan"),) * 3
-        goal = "< 10" if source == "estop()" else "-"
-        print(f"{label:34s} {lat.size:5d} {p50:8.3f} {p99:8.3f} {mx:8.3f} {goal:>8s}",
+        p99s[source] = p99
+        goal = "-"
+        if source == "estop()":
+            goal = "< 10: " + ("met" if p99 < 10.0 and lat.size >= n_trips // 2 else "missed")
+        print(f"{label:34s} {lat.size:5d} {p50:8.3f} {p99:8.3f} {mx:8.3f} {goal}",
               flush=True)
+    print(f"the switch's p99 is x{p99s['switch'] / max(p99s['estop()'], 1e-9):.0f} "
+          "engine.estop()'s (the 1 kHz watcher's poll against a direct call, same run)")
 
 
 if __name__ == "__main__":

@@ -15,8 +15,8 @@ deleted); then ``nmsid recover`` and ``nmsid run --resume`` run to the end. Coun
 
 Target: every intact completed trial kept, none stimulated twice, 0 tracebacks.
 
-    python bench/bench_recovery_campaign.py          # 30 runs
-    python bench/bench_recovery_campaign.py --runs 5
+    python bench/bench_recovery_campaign.py          # 30 runs, 2 campaigns side by side
+    python bench/bench_recovery_campaign.py --runs 5 --jobs 1
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -205,12 +206,23 @@ def campaign(n_runs: int, folder: Path, seed: int = 26, **kw) -> list[RunResult]
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     n_runs = int(argv[argv.index("--runs") + 1]) if "--runs" in argv else 30
+    jobs = max(1, int(argv[argv.index("--jobs") + 1]) if "--jobs" in argv else 2)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(dir=os.environ.get("BENCH_TMP")) as tmp:
-        results = campaign(n_runs, Path(tmp))
+        # ``jobs`` campaigns side by side (threads: the work is in the nmsid processes
+        # each starts), each with its own folder and seed, n_runs between them
+        shares = [n_runs // jobs + (i < n_runs % jobs) for i in range(jobs)]
+        folders = [Path(tmp) / f"campaign{i}" for i in range(jobs)]
+        for f in folders:
+            f.mkdir()
+        with ThreadPoolExecutor(jobs) as ex:
+            parts = list(ex.map(lambda i: campaign(shares[i], folders[i], seed=26 + i),
+                                range(jobs)))
+        results = [r for part in parts for r in part]
     print(f"bench_recovery_campaign: {len(results)} runs, {sum(map(damaged, results))} of "
           f"them killed with a journal to damage (SIGKILL at a random moment of a "
-          f"6-trial fast-clock sim session, one damage, recover, run --resume), "
+          f"6-trial fast-clock sim session, one damage, recover, run --resume; {jobs} "
+          f"campaign(s) side by side, seeds {26}-{26 + jobs - 1}), "
           f"{time.perf_counter() - t0:.0f} s")
     for k, r in enumerate(results):
         print(f"  run {k:2d}: {r.damage:36s} completed "

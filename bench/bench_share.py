@@ -9,8 +9,9 @@
    before the counts), and with gzip + integer counts for the optional signals on an
    exact grid (the default; levels 1 and 9 for the level choice): file size, write time
    (one open/close per trial, as the rig writes), the time to read all force data
-   (``read_session(datasets=("force_N",))``, best of 5, each read paired with one of the
-   old file so that the ratio sees the same machine load) and all datasets; every file
+   (``read_session(datasets=("force_N",))``, best of 3, each read paired with one of the
+   old file so that the ratio sees the same machine load; best of 5 before, ~30 s more of
+   the whole run) and all datasets; every file
    checked bit for bit against its recording. Ratios ("vs old") are against the old
    file: the float chain's recording, float64 everywhere, no filters (114.1 MB).
 2. The default file exported to NWB: time, size, nwbinspector's findings.
@@ -90,10 +91,10 @@ ROWS = (("old: plain float64", None, False), ("gzip 4, floats", 4, False),
 
 
 def paired(path: Path, old: Path, datasets) -> tuple[float, float]:
-    """Best-of-5 read time of ``path`` and its ratio to the old file's, the two read
+    """Best-of-3 read time of ``path`` and its ratio to the old file's, the two read
     alternately (the machine is shared: load changes between rows, not within a pair)."""
     t_new, t_old = [], []
-    for _ in range(5):
+    for _ in range(3):
         for p, out in ((path, t_new), (old, t_old)):
             t0 = time.perf_counter()
             read_session(p, datasets=datasets)

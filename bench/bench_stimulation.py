@@ -90,7 +90,8 @@ def main() -> None:
     tn, to = min(t_new), min(t_old)
     rows = [
         ("worst net charge per carrier period", f"{new_per:.3f} nC",
-         f"old renderer {old_per:.1f} nC (15 levels x 2 channels, cal 2,16,1.5,16 mA)"),
+         f"old renderer {old_per:.1f} nC (15 levels x 2 channels, cal 2,16,1.5,16 mA); "
+         f"target <= 1 nC: {'met' if new_per <= 1.0 else 'missed'}"),
         ("worst net charge per 15 s trial", f"{new_trial:.4f} uC",
          f"old renderer {old_trial:.3f} uC"),
         ("render + checks, one 15 s trial, 2 channels", f"{tn * 1e3:.0f} ms",
