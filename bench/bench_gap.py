@@ -235,8 +235,7 @@ def run_case(args) -> dict:
     t0 = time.perf_counter()
     diag = diagnose(load_session(path))
     found = _found(diag)
-    params = final_params(diag) if diag.best is not None else {}
-    params.pop("_curve", None)
+    params = final_params(diag).to_dict() if diag.best is not None else {}
     t_gap = time.perf_counter() - t0
     out = {"class": cls, "seed": seed, "found": found, "effect": effect, "t_gap_s": t_gap,
            "t_sim_s": t_sim, "nominal_pct": diag.nominal.heldout_nrmse_pct,
