@@ -78,9 +78,9 @@ def _twin_predictions(data: GapData, twin, session: Session | None = None) -> np
     simulator's virtual participant with an ideal sensor, in file order (aborted trials
     too: they count for fatigue)."""
     # only with --twin: the simulator (and scipy.signal with it) stays out of the others
-    from nmsid.sim_backends.sensor import SensorModel
-    from nmsid.sim_backends.simulation import ParticipantSimulator
-    from nmsid.sim_backends.twin import participant_from_twin
+    from nmsid.sim_backends.sensor import SensorModel  # lazy, see above
+    from nmsid.sim_backends.simulation import ParticipantSimulator  # lazy, see above
+    from nmsid.sim_backends.twin import participant_from_twin  # lazy, see above
     try:
         participant = participant_from_twin(str(twin), sensor=SensorModel.ideal(),
                                             snap_calibration=False)
