@@ -24,7 +24,6 @@ the generator's.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import tempfile
@@ -38,21 +37,11 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
+from rates import wilson  # noqa: E402
 from trial_sessions import TrialPhysiology, write_session  # noqa: E402
 
 FAMILIES = ("scatter", "dead_time", "activation_dynamics")
 CV = (0.10, 0.05, 0.05)
-
-
-def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """Wilson score interval of a proportion k / n, percent."""
-    if n == 0:
-        return float("nan"), float("nan")
-    p = k / n
-    den = 1 + z * z / n
-    c = (p + z * z / (2 * n)) / den
-    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    return 100 * max(0.0, c - h), 100 * min(1.0, c + h)
 
 
 def phys_for(family: str, seed: int) -> TrialPhysiology:

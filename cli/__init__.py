@@ -60,9 +60,10 @@ COMMAND_OF = {
 #: Commands whose linear algebra is many small solves (a few dozen columns): BLAS worker
 #: threads cost them more in start-up and hand-over than they gain, and on a loaded
 #: machine much more (``nmsid identify`` of a 45-trial session on 2 busy cores: 5.9-8.3 s of
-#: CPU with OpenBLAS's default threads, 1.3-1.5 s with one). They start single-threaded unless
-#: the user set a thread count.
-SINGLE_THREAD_COMMANDS = frozenset({"identify", "qc"})
+#: CPU with OpenBLAS's default threads, 1.3-1.5 s with one; ``nmsid gap`` of a template
+#: session 13.3 s against 4.4 s, docs/gap.md). They start single-threaded unless the user set
+#: a thread count.
+SINGLE_THREAD_COMMANDS = frozenset({"identify", "qc", "gap"})
 #: The thread-count variables of the BLAS builds numpy ships with (OpenBLAS) or may be
 #: built against (MKL, OpenMP); read when numpy is first imported.
 BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS")

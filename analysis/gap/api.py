@@ -33,9 +33,6 @@ from nmsid.analysis.gap.report import json_safe, write_outputs
 from nmsid.analysis.qc import assess_session
 from nmsid.protocols.session_file import Session, read_session
 from nmsid.protocols.waveforms import currents_mA
-from nmsid.sim_backends.sensor import SensorModel
-from nmsid.sim_backends.simulation import ParticipantSimulator
-from nmsid.sim_backends.twin import participant_from_twin
 
 log = logging.getLogger(__name__)
 
@@ -80,6 +77,10 @@ def _twin_predictions(data: GapData, twin, session: Session | None = None) -> np
     """Every trial's commanded rE and sE run through the twin (effects included) on the
     simulator's virtual participant with an ideal sensor, in file order (aborted trials
     too: they count for fatigue)."""
+    # only with --twin: the simulator (and scipy.signal with it) stays out of the others
+    from nmsid.sim_backends.sensor import SensorModel  # lazy, see above
+    from nmsid.sim_backends.simulation import ParticipantSimulator  # lazy, see above
+    from nmsid.sim_backends.twin import participant_from_twin  # lazy, see above
     try:
         participant = participant_from_twin(str(twin), sensor=SensorModel.ideal(),
                                             snap_calibration=False)
@@ -118,7 +119,8 @@ def _under_test(diag: Diagnosis, pred: np.ndarray, label: str) -> dict:
     diag.tested = np.ones(d.n_trials, dtype=bool)
     try:
         out = {"source": label, "nrmse_pct": res.heldout_nrmse_pct,
-               "localization": by_location(diag, res), "frequency": frequency_view(diag, res)}
+               "localization": by_location(diag, res).to_dict(),
+               "frequency": frequency_view(diag, res).to_dict()}
     finally:
         diag.tested = saved
     return out

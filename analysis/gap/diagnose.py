@@ -235,20 +235,22 @@ class _Runner:
         out = []
         d = self.data
         for tr, nom in zip(self.train, nominal_fits):
-            r_nom, _, _ = predict(nom, tr)
             best, best_ic = nom, 0.0
+            first: ModelFit | None = None
             for fc in self.s.drift_corners_Hz:
                 # the baseline is nearly orthogonal to the 1-10 Hz response: a few
                 # iterations from the nominal fit settle the dynamics
                 fit = fit_model(tr, cand, start=nom, corner_Hz=fc, max_iter=4)
+                first = first or fit
                 nu = self.nu
                 k = n_drift_columns(d.t_eval_s, fc) * tr.n_trials + 2 * fit.n_steps
                 ic = nu * fit.n_samples * np.log(fit.rss / nom.rss) + 2 * k
                 if ic < best_ic:
                     best, best_ic = fit, ic
-            if best is nom:  # nothing better: the smallest bandwidth (scored as is)
-                best = fit_model(tr, cand, start=nom,
-                                 corner_Hz=self.s.drift_corners_Hz[0], max_iter=4)
+            if best is nom and first is not None:
+                # nothing better: the smallest bandwidth (scored as is), the fit just made
+                # with the same start and settings
+                best = first
             out.append(best)
         return out
 

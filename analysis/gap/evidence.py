@@ -18,7 +18,9 @@ the signatures say *why* and let a reader check it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 
@@ -38,12 +40,62 @@ CONFUSABLE = (
 )
 
 
-def phase_shape(freq: dict) -> dict:
+@dataclass(frozen=True)
+class PhaseShape:
+    """A transfer-function error read as a dead time and as a first-order lag
+    (:func:`phase_shape`).
+
+    Attributes
+    ----------
+    dead_time_equivalent_s : float
+        ``L`` of the least-squares line ``-360 f L`` (degrees) through the phase error.
+    r2_linear_phase : float
+        Share of the phase error's variance that line explains.
+    lag_equivalent_s : float
+        ``tau`` of the best arctangent ``-atan(2 pi f tau)`` (grid 0.1 ms - 0.3 s).
+    r2_atan_phase : float
+        Share of the variance the arctangent explains.
+    gain_error_at_top_dB : float or None
+        Gain error in the last window (None: no window).
+    gain_rolloff_expected_for_lag_dB : float or None
+        What that lag would make of it: ``-10 log10(1 + (2 pi f tau)^2)``.
+    max_abs_phase_error_deg : float or None
+    """
+
+    dead_time_equivalent_s: float
+    r2_linear_phase: float
+    lag_equivalent_s: float
+    r2_atan_phase: float
+    gain_error_at_top_dB: float | None
+    gain_rolloff_expected_for_lag_dB: float | None
+    max_abs_phase_error_deg: float | None
+
+    def to_dict(self) -> dict:
+        """The report's form (``evidence.signatures.transfer_function``)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def _view(freq: Any, key: str) -> np.ndarray:
+    return np.asarray(freq[key] if isinstance(freq, Mapping) else getattr(freq, key), float)
+
+
+def phase_shape(freq: Any) -> PhaseShape:
     """Fit the nominal model's phase error with a dead time (line through the origin)
-    and with a first-order lag (arctangent plus its gain roll-off)."""
-    f = np.asarray(freq["f_Hz"])
-    ph = np.asarray(freq["phase_error_deg"])
-    g = np.asarray(freq["gain_error_dB"])
+    and with a first-order lag (arctangent plus its gain roll-off).
+
+    Parameters
+    ----------
+    freq : FrequencyView or mapping
+        ``f_Hz``, ``phase_error_deg`` and ``gain_error_dB`` (attributes of a
+        :class:`~nmsid.analysis.gap.localize.FrequencyView`, or keys of a mapping).
+
+    Returns
+    -------
+    PhaseShape
+    """
+    f = _view(freq, "f_Hz")
+    ph = _view(freq, "phase_error_deg")
+    g = _view(freq, "gain_error_dB")
     tot = float(np.sum((ph - ph.mean()) ** 2)) or 1e-12
     L = float(-(f @ ph) / (360.0 * (f @ f)))
     r2_lin = 1 - float(np.sum((ph + 360 * f * L) ** 2)) / tot
@@ -52,11 +104,12 @@ def phase_shape(freq: dict) -> dict:
     tau = float(taus[int(np.argmin(costs))])
     r2_atan = 1 - float(min(costs)) / tot
     g_lag = -10 * np.log10(1 + (2 * np.pi * f * tau) ** 2)
-    return {"dead_time_equivalent_s": L, "r2_linear_phase": r2_lin,
-            "lag_equivalent_s": tau, "r2_atan_phase": r2_atan,
-            "gain_error_at_top_dB": float(g[-1]) if len(g) else None,
-            "gain_rolloff_expected_for_lag_dB": float(g_lag[-1]) if len(g_lag) else None,
-            "max_abs_phase_error_deg": float(np.max(np.abs(ph))) if len(ph) else None}
+    return PhaseShape(dead_time_equivalent_s=L, r2_linear_phase=r2_lin,
+                      lag_equivalent_s=tau, r2_atan_phase=r2_atan,
+                      gain_error_at_top_dB=float(g[-1]) if len(g) else None,
+                      gain_rolloff_expected_for_lag_dB=float(g_lag[-1]) if len(g_lag)
+                      else None,
+                      max_abs_phase_error_deg=float(np.max(np.abs(ph))) if len(ph) else None)
 
 
 def effect_footprint(diag: Diagnosis) -> dict | None:
@@ -80,7 +133,7 @@ def effect_footprint(diag: Diagnosis) -> dict | None:
             "gain_error_dB": np.median(20 * np.log10(np.abs(ratio)), axis=0).tolist(),
             "phase_error_deg": np.degrees(np.angle(np.median(ratio / np.abs(ratio), axis=0))
                                           ).tolist()}
-    view.update(phase_shape(view))
+    view.update(phase_shape(view).to_dict())
     return view
 
 
@@ -91,7 +144,8 @@ class Signatures:
     Attributes
     ----------
     transfer_function : dict
-        :func:`phase_shape` of the nominal model's gain and phase errors.
+        :func:`phase_shape` of the nominal model's gain and phase errors (its
+        :meth:`PhaseShape.to_dict`).
     effect_footprint : dict or None
         :func:`effect_footprint` of the winner (None: no winner).
     gain_vs_stimulation : dict
@@ -126,20 +180,20 @@ def signatures(diag: Diagnosis, loc: Localization) -> Signatures:
     """Every signature, from the nominal model's held-out residual (and the winner's
     footprint)."""
     fn = loc.frequency["nominal"]
-    h = fn["residual_harmonic_pct"]
+    h = fn.residual_harmonic_pct
     gs = loc.gain_vs_stimulation
     sp = loc.spectrum["nominal"]
     return Signatures(
-        transfer_function=phase_shape(fn),
+        transfer_function=phase_shape(fn).to_dict(),
         effect_footprint=effect_footprint(diag),
         gain_vs_stimulation={"slope_per_100s": gs["slope_per_100s"],
                              "correlation": gs["correlation"]},
         harmonics={"median_2f_pct": float(np.median(h["2f"])),
                    "median_3f_pct": float(np.median(h["3f"])),
                    "median_1.5f_noise_reference_pct": float(np.median(h["1.5f"]))},
-        low_frequency={"share_below_chirp": sp["low_share"],
-                       "share_if_white": sp["low_share_if_white"],
-                       "excess": sp["low_excess"]})
+        low_frequency={"share_below_chirp": sp.low_share,
+                       "share_if_white": sp.low_share_if_white,
+                       "excess": sp.low_excess})
 
 
 def explain(diag: Diagnosis, sig: Signatures) -> list[str]:

@@ -71,6 +71,10 @@ class Problem:
         lev = data.level
         self.levels = np.unique(lev)
         self.rows = [np.flatnonzero(lev == j) for j in self.levels]
+        self.row_level = np.searchsorted(self.levels, lev)
+        """Row -> index into ``self.levels``."""
+        self._drive_key: bytes | None = None
+        self._drive: np.ndarray | None = None
         self.steps: dict[int, np.ndarray] = {}
         """Row -> unit step column (orthogonal to ``Q``) projected out of that row."""
         self.yp = self.project(data.y_N)
@@ -94,7 +98,7 @@ class Problem:
         """(n_trials, n_eval) unit-gain response, gain factor applied. ``wn``/``zeta`` are
         indexed like ``self.levels``."""
         d = self.data
-        u = self.cand.drive(d, p) if drive is None else drive
+        u = self.drive(p) if drive is None else drive
         x = np.empty_like(d.y_N)
         i0, st = d.n_lead_sim, d.sim_step
         bs, as_ = self.cand.level_tfs(np.asarray(wn, float), np.asarray(zeta, float), p,
@@ -108,13 +112,20 @@ class Problem:
     def residual(self, wn, zeta, p, drive=None) -> tuple[np.ndarray, np.ndarray]:
         """Projected residual (n_trials, n_eval) and the closed-form ``Kp`` per level."""
         xp = self.project(self.unit_response(wn, zeta, p, drive))
-        r = np.empty_like(xp)
-        Kp = np.zeros(len(self.levels))
-        for k, rows in enumerate(self.rows):
-            den = float(np.sum(xp[rows] ** 2))
-            Kp[k] = float(np.sum(xp[rows] * self.yp[rows])) / den if den > 0 else 0.0
-            r[rows] = self.yp[rows] - Kp[k] * xp[rows]
-        return r, Kp
+        n = len(self.levels)
+        den = np.bincount(self.row_level, np.einsum("ij,ij->i", xp, xp), minlength=n)
+        num = np.bincount(self.row_level, np.einsum("ij,ij->i", xp, self.yp), minlength=n)
+        Kp = np.divide(num, den, out=np.zeros(n), where=den > 0)
+        return self.yp - Kp[self.row_level][:, None] * xp, Kp
+
+    def drive(self, p: np.ndarray) -> np.ndarray:
+        """The candidate's drive for ``p``, kept for the latest ``p``: the per-level
+        perturbations of a Jacobian (``wn``, ``zeta``) reuse it unchanged."""
+        key = np.asarray(p, float).tobytes()
+        if key != self._drive_key or self._drive is None:
+            self._drive = self.cand.drive(self.data, p)
+            self._drive_key = key
+        return self._drive
 
 
 #: A step is accepted when its least-squares amplitude is this many standard errors from
@@ -274,15 +285,22 @@ def _normal_equations(fun, x, r0, rows, nL, ns):
         xs = x.copy()
         xs[2 * nL + m] += _FD_STEP
         S.append((fun(xs) - r0) / _FD_STEP)
+    # every product is a per-row sum first, then summed per level (levels own rows)
+    row_level = np.empty(r0.shape[0], dtype=int)
     for k, rws in enumerate(rows):
-        idx = (k, nL + k)
-        Dk = [D[0][rws], D[1][rws]]
-        for a in range(2):
-            g[idx[a]] = np.sum(Dk[a] * r0[rws])
-            for b in range(a, 2):
-                H[idx[a], idx[b]] = H[idx[b], idx[a]] = np.sum(Dk[a] * Dk[b])
-            for m in range(ns):
-                H[idx[a], 2 * nL + m] = H[2 * nL + m, idx[a]] = np.sum(Dk[a] * S[m][rws])
+        row_level[rws] = k
+
+    def per_level(u, v):
+        return np.bincount(row_level, np.einsum("ij,ij->i", u, v), minlength=nL)
+
+    for a in range(2):
+        sa = slice(a * nL, (a + 1) * nL)
+        g[sa] = per_level(D[a], r0)
+        for b in range(a, 2):
+            sb = slice(b * nL, (b + 1) * nL)
+            H[sa, sb] = H[sb, sa] = np.diag(per_level(D[a], D[b]))
+        for m in range(ns):
+            H[sa, 2 * nL + m] = H[2 * nL + m, sa] = per_level(D[a], S[m])
     for m in range(ns):
         g[2 * nL + m] = np.sum(S[m] * r0)
         for m2 in range(m, ns):

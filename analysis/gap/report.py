@@ -71,9 +71,50 @@ def _drift_amplitude(diag: Diagnosis) -> tuple[float, float]:
     return rms, rms / math.sqrt(frac)
 
 
-def final_params(diag: Diagnosis) -> dict:
+@dataclass(frozen=True)
+class FinalParams:
+    """The final (all-trial) fit's effect parameters (:func:`final_params`).
+
+    Attributes
+    ----------
+    values : dict of str to float
+        Our parameters by name (e.g. ``L_s``, ``tau_s``, ``rate_per_s``, ``wn_ratio``,
+        ``corner_Hz``), ``input_timing_s`` (the session's estimate plus the model's
+        correction), and the derived figures of each effect (loss %, nonlinearity index,
+        canonical asymmetry, drift amplitude): ``gap_report.json``'s ``best_params``.
+    curve : callable or None
+        The fitted recruitment curve ``h(I)`` when the model has a recruitment effect
+        (what the twin's recruitment entry is projected from), else None.
+    """
+
+    values: dict[str, Any]
+    curve: Any = None
+
+    def to_dict(self) -> dict:
+        """The report's form (``best_params``): :attr:`values`."""
+        return dict(self.values)
+
+    def for_twin(self) -> dict:
+        """:attr:`values` with the curve under ``_curve``, as the effect forms'
+        ``twin_params`` read them (``analysis.gap.models``)."""
+        out = dict(self.values)
+        if self.curve is not None:
+            out["_curve"] = self.curve
+        return out
+
+
+def final_params(diag: Diagnosis) -> FinalParams:
     """The final (all-trial) fit's effect parameters, in our terms plus derived figures
-    (loss %, nonlinearity index, canonical asymmetry, drift amplitude)."""
+    (loss %, nonlinearity index, canonical asymmetry, drift amplitude).
+
+    Parameters
+    ----------
+    diag : Diagnosis
+
+    Returns
+    -------
+    FinalParams
+    """
     fit = diag.full_fit
     p = dict(fit.params)
     effs = fit.candidate.effects
@@ -83,7 +124,8 @@ def final_params(diag: Diagnosis) -> dict:
         FORMS[e].final(p, FinalContext(q=fit.candidate.sub(fit.p_shared, e),
                                        sE_levels=diag.data.sE_levels,
                                        drift_amplitude=lambda: _drift_amplitude(diag)))
-    return p
+    curve = p.pop("_curve", None)
+    return FinalParams(values=p, curve=curve)
 
 
 def _level_params(diag: Diagnosis):
@@ -157,23 +199,22 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
         loc.frequency["footprint"] = {k: sig.effect_footprint[k] for k in
                                          ("f_Hz", "gain_error_dB", "phase_error_deg")}
     final = diag.best_pair or diag.best
-    fp = final_params(diag)
+    fparams = final_params(diag)
+    fp = fparams.to_dict()
     nom = diag.nominal
     aug_pct = final.heldout_nrmse_pct if final else nom.heldout_nrmse_pct
     twin = None
-    if calibration is None:
-        fp.pop("_curve", None)
-    else:
+    if calibration is not None:
         Kp, wn, zeta = _level_params(diag)
-        effects = effect_entries(fp, diag.full_fit.candidate.effects, diag.data.sE_levels) \
-            if final else []
-        fp.pop("_curve", None)
+        effects = effect_entries(fparams.for_twin(), diag.full_fit.candidate.effects,
+                                 diag.data.sE_levels) if final else []
         twin = twin_dict(participant=diag.data.participant or "unknown",
                          source=[source_entry(diag.data.path)], calibration=calibration,
                          sE_levels=diag.data.sE_levels, Kp=Kp, wn_rad_s=wn, zeta=zeta,
                          effects=effects)
     in_aug = final.insample_nrmse_pct if final else nom.insample_nrmse_pct
     a = diag.assessment
+    loc_dict = loc.to_dict()
     report: dict[str, Any] = {
         "format": "nmsid-gap-report", "format_version": 1,
         "session": diag.data.path, "participant": diag.data.participant,
@@ -203,11 +244,11 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
                     "excess_shrink_pct": _excess_shrink(diag, nom.heldout_nrmse_pct, aug_pct)},
         "insample": {"nominal_nrmse_pct": nom.insample_nrmse_pct,
                      "augmented_nrmse_pct": in_aug},
-        "localization": {k: v for k, v in loc.to_dict().items()
+        "localization": {k: v for k, v in loc_dict.items()
                          if k not in ("frequency", "spectrum")},
-        "frequency": loc.frequency,
+        "frequency": loc_dict["frequency"],
         "low_frequency": {k: {kk: vv for kk, vv in v.items() if kk not in ("f_Hz", "power")}
-                          for k, v in loc.spectrum.items()},
+                          for k, v in loc_dict["spectrum"].items()},
         "evidence": {"summary": explain(diag, sig), "signatures": sig.to_dict(),
                      "confusable_pairs": confusable_pairs(diag, sig)},
         "settings": {k: (list(v) if isinstance(v, tuple) else v)

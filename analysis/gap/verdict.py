@@ -58,6 +58,7 @@ Narrow-band components: :mod:`nmsid.analysis.gap.narrowband`.
 from __future__ import annotations
 
 import math
+from typing import Any
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -126,9 +127,9 @@ def gap_test(resid: np.ndarray, noise_N2: np.ndarray, reference: np.ndarray,
     True
     """
     ok = np.isfinite(noise_N2) & (noise_N2 > 0)
-    out = {"n_trials": int(ok.sum()), "significant": False, "beyond_noise_pct": None,
-           "beyond_noise_pct_typical": None, "median_ratio": None, "z": None,
-           "concentrated_in": []}
+    out: dict[str, Any] = {"n_trials": int(ok.sum()), "significant": False,
+                           "beyond_noise_pct": None, "beyond_noise_pct_typical": None,
+                           "median_ratio": None, "z": None, "concentrated_in": []}
     if ok.sum() < 3:
         out["note"] = "fewer than three trials with a measurable lead-in noise: not tested"
         return out
