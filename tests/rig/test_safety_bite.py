@@ -119,3 +119,41 @@ def test_stop_watcher_ends_the_switch_thread_and_a_restart_watches_again():
         time.sleep(0.005)
     lock.stop_watcher()
     assert lock.latched
+
+
+def test_the_estop_rules_status_says_whether_a_hardware_switch_is_watched():
+    """The operator's status panel tells a rig with a switch from one without, before any
+    trip and again after a re-arm."""
+
+    class Switch:
+        pressed = False
+
+        def is_pressed(self) -> bool:
+            return self.pressed
+
+        def close(self) -> None:
+            pass
+
+    bare = Interlock(InterlockConfig(), BlockingStim())
+    assert bare.status()["estop"] == (True, "ok (no hardware switch)")
+    sw = Switch()
+    wired = Interlock(InterlockConfig(), BlockingStim(), estop_input=sw)
+    assert wired.status()["estop"] == (True, "ok (switch released)")
+    sw.pressed = True
+    assert wired.check_switch(0.0) is not None
+    assert wired.status()["estop"][0] is False
+    sw.pressed = False
+    wired.rearm()
+    assert wired.status()["estop"] == (True, "ok (switch released)")
+
+
+def test_an_estop_is_logged_as_information_and_a_fault_trip_as_a_warning(caplog):
+    """The E-stop is the operator's own act (INFO); a fault is news (WARNING)."""
+    import logging  # noqa: PLC0415
+    with caplog.at_level(logging.INFO, logger="nmsid"):
+        Interlock(InterlockConfig(), BlockingStim()).estop("operator pressed E-stop")
+        Interlock(InterlockConfig(), BlockingStim()).trip("force_limit", "45 N > 40 N")
+    levels = {r.getMessage(): r.levelno for r in caplog.records
+              if r.getMessage().startswith("interlock tripped by")}
+    assert levels == {"interlock tripped by estop: operator pressed E-stop": logging.INFO,
+                      "interlock tripped by force_limit: 45 N > 40 N": logging.WARNING}
