@@ -115,3 +115,84 @@ def test_the_report_keeps_what_was_wrong_before_recovery(tmp_path):
     before = validate_session(path)
     rep = recover(path)
     assert before and rep.problems_before == before
+
+
+def test_the_damaged_file_is_kept_aside_on_a_volume_without_hard_links(tmp_path,
+                                                                       monkeypatch):
+    """FAT / exFAT (a USB stick) have no hard links: the damaged file is then renamed
+    aside, never lost."""
+    import errno  # noqa: PLC0415
+    path = _killed_session(tmp_path)
+    with open(path, "r+b") as fh:
+        fh.write(b"\0" * 64)
+    damaged = path.read_bytes()
+
+    def no_link(src, dst, *a, **kw):
+        raise OSError(errno.EPERM, "hard links not supported on this volume")
+    monkeypatch.setattr(os, "link", no_link)
+    rep = recover(path)
+    assert rep.action == "rebuilt" and rep.damaged_kept_at
+    with open(rep.damaged_kept_at, "rb") as fh:
+        assert fh.read() == damaged
+    assert len(read_session(path).trials) == 2
+
+
+def _twin_trials_session(tmp_path):
+    """Two trials whose samples are identical (a deterministic simulation) at two
+    schedule positions: they are two trials, not one recorded twice."""
+    path = tmp_path / "P02.h5"
+    log = SessionLog.create(path, participant="P02", config_json="{}", seed=3,
+                            backend="test", schedule_json="[]")
+    log.write_calibration(Calibration(1, 9, 1.5, 10))
+    for i in range(2):
+        t = _trial(0)
+        t.extra_attrs = {"schedule_index": i}
+        log.end_trial(t)
+    log.close()
+    return path
+
+
+def test_two_trials_with_the_same_samples_at_two_schedule_positions_are_both_kept(tmp_path):
+    path = _twin_trials_session(tmp_path)
+    with open(path, "r+b") as fh:
+        fh.write(b"\0" * 64)
+    rep = recover(path)
+    assert rep.action == "rebuilt" and rep.n_trials == 2
+    got = read_session(path).trials
+    assert [int(np.asarray(t.extra_attrs["schedule_index"])) for t in got] == [0, 1]
+
+
+def test_recovery_leaves_journal_entries_already_in_place_untouched(tmp_path):
+    """A rebuild from an intact journal rewrites no entry (no disk space, no time, no
+    window in which an entry is being replaced)."""
+    path = _killed_session(tmp_path, n_trials=3)
+    jdir = journal_dir(path)
+    before = {p.name: (os.stat(p).st_ino, os.stat(p).st_mtime_ns)
+              for p in sorted(jdir.glob("trial-*.npz"))}
+    with open(path, "r+b") as fh:
+        fh.write(b"\0" * 64)
+    assert recover(path).action == "rebuilt"
+    after = {p.name: (os.stat(p).st_ino, os.stat(p).st_mtime_ns)
+             for p in sorted(jdir.glob("trial-*.npz"))}
+    assert len(before) == 3 and after == before
+
+
+def test_a_rebuild_keeps_a_file_at_the_sessions_name_until_the_new_one_replaces_it(
+        tmp_path, monkeypatch):
+    """The damaged file is kept aside by a second name (a hard link), not moved: a kill
+    at any instant of the rebuild leaves a session file at its name, and the rebuilt
+    one takes the name in one atomic replace."""
+    path = _killed_session(tmp_path)
+    with open(path, "r+b") as fh:
+        fh.write(b"\0" * 64)
+    seen: list[bool] = []
+    real_replace = os.replace
+
+    def spy_replace(src, dst, *a, **kw):
+        if os.path.abspath(dst) == os.path.abspath(path):
+            seen.append(os.path.lexists(path))
+        return real_replace(src, dst, *a, **kw)
+    monkeypatch.setattr(os, "replace", spy_replace)
+    rep = recover(path)
+    assert rep.action == "rebuilt" and os.path.exists(rep.damaged_kept_at)
+    assert seen == [True]
