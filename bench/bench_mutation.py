@@ -122,6 +122,16 @@ NAMED: list[tuple[str, str, str, str]] = [
 #: why): not run, not counted. Where the equivalent line could go, it went instead (see
 #: the module's history); what is left here is kept for the reason given.
 EQUIVALENT: list[tuple[str, str, str, str, str]] = [
+    ("rig/safety.py", "__init__", "delete", "self.switch_pressed = False",
+     "EStopRule.switch_pressed is written in three places and read nowhere in the tree (the "
+     "status, the trip and the re-arm use the rule's ok / detail and the switch itself)"),
+    ("rig/safety.py", "check", "delete", "self.switch_pressed = True",
+     "EStopRule.switch_pressed is read nowhere (see above)"),
+    ("rig/safety.py", "check_switch", "delete", "self.estop_rule.switch_pressed = True",
+     "EStopRule.switch_pressed is read nowhere (see above)"),
+    ("drivers/stg_download.py", "save_stop_marks", "constant", "if P <= 0 or not len(",
+     "P <= 0 -> P <= 1: a one-tick period has only its first tick, which is never marked, "
+     "so skipping the channel marks the same nothing"),
 ]
 
 

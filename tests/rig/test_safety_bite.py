@@ -157,3 +157,33 @@ def test_an_estop_is_logged_as_information_and_a_fault_trip_as_a_warning(caplog)
               if r.getMessage().startswith("interlock tripped by")}
     assert levels == {"interlock tripped by estop: operator pressed E-stop": logging.INFO,
                       "interlock tripped by force_limit: 45 N > 40 N": logging.WARNING}
+
+
+def test_stop_watcher_gives_up_on_a_stuck_switch_read_after_a_second():
+    """A switch whose read hangs (a USB device gone mid-call) must not hang the session's
+    end: stop_watcher waits one second for the polling thread, then lets it go (a daemon
+    thread, ended with the process)."""
+    import time  # noqa: PLC0415
+
+    release = threading.Event()
+    reading = threading.Event()
+
+    class StuckSwitch:
+        def is_pressed(self) -> bool:
+            reading.set()
+            release.wait(5.0)
+            return False
+
+        def close(self) -> None:
+            pass
+
+    lock = Interlock(InterlockConfig(), BlockingStim(), estop_input=StuckSwitch())
+    lock.start_watcher()
+    try:
+        assert reading.wait(2.0)
+        t0 = time.perf_counter()
+        lock.stop_watcher()
+        took = time.perf_counter() - t0
+    finally:
+        release.set()
+    assert 0.9 < took < 1.8, took  # 2 s or more: waited too long
