@@ -68,3 +68,10 @@ def test_memory_figures_count_the_download_points():
     assert dl.sync_bytes == dl.sync.n_points * BYTES_PER_POINT > 0
     assert dl.channel_bytes() == {ch: r.n_points * BYTES_PER_POINT
                                   for ch, r in dl.channels.items()}
+
+
+@pytest.mark.parametrize("rate", [30_000.0, 3000.0, 49_999.0])
+def test_a_rate_inside_the_range_but_not_a_whole_microsecond_tick_is_refused(rate):
+    from nmsid.drivers.errors import StimulatorSettingError  # noqa: PLC0415
+    with pytest.raises(StimulatorSettingError, match="whole number of microseconds"):
+        check_output_rate(rate)

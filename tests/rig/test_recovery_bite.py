@@ -196,3 +196,34 @@ def test_a_rebuild_keeps_a_file_at_the_sessions_name_until_the_new_one_replaces_
     rep = recover(path)
     assert rep.action == "rebuilt" and os.path.exists(rep.damaged_kept_at)
     assert seen == [True]
+
+
+def test_the_summary_says_every_outcome_in_its_own_words():
+    """The operator reads recovery's one line: each outcome and each problem named,
+    singular and plural right (closed-form strings, no file needed)."""
+    from nmsid.rig.recovery import RecoveryReport  # noqa: PLC0415
+    assert RecoveryReport("s.h5", "no-calibration").summary() == (
+        "s.h5: the session ended before calibration finished; there is no data to recover "
+        "(resume it to start again)")
+    assert RecoveryReport("s.h5", "appended", n_trials=5, n_appended=2).summary() == (
+        "s.h5: 2 trial(s) missing from the file were appended; 5 trials in the file")
+    one = RecoveryReport("s.h5", "rebuilt", n_trials=3, partial_recovered=True,
+                         partial_samples=120, header_rebuilt="header.json rebuilt",
+                         unreadable=["trial-0002.npz (unreadable: x): kept from the file's t002"],
+                         deleted=["trial-0003.npz (deleted): lost"], lost=["trial-0003.npz"],
+                         conflicts=["trial-0001.npz and the file's t001 differ (both kept)"],
+                         orphans=["old.h5.journal has no session file"])
+    assert one.summary() == (
+        "s.h5: rebuilt from the journal; 3 trials in the file"
+        "; the trial in progress was kept as aborted (120 samples)"
+        "; header.json rebuilt"
+        "; 1 unreadable journal entry (kept aside as unreadable-<name>.at-<time>): "
+        "trial-0002.npz (unreadable: x): kept from the file's t002"
+        "; deleted journal entries: trial-0003.npz (deleted): lost"
+        "; 1 trial(s) lost (in no readable copy; `run --resume` runs them again)"
+        "; trial-0001.npz and the file's t001 differ (both kept)"
+        "; note: old.h5.journal has no session file")
+    two = RecoveryReport("s.h5", "rebuilt", n_trials=4, unreadable=["a", "b"])
+    assert two.summary() == ("s.h5: rebuilt from the journal; 4 trials in the file; 2 "
+                             "unreadable journal entries (kept aside as "
+                             "unreadable-<name>.at-<time>): a; b")

@@ -187,3 +187,29 @@ def test_stop_watcher_gives_up_on_a_stuck_switch_read_after_a_second():
     finally:
         release.set()
     assert 0.9 < took < 1.8, took  # 2 s or more: waited too long
+
+
+def test_the_watcher_does_not_trip_while_the_switch_is_released():
+    import time  # noqa: PLC0415
+
+    class Switch:
+        pressed = False
+        reads = 0
+
+        def is_pressed(self) -> bool:
+            self.reads += 1
+            return self.pressed
+
+        def close(self) -> None:
+            pass
+
+    sw = Switch()
+    lock = Interlock(InterlockConfig(), BlockingStim(), estop_input=sw)
+    lock.start_watcher()
+    try:
+        deadline = time.monotonic() + 2.0
+        while sw.reads < 5 and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert sw.reads >= 5 and not lock.latched
+    finally:
+        lock.stop_watcher()
