@@ -383,55 +383,71 @@ def main(argv: list[str] | None = None) -> None:
     rows = []
     survivors: list[Mutant] = []
     skipped: list[Mutant] = []
+    plan: dict[str, tuple[list[str], str, list[Mutant]]] = {}
     for module in args.modules:
         tests = [t for t in MODULES[module] if (ROOT / t).exists()]
         src, all_mutants = mutants(module)
+        plan[module] = tests, src, all_mutants
+
+    def clean_run(module: str) -> tuple[str, float]:
         # the baseline is the module as the mutants are built (ast.unparse, no change): a
         # mutant is only ever killed by its mutation, never by the rebuilding
-        clean, base_s = run_tests(module, ast.unparse(ast.parse(src)), tests, 600)
-        if clean != "passed":
-            print(f"{module}: the clean tests do not pass ({clean}); skipped")
-            continue
-        skipped += [m for m in all_mutants if m.equivalent]
-        live = [m for m in all_mutants if not m.equivalent]
-        named = [m for m in live if m.named]
-        rest = [m for m in live if not m.named]
-        if not args.all:
-            rest = random.Random(f"{args.seed}:{module}").sample(
-                rest, min(args.per_module, len(rest)))
-        chosen = sorted(named + rest, key=lambda m: m.index)
-        timeout_s = 3 * base_s + 20
+        tests, src, _ = plan[module]
+        return run_tests(module, ast.unparse(ast.parse(src)), tests, 600)
 
-        def one(m: Mutant, src=src, tests=tests, timeout_s=timeout_s, module=module):
-            try:
-                source = _mutated_source(src, m.index)
-            except Exception as exc:  # noqa: BLE001 - an unbuildable mutant is not counted
-                return m, f"not built: {exc}"
-            return m, run_tests(module, source, tests, timeout_s)[0]
+    def one(job: tuple[str, Mutant, float]) -> tuple[str, Mutant, str]:
+        module, m, timeout_s = job
+        tests, src, _ = plan[module]
+        try:
+            source = _mutated_source(src, m.index)
+        except Exception as exc:  # noqa: BLE001 - an unbuildable mutant is not counted
+            return module, m, f"not built: {exc}"
+        return module, m, run_tests(module, source, tests, timeout_s)[0]
 
-        killed = n = 0
-        with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-            for m, verdict in pool.map(one, chosen):
-                if verdict.startswith("not built"):
-                    print(f"  ({verdict}: {m.label()})")
-                    continue
-                n += 1
-                if verdict == "passed":
-                    survivors.append(m)
-                else:
-                    killed += 1
-                if m.named:
-                    print(f"  named: {m.label()}: "
-                          f"{'SURVIVED' if verdict == 'passed' else 'killed'} ({verdict})")
-        rows.append((module, len(all_mutants), n, killed, base_s, len(named)))
+    # every module's clean run, then every mutant of every module, ``--jobs`` at a time
+    with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        base = dict(zip(plan, pool.map(clean_run, plan)))
+        jobs: list[tuple[str, Mutant, float]] = []
+        n_named: dict[str, int] = {}
+        for module, (tests, src, all_mutants) in plan.items():
+            clean, base_s = base[module]
+            if clean != "passed":
+                print(f"{module}: the clean tests do not pass ({clean}); skipped")
+                continue
+            skipped += [m for m in all_mutants if m.equivalent]
+            live = [m for m in all_mutants if not m.equivalent]
+            named = [m for m in live if m.named]
+            rest = [m for m in live if not m.named]
+            if not args.all:
+                rest = random.Random(f"{args.seed}:{module}").sample(
+                    rest, min(args.per_module, len(rest)))
+            n_named[module] = len(named)
+            jobs += [(module, m, 3 * base_s + 20)
+                     for m in sorted(named + rest, key=lambda m: m.index)]
+        tally = {module: [0, 0] for module in n_named}  # run, killed
+        for module, m, verdict in pool.map(one, jobs):
+            if verdict.startswith("not built"):
+                print(f"  ({verdict}: {m.label()})")
+                continue
+            tally[module][0] += 1
+            if verdict == "passed":
+                survivors.append(m)
+            else:
+                tally[module][1] += 1
+            if m.named:
+                print(f"  named: {m.label()}: "
+                      f"{'SURVIVED' if verdict == 'passed' else 'killed'} ({verdict})")
+    for module, (n, killed) in tally.items():
+        rows.append((module, len(plan[module][2]), n, killed, base[module][1],
+                     n_named[module]))
     print(f"{'module':<30}{'sites':>6}{'run':>5}{'named':>6}{'survived':>14}"
           f"{'Wilson 95 %':>14}  target <= {TARGET_SURVIVAL:.0%} survive")
-    for module, n_all, n, killed, base_s, n_named in rows:
+    for module, n_all, n, killed, base_s, named_n in rows:
         k = n - killed
         rate = k / n if n else 0.0
         lo, hi = wilson_95(k, n)
         verdict = "met" if rate <= TARGET_SURVIVAL else "missed"
-        print(f"{module:<30}{n_all:>6}{n:>5}{n_named:>6}{f'{k}/{n} = {rate:.0%}':>14}"
+        print(f"{module:<30}{n_all:>6}{n:>5}{named_n:>6}{f'{k}/{n} = {rate:.0%}':>14}"
               f"{f'{lo:.0%}-{hi:.0%}':>14}  {verdict} (clean tests {base_s:.1f} s)")
     tot_n = sum(r[2] for r in rows)
     tot_k = tot_n - sum(r[3] for r in rows)
