@@ -75,3 +75,18 @@ def test_a_rate_inside_the_range_but_not_a_whole_microsecond_tick_is_refused(rat
     from nmsid.drivers.errors import StimulatorSettingError  # noqa: PLC0415
     with pytest.raises(StimulatorSettingError, match="whole number of microseconds"):
         check_output_rate(rate)
+
+
+def test_a_waveform_whose_ceiling_exceeds_the_rigs_is_refused_even_with_a_small_envelope():
+    """The waveform was checked against a ceiling the rig does not allow: refused as such,
+    whatever its envelope (McsUsbNet is never asked)."""
+    from nmsid.drivers.errors import DeviceRangeError  # noqa: PLC0415
+    from nmsid.drivers.interfaces import CheckedWaveform  # noqa: PLC0415
+    from nmsid.drivers.stg_download import ChannelPlan, prepare_download  # noqa: PLC0415
+    env = np.full(200, 2.0)
+    plans = (ChannelPlan(1, "extensor", 10.0, 16e6, 500.0),
+             ChannelPlan(2, "flexor", 10.0, 16e6, 500.0))
+    for ceilings in ((12.0, 10.0), (10.0, 12.0)):
+        wf = CheckedWaveform(env, env.copy(), 2000.0, 1000.0, *ceilings)
+        with pytest.raises(DeviceRangeError, match="exceeds the rig ceiling 10 mA"):
+            prepare_download(wf, *plans, sync_out=1, output_rate_Hz=50_000.0)

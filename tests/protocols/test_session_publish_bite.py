@@ -100,3 +100,14 @@ def test_a_temp_file_that_cannot_be_created_is_a_one_line_write_error(tmp_path, 
         pub.publish_image(tmp_path / "s.h5", IMAGE)
     monkeypatch.undo()
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_new_session_over_an_existing_file_is_refused_before_a_byte_is_written(
+        tmp_path, monkeypatch):
+    from nmsid.protocols.session_file import SessionExistsError  # noqa: PLC0415
+    path = tmp_path / "s.h5"
+    path.write_bytes(b"old")
+    opened = _spy_temp_fds(monkeypatch)
+    with pytest.raises(SessionExistsError):
+        pub.publish_image(path, IMAGE, exclusive=True)
+    assert opened == [] and path.read_bytes() == b"old"

@@ -69,3 +69,18 @@ def test_a_sound_stream_metadata_file_is_streamed_into(tmp_path):
 def test_a_torn_or_foreign_stream_metadata_file_is_not_streamed_into(tmp_path, text):
     jc = read_journal(_journal(tmp_path, text))
     assert jc.partial_meta is None and jc.partial_path is None
+
+
+def test_a_plain_entry_without_encodings_is_read_back(tmp_path):
+    """Entries written before the counts encoding (``np.savez`` of the arrays and the
+    metadata, no ``__enc__``) still read back, signal for signal."""
+    from nmsid.rig.journal import trial_meta  # noqa: PLC0415
+    t = _ad_trial()
+    entry = tmp_path / "trial-0001.npz"
+    np.savez(entry, __meta__=np.array(json.dumps(trial_meta(t))), rE=t.rE,
+             I_ext_mA=t.I_ext_mA, I_flex_mA=t.I_flex_mA, force_N=t.force_N, wrench=t.wrench,
+             sync=t.sync)
+    back = load_trial_npz(entry)
+    for k in ("rE", "I_ext_mA", "I_flex_mA", "force_N", "wrench", "sync"):
+        assert np.array_equal(getattr(back, k), getattr(t, k)), k
+    assert back.sE == t.sE and back.started_utc == t.started_utc
