@@ -132,6 +132,9 @@ EQUIVALENT: list[tuple[str, str, str, str, str]] = [
     ("drivers/stg_download.py", "save_stop_marks", "constant", "if P <= 0 or not len(",
      "P <= 0 -> P <= 1: a one-tick period has only its first tick, which is never marked, "
      "so skipping the channel marks the same nothing"),
+    ("drivers/stg_download.py", "save_stop_marks", "constant",
+     "np.where(mark, SYNC_SAVE_STOP, 0)",
+     "0 -> 1 on unmarked ticks: bit 0 (SYNC_HIGH) is already set on every tick of ``out``"),
 ]
 
 

@@ -90,3 +90,14 @@ def test_a_waveform_whose_ceiling_exceeds_the_rigs_is_refused_even_with_a_small_
         wf = CheckedWaveform(env, env.copy(), 2000.0, 1000.0, *ceilings)
         with pytest.raises(DeviceRangeError, match="exceeds the rig ceiling 10 mA"):
             prepare_download(wf, *plans, sync_out=1, output_rate_Hz=50_000.0)
+
+
+def test_an_envelope_exactly_at_the_ceiling_is_sent():
+    """The ceiling is the highest current allowed, not the first one refused."""
+    from nmsid.drivers.interfaces import CheckedWaveform  # noqa: PLC0415
+    from nmsid.drivers.stg_download import ChannelPlan, prepare_download  # noqa: PLC0415
+    env = np.r_[np.full(100, 10.0), np.zeros(100)]
+    plans = (ChannelPlan(1, "extensor", 10.0, 16e6, 500.0),
+             ChannelPlan(2, "flexor", 10.0, 16e6, 500.0))
+    wf = CheckedWaveform(env, env.copy(), 2000.0, 1000.0, 10.0, 10.0)
+    prepare_download(wf, *plans, sync_out=1, output_rate_Hz=50_000.0)
