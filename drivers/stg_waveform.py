@@ -116,9 +116,7 @@ def period_amplitudes_mA(envelope_mA, fs_Hz: float, output_rate_Hz: float,
     """
     env = np.asarray(envelope_mA, dtype=np.float64)
     n_out = int(round(len(env) / fs_Hz * output_rate_Hz))
-    n_periods = n_out // period_ticks
-    if n_periods == 0:
-        return np.zeros(0), n_out
+    n_periods = n_out // period_ticks  # 0 (shorter than a period): empty arrays throughout
     j = np.arange(n_periods * period_ticks, dtype=np.float64)
     k = np.minimum(np.floor(j * (fs_Hz / output_rate_Hz) + 1e-9).astype(np.int64),
                    len(env) - 1)

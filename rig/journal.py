@@ -418,7 +418,7 @@ def read_journal(jdir: Path, *, allow_gaps: bool = False) -> JournalContents:
         try:
             pmeta = json.loads((jdir / "partial.json").read_text(encoding="utf-8"))
         except (OSError, json.JSONDecodeError):
-            pmeta = None
+            pass  # torn by a kill: pmeta stays None
     if pmeta is not None and not (isinstance(pmeta, dict) and isinstance(
             pmeta.get("columns"), list) and set(PARTIAL_COLUMNS) <= set(pmeta["columns"])):
         pmeta = None  # metadata torn or from another version: nothing usable to stream into

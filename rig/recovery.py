@@ -601,11 +601,11 @@ def _header_kwargs(header: dict) -> dict:
                 extra_attrs=header.get("extra_attrs") or {})
 
 
-def _build_from_journal(path: Path, jc: JournalContents, trials: list[Trial] | None = None,
+def _build_from_journal(path: Path, jc: JournalContents, trials: list[Trial],
                         events: list[Event] | None = None) -> SessionWriter:
     """A writer holding a complete session file built from the journal's header and
-    calibration with ``trials`` and ``events`` (default: the journal's), in memory (not
-    yet published)."""
+    calibration with ``trials`` (the merged ones) and ``events`` (default: the
+    journal's), in memory (not yet published)."""
     try:
         image = SessionWriter.new_image(path, **_header_kwargs(jc.header))
     except (KeyError, TypeError) as exc:
@@ -617,8 +617,6 @@ def _build_from_journal(path: Path, jc: JournalContents, trials: list[Trial] | N
     w = SessionWriter(path, image=image)
     w.deferred = True
     w.write_calibration(jc.calibration)
-    if trials is None:
-        trials = [load_trial_npz(p) for p in jc.trial_files]
     w.append_trials(trials, jc.events if events is None else events)
     return w
 

@@ -68,3 +68,36 @@ def test_memory_figures_count_the_download_points():
     assert dl.sync_bytes == dl.sync.n_points * BYTES_PER_POINT > 0
     assert dl.channel_bytes() == {ch: r.n_points * BYTES_PER_POINT
                                   for ch, r in dl.channels.items()}
+
+
+@pytest.mark.parametrize("rate", [30_000.0, 3000.0, 49_999.0])
+def test_a_rate_inside_the_range_but_not_a_whole_microsecond_tick_is_refused(rate):
+    from nmsid.drivers.errors import StimulatorSettingError  # noqa: PLC0415
+    with pytest.raises(StimulatorSettingError, match="whole number of microseconds"):
+        check_output_rate(rate)
+
+
+def test_a_waveform_whose_ceiling_exceeds_the_rigs_is_refused_even_with_a_small_envelope():
+    """The waveform was checked against a ceiling the rig does not allow: refused as such,
+    whatever its envelope (McsUsbNet is never asked)."""
+    from nmsid.drivers.errors import DeviceRangeError  # noqa: PLC0415
+    from nmsid.drivers.interfaces import CheckedWaveform  # noqa: PLC0415
+    from nmsid.drivers.stg_download import ChannelPlan, prepare_download  # noqa: PLC0415
+    env = np.full(200, 2.0)
+    plans = (ChannelPlan(1, "extensor", 10.0, 16e6, 500.0),
+             ChannelPlan(2, "flexor", 10.0, 16e6, 500.0))
+    for ceilings in ((12.0, 10.0), (10.0, 12.0)):
+        wf = CheckedWaveform(env, env.copy(), 2000.0, 1000.0, *ceilings)
+        with pytest.raises(DeviceRangeError, match="exceeds the rig ceiling 10 mA"):
+            prepare_download(wf, *plans, sync_out=1, output_rate_Hz=50_000.0)
+
+
+def test_an_envelope_exactly_at_the_ceiling_is_sent():
+    """The ceiling is the highest current allowed, not the first one refused."""
+    from nmsid.drivers.interfaces import CheckedWaveform  # noqa: PLC0415
+    from nmsid.drivers.stg_download import ChannelPlan, prepare_download  # noqa: PLC0415
+    env = np.r_[np.full(100, 10.0), np.zeros(100)]
+    plans = (ChannelPlan(1, "extensor", 10.0, 16e6, 500.0),
+             ChannelPlan(2, "flexor", 10.0, 16e6, 500.0))
+    wf = CheckedWaveform(env, env.copy(), 2000.0, 1000.0, 10.0, 10.0)
+    prepare_download(wf, *plans, sync_out=1, output_rate_Hz=50_000.0)

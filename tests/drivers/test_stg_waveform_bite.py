@@ -100,3 +100,25 @@ def test_device_memory_is_estimated_per_point():
     assert d.channel_bytes() == {ch: r.n_points * stg_download.BYTES_PER_POINT
                                  for ch, r in d.channels.items()}
     assert all(v > 0 for v in d.channel_bytes().values())
+
+
+def test_a_trial_shorter_than_one_carrier_period_has_no_period_to_output():
+    """Closed form: 2000 Hz envelope at a 50 kHz output rate is 25 output samples per
+    envelope sample; a 50-sample carrier period needs two envelope samples."""
+    from nmsid.drivers.stg_waveform import period_amplitudes_mA
+    amp, n_out = period_amplitudes_mA([3.0], 2000.0, RATE, P)
+    assert amp.shape == (0,) and n_out == 25
+    amp, n_out = period_amplitudes_mA([3.0, 1.0], 2000.0, RATE, P)
+    assert n_out == 50 and np.allclose(amp, [2.0])       # mean of the held envelope
+    amp, n_out = period_amplitudes_mA([3.0, 1.0, 5.0, 5.0, 1.0], 2000.0, RATE, P)
+    assert n_out == 125 and np.allclose(amp, [2.0, 5.0])  # the half period left is not output
+
+
+def test_a_trial_shorter_than_one_period_renders_no_current_and_a_balanced_channel():
+    from nmsid.drivers.stg_waveform import check_charge_balance, render_channel
+    ch = render_channel([3.0], 2000.0, CARRIER, RATE, RES)
+    assert not ch.expand().any()
+    assert check_charge_balance(ch, RES, "extensor") == 0.0
+    # a channel with no data at all carries no charge (not an error of the check itself)
+    empty = RenderedChannel(np.zeros(0, np.int64), np.zeros(0, np.int64), 20, P)
+    assert check_charge_balance(empty, RES, "flexor") == 0.0

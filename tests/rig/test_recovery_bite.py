@@ -127,5 +127,117 @@ def test_a_journal_without_its_calibration_is_refused_not_built_into_a_file(tmp_
     jc = JournalContents(header={"participant": "P01", "created_utc": "2026-01-01T00:00:00Z"},
                          calibration=None, events=[], trial_files=[])
     with pytest.raises(SessionFileError, match="no calibration to rebuild"):
-        _build_from_journal(tmp_path / "s.h5", jc)
+        _build_from_journal(tmp_path / "s.h5", jc, [])
     assert not (tmp_path / "s.h5").exists()
+
+
+def test_the_damaged_file_is_kept_aside_on_a_volume_without_hard_links(tmp_path,
+                                                                       monkeypatch):
+    """FAT / exFAT (a USB stick) have no hard links: the damaged file is then renamed
+    aside, never lost."""
+    import errno  # noqa: PLC0415
+    path = _killed_session(tmp_path)
+    with open(path, "r+b") as fh:
+        fh.write(b"\0" * 64)
+    damaged = path.read_bytes()
+
+    def no_link(src, dst, *a, **kw):
+        raise OSError(errno.EPERM, "hard links not supported on this volume")
+    monkeypatch.setattr(os, "link", no_link)
+    rep = recover(path)
+    assert rep.action == "rebuilt" and rep.damaged_kept_at
+    with open(rep.damaged_kept_at, "rb") as fh:
+        assert fh.read() == damaged
+    assert len(read_session(path).trials) == 2
+
+
+def _twin_trials_session(tmp_path):
+    """Two trials whose samples are identical (a deterministic simulation) at two
+    schedule positions: they are two trials, not one recorded twice."""
+    path = tmp_path / "P02.h5"
+    log = SessionLog.create(path, participant="P02", config_json="{}", seed=3,
+                            backend="test", schedule_json="[]")
+    log.write_calibration(Calibration(1, 9, 1.5, 10))
+    for i in range(2):
+        t = _trial(0)
+        t.extra_attrs = {"schedule_index": i}
+        log.end_trial(t)
+    log.close()
+    return path
+
+
+def test_two_trials_with_the_same_samples_at_two_schedule_positions_are_both_kept(tmp_path):
+    path = _twin_trials_session(tmp_path)
+    with open(path, "r+b") as fh:
+        fh.write(b"\0" * 64)
+    rep = recover(path)
+    assert rep.action == "rebuilt" and rep.n_trials == 2
+    got = read_session(path).trials
+    assert [int(np.asarray(t.extra_attrs["schedule_index"])) for t in got] == [0, 1]
+
+
+def test_recovery_leaves_journal_entries_already_in_place_untouched(tmp_path):
+    """A rebuild from an intact journal rewrites no entry (no disk space, no time, no
+    window in which an entry is being replaced)."""
+    path = _killed_session(tmp_path, n_trials=3)
+    jdir = journal_dir(path)
+    before = {p.name: (os.stat(p).st_ino, os.stat(p).st_mtime_ns)
+              for p in sorted(jdir.glob("trial-*.npz"))}
+    with open(path, "r+b") as fh:
+        fh.write(b"\0" * 64)
+    assert recover(path).action == "rebuilt"
+    after = {p.name: (os.stat(p).st_ino, os.stat(p).st_mtime_ns)
+             for p in sorted(jdir.glob("trial-*.npz"))}
+    assert len(before) == 3 and after == before
+
+
+def test_a_rebuild_keeps_a_file_at_the_sessions_name_until_the_new_one_replaces_it(
+        tmp_path, monkeypatch):
+    """The damaged file is kept aside by a second name (a hard link), not moved: a kill
+    at any instant of the rebuild leaves a session file at its name, and the rebuilt
+    one takes the name in one atomic replace."""
+    path = _killed_session(tmp_path)
+    with open(path, "r+b") as fh:
+        fh.write(b"\0" * 64)
+    seen: list[bool] = []
+    real_replace = os.replace
+
+    def spy_replace(src, dst, *a, **kw):
+        if os.path.abspath(dst) == os.path.abspath(path):
+            seen.append(os.path.lexists(path))
+        return real_replace(src, dst, *a, **kw)
+    monkeypatch.setattr(os, "replace", spy_replace)
+    rep = recover(path)
+    assert rep.action == "rebuilt" and os.path.exists(rep.damaged_kept_at)
+    assert seen == [True]
+
+
+def test_the_summary_says_every_outcome_in_its_own_words():
+    """The operator reads recovery's one line: each outcome and each problem named,
+    singular and plural right (closed-form strings, no file needed)."""
+    from nmsid.rig.recovery import RecoveryReport  # noqa: PLC0415
+    assert RecoveryReport("s.h5", "no-calibration").summary() == (
+        "s.h5: the session ended before calibration finished; there is no data to recover "
+        "(resume it to start again)")
+    assert RecoveryReport("s.h5", "appended", n_trials=5, n_appended=2).summary() == (
+        "s.h5: 2 trial(s) missing from the file were appended; 5 trials in the file")
+    one = RecoveryReport("s.h5", "rebuilt", n_trials=3, partial_recovered=True,
+                         partial_samples=120, header_rebuilt="header.json rebuilt",
+                         unreadable=["trial-0002.npz (unreadable: x): kept from the file's t002"],
+                         deleted=["trial-0003.npz (deleted): lost"], lost=["trial-0003.npz"],
+                         conflicts=["trial-0001.npz and the file's t001 differ (both kept)"],
+                         orphans=["old.h5.journal has no session file"])
+    assert one.summary() == (
+        "s.h5: rebuilt from the journal; 3 trials in the file"
+        "; the trial in progress was kept as aborted (120 samples)"
+        "; header.json rebuilt"
+        "; 1 unreadable journal entry (kept aside as unreadable-<name>.at-<time>): "
+        "trial-0002.npz (unreadable: x): kept from the file's t002"
+        "; deleted journal entries: trial-0003.npz (deleted): lost"
+        "; 1 trial(s) lost (in no readable copy; `run --resume` runs them again)"
+        "; trial-0001.npz and the file's t001 differ (both kept)"
+        "; note: old.h5.journal has no session file")
+    two = RecoveryReport("s.h5", "rebuilt", n_trials=4, unreadable=["a", "b"])
+    assert two.summary() == ("s.h5: rebuilt from the journal; 4 trials in the file; 2 "
+                             "unreadable journal entries (kept aside as "
+                             "unreadable-<name>.at-<time>): a; b")

@@ -119,3 +119,97 @@ def test_stop_watcher_ends_the_switch_thread_and_a_restart_watches_again():
         time.sleep(0.005)
     lock.stop_watcher()
     assert lock.latched
+
+
+def test_the_estop_rules_status_says_whether_a_hardware_switch_is_watched():
+    """The operator's status panel tells a rig with a switch from one without, before any
+    trip and again after a re-arm."""
+
+    class Switch:
+        pressed = False
+
+        def is_pressed(self) -> bool:
+            return self.pressed
+
+        def close(self) -> None:
+            pass
+
+    bare = Interlock(InterlockConfig(), BlockingStim())
+    assert bare.status()["estop"] == (True, "ok (no hardware switch)")
+    sw = Switch()
+    wired = Interlock(InterlockConfig(), BlockingStim(), estop_input=sw)
+    assert wired.status()["estop"] == (True, "ok (switch released)")
+    sw.pressed = True
+    assert wired.check_switch(0.0) is not None
+    assert wired.status()["estop"][0] is False
+    sw.pressed = False
+    wired.rearm()
+    assert wired.status()["estop"] == (True, "ok (switch released)")
+
+
+def test_an_estop_is_logged_as_information_and_a_fault_trip_as_a_warning(caplog):
+    """The E-stop is the operator's own act (INFO); a fault is news (WARNING)."""
+    import logging  # noqa: PLC0415
+    with caplog.at_level(logging.INFO, logger="nmsid"):
+        Interlock(InterlockConfig(), BlockingStim()).estop("operator pressed E-stop")
+        Interlock(InterlockConfig(), BlockingStim()).trip("force_limit", "45 N > 40 N")
+    levels = {r.getMessage(): r.levelno for r in caplog.records
+              if r.getMessage().startswith("interlock tripped by")}
+    assert levels == {"interlock tripped by estop: operator pressed E-stop": logging.INFO,
+                      "interlock tripped by force_limit: 45 N > 40 N": logging.WARNING}
+
+
+def test_stop_watcher_gives_up_on_a_stuck_switch_read_after_a_second():
+    """A switch whose read hangs (a USB device gone mid-call) must not hang the session's
+    end: stop_watcher waits one second for the polling thread, then lets it go (a daemon
+    thread, ended with the process)."""
+    import time  # noqa: PLC0415
+
+    release = threading.Event()
+    reading = threading.Event()
+
+    class StuckSwitch:
+        def is_pressed(self) -> bool:
+            reading.set()
+            release.wait(5.0)
+            return False
+
+        def close(self) -> None:
+            pass
+
+    lock = Interlock(InterlockConfig(), BlockingStim(), estop_input=StuckSwitch())
+    lock.start_watcher()
+    try:
+        assert reading.wait(2.0)
+        t0 = time.perf_counter()
+        lock.stop_watcher()
+        took = time.perf_counter() - t0
+    finally:
+        release.set()
+    assert 0.9 < took < 1.8, took  # 2 s or more: waited too long
+
+
+def test_the_watcher_does_not_trip_while_the_switch_is_released():
+    import time  # noqa: PLC0415
+
+    class Switch:
+        pressed = False
+        reads = 0
+
+        def is_pressed(self) -> bool:
+            self.reads += 1
+            return self.pressed
+
+        def close(self) -> None:
+            pass
+
+    sw = Switch()
+    lock = Interlock(InterlockConfig(), BlockingStim(), estop_input=sw)
+    lock.start_watcher()
+    try:
+        deadline = time.monotonic() + 2.0
+        while sw.reads < 5 and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert sw.reads >= 5 and not lock.latched
+    finally:
+        lock.stop_watcher()
