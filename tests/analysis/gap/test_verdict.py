@@ -42,7 +42,7 @@ def test_gap_test_noise_only_is_not_significant(sd):
     rng = np.random.default_rng(int(sd * 1000))
     ref, r, N = _rows(rng, sd=sd)
     out = gap_test(r, N, ref, 1.0, 1.0, 300)
-    assert not out["significant"] and out["median_ratio"] == pytest.approx(1, abs=0.1)
+    assert not out.significant and out.median_ratio == pytest.approx(1, abs=0.1)
 
 
 @pytest.mark.parametrize("shape", ["sine", "ramp", "harmonic"])
@@ -53,7 +53,7 @@ def test_gap_test_finds_a_deterministic_misfit_in_every_trial(shape):
     extra = {"sine": 0.05 * np.sin(40 * x), "ramp": 0.4 * (x - 0.5) ** 2,
              "harmonic": 0.04 * np.sin(160 * x)}[shape]
     out = gap_test(r + extra, N, ref, 1.0, 1.0, 300)
-    assert out["significant"] and out["beyond_noise_pct"] > 1.0
+    assert out.significant and out.beyond_noise_pct > 1.0
 
 
 def test_gap_test_does_not_rest_on_one_or_two_trials():
@@ -62,9 +62,9 @@ def test_gap_test_does_not_rest_on_one_or_two_trials():
     r[[4, 17]] += 2.0 * np.exp(-0.5 * ((np.arange(r.shape[1]) - 500) / 60.0) ** 2)
     names = [f"t{i:03d}" for i in range(1, 31)]
     out = gap_test(r, N, ref, 1.0, 1.0, 300, names=names)
-    assert not out["significant"]
-    assert sorted(out["concentrated_in"]) == ["t005", "t018"]
-    assert out["beyond_noise_pct"] > 10 * out["beyond_noise_pct_typical"]
+    assert not out.significant
+    assert sorted(out.concentrated_in) == ["t005", "t018"]
+    assert out.beyond_noise_pct > 10 * out.beyond_noise_pct_typical
 
 
 def test_narrow_band_tells_a_line_from_an_oscillation():
