@@ -160,8 +160,6 @@ JSON_DOCUMENTS = {
 #: Public analysis functions still returning a bare dict, each being converted by the
 #: owner of its module (issue 30, 3): this list only shrinks; the integrator empties it.
 KNOWN_BARE_DICTS = {
-    "analysis/gap/evidence.py: effect_footprint",
-    "analysis/gap/evidence.py: Signatures.phase",
     "analysis/gap/fit.py: ModelFit.params",
     "analysis/gap/fit.py: find_steps",
     "analysis/gap/models.py: Candidate.params",

@@ -196,8 +196,10 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
     loc = localization(diag)
     sig = signatures(diag, loc)
     if sig.effect_footprint is not None:
-        loc.frequency["footprint"] = {k: sig.effect_footprint[k] for k in
-                                         ("f_Hz", "gain_error_dB", "phase_error_deg")}
+        fp_ = sig.effect_footprint
+        loc.frequency["footprint"] = {"f_Hz": list(fp_.f_Hz),
+                                      "gain_error_dB": list(fp_.gain_error_dB),
+                                      "phase_error_deg": list(fp_.phase_error_deg)}
     final = diag.best_pair or diag.best
     fparams = final_params(diag)
     fp = fparams.to_dict()

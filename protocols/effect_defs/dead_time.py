@@ -60,11 +60,11 @@ class DeadTimeForm(FittedForm):
     def signature(self, sig):
         tf = sig.phase
         return (f"signature: the effect's footprint on the transfer function is a phase "
-                f"line (R^2 {tf['r2_linear_phase']:.3f} vs {tf['r2_atan_phase']:.3f} for "
-                f"an arctangent; slope = {1000 * tf['dead_time_equivalent_s']:.1f} ms) with "
-                f"a gain error of {tf['gain_error_at_top_dB']:.2f} dB at the top of the "
+                f"line (R^2 {tf.r2_linear_phase:.3f} vs {tf.r2_atan_phase:.3f} for "
+                f"an arctangent; slope = {1000 * tf.dead_time_equivalent_s:.1f} ms) with "
+                f"a gain error of {tf.gain_error_at_top_dB:.2f} dB at the top of the "
                 f"band (a lag with that phase would roll off "
-                f"{tf['gain_rolloff_expected_for_lag_dB']:.2f} dB).")
+                f"{tf.gain_rolloff_expected_for_lag_dB:.2f} dB).")
 
 
 EFFECT = EffectDefinition(DeadTime, DeadTimeForm())

@@ -165,11 +165,11 @@ def test_fmu_reference_activation_lag_is_g_over_tau_s_plus_one(trial):
 
 @pytest.mark.parametrize("e", CANDIDATES, ids=lambda e: e.value)
 def test_each_form_says_its_signature_in_one_line(e):
-    from nmsid.analysis.gap.evidence import Signatures
+    from nmsid.analysis.gap.evidence import PhaseShape, Signatures
     tf = {"r2_linear_phase": 0.9, "r2_atan_phase": 0.5, "dead_time_equivalent_s": 0.02,
           "lag_equivalent_s": 0.03, "gain_error_at_top_dB": -1.0,
           "gain_rolloff_expected_for_lag_dB": -2.0, "max_abs_phase_error_deg": 12.0}
-    sig = Signatures(transfer_function=tf, effect_footprint=None,
+    sig = Signatures(transfer_function=PhaseShape(**tf), effect_footprint=None,
                      gain_vs_stimulation={"slope_per_100s": -0.01, "correlation": -0.8},
                      harmonics={"median_2f_pct": 1.0, "median_3f_pct": 2.0,
                                 "median_1.5f_noise_reference_pct": 0.1},
@@ -251,7 +251,7 @@ def _toy_module():
             return {"delay_ms": p["delay_ms"]}
 
         def signature(self, sig):
-            return f"signature: a phase line of slope {sig.phase['dead_time_equivalent_s']:g} s."
+            return f"signature: a phase line of slope {sig.phase.dead_time_equivalent_s:g} s."
 
     return EffectDefinition(TransportDelay, TransportDelayForm())
 
