@@ -161,7 +161,6 @@ JSON_DOCUMENTS = {
 #: owner of its module (issue 30, 3): this list only shrinks; the integrator empties it.
 KNOWN_BARE_DICTS = {
     "analysis/gap/fit.py: ModelFit.params",
-    "analysis/gap/fit.py: find_steps",
     "analysis/gap/models.py: Candidate.params",
     "analysis/gap/report.py: json_safe",
     "analysis/gap/report.py: write_outputs",
@@ -172,9 +171,6 @@ KNOWN_BARE_DICTS = {
     "analysis/muscle/report.py: twin_item",
     "analysis/muscle/twin_form.py: muscle_entry",
     "analysis/muscle/twin_form.py: parse_muscle_model",
-    "analysis/qc/decide.py: TrialQC.row",
-    "analysis/qc/decide.py: SessionQC.excluded",
-    "analysis/qc/decide.py: SessionQC.counts",
     "analysis/twin.py: source_entry",
 }
 

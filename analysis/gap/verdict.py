@@ -611,17 +611,15 @@ def baseline_steps(diag, resid: np.ndarray) -> list[dict]:
         return []
     Q = nuisance_basis(d.t_eval_s, 0.0)
     r = resid[ok]
-    info: dict = {}
-    steps = find_steps(r, Q, d.subset(ok), info=info)
     out = []
-    for i, u in steps.items():
+    for st in find_steps(r, Q, d.subset(ok)):
+        i, u = st.row, st.column
         a = float(r[i] @ u)
         after = r[i] - a * u
         N = d.steady_noise_N2[ok[i]] if d.steady_noise_N2 is not None else 0.0
         ex_before = max(float(np.mean(r[i] ** 2)) - N, 1e-30)
         ex_after = max(float(np.mean(after ** 2)) - N, 0.0)
-        k, scale = info[i]
-        height = a * scale
+        k, height = st.sample, a * st.height_per_unit_N
         out.append({"trial": d.trials[ok[i]].name, "t_s": float(d.t_eval_s[k]),
                     "height_N": height,
                     "share_of_excess_pct": 100.0 * (1 - ex_after / ex_before)})
