@@ -175,7 +175,6 @@ JSON_DOCUMENTS = {
 KNOWN_BARE_DICTS = {
     "analysis/gap/fit.py: ModelFit.params",
     "analysis/gap/models.py: Candidate.params",
-    "analysis/identify.py: LevelResult.row",
     "analysis/muscle/fit.py: MuscleFit.params",
 }
 
