@@ -172,11 +172,7 @@ JSON_DOCUMENTS = {
 
 #: Public analysis functions still returning a bare dict, each being converted by the
 #: owner of its module (issue 30, 3): this list only shrinks; the integrator empties it.
-KNOWN_BARE_DICTS = {
-    "analysis/gap/fit.py: ModelFit.params",
-    "analysis/gap/models.py: Candidate.params",
-    "analysis/muscle/fit.py: MuscleFit.params",
-}
+KNOWN_BARE_DICTS: set[str] = set()
 
 
 def _returns_dict(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> str:

@@ -30,14 +30,29 @@ from nmsid.analysis.gap.fit import Problem
 from nmsid.analysis.gap.harmonics import local_harmonics
 from nmsid.analysis.gap.localize import Localization
 from nmsid.analysis.gap.models import FORMS, NOMINAL
+from nmsid.protocols.effects import EFFECT_NAMES, EFFECTS
 
-CONFUSABLE = (
-    (Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS),
-    (Effect.ACTIVATION_DYNAMICS, Effect.FLEXOR_EXTENSOR_ASYMMETRY),
-    (Effect.DEAD_TIME, Effect.FLEXOR_EXTENSOR_ASYMMETRY),
-    (Effect.FATIGUE, Effect.BASELINE_DRIFT),
-    (Effect.RECRUITMENT_NONLINEARITY, Effect.FLEXOR_EXTENSOR_ASYMMETRY),
-)
+
+
+def confusable() -> tuple[tuple[Effect, Effect], ...]:
+    """The pairs of registered effects that resemble each other in the data, as their
+    modules declare them (``confusable_with``), in the registry's order of physics.
+
+    Examples
+    --------
+    >>> (Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS) in confusable()
+    True
+    """
+    names = set(EFFECT_NAMES)
+    out: list[tuple[Effect, Effect]] = []
+    for s in EFFECTS:
+        for other in s.source.params_type.confusable_with:
+            if other not in names:
+                continue                # its partner is not registered (now)
+            pair = (s.effect, Effect(other))
+            if pair not in out and pair[::-1] not in out:
+                out.append(pair)
+    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -255,7 +270,7 @@ def explain(diag: Diagnosis, sig: Signatures) -> list[str]:
     if e in FORMS:
         lines.append(FORMS[e].signature(sig))
     by = {r.candidate.effect: r for r in diag.candidates}
-    for a, b in CONFUSABLE:
+    for a, b in confusable():
         if e not in (a, b) or a not in by or b not in by:
             continue
         other = by[b if e is a else a]
@@ -272,7 +287,7 @@ def confusable_pairs(diag: Diagnosis, sig: Signatures) -> list[dict]:
     """For each confusable pair: both candidates' scores and which one the data prefer."""
     by = {r.candidate.effect: r for r in diag.candidates}
     out = []
-    for a, b in CONFUSABLE:
+    for a, b in confusable():
         if a not in by or b not in by:
             continue
         ra, rb = by[a], by[b]

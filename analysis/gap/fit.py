@@ -23,6 +23,7 @@ from nmsid.analysis.gap.effects import Effect
 from nmsid.analysis.gap.harmonics import levy_second_order, local_harmonics
 from nmsid.analysis.gap.models import Candidate, nuisance_basis
 from nmsid.analysis.gap.samples import effective_fraction
+from nmsid.analysis.parameters import Parameters
 
 log = logging.getLogger(__name__)
 
@@ -53,10 +54,12 @@ class ModelFit:
         return self.candidate.effect
 
     @property
-    def params(self) -> dict[str, float]:
+    def params(self) -> Parameters:
+        """The candidate's physical parameters (:meth:`Candidate.params`), with the
+        baseline's ``corner_Hz`` when the candidate fits one."""
         out = self.candidate.params(self.p_shared)
         if self.candidate.fits_baseline:
-            out["corner_Hz"] = self.corner_Hz
+            return Parameters.of({**out, "corner_Hz": self.corner_Hz})
         return out
 
 

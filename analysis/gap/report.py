@@ -17,6 +17,7 @@ import numpy as np
 from nmsid.analysis.muscle.report import muscle_section, plot_muscle, twin_item
 from nmsid.analysis.gap.diagnose import Diagnosis, ranking
 from nmsid.analysis.gap.evidence import confusable_pairs, explain, signatures
+from nmsid.analysis.parameters import Parameters
 from nmsid.analysis.gap import plots
 from nmsid.analysis.gap.fit import Problem
 from nmsid.analysis.gap.localize import Localization, localization
@@ -157,7 +158,7 @@ def _row(r) -> dict:
 
 def json_safe(obj):
     """JSON-safe (NaN -> None, numpy -> Python)."""
-    if isinstance(obj, dict):
+    if isinstance(obj, (dict, Parameters)):
         return {str(k): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [json_safe(v) for v in obj]

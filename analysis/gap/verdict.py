@@ -70,7 +70,7 @@ from nmsid.analysis.gap.harmonics import local_harmonics
 from nmsid.analysis.gap.models import nuisance_basis
 from nmsid.analysis.gap.narrowband import narrow_band
 from nmsid.analysis.gap.samples import effective_fraction
-from nmsid.protocols.effects import WORDS
+from nmsid.protocols.effects import CANDIDATES, WORDS
 
 #: Residual harmonics examined (1.5f: a non-harmonic reference).
 HARMONIC_ORDERS = (1, 1.5, 2, 3)
@@ -82,6 +82,13 @@ EFFECT_WORDS = WORDS
 def effect_words(label: str) -> str:
     """Plain words for an effect or a pair label ``a+b``."""
     return " together with ".join(EFFECT_WORDS.get(p, p) for p in label.split("+"))
+
+
+def _count_words(n: int) -> str:
+    """``n`` in words up to twelve, else digits (the report's sentence)."""
+    names = ("no", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine",
+             "ten", "eleven", "twelve")
+    return names[n] if 0 <= n < len(names) else str(n)
 
 
 def _mad_sd(x: np.ndarray) -> float:
@@ -522,7 +529,8 @@ def sentence(verdict: str, label: str | None, nominal: dict, remaining: dict,
                  if common is not None else "")
         return ("The nominal model misses part of the response "
                 f"({nom:.2f} % of the response beyond noise, significant{split}), and none of the "
-                "six candidate effects, alone or in pairs, explains it: something else is at "
+                f"{_count_words(len(CANDIDATES))} candidate effects, alone or in pairs, explains "
+                "it: something else is at "
                 f"work{(' - ' + where) if where else ''}." + tail)
     if verdict == "muscle_twin":
         text = ("The remainder is muscle physics: the second-order template (with the best "

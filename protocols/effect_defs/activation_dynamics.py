@@ -26,6 +26,7 @@ class ActivationDynamics(EffectParams):
     slots: ClassVar[frozenset[str]] = frozenset({"lag"})
     words: ClassVar[str | None] = ("slower muscle activation (a first-order lag before the "
                                        "force dynamics)")
+    confusable_with: ClassVar[tuple[str, ...]] = ("flexor_extensor_asymmetry",)
 
     def lag_s(self) -> float:
         return self.tau_s

@@ -96,7 +96,7 @@ def test_each_form_fits_its_declared_parameters_and_writes_the_registry_names(e)
     cand = candidate(e)
     lo, hi = cand.bounds()
     q = np.array([RNG.uniform(a, b) for a, b in zip(lo[:-1], hi[:-1])])
-    p = cand.params(np.append(q, 0.0))
+    p = cand.params(np.append(q, 0.0)).to_dict()
     p.update({"input_timing_s": 0.0, "corner_Hz": 0.2, "amplitude_N": 0.05})
     form.final(p, FinalContext(q=q, sE_levels=np.array([0.3, 0.6, 0.9]),
                                drift_amplitude=lambda: (0.04, 0.05)))
@@ -375,3 +375,15 @@ def test_the_reports_words_come_from_each_effect():
         spec("dead_time").source.params_type.words + " together with "
         + spec("fatigue").source.params_type.words)
     assert all(s.source.params_type.words for s in EFFECTS)
+
+
+def test_confusable_pairs_come_from_the_effect_modules_and_name_registered_effects():
+    from nmsid.analysis.gap.evidence import confusable
+    for s in EFFECTS:
+        assert set(s.source.params_type.confusable_with) <= set(EFFECT_NAMES) - {s.name}
+    got = {frozenset((a.value, b.value)) for a, b in confusable()}
+    assert got == {frozenset(p) for p in (
+        ("dead_time", "activation_dynamics"), ("activation_dynamics", "flexor_extensor_asymmetry"),
+        ("dead_time", "flexor_extensor_asymmetry"), ("fatigue", "baseline_drift"),
+        ("recruitment_nonlinearity", "flexor_extensor_asymmetry"))}
+    assert len(confusable()) == len(got)        # each pair once

@@ -168,3 +168,10 @@ def test_excluded_trials_never_reach_a_fit(nominal_session):
     names = [t.name for t in data.trials]
     assert "t002" not in names and "t010" not in names and len(names) == 13
     assert data.excluded == {"t002": "spike", "t010": "clipping"}
+
+
+def test_the_unexplained_sentence_counts_the_registry_not_a_fixed_six(monkeypatch):
+    from nmsid.analysis.gap import verdict
+    nom = {"beyond_noise_pct_typical": 2.0, "significant": True}
+    monkeypatch.setattr(verdict, "CANDIDATES", tuple(range(7)))
+    assert "none of the seven candidate effects" in sentence("unexplained", None, nom, dict(nom))
