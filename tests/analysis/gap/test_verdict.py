@@ -175,3 +175,16 @@ def test_the_unexplained_sentence_counts_the_registry_not_a_fixed_six(monkeypatc
     nom = {"beyond_noise_pct_typical": 2.0, "significant": True}
     monkeypatch.setattr(verdict, "CANDIDATES", tuple(range(7)))
     assert "none of the seven candidate effects" in sentence("unexplained", None, nom, dict(nom))
+
+
+def test_gap_test_keeps_its_report_form():
+    rng = np.random.default_rng(3)
+    ref = np.tile(np.sin(np.linspace(0, 60, 500)), (12, 1))
+    r = rng.normal(0, 0.1, (12, 500))
+    out = gap_test(r, np.full(12, 0.01), ref, 1.0, 1.0, 300)
+    assert set(out.to_dict()) == {"n_trials", "significant", "beyond_noise_pct",
+                                  "beyond_noise_pct_typical", "median_ratio", "z",
+                                  "concentrated_in"}
+    short = gap_test(r[:2], np.full(2, 0.01), ref[:2], 1.0, 1.0, 300)
+    assert not short.significant and short.beyond_noise_pct is None
+    assert "not tested" in short.to_dict()["note"]
