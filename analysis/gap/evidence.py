@@ -284,7 +284,9 @@ def explain(diag: Diagnosis, sig: Signatures) -> list[str]:
 
 
 def confusable_pairs(diag: Diagnosis, sig: Signatures) -> list[dict]:
-    """For each confusable pair: both candidates' scores and which one the data prefer."""
+    """For each confusable pair (:func:`confusable`): both candidates' scores, which one the
+    data prefer, and what the effects' modules add (``FittedForm.pair_evidence``: the dead
+    time's phase shape against an activation lag)."""
     by = {r.candidate.effect: r for r in diag.candidates}
     out = []
     for a, b in confusable():
@@ -296,10 +298,8 @@ def confusable_pairs(diag: Diagnosis, sig: Signatures) -> list[dict]:
                 "heldout_nrmse_pct": [ra.heldout_nrmse_pct, rb.heldout_nrmse_pct],
                 "delta_ic": [ra.delta_ic, rb.delta_ic],
                 "preferred": pref.value if (ra.supported or rb.supported) else "neither"}
-        if {a, b} == {Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS}:
-            tf = sig.phase
-            item["phase_shape"] = {"r2_linear": tf.r2_linear_phase,
-                                   "r2_atan": tf.r2_atan_phase,
-                                   "gain_error_at_top_dB": tf.gain_error_at_top_dB}
+        for e, other in ((a, b), (b, a)):     # what the effects' modules add to the pair
+            extra = FORMS[e].pair_evidence(other.value, sig) if e in FORMS else None
+            item.update(extra or {})
         out.append(item)
     return out

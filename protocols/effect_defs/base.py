@@ -282,6 +282,12 @@ class FittedForm:
         ``analysis.gap.evidence.Signatures``)."""
         raise NotImplementedError
 
+    def pair_evidence(self, other: str, sig: Any) -> dict | None:
+        """Figures that tell this effect from a confusable one (``other``: its name) in the
+        signatures ``sig``, added to the report's pair; None (the default): the two
+        candidates' scores say it alone."""
+        return None
+
     # -- the slots as functions of q -------------------------------------------------------
     def fit_curve(self, q: np.ndarray) -> Callable[[Any], Any]:
         """``intensity``: the fitted ``h(I)``."""

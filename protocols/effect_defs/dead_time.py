@@ -58,6 +58,15 @@ class DeadTimeForm(FittedForm):
     def twin_params(self, p, sE_levels):
         return {"L_s": p["L_s"]}
 
+    def pair_evidence(self, other, sig):
+        # a dead time's phase error is a line, an activation lag's an arctangent with a
+        # gain roll-off: the phase shape tells the two apart
+        if other != "activation_dynamics":
+            return None
+        tf = sig.phase
+        return {"phase_shape": {"r2_linear": tf.r2_linear_phase, "r2_atan": tf.r2_atan_phase,
+                                "gain_error_at_top_dB": tf.gain_error_at_top_dB}}
+
     def signature(self, sig):
         tf = sig.phase
         return (f"signature: the effect's footprint on the transfer function is a phase "

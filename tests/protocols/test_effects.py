@@ -387,3 +387,15 @@ def test_confusable_pairs_come_from_the_effect_modules_and_name_registered_effec
         ("dead_time", "flexor_extensor_asymmetry"), ("fatigue", "baseline_drift"),
         ("recruitment_nonlinearity", "flexor_extensor_asymmetry"))}
     assert len(confusable()) == len(got)        # each pair once
+
+
+def test_only_the_dead_time_adds_its_phase_shape_and_only_against_the_activation_lag():
+    from nmsid.analysis.gap.evidence import PhaseShape, Signatures, confusable
+    tf = PhaseShape(0.02, 0.9, 0.03, 0.5, -1.0, -2.0, 12.0)
+    sig = Signatures(transfer_function=tf, effect_footprint=None, gain_vs_stimulation={},
+                     harmonics={}, low_frequency={})
+    added = {(x.value, y.value): FORMS[x].pair_evidence(y.value, sig)
+             for a, b in confusable() for x, y in ((a, b), (b, a))}
+    assert {k for k, v in added.items() if v} == {("dead_time", "activation_dynamics")}
+    assert added[("dead_time", "activation_dynamics")] == {
+        "phase_shape": {"r2_linear": 0.9, "r2_atan": 0.5, "gain_error_at_top_dB": -1.0}}
