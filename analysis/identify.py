@@ -56,7 +56,7 @@ class LevelResult:
         """True when parameters were estimated (converged or not: see ``fit.converged``)."""
         return self.fit is not None
 
-    def row(self, participant: str = "") -> dict:
+    def to_dict(self, participant: str = "") -> dict:
         """The ``parameters.csv`` row of this level (NaN where nothing was estimated)."""
         f = self.fit
         nan = float("nan")
@@ -98,7 +98,7 @@ class SessionResult:
     (:mod:`nmsid.analysis.fatigue`; None when not computed)."""
 
     def rows(self) -> list[dict]:
-        return [lv.row(self.participant) for lv in self.levels]
+        return [lv.to_dict(self.participant) for lv in self.levels]
 
     def parameter(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """(sE, values) of one parameter over the levels that were identified."""

@@ -15,10 +15,9 @@ def register(sub) -> None:
     """Add the ``gap`` sub-command."""
     p = sub.add_parser(
         "gap", help="diagnose the sim-to-real gap (where, which effect, how far it shrinks)",
-        description="Fit the nominal twin (second order per sE) and six candidate "
-                    "augmentations (dead_time, activation_dynamics, fatigue, "
-                    "recruitment_nonlinearity, baseline_drift, flexor_extensor_asymmetry) "
-                    "on training repeats, score them on held-out repeats (3-fold "
+        description="Fit the nominal twin (second order per sE) and its augmentation by "
+                    "each registered candidate effect (nmsid.protocols.effects; listed in "
+                    "docs/gap.md) on training repeats, score them on held-out repeats (3-fold "
                     "cross-validation by repeat) and by an information criterion with the "
                     "effective number of samples, localise the gap, and write "
                     "gap_report.json, report.html with figures, and the augmented twin.json. "

@@ -155,34 +155,24 @@ JSON_DOCUMENTS = {
         "a configuration's [protocol] table (config_from_dict, design.json's protocol)",
     "analysis/gap/report.py: FinalParams.for_twin":
         "the twin file's effect parameters as its JSON writes them (twin_params' input)",
+    "analysis/gap/report.py: json_safe": "any value made JSON-safe (NaN -> null), as written",
+    "analysis/gap/report.py: write_outputs": "gap_report.json as written (returned to the CLI)",
+    "analysis/gap/twin_out.py: twin_dict": "a twin file's JSON document (docs/twin-file.md)",
+    "analysis/muscle/report.py: muscle_section":
+        "gap_report.json's muscle_twin section as written",
+    "analysis/muscle/report.py: twin_item":
+        "the twin file's muscle_model item as written",
+    "analysis/muscle/twin_form.py: muscle_entry":
+        "the twin file's muscle_model item as written",
+    "analysis/muscle/twin_form.py: parse_muscle_model":
+        "the twin file's muscle_model item, checked and kept as read (Twin.muscle_model)",
+    "analysis/twin.py: source_entry":
+        "a twin file's source item as written ({file, sha256} or a label)",
 }
 
 #: Public analysis functions still returning a bare dict, each being converted by the
 #: owner of its module (issue 30, 3): this list only shrinks; the integrator empties it.
-KNOWN_BARE_DICTS = {
-    "analysis/gap/evidence.py: effect_footprint",
-    "analysis/gap/evidence.py: Signatures.phase",
-    "analysis/gap/fit.py: ModelFit.params",
-    "analysis/gap/fit.py: find_steps",
-    "analysis/gap/models.py: Candidate.params",
-    "analysis/gap/report.py: json_safe",
-    "analysis/gap/report.py: write_outputs",
-    "analysis/gap/twin_out.py: twin_dict",
-    "analysis/gap/verdict.py: gap_test",
-    "analysis/gap/verdict.py: common_test",
-    "analysis/gap/verdict.py: split_misfit",
-    "analysis/gap/verdict.py: where",
-    "analysis/identify.py: LevelResult.row",
-    "analysis/muscle/fit.py: MuscleFit.params",
-    "analysis/muscle/report.py: muscle_section",
-    "analysis/muscle/report.py: twin_item",
-    "analysis/muscle/twin_form.py: muscle_entry",
-    "analysis/muscle/twin_form.py: parse_muscle_model",
-    "analysis/qc/decide.py: TrialQC.row",
-    "analysis/qc/decide.py: SessionQC.excluded",
-    "analysis/qc/decide.py: SessionQC.counts",
-    "analysis/twin.py: source_entry",
-}
+KNOWN_BARE_DICTS: set[str] = set()
 
 
 def _returns_dict(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> str:

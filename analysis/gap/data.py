@@ -25,6 +25,8 @@ aborted: an aborted trial stimulated too), in file order ``t001, t002, ...``.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import logging
 import math
 from dataclasses import dataclass, field
@@ -194,7 +196,7 @@ GAP_DATASETS = ("rE", "force_N")
 
 
 def load_session(session, settings: PreprocessSettings | None = None, *,
-                 excluded: dict | None = None) -> GapData:
+                 excluded: Mapping[str, str] | None = None) -> GapData:
     """Pre-process the completed trials of one session (read here if given as a path).
 
     Parameters
@@ -234,7 +236,7 @@ def _cumulative_stim(trials) -> list[float]:
 
 
 def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
-                   settings: PreprocessSettings | None = None, excluded: dict | None = None,
+                   settings: PreprocessSettings | None = None, excluded: Mapping[str, str] | None = None,
                    timing: TimingEstimate | None = None) -> GapData:
     """Pre-process a list of :class:`nmsid.protocols.session_file.Trial` (file order) for the diagnosis.
 

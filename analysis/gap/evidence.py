@@ -30,14 +30,29 @@ from nmsid.analysis.gap.fit import Problem
 from nmsid.analysis.gap.harmonics import local_harmonics
 from nmsid.analysis.gap.localize import Localization
 from nmsid.analysis.gap.models import FORMS, NOMINAL
+from nmsid.protocols.effects import EFFECT_NAMES, EFFECTS
 
-CONFUSABLE = (
-    (Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS),
-    (Effect.ACTIVATION_DYNAMICS, Effect.FLEXOR_EXTENSOR_ASYMMETRY),
-    (Effect.DEAD_TIME, Effect.FLEXOR_EXTENSOR_ASYMMETRY),
-    (Effect.FATIGUE, Effect.BASELINE_DRIFT),
-    (Effect.RECRUITMENT_NONLINEARITY, Effect.FLEXOR_EXTENSOR_ASYMMETRY),
-)
+
+
+def confusable() -> tuple[tuple[Effect, Effect], ...]:
+    """The pairs of registered effects that resemble each other in the data, as their
+    modules declare them (``confusable_with``), in the registry's order of physics.
+
+    Examples
+    --------
+    >>> (Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS) in confusable()
+    True
+    """
+    names = set(EFFECT_NAMES)
+    out: list[tuple[Effect, Effect]] = []
+    for s in EFFECTS:
+        for other in s.source.params_type.confusable_with:
+            if other not in names:
+                continue                # its partner is not registered (now)
+            pair = (s.effect, Effect(other))
+            if pair not in out and pair[::-1] not in out:
+                out.append(pair)
+    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -112,11 +127,43 @@ def phase_shape(freq: Any) -> PhaseShape:
                       max_abs_phase_error_deg=float(np.max(np.abs(ph))) if len(ph) else None)
 
 
-def effect_footprint(diag: Diagnosis) -> dict | None:
+@dataclass(frozen=True)
+class Footprint:
+    """The winning effect's footprint on the transfer function (:func:`effect_footprint`).
+
+    Attributes
+    ----------
+    f_Hz : tuple of float
+        Centre frequency of each chirp window.
+    gain_error_dB, phase_error_deg : tuple of float
+        Median over trials of measured force over the model without the effect.
+    shape : PhaseShape
+        That error read as a dead time and as a lag (:func:`phase_shape`).
+    """
+
+    f_Hz: tuple[float, ...]
+    gain_error_dB: tuple[float, ...]
+    phase_error_deg: tuple[float, ...]
+    shape: PhaseShape
+
+    def to_dict(self) -> dict:
+        """The report's form (``evidence.signatures.effect_footprint``): the three curves
+        and the :class:`PhaseShape` fields side by side."""
+        return {"f_Hz": list(self.f_Hz), "gain_error_dB": list(self.gain_error_dB),
+                "phase_error_deg": list(self.phase_error_deg), **self.shape.to_dict()}
+
+
+def effect_footprint(diag: Diagnosis) -> Footprint | None:
     """The winning effect's own footprint on the transfer function: measured force over
     the second-order model with the *augmented* fit's per-sE parameters but without the
     effect. A dead time leaves a phase line ``-360 f L`` and 0 dB; an extra lag an
-    arctangent with its roll-off; an asymmetry the shape of the second muscle."""
+    arctangent with its roll-off; an asymmetry the shape of the second muscle.
+
+    Returns
+    -------
+    Footprint or None
+        None when the final model adds no effect.
+    """
     fit = diag.full_fit
     if not fit.candidate.effects:
         return None
@@ -133,8 +180,8 @@ def effect_footprint(diag: Diagnosis) -> dict | None:
             "gain_error_dB": np.median(20 * np.log10(np.abs(ratio)), axis=0).tolist(),
             "phase_error_deg": np.degrees(np.angle(np.median(ratio / np.abs(ratio), axis=0))
                                           ).tolist()}
-    view.update(phase_shape(view).to_dict())
-    return view
+    return Footprint(f_Hz=tuple(view["f_Hz"]), gain_error_dB=tuple(view["gain_error_dB"]),
+                     phase_error_deg=tuple(view["phase_error_deg"]), shape=phase_shape(view))
 
 
 @dataclass
@@ -143,10 +190,9 @@ class Signatures:
 
     Attributes
     ----------
-    transfer_function : dict
-        :func:`phase_shape` of the nominal model's gain and phase errors (its
-        :meth:`PhaseShape.to_dict`).
-    effect_footprint : dict or None
+    transfer_function : PhaseShape
+        :func:`phase_shape` of the nominal model's gain and phase errors.
+    effect_footprint : Footprint or None
         :func:`effect_footprint` of the winner (None: no winner).
     gain_vs_stimulation : dict
         ``slope_per_100s`` and ``correlation`` of the trials' gain with cumulative
@@ -159,21 +205,27 @@ class Signatures:
         ratio (baseline drift).
     """
 
-    transfer_function: dict
-    effect_footprint: dict | None
+    transfer_function: PhaseShape
+    effect_footprint: Footprint | None
     gain_vs_stimulation: dict
     harmonics: dict
     low_frequency: dict
 
     @property
-    def phase(self) -> dict:
+    def phase(self) -> PhaseShape:
         """The transfer-function view an effect is judged on: the winner's footprint when
         there is one, else the nominal model's."""
-        return self.effect_footprint or self.transfer_function
+        if self.effect_footprint is not None:
+            return self.effect_footprint.shape
+        return self.transfer_function
 
     def to_dict(self) -> dict:
         """The report's form (``gap_report.json``, ``evidence.signatures``)."""
-        return dict(vars(self))
+        out = dict(vars(self))
+        out["transfer_function"] = self.transfer_function.to_dict()
+        out["effect_footprint"] = (self.effect_footprint.to_dict()
+                                   if self.effect_footprint is not None else None)
+        return out
 
 
 def signatures(diag: Diagnosis, loc: Localization) -> Signatures:
@@ -184,7 +236,7 @@ def signatures(diag: Diagnosis, loc: Localization) -> Signatures:
     gs = loc.gain_vs_stimulation
     sp = loc.spectrum["nominal"]
     return Signatures(
-        transfer_function=phase_shape(fn).to_dict(),
+        transfer_function=phase_shape(fn),
         effect_footprint=effect_footprint(diag),
         gain_vs_stimulation={"slope_per_100s": gs["slope_per_100s"],
                              "correlation": gs["correlation"]},
@@ -218,7 +270,7 @@ def explain(diag: Diagnosis, sig: Signatures) -> list[str]:
     if e in FORMS:
         lines.append(FORMS[e].signature(sig))
     by = {r.candidate.effect: r for r in diag.candidates}
-    for a, b in CONFUSABLE:
+    for a, b in confusable():
         if e not in (a, b) or a not in by or b not in by:
             continue
         other = by[b if e is a else a]
@@ -232,10 +284,12 @@ def explain(diag: Diagnosis, sig: Signatures) -> list[str]:
 
 
 def confusable_pairs(diag: Diagnosis, sig: Signatures) -> list[dict]:
-    """For each confusable pair: both candidates' scores and which one the data prefer."""
+    """For each confusable pair (:func:`confusable`): both candidates' scores, which one the
+    data prefer, and what the effects' modules add (``FittedForm.pair_evidence``: the dead
+    time's phase shape against an activation lag)."""
     by = {r.candidate.effect: r for r in diag.candidates}
     out = []
-    for a, b in CONFUSABLE:
+    for a, b in confusable():
         if a not in by or b not in by:
             continue
         ra, rb = by[a], by[b]
@@ -244,10 +298,8 @@ def confusable_pairs(diag: Diagnosis, sig: Signatures) -> list[dict]:
                 "heldout_nrmse_pct": [ra.heldout_nrmse_pct, rb.heldout_nrmse_pct],
                 "delta_ic": [ra.delta_ic, rb.delta_ic],
                 "preferred": pref.value if (ra.supported or rb.supported) else "neither"}
-        if {a, b} == {Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS}:
-            tf = sig.phase
-            item["phase_shape"] = {"r2_linear": tf["r2_linear_phase"],
-                                   "r2_atan": tf["r2_atan_phase"],
-                                   "gain_error_at_top_dB": tf["gain_error_at_top_dB"]}
+        for e, other in ((a, b), (b, a)):     # what the effects' modules add to the pair
+            extra = FORMS[e].pair_evidence(other.value, sig) if e in FORMS else None
+            item.update(extra or {})
         out.append(item)
     return out

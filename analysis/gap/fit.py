@@ -23,6 +23,7 @@ from nmsid.analysis.gap.effects import Effect
 from nmsid.analysis.gap.harmonics import levy_second_order, local_harmonics
 from nmsid.analysis.gap.models import Candidate, nuisance_basis
 from nmsid.analysis.gap.samples import effective_fraction
+from nmsid.analysis.parameters import Parameters
 
 log = logging.getLogger(__name__)
 
@@ -53,10 +54,12 @@ class ModelFit:
         return self.candidate.effect
 
     @property
-    def params(self) -> dict[str, float]:
+    def params(self) -> Parameters:
+        """The candidate's physical parameters (:meth:`Candidate.params`), with the
+        baseline's ``corner_Hz`` when the candidate fits one."""
         out = self.candidate.params(self.p_shared)
         if self.candidate.fits_baseline:
-            out["corner_Hz"] = self.corner_Hz
+            return Parameters.of({**out, "corner_Hz": self.corner_Hz})
         return out
 
 
@@ -75,8 +78,8 @@ class Problem:
         """Row -> index into ``self.levels``."""
         self._drive_key: bytes | None = None
         self._drive: np.ndarray | None = None
-        self.steps: dict[int, np.ndarray] = {}
-        """Row -> unit step column (orthogonal to ``Q``) projected out of that row."""
+        self.steps: tuple[BaselineStep, ...] = ()
+        """Each row's baseline step (unit column orthogonal to ``Q``) projected out of it."""
         self.yp = self.project(data.y_N)
         self.dt = 1.0 / data.fs_sim_Hz
         self.n_eval = data.y_N.shape[1]
@@ -84,8 +87,8 @@ class Problem:
     def project(self, v: np.ndarray) -> np.ndarray:
         """Remove the nuisance columns (and each row's baseline step, if any)."""
         out = v - (v @ self.Q) @ self.Q.T
-        for i, u in self.steps.items():
-            out[i] -= (out[i] @ u) * u
+        for st in self.steps:
+            out[st.row] -= (out[st.row] @ st.column) * st.column
         return out
 
     def set_steps(self, resid: np.ndarray) -> None:
@@ -133,15 +136,42 @@ class Problem:
 STEP_Z = 6.0
 
 
-def find_steps(resid: np.ndarray, Q: np.ndarray, data: GapData, z: float = STEP_Z,
-               info: dict | None = None) -> dict[int, np.ndarray]:
+@dataclass(frozen=True)
+class BaselineStep:
+    """A baseline step found in one row of a residual (:func:`find_steps`).
+
+    Attributes
+    ----------
+    row : int
+        The residual's row (trial).
+    column : ndarray
+        Unit-norm step column (low-passed like the force, orthogonal to the nuisance
+        columns): the step is ``(resid[row] @ column) * column``.
+    sample : int
+        Sample index (evaluation rate) of the step.
+    height_per_unit_N : float
+        Step height in N per unit of ``column``'s coefficient.
+    """
+
+    row: int
+    column: np.ndarray
+    sample: int
+    height_per_unit_N: float
+
+
+def find_steps(resid: np.ndarray, Q: np.ndarray, data: GapData, z: float = STEP_Z
+               ) -> tuple[BaselineStep, ...]:
     """Per row: the most likely time of a baseline step (every 50 ms, 0.3 s from the ends,
     low-passed like the force), kept when significant against the trial's noise (see
-    ``STEP_Z``). ``info``, if given, receives row -> (sample index of the step, height in
-    N per unit of the returned column's coefficient).
+    ``STEP_Z``).
 
     The noise of a step's amplitude is that of the noise's spectrum at low frequency:
     per-sample variance (steady lead-in) over the effective-sample fraction of the noise.
+
+    Returns
+    -------
+    tuple of BaselineStep
+        At most one per row, in row order.
     """
     n = resid.shape[1]
     fs = data.fs_eval_Hz
@@ -149,7 +179,7 @@ def find_steps(resid: np.ndarray, Q: np.ndarray, data: GapData, z: float = STEP_
     edge = int(round(0.3 * fs))
     times = np.arange(edge, n - edge, stride)
     if len(times) == 0:
-        return {}
+        return ()
     S = (np.arange(n)[None, :] >= times[:, None]).astype(float)
     # a step in the force passes the force's low-pass: so does the step column
     sos = signal.butter(data.settings.lowpass_order, data.settings.lowpass_Hz, fs=fs,
@@ -167,14 +197,14 @@ def find_steps(resid: np.ndarray, Q: np.ndarray, data: GapData, z: float = STEP_
                        np.mean(resid ** 2, axis=1))
     else:
         nu, var = 0.5, np.mean(resid ** 2, axis=1)
-    out = {}
+    out = []
     for i in range(resid.shape[0]):
         k = int(np.argmax(stat[i]))
         if stat[i, k] > z * z * var[i] / max(nu, 1e-3):
-            out[i] = S[k] / np.sqrt(norm2[k])
-            if info is not None:
-                info[i] = (int(times[keep][k]), 1.0 / float(np.sqrt(norm2[k])))
-    return out
+            out.append(BaselineStep(row=i, column=S[k] / np.sqrt(norm2[k]),
+                                    sample=int(times[keep][k]),
+                                    height_per_unit_N=1.0 / float(np.sqrt(norm2[k]))))
+    return tuple(out)
 
 
 def timing_bounds_ms(data: GapData) -> tuple[float, float]:

@@ -28,6 +28,7 @@ from nmsid.analysis.signal_kernels import compiled as signal
 from nmsid.analysis.discretize import (fractional_delay, lagged_second_order_tf, parallel_tf,
                                        second_order_tf, smooth_hold_input)
 from nmsid.analysis.gap.data import GapData
+from nmsid.analysis.parameters import Parameters
 from nmsid.protocols.effect_defs.base import FittedForm
 # re-exported: each effect's own helpers live with its definition
 from nmsid.protocols.effect_defs.fatigue import REFERENCE_STIM_S, fatigue_loss_pct  # noqa: F401
@@ -137,13 +138,14 @@ class Candidate:
         """The part of ``p`` that belongs to ``effect``."""
         return p[self._slices()[effect]]
 
-    def params(self, p: np.ndarray) -> dict[str, float]:
-        """Physical shared parameters (our own parameterisation) from ``p``."""
+    def params(self, p: np.ndarray) -> Parameters:
+        """Physical shared parameters (our own parameterisation) from ``p``: each effect's
+        (:meth:`FittedForm.physical`), then ``timing_correction_s``."""
         out: dict[str, float] = {}
         for e, sl in self._slices().items():
             out.update(FORMS[e].physical(p[sl]))
         out["timing_correction_s"] = self.timing_s(p)
-        return out
+        return Parameters.of(out)
 
     # -- the model: the effects' forms composed at the chain's slots -------------------
     def _at(self, slot: str, p: np.ndarray) -> list[tuple[FittedForm, np.ndarray]]:

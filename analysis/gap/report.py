@@ -17,6 +17,7 @@ import numpy as np
 from nmsid.analysis.muscle.report import muscle_section, plot_muscle, twin_item
 from nmsid.analysis.gap.diagnose import Diagnosis, ranking
 from nmsid.analysis.gap.evidence import confusable_pairs, explain, signatures
+from nmsid.analysis.parameters import Parameters
 from nmsid.analysis.gap import plots
 from nmsid.analysis.gap.fit import Problem
 from nmsid.analysis.gap.localize import Localization, localization
@@ -157,7 +158,7 @@ def _row(r) -> dict:
 
 def json_safe(obj):
     """JSON-safe (NaN -> None, numpy -> Python)."""
-    if isinstance(obj, dict):
+    if isinstance(obj, (dict, Parameters)):
         return {str(k): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [json_safe(v) for v in obj]
@@ -196,8 +197,10 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
     loc = localization(diag)
     sig = signatures(diag, loc)
     if sig.effect_footprint is not None:
-        loc.frequency["footprint"] = {k: sig.effect_footprint[k] for k in
-                                         ("f_Hz", "gain_error_dB", "phase_error_deg")}
+        fp_ = sig.effect_footprint
+        loc.frequency["footprint"] = {"f_Hz": list(fp_.f_Hz),
+                                      "gain_error_dB": list(fp_.gain_error_dB),
+                                      "phase_error_deg": list(fp_.phase_error_deg)}
     final = diag.best_pair or diag.best
     fparams = final_params(diag)
     fp = fparams.to_dict()

@@ -17,6 +17,8 @@ effect(s) are translated from this package's own parameterisation to the simulat
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 
 import numpy as np
 
@@ -29,7 +31,7 @@ from nmsid.analysis.gap.models import (fatigue_loss_pct, net_static_map,  # noqa
 from nmsid.protocols.effects import EFFECT_NAMES
 
 
-def effect_entries(params: dict, effects, sE_levels) -> list[dict]:
+def effect_entries(params: Mapping[str, float], effects, sE_levels) -> list[dict]:
     """Twin-file ``effects`` entries for the fitted parameters (our names -> the
     simulator's), in the registry's order of physics."""
     out = [{"name": e.value, "params": FORMS[e].twin_params(params, sE_levels)}

@@ -70,7 +70,7 @@ from nmsid.analysis.gap.harmonics import local_harmonics
 from nmsid.analysis.gap.models import nuisance_basis
 from nmsid.analysis.gap.narrowband import narrow_band
 from nmsid.analysis.gap.samples import effective_fraction
-from nmsid.protocols.effects import WORDS
+from nmsid.protocols.effects import CANDIDATES, WORDS
 
 #: Residual harmonics examined (1.5f: a non-harmonic reference).
 HARMONIC_ORDERS = (1, 1.5, 2, 3)
@@ -84,13 +84,136 @@ def effect_words(label: str) -> str:
     return " together with ".join(EFFECT_WORDS.get(p, p) for p in label.split("+"))
 
 
+def _count_words(n: int) -> str:
+    """``n`` in words up to twelve, else digits (the report's sentence)."""
+    names = ("no", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine",
+             "ten", "eleven", "twelve")
+    return names[n] if 0 <= n < len(names) else str(n)
+
+
 def _mad_sd(x: np.ndarray) -> float:
     return 1.4826 * float(np.median(np.abs(x - np.median(x)))) if len(x) else float("nan")
 
 
+@dataclass(frozen=True)
+class GapTest:
+    """A held-out residual against the noise (:func:`gap_test`, :func:`common_test`).
+
+    Attributes
+    ----------
+    n_trials : int
+        Trials (or levels) with a measurable lead-in noise.
+    significant : bool
+        The median log-ratio exceeds ``z_crit`` standard errors and the typical gap beyond
+        noise is at least ``min_beyond_noise_pct``.
+    beyond_noise_pct, beyond_noise_pct_typical : float or None
+        Misfit beyond noise (% of the response): from all trials, and from the median
+        ratio. None when not tested.
+    median_ratio : float or None
+        Median over trials of residual power / noise power.
+    z : float or None
+        The median log-ratio in standard errors.
+    concentrated_in : tuple
+        Trials that carry more than half of the excess, when at most two do.
+    concentrated_share_pct : float or None
+        Their share of the excess (%), when ``concentrated_in`` is not empty.
+    note : str or None
+        Why the test was not made.
+    """
+
+    n_trials: int
+    significant: bool = False
+    beyond_noise_pct: float | None = None
+    beyond_noise_pct_typical: float | None = None
+    median_ratio: float | None = None
+    z: float | None = None
+    concentrated_in: tuple = ()
+    concentrated_share_pct: float | None = None
+    note: str | None = None
+
+    def to_dict(self) -> dict:
+        """The former dict form (``concentrated_share_pct`` and ``note`` only when set)."""
+        out: dict[str, Any] = {
+            "n_trials": self.n_trials, "significant": self.significant,
+            "beyond_noise_pct": self.beyond_noise_pct,
+            "beyond_noise_pct_typical": self.beyond_noise_pct_typical,
+            "median_ratio": self.median_ratio, "z": self.z,
+            "concentrated_in": list(self.concentrated_in)}
+        if self.concentrated_share_pct is not None:
+            out["concentrated_share_pct"] = self.concentrated_share_pct
+        if self.note is not None:
+            out["note"] = self.note
+        return out
+
+
+@dataclass(frozen=True)
+class MisfitSplit:
+    """The misfit beyond noise split into its common and trial-to-trial parts
+    (:func:`split_misfit`).
+
+    Attributes
+    ----------
+    systematic_pct : float or None
+        Part common to the repeats of each sE (% of the response, beyond noise); None
+        when the common part could not be tested.
+    trial_to_trial_pct : float or None
+        Part that differs between repeats (%).
+    within_scatter : bool
+        The per-trial test is significant, the common part is not.
+    systematic_significant : bool or None
+        The common part is significant and material.
+    """
+
+    systematic_pct: float | None
+    trial_to_trial_pct: float | None
+    within_scatter: bool
+    systematic_significant: bool | None
+
+    def to_dict(self) -> dict:
+        """Plain form (the report's ``remaining`` / ``nominal_gap`` keys)."""
+        return {"systematic_pct": self.systematic_pct,
+                "trial_to_trial_pct": self.trial_to_trial_pct,
+                "within_scatter": self.within_scatter,
+                "systematic_significant": self.systematic_significant}
+
+
+@dataclass(frozen=True)
+class ResidualWhere:
+    """Where a held-out residual exceeds the noise (:func:`where`).
+
+    Attributes
+    ----------
+    sE : tuple of dict
+        Per level: ``sE``, ``ratio_to_noise`` (median over its trials), ``n_trials``.
+    chirp_band : tuple of dict
+        Per chirp band: ``f_lo_Hz``, ``f_hi_Hz``, ``ratio_to_noise``.
+    trial_position : dict
+        ``ratio_to_noise_by_third`` of the session and ``correlation_with_order``.
+    narrow_band : list of dict
+        The narrow-band components (:mod:`nmsid.analysis.gap.narrowband`).
+    harmonics : dict or None
+        Median residual at each harmonic order and those in excess.
+    summary : str
+        The one-line summary ('' when nothing stands out or too few trials).
+    """
+
+    sE: tuple = ()
+    chirp_band: tuple = ()
+    trial_position: dict = field(default_factory=dict)
+    narrow_band: list = field(default_factory=list)
+    harmonics: dict | None = None
+    summary: str = ""
+
+    def to_dict(self) -> dict:
+        """The report's ``where`` part, as written."""
+        return {"sE": list(self.sE), "chirp_band": list(self.chirp_band),
+                "trial_position": self.trial_position, "narrow_band": self.narrow_band,
+                "harmonics": self.harmonics, "summary": self.summary}
+
+
 def gap_test(resid: np.ndarray, noise_N2: np.ndarray, reference: np.ndarray,
              nu_window: float, nu_lead: float, n_lead: int, *, z_crit: float = 3.0,
-             min_beyond_noise_pct: float = 0.1, names=None) -> dict:
+             min_beyond_noise_pct: float = 0.1, names=None) -> GapTest:
     """Is a residual significantly beyond the noise? (see module)
 
     Parameters
@@ -110,7 +233,7 @@ def gap_test(resid: np.ndarray, noise_N2: np.ndarray, reference: np.ndarray,
 
     Returns
     -------
-    dict
+    GapTest
         ``beyond_noise_pct`` (all trials), ``beyond_noise_pct_typical`` (from the median
         ratio), ``median_ratio``, ``z``, ``significant``, ``concentrated_in`` (trials that
         carry more than half of the excess, when at most two do) and ``n_trials``.
@@ -121,18 +244,15 @@ def gap_test(resid: np.ndarray, noise_N2: np.ndarray, reference: np.ndarray,
     >>> rng = np.random.default_rng(0)
     >>> noise = rng.normal(0, 0.1, (30, 1000))
     >>> ref = np.sin(np.linspace(0, 60, 1000))[None, :].repeat(30, 0)
-    >>> gap_test(noise, np.full(30, 0.01), ref, 0.5, 0.5, 300)["significant"]
+    >>> gap_test(noise, np.full(30, 0.01), ref, 0.5, 0.5, 300).significant
     False
-    >>> gap_test(noise + 0.05, np.full(30, 0.01), ref, 0.5, 0.5, 300)["significant"]
+    >>> gap_test(noise + 0.05, np.full(30, 0.01), ref, 0.5, 0.5, 300).significant
     True
     """
     ok = np.isfinite(noise_N2) & (noise_N2 > 0)
-    out: dict[str, Any] = {"n_trials": int(ok.sum()), "significant": False,
-                           "beyond_noise_pct": None, "beyond_noise_pct_typical": None,
-                           "median_ratio": None, "z": None, "concentrated_in": []}
     if ok.sum() < 3:
-        out["note"] = "fewer than three trials with a measurable lead-in noise: not tested"
-        return out
+        return GapTest(n_trials=int(ok.sum()), note="fewer than three trials with a "
+                       "measurable lead-in noise: not tested")
     r, N, ref = resid[ok], noise_N2[ok], reference[ok]
     P = np.mean(r ** 2, axis=1)
     ref_ms = float(np.mean(ref ** 2))
@@ -148,24 +268,25 @@ def gap_test(resid: np.ndarray, noise_N2: np.ndarray, reference: np.ndarray,
     beyond_typ = 100.0 * math.sqrt(max(math.expm1(med), 0.0) * float(np.median(N)) / ref_ms)
     excess = np.maximum(P - N, 0.0)
     total = float(excess.sum())
-    conc = []
+    conc: list = []
+    share = None
     if total > 0 and beyond_all >= max(min_beyond_noise_pct, 2.0 * beyond_typ):
         order = np.argsort(excess)[::-1]
         for k in (1, 2):
             if float(excess[order[:k]].sum()) > 0.5 * total:
                 idx = np.flatnonzero(ok)[order[:k]]
                 conc = [str(names[i]) if names is not None else int(i) for i in idx]
-                out["concentrated_share_pct"] = 100.0 * float(excess[order[:k]].sum()) / total
+                share = 100.0 * float(excess[order[:k]].sum()) / total
                 break
-    out.update({"beyond_noise_pct": beyond_all, "beyond_noise_pct_typical": beyond_typ,
-                "median_ratio": math.exp(med), "z": z, "concentrated_in": conc,
-                "significant": bool(z > z_crit and beyond_typ >= min_beyond_noise_pct)})
-    return out
+    return GapTest(n_trials=int(ok.sum()), beyond_noise_pct=beyond_all,
+                   beyond_noise_pct_typical=beyond_typ, median_ratio=math.exp(med), z=z,
+                   concentrated_in=tuple(conc), concentrated_share_pct=share,
+                   significant=bool(z > z_crit and beyond_typ >= min_beyond_noise_pct))
 
 
 def common_test(resid: np.ndarray, noise_N2: np.ndarray, reference: np.ndarray,
                 level: np.ndarray, sE_levels, nu: float, n_lead: int, *, z_crit: float = 3.0,
-                min_beyond_noise_pct: float = 0.1) -> dict | None:
+                min_beyond_noise_pct: float = 0.1) -> GapTest | None:
     """Is the part of a residual common to the repeats of each sE beyond noise? (see module)
 
     Parameters
@@ -183,7 +304,7 @@ def common_test(resid: np.ndarray, noise_N2: np.ndarray, reference: np.ndarray,
 
     Returns
     -------
-    dict or None
+    GapTest or None
         :func:`gap_test`'s answer on the level means (one row per level with at least two
         repeats, noise ``mean(N) / n``); None with fewer than three such levels.
 
@@ -197,10 +318,10 @@ def common_test(resid: np.ndarray, noise_N2: np.ndarray, reference: np.ndarray,
     >>> dev -= np.repeat(dev.reshape(8, 3, -1).mean(1), 3, axis=0)   # predicted from others
     >>> noise = rng.normal(0, 0.01, (24, 800))
     >>> ref = np.tile(x, (24, 1))
-    >>> common_test(dev + noise, np.full(24, 1e-4), ref, lev, range(8), 0.5, 300)["significant"]
+    >>> common_test(dev + noise, np.full(24, 1e-4), ref, lev, range(8), 0.5, 300).significant
     False
     >>> common_test(dev + noise + 0.05 * x ** 2, np.full(24, 1e-4), ref, lev, range(8), 0.5,
-    ...             300)["significant"]
+    ...             300).significant
     True
     """
     rows, refs, noise, names = [], [], [], []
@@ -219,13 +340,13 @@ def common_test(resid: np.ndarray, noise_N2: np.ndarray, reference: np.ndarray,
                     z_crit=z_crit, min_beyond_noise_pct=min_beyond_noise_pct, names=names)
 
 
-def split_misfit(per_trial: dict, common: dict | None, min_common_share: float = 0.05
-                 ) -> dict:
+def split_misfit(per_trial: GapTest, common: GapTest | None, min_common_share: float = 0.05
+                 ) -> MisfitSplit:
     """The misfit beyond noise split into its common and trial-to-trial parts.
 
     Parameters
     ----------
-    per_trial, common : dict
+    per_trial, common : GapTest
         :func:`gap_test` on the trials and :func:`common_test` on the level means.
     min_common_share : float
         The common part counts only when it is at least this share of the trial-to-trial
@@ -235,21 +356,21 @@ def split_misfit(per_trial: dict, common: dict | None, min_common_share: float =
 
     Returns
     -------
-    dict
+    MisfitSplit
         ``systematic_pct`` and ``trial_to_trial_pct`` (% of the response, beyond noise),
         ``systematic_significant`` and ``within_scatter`` (the per-trial test is
         significant, the common part is not).
     """
-    total = per_trial.get("beyond_noise_pct_typical") or 0.0
+    total = per_trial.beyond_noise_pct_typical or 0.0
     if common is None:
-        return {"systematic_pct": None, "trial_to_trial_pct": None, "within_scatter": False,
-                "systematic_significant": None}
-    sysm = common.get("beyond_noise_pct_typical") or 0.0
+        return MisfitSplit(systematic_pct=None, trial_to_trial_pct=None, within_scatter=False,
+                           systematic_significant=None)
+    sysm = common.beyond_noise_pct_typical or 0.0
     t2t = math.sqrt(max(total ** 2 - sysm ** 2, 0.0))
-    sig = bool(common["significant"] and sysm >= min_common_share * t2t)
-    return {"systematic_pct": sysm, "trial_to_trial_pct": t2t,
-            "within_scatter": bool(per_trial.get("significant") and not sig),
-            "systematic_significant": sig}
+    sig = bool(common.significant and sysm >= min_common_share * t2t)
+    return MisfitSplit(systematic_pct=sysm, trial_to_trial_pct=t2t,
+                       within_scatter=bool(per_trial.significant and not sig),
+                       systematic_significant=sig)
 
 
 def gap_fatigue(diag) -> FatigueResult:
@@ -408,7 +529,8 @@ def sentence(verdict: str, label: str | None, nominal: dict, remaining: dict,
                  if common is not None else "")
         return ("The nominal model misses part of the response "
                 f"({nom:.2f} % of the response beyond noise, significant{split}), and none of the "
-                "six candidate effects, alone or in pairs, explains it: something else is at "
+                f"{_count_words(len(CANDIDATES))} candidate effects, alone or in pairs, explains "
+                "it: something else is at "
                 f"work{(' - ' + where) if where else ''}." + tail)
     if verdict == "muscle_twin":
         text = ("The remainder is muscle physics: the second-order template (with the best "
@@ -442,17 +564,24 @@ def _ratio_rows(resid: np.ndarray, noise_N2: np.ndarray) -> np.ndarray:
     return np.mean(resid ** 2, axis=1) / noise_N2
 
 
-def where(diag, resid: np.ndarray, components: list[dict], harmonics: dict | None) -> dict:
+def where(diag, resid: np.ndarray, components: list[dict], harmonics: dict | None
+          ) -> ResidualWhere:
     """Where a held-out residual exceeds the noise: by sE, chirp band, trial position; its
-    narrow-band components and harmonics; and a one-line summary."""
+    narrow-band components and harmonics; and a one-line summary.
+
+    Returns
+    -------
+    ResidualWhere
+        Empty parts and an empty summary with fewer than three trials with a measurable
+        lead-in noise.
+    """
     d = diag.data
     ok = diag.tested & np.isfinite(d.steady_noise_N2) & (d.steady_noise_N2 > 0) \
         if d.steady_noise_N2 is not None else np.zeros(d.n_trials, bool)
     out: dict = {"sE": [], "chirp_band": [], "trial_position": {}, "narrow_band": components,
                  "harmonics": harmonics}
     if ok.sum() < 3:
-        out["summary"] = ""
-        return out
+        return ResidualWhere(narrow_band=components, harmonics=harmonics)
     N = d.steady_noise_N2
     ratio = _ratio_rows(resid[ok], N[ok])
     lev = d.level[ok]
@@ -476,8 +605,9 @@ def where(diag, resid: np.ndarray, components: list[dict], harmonics: dict | Non
                                     for t in thirds],
         "correlation_with_order": float(np.corrcoef(order, np.log(ratio))[0, 1])
         if len(ratio) >= 3 and np.std(np.log(ratio)) > 0 else None}
-    out["summary"] = _summary(out)
-    return out
+    return ResidualWhere(sE=tuple(out["sE"]), chirp_band=tuple(out["chirp_band"]),
+                         trial_position=out["trial_position"], narrow_band=components,
+                         harmonics=harmonics, summary=_summary(out))
 
 
 def baseline_steps(diag, resid: np.ndarray) -> list[dict]:
@@ -489,17 +619,15 @@ def baseline_steps(diag, resid: np.ndarray) -> list[dict]:
         return []
     Q = nuisance_basis(d.t_eval_s, 0.0)
     r = resid[ok]
-    info: dict = {}
-    steps = find_steps(r, Q, d.subset(ok), info=info)
     out = []
-    for i, u in steps.items():
+    for st in find_steps(r, Q, d.subset(ok)):
+        i, u = st.row, st.column
         a = float(r[i] @ u)
         after = r[i] - a * u
         N = d.steady_noise_N2[ok[i]] if d.steady_noise_N2 is not None else 0.0
         ex_before = max(float(np.mean(r[i] ** 2)) - N, 1e-30)
         ex_after = max(float(np.mean(after ** 2)) - N, 0.0)
-        k, scale = info[i]
-        height = a * scale
+        k, height = st.sample, a * st.height_per_unit_N
         out.append({"trial": d.trials[ok[i]].name, "t_s": float(d.t_eval_s[k]),
                     "height_N": height,
                     "share_of_excess_pct": 100.0 * (1 - ex_after / ex_before)})
@@ -578,14 +706,15 @@ def assess(diag, muscle=None) -> GapVerdict:
 
     def test(res):
         r = res.heldout_resid[ok]
-        t = gap_test(r, noise[ok], diag.reference[ok], nu, nu, n_lead, z_crit=s.significance_z,
-                     min_beyond_noise_pct=s.min_beyond_noise_pct, names=names)
+        gt = gap_test(r, noise[ok], diag.reference[ok], nu, nu, n_lead, z_crit=s.significance_z,
+                      min_beyond_noise_pct=s.min_beyond_noise_pct, names=names)
         comps = narrow_band(r, diag.reference[ok], rest, d.fs_eval_Hz, band_top,
                             f_min_Hz=d.chirp_f0_Hz, min_beyond_noise_pct=s.min_beyond_noise_pct)
         common = common_test(r, noise[ok], diag.reference[ok], d.level[ok], d.sE_levels, nu,
                              n_lead, z_crit=s.significance_z,
                              min_beyond_noise_pct=s.min_beyond_noise_pct)
-        t.update(split_misfit(t, common, s.min_common_share))
+        split = split_misfit(gt, common, s.min_common_share)
+        t = {**gt.to_dict(), **split.to_dict()}
         t["narrow_band_significant"] = any(c["significant"] for c in comps)
         broadband = bool(t["significant"] and not t["within_scatter"])
         t["significant_total"] = bool(broadband or t["narrow_band_significant"])
@@ -607,7 +736,7 @@ def assess(diag, muscle=None) -> GapVerdict:
     verdict = decide(nominal_sig, kind, rem["significant_total"])
     if verdict == "none":      # nothing named: what remains is the nominal model's gap
         rem, comps, res = nom, nom_comps, diag.nominal
-    w = where(diag, res.heldout_resid, comps, _harmonics(diag, res))
+    w = where(diag, res.heldout_resid, comps, _harmonics(diag, res)).to_dict()
     w["baseline_steps"] = baseline_steps(diag, diag.nominal.heldout_resid)
     rem = dict(rem)
     rem["where"] = w

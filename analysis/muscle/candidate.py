@@ -19,6 +19,8 @@ first order, at the cost of one batched simulation for all folds.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import logging
 import time
 from dataclasses import dataclass, field
@@ -56,7 +58,8 @@ class MuscleResult:
     fit_s: float = 0.0
     cpu_s: float = 0.0
     """CPU time of this process spent on the muscle twin (fit_s is wall time)."""
-    params: dict = field(default_factory=dict)
+    params: Mapping[str, float] = field(default_factory=dict)
+    """The fitted parameters by name (:attr:`MuscleFit.params`)."""
     label: str = LABEL
 
 

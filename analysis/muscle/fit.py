@@ -38,6 +38,7 @@ from nmsid.analysis.gap.models import nuisance_basis
 from nmsid.analysis.gap.samples import effective_fraction
 from nmsid.analysis.muscle import literature as lit
 from nmsid.analysis.muscle.dynamics import PARAM_NAMES, simulate_batch
+from nmsid.analysis.parameters import Parameters
 from nmsid.analysis.muscle.errors import MuscleFitError
 from nmsid.analysis.preprocess import lowpass_sos
 
@@ -130,8 +131,9 @@ class MuscleFit:
     """(n_trials, n_eval) of the data rows of ``jac`` and ``fun``."""
 
     @property
-    def params(self) -> dict[str, float]:
-        return {n: float(v) for n, v in zip(PARAM_NAMES, self.theta)}
+    def params(self) -> Parameters:
+        """The fitted parameters by name (``PARAM_NAMES`` order)."""
+        return Parameters(tuple((n, float(v)) for n, v in zip(PARAM_NAMES, self.theta)))
 
     def table(self) -> list[dict]:
         """Each parameter with its uncertainty (relative for the log-scale ones)."""

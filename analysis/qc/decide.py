@@ -20,7 +20,9 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 import numpy as np
 
@@ -65,12 +67,35 @@ class TrialQC:
     def kept(self) -> bool:
         return self.decision in (USED, REPAIRED)
 
-    def row(self) -> dict:
-        """The ``qc.csv`` row."""
+    def to_dict(self) -> dict:
+        """The ``qc.csv`` row (and ``nmsid qc --json``'s trial item)."""
         return {"trial": self.trial, "sE": self.sE, "repeat": self.repeat,
                 "decision": self.decision, "reasons": "; ".join(self.reasons),
                 "spans": " ".join(f"{a:.2f}-{b:.2f}" for a, b in self.spans),
                 "level_flag": self.level_flag}
+
+
+@dataclass(frozen=True)
+class DecisionCounts:
+    """How many judged trials each decision got (:meth:`SessionQC.counts`).
+
+    Attributes
+    ----------
+    used, repaired, excluded : int
+    """
+
+    used: int = 0
+    repaired: int = 0
+    excluded: int = 0
+
+    @property
+    def total(self) -> int:
+        """Every judged trial."""
+        return self.used + self.repaired + self.excluded
+
+    def to_dict(self) -> dict[str, int]:
+        """``nmsid qc --json``'s ``counts``."""
+        return {USED: self.used, REPAIRED: self.repaired, EXCLUDED: self.excluded}
 
 
 @dataclass
@@ -100,9 +125,16 @@ class SessionQC:
     def trials(self) -> list[TrialQC]:
         return [v for lv in self.levels for v in lv.verdicts]
 
-    def excluded(self) -> dict[str, str]:
-        """Trial name -> reasons, for every excluded trial."""
-        return {v.trial: "; ".join(v.reasons) for v in self.trials if v.decision == EXCLUDED}
+    def excluded(self) -> Mapping[str, str]:
+        """Trial name -> reasons, for every excluded trial.
+
+        Returns
+        -------
+        Mapping of str to str
+            Read-only, in session order (what ``load_session(excluded=...)`` takes).
+        """
+        return MappingProxyType({v.trial: "; ".join(v.reasons) for v in self.trials
+                                 if v.decision == EXCLUDED})
 
     def kept_trials(self, sE: float) -> list:
         for lv in self.levels:
@@ -110,11 +142,11 @@ class SessionQC:
                 return lv.kept
         return []
 
-    def counts(self) -> dict[str, int]:
-        out = {USED: 0, REPAIRED: 0, EXCLUDED: 0}
-        for v in self.trials:
-            out[v.decision] = out.get(v.decision, 0) + 1
-        return out
+    def counts(self) -> DecisionCounts:
+        """How many judged trials were used, repaired and excluded."""
+        d = [v.decision for v in self.trials]
+        return DecisionCounts(used=d.count(USED), repaired=d.count(REPAIRED),
+                              excluded=d.count(EXCLUDED))
 
 
 # -- one trial on its own ---------------------------------------------------------------

@@ -18,7 +18,7 @@ def rows(qc: SessionQC) -> list[dict]:
     """One dict per judged trial, in session order, with ``QC_COLUMNS``."""
     out = []
     for v in sorted(qc.trials, key=lambda v: v.trial):
-        r = v.row()
+        r = v.to_dict()
         r["participant"] = qc.participant
         out.append(r)
     return out
@@ -41,7 +41,7 @@ def write_qc_csv(sessions: list[SessionQC], path: str | Path) -> Path:
 def as_json(qc: SessionQC) -> str:
     """The verdicts as JSON (``nmsid qc --json``)."""
     return json.dumps({"participant": qc.participant, "source": qc.source,
-                       "counts": qc.counts(), "trials": rows(qc),
+                       "counts": qc.counts().to_dict(), "trials": rows(qc),
                        "levels": [{"sE": lv.sE, "n_kept": len(lv.kept), "flag": lv.flag}
                                   for lv in qc.levels],
                        "fatigue": _finite(qc.fatigue.as_dict()) if qc.fatigue else None},
@@ -69,8 +69,8 @@ def format_table(qc: SessionQC, all_trials: bool = False) -> str:
     if not shown:
         lines.append("(every trial used as recorded)")
     c = qc.counts()
-    lines.append(f"{c.get('used', 0)} used, {c.get('repaired', 0)} repaired, "
-                 f"{c.get('excluded', 0)} excluded of {sum(c.values())} completed trials")
+    lines.append(f"{c.used} used, {c.repaired} repaired, {c.excluded} excluded of {c.total} "
+                 "completed trials")
     for lv in qc.levels:
         if lv.flag:
             lines.append(f"sE={lv.sE:g}: {lv.flag}")

@@ -26,6 +26,7 @@ class ActivationDynamics(EffectParams):
     slots: ClassVar[frozenset[str]] = frozenset({"lag"})
     words: ClassVar[str | None] = ("slower muscle activation (a first-order lag before the "
                                        "force dynamics)")
+    confusable_with: ClassVar[tuple[str, ...]] = ("flexor_extensor_asymmetry",)
 
     def lag_s(self) -> float:
         return self.tau_s
@@ -51,10 +52,10 @@ class ActivationDynamicsForm(FittedForm):
     def signature(self, sig):
         tf = sig.phase
         return (f"signature: the footprint's phase is an arctangent (R^2 "
-                f"{tf['r2_atan_phase']:.3f} vs {tf['r2_linear_phase']:.3f} for a line; tau "
-                f"= {1000 * tf['lag_equivalent_s']:.1f} ms) with a gain roll-off of "
-                f"{tf['gain_error_at_top_dB']:.2f} dB at the top of the band (expected "
-                f"{tf['gain_rolloff_expected_for_lag_dB']:.2f} dB).")
+                f"{tf.r2_atan_phase:.3f} vs {tf.r2_linear_phase:.3f} for a line; tau "
+                f"= {1000 * tf.lag_equivalent_s:.1f} ms) with a gain roll-off of "
+                f"{tf.gain_error_at_top_dB:.2f} dB at the top of the band (expected "
+                f"{tf.gain_rolloff_expected_for_lag_dB:.2f} dB).")
 
 
 EFFECT = EffectDefinition(ActivationDynamics, ActivationDynamicsForm())

@@ -42,7 +42,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -168,6 +168,9 @@ class EffectParams:
     #: Plain words for the gap report's sentence ("the gap is explained by <words>");
     #: None: the name.
     words: ClassVar[str | None] = None
+    #: Effects whose footprint in the data resembles this one's (their names): the gap
+    #: report sets each such pair's scores side by side. Declare a pair in one of the two.
+    confusable_with: ClassVar[tuple[str, ...]] = ()
 
     @classmethod
     def param_specs(cls) -> tuple[ParamSpec, ...]:
@@ -270,7 +273,7 @@ class FittedForm:
         """Add the derived figures of the final fit to ``p`` (in place); ``ctx`` has ``q``,
         ``sE_levels`` and ``drift_amplitude()`` (``analysis.gap.models.FinalContext``)."""
 
-    def twin_params(self, p: dict, sE_levels: Any) -> dict:
+    def twin_params(self, p: Mapping[str, float], sE_levels: Any) -> dict:
         """The twin file's ``params`` of the effect (the registry's names)."""
         raise NotImplementedError
 
@@ -278,6 +281,12 @@ class FittedForm:
         """One line: the signature in the data that points at this effect (``sig``:
         ``analysis.gap.evidence.Signatures``)."""
         raise NotImplementedError
+
+    def pair_evidence(self, other: str, sig: Any) -> dict | None:
+        """Figures that tell this effect from a confusable one (``other``: its name) in the
+        signatures ``sig``, added to the report's pair; None (the default): the two
+        candidates' scores say it alone."""
+        return None
 
     # -- the slots as functions of q -------------------------------------------------------
     def fit_curve(self, q: np.ndarray) -> Callable[[Any], Any]:

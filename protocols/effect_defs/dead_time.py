@@ -30,6 +30,7 @@ class DeadTime(EffectParams):
     definition: ClassVar[str] = "F(t) = F_0(t - L_s), i.e. G(s) e^{-L_s s}"
     slots: ClassVar[frozenset[str]] = frozenset({"delay"})
     words: ClassVar[str | None] = "a dead time (the force answers the stimulation late)"
+    confusable_with: ClassVar[tuple[str, ...]] = ("activation_dynamics", "flexor_extensor_asymmetry")
 
     def delay_s(self) -> float:
         return self.L_s
@@ -57,14 +58,23 @@ class DeadTimeForm(FittedForm):
     def twin_params(self, p, sE_levels):
         return {"L_s": p["L_s"]}
 
+    def pair_evidence(self, other, sig):
+        # a dead time's phase error is a line, an activation lag's an arctangent with a
+        # gain roll-off: the phase shape tells the two apart
+        if other != "activation_dynamics":
+            return None
+        tf = sig.phase
+        return {"phase_shape": {"r2_linear": tf.r2_linear_phase, "r2_atan": tf.r2_atan_phase,
+                                "gain_error_at_top_dB": tf.gain_error_at_top_dB}}
+
     def signature(self, sig):
         tf = sig.phase
         return (f"signature: the effect's footprint on the transfer function is a phase "
-                f"line (R^2 {tf['r2_linear_phase']:.3f} vs {tf['r2_atan_phase']:.3f} for "
-                f"an arctangent; slope = {1000 * tf['dead_time_equivalent_s']:.1f} ms) with "
-                f"a gain error of {tf['gain_error_at_top_dB']:.2f} dB at the top of the "
+                f"line (R^2 {tf.r2_linear_phase:.3f} vs {tf.r2_atan_phase:.3f} for "
+                f"an arctangent; slope = {1000 * tf.dead_time_equivalent_s:.1f} ms) with "
+                f"a gain error of {tf.gain_error_at_top_dB:.2f} dB at the top of the "
                 f"band (a lag with that phase would roll off "
-                f"{tf['gain_rolloff_expected_for_lag_dB']:.2f} dB).")
+                f"{tf.gain_rolloff_expected_for_lag_dB:.2f} dB).")
 
 
 EFFECT = EffectDefinition(DeadTime, DeadTimeForm())

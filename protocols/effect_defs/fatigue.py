@@ -46,6 +46,7 @@ class Fatigue(EffectParams):
         "reference_stim_s); linear: g = max(0.05, 1 - p c / reference_stim_s)")
     slots: ClassVar[frozenset[str]] = frozenset({"gain"})
     words: ClassVar[str | None] = "fatigue (the response weakens with accumulated stimulation)"
+    confusable_with: ClassVar[tuple[str, ...]] = ("baseline_drift",)
 
     def gain(self, cumulative_stim_s):
         """g(c) for c in seconds of cumulative stimulation (array or scalar)."""

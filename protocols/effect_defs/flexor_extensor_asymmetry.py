@@ -72,8 +72,8 @@ class AsymmetryForm(FittedForm):
     def signature(self, sig):
         tf = sig.phase
         return (f"signature: gain/phase error of resonance shape (max phase error "
-                f"{tf['max_abs_phase_error_deg']:.1f} deg, not linear: R^2 "
-                f"{tf['r2_linear_phase']:.2f}); the mixture of two second-order "
+                f"{tf.max_abs_phase_error_deg:.1f} deg, not linear: R^2 "
+                f"{tf.r2_linear_phase:.2f}); the mixture of two second-order "
                 "responses explains it.")
 
 

@@ -69,6 +69,7 @@ class RecruitmentNonlinearity(EffectParams):
         "0, 1)")
     slots: ClassVar[frozenset[str]] = frozenset({"intensity"})
     words: ClassVar[str | None] = "non-linear motor-unit recruitment"
+    confusable_with: ClassVar[tuple[str, ...]] = ("flexor_extensor_asymmetry",)
 
     def __post_init__(self) -> None:
         super().__post_init__()

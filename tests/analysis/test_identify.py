@@ -22,7 +22,7 @@ def test_session_parameters_recovered(small_session):
         assert abs(f.wn_rad_s - wn) < 6 * f.wn_se + 1e-4 * wn
     assert np.max(np.abs(errs)) < 0.01
     assert res.problems == []
-    row = res.levels[0].row(res.participant)
+    row = res.levels[0].to_dict(res.participant)
     assert {"Kp", "wn_rad_s", "zeta", "fit_pct", "n_trials", "Kp_se"} <= set(row)
 
 
@@ -64,7 +64,7 @@ def test_broken_session_gives_messages_and_goes_on(small_session, tmp_path):
     assert "sE=0.75: no usable trial; level not identified" in text
     assert "only one usable repeat" in text
     by_sE = {round(lv.sE, 2): lv for lv in res.levels}
-    assert by_sE[0.75].fit is None and np.isnan(by_sE[0.75].row()["Kp"])
+    assert by_sE[0.75].fit is None and np.isnan(by_sE[0.75].to_dict()["Kp"])
     for s in (0.3, 0.45, 0.6, 0.9, 1.0):
         kp = truth.at(s)[0]
         assert by_sE[s].fit is not None and abs(by_sE[s].fit.Kp / kp - 1) < 0.01

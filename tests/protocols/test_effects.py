@@ -96,7 +96,7 @@ def test_each_form_fits_its_declared_parameters_and_writes_the_registry_names(e)
     cand = candidate(e)
     lo, hi = cand.bounds()
     q = np.array([RNG.uniform(a, b) for a, b in zip(lo[:-1], hi[:-1])])
-    p = cand.params(np.append(q, 0.0))
+    p = cand.params(np.append(q, 0.0)).to_dict()
     p.update({"input_timing_s": 0.0, "corner_Hz": 0.2, "amplitude_N": 0.05})
     form.final(p, FinalContext(q=q, sE_levels=np.array([0.3, 0.6, 0.9]),
                                drift_amplitude=lambda: (0.04, 0.05)))
@@ -165,11 +165,11 @@ def test_fmu_reference_activation_lag_is_g_over_tau_s_plus_one(trial):
 
 @pytest.mark.parametrize("e", CANDIDATES, ids=lambda e: e.value)
 def test_each_form_says_its_signature_in_one_line(e):
-    from nmsid.analysis.gap.evidence import Signatures
+    from nmsid.analysis.gap.evidence import PhaseShape, Signatures
     tf = {"r2_linear_phase": 0.9, "r2_atan_phase": 0.5, "dead_time_equivalent_s": 0.02,
           "lag_equivalent_s": 0.03, "gain_error_at_top_dB": -1.0,
           "gain_rolloff_expected_for_lag_dB": -2.0, "max_abs_phase_error_deg": 12.0}
-    sig = Signatures(transfer_function=tf, effect_footprint=None,
+    sig = Signatures(transfer_function=PhaseShape(**tf), effect_footprint=None,
                      gain_vs_stimulation={"slope_per_100s": -0.01, "correlation": -0.8},
                      harmonics={"median_2f_pct": 1.0, "median_3f_pct": 2.0,
                                 "median_1.5f_noise_reference_pct": 0.1},
@@ -251,7 +251,7 @@ def _toy_module():
             return {"delay_ms": p["delay_ms"]}
 
         def signature(self, sig):
-            return f"signature: a phase line of slope {sig.phase['dead_time_equivalent_s']:g} s."
+            return f"signature: a phase line of slope {sig.phase.dead_time_equivalent_s:g} s."
 
     return EffectDefinition(TransportDelay, TransportDelayForm())
 
@@ -375,3 +375,27 @@ def test_the_reports_words_come_from_each_effect():
         spec("dead_time").source.params_type.words + " together with "
         + spec("fatigue").source.params_type.words)
     assert all(s.source.params_type.words for s in EFFECTS)
+
+
+def test_confusable_pairs_come_from_the_effect_modules_and_name_registered_effects():
+    from nmsid.analysis.gap.evidence import confusable
+    for s in EFFECTS:
+        assert set(s.source.params_type.confusable_with) <= set(EFFECT_NAMES) - {s.name}
+    got = {frozenset((a.value, b.value)) for a, b in confusable()}
+    assert got == {frozenset(p) for p in (
+        ("dead_time", "activation_dynamics"), ("activation_dynamics", "flexor_extensor_asymmetry"),
+        ("dead_time", "flexor_extensor_asymmetry"), ("fatigue", "baseline_drift"),
+        ("recruitment_nonlinearity", "flexor_extensor_asymmetry"))}
+    assert len(confusable()) == len(got)        # each pair once
+
+
+def test_only_the_dead_time_adds_its_phase_shape_and_only_against_the_activation_lag():
+    from nmsid.analysis.gap.evidence import PhaseShape, Signatures, confusable
+    tf = PhaseShape(0.02, 0.9, 0.03, 0.5, -1.0, -2.0, 12.0)
+    sig = Signatures(transfer_function=tf, effect_footprint=None, gain_vs_stimulation={},
+                     harmonics={}, low_frequency={})
+    added = {(x.value, y.value): FORMS[x].pair_evidence(y.value, sig)
+             for a, b in confusable() for x, y in ((a, b), (b, a))}
+    assert {k for k, v in added.items() if v} == {("dead_time", "activation_dynamics")}
+    assert added[("dead_time", "activation_dynamics")] == {
+        "phase_shape": {"r2_linear": 0.9, "r2_atan": 0.5, "gain_error_at_top_dB": -1.0}}

@@ -42,7 +42,7 @@ def test_gap_test_noise_only_is_not_significant(sd):
     rng = np.random.default_rng(int(sd * 1000))
     ref, r, N = _rows(rng, sd=sd)
     out = gap_test(r, N, ref, 1.0, 1.0, 300)
-    assert not out["significant"] and out["median_ratio"] == pytest.approx(1, abs=0.1)
+    assert not out.significant and out.median_ratio == pytest.approx(1, abs=0.1)
 
 
 @pytest.mark.parametrize("shape", ["sine", "ramp", "harmonic"])
@@ -53,7 +53,7 @@ def test_gap_test_finds_a_deterministic_misfit_in_every_trial(shape):
     extra = {"sine": 0.05 * np.sin(40 * x), "ramp": 0.4 * (x - 0.5) ** 2,
              "harmonic": 0.04 * np.sin(160 * x)}[shape]
     out = gap_test(r + extra, N, ref, 1.0, 1.0, 300)
-    assert out["significant"] and out["beyond_noise_pct"] > 1.0
+    assert out.significant and out.beyond_noise_pct > 1.0
 
 
 def test_gap_test_does_not_rest_on_one_or_two_trials():
@@ -62,9 +62,9 @@ def test_gap_test_does_not_rest_on_one_or_two_trials():
     r[[4, 17]] += 2.0 * np.exp(-0.5 * ((np.arange(r.shape[1]) - 500) / 60.0) ** 2)
     names = [f"t{i:03d}" for i in range(1, 31)]
     out = gap_test(r, N, ref, 1.0, 1.0, 300, names=names)
-    assert not out["significant"]
-    assert sorted(out["concentrated_in"]) == ["t005", "t018"]
-    assert out["beyond_noise_pct"] > 10 * out["beyond_noise_pct_typical"]
+    assert not out.significant
+    assert sorted(out.concentrated_in) == ["t005", "t018"]
+    assert out.beyond_noise_pct > 10 * out.beyond_noise_pct_typical
 
 
 def test_narrow_band_tells_a_line_from_an_oscillation():
@@ -168,3 +168,23 @@ def test_excluded_trials_never_reach_a_fit(nominal_session):
     names = [t.name for t in data.trials]
     assert "t002" not in names and "t010" not in names and len(names) == 13
     assert data.excluded == {"t002": "spike", "t010": "clipping"}
+
+
+def test_the_unexplained_sentence_counts_the_registry_not_a_fixed_six(monkeypatch):
+    from nmsid.analysis.gap import verdict
+    nom = {"beyond_noise_pct_typical": 2.0, "significant": True}
+    monkeypatch.setattr(verdict, "CANDIDATES", tuple(range(7)))
+    assert "none of the seven candidate effects" in sentence("unexplained", None, nom, dict(nom))
+
+
+def test_gap_test_keeps_its_report_form():
+    rng = np.random.default_rng(3)
+    ref = np.tile(np.sin(np.linspace(0, 60, 500)), (12, 1))
+    r = rng.normal(0, 0.1, (12, 500))
+    out = gap_test(r, np.full(12, 0.01), ref, 1.0, 1.0, 300)
+    assert set(out.to_dict()) == {"n_trials", "significant", "beyond_noise_pct",
+                                  "beyond_noise_pct_typical", "median_ratio", "z",
+                                  "concentrated_in"}
+    short = gap_test(r[:2], np.full(2, 0.01), ref[:2], 1.0, 1.0, 300)
+    assert not short.significant and short.beyond_noise_pct is None
+    assert "not tested" in short.to_dict()["note"]

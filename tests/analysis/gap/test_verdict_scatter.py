@@ -13,7 +13,7 @@ import pytest
 from nmsid.analysis.fatigue import FatigueResult
 from nmsid.analysis.gap.data import load_session
 from nmsid.analysis.gap.diagnose import GapSettings, diagnose
-from nmsid.analysis.gap.verdict import GapVerdict, split_misfit
+from nmsid.analysis.gap.verdict import GapTest, GapVerdict, split_misfit
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "bench"))
 from trial_sessions import TrialPhysiology, write_session
@@ -28,15 +28,18 @@ def _diagnose(tmp_path, seed, **kw):
 
 
 def test_split_counts_a_common_part_only_when_significant_and_material():
-    per_trial = {"beyond_noise_pct_typical": 10.0, "significant": True}
-    small = split_misfit(per_trial, {"beyond_noise_pct_typical": 0.3, "significant": True})
-    assert small["within_scatter"] and not small["systematic_significant"]
-    assert small["trial_to_trial_pct"] == pytest.approx(math.sqrt(100 - 0.09))
-    big = split_misfit(per_trial, {"beyond_noise_pct_typical": 0.6, "significant": True})
-    assert big["systematic_significant"] and not big["within_scatter"]
-    noisy = split_misfit(per_trial, {"beyond_noise_pct_typical": 3.0, "significant": False})
-    assert noisy["within_scatter"]
-    assert not split_misfit({"significant": False}, None)["within_scatter"]
+    per_trial = GapTest(n_trials=24, beyond_noise_pct_typical=10.0, significant=True)
+    small = split_misfit(per_trial, GapTest(8, beyond_noise_pct_typical=0.3, significant=True))
+    assert small.within_scatter and not small.systematic_significant
+    assert small.trial_to_trial_pct == pytest.approx(math.sqrt(100 - 0.09))
+    big = split_misfit(per_trial, GapTest(8, beyond_noise_pct_typical=0.6, significant=True))
+    assert big.systematic_significant and not big.within_scatter
+    noisy = split_misfit(per_trial, GapTest(8, beyond_noise_pct_typical=3.0, significant=False))
+    assert noisy.within_scatter
+    assert not split_misfit(GapTest(24, significant=False), None).within_scatter
+    assert split_misfit(per_trial, None).to_dict() == {
+        "systematic_pct": None, "trial_to_trial_pct": None, "within_scatter": False,
+        "systematic_significant": None}
 
 
 def test_scatter_between_repeats_is_not_called_a_gap(tmp_path):

@@ -290,3 +290,19 @@ def test_jump_found_among_repeats_with_varying_dynamics():
     v = verdicts(assess_level(trials))
     assert v["t001"].decision == "repaired", v["t001"].reasons
     assert v["t002"].decision == v["t003"].decision == "used"
+
+
+def test_counts_and_excluded_are_result_objects_with_the_json_form():
+    from nmsid.analysis.qc.decide import DecisionCounts, LevelQC, SessionQC, TrialQC
+    vs = [TrialQC("t001", 0.5, 1, "used"), TrialQC("t002", 0.5, 2, "excluded", ["spike"]),
+          TrialQC("t003", 0.5, 3, "repaired", ["bridged"]),
+          TrialQC("t004", 0.5, 4, "excluded", ["a", "b"])]
+    qc = SessionQC("P01", "s.h5", [LevelQC(0.5, vs)])
+    c = qc.counts()
+    assert c == DecisionCounts(used=1, repaired=1, excluded=2) and c.total == 4
+    assert c.to_dict() == {"used": 1, "repaired": 1, "excluded": 2}
+    ex = qc.excluded()
+    assert dict(ex) == {"t002": "spike", "t004": "a; b"}
+    with pytest.raises(TypeError):
+        ex["t001"] = "x"  # type: ignore[index]
+    assert vs[3].to_dict()["reasons"] == "a; b"
