@@ -57,8 +57,13 @@ def test_three_kills_with_damage_keep_every_intact_trial_and_repeat_none(tmp_pat
     import nmsid.rig.engine
     import nmsid.sim_backends.rig  # noqa: F401
     rng = random.Random(2611)
-    results = [camp.one_run(tmp_path, k, rng, levels=(0.5,), max_kill_s=0.1,
-                            launch=_Forked) for k in range(3)]
+    # three kills, more while none landed with a journal to damage (a fast-clock session of
+    # four trials may end before a kill; at most 9 runs)
+    results = []
+    while len(results) < 3 or (not any(camp.damaged(r) for r in results)
+                               and len(results) < 9):
+        results.append(camp.one_run(tmp_path, len(results), rng, levels=(0.4, 0.8),
+                                    max_kill_s=0.03, launch=_Forked))
     for r in results:
         assert r.tracebacks == 0, r
         assert (r.valid and r.all_done) or not r.resumable, r

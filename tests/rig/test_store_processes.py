@@ -204,7 +204,13 @@ def test_disk_filled_mid_session_at_ten_sizes(tmp_path, small_fs):
                 pytest.fail(f"size {k}: the run ended before the disk was filled:\n"
                             + log.read_text())
             time.sleep(0.001)
-        filler = _fill(small_fs, leave)
+        # the session is held while the disk fills (a fast-clock session would otherwise
+        # often finish first): the disk is full exactly after this trial's journal entry
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            filler = _fill(small_fs, leave)
+        finally:
+            os.kill(pid, signal.SIGCONT)
         code, signalled = _wait(pid)
         text = log.read_text()
         assert not signalled, (k, text)
