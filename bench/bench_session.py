@@ -10,7 +10,7 @@ process (what the session exists for).
 
 Then the same session as a user runs it, a whole process timed from outside:
 ``nmsid run --backend sim --participant P01 --outdir D --no-identify`` (wall and CPU time,
-and its peak resident memory, POSIX only), with start-up shown separately (a process that
+and its own peak resident memory, POSIX only), with start-up shown separately (a process that
 only imports the command's handler, beside ``python -c pass``).
 
     python bench/bench_session.py
@@ -91,22 +91,30 @@ def _process(cmd: list[str]) -> tuple[float, float]:
     return wall, cpu
 
 
-def _children_peak_MB() -> float:
-    """Peak resident memory of the largest child process so far (POSIX; nan on Windows)."""
+def _process_peak(cmd: list[str]) -> tuple[float, float, float]:
+    """(wall s, CPU s, peak resident MB) of this one process: ``os.wait4`` reports that
+    child's own usage (POSIX; on Windows the wall time and nan, nan). Not RUSAGE_CHILDREN:
+    in a full bench run that is the largest child of any earlier benchmark."""
     if is_windows():
-        return float("nan")
-    import resource  # POSIX only: imported under the platform switch
-    kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return kb / 1024 / (1024 if sys.platform == "darwin" else 1)  # macOS: bytes
+        return _process(cmd)[0], float("nan"), float("nan")
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, env=_env(), cwd=ROOT, stdout=subprocess.DEVNULL)
+    _, status, ru = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise subprocess.CalledProcessError(proc.returncode, cmd)
+    kb = ru.ru_maxrss
+    return wall, ru.ru_utime + ru.ru_stime, kb / 1024 / (1024 if sys.platform == "darwin" else 1)
 
 
 def whole_process(tmp: Path) -> None:
     """The session as a user runs it, and the start-up of such a process."""
     out = tmp / "process"
     out.mkdir()
-    wall, cpu = _process([sys.executable, "-m", "nmsid", "run", "--backend", "sim",
-                          "--participant", "P01", "--outdir", str(out), "--no-identify"])
-    peak = _children_peak_MB()
+    wall, cpu, peak = _process_peak([sys.executable, "-m", "nmsid", "run", "--backend", "sim",
+                                     "--participant", "P01", "--outdir", str(out),
+                                     "--no-identify"])
     start = [_process([sys.executable, "-c", "import nmsid.cli.run_command"])[0]
              for _ in range(3)]
     bare = [_process([sys.executable, "-c", "pass"])[0] for _ in range(3)]
