@@ -34,6 +34,18 @@ class BlockingStim:
         return StimulatorStatus(StimulatorState.IDLE, False, "")
 
 
+class FakeSwitch:
+    """A hardware E-stop switch as the interlock reads it (``is_pressed``, ``close``)."""
+
+    pressed = False
+
+    def is_pressed(self) -> bool:
+        return self.pressed
+
+    def close(self) -> None:
+        pass
+
+
 def test_a_trip_stops_output_at_once_while_start_blocks_in_the_gate():
     stim = BlockingStim()
     lock = Interlock(InterlockConfig(), stim)
@@ -97,16 +109,7 @@ def test_stop_watcher_ends_the_switch_thread_and_a_restart_watches_again():
     import threading  # noqa: PLC0415
     import time  # noqa: PLC0415
 
-    class Switch:
-        pressed = False
-
-        def is_pressed(self) -> bool:
-            return self.pressed
-
-        def close(self) -> None:
-            pass
-
-    sw = Switch()
+    sw = FakeSwitch()
     lock = Interlock(InterlockConfig(), BlockingStim(), estop_input=sw)
     lock.start_watcher()
     assert any(t.name == "nmsid-estop-watcher" for t in threading.enumerate())
@@ -125,18 +128,9 @@ def test_the_estop_rules_status_says_whether_a_hardware_switch_is_watched():
     """The operator's status panel tells a rig with a switch from one without, before any
     trip and again after a re-arm."""
 
-    class Switch:
-        pressed = False
-
-        def is_pressed(self) -> bool:
-            return self.pressed
-
-        def close(self) -> None:
-            pass
-
     bare = Interlock(InterlockConfig(), BlockingStim())
     assert bare.status()["estop"] == (True, "ok (no hardware switch)")
-    sw = Switch()
+    sw = FakeSwitch()
     wired = Interlock(InterlockConfig(), BlockingStim(), estop_input=sw)
     assert wired.status()["estop"] == (True, "ok (switch released)")
     sw.pressed = True
