@@ -40,3 +40,23 @@ def session_reads(monkeypatch):
 
     monkeypatch.setattr(h5py, "File", CountingFile)
     return lambda path: counts.get(Path(path).resolve(), 0)
+
+
+@pytest.fixture(scope="session")
+def load_bench_script():
+    """Import a script of ``bench/`` by its file (bench/ is not a package) under a
+    test-only module name: ``load_bench_script("rates")``."""
+    import importlib.util
+    import sys
+
+    def load(stem: str):
+        name = f"bench_{stem}_under_test"
+        if name in sys.modules:
+            return sys.modules[name]
+        spec = importlib.util.spec_from_file_location(
+            name, Path(__file__).resolve().parents[1] / "bench" / f"{stem}.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+        return module
+    return load

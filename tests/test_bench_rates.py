@@ -2,24 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def rates():
-    spec = importlib.util.spec_from_file_location("bench_rates_under_test",
-                                                  ROOT / "bench" / "rates.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+def rates(load_bench_script):
+    return load_bench_script("rates")
 
 
 @pytest.mark.parametrize("n", [1, 6, 20, 120, 1830])

@@ -6,23 +6,15 @@ well under a second and checks what the runner writes, not the real benchmarks' 
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def bench_run():
-    spec = importlib.util.spec_from_file_location("bench_runner_under_test",
-                                                  ROOT / "bench" / "run.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+def bench_run(load_bench_script):
+    return load_bench_script("run")
 
 
 def _benches(tmp_path: Path) -> Path:
