@@ -87,7 +87,7 @@ def _make_stg(s: StimulatorConfig, clock, stack):
                                   extensor_channel=s.extensor_channel,
                                   flexor_channel=s.flexor_channel, sync_out=s.sync_out,
                                   serial=s.serial, dll_path=s.dll_path or DEFAULT_DLL)
-    return Stg4002WithStreaming(streaming=StgStreamingStimulator(**common),
+    return Stg4002WithStreaming(streaming=StgStreamingStimulator(clock=clock, **common),
                                 output_rate_Hz=s.output_rate_Hz, clock=clock, **common)
 
 

@@ -25,7 +25,11 @@ first sample of a period is 0, so every period sums to exactly zero as played.
 
 Underrun: ``DisableContinousMode`` -- "the STG stops when it runs out of data. It has to be
 retriggered" (manual 6.3); an underrun therefore ends the output instead of holding a
-value. Stop: :meth:`~StgStreamingStimulator.stop_now` is the immediate ``SendStop`` and
+value. The driver sees it in the PC queue: a running STG drains the queue at the output
+rate (less at most its own ring's latency), so a queue drained by less than that means the
+device has stopped, and the next :meth:`~StgStreamingStimulator.write_stream` raises
+:class:`StreamUnderrunError` naming how far the host fell behind (the interlock trips; the
+output is already at zero). Stop: :meth:`~StgStreamingStimulator.stop_now` is the immediate ``SendStop`` and
 ``StopLoop``; a failed ``SendStop`` tells the operator to switch the STG off, as in
 download mode.
 
@@ -43,6 +47,7 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -58,6 +63,12 @@ log = logging.getLogger(__name__)
 
 INT16_FULL = 32768
 """Int16 steps per full range (manual 6.3 example: ``(2^(16-1) - 1) * sin``)."""
+RING_S = 2.5
+"""Default PC ring buffer, in seconds of output: room for the deepest queue a controller
+design allows (20 updates at 10 Hz = 2 s) and the update being written."""
+UNDERRUN_SLACK_S = 0.02
+"""Allowance on the drain test for USB transfers and clock reads (20 ms: one update at
+50 Hz)."""
 CALLBACK_THRESHOLD_PCT = 50
 """``SetupTrigger`` callback_threshold: "in percent of the buffer level" (XML; the manual's
 example uses 50)."""
@@ -90,6 +101,10 @@ def render_periods(amplitudes_mA: np.ndarray, P: int, range_nA: float, q: int) -
     return out.reshape(-1).astype(np.int16)
 
 
+class StreamUnderrunError(DeviceError):
+    """The STG ran out of streamed data and stopped (manual 6.3): the host fell behind."""
+
+
 class StgStreamingStimulator:
     """An STG4002 in streaming mode (see the module docstring).
 
@@ -102,19 +117,24 @@ class StgStreamingStimulator:
     serial, dll_path : str
     output_rate_Hz : float
         ``SetOutputRate`` (streaming mode only; "maximum of 50 kHz").
-    ring_samples : int
-        PC ring buffer per channel (the constructor's ``ringbuffer_size``).
+    ring_samples : int, optional
+        PC ring buffer per channel (the constructor's ``ringbuffer_size``); default
+        :data:`RING_S` seconds at the output rate.
     stg_ring_bytes : int
         STG-side ring buffer of trigger 1 (``SetCapacity``); sets the latency.
     api : namespace, optional
         Loaded vendor names (tests); default :func:`load_mcs_usb` plus the streaming class.
+    clock : callable, optional
+        Seconds on the device's time base for the underrun test (default
+        ``time.monotonic``; a fake bench passes its own clock).
     """
 
     def __init__(self, *, ceiling_ext_mA: float, ceiling_flex_mA: float,
                  extensor_channel: int = 1, flexor_channel: int = 2, sync_out: int = 1,
                  serial: str = "", dll_path: str = DEFAULT_DLL,
-                 output_rate_Hz: float = 50_000.0, ring_samples: int = 10_000,
-                 stg_ring_bytes: int = 16_000, api=None):
+                 output_rate_Hz: float = 50_000.0, ring_samples: int | None = None,
+                 stg_ring_bytes: int = 16_000, api=None,
+                 clock: Callable[[], float] | None = None):
         if extensor_channel == flexor_channel:
             raise StimulatorSettingError("extensor_channel and flexor_channel must differ")
         if not 1000 <= output_rate_Hz <= 50_000:
@@ -125,7 +145,11 @@ class StgStreamingStimulator:
         self.ext_ch, self.flex_ch, self.sync_out = extensor_channel, flexor_channel, sync_out
         self.serial, self.dll_path = serial, dll_path
         self.output_rate_Hz = float(output_rate_Hz)
-        self.ring_samples = int(ring_samples)
+        self.ring_samples = int(round(RING_S * self.output_rate_Hz) if ring_samples is None
+                                else ring_samples)
+        self._now = clock or time.monotonic
+        self._t_start: float | None = None
+        self._enqueued = 0          # samples per channel enqueued since open_stream
         self.stg_ring_bytes = int(stg_ring_bytes)
         self._api = api
         self._dev = None
@@ -271,6 +295,8 @@ class StgStreamingStimulator:
                                (channelmap, syncmap, digout, autostart, threshold)))
             dev.StartLoop()
         self._started = False
+        self._t_start = None
+        self._enqueued = 0
         self._state = StimulatorState.ARMED
         return float(update_Hz)
 
@@ -336,6 +362,7 @@ class StgStreamingStimulator:
             # all or nothing: EnqueueData takes at most the free space (XML: "Returns the
             # number of enqueued bytes"), so a write that does not fit is refused whole
             space = min(int(self._dev.GetDataQueueSpace(self._u32(ch - 1))) for ch in data)
+            self._check_drained(space)
             if n > space:
                 raise DeviceError(f"the STG's PC ring buffer has room for {space} samples, "
                                   f"{n} were written; nothing was sent (ring_samples "
@@ -350,7 +377,28 @@ class StgStreamingStimulator:
             sync = np.ones(n, dtype=np.uint16)
             self._dev.EnqueueSyncout(self._u32(self.sync_out - 1),
                                      api.Array[api.UInt16](sync.tolist()))
+        self._enqueued += n
         self.enqueued_periods += len(ext) * self._K
+
+    def _check_drained(self, space: int) -> None:
+        """Raise :class:`StreamUnderrunError` if the PC queue drained less than a running
+        STG must have drained by now (it stopped when it ran out of data, manual 6.3).
+
+        A running STG has taken at least ``(elapsed - latency) x rate`` samples from the PC
+        queue (its own ring holds at most :attr:`latency_s` of them); the queue tells how
+        many it took: those enqueued less those still queued.
+        """
+        if self._t_start is None:
+            return
+        taken = self._enqueued - (self.ring_samples - space)
+        elapsed_s = self._now() - self._t_start
+        behind_s = elapsed_s - self.latency_s - UNDERRUN_SLACK_S - taken / self.output_rate_Hz
+        if behind_s > 0:   # the trial ends (the interlock trips); the next stream is new
+            raise StreamUnderrunError(
+                f"the STG ran out of streamed data and stopped (McsUsbNet manual 6.3: it "
+                f"stops when it runs out of data): the host fell {1e3 * behind_s:.0f} ms "
+                "behind its queue; output is at zero. Queue more updates (a controller "
+                "designed with a larger queue) or run on a less loaded PC")
 
     def start(self) -> None:
         """``SendStart(1)`` (manual 6.3: "by Software SendStart(1)"): the queued updates
@@ -375,6 +423,7 @@ class StgStreamingStimulator:
                 self._error = f"SendStart failed: {exc}"
                 raise DeviceError(f"STG SendStart (streaming) failed: {exc}") from exc
         self._started = True
+        self._t_start = self._now()    # after SendStart returned: the test stays conservative
         self._state = StimulatorState.RUNNING
 
     def arm(self) -> None:
@@ -408,6 +457,7 @@ class StgStreamingStimulator:
             log.warning("STG stream close: %s", exc)
         self._stop("close_stream")
         self._P = 0
+        self._t_start = None
 
     def _queue_space(self) -> int:
         dev = self._dev

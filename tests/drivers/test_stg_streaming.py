@@ -19,8 +19,8 @@ from nmsid.drivers import mcs_surface
 from nmsid.drivers.fake_hardware import load_fake
 from nmsid.drivers.interfaces import (CurrentLimitError, HostStreamedStimulator,
                                       StimulatorState)
-from nmsid.drivers.stg_streaming import (INT16_FULL, StgStreamingStimulator, quantum,
-                                         render_periods)
+from nmsid.drivers.stg_streaming import (INT16_FULL, RING_S, StgStreamingStimulator,
+                                         StreamUnderrunError, quantum, render_periods)
 
 RANGE_NA, RES_NA = 16_000_000, 500
 
@@ -120,6 +120,52 @@ def test_an_underrun_stops_the_output(streaming):
     bench.sleep(0.05)
     dev = _device(fake)
     assert not dev.running and len(dev.output_at(0)) == 250
+
+
+def test_a_host_that_fell_behind_is_told_the_stg_stopped(streaming):
+    # manual 6.3: without continuous mode the STG stops when it runs out of data; the PC
+    # queue then stops draining, and the next write says so instead of filling the queue
+    # of a stopped device (it used to end, ten updates later, with "room for 0 samples")
+    stim, fake, bench = streaming
+    stim._now = bench.now
+    stim.open_stream(8.0, 6.0, 1000.0)
+    stim.write_stream(np.full(80, 2.0), np.full(80, 2.0))   # 80 ms of data
+    t0 = bench.now()
+    stim.start()
+    t1 = bench.now()
+    bench.sleep(0.3)   # > 80 ms queued + the STG ring's 80 ms (latency_s) + 20 ms slack
+    dev = _device(fake)
+    assert not dev.running and len(dev.output_at(0)) == 4000
+    before = len(dev.queued.get(0, []))
+    t2 = bench.now()
+    with pytest.raises(StreamUnderrunError, match=r"fell (\d+) ms behind") as err:
+        stim.write_stream(np.full(5, 2.0), np.full(5, 2.0))
+    t3 = bench.now()
+    assert len(dev.queued.get(0, [])) == before           # nothing was sent
+    # behind = elapsed - latency - slack - played, on the clock the driver was given
+    behind_ms = float(err.value.args[0].split("fell ")[1].split(" ms")[0])
+    lo, hi = (1e3 * (t - 0.08 - 0.02 - 0.08) for t in (t2 - t1, t3 - t0))
+    assert lo - 1 <= behind_ms <= hi + 1
+
+
+def test_a_host_that_keeps_ahead_is_not_called_late(fake_mcs):
+    # the negative control of the drain test: one second queued ahead, topped up every
+    # 50 ms for 0.3 s, on the bench's clock; the default ring holds RING_S seconds
+    fake = load_fake("fake_stg_streaming")
+    fake.install(sys.modules)
+    stim = StgStreamingStimulator(ceiling_ext_mA=12.0, ceiling_flex_mA=12.0,
+                                  clock=fake_mcs.bench.now)
+    try:
+        assert stim.ring_samples == round(RING_S * 50_000)
+        stim.open_stream(8.0, 6.0, 1000.0)
+        stim.write_stream(np.full(1000, 2.0), np.full(1000, 2.0))   # 1 s ahead
+        stim.start()
+        for _ in range(6):
+            fake_mcs.bench.sleep(0.05)
+            stim.write_stream(np.full(50, 2.0), np.full(50, 2.0))
+        assert _device(fake).running
+    finally:
+        stim.disconnect()
 
 
 def test_a_failed_stop_tells_the_operator_to_switch_the_stg_off(streaming):
