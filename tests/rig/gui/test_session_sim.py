@@ -34,8 +34,12 @@ def test_complete_session_with_estop_rearm_rerun(sim_window, qtbot, tmp_path):
 
     # -- E-stop in the middle of the second trial
     qtbot.waitUntil(lambda: w.trial_statuses()[1:2] == ["running"], timeout=30000)
+    # the stimulator's own status too, not only the plot: on a loaded machine the plot can
+    # lag the real-time rig by more than the 1.6 s chirp, and an E-stop after the output
+    # ended has no output to zero
     qtbot.waitUntil(lambda: w.buffer.snapshot().n > 0 and w.buffer.snapshot().t_s[-1] > 0.6
-                    and w.buffer.snapshot().trial_index == 1, timeout=10000)
+                    and w.buffer.snapshot().trial_index == 1
+                    and rig.stimulator.status().output_active, timeout=10000)
     qtbot.keyClick(w.tabs, " ")  # Space: the application-wide E-stop key
     qtbot.waitUntil(lambda: w.state is State.TRIPPED, timeout=5000)
     assert w.trial_statuses()[1] == "aborted"
