@@ -134,7 +134,10 @@ def lfilter_history(b, a, x, x_past=None, y_past=None) -> np.ndarray:
     y = np.empty(T)
     tail = _past(y_past, N)                    # the last N outputs, most recent first
     if K:
-        g = v[:K * L].reshape(K, L) @ HT       # each block's response from rest
+        # np.einsum, not @: numpy's own loops (0.4 ms for a 30000-sample trial) instead of
+        # BLAS, whose worker threads spin after every call (a session: 4.4 s of CPU instead
+        # of 2.4 s on 2 cores, for the same wall time)
+        g = np.einsum("kl,lm->km", v[:K * L].reshape(K, L), HT)   # each block from rest
         last = np.arange(L - 1, L - N - 1, -1)    # the last N samples, most recent first
         G = np.ascontiguousarray(F[last])
         g_tail = np.ascontiguousarray(g[:, last])
@@ -144,9 +147,10 @@ def lfilter_history(b, a, x, x_past=None, y_past=None) -> np.ndarray:
             d = D @ tail                       # exact: differences of close numbers
             starts[k] = d
             tail = g_tail[k] + G @ d
-        y[:K * L] = (g + starts @ F.T).ravel()
+        y[:K * L] = (g + np.einsum("kn,ln->kl", starts, F)).ravel()
     if r:
-        y[K * L:] = v[K * L:] @ HT[:r, :r] + F[:r] @ (_differences(N) @ tail)
+        y[K * L:] = (np.einsum("l,lm->m", v[K * L:], HT[:r, :r])
+                     + F[:r] @ (_differences(N) @ tail))
     return y
 
 
