@@ -62,10 +62,8 @@ COMMAND_OF = {
 #: machine much more (``nmsid identify`` of a 45-trial session on 2 busy cores: 5.9-8.3 s of
 #: CPU with OpenBLAS's default threads, 1.3-1.5 s with one; ``nmsid gap`` of a template
 #: session 13.3 s against 4.4 s, docs/gap.md). They start single-threaded unless the user set
-#: a thread count. ``nmsid run`` too: a session's numpy work is 64 x 64 blocks of the
-#: simulator's filters and per-trial checks (a fast-clock session on 2 loaded cores: 4.4 s of
-#: CPU with the default threads, 2.4 s with one, the same wall time; bench/bench_session.py).
-SINGLE_THREAD_COMMANDS = frozenset({"identify", "qc", "gap", "run"})
+#: a thread count.
+SINGLE_THREAD_COMMANDS = frozenset({"identify", "qc", "gap"})
 #: The thread-count variables of the BLAS builds numpy ships with (OpenBLAS) or may be
 #: built against (MKL, OpenMP); read when numpy is first imported.
 BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS")

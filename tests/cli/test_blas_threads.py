@@ -53,15 +53,6 @@ def test_identify_sets_the_count_before_numpy_is_imported(tmp_path):
                           "OMP_NUM_THREADS": "1"}
 
 
-def test_run_sets_the_count_before_numpy_is_imported(tmp_path):
-    # a --resume of a file that is not there: the handler is imported, then refuses
-    out = _run(["run", "--backend", "sim", "--resume", str(tmp_path / "missing.h5")],
-               tmp_path)
-    assert out["numpy_before"] is False
-    assert out["code"] == 2
-    assert out["env"] == {k: "1" for k in BLAS_THREAD_VARIABLES}
-
-
 def test_other_commands_keep_the_default(tmp_path):
     out = _run(["validate", str(tmp_path / "missing.toml")], tmp_path)
     assert out["env"] == {k: None for k in BLAS_THREAD_VARIABLES}
