@@ -9,9 +9,10 @@ sE. The baseline beside it is the same session's identification, timed in the sa
 process (what the session exists for).
 
 Then the same session as a user runs it, a whole process timed from outside:
-``nmsid run --backend sim --participant P01 --outdir D --no-identify`` (wall and CPU time,
-and its own peak resident memory, POSIX only), with start-up shown separately (a process that
-only imports the command's handler, beside ``python -c pass``).
+``nmsid run --backend sim --participant P01 --outdir D --no-identify`` (median wall and CPU
+time of 3 processes, and their largest own peak resident memory, POSIX only), with start-up
+shown separately (a process that only imports the command's handler, beside
+``python -c pass``). Goal: < 3 s whole process (issue 30).
 
     python bench/bench_session.py
     python bench/bench_session.py --seeds 1     # one in-process session (quick look)
@@ -108,26 +109,35 @@ def _process_peak(cmd: list[str]) -> tuple[float, float, float]:
     return wall, ru.ru_utime + ru.ru_stime, kb / 1024 / (1024 if sys.platform == "darwin" else 1)
 
 
-def whole_process(tmp: Path) -> None:
-    """The session as a user runs it, and the start-up of such a process."""
-    out = tmp / "process"
-    out.mkdir()
-    wall, cpu, peak = _process_peak([sys.executable, "-m", "nmsid", "run", "--backend", "sim",
-                                     "--participant", "P01", "--outdir", str(out),
-                                     "--no-identify"])
+def whole_process(tmp: Path, runs: int = 3) -> None:
+    """The session as a user runs it (median of ``runs`` processes), and the start-up of
+    such a process."""
+    rows = []
+    for k in range(runs):
+        out = tmp / f"process-{k}"
+        out.mkdir()
+        rows.append(_process_peak([sys.executable, "-m", "nmsid", "run", "--backend", "sim",
+                                   "--participant", "P01", "--outdir", str(out),
+                                   "--no-identify"]))
+    wall = float(np.median([r[0] for r in rows]))
+    cpu = float(np.median([r[1] for r in rows]))
+    peak = max(r[2] for r in rows)
     start = [_process([sys.executable, "-c", "import nmsid.cli.run_command"])[0]
              for _ in range(3)]
     bare = [_process([sys.executable, "-c", "pass"])[0] for _ in range(3)]
     t_start, t_bare = sorted(start)[1], sorted(bare)[1]
     met = "< 3" if wall < 3.0 else "missed"
-    print("\nWhole process: nmsid run --backend sim --participant P01 --no-identify "
-          "(15 sE x 3 repeats, fast clock)")
+    print(f"\nWhole process: nmsid run --backend sim --participant P01 --no-identify "
+          f"(15 sE x 3 repeats, fast clock), median of {runs} processes "
+          f"(wall {min(r[0] for r in rows):.2f}-{max(r[0] for r in rows):.2f} s)")
     print(f"{'wall s':>7s} {'cpu s':>6s} {'goal':>6s} {'peak MB':>8s} {'start-up s':>10s} "
-          f"{'python s':>8s} {'session - start-up s':>20s}")
+          f"{'python s':>8s} {'session - start-up s':>20s} {'start-up share':>14s}")
     print(f"{wall:7.2f} {cpu:6.2f} {met:>6s} {peak:8.0f} {t_start:10.2f} {t_bare:8.2f} "
-          f"{wall - t_start:20.2f}")
+          f"{wall - t_start:20.2f} {t_start / wall:14.2f}")
     print("(start-up: median of 3 processes that only import the command's handler; "
-          "python: median of 3 `python -c pass`)")
+          "python: median of 3 `python -c pass`"
+          + ("; PYTHONDONTWRITEBYTECODE is set: the project's modules are compiled at every "
+             "start" if os.environ.get("PYTHONDONTWRITEBYTECODE") else "") + ")")
 
 
 def main(seeds=(0, 1, 2)) -> None:
