@@ -33,6 +33,9 @@ import math
 
 import numpy as np
 
+# one expm for the analysis and the simulator, in the lowest layer (re-exported here)
+from nmsid.protocols.lti_kernels import expm  # noqa: F401
+
 __all__ = ["lfilter", "lfilter_zi", "sosfilt", "sosfilt_zi", "sosfiltfilt", "butter",
            "savgol_coeffs", "convolve1d", "compiled"]
 
@@ -366,36 +369,3 @@ def convolve1d(input, weights, axis: int = -1, mode: str = "constant",
     rows = ext.reshape(-1, ext.shape[-1])
     out = np.stack([np.convolve(r, w, mode="valid") for r in rows]) if rows.size else rows
     return _back(out.reshape(xm.shape[:-1] + (n,)), axis)
-
-
-def expm(M) -> np.ndarray:
-    """Matrix exponential by scaling and squaring with a [6/6] Pade approximant.
-
-    For the small matrices of a hold discretisation (a few states, ``|M| ~ 0.1``) this is
-    exact to rounding (tests compare with ``scipy.linalg.expm``); Higham 2005, "The
-    scaling and squaring method for the matrix exponential revisited", SIAM J Matrix
-    Anal Appl 26:1179, with the scaling chosen so that ``|M / 2^s|_1 <= 0.5``.
-    """
-    A = np.asarray(M, dtype=float)
-    if A.ndim != 2 or A.shape[0] != A.shape[1]:
-        raise ValueError(f"expm needs a square matrix, got shape {A.shape}")
-    norm = float(np.max(np.sum(np.abs(A), axis=0))) if A.size else 0.0
-    squarings = max(0, int(math.ceil(math.log2(norm / 0.5)))) if norm > 0.5 else 0
-    A = A / 2.0 ** squarings
-    q = 6
-    c = [math.factorial(2 * q - k) * math.factorial(q)
-         / (math.factorial(2 * q) * math.factorial(k) * math.factorial(q - k))
-         for k in range(q + 1)]
-    eye = np.eye(A.shape[0])
-    power = eye
-    N = c[0] * eye
-    D = c[0] * eye
-    for k in range(1, q + 1):
-        power = power @ A
-        N = N + c[k] * power
-        D = D + (-1) ** k * c[k] * power
-    X = np.linalg.solve(D, N)
-    for _ in range(squarings):
-        X = X @ X
-    return X
-

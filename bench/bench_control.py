@@ -37,7 +37,6 @@ import os
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -57,6 +56,9 @@ from nmsid.rig.tracking import TrackingEngine  # noqa: E402
 from nmsid.sim_backends import make_msk_population, make_population, make_sim_rig  # noqa: E402
 from nmsid.sim_backends.participant import default_participant  # noqa: E402
 from nmsid.sim_backends.participant_models import participant_for_model  # noqa: E402
+if str(Path(__file__).resolve().parent) not in sys.path:   # bench/: workers
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+from workers import importable, process_pool  # noqa: E402
 
 MODELS = ("template", "musculoskeletal")
 
@@ -129,6 +131,15 @@ def _one_safe(args: tuple) -> tuple[dict | None, str]:
         return None, f"{type(exc).__name__}: {exc}"
 
 
+def outcomes_of(work: list[tuple], jobs: int) -> list[tuple[dict | None, str]]:
+    """:func:`_one_safe` of each item, in ``jobs`` worker processes when ``jobs > 1``
+    (participants are independent: own files, own seeds), in the order of ``work``."""
+    if jobs > 1:
+        with process_pool(jobs) as ex:
+            return list(ex.map(importable(_one_safe), work))
+    return [_one_safe(w) for w in work]
+
+
 def realtime_latency(tmp: Path) -> dict:
     """A short tracking session on the real-time clock (manual calibration)."""
     p = default_participant(seed=0)
@@ -176,11 +187,7 @@ def main(argv=None) -> None:
         work = [(model, seed, str(tmp), args.seeds)
                 for model in [m for m in args.models.split(",") if m]
                 for seed in range(args.seeds)]
-        if args.jobs > 1:   # participants are independent (own files, own seeds)
-            with ProcessPoolExecutor(args.jobs) as ex:
-                outcomes = list(ex.map(_one_safe, work))
-        else:
-            outcomes = [_one_safe(w) for w in work]
+        outcomes = outcomes_of(work, args.jobs)
         for (model, seed, _, _), (r, failure) in zip(work, outcomes):
             if r is None:
                 print(f"   {model} seed {seed}: FAILED ({failure})")

@@ -25,7 +25,6 @@ from __future__ import annotations
 import dataclasses
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +40,9 @@ from nmsid.analysis.design.search import design, parse_target  # noqa: E402
 from nmsid.analysis.design.api import PAPER_STREAM, PROPOSAL_STREAM  # noqa: E402
 from nmsid.analysis.design.validate import alternative_scatter, run_protocol, validated_ratio  # noqa: E402,E501
 from nmsid.sim_backends.population import make_population  # noqa: E402
+if str(Path(__file__).resolve().parent) not in sys.path:   # bench/: workers
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+from workers import importable, process_pool  # noqa: E402
 
 N_PRIOR, N_VALID = 20, 12
 
@@ -109,8 +111,8 @@ def main(jobs: int = 2) -> None:
     """``jobs``: worker processes (2: the bench machine's cores) for part 3 (beside part 1)
     and the validation's three scatter models; the figures do not depend on it."""
     t0 = time.perf_counter()
-    pool = ProcessPoolExecutor(jobs) if jobs > 1 else None
-    part3 = pool.submit(sensor_noise_only) if pool is not None else None
+    pool = process_pool(jobs) if jobs > 1 else None
+    part3 = pool.submit(importable(sensor_noise_only)) if pool is not None else None
     try:
         _main(t0, pool, part3)
     finally:
@@ -151,7 +153,7 @@ def _main(t0: float, pool, part3) -> None:
                  (f"under another scatter model ({other.label})", other))
     work = [(c, paper.candidate, scatter) for _, scatter in scenarios]
     if pool is not None:   # each scenario depends on its own arguments only: same figures
-        outcomes = list(pool.map(validation, work))
+        outcomes = list(pool.map(importable(validation), work))
     else:
         outcomes = [validation(w) for w in work]
     for (title, scatter), (a, b, took_s) in zip(scenarios, outcomes):

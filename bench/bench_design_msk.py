@@ -31,7 +31,6 @@ from __future__ import annotations
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +51,9 @@ from nmsid.analysis.identify import identify_session  # noqa: E402
 from nmsid.analysis.model_selection import compare_models  # noqa: E402
 from nmsid.analysis.run import run_identification  # noqa: E402
 from nmsid.analysis.settings import IdentificationSettings  # noqa: E402
+if str(Path(__file__).resolve().parent) not in sys.path:   # bench/: workers
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+from workers import importable, process_pool  # noqa: E402
 
 GRID = paper_candidate().sE_levels
 POPULATION_PROPOSAL = Candidate(steady_s=2.0, chirp_s=4.0, rest_s=24.0, label="proposal")
@@ -175,8 +177,8 @@ def main(n_participants: int = 4, jobs: int = 2) -> None:
     _RUNS.clear()
     work = [(k, n_participants) for k in range(n_participants)]
     if jobs > 1:
-        with ProcessPoolExecutor(min(jobs, n_participants)) as ex:
-            people = list(ex.map(participant, work))
+        with process_pool(min(jobs, n_participants)) as ex:
+            people = list(ex.map(importable(participant), work))
     else:
         people = [participant(w) for w in work]
     paper = paper_candidate()

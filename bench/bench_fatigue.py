@@ -27,7 +27,6 @@ import os
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +38,7 @@ if str(HERE) not in sys.path:
 from bench_gap import CHIRP_S, FS_HZ, LEVELS, STEADY_S, chirp_rE, simulate_session  # noqa: E402
 from bench_gap_scatter import wilson  # noqa: E402
 from rates import verdict  # noqa: E402
+from workers import importable, process_pool  # noqa: E402
 
 
 def _analyse(path: str) -> dict:
@@ -128,9 +128,9 @@ def main(argv: list[str] | None = None) -> None:
         cases = [(s, f, tmp) for f in (True, False) for s in range(a.seeds)]
         msk = [] if a.no_msk else [(60.0, tmp), (math.inf, tmp)]
         if a.jobs > 1:
-            with ProcessPoolExecutor(a.jobs) as ex:
-                rows = list(ex.map(run_template, cases))
-                mrows = list(ex.map(run_msk, msk))
+            with process_pool(a.jobs) as ex:
+                rows = list(ex.map(importable(run_template), cases))
+                mrows = list(ex.map(importable(run_msk), msk))
         else:
             rows = [run_template(c) for c in cases]
             mrows = [run_msk(c) for c in msk]

@@ -49,7 +49,6 @@ import os
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +60,8 @@ from nmsid.protocols.session_file import SessionWriter, Trial, read_session
 HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
+
+from workers import process_pool  # noqa: E402
 
 CLASSES = ("none", "dead_time", "activation_dynamics", "fatigue",
            "recruitment_nonlinearity", "baseline_drift", "flexor_extensor_asymmetry")
@@ -320,7 +321,7 @@ def main(argv: list[str] | None = None) -> None:
             # bench/run.py loads this file without registering it in sys.modules; the
             # worker function must come from a normal import to be picklable
             import bench_gap as registered
-            with ProcessPoolExecutor(args.jobs) as ex:
+            with process_pool(args.jobs) as ex:
                 res_extra = list(ex.map(registered.run_extra, extra))
                 res_lib = list(ex.map(registered.run_case, lib))
         else:

@@ -28,7 +28,6 @@ import os
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +38,7 @@ if str(HERE) not in sys.path:
 
 from rates import wilson  # noqa: E402
 from trial_sessions import TrialPhysiology, write_session  # noqa: E402
+from workers import process_pool  # noqa: E402
 
 FAMILIES = ("scatter", "dead_time", "activation_dynamics")
 CV = (0.10, 0.05, 0.05)
@@ -119,7 +119,7 @@ def main(argv: list[str] | None = None) -> None:
         if a.jobs > 1:
             # bench/run.py loads this file without registering it: workers need a real import
             import bench_gap_scatter as registered
-            with ProcessPoolExecutor(a.jobs) as ex:
+            with process_pool(a.jobs) as ex:
                 for r in ex.map(registered.run_case, cases):
                     rows.append(r)
                     print(f"  [{len(rows)}/{len(cases)}] {r['family']} {r['seed']}: "

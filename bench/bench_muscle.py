@@ -40,7 +40,6 @@ from __future__ import annotations
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -52,6 +51,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 from nmsid.analysis.gap.data import prepare_trials  # noqa: E402
 from nmsid.analysis.gap.diagnose import GapSettings, diagnose  # noqa: E402
 from nmsid.analysis.gap.effects import Effect  # noqa: E402
+from workers import importable, process_pool  # noqa: E402
 
 #: The library effects that matter on muscle physics (the others never come near on these
 #: sessions; bench_gap runs all six): fewer template fits keep the bench short.
@@ -160,8 +160,8 @@ CODES = ("MSK-A", "MSK-B", "HILL", "THELEN2003", "DEGROOTE2016", "MILLARD2012", 
 
 def main(codes=CODES) -> None:
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=2) as ex:
-        rows = list(ex.map(run_one, codes))
+    with process_pool(2) as ex:
+        rows = list(ex.map(importable(run_one), codes))
     print("Muscle twin vs the second-order template on muscle physics "
           "(held-out NRMSE %, 45-trial sessions)\n")
     print(f"{'participant':12s} {'nominal':>8s} {'template best':>28s} {'muscle':>8s} "

@@ -28,7 +28,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +40,9 @@ from nmsid.protocols.config import config_from_dict  # noqa: E402
 from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
 from nmsid.rig.engine import Engine, TripPolicy  # noqa: E402
 from nmsid.sim_backends import make_sim_rig  # noqa: E402
+if str(Path(__file__).resolve().parent) not in sys.path:   # bench/: workers
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+from workers import importable, process_pool  # noqa: E402
 
 PARAMS = ("Kp", "wn_rad_s", "zeta")
 
@@ -230,8 +232,8 @@ def main(jobs: int = 2) -> None:
         tmp = Path(d)
         work = [(spec, code, str(tmp)) for spec, code, _ in SESSIONS]
         if jobs > 1:
-            with ProcessPoolExecutor(jobs) as ex:
-                outs = list(ex.map(_session_of, work))
+            with process_pool(jobs) as ex:
+                outs = list(ex.map(importable(_session_of), work))
         else:
             outs = [_session_of(w) for w in work]
         results = [(label, out) for (_, _, label), out in zip(SESSIONS, outs)]

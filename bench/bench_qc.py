@@ -22,7 +22,6 @@ from __future__ import annotations
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +37,7 @@ from nmsid.protocols.session_file import (Calibration, SessionWriter, Trial,  # 
                                           read_session)
 from nmsid.testing.sessions import SE_LEVELS, chirp_rE, write_synthetic_session  # noqa: E402
 from rates import rate  # noqa: E402
+from workers import importable, process_pool  # noqa: E402
 
 FS = 2000.0
 STEADY, CHIRP = 5.0, 10.0
@@ -195,8 +195,8 @@ def main(n_sessions: int = 40, jobs: int = 2) -> None:
     with tempfile.TemporaryDirectory() as d:
         work = [(seed, d) for seed in range(n_sessions)]
         if jobs > 1:
-            with ProcessPoolExecutor(jobs) as ex:
-                rows = list(ex.map(_one, work))
+            with process_pool(jobs) as ex:
+                rows = list(ex.map(importable(_one), work))
         else:
             rows = [_one(w) for w in work]
     found = [f for r in rows for f in r["found"]]

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -30,6 +29,7 @@ from nmsid.analysis.design.validate import simulate_session  # noqa: E402
 from nmsid.analysis.qc import QCSettings, assess_session  # noqa: E402
 from nmsid.sim_backends.population import make_population  # noqa: E402
 from rates import rate  # noqa: E402
+from workers import importable, process_pool  # noqa: E402
 
 SCATTERS = [None, {"Kp": 0.1, "wn_rad_s": 0.05, "zeta": 0.05}, {"wn_rad_s": 0.1},
             {"zeta": 0.1}, {"Kp": 0.2, "wn_rad_s": 0.1, "zeta": 0.1}]
@@ -80,8 +80,8 @@ def main(jobs: int = 2) -> None:
     except ImportError as exc:
         print(f"(musculoskeletal participants unavailable: {exc})")
     if jobs > 1:
-        with ProcessPoolExecutor(jobs) as ex:
-            results = list(ex.map(setting, work))
+        with process_pool(jobs) as ex:
+            results = list(ex.map(importable(setting), work))
     else:
         results = [setting(w) for w in work]
     total = [0, 0]

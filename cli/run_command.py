@@ -2,6 +2,11 @@
 
 ``run`` builds the configuration and the rig (simulated or hardware), runs the engine in a
 worker thread (Ctrl+C is an E-stop), prints progress, then identifies the new file.
+
+The identification (``nmsid.analysis.run``: plotting, QC, model selection) and the tracking
+controller (``nmsid.rig.tracking``: the control design, scipy.linalg) are imported only by
+the runs that use them: a ``--no-identify`` session without ``--track`` starts ~0.4 s
+sooner (bench/bench_session.py).
 """
 
 from __future__ import annotations
@@ -14,7 +19,6 @@ import threading
 import zlib
 from pathlib import Path
 
-from nmsid.analysis.run import run_identification, summary_line
 from nmsid.cli.errors import UsageError
 from nmsid.cli.exit_status import EXIT_NOTHING_TO_RECOVER, run_exit_status
 from nmsid.protocols.config import config_from_json, load_config
@@ -28,7 +32,6 @@ from nmsid.rig.session_log import journal_dir, recover
 from nmsid.rig.session_service import RigRequest, prepare_rig, seed_from_code
 from nmsid.rig.observer import EngineObserver
 from nmsid.rig.session_signals import SessionSignals, exit_code, signal_name
-from nmsid.rig.tracking import SESSION_KIND, tracking_engine
 
 
 def recover_cmd(args) -> int:
@@ -52,7 +55,7 @@ def run(args) -> int:
                          "--seed with it")
     if args.realtime and args.backend != "sim":
         raise UsageError("--realtime applies to --backend sim (hardware is always real time)")
-    track = tracking_engine(args)   # --track / --target: checked before any device
+    track = _tracking_engine(args)   # --track / --target: checked before any device
     if args.resume:
         path = Path(args.resume)
         check_stored_header(path)  # a damaged journal header: rebuilt, or one line
@@ -72,7 +75,7 @@ def run(args) -> int:
                                   f"({journal_dir(path)}) is here; continue it with "
                                   f"--resume {path}, or give another --out")
     stored, stored_backend = _stored_attrs(path) if args.resume else ({}, "")
-    if stored.get("session_kind") == SESSION_KIND:
+    if args.resume and stored.get("session_kind") == _tracking_kind():
         raise UsageError(f"{path}: a tracking session cannot be resumed; start a new one "
                          "with --track (its completed trials stay in the file)")
     request = RigRequest(backend=args.backend, session_path=path, resume=bool(args.resume),
@@ -152,6 +155,23 @@ def run(args) -> int:
     return run_exit_status(s)
 
 
+def _tracking_engine(args):
+    """:func:`nmsid.rig.tracking.tracking_engine`, imported only when ``--track`` or
+    ``--target`` is given (a plain session does not load the control design)."""
+    if getattr(args, "track", None) is None and getattr(args, "target", None) is None:
+        return None
+    # lazy: the tracking controller imports the control design (scipy.linalg)
+    from nmsid.rig.tracking import tracking_engine
+    return tracking_engine(args)
+
+
+def _tracking_kind() -> str:
+    """The ``session_kind`` attribute of a tracking session (refused by ``--resume``)."""
+    # lazy: only a --resume asks, and the tracking module imports the control design
+    from nmsid.rig.tracking import SESSION_KIND
+    return SESSION_KIND
+
+
 def _print_quietly(text: str) -> None:
     """Print to stdout, ignoring a terminal that has gone (SIGHUP: EIO / broken pipe)."""
     try:
@@ -195,6 +215,9 @@ def _seed_from_code(code: str) -> int:
 def _identify(path) -> None:
     """Run the identification on the new file into ``<file stem>-analysis/`` (or
     ``-analysis-2``, ... if that exists: an earlier result is never replaced)."""
+    # lazy: the identification's modules (figures, QC, model selection) cost ~0.4 s of
+    # start-up, which a --no-identify or tracking session never uses
+    from nmsid.analysis.run import run_identification, summary_line
     out = next(p for k in range(1, 10_000) if not (p := path.with_name(
         path.stem + "-analysis" + (f"-{k}" if k > 1 else ""))).exists())
     with output_dir(out) as tmp:

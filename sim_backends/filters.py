@@ -6,6 +6,11 @@ Each filter keeps its state between chunks (so a trial simulated in 100 ms chunk
 the same trial in one block) and its recent input / output history, so that when its
 coefficients change (a new sE) the difference equation continues from the physical
 history instead of restarting.
+
+The kernels are numpy's (:mod:`nmsid.protocols.lti_kernels`: the same steps as
+``scipy.signal.cont2discrete``, and ``lfilter`` continued from the past inputs and outputs
+as ``lfiltic`` would start it, equal to rounding: tests/protocols/test_lti_kernels.py), so
+a simulated session does not import ``scipy.signal`` (0.5-1 s of start-up).
 """
 
 from __future__ import annotations
@@ -13,7 +18,8 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-from scipy import signal
+
+from nmsid.protocols.lti_kernels import cont2discrete_zoh, lfilter_history
 
 
 @lru_cache(maxsize=4096)
@@ -28,7 +34,7 @@ def second_order_zoh(wn_rad_s: float, zeta: float, fs_Hz: float
     """
     num = [wn_rad_s ** 2]
     den = [1.0, 2.0 * zeta * wn_rad_s, wn_rad_s ** 2]
-    b, a, _ = signal.cont2discrete((num, den), 1.0 / fs_Hz, method="zoh")
+    b, a = cont2discrete_zoh(num, den, 1.0 / fs_Hz)
     b = np.atleast_1d(np.squeeze(b)).astype(float)
     a = np.asarray(a, dtype=float)
     b = b / a[0]
@@ -51,7 +57,7 @@ def dynamics_zoh(wn_rad_s: float, zeta: float, tau_s: float, fs_Hz: float
         return second_order_zoh(wn_rad_s, zeta, fs_Hz)
     num = [wn_rad_s ** 2]
     den = np.polymul([tau_s, 1.0], [1.0, 2.0 * zeta * wn_rad_s, wn_rad_s ** 2])
-    b, a, _ = signal.cont2discrete((num, den), 1.0 / fs_Hz, method="zoh")
+    b, a = cont2discrete_zoh(num, den, 1.0 / fs_Hz)
     b = np.atleast_1d(np.squeeze(b)).astype(float)
     a = np.asarray(a, dtype=float)
     b, a = b / a[0], a / a[0]
@@ -61,13 +67,16 @@ def dynamics_zoh(wn_rad_s: float, zeta: float, tau_s: float, fs_Hz: float
 
 
 class StatefulFilter:
-    """``lfilter`` with state carried across calls and across coefficient changes."""
+    """``lfilter`` with state carried across calls and across coefficient changes.
+
+    The state is the recent input / output history (most recent first): the difference
+    equation continues from it, with the same coefficients or new ones.
+    """
 
     def __init__(self, order: int = 2):
         self.order = order
         self._b: np.ndarray | None = None
         self._a: np.ndarray | None = None
-        self._zi: np.ndarray | None = None
         self._x_hist = np.zeros(order)   # most recent first
         self._y_hist = np.zeros(order)
 
@@ -79,14 +88,13 @@ class StatefulFilter:
         if n != self.order:
             raise ValueError(f"filter order {n} differs from the state's order {self.order}")
         self._b, self._a = b, a
-        self._zi = signal.lfiltic(b, a, self._y_hist, self._x_hist)
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        if self._b is None:
+        if self._b is None or self._a is None:
             raise RuntimeError("set_coefficients() before filtering")
         if x.size == 0:
             return x.copy()
-        y, self._zi = signal.lfilter(self._b, self._a, x, zi=self._zi)
+        y = lfilter_history(self._b, self._a, x, self._x_hist, self._y_hist)
         k = self.order
         if x.size >= k:
             self._x_hist = x[-1:-k - 1:-1].copy()
@@ -98,12 +106,10 @@ class StatefulFilter:
 
     def state(self) -> tuple:
         """Everything needed to continue exactly from here (see :meth:`restore`)."""
-        zi = None if self._zi is None else self._zi.copy()
-        return (self._b, self._a, zi, self._x_hist.copy(), self._y_hist.copy())
+        return (self._b, self._a, self._x_hist.copy(), self._y_hist.copy())
 
     def restore(self, state: tuple) -> None:
-        self._b, self._a, zi, xh, yh = state
-        self._zi = None if zi is None else zi.copy()
+        self._b, self._a, xh, yh = state
         self._x_hist, self._y_hist = xh.copy(), yh.copy()
 
     @property
@@ -114,8 +120,6 @@ class StatefulFilter:
     def reset(self) -> None:
         self._x_hist[:] = 0.0
         self._y_hist[:] = 0.0
-        if self._b is not None:
-            self._zi = signal.lfiltic(self._b, self._a, self._y_hist, self._x_hist)
 
 
 class DelayLine:

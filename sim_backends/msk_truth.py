@@ -24,7 +24,6 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy import optimize, signal
 
 from nmsid.protocols.config import ProtocolConfig
 from nmsid.protocols.waveforms import trial_waveform
@@ -59,7 +58,15 @@ def quantise_mA(I_mA: np.ndarray, step_mA: float = 1e-3) -> np.ndarray:
     return np.floor(np.asarray(I_mA) / step_mA + 1e-6) * step_mA
 
 
+def _signal():
+    """``scipy.signal``, imported on first use: it costs 0.5-1 s, and a simulated session
+    imports this module (through the participant models) without asking for a truth."""
+    from scipy import signal
+    return signal
+
+
 def _preprocess(x: np.ndarray, fs_Hz: float) -> np.ndarray:
+    signal = _signal()
     y = signal.savgol_filter(x, SAVGOL_WINDOW, SAVGOL_ORDER, axis=-1)
     sos = signal.butter(BUTTER_ORDER, LOWPASS_HZ, fs=fs_Hz, output="sos")
     return signal.sosfiltfilt(sos, y, axis=-1)
@@ -68,6 +75,7 @@ def _preprocess(x: np.ndarray, fs_Hz: float) -> np.ndarray:
 def _model_columns(u: np.ndarray, wn: float, zeta: float, dt: float) -> np.ndarray:
     """Columns whose span is the model output: unit-gain response to u, two free
     responses (initial state), constant, ramp."""
+    signal = _signal()
     num, den = [wn * wn], [1.0, 2.0 * zeta * wn, wn * wn]
     b, a, _ = signal.cont2discrete((num, den), dt, method="foh")
     b = np.ravel(b)
@@ -108,6 +116,7 @@ def fit_second_order_reference(u: np.ndarray, y: np.ndarray, fs_Hz: float
             if best is None or r < best[0]:
                 best = (r, float(wn), float(z))
     assert best is not None  # the grid above is not empty
+    from scipy import optimize  # lazy, as _signal(): only a truth's fit needs it
     sol = optimize.least_squares(resid, [math.log(best[1]), math.log(best[2])],
                                  x_scale=[0.1, 0.1], xtol=1e-12, ftol=1e-14, gtol=1e-14)
     wn, z = math.exp(sol.x[0]), math.exp(sol.x[1])
