@@ -15,12 +15,13 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from nmsid.analysis.signal_kernels import compiled as signal
+from nmsid.analysis import signal_kernels as signal
 
 from nmsid.analysis.damped_lstsq import Damping, levenberg_marquardt
 from nmsid.analysis.gap.data import GapData
 from nmsid.analysis.gap.effects import Effect
 from nmsid.analysis.gap.harmonics import levy_second_order, local_harmonics
+from nmsid.analysis.gap.lfilter_kernel import lfilter
 from nmsid.analysis.gap.models import Candidate, nuisance_basis
 from nmsid.analysis.gap.samples import effective_fraction
 from nmsid.analysis.parameters import Parameters
@@ -107,7 +108,7 @@ class Problem:
         bs, as_ = self.cand.level_tfs(np.asarray(wn, float), np.asarray(zeta, float), p,
                                       self.dt)
         for k, rows in enumerate(self.rows):
-            out = signal.lfilter(bs[k], as_[k], u[rows], axis=-1)
+            out = lfilter(bs[k], as_[k], u[rows])
             x[rows] = out[:, i0::st][:, :self.n_eval]
         g = self.cand.gain(d, p)
         return x if g is None else x * g
