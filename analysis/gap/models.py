@@ -20,7 +20,7 @@ import math
 import functools
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, ClassVar
 
 import numpy as np
 from nmsid.analysis import signal_kernels as signal
@@ -86,6 +86,11 @@ class Candidate:
 
     effects: tuple[Effect, ...] = ()
 
+    #: The slots :meth:`drive` reads (with the timing correction), and those
+    #: :meth:`level_tfs` reads: what a cache of either must be keyed on.
+    DRIVE_SLOTS: ClassVar[tuple[str, ...]] = ("intensity", "delay")
+    DYNAMICS_SLOTS: ClassVar[tuple[str, ...]] = ("lag", "flexor")
+
     @property
     def effect(self) -> Effect:
         """The single effect (``NONE`` for the nominal model)."""
@@ -146,6 +151,16 @@ class Candidate:
             out.update(FORMS[e].physical(p[sl]))
         out["timing_correction_s"] = self.timing_s(p)
         return Parameters.of(out)
+
+    @functools.lru_cache(maxsize=None)
+    def indices_at(self, slots: tuple[str, ...], timing: bool = False) -> tuple[int, ...]:
+        """Indices of ``p`` read by the effects acting at ``slots`` (with ``timing``: and
+        the timing correction's)."""
+        out = {i for slot in slots for _, sl in self._slot_parts.get(slot, ())
+               for i in range(sl.start, sl.stop)}
+        if timing:
+            out.add(self.n_shared())
+        return tuple(sorted(out))
 
     # -- the model: the effects' forms composed at the chain's slots -------------------
     def _at(self, slot: str, p: np.ndarray) -> list[tuple[FittedForm, np.ndarray]]:
@@ -349,18 +364,22 @@ def pchip_slopes(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 #: The basis of the latest data sets (a fit evaluates the model hundreds of times on one
 #: data set; its folds and held-out sets are others): id -> (data, basis), newest last.
 _BASES: list[tuple[GapData, RecruitmentBasis]] = []
+#: How many bases are kept: a diagnosis's three training folds, three held-out sets and
+#: all trials (the recruitment candidate, then its pairs, use each again; ~6 MB a fold).
+_N_BASES = 7
 
 
 def recruitment_basis(data: GapData, knots: np.ndarray = RECRUITMENT_KNOTS
                       ) -> RecruitmentBasis:
-    """The :class:`RecruitmentBasis` of ``data`` (kept for the two latest data sets)."""
+    """The :class:`RecruitmentBasis` of ``data`` (kept for the ``_N_BASES`` latest data
+    sets)."""
     for i, (d, b) in enumerate(_BASES):
         if d is data and (b.knots is knots or np.array_equal(b.knots, knots)):
             _BASES.append(_BASES.pop(i))
             return b
     b = RecruitmentBasis(data, knots)
     _BASES.append((data, b))
-    del _BASES[:-2]
+    del _BASES[:-_N_BASES]
     return b
 
 
