@@ -116,3 +116,26 @@ def test_knot_slopes_are_pchips():
             y[2] = y[1]                               # a flat segment: zero slopes
         np.testing.assert_allclose(pchip_slopes(x, y), PchipInterpolator(x, y)(x, 1),
                                    rtol=1e-12, atol=1e-12)
+
+
+def test_report_says_why_there_is_no_ranking(nominal_session, tmp_path, monkeypatch):
+    """The report names the reason, and draws no empty ranking (the figure functions are
+    recorded, not run: matplotlib is not what is tested)."""
+    import json
+
+    from nmsid.analysis.gap import report
+    from nmsid.analysis.gap.api import run_gap
+    drawn = []
+
+    class Recorder:
+        def __getattr__(self, name):
+            return lambda *args, **kwargs: drawn.append(name)
+
+    monkeypatch.setattr(report, "plots", Recorder())
+    run_gap([nominal_session], tmp_path, plots=True)
+    rep = json.loads((tmp_path / "gap_report.json").read_text(encoding="utf-8"))
+    assert rep["ranking"] == [] and "within noise" in rep["candidates_not_fitted"]
+    assert rep["evidence"]["summary"][0].startswith("none: no candidate fitted")
+    assert "--all-candidates" in (tmp_path / "report.html").read_text(encoding="utf-8")
+    assert "plot_where" in drawn and "plot_ranking" not in drawn
+    assert "ranking.png" not in rep["figures"]
