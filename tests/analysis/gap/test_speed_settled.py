@@ -139,3 +139,73 @@ def test_report_says_why_there_is_no_ranking(nominal_session, tmp_path, monkeypa
     assert "--all-candidates" in (tmp_path / "report.html").read_text(encoding="utf-8")
     assert "plot_where" in drawn and "plot_ranking" not in drawn
     assert "ranking.png" not in rep["figures"]
+
+
+def _all_candidates():
+    from nmsid.analysis.gap.models import candidate
+    singles = [candidate(e) for e in CANDIDATES]
+    pairs = [candidate(a, b) for i, a in enumerate(CANDIDATES) for b in CANDIDATES[i + 1:]]
+    return singles + pairs
+
+
+def _at(cand, share):
+    """Every entry of ``p`` at ``share`` of its bounds."""
+    lo, hi = cand.bounds()
+    return np.where(np.isfinite(lo) & np.isfinite(hi), lo + share * (hi - lo), share)
+
+
+def _moved(cand, p, i):
+    """``p`` with entry ``i`` moved (to 71 % of its bounds; ``p`` is at 37 %)."""
+    q = p.copy()
+    q[i] = _at(cand, 0.71)[i]
+    assert q[i] != p[i]
+    return q
+
+
+def test_the_cache_keys_name_every_parameter_the_model_reads(nominal_session):
+    """Moving an entry of ``p`` outside ``DRIVE_SLOTS`` (and the timing) leaves the drive
+    bit for bit, outside ``DYNAMICS_SLOTS`` the difference equations: what
+    ``fit.Problem``'s caches rely on, for every candidate and pair."""
+    from nmsid.analysis.gap.models import Candidate
+    data = load_session(nominal_session)
+    wn, zeta = np.full(len(data.sE_levels), 20.0), np.full(len(data.sE_levels), 0.7)
+    for cand in _all_candidates():
+        p = _at(cand, 0.37)
+        drive_idx = set(cand.indices_at(Candidate.DRIVE_SLOTS, True))
+        dyn_idx = set(cand.indices_at(Candidate.DYNAMICS_SLOTS))
+        u0 = cand.drive(data, p)
+        b0, a0 = cand.level_tfs(wn, zeta, p, 0.005)
+        for i in set(range(cand.n_free())) - drive_idx - dyn_idx:
+            q = _moved(cand, p, i)
+            np.testing.assert_array_equal(cand.drive(data, q), u0, err_msg=cand.label)
+            b, a = cand.level_tfs(wn, zeta, q, 0.005)
+            np.testing.assert_array_equal(b, b0, err_msg=cand.label)
+            np.testing.assert_array_equal(a, a0, err_msg=cand.label)
+        for i in drive_idx - dyn_idx:
+            b, a = cand.level_tfs(wn, zeta, _moved(cand, p, i), 0.005)
+            np.testing.assert_array_equal(b, b0, err_msg=f"{cand.label} {i}")
+        for i in dyn_idx - drive_idx:
+            np.testing.assert_array_equal(cand.drive(data, _moved(cand, p, i)), u0,
+                                          err_msg=f"{cand.label} {i}")
+
+
+def test_cached_responses_equal_fresh_ones(nominal_session):
+    """A Jacobian's sequence of points through one Problem (its caches in use) gives the
+    residuals a fresh Problem computes for each point."""
+    from nmsid.analysis.gap.fit import Problem
+    from nmsid.analysis.gap.models import candidate
+    from nmsid.protocols.effects import Effect
+    data = load_session(nominal_session)
+    cand = candidate(Effect.ACTIVATION_DYNAMICS, Effect.FATIGUE)
+    n = len(data.sE_levels)
+    wn, zeta = np.full(n, 20.0), np.full(n, 0.7)
+    p = _at(cand, 0.37)
+    points = [(wn, zeta, p), (wn * 1.01, zeta, p), (wn, zeta * 1.01, p)]
+    points += [(wn, zeta, _moved(cand, p, i)) for i in range(cand.n_free())]
+    points += [(wn, zeta, p), (wn * 1.01, zeta, p)]
+    kept = Problem(data, cand)
+    for w, z, q in points:
+        r, Kp = kept.residual(w, z, q)
+        r_fresh, Kp_fresh = Problem(data, cand).residual(w, z, q)
+        np.testing.assert_array_equal(r, r_fresh)
+        np.testing.assert_array_equal(Kp, Kp_fresh)
