@@ -41,6 +41,10 @@ def register(sub) -> None:
     p.add_argument("--no-muscle", action="store_true",
                    help="do not try the physiological (muscle) twin when the template "
                         "leaves a significant gap (it adds about a minute per session)")
+    p.add_argument("--all-candidates", action="store_true",
+                   help="fit and rank every candidate even when the nominal model's gap is "
+                        "within noise (by default they are then skipped: none of them could "
+                        "change the verdict 'none')")
     p.add_argument("--ic-margin", type=float, default=10.0, metavar="D",
                    help="an effect needs dIC below -D (default 10)")
     p.add_argument("--min-shrink-pct", type=float, default=10.0, metavar="P",

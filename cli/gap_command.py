@@ -20,7 +20,9 @@ def run(args: argparse.Namespace) -> int:
                             "[0, 100] (default 10)")
     settings = GapSettings(ic_margin=args.ic_margin, min_shrink_pct=args.min_shrink_pct,
                            try_pairs=not args.no_pairs,
-                           try_muscle=not getattr(args, "no_muscle", False), progress=True)
+                           try_muscle=not getattr(args, "no_muscle", False),
+                           skip_settled=not getattr(args, "all_candidates", False),
+                           progress=True)
     with output_dir(args.out, force=args.force) as tmp:
         summary = run_gap(args.sessions, tmp, settings=settings, twin=args.twin,
                           sim_session=args.sim_session, plots=not args.no_figures)

@@ -37,7 +37,7 @@ from nmsid.analysis.gap.errors import GapInputError
 from nmsid.analysis.gap.fit import ModelFit, fit_model, predict
 from nmsid.analysis.gap.models import NOMINAL, Candidate, candidate, n_drift_columns, nuisance_basis
 from nmsid.analysis.gap.samples import effective_fraction
-from nmsid.analysis.gap.verdict import GapVerdict, assess
+from nmsid.analysis.gap.verdict import GapVerdict, assess, nominal_settles
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +71,11 @@ class GapSettings:
     is at least this share (NRMSE ratio) of the part that differs between repeats; below,
     the misfit is trial-to-trial variability (``analysis.gap.verdict``)."""
     deviation_edges: tuple[float, ...] = (-0.5, -0.25, 0.0, 0.25, 0.5)
+    skip_settled: bool = True
+    """Fit no candidate when the nominal model's held-out gap is already within noise
+    (significant neither broadband nor in a narrow band): no candidate can change the
+    verdict ``none`` then (:func:`nmsid.analysis.gap.verdict.nominal_settles`), and the
+    report says the candidates were not fitted. False fits and ranks them anyway."""
     try_muscle: bool = True
     """When the template's answer leaves a significant gap, also try the physiological
     twin (:mod:`nmsid.analysis.muscle.candidate`)."""
@@ -129,6 +134,8 @@ class Diagnosis:
     elapsed_s: float = 0.0
     assessment: GapVerdict | dict = field(default_factory=dict)
     """Verdict, nominal and remaining gap (``analysis.gap.verdict.assess``)."""
+    candidates_skipped: str | None = None
+    """Why no candidate was fitted (``GapSettings.skip_settled``), or None when they were."""
     not_named: CandidateResult | None = None
     """A candidate (or pair) that was supported on a gap within noise, hence not named."""
     muscle_tried: object | None = None
@@ -284,8 +291,21 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
     run.reference = _ref_of(data)
     nom_fits = [fit_model(tr, NOMINAL, max_iter=s.max_iter) for tr in run.train]
     nominal = run.score(NOMINAL, nom_fits, None)
+    tested = ~np.isnan(nominal.heldout_resid[:, 0])
+    nominal_tests = None
+    skipped = None
+    if s.skip_settled:
+        early = _Early(data=data, settings=s, tested=tested, reference=run.reference,
+                       nominal=nominal)
+        settled, nominal_tests = nominal_settles(early)
+        if settled:
+            t = nominal_tests[0]
+            skipped = (f"no candidate fitted: the nominal model's held-out gap is within "
+                       f"noise (z = {t['z']:.2f} < {s.significance_z:g}, beyond noise "
+                       f"{t['beyond_noise_pct_typical'] or 0:.2f} % of the response; no "
+                       "narrow-band component), so no candidate could change the verdict")
     results = []
-    for e in s.candidates:
+    for e in (s.candidates if skipped is None else ()):
         t1 = time.perf_counter()
         cand = candidate(e)
         if cand.fits_baseline:  # its bandwidth is chosen on a grid, not by the solver
@@ -347,7 +367,6 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
         corner = float(np.median([f.corner_Hz for f in final.fold_fits]))
         full = fit_model(data, full_cand, start=nominal_full, p_start=p0, corner_Hz=corner,
                          max_iter=s.max_iter)
-    tested = ~np.isnan(nominal.heldout_resid[:, 0])
     sensor = float("nan")
     if data.steady_noise_N2 is not None and np.any(np.isfinite(data.steady_noise_N2[tested])):
         sensor = 100.0 * float(np.sqrt(np.nanmean(data.steady_noise_N2[tested])
@@ -356,8 +375,9 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
                      tested=tested, nominal=nominal, candidates=results, pairs=pairs,
                      best=best, best_pair=best_pair, full_fit=full, nominal_full=nominal_full,
                      noise_floor_nrmse_pct=noise_floor_pct(data, run.reference),
-                     sensor_floor_nrmse_pct=sensor)
-    diag.assessment = assess(diag)
+                     sensor_floor_nrmse_pct=sensor, candidates_skipped=skipped)
+    # the nominal's tests made for the early stop are the ones assess would make
+    diag.assessment = assess(diag, nominal_tests=nominal_tests)
     if s.try_muscle and diag.assessment["verdict"] in ("effect", "pair", "unexplained") \
             and diag.assessment["remaining"]["significant"]:
         # lazy: the muscle twin's modules are needed only when the template falls short
@@ -376,6 +396,18 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
         diag.best, diag.best_pair, diag.full_fit = None, None, nominal_full
     diag.elapsed_s = time.perf_counter() - t0
     return diag
+
+
+@dataclass
+class _Early:
+    """What :func:`nmsid.analysis.gap.verdict.nominal_settles` reads of a diagnosis, before
+    the candidates are fitted."""
+
+    data: GapData
+    settings: GapSettings
+    tested: np.ndarray
+    reference: np.ndarray
+    nominal: CandidateResult
 
 
 def _fold_p(best: CandidateResult, other: CandidateResult, effect: Effect, k: int):

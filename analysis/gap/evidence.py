@@ -253,6 +253,12 @@ def explain(diag: Diagnosis, sig: Signatures) -> list[str]:
     lines = []
     nom = diag.nominal
     final = diag.best_pair or diag.best
+    skipped = getattr(diag, "candidates_skipped", None)
+    if final is None and skipped:
+        lines.append(f"none: {skipped}; the nominal model is as good as the data allow "
+                     f"(held-out NRMSE {nom.heldout_nrmse_pct:.3g} %; repeat-to-repeat noise "
+                     f"floor {diag.noise_floor_nrmse_pct:.3g} %).")
+        return lines
     if final is None:
         lines.append(
             f"none: no candidate cut the held-out NRMSE ({nom.heldout_nrmse_pct:.3g} %; "

@@ -15,12 +15,13 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from nmsid.analysis.signal_kernels import compiled as signal
+from nmsid.analysis import signal_kernels as signal
 
 from nmsid.analysis.damped_lstsq import Damping, levenberg_marquardt
 from nmsid.analysis.gap.data import GapData
 from nmsid.analysis.gap.effects import Effect
 from nmsid.analysis.gap.harmonics import levy_second_order, local_harmonics
+from nmsid.analysis.gap.lfilter_kernel import lfilter
 from nmsid.analysis.gap.models import Candidate, nuisance_basis
 from nmsid.analysis.gap.samples import effective_fraction
 from nmsid.analysis.parameters import Parameters
@@ -78,6 +79,12 @@ class Problem:
         """Row -> index into ``self.levels``."""
         self._drive_key: bytes | None = None
         self._drive: np.ndarray | None = None
+        # a Jacobian moves one group of parameters at a time: the difference equations
+        # depend only on wn, zeta and the dynamics' parameters, the drive only on the
+        # drive's, the filtered response on both (the gain is applied after): each is kept
+        # for its own parameters (exact: the same inputs give the same arrays)
+        self._tfs_cache: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+        self._x_cache: dict[tuple[bytes, bytes], np.ndarray] = {}
         self.steps: tuple[BaselineStep, ...] = ()
         """Each row's baseline step (unit column orthogonal to ``Q``) projected out of it."""
         self.yp = self.project(data.y_N)
@@ -101,16 +108,38 @@ class Problem:
         """(n_trials, n_eval) unit-gain response, gain factor applied. ``wn``/``zeta`` are
         indexed like ``self.levels``."""
         d = self.data
-        u = self.drive(p) if drive is None else drive
-        x = np.empty_like(d.y_N)
-        i0, st = d.n_lead_sim, d.sim_step
-        bs, as_ = self.cand.level_tfs(np.asarray(wn, float), np.asarray(zeta, float), p,
-                                      self.dt)
-        for k, rows in enumerate(self.rows):
-            out = signal.lfilter(bs[k], as_[k], u[rows], axis=-1)
-            x[rows] = out[:, i0::st][:, :self.n_eval]
+        wn = np.asarray(wn, float)
+        zeta = np.asarray(zeta, float)
+        tkey = wn.tobytes() + zeta.tobytes() + self._key(p, Candidate.DYNAMICS_SLOTS, False)
+        if drive is None:
+            u = self.drive(p)
+            xkey: tuple[bytes, bytes] | None = (tkey, self._drive_key or b"")
+        else:
+            u, xkey = drive, None
+        x = self._x_cache.get(xkey) if xkey is not None else None
+        if x is None:
+            tfs = self._tfs_cache.get(tkey)
+            if tfs is None:
+                tfs = self.cand.level_tfs(wn, zeta, p, self.dt)
+                _keep(self._tfs_cache, tkey, tfs)
+            bs, as_ = tfs
+            x = np.empty_like(d.y_N)
+            i0, st = d.n_lead_sim, d.sim_step
+            for k, rows in enumerate(self.rows):
+                out = lfilter(bs[k], as_[k], u[rows])
+                x[rows] = out[:, i0::st][:, :self.n_eval]
+            if xkey is not None:
+                x.flags.writeable = False        # shared by later calls: never edited
+                _keep(self._x_cache, xkey, x)
         g = self.cand.gain(d, p)
         return x if g is None else x * g
+
+    def _key(self, p: np.ndarray, slots: tuple[str, ...], timing: bool) -> bytes:
+        """The entries of ``p`` that the effects at ``slots`` (and, with ``timing``, the
+        timing correction) read, as a cache key."""
+        p = np.asarray(p, float)
+        idx = [i for i in self.cand.indices_at(slots, timing) if i < p.size]
+        return p[idx].tobytes() + p.size.to_bytes(2, "little")
 
     def residual(self, wn, zeta, p, drive=None) -> tuple[np.ndarray, np.ndarray]:
         """Projected residual (n_trials, n_eval) and the closed-form ``Kp`` per level."""
@@ -124,11 +153,22 @@ class Problem:
     def drive(self, p: np.ndarray) -> np.ndarray:
         """The candidate's drive for ``p``, kept for the latest ``p``: the per-level
         perturbations of a Jacobian (``wn``, ``zeta``) reuse it unchanged."""
-        key = np.asarray(p, float).tobytes()
+        key = self._key(p, Candidate.DRIVE_SLOTS, True)
         if key != self._drive_key or self._drive is None:
             self._drive = self.cand.drive(self.data, p)
             self._drive_key = key
         return self._drive
+
+
+#: Entries kept per cache of :class:`Problem` (a Jacobian's base point and its perturbations).
+_CACHE_SIZE = 4
+
+
+def _keep(cache: dict, key, value) -> None:
+    """Insert into a small cache, dropping its oldest entry beyond ``_CACHE_SIZE``."""
+    cache[key] = value
+    if len(cache) > _CACHE_SIZE:
+        del cache[next(iter(cache))]
 
 
 #: A step is accepted when its least-squares amplitude is this many standard errors from

@@ -224,6 +224,7 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
         "verdict": a.get("verdict"), "verdict_sentence": a.get("sentence"),
         "remaining": a.get("remaining"), "nominal_gap": a.get("nominal_gap"),
         "not_named": a.get("not_named"),
+        "candidates_not_fitted": diag.candidates_skipped,
         "fatigue": _fatigue_entry(a),
         "n_trials": diag.data.n_trials, "skipped_trials": diag.data.skipped,
         "excluded_trials": [{"trial": k, "reason": v} for k, v in diag.data.excluded.items()],
@@ -302,9 +303,10 @@ def _figures(diag: Diagnosis, report: dict, localized: Localization, out: Path) 
     if report.get("muscle_twin"):
         plot_muscle(report["muscle_twin"], out / "muscle.png")
         names.append("muscle.png")
-    plots.plot_ranking(report["ranking"], diag.nominal.heldout_nrmse_pct,
-                       diag.noise_floor_nrmse_pct, out / "ranking.png")
-    names.append("ranking.png")
+    if report["ranking"]:         # none when no candidate was needed (candidates_not_fitted)
+        plots.plot_ranking(report["ranking"], diag.nominal.heldout_nrmse_pct,
+                           diag.noise_floor_nrmse_pct, out / "ranking.png")
+        names.append("ranking.png")
     ok = np.flatnonzero(diag.tested)
     if len(ok):
         r_nom = diag.nominal.heldout_resid[ok]
@@ -372,6 +374,9 @@ def _html(report: dict, figures: list[str]) -> str:
         f"{report['insample']['nominal_nrmse_pct']:.3g} %, augmented "
         f"{report['insample']['augmented_nrmse_pct']:.3g} %.</p>")
     parts.append("<h2>Which: ranking</h2>")
+    if report.get("candidates_not_fitted"):
+        parts.append(f"<p>{html.escape(report['candidates_not_fitted'])} "
+                     "(<code>--all-candidates</code> fits and ranks them).</p>")
     rows = [dict(r, params=json.dumps({k: (round(v, 5) if isinstance(v, float) else v)
                                        for k, v in r["params"].items()}))
             for r in report["ranking"]]

@@ -686,11 +686,12 @@ def _harmonics(diag, res) -> dict | None:
     return {"median_residual_pct": h, "excess": excess}
 
 
-def assess(diag, muscle=None) -> GapVerdict:
-    """Verdict, the nominal gap and the remaining gap of a diagnosis (see module).
-
-    ``muscle``: a supported :class:`nmsid.analysis.muscle.candidate.MuscleResult`, which then
-    replaces the template's final model as the answer."""
+def _held_out_tests(diag, resid: np.ndarray) -> tuple[dict, list]:
+    """The significance tests of one held-out residual (every trial of ``diag.tested``):
+    broadband (:func:`gap_test`), narrow-band (:func:`narrow_band`) and the split into
+    the part common to the repeats and trial-to-trial scatter; with ``significant_total``
+    (broadband beyond the scatter, or a narrow-band component). Returns (tests,
+    narrow-band components)."""
     d = diag.data
     s = diag.settings
     if d.steady_N is not None and d.steady_N.shape[1] >= 16:
@@ -703,24 +704,55 @@ def assess(diag, muscle=None) -> GapVerdict:
     names = [d.trials[i].name for i in np.flatnonzero(ok)]
     band_top = min(d.settings.lowpass_Hz, d.fs_eval_Hz / 2)
     rest = d.steady_N[ok] if d.steady_N is not None else None
+    r = resid[ok]
+    gt = gap_test(r, noise[ok], diag.reference[ok], nu, nu, n_lead, z_crit=s.significance_z,
+                  min_beyond_noise_pct=s.min_beyond_noise_pct, names=names)
+    comps = narrow_band(r, diag.reference[ok], rest, d.fs_eval_Hz, band_top,
+                        f_min_Hz=d.chirp_f0_Hz, min_beyond_noise_pct=s.min_beyond_noise_pct)
+    common = common_test(r, noise[ok], diag.reference[ok], d.level[ok], d.sE_levels, nu,
+                         n_lead, z_crit=s.significance_z,
+                         min_beyond_noise_pct=s.min_beyond_noise_pct)
+    split = split_misfit(gt, common, s.min_common_share)
+    t = {**gt.to_dict(), **split.to_dict()}
+    t["narrow_band_significant"] = any(c["significant"] for c in comps)
+    broadband = bool(t["significant"] and not t["within_scatter"])
+    t["significant_total"] = bool(broadband or t["narrow_band_significant"])
+    return t, comps
+
+
+def nominal_settles(diag) -> tuple[bool, tuple[dict, list]]:
+    """Whether the nominal model's held-out gap alone settles the verdict as ``none``, with
+    nothing in any trial for the candidates to show.
+
+    When the nominal gap is significant neither broadband (whatever the scatter between
+    repeats) nor in a narrow band, :func:`decide` answers ``none`` for every candidate
+    search: with no candidate supported the nominal gap is judged by ``significant_total``,
+    with one supported by ``significant or narrow_band_significant``, and both are false.
+    The candidates need not be fitted then (``GapSettings.skip_settled``), unless the gap
+    is concentrated in a few trials (``concentrated_in``): the verdict stays ``none``, but
+    what the candidates make of those trials (a baseline step found in one) is reported.
+
+    ``diag`` needs ``data``, ``settings``, ``tested``, ``reference`` and ``nominal``
+    (a :class:`Diagnosis` under construction will do). Returns (settled, the nominal's
+    tests as :func:`assess` computes them, to be handed to it).
+    """
+    tests = _held_out_tests(diag, diag.nominal.heldout_resid)
+    t = tests[0]
+    settled = not (t["significant"] or t["narrow_band_significant"] or t["concentrated_in"])
+    return settled, tests
+
+
+def assess(diag, muscle=None, nominal_tests: tuple[dict, list] | None = None) -> GapVerdict:
+    """Verdict, the nominal gap and the remaining gap of a diagnosis (see module).
+
+    ``muscle``: a supported :class:`nmsid.analysis.muscle.candidate.MuscleResult`, which then
+    replaces the template's final model as the answer. ``nominal_tests``: the nominal's
+    tests when computed already (:func:`nominal_settles`, on the same diagnosis)."""
 
     def test(res):
-        r = res.heldout_resid[ok]
-        gt = gap_test(r, noise[ok], diag.reference[ok], nu, nu, n_lead, z_crit=s.significance_z,
-                      min_beyond_noise_pct=s.min_beyond_noise_pct, names=names)
-        comps = narrow_band(r, diag.reference[ok], rest, d.fs_eval_Hz, band_top,
-                            f_min_Hz=d.chirp_f0_Hz, min_beyond_noise_pct=s.min_beyond_noise_pct)
-        common = common_test(r, noise[ok], diag.reference[ok], d.level[ok], d.sE_levels, nu,
-                             n_lead, z_crit=s.significance_z,
-                             min_beyond_noise_pct=s.min_beyond_noise_pct)
-        split = split_misfit(gt, common, s.min_common_share)
-        t = {**gt.to_dict(), **split.to_dict()}
-        t["narrow_band_significant"] = any(c["significant"] for c in comps)
-        broadband = bool(t["significant"] and not t["within_scatter"])
-        t["significant_total"] = bool(broadband or t["narrow_band_significant"])
-        return t, comps
+        return _held_out_tests(diag, res.heldout_resid)
 
-    nom, nom_comps = test(diag.nominal)
+    nom, nom_comps = nominal_tests if nominal_tests is not None else test(diag.nominal)
     final = diag.best_pair or diag.best
     kind = "none" if final is None else ("pair" if diag.best_pair is not None else "effect")
     if muscle is not None:

@@ -110,3 +110,15 @@ def test_subset_refit_matches_a_full_refit_and_never_raises_its_own_cost(twin_da
     assert held <= 1.1 * np.sqrt(np.mean(R_refit[out] ** 2)) + 1e-4
     assert np.sum(R[0][keep] ** 2) <= np.sum(R_full[keep] ** 2) * (1 + 1e-9)
     assert thetas.shape == (1, len(PARAM_NAMES))
+
+
+def test_sos_response_is_sosfreqz():
+    """The chain's low-pass response without scipy.signal equals scipy's to rounding."""
+    import scipy.signal as ss
+
+    from nmsid.analysis.muscle.fit import sos_response
+    f = np.linspace(0.0, 60.0, 301)
+    for order, fc, fs in ((2, 25.0, 2000.0), (4, 25.0, 200.0), (3, 10.0, 100.0)):
+        sos = ss.butter(order, fc, fs=fs, output="sos")
+        _, want = ss.sosfreqz(sos, worN=f, fs=fs)
+        np.testing.assert_allclose(sos_response(sos, f, fs), want, rtol=1e-12, atol=1e-14)
