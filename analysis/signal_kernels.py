@@ -65,8 +65,13 @@ def _powers(A, count):
     n = A.shape[0]
     out = np.empty((count, n, n))
     out[0] = np.eye(n)
-    for i in range(1, count):
-        out[i] = out[i - 1] @ A
+    if count > 1:
+        out[1] = A
+    m = 1                # out[:m + 1] filled: A^(m + j) = A^j A^m for a stack of j at once
+    while m + 1 < count:
+        hi = min(2 * m, count - 1)
+        out[m + 1:hi + 1] = out[1:hi - m + 1] @ out[m]
+        m = hi
     return out
 
 
