@@ -251,7 +251,7 @@ class TrialSignals:
                 self._rows[("f", span, n, id(tr))] = (tr, out[k])
             for k, key in enumerate(todo_r):
                 self._rows[("r", span, n, delay_s, key)] = (None, out[len(todo_f) + k])
-        force = np.vstack([self._get(("f", span, n), tr) for tr in trials])
+        force = np.vstack([self._rows[("f", span, n, id(tr))][1] for tr in trials])
         rE = np.vstack([self._rows[("r", span, n, delay_s, k)][1] for k in ids])
         return force, rE
 
