@@ -25,7 +25,7 @@ from nmsid.analysis.data_bounds import check_session_data
 from nmsid.analysis.errors import IdentificationError
 from nmsid.analysis.fatigue import FatigueResult, cumulative_stimulation_s, fit_fatigue
 from nmsid.analysis.input_timing import fit_level
-from nmsid.analysis.preprocess import LevelData
+from nmsid.analysis.preprocess import LevelData, TrialSignals
 from nmsid.analysis.qc import SessionQC, assess_level, assess_session
 from nmsid.analysis.qc.decide import EXCLUDED, REPAIRED, LevelQC
 from nmsid.analysis.scatter import ScatterResult, fit_trials, summarise
@@ -150,7 +150,8 @@ def usable_trials(trials, settings: IdentificationSettings | None = None):
 
 
 def identify_level(trials, settings: IdentificationSettings | None = None,
-                   qc: LevelQC | None = None) -> LevelResult:
+                   qc: LevelQC | None = None, *,
+                   cache: TrialSignals | None = None) -> LevelResult:
     """Identify the second-order model from the repeats of one sE level.
 
     Parameters
@@ -162,6 +163,8 @@ def identify_level(trials, settings: IdentificationSettings | None = None,
         The quality control's verdicts (computed here when ``settings.qc`` and not given):
         only the trials it keeps are averaged and fitted, repaired ones with their
         repaired force.
+    cache : TrialSignals, optional
+        Each repeat filtered once for the session's fits (:func:`identify_session`).
 
     Returns
     -------
@@ -210,7 +213,7 @@ def identify_level(trials, settings: IdentificationSettings | None = None,
                         "averaged over the common part")
     try:
         # preprocessing and fit under the rig's input-timing model (estimated by default)
-        data, fit, _timing = fit_level(usable, s)
+        data, fit, _timing = fit_level(usable, s, cache=cache)
     except (IdentificationError, np.linalg.LinAlgError, ArithmeticError) as exc:
         problems.append(f"sE={sE:g}: {exc}; level not identified")
         return LevelResult(sE, None, None, len(usable), names, problems, qc)
@@ -301,8 +304,9 @@ def identify_session(session, settings: IdentificationSettings | None = None,
     session_qc = assess_session(session, s.qc_settings) if s.qc else None
     level_qc = {round(lq.sE, 9): lq for lq in session_qc.levels} if session_qc else {}
     levels = []
+    cache = TrialSignals(s)     # each repeat filtered once for the level and scatter fits
     for key in sorted(groups):
-        lv = identify_level(groups[key], s, qc=level_qc.get(key))
+        lv = identify_level(groups[key], s, qc=level_qc.get(key), cache=cache)
         n_done = completed.get(key, 0)
         if expected > 1 and n_done < expected:
             lv.problems.insert(0, f"sE={key:g}: {n_done} of {expected} repeats completed")
@@ -314,8 +318,8 @@ def identify_session(session, settings: IdentificationSettings | None = None,
         missing = sorted({round(float(x), 9) for x in planned} - set(groups))
         for m in missing:
             problems.append(f"sE={m:g}: planned but no trial in the file (session incomplete?)")
-    scatter, fatigue = (session_scatter(session.trials, levels, s) if trial_scatter
-                        else (None, None))
+    scatter, fatigue = (session_scatter(session.trials, levels, s, cache=cache)
+                        if trial_scatter else (None, None))
     if fatigue is not None and fatigue.significant:
         problems.append(f"{fatigue.sentence()}: each sE's parameters average repeats taken "
                         "at different fatigue (see the scatter and docs/identification.md)")
@@ -330,7 +334,8 @@ def identify_session(session, settings: IdentificationSettings | None = None,
 
 
 def session_scatter(all_trials, levels: list[LevelResult],
-                    settings: IdentificationSettings | None = None
+                    settings: IdentificationSettings | None = None, *,
+                    cache: TrialSignals | None = None
                     ) -> tuple[ScatterResult, FatigueResult]:
     """Each used repeat fitted on its own; the fatigue those fits show; their scatter.
 
@@ -342,6 +347,8 @@ def session_scatter(all_trials, levels: list[LevelResult],
     levels : list of LevelResult
         The identified levels (their used trials and fits).
     settings : IdentificationSettings, optional
+    cache : TrialSignals, optional
+        The repeats as filtered for the level fits (:func:`identify_session`).
 
     Returns
     -------
@@ -354,7 +361,7 @@ def session_scatter(all_trials, levels: list[LevelResult],
     cum = {id(t): float(c) for t, c in zip(all_trials, centre)}
     ok = [lv for lv in levels if lv.fit is not None and lv.data is not None]
     fits, notes = fit_trials([lv.used_trials for lv in ok], [(lv.data, lv.fit) for lv in ok],
-                             cum, settings)
+                             cum, settings, cache=cache)
     fatigue = fit_fatigue([f.Kp for f in fits], [round(f.sE, 9) for f in fits],
                           [f.cum_stim_s for f in fits], total_stim_s=total,
                           source="per-trial Kp")

@@ -29,7 +29,7 @@ import numpy as np
 
 from nmsid.analysis.discretize import foh_coefficients, smooth_hold_input
 from nmsid.analysis.errors import IdentificationError
-from nmsid.analysis.preprocess import LevelData, preprocess_trials
+from nmsid.analysis.preprocess import LevelData, TrialSignals, preprocess_trials
 from nmsid.analysis.second_order import SecondOrderFit, fit_second_order
 from nmsid.analysis.settings import IdentificationSettings, InputTiming
 from nmsid.analysis.signal_kernels import lfilter
@@ -140,13 +140,15 @@ def fixed_timing(settings: IdentificationSettings, fs_Hz: float) -> TimingEstima
     return None
 
 
-def fit_level(trials, settings: IdentificationSettings | None = None
+def fit_level(trials, settings: IdentificationSettings | None = None, *,
+              cache: TrialSignals | None = None
               ) -> tuple[LevelData, SecondOrderFit, TimingEstimate]:
     """Preprocess and fit one sE level with the input-timing model of the settings.
 
     With ``input_timing = "estimate"`` the level is fitted without a delay, the delay is
     estimated from that fit, and, when significant, the level is preprocessed again with
-    it and refitted (from the first fit's wn, zeta).
+    it and refitted (from the first fit's wn, zeta). ``cache``: each repeat filtered once
+    for the session's fits (:class:`nmsid.analysis.preprocess.TrialSignals`).
 
     Raises
     ------
@@ -160,14 +162,15 @@ def fit_level(trials, settings: IdentificationSettings | None = None
         raise IdentificationError("no trials to fit")
     fs = float(trials[0].fs_Hz)
     fixed = fixed_timing(s, fs)
-    data = preprocess_trials(trials, s, input_delay_s=fixed.delay_s if fixed else 0.0)
+    data = preprocess_trials(trials, s, input_delay_s=fixed.delay_s if fixed else 0.0,
+                             cache=cache)
     fit = fit_second_order(data.u, data.y_N, data.fs_Hz, s, band_Hz=data.band_Hz,
                            t0_s=float(data.t_s[0]))
     if fixed is not None:
         return data, fit, fixed
     est = pooled([delay_step(data.u, fit.residual_N, fit)], s.input_timing_max_s)
     if est.delay_s != 0.0:
-        data = preprocess_trials(trials, s, input_delay_s=est.delay_s)
+        data = preprocess_trials(trials, s, input_delay_s=est.delay_s, cache=cache)
         fit = fit_second_order(data.u, data.y_N, data.fs_Hz, s, band_Hz=data.band_Hz,
                                start=(fit.wn_rad_s, fit.zeta), t0_s=float(data.t_s[0]))
     return data, fit, est

@@ -183,8 +183,86 @@ def delay_input(rE: np.ndarray, delay_s: float, fs_Hz: float) -> np.ndarray:
     return fractional_delay(rE, delay_s * fs_Hz)
 
 
+class TrialSignals:
+    """Each repeat's filtered, windowed, decimated signals, computed once for all the fits
+    of a session (a cache for :func:`preprocess_trials`).
+
+    Every preprocessing step is linear, so the filtered average of a level's repeats is
+    the average of each repeat filtered on its own (to rounding). Filtering each repeat
+    once (its force once, its rE once per input delay) serves the level's fit without a
+    delay, its refit with the estimated delay and the per-repeat fits of the scatter
+    (:mod:`nmsid.analysis.scatter`): 135 filtered rows of a 45-trial session instead of
+    150, in 30 batched calls instead of 75, and nothing filtered twice.
+
+    Used only when the result is the same as filtering the average: the trials of a call
+    have one length and the filters run on the whole trial with the input prefiltered
+    (``filter_whole_trial`` and ``prefilter_input``, the defaults); otherwise
+    :func:`preprocess_trials` filters as before. Holds references to the trials it
+    filtered (rows are keyed by the trial object, checked by identity).
+
+    Parameters
+    ----------
+    settings : IdentificationSettings
+        The settings of every call that uses this cache.
+    """
+
+    def __init__(self, settings: IdentificationSettings):
+        self.settings = settings
+        self._rows: dict[tuple, tuple[object, np.ndarray]] = {}
+        self._inputs: list[np.ndarray] = []     # the distinct rE records seen
+
+    def _input_id(self, tr, n: int) -> int:
+        """An index shared by trials whose first ``n`` rE samples are equal (the repeats
+        of a protocol usually receive the same chirp: its rows are filtered once)."""
+        rE = np.asarray(tr.rE, dtype=float)[:n]
+        for k, seen in enumerate(self._inputs):
+            if seen.shape == rE.shape and np.array_equal(seen, rE):
+                return k
+        self._inputs.append(rE)
+        return len(self._inputs) - 1
+
+    def applies(self, trials, settings: IdentificationSettings) -> bool:
+        """Whether the rows of ``trials`` can be averaged for the same result."""
+        return (settings is self.settings and settings.filter_whole_trial
+                and settings.prefilter_input
+                and len({len(tr.force_N) for tr in trials}) == 1
+                and len({len(tr.rE) for tr in trials}) == 1)
+
+    def rows(self, trials, delay_s: float, fs_Hz: float, span: tuple[int, int, int, int],
+             n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(force rows, rE rows) of ``trials``: detrended / delayed, filtered from ``j0``,
+        cut to ``[i0, i1)`` and taken every ``q``-th sample (``span = (j0, i0, i1, q)``)."""
+        s = self.settings
+        todo_f = [tr for tr in trials if self._get(("f", span, n), tr) is None]
+        ids = [self._input_id(tr, n) for tr in trials]
+        todo_r = [k for k in dict.fromkeys(ids) if ("r", span, n, delay_s, k) not in self._rows]
+        if todo_f or todo_r:
+            j0, i0, i1, q = span
+            parts = []
+            for tr in todo_f:
+                f = np.asarray(tr.force_N, dtype=float)
+                parts.append((linear_detrend(f) if s.detrend else f)[:n])
+            if todo_r:
+                parts.extend(delay_input(np.vstack([self._inputs[k] for k in todo_r]),
+                                         delay_s, fs_Hz))
+            out = smooth_and_lowpass(np.vstack(parts)[:, j0:], fs_Hz, s)
+            out = np.ascontiguousarray(out[:, i0 - j0:i1 - j0:q])
+            for k, tr in enumerate(todo_f):
+                self._rows[("f", span, n, id(tr))] = (tr, out[k])
+            for k, key in enumerate(todo_r):
+                self._rows[("r", span, n, delay_s, key)] = (None, out[len(todo_f) + k])
+        force = np.vstack([self._rows[("f", span, n, id(tr))][1] for tr in trials])
+        rE = np.vstack([self._rows[("r", span, n, delay_s, k)][1] for k in ids])
+        return force, rE
+
+    def _get(self, key: tuple, trial) -> np.ndarray | None:
+        found = self._rows.get(key + (id(trial),))
+        return found[1] if found is not None and found[0] is trial else None
+
+
 def preprocess_trials(trials, settings: IdentificationSettings | None = None, *,
-                      input_delay_s: float | None = None) -> LevelData:
+                      input_delay_s: float | None = None,
+                      cache: TrialSignals | None = None) -> LevelData:
     """Detrend, average, filter, window and decimate the repeats of one sE level.
 
     Parameters
@@ -198,6 +276,9 @@ def preprocess_trials(trials, settings: IdentificationSettings | None = None, *,
         Delay of the stimulation behind the rE record in s (either sign); default: the
         fixed delay of ``settings.input_timing`` (0 when it is ``"estimate"``: the
         estimate is made by :func:`nmsid.analysis.input_timing.fit_level`).
+    cache : TrialSignals, optional
+        Each repeat filtered once and kept for the session's other fits (the same result
+        to rounding; used when :meth:`TrialSignals.applies`).
 
     Returns
     -------
@@ -220,19 +301,11 @@ def preprocess_trials(trials, settings: IdentificationSettings | None = None, *,
                 f"trials {first.name} and {tr.name} of sE={first.sE:g} were sampled at "
                 f"different rates ({fs:g} and {tr.fs_Hz:g} Hz); cannot average them")
     n = min(len(tr.force_N) for tr in trials)
-    force = np.empty((len(trials), n))
-    for k, tr in enumerate(trials):
-        f = np.asarray(tr.force_N, dtype=float)
-        force[k] = (linear_detrend(f) if s.detrend else f)[:n]
     if input_delay_s is None:
         input_delay_s = fixed_delay_s(s, fs)
-    rE = delay_input(np.vstack([np.asarray(tr.rE, dtype=float)[:n] for tr in trials]),
-                     input_delay_s, fs)
     lead = slice(int(first.steady_s * fs / 2), int(first.steady_s * fs))
     baseline = float(np.mean([np.mean(tr.force_N[lead]) for tr in trials])) \
         if lead.stop > lead.start and n >= lead.stop else float("nan")
-    y = force.mean(axis=0)
-    r = rE.mean(axis=0)
     i0, i1 = window_indices(n, fs, first.steady_s, first.chirp_s, s)
     trim = s.edge_trim_samples(fs)
     if s.filter_whole_trial:
@@ -245,6 +318,20 @@ def preprocess_trials(trials, settings: IdentificationSettings | None = None, *,
             f"the window {i0 / fs:g}-{i1 / fs:g} s of sE={first.sE:g} holds "
             f"{max(usable_len, 0)} usable samples ({max(usable_len, 0) // q} at the fit rate); the trials "
             f"are {n / fs:g} s long - too short to fit")
+    if cache is not None and cache.applies(trials, s):
+        settle = max(0.5, 10.0 / s.lowpass_Hz if s.lowpass_Hz else 0.0)
+        j0 = max(0, i0 - int(settle * fs))
+        force_rows, rE_rows = cache.rows(trials, float(input_delay_s), fs, (j0, i0, i1, q), n)
+        return _level_data(trials, force_rows.mean(axis=0), rE_rows.mean(axis=0), i0, q, fs,
+                           baseline, float(input_delay_s))
+    force = np.empty((len(trials), n))
+    for k, tr in enumerate(trials):
+        f = np.asarray(tr.force_N, dtype=float)
+        force[k] = (linear_detrend(f) if s.detrend else f)[:n]
+    rE = delay_input(np.vstack([np.asarray(tr.rE, dtype=float)[:n] for tr in trials]),
+                     input_delay_s, fs)
+    y = force.mean(axis=0)
+    r = rE.mean(axis=0)
     if s.filter_whole_trial:
         # the filters' memory is far shorter than the lead-in: start them a settling time
         # (10 / lowpass_Hz, at least 0.5 s) before the window instead of at onset
@@ -266,15 +353,21 @@ def preprocess_trials(trials, settings: IdentificationSettings | None = None, *,
             y = smooth_and_lowpass(y, fs, s)
         y, r = y[trim:len(y) - trim], r[trim:len(r) - trim]   # both ends are filter edges
         i0 += trim
-    y = np.ascontiguousarray(y[::q])
-    r = np.ascontiguousarray(r[::q])
+    return _level_data(trials, np.ascontiguousarray(y[::q]), np.ascontiguousarray(r[::q]), i0,
+                       q, fs, baseline, float(input_delay_s))
+
+
+def _level_data(trials, y: np.ndarray, r: np.ndarray, i0: int, q: int, fs: float,
+                baseline: float, input_delay_s: float) -> LevelData:
+    """The :class:`LevelData` of windowed, decimated signals starting at raw sample ``i0``."""
+    first = trials[0]
     t = (i0 + q * np.arange(len(y))) / fs
     r_mean = float(np.mean(r))
     return LevelData(sE=float(first.sE), t_s=t, u=r - r_mean, y_N=y, fs_Hz=fs / q,
                      raw_fs_Hz=fs, n_trials=len(trials),
                      trial_names=[tr.name for tr in trials],
                      band_Hz=(float(first.chirp_f0_Hz), float(first.chirp_f1_Hz)),
-                     rE_mean=r_mean, baseline_N=baseline, input_delay_s=float(input_delay_s))
+                     rE_mean=r_mean, baseline_N=baseline, input_delay_s=input_delay_s)
 
 
 def fixed_delay_s(settings: IdentificationSettings, fs_Hz: float) -> float:

@@ -34,7 +34,7 @@ import numpy as np
 
 from nmsid.analysis.errors import IdentificationError
 from nmsid.analysis.fatigue import FatigueResult, chi2_ppf
-from nmsid.analysis.preprocess import preprocess_trials
+from nmsid.analysis.preprocess import TrialSignals, preprocess_trials
 from nmsid.analysis.second_order import fit_second_order
 from nmsid.analysis.settings import IdentificationSettings
 
@@ -234,8 +234,8 @@ def summarise(trials: list[TrialFit] | tuple[TrialFit, ...],
 
 
 def fit_trials(level_trials, level_fits, cum_stim_s: dict[int, float],
-               settings: IdentificationSettings | None = None
-               ) -> tuple[list[TrialFit], list[str]]:
+               settings: IdentificationSettings | None = None, *,
+               cache: TrialSignals | None = None) -> tuple[list[TrialFit], list[str]]:
     """Fit every usable repeat on its own.
 
     Parameters
@@ -247,6 +247,8 @@ def fit_trials(level_trials, level_fits, cum_stim_s: dict[int, float],
     cum_stim_s : dict
         ``id(trial)`` -> cumulative stimulation at its window centre, s.
     settings : IdentificationSettings, optional
+    cache : TrialSignals, optional
+        The repeats as filtered for their level's fit (not filtered again).
 
     Returns
     -------
@@ -262,7 +264,7 @@ def fit_trials(level_trials, level_fits, cum_stim_s: dict[int, float],
             continue
         for tr in trials:
             try:
-                d = preprocess_trials([tr], s, input_delay_s=data.input_delay_s)
+                d = preprocess_trials([tr], s, input_delay_s=data.input_delay_s, cache=cache)
                 f = fit_second_order(d.u, d.y_N, d.fs_Hz, s, band_Hz=d.band_Hz,
                                      start=(fit.wn_rad_s, fit.zeta), t0_s=float(d.t_s[0]))
             except (IdentificationError, np.linalg.LinAlgError, ArithmeticError) as exc:

@@ -43,8 +43,11 @@ from nmsid.cli import BLAS_THREAD_VARIABLES, limit_blas_threads  # noqa: E402
 from nmsid.protocols.os_platform import is_windows  # noqa: E402
 
 
-def _env(single_blas_thread: bool = False, blas_threads: int | None = None) -> dict:
+def _env(single_blas_thread: bool = False, blas_threads: int | None = None,
+         write_bytecode: bool = False) -> dict:
     env = dict(os.environ)
+    if write_bytecode:   # the warm-up run caches the bytecode, as an installed package has
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
     if blas_threads is not None:   # a count chosen by the user: nmsid keeps it
         env.update({k: str(blas_threads) for k in BLAS_THREAD_VARIABLES})
     if single_blas_thread:     # what nmsid identify sets for itself (like for like)
@@ -58,12 +61,12 @@ _CPU: list[float] = []
 
 
 def _wall(cmd: list[str], single_blas_thread: bool = False,
-          blas_threads: int | None = None) -> float:
+          blas_threads: int | None = None, write_bytecode: bool = False) -> float:
     """Wall time of one process; its CPU time (user + sys) is appended to ``_CPU``."""
     before = os.times()
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, env=_env(single_blas_thread, blas_threads), cwd=ROOT,
-                   stdout=subprocess.DEVNULL)
+    subprocess.run(cmd, check=True, env=_env(single_blas_thread, blas_threads, write_bytecode),
+                   cwd=ROOT, stdout=subprocess.DEVNULL)
     wall = time.perf_counter() - t0
     after = os.times()
     # Windows' os.times does not count children: CPU shown as nan there
@@ -99,7 +102,10 @@ def main() -> None:
         tmp = Path(d)
         session = make_session(tmp)
         ident = [sys.executable, "-m", "nmsid.cli", "identify", str(session), "--out"]
-        _wall(ident + [str(tmp / "warm")])                  # page cache, .pyc files
+        # page cache and .pyc files: with PYTHONDONTWRITEBYTECODE set (as on this machine)
+        # no run would write them and every timed run would compile nmsid's sources
+        # (~0.1 s), which no installed copy does (pip compiles them at install)
+        _wall(ident + [str(tmp / "warm")], write_bytecode=True)
         with_fig, without, without_cpu = [], [], []
         for i in range(runs):                              # interleaved: same load for both
             with_fig.append(_wall(ident + [str(tmp / f"fig{i}")]))

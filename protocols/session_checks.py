@@ -131,9 +131,36 @@ def max_current_mA(config_json: str) -> float:
     return max(ceilings) if ceilings else DEFAULT_MAX_CURRENT_mA
 
 
+def _only_hard_links_and_own_storage(f) -> bool:
+    """True when every link of the file is hard and no dataset keeps its data elsewhere,
+    found through HDF5's own traversal (no h5py object per item: ~5x faster than the
+    walk below, which then runs only to name what it found)."""
+    h5py = _h5py()
+    seen = 0
+
+    def link(name, info):
+        nonlocal seen
+        seen += 1
+        return True if info.type != h5py.h5l.TYPE_HARD or seen > 1_000_000 else None
+
+    if f.id.links.visit(link, info=True):
+        return False
+
+    def obj(name, info):
+        if info.type == h5py.h5o.TYPE_DATASET:
+            plist = h5py.h5d.open(f.id, name).get_create_plist()
+            if plist.get_external_count() or plist.get_layout() == h5py.h5d.VIRTUAL:
+                return True
+        return None
+
+    return not h5py.h5o.visit(f.id, obj, info=True)
+
+
 def link_problems(f) -> list[str]:
     """External and soft links, external storage and virtual datasets anywhere in the
     file: refused (never followed), so no item is read from another file."""
+    if _only_hard_links_and_own_storage(f):
+        return []
     h5py = _h5py()
     out: list[str] = []
     seen = 0

@@ -17,7 +17,7 @@ from nmsid.protocols.session_model import (CALIBRATION_ATTRS, OPTIONAL_SIGNALS, 
                                            TRIAL_STR_ATTRS, _DAMAGE_ERRORS, Calibration, Event,
                                            Session, SessionFileError, Trial, _as_float, _as_str,
                                            _h5py, _trial_names)
-from nmsid.protocols.session_validator import _problems
+from nmsid.protocols.session_validator import EVENT_ATTRS, AttrSnapshot, _problems
 
 log = logging.getLogger(__name__)
 
@@ -72,7 +72,8 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
     with _open_read(path) as f:
         try:
             warnings: list[str] = []
-            problems = _problems(f, fatal_only=True, warnings=warnings)
+            snap = AttrSnapshot()   # the checks read each attribute once; reused below
+            problems = _problems(f, fatal_only=True, warnings=warnings, snapshot=snap)
         except _DAMAGE_ERRORS as exc:
             raise SessionFileError(path, f"damaged: an item cannot be read ({type(exc).__name__}"
                                          f": {exc}); if it was being written when a program "
@@ -84,16 +85,20 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
         wanted = (set(TRIAL_DATASETS) | {"wrench", "sync"}) if datasets is None else set(datasets)
         if not load_data:
             wanted = set()
-        a = f.attrs
+        a = snap.of(f)
         cal_g = f["calibration"]
         try:
-            cal = Calibration(**{k: _as_float(cal_g.attrs[k]) for k in CALIBRATION_ATTRS},
+            cal_a = snap.of(cal_g)
+            cal = Calibration(**{k: _as_float(cal_a[k]) for k in CALIBRATION_ATTRS},
                               ramps={k: np.asarray(cal_g[k][()]) for k in cal_g
                                      if isinstance(cal_g[k], _h5py().Dataset)}
                               if load_data else {})
-            trials = [_read_trial(f["trials"][name], name, wanted)
-                      for name in _trial_names(f["trials"])]
-            events = _read_events(f["events"]) if "events" in f else []
+            trials_g = f["trials"]
+            trials = []
+            for name in _trial_names(trials_g):
+                g = trials_g[name]
+                trials.append(_read_trial(g, name, wanted, snap.of(g)))
+            events = (_read_events(f["events"], snap.events) if "events" in f else [])
         except _DAMAGE_ERRORS as exc:
             raise SessionFileError(path, f"damaged: data cannot be read ({type(exc).__name__}:"
                                          f" {exc}); if it was being written when a program "
@@ -135,8 +140,9 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
         )
 
 
-def _read_trial(g, name: str, wanted: set[str]) -> Trial:
-    a = g.attrs
+def _read_trial(g, name: str, wanted: set[str], attrs: dict | None = None) -> Trial:
+    """One trial; ``attrs``: the group's attributes when read already."""
+    a = attrs if attrs is not None else g.attrs
     kw: dict[str, Any] = {k: _as_float(a[k]) for k in TRIAL_FLOAT_ATTRS}
     kw.update({k: _as_str(a[k]) for k in TRIAL_STR_ATTRS})
     kw["repeat"] = int(np.asarray(a["repeat"]))
@@ -160,13 +166,16 @@ def _read_signal(d) -> np.ndarray:
     return np.asarray(data, dtype=np.float64)
 
 
-def _read_events(g) -> list[Event]:
-    out = []
-    for key in sorted(g):
-        e = g[key]
-        if isinstance(e, _h5py().Group):
-            out.append(Event(_as_str(e.attrs.get("utc", "")), _as_str(e.attrs.get("kind", "")),
-                             _as_str(e.attrs.get("detail", ""))))
-    return out
+def _read_events(g, seen: dict[str, dict] | None = None) -> list[Event]:
+    """The events in name order; ``seen``: each event group's attributes (those of
+    ``EVENT_ATTRS`` present) as the checks read them, else read here."""
+    if seen is None:
+        seen = {}
+        for key in g:
+            e = g[key]
+            if isinstance(e, _h5py().Group):
+                seen[key] = {n: e.attrs[n] for n in EVENT_ATTRS if n in e.attrs}
+    return [Event(_as_str(a.get("utc", "")), _as_str(a.get("kind", "")),
+                  _as_str(a.get("detail", ""))) for key, a in sorted(seen.items())]
 
 

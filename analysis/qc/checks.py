@@ -114,19 +114,29 @@ def flat_runs(x: np.ndarray, fs_Hz: float, stall_min_s: float, clip_min_s: float
     return out
 
 
+def spike_lowpass_sos(fs_Hz: float, highpass_Hz: float) -> np.ndarray:
+    """The low-pass whose remainder :func:`spikes` searches (order 4 at ``highpass_Hz``,
+    at most 0.4 ``fs_Hz``)."""
+    return butter(4, min(highpass_Hz, 0.4 * fs_Hz), fs=fs_Hz)
+
+
 def spikes(x: np.ndarray, fs_Hz: float, highpass_Hz: float, k: float,
-           max_s: float) -> list[Finding]:
+           max_s: float, lowpassed: np.ndarray | None = None) -> list[Finding]:
     """Isolated outliers (cable knocks, A/D glitches) in the signal's high-pass part.
 
     Above ``highpass_Hz`` the muscle contributes nothing (the response lies below ~20 Hz,
     mains below ~200 Hz are removed too when ``highpass_Hz`` exceeds them), so what is left
     is sensor noise, whose robust SD sets the threshold, and broadband glitches. A spike's
     extent is taken at half its peak (the filter's ringing around it is not data).
+    ``lowpassed``: ``x`` through :func:`spike_lowpass_sos` (zero-phase) when the caller
+    filtered it already, with other trials in one batch.
     """
     fc = min(highpass_Hz, 0.4 * fs_Hz)
     if x.size < int(fs_Hz / fc) * 8:
         return []
-    hp = x - sosfiltfilt(butter(4, fc, fs=fs_Hz), x)
+    if lowpassed is None:
+        lowpassed = sosfiltfilt(spike_lowpass_sos(fs_Hz, highpass_Hz), x)
+    hp = x - lowpassed
     sd = robust_sd(hp)
     if not np.isfinite(sd) or sd == 0:
         return []

@@ -31,6 +31,7 @@ from nmsid.analysis.fatigue import FatigueResult, cumulative_stimulation_s, fit_
 from nmsid.analysis.qc import checks
 from nmsid.analysis.qc.repeats import Deviation, attribute_pair, deviations, fit_jump, smoothed, unshared
 from nmsid.analysis.qc.settings import QCSettings
+from nmsid.analysis.signal_kernels import sosfiltfilt
 from nmsid.protocols.session_file import Trial, read_session
 
 USED, REPAIRED, EXCLUDED = "used", "repaired", "excluded"
@@ -158,10 +159,16 @@ class _Work:
     noise_sd: float = float("nan")
     bridged_s: float = 0.0
     smooth_cache: dict = dataclasses.field(default_factory=dict)
+    batch: dict = dataclasses.field(default_factory=dict)
+    """This trial's force as recorded (``force``) filtered with the other trials of its
+    length in one call (:func:`_filter_together`): ``spike_lowpassed`` and ``smoothed``."""
 
     def smoothed(self, n: int, s: QCSettings) -> tuple[np.ndarray, float]:
         """The first ``n`` samples of the (possibly bridged) force, smoothed once."""
         key = (n, id(self.force))
+        if key not in self.smooth_cache and n == self.force.size and \
+                self.force is self.batch.get("force"):
+            self.smooth_cache[key] = self.batch["smoothed"]   # filtered with the session
         if key not in self.smooth_cache:
             self.smooth_cache[key] = smoothed(self.force[:n], float(self.trial.fs_Hz), s)
         return self.smooth_cache[key]
@@ -171,10 +178,36 @@ def _window_start(trial) -> float:
     return float(trial.steady_s)
 
 
-def _single(trial, s: QCSettings) -> _Work:
+def _filter_together(trials, s: QCSettings) -> dict[int, dict]:
+    """The two zero-phase filters every trial's force passes (the spike search's low-pass
+    and the repeats' smoothing), run on all trials of one length and rate in one call
+    each: ``id(trial)`` -> ``{"force", "spike_lowpassed", "smoothed"}``. Trials whose
+    force is not finite (bridged first) are left out; the result is the same as filtering
+    each trial on its own (rows are independent)."""
+    groups: dict[tuple, list] = {}
+    for tr in trials:
+        f = np.asarray(tr.force_N, float)
+        if f.ndim == 1 and f.size >= 0.5 * float(tr.fs_Hz) and np.isfinite(f).all():
+            groups.setdefault((f.size, float(tr.fs_Hz)), []).append((tr, f))
+    out: dict[int, dict] = {}
+    for (n, fs), members in groups.items():
+        fc = min(s.spike_highpass_Hz, 0.4 * fs)
+        if len(members) < 2 or n < int(fs / fc) * 8:
+            continue    # alone or too short: _single filters it as before
+        F = np.vstack([f for _, f in members])
+        low = sosfiltfilt(checks.spike_lowpass_sos(fs, s.spike_highpass_Hz), F)
+        sm, fs_s = smoothed(F, fs, s)
+        for k, (tr, f) in enumerate(members):
+            out[id(tr)] = {"force": f, "spike_lowpassed": low[k], "smoothed": (sm[k], fs_s)}
+    return out
+
+
+def _single(trial, s: QCSettings, batch: dict | None = None) -> _Work:
     fs = float(trial.fs_Hz)
     v = TrialQC(trial.name, float(trial.sE), int(trial.repeat), USED)
-    w = _Work(trial, v, np.asarray(trial.force_N, float))
+    batch = batch or {}
+    w = _Work(trial, v, batch["force"] if batch else np.asarray(trial.force_N, float),
+              batch=batch)
     start_s = _window_start(trial)
 
     def exclude(reason, span=None):
@@ -207,7 +240,9 @@ def _single(trial, s: QCSettings) -> _Work:
     if to_bridge:
         w.force = checks.bridge(w.force, to_bridge, margin=0)
         w.bridged_s += sum(b - a for a, b in to_bridge) / fs
-    found = checks.spikes(w.force, fs, s.spike_highpass_Hz, s.spike_k, s.spike_max_s)
+    found = checks.spikes(w.force, fs, s.spike_highpass_Hz, s.spike_k, s.spike_max_s,
+                          lowpassed=batch.get("spike_lowpassed") if w.force is batch.get("force")
+                          else None)
     if found:
         spans = [f.spans[0] for f in found]
         w.bridged_s += sum(b - a + 2 for a, b in spans) / fs
@@ -389,7 +424,8 @@ def assess_session(session, settings: QCSettings | None = None) -> SessionQC:
         if tr.completed:
             groups.setdefault(round(float(tr.sE), 9), []).append(tr)
     keys = sorted(groups)
-    works = {k: [_single(t, s) for t in groups[k]] for k in keys}
+    batch = _filter_together([t for k in keys for t in groups[k]], s)
+    works = {k: [_single(t, s, batch.get(id(t))) for t in groups[k]] for k in keys}
     noise = np.array([w.noise_sd for k in keys for w in works[k]
                       if w.verdict.decision != EXCLUDED and np.isfinite(w.noise_sd)])
     if noise.size >= 3:

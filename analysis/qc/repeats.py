@@ -64,12 +64,15 @@ class Deviation:
 
 def smoothed(force_N: np.ndarray, fs_Hz: float, settings: QCSettings) -> tuple[np.ndarray,
                                                                                 float]:
-    """Zero-phase low-pass then decimation; returns (signal, its rate in Hz)."""
+    """Zero-phase low-pass then decimation; returns (signal, its rate in Hz).
+
+    ``force_N`` may hold several signals (rows, one length): each is filtered on its own,
+    in one call."""
     x = np.asarray(force_N, float)
     sos = butter(4, min(settings.lowpass_Hz, 0.4 * fs_Hz), fs=fs_Hz)
     y = sosfiltfilt(sos, x)
     step = max(1, int(fs_Hz // (5 * settings.lowpass_Hz)))
-    return y[::step].copy(), fs_Hz / step
+    return y[..., ::step].copy(), fs_Hz / step
 
 
 TAP_S = 0.02

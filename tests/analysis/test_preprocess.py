@@ -1,5 +1,7 @@
 """Preprocessing: the paper's steps, exact on signals with known answers."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -107,3 +109,89 @@ def test_no_lead_in_and_other_rates_still_recover_the_model(synthetic):
     assert d.t_s[0] > 0.1 and d.fs_Hz == 200.0
     f = fit_second_order(d.u, d.y_N, d.fs_Hz)
     assert (f.Kp, f.wn_rad_s, f.zeta) == pytest.approx((6.0, 25.0, 0.5), rel=2e-5)
+
+
+def _chirp_trials(n_trials=3, n=30000, seed=4):
+    """Repeats receiving one chirp rE, each with its own noisy force (a linear response)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / FS
+    tc = np.clip(t - 5.0, 0.0, None)
+    rE = np.where(t < 5, 0.5, 0.5 + 0.5 * np.sin(2 * np.pi * (1.0 + 0.45 * tc) * tc))
+    out = []
+    for k in range(n_trials):
+        force = (1.5 + 0.1 * k) * (rE - 0.5) + 0.2 * k + 0.01 * t \
+            + 0.02 * rng.standard_normal(n)
+        out.append(trial(force, rE.copy(), name=f"t{k + 1:03d}", repeat=k + 1))
+    return out
+
+
+def _counting(monkeypatch):
+    """Count the rows smooth_and_lowpass filters (the cache's work)."""
+    import nmsid.analysis.preprocess as pre
+    rows = []
+    real = pre.smooth_and_lowpass
+
+    def counted(x, fs_Hz, settings):
+        rows.append(np.atleast_2d(x).shape[0])
+        return real(x, fs_Hz, settings)
+
+    monkeypatch.setattr(pre, "smooth_and_lowpass", counted)
+    return rows
+
+
+def test_trial_signals_give_the_result_of_filtering_the_average(monkeypatch):
+    """Filtering each repeat once and averaging equals filtering the average (linear
+    steps), for the level with and without a delay and for each repeat alone; the force
+    is filtered once per repeat and the shared rE once per delay."""
+    from nmsid.analysis.preprocess import TrialSignals
+    s = IdentificationSettings()
+    trials = _chirp_trials()
+    plain = {(d, k): preprocess_trials(trials if k is None else [trials[k]], s,
+                                       input_delay_s=d)
+             for d in (0.0, 2.5e-4) for k in (None, 0, 1, 2)}
+    rows = _counting(monkeypatch)
+    cache = TrialSignals(s)
+    for (d, k), ref in plain.items():
+        got = preprocess_trials(trials if k is None else [trials[k]], s, input_delay_s=d,
+                                cache=cache)
+        scale = np.max(np.abs(ref.y_N))
+        assert np.allclose(got.y_N, ref.y_N, rtol=0, atol=1e-12 * scale)
+        assert np.allclose(got.u, ref.u, rtol=0, atol=1e-12)
+        assert np.array_equal(got.t_s, ref.t_s)
+        assert (got.fs_Hz, got.n_trials, got.input_delay_s, got.baseline_N) == \
+            (ref.fs_Hz, ref.n_trials, ref.input_delay_s, ref.baseline_N)
+        assert got.rE_mean == pytest.approx(ref.rE_mean, abs=1e-12)
+    # 3 forces + the one rE at delay 0, then the rE at 0.25 ms; nothing for single repeats
+    assert rows == [4, 1]
+
+
+def test_trial_signals_filter_different_inputs_apart(monkeypatch):
+    from nmsid.analysis.preprocess import TrialSignals
+    s = IdentificationSettings()
+    trials = _chirp_trials()
+    trials[2].rE[12000] += 1e-3          # one sample differs: its own rE row
+    ref = preprocess_trials(trials, s)
+    rows = _counting(monkeypatch)
+    got = preprocess_trials(trials, s, cache=TrialSignals(s))
+    assert rows == [5]
+    assert np.allclose(got.u, ref.u, rtol=0, atol=1e-12)
+
+
+def test_trial_signals_step_aside_where_averaging_first_differs(monkeypatch):
+    """Repeats of different lengths (cut to the common part), other settings and a
+    settings object other than the cache's are filtered as before: the same numbers."""
+    from nmsid.analysis.preprocess import TrialSignals
+    s = IdentificationSettings()
+    trials = _chirp_trials()
+    short = dataclasses.replace(trials[1], force_N=trials[1].force_N[:25000],
+                                rE=trials[1].rE[:25000])
+    cache = TrialSignals(s)
+    for group, settings in (([trials[0], short], s),
+                            (trials, IdentificationSettings()),
+                            (trials, IdentificationSettings(prefilter_input=False))):
+        assert not cache.applies(group, settings)
+        ref = preprocess_trials(group, settings)
+        rows = _counting(monkeypatch)
+        got = preprocess_trials(group, settings, cache=cache)
+        assert np.array_equal(got.y_N, ref.y_N) and np.array_equal(got.u, ref.u)
+        assert rows and rows[0] <= 2               # the average, not each repeat

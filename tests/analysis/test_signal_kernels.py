@@ -172,3 +172,26 @@ def test_expm_closed_forms():
                                np.exp(-2.0) * np.array([[1.0, 1.0], [0.0, 1.0]]), rtol=1e-14)
     with pytest.raises(ValueError, match="square"):
         expm(np.ones((2, 3)))
+
+
+@pytest.mark.parametrize("count", [1, 2, 3, 5, 16, 17, 33])
+def test_block_powers_by_doubling_equal_repeated_products(count):
+    A = np.random.default_rng(count).standard_normal((4, 4)) * 0.5
+    P = k._powers(A, count)
+    assert P.shape == (count, 4, 4)
+    for i in range(count):
+        assert np.allclose(P[i], np.linalg.matrix_power(A, i), rtol=1e-12, atol=1e-14)
+
+
+def test_a_cascade_runs_as_one_state_space_with_each_sections_states():
+    """sosfilt's single pass over the cascade gives each section's final states (zf) as
+    filtering section by section does (the sections' states, stacked)."""
+    sos = ss.butter(5, 0.2, output="sos")                 # 3 sections, one first-order
+    x = np.random.default_rng(3).standard_normal(500)
+    y, zf = k.sosfilt(sos, x, zi=np.zeros((3, 2)))
+    z_each, u = [], x
+    for sec in sos:
+        u, z = ss.lfilter(sec[:3], sec[3:], u, zi=np.zeros(2))
+        z_each.append(z)
+    assert np.allclose(y, u, rtol=1e-10, atol=1e-12)
+    assert np.allclose(zf, np.array(z_each), rtol=1e-10, atol=1e-12)

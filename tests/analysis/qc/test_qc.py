@@ -306,3 +306,34 @@ def test_counts_and_excluded_are_result_objects_with_the_json_form():
     with pytest.raises(TypeError):
         ex["t001"] = "x"  # type: ignore[index]
     assert vs[3].to_dict()["reasons"] == "a; b"
+
+
+def test_filtering_all_trials_together_changes_no_verdict(monkeypatch):
+    """assess_session filters every trial's force in one batch (spike low-pass and the
+    repeats' smoothing); a spike, a gap, a contraction and a shorter trial decide the same
+    as when each trial is filtered on its own, and the repaired forces agree."""
+    from nmsid.analysis.qc import decide
+    from nmsid.protocols.session_model import Session
+    levels = []
+    for i, sE in enumerate((0.4, 0.5, 0.6)):
+        trials, t = make_level(sE=sE, n=3, Kp=3 + 4 * sE, seed=40 + i)
+        levels.append(trials)
+    levels[0][1].force_N[14000:14003] += 4.0                      # a spike: bridged
+    levels[1][0].force_N[16000] = np.nan                          # a gap: not batched
+    levels[1][2].force_N = levels[1][2].force_N + bump(t, 9.0, 1.5, 3.0)   # excluded
+    levels[2][2].force_N = levels[2][2].force_N[:26000]           # alone at its length
+    levels[2][2].rE = levels[2][2].rE[:26000]
+    session = Session(path="batch.h5", participant="QC02", created_utc="", software="",
+                      calibration=Calibration(1.0, 9.0, 1.5, 10.0, 0.5, 5.0),
+                      trials=[tr for lv in levels for tr in lv])
+    batch = decide._filter_together(session.trials, QCSettings())
+    assert len(batch) == 7 and id(levels[1][0]) not in batch and id(levels[2][2]) not in batch
+    together = assess_session(session)
+    monkeypatch.setattr(decide, "_filter_together", lambda trials, s: {})
+    alone = assess_session(session)
+    assert [(v.trial, v.decision, v.reasons, v.spans) for v in together.trials] == \
+        [(v.trial, v.decision, v.reasons, v.spans) for v in alone.trials]
+    assert {v.decision for v in together.trials} == {"used", "repaired", "excluded"}
+    for a, b in zip(together.levels, alone.levels):
+        for ta, tb in zip(a.kept, b.kept):
+            assert np.allclose(ta.force_N, tb.force_N, rtol=0, atol=1e-12)
