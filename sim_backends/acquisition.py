@@ -93,6 +93,12 @@ class SimForceAcquisition:
                             Na, Nb = w.next_range(acq)
                         due = w.due_time(acq, Nb)
                         if not realtime:
+                            # a fault due inside this chunk fires first (a sensor lost at
+                            # 1.44 s delivers nothing measured after it)
+                            t_fault = w.next_timed_fault_s(due)
+                            if t_fault is not None and t_fault > clock.monotonic_s():
+                                clock.advance_to(t_fault)
+                                continue
                             clock.advance_to(due)
                         if clock.monotonic_s() >= due - 1e-12:
                             force, wrench, sync, flags, k0 = w.acquire(acq, Na, Nb)

@@ -349,6 +349,13 @@ class SimWorld:
                 return sf
         return None
 
+    def next_timed_fault_s(self, until_s: float) -> float | None:
+        """The clock time of the first time-scheduled fault still pending before
+        ``until_s`` (a fast clock stops there, so a chunk never carries samples measured
+        after a fault that should have cut it), else None."""
+        ts = [t for f, t in self._timed if t < until_s and f.kind not in SENSOR_KINDS]
+        return min(ts) if ts else None
+
     def due_time(self, acq: AcqRun, Nb: int) -> float:
         N0, t0_s = acq.origin
         return t0_s + (Nb - N0) / self.fs_Hz

@@ -300,10 +300,16 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
         settled, nominal_tests = nominal_settles(early)
         if settled:
             t = nominal_tests[0]
-            skipped = (f"no candidate fitted: the nominal model's held-out gap is within "
-                       f"noise (z = {t['z']:.2f} < {s.significance_z:g}, beyond noise "
-                       f"{t['beyond_noise_pct_typical'] or 0:.2f} % of the response; no "
-                       "narrow-band component), so no candidate could change the verdict")
+            if t.get("z") is None:   # too few trials with a lead-in noise to test
+                skipped = ("no candidate fitted: the nominal model's held-out gap could not "
+                           f"be tested against noise ({t.get('note') or 'no test'}), so no "
+                           "candidate could change the verdict")
+            else:
+                skipped = (f"no candidate fitted: the nominal model's held-out gap is within "
+                           f"noise (z = {t['z']:.2f} < {s.significance_z:g}, beyond noise "
+                           f"{t.get('beyond_noise_pct_typical') or 0:.2f} % of the response; "
+                           "no narrow-band component), so no candidate could change the "
+                           "verdict")
     results = []
     for e in (s.candidates if skipped is None else ()):
         t1 = time.perf_counter()

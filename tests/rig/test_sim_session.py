@@ -207,3 +207,16 @@ def test_after_any_sim_fault_output_is_zero(tmp_path, kind, trial, at_s, seed):
         assert all(t.n_samples == 3000 for t in sess.trials if t.completed)
     else:
         assert s.complete
+
+
+def test_a_sensor_lost_late_in_a_chunk_delivers_nothing_measured_after_it(tmp_path):
+    # on the fast clock the acquisition used to jump to the end of its 0.1 s chunk and hand
+    # out samples up to 1.5 s from a sensor lost at 1.4375 s; the trial then completed and
+    # the loss surfaced only between trials (found by the property test above)
+    rig = make_sim_rig(seed=0, faults=[Fault(FaultKind.SENSOR_DISCONNECT, trial=0,
+                                             at_s=1.4375)])
+    s = Engine(_short(), rig, tmp_path / "late.h5",
+               trip_policy=TripPolicy.END_SESSION).run()
+    assert rig.faults.fired and s.ended_by.startswith("interlock: acquisition")
+    assert "sample 2800" in s.ended_by          # the last whole chunk before 1.4375 s
+    assert not rig.world.output_active_at(rig.clock.monotonic_s())
