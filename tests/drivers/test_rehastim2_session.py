@@ -42,7 +42,9 @@ def small_config():
 
 
 def test_rehastim2_session_end_to_end(tmp_path):
-    devices = make_hw_rig(write_rs2_config(tmp_path / "rs2.toml"))
+    # speed 4: the device's 1.2 s watchdog is 0.3 s of real time (at 10x, 0.12 s: a link
+    # thread held 80 ms on a loaded 2-core host let it expire, SM2 5.2, and the run ended)
+    devices = make_hw_rig(write_rs2_config(tmp_path / "rs2.toml", speed=4.0))
     assert "Hasomed RehaStim2" in devices.backend
     path = tmp_path / "s.h5"
     try:
