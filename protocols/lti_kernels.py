@@ -1,10 +1,12 @@
-"""Linear time-invariant kernels in numpy alone, for the simulator: the zero-order-hold
-discretisation of a transfer function and a filter that continues from its past.
+"""Linear time-invariant kernels of the lowest layer: the zero-order-hold discretisation
+of a transfer function, the product's one recursive filter, and a filter that continues
+from its past.
 
 ``import scipy.signal`` costs 0.5-1 s of a process's start-up (scipy 1.17 wraps and
 re-documents every function at import), a third of a whole fast-clock simulated session.
-The lowest layer holds what the simulator (:mod:`nmsid.sim_backends.filters`) needs, and the
-one :func:`expm` the analysis shares (:mod:`nmsid.analysis.signal_kernels` re-exports it):
+The lowest layer holds what the simulator (:mod:`nmsid.sim_backends.filters`) needs, the
+filter every layer above runs, and the one :func:`expm` the analysis shares
+(:mod:`nmsid.analysis.signal_kernels` re-exports it):
 
 * :func:`tf2ss`, :func:`ss2tf` and :func:`cont2discrete_zoh`: ``scipy.signal.cont2discrete``
   with ``method="zoh"`` on a ``(num, den)`` system, the same steps in the same order
@@ -23,11 +25,12 @@ through :func:`lfilter`. The kernel's module name is private to scipy: when it c
 found or loaded (another scipy layout), :func:`kernel_available` says so and each caller
 keeps a numpy fallback (the analysis: its block scan; :func:`lfilter` itself: the public
 ``scipy.signal.lfilter``, at ``import scipy.signal``'s cost). The fallback of
-:func:`lfilter_history` is the numpy recursion below: it runs the FIR part as one convolution and the all-pole part in blocks
-of :data:`HISTORY_BLOCK` samples: inside a block the response is a product with the
-all-pole impulse response (a Toeplitz matrix) plus the free response to the last outputs
-of the block before; only those few outputs are carried from block to block, in order.
-Unlike a log-depth scan of the direct-form state (``analysis.signal_kernels.lfilter``),
+:func:`lfilter_history` is a numpy recursion: it runs the FIR part as one convolution
+and the all-pole part in blocks of :data:`HISTORY_BLOCK` samples: inside a block the
+response is a product with the all-pole impulse response (a Toeplitz matrix) plus the free
+response to the last outputs of the block before; only those few outputs are carried from
+block to block, in order. Unlike a log-depth scan of the direct-form state (the
+fallback of ``analysis.signal_kernels.lfilter``),
 which loses digits when the poles crowd near ``z = 1`` (a slow muscle sampled at 2 kHz: a
 3rd-order cascade with ``|1 - p| ~ 1e-3``), it stays as accurate as the sample-by-sample
 recursion (tests compare with scipy over the participants' range).
