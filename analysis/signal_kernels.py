@@ -13,26 +13,30 @@ module swaps its import line and nothing else:
 * :func:`expm` (``scipy.linalg.expm`` for the few-state matrices of a hold
   discretisation: ``import scipy.linalg`` alone costs 0.17 s).
 
-This is the analysis's one filter path: every analysis module filters through it, with
-one filter design (:func:`butter`). Callers that filter large batches hundreds of times
-(the gap diagnosis's fits) use :data:`compiled`, the same calls on ``scipy.signal``'s
-compiled filters: 2x (``lfilter``) to 4x (``sosfiltfilt``) faster on a gap batch of 45 x
-30000 samples, measured on this machine, where importing ``scipy.signal`` costs 1.0-1.3 s
-that the identification's start-up never pays. The two agree to rounding (tests).
+This is the analysis's one filter path, and the product's: every recursion runs on
+:func:`nmsid.protocols.lti_kernels.lfilter`, ``scipy.signal``'s own compiled kernel loaded
+without ``import scipy.signal`` (bit-identical to ``scipy.signal.lfilter``; ~2-3x faster
+than the numpy scan below), the one the gap fits and the simulator use too. :func:`sosfilt`
+runs the sections through it one after the other, with their states, as scipy's does.
 
-The recursion runs block-wise in state space (Blelloch-style, vectorised): inside a block
-of ``L`` samples the response is a Toeplitz product; block start states follow from a
-log-depth scan of ``s[k+1] = A^L s[k] + f[k]``. The result equals the sample-by-sample
-recursion up to rounding (tests compare with scipy on random filters and signals).
+When the kernel cannot be loaded (another scipy layout), the same functions fall back to a
+numpy block scan: the recursion runs block-wise in state space (Blelloch-style,
+vectorised): inside a block of ``L`` samples the response is a Toeplitz product; block
+start states follow from a log-depth scan of ``s[k+1] = A^L s[k] + f[k]``. It equals the
+sample-by-sample recursion up to rounding for well-separated poles (tests compare with
+scipy), but loses digits when poles crowd near ``z = 1`` (4 % on a slow 3rd-order filter
+at 2 kHz): the fallback keeps the product running, not its best accuracy.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import types
 
 import numpy as np
 
+from nmsid.protocols import lti_kernels as _lti
 # one expm for the analysis and the simulator, in the lowest layer (re-exported here)
 from nmsid.protocols.lti_kernels import expm  # noqa: F401
 
@@ -132,41 +136,6 @@ def _run(A, B, D, x, s0, C=None):
     return y.reshape(lead + (N,)), s.reshape(lead + (n,))
 
 
-class _Compiled:
-    """The same calls handed to ``scipy.signal``'s compiled filters (imported on first use).
-
-    For the gap diagnosis and the muscle twin, whose fits filter large batches hundreds of
-    times (2-4x faster there) and whose process loads ``scipy.signal`` anyway (the
-    simulator); the identification keeps the numpy functions and its start-up.
-    """
-
-    @staticmethod
-    def _ss():
-        # function-local: the identification imports this module and must not pay for
-        # scipy.signal (~1 s of start-up); only the batch users below reach it
-        import scipy.signal
-        return scipy.signal
-
-    def lfilter(self, b, a, x, axis: int = -1, zi=None):
-        return self._ss().lfilter(b, a, x, axis=axis, zi=zi)
-
-    def sosfilt(self, sos, x, axis: int = -1, zi=None):
-        return self._ss().sosfilt(sos, x, axis=axis, zi=zi)
-
-    def sosfiltfilt(self, sos, x, axis: int = -1, padlen: int | None = None):
-        return self._ss().sosfiltfilt(sos, x, axis=axis, padlen=padlen)
-
-    def butter(self, N: int, Wn: float, btype: str = "low", analog: bool = False,
-               output: str = "sos", fs: float | None = None) -> np.ndarray:
-        return butter(N, Wn, btype, analog, output, fs)
-
-
-#: :func:`lfilter`, :func:`sosfilt`, :func:`sosfiltfilt` on scipy's compiled filters, and
-#: this module's :func:`butter` (one design for both): ``from nmsid.analysis.signal_kernels
-#: import compiled as signal``.
-compiled = _Compiled()
-
-
 def _moved(x, axis):
     x = np.asarray(x, dtype=float)
     # the filters run along the last axis: most calls pass it already, and np.moveaxis
@@ -180,7 +149,9 @@ def _back(y, axis):
 
 
 def lfilter(b, a, x, axis: int = -1, zi=None):
-    """``scipy.signal.lfilter`` for real float data.
+    """``scipy.signal.lfilter`` for real float data: the compiled kernel
+    (:func:`nmsid.protocols.lti_kernels.lfilter`), or the numpy block scan when it cannot
+    be loaded.
 
     Parameters
     ----------
@@ -204,6 +175,8 @@ def lfilter(b, a, x, axis: int = -1, zi=None):
     >>> np.round(y, 4).tolist()
     [0.5, 0.75, 0.875, 0.9375, 0.9688, 0.9844]
     """
+    if _lti.kernel_available():
+        return _lti.lfilter(b, a, x, axis=axis, zi=zi)
     A, B, D = _state_space(b, a)
     xm = _moved(x, axis)
     n = A.shape[0]
@@ -272,12 +245,27 @@ def sosfilt(sos, x, axis: int = -1, zi=None):
     """``scipy.signal.sosfilt``: cascaded second-order sections.
 
     ``zi`` has shape ``(n_sections, ..., 2, ...)`` (the ``2`` at ``axis``) as in scipy;
-    with ``zi`` the final states are returned too: ``(y, zf)``. The sections run as one
-    state space (:func:`_cascade`): one pass over the data.
+    with ``zi`` the final states are returned too: ``(y, zf)``. The sections run one
+    after the other through the compiled kernel; in the numpy fallback, as one state space
+    (:func:`_cascade`): one pass over the data.
     """
     sos = _check_sos(sos)
-    y = _moved(x, axis)
     k = sos.shape[0]
+    if _lti.kernel_available():
+        y = np.asarray(x, dtype=float)
+        if zi is None:
+            for sec in sos:
+                y = _lti.lfilter(sec[:3], sec[3:], y, axis=axis)
+            return y
+        z = np.asarray(zi, dtype=float)
+        if z.shape[0] != k:
+            raise ValueError(f"zi has {z.shape[0]} sections; sos has {k}")
+        zf = []
+        for sec, z_sec in zip(sos, z):
+            y, z_out = _lti.lfilter(sec[:3], sec[3:], y, axis=axis, zi=z_sec)
+            zf.append(z_out)
+        return y, np.stack(zf)
+    y = _moved(x, axis)
     A, B, C, D = _cascade(np.ascontiguousarray(sos).tobytes(), k)
     if zi is None:
         s0 = np.zeros(y.shape[:-1] + (2 * k,))
@@ -415,3 +403,9 @@ def convolve1d(input, weights, axis: int = -1, mode: str = "constant",
     rows = ext.reshape(-1, ext.shape[-1])
     out = np.stack([np.convolve(r, w, mode="valid") for r in rows]) if rows.size else rows
     return _back(out.reshape(xm.shape[:-1] + (n,)), axis)
+
+
+#: the same functions, for callers written against the former ``compiled`` namespace
+#: (then scipy.signal's filters): there is one filter path now.
+compiled = types.SimpleNamespace(lfilter=lfilter, sosfilt=sosfilt, sosfiltfilt=sosfiltfilt,
+                                 butter=butter)

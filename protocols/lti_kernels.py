@@ -1,24 +1,36 @@
-"""Linear time-invariant kernels in numpy alone, for the simulator: the zero-order-hold
-discretisation of a transfer function and a filter that continues from its past.
+"""Linear time-invariant kernels of the lowest layer: the zero-order-hold discretisation
+of a transfer function, the product's one recursive filter, and a filter that continues
+from its past.
 
 ``import scipy.signal`` costs 0.5-1 s of a process's start-up (scipy 1.17 wraps and
 re-documents every function at import), a third of a whole fast-clock simulated session.
-The lowest layer holds what the simulator (:mod:`nmsid.sim_backends.filters`) needs, and the
-one :func:`expm` the analysis shares (:mod:`nmsid.analysis.signal_kernels` re-exports it):
+The lowest layer holds what the simulator (:mod:`nmsid.sim_backends.filters`) needs, the
+filter every layer above runs, and the one :func:`expm` the analysis shares
+(:mod:`nmsid.analysis.signal_kernels` re-exports it):
 
 * :func:`tf2ss`, :func:`ss2tf` and :func:`cont2discrete_zoh`: ``scipy.signal.cont2discrete``
   with ``method="zoh"`` on a ``(num, den)`` system, the same steps in the same order
   (controller canonical form, :func:`expm` of the augmented matrix, characteristic
   polynomials), so the coefficients agree with scipy's to rounding;
 * :func:`expm` (``scipy.linalg.expm`` for the few-state matrices of a hold discretisation);
+* :func:`lfilter`: the product's one recursive filter, ``scipy.signal.lfilter`` itself:
+  scipy's compiled kernel (``_linear_filter`` in ``scipy/signal/_sigtools``) loaded from its
+  extension file in ~0.2 ms, without ``import scipy.signal`` (bit-identical to
+  ``scipy.signal.lfilter``: the same compiled code), and :func:`lfiltic`;
 * :func:`lfilter_history`: ``scipy.signal.lfilter`` with ``zi = lfiltic(b, a, y_past,
   x_past)``, i.e. the difference equation continued from its past inputs and outputs.
 
-:func:`lfilter_history` runs the FIR part as one convolution and the all-pole part in blocks
-of :data:`HISTORY_BLOCK` samples: inside a block the response is a product with the
-all-pole impulse response (a Toeplitz matrix) plus the free response to the last outputs
-of the block before; only those few outputs are carried from block to block, in order.
-Unlike a log-depth scan of the direct-form state (``analysis.signal_kernels.lfilter``),
+The analysis (:mod:`nmsid.analysis.signal_kernels`, the gap fits) and the simulator filter
+through :func:`lfilter`. The kernel's module name is private to scipy: when it cannot be
+found or loaded (another scipy layout), :func:`kernel_available` says so and each caller
+keeps a numpy fallback (the analysis: its block scan; :func:`lfilter` itself: the public
+``scipy.signal.lfilter``, at ``import scipy.signal``'s cost). The fallback of
+:func:`lfilter_history` is a numpy recursion: it runs the FIR part as one convolution
+and the all-pole part in blocks of :data:`HISTORY_BLOCK` samples: inside a block the
+response is a product with the all-pole impulse response (a Toeplitz matrix) plus the free
+response to the last outputs of the block before; only those few outputs are carried from
+block to block, in order. Unlike a log-depth scan of the direct-form state (the
+fallback of ``analysis.signal_kernels.lfilter``),
 which loses digits when the poles crowd near ``z = 1`` (a slow muscle sampled at 2 kHz: a
 3rd-order cascade with ``|1 - p| ~ 1e-3``), it stays as accurate as the sample-by-sample
 recursion (tests compare with scipy over the participants' range).
@@ -27,12 +39,174 @@ recursion (tests compare with scipy over the participants' range).
 from __future__ import annotations
 
 import functools
+import importlib.machinery
+import importlib.util
 import math
+import sys
+from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
-__all__ = ["HISTORY_BLOCK", "lfilter_history", "expm", "tf2ss", "ss2tf",
-           "cont2discrete_zoh"]
+__all__ = ["HISTORY_BLOCK", "lfilter", "lfiltic", "kernel_available", "lfilter_history",
+           "expm", "tf2ss", "ss2tf", "cont2discrete_zoh"]
+
+_SIGTOOLS = "scipy.signal._sigtools"
+_kernel: Callable | None = None
+#: "compiled kernel" or "unavailable" once the first call chose (for tests and bench/).
+source: str | None = None
+
+
+def _load_kernel() -> Callable | None:
+    """scipy's ``_linear_filter(b, a, x, axis[, zi])`` loaded from its extension file, or
+    None (nothing registered in ``sys.modules``: a later ``import scipy.signal`` loads
+    scipy as usual)."""
+    try:
+        import scipy  # the package's own start-up only (~5 ms; on Windows, its DLL paths)
+    except ImportError:
+        return None
+    folder = Path(scipy.__file__).parent / "signal"
+    for suffix in importlib.machinery.EXTENSION_SUFFIXES:  # ".pyd" etc. on Windows
+        path = folder / ("_sigtools" + suffix)
+        if not path.is_file():
+            continue
+        had = _SIGTOOLS in sys.modules
+        try:
+            spec = importlib.util.spec_from_file_location(_SIGTOOLS, str(path))
+            if spec is None or spec.loader is None:
+                return None
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+        except Exception:  # noqa: BLE001 - any failure: the caller's fallback instead
+            return None
+        finally:
+            if not had:  # a single-phase module registers itself; scipy re-imports it
+                sys.modules.pop(_SIGTOOLS, None)
+        fn = getattr(module, "_linear_filter", None)
+        return fn if callable(fn) else None
+    return None
+
+
+def _compiled() -> Callable | None:
+    """The compiled kernel, or None; chosen once per process."""
+    global _kernel, source
+    if source is None:
+        _kernel = _load_kernel()
+        source = "compiled kernel" if _kernel is not None else "unavailable"
+    return _kernel
+
+
+def kernel_available() -> bool:
+    """Whether :func:`lfilter` runs scipy's compiled kernel without ``import scipy.signal``
+    (else callers use their numpy fallback)."""
+    return _compiled() is not None
+
+
+def _coefficients(b, a) -> tuple[np.ndarray, np.ndarray]:
+    b = np.atleast_1d(np.asarray(b, dtype=float))
+    a = np.atleast_1d(np.asarray(a, dtype=float))
+    if a.ndim != 1 or b.ndim != 1 or a.size == 0 or b.size == 0:
+        raise ValueError(f"lfilter: b and a must be non-empty 1-D coefficient arrays "
+                         f"(b.shape={b.shape}, a.shape={a.shape})")
+    if a[0] == 0:
+        raise ValueError("lfilter: a[0] must not be 0")
+    return b, a
+
+
+def lfilter(b, a, x, axis: int = -1, zi=None):
+    """``scipy.signal.lfilter(b, a, x, axis, zi)`` for real float64 data, without
+    ``import scipy.signal``.
+
+    Runs scipy's own compiled kernel (transposed direct form II, normalised by ``a[0]``):
+    the result is bit-identical to ``scipy.signal.lfilter``'s. A pure FIR (``len(a) ==
+    1``) is the convolution scipy runs. When the kernel cannot be loaded, the public
+    ``scipy.signal.lfilter`` is called instead (the same numbers; only start-up is lost).
+
+    Parameters
+    ----------
+    b, a : array_like
+        Numerator and denominator coefficients (1-D, non-empty, ``a[0] != 0``).
+    x : array_like
+        Input, filtered along ``axis`` (computed in float64).
+    axis : int
+    zi : array_like, optional
+        Initial DF2T states: x's shape with ``axis`` of length ``max(len(a), len(b)) - 1``
+        (other axes may be 1, as scipy's).
+
+    Returns
+    -------
+    y : ndarray
+        Output, x's shape. With ``zi``: ``(y, zf)``.
+
+    Raises
+    ------
+    ValueError
+        For coefficients that are not 1-D and non-empty, ``a[0] == 0``, or a ``zi`` of
+        another shape.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> y = lfilter([0.5], [1.0, -0.5], np.ones(4))   # 1st-order low-pass, unit DC gain
+    >>> y.tolist()
+    [0.5, 0.75, 0.875, 0.9375]
+    """
+    b, a = _coefficients(b, a)
+    x = np.asarray(x, dtype=float)
+    if zi is not None:
+        zi = np.asarray(zi, dtype=float)
+    if a.size == 1:                  # FIR: scipy's own convolution path, the same steps
+        b = b / a[0]
+        full = np.apply_along_axis(lambda v: np.convolve(b, v), axis, x)
+        ind = full.ndim * [slice(None)]
+        if zi is not None:
+            if zi.shape[axis] != b.size - 1 or zi.ndim != x.ndim:
+                raise ValueError(f"lfilter: zi has shape {zi.shape}; expected x's shape "
+                                 f"with axis {axis} of length {b.size - 1}")
+            ind[axis] = slice(zi.shape[axis])
+            full[tuple(ind)] += zi
+        n = full.shape[axis] - b.size + 1
+        ind[axis] = slice(n)
+        y = full[tuple(ind)]
+        if zi is None:
+            return y
+        ind[axis] = slice(n, None)
+        return y, full[tuple(ind)]
+    kernel = _compiled()
+    if kernel is None:
+        import scipy.signal  # the fallback: the same kernel behind the public function
+        return scipy.signal.lfilter(b, a, x, axis=axis, zi=zi)
+    if zi is None:
+        return kernel(b, a, x, axis)
+    return kernel(b, a, x, axis, zi)
+
+
+def lfiltic(b, a, y, x=None) -> np.ndarray:
+    """Initial DF2T states from past outputs ``y`` and inputs ``x`` (most recent first):
+    ``scipy.signal.lfiltic``, the same sums in the same order.
+
+    Examples
+    --------
+    >>> lfiltic([0.5], [1.0, -0.5], [1.0]).tolist()   # at rest at 1: y[-1] = 1
+    [0.5]
+    """
+    b, a = _coefficients(b, a)
+    N, M = a.size - 1, b.size - 1
+    K = max(M, N)
+    x = np.zeros(M) if x is None else np.asarray(x, dtype=float).ravel()
+    if x.size < M:
+        x = np.concatenate([x, np.zeros(M - x.size)])
+    y = np.asarray(y, dtype=float).ravel()
+    if y.size < N:
+        y = np.concatenate([y, np.zeros(N - y.size)])
+    zi = np.zeros(K)
+    for m in range(M):
+        zi[m] = np.sum(b[m + 1:] * x[:M - m], axis=0)
+    for m in range(N):
+        zi[m] -= np.sum(a[m + 1:] * y[:N - m], axis=0)
+    if a[0] != 1.0:
+        zi /= a[0]
+    return zi
 
 #: samples per block of :func:`lfilter_history` (a 30000-sample trial: 469 carried steps)
 HISTORY_BLOCK = 64
@@ -86,8 +260,8 @@ def _allpole_blocks(a_key: tuple[float, ...], L: int) -> tuple[np.ndarray, np.nd
 def lfilter_history(b, a, x, x_past=None, y_past=None) -> np.ndarray:
     """Filter ``x`` with ``b(z) / a(z)``, continuing from past inputs and outputs.
 
-    The same as ``scipy.signal.lfilter(b, a, x, zi=scipy.signal.lfiltic(b, a, y_past,
-    x_past))`` to rounding: ``y[k] = sum_j b_j x[k-j] - sum_{j>=1} a_j y[k-j]`` with
+    ``scipy.signal.lfilter(b, a, x, zi=scipy.signal.lfiltic(b, a, y_past, x_past))``
+    (bit-identical through :func:`lfilter`; to rounding in the numpy fallback): ``y[k] = sum_j b_j x[k-j] - sum_{j>=1} a_j y[k-j]`` with
     ``x[-1], x[-2], ...`` from ``x_past`` and ``y[-1], ...`` from ``y_past``.
 
     Parameters
@@ -111,19 +285,25 @@ def lfilter_history(b, a, x, x_past=None, y_past=None) -> np.ndarray:
     >>> y.tolist()
     [1.0, 1.0, 1.0, 1.0]
     """
-    b = np.atleast_1d(np.asarray(b, dtype=float))
-    a = np.atleast_1d(np.asarray(a, dtype=float))
-    if a.ndim != 1 or b.ndim != 1 or a.size == 0 or b.size == 0:
-        raise ValueError("b and a must be non-empty 1-D coefficient arrays")
-    if a[0] == 0:
-        raise ValueError("a[0] must not be 0")
-    b, a = b / a[0], a / a[0]
+    b, a = _coefficients(b, a)
     x = np.asarray(x, dtype=float)
     if x.ndim != 1:
         raise ValueError(f"x must be 1-D, got shape {x.shape}")
-    M, N, T = b.size - 1, a.size - 1, x.size
-    if T == 0:
+    if x.size == 0:
         return np.zeros(0)
+    if kernel_available():
+        # the one filter path: lfilter from lfiltic's states, as the simulator ran it on
+        # scipy.signal (bit-identical to scipy.signal.lfilter(b, a, x, zi=lfiltic(...)))
+        zi = lfiltic(b, a, np.zeros(0) if y_past is None else y_past, x_past)
+        return lfilter(b, a, x, zi=zi)[0] if zi.size else lfilter(b, a, x)
+    return _history_numpy(b, a, x, x_past, y_past)
+
+
+def _history_numpy(b, a, x, x_past, y_past) -> np.ndarray:
+    """:func:`lfilter_history` in numpy (the fallback when scipy's kernel cannot be
+    loaded): FIR by convolution, the all-pole part in blocks carried as differences."""
+    b, a = b / a[0], a / a[0]
+    M, N, T = b.size - 1, a.size - 1, x.size
     xe = np.concatenate([_past(x_past, M)[::-1], x])
     v = np.convolve(xe, b)[M:M + T]            # the FIR part, from the past inputs
     if N == 0:

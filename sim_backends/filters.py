@@ -7,10 +7,11 @@ the same trial in one block) and its recent input / output history, so that when
 coefficients change (a new sE) the difference equation continues from the physical
 history instead of restarting.
 
-The kernels are numpy's (:mod:`nmsid.protocols.lti_kernels`: the same steps as
-``scipy.signal.cont2discrete``, and ``lfilter`` continued from the past inputs and outputs
-as ``lfiltic`` would start it, equal to rounding: tests/protocols/test_lti_kernels.py), so
-a simulated session does not import ``scipy.signal`` (0.5-1 s of start-up).
+The kernels come from the lowest layer (:mod:`nmsid.protocols.lti_kernels`): the same steps
+as ``scipy.signal.cont2discrete`` in numpy, and the product's one recursive filter,
+``scipy.signal``'s compiled ``lfilter`` started by ``lfiltic`` from the past inputs and
+outputs, loaded without ``import scipy.signal`` (0.5-1 s of start-up); the same numbers
+as the simulator's former ``scipy.signal`` calls (tests/protocols/test_lti_kernels.py).
 """
 
 from __future__ import annotations

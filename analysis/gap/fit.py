@@ -21,7 +21,7 @@ from nmsid.analysis.damped_lstsq import Damping, levenberg_marquardt
 from nmsid.analysis.gap.data import GapData
 from nmsid.analysis.gap.effects import Effect
 from nmsid.analysis.gap.harmonics import levy_second_order, local_harmonics
-from nmsid.analysis.gap.lfilter_kernel import lfilter
+from nmsid.protocols.lti_kernels import lfilter
 from nmsid.analysis.gap.models import Candidate, nuisance_basis
 from nmsid.analysis.gap.samples import effective_fraction
 from nmsid.analysis.parameters import Parameters

@@ -108,11 +108,97 @@ def test_lfilter_history_is_lfilter_started_by_lfiltic(seed, order_b, order_a, n
     ref = ss.lfilter(b, a, x, zi=zi)[0] if zi.size else ss.lfilter(b, a, x)
     got = k.lfilter_history(b, a, x, xp, yp)
     assert got.shape == ref.shape
+    np.testing.assert_array_equal(got, ref)        # the kernel: scipy's numbers, bit for bit
+    fallback = k._history_numpy(np.asarray(b, float), np.asarray(a, float), x, xp, yp)
     scale = max(1.0, float(np.max(np.abs(ref), initial=0.0)))
-    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(fallback, ref, rtol=0, atol=1e-12 * scale)
 
 
-def test_lfilter_history_first_order_closed_form():
+@pytest.fixture(params=["kernel", "numpy"])
+def path(request, monkeypatch):
+    """A test on scipy's compiled kernel and on the forced numpy fallback."""
+    if request.param == "numpy":
+        monkeypatch.setattr(k, "_kernel", None)
+        monkeypatch.setattr(k, "source", "unavailable")
+    assert k.kernel_available() == (request.param == "kernel")
+    return request.param
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), order_b=st.integers(0, 3),
+       order_a=st.integers(0, 3), n=st.integers(1, 300), axis=st.sampled_from([0, 1, -1]),
+       with_zi=st.booleans())
+def test_lfilter_is_scipys_bit_for_bit(seed, order_b, order_a, n, axis, with_zi):
+    """Any coefficients (a[0] != 1 too; FIR included), 2-D data along any axis, with or
+    without initial states: scipy.signal.lfilter's numbers and shapes exactly."""
+    rng = np.random.default_rng(seed)
+    a = np.poly(rng.uniform(-0.95, 0.95, order_a)) * rng.uniform(0.5, 2.0)
+    b = rng.standard_normal(order_b + 1)
+    x = rng.standard_normal((3, n) if axis != 0 else (n, 3))
+    nz = max(order_a, order_b)
+    if with_zi and nz:
+        zi_shape = list(x.shape)
+        zi_shape[axis] = nz
+        zi = rng.standard_normal(zi_shape)
+        got, ref = k.lfilter(b, a, x, axis=axis, zi=zi), ss.lfilter(b, a, x, axis=axis, zi=zi)
+        for g, r in zip(got, ref):
+            assert g.shape == r.shape
+            np.testing.assert_array_equal(g, r)
+    else:
+        got, ref = k.lfilter(b, a, x, axis=axis), ss.lfilter(b, a, x, axis=axis)
+        assert got.shape == ref.shape
+        np.testing.assert_array_equal(got, ref)
+    assert k.source == "compiled kernel"
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), order_b=st.integers(0, 3),
+       order_a=st.integers(0, 3), n_x=st.integers(0, 5), n_y=st.integers(0, 5))
+def test_lfiltic_is_scipys(seed, order_b, order_a, n_x, n_y):
+    rng = np.random.default_rng(seed)
+    a = np.poly(rng.uniform(-0.95, 0.95, order_a)) * rng.uniform(0.5, 2.0)
+    b = rng.standard_normal(order_b + 1)
+    yp, xp = rng.standard_normal(n_y), rng.standard_normal(n_x)
+    np.testing.assert_array_equal(k.lfiltic(b, a, yp, xp), ss.lfiltic(b, a, yp, xp))
+    np.testing.assert_array_equal(k.lfiltic(b, a, yp), ss.lfiltic(b, a, yp))
+
+
+def test_lfilter_refuses_bad_coefficients_and_states():
+    with pytest.raises(ValueError, match="a\\[0\\]"):
+        k.lfilter([1.0], [0.0, 1.0], np.ones(3))
+    with pytest.raises(ValueError, match="1-D"):
+        k.lfilter([[1.0]], [1.0, 0.5], np.ones(3))
+    with pytest.raises(ValueError, match="non-empty"):
+        k.lfilter([], [1.0, 0.5], np.ones(3))
+    with pytest.raises(ValueError):
+        k.lfilter([1.0, 0.2, 0.1], [1.0, 0.5], np.ones(3), zi=np.zeros(1))   # needs 2
+    with pytest.raises(ValueError, match="zi"):
+        k.lfilter([1.0, 0.2, 0.1], [1.0], np.ones(3), zi=np.zeros(1))
+
+
+def test_without_the_kernel_lfilter_is_the_public_function(monkeypatch):
+    monkeypatch.setattr(k, "_kernel", None)
+    monkeypatch.setattr(k, "source", None)
+    monkeypatch.setattr(k, "_load_kernel", lambda: None)
+    b, a = [0.2, 0.1], [1.0, -0.7]
+    x = np.linspace(0.0, 1.0, 50)
+    np.testing.assert_array_equal(k.lfilter(b, a, x), ss.lfilter(b, a, x))
+    assert k.source == "unavailable" and not k.kernel_available()
+
+
+def test_the_kernel_is_loaded_without_importing_scipy_signal():
+    import subprocess
+    import sys
+    code = ("import sys, numpy as np\n"
+            "from nmsid.protocols import lti_kernels as k\n"
+            "y = k.lfilter([0.5], [1.0, -0.5], np.ones(3))\n"
+            "print(k.source, sorted(m for m in sys.modules if m.startswith('scipy.signal')))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == "compiled kernel []"
+
+
+def test_lfilter_history_first_order_closed_form(path):
     # y[n] = p y[n-1] + (1 - p) x[n-1], at rest at 2 (past input and output 2), then input
     # 0: y[0] = 2 p + 2 (1 - p) = 2, y[n] = 2 p^n (1000 samples: 15 blocks carried)
     p_ = 0.999
@@ -122,7 +208,7 @@ def test_lfilter_history_first_order_closed_form():
     np.testing.assert_allclose(y, 2 * p_ ** n, rtol=1e-12)
 
 
-def test_lfilter_history_refuses_bad_coefficients_and_shapes():
+def test_lfilter_history_refuses_bad_coefficients_and_shapes(path):
     with pytest.raises(ValueError, match="a\\[0\\]"):
         k.lfilter_history([1.0], [0.0, 1.0], np.ones(3))
     assert k.lfilter_history([1.0], [1.0, -0.5], np.zeros(0), y_past=[1.0]).shape == (0,)
@@ -158,11 +244,14 @@ def test_lfilter_history_on_the_simulators_stiff_filters(seed, n):
     xp, yp = rng.uniform(0, 1, order), rng.uniform(0, 1, order)
     got = k.lfilter_history(b, a, x, xp, yp)
     ref = ss.lfilter(b, a, x, zi=ss.lfiltic(b, a, yp, xp))[0]
+    np.testing.assert_array_equal(got, ref)
+    fallback = k._history_numpy(b, a, x, xp, yp)
     scale = max(1.0, float(np.max(np.abs(ref))))
-    np.testing.assert_allclose(got, ref, rtol=0, atol=2e-9 * scale)
+    np.testing.assert_allclose(fallback, ref, rtol=0, atol=2e-9 * scale)
     if n <= 400:
-        np.testing.assert_allclose(got, _long_double_reference(b, a, x, xp, yp), rtol=0,
-                                   atol=2e-9 * scale)
+        for y in (got, fallback):
+            np.testing.assert_allclose(y, _long_double_reference(b, a, x, xp, yp), rtol=0,
+                                       atol=2e-9 * scale)
 
 
 class _ScipyFilter:
@@ -188,7 +277,7 @@ class _ScipyFilter:
 
 
 @pytest.mark.parametrize("tau_s", [0.0, 0.02])
-def test_the_simulators_filter_equals_scipys_across_chunks_and_coefficient_changes(tau_s):
+def test_the_simulators_filter_equals_scipys_across_chunks_and_coefficient_changes(tau_s, path):
     """A trial-like sequence: chunks of random lengths (1 to 4000 samples), a new sE (new
     coefficients) every few chunks; the numpy path stays within rounding of scipy's."""
     rng = np.random.default_rng(7)
