@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import functools
 import math
-import types
 
 import numpy as np
 
@@ -41,7 +40,7 @@ from nmsid.protocols import lti_kernels as _lti
 from nmsid.protocols.lti_kernels import expm  # noqa: F401
 
 __all__ = ["lfilter", "lfilter_zi", "sosfilt", "sosfilt_zi", "sosfiltfilt", "butter",
-           "savgol_coeffs", "convolve1d", "compiled"]
+           "savgol_coeffs", "convolve1d"]
 
 _BLOCK = 16                     # samples per block: fastest on the lab PC for 2k-20k samples
 
@@ -404,8 +403,3 @@ def convolve1d(input, weights, axis: int = -1, mode: str = "constant",
     out = np.stack([np.convolve(r, w, mode="valid") for r in rows]) if rows.size else rows
     return _back(out.reshape(xm.shape[:-1] + (n,)), axis)
 
-
-#: the same functions, for callers written against the former ``compiled`` namespace
-#: (then scipy.signal's filters): there is one filter path now.
-compiled = types.SimpleNamespace(lfilter=lfilter, sosfilt=sosfilt, sosfiltfilt=sosfiltfilt,
-                                 butter=butter)

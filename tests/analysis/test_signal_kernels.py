@@ -21,11 +21,6 @@ def path(request, monkeypatch):
     return request.param
 
 
-def test_the_former_compiled_namespace_is_the_one_filter_path():
-    assert k.compiled.lfilter is k.lfilter and k.compiled.sosfilt is k.sosfilt
-    assert k.compiled.sosfiltfilt is k.sosfiltfilt and k.compiled.butter is k.butter
-
-
 def test_the_kernel_path_is_scipys_lfilter_bit_for_bit():
     """With the kernel: scipy's own numbers, with states; sosfilt equals the sections
     filtered one by one by scipy.signal.lfilter."""
