@@ -77,10 +77,11 @@ class _Tee(io.TextIOBase):
         self.console.flush()
 
 
-def _git(*args: str) -> str:
+def _git(*args: str, strip: bool = True) -> str:
     try:
-        return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True,
-                              check=True).stdout.strip()
+        out = subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True,
+                             check=True).stdout
+        return out.strip() if strip else out
     except (OSError, subprocess.CalledProcessError):
         return ""
 
@@ -115,7 +116,8 @@ def _machine() -> str:
 
 def _code_changes() -> list[str]:
     """Uncommitted changes outside bench/ and docs/ (figures of such a run fit no commit)."""
-    lines = _git("status", "--porcelain").splitlines()
+    # not stripped: porcelain's first column is a space for a change not staged
+    lines = _git("status", "--porcelain", strip=False).splitlines()
     paths = [ln[3:] for ln in lines if ln[3:]]
     return [p for p in paths if not p.startswith(("bench/", "docs/", "README.md"))]
 

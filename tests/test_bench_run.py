@@ -90,3 +90,13 @@ def test_partial_run_is_not_written_and_names_select(bench_run, monkeypatch):
         (["gamma"], Path("x.md"), 20.0)
     with pytest.raises(SystemExit):
         bench_run.main(["run.py", "--budget", "0"])
+
+
+def test_the_dirty_list_keeps_the_first_path_whole(bench_run, monkeypatch):
+    # git status --porcelain starts an unstaged change with a space; stripping the output
+    # once turned " M bench/bench_session.py" into "ench/bench_session.py", counted as code
+    class Done:
+        stdout = " M bench/bench_session.py\n M rig/engine.py\n?? docs/new.md\n"
+
+    monkeypatch.setattr(bench_run.subprocess, "run", lambda *a, **k: Done())
+    assert bench_run._code_changes() == ["rig/engine.py"]
