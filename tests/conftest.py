@@ -60,3 +60,15 @@ def load_bench_script():
         spec.loader.exec_module(module)
         return module
     return load
+
+
+@pytest.fixture(params=["kernel", "numpy"])
+def filter_path(request, monkeypatch):
+    """Run a filter test on each of the product's two filter paths: scipy's compiled kernel
+    (``nmsid.protocols.lti_kernels``) and the numpy fallback, forced by hiding the kernel."""
+    from nmsid.protocols import lti_kernels
+    if request.param == "numpy":
+        monkeypatch.setattr(lti_kernels, "_kernel", None)
+        monkeypatch.setattr(lti_kernels, "source", "unavailable")
+    assert lti_kernels.kernel_available() == (request.param == "kernel")
+    return request.param

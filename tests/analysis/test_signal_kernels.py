@@ -11,16 +11,6 @@ from nmsid.analysis import signal_kernels as k
 from nmsid.protocols import lti_kernels
 
 
-@pytest.fixture(params=["kernel", "numpy"])
-def path(request, monkeypatch):
-    """Each filter test on the compiled kernel and on the forced numpy fallback."""
-    if request.param == "numpy":
-        monkeypatch.setattr(lti_kernels, "_kernel", None)
-        monkeypatch.setattr(lti_kernels, "source", "unavailable")
-    assert lti_kernels.kernel_available() == (request.param == "kernel")
-    return request.param
-
-
 def test_the_kernel_path_is_scipys_lfilter_bit_for_bit():
     """With the kernel: scipy's own numbers, with states; sosfilt equals the sections
     filtered one by one by scipy.signal.lfilter."""
@@ -55,7 +45,7 @@ def random_stable(rng, order):
 
 @pytest.mark.parametrize("n_samples", [1, 2, 15, 16, 17, 100, 1974, 20011])
 @pytest.mark.parametrize("order", [1, 2, 3, 5])
-def test_lfilter_matches_scipy(n_samples, order, path):
+def test_lfilter_matches_scipy(n_samples, order, filter_path):
     rng = np.random.default_rng(n_samples * 10 + order)
     b, a = random_stable(rng, order)
     scale = 10.0 ** rng.uniform(-3, 3)
@@ -73,14 +63,14 @@ def test_lfilter_matches_scipy(n_samples, order, path):
     assert np.abs(z1 - z2).max() <= tol + 1e-9 * np.abs(z2).max()
 
 
-def test_first_order_step_closed_form(path):
+def test_first_order_step_closed_form(filter_path):
     # y[n] = a y[n-1] + (1 - a) x[n], unit step: y[n] = 1 - a^(n+1)
     a = 0.97
     y = k.lfilter([1 - a], [1.0, -a], np.ones(500))
     assert np.allclose(y, 1 - a ** np.arange(1, 501), rtol=0, atol=1e-13)
 
 
-def test_resonator_impulse_closed_form(path):
+def test_resonator_impulse_closed_form(filter_path):
     # poles r e^{+-i th}: h[n] = r^n sin((n+1) th) / sin(th)
     r, th = 0.995, 0.07
     a = [1.0, -2 * r * np.cos(th), r * r]
@@ -106,7 +96,7 @@ def test_butter_response_matches_scipy(order, cutoff_Hz, fs_Hz):
 
 @pytest.mark.parametrize("n_samples", [40, 999, 21000])
 @pytest.mark.parametrize("order", [1, 2, 4, 7])
-def test_sosfilt_and_filtfilt_match_scipy(n_samples, order, path):
+def test_sosfilt_and_filtfilt_match_scipy(n_samples, order, filter_path):
     rng = np.random.default_rng(order + n_samples)
     sos = ss.butter(order, rng.uniform(0.02, 0.6), output="sos")
     x = rng.standard_normal((2, n_samples)).cumsum(axis=1)
@@ -150,7 +140,7 @@ def test_convolve1d_matches_ndimage(m, n_samples):
                        nd.convolve1d(x, w, axis=1, mode="constant", cval=2.5), atol=1e-12)
 
 
-def test_unsupported_designs_are_refused_with_a_reason(path):
+def test_unsupported_designs_are_refused_with_a_reason(filter_path):
     with pytest.raises(ValueError, match="low-pass"):
         k.butter(4, 20.0, btype="high", fs=2000.0, output="sos")
     with pytest.raises(ValueError, match="Nyquist"):
@@ -202,7 +192,7 @@ def test_block_powers_by_doubling_equal_repeated_products(count):
         assert np.allclose(P[i], np.linalg.matrix_power(A, i), rtol=1e-12, atol=1e-14)
 
 
-def test_a_cascade_runs_as_one_state_space_with_each_sections_states(path):
+def test_a_cascade_runs_as_one_state_space_with_each_sections_states(filter_path):
     """sosfilt (the kernel's sections one by one, or the fallback's single pass over the
     cascade) gives each section's final states (zf) as filtering section by section does
     (the sections' states, stacked)."""

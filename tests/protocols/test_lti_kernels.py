@@ -114,16 +114,6 @@ def test_lfilter_history_is_lfilter_started_by_lfiltic(seed, order_b, order_a, n
     np.testing.assert_allclose(fallback, ref, rtol=0, atol=1e-12 * scale)
 
 
-@pytest.fixture(params=["kernel", "numpy"])
-def path(request, monkeypatch):
-    """A test on scipy's compiled kernel and on the forced numpy fallback."""
-    if request.param == "numpy":
-        monkeypatch.setattr(k, "_kernel", None)
-        monkeypatch.setattr(k, "source", "unavailable")
-    assert k.kernel_available() == (request.param == "kernel")
-    return request.param
-
-
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2 ** 31 - 1), order_b=st.integers(0, 3),
        order_a=st.integers(0, 3), n=st.integers(1, 300), axis=st.sampled_from([0, 1, -1]),
@@ -198,7 +188,7 @@ def test_the_kernel_is_loaded_without_importing_scipy_signal():
     assert out == "compiled kernel []"
 
 
-def test_lfilter_history_first_order_closed_form(path):
+def test_lfilter_history_first_order_closed_form(filter_path):
     # y[n] = p y[n-1] + (1 - p) x[n-1], at rest at 2 (past input and output 2), then input
     # 0: y[0] = 2 p + 2 (1 - p) = 2, y[n] = 2 p^n (1000 samples: 15 blocks carried)
     p_ = 0.999
@@ -208,7 +198,7 @@ def test_lfilter_history_first_order_closed_form(path):
     np.testing.assert_allclose(y, 2 * p_ ** n, rtol=1e-12)
 
 
-def test_lfilter_history_refuses_bad_coefficients_and_shapes(path):
+def test_lfilter_history_refuses_bad_coefficients_and_shapes(filter_path):
     with pytest.raises(ValueError, match="a\\[0\\]"):
         k.lfilter_history([1.0], [0.0, 1.0], np.ones(3))
     assert k.lfilter_history([1.0], [1.0, -0.5], np.zeros(0), y_past=[1.0]).shape == (0,)
@@ -277,7 +267,7 @@ class _ScipyFilter:
 
 
 @pytest.mark.parametrize("tau_s", [0.0, 0.02])
-def test_the_simulators_filter_equals_scipys_across_chunks_and_coefficient_changes(tau_s, path):
+def test_the_simulators_filter_equals_scipys_across_chunks_and_coefficient_changes(tau_s, filter_path):
     """A trial-like sequence: chunks of random lengths (1 to 4000 samples), a new sE (new
     coefficients) every few chunks; the numpy path stays within rounding of scipy's."""
     rng = np.random.default_rng(7)
