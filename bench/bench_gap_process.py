@@ -35,17 +35,12 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+for _p in (ROOT, Path(__file__).resolve().parent):   # nmsid; bench/ (workers)
+    if str(_p) not in sys.path:
+        sys.path.insert(0, str(_p))
 
+from workers import child_env  # noqa: E402
 from nmsid.protocols.os_platform import is_windows  # noqa: E402
-
-
-def _env() -> dict:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"]
-                                     if env.get("PYTHONPATH") else "")
-    return env
 
 
 def _run(cmd: list[str]) -> tuple[float, float]:
@@ -53,7 +48,7 @@ def _run(cmd: list[str]) -> tuple[float, float]:
     ``os.times`` does not count children."""
     before = os.times()
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, env=_env(), cwd=ROOT, stdout=subprocess.DEVNULL,
+    subprocess.run(cmd, check=True, env=child_env(), cwd=ROOT, stdout=subprocess.DEVNULL,
                    stderr=subprocess.DEVNULL)
     wall = time.perf_counter() - t0
     after = os.times()
@@ -73,7 +68,7 @@ def record(tmp: Path, model: str) -> Path:
     subprocess.run([sys.executable, "-m", "nmsid.cli", "run", "--backend", "sim",
                     "--participant", "G", "--outdir", str(out), "--seed", "12",
                     "--participant-model", model, "--no-identify", "--quiet"],
-                   check=True, env=_env(), cwd=ROOT, stdout=subprocess.DEVNULL)
+                   check=True, env=child_env(), cwd=ROOT, stdout=subprocess.DEVNULL)
     return next(out.glob("G-*.h5"))
 
 
@@ -118,7 +113,7 @@ print(json.dumps(out))
 def stages(session: Path) -> dict:
     """CPU seconds of each step of the diagnosis, from one child process."""
     r = subprocess.run([sys.executable, "-c", _STAGES, str(session)], check=True,
-                       env=_env(), cwd=ROOT, capture_output=True, text=True)
+                       env=child_env(), cwd=ROOT, capture_output=True, text=True)
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 

@@ -36,24 +36,24 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+for _p in (ROOT, Path(__file__).resolve().parent):   # nmsid; bench/ (workers)
+    if str(_p) not in sys.path:
+        sys.path.insert(0, str(_p))
 
+from workers import child_env  # noqa: E402
 from nmsid.cli import BLAS_THREAD_VARIABLES, limit_blas_threads  # noqa: E402
 from nmsid.protocols.os_platform import is_windows  # noqa: E402
 
 
 def _env(single_blas_thread: bool = False, blas_threads: int | None = None,
          write_bytecode: bool = False) -> dict:
-    env = dict(os.environ)
+    env = child_env()
     if write_bytecode:   # the warm-up run caches the bytecode, as an installed package has
         env.pop("PYTHONDONTWRITEBYTECODE", None)
     if blas_threads is not None:   # a count chosen by the user: nmsid keeps it
         env.update({k: str(blas_threads) for k in BLAS_THREAD_VARIABLES})
     if single_blas_thread:     # what nmsid identify sets for itself (like for like)
         limit_blas_threads(env)
-    env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"]
-                                     if env.get("PYTHONPATH") else "")
     return env
 
 

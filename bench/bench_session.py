@@ -33,9 +33,11 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+for _p in (ROOT, Path(__file__).resolve().parent):   # nmsid; bench/ (workers)
+    if str(_p) not in sys.path:
+        sys.path.insert(0, str(_p))
 
+from workers import child_env  # noqa: E402
 from nmsid.protocols.config import config_from_dict  # noqa: E402
 from nmsid.rig.engine import Engine, TripPolicy  # noqa: E402
 from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
@@ -73,19 +75,12 @@ def _one(seed: int, tmp: Path) -> dict:
             len(result.levels), **{f"err_{k}": v for k, v in worst.items()}}
 
 
-def _env() -> dict:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"]
-                                     if env.get("PYTHONPATH") else "")
-    return env
-
-
 def _process(cmd: list[str]) -> tuple[float, float]:
     """(wall s, CPU s) of one process; CPU is nan on Windows (os.times does not count
     children there)."""
     before = os.times()
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, env=_env(), cwd=ROOT, stdout=subprocess.DEVNULL)
+    subprocess.run(cmd, check=True, env=child_env(), cwd=ROOT, stdout=subprocess.DEVNULL)
     wall = time.perf_counter() - t0
     after = os.times()
     cpu = float("nan") if is_windows() else (
@@ -100,7 +95,7 @@ def _process_peak(cmd: list[str]) -> tuple[float, float, float]:
     in a full bench run that is the largest child of any earlier benchmark."""
     if is_windows():
         return _process(cmd)[0], float("nan"), float("nan")
-    env = _env()
+    env = child_env()
     hwm = None
     if Path("/proc/self/status").is_file() and cmd[1:3] == ["-m", "nmsid"]:
         # Linux: wait4's ru_maxrss keeps the parent's high-water mark across fork + exec

@@ -18,6 +18,7 @@ path here: tests/test_bench_spawn.py).
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing.context import BaseContext
@@ -59,3 +60,13 @@ def process_pool(jobs: int) -> ProcessPoolExecutor:
     if str(HERE) not in sys.path:      # spawned workers import the scripts from bench/
         sys.path.insert(0, str(HERE))
     return ProcessPoolExecutor(jobs, mp_context=MP_CONTEXT)
+
+
+def child_env() -> dict:
+    """The environment of a timed child process (``python -m nmsid ...``): this one's, with
+    the checkout first on ``PYTHONPATH`` so the child runs the code under test."""
+    env = dict(os.environ)
+    root = str(HERE.parent)
+    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH")
+                                else "")
+    return env
