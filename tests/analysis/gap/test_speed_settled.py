@@ -13,7 +13,7 @@ import scipy.signal as ss
 from scipy.interpolate import PchipInterpolator
 
 from nmsid.analysis.discretize import lagged_second_order_tf, parallel_tf, second_order_tf
-from nmsid.analysis.gap import fit, lfilter_kernel, verdict
+from nmsid.analysis.gap import fit, verdict
 from nmsid.analysis.gap.data import load_session
 from nmsid.analysis.gap.diagnose import GapSettings, diagnose
 from nmsid.analysis.gap.models import pchip_slopes
@@ -34,14 +34,14 @@ def test_kernel_is_scipys_lfilter_bit_for_bit():
     rng = np.random.default_rng(3)
     x = rng.standard_normal((3, 2140)).cumsum(axis=1)
     for b, a in _filters():
-        np.testing.assert_array_equal(lfilter_kernel.lfilter(b, a, x),
+        np.testing.assert_array_equal(lti_kernels.lfilter(b, a, x),
                                       ss.lfilter(b, a, x, axis=-1))
-        np.testing.assert_array_equal(lfilter_kernel.lfilter(b, a, x[0]),
+        np.testing.assert_array_equal(lti_kernels.lfilter(b, a, x[0]),
                                       ss.lfilter(b, a, x[0]))
     # the fast path itself ran (not the fallback): scipy's layout is the one expected
     assert lti_kernels.source == "compiled kernel"
     # the gap fits filter through the product's one kernel (the former module re-exports it)
-    assert fit.lfilter is lti_kernels.lfilter is lfilter_kernel.lfilter
+    assert fit.lfilter is lti_kernels.lfilter
 
 
 def test_kernel_falls_back_to_the_public_lfilter(monkeypatch):
@@ -50,7 +50,7 @@ def test_kernel_falls_back_to_the_public_lfilter(monkeypatch):
     monkeypatch.setattr(lti_kernels, "_load_kernel", lambda: None)
     b, a = next(_filters())
     x = np.linspace(0.0, 1.0, 500)
-    np.testing.assert_array_equal(lfilter_kernel.lfilter(b, a, x), ss.lfilter(b, a, x))
+    np.testing.assert_array_equal(lti_kernels.lfilter(b, a, x), ss.lfilter(b, a, x))
     assert lti_kernels.source == "unavailable"
 
 
@@ -58,7 +58,7 @@ def test_kernel_falls_back_to_the_public_lfilter(monkeypatch):
                                  ([], [1.0, 0.5])])
 def test_kernel_refuses_what_it_does_not_filter(b, a):
     with pytest.raises(ValueError, match="lfilter"):
-        lfilter_kernel.lfilter(np.array(b), np.array(a), np.ones(10))
+        lti_kernels.lfilter(np.array(b), np.array(a), np.ones(10))
 
 
 def test_a_template_diagnosis_never_imports_scipy_signal(nominal_session):
