@@ -20,6 +20,10 @@ BLAS threads: ``nmsid identify`` starts with one BLAS thread unless the user set
 (``nmsid.cli.limit_blas_threads``); the plain baseline runs with the same setting, so the
 ratio compares the fits, not the thread pools. One more run with a BLAS thread per core
 (OpenBLAS's default, set as a user would) shows what that setting saves.
+The floor (``bench/identify_floor_process.py``) is what no identification of the file can
+skip: start, import numpy and h5py, read the two channels, one zero-phase low-pass and one
+linear fit per trial, with nothing checked, judged or written; it shows how much of the
+target is left for everything else.
 Targets (issue 30): ``--no-figures`` < 0.3 s median whole process, and >= 10x faster than
 the plain fit's process on the same record (issue 12's: with figures < 1.0 s, >= 5x).
 """
@@ -117,6 +121,10 @@ def main() -> None:
         _wall(ident + [str(tmp / "threads"), "--no-figures"], blas_threads=cores)
         threads_cpu = _CPU[-1]
         empty, _ = _timed([sys.executable, "-c", "pass"], runs)
+        # one BLAS thread, as nmsid identify chooses for itself (like for like)
+        floor = [_wall([sys.executable, str(HERE / "identify_floor_process.py"),
+                        str(session)], single_blas_thread=True) for _ in range(runs)]
+        floor_cpu = _CPU[-runs:]
         start, start_cpu = _timed([sys.executable, "-c", "import nmsid.cli.identify_command"],
                                   runs)
         plain_cmd = [sys.executable, str(HERE / "plain_identify_process.py"), str(session)]
@@ -149,6 +157,15 @@ def main() -> None:
           f"{statistics.median(start_cpu):.2f} s) beside python -c pass {med_empty:.2f} s: "
           f"{med_start - med_empty:.2f} s of the --no-figures run is imports, "
           f"{med_nofig - med_start:.2f} s the work")
+    med_floor = statistics.median(floor)
+    print(f"  floor:           the least any identification of this file must do (start, "
+          f"import numpy and h5py, read rE and force_N, one zero-phase low-pass, one linear "
+          f"fit per trial; nothing checked, judged or written: "
+          f"bench/identify_floor_process.py): median {med_floor:.2f} s over {runs} runs (CPU "
+          f"{statistics.median(floor_cpu):.2f} s); the 0.3 s target leaves "
+          f"{0.3 - med_floor:+.2f} s above it for the contract's checks, QC, 75 nonlinear "
+          f"fits and the outputs; --no-figures takes {med_nofig - med_floor:+.2f} s above it "
+          f"(x{med_nofig / med_floor:.1f} the floor)")
     print(f"  fair baseline, same data and rate: plain discretised least squares "
           f"(least_squares over ZOH lfilter, 3 starts, same reader and preprocessing) on the "
           f"200 Hz data ours fits: median {med_200:.2f} s over {len(plain_200)} runs; "
