@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nmsid.analysis.qc.checks import runs
+from nmsid.analysis.qc.checks import median_of_finite, runs
 from nmsid.analysis.qc.settings import QCSettings
 from nmsid.analysis.signal_kernels import butter, sosfiltfilt
 
@@ -115,14 +115,16 @@ def _weighted_solve(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def _regress(s: np.ndarray, ref: np.ndarray, fs: float, keep: np.ndarray,
-             half_s: float = 0.0) -> np.ndarray:
+             half_s: float = 0.0, regressors: np.ndarray | None = None) -> np.ndarray:
     """s minus its least-absolute-deviation fit on :func:`shared_regressors` over ``keep``.
 
     An L1 fit (iteratively reweighted least squares) follows the majority of the samples:
     a contraction or a jump over a minority of the trial cannot pull the gain, filter,
     offset or drift that the rest defines, as it would pull a least-squares line.
+    ``regressors``: ``shared_regressors(ref, fs, half_s)`` when the caller built it already
+    (one reference serves every other repeat of its level).
     """
-    Xall = shared_regressors(ref, fs, half_s)
+    Xall = shared_regressors(ref, fs, half_s) if regressors is None else regressors
     edge = filter_edge(ref.size, fs, half_s)
     inside = keep.copy()
     inside[:edge] = False
@@ -153,6 +155,12 @@ def filter_edge(n: int, fs: float, half_s: float) -> int:
     lagged references are held edges there, not the reference): 0 without the filter."""
     lags = _filter_lags(fs, half_s)[1]
     return lags if 2 * lags < n else 0
+
+
+def _median(x: np.ndarray) -> float:
+    """``float(np.median(x))``, exactly, by :func:`checks.median_of_finite` when ``x`` is
+    finite."""
+    return median_of_finite(x) if x.size and np.isfinite(x).all() else float(np.median(x))
 
 
 def _window_rms(u: np.ndarray, w: int) -> np.ndarray:
@@ -197,15 +205,26 @@ def unshared(signals: list[np.ndarray], fs: float, settings: QCSettings):
     w = int(round(settings.window_s * fs))
     keep = [np.ones(S.shape[1], bool) for _ in range(n)]
     response = float(np.std(np.median(S, axis=0)[S.shape[1] // 3:]))
+    # each repeat's regressors built once, as the reference of every other repeat; a
+    # regression whose trial keeps the same samples in the second pass is the same
+    regressors = [shared_regressors(S[j], fs, settings.shared_filter_s) for j in range(n)]
+    done: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     for _ in range(2):
         u, rms, partner = [], [], []
         for i in range(n):
             pairs = []
             for j in range(n):
                 if j != i:
-                    uij = _regress(S[i], S[j], fs, keep[i], settings.shared_filter_s)
-                    pairs.append((uij, _window_rms(uij, w), j))
-            best = min(pairs, key=lambda p: float(np.median(p[1])))
+                    before = done.get((i, j))
+                    if before is not None and np.array_equal(before[0], keep[i]):
+                        uij, rij = before[1], before[2]
+                    else:
+                        uij = _regress(S[i], S[j], fs, keep[i], settings.shared_filter_s,
+                                       regressors[j])
+                        rij = _window_rms(uij, w)
+                        done[(i, j)] = (keep[i], uij, rij)
+                    pairs.append((uij, rij, j))
+            best = min(pairs, key=lambda p: _median(p[1]))
             u.append(best[0])
             rms.append(np.min(np.vstack([p[1] for p in pairs]), axis=0))
             partner.append(best[2])
