@@ -53,7 +53,7 @@ from typing import Callable
 import numpy as np
 
 __all__ = ["HISTORY_BLOCK", "lfilter", "lfiltic", "kernel_available", "lfilter_history",
-           "sosfilt", "sos_kernel_available", "expm", "tf2ss", "ss2tf", "cont2discrete_zoh"]
+           "sosfilt", "sos_kernel_available", "sosfilt_rows_inplace", "expm", "tf2ss", "ss2tf", "cont2discrete_zoh"]
 
 _kernel: Callable | None = None
 #: "compiled kernel" or "unavailable" once the first call chose (for tests and bench/).
@@ -144,6 +144,33 @@ def sos_kernel_available() -> bool:
     """Whether :func:`sosfilt` runs scipy's compiled ``_sosfilt`` without ``import
     scipy.signal`` (else callers use their fallback)."""
     return _compiled_sos() is not None
+
+
+def sosfilt_rows_inplace(sos: np.ndarray, x: np.ndarray, zi: np.ndarray) -> bool:
+    """Filter the rows of ``x`` through ``sos`` in place, from and updating the states
+    ``zi``, with scipy's compiled ``_sosfilt`` (what ``scipy.signal.sosfilt`` runs once it
+    has prepared its arrays): for callers that prepared theirs (a zero-phase filter builds
+    its padded rows once and filters them where they are).
+
+    Parameters
+    ----------
+    sos : ndarray
+        ``(n_sections, 6)`` float64, C-contiguous, ``sos[:, 3] == 1`` (not checked).
+    x : ndarray
+        ``(rows, samples)`` float64, C-contiguous, writeable: overwritten by the output.
+    zi : ndarray
+        ``(rows, n_sections, 2)`` float64, C-contiguous: overwritten by the final states.
+
+    Returns
+    -------
+    bool
+        False (nothing done) when the kernel cannot be loaded.
+    """
+    kernel = _compiled_sos()
+    if kernel is None:
+        return False
+    kernel(sos, x, zi)
+    return True
 
 
 def _coefficients(b, a) -> tuple[np.ndarray, np.ndarray]:
