@@ -114,26 +114,56 @@ def _weighted_solve(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
         return np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)[0]
 
 
+class _Reference:
+    """One repeat as the reference of the others: its :func:`shared_regressors`, and per
+    set of samples fitted the rows and the unweighted normal matrix every regression on it
+    starts from (the same arrays :func:`_weighted_solve` would build, built once)."""
+
+    def __init__(self, regressors: np.ndarray):
+        self.regressors = regressors
+        self._start: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def start(self, inside: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(X, X * 1, (X * 1).T @ X) of the rows ``inside``."""
+        key = inside.tobytes()
+        if key not in self._start:
+            X = self.regressors[inside]
+            Xw = X * np.ones(X.shape[0])[:, None]     # a copy, as _weighted_solve's
+            self._start[key] = (X, Xw, Xw.T @ X)
+        return self._start[key]
+
+
+def _least_squares_start(X: np.ndarray, Xw: np.ndarray, G: np.ndarray,
+                         y: np.ndarray) -> np.ndarray:
+    """``_weighted_solve(X, y, ones)`` from its normal matrix ``G`` built already."""
+    try:
+        return np.linalg.solve(G, Xw.T @ y)
+    except np.linalg.LinAlgError:
+        return _weighted_solve(X, y, np.ones(y.size))
+
+
 def _regress(s: np.ndarray, ref: np.ndarray, fs: float, keep: np.ndarray,
-             half_s: float = 0.0, regressors: np.ndarray | None = None) -> np.ndarray:
+             half_s: float = 0.0, reference: _Reference | None = None) -> np.ndarray:
     """s minus its least-absolute-deviation fit on :func:`shared_regressors` over ``keep``.
 
     An L1 fit (iteratively reweighted least squares) follows the majority of the samples:
     a contraction or a jump over a minority of the trial cannot pull the gain, filter,
     offset or drift that the rest defines, as it would pull a least-squares line.
-    ``regressors``: ``shared_regressors(ref, fs, half_s)`` when the caller built it already
+    ``reference``: ``ref``'s regressors and normal matrices when the caller holds them
     (one reference serves every other repeat of its level).
     """
-    Xall = shared_regressors(ref, fs, half_s) if regressors is None else regressors
+    if reference is None:
+        reference = _Reference(shared_regressors(ref, fs, half_s))
+    Xall = reference.regressors
     edge = filter_edge(ref.size, fs, half_s)
     inside = keep.copy()
     inside[:edge] = False
     inside[ref.size - edge:] = False
     if inside.sum() < 3 * Xall.shape[1]:
         inside = keep
-    X = Xall[inside]
+    X, Xw, G = reference.start(inside)
     y = s[inside]
-    beta = _weighted_solve(X, y, np.ones(y.size))      # least squares to start from
+    beta = _least_squares_start(X, Xw, G, y)           # least squares to start from
     floor = 1e-9 * max(float(np.std(y)), 1e-12)
     r = y - X @ beta
     l1 = float(np.sum(np.abs(r)))
@@ -207,7 +237,8 @@ def unshared(signals: list[np.ndarray], fs: float, settings: QCSettings):
     response = float(np.std(np.median(S, axis=0)[S.shape[1] // 3:]))
     # each repeat's regressors built once, as the reference of every other repeat; a
     # regression whose trial keeps the same samples in the second pass is the same
-    regressors = [shared_regressors(S[j], fs, settings.shared_filter_s) for j in range(n)]
+    references = [_Reference(shared_regressors(S[j], fs, settings.shared_filter_s))
+                  for j in range(n)]
     done: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     for _ in range(2):
         u, rms, partner = [], [], []
@@ -220,7 +251,7 @@ def unshared(signals: list[np.ndarray], fs: float, settings: QCSettings):
                         uij, rij = before[1], before[2]
                     else:
                         uij = _regress(S[i], S[j], fs, keep[i], settings.shared_filter_s,
-                                       regressors[j])
+                                       references[j])
                         rij = _window_rms(uij, w)
                         done[(i, j)] = (keep[i], uij, rij)
                     pairs.append((uij, rij, j))
