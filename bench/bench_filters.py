@@ -1,6 +1,7 @@
-"""The product's one recursive filter (issue 30, item 2): scipy's compiled ``lfilter``
-kernel loaded by :mod:`nmsid.protocols.lti_kernels` without ``import scipy.signal``, against
-the numpy fallbacks it replaced as the main path and against ``scipy.signal`` itself.
+"""The product's one recursive filter (issue 30, item 2): scipy's compiled ``lfilter`` and
+``sosfilt`` kernels loaded by :mod:`nmsid.protocols.lti_kernels` without ``import
+scipy.signal``, against the numpy fallbacks they replaced as the main path and against
+``scipy.signal`` itself.
 
     python bench/bench_filters.py              # 7 repeats of each
     python bench/bench_filters.py --repeats 3
@@ -12,15 +13,18 @@ than wall time) of ``--repeats`` calls, with its ratio against the fairest basel
 * ``lfilter`` on an identification-sized batch (3 trials x 2000 samples, 2nd order) and a
   gap-sized one (45 trials x 30000 samples, 3rd order): the kernel against the numpy block
   scan (the fallback, forced) and against ``scipy.signal.lfilter`` (imported last);
-* ``sosfiltfilt`` (4th-order Butterworth, QC's and preprocessing's) on the gap-sized batch;
+* ``sosfiltfilt`` (4th-order Butterworth, QC's and preprocessing's) on the gap-sized batch,
+  also against the sections one after the other through the compiled ``lfilter`` (the
+  main path before scipy's ``_sosfilt`` was loaded too);
 * ``lfilter_history``, the simulator's filter, over a 30000-sample trial in 100 ms chunks
   (200 samples, a new start from the past inputs and outputs each chunk);
 * accuracy: a slow 3rd-order cascade at 2 kHz (poles ``|1 - p| ~ 1e-3``, a slow muscle
   with its activation lag), 30000 samples of a unit step, each path's largest error
   relative to ``scipy.signal.lfilter``.
 
-Targets: the kernel bit-identical to ``scipy.signal.lfilter`` (error 0) and not slower than
-the numpy fallback it replaces on any of these calls.
+Targets: the kernel bit-identical to ``scipy.signal.lfilter`` (error 0), ``sosfiltfilt``
+bit-identical to ``scipy.signal.sosfiltfilt`` on the same sections, and not slower than the
+numpy fallback it replaces on any of these calls.
 """
 
 from __future__ import annotations
@@ -57,11 +61,24 @@ class _Fallback:
     """Within the block: the numpy fallbacks, as if scipy's kernel could not be loaded."""
 
     def __enter__(self):
-        self.saved = (lti._kernel, lti.source)
+        self.saved = (lti._kernel, lti.source, lti._sos_kernel, lti.sos_source)
         lti._kernel, lti.source = None, "unavailable"
+        lti._sos_kernel, lti.sos_source = None, "unavailable"
 
     def __exit__(self, *exc):
-        lti._kernel, lti.source = self.saved
+        lti._kernel, lti.source, lti._sos_kernel, lti.sos_source = self.saved
+
+
+class _Sections:
+    """Within the block: ``sosfilt``'s kernel hidden, so the sections run one after the
+    other through the compiled ``lfilter`` (the main path before ``_sosfilt`` was loaded)."""
+
+    def __enter__(self):
+        self.saved = (lti._sos_kernel, lti.sos_source)
+        lti._sos_kernel, lti.sos_source = None, "unavailable"
+
+    def __exit__(self, *exc):
+        lti._sos_kernel, lti.sos_source = self.saved
 
 
 def _line(name: str, ours: float, base: float, base_name: str) -> None:
@@ -117,10 +134,17 @@ def main(argv: list[str] | None = None) -> None:
     }
     scipy_s = {k: _cpu_s(fn, r) for k, fn in scipy_cases.items()}
 
-    print(f"one filter path: kernel source = {lti.source!r}; median CPU of {r} calls")
+    assert lti.sos_kernel_available(), "scipy's compiled _sosfilt could not be loaded here"
+    print(f"one filter path: kernel source = {lti.source!r}, sosfilt kernel "
+          f"{lti.sos_source!r}; median CPU of {r} calls")
     print("against the numpy fallback it replaced (same process, same arrays):")
     for k in cases:
         _line(k, kernel[k], numpy_s[k], "numpy")
+    with _Sections():
+        sections_s = _cpu_s(cases["sosfiltfilt, 45 x 30000, Butterworth 4"], r)
+    print("against the sections one by one through the compiled lfilter (the path before):")
+    _line("sosfiltfilt, 45 x 30000, Butterworth 4", kernel["sosfiltfilt, 45 x 30000, "
+          "Butterworth 4"], sections_s, "lfilter x sections")
     print("against scipy.signal (sosfiltfilt: scipy's own compiled sosfilt):")
     for k in scipy_cases:
         _line(k, kernel[k], scipy_s[k], "scipy.signal")
@@ -138,6 +162,9 @@ def main(argv: list[str] | None = None) -> None:
           "against scipy.signal.lfilter:")
     print(f"  kernel {err_kernel:.1e} ({'met' if err_kernel == 0 else 'missed'}: "
           f"bit-identical), numpy block scan (fallback) {err_numpy:.1e}")
+    same = np.array_equal(sk.sosfiltfilt(sos, large), ss.sosfiltfilt(sos, large))
+    print(f"  sosfiltfilt, 45 x 30000, against scipy.signal.sosfiltfilt on the same sections: "
+          f"{'bit-identical (met)' if same else 'differs (missed)'}")
     hist = _history_chunks(b3, a3, trial, 200)
     y = np.zeros(3)
     zi = ss.lfiltic(b3, a3, y, np.zeros(3))

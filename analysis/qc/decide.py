@@ -254,16 +254,20 @@ def _single(trial, s: QCSettings, batch: dict | None = None) -> _Work:
         exclude(f"{1000 * w.bridged_s:.0f} ms would need bridging (more than "
                 f"{1000 * s.repair_max_total_s:.0f} ms)")
         return w
-    w.noise_sd = checks.hf_noise_sd(w.force)
-    for f in checks.flat_runs(w.force, fs, s.stall_min_s, s.clip_min_s, w.noise_sd):
+    dx = np.diff(w.force)            # shared by the noise, the resolution and the flat runs
+    d2 = np.diff(dx)
+    w.noise_sd = checks.robust_sd(d2) / np.sqrt(6.0)        # checks.hf_noise_sd(w.force)
+    for f in checks.flat_runs(w.force, fs, s.stall_min_s, s.clip_min_s, w.noise_sd, dx=dx):
         a, b = f.spans[0]
         if b / fs > start_s:
             exclude(f"{f.kind}: {f.detail}", span_s(a, b))
         else:
             v.reasons.append(f"{f.kind} in the lead-in only (not fitted): {f.detail}")
             v.spans.append(span_s(a, b))
-    lead = w.force[int(0.5 * fs):int(start_s * fs)]
-    w.noise_sd = checks.hf_noise_sd(lead) if lead.size > 0.5 * fs else w.noise_sd
+    lead = range(w.force.size)[int(0.5 * fs):int(start_s * fs)]
+    if len(lead) > 0.5 * fs:
+        # checks.hf_noise_sd of the lead-in: its second difference is a slice of the trial's
+        w.noise_sd = checks.robust_sd(d2[lead.start:lead.stop - 2]) / np.sqrt(6.0)
     if v.decision == USED and w.bridged_s > 0:
         v.decision = REPAIRED
     return w

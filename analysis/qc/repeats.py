@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nmsid.analysis.qc.checks import runs
+from nmsid.analysis.qc.checks import median_of_finite, runs
 from nmsid.analysis.qc.settings import QCSettings
 from nmsid.analysis.signal_kernels import butter, sosfiltfilt
 
@@ -114,24 +114,56 @@ def _weighted_solve(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
         return np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)[0]
 
 
+class _Reference:
+    """One repeat as the reference of the others: its :func:`shared_regressors`, and per
+    set of samples fitted the rows and the unweighted normal matrix every regression on it
+    starts from (the same arrays :func:`_weighted_solve` would build, built once)."""
+
+    def __init__(self, regressors: np.ndarray):
+        self.regressors = regressors
+        self._start: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def start(self, inside: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(X, X * 1, (X * 1).T @ X) of the rows ``inside``."""
+        key = inside.tobytes()
+        if key not in self._start:
+            X = self.regressors[inside]
+            Xw = X * np.ones(X.shape[0])[:, None]     # a copy, as _weighted_solve's
+            self._start[key] = (X, Xw, Xw.T @ X)
+        return self._start[key]
+
+
+def _least_squares_start(X: np.ndarray, Xw: np.ndarray, G: np.ndarray,
+                         y: np.ndarray) -> np.ndarray:
+    """``_weighted_solve(X, y, ones)`` from its normal matrix ``G`` built already."""
+    try:
+        return np.linalg.solve(G, Xw.T @ y)
+    except np.linalg.LinAlgError:
+        return _weighted_solve(X, y, np.ones(y.size))
+
+
 def _regress(s: np.ndarray, ref: np.ndarray, fs: float, keep: np.ndarray,
-             half_s: float = 0.0) -> np.ndarray:
+             half_s: float = 0.0, reference: _Reference | None = None) -> np.ndarray:
     """s minus its least-absolute-deviation fit on :func:`shared_regressors` over ``keep``.
 
     An L1 fit (iteratively reweighted least squares) follows the majority of the samples:
     a contraction or a jump over a minority of the trial cannot pull the gain, filter,
     offset or drift that the rest defines, as it would pull a least-squares line.
+    ``reference``: ``ref``'s regressors and normal matrices when the caller holds them
+    (one reference serves every other repeat of its level).
     """
-    Xall = shared_regressors(ref, fs, half_s)
+    if reference is None:
+        reference = _Reference(shared_regressors(ref, fs, half_s))
+    Xall = reference.regressors
     edge = filter_edge(ref.size, fs, half_s)
     inside = keep.copy()
     inside[:edge] = False
     inside[ref.size - edge:] = False
     if inside.sum() < 3 * Xall.shape[1]:
         inside = keep
-    X = Xall[inside]
+    X, Xw, G = reference.start(inside)
     y = s[inside]
-    beta = _weighted_solve(X, y, np.ones(y.size))      # least squares to start from
+    beta = _least_squares_start(X, Xw, G, y)           # least squares to start from
     floor = 1e-9 * max(float(np.std(y)), 1e-12)
     r = y - X @ beta
     l1 = float(np.sum(np.abs(r)))
@@ -153,6 +185,12 @@ def filter_edge(n: int, fs: float, half_s: float) -> int:
     lagged references are held edges there, not the reference): 0 without the filter."""
     lags = _filter_lags(fs, half_s)[1]
     return lags if 2 * lags < n else 0
+
+
+def _median(x: np.ndarray) -> float:
+    """``float(np.median(x))``, exactly, by :func:`checks.median_of_finite` when ``x`` is
+    finite."""
+    return median_of_finite(x) if x.size and np.isfinite(x).all() else float(np.median(x))
 
 
 def _window_rms(u: np.ndarray, w: int) -> np.ndarray:
@@ -197,15 +235,27 @@ def unshared(signals: list[np.ndarray], fs: float, settings: QCSettings):
     w = int(round(settings.window_s * fs))
     keep = [np.ones(S.shape[1], bool) for _ in range(n)]
     response = float(np.std(np.median(S, axis=0)[S.shape[1] // 3:]))
+    # each repeat's regressors built once, as the reference of every other repeat; a
+    # regression whose trial keeps the same samples in the second pass is the same
+    references = [_Reference(shared_regressors(S[j], fs, settings.shared_filter_s))
+                  for j in range(n)]
+    done: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     for _ in range(2):
         u, rms, partner = [], [], []
         for i in range(n):
             pairs = []
             for j in range(n):
                 if j != i:
-                    uij = _regress(S[i], S[j], fs, keep[i], settings.shared_filter_s)
-                    pairs.append((uij, _window_rms(uij, w), j))
-            best = min(pairs, key=lambda p: float(np.median(p[1])))
+                    before = done.get((i, j))
+                    if before is not None and np.array_equal(before[0], keep[i]):
+                        uij, rij = before[1], before[2]
+                    else:
+                        uij = _regress(S[i], S[j], fs, keep[i], settings.shared_filter_s,
+                                       references[j])
+                        rij = _window_rms(uij, w)
+                        done[(i, j)] = (keep[i], uij, rij)
+                    pairs.append((uij, rij, j))
+            best = min(pairs, key=lambda p: _median(p[1]))
             u.append(best[0])
             rms.append(np.min(np.vstack([p[1] for p in pairs]), axis=0))
             partner.append(best[2])

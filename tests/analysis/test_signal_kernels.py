@@ -4,6 +4,8 @@ block scan it falls back to when the kernel cannot be loaded (forced here)."""
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import scipy.ndimage as nd
 import scipy.signal as ss
 
@@ -12,8 +14,9 @@ from nmsid.protocols import lti_kernels
 
 
 def test_the_kernel_path_is_scipys_lfilter_bit_for_bit():
-    """With the kernel: scipy's own numbers, with states; sosfilt equals the sections
-    filtered one by one by scipy.signal.lfilter."""
+    """With the kernel: scipy's own numbers, with states; sosfilt is scipy.signal.sosfilt
+    (its compiled _sosfilt: each sample through all sections, not the sections filtered one
+    by one by lfilter, which rounds differently)."""
     assert lti_kernels.kernel_available()
     rng = np.random.default_rng(21)
     b, a = random_stable(rng, 3)
@@ -23,10 +26,7 @@ def test_the_kernel_path_is_scipys_lfilter_bit_for_bit():
     for got, ref in zip(k.lfilter(b, a, x, zi=zi), ss.lfilter(b, a, x, zi=zi)):
         np.testing.assert_array_equal(got, ref)
     sos = ss.butter(5, 0.05, output="sos")
-    u = x
-    for sec in sos:
-        u = ss.lfilter(sec[:3], sec[3:], u)
-    np.testing.assert_array_equal(k.sosfilt(sos, x), u)
+    np.testing.assert_array_equal(k.sosfilt(sos, x), ss.sosfilt(sos, x))
 
 
 def random_stable(rng, order):
@@ -220,3 +220,52 @@ def test_the_fallback_loses_digits_near_z_1_where_the_kernel_does_not(monkeypatc
     monkeypatch.setattr(lti_kernels, "_kernel", None)
     monkeypatch.setattr(lti_kernels, "source", "unavailable")
     assert np.max(np.abs(k.lfilter(b, a, x) - ref)) > 1e-6 * np.max(np.abs(ref))
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), order=st.integers(1, 8),
+       cutoff=st.floats(0.01, 0.9), n=st.integers(30, 2000), ndim=st.integers(1, 3),
+       axis=st.integers(-3, 2), padlen=st.one_of(st.none(), st.integers(0, 29)))
+def test_sosfiltfilt_is_scipys_bit_for_bit(seed, order, cutoff, n, ndim, axis, padlen):
+    """With the compiled _sosfilt: scipy.signal.sosfiltfilt's numbers and shape exactly on
+    the same sections, 1-3-D data along any axis, any padding (QC's and preprocessing's
+    zero-phase filter)."""
+    axis = axis % ndim - (ndim if axis < 0 else 0)
+    rng = np.random.default_rng(seed)
+    sos = ss.butter(order, cutoff, output="sos")
+    shape = [2, 3, 4][:ndim]
+    shape[axis] = n
+    x = rng.standard_normal(shape).cumsum(axis=axis)
+    if padlen is None and n <= 3 * (2 * len(sos) + 1):
+        padlen = 0
+    got = k.sosfiltfilt(sos, x, axis=axis, padlen=padlen)
+    ref = ss.sosfiltfilt(sos, x, axis=axis, padlen=padlen)
+    assert got.shape == ref.shape
+    np.testing.assert_array_equal(got, ref)
+    assert lti_kernels.sos_source == "compiled kernel"
+
+
+def test_sosfilt_without_its_kernel_runs_the_sections_one_by_one(monkeypatch):
+    """Without scipy's _sosfilt (another scipy layout), with lfilter's kernel: the sections
+    one after the other through lfilter (scipy's numbers to rounding), and so do sections
+    with a0 != 1 (which _sosfilt cannot take) and a zi that only broadcasts."""
+    rng = np.random.default_rng(8)
+    sos = ss.butter(4, 0.1, output="sos")
+    x = rng.standard_normal((3, 800)).cumsum(axis=1)
+    scaled = sos.copy()
+    scaled[0] *= 2.0                                   # a0 = 2: the same filter
+    zi = ss.sosfilt_zi(sos)[:, None, :] * x[None, :, :1]
+    np.testing.assert_allclose(k.sosfilt(scaled, x), ss.sosfilt(sos, x), rtol=1e-10,
+                               atol=1e-10)
+    y, zf = k.sosfilt(sos, x, zi=ss.sosfilt_zi(sos)[:, None, :] * x[None, :1, :1])
+    y_ref, zf_ref = ss.sosfilt(sos, x, zi=np.broadcast_to(
+        ss.sosfilt_zi(sos)[:, None, :] * x[None, :1, :1], (2, 3, 2)))
+    np.testing.assert_allclose(y, y_ref, rtol=1e-10, atol=1e-10)
+    monkeypatch.setattr(lti_kernels, "_sos_kernel", None)
+    monkeypatch.setattr(lti_kernels, "sos_source", "unavailable")
+    assert lti_kernels.kernel_available() and not lti_kernels.sos_kernel_available()
+    np.testing.assert_allclose(k.sosfilt(sos, x), ss.sosfilt(sos, x), rtol=1e-10, atol=1e-10)
+    for got, ref in zip(k.sosfilt(sos, x, zi=zi), ss.sosfilt(sos, x, zi=zi)):
+        np.testing.assert_allclose(got, ref, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(k.sosfiltfilt(sos, x), ss.sosfiltfilt(sos, x), rtol=1e-10,
+                               atol=1e-10)

@@ -2,6 +2,7 @@
 the simulator's filters built on them against the scipy filters they replaced."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -287,3 +288,111 @@ def test_the_simulators_filter_equals_scipys_across_chunks_and_coefficient_chang
         x = rng.uniform(0.0, 1.0, int(rng.integers(1, 4000)))
         worst = max(worst, float(np.max(np.abs(mine(x) - ref(x)))))
     assert worst < 1e-9
+
+
+def _random_sos(rng, n_sections: int) -> np.ndarray:
+    """Stable sections (a0 = 1): a real pair or a resonant pair each, random zeros."""
+    sos = np.empty((n_sections, 6))
+    for i in range(n_sections):
+        if rng.random() < 0.5:
+            r, th = rng.uniform(0.3, 0.999), rng.uniform(0.001, np.pi)
+            a = [1.0, -2 * r * np.cos(th), r * r]
+        else:
+            a = np.poly(rng.uniform(-0.99, 0.99, 2))
+        sos[i] = np.concatenate([rng.standard_normal(3), a])
+    return sos
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), n_sections=st.integers(1, 4),
+       n=st.integers(1, 300), ndim=st.integers(1, 3), axis=st.integers(-3, 2),
+       with_zi=st.booleans())
+def test_sosfilt_is_scipys_bit_for_bit(seed, n_sections, n, ndim, axis, with_zi):
+    """Any stable sections, 1-3-D data along any axis, with or without initial states:
+    scipy.signal.sosfilt's numbers and shapes exactly (the same compiled _sosfilt)."""
+    axis = axis % ndim - (ndim if axis < 0 else 0)      # a valid axis, either sign
+    rng = np.random.default_rng(seed)
+    sos = _random_sos(rng, n_sections)
+    shape = [2, 3, 4][:ndim]
+    shape[axis] = n
+    x = rng.standard_normal(shape).cumsum(axis=axis)
+    if with_zi:
+        zi_shape = [n_sections] + list(shape)
+        zi_shape[(axis % ndim) + 1] = 2
+        zi = rng.standard_normal(zi_shape)
+        (y, zf), (y_ref, zf_ref) = k.sosfilt(sos, x, axis, zi), ss.sosfilt(sos, x, axis, zi)
+        assert zf.shape == zf_ref.shape
+        np.testing.assert_array_equal(zf, zf_ref)
+        np.testing.assert_array_equal(zi, np.asarray(zi))   # the caller's zi not modified
+    else:
+        y, y_ref = k.sosfilt(sos, x, axis=axis), ss.sosfilt(sos, x, axis=axis)
+    assert y.shape == y_ref.shape
+    np.testing.assert_array_equal(y, y_ref)
+    assert k.sos_source == "compiled kernel"
+
+
+def test_sosfilt_leaves_its_inputs_alone():
+    """The kernel filters in place: on copies, never on the caller's x or zi."""
+    rng = np.random.default_rng(3)
+    sos = _random_sos(rng, 2)
+    x = rng.standard_normal((2, 50))
+    zi = rng.standard_normal((2, 2, 2))
+    x0, zi0 = x.copy(), zi.copy()
+    k.sosfilt(sos, x, zi=zi)
+    np.testing.assert_array_equal(x, x0)
+    np.testing.assert_array_equal(zi, zi0)
+
+
+def test_sosfilt_refuses_bad_sections_and_states():
+    with pytest.raises(ValueError, match="n_sections, 6"):
+        k.sosfilt(np.ones((2, 5)), np.ones(10))
+    with pytest.raises(ValueError, match="a0"):
+        k.sosfilt([[1.0, 0.0, 0.0, 2.0, 0.5, 0.0]], np.ones(10))
+    with pytest.raises(ValueError, match="zi has shape"):
+        k.sosfilt([[1.0, 0.0, 0.0, 1.0, 0.5, 0.0]], np.ones((3, 10)), zi=np.zeros((1, 2)))
+
+
+def test_without_the_sos_kernel_sosfilt_is_the_public_function(monkeypatch):
+    monkeypatch.setattr(k, "_sos_kernel", None)
+    monkeypatch.setattr(k, "sos_source", None)
+    monkeypatch.setattr(k, "_load_sos_kernel", lambda: None)
+    sos = _random_sos(np.random.default_rng(5), 2)
+    x = np.linspace(0.0, 1.0, 50)
+    np.testing.assert_array_equal(k.sosfilt(sos, x), ss.sosfilt(sos, x))
+    assert k.sos_source == "unavailable" and not k.sos_kernel_available()
+
+
+def test_the_sos_kernel_is_loaded_without_importing_scipy_signal():
+    import subprocess
+    import sys
+    code = ("import sys, numpy as np\n"
+            "from nmsid.protocols import lti_kernels as k\n"
+            "y = k.sosfilt([[0.5, 0, 0, 1, -0.5, 0]], np.ones(3))\n"
+            "print(k.sos_source, sorted(m for m in sys.modules if m.startswith('scipy.signal')))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == "compiled kernel []"
+
+
+@pytest.mark.parametrize("stem, function", [("_sosfilt", "_sosfilt"),
+                                            ("_sigtools", "_linear_filter")])
+def test_the_kernels_load_under_windows_file_names(tmp_path, monkeypatch, stem, function):
+    """On Windows the extensions are ``<stem>.cp311-win_amd64.pyd`` (importlib.machinery.
+    EXTENSION_SUFFIXES there: ".cp311-win_amd64.pyd", ".pyd"). Emulated: this platform's
+    extension file copied under a Windows name into a scipy folder, the suffix list set to
+    Windows'; the loader must find it by that list and load it, whatever the suffix."""
+    import importlib.machinery
+    import shutil
+
+    import scipy
+    real = next(p for sfx in importlib.machinery.EXTENSION_SUFFIXES
+                if (p := Path(scipy.__file__).parent / "signal" / (stem + sfx)).is_file())
+    (tmp_path / "signal").mkdir()
+    shutil.copy(real, tmp_path / "signal" / f"{stem}.cp311-win_amd64.pyd")
+    monkeypatch.setattr(scipy, "__file__", str(tmp_path / "__init__.py"))
+    monkeypatch.setattr(importlib.machinery, "EXTENSION_SUFFIXES",
+                        [".cp311-win_amd64.pyd", ".pyd"])
+    fn = k._load_extension(stem, function)
+    assert callable(fn) and fn.__name__ == function
+    monkeypatch.setattr(importlib.machinery, "EXTENSION_SUFFIXES", [".so.none"])
+    assert k._load_extension(stem, function) is None      # no file by these suffixes
