@@ -210,10 +210,20 @@ class TrialSignals:
         self.settings = settings
         self._rows: dict[tuple, tuple[object, np.ndarray]] = {}
         self._inputs: list[np.ndarray] = []     # the distinct rE records seen
+        self._input_ids: dict[tuple[int, int], tuple[object, int]] = {}
 
     def _input_id(self, tr, n: int) -> int:
         """An index shared by trials whose first ``n`` rE samples are equal (the repeats
-        of a protocol usually receive the same chirp: its rows are filtered once)."""
+        of a protocol usually receive the same chirp: its rows are filtered once). Found
+        once per trial and length: the level's fits and each repeat's own fit ask again."""
+        known = self._input_ids.get((id(tr), n))
+        if known is not None and known[0] is tr:
+            return known[1]
+        k = self._find_input(tr, n)
+        self._input_ids[(id(tr), n)] = (tr, k)
+        return k
+
+    def _find_input(self, tr, n: int) -> int:
         rE = np.asarray(tr.rE, dtype=float)[:n]
         for k, seen in enumerate(self._inputs):
             if seen.shape == rE.shape and np.array_equal(seen, rE):
