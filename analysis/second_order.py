@@ -79,9 +79,23 @@ class SecondOrderFit:
     errors."""
     covariance: np.ndarray
     """Covariance of (Kp, wn_rad_s, zeta)."""
-    residual_tests: ResidualTests
     start: StartEstimate | None = None
     notes: list[str] = field(default_factory=list)
+    _tests_of: tuple | None = field(default=None, repr=False, compare=False)
+    """(residual, input, lags, confidence) of the residual tests, run on first use."""
+    _tests: ResidualTests | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def residual_tests(self) -> ResidualTests:
+        """Whiteness and input-independence tests of the residual
+        (:func:`nmsid.analysis.residual_tests.residual_tests`). Run on first use: the
+        per-repeat fits of the scatter never read them."""
+        if self._tests is None:
+            if self._tests_of is None:
+                raise AttributeError("this fit holds no residual to test")
+            resid, u, lags, confidence = self._tests_of
+            self._tests = residual_tests(resid, u, lags, confidence)
+        return self._tests
 
     @property
     def residual_N(self) -> np.ndarray:
@@ -376,15 +390,14 @@ def fit_second_order(u: np.ndarray, y: np.ndarray, fs_Hz: float,
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     n = len(y)
     trend = float(coef[4]) * 2.0 / ((n - 1) * dt) if s.estimate_trend else 0.0
-    tests = residual_tests(ev["resid"], u, s.resid_lags, s.resid_confidence)
     return SecondOrderFit(
         Kp=float(coef[0]), wn_rad_s=wn, zeta=zeta, Kp_se=float(se[0]), wn_se=float(se[1]),
         zeta_se=float(se[2]), fit_pct=fit_pct(ev), converged=bool(converged),
         message=message, iterations=int(iterations), t_s=t0_s + np.arange(n) * dt,
         y_N=y, y_fit_N=ev["y_fit"], fs_Hz=float(fs_Hz), offset_N=float(coef[3]),
         trend_N_per_s=trend, initial_output_N=(float(coef[1]), float(coef[2])),
-        noise_sd_N=math.sqrt(sigma2), covariance=cov, residual_tests=tests,
-        start=start_est, notes=notes)
+        noise_sd_N=math.sqrt(sigma2), covariance=cov, start=start_est, notes=notes,
+        _tests_of=(ev["resid"], u.copy(), s.resid_lags, s.resid_confidence))
 
 
 def fisher_information(u: np.ndarray, Kp: float, wn_rad_s: float, zeta: float,
