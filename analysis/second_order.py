@@ -24,6 +24,7 @@ the residual PSD over the chirp band rather than RSS/(N - p).
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass, field
@@ -237,16 +238,25 @@ def _noise_variance(resid: np.ndarray, fs_Hz: float, n_params: int, level: Noise
     return float(np.mean(pxx[sel]) * fs_Hz / 2.0)
 
 
+@functools.lru_cache(maxsize=8)
+def _hann(nperseg: int) -> tuple[np.ndarray, float]:
+    """Periodic Hann window (scipy's 'hann') of ``nperseg`` samples and the sum of its
+    squares; read-only, made once per length (every fit of a session uses the same)."""
+    win = np.hanning(nperseg + 1)[:-1]
+    win.flags.writeable = False
+    return win, float(np.sum(win ** 2))
+
+
 def _welch(x: np.ndarray, fs_Hz: float, nperseg: int) -> tuple[np.ndarray, np.ndarray]:
     """One-sided PSD by Welch's method (Hann window, 50 % overlap, mean removed per
     segment); the same as ``scipy.signal.welch`` defaults, without its overhead."""
     step = nperseg // 2
     starts = range(0, len(x) - nperseg + 1, step)
-    win = np.hanning(nperseg + 1)[:-1]       # periodic Hann, as scipy's 'hann'
+    win, win_power = _hann(nperseg)
     segs = np.array([x[i:i + nperseg] for i in starts])
     segs = (segs - segs.mean(axis=1, keepdims=True)) * win
     spec = np.abs(np.fft.rfft(segs, axis=1)) ** 2
-    pxx = spec.mean(axis=0) / (fs_Hz * np.sum(win ** 2))
+    pxx = spec.mean(axis=0) / (fs_Hz * win_power)
     pxx[1:-1 if nperseg % 2 == 0 else None] *= 2.0
     return np.fft.rfftfreq(nperseg, 1.0 / fs_Hz), pxx
 
