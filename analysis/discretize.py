@@ -21,6 +21,7 @@ sixth order in f/fs (see :class:`nmsid.analysis.settings.InputHold`).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -143,11 +144,14 @@ def foh_coefficients_with_derivatives(log_wn: float, log_zeta: float, dt_s: floa
     dnum, dden : ndarray (2, 3)
         Row j is the derivative with respect to parameter j (ln wn, ln zeta).
     """
-    key = (float(log_wn), float(log_zeta), float(dt_s))
-    found = _FOH_CACHE.get(key)
-    if found is not None:
-        return found
-    p = key[:2]
+    return _foh_derivatives(float(log_wn), float(log_zeta), float(dt_s))
+
+
+@functools.lru_cache(maxsize=64)
+def _foh_derivatives(log_wn: float, log_zeta: float, dt_s: float):
+    """:func:`foh_coefficients_with_derivatives`, kept for the last 64 arguments (a
+    thread-safe cache; the arrays are read-only)."""
+    p = (log_wn, log_zeta)
     num = _foh_floats(math.exp(p[0]), math.exp(p[1]), dt_s)
     diffs = []
     for j in range(2):
@@ -166,15 +170,7 @@ def foh_coefficients_with_derivatives(log_wn: float, log_zeta: float, dt_s: floa
     out = (np.array(num[:3]), np.array([1.0, num[3], num[4]]), dnum, dden)
     for arr in out:
         arr.flags.writeable = False
-    if len(_FOH_CACHE) >= _FOH_CACHE_SIZE:
-        _FOH_CACHE.pop(next(iter(_FOH_CACHE)))
-    _FOH_CACHE[key] = out
     return out
-
-
-#: Recent answers of :func:`foh_coefficients_with_derivatives` (insertion-ordered).
-_FOH_CACHE: dict[tuple[float, float, float], tuple] = {}
-_FOH_CACHE_SIZE = 64
 
 
 def smooth_hold_input(u: np.ndarray) -> np.ndarray:

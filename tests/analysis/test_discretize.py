@@ -64,7 +64,7 @@ def test_coefficient_derivatives_are_central_differences_of_the_array_form(wn, z
 
     from nmsid.analysis import discretize as d
     lw, lz = math.log(wn), math.log(zeta)
-    d._FOH_CACHE.clear()
+    d._foh_derivatives.cache_clear()
     num, den, dnum, dden = d.foh_coefficients_with_derivatives(lw, lz, dt)
     n_ref, d_ref = foh_coefficients(math.exp(lw), math.exp(lz), dt)
     assert np.array_equal(num, n_ref) and np.array_equal(den, d_ref)
