@@ -21,6 +21,7 @@ sixth order in f/fs (see :class:`nmsid.analysis.settings.InputHold`).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -77,7 +78,14 @@ def foh_coefficients(wn_rad_s: float, zeta: float, dt_s: float) -> tuple[np.ndar
     >>> round(float(num.sum() / den.sum()), 12)
     1.0
     """
-    h = dt_s
+    n0, n1, n2, d1, d2 = _foh_floats(wn_rad_s, zeta, dt_s)
+    return np.array([n0, n1, n2]), np.array([1.0, d1, d2])
+
+
+def _foh_floats(wn_rad_s: float, zeta: float, h: float
+                ) -> tuple[float, float, float, float, float]:
+    """:func:`foh_coefficients` as plain floats ``(n0, n1, n2, d1, d2)`` (``d0 = 1``): the
+    same operations in the same order (so the same numbers), without building arrays."""
     wn2 = wn_rad_s * wn_rad_s
     sigma = zeta * wn_rad_s
     ec, es = _decay_cos_sin(sigma, wn2 - sigma * sigma, h)
@@ -89,25 +97,20 @@ def foh_coefficients(wn_rad_s: float, zeta: float, dt_s: float) -> tuple[np.ndar
     if wn2 * h * h < 1e-4:
         # 1 - p11 and the hold integral lose digits to cancellation: use their series
         # (terms of the exponential's Taylor series of the state-space matrices)
-        g1 = _hold_integrals_series(wn_rad_s, zeta, h)
-        one_minus_p11 = g1[0]
-        g_a = g1
-        g_b = _hold_integrals_series(wn_rad_s, zeta, h, second=True)
+        ga0, ga1 = _hold_integrals_series(wn_rad_s, zeta, h)
+        gb0, gb1 = _hold_integrals_series(wn_rad_s, zeta, h, second=True)
     else:
-        g_a = np.array([one_minus_p11, -p21])
-        g_b = np.array([((-2 * sigma * one_minus_p11 + p21) / wn2 + h) / h, one_minus_p11 / h])
-    g0 = g_a - g_b              # multiplies u_k
-    g1v = g_b                   # multiplies u_{k+1}
+        ga0, ga1 = one_minus_p11, -p21
+        gb0, gb1 = ((-2 * sigma * one_minus_p11 + p21) / wn2 + h) / h, one_minus_p11 / h
+    g00, g01 = ga0 - gb0, ga1 - gb1          # multiply u_k
     # y = C x with C = [1, 0]; N(z) = C adj(zI - Phi) (g0 + g1 z), D(z) = det(zI - Phi)
-    n0 = g1v[0]
-    n1 = g0[0] - p22 * g1v[0] + p12 * g1v[1]
-    n2 = p12 * g0[1] - p22 * g0[0]
-    den = np.array([1.0, -(p11 + p22), p11 * p22 - p12 * p21])
-    return np.array([n0, n1, n2]), den
+    # (g1 = g_b multiplies u_{k+1})
+    return (gb0, g00 - p22 * gb0 + p12 * gb1, p12 * g01 - p22 * g00,
+            -(p11 + p22), p11 * p22 - p12 * p21)
 
 
 def _hold_integrals_series(wn_rad_s: float, zeta: float, h: float, second: bool = False,
-                           terms: int = 12) -> np.ndarray:
+                           terms: int = 12) -> tuple[float, float]:
     """Hold integrals by their Taylor series (for wn h small).
 
     ``int_0^h e^{As} B ds = sum_k A^k B h^{k+1}/(k+1)!`` and
@@ -124,14 +127,16 @@ def _hold_integrals_series(wn_rad_s: float, zeta: float, h: float, second: bool 
         total1 += x1 * hp / fact
         x0, x1 = a11 * x0 + a12 * x1, a21 * x0 + a22 * x1
         hp *= h
-    return np.array([total0, total1])
+    return total0, total1
 
 
 def foh_coefficients_with_derivatives(log_wn: float, log_zeta: float, dt_s: float):
     """Coefficients and their derivatives with respect to ``ln wn`` and ``ln zeta``.
 
     Derivatives are central differences of the (smooth, cheap) coefficient map; their
-    relative error is ~1e-10, far below anything the fit can resolve.
+    relative error is ~1e-10, far below anything the fit can resolve. The last few
+    answers are kept (read-only arrays): the fits of a level's repeats start from the
+    level's optimum, where the level's own fit ended.
 
     Returns
     -------
@@ -139,21 +144,33 @@ def foh_coefficients_with_derivatives(log_wn: float, log_zeta: float, dt_s: floa
     dnum, dden : ndarray (2, 3)
         Row j is the derivative with respect to parameter j (ln wn, ln zeta).
     """
+    return _foh_derivatives(float(log_wn), float(log_zeta), float(dt_s))
+
+
+@functools.lru_cache(maxsize=64)
+def _foh_derivatives(log_wn: float, log_zeta: float, dt_s: float):
+    """:func:`foh_coefficients_with_derivatives`, kept for the last 64 arguments (a
+    thread-safe cache; the arrays are read-only)."""
     p = (log_wn, log_zeta)
-    num, den = foh_coefficients(math.exp(log_wn), math.exp(log_zeta), dt_s)
-    dnum = np.empty((2, 3))
-    dden = np.empty((2, 3))
+    num = _foh_floats(math.exp(p[0]), math.exp(p[1]), dt_s)
+    diffs = []
     for j in range(2):
         step = _FD_STEP * max(1.0, abs(p[j]))
         hi = list(p)
         lo = list(p)
         hi[j] += step
         lo[j] -= step
-        n_hi, d_hi = foh_coefficients(math.exp(hi[0]), math.exp(hi[1]), dt_s)
-        n_lo, d_lo = foh_coefficients(math.exp(lo[0]), math.exp(lo[1]), dt_s)
-        dnum[j] = (n_hi - n_lo) / (2 * step)
-        dden[j] = (d_hi - d_lo) / (2 * step)
-    return num, den, dnum, dden
+        c_hi = _foh_floats(math.exp(hi[0]), math.exp(hi[1]), dt_s)
+        c_lo = _foh_floats(math.exp(lo[0]), math.exp(lo[1]), dt_s)
+        two = 2 * step
+        # (hi - lo) / (2 step) per coefficient; d(den[0]) = (1 - 1) / (2 step) = 0
+        diffs.append([(c_hi[i] - c_lo[i]) / two for i in range(5)])
+    dnum = np.array([[d[0], d[1], d[2]] for d in diffs])
+    dden = np.array([[0.0, d[3], d[4]] for d in diffs])
+    out = (np.array(num[:3]), np.array([1.0, num[3], num[4]]), dnum, dden)
+    for arr in out:
+        arr.flags.writeable = False
+    return out
 
 
 def smooth_hold_input(u: np.ndarray) -> np.ndarray:

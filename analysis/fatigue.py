@@ -30,6 +30,7 @@ loss (or gain) over the session is at least ``min_effect_pct`` percent.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import asdict, dataclass
 
@@ -137,11 +138,17 @@ def t_ppf(p: float, dof: int) -> float:
     """
     if dof < 1:
         raise ValueError(f"dof = {dof}: at least 1")
+    return _t_ppf(float(p), int(dof))
+
+
+@functools.lru_cache(maxsize=256)
+def _t_ppf(p: float, n: int) -> float:
+    """:func:`t_ppf` once per (p, dof): a session asks for the same few quantiles many
+    times (every level's and parameter's interval)."""
     if p == 0.5:
         return 0.0
     if p < 0.5:
-        return -t_ppf(1.0 - p, dof)
-    n = int(dof)
+        return -_t_ppf(1.0 - p, n)
 
     def central(t: float) -> float:          # P(|T| < t)
         th = math.atan(t / math.sqrt(n))
@@ -174,7 +181,12 @@ def chi2_ppf(p: float, dof: int) -> float:
     """
     if dof < 1:
         raise ValueError(f"dof = {dof}: at least 1")
-    k = int(dof)
+    return _chi2_ppf(float(p), int(dof))
+
+
+@functools.lru_cache(maxsize=256)
+def _chi2_ppf(p: float, k: int) -> float:
+    """:func:`chi2_ppf` once per (p, dof) (see :func:`_t_ppf`)."""
 
     def cdf(x: float) -> float:
         if x <= 0:

@@ -118,9 +118,11 @@ def srivc_start(v: np.ndarray, y: np.ndarray, dt_s: float, *, trend: bool = True
         num = theta[2:5]
         x = lfilter(num, den, v)                      # noise-free instrument
         z_rows = _regressors(x, v, tau, trend)
-        phi_f = lfilter([1.0], den, phi, axis=1)
-        z_f = lfilter([1.0], den, z_rows, axis=1)
-        y_f = lfilter([1.0], den, target)
+        # regressors, instruments and target through the pre-filter in one call (each
+        # row filtered on its own: the same numbers as three calls)
+        m = len(phi)
+        filtered = lfilter([1.0], den, np.vstack([phi, z_rows, target]), axis=1)
+        phi_f, z_f, y_f = filtered[:m], filtered[m:2 * m], filtered[2 * m]
         try:
             new = np.linalg.solve(cross(z_f, phi_f), cross(z_f, y_f[None, :])[:, 0])
         except np.linalg.LinAlgError:

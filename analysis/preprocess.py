@@ -59,9 +59,17 @@ class LevelData:
     rE = 0.5 and the force has settled: the force at rE = 0.5 for this sE."""
 
 
-def linear_detrend(x: np.ndarray) -> np.ndarray:
+def linear_detrend(x: np.ndarray, start: int = 0) -> np.ndarray:
     """Subtract the least-squares straight line (same as ``scipy.signal.detrend``, type
     'linear', without its LAPACK call).
+
+    Parameters
+    ----------
+    x : ndarray
+        The signal (1-D); the line is fitted to all of it.
+    start : int
+        Return the detrended signal from this sample on (the same values as
+        ``linear_detrend(x)[start:]``, without computing the part before).
 
     Examples
     --------
@@ -72,10 +80,10 @@ def linear_detrend(x: np.ndarray) -> np.ndarray:
     x = np.asarray(x, dtype=float)
     n = len(x)
     if n < 2:
-        return x - x.mean()
+        return (x - x.mean())[start:]
     k = np.arange(n, dtype=float) - (n - 1) / 2.0
     slope = dot(k, x) / dot(k, k)
-    return x - x.mean() - slope * k
+    return x[start:] - x.mean() - slope * k[start:]
 
 
 @functools.lru_cache(maxsize=32)
@@ -210,10 +218,20 @@ class TrialSignals:
         self.settings = settings
         self._rows: dict[tuple, tuple[object, np.ndarray]] = {}
         self._inputs: list[np.ndarray] = []     # the distinct rE records seen
+        self._input_ids: dict[tuple[int, int], tuple[object, int]] = {}
 
     def _input_id(self, tr, n: int) -> int:
         """An index shared by trials whose first ``n`` rE samples are equal (the repeats
-        of a protocol usually receive the same chirp: its rows are filtered once)."""
+        of a protocol usually receive the same chirp: its rows are filtered once). Found
+        once per trial and length: the level's fits and each repeat's own fit ask again."""
+        known = self._input_ids.get((id(tr), n))
+        if known is not None and known[0] is tr:
+            return known[1]
+        k = self._find_input(tr, n)
+        self._input_ids[(id(tr), n)] = (tr, k)
+        return k
+
+    def _find_input(self, tr, n: int) -> int:
         rE = np.asarray(tr.rE, dtype=float)[:n]
         for k, seen in enumerate(self._inputs):
             if seen.shape == rE.shape and np.array_equal(seen, rE):
@@ -239,13 +257,13 @@ class TrialSignals:
         if todo_f or todo_r:
             j0, i0, i1, q = span
             parts = []
-            for tr in todo_f:
-                f = np.asarray(tr.force_N, dtype=float)
-                parts.append((linear_detrend(f) if s.detrend else f)[:n])
+            for tr in todo_f:       # only the part the filters see (from j0), detrended
+                f = np.asarray(tr.force_N, dtype=float)       # by the line of all of it
+                parts.append((linear_detrend(f, j0) if s.detrend else f[j0:])[:n - j0])
             if todo_r:
                 parts.extend(delay_input(np.vstack([self._inputs[k] for k in todo_r]),
-                                         delay_s, fs_Hz))
-            out = smooth_and_lowpass(np.vstack(parts)[:, j0:], fs_Hz, s)
+                                         delay_s, fs_Hz)[:, j0:])
+            out = smooth_and_lowpass(np.vstack(parts), fs_Hz, s)
             out = np.ascontiguousarray(out[:, i0 - j0:i1 - j0:q])
             for k, tr in enumerate(todo_f):
                 self._rows[("f", span, n, id(tr))] = (tr, out[k])

@@ -24,6 +24,7 @@ the residual PSD over the chirp band rather than RSS/(N - p).
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass, field
@@ -79,9 +80,23 @@ class SecondOrderFit:
     errors."""
     covariance: np.ndarray
     """Covariance of (Kp, wn_rad_s, zeta)."""
-    residual_tests: ResidualTests
     start: StartEstimate | None = None
     notes: list[str] = field(default_factory=list)
+    _tests_of: tuple | None = field(default=None, repr=False, compare=False)
+    """(residual, input, lags, confidence) of the residual tests, run on first use."""
+    _tests: ResidualTests | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def residual_tests(self) -> ResidualTests:
+        """Whiteness and input-independence tests of the residual
+        (:func:`nmsid.analysis.residual_tests.residual_tests`). Run on first use: the
+        per-repeat fits of the scatter never read them."""
+        if self._tests is None:
+            if self._tests_of is None:
+                raise AttributeError("this fit holds no residual to test")
+            resid, u, lags, confidence = self._tests_of
+            self._tests = residual_tests(resid, u, lags, confidence)
+        return self._tests
 
     @property
     def residual_N(self) -> np.ndarray:
@@ -93,13 +108,19 @@ class SecondOrderFit:
 
 
 def _shift(x: np.ndarray, k: int) -> np.ndarray:
-    out = np.zeros_like(x)
+    out = np.empty_like(x)
+    out[:k] = 0.0
     out[k:] = x[:len(x) - k]
     return out
 
 
 class _Problem:
-    """Variable-projection pieces of the output-error problem for fixed data."""
+    """Variable-projection pieces of the output-error problem for fixed data.
+
+    :meth:`evaluate` computes the cost first and the Jacobian only when asked (or later,
+    by :meth:`jacobian`, for a trial point the search accepts): a refused step costs one
+    filter pass instead of two. The numbers are the same whichever way they are reached.
+    """
 
     def __init__(self, v: np.ndarray, y: np.ndarray, dt_s: float, trend: bool):
         self.v = v
@@ -110,6 +131,8 @@ class _Problem:
         self.trend = trend
         self.impulse = np.zeros(self.n)
         self.impulse[0] = 1.0
+        #: the impulse and the input, filtered together (one filter set-up per evaluation)
+        self._stacked = np.vstack([self.impulse, v])
         #: upper bound of (ln wn, ln zeta): wn below 10x the Nyquist frequency, zeta < 1000
         self.p_high = np.array([math.log(10 * math.pi / dt_s), math.log(1000.0)])
 
@@ -121,7 +144,7 @@ class _Problem:
         num, den, dnum, dden = foh_coefficients_with_derivatives(p[0], p[1], self.dt_s)
         v = self.v
         # the impulse response and the filtered input in one call (one filter set-up)
-        h, w = lfilter([1.0], den, np.vstack([self.impulse, v]))
+        h, w = lfilter([1.0], den, self._stacked)
         h1 = _shift(h, 1)
         s0 = w - v[0] * h - v[1] * h1
         s1 = _shift(w, 1) - v[0] * h1
@@ -137,9 +160,18 @@ class _Problem:
         y_fit = coef @ basis
         resid = self.y - y_fit
         out = {"cost": dot(resid, resid), "coef": coef, "y_fit": y_fit, "resid": resid,
-               "basis": basis}
-        if not jacobian:
-            return out
+               "basis": basis, "_parts": (den, dnum, dden, s0, s1, s2, h1, q)}
+        if jacobian:
+            self.jacobian(out)
+        return out
+
+    def jacobian(self, ev: dict) -> dict:
+        """Add the full (``jp``) and reduced (``j_reduced``) Jacobians of (ln wn, ln zeta)
+        to an evaluation (once: a second call finds them there)."""
+        if "jp" in ev:
+            return ev
+        den, dnum, dden, s0, s1, s2, h1, q = ev["_parts"]
+        coef, basis = ev["coef"], ev["basis"]
         kp, y0, y1 = coef[0], coef[1], coef[2]
         y_dyn = kp * basis[0] + y0 * basis[1] + y1 * h1
         qf = lfilter([1.0], den, y_dyn)
@@ -149,9 +181,9 @@ class _Problem:
         for j in range(2):
             jp[j] = (kp * (dnum[j, 0] * s0 + dnum[j, 1] * s1 + dnum[j, 2] * s2)
                      - dden[j, 1] * r1 - dden[j, 2] * r2)
-        out["jp"] = jp
-        out["j_reduced"] = jp - (jp @ q.T) @ q
-        return out
+        ev["jp"] = jp
+        ev["j_reduced"] = jp - (jp @ q.T) @ q
+        return ev
 
 
 def _levenberg_marquardt(problem: _Problem, p0: np.ndarray, max_iter: int, tol: float):
@@ -162,11 +194,11 @@ def _levenberg_marquardt(problem: _Problem, p0: np.ndarray, max_iter: int, tol: 
     def evaluate(p):
         if not np.all((p > _P_LOW) & (p < problem.p_high)):
             return math.inf, None
-        ev = problem.evaluate(p, jacobian=True)
+        ev = problem.evaluate(p, jacobian=False)    # a refused point needs no Jacobian
         return ev["cost"], ev
 
     def normal(p, ev):
-        jr = ev["j_reduced"]     # d(fit)/dp: the residual's Jacobian is -jr
+        jr = problem.jacobian(ev)["j_reduced"]     # d(fit)/dp: the residual's Jacobian is -jr
         return gram(jr), -cross(jr, ev["resid"][None, :])[:, 0]
 
     def at_minimum(a, g, cost):
@@ -206,16 +238,25 @@ def _noise_variance(resid: np.ndarray, fs_Hz: float, n_params: int, level: Noise
     return float(np.mean(pxx[sel]) * fs_Hz / 2.0)
 
 
+@functools.lru_cache(maxsize=8)
+def _hann(nperseg: int) -> tuple[np.ndarray, float]:
+    """Periodic Hann window (scipy's 'hann') of ``nperseg`` samples and the sum of its
+    squares; read-only, made once per length (every fit of a session uses the same)."""
+    win = np.hanning(nperseg + 1)[:-1]
+    win.flags.writeable = False
+    return win, float(np.sum(win ** 2))
+
+
 def _welch(x: np.ndarray, fs_Hz: float, nperseg: int) -> tuple[np.ndarray, np.ndarray]:
     """One-sided PSD by Welch's method (Hann window, 50 % overlap, mean removed per
     segment); the same as ``scipy.signal.welch`` defaults, without its overhead."""
     step = nperseg // 2
     starts = range(0, len(x) - nperseg + 1, step)
-    win = np.hanning(nperseg + 1)[:-1]       # periodic Hann, as scipy's 'hann'
+    win, win_power = _hann(nperseg)
     segs = np.array([x[i:i + nperseg] for i in starts])
     segs = (segs - segs.mean(axis=1, keepdims=True)) * win
     spec = np.abs(np.fft.rfft(segs, axis=1)) ** 2
-    pxx = spec.mean(axis=0) / (fs_Hz * np.sum(win ** 2))
+    pxx = spec.mean(axis=0) / (fs_Hz * win_power)
     pxx[1:-1 if nperseg % 2 == 0 else None] *= 2.0
     return np.fft.rfftfreq(nperseg, 1.0 / fs_Hz), pxx
 
@@ -331,6 +372,7 @@ def fit_second_order(u: np.ndarray, y: np.ndarray, fs_Hz: float,
     if best is None:  # pragma: no cover - the grid search runs whenever there is no start
         raise IdentificationError("no starting point of the search could be evaluated")
     p, ev, converged, message, iterations = best
+    ev = problem.jacobian(ev)       # the last accepted point's, for the covariance
     wn, zeta = math.exp(p[0]), math.exp(p[1])
     coef = ev["coef"]
     if wn > math.pi * fs_Hz:
@@ -358,15 +400,14 @@ def fit_second_order(u: np.ndarray, y: np.ndarray, fs_Hz: float,
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     n = len(y)
     trend = float(coef[4]) * 2.0 / ((n - 1) * dt) if s.estimate_trend else 0.0
-    tests = residual_tests(ev["resid"], u, s.resid_lags, s.resid_confidence)
     return SecondOrderFit(
         Kp=float(coef[0]), wn_rad_s=wn, zeta=zeta, Kp_se=float(se[0]), wn_se=float(se[1]),
         zeta_se=float(se[2]), fit_pct=fit_pct(ev), converged=bool(converged),
         message=message, iterations=int(iterations), t_s=t0_s + np.arange(n) * dt,
         y_N=y, y_fit_N=ev["y_fit"], fs_Hz=float(fs_Hz), offset_N=float(coef[3]),
         trend_N_per_s=trend, initial_output_N=(float(coef[1]), float(coef[2])),
-        noise_sd_N=math.sqrt(sigma2), covariance=cov, residual_tests=tests,
-        start=start_est, notes=notes)
+        noise_sd_N=math.sqrt(sigma2), covariance=cov, start=start_est, notes=notes,
+        _tests_of=(ev["resid"], u.copy(), s.resid_lags, s.resid_confidence))
 
 
 def fisher_information(u: np.ndarray, Kp: float, wn_rad_s: float, zeta: float,

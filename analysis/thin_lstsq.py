@@ -12,6 +12,8 @@ QR for condition numbers up to ~1e8), with modified Gram-Schmidt twice as the fa
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 #: OpenBLAS runs ``ddot`` multithreaded above 10000 elements; longer dots use numpy's
@@ -73,8 +75,11 @@ def orthonormalise(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         l2 = np.linalg.cholesky(q1 @ q1.T)
         q = np.linalg.inv(l2) @ q1
         r = (l1 @ l2).T
-        if np.all(np.isfinite(q)) and np.min(np.abs(np.diag(r))) > \
-                1e-7 * np.max(np.abs(np.diag(r))):
+        diag = np.abs(np.diagonal(r))
+        # a finite sum means finite entries (inf and nan propagate); only a sum that
+        # overflowed needs the entries themselves
+        if (math.isfinite(float(q.sum())) or bool(np.isfinite(q).all())) and \
+                float(diag.min()) > 1e-7 * float(diag.max()):
             return q, r
     except np.linalg.LinAlgError:
         pass

@@ -53,3 +53,31 @@ def test_smooth_hold_cancels_triangle_attenuation():
         assert err < 3e-6
     line = 2.0 + 0.1 * np.arange(50)
     assert np.allclose(smooth_hold_input(line), line)
+
+
+@pytest.mark.parametrize("wn, zeta, dt", [(20.0, 0.4, 0.005), (3.0, 2.5, 0.0005),
+                                          (0.5, 0.7, 0.001), (900.0, 0.05, 0.005)])
+def test_coefficient_derivatives_are_central_differences_of_the_array_form(wn, zeta, dt):
+    """The float path (and its cache) gives bit for bit what differencing the public
+    array form gives; the cached arrays cannot be changed by a caller."""
+    import math
+
+    from nmsid.analysis import discretize as d
+    lw, lz = math.log(wn), math.log(zeta)
+    d._foh_derivatives.cache_clear()
+    num, den, dnum, dden = d.foh_coefficients_with_derivatives(lw, lz, dt)
+    n_ref, d_ref = foh_coefficients(math.exp(lw), math.exp(lz), dt)
+    assert np.array_equal(num, n_ref) and np.array_equal(den, d_ref)
+    for j, (p0, p1) in enumerate(((lw, lz), (lw, lz))):
+        step = d._FD_STEP * max(1.0, abs((p0, p1)[j]))
+        hi, lo = [p0, p1], [p0, p1]
+        hi[j] += step
+        lo[j] -= step
+        n_hi, d_hi = foh_coefficients(math.exp(hi[0]), math.exp(hi[1]), dt)
+        n_lo, d_lo = foh_coefficients(math.exp(lo[0]), math.exp(lo[1]), dt)
+        assert np.array_equal(dnum[j], (n_hi - n_lo) / (2 * step))
+        assert np.array_equal(dden[j], (d_hi - d_lo) / (2 * step))
+    again = d.foh_coefficients_with_derivatives(lw, lz, dt)
+    assert all(a is b for a, b in zip(again, (num, den, dnum, dden)))
+    with pytest.raises(ValueError):
+        num[0] = 0.0

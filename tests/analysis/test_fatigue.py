@@ -113,3 +113,19 @@ def test_identify_reports_no_fatigue_without_it(tmp_path):
     assert abs(res.fatigue.loss_pct) < 3.0
     assert not any("fatigue" in p for p in res.problems)
     assert identify_session(path, trial_scatter=False).fatigue is None
+
+
+def test_quantiles_are_computed_once_per_probability_and_dof():
+    import pytest
+
+    from nmsid.analysis import fatigue as fat
+    fat._chi2_ppf.cache_clear()
+    first = fat.chi2_ppf(0.975, 7)
+    assert fat.chi2_ppf(0.975, np.int64(7)) == first          # a numpy dof: the same entry
+    assert fat._chi2_ppf.cache_info().hits == 1
+    assert abs(first - 16.012764) < 1e-5                        # chi2(7) 97.5 % quantile
+    assert fat.t_ppf(0.025, 4) == -fat.t_ppf(0.975, 4)
+    with pytest.raises(ValueError):
+        fat.chi2_ppf(0.5, 0)
+    with pytest.raises(ValueError):
+        fat.t_ppf(0.5, 0)

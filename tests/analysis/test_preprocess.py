@@ -27,6 +27,15 @@ def test_linear_detrend_matches_scipy():
     assert np.allclose(linear_detrend(x), detrend(x, type="linear"), atol=1e-10)
 
 
+def test_linear_detrend_from_a_start_is_the_tail_of_the_whole():
+    """The cache detrends only what its filters see: the same numbers, bit for bit."""
+    x = np.random.default_rng(5).standard_normal(3001).cumsum() + 0.01 * np.arange(3001)
+    whole = linear_detrend(x)
+    for start in (0, 1, 900, 3000):
+        assert np.array_equal(linear_detrend(x, start), whole[start:])
+    assert np.array_equal(linear_detrend(np.array([2.0]), 0), np.array([0.0]))
+
+
 def test_filters_pass_lines_and_kill_mains():
     t = np.arange(20000) / FS
     s = IdentificationSettings()

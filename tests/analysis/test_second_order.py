@@ -93,6 +93,44 @@ def test_jacobian_matches_finite_differences():
         assert np.max(np.abs(num - ev["jp"][j])) < 1e-6 * np.max(np.abs(num))
 
 
+
+def test_jacobian_added_later_is_the_one_computed_at_once():
+    """The search evaluates trial points without the Jacobian and adds it when a point is
+    accepted: bit for bit the Jacobian an evaluation with ``jacobian=True`` gives."""
+    rng = np.random.default_rng(7)
+    v = np.cumsum(rng.standard_normal(500)) * 0.1
+    prob = _Problem(v, rng.standard_normal(500), 0.005, True)
+    p = np.array([math.log(25.0), math.log(0.3)])
+    eager = prob.evaluate(p, jacobian=True)
+    lazy = prob.evaluate(p, jacobian=False)
+    assert "jp" not in lazy and "j_reduced" not in lazy
+    assert prob.jacobian(lazy) is lazy
+    for key in ("jp", "j_reduced", "resid", "coef"):
+        assert np.array_equal(lazy[key], eager[key])
+
+
+def test_residual_tests_run_on_first_use_with_the_fit_s_residual():
+    from nmsid.analysis.residual_tests import residual_tests
+    rng = np.random.default_rng(8)
+    t = np.arange(0, 6, 0.005)
+    u = np.sin(2 * np.pi * (0.5 + 0.8 * t) * t)
+    from scipy.signal import lsim
+    y = lsim(([2.0 * 225.0], [1, 2 * 0.4 * 15.0, 225.0]), u, t)[1] \
+        + 0.3 * rng.standard_normal(len(t))
+    s = IdentificationSettings()
+    fit = fit_second_order(u, y, 200.0, s)
+    assert fit._tests is None                     # not run by the fit itself
+    got = fit.residual_tests
+    want = residual_tests(fit.residual_N, u, s.resid_lags, s.resid_confidence)
+    assert fit.residual_tests is got              # run once
+    assert np.array_equal(got.autocorrelation, want.autocorrelation)
+    assert np.array_equal(got.cross_correlation, want.cross_correlation)
+    assert (got.whiteness_pass, got.independence_pass) == \
+        (want.whiteness_pass, want.independence_pass)
+    u[:] = 0.0                                    # the caller's array is not the fit's
+    assert np.array_equal(fit.residual_tests.cross_correlation, want.cross_correlation)
+
+
 def test_standard_errors_track_the_noise():
     fs = 200.0
     t = np.arange(2000) / fs
