@@ -152,7 +152,8 @@ def open_member(gid, name: str) -> Member:
     oid = h5py.h5o.open(gid, _encoded(name))
     if h5py.h5i.get_type(oid) != h5py.h5i.DATASET:
         return Member(oid, False, None, 0, None)
-    return Member(oid, True, oid.shape, oid.rank, oid.dtype)
+    space = oid.get_space()   # once: DatasetID.shape and .rank would each ask for it
+    return Member(oid, True, space.shape, space.get_simple_extent_ndims(), oid.dtype)
 
 
 def open_group(gid, name: str):

@@ -105,6 +105,7 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
                 else:
                     trials.append(_read_trial(trials_g, name, wanted, attrs, members))
             events = (_read_events(f["events"], snap.events) if "events" in f else [])
+            snap.members.clear()   # their ids closed now: closing the file then has none
         except _DAMAGE_ERRORS as exc:
             raise SessionFileError(path, f"damaged: data cannot be read ({type(exc).__name__}:"
                                          f" {exc}); if it was being written when a program "

@@ -51,6 +51,8 @@ def h5file(tmp_path):
             g.create_dataset("empty", data=np.zeros(0))
             g.create_dataset("i16", data=np.arange(5, dtype=np.int16))
             g["i16"].attrs["scale"] = 0.5
+            g.create_dataset("null", dtype="f8")          # an empty dataspace
+            g.create_dataset("scalar", data=1.0)
             g.create_group("sub")
     with h5py.File(path, "r") as f:
         yield f
@@ -89,6 +91,9 @@ def test_members_and_float64_reads_equal_h5py(h5file):
         want = np.asarray(d[()], dtype=np.float64)
         assert got.dtype == np.float64 and got.shape == want.shape
         assert np.array_equal(got, want)
+    for name in ("null", "scalar"):        # refused by the checks, never read: described
+        m, d = open_member(g.id, name), g[name]
+        assert m.is_dataset and m.shape == d.shape and m.ndim == d.ndim and m.dtype == d.dtype
     sub = open_member(g.id, "sub")
     assert not sub.is_dataset and sub.shown_shape == "a group" and sub.dtype is None
     assert open_group(g.id, "sub") is not None and open_group(g.id, "f64") is None
