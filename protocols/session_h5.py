@@ -163,15 +163,41 @@ def open_group(gid, name: str):
     return oid if h5py.h5i.get_type(oid) == h5py.h5i.GROUP else None
 
 
-def read_float64(member: Member) -> np.ndarray:
+def is_plain_float64(member: Member) -> bool:
+    """True for a non-empty 1-D little-endian float64 dataset (read by
+    :func:`read_float64` straight into a float64 array)."""
+    return bool(member.is_dataset and member.dtype == np.dtype("<f8") and member.ndim == 1
+                and member.shape and member.shape[0] > 0)
+
+
+def float64_buffers(members: list[Member]) -> dict[int, np.ndarray]:
+    """One float64 array for all ``members`` that :func:`is_plain_float64`, cut into a
+    view per member (keyed by ``id(member)``) for :func:`read_float64` to fill.
+
+    One allocation instead of one per dataset: a fresh process's first read of a session
+    otherwise faults in every 4 kB page of ~90 separate arrays (a large numpy array is
+    given transparent huge pages where the system offers them); ~5 ms of a 45-trial
+    session's first read (``bench/bench_identify_io.py``)."""
+    plain = [m for m in members if is_plain_float64(m)]
+    whole = np.empty(sum(m.shape[0] for m in plain if m.shape), np.float64)
+    views: dict[int, np.ndarray] = {}
+    start = 0
+    for m in plain:
+        n = m.shape[0] if m.shape else 0
+        views[id(m)] = whole[start:start + n]
+        start += n
+    return views
+
+
+def read_float64(member: Member, out: np.ndarray | None = None) -> np.ndarray:
     """A dataset's samples as float64, as ``np.asarray(dataset[()], dtype=np.float64)``
     gives them: a 1-D little-endian float64 dataset is read into a preallocated array
-    (its Fletcher-32 checksums verified as by any read), anything else through h5py."""
+    (``out``, of its shape, when given; its Fletcher-32 checksums verified as by any
+    read), anything else through h5py."""
     h5py = _h5py()
-    oid = member.id
-    if member.dtype == np.dtype("<f8") and member.ndim == 1 and member.shape \
-            and member.shape[0] > 0:
-        out = np.empty(member.shape, np.float64)
-        oid.read(h5py.h5s.ALL, h5py.h5s.ALL, out, mtype=_types()["m_f64"])
+    if is_plain_float64(member) and member.shape is not None:
+        if out is None or out.shape != member.shape or out.dtype != np.float64:
+            out = np.empty(member.shape, np.float64)
+        member.id.read(h5py.h5s.ALL, h5py.h5s.ALL, out, mtype=_types()["m_f64"])
         return out
-    return np.asarray(h5py.Dataset(oid, readonly=True)[()], dtype=np.float64)
+    return np.asarray(h5py.Dataset(member.id, readonly=True)[()], dtype=np.float64)

@@ -17,7 +17,7 @@ from nmsid.protocols.session_model import (CALIBRATION_ATTRS, OPTIONAL_SIGNALS, 
                                            TRIAL_STR_ATTRS, _DAMAGE_ERRORS, Calibration, Event,
                                            Session, SessionFileError, Trial, _as_float, _as_str,
                                            _h5py, _trial_names)
-from nmsid.protocols.session_h5 import Member, read_float64
+from nmsid.protocols.session_h5 import Member, float64_buffers, read_float64
 from nmsid.protocols.session_validator import EVENT_ATTRS, AttrSnapshot, _problems
 
 log = logging.getLogger(__name__)
@@ -96,14 +96,19 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
                               if load_data else {})
             trials_g = f["trials"]
             trials = []
-            for name in _trial_names(trials_g):
+            names = _trial_names(trials_g)
+            buffers = float64_buffers([m for n in names for k, m in
+                                       snap.members.get(n, {}).items()
+                                       if k in wanted and k in TRIAL_DATASETS])
+            for name in names:
                 members = snap.members.get(name)
                 attrs = snap.cached(f"/trials/{name}")
                 if members is None or attrs is None:  # the checks open every trial
                     g = trials_g[name]
                     trials.append(_read_trial(g, name, wanted, snap.of(g)))
                 else:
-                    trials.append(_read_trial(trials_g, name, wanted, attrs, members))
+                    trials.append(_read_trial(trials_g, name, wanted, attrs, members,
+                                              buffers))
             events = (_read_events(f["events"], snap.events) if "events" in f else [])
             snap.members.clear()   # their ids closed now: closing the file then has none
         except _DAMAGE_ERRORS as exc:
@@ -148,10 +153,12 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
 
 
 def _read_trial(g, name: str, wanted: set[str], attrs: dict | None = None,
-                members: dict[str, Member] | None = None) -> Trial:
+                members: dict[str, Member] | None = None,
+                buffers: dict[int, np.ndarray] | None = None) -> Trial:
     """One trial; ``attrs``: the group's attributes when read already; ``members``: its
     datasets opened already by the checks (then ``g`` is the ``/trials`` group and the
-    required datasets are read through them, into preallocated arrays)."""
+    required datasets are read through them, into the arrays of ``buffers`` where given,
+    see :func:`nmsid.protocols.session_h5.float64_buffers`)."""
     a = attrs if attrs is not None else g.attrs
     if members is not None and any(k in wanted and k in members for k in OPTIONAL_SIGNALS):
         g = g[name]   # the optional signals are read through h5py (counts, scales)
@@ -162,7 +169,8 @@ def _read_trial(g, name: str, wanted: set[str], attrs: dict | None = None,
         if key not in wanted:
             kw[key] = np.empty(0)
         elif members is not None:
-            kw[key] = read_float64(members[key])
+            m = members[key]
+            kw[key] = read_float64(m, (buffers or {}).get(id(m)))
         else:
             kw[key] = np.asarray(g[key][()], dtype=np.float64)
     for key in OPTIONAL_SIGNALS:
