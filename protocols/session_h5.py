@@ -122,8 +122,9 @@ class Member:
 
     Attributes
     ----------
-    id : h5py ObjectID
-        The open object (a ``DatasetID`` for a dataset).
+    id : h5py ObjectID or None
+        The open object (a ``DatasetID`` for a dataset); None once described only
+        (:meth:`closed`).
     is_dataset : bool
     shape : tuple or None
         A dataset's shape (None for an empty dataspace); None for anything else.
@@ -138,6 +139,10 @@ class Member:
     shape: tuple[int, ...] | None
     ndim: int
     dtype: np.dtype | None
+
+    def closed(self) -> Member:
+        """This description without the open object (which closes when dropped)."""
+        return Member(None, self.is_dataset, self.shape, self.ndim, self.dtype)
 
     @property
     def shown_shape(self) -> object:

@@ -17,7 +17,8 @@ from nmsid.protocols.session_model import (CALIBRATION_ATTRS, OPTIONAL_SIGNALS, 
                                            TRIAL_STR_ATTRS, _DAMAGE_ERRORS, Calibration, Event,
                                            Session, SessionFileError, Trial, _as_float, _as_str,
                                            _h5py, _trial_names)
-from nmsid.protocols.session_h5 import Member, float64_buffers, read_float64
+from nmsid.protocols.session_h5 import (Member, float64_buffers, open_group, open_member,
+                                       read_float64)
 from nmsid.protocols.session_validator import EVENT_ATTRS, AttrSnapshot, _problems
 
 log = logging.getLogger(__name__)
@@ -110,7 +111,6 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
                     trials.append(_read_trial(trials_g, name, wanted, attrs, members,
                                               buffers))
             events = (_read_events(f["events"], snap.events) if "events" in f else [])
-            snap.members.clear()   # their ids closed now: closing the file then has none
         except _DAMAGE_ERRORS as exc:
             raise SessionFileError(path, f"damaged: data cannot be read ({type(exc).__name__}:"
                                          f" {exc}); if it was being written when a program "
@@ -160,8 +160,13 @@ def _read_trial(g, name: str, wanted: set[str], attrs: dict | None = None,
     required datasets are read through them, into the arrays of ``buffers`` where given,
     see :func:`nmsid.protocols.session_h5.float64_buffers`)."""
     a = attrs if attrs is not None else g.attrs
-    if members is not None and any(k in wanted and k in members for k in OPTIONAL_SIGNALS):
-        g = g[name]   # the optional signals are read through h5py (counts, scales)
+    tid = None
+    if members is not None:
+        tid = open_group(g.id, name)
+        if tid is None:   # the checks found a group here, in this same open file
+            raise KeyError(f"/trials/{name} is not a group")
+        if any(k in wanted and k in members for k in OPTIONAL_SIGNALS):
+            g = g[name]   # the optional signals are read through h5py (counts, scales)
     kw: dict[str, Any] = {k: _as_float(a[k]) for k in TRIAL_FLOAT_ATTRS}
     kw.update({k: _as_str(a[k]) for k in TRIAL_STR_ATTRS})
     kw["repeat"] = int(np.asarray(a["repeat"]))
@@ -169,8 +174,8 @@ def _read_trial(g, name: str, wanted: set[str], attrs: dict | None = None,
         if key not in wanted:
             kw[key] = np.empty(0)
         elif members is not None:
-            m = members[key]
-            kw[key] = read_float64(m, (buffers or {}).get(id(m)))
+            m = open_member(tid, key)
+            kw[key] = read_float64(m, (buffers or {}).get(id(members[key])))
         else:
             kw[key] = np.asarray(g[key][()], dtype=np.float64)
     for key in OPTIONAL_SIGNALS:

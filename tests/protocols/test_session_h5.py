@@ -95,6 +95,9 @@ def test_members_and_float64_reads_equal_h5py(h5file):
     for name in ("null", "scalar"):        # refused by the checks, never read: described
         m, d = open_member(g.id, name), g[name]
         assert m.is_dataset and m.shape == d.shape and m.ndim == d.ndim and m.dtype == d.dtype
+    described = open_member(g.id, "f64").closed()       # what the checks keep of a member
+    assert described.id is None and described.shape == (7,) and described.ndim == 1
+    assert described.dtype == np.float64 and described.is_dataset
     sub = open_member(g.id, "sub")
     assert not sub.is_dataset and sub.shown_shape == "a group" and sub.dtype is None
     assert open_group(g.id, "sub") is not None and open_group(g.id, "f64") is None
