@@ -215,7 +215,7 @@ def _validate_trials(g, out: list[str], fatal_only: bool, warn: list[str],
                 continue
             if not np.issubdtype(d.dtype, np.floating):
                 out.append(f"{where}/{key} must be float64, got {d.dtype}")
-            lengths[key] = d.shape[0]
+            lengths[key] = d.shape[0] if d.shape else 0   # a 1-D dataset: always a 1-tuple
         if len(set(lengths.values())) > 1:
             out.append(f"{where} datasets differ in length: "
                        + ", ".join(f"{k}={v}" for k, v in lengths.items())
@@ -226,7 +226,7 @@ def _validate_trials(g, out: list[str], fatal_only: bool, warn: list[str],
                 d = members[key]
                 if not d.is_dataset or d.shape != shape:
                     out.append(f"{where}/{key} must have shape {shape}, got {d.shown_shape}")
-                elif d.dtype.kind not in "iuf":
+                elif d.dtype is None or d.dtype.kind not in "iuf":
                     out.append(f"{where}/{key} must be numeric, got {d.dtype}")
         for key in OPTIONAL_SIGNALS:
             m = members.get(key)
