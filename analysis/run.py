@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 
 from nmsid.analysis.errors import IdentificationError, TwinFileError
-from nmsid.analysis.figures import plot_level_fits, plot_parameter_curves
 from nmsid.analysis.identify import SessionResult, identify_session
 from nmsid.analysis.model_selection import AVERAGE_LABEL, SelectionResult, select_models
 from nmsid.analysis.qc.table import write_qc_csv
@@ -172,6 +171,9 @@ def run_identification(sessions, out_dir: str | os.PathLike,
     files.append(write_text("\n".join(problems) if problems else "no problems",
                             out / "problems.txt"))
     if figures:
+        # imported here: a run without figures (`nmsid identify --no-figures`) never
+        # loads the drawing code
+        from nmsid.analysis.figures import plot_level_fits, plot_parameter_curves
         for label, res in zip(selection.participants, results):
             files.append(plot_level_fits(res, out / f"fit_{_safe_name(label)}.png"))
         for name in PARAMETER_NAMES:

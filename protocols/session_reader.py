@@ -17,6 +17,8 @@ from nmsid.protocols.session_model import (CALIBRATION_ATTRS, OPTIONAL_SIGNALS, 
                                            TRIAL_STR_ATTRS, _DAMAGE_ERRORS, Calibration, Event,
                                            Session, SessionFileError, Trial, _as_float, _as_str,
                                            _h5py, _trial_names)
+from nmsid.protocols.session_h5 import (Member, float64_buffers, open_group, open_member,
+                                       read_float64)
 from nmsid.protocols.session_validator import EVENT_ATTRS, AttrSnapshot, _problems
 
 log = logging.getLogger(__name__)
@@ -95,9 +97,19 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
                               if load_data else {})
             trials_g = f["trials"]
             trials = []
-            for name in _trial_names(trials_g):
-                g = trials_g[name]
-                trials.append(_read_trial(g, name, wanted, snap.of(g)))
+            names = _trial_names(trials_g)
+            buffers = float64_buffers([m for n in names for k, m in
+                                       snap.members.get(n, {}).items()
+                                       if k in wanted and k in TRIAL_DATASETS])
+            for name in names:
+                members = snap.members.get(name)
+                attrs = snap.cached(f"/trials/{name}")
+                if members is None or attrs is None:  # the checks open every trial
+                    g = trials_g[name]
+                    trials.append(_read_trial(g, name, wanted, snap.of(g)))
+                else:
+                    trials.append(_read_trial(trials_g, name, wanted, attrs, members,
+                                              buffers))
             events = (_read_events(f["events"], snap.events) if "events" in f else [])
         except _DAMAGE_ERRORS as exc:
             raise SessionFileError(path, f"damaged: data cannot be read ({type(exc).__name__}:"
@@ -140,17 +152,35 @@ def read_session(path: str | os.PathLike, *, load_data: bool = True,
         )
 
 
-def _read_trial(g, name: str, wanted: set[str], attrs: dict | None = None) -> Trial:
-    """One trial; ``attrs``: the group's attributes when read already."""
+def _read_trial(g, name: str, wanted: set[str], attrs: dict | None = None,
+                members: dict[str, Member] | None = None,
+                buffers: dict[int, np.ndarray] | None = None) -> Trial:
+    """One trial; ``attrs``: the group's attributes when read already; ``members``: its
+    datasets opened already by the checks (then ``g`` is the ``/trials`` group and the
+    required datasets are read through them, into the arrays of ``buffers`` where given,
+    see :func:`nmsid.protocols.session_h5.float64_buffers`)."""
     a = attrs if attrs is not None else g.attrs
+    tid = None
+    if members is not None:
+        tid = open_group(g.id, name)
+        if tid is None:   # the checks found a group here, in this same open file
+            raise KeyError(f"/trials/{name} is not a group")
+        if any(k in wanted and k in members for k in OPTIONAL_SIGNALS):
+            g = g[name]   # the optional signals are read through h5py (counts, scales)
     kw: dict[str, Any] = {k: _as_float(a[k]) for k in TRIAL_FLOAT_ATTRS}
     kw.update({k: _as_str(a[k]) for k in TRIAL_STR_ATTRS})
     kw["repeat"] = int(np.asarray(a["repeat"]))
     for key in TRIAL_DATASETS:
-        kw[key] = (np.asarray(g[key][()], dtype=np.float64) if key in wanted
-                   else np.empty(0))
+        if key not in wanted:
+            kw[key] = np.empty(0)
+        elif members is not None:
+            m = open_member(tid, key)
+            kw[key] = read_float64(m, (buffers or {}).get(id(members[key])))
+        else:
+            kw[key] = np.asarray(g[key][()], dtype=np.float64)
     for key in OPTIONAL_SIGNALS:
-        kw[key] = _read_signal(g[key]) if key in wanted and key in g else None
+        present = key in members if members is not None else key in g
+        kw[key] = _read_signal(g[key]) if key in wanted and present else None
     known = set(TRIAL_FLOAT_ATTRS) | set(TRIAL_STR_ATTRS) | {"repeat"}
     extra = {k: (_as_str(a[k]) if isinstance(a[k], (str, bytes)) else a[k])
              for k in a if k not in known}

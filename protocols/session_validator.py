@@ -19,6 +19,7 @@ from nmsid.protocols.session_checks import (FS_RANGE_Hz, MAX_TRIAL_S, _is_str_at
                                             calibration_findings, is_int_attr, link_problems,
                                             max_current_mA, printable_problem, samples_problems,
                                             trial_attr_findings)
+from nmsid.protocols.session_h5 import Member, has_attr, open_group, open_member, read_attrs
 from nmsid.protocols.session_model import (FORMAT, FORMAT_VERSION, OPTIONAL_SIGNALS,
                                            PARTICIPANT_PATTERN, ROOT_ATTRS, TRIAL_DATASETS,
                                            _DAMAGE_ERRORS, _as_float, _as_str, _h5py,
@@ -69,9 +70,10 @@ def validate_session(path: str | os.PathLike, *, fatal_only: bool = False,
 class AttrSnapshot:
     """Each object's attributes read once, as plain dicts, for one pass over an open file.
 
-    An HDF5 attribute read costs ~25 us (the library's own work: h5py's low-level calls
-    cost the same), and the checks read many attributes several times; the reader then
-    needs them again. The validator fills a snapshot and :func:`read_session` reuses it:
+    An HDF5 attribute read through h5py's high-level API costs ~20 us, and the checks read
+    many attributes several times; the reader then needs them again. The validator fills a
+    snapshot (through :func:`nmsid.protocols.session_h5.read_attrs`, ~3x cheaper per
+    attribute) and :func:`read_session` reuses it, with the trial members the checks opened:
     a 45-trial session's ~1400 attributes are read once instead of ~3400 times.
     """
 
@@ -80,14 +82,23 @@ class AttrSnapshot:
         self.events: dict[str, dict] | None = None
         """Event group name -> its ``utc``/``kind``/``detail`` attributes (those present),
         filled by the events' check."""
+        self.members: dict[str, dict[str, Member]] = {}
+        """Trial name -> the members the structural checks found (``rE``, ...), as
+        described when opened (their ids closed: ``Member.id`` None)."""
 
     def of(self, obj) -> dict:
         """``obj``'s attributes as a dict (read on the first call for ``obj.name``)."""
-        key = obj.name
+        return self.of_id(obj.name, obj.id)
+
+    def cached(self, key: str) -> dict | None:
+        """The attributes of the object at path ``key`` if read already, else None."""
+        return self._attrs.get(key)
+
+    def of_id(self, key: str, oid) -> dict:
+        """The attributes of the low-level object ``oid`` at path ``key`` (read once)."""
         found = self._attrs.get(key)
         if found is None:
-            a = obj.attrs
-            found = self._attrs[key] = {k: a[k] for k in a}
+            found = self._attrs[key] = read_attrs(oid)
         return found
 
 
@@ -170,7 +181,6 @@ def _is_utc(text: str) -> bool:
 
 def _validate_trials(g, out: list[str], fatal_only: bool, warn: list[str],
                      snap: AttrSnapshot) -> None:
-    h5py = _h5py()
     names = _trial_names(g)
     others = [k for k in g if k not in names]
     if others and not fatal_only:
@@ -183,25 +193,29 @@ def _validate_trials(g, out: list[str], fatal_only: bool, warn: list[str],
                        f"{names[:5]}{'...' if len(names) > 5 else ''}")
     for name in names:
         where = f"/trials/{name}"
-        t = g[name]
-        if not isinstance(t, h5py.Group):
+        tid = open_group(g.id, name)
+        if tid is None:
             out.append(f"{where} is not a group")
             continue
-        _validate_trial_attrs(snap.of(t), where, out, fatal_only, warn)
-        members = {k: t.get(k) for k in t if k in _CHECKED}   # each opened once
+        _validate_trial_attrs(snap.of_id(where, tid), where, out, fatal_only, warn)
+        # each member opened once, low-level (h5py's group[name] builds a File object
+        # per call), and closed with this trial: HDF5 then reuses one trial's memory for
+        # the next (holding ~270 datasets open at once cost a fresh process ~7 ms of page
+        # faults); the reader learns their shapes and types from the snapshot
+        members = {k: open_member(tid, k) for k in _group_names(tid) if k in _CHECKED}
+        snap.members[name] = {k: m.closed() for k, m in members.items()}
         lengths = {}
         for key in TRIAL_DATASETS:
             if key not in members:
                 out.append(f"missing required dataset {where}/{key}")
                 continue
             d = members[key]
-            if not isinstance(d, h5py.Dataset) or d.ndim != 1:
-                out.append(f"{where}/{key} must be a 1-D dataset, got "
-                           f"{getattr(d, 'shape', 'a group')}")
+            if not d.is_dataset or d.ndim != 1:
+                out.append(f"{where}/{key} must be a 1-D dataset, got {d.shown_shape}")
                 continue
             if not np.issubdtype(d.dtype, np.floating):
                 out.append(f"{where}/{key} must be float64, got {d.dtype}")
-            lengths[key] = d.shape[0]
+            lengths[key] = d.shape[0] if d.shape else 0   # a 1-D dataset: always a 1-tuple
         if len(set(lengths.values())) > 1:
             out.append(f"{where} datasets differ in length: "
                        + ", ".join(f"{k}={v}" for k, v in lengths.items())
@@ -210,17 +224,21 @@ def _validate_trials(g, out: list[str], fatal_only: bool, warn: list[str],
         for key, shape in (("wrench", (n, 6)), ("sync", (n,))):
             if key in members and n is not None:
                 d = members[key]
-                if not isinstance(d, h5py.Dataset) or d.shape != shape:
-                    out.append(f"{where}/{key} must have shape {shape}, got "
-                               f"{getattr(d, 'shape', 'a group')}")
-                elif d.dtype.kind not in "iuf":
+                if not d.is_dataset or d.shape != shape:
+                    out.append(f"{where}/{key} must have shape {shape}, got {d.shown_shape}")
+                elif d.dtype is None or d.dtype.kind not in "iuf":
                     out.append(f"{where}/{key} must be numeric, got {d.dtype}")
         for key in OPTIONAL_SIGNALS:
-            d = members.get(key)
-            if isinstance(d, h5py.Dataset) and np.issubdtype(d.dtype, np.integer) and \
-                    "scale" not in d.attrs:
+            m = members.get(key)
+            if m is not None and m.is_dataset and np.issubdtype(m.dtype, np.integer) and \
+                    not has_attr(m.id, "scale"):
                 out.append(f"{where}/{key} holds integer counts without a 'scale' attribute "
                            "(value = offset + scale * count)")
+
+
+def _group_names(gid) -> list[str]:
+    """The names in the low-level group ``gid``, as iterating an h5py ``Group`` gives them."""
+    return list(_h5py().Group(gid))
 
 
 def _validate_trial_attrs(a, where: str, out: list[str], fatal_only: bool,
@@ -249,13 +267,12 @@ EVENT_ATTRS = ("utc", "kind", "detail")
 
 
 def _validate_events(g, warn: list[str], snap: AttrSnapshot | None = None) -> None:
-    h5py = _h5py()
     seen: dict[str, dict] = {}
     for key in g:
-        e = g[key]
-        if not isinstance(e, h5py.Group):
+        eid = open_group(g.id, key)
+        if eid is None:
             continue
-        a = e.attrs
+        a = read_attrs(eid, only=EVENT_ATTRS)
         found = seen[key] = {name: a[name] for name in EVENT_ATTRS if name in a}
         for name, value in found.items():
             p = printable_problem(f"/events/{key}", name, value)

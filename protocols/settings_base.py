@@ -15,7 +15,6 @@ import dataclasses
 import functools
 import os
 import re
-import tomllib
 import types
 import typing
 from collections.abc import Callable, Mapping
@@ -319,6 +318,8 @@ def read_toml(path: str | os.PathLike, make_error: ErrorFactory, *, what: str) -
     Exception
         ``make_error(path, "(file)", ...)`` if the file is too big, not UTF-8 or not TOML.
     """
+    import tomllib  # here: most runs read no settings file (`nmsid identify` reads none)
+
     source = str(path)
     if not os.path.isfile(path):
         raise InputFileMissing(f"{source}: no such {what}")

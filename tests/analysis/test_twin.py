@@ -197,3 +197,16 @@ def test_a_malformed_source_entry_is_named(bad):
     doc["source"] = ["ok.h5", bad]
     with pytest.raises(TwinFileError, match=r"source\[1\]"):
         Twin.from_dict(doc)
+
+
+def test_file_sha256_is_the_sha256_of_the_whole_file_across_block_edges(tmp_path):
+    """The hash read block by block (one refilled 1 MB buffer) is that of the bytes."""
+    import hashlib
+
+    from nmsid.analysis.twin import file_sha256
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 1 << 20, (1 << 20) + 5, 3 << 20):
+        data = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+        path = tmp_path / f"f{n}.bin"
+        path.write_bytes(data)
+        assert file_sha256(path) == hashlib.sha256(data).hexdigest()
