@@ -269,3 +269,56 @@ def test_sosfilt_without_its_kernel_runs_the_sections_one_by_one(monkeypatch):
         np.testing.assert_allclose(got, ref, rtol=1e-10, atol=1e-10)
     np.testing.assert_allclose(k.sosfiltfilt(sos, x), ss.sosfiltfilt(sos, x), rtol=1e-10,
                                atol=1e-10)
+
+
+# -- a large zero-phase filter splits its rows between threads ---------------------------
+def test_filter_threads_counts_cores_rows_and_size(monkeypatch):
+    monkeypatch.setattr(k.os, "cpu_count", lambda: 8)
+    assert k.filter_threads(45, 30000) == k.MAX_FILTER_THREADS == 4
+    assert k.filter_threads(3, 100_000) == 3          # at most one per row
+    assert k.filter_threads(1, 10**6) == 1            # one row: nothing to split
+    assert k.filter_threads(45, 4000) == 1            # 180 000 samples: below the threshold
+    assert k.filter_threads(50, 4000) == 4            # 200 000: at it
+    monkeypatch.setattr(k.os, "cpu_count", lambda: None)
+    assert k.filter_threads(45, 30000) == 1           # unknown core count: one thread
+
+
+@pytest.mark.parametrize("cores", [2, 3, 4])
+def test_threaded_sosfiltfilt_is_scipys_bit_for_bit(monkeypatch, cores):
+    import threading
+    import time
+    seen = []
+    real = k._sosfiltfilt_block
+
+    def spy(*args, **kwargs):
+        seen.append(threading.current_thread().name)
+        if seen[-1] == "nmsid-sosfiltfilt":
+            time.sleep(0.05)          # a slow helper: the caller must wait for its share
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(k, "_sosfiltfilt_block", spy)
+    monkeypatch.setattr(k.os, "cpu_count", lambda: cores)
+    monkeypatch.setattr(k, "PARALLEL_MIN_SAMPLES", 1000)
+    x = np.random.default_rng(cores).normal(size=(2, 40, 600))
+    sos = k.butter(4, 20.0, fs=2000.0)
+    y = k.sosfiltfilt(sos, x, axis=-1)
+    assert np.array_equal(y, ss.sosfiltfilt(sos, x, axis=-1))
+    assert len(seen) == cores and seen.count("nmsid-sosfiltfilt") == cores - 1
+    z = k.sosfiltfilt(sos, x, axis=1)                 # rows along another axis
+    assert np.array_equal(z, ss.sosfiltfilt(sos, x, axis=1))
+
+
+def test_an_error_in_a_filter_thread_reaches_the_caller(monkeypatch):
+    real = k._sosfiltfilt_block
+
+    def fails_in_helpers(sos, rows, padlen, out=None):
+        import threading
+        if threading.current_thread().name == "nmsid-sosfiltfilt":
+            raise MemoryError("no room for the padded rows")
+        return real(sos, rows, padlen, out=out)
+
+    monkeypatch.setattr(k, "_sosfiltfilt_block", fails_in_helpers)
+    monkeypatch.setattr(k.os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(k, "PARALLEL_MIN_SAMPLES", 1000)
+    with pytest.raises(MemoryError, match="padded rows"):
+        k.sosfiltfilt(k.butter(2, 20.0, fs=2000.0), np.ones((4, 500)))
