@@ -30,31 +30,22 @@ numpy fallback it replaces on any of these calls.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+for _p in (ROOT, HERE):                          # nmsid; bench/ (cpu_time)
+    if str(_p) not in sys.path:
+        sys.path.insert(0, str(_p))
 
+from cpu_time import cpu_median  # noqa: E402
 from nmsid.analysis import signal_kernels as sk  # noqa: E402
 from nmsid.protocols import lti_kernels as lti  # noqa: E402
 
 
-def _cpu_s(fn, repeats: int) -> float:
-    """Median CPU seconds of ``fn()`` over ``repeats`` calls (one warm-up call first)."""
-    fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.process_time()
-        fn()
-        times.append(time.process_time() - t0)
-    return statistics.median(times)
 
 
 class _Fallback:
@@ -123,16 +114,16 @@ def main(argv: list[str] | None = None) -> None:
         "lfilter_history, 30000 in 200-sample chunks": lambda: _history_chunks(b3, a3, trial,
                                                                                 200),
     }
-    kernel = {k: _cpu_s(fn, r) for k, fn in cases.items()}
+    kernel = {k: cpu_median(fn, r) for k, fn in cases.items()}
     with _Fallback():
-        numpy_s = {k: _cpu_s(fn, r) for k, fn in cases.items()}
+        numpy_s = {k: cpu_median(fn, r) for k, fn in cases.items()}
     import scipy.signal as ss   # last: its import is what the kernel loader avoids
     scipy_cases = {
         "lfilter, 3 x 2000, 2nd order": lambda: ss.lfilter(b2, a2, small),
         "lfilter, 45 x 30000, 3rd order": lambda: ss.lfilter(b3, a3, large),
         "sosfiltfilt, 45 x 30000, Butterworth 4": lambda: ss.sosfiltfilt(sos, large),
     }
-    scipy_s = {k: _cpu_s(fn, r) for k, fn in scipy_cases.items()}
+    scipy_s = {k: cpu_median(fn, r) for k, fn in scipy_cases.items()}
 
     assert lti.sos_kernel_available(), "scipy's compiled _sosfilt could not be loaded here"
     print(f"one filter path: kernel source = {lti.source!r}, sosfilt kernel "
@@ -141,7 +132,7 @@ def main(argv: list[str] | None = None) -> None:
     for k in cases:
         _line(k, kernel[k], numpy_s[k], "numpy")
     with _Sections():
-        sections_s = _cpu_s(cases["sosfiltfilt, 45 x 30000, Butterworth 4"], r)
+        sections_s = cpu_median(cases["sosfiltfilt, 45 x 30000, Butterworth 4"], r)
     print("against the sections one by one through the compiled lfilter (the path before):")
     _line("sosfiltfilt, 45 x 30000, Butterworth 4", kernel["sosfiltfilt, 45 x 30000, "
           "Butterworth 4"], sections_s, "lfilter x sections")

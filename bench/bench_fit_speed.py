@@ -28,17 +28,21 @@ speed item of the fits): levels + repeats + preprocessing <= 60 ms.
 from __future__ import annotations
 
 import argparse
-import statistics
+import os
 import sys
 import tempfile
-import time
 from pathlib import Path
+
+# one BLAS thread, as nmsid identify starts itself (nmsid.cli.limit_blas_threads): its
+# small solves are slower, and cost twice the CPU, with OpenBLAS's thread per core
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 HERE = Path(__file__).resolve().parent
 for _p in (HERE.parent, HERE):
     if str(_p) not in sys.path:
         sys.path.insert(0, str(_p))
 
+from cpu_time import cpu_median  # noqa: E402
 from nmsid.analysis.identify import identify_session  # noqa: E402
 from nmsid.analysis.preprocess import TrialSignals, preprocess_trials  # noqa: E402
 from nmsid.analysis.settings import IdentificationSettings  # noqa: E402
@@ -48,14 +52,6 @@ from nmsid.protocols.session_file import read_session  # noqa: E402
 TARGET_S = 0.060
 
 
-def _cpu_median(fn, runs: int) -> float:
-    fn()                                             # warm-up: caches, first calls
-    times = []
-    for _ in range(runs):
-        t0 = time.process_time()
-        fn()
-        times.append(time.process_time() - t0)
-    return statistics.median(times)
 
 
 def _load() -> str:
@@ -106,10 +102,10 @@ def main(argv: list[str] | None = None) -> None:
         for dd in prepared:
             plain_fit(dd.u, dd.y_N, dd.fs_Hz)
 
-    t_levels = _cpu_median(levels, args.runs)
-    t_whole = _cpu_median(whole, args.runs)
-    t_pre = _cpu_median(preprocessing, args.runs)
-    t_plain = _cpu_median(plain, max(1, args.runs // 3))
+    t_levels = cpu_median(levels, args.runs)
+    t_whole = cpu_median(whole, args.runs)
+    t_pre = cpu_median(preprocessing, args.runs)
+    t_plain = cpu_median(plain, max(1, args.runs // 3))
     load1 = _load()
     fits = t_whole - t_pre
     n_fits = n_level_fits + n_trial_fits

@@ -48,6 +48,7 @@ for _p in (ROOT, HERE):
 import numpy as np  # noqa: E402
 
 from workers import child_env  # noqa: E402
+from cpu_time import cpu_median  # noqa: E402
 from nmsid.analysis.qc import checks, decide, repeats  # noqa: E402
 from nmsid.protocols import lti_kernels as lti  # noqa: E402
 from nmsid.protocols.session_file import read_session  # noqa: E402
@@ -59,14 +60,6 @@ def _arg(name: str, default: str) -> str:
     return sys.argv[sys.argv.index(name) + 1] if name in sys.argv else default
 
 
-def _cpu_s(fn, runs: int) -> float:
-    fn()
-    times = []
-    for _ in range(runs):
-        t0 = time.process_time()
-        fn()
-        times.append(time.process_time() - t0)
-    return statistics.median(times)
 
 
 @contextlib.contextmanager
@@ -150,9 +143,9 @@ def main() -> None:
             path = next(Path(d).glob("B-*.h5"))
         session = read_session(path, datasets=("rE", "force_N"))
     n = sum(t.completed for t in session.trials)
-    ours = _cpu_s(lambda: decide.assess_session(session), runs)
+    ours = cpu_median(lambda: decide.assess_session(session), runs)
     with _former_computations():
-        former = _cpu_s(lambda: decide.assess_session(session), runs)
+        former = cpu_median(lambda: decide.assess_session(session), runs)
         former_verdicts = _verdicts(decide.assess_session(session))
     same = _verdicts(decide.assess_session(session)) == former_verdicts
     stages = _stages(session, runs)
