@@ -180,8 +180,9 @@ def main() -> None:
         start = _process_cpu("import nmsid.cli.identify_command", runs)
         floor = _process_cpu(_FLOOR_IMPORTS, runs)
         empty = _process_cpu("pass", runs)
+        size_MB = session.stat().st_size / 1e6     # inside the block: a made session goes
     load = "n/a" if is_windows() else "{:.2f} / {:.2f}".format(*os.getloadavg()[:2])
-    print(f"nmsid identify around the analysis: {session.stat().st_size / 1e6:.0f} MB session, "
+    print(f"nmsid identify around the analysis: {size_MB:.0f} MB session, "
           f"{n_trials} trials; CPU times (user + sys), medians of {runs}; load average {load}")
     print(f"  read_session(rE, force_N): {ours * 1e3:.0f} ms, x{ours / plain:.2f} plain h5py "
           f"reading of the same {n / 1e6:.1f} M samples and every attribute without checks "
