@@ -42,6 +42,7 @@ for _p in (ROOT, HERE):
         sys.path.insert(0, str(_p))
 
 from workers import child_env  # noqa: E402
+from nmsid.cli import limit_blas_threads  # noqa: E402
 from nmsid.protocols.os_platform import is_windows  # noqa: E402
 
 READ_TARGET_S = 0.05
@@ -89,6 +90,9 @@ def _process_cpu(code: str, runs: int) -> float:
     whose os.times does not count children)."""
     env = child_env()
     env.pop("PYTHONDONTWRITEBYTECODE", None)     # cached bytecode, as an installed copy
+    # one BLAS thread, as nmsid identify starts itself: OpenBLAS's thread per core costs
+    # ~0.1 s of CPU at numpy's import alone, in ours and the floor alike
+    limit_blas_threads(env)
     subprocess.run([sys.executable, "-c", code], check=True, env=env, cwd=ROOT)
     cpus = []
     for _ in range(runs):
@@ -122,6 +126,7 @@ def _first_read_cpu(session: Path, which: str, runs: int) -> float:
     pays: its one read meets a new process's empty allocator and HDF5 free lists)."""
     env = child_env()
     env.pop("PYTHONDONTWRITEBYTECODE", None)
+    limit_blas_threads(env)                      # as nmsid identify starts itself
     out = [float(subprocess.run([sys.executable, "-c", _FIRST_READ, str(session), str(HERE),
                                  which], check=True, env=env, cwd=ROOT, capture_output=True,
                                 text=True).stdout.split()[-1]) for _ in range(runs)]
