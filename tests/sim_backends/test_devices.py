@@ -199,18 +199,24 @@ def test_concurrent_stop_now_calls_while_reading_on_the_fast_clock():
     I_e, I_f = _step_trial(p, n_s=20.0)
     errors = []
     started = threading.Event()
+    first_stop = threading.Event()
 
     def stopper():
         started.wait()
         try:
             for _ in range(50):
                 rig.stimulator.stop_now()
+                first_stop.set()
                 time.sleep(0)
         except Exception as exc:  # stop_now must never raise
             errors.append(exc)
 
     def on_chunk(r, c):
         started.set()
+        # the reader goes on once a stop has been asked: on a fast clock a busy host could
+        # otherwise finish the 20 s trial before any stopper thread ran (no stop at all);
+        # the other calls still race the reads
+        first_stop.wait(10.0)
         return False
     threads = [threading.Thread(target=stopper) for _ in range(3)]
     for th in threads:
