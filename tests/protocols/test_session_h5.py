@@ -134,3 +134,50 @@ def test_float64_buffers_give_each_plain_dataset_its_own_view(h5file):
         assert np.array_equal(arr, np.asarray(g[name][()], dtype=np.float64))
     assert got[0].base is not None and got[0].base is got[1].base is got[4].base
     assert not np.shares_memory(got[0], got[1]) and not np.shares_memory(got[0], got[4])
+
+
+# -- the structural checks and the reader on the low-level path --------------------------
+def _small_session(tmp_path):
+    from nmsid.testing.sessions import write_synthetic_session
+    path = tmp_path / "small.h5"
+    write_synthetic_session(path, seed=3, sE_levels=(0.4, 0.7), repeats=1, steady_s=1.0,
+                            chirp_s=1.0)
+    return path
+
+
+def test_a_trial_that_is_not_a_group_is_named(tmp_path):
+    from nmsid.protocols.session_file import SessionFileError, read_session, validate_session
+    path = _small_session(tmp_path)
+    with h5py.File(path, "a") as f:
+        del f["trials/t001"]
+        f["trials/t001"] = np.zeros(10)
+    assert "/trials/t001 is not a group" in validate_session(path, fatal_only=True)
+    with pytest.raises(SessionFileError, match="/trials/t001 is not a group"):
+        read_session(path)
+
+
+def test_a_required_dataset_that_is_not_float_is_named(tmp_path):
+    """The contract: every required dataset is 1-D float64 (float32 is read as float64;
+    integers are refused: they need a scale, which only the optional signals have)."""
+    from nmsid.protocols.session_file import SessionFileError, read_session, validate_session
+    path = _small_session(tmp_path)
+    with h5py.File(path, "a") as f:
+        n = f["trials/t002/rE"].shape[0]
+        del f["trials/t002/rE"]
+        f["trials/t002/rE"] = np.ones(n, dtype=np.int32)
+    problems = validate_session(path, fatal_only=True)
+    assert "/trials/t002/rE must be float64, got int32" in problems
+    with pytest.raises(SessionFileError, match="/trials/t002/rE must be float64"):
+        read_session(path)
+
+
+def test_a_trial_gone_between_the_checks_and_the_read_is_a_damaged_file(tmp_path,
+                                                                         monkeypatch):
+    """The reader reopens each trial the checks found; if it is no longer a group there
+    (another program changed the file meanwhile) the file is reported damaged, by name."""
+    from nmsid.protocols import session_reader
+    from nmsid.protocols.session_file import SessionFileError
+    path = _small_session(tmp_path)
+    monkeypatch.setattr(session_reader, "open_group", lambda gid, name: None)
+    with pytest.raises(SessionFileError, match="damaged: data cannot be read.*t001"):
+        session_reader.read_session(path)
