@@ -42,7 +42,7 @@ for _p in (HERE.parent, HERE):
     if str(_p) not in sys.path:
         sys.path.insert(0, str(_p))
 
-from cpu_time import cpu_median  # noqa: E402
+from cpu_time import cpu_median, load_1min  # noqa: E402
 from nmsid.analysis.identify import identify_session  # noqa: E402
 from nmsid.analysis.preprocess import TrialSignals, preprocess_trials  # noqa: E402
 from nmsid.analysis.settings import IdentificationSettings  # noqa: E402
@@ -50,15 +50,6 @@ from nmsid.protocols.session_file import read_session  # noqa: E402
 
 #: Levels + repeats + preprocessing, in process, CPU seconds (issue 30's fit item).
 TARGET_S = 0.060
-
-
-
-
-def _load() -> str:
-    try:
-        return Path("/proc/loadavg").read_text(encoding="utf-8").split()[0]
-    except OSError:                                  # Windows, macOS: not available
-        return "n/a"
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -71,7 +62,7 @@ def main(argv: list[str] | None = None) -> None:
     with tempfile.TemporaryDirectory() as d:
         session = read_session(make_session(Path(d)), datasets=("rE", "force_N"))
     s = IdentificationSettings(qc=False)
-    load0 = _load()
+    load0 = load_1min()
     result = identify_session(session, s)
     groups: dict[float, list] = {}
     for tr in session.trials:
@@ -106,7 +97,7 @@ def main(argv: list[str] | None = None) -> None:
     t_whole = cpu_median(whole, args.runs)
     t_pre = cpu_median(preprocessing, args.runs)
     t_plain = cpu_median(plain, max(1, args.runs // 3))
-    load1 = _load()
+    load1 = load_1min()
     fits = t_whole - t_pre
     n_fits = n_level_fits + n_trial_fits
     ours_per_fit = fits / n_fits

@@ -48,7 +48,7 @@ for _p in (ROOT, HERE):
 import numpy as np  # noqa: E402
 
 from workers import child_env  # noqa: E402
-from cpu_time import cpu_median  # noqa: E402
+from cpu_time import cpu_median, load_1min  # noqa: E402
 from nmsid.analysis.qc import checks, decide, repeats  # noqa: E402
 from nmsid.protocols import lti_kernels as lti  # noqa: E402
 from nmsid.protocols.session_file import read_session  # noqa: E402
@@ -120,12 +120,6 @@ def _stages(session, runs: int) -> dict[str, float]:
     return {names[n]: statistics.median(v) for n, v in per.items()}
 
 
-def _load() -> str:
-    """The 1-minute load average, or "n/a" (Windows has none)."""
-    getloadavg = getattr(os, "getloadavg", None)
-    return f"{getloadavg()[0]:.2f}" if getloadavg else "n/a"
-
-
 def _verdicts(qc) -> list:
     return [(v.trial, v.decision, tuple(v.spans), v.level_flag) for v in qc.trials]
 
@@ -151,7 +145,7 @@ def main() -> None:
     stages = _stages(session, runs)
     print(f"assess_session, {n} trials ({path.name if given else 'simulated, B seed 12'}), "
           f"median CPU of {runs} calls, OPENBLAS_NUM_THREADS="
-          f"{os.environ.get('OPENBLAS_NUM_THREADS')}, load {_load()}:")
+          f"{os.environ.get('OPENBLAS_NUM_THREADS')}, load {load_1min()}:")
     verdict = "met" if ours <= TARGET_S else "missed"
     print(f"  QC in process {ours * 1e3:7.1f} ms CPU   the former computations "
           f"{former * 1e3:7.1f} ms: x{former / ours:.2f}; target <= {TARGET_S * 1e3:.0f} ms: "

@@ -1,7 +1,9 @@
-"""CPU time of a call, for the benchmarks that time one stage in process."""
+"""CPU time of a call and the machine's load, for the benchmarks that time one stage in
+process."""
 
 from __future__ import annotations
 
+import os
 import statistics
 import time
 from typing import Callable
@@ -17,3 +19,10 @@ def cpu_median(fn: Callable[[], object], runs: int) -> float:
         fn()
         times.append(time.process_time() - t0)
     return statistics.median(times)
+
+
+def load_1min() -> str:
+    """The 1-minute load average as printed by the benchmarks, or "n/a" (Windows has
+    none: ``os.getloadavg`` does not exist there)."""
+    getloadavg = getattr(os, "getloadavg", None)
+    return f"{getloadavg()[0]:.2f}" if getloadavg else "n/a"
