@@ -110,7 +110,13 @@ def hf_noise_sd(x: np.ndarray, dx: np.ndarray | None = None) -> float:
     (<= 10 Hz at 2 kHz) and 50 Hz pick-up contribute < 2 % of their amplitude to it.
     ``dx``: ``np.diff(x)`` when the caller has it already.
     """
-    d2 = np.diff(np.diff(np.asarray(x, float)) if dx is None else dx)
+    return noise_sd_of_second_difference(
+        np.diff(np.diff(np.asarray(x, float)) if dx is None else dx))
+
+
+def noise_sd_of_second_difference(d2: np.ndarray) -> float:
+    """:func:`hf_noise_sd` from the second difference ``d2`` of the signal (a caller that
+    has it already, or a slice of it for a part of the signal)."""
     return robust_sd(d2) / np.sqrt(6.0)
 
 

@@ -256,7 +256,7 @@ def _single(trial, s: QCSettings, batch: dict | None = None) -> _Work:
         return w
     dx = np.diff(w.force)            # shared by the noise, the resolution and the flat runs
     d2 = np.diff(dx)
-    w.noise_sd = checks.robust_sd(d2) / np.sqrt(6.0)        # checks.hf_noise_sd(w.force)
+    w.noise_sd = checks.noise_sd_of_second_difference(d2)   # checks.hf_noise_sd(w.force)
     for f in checks.flat_runs(w.force, fs, s.stall_min_s, s.clip_min_s, w.noise_sd, dx=dx):
         a, b = f.spans[0]
         if b / fs > start_s:
@@ -267,7 +267,7 @@ def _single(trial, s: QCSettings, batch: dict | None = None) -> _Work:
     lead = range(w.force.size)[int(0.5 * fs):int(start_s * fs)]
     if len(lead) > 0.5 * fs:
         # checks.hf_noise_sd of the lead-in: its second difference is a slice of the trial's
-        w.noise_sd = checks.robust_sd(d2[lead.start:lead.stop - 2]) / np.sqrt(6.0)
+        w.noise_sd = checks.noise_sd_of_second_difference(d2[lead.start:lead.stop - 2])
     if v.decision == USED and w.bridged_s > 0:
         v.decision = REPAIRED
     return w
