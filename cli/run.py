@@ -81,12 +81,12 @@ def register(sub) -> None:
     p.add_argument("--allow-weakened-safety", action="store_true",
                    help="confirm settings that weaken the interlock (a trip_on_* = false, a "
                         "force_limit_N above the sensor's range); recorded in the session")
-    p.add_argument("--track", metavar="CONTROLLER.json",
+    p.add_argument("--track", metavar="CONTROLLER.json", type=input_file,
                    help="run force-tracking trials instead of the identification schedule: "
                         "the controller of nmsid control design against a relay-tuned PID "
                         "baseline, interleaved (docs/control.md); needs a stimulator that "
                         "streams (the simulated one does)")
-    p.add_argument("--target", metavar="FILE.csv",
+    p.add_argument("--target", metavar="FILE.csv", type=input_file,
                    help="with --track: track this target (columns t_s,force_N) instead of "
                         "the default steps, ramp and sines")
     p.add_argument("--no-identify", action="store_true",

@@ -29,6 +29,7 @@ import numpy as np
 from nmsid.drivers.interfaces import (SINE_CARRIER, DeliveryReporting, Describable,
                                       RigDevices, check_deliverable)
 from nmsid.protocols.config import Config, ConfigError, PausePolicy, config_from_json
+from nmsid.protocols.plan import Plan, RigLimits, identification_plan, preflight
 from nmsid.protocols.schedule import (PlannedTrial, TrialStatus, make_schedule, schedule_from_json,
                                       schedule_to_json)
 from nmsid.protocols.waveforms import input_attrs, trial_waveform
@@ -39,7 +40,7 @@ from nmsid.rig.keep_awake import SystemAwake
 from nmsid.rig.observer import (RERUN_WAIT_PREFIX, EngineObserver, RunSummary, TripPolicy,
                                 is_rerun_wait, rerun_wait_reason)
 from nmsid.protocols.session_file import Calibration, Trial, utc_now
-from nmsid.rig.safety import Interlock, check_waveform
+from nmsid.rig.safety import Interlock, check_waveform, effective_ceilings
 from nmsid.rig.session_log import (SessionLog, check_new_session_path, expected_session_bytes,
                                    journal_dir, load_trial_npz)
 from nmsid.rig.states import State, StateMachine
@@ -155,6 +156,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         if self._ran:
             raise RuntimeError("an Engine runs once; make a new one to resume")
         self._ran = True
+        self._preflight()   # every item against the contract and the rig, before any device
         t0 = self.clock.monotonic_s()
         ended_by = "schedule complete"
         journal_removed = False
@@ -162,7 +164,10 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         awake = SystemAwake().__enter__()  # Windows: no sleep mid-session (this thread)
         try:
             self._setup()
+            self._preflight(device_max_mA=self.caps.max_current_mA)
             self._calibrate()
+            # again with this participant's calibration, before the first trial
+            self._preflight(self.calibration, device_max_mA=self.caps.max_current_mA)
             self._run_schedule()
         except (_EndRun, DeviceGlitchEnd) as exc:
             ended_by = str(exc)
@@ -263,6 +268,24 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
             self._event("recovered", self.recovery.summary())
         self.interlock.start_watcher()
 
+    # -- the plan ----------------------------------------------------------------------
+    @property
+    def plan(self) -> Plan:
+        """What this session runs, as data (:mod:`nmsid.protocols.plan`)."""
+        return identification_plan(self.schedule, self.config.protocol,
+                                   source=str(self.config.source or ""))
+
+    def _preflight(self, calibration: Calibration | None = None, *,
+                   device_max_mA: float | None = None) -> None:
+        """:func:`nmsid.protocols.plan.preflight` of the items still to run."""
+        plan = self.plan
+        left = tuple(it for it, pt in zip(plan, self.schedule, strict=True)
+                     if pt.status is not TrialStatus.DONE)
+        if not left:
+            return
+        preflight(Plan(plan.kind, left, plan.source),
+                  RigLimits.of(self.config, device_max_mA), calibration)
+
     @property
     def _open_log(self) -> SessionLog:
         """The session's log (open from :meth:`_setup` on, or from a resume)."""
@@ -307,12 +330,25 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         return run_block(self.devices, self.interlock, checked, n, on_samples=on_samples,
                          should_stop=should_stop, stream=stream)
 
-    def _checked(self, I_ext_mA, I_flex_mA):
-        c = self.config.calibration
+    def _checked(self, I_ext_mA, I_flex_mA, *, calibrated: bool = False):
+        """The waveform checked against the ceilings; ``calibrated``: a trial, also held
+        at or below each channel's calibrated maximum."""
+        ce, cf = self.trial_ceilings_mA() if calibrated else (
+            self.config.calibration.ceiling_ext_mA, self.config.calibration.ceiling_flex_mA)
         return check_waveform(I_ext_mA, I_flex_mA, fs_Hz=self.config.protocol.fs_Hz,
                               carrier_Hz=self.config.protocol.carrier_Hz,
-                              ceiling_ext_mA=c.ceiling_ext_mA, ceiling_flex_mA=c.ceiling_flex_mA,
+                              ceiling_ext_mA=ce, ceiling_flex_mA=cf,
                               device_max_mA=self.caps.max_current_mA)
+
+    def trial_ceilings_mA(self) -> tuple[float, float]:
+        """The most a trial may command per channel: the session's ceiling, the device's
+        range and this participant's calibrated maximum, whichever is lowest."""
+        c, cal = self.config.calibration, self.calibration
+        if cal is None:
+            raise RuntimeError("no trial before the calibration is known")
+        ce, cf = effective_ceilings(c.ceiling_ext_mA, c.ceiling_flex_mA,
+                                    self.caps.max_current_mA)
+        return min(ce, float(cal.Iemax_mA)), min(cf, float(cal.Ifmax_mA))
 
     # -- the schedule --------------------------------------------------------------------
     def _next_trial(self) -> PlannedTrial | None:
@@ -405,7 +441,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         p = self.config.protocol
         wf = trial_waveform(p, planned.sE, self.calibration)
         try:
-            checked = self._checked(wf.I_ext_mA, wf.I_flex_mA)
+            checked = self._checked(wf.I_ext_mA, wf.I_flex_mA, calibrated=True)
         except ValueError as exc:  # CurrentLimitError: never sent
             self.interlock.trip("waveform", str(exc))
             planned.status, planned.reason = TrialStatus.ABORTED, f"waveform refused: {exc}"

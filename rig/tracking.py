@@ -34,6 +34,8 @@ import inspect
 import json
 import logging
 import math
+import os
+import stat
 import time
 from dataclasses import dataclass
 
@@ -47,13 +49,13 @@ from nmsid.analysis.control.controllers import (
     ziegler_nichols_pid,
 )
 from nmsid.analysis.control.design import ControllerDesign
-from nmsid.analysis.control.errors import ControlDesignError
+from nmsid.analysis.control.errors import ControlDesignError, ControllerFileError
 from nmsid.analysis.control.targets import Target, load_target_csv
+from nmsid.protocols.plan import Plan, PlanItem, PlanRefused
 from nmsid.protocols.schedule import PlannedTrial, TrialStatus
 from nmsid.protocols.session_file import Trial, utc_now
 from nmsid.protocols.waveforms import currents_mA
 from nmsid.rig.engine import Engine
-from nmsid.rig.safety import effective_ceilings
 from nmsid.rig.states import State
 
 from nmsid.errors import SafetyError
@@ -68,28 +70,72 @@ class TrackingControllerError(SafetyError):
     """The controller asked for a non-finite stimulation (the interlock trips)."""
 
 
-@dataclass(frozen=True)
-class PlanEntry:
-    """One trial of a tracking session."""
-
-    controller: str
-    """``relay``, ``twin`` or ``baseline``."""
-    target: Target
+MAX_TARGET_BYTES = 1_000_000
+"""A target CSV holds at most 2500 rows: a larger file is refused before it is read."""
 
 
-def tracking_plan(design: ControllerDesign, targets: list[Target] | None = None
-                  ) -> list[PlanEntry]:
-    """Relay first, then per target both controllers, alternating which goes first."""
-    targets = targets if targets is not None else design.targets()
+def target_range_N(target: Target) -> tuple[float, float]:
+    """Lowest and highest force of a target, from its definition (no sampling: a target
+    of any stated duration costs nothing to check)."""
+    p = target.params
+    try:
+        if target.kind == "step":
+            v = [float(x) for x in p["levels_N"]]
+        elif target.kind == "ramp":
+            v = [float(p["low_N"]), float(p["high_N"])]
+        elif target.kind == "sine":
+            m, a = float(p["mean_N"]), abs(float(p["amplitude_N"]))
+            v = [m - a, m + a]
+        elif target.kind == "csv":
+            v = [float(x) for x in p["force_N"]]
+        else:
+            return (math.nan, math.nan)
+    except (KeyError, TypeError, ValueError):
+        return (math.nan, math.nan)
+    return (min(v), max(v)) if v else (math.nan, math.nan)
+
+
+def tracking_plan(design: ControllerDesign, targets: list[Target] | None = None, *,
+                  source: str = "", target_source: str = "") -> Plan:
+    """Relay first, then per target both controllers, alternating which goes first.
+
+    Each item carries its target (``target_json``) and envelope: the design's sE, rE in
+    [0, 1] (the stream clips), the target's duration (lead-in included) and force range.
+    ``source`` (``controller.json``) and ``target_source`` (a target CSV) are named by
+    :func:`~nmsid.protocols.plan.preflight`'s refusals.
+    """
     lo, hi = design.force_range_N
     relay_s = float(design.baseline.get("relay_s", 6.0))
-    plan = [PlanEntry("relay", Target(RELAY_TARGET_NAME, "step",
-                                      {"levels_N": [0.5 * (lo + hi)], "hold_s": relay_s},
-                                      relay_s))]
-    for i, t in enumerate(targets):
+    entries = [("relay", Target(RELAY_TARGET_NAME, "step",
+                                {"levels_N": [0.5 * (lo + hi)], "hold_s": relay_s}, relay_s),
+                source)]
+    given = targets is not None
+    chosen = targets if targets is not None else design.targets()
+    for i, t in enumerate(chosen):
         order = ("twin", "baseline") if i % 2 == 0 else ("baseline", "twin")
-        plan += [PlanEntry(c, t) for c in order]
-    return plan
+        entries += [(c, t, target_source if given and target_source else source)
+                    for c in order]
+    items = tuple(
+        PlanItem(k, "relay" if c == "relay" else "tracking", float(design.sE),
+                 float(t.lead_s) + float(t.duration_s), repeat=k + 1,
+                 target_range_N=target_range_N(t), label=f"{c} tracking {t.name}",
+                 controller=c, source=src, target_json=t.to_json())
+        for k, (c, t, src) in enumerate(entries))
+    return Plan(SESSION_KIND, items, source=source)
+
+
+def check_design(design: ControllerDesign, source: str) -> None:
+    """The controller's numbers the plan items do not carry: its force range.
+
+    Raises
+    ------
+    PlanRefused
+        One line naming the file, the item, the value and what is allowed.
+    """
+    lo, hi = design.force_range_N
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise PlanRefused(f"{source}: force_range_N = [{lo!r}, {hi!r}] must be two finite "
+                          "forces, low < high; nothing was stimulated")
 
 
 @dataclass
@@ -176,7 +222,9 @@ class TrackingStream:
         r = min(max(x, 0.0), 1.0)
         c = self.cal
         Ie, If = currents_mA(r, self.sE, c.Iemin_mA, c.Iemax_mA, c.Ifmin_mA, c.Ifmax_mA)
-        return r, min(float(Ie), self.ceil_e), min(float(If), self.ceil_f)
+        # by construction: never above the stream's ceilings nor the calibrated maxima
+        return (r, min(float(Ie), self.ceil_e, float(c.Iemax_mA)),
+                min(float(If), self.ceil_f, float(c.Ifmax_mA)))
 
     def _write(self, stim, i: int, rE: float) -> None:
         r, Ie, If = self.currents(rE)
@@ -247,10 +295,19 @@ class TrackingEngine(Engine):
         The twin-based controller (``controller.json``).
     targets : list of Target, optional
         Default: the design's (steps, ramp, sines).
+    design_source, target_source : str
+        The files they were read from (named by refusals).
+
+    Raises
+    ------
+    PlanRefused
+        A controller or target outside the contract or the rig's limits (one line, before
+        any device is touched).
     """
 
     def __init__(self, config, devices, session_path, *, design: ControllerDesign,
-                 targets: list[Target] | None = None, **kw):
+                 targets: list[Target] | None = None, design_source: str = "",
+                 target_source: str = "", **kw):
         extra = dict(kw.pop("extra_attrs", None) or {})
         extra.update({"session_kind": SESSION_KIND,
                       "tracking_controller_json": json.dumps(design.to_dict(),
@@ -258,11 +315,15 @@ class TrackingEngine(Engine):
         if kw.get("resume"):
             raise ControlDesignError("a tracking session cannot be resumed; start a new one "
                                      "(its completed trials stay in the file)")
+        source = design_source or "controller.json"
+        check_design(design, source)
+        self._plan = tracking_plan(design, targets, source=source,
+                                   target_source=target_source)
         super().__init__(config, devices, session_path, extra_attrs=extra, **kw)
         self.design = design
-        self.plan = tracking_plan(design, targets)
-        self.schedule = [PlannedTrial(sE=design.sE, index=k, repeat=k + 1)
-                         for k in range(len(self.plan))]
+        self.schedule = [PlannedTrial(sE=it.sE, index=it.index, repeat=it.repeat)
+                         for it in self._plan]
+        self._preflight()   # refused here, before the caller touches a device
         self.pid_gains: PIDGains | None = None
         self.relay_result: RelayResult | None = None
         if not hasattr(devices.stimulator, "open_stream"):
@@ -270,15 +331,17 @@ class TrackingEngine(Engine):
                                      "stimulation (no host-streamed capability); tracking "
                                      "needs it")
 
+    @property
+    def plan(self) -> Plan:
+        return self._plan
+
     # -- one tracking trial -------------------------------------------------------------
     def _stream_ceilings(self) -> tuple[float, float]:
-        c = self.config.calibration
-        ce, cf = effective_ceilings(c.ceiling_ext_mA, c.ceiling_flex_mA,
-                                    self.caps.max_current_mA)
+        ce, cf = self.trial_ceilings_mA()   # ceilings, device range, calibrated maxima
         le, lf = self.design.current_limits_mA(self.calibration)
         return min(ce, le), min(cf, lf)
 
-    def _controller_for(self, entry: PlanEntry):
+    def _controller_for(self, entry: PlanItem):
         d = self.design
         Ts = 1.0 / d.update_Hz
         if entry.controller == "twin":
@@ -297,6 +360,7 @@ class TrackingEngine(Engine):
     def _run_trial(self, planned: PlannedTrial) -> None:
         assert self._log is not None   # opened by the engine's setup, before any trial
         entry = self.plan[planned.index]
+        target = Target.from_json(entry.target_json)
         p = self.config.protocol
         d = self.design
         planned.status, planned.reason = TrialStatus.RUNNING, ""
@@ -307,15 +371,15 @@ class TrackingEngine(Engine):
             planned.status, planned.reason = TrialStatus.ABORTED, str(exc)
             self._event("trial_skipped", f"schedule index {planned.index}: {exc}")
             return
-        target_upd = entry.target.samples(d.update_Hz)
-        stream = TrackingStream(ctrl, target_upd, entry.target.name, d.sE, self.calibration,
+        target_upd = target.samples(d.update_Hz)
+        stream = TrackingStream(ctrl, target_upd, target.name, d.sE, self.calibration,
                                 self._stream_ceilings(), d.update_Hz, p.fs_Hz, d.queue,
                                 self.clock, carrier_Hz=p.carrier_Hz)
         n = stream.n
         started = utc_now()
         attrs = {"schedule_index": planned.index, "attempt": planned.attempts,
                  "trial_kind": "relay" if entry.controller == "relay" else "tracking",
-                 "controller": entry.controller, "target_json": entry.target.to_json()}
+                 "controller": entry.controller, "target_json": target.to_json()}
         if entry.controller == "baseline" and self.pid_gains is not None:
             attrs["pid_json"] = json.dumps(self.pid_gains.to_dict())
         meta = Trial(sE=d.sE, repeat=planned.repeat, fs_Hz=p.fs_Hz, rE=np.empty(0),
@@ -325,7 +389,7 @@ class TrackingEngine(Engine):
                      extra_attrs=attrs)
         self._log.begin_trial(meta)
         self._event("trial_start", f"schedule index {planned.index}: {entry.controller} "
-                                   f"tracking {entry.target.name}, attempt {planned.attempts}")
+                                   f"tracking {target.name}, attempt {planned.attempts}")
         self._notify("on_trial_started", planned.index, planned)
         self._sm.to(State.STIMULATING, f"trial {planned.index}")
 
@@ -367,7 +431,7 @@ class TrackingEngine(Engine):
         self._trials_this_run[planned.index] = trial
         self._event("trial_aborted" if reason else "trial_completed",
                     f"{name}: schedule index {planned.index}, {entry.controller} tracking "
-                    f"{entry.target.name}, {got} samples" + (f"; reason: {reason}" if reason
+                    f"{target.name}, {got} samples" + (f"; reason: {reason}" if reason
                                                              else ""))
         self._notify("on_trial_finished", planned.index, trial)
 
@@ -418,6 +482,29 @@ def tracking_engine(args):
     if getattr(args, "resume", None):
         raise ControlDesignError("--track starts a new tracking session; it cannot be "
                                  "combined with --resume")
+    _check_regular(track, "--track", MAX_TARGET_BYTES)
     design = ControllerDesign.load(track)
-    targets = [load_target_csv(target)] if target is not None else None
-    return functools.partial(TrackingEngine, design=design, targets=targets)
+    targets = None
+    if target is not None:
+        _check_regular(target, "--target", MAX_TARGET_BYTES)
+        targets = [load_target_csv(target)]
+    return functools.partial(TrackingEngine, design=design, targets=targets,
+                             design_source=str(track),
+                             target_source="" if target is None else str(target))
+
+
+def _check_regular(path, option: str, max_bytes: int) -> None:
+    """A file to read whole: a regular file of at most ``max_bytes`` (a FIFO or a device
+    would block the read; a huge file is not a controller or a target)."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return   # the reader names it
+    except OSError as exc:
+        raise ControllerFileError(f"{option} {path}: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise ControllerFileError(f"{option} {path}: not a regular file (a FIFO, a device or "
+                                  "a folder); nothing was read from it")
+    if st.st_size > max_bytes:
+        raise ControllerFileError(f"{option} {path}: {st.st_size} bytes; at most "
+                                  f"{max_bytes} (a controller or a target of 2500 rows)")

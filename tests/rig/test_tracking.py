@@ -48,7 +48,7 @@ def test_plan_tunes_the_baseline_first_then_interleaves():
     assert plan[0].controller == "relay"
     pairs = [(plan[k].controller, plan[k + 1].controller) for k in range(1, len(plan), 2)]
     assert pairs[0] == ("twin", "baseline") and pairs[1] == ("baseline", "twin")
-    assert all(plan[k].target == plan[k + 1].target for k in range(1, len(plan), 2))
+    assert all(plan[k].target_json == plan[k + 1].target_json for k in range(1, len(plan), 2))
 
 
 def test_tracking_session_records_validates_and_the_twin_wins(tmp_path, design):

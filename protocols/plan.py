@@ -1,0 +1,245 @@
+"""Plans: every kind of session as a pure, finite, inspectable sequence of items.
+
+A :class:`Plan` is data: the items a session will run, in order, each with its planned
+output envelope (:class:`PlanItem`: kind, sE, the range of rE it may command, its
+duration, the range of its force target). ``list(plan)`` works without hardware; the
+command line, the GUI and the tests build the same plans (:func:`identification_plan`
+here, ``nmsid.rig.tracking.tracking_plan`` for tracking sessions).
+
+:func:`preflight` holds a plan to the session-file contract and the rig's limits before
+anything stimulates, and again once the participant's calibration is known: every item's
+most current per channel (paper eqs. 1-4 at the item's sE over its rE range) must stay at
+or below that channel's calibrated maximum, the session's ceiling and the device's range.
+A refusal is one line naming the plan's source (a file), the item, the value and what is
+allowed (:class:`PlanRefused`).
+
+Item kinds (:data:`ITEM_KINDS`): ``identification`` and ``reference`` trials (a waveform
+at one sE), ``tracking`` and ``relay`` trials (closed loop: rE streamed by a controller,
+clamped into the item's envelope by the engine), ``dry_run`` trials. Calibration is the
+session's first step (its ramps are bounded by the rig's ceilings, checked here too); a
+re-run is an item run again (its attempt counted by the engine), not a new item.
+
+Examples
+--------
+>>> plan = Plan("identification", (PlanItem(0, "identification", 0.5, 15.0),
+...                                PlanItem(1, "identification", 0.3, 15.0)))
+>>> [it.sE for it in plan]
+[0.5, 0.3]
+>>> plan[0].max_current_mA(Calibration(2.0, 9.5, 1.5, 8.0))
+(5.75, 4.75)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+from nmsid.errors import UserError
+from nmsid.protocols.session_model import Calibration
+
+__all__ = ["ITEM_KINDS", "MAX_ITEM_S", "Plan", "PlanItem", "PlanRefused", "RigLimits",
+           "identification_plan", "preflight"]
+
+ITEM_KINDS = ("identification", "reference", "tracking", "relay", "dry_run")
+"""The kinds of plan item."""
+
+MAX_ITEM_S = 3600.0
+"""The longest item a plan may hold (an hour of stimulation; the protocol's own bound on
+one excitation). A target file with a time of 1e9 s is refused, not allocated."""
+
+_TOL_MA = 1e-9
+
+
+class PlanRefused(UserError):
+    """A plan item outside the contract, the rig's limits or the calibration (one line)."""
+
+
+@dataclass(frozen=True)
+class PlanItem:
+    """One item of a plan and its planned output envelope.
+
+    Parameters
+    ----------
+    index : int
+        Position in the plan (0-based, never changes).
+    kind : str
+        One of :data:`ITEM_KINDS`.
+    sE : float
+        Co-activation, in (0, 1] by the contract (``Imin + sE (Imax - Imin)`` never
+        exceeds a channel's calibrated maximum).
+    duration_s : float
+        Output time, finite, in (0, :data:`MAX_ITEM_S`].
+    repeat : int
+        The repeat number recorded with the trial.
+    rE_range : (float, float)
+        The range of rE the item may command, inside [0, 1].
+    target_range_N : (float, float) or None
+        Lowest and highest force target (closed-loop items).
+    label : str
+        What the item is, for messages (``sE 0.5 repeat 2``, ``twin tracking steps``).
+    controller : str
+        Closed-loop items: ``relay``, ``twin``, ``baseline``.
+    source : str
+        The file the item comes from (a configuration, ``controller.json``, a target CSV),
+        named by refusals.
+    target_json : str
+        Closed-loop items: the target's definition (recorded with the trial).
+    """
+
+    index: int
+    kind: str
+    sE: float
+    duration_s: float
+    repeat: int = 1
+    rE_range: tuple[float, float] = (0.0, 1.0)
+    target_range_N: tuple[float, float] | None = None
+    label: str = ""
+    controller: str = ""
+    source: str = ""
+    target_json: str = ""
+
+    def max_current_mA(self, calibration: Calibration) -> tuple[float, float]:
+        """The most current per channel (extensor, flexor) this item may command with
+        ``calibration``: paper eqs. 1-4 at its sE, extensor at the top of its rE range,
+        flexor at the bottom."""
+        c = calibration
+        lo, hi = self.rE_range
+        return (c.Iemin_mA + hi * self.sE * (c.Iemax_mA - c.Iemin_mA),
+                c.Ifmin_mA + (1.0 - lo) * self.sE * (c.Ifmax_mA - c.Ifmin_mA))
+
+    def __repr__(self) -> str:
+        return (f"PlanItem({self.index}, {self.kind}, sE {self.sE:g}, "
+                f"{self.duration_s:g} s{', ' + self.label if self.label else ''})")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A session's items in order (iterable, indexable, finite)."""
+
+    kind: str
+    """``identification``, ``tracking``, ... (the ``session_kind`` it records)."""
+    items: tuple[PlanItem, ...] = field(default_factory=tuple)
+    source: str = ""
+    """The file the plan was built from (named by refusals)."""
+
+    def __iter__(self) -> Iterator[PlanItem]:
+        return iter(self.items)
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __getitem__(self, k: int) -> PlanItem:
+        return self.items[k]
+
+    @property
+    def duration_s(self) -> float:
+        """Output time of all items (rests not counted)."""
+        return float(sum(it.duration_s for it in self.items))
+
+    def __repr__(self) -> str:
+        return f"Plan({self.kind}, {len(self.items)} items, {self.duration_s:g} s of output)"
+
+
+@dataclass(frozen=True)
+class RigLimits:
+    """What a plan is held to besides the contract.
+
+    Parameters
+    ----------
+    ceiling_ext_mA, ceiling_flex_mA : float
+        The session's ceilings (``[calibration]``).
+    force_limit_N : float
+        The interlock's force limit: a target beyond it would trip it.
+    device_max_mA : float or None
+        The stimulator's range, once connected.
+    """
+
+    ceiling_ext_mA: float
+    ceiling_flex_mA: float
+    force_limit_N: float
+    device_max_mA: float | None = None
+
+    @classmethod
+    def of(cls, config, device_max_mA: float | None = None) -> RigLimits:
+        """The limits of a :class:`~nmsid.protocols.config.Config`."""
+        c = config.calibration
+        return cls(float(c.ceiling_ext_mA), float(c.ceiling_flex_mA),
+                   float(config.interlock.force_limit_N),
+                   None if device_max_mA is None else float(device_max_mA))
+
+
+def _finite(*xs) -> bool:
+    try:
+        return all(math.isfinite(float(x)) for x in xs)
+    except (TypeError, ValueError):
+        return False
+
+
+def item_problem(item: PlanItem, limits: RigLimits,
+                 calibration: Calibration | None = None) -> str | None:
+    """What is wrong with one item (``"sE = 2 is outside (0, 1]"``), or None."""
+    if item.kind not in ITEM_KINDS:
+        return f"kind {item.kind!r} is unknown; valid: {', '.join(ITEM_KINDS)}"
+    if not (_finite(item.sE) and 0.0 < item.sE <= 1.0):
+        return (f"sE = {item.sE!r} is outside (0, 1] (sE = Ie + If; above 1 a channel "
+                "would exceed its calibrated maximum)")
+    lo, hi = item.rE_range
+    if not (_finite(lo, hi) and 0.0 <= lo <= hi <= 1.0):
+        return f"rE range [{lo!r}, {hi!r}] is not inside [0, 1]"
+    if not (_finite(item.duration_s) and 0.0 < item.duration_s <= MAX_ITEM_S):
+        return f"duration {item.duration_s!r} s is outside (0, {MAX_ITEM_S:g}] s"
+    if item.target_range_N is not None:
+        tlo, thi = item.target_range_N
+        lim = limits.force_limit_N
+        if not (_finite(tlo, thi) and -lim <= tlo <= thi <= lim):
+            return (f"force target range [{tlo!r}, {thi!r}] N is not finite within the "
+                    f"interlock's force limit [-{lim:g}, {lim:g}] N")
+    if calibration is not None:
+        Ie, If = item.max_current_mA(calibration)
+        ce, cf = limits.ceiling_ext_mA, limits.ceiling_flex_mA
+        if limits.device_max_mA is not None:
+            ce, cf = min(ce, limits.device_max_mA), min(cf, limits.device_max_mA)
+        for name, value, cal_max, ceiling in (
+                ("extensor", Ie, calibration.Iemax_mA, ce),
+                ("flexor", If, calibration.Ifmax_mA, cf)):
+            allowed = min(cal_max, ceiling)
+            if not (_finite(value) and value <= allowed + _TOL_MA):
+                return (f"{name} current up to {value:.4g} mA is above {allowed:g} mA (the "
+                        f"calibrated maximum {cal_max:g} mA and the ceiling {ceiling:g} mA)")
+    return None
+
+
+def preflight(plan: Plan, limits: RigLimits, calibration: Calibration | None = None) -> None:
+    """Hold every item of ``plan`` to the contract and the rig's limits (and, once known,
+    the participant's calibration). Pure: nothing is touched.
+
+    Raises
+    ------
+    PlanRefused
+        One line: the plan's source, the first bad item, its value and what is allowed.
+    """
+    if len(plan) == 0:
+        raise PlanRefused(f"{plan.source or plan.kind + ' plan'}: the plan has no items")
+    for item in plan:
+        problem = item_problem(item, limits, calibration)
+        if problem is not None:
+            where = item.source or plan.source or f"{plan.kind} plan"
+            what = f"item {item.index}" + (f" ({item.label})" if item.label else "")
+            raise PlanRefused(f"{where}: {what}: {problem}; nothing was stimulated"
+                              if calibration is None else
+                              f"{where}: {what}: {problem}; no trial was run")
+
+
+def identification_plan(schedule, protocol, source: str = "") -> Plan:
+    """The plan of an identification schedule (``PlannedTrial`` list) under ``protocol``
+    (a ``ProtocolConfig``): each trial's rE range is the protocol's
+    ``rE_centre +/- rE_amplitude``; reference trials are ``reference`` items."""
+    lo = max(0.0, protocol.rE_centre - protocol.rE_amplitude)
+    hi = min(1.0, protocol.rE_centre + protocol.rE_amplitude)
+    items = tuple(
+        PlanItem(pt.index, "reference" if pt.reference else "identification", float(pt.sE),
+                 float(protocol.trial_s), repeat=int(pt.repeat), rE_range=(lo, hi),
+                 label=f"sE {pt.sE:g} repeat {pt.repeat}")
+        for pt in schedule)
+    return Plan("identification", items, source=source)
