@@ -48,11 +48,10 @@ def recover_cmd(args) -> int:
 
 def run(args) -> int:
     log = logging.getLogger("nmsid.cli.run_command")
-    if args.resume and (args.config or args.participant or args.seed is not None
-                        or args.participant_model):
+    if args.resume and (args.config or args.participant or args.seed is not None):
         raise UsageError("--resume continues a session with the configuration stored in its "
-                         "file; do not give --config, --participant, --participant-model or "
-                         "--seed with it")
+                         "file; do not give --config, --participant or --seed with it "
+                         "(--participant-model only names its plug-in again)")
     if args.realtime and args.backend != "sim":
         raise UsageError("--realtime applies to --backend sim (hardware is always real time)")
     track = _tracking_engine(args)   # --track / --target: checked before any device
@@ -82,7 +81,8 @@ def run(args) -> int:
                          hw_config=Path(args.hw_config) if args.hw_config else None,
                          sim_seed=args.sim_seed if args.backend == "sim" else None,
                          realtime=bool(args.realtime), stored=stored,
-                         stored_backend=stored_backend)
+                         stored_backend=stored_backend,
+                         participant_model=args.participant_model if args.resume else None)
     if args.backend == "hw" and args.sim_seed is not None:
         log.warning("--sim-seed %s ignored: it applies to --backend sim (the simulated "
                     "participant)", args.sim_seed)

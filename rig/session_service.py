@@ -70,6 +70,11 @@ class RigRequest:
         front end's reading).
     stored_backend : str
         The session's recorded ``backend`` text (resume only).
+    participant_model : str, optional
+        The simulated participant the operator named in this command (``--participant-
+        model``) or in the GUI. A resume of a session whose participant is a plug-in
+        (``package.module:factory``) must name it again, equal to the recorded one: a
+        resume never imports a module its command did not name.
     """
 
     backend: str
@@ -80,6 +85,7 @@ class RigRequest:
     realtime: bool = False
     stored: dict = field(default_factory=dict)
     stored_backend: str = ""
+    participant_model: str | None = None
 
 
 @dataclass
@@ -106,6 +112,11 @@ def stored_session(path) -> tuple[dict, str]:
         return dict(s.attrs), str(s.backend)
     except (ValueError, OSError, AttributeError):
         return {}, ""
+
+
+def is_plugin_spec(model) -> bool:
+    """A lab's plug-in (``package.module:factory``), not one of nmsid's participants."""
+    return ":" in str(model)
 
 
 def seed_from_code(code: str) -> int:
@@ -218,6 +229,16 @@ def check_resume(request: RigRequest, config) -> None:
         if model is not None and str(model) != str(config.participant_model):
             raise ResumeMismatch(f"{path}: its simulated participant is {model!r}, not "
                                  f"{config.participant_model!r}")
+        recorded = str(model if model is not None else config.participant_model)
+        named = request.participant_model
+        if named is not None and str(named) != recorded:
+            raise ResumeMismatch(f"{path}: its simulated participant is {recorded!r}, not "
+                                 f"--participant-model {named!r}")
+        if is_plugin_spec(recorded) and named is None:
+            raise ResumeMismatch(
+                f"{path}: its simulated participant is the plug-in {recorded!r}; a resume "
+                f"imports no module its command does not name: resume with "
+                f"--participant-model {recorded} (nothing was imported)")
         return
     digest = st.get("hw_config_sha256")
     if digest is None:

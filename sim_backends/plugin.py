@@ -18,14 +18,25 @@ The built-in participants speak the same interface through :class:`BuiltinForceM
 ``--participant-model nmsid.sim_backends.plugin:template`` runs the template participant
 through the plug-in path.
 
-The simulated rig simulates ahead and rolls back when the output changes (an E-stop, a
-streamed update): the plug-in's state is saved with :func:`copy.deepcopy`, so a model
-must be deep-copyable (plain Python and numpy state is).
+The rig never copies a plug-in. A model may offer two optional methods::
+
+    model.snapshot() -> state      # everything needed to continue exactly from here
+    model.restore(state)           # return there (a state may be restored more than once)
+
+With them the simulated rig simulates ahead in blocks and rolls back when the output
+changes (an E-stop, a streamed update); without them it runs the model forward only: each
+block of samples is computed when the acquisition hands it out, never ahead, so nothing
+ever needs undoing (slower for small blocks, exact). A model holding a module, a lock, a
+compiled simulator or an FMU instance needs neither method
+(:mod:`nmsid.sim_backends.fmu_participant` is such a plug-in).
+
+A plug-in's exceptions, ``sys.exit`` included, become one
+:class:`ParticipantPluginError` line naming the spec; during a session the acquisition
+fails and the interlock stops the output.
 """
 
 from __future__ import annotations
 
-import copy
 import importlib
 import math
 import sys
@@ -97,10 +108,13 @@ def load_factory(spec: str) -> Callable[..., Any]:
         raise ParticipantPluginError(
             f"--participant-model {spec!r}: module {mod_name!r} not found ({exc.name!r} is "
             f"not importable from the environment or the current directory {cwd})") from None
-    except Exception as exc:  # noqa: BLE001 - the lab's module failed to import: one line
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:  # noqa: BLE001 - the lab's module failed to import (or
+        # called sys.exit at import): one line
         raise ParticipantPluginError(
             f"--participant-model {spec!r}: importing {mod_name!r} failed: "
-            f"{type(exc).__name__}: {exc}") from None
+            f"{_what(exc)}") from None
     finally:
         if added:
             try:
@@ -115,6 +129,13 @@ def load_factory(spec: str) -> Callable[..., Any]:
         raise ParticipantPluginError(f"--participant-model {spec!r}: {fac_name!r} is a "
                                      f"{type(factory).__name__}, not a callable factory")
     return factory
+
+
+def _what(exc: BaseException) -> str:
+    """A plug-in's exception in words (``sys.exit(0)`` is named as such)."""
+    if isinstance(exc, SystemExit):
+        return f"it called sys.exit({exc.code!r})"
+    return f"{type(exc).__name__}: {exc}"
 
 
 def checked_force(spec: str, out: Any, n: int, first_sample: int) -> np.ndarray:
@@ -165,10 +186,13 @@ class PluginParticipant:
         """Call the factory; check the object it returns has ``force_N``."""
         try:
             model = self.factory(int(self.seed), float(fs_Hz))
-        except Exception as exc:  # noqa: BLE001 - the lab's code failed: one line, named
+        except KeyboardInterrupt:
+            raise
+        except BaseException as exc:  # noqa: BLE001 - the lab's code failed or called
+            # sys.exit: one line, named (a plug-in never ends the session's process)
             raise ParticipantPluginError(
                 f"participant plug-in {self.spec!r}: factory(seed={self.seed}, "
-                f"fs_Hz={fs_Hz:g}) failed: {type(exc).__name__}: {exc}") from None
+                f"fs_Hz={fs_Hz:g}) failed: {_what(exc)}") from None
         if not callable(getattr(model, "force_N", None)):
             raise ParticipantPluginError(
                 f"participant plug-in {self.spec!r}: the factory returned a "
@@ -204,12 +228,13 @@ class PluginSimulator:
     def _force(self, I_e: np.ndarray, I_f: np.ndarray) -> np.ndarray:
         try:
             out = self.model.force_N(I_e.copy(), I_f.copy())
-        except ParticipantPluginError:
+        except (ParticipantPluginError, KeyboardInterrupt):
             raise
-        except Exception as exc:  # noqa: BLE001 - the lab's code failed: one line, named
+        except BaseException as exc:  # noqa: BLE001 - the lab's code failed or called
+            # sys.exit: one line, named; the rig's interlock stops the output
             raise ParticipantPluginError(
                 f"participant plug-in {self.p.spec!r}: force_N failed at sample "
-                f"{self.cursor}: {type(exc).__name__}: {exc}") from None
+                f"{self.cursor}: {_what(exc)}") from None
         return checked_force(self.p.spec, out, I_e.size, self.cursor)
 
     def simulate(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray, *,
@@ -234,13 +259,37 @@ class PluginSimulator:
             self.cursor += m
             done += m
 
+    @property
+    def forward_only(self) -> bool:
+        """The model offers no ``snapshot`` / ``restore``: the rig never simulates ahead."""
+        return not (callable(getattr(self.model, "snapshot", None))
+                    and callable(getattr(self.model, "restore", None)))
+
     def snapshot(self) -> tuple:
-        """The whole state (the model deep-copied), to continue exactly from here later."""
-        return (self.cursor, self.stim_samples, copy.deepcopy(self.model))
+        """The whole state (the model's own :meth:`snapshot`; None for a forward-only
+        model, which is never rolled back)."""
+        state = None if self.forward_only else self._call("snapshot")
+        return (self.cursor, self.stim_samples, state)
 
     def restore(self, snap: tuple) -> None:
-        self.cursor, self.stim_samples, model = snap
-        self.model = copy.deepcopy(model)   # the snapshot stays usable for another restore
+        cursor, stim_samples, state = snap
+        if cursor == self.cursor and stim_samples == self.stim_samples:
+            return   # nothing simulated since: nothing to undo
+        if self.forward_only:
+            raise ParticipantPluginError(
+                f"participant plug-in {self.p.spec!r} runs forward only (no snapshot/"
+                "restore) and cannot be rolled back")
+        self._call("restore", state)
+        self.cursor, self.stim_samples = cursor, stim_samples
+
+    def _call(self, name: str, *args):
+        try:
+            return getattr(self.model, name)(*args)
+        except KeyboardInterrupt:
+            raise
+        except BaseException as exc:  # noqa: BLE001 - the lab's code: one line, named
+            raise ParticipantPluginError(f"participant plug-in {self.p.spec!r}: {name}() "
+                                         f"failed: {_what(exc)}") from None
 
     @property
     def cumulative_stim_s(self) -> float:

@@ -404,7 +404,9 @@ class SimWorld:
             self.committed = max(self.committed, min(Na, blk.N1))
             self.invalidate()
         self._advance_to(Na)
-        n = self.block_n
+        # a participant that cannot be rolled back (a plug-in without snapshot/restore)
+        # is simulated only as far as is handed out now: never ahead
+        n = Nb - Na if getattr(self.sim, "forward_only", False) else self.block_n
         if acq.n_samples is not None:
             n = min(n, acq.origin[0] + acq.n_samples - Na)
         n = max(n, Nb - Na)

@@ -60,6 +60,24 @@ def nan(seed, fs_Hz):
 def nothing(seed, fs_Hz):
     return object()
 
+class Restorable(FirstOrder):
+    restores = 0
+    def snapshot(self):
+        return self.y
+    def restore(self, y):
+        self.y = y
+        self.restores += 1
+
+def restorable(seed, fs_Hz):
+    return Restorable(seed, fs_Hz)
+
+def exits(seed, fs_Hz):
+    import sys
+    sys.exit(0)
+
+def raises(seed, fs_Hz):
+    raise RuntimeError("no licence")
+
 not_callable = 3
 """
 
@@ -114,13 +132,15 @@ def test_plugin_force_reaches_the_acquisition_through_the_sensor(lab_dir):
     assert sum(model.calls) == rig.world.sim.cursor
 
 
-def test_rollback_restores_the_plugin_state(lab_dir):
-    """An E-stop mid-block makes the rig roll the model back and replay: same samples."""
-    p = plugin_participant("labmodel_x:make")
+def test_rollback_uses_the_models_own_snapshot_and_never_copies_it(lab_dir):
+    """An E-stop mid-block makes the rig roll the model back and replay: same samples,
+    through the model's own snapshot()/restore() (the rig never deep-copies a plug-in)."""
+    p = plugin_participant("labmodel_x:restorable")
     p = PluginParticipant(p.spec, p.factory, sensor=SensorModel.ideal())
     rig = make_sim_rig(p)
     rig.stimulator.connect()
     sim = rig.world.sim
+    assert not sim.forward_only
     snap = sim.snapshot()
     a = sim.simulate(np.full(50, 4.0), np.zeros(50)).true_force_N
     sim.restore(snap)
@@ -128,6 +148,33 @@ def test_rollback_restores_the_plugin_state(lab_dir):
     sim.restore(snap)
     c = sim.simulate(np.full(50, 4.0), np.zeros(50)).true_force_N
     assert np.array_equal(a, b) and np.array_equal(b, c) and a[-1] > 0
+    assert sim.model.restores == 2
+
+
+def test_a_plugin_without_snapshot_runs_forward_only_and_is_never_copied(lab_dir,
+                                                                         monkeypatch):
+    import copy
+    monkeypatch.setattr(copy, "deepcopy", lambda *a, **k: pytest.fail("deep-copied"))
+    p = plugin_participant("labmodel_x:make")
+    p = PluginParticipant(p.spec, p.factory, sensor=SensorModel.ideal())
+    rig = make_sim_rig(p)
+    rig.stimulator.connect()
+    assert rig.world.sim.forward_only
+    force, _ = run_waveform(rig, waveform(np.full(4000, 3.0), np.full(4000, 1.5)))
+    a = np.exp(-1.0 / (0.05 * 2000.0))
+    assert np.allclose(force, 1.5 * (1 - a ** (np.arange(4000) + 1)), atol=1e-9)
+    # never ahead: the model saw exactly the samples handed out, once each
+    assert sum(rig.world.sim.model.calls) == rig.world.sim.cursor == rig.world.committed
+
+
+@pytest.mark.parametrize("spec, words", [
+    ("labmodel_x:exits", "called sys.exit(0)"),
+    ("labmodel_x:raises", "RuntimeError: no licence"),
+])
+def test_a_factory_that_exits_or_raises_is_one_line(lab_dir, spec, words):
+    with pytest.raises(UserError) as e:
+        plugin_participant(spec)
+    assert words in str(e.value) and spec in str(e.value) and "\n" not in str(e.value)
 
 
 def test_template_through_the_plugin_interface_equals_the_builtin():
