@@ -64,7 +64,9 @@ def register(sub) -> None:
     p.add_argument("--realtime", action="store_true",
                    help="sim: pace the simulation in real time (default: as fast as possible)")
     p.add_argument("--hw-config", metavar="FILE", type=input_file,
-                   help="hw: the rig's hardware configuration")
+                   help="hw: the rig's hardware configuration (refused without --backend "
+                        "hw: a hardware file never runs a simulated session; its "
+                        "acquisition.fs_Hz must equal the protocol's fs_Hz)")
     p.add_argument("--participant-model", metavar="MODEL",
                    help="sim: the virtual participant: the paper's second-order model "
                         "(template, default), MyoSuite's MuJoCo elbow under FES "

@@ -30,7 +30,8 @@ import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from nmsid.drivers.hardware import make_hw_rig
+from nmsid.drivers.hardware import build_devices
+from nmsid.drivers.hw_config import HardwareConfig, load_hw_config
 from nmsid.drivers.interfaces import RigDevices
 from nmsid.protocols.config import Config
 from nmsid.protocols.session_file import read_session
@@ -158,6 +159,12 @@ def prepare_rig(request: RigRequest, config) -> PreparedRig:
     if request.backend == "hw" and request.hw_config is None:
         raise RequestError("--backend hw needs --hw-config FILE (the rig's hardware "
                            "configuration; docs/hardware.md)")
+    if request.backend != "hw" and request.hw_config is not None:
+        # refused, not implied: a hardware file never silently runs a simulated session,
+        # and choosing real stimulation is the operator's explicit act
+        raise RequestError(f"--hw-config {request.hw_config} applies to --backend hw; add "
+                           f"--backend hw to run on that hardware (nothing was run: a "
+                           f"hardware file never runs a simulated session)")
     if request.resume:
         check_resume(request, config)
     attrs: dict = {"rig_backend": request.backend}
@@ -179,8 +186,26 @@ def prepare_rig(request: RigRequest, config) -> PreparedRig:
         devices = make_sim_rig(participant_for_model(config.participant_model, sim_seed),
                                realtime=request.realtime, fs_Hz=config.protocol.fs_Hz)
     else:
-        devices = make_hw_rig(request.hw_config)
+        assert request.hw_config is not None   # refused above otherwise
+        hw = load_hw_config(request.hw_config)
+        check_rates(hw, config)
+        devices = build_devices(hw)
     return PreparedRig(devices=devices, config=config, extra_attrs=attrs, sim_seed=sim_seed)
+
+
+def check_rates(hw: HardwareConfig, config: Config) -> None:
+    """The hardware file's acquisition rate must equal the protocol's (one line).
+
+    Raises
+    ------
+    RequestError
+        Naming both files and both rates.
+    """
+    hw_fs, fs = float(hw.acquisition.fs_Hz), float(config.protocol.fs_Hz)
+    if hw_fs != fs:
+        raise RequestError(f"{hw.source}: acquisition.fs_Hz = {hw_fs:g} but the protocol "
+                           f"({config.source}) has fs_Hz = {fs:g}; they must be equal "
+                           "(set both to the same rate); nothing was run")
 
 
 def _paced(config, request: RigRequest):

@@ -161,3 +161,29 @@ def test_a_hardware_file_with_crlf_line_ends_is_the_same_rig(tmp_path):
     other = tmp_path / "other.toml"
     other.write_bytes(b"[rig]\nfake = false\n")
     assert hw_fingerprint(other)[0] != hw_fingerprint(lf)[0]
+
+
+def test_a_hardware_file_without_backend_hw_is_refused_not_simulated(tmp_path, capsys):
+    """Issue 36: ``--hw-config`` alone used to run a simulated session silently."""
+    cfg = tmp_path / "short.toml"
+    cfg.write_text(SHORT, encoding="utf-8")
+    hw = tmp_path / "hw.toml"
+    hw.write_text(HW, encoding="utf-8")
+    out = tmp_path / "x.h5"
+    _one_line_exit_2(capsys, ["run", "--config", str(cfg), "--hw-config", str(hw), "--out",
+                              str(out), "--no-identify"], "applies to --backend hw",
+                     str(hw))
+    assert not out.exists()
+
+
+def test_the_hardware_files_rate_must_equal_the_protocols(tmp_path, capsys):
+    cfg = tmp_path / "short.toml"
+    cfg.write_text(SHORT, encoding="utf-8")
+    hw = tmp_path / "hw.toml"
+    hw.write_text(HW.replace('kind = "caio"', 'kind = "caio"\nfs_Hz = 1000.0'),
+                  encoding="utf-8")
+    out = tmp_path / "x.h5"
+    _one_line_exit_2(capsys, ["run", "--backend", "hw", "--config", str(cfg), "--hw-config",
+                              str(hw), "--out", str(out), "--no-identify"],
+                     "acquisition.fs_Hz = 1000", "fs_Hz = 2000", "must be equal")
+    assert not out.exists()
