@@ -12,6 +12,7 @@ sooner (bench/bench_session.py).
 from __future__ import annotations
 
 import datetime as dt
+import functools
 import json
 import logging
 import sys
@@ -29,7 +30,8 @@ from nmsid.rig.engine import Engine, TripPolicy
 from nmsid.rig.glitch_prompt import glitch_confirmation
 from nmsid.rig.recovery import check_stored_header
 from nmsid.rig.session_log import journal_dir, recover
-from nmsid.rig.session_service import RigRequest, prepare_rig, seed_from_code
+from nmsid.rig.session_service import (RigRequest, is_plugin_spec, prepare_rig,
+                                       seed_from_code)
 from nmsid.rig.observer import EngineObserver
 from nmsid.rig.session_signals import SessionSignals, exit_code, signal_name
 
@@ -74,9 +76,8 @@ def run(args) -> int:
                                   f"({journal_dir(path)}) is here; continue it with "
                                   f"--resume {path}, or give another --out")
     stored, stored_backend = _stored_attrs(path) if args.resume else ({}, "")
-    if args.resume and stored.get("session_kind") == _tracking_kind():
-        raise UsageError(f"{path}: a tracking session cannot be resumed; start a new one "
-                         "with --track (its completed trials stay in the file)")
+    if args.resume and stored.get("session_kind") == "tracking":   # tracking.SESSION_KIND
+        track = _resumed_tracking(stored, path)   # the recorded controller and targets
     request = RigRequest(backend=args.backend, session_path=path, resume=bool(args.resume),
                          hw_config=Path(args.hw_config) if args.hw_config else None,
                          sim_seed=args.sim_seed if args.backend == "sim" else None,
@@ -148,8 +149,10 @@ def run(args) -> int:
     print(f"{s.path}: {s.n_completed} completed, {s.n_aborted} aborted, {s.n_pending} not run "
           f"({s.ended_by})", flush=True)
     if s.n_pending or s.n_aborted:
-        print(f"  continue with: nmsid run --backend {args.backend} --resume {s.path}",
-              flush=True)
+        plugin = config.participant_model if is_plugin_spec(config.participant_model) \
+            and args.backend == "sim" else None
+        print(f"  continue with: nmsid run --backend {args.backend} --resume {s.path}"
+              + (f" --participant-model {plugin}" if plugin else ""), flush=True)
     if not args.no_identify and s.n_completed and track is None:
         _identify(s.path)
     return run_exit_status(s)
@@ -165,11 +168,12 @@ def _tracking_engine(args):
     return tracking_engine(args)
 
 
-def _tracking_kind() -> str:
-    """The ``session_kind`` attribute of a tracking session (refused by ``--resume``)."""
-    # lazy: only a --resume asks, and the tracking module imports the control design
-    from nmsid.rig.tracking import SESSION_KIND
-    return SESSION_KIND
+def _resumed_tracking(stored: dict, path):
+    """An engine factory continuing a tracking session with the controller and targets
+    recorded in it (data, not code: nothing is imported)."""
+    # lazy: the tracking controller imports the control design (scipy.linalg)
+    from nmsid.rig.tracking import TrackingSession
+    return functools.partial(Engine, session=TrackingSession.from_stored(stored, str(path)))
 
 
 def _print_quietly(text: str) -> None:

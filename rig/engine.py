@@ -29,10 +29,9 @@ import numpy as np
 from nmsid.drivers.interfaces import (SINE_CARRIER, DeliveryReporting, Describable,
                                       RigDevices, check_deliverable)
 from nmsid.protocols.config import Config, ConfigError, PausePolicy, config_from_json
-from nmsid.protocols.plan import Plan, RigLimits, identification_plan, preflight
+from nmsid.protocols.plan import Plan, RigLimits, preflight
 from nmsid.protocols.schedule import (PlannedTrial, TrialStatus, make_schedule, schedule_from_json,
                                       schedule_to_json)
-from nmsid.protocols.waveforms import input_attrs, trial_waveform
 from nmsid.rig.device_recovery import DeviceGlitchEnd, DeviceRecovery
 from nmsid.rig.engine_calibration import CalibrationSteps
 from nmsid.rig.engine_commands import OperatorCommands, _EndRun
@@ -45,6 +44,7 @@ from nmsid.rig.session_log import (SessionLog, check_new_session_path, expected_
                                    journal_dir, load_trial_npz)
 from nmsid.rig.states import State, StateMachine
 from nmsid.rig.stimulation import BlockResult, run_block
+from nmsid.rig.trials import IdentificationSession, SessionKind, TrialNotRun
 
 __all__ = ["Engine", "EngineObserver", "RunSummary", "TripPolicy", "RERUN_WAIT_PREFIX",
            "is_rerun_wait", "rerun_wait_reason"]
@@ -75,6 +75,9 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
     devices : drivers.interfaces.RigDevices
     session_path : path-like
         The HDF5 file to write (must not exist), or to continue with ``resume``.
+    session : rig.trials.SessionKind, optional
+        The kind of session (its plan and how its items run); default the identification
+        schedule (:class:`nmsid.rig.trials.IdentificationSession`).
     resume : bool
         Continue the session in ``session_path``: recover it first if needed, skip its
         completed trials and re-run its aborted ones.
@@ -91,7 +94,10 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
     def __init__(self, config: Config | None, devices: RigDevices, session_path, *,
                  resume: bool = False, observer: EngineObserver | None = None,
                  trip_policy: TripPolicy = TripPolicy.WAIT_FOR_REARM,
-                 extra_attrs: dict | None = None, on_device_glitch=None):
+                 extra_attrs: dict | None = None, on_device_glitch=None,
+                 session: SessionKind | None = None):
+        self.session = session if session is not None else IdentificationSession()
+        self.session.check_devices(devices)
         self.devices = devices
         self.on_device_glitch = on_device_glitch
         self.clock = devices.clock
@@ -99,7 +105,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         self.observer = observer or EngineObserver()
         self.trip_policy = trip_policy
         self.resume_mode = resume
-        self.extra_attrs = dict(extra_attrs or {})
+        self.extra_attrs = {**(extra_attrs or {}), **self.session.root_attrs()}
         self.recovery = None
         self._log: SessionLog | None = None
         self._cmds: queue.SimpleQueue = queue.SimpleQueue()
@@ -128,6 +134,8 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
             self.schedule = schedule_from_json(header["extra_attrs"]["schedule_json"])
             self.calibration = self._log.calibration
             self._restore_statuses()
+            self.session.resume_from(self, [dict(m.get("extra_attrs") or {}) | {
+                "status": m["status"]} for m in self._log.trials])
         else:
             if config is None:
                 raise ValueError("Engine needs a configuration for a new session")
@@ -136,11 +144,12 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
             self.config = config.replace(seed=seed) if config.seed is None else config
             self.seed = seed
             p = self.config.protocol
-            self.schedule = make_schedule(p.sE_levels, p.repeats, p.randomisation, seed,
-                                          reference_sE=p.reference_sE,
-                                          reference_every=p.reference_every)
+            self.schedule = self.session.schedule(self) or make_schedule(
+                p.sE_levels, p.repeats, p.randomisation, seed, reference_sE=p.reference_sE,
+                reference_every=p.reference_every)
         self.interlock = Interlock(self.config.interlock, devices.stimulator,
                                    estop_input=devices.estop, on_trip=self._on_trip)
+        self._preflight()   # a bad plan is refused now, before the caller runs anything
 
     # -- the run -----------------------------------------------------------------------
     def run(self) -> RunSummary:
@@ -272,8 +281,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
     @property
     def plan(self) -> Plan:
         """What this session runs, as data (:mod:`nmsid.protocols.plan`)."""
-        return identification_plan(self.schedule, self.config.protocol,
-                                   source=str(self.config.source or ""))
+        return self.session.plan(self)
 
     def _preflight(self, calibration: Calibration | None = None, *,
                    device_max_mA: float | None = None) -> None:
@@ -438,60 +446,69 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
                 return
 
     def _run_trial(self, planned: PlannedTrial) -> None:
+        """The one trial path of every kind of session: the kind prepares the item (a
+        checked waveform or a stream hook, :mod:`nmsid.rig.trials`); the engine runs it,
+        journals it, writes it and tells the observers."""
         p = self.config.protocol
-        wf = trial_waveform(p, planned.sE, self.calibration)
+        item = self.plan[planned.index]
         try:
-            checked = self._checked(wf.I_ext_mA, wf.I_flex_mA, calibrated=True)
-        except ValueError as exc:  # CurrentLimitError: never sent
-            self.interlock.trip("waveform", str(exc))
-            planned.status, planned.reason = TrialStatus.ABORTED, f"waveform refused: {exc}"
+            run = self.session.prepare(self, item, planned)
+        except TrialNotRun as exc:
+            planned.status, planned.reason = TrialStatus.ABORTED, str(exc)
+            if exc.trip:
+                self.interlock.trip("waveform", exc.trip)
+            else:
+                self._event("trial_skipped", f"schedule index {planned.index}: {exc}")
             return
-        n = checked.n_samples
         planned.status, planned.reason = TrialStatus.RUNNING, ""
         planned.attempts += 1
         started = utc_now()
-        meta = Trial(sE=planned.sE, repeat=planned.repeat, fs_Hz=p.fs_Hz, rE=np.empty(0),
-                     I_ext_mA=np.empty(0), I_flex_mA=np.empty(0), force_N=np.empty(0),
-                     steady_s=p.steady_s, chirp_s=p.chirp_s, chirp_f0_Hz=p.chirp_f0_Hz,
-                     chirp_f1_Hz=p.chirp_f1_Hz, carrier_Hz=p.carrier_Hz, started_utc=started,
-                     extra_attrs={"schedule_index": planned.index,
-                                  "attempt": planned.attempts, **input_attrs(p)})
-        self._open_log.begin_trial(meta)
-        self._event("trial_start", f"schedule index {planned.index}: sE {planned.sE:g}, "
-                                   f"repeat {planned.repeat}, attempt {planned.attempts}")
+        attrs = {"schedule_index": planned.index, "attempt": planned.attempts, **run.attrs}
+
+        def trial(got: int, **kw) -> Trial:
+            return Trial(sE=run.sE, repeat=planned.repeat, fs_Hz=p.fs_Hz,
+                         rE=run.rE[:got].copy(), I_ext_mA=np.array(run.I_ext_mA[:got]),
+                         I_flex_mA=np.array(run.I_flex_mA[:got]), steady_s=p.steady_s,
+                         chirp_s=p.chirp_s, chirp_f0_Hz=p.chirp_f0_Hz,
+                         chirp_f1_Hz=p.chirp_f1_Hz, carrier_Hz=p.carrier_Hz,
+                         started_utc=started, **kw)
+
+        self._open_log.begin_trial(trial(0, force_N=np.empty(0), extra_attrs=attrs))
+        self._event("trial_start", f"schedule index {planned.index}: {run.text}, attempt "
+                                   f"{planned.attempts}")
         self._notify("on_trial_started", planned.index, planned)
         self._sm.to(State.STIMULATING, f"trial {planned.index}")
-        rE, Ie, If = wf.rE, checked.I_ext_mA, checked.I_flex_mA
+        rE, Ie, If = run.rE, run.I_ext_mA, run.I_flex_mA   # a stream fills them as it goes
 
         def on_samples(lo, hi, force_seg, wrench_seg=None, sync_seg=None):
             self._open_log.append_chunk(force_N=force_seg, rE=rE[lo:hi], I_ext_mA=Ie[lo:hi],
-                                   I_flex_mA=If[lo:hi], wrench=wrench_seg, sync=sync_seg)
+                                        I_flex_mA=If[lo:hi], wrench=wrench_seg,
+                                        sync=sync_seg)
             self._notify("on_chunk", planned.index, lo, force_seg, rE[lo:hi], Ie[lo:hi],
                          If[lo:hi])
+            if run.on_chunk is not None:
+                run.on_chunk(lo, hi)
 
-        blk = self._stimulate(checked, n=n, on_samples=on_samples, watch_commands=True)
-        got, force, wrench, sync, reason = (blk.received, blk.force_N, blk.wrench, blk.sync,
-                                            blk.abort_reason)
-        trial = Trial(sE=planned.sE, repeat=planned.repeat, fs_Hz=p.fs_Hz, rE=rE[:got].copy(),
-                      I_ext_mA=np.array(Ie[:got]), I_flex_mA=np.array(If[:got]),
-                      force_N=force[:got], status="aborted" if reason else "completed",
-                      abort_reason=reason, steady_s=p.steady_s, chirp_s=p.chirp_s,
-                      chirp_f0_Hz=p.chirp_f0_Hz, chirp_f1_Hz=p.chirp_f1_Hz,
-                      carrier_Hz=p.carrier_Hz, started_utc=started,
-                      wrench=None if wrench is None else wrench[:got],
-                      sync=None if sync is None else sync[:got],
-                      extra_attrs={**meta.extra_attrs, **self._stimulation_attrs()})
+        blk = self._stimulate(run.checked, n=run.n, on_samples=on_samples,
+                              watch_commands=True, stream=run.stream)
+        got, reason = blk.received, blk.abort_reason
+        attrs.update(self.session.after_trial(self, run, blk, not reason))
+        if run.checked is not None:
+            attrs.update(self._stimulation_attrs())
+        t = trial(got, force_N=blk.force_N[:got], status="aborted" if reason else "completed",
+                  abort_reason=reason, wrench=None if blk.wrench is None else blk.wrench[:got],
+                  sync=None if blk.sync is None else blk.sync[:got], extra_attrs=attrs)
         self._poll()  # log the trip event (if any) before the trial's own event
-        name = self._open_log.end_trial(trial)
+        name = self._open_log.end_trial(t)
+        self.session.trial_written(self, run, blk, not reason)
         planned.status = TrialStatus.ABORTED if reason else TrialStatus.DONE
         planned.reason = reason
-        self._trials_this_run[planned.index] = trial
+        self._trials_this_run[planned.index] = t
         self._event("trial_aborted" if reason else "trial_completed",
-                    f"{name}: schedule index {planned.index}, sE {planned.sE:g}, repeat "
-                    f"{planned.repeat}, {got} samples" + (f"; reason: {reason}" if reason
-                                                          else ""))
-        self._notify("on_trial_finished", planned.index, trial)
-        if not reason:
+                    f"{name}: schedule index {planned.index}, {run.text}, {got} samples"
+                    + (f"; reason: {reason}" if reason else ""))
+        self._notify("on_trial_finished", planned.index, t)
+        if not reason and self.session.reports_levels:
             self._maybe_level_completed(planned.sE)
 
     def _stimulation_attrs(self) -> dict:

@@ -52,11 +52,10 @@ from nmsid.analysis.control.design import ControllerDesign
 from nmsid.analysis.control.errors import ControlDesignError, ControllerFileError
 from nmsid.analysis.control.targets import Target, load_target_csv
 from nmsid.protocols.plan import Plan, PlanItem, PlanRefused
-from nmsid.protocols.schedule import PlannedTrial, TrialStatus
-from nmsid.protocols.session_file import Trial, utc_now
+from nmsid.protocols.schedule import PlannedTrial
 from nmsid.protocols.waveforms import currents_mA
 from nmsid.rig.engine import Engine
-from nmsid.rig.states import State
+from nmsid.rig.trials import SessionKind, TrialNotRun, TrialRun
 
 from nmsid.errors import SafetyError
 
@@ -284,13 +283,12 @@ class TrackingStream:
                            **self.loop.summary()}, separators=(",", ":"))
 
 
-class TrackingEngine(Engine):
-    """An :class:`~nmsid.rig.engine.Engine` whose trials are tracking trials.
+class TrackingSession(SessionKind):
+    """The kind of session of ``nmsid run --track``: its plan (:func:`tracking_plan`) and
+    how one of its items runs on the engine's one trial path (a :class:`TrackingStream`).
 
     Parameters
     ----------
-    config, devices, session_path
-        As :class:`~nmsid.rig.engine.Engine` (new sessions only).
     design : ControllerDesign
         The twin-based controller (``controller.json``).
     targets : list of Target, optional
@@ -301,51 +299,102 @@ class TrackingEngine(Engine):
     Raises
     ------
     PlanRefused
-        A controller or target outside the contract or the rig's limits (one line, before
-        any device is touched).
+        The controller's force range is not two finite forces, low < high.
     """
 
-    def __init__(self, config, devices, session_path, *, design: ControllerDesign,
-                 targets: list[Target] | None = None, design_source: str = "",
-                 target_source: str = "", **kw):
-        extra = dict(kw.pop("extra_attrs", None) or {})
-        extra.update({"session_kind": SESSION_KIND,
-                      "tracking_controller_json": json.dumps(design.to_dict(),
-                                                             separators=(",", ":"))})
-        if kw.get("resume"):
-            raise ControlDesignError("a tracking session cannot be resumed; start a new one "
-                                     "(its completed trials stay in the file)")
+    kind = SESSION_KIND
+    reports_levels = False
+
+    def __init__(self, design: ControllerDesign, targets: list[Target] | None = None, *,
+                 design_source: str = "", target_source: str = ""):
+        self.design = design
+        self.targets = targets
         source = design_source or "controller.json"
         check_design(design, source)
         self._plan = tracking_plan(design, targets, source=source,
                                    target_source=target_source)
-        super().__init__(config, devices, session_path, extra_attrs=extra, **kw)
-        self.design = design
-        self.schedule = [PlannedTrial(sE=it.sE, index=it.index, repeat=it.repeat)
-                         for it in self._plan]
-        self._preflight()   # refused here, before the caller touches a device
         self.pid_gains: PIDGains | None = None
         self.relay_result: RelayResult | None = None
+        self._twin_ctrl = None
+
+    @classmethod
+    def from_stored(cls, attrs: dict, where: str) -> TrackingSession:
+        """The session kind recorded in a session's root attributes (``--resume``): the
+        controller and targets as they were at the start, nothing imported.
+
+        Raises
+        ------
+        ControllerFileError
+            If the recorded controller or targets cannot be read.
+        """
+        try:
+            design = ControllerDesign.from_dict(json.loads(attrs["tracking_controller_json"]),
+                                                f"{where} (recorded controller)")
+            text = attrs.get("tracking_targets_json")
+            targets = None if text in (None, "") else [
+                Target.from_json(t) for t in json.loads(text)]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ControllerFileError(f"{where}: the recorded tracking controller or targets "
+                                      f"cannot be read ({type(exc).__name__}: {exc})"
+                                      ) from None
+        return cls(design, targets, design_source=f"{where} (recorded controller)",
+                   target_source=f"{where} (recorded targets)")
+
+    def plan(self, engine) -> Plan:
+        return self._plan
+
+    def root_attrs(self) -> dict:
+        out = {"session_kind": SESSION_KIND,
+               "tracking_controller_json": json.dumps(self.design.to_dict(),
+                                                      separators=(",", ":"))}
+        if self.targets is not None:   # what a resume rebuilds the plan from
+            out["tracking_targets_json"] = json.dumps([t.to_json() for t in self.targets])
+        return out
+
+    def check_devices(self, devices) -> None:
         if not hasattr(devices.stimulator, "open_stream"):
             raise ControlDesignError(f"the stimulator ({devices.backend}) cannot stream "
                                      "stimulation (no host-streamed capability); tracking "
                                      "needs it")
 
-    @property
-    def plan(self) -> Plan:
-        return self._plan
+    def schedule(self, engine) -> list[PlannedTrial]:
+        return [PlannedTrial(sE=it.sE, index=it.index, repeat=it.repeat)
+                for it in self._plan]
+
+    def resume_from(self, engine, trial_attrs: list[dict]) -> None:
+        """The baseline's gains from the completed relay trial (the twin controller starts
+        afresh: what it learned in the earlier run is not recorded)."""
+        items = self._plan.items
+        if len(engine.schedule) != len(items):
+            raise ControllerFileError(f"{engine.path}: {len(engine.schedule)} trials recorded "
+                                      f"in its schedule, {len(items)} in the recorded "
+                                      "controller's plan; it cannot be resumed")
+        for a in trial_attrs:
+            k = a.get("schedule_index")
+            if k is not None and 0 <= int(k) < len(items) and a.get("target_json") and \
+                    json.loads(a["target_json"]) != json.loads(items[int(k)].target_json):
+                raise ControllerFileError(f"{engine.path}: trial at schedule index {k} "
+                                          "tracked another target than the recorded plan "
+                                          "holds; it cannot be resumed")
+        for a in trial_attrs:
+            if a.get("controller") == "relay" and a.get("status") == "completed" \
+                    and a.get("pid_json"):
+                try:
+                    self.pid_gains = PIDGains(**json.loads(a["pid_json"]))
+                except (TypeError, ValueError):
+                    self.pid_gains = None
 
     # -- one tracking trial -------------------------------------------------------------
-    def _stream_ceilings(self) -> tuple[float, float]:
-        ce, cf = self.trial_ceilings_mA()   # ceilings, device range, calibrated maxima
-        le, lf = self.design.current_limits_mA(self.calibration)
+    def stream_ceilings(self, engine) -> tuple[float, float]:
+        ce, cf = engine.trial_ceilings_mA()   # ceilings, device range, calibrated maxima
+        le, lf = self.design.current_limits_mA(engine.calibration)
         return min(ce, le), min(cf, lf)
 
     def _controller_for(self, entry: PlanItem):
         d = self.design
         Ts = 1.0 / d.update_Hz
         if entry.controller == "twin":
-            if not hasattr(self, "_twin_ctrl"):
+            if self._twin_ctrl is None:
                 self._twin_ctrl = d.make_controller()   # keeps what it learns across trials
             return self._twin_ctrl
         if entry.controller == "relay":
@@ -357,85 +406,47 @@ class TrackingEngine(Engine):
                                      "complete or found no oscillation")
         return PIDController(self.pid_gains, Ts, d.queue)
 
-    def _run_trial(self, planned: PlannedTrial) -> None:
-        assert self._log is not None   # opened by the engine's setup, before any trial
-        entry = self.plan[planned.index]
-        target = Target.from_json(entry.target_json)
-        p = self.config.protocol
-        d = self.design
-        planned.status, planned.reason = TrialStatus.RUNNING, ""
-        planned.attempts += 1
+    def prepare(self, engine, item: PlanItem, planned: PlannedTrial) -> TrialRun:
+        d, p = self.design, engine.config.protocol
         try:
-            ctrl = self._controller_for(entry)
+            ctrl = self._controller_for(item)
         except ControlDesignError as exc:
-            planned.status, planned.reason = TrialStatus.ABORTED, str(exc)
-            self._event("trial_skipped", f"schedule index {planned.index}: {exc}")
-            return
-        target_upd = target.samples(d.update_Hz)
-        stream = TrackingStream(ctrl, target_upd, target.name, d.sE, self.calibration,
-                                self._stream_ceilings(), d.update_Hz, p.fs_Hz, d.queue,
-                                self.clock, carrier_Hz=p.carrier_Hz)
-        n = stream.n
-        started = utc_now()
-        attrs = {"schedule_index": planned.index, "attempt": planned.attempts,
-                 "trial_kind": "relay" if entry.controller == "relay" else "tracking",
-                 "controller": entry.controller, "target_json": target.to_json()}
-        if entry.controller == "baseline" and self.pid_gains is not None:
+            raise TrialNotRun(str(exc)) from None
+        target = Target.from_json(item.target_json)
+        stream = TrackingStream(ctrl, target.samples(d.update_Hz), target.name, d.sE,
+                                engine.calibration, self.stream_ceilings(engine),
+                                d.update_Hz, p.fs_Hz, d.queue, engine.clock,
+                                carrier_Hz=p.carrier_Hz)
+        attrs = {"trial_kind": "relay" if item.controller == "relay" else "tracking",
+                 "controller": item.controller, "target_json": target.to_json()}
+        if item.controller == "baseline" and self.pid_gains is not None:
             attrs["pid_json"] = json.dumps(self.pid_gains.to_dict())
-        meta = Trial(sE=d.sE, repeat=planned.repeat, fs_Hz=p.fs_Hz, rE=np.empty(0),
-                     I_ext_mA=np.empty(0), I_flex_mA=np.empty(0), force_N=np.empty(0),
-                     steady_s=p.steady_s, chirp_s=p.chirp_s, chirp_f0_Hz=p.chirp_f0_Hz,
-                     chirp_f1_Hz=p.chirp_f1_Hz, carrier_Hz=p.carrier_Hz, started_utc=started,
-                     extra_attrs=attrs)
-        self._log.begin_trial(meta)
-        self._event("trial_start", f"schedule index {planned.index}: {entry.controller} "
-                                   f"tracking {target.name}, attempt {planned.attempts}")
-        self._notify("on_trial_started", planned.index, planned)
-        self._sm.to(State.STIMULATING, f"trial {planned.index}")
 
-        def on_samples(lo, hi, force_seg, wrench_seg=None, sync_seg=None):
-            self._log.append_chunk(force_N=force_seg, rE=stream.rE[lo:hi],
-                                   I_ext_mA=stream.I_ext_mA[lo:hi],
-                                   I_flex_mA=stream.I_flex_mA[lo:hi], wrench=wrench_seg,
-                                   sync=sync_seg)
-            self._notify("on_chunk", planned.index, lo, force_seg, stream.rE[lo:hi],
-                         stream.I_ext_mA[lo:hi], stream.I_flex_mA[lo:hi])
+        def on_chunk(lo: int, hi: int) -> None:
             # the target held over each update, at the sample rate (the live plots)
             k0, k1 = lo // stream.spu, -(-hi // stream.spu)
             held = np.repeat(stream.target[k0:k1], stream.spu)
-            self._notify("on_target", planned.index, lo,
-                         held[lo - k0 * stream.spu:hi - k0 * stream.spu])
+            engine._notify("on_target", planned.index, lo,
+                           held[lo - k0 * stream.spu:hi - k0 * stream.spu])
 
-        blk = self._stimulate(None, n=n, on_samples=on_samples, watch_commands=True,
-                              stream=stream)
-        got, reason = blk.received, blk.abort_reason
-        attrs = {**attrs, "stream_json": stream.stream_json()}
-        if entry.controller == "relay" and not reason:
-            attrs.update(self._tune_baseline(blk.force_N[:got], stream))
-        trial = Trial(sE=d.sE, repeat=planned.repeat, fs_Hz=p.fs_Hz,
-                      rE=stream.rE[:got].copy(), I_ext_mA=stream.I_ext_mA[:got].copy(),
-                      I_flex_mA=stream.I_flex_mA[:got].copy(), force_N=blk.force_N[:got],
-                      status="aborted" if reason else "completed", abort_reason=reason,
-                      steady_s=p.steady_s, chirp_s=p.chirp_s, chirp_f0_Hz=p.chirp_f0_Hz,
-                      chirp_f1_Hz=p.chirp_f1_Hz, carrier_Hz=p.carrier_Hz, started_utc=started,
-                      wrench=None if blk.wrench is None else blk.wrench[:got],
-                      sync=None if blk.sync is None else blk.sync[:got], extra_attrs=attrs)
-        self._poll()
-        name = self._log.end_trial(trial)
-        if not reason and entry.controller != "relay":
-            spu = stream.spu
+        return TrialRun(n=stream.n, sE=d.sE, rE=stream.rE, I_ext_mA=stream.I_ext_mA,
+                        I_flex_mA=stream.I_flex_mA, attrs=attrs, stream=stream,
+                        text=f"{item.controller} tracking {target.name}",
+                        on_chunk=on_chunk, state={"controller": ctrl, "item": item})
+
+    def after_trial(self, engine, run: TrialRun, blk, completed: bool) -> dict:
+        out = {"stream_json": run.stream.stream_json()}
+        if run.state["item"].controller == "relay" and completed:
+            out.update(self._tune_baseline(engine, blk.force_N[:blk.received], run.stream))
+        return out
+
+    def trial_written(self, engine, run: TrialRun, blk, completed: bool) -> None:
+        if completed and run.state["item"].controller != "relay":
+            spu, got = run.stream.spu, blk.received
             means = blk.force_N[:got - got % spu].reshape(-1, spu).mean(axis=1)
-            ctrl.finish(means)
-        planned.status = TrialStatus.ABORTED if reason else TrialStatus.DONE
-        planned.reason = reason
-        self._trials_this_run[planned.index] = trial
-        self._event("trial_aborted" if reason else "trial_completed",
-                    f"{name}: schedule index {planned.index}, {entry.controller} tracking "
-                    f"{target.name}, {got} samples" + (f"; reason: {reason}" if reason
-                                                             else ""))
-        self._notify("on_trial_finished", planned.index, trial)
+            run.state["controller"].finish(means)
 
-    def _tune_baseline(self, force_N: np.ndarray, stream: TrackingStream) -> dict:
+    def _tune_baseline(self, engine, force_N: np.ndarray, stream: TrackingStream) -> dict:
         d = self.design
         b = d.baseline
         spu = stream.spu
@@ -446,19 +457,36 @@ class TrackingEngine(Engine):
                                                                        0.15)),
                                  float(b.get("relay_hysteresis_N", 0.05)))
         except ControlDesignError as exc:
-            self._event("baseline_tuning_failed", str(exc))
+            engine._event("baseline_tuning_failed", str(exc))
             return {"relay_json": json.dumps({"error": str(exc)})}
         self.relay_result = res
         gains = self.pid_gains = ziegler_nichols_pid(res)
-        self._event("baseline_tuned", f"relay: Ku {res.ultimate_gain:.4g} rE/N, Tu "
-                                      f"{res.period_s * 1000:.1f} ms -> PID Kc "
-                                      f"{gains.Kc:.4g}, Ti {gains.Ti_s * 1000:.1f} ms, Td "
-                                      f"{gains.Td_s * 1000:.1f} ms")
+        engine._event("baseline_tuned", f"relay: Ku {res.ultimate_gain:.4g} rE/N, Tu "
+                                        f"{res.period_s * 1000:.1f} ms -> PID Kc "
+                                        f"{gains.Kc:.4g}, Ti {gains.Ti_s * 1000:.1f} ms, Td "
+                                        f"{gains.Td_s * 1000:.1f} ms")
         return {"relay_json": json.dumps({"amplitude_N": res.amplitude_N,
                                           "period_s": res.period_s,
                                           "ultimate_gain": res.ultimate_gain,
                                           "n_periods": res.n_periods}),
                 "pid_json": json.dumps(gains.to_dict())}
+
+
+def TrackingEngine(config, devices, session_path, *, design: ControllerDesign,  # noqa: N802
+                   targets: list[Target] | None = None, design_source: str = "",
+                   target_source: str = "", **kw) -> Engine:
+    """The engine of a new tracking session: :class:`~nmsid.rig.engine.Engine` running a
+    :class:`TrackingSession` (no engine subclass: one trial path), its plan checked now.
+
+    Raises
+    ------
+    PlanRefused
+        A controller or target outside the contract or the rig's limits (one line, before
+        any device is touched).
+    """
+    session = TrackingSession(design, targets, design_source=design_source,
+                              target_source=target_source)
+    return Engine(config, devices, session_path, session=session, **kw)
 
 
 def tracking_engine(args):

@@ -139,14 +139,14 @@ def test_no_stream_current_above_its_ceiling_whatever_the_controller_asks(rE, sE
 
 def test_a_nan_from_the_controller_trips_and_stops_output(tmp_path, design, monkeypatch):
     from nmsid.rig import tracking
-    real = tracking.TrackingEngine._controller_for
+    real = tracking.TrackingSession._controller_for
 
     def wild(self, entry):
         if entry.controller == "twin":
             return _Wild([0.6] * 50 + [math.nan])
         return real(self, entry)
 
-    monkeypatch.setattr(tracking.TrackingEngine, "_controller_for", wild)
+    monkeypatch.setattr(tracking.TrackingSession, "_controller_for", wild)
     rig, path, summary = _session(tmp_path, design)
     assert summary.trip is not None and "rE = nan" in summary.trip.detail
     s = read_session(path)

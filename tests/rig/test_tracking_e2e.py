@@ -94,9 +94,9 @@ def test_plugin_participant_end_to_end(lab, capsys):
     assert (lab / "rep" / "figures" / "tracking-target.png").is_file()
     # nothing replaced without --force
     assert main(["control", "report", "track.h5", "--out", "rep"]) == 2
-    # a tracking session is not resumed (its plan is not an identification schedule)
+    # a resume imports no plug-in its command does not name (issue 36)
     assert main(["run", "--backend", "sim", "--resume", "track.h5", "--quiet"]) == 2
-    assert "cannot be resumed" in capsys.readouterr().err
+    assert "--participant-model mylab_elbow:make" in capsys.readouterr().err
 
 
 def test_bad_plugin_and_track_arguments_are_one_line(lab, capsys):

@@ -2,6 +2,7 @@
 every trial reported completed is kept bit for bit, the interrupted one is closed as
 aborted with its tracking attributes, and the file validates."""
 
+import json
 import os
 import re
 import signal
@@ -13,6 +14,7 @@ import numpy as np
 import pytest
 from nmsid.analysis.control.design import design_controller
 from nmsid.analysis.twin import Twin
+from nmsid.cli import main
 from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.rig.session_log import PARTIAL_ABORT_REASON, journal_dir, recover
 from nmsid.sim_backends.participant import default_participant
@@ -57,7 +59,7 @@ def test_sigkill_a_tracking_session_loses_nothing_completed(tmp_path):
     ref = {n: c for n, c in _printed(tmp_path / "ref.txt")}
     assert len(ref) == 3
     rng = np.random.default_rng(28)
-    hit = 0
+    hit = resumed = 0
     for k in range(2):
         path, log = tmp_path / f"k{k}.h5", tmp_path / f"k{k}.txt"
         pid = fork_main(argv(path), log)
@@ -84,5 +86,19 @@ def test_sigkill_a_tracking_session_loses_nothing_completed(tmp_path):
             assert "target_json" in t.extra_attrs
             if not t.completed:
                 assert t.abort_reason == PARTIAL_ABORT_REASON
+        # issue 36: the killed tracking session resumes to completion, its completed
+        # trials kept bit for bit, the recorded controller and targets reused
+        kept = {t.name: t.force_N.copy() for t in s.trials if t.completed}
+        assert main(["run", "--backend", "sim", "--resume", str(path), "--quiet"]) == 0
+        assert validate_session(path) == []
+        s = read_session(path)
+        done = {t.extra_attrs["schedule_index"] for t in s.trials if t.completed}
+        assert done == {0, 1, 2}
+        for t in s.trials:
+            if t.name in kept:
+                assert np.array_equal(t.force_N, kept[t.name])
+        assert [json.loads(t.extra_attrs["target_json"])["name"] for t in s.trials
+                if t.completed and t.extra_attrs["controller"] != "relay"] == ["target"] * 2
+        resumed += 1
         hit += bool(printed)
-    assert hit >= 1
+    assert hit >= 1 and resumed >= 1
