@@ -35,7 +35,7 @@ from nmsid.protocols.session_state import session_state
 from nmsid.rig.journal import (PARTIAL_ABORT_REASON, JournalContents, JournalEntryError,
                                append_event_line, journal_dir, json_default, load_trial_meta,
                                load_trial_npz, partial_trial, read_journal, save_trial_npz,
-                               trial_digest, write_durable)
+                               save_calibration, trial_digest, write_durable)
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +74,9 @@ class RecoveryReport:
     """Names of journal entries whose trial is neither readable there nor in the file."""
     conflicts: list[str] = field(default_factory=list)
     """Positions where the journal and the file hold different trials (both kept)."""
+    calibration_restored: str = ""
+    """A journal ``calibration.npz`` that could not be read: what was wrong, where it was
+    kept aside and that the session file's calibration replaced it (empty otherwise)."""
 
     def summary(self) -> str:
         if self.action == "none":
@@ -93,6 +96,8 @@ class RecoveryReport:
             text += f"; the damaged file was kept as {self.damaged_kept_at}"
         if self.header_rebuilt:
             text += f"; {self.header_rebuilt}"
+        if self.calibration_restored:
+            text += f"; {self.calibration_restored}"
         if self.unreadable:
             text += (f"; {len(self.unreadable)} unreadable journal entr"
                      f"{'y' if len(self.unreadable) == 1 else 'ies'} (kept aside as "
@@ -121,6 +126,19 @@ def read_fully(path: Path):
         return read_session(path), []
     except Exception as exc:  # h5py raises KeyError / OSError / RuntimeError on damage
         return None, [f"data unreadable ({type(exc).__name__}: {exc})"]
+
+
+def _restore_calibration(jdir: Path, error: str, calibration: Calibration) -> str:
+    """The journal's unreadable ``calibration.npz`` kept aside and replaced by the session
+    file's calibration (the published copy of the same values), so a resume continues.
+    Returns the report's words."""
+    damaged = jdir / "calibration.npz"
+    aside = unique_aside(damaged, "damaged")
+    if damaged.exists():
+        rename_retrying(damaged, aside)
+    save_calibration(damaged, calibration)
+    return (f"the journal's calibration.npz could not be read ({error}); kept as "
+            f"{aside.name}, the calibration taken from the session file")
 
 
 def unique_aside(path: Path, tag: str) -> Path:
@@ -289,6 +307,8 @@ def _recover_locked(path: Path) -> RecoveryReport:
                 raise SessionFileError(jdir / "calibration.npz", jc.calibration_error
                                        + "; and the session file has none readable")
             jc.calibration = fs.calibration
+            report.calibration_restored = _restore_calibration(jdir, jc.calibration_error,
+                                                               fs.calibration)
         elif fs.calibration is None or not fs.trials and not _entries(jdir):
             if path.exists() and validate_session(path):
                 invalid_aside = unique_aside(path, "damaged")
