@@ -16,8 +16,9 @@ from nmsid.sim_backends.participant import default_participant
 from nmsid.sim_backends.plugin import plugin_participant
 
 
-def participant_for_model(model: str, seed: int = 0):
-    """The default participant of that model with ``seed``.
+def participant_for_model(model: str, seed: int = 0, fs_Hz: float = 2000.0):
+    """The default participant of that model with ``seed`` (a plug-in is checked at the
+    session's ``fs_Hz``).
 
     Raises
     ------
@@ -29,6 +30,6 @@ def participant_for_model(model: str, seed: int = 0):
     if model == "musculoskeletal":
         return default_msk_participant(seed=int(seed))
     if ":" in str(model):   # a lab's plug-in, package.module:factory
-        return plugin_participant(model, seed=int(seed))
+        return plugin_participant(model, seed=int(seed), fs_Hz=float(fs_Hz))
     raise SimConfigError(f"participant model {model!r} is unknown; valid: "
                          + ", ".join(PARTICIPANT_MODELS))

@@ -59,8 +59,10 @@ QUIET_PIECE_SAMPLES = 4000
 PROBE_FS_HZ = 2000.0
 PROBE_SAMPLES = 64
 PROBE_MAX_MA = 8.0
-"""A spec is checked when it is named: a fresh model is given 64 zero samples, then 64
-samples ramping both channels to 8 mA, and must answer with 64 finite forces each time."""
+"""A spec is checked when it is named, the way the session will run it (at the session's
+sample rate, forward only unless it offers snapshot/restore): a fresh model is given 64
+zero samples, then 64 samples ramping both channels to 8 mA, and must answer with 64
+finite forces each time."""
 
 
 class ParticipantPluginError(SimConfigError):
@@ -296,7 +298,8 @@ class PluginSimulator:
         return self.stim_samples / self.fs_Hz
 
 
-def plugin_participant(spec: str, seed: int = 0, code: str = "PLUGIN") -> PluginParticipant:
+def plugin_participant(spec: str, seed: int = 0, code: str = "PLUGIN",
+                       fs_Hz: float = PROBE_FS_HZ) -> PluginParticipant:
     """The participant a ``package.module:factory`` spec names (its factory checked now).
 
     Raises
@@ -306,10 +309,14 @@ def plugin_participant(spec: str, seed: int = 0, code: str = "PLUGIN") -> Plugin
     """
     participant = PluginParticipant(spec=str(spec), factory=load_factory(spec),
                                     seed=int(seed), code=code)
-    probe = PluginSimulator(participant, PROBE_FS_HZ)   # a throwaway model: fail now, not
+    probe = PluginSimulator(participant, fs_Hz)   # a throwaway model: fail now, not
     ramp = np.linspace(0.0, PROBE_MAX_MA, PROBE_SAMPLES)  # in the middle of a session
     probe.simulate(np.zeros(PROBE_SAMPLES), np.zeros(PROBE_SAMPLES))
+    snap = None if probe.forward_only else probe.snapshot()
     probe.simulate(ramp, ramp)
+    if snap is not None:   # the rig will roll it back: check that it can
+        probe.restore(snap)
+        probe.simulate(ramp, ramp)
     return participant
 
 

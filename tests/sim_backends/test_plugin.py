@@ -194,3 +194,21 @@ def test_config_accepts_a_plugin_and_refuses_a_bad_name():
     assert cfg.participant_model == "lab.models:make"
     with pytest.raises(UserError, match="package.module:factory"):
         load_config(None).replace(participant_model="lab models")
+
+
+def test_the_check_when_named_runs_the_plugin_as_the_session_will(lab_dir, monkeypatch):
+    """At the session's rate, and through its own snapshot/restore when it has them."""
+    monkeypatch.syspath_prepend(str(lab_dir))
+    import labmodel_x
+    seen = []
+    real = labmodel_x.Restorable.restore
+
+    def spy(self, y):
+        seen.append(self.a)
+        return real(self, y)
+    labmodel_x.Restorable.restore = spy
+    try:
+        plugin_participant("labmodel_x:restorable", fs_Hz=500.0)
+    finally:
+        labmodel_x.Restorable.restore = real
+    assert seen == [pytest.approx(np.exp(-1.0 / (0.05 * 500.0)))]
