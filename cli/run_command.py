@@ -33,6 +33,7 @@ from nmsid.rig.session_log import journal_dir, recover
 from nmsid.rig.session_service import (RigRequest, is_plugin_spec, prepare_rig,
                                        seed_from_code)
 from nmsid.rig.observer import EngineObserver
+from nmsid.rig.trials import session_kind_from_stored
 from nmsid.rig.session_signals import SessionSignals, exit_code, signal_name
 
 
@@ -76,8 +77,9 @@ def run(args) -> int:
                                   f"({journal_dir(path)}) is here; continue it with "
                                   f"--resume {path}, or give another --out")
     stored, stored_backend = _stored_attrs(path) if args.resume else ({}, "")
-    if args.resume and stored.get("session_kind") == "tracking":   # tracking.SESSION_KIND
-        track = _resumed_tracking(stored, path)   # the recorded controller and targets
+    kind = session_kind_from_stored(stored, str(path)) if args.resume else None
+    if kind is not None:   # e.g. tracking: its recorded controller and targets, no code
+        track = functools.partial(Engine, session=kind)
     request = RigRequest(backend=args.backend, session_path=path, resume=bool(args.resume),
                          hw_config=Path(args.hw_config) if args.hw_config else None,
                          sim_seed=args.sim_seed if args.backend == "sim" else None,
@@ -166,14 +168,6 @@ def _tracking_engine(args):
     # lazy: the tracking controller imports the control design (scipy.linalg)
     from nmsid.rig.tracking import tracking_engine
     return tracking_engine(args)
-
-
-def _resumed_tracking(stored: dict, path):
-    """An engine factory continuing a tracking session with the controller and targets
-    recorded in it (data, not code: nothing is imported)."""
-    # lazy: the tracking controller imports the control design (scipy.linalg)
-    from nmsid.rig.tracking import TrackingSession
-    return functools.partial(Engine, session=TrackingSession.from_stored(stored, str(path)))
 
 
 def _print_quietly(text: str) -> None:

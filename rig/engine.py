@@ -173,7 +173,6 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         awake = SystemAwake().__enter__()  # Windows: no sleep mid-session (this thread)
         try:
             self._setup()
-            self._preflight(device_max_mA=self.caps.max_current_mA)
             self._calibrate()
             # again with this participant's calibration, before the first trial
             self._preflight(self.calibration, device_max_mA=self.caps.max_current_mA)

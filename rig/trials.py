@@ -16,12 +16,14 @@ session") shows how to add one.
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from nmsid.errors import UserError
 from nmsid.protocols.plan import Plan, PlanItem, identification_plan
 from nmsid.protocols.waveforms import input_attrs, trial_waveform
 
@@ -138,3 +140,30 @@ class IdentificationSession(SessionKind):
                         I_ext_mA=checked.I_ext_mA, I_flex_mA=checked.I_flex_mA,
                         attrs=dict(input_attrs(p)), checked=checked,
                         text=f"sE {planned.sE:g}, repeat {planned.repeat}")
+
+
+SESSION_KINDS = {"tracking": ("nmsid.rig.tracking", "TrackingSession")}
+"""The kinds of session besides identification, by their recorded ``session_kind``: the
+module and class whose ``from_stored(attrs, where)`` rebuilds it on ``--resume``. A fixed
+table of nmsid's own modules (a session file names a kind, never code), each imported only
+when a session of its kind is resumed (the tracking kind loads the control design)."""
+
+
+def session_kind_from_stored(attrs: dict, where: str) -> SessionKind | None:
+    """The kind a session recorded (None: identification), rebuilt from its root
+    attributes for ``--resume``.
+
+    Raises
+    ------
+    UserError
+        An unknown ``session_kind``, or recorded attributes its kind cannot read.
+    """
+    kind = attrs.get("session_kind")
+    if kind in (None, "", "identification"):
+        return None
+    entry = SESSION_KINDS.get(str(kind))
+    if entry is None:
+        raise UserError(f"{where}: session_kind {kind!r} is not one this nmsid can resume "
+                        f"(known: identification, {', '.join(SESSION_KINDS)})")
+    module = importlib.import_module(entry[0])   # from the fixed table above only
+    return getattr(module, entry[1]).from_stored(attrs, where)
