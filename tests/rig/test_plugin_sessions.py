@@ -198,3 +198,60 @@ def test_a_resume_imports_only_the_plugin_its_command_names(lab, capsys):
     assert (lab / "imported").exists()
     s = read_session("r.h5")
     assert sum(t.completed for t in s.trials) == 2 and validate_session("r.h5") == []
+
+
+@pytest.mark.parametrize("factory", ["make_with_module", "make_with_lock"])
+def test_non_copyable_plugins_run_calibration_identify_design_and_tracking(
+        tmp_path, monkeypatch, factory):
+    """The whole chain of tests/rig/test_tracking_e2e.py with a plug-in that holds a module
+    handle or a lock (neither can be deep-copied): ramps, an identification session,
+    identify, control design, a tracking session (streamed updates, forward only)."""
+    from tests.rig.test_tracking_e2e import CONFIG as E2E_CONFIG
+    from tests.rig.test_tracking_e2e import LAB_PARTICIPANT
+    extra = '''
+
+import threading
+
+
+class ElbowWithModule(Elbow):
+    def __init__(self, seed, fs_Hz):
+        super().__init__(seed, fs_Hz)
+        self.np = np
+
+
+class ElbowWithLock(Elbow):
+    def __init__(self, seed, fs_Hz):
+        super().__init__(seed, fs_Hz)
+        self.lock = threading.Lock()
+
+    def force_N(self, I_ext_mA, I_flex_mA):
+        with self.lock:
+            return super().force_N(I_ext_mA, I_flex_mA)
+
+
+def make_with_module(seed, fs_Hz):
+    return ElbowWithModule(seed, fs_Hz)
+
+
+def make_with_lock(seed, fs_Hz):
+    return ElbowWithLock(seed, fs_Hz)
+'''
+    (tmp_path / "lab_noncopy.py").write_text(textwrap.dedent(LAB_PARTICIPANT) + extra,
+                                             encoding="utf-8")
+    (tmp_path / "short.toml").write_text(E2E_CONFIG, encoding="utf-8")
+    monkeypatch.chdir(tmp_path)
+    try:
+        sim = ["--backend", "sim", "--participant-model", f"lab_noncopy:{factory}",
+               "--config", "short.toml", "--quiet"]
+        assert main(["run", *sim, "--out", "id.h5", "--no-identify"]) == 0
+        s = read_session("id.h5", load_data=False)
+        assert s.calibration.Iemin_mA > 0 and len(s.trials) == 5
+        assert main(["identify", "id.h5", "--out", "ana", "--no-figures"]) == 0
+        assert main(["control", "design", "ana/twin.json", "--out", "ctl"]) == 0
+        assert main(["run", *sim, "--track", "ctl/controller.json", "--out", "track.h5"]) == 0
+        assert validate_session("track.h5") == []
+        trials = read_session("track.h5").trials
+        assert trials[0].extra_attrs["controller"] == "relay" and all(t.completed
+                                                                      for t in trials)
+    finally:
+        sys.modules.pop("lab_noncopy", None)
