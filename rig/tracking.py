@@ -1,9 +1,10 @@
 """Force-tracking sessions: the twin-based controller against a twin-free baseline.
 
-``nmsid run --track controller.json`` runs a :class:`TrackingEngine`: the engine of an
-identification session (calibration, the journal and the HDF5 file, the interlock and
-E-stop, recovery after a crash) whose trials are closed-loop blocks of
-:func:`nmsid.rig.stimulation.run_block` with a :class:`TrackingStream`:
+``nmsid run --track controller.json`` runs the one engine (calibration, the journal and
+the HDF5 file, the interlock and E-stop, recovery after a crash, resume) on a
+:class:`TrackingSession`: a plan (:func:`tracking_plan`, checked whole before anything
+stimulates) whose items are closed-loop blocks of :func:`nmsid.rig.stimulation.run_block`
+with a :class:`TrackingStream`:
 
 1. a relay-feedback trial (Astrom-Hagglund) on the participant tunes the baseline PID
    (Ziegler-Nichols), without the twin;
@@ -15,8 +16,11 @@ E-stop, recovery after a crash) whose trials are closed-loop blocks of
 Safety, by construction: the controller commands rE, clipped to [0, 1]; the currents of
 rE at the controller's sE (paper eqs. 1-4, the session's calibration) never exceed
 ``Imin + sE (Imax - Imin)``; they are clipped once more to the stream's ceilings, the
-minimum of those limits, the session's ceilings and the device's range; the stimulator
-refuses any write above the ceilings it was opened with. A controller that answers a
+minimum of those limits, the session's ceilings and the device's range, and to each
+channel's calibrated maximum (whatever sE); the stimulator refuses any write above the
+ceilings it was opened with. The controller's sE must lie in (0, 1], its force range and
+targets must be finite within the interlock's force limit and each target at most an hour
+(:func:`nmsid.protocols.plan.preflight`). A controller that answers a
 non-finite rE trips the interlock (output zero).
 
 Each trial records (optional items of the session-file contract, ``docs/control.md``):
@@ -24,7 +28,9 @@ Each trial records (optional items of the session-file contract, ``docs/control.
 ``relay``), ``target_json`` (the target's definition, rebuilt by the report),
 ``stream_json`` (update rate, queue, ceilings, the loop's latency per update: median,
 99th percentile, max; late updates) and, for the baseline, ``pid_json``. The session's
-root attributes hold ``session_kind = "tracking"`` and ``tracking_controller_json``.
+root attributes hold ``session_kind = "tracking"``, ``tracking_controller_json`` and, when
+targets were given (``--target``), ``tracking_targets_json`` (a JSON list of the targets'
+definitions): what ``--resume`` rebuilds the plan from (:meth:`TrackingSession.from_stored`).
 """
 
 from __future__ import annotations
