@@ -74,12 +74,43 @@ def test_rehastim2_session_end_to_end(tmp_path):
         amps = np.asarray(ext["pulse_current_mA"])
         assert len(amps) == ext["pulses_acknowledged"] == len(stim["pulse_index"])
         k = k_all[np.asarray(stim["pulse_index"], dtype=int)]
-        # whole mA, never above the envelope the file records (floor), never above ceiling
+        # 2 mA steps (user manual 4.1), never above the envelope the file records (floor),
+        # never above the ceiling
+        assert np.all(amps % 2 == 0)
         assert np.all(amps <= np.asarray(t.I_ext_mA)[k] + 1e-9)
-        assert np.all(amps >= np.asarray(t.I_ext_mA)[k] - 1.0)
+        assert np.all(amps >= np.asarray(t.I_ext_mA)[k] - 2.0)
         assert amps.max() <= 15.0
         # the force follows the stimulation (extension at high sE)
         assert np.isfinite(t.force_N).all()
+
+
+def test_a_session_with_busy_replies_on_a_tenth_of_updates_completes(tmp_path, monkeypatch):
+    # SM2 5.1 -8 busy on 10 % of updates, acks 15 ms late: skipped updates, not faults
+    from nmsid.testing.fakes import fake_rehastim2
+
+    class BusyRehastim2(fake_rehastim2.FakeRehastim2):
+        def __init__(self, clock, sleep):
+            super().__init__(clock, sleep, response_latency_s=0.015, busy_fraction=0.1,
+                             seed=9)
+    monkeypatch.setattr(fake_rehastim2, "FakeRehastim2", BusyRehastim2)
+    devices = make_hw_rig(write_rs2_config(tmp_path / "rs2.toml", speed=4.0))
+    fake = devices.acquisition._stack.stimulator_fake
+    assert isinstance(fake, BusyRehastim2)
+    path = tmp_path / "s.h5"
+    try:
+        summary = Engine(small_config(), devices, path,
+                         trip_policy=TripPolicy.END_SESSION).run()
+    finally:
+        devices.close()
+    assert summary.n_completed == 2, summary
+    assert fake.busy_replies > 0
+    busy = 0
+    for t in read_session(path).trials:
+        stim = t.extra_attrs["stimulation_json"]
+        stim = json.loads(stim) if isinstance(stim, str) else stim
+        busy += stim["updates_busy"]
+        assert not stim["update_errors"]
+    assert busy > 0
 
 
 def test_usb_glitch_and_estop_on_rehastim2(tmp_path):
