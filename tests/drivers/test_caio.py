@@ -9,7 +9,8 @@ import pytest
 
 from nmsid.drivers.analog_force import AnalogCalibration
 from nmsid.drivers.caio import CaioAcquisition, declare, load_caio
-from nmsid.drivers.errors import DeviceNotFound, HardwareConfigError, VendorLibraryMissing
+from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
+                                  VendorLibraryMissing)
 from nmsid.drivers.fake_hardware import load_fake
 from nmsid.drivers.interfaces import CheckedWaveform
 from nmsid.drivers.stg4002 import Stg4002Stimulator
@@ -84,6 +85,7 @@ def test_volts_to_newtons_by_hand(fake_mcs):
               6: lambda t, f: np.zeros(len(t))}
     bench, lib = rig(fake_mcs, wiring=wiring)
     acq = CaioAcquisition(CAL, lib=lib)
+    acq._tare.measured = True   # the configured offsets: scaling by hand, no tare
     acq.configure(2000.0)
     acq.start(20, triggered=False)
     c = read_all(acq, 20, bench)[0]
@@ -98,6 +100,7 @@ def test_fifo_overflow_is_overrun(fake_mcs):
     bench, lib = rig(fake_mcs, speed=10.0, fifo_samples=200)
     acq = CaioAcquisition(CAL, lib=lib)
     acq.configure(2000.0)
+    acq._tare.measured = True   # a 200-sample FIFO at 10x overflows in a tare window too
     acq.start(None, triggered=False)
     bench.sleep(0.3)  # 600 samples due, FIFO holds 200
     c = acq.read(0.05)
@@ -124,6 +127,9 @@ def test_saturation_is_over_range(fake_mcs):
     bench, lib = rig(fake_mcs, wiring=wiring)
     acq = CaioAcquisition(CAL, lib=lib)
     acq.configure(2000.0)
+    with pytest.raises(DeviceError, match="no-load voltages"):   # no tare at saturation
+        acq.start(10, triggered=False)
+    acq._tare.measured = True   # the configured offsets: the flag itself, no tare
     acq.start(10, triggered=False)
     c = read_all(acq, 10, bench)[0]
     assert c.flags.over_range and "edge" in c.flags.detail
@@ -183,6 +189,7 @@ def test_monitor_channel_rides_in_the_same_scan_and_channels_are_converted_in_tu
     cal = AnalogCalibration(**{**CAL.__dict__, "monitor_channel": 7})
     assert cal.n_channels == 8
     acq = CaioAcquisition(cal, lib=lib)
+    acq._tare.measured = True   # the configured offsets: scaling by hand, no tare
     acq.configure(1000.0)
     acq.start(5, triggered=False)
     c = read_all(acq, 5, bench)[0]
