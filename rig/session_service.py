@@ -168,7 +168,9 @@ def prepare_rig(request: RigRequest, config) -> PreparedRig:
         devices = make_sim_rig(participant_for_model(config.participant_model, sim_seed),
                                realtime=request.realtime, fs_Hz=config.protocol.fs_Hz)
     else:
-        devices = make_hw_rig(request.hw_config)
+        c = config.calibration      # ceilings above the hardware's: refused here, once
+        devices = make_hw_rig(request.hw_config,
+                              session_ceilings_mA=(c.ceiling_ext_mA, c.ceiling_flex_mA))
     return PreparedRig(devices=devices, config=config, extra_attrs=attrs, sim_seed=sim_seed)
 
 

@@ -225,3 +225,25 @@ def test_nmsid_stimulation_for_rehastim2(tmp_path, capsys):
             assert len(amps) == ch["pulses"] == 600          # 15 s at 40 Hz
             assert amps.max() == ch["peak_current_mA"] <= 10  # whole mA, within calibration
             assert ch["max_charge_per_phase_nC"] == ch["peak_current_mA"] * 300
+
+
+def test_a_hardware_ceiling_below_the_protocols_is_refused_before_the_session(tmp_path,
+                                                                             capsys):
+    # the RehaStim2's hardware ceilings at 9 mA, the protocol's default 16 mA: one line
+    # naming both settings, exit 2, nothing written (it used to trip every trial)
+    hw = write_rs2_config(tmp_path / "rs2.toml", speed=5.0)
+    hw.write_text(hw.read_text(encoding="utf-8").replace("ceiling_ext_mA = 16.0",
+                                                         "ceiling_ext_mA = 9.0"),
+                  encoding="utf-8")
+    proto = tmp_path / "p.toml"
+    proto.write_text('participant = "RS04"\nseed = 5\n[protocol]\nsE_levels = [0.7]\n'
+                     'repeats = 1\nsteady_s = 0.5\nchirp_s = 1.0\nrest_s = 0.0\n',
+                     encoding="utf-8")
+    out = tmp_path / "run.h5"
+    rc = main(["run", "--backend", "hw", "--hw-config", str(hw), "--config", str(proto),
+               "--out", str(out), "--no-identify", "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert "calibration.ceiling_ext_mA = 16 mA" in err[0]
+    assert "stimulator.ceiling_ext_mA = 9 mA" in err[0] and "at most 9" in err[0]
+    assert not out.exists()
