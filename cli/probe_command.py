@@ -31,6 +31,7 @@ from nmsid.drivers.hardware import (build_devices, load_acquisition_library, mak
                                     make_estop, make_stimulator, prepare, with_monitor)
 from nmsid.drivers.hardware import FakeStack, load_stimulator_library
 from nmsid.drivers.hw_config import load_hw_config
+from nmsid.drivers.registry import acquisition_kind
 from nmsid.drivers.interfaces import Describable, ReportsSensorInfo
 from nmsid.rig.dry_run import dry_run_probe
 
@@ -60,7 +61,11 @@ def probe(args) -> int:
         status, lines = assembly_report(dll_path)
         print("\n".join(lines))
         return status
-    dry_cfg = with_monitor(cfg) if getattr(args, "dry_run", False) else None
+    dry_cfg = None
+    if getattr(args, "dry_run", False):
+        # an analog chain records the resistor on its monitor input; a digital one (the
+        # Leptrino) has none: the streamed trial is then checked by the device's reports
+        dry_cfg = with_monitor(cfg) if acquisition_kind(cfg).analog else cfg
     if dry_cfg is not None:  # the dry run's flags, before any device is probed
         DryRunSettings(load_ohm=args.load_ohm, channel=args.dry_run_channel,
                        amplitude_mA=args.dry_run_mA,

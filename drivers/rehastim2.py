@@ -258,8 +258,12 @@ class Rehastim2Stimulator:
             self._state = StimulatorState.LOADED
 
     def arm(self) -> None:
-        """InitChannelListMode for the two channels at the pulse rate (SM2 4.3)."""
+        """InitChannelListMode for the two channels at the pulse rate (SM2 4.3); an open
+        stream is armed already (:meth:`open_stream`)."""
         self._check_usable("arm")
+        with self._lock:
+            if self._streaming_open and self._state is StimulatorState.ARMED:
+                return
         if self.stimulation_mode() != 0 and not self._confirm_stop():
             raise DeviceError(self._error)
         self._request(sm2.INIT_CLM, sm2.init_clm_data(self.channels, self.pulse_rate_Hz))
@@ -272,7 +276,8 @@ class Rehastim2Stimulator:
             if self._state is not StimulatorState.ARMED:
                 raise DeviceError(f"RehaStim2: start() in state {self._state.value}; "
                                   "load() and arm() first")
-            self._queue = collections.deque(self._trial_pulses)
+            if not self._streaming_open:     # a stream keeps what write_stream queued
+                self._queue = collections.deque(self._trial_pulses)
             self._reset_trial_counts()
             self._onset_ack_s, self._ended_by = None, ""
             self._streaming_open = False
@@ -333,7 +338,8 @@ class Rehastim2Stimulator:
     # -- host-streamed capability (closed loop) ------------------------------------------------
     def open_stream(self, ceiling_ext_mA: float, ceiling_flex_mA: float,
                     update_Hz: float) -> float:
-        """Initialise the channel list and stream updates at the pulse rate; returns it."""
+        """Initialise the channel list (armed); updates written from now on stream at the
+        pulse rate from :meth:`start` on. Returns the pulse rate."""
         for ch, c in ((self.extensor_channel, ceiling_ext_mA),
                       (self.flexor_channel, ceiling_flex_mA)):
             if c > self.ceilings[ch] + 1e-9:
@@ -341,18 +347,17 @@ class Rehastim2Stimulator:
                                         f"the driver's {self.ceilings[ch]:g} mA")
         self._stream_ceilings.update({self.extensor_channel: float(ceiling_ext_mA),
                                       self.flexor_channel: float(ceiling_flex_mA)})
+        with self._lock:
+            self._streaming_open = False
         self.arm()
         with self._lock:
             self._queue.clear()
             self._reset_trial_counts()
             self._streaming_open = True
-            self._state = StimulatorState.RUNNING
-        self._start_stream_thread()
         return self.pulse_rate_Hz
 
     def write_stream(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> None:
-        ext = np.floor(np.asarray(I_ext_mA, float) + 1e-9).astype(int)
-        flex = np.floor(np.asarray(I_flex_mA, float) + 1e-9).astype(int)
+        ext, flex = to_steps_mA(I_ext_mA), to_steps_mA(I_flex_mA)   # user manual 4.1
         if len(ext) != len(flex):
             raise CurrentLimitError("I_ext_mA and I_flex_mA must have the same length")
         lim = self._stream_ceilings
@@ -533,8 +538,9 @@ class Rehastim2Stimulator:
             if ack is not None and ack.result == 0 and len(ack.data) > 1 and ack.data[1] == 0:
                 if resend:
                     log.warning("RehaStim2: the stop was not confirmed at once (a packet lost "
-                                "or corrupted, ScienceMode2 5.2); resent, now confirmed: "
-                                "stimulation mode 0 after %.0f ms",
+                                "or corrupted, ScienceMode2 5.2, or an answer later than "
+                                "0.2 s); resent, now confirmed: stimulation mode 0 after "
+                                "%.0f ms",
                                 (time.monotonic() - deadline + STOP_CONFIRM_S) * 1e3)
                 return True
             resend = True

@@ -261,9 +261,12 @@ def test_host_stream(rig):
     assert stim.open_stream(10.0, 5.0, 40.0) == 40.0
     assert stim.stream_space() == 40
     stim.write_stream(np.array([1.0, 2.0, 3.0]), np.array([0.0, 0.0, 4.9]))
+    assert not dev.updates                      # nothing plays before start()
+    stim.arm()                                  # armed already by open_stream
+    stim.start()
     stim.close_stream()
     got = [v for _t, v in dev.updates if v]
-    assert [(v[2][1], v[6][1]) for v in got] == [(1, 0), (2, 0), (3, 4)]
+    assert [(v[2][1], v[6][1]) for v in got] == [(0, 0), (2, 0), (2, 4)]   # 2 mA steps
     with pytest.raises(CurrentLimitError):
         stim.open_stream(21.0, 5.0, 40.0)
 

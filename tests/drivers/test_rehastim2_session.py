@@ -247,3 +247,45 @@ def test_a_hardware_ceiling_below_the_protocols_is_refused_before_the_session(tm
     assert "calibration.ceiling_ext_mA = 16 mA" in err[0]
     assert "stimulator.ceiling_ext_mA = 9 mA" in err[0] and "at most 9" in err[0]
     assert not out.exists()
+
+
+def _rs2_leptrino_config(path):
+    path.write_text("\n".join([
+        "[rig]", "fake = true", "fake_speed = 1.0",   # real time: 25 ms per update
+        "[stimulator]", 'kind = "rehastim2"', 'port = "COM5"', "extensor_channel = 1",
+        "flexor_channel = 5", "ceiling_ext_mA = 16.0", "ceiling_flex_mA = 16.0",
+        "[acquisition]", 'kind = "leptrino"', "fs_Hz = 1200.0",
+        "[acquisition.leptrino]", 'port = "COM6"',
+        "[estop]", 'kind = "serial"', 'port = "COM7"', 'line = "CTS"']) + "\n",
+        encoding="utf-8")
+    return path
+
+
+def test_dry_run_streams_a_tracking_trial_on_a_rehastim2_leptrino_rig(tmp_path, capsys):
+    # no A/D input for the resistor: the streamed trial is checked by the device's own
+    # reports, and the operator is told how to look at the current (issue 37 item 8)
+    hw = _rs2_leptrino_config(tmp_path / "rs2l.toml")
+    rc = main(["probe", "--hw-config", str(hw), "--dry-run", "--dry-run-mA", "4"])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert "dry run, streamed trial:" in out
+    for name in ("stream: ended", "stream: updates answered",
+                 "stream: delivered = command rounded down"):
+        assert f"[PASS] {name}:" in out, out
+    assert "[INFO] the resistor's current is not recorded" in out
+    assert "oscilloscope" in out and "electrode error" in out
+
+
+def test_dry_run_on_rehastim2_leptrino_fails_on_an_open_load(tmp_path, capsys, monkeypatch):
+    from nmsid.testing.fakes import fake_rehastim2
+
+    class OpenLoad(fake_rehastim2.FakeRehastim2):      # SM2 1.2: the resistance check
+        def __init__(self, *a, **kw):
+            super().__init__(*a, **kw)
+            self.electrode_error(1)
+    monkeypatch.setattr(fake_rehastim2, "FakeRehastim2", OpenLoad)
+    hw = _rs2_leptrino_config(tmp_path / "rs2l.toml")
+    rc = main(["probe", "--hw-config", str(hw), "--dry-run", "--dry-run-mA", "4"])
+    out = capsys.readouterr().out
+    assert rc == 1, out
+    assert "[FAIL] stream: ended" in out and "electrode error" in out
