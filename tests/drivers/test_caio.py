@@ -184,7 +184,10 @@ def test_monitor_channel_rides_in_the_same_scan_and_channels_are_converted_in_tu
     channel of a scan is converted ``conversion_us`` after the previous one (Contec's
     10 us/channel; the driver's ``sample_delay_s`` says the same)."""
     ramp_V_per_s = 1000.0                                   # 1 V per ms: 10 us = 10 mV
-    wiring = {ch: (lambda t, f: ramp_V_per_s * (t - t[0] // 1)) for ch in range(8)}
+    # a sawtooth of 8 V per 8 ms: inside the +-10 V range whenever the scan happens (it
+    # used to be a ramp from the last whole second, clipped 10 ms into any second: the test
+    # then depended on when a loaded machine got to sample); compared modulo 8 V below
+    wiring = {ch: (lambda t, f: np.mod(ramp_V_per_s * t, 8.0)) for ch in range(8)}
     bench, lib = rig(fake_mcs, wiring=wiring)
     cal = AnalogCalibration(**{**CAL.__dict__, "monitor_channel": 7})
     assert cal.n_channels == 8
@@ -194,8 +197,8 @@ def test_monitor_channel_rides_in_the_same_scan_and_channels_are_converted_in_tu
     acq.start(5, triggered=False)
     c = read_all(acq, 5, bench)[0]
     assert c.monitor is not None and c.monitor.shape == (c.n,)
-    np.testing.assert_allclose(c.monitor - c.sync, (7 - 6) * 10e-6 * ramp_V_per_s,
-                               atol=2 * 20 / 65536)
+    np.testing.assert_allclose(np.mod(c.monitor - c.sync + 4.0, 8.0) - 4.0,
+                               (7 - 6) * 10e-6 * ramp_V_per_s, atol=2 * 20 / 65536)
     assert acq.sample_delay_s(7) - acq.sample_delay_s(6) == pytest.approx(10e-6)
     acq.close()
 
