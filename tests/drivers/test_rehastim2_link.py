@@ -19,7 +19,8 @@ import pytest
 
 from nmsid.drivers import rehastim2_protocol as sm2
 from nmsid.drivers.interfaces import CheckedWaveform, StimulatorState
-from nmsid.drivers.rehastim2 import STOP_CONFIRM_S, Rehastim2Stimulator
+from nmsid.drivers.rehastim2 import Rehastim2Stimulator
+from nmsid.drivers.rehastim2_link import STOP_CONFIRM_S
 from nmsid.testing.fakes.fake_rehastim2 import FakeRehastim2
 
 LOGGER = "nmsid.drivers.rehastim2"
