@@ -7,10 +7,20 @@ its own ``try``: one that cannot be reached (a missing vendor library, an unplug
 a wrong port or serial) is reported in one line, ``<device>: FAILED: <reason>``, and the
 others are still checked. Exit status 0 if every device passed, 1 if any failed (a bad
 configuration file is still one line and exit 2, raised before any device is tried).
+
+With real devices each check runs in its OWN PROCESS (:func:`run_isolated`): a vendor
+library that aborts in native code (McsUsbNet's does under mono; any C library may) ends
+only that process, which is reported as that device's failure, and the other devices still
+print. Fake devices share one simulated bench, so they are checked in this process.
 """
 
 from __future__ import annotations
 
+import json
+import os
+import signal
+import subprocess
+import sys
 from typing import cast
 
 import numpy as np
@@ -21,9 +31,12 @@ from nmsid.drivers.hardware import (build_devices, load_acquisition_library, mak
                                     make_estop, make_stimulator, prepare, with_monitor)
 from nmsid.drivers.hardware import FakeStack, load_stimulator_library
 from nmsid.drivers.hw_config import load_hw_config
+from nmsid.drivers.registry import acquisition_kind
 from nmsid.drivers.interfaces import Describable, ReportsSensorInfo
 from nmsid.rig.dry_run import dry_run_probe
 
+CHECK_TIMEOUT_S = 120.0
+"""How long one device's isolated check may take (a connect waits seconds at most)."""
 MAX_PROBE_SAMPLES = 10_000
 """Most force samples ``--samples`` may ask for: the probe reads for at most 5 s (100
 reads of 50 ms), 10000 samples at the paper's 2 kHz."""
@@ -48,7 +61,11 @@ def probe(args) -> int:
         status, lines = assembly_report(dll_path)
         print("\n".join(lines))
         return status
-    dry_cfg = with_monitor(cfg) if getattr(args, "dry_run", False) else None
+    dry_cfg = None
+    if getattr(args, "dry_run", False):
+        # an analog chain records the resistor on its monitor input; a digital one (the
+        # Leptrino) has none: the streamed trial is then checked by the device's reports
+        dry_cfg = with_monitor(cfg) if acquisition_kind(cfg).analog else cfg
     if dry_cfg is not None:  # the dry run's flags, before any device is probed
         DryRunSettings(load_ohm=args.load_ohm, channel=args.dry_run_channel,
                        amplitude_mA=args.dry_run_mA,
@@ -57,13 +74,11 @@ def probe(args) -> int:
     print(f"hardware configuration {cfg.source}: {cfg.describe()}")
     failed: list[str] = []
     try:
-        for name, check in (("stimulator", _check_stimulator),
-                            ("acquisition", _check_acquisition),
-                            ("E-stop switch", _check_estop)):
-            try:
-                problem = check(cfg, stack, clock, args)
-            except Exception as exc:  # this device only: report it, check the others
-                problem = _one_line(exc)
+        for name, check in CHECKS.items():
+            if stack is None:   # real devices: a native abort ends only this check
+                problem = run_isolated(name, [str(args.hw_config), str(args.samples)])
+            else:
+                problem = _check_here(check, cfg, stack, clock, args)
             if problem:
                 failed.append(name)
                 print(f"{name}: FAILED: {problem}", flush=True)
@@ -80,6 +95,59 @@ def probe(args) -> int:
         print(f"probe: {len(failed)} device(s) failed: {', '.join(failed)}")
         return 1
     print("probe: OK")
+    return 0
+
+
+def _check_here(check, cfg, stack, clock, args) -> str:
+    try:
+        return check(cfg, stack, clock, args)
+    except Exception as exc:  # this device only: report it, check the others
+        return _one_line(exc)
+
+
+def run_isolated(device: str, argv: list[str], *, target: str = "",
+                 timeout_s: float = CHECK_TIMEOUT_S) -> str:
+    """Run one device's check in a child Python process; "" if it passed, else the one-line
+    problem. Its output is printed here as it was printed there.
+
+    ``target`` (``module:function``, called with ``argv``; tests) replaces the device check.
+    """
+    cmd = [sys.executable, "-m", "nmsid.cli.probe_command", target or device, *argv]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s,
+                              env={**os.environ, "PYTHONFAULTHANDLER": "1"}, check=False)
+    except subprocess.TimeoutExpired:
+        return f"its check did not end within {timeout_s:g} s (a device or library hung)"
+    lines = proc.stdout.splitlines()
+    result = lines.pop() if lines and lines[-1].startswith(_RESULT) else None
+    if lines:
+        print("\n".join(lines), flush=True)
+    if result is not None and proc.returncode == 0:
+        return str(json.loads(result[len(_RESULT):]))
+    rc = proc.returncode
+    how = (f"signal {signal.Signals(-rc).name}" if rc < 0 and -rc in
+           {s.value for s in signal.Signals} else f"exit status {rc}")
+    last = next((ln for ln in reversed(proc.stderr.splitlines()) if ln.strip()), "")
+    return (f"its check ended abnormally ({how}): a vendor library aborted in native "
+            f"code?{' Last words: ' + last.strip() if last else ''}")
+
+
+_RESULT = "nmsid-probe-result: "
+
+
+def _child(argv: list[str]) -> int:
+    """``python -m nmsid.cli.probe_command DEVICE HW_CONFIG SAMPLES`` (or ``module:function
+    ARGS...``): one check, its result as the last line."""
+    what, rest = argv[0], argv[1:]
+    if ":" in what:
+        import importlib  # noqa: PLC0415 (tests name their own check)
+        mod, func = what.split(":")
+        problem = getattr(importlib.import_module(mod), func)(*rest)
+    else:
+        cfg, stack, clock = prepare(load_hw_config(rest[0]))
+        args = type("Args", (), {"samples": int(rest[1])})()
+        problem = _check_here(CHECKS[what], cfg, stack, clock, args)
+    print(_RESULT + json.dumps(problem or ""), flush=True)
     return 0
 
 
@@ -182,3 +250,11 @@ class _Borrowed:
 
     def close(self) -> None:
         pass
+
+
+CHECKS = {"stimulator": _check_stimulator, "acquisition": _check_acquisition,
+          "E-stop switch": _check_estop}
+
+
+if __name__ == "__main__":   # a device's isolated check (run_isolated)
+    raise SystemExit(_child(sys.argv[1:]))

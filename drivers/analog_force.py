@@ -18,6 +18,14 @@ line outputs 0 to 3.3 V; the offset voltage is 1.5 V ... rated voltage 1 V"), so
 beyond about -1.5 / +1.8 x rated clips there, far inside a +-10 V A/D range
 (:data:`SENSOR_SPAN_V`, ``sensor_span_V``).
 
+Automatic tare (:class:`NoLoadTare`): the configured ``offset_V`` is a nominal figure (the
+manual's 1.5 V), but a real sensor rests off it (the manual's own examples rest at 1.532
+and 1.580 V: 40 N on a 500 N axis), and the manual computes force from the change relative
+to the MEASURED no-load voltage (CFS manual 4.2). So the A/D drivers measure the no-load
+voltages before the first block of a session and before each block that follows a rest
+(:data:`REST_BEFORE_TARE_S` of idle A/D), and every force they return, the one the
+interlock's force limit acts on, is relative to them.
+
 ``monitor_channel`` (the dry run's only): the A/D input wired across the dummy-load
 resistor (``nmsid probe --dry-run``); its volts are passed on unconverted, like the sync's.
 A session's calibration has none.
@@ -25,9 +33,16 @@ A session's calibration has none.
 
 from __future__ import annotations
 
+import logging
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from nmsid.drivers.errors import DeviceError
+
+log = logging.getLogger(__name__)
 
 AXES = ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
 SENSOR_SPAN_V = (0.0, 3.3)
@@ -38,6 +53,12 @@ SENSOR_RATED_OUTPUT_V = 1.0
 """CFS manual 4.1: the change from the offset at rated load is 1 V ("rated voltage 1 V")."""
 SPAN_EDGE_V = 0.02
 """A sample within this of either end of the sensor's span is taken as clipped."""
+TARE_WINDOW_S = 0.2
+"""How long the no-load voltages are averaged (CFS manual 4.2: relative to no load)."""
+REST_BEFORE_TARE_S = 1.0
+"""A/D idle at least this long between two blocks is a rest: the next block is preceded by
+a new tare (shorter gaps keep the previous one, so a muscle still relaxing after a trial
+is never taken as no load)."""
 
 
 @dataclass(frozen=True)
@@ -152,11 +173,106 @@ class ConvertedBlock:
     monitor_V: np.ndarray | None = None
 
 
+class NoLoadTare:
+    """When an analog chain measures its no-load voltages, and the wrench they put out.
+
+    ``due()`` is True before the first block (the session's start) and after a rest of
+    :data:`REST_BEFORE_TARE_S`; :meth:`update` takes the volts of an untriggered
+    :data:`TARE_WINDOW_S` window; :attr:`wrench` is then subtracted from every wrench
+    (the same as using the measured voltages as ``offset_V``: the scaling is affine).
+    """
+
+    def __init__(self, *, rest_s: float = REST_BEFORE_TARE_S, window_s: float = TARE_WINDOW_S,
+                 clock: Callable[[], float] = time.monotonic):
+        self.rest_s, self.window_s, self.clock = rest_s, window_s, clock
+        self.wrench = np.zeros(6)
+        self.no_load_V: dict[str, float] = {}
+        self.measured = False
+        self._idle_since: float | None = None
+
+    def due(self) -> bool:
+        return not self.measured or (self._idle_since is not None and
+                                     self.clock() - self._idle_since >= self.rest_s)
+
+    def stopped(self) -> None:
+        """A block ended: the A/D is idle from now."""
+        self._idle_since = self.clock()
+
+    def forget(self) -> None:
+        """A new connection (reconnect): measure again before the next block."""
+        self.measured = False
+
+    def update(self, volts: np.ndarray, cal: AnalogCalibration, device: str) -> None:
+        """Take the mean of an untriggered window of volts (n, n_channels) as no load.
+
+        Raises
+        ------
+        DeviceError
+            No samples, or a sensor output at the edge of its span at rest (a wiring or
+            supply fault: no tare could make its force right).
+        """
+        volts = np.asarray(volts, dtype=float).reshape(-1, cal.n_channels)
+        if not len(volts):
+            raise DeviceError(f"{device}: no samples for the no-load voltages (tare)")
+        mean = volts.mean(axis=0)
+        rest = {a: float(mean[ch]) for a, ch in cal.channels.items()}
+        if cal.sensor_span_V is not None:
+            lo, hi = cal.sensor_span_V
+            edge = {a: v for a, v in rest.items()
+                    if v <= lo + SPAN_EDGE_V or v >= hi - SPAN_EDGE_V}
+            if edge:
+                raise DeviceError(f"{device}: at rest the sensor outputs {edge} V, at the "
+                                  f"edge of its {lo:g} .. {hi:g} V span (CFS manual 4.1): "
+                                  "check its supply and wiring")
+        self.wrench = cal.wrench(mean[None, :])[0]
+        self.no_load_V, self.measured, self._idle_since = rest, True, None
+        log.info("%s: no-load voltages %s V measured (tare %s)", device,
+                 {a: round(v, 4) for a, v in rest.items()},
+                 np.round(self.wrench, 3).tolist())
+
+
+def measure_no_load(acq, device: str) -> None:
+    """If ``acq``'s tare is due, measure the no-load voltages through its own blocks.
+
+    ``acq`` is an A/D driver with ``cal``, ``fs_Hz``, ``_tare`` (:class:`NoLoadTare`),
+    ``_capture`` (a list its conversion appends each block's volts to while not None),
+    ``_start_block(n, triggered)``, ``read(timeout_s)`` and ``_stop_block()``: an
+    untriggered window of :data:`TARE_WINDOW_S` before the trial's own block.
+    """
+    tare: NoLoadTare = acq._tare
+    if not tare.due():
+        return
+    n = max(1, int(round(tare.window_s * acq.fs_Hz)))
+    acq._capture = []
+    flagged = ""
+    try:
+        acq._start_block(None, triggered=False)
+        deadline = time.monotonic() + 2.0 + 4 * tare.window_s   # generous: a busy host
+        while sum(len(v) for v in acq._capture) < n and time.monotonic() < deadline \
+                and not flagged:
+            chunk = acq.read(0.05)
+            if chunk is not None and chunk.flags.any:
+                flagged = chunk.flags.detail or "flagged"
+        volts = np.concatenate(acq._capture) if acq._capture else \
+            np.zeros((0, acq.cal.n_channels))
+    finally:
+        acq._capture = None
+        acq._stop_block()
+    if flagged:     # an A/D fault or a sensor at its span's edge: no tare from that
+        raise DeviceError(f"{device}: the no-load voltages (tare) could not be measured: "
+                          f"{flagged}")
+    tare.update(volts[:n], acq.cal, device)
+
+
 def convert_block(volts: np.ndarray, cal: AnalogCalibration, range_V: float,
-                  saturation_fraction: float = 0.995) -> ConvertedBlock:
-    """Interleaved-and-reshaped A/D volts (n, n_channels) -> force, wrench, sync, flags."""
+                  saturation_fraction: float = 0.995,
+                  tare_wrench: np.ndarray | None = None) -> ConvertedBlock:
+    """Interleaved-and-reshaped A/D volts (n, n_channels) -> force, wrench, sync, flags;
+    ``tare_wrench`` (:attr:`NoLoadTare.wrench`) is subtracted from the wrench."""
     volts = np.asarray(volts, dtype=float).reshape(-1, cal.n_channels)
     wrench = cal.wrench(volts)
+    if tare_wrench is not None:
+        wrench = wrench - tare_wrench
     sensor_cols = list(cal.channels.values())
     sensor_V = volts[:, sensor_cols]
     saturated = bool(volts.size and np.abs(sensor_V).max() >= saturation_fraction * range_V)

@@ -59,7 +59,8 @@ from ctypes import POINTER, c_char_p, c_float, c_long, c_short
 
 import numpy as np
 
-from nmsid.drivers.analog_force import AnalogCalibration, convert_block
+from nmsid.drivers.analog_force import (AnalogCalibration, NoLoadTare, convert_block,
+                                        measure_no_load)
 from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
                                   VendorLibraryMissing)
 from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
@@ -230,6 +231,14 @@ class CaioAcquisition:
         self.ai_range = ai_range
         self.unsupported: list[str] = []
         """Optional setters the device answered with AIO_ERR_SYS_NOT_SUPPORTED."""
+        self._tare = NoLoadTare()
+        """No-load voltages, measured before a session's first block and after each rest
+        (CFS manual 4.2; :mod:`nmsid.drivers.analog_force`)."""
+        self._capture: list[np.ndarray] | None = None
+
+    @property
+    def fs_Hz(self) -> float:
+        return self._fs_Hz
 
     # -- vendor calls -----------------------------------------------------------------
     @property
@@ -331,8 +340,13 @@ class CaioAcquisition:
         return self._fs_Hz
 
     def start(self, n_samples: int | None = None, *, triggered: bool = True) -> None:
+        """The trial's block; first the no-load voltages, when due (the tare)."""
         if not self._fs_Hz:
             raise DeviceError("configure(fs_Hz) must be called before start()")
+        measure_no_load(self, f"Contec {self.device_name!r}")
+        self._start_block(n_samples, triggered=triggered)
+
+    def _start_block(self, n_samples: int | None, *, triggered: bool) -> None:
         self._call("AioSetAiStartTrigger", self._id,
                    c_short(START_EXTERNAL_RISING if triggered else START_SOFTWARE))
         if n_samples is None:
@@ -391,7 +405,10 @@ class CaioAcquisition:
 
     def _chunk(self, n: int, flags: AcquisitionFlags) -> ForceChunk:
         volts = np.ctypeslib.as_array(self._buf)[:n * self.cal.n_channels].astype(np.float64)
-        block = convert_block(volts.reshape(n, self.cal.n_channels), self.cal, self.range_V)
+        volts = volts.reshape(n, self.cal.n_channels)
+        if self._capture is not None:
+            self._capture.append(volts)
+        block = convert_block(volts, self.cal, self.range_V, tare_wrench=self._tare.wrench)
         if block.saturated:
             flags = AcquisitionFlags(overrun=flags.overrun, over_range=True,
                                      sensor_fault=flags.sensor_fault,
@@ -418,6 +435,11 @@ class CaioAcquisition:
         return channel * self.conversion_us * 1e-6
 
     def stop(self) -> None:
+        if self._running:
+            self._tare.stopped()
+        self._stop_block()
+
+    def _stop_block(self) -> None:
         if self._running and self._open:
             self._running = False
             try:
@@ -464,6 +486,7 @@ class CaioAcquisition:
         """
         self._running = False
         self.close()
+        self._tare.forget()
         return self.configure(fs_Hz)
 
     def describe(self) -> dict:

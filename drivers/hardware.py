@@ -83,18 +83,49 @@ class _OwningAcquisition:
             self._stack.close()
 
 
-def make_hw_rig(hw_config_path) -> RigDevices:
+def make_hw_rig(hw_config_path, *,
+                session_ceilings_mA: tuple[float, float] | None = None) -> RigDevices:
     """The devices of the rig described by ``hw_config_path`` (see docs/hardware.md).
+
+    ``session_ceilings_mA``: the session's ``calibration.ceiling_ext_mA`` /
+    ``ceiling_flex_mA``, checked against the hardware file's before any device is built
+    (:func:`check_session_ceilings`).
 
     Raises
     ------
     HardwareConfigError, FileNotFoundError
-        For a bad or missing configuration (one line naming the setting).
+        For a bad or missing configuration (one line naming the setting), or session
+        ceilings above the hardware's.
     VendorLibraryMissing, DeviceNotFound
         When a device or its library is missing (also one line).
     """
     cfg = load_hw_config(hw_config_path)
+    if session_ceilings_mA is not None:
+        check_session_ceilings(cfg, *session_ceilings_mA)
     return build_devices(cfg)
+
+
+def check_session_ceilings(cfg: HardwareConfig, ceiling_ext_mA: float,
+                           ceiling_flex_mA: float) -> None:
+    """Refuse a session whose ceilings are above the hardware file's: each trial's waveform
+    would be refused by the driver (and trip) one after the other, so say it once, before
+    anything, naming both settings.
+
+    Raises
+    ------
+    HardwareConfigError
+        One line: the two settings, their values and what to change.
+    """
+    s = cfg.stimulator
+    for side, session, hw in (("ext", ceiling_ext_mA, s.ceiling_ext_mA),
+                              ("flex", ceiling_flex_mA, s.ceiling_flex_mA)):
+        if session > hw + 1e-9:
+            raise HardwareConfigError(
+                f"the session's calibration.ceiling_{side}_mA = {session:g} mA is above "
+                f"stimulator.ceiling_{side}_mA = {hw:g} mA of {cfg.source}: every trial would "
+                f"be refused; set calibration.ceiling_{side}_mA to at most {hw:g} in the "
+                "session configuration (or raise the hardware ceiling, if the hardware and "
+                "the ethics approval allow)")
 
 
 def build_devices(cfg: HardwareConfig) -> RigDevices:

@@ -133,6 +133,17 @@ class LeptrinoSettings:
     port: StrictStr = ""
     baudrate: StrictInt = bounded(460800, ge=1200, le=10_000_000, why="a serial baud rate")
     sync_on_external_input: StrictBool = False
+    """Refused when true: the specification (v1.13, 6.1) defines no external-input bit."""
+
+    @model_validator(mode="after")
+    def _no_external_input(self):
+        if self.sync_on_external_input:
+            raise SettingProblem("sync_on_external_input", True,
+                                 "false: the Leptrino specification v1.13, 6.1 defines no "
+                                 "external-input bit (status bits 3-7 are reserved and "
+                                 "undefined), so no trial can start on it; onset is aligned "
+                                 "by host timing")
+        return self
 
 
 @settings_dataclass(hw_config_error, prefix="acquisition")

@@ -19,15 +19,13 @@ this chain: :meth:`LeptrinoAcquisition.tare` (mean of the unloaded records, subt
 Records at +-32000 (6: "a force above 3.2 times the rating is also +-32000") are clipped:
 ``over_range``.
 
-Time base: the digital interface has no hardware start trigger. With
-``sync_on_external_input`` (set only for a model that has the external input: on the others
-status bit 5 is undefined) the stimulator's sync line is wired to the sensor's external
-input and sample 0 is the first record at which bit 5 RISES: the level at arming is read
-with one handshake record (0x30); if it is already high, the trial starts only at the first
-high record after a low one, so a line stuck high does not start it;
-otherwise a triggered start is aligned to the first record after :meth:`start` (host
-timing: one record plus USB latency, logged as a warning). Reserved status bits (3, 4, 6,
-7) are masked off by the protocol layer and never raise a flag.
+Time base: the digital interface has no hardware start trigger, and no status bit is an
+external input: specification v1.13, 6.1 defines bits 0-2 and marks bits 3-7 reserved
+(undefined), so ``sync_on_external_input`` is refused (:data:`SYNC_ON_EXTERNAL_INPUT_REFUSED`)
+rather than starting a trial on an undefined bit. A triggered start is aligned to the first
+record after :meth:`start` (host timing: one record plus USB latency, logged as a
+warning). Reserved status bits are masked off by the protocol layer and never raise a
+flag.
 
 A USB glitch: :meth:`reconnect`
 closes the dead port handle and opens the port anew (never reusing the old handle), then
@@ -342,6 +340,15 @@ def fit_record_rate(t_s: np.ndarray, counts: np.ndarray, rounds: int = 3) -> flo
     return float(slope)
 
 
+SYNC_ON_EXTERNAL_INPUT_REFUSED = (
+    "acquisition.leptrino.sync_on_external_input = true: the Leptrino specification v1.13, "
+    "6.1 defines no external-input bit (status bits 3-7 are reserved and undefined), so a "
+    "trial cannot start on it; set it to false (onset aligned by host timing) or record the "
+    "force through an A/D with the stimulator's sync (acquisition.kind = \"caio\" or "
+    "\"nidaq\")")
+"""Why ``sync_on_external_input`` is refused (issue 37 item 6)."""
+
+
 class LeptrinoAcquisition:
     """:class:`~nmsid.drivers.interfaces.ForceAcquisition` over a Leptrino USB sensor."""
 
@@ -351,9 +358,10 @@ class LeptrinoAcquisition:
         if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) == 0:
             raise HardwareConfigError("extension_direction must be 3 finite numbers, not all "
                                       f"zero; got {extension_direction!r}")
+        if sync_on_external_input:
+            raise HardwareConfigError(SYNC_ON_EXTERNAL_INPUT_REFUSED)
         self.sensor = sensor
         self.direction = d / np.linalg.norm(d)
-        self.sync_on_external_input = sync_on_external_input
         self.info: ProductInfo | None = None
         self.rated: np.ndarray | None = None
         self.filter: FilterSetting | None = None
@@ -365,8 +373,6 @@ class LeptrinoAcquisition:
         self._n_rec = 0
         self._last: tuple[float, np.ndarray] | None = None
         self._running = False
-        self._armed_wait_sync = False
-        self._sync_seen_low = False
         self._index = 0
         self._remaining: int | None = None
         self._dead: str = ""
@@ -397,11 +403,6 @@ class LeptrinoAcquisition:
             log.warning("Leptrino %s: digital filter not readable (%s)", self.sensor.port,
                         exc)
         self.measured_rate_Hz = None
-        if self.sync_on_external_input:
-            log.info("Leptrino %s (%s): trials start at the rising edge of the external "
-                     "input (status bit 5); acquisition.leptrino.sync_on_external_input "
-                     "asserts that this model has the input", self.sensor.port,
-                     info.model or "unknown model")
         self.info = info
         return info
 
@@ -562,16 +563,9 @@ class LeptrinoAcquisition:
             self._fs_out = self._rate_Hz
         self._remaining = n_samples
         self._dead = ""
-        self._armed_wait_sync = bool(triggered and self.sync_on_external_input)
-        self._sync_seen_low = False
-        if self._armed_wait_sync:
-            # the line's level at arming (one handshake record, 0x30): if it is already
-            # high, the trial starts only after it has been seen low again
-            level = self.sensor.read_one().status & Status.EXTERNAL_INPUT
-            self._sync_seen_low = not level
-        if triggered and not self.sync_on_external_input:
-            log.warning("Leptrino %s has no hardware trigger wired "
-                        "(sync_on_external_input = false): onset alignment is host-timed",
+        if triggered:
+            log.warning("Leptrino %s has no hardware trigger (specification 6.1 defines "
+                        "no external input): onset alignment is host-timed",
                         self.sensor.port)
         self.sensor.start_continuous()
         self._running = True
@@ -605,16 +599,7 @@ class LeptrinoAcquisition:
                         continue
                     if len(ev.payload) < 20:
                         continue  # a bare acknowledgement of 0x32
-                    rec = parse_data_record(ev, self.sensor.device)
-                    if self._armed_wait_sync:
-                        # edge, not level: the bit must be seen low, then high
-                        if not rec.status & Status.EXTERNAL_INPUT:
-                            self._sync_seen_low = True
-                            continue
-                        if not self._sync_seen_low:
-                            continue
-                        self._armed_wait_sync = False
-                    records.append(rec)
+                    records.append(parse_data_record(ev, self.sensor.device))
         if not records and not corrupt and not other_fault:
             return None
         return self._chunk(records, corrupt, other_fault)

@@ -28,13 +28,13 @@ Specification 5.1's product information has NO rate field (LEN $20: model, seria
 firmware); the rate field below comes from the C sample only.
 
 Data record (response to 0x30, and each frame of continuous output, LEN = 20): six int16
-little-endian force / moment values (Fx, Fy, Fz, Mx, My, Mz), int16 temperature, a status
-byte, a reserved byte. A raw value of 10000 is the axis' rated value, so
-``value = raw * rated / 10000``. Status bits: 0 = calibration data in ROM corrupt,
-1 = sensor fault, 2 = load above the rated value, 5 = external input detected (models
-with an external input only; on the others it is undefined). Bits 3, 4, 6 and 7 are
-reserved and indeterminate: :func:`parse_data_record` masks them off, so no flag and no
-sync can ever come from them.
+little-endian force / moment values (Fx, Fy, Fz, Mx, My, Mz), two reserved bytes, a status
+byte, a reserved byte (specification 6.1). A raw value of 10000 is the axis' rated value,
+so ``value = raw * rated / 10000``. Status bits: 0 = calibration data in ROM corrupt,
+1 = sensor fault, 2 = load above the rated value; bits 3-7 are reserved and undefined
+(6.1). :func:`parse_data_record` masks them off and ignores the reserved bytes, so no
+flag, no sync and no "temperature" can ever come from them (an earlier reading took bit 5
+as an external input and the two bytes after Mz as a temperature: neither is in 6.1).
 
 Product information (0x2A, ``ST_R_GET_INF`` in ``pComResInternal.h``): model (16 bytes),
 serial (8), firmware version (4) and output rate (6, text; ``FREQ_SIZE`` in
@@ -109,7 +109,6 @@ class Status(enum.IntFlag):
     ROM_ERROR = 0x01
     SENSOR_FAULT = 0x02
     OVER_RATED = 0x04
-    EXTERNAL_INPUT = 0x20
 
 
 FULL_SCALE_RAW = 32000
@@ -119,9 +118,8 @@ also +-32000": a record at +-32000 is clipped, the true force is unknown."""
 FILTER_CUTOFF_HZ = {0x00: None, 0x01: 10.0, 0x02: 100.0, 0x03: 200.0}
 """Specification v1.13, 5.3: filter setting $00 OFF, $01 10 Hz, $02 100 Hz, $03 200 Hz."""
 
-DOCUMENTED_STATUS_BITS = int(Status.ROM_ERROR | Status.SENSOR_FAULT | Status.OVER_RATED
-                             | Status.EXTERNAL_INPUT)
-"""Bits 0, 1, 2, 5; bits 3, 4, 6, 7 are reserved (indeterminate) and masked off."""
+DOCUMENTED_STATUS_BITS = int(Status.ROM_ERROR | Status.SENSOR_FAULT | Status.OVER_RATED)
+"""Bits 0, 1, 2 (specification 6.1); bits 3-7 are reserved (undefined) and masked off."""
 
 
 def bcc(payload: bytes) -> int:
@@ -318,9 +316,8 @@ def parse_filter(frame: Frame, device: str = "Leptrino sensor") -> FilterSetting
 @dataclass(frozen=True)
 class DataRecord:
     raw: tuple[int, int, int, int, int, int]
-    temperature_raw: int
     status: Status
-    """Documented bits only (reserved bits 3, 4, 6, 7 masked off)."""
+    """Documented bits 0-2 only (reserved bits 3-7 masked off, specification 6.1)."""
 
 
 def _text(data: bytes) -> str:
@@ -402,6 +399,5 @@ def parse_data_record(frame: Frame, device: str = "Leptrino sensor") -> DataReco
     if len(data) < DATA_RECORD_LEN - 4:
         raise ProtocolError(f"{device}: data record has {len(data)} data bytes; expected "
                             f"{DATA_RECORD_LEN - 4}")
-    values = struct.unpack("<6hhBB", data[:16])
-    return DataRecord(raw=tuple(values[:6]), temperature_raw=values[6],
-                      status=Status(values[7] & DOCUMENTED_STATUS_BITS))
+    values = struct.unpack("<6h2xBx", data[:16])     # 6.1: 2 reserved bytes, status, 1
+    return DataRecord(raw=tuple(values[:6]), status=Status(values[6] & DOCUMENTED_STATUS_BITS))

@@ -142,6 +142,7 @@ SURFACE: tuple[Member, ...] = (
     _m(ST, "EnqueueData", U32, "System.Int16[]", why="queue samples"),
     _m(ST, "GetDataQueueSpace", U32, why="free queue space"),
     _m(ST, "StartLoop", why="start streaming"),
+    _m(ST, "GetFramesBuffered", U32, why="start only once the STG holds data"),
     _m(ST, "StopLoop", why="stop streaming"),
     _m(ST, "SendStart", U32, why="start trigger"),
     _m(ST, "SendStop", U32, why="immediate stop"),

@@ -55,7 +55,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from nmsid.drivers.analog_force import AnalogCalibration, convert_block
+from nmsid.drivers.analog_force import (AnalogCalibration, NoLoadTare, convert_block,
+                                        measure_no_load)
 from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
                                   VendorLibraryMissing)
 from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
@@ -181,6 +182,14 @@ class NidaqAcquisition:
         self._index = 0
         self._remaining: int | None = None
         self._generation = 0
+        self._tare = NoLoadTare()
+        """No-load voltages, measured before a session's first block and after each rest
+        (CFS manual 4.2; :mod:`nmsid.drivers.analog_force`)."""
+        self._capture: list[np.ndarray] | None = None
+
+    @property
+    def fs_Hz(self) -> float:
+        return self._fs_Hz
 
     @property
     def api(self):
@@ -309,10 +318,16 @@ class NidaqAcquisition:
         return 0
 
     def start(self, n_samples: int | None = None, *, triggered: bool = True) -> None:
+        """The trial's block; first the no-load voltages, when due (the tare)."""
         if self._task is None:
             raise DeviceError("configure(fs_Hz) must be called before start()")
-        api = self.api
-        trig = self._task.triggers.start_trigger
+        measure_no_load(self, f"NI DAQ {self.device!r}")
+        self._start_block(n_samples, triggered=triggered)
+
+    def _start_block(self, n_samples: int | None, *, triggered: bool) -> None:
+        api, task = self.api, self._task
+        assert task is not None     # start() checked it
+        trig = task.triggers.start_trigger
         if triggered:
             trig.cfg_dig_edge_start_trig(self.start_trigger,
                                          trigger_edge=api.constants.Edge.RISING)
@@ -322,7 +337,7 @@ class NidaqAcquisition:
         self._index = 0
         self._remaining = n_samples
         try:
-            self._task.start()
+            task.start()
         except api.errors.DaqError as exc:
             raise DeviceError(f"NI DAQ {self.device!r} did not start: {exc}") from None
         self._running = True
@@ -353,7 +368,9 @@ class NidaqAcquisition:
             data = data[:, :self._remaining]
             self._remaining -= data.shape[1]
         n = data.shape[1]
-        block = convert_block(data.T, self.cal, self.range_V)
+        if self._capture is not None:
+            self._capture.append(data.T)
+        block = convert_block(data.T, self.cal, self.range_V, tare_wrench=self._tare.wrench)
         flags = AcquisitionFlags(over_range=block.saturated,
                                  detail=f"sensor output at the edge of +/-{self.range_V:g} V"
                                  if block.saturated else "")
@@ -369,6 +386,11 @@ class NidaqAcquisition:
         return channel / self._conv_Hz if self._conv_Hz > 0 else 0.0
 
     def stop(self) -> None:
+        if self._running:
+            self._tare.stopped()
+        self._stop_block()
+
+    def _stop_block(self) -> None:
         if self._task is not None and self._running:
             self._running = False
             try:
@@ -400,6 +422,7 @@ class NidaqAcquisition:
         DeviceNotFound, DeviceError
             If the device is still not reachable.
         """
+        self._tare.forget()
         return self.configure(fs_Hz)
 
     def close(self) -> None:

@@ -7,17 +7,24 @@ configured pulse rate; ``start`` streams one StartChannelListMode update per mai
 each carrying the envelope's current at that pulse (amplitude modulation at a fixed width);
 the trial ends with StopChannelListMode. A link thread reads every packet, answers the
 device's Init (SM2 4.1), sends the Watchdog (SM2 4.1) whenever nothing was sent for
-:data:`KEEPALIVE_S` (< the 1.2 s WatchdogTimeout of SM2 2.3), and turns a StimulationError
+:data:`~nmsid.drivers.rehastim2_link.KEEPALIVE_S` (< the 1.2 s WatchdogTimeout of SM2 2.3), and turns a StimulationError
 (emergency switch, electrode error, module error: SM2 4.3) into the ERROR state the
 interlock trips on.
 
-Safety, by construction: each update's current is ``floor`` of the envelope (whole mA, the
-device's resolution), the envelope was already checked against its ceilings
+Safety, by construction: each update's current is the envelope rounded down to the device's
+2 mA step (user manual 2.5c, 4.1: "0-130 mA in 65 steps"; :func:`to_steps_mA`), the envelope was already checked against its ceilings
 (:class:`~nmsid.drivers.interfaces.CheckedWaveform`), and :meth:`_pulse_data` refuses any
 current above the driver's own ceilings before a byte is written
 (:class:`~nmsid.drivers.interfaces.CurrentLimitError`). Charge balance is the device's:
 SM2 1.2 (Figure 2) fixes both phases at the same current and width, plus an active
 short-cut at the end of each pulse.
+
+Acknowledgements: each update waits for its predecessor's response (SM2 5.1 -8 busy: "wait
+for the response packet"; 2.3 MaxResponseTime 100 ms). An update the device answers busy
+(-8) or with a transfer error (-1, SM2 4.3) was not applied: it is counted and the next one
+replaces it (SM2 1.3: updates may be skipped), never a fault. The stop is a request
+confirmed by the device (:meth:`Rehastim2Stimulator.stop_now`, SM2 5.3); an unconfirmed
+stop withholds the keep-alive so the device's own watchdog ends the output (SM2 5.2).
 
 Time base: ScienceMode2 has no trigger output, so ``capabilities().hardware_trigger`` is
 False; the engine starts the acquisition from the host just before ``start``, and the
@@ -41,20 +48,31 @@ from nmsid.drivers.errors import DeviceError, DeviceNotFound, StimulatorSettingE
 from nmsid.drivers.interfaces import (BIPHASIC_PULSES, CheckedWaveform, CurrentLimitError,
                                       StimulatorCapabilities, StimulatorState,
                                       StimulatorStatus, Waveshape)
-from nmsid.drivers.leptrino import _serial_module
+from nmsid.drivers.rehastim2_link import Sm2Link, _open_serial
 
 log = logging.getLogger(__name__)
 
-KEEPALIVE_S = 0.4
-"""Send the Watchdog after this long without a packet (SM2 2.3: WatchdogTimeout 1.2 s)."""
 CONNECT_TIMEOUT_S = 2.5
 """Wait for the device's Init this long. A device still attached to a previous connection
 sends Init only after its WatchdogTimeout (1.2 s) and then every InitRepetitionTime
 (0.5 s) (SM2 2.3, 5.2): 1.2 + 2 x 0.5 s, with margin."""
 SUMMARY_FORMAT = "nmsid-stimulation-1"
+STEP_MA = 2
+"""The current resolution: RehaStim2 user manual 2.5c, 4.1 "0-130 mA in 65 steps" (the
+ScienceMode2 README: 2 mA steps). Currents are rounded DOWN to a step, so an odd value never
+reaches a device that might round it up above its ceiling."""
+UPDATE_ACK_WAIT_S = 2 * sm2.MAX_RESPONSE_S
+"""An update unanswered this long is counted as unanswered and the next one goes out (SM2
+2.3: MaxResponseTime 100 ms; x 2 for a host thread scheduled late)."""
 
 
-class Rehastim2Stimulator:
+def to_steps_mA(current_mA) -> np.ndarray:
+    """Currents rounded down to the device's :data:`STEP_MA` (whole steps, ints)."""
+    c = np.asarray(current_mA, dtype=float)
+    return (STEP_MA * np.floor(c / STEP_MA + 1e-9)).astype(int)
+
+
+class Rehastim2Stimulator(Sm2Link):
     """The RehaStim2 as a :class:`~nmsid.drivers.interfaces.Stimulator` and a
     :class:`~nmsid.drivers.interfaces.HostStreamedStimulator`.
 
@@ -115,6 +133,13 @@ class Rehastim2Stimulator:
         self._number = 0
         self._last_sent = 0.0
         self._acks: dict[int, sm2.Packet] = {}
+        self._silent = False
+        """Set when a stop could not be confirmed: nothing more is written, so the device's
+        watchdog ends the output (SM2 5.2); connect() clears it."""
+        self._update_numbers: dict[int, int] = {}   # packet number -> index in _sent
+        self._pending_update: tuple[int, float] | None = None
+        self._delivered: list[int] = []
+        self._busy = self._transfer_errors = self._unanswered = 0
         self._waiting: set[int] = set()
         self._ack_cv = threading.Condition(self._lock)
         self._error = ""
@@ -129,7 +154,6 @@ class Rehastim2Stimulator:
         self._sent: list[tuple[int, int]] = []
         self._sent_index: list[int] = []
         self._skipped = 0
-        self._acked = 0
         self._ack_errors: list[str] = []
         self._onset_ack_s: float | None = None
         self._t_start_call = 0.0
@@ -148,6 +172,7 @@ class Rehastim2Stimulator:
                                  "FTDI driver and that ScienceMode2 is selected on the "
                                  "device's start screen (SM2 1.5, 2.1)") from None
         self._decoder = sm2.Decoder()
+        self._silent = False
         deadline = self.clock() + CONNECT_TIMEOUT_S
         init = None
         problem = ""
@@ -177,13 +202,13 @@ class Rehastim2Stimulator:
                                       daemon=True)
         self._link.start()
         mode = self.stimulation_mode()
-        if mode != 0:                        # left running by a previous program: stop
-            self._request(sm2.STOP_CLM)
+        if mode != 0 and not self._confirm_stop():   # left running by a previous program
+            raise DeviceError(self._error)
 
     def capabilities(self) -> StimulatorCapabilities:
         return StimulatorCapabilities(
             n_channels=sm2.N_CHANNELS, max_current_mA=float(sm2.MAX_CURRENT_MA),
-            resolution_mA=1.0, output_rate_Hz=self.pulse_rate_Hz, model="Hasomed RehaStim2",
+            resolution_mA=float(STEP_MA), output_rate_Hz=self.pulse_rate_Hz, model="Hasomed RehaStim2",
             waveshape=self.waveshape(), hardware_trigger=False)
 
     def waveshape(self) -> Waveshape:
@@ -204,7 +229,7 @@ class Rehastim2Stimulator:
 
     # -- one trial ---------------------------------------------------------------------------
     def load(self, waveform: CheckedWaveform) -> None:
-        """Sample the envelopes at each pulse and keep the per-pulse currents (whole mA,
+        """Sample the envelopes at each pulse and keep the per-pulse currents (2 mA steps,
         rounded down, so never above the envelope and so never above its ceiling)."""
         self._check_usable("load")
         for ch, ceiling in ((self.extensor_channel, waveform.ceiling_ext_mA),
@@ -216,8 +241,8 @@ class Rehastim2Stimulator:
         n = math.floor(waveform.duration_s * self.pulse_rate_Hz + 1e-9)
         k = np.minimum((np.arange(n) / self.pulse_rate_Hz * waveform.fs_Hz + 1e-9)
                        .astype(np.int64), waveform.n_samples - 1)
-        ext = np.floor(np.asarray(waveform.I_ext_mA)[k] + 1e-9).astype(int)
-        flex = np.floor(np.asarray(waveform.I_flex_mA)[k] + 1e-9).astype(int)
+        ext = to_steps_mA(np.asarray(waveform.I_ext_mA)[k])
+        flex = to_steps_mA(np.asarray(waveform.I_flex_mA)[k])
         pulses = list(zip(ext.tolist(), flex.tolist()))
         for e, f in pulses:                  # by construction; checked once more
             self._pulse_data(e, f)
@@ -227,10 +252,14 @@ class Rehastim2Stimulator:
             self._state = StimulatorState.LOADED
 
     def arm(self) -> None:
-        """InitChannelListMode for the two channels at the pulse rate (SM2 4.3)."""
+        """InitChannelListMode for the two channels at the pulse rate (SM2 4.3); an open
+        stream is armed already (:meth:`open_stream`)."""
         self._check_usable("arm")
-        if self.stimulation_mode() != 0:
-            self._request(sm2.STOP_CLM)
+        with self._lock:
+            if self._streaming_open and self._state is StimulatorState.ARMED:
+                return
+        if self.stimulation_mode() != 0 and not self._confirm_stop():
+            raise DeviceError(self._error)
         self._request(sm2.INIT_CLM, sm2.init_clm_data(self.channels, self.pulse_rate_Hz))
         with self._lock:
             self._state = StimulatorState.ARMED
@@ -241,9 +270,9 @@ class Rehastim2Stimulator:
             if self._state is not StimulatorState.ARMED:
                 raise DeviceError(f"RehaStim2: start() in state {self._state.value}; "
                                   "load() and arm() first")
-            self._queue = collections.deque(self._trial_pulses)
-            self._sent, self._acked, self._ack_errors = [], 0, []
-            self._sent_index, self._skipped = [], 0
+            if not self._streaming_open:     # a stream keeps what write_stream queued
+                self._queue = collections.deque(self._trial_pulses)
+            self._reset_trial_counts()
             self._onset_ack_s, self._ended_by = None, ""
             self._streaming_open = False
             self._state = StimulatorState.RUNNING
@@ -251,7 +280,15 @@ class Rehastim2Stimulator:
         self._start_stream_thread()
 
     def stop_now(self) -> None:
-        """StopChannelListMode now (SM2 4.3). Thread-safe, idempotent, never raises."""
+        """StopChannelListMode now, confirmed (SM2 4.3, 5.3). Thread-safe, idempotent,
+        never raises.
+
+        The stop goes out at once; the stream thread is then ended and GetStimulationMode
+        asked until the device answers mode 0, resending the stop while it does not (a lost
+        packet, a -1 transfer error: SM2 4.3, 5.2). If the device has not confirmed within
+        :data:`~nmsid.drivers.rehastim2_link.STOP_CONFIRM_S`, nothing more is written, the keep-alive included, so the
+        device's watchdog stops it within its 1.2 s WatchdogTimeout of the last packet it
+        received (SM2 2.3, 5.2), and the driver reports that in one line (ERROR)."""
         self._stream_stop.set()
         with self._lock:
             self._queue.clear()
@@ -260,15 +297,22 @@ class Rehastim2Stimulator:
             if self._state in (StimulatorState.RUNNING, StimulatorState.ARMED,
                                StimulatorState.LOADED):
                 self._state = StimulatorState.STOPPED
-        if self._ser is not None:
-            try:
-                self._write(sm2.STOP_CLM)
-            except Exception as exc:   # link gone: the device's watchdog stops it (SM2 5.2)
-                log.warning("RehaStim2 stop could not be sent (%s); the device stops by its "
-                            "watchdog within %.1f s (SM2 5.2)", exc, sm2.WATCHDOG_TIMEOUT_S)
+        if self._ser is None or self._silent:
+            return
+        try:
+            self._write(sm2.STOP_CLM)            # first, before anything else
+        except Exception as exc:   # link gone: the device's watchdog stops it (SM2 5.2)
+            message = (f"RehaStim2 stop could not be sent ({exc}); the device stops by its "
+                       f"watchdog within {sm2.WATCHDOG_TIMEOUT_S:g} s (ScienceMode2 5.2)")
+            log.error(message)
+            with self._lock:
+                self._error = self._error or message
+                self._state = StimulatorState.ERROR
+            return
         t = self._stream
         if t is not None and t is not threading.current_thread():
             t.join(timeout=1.0)
+        self._confirm_stop()
 
     def status(self) -> StimulatorStatus:
         ser = self._ser
@@ -288,7 +332,8 @@ class Rehastim2Stimulator:
     # -- host-streamed capability (closed loop) ------------------------------------------------
     def open_stream(self, ceiling_ext_mA: float, ceiling_flex_mA: float,
                     update_Hz: float) -> float:
-        """Initialise the channel list and stream updates at the pulse rate; returns it."""
+        """Initialise the channel list (armed); updates written from now on stream at the
+        pulse rate from :meth:`start` on. Returns the pulse rate."""
         for ch, c in ((self.extensor_channel, ceiling_ext_mA),
                       (self.flexor_channel, ceiling_flex_mA)):
             if c > self.ceilings[ch] + 1e-9:
@@ -296,19 +341,17 @@ class Rehastim2Stimulator:
                                         f"the driver's {self.ceilings[ch]:g} mA")
         self._stream_ceilings.update({self.extensor_channel: float(ceiling_ext_mA),
                                       self.flexor_channel: float(ceiling_flex_mA)})
+        with self._lock:
+            self._streaming_open = False
         self.arm()
         with self._lock:
             self._queue.clear()
-            self._sent, self._acked, self._ack_errors = [], 0, []
-            self._sent_index, self._skipped = [], 0
+            self._reset_trial_counts()
             self._streaming_open = True
-            self._state = StimulatorState.RUNNING
-        self._start_stream_thread()
         return self.pulse_rate_Hz
 
     def write_stream(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> None:
-        ext = np.floor(np.asarray(I_ext_mA, float) + 1e-9).astype(int)
-        flex = np.floor(np.asarray(I_flex_mA, float) + 1e-9).astype(int)
+        ext, flex = to_steps_mA(I_ext_mA), to_steps_mA(I_flex_mA)   # user manual 4.1
         if len(ext) != len(flex):
             raise CurrentLimitError("I_ext_mA and I_flex_mA must have the same length")
         lim = self._stream_ceilings
@@ -341,11 +384,13 @@ class Rehastim2Stimulator:
         the time base (plain JSON types)."""
         with self._lock:
             sent, index = list(self._sent), list(self._sent_index)
-            acked, errors, skipped = self._acked, list(self._ack_errors), self._skipped
+            got = sorted(set(self._delivered))
+            errors, skipped = list(self._ack_errors), self._skipped
             onset, ended = self._onset_ack_s, self._ended_by
+            busy, transfer, unanswered = self._busy, self._transfer_errors, self._unanswered
         if self._loaded is None and not sent:
             return None
-        delivered = sent[:acked]
+        delivered = [sent[i] for i in got]
         channels = {}
         for name, idx, ch in (("extensor", 0, self.extensor_channel),
                               ("flexor", 1, self.flexor_channel)):
@@ -365,8 +410,10 @@ class Rehastim2Stimulator:
                 "pulse_rate_Hz": self.pulse_rate_Hz, "pulse_width_us": self.pulse_width_us,
                 "charge_balanced": "by the device: equal biphasic phases (ScienceMode2 1.2)",
                 "updates_planned": len(self._trial_pulses), "updates_sent": len(sent),
-                "updates_acknowledged": acked, "update_errors": errors,
-                "updates_skipped_late": skipped, "pulse_index": index[:acked],
+                "updates_acknowledged": len(got), "update_errors": errors,
+                "updates_skipped_late": skipped, "updates_busy": busy,
+                "updates_transfer_error": transfer, "updates_unanswered": unanswered,
+                "pulse_index": [index[i] for i in got],
                 "onset_ack_s": onset, "ended_by": ended or "completed",
                 "channels": channels}
 
@@ -404,6 +451,7 @@ class Rehastim2Stimulator:
         k = 0
         try:
             while not self._stream_stop.is_set():
+                self._await_update_ack()     # SM2 5.1 -8: the predecessor answered first
                 with self._lock:
                     if self._queue:
                         e, f = self._queue.popleft()
@@ -430,12 +478,14 @@ class Rehastim2Stimulator:
                 if self._stream_stop.is_set():
                     break
                 data = self._pulse_data(e, f)
-                with self._lock:
+                with self._lock:             # registered before its ack can be handled
                     if self._error:
                         break
+                    number = self._write(sm2.START_CLM, data)
+                    self._update_numbers[number] = len(self._sent)
+                    self._pending_update = (number, time.monotonic())
                     self._sent.append((e, f))
                     self._sent_index.append(k)
-                self._write(sm2.START_CLM, data)
                 k += 1
         except Exception as exc:   # a lost link: the watchdog stops the device (SM2 5.2)
             with self._lock:
@@ -444,112 +494,26 @@ class Rehastim2Stimulator:
                 self._state = StimulatorState.ERROR
             return
         if not self._stream_stop.is_set():
-            deadline = time.monotonic() + 10 * sm2.MAX_RESPONSE_S
-            while time.monotonic() < deadline and not self._stream_stop.is_set():
-                with self._lock:    # the last updates' acknowledgements (SM2 2.3)
-                    if self._acked + len(self._ack_errors) >= len(self._sent) or self._error:
-                        break
-                time.sleep(0.002)
-            try:
-                self._write(sm2.STOP_CLM)
-            except Exception as exc:
-                with self._lock:
-                    self._error = self._error or f"RehaStim2 stop failed ({exc})"
-                    self._state = StimulatorState.ERROR
-                return
+            self._await_update_ack()         # the last update's acknowledgement
             with self._lock:
-                if self._state is StimulatorState.RUNNING:
-                    self._state = StimulatorState.STOPPED
+                self._ended_by = self._ended_by or "completed"
+            self.stop_now()
 
-    def _link_loop(self) -> None:
-        while not self._link_stop.is_set():
-            try:
-                for pkt in self._read_packets():
-                    self._on_packet(pkt)
-                if self.clock() - self._last_sent > KEEPALIVE_S:
-                    self._write(sm2.WATCHDOG)     # SM2 4.1 Watchdog, 2.3 WatchdogTimeout
-            except Exception as exc:
-                with self._lock:
-                    self._error = self._error or (f"RehaStim2 USB link lost "
-                                                  f"({type(exc).__name__}: {exc})")
-                    self._state = StimulatorState.ERROR
-                    self._ack_cv.notify_all()
-                return
-            time.sleep(0.002)
-
-    def _on_packet(self, pkt: sm2.Packet) -> None:
+    def _await_update_ack(self) -> None:
+        """Wait for the outstanding update's response, at most :data:`UPDATE_ACK_WAIT_S`."""
         with self._lock:
-            if pkt.command == sm2.STIMULATION_ERROR:          # SM2 4.3
-                text = sm2.STIM_ERROR_TEXT.get(pkt.result, f"code {pkt.result}")
-                self._error = f"RehaStim2 stimulation error: {text} (ScienceMode2 4.3)"
-                self._state = StimulatorState.ERROR
-            elif pkt.command == sm2.INIT:    # SM2 5.2: the device reset (watchdog expired)
-                self._error = self._error or ("RehaStim2 reset its connection (watchdog "
-                                              "expired, ScienceMode2 5.2)")
-                self._state = StimulatorState.ERROR
-            elif pkt.command == sm2.START_CLM_ACK:
-                if pkt.result == 0:
-                    self._acked += 1
-                    if self._onset_ack_s is None:
-                        self._onset_ack_s = time.monotonic() - self._t_start_call
-                else:
-                    text = sm2.RESULT_TEXT.get(pkt.result, str(pkt.result))
-                    self._ack_errors.append(text)
-                    self._error = self._error or (f"RehaStim2 refused an update: {text} "
-                                                  "(ScienceMode2 5.1)")
-                    self._state = StimulatorState.ERROR
-            elif pkt.number in self._waiting:  # a response someone waits for
-                self._acks[pkt.number] = pkt
-            self._ack_cv.notify_all()
+            while self._pending_update is not None and not self._error \
+                    and not self._stream_stop.is_set():
+                if time.monotonic() - self._pending_update[1] > UPDATE_ACK_WAIT_S:
+                    self._unanswered += 1    # lost on the line: the next update replaces it
+                    self._pending_update = None
+                    break
+                self._ack_cv.wait(0.005)
 
-    def _request(self, command: int, data: bytes = b"") -> sm2.Packet:
-        """Send a command and wait for its response (SM2 2.3 MaxResponseTime, 5.3: one
-        resend)."""
-        for attempt in range(2):
-            with self._wlock:
-                number = self._number
-                self._waiting.add(number)
-            self._write(command, data, number=number)
-            deadline = time.monotonic() + 10 * sm2.MAX_RESPONSE_S
-            with self._lock:
-                while number not in self._acks and not self._error and \
-                        time.monotonic() < deadline:
-                    self._ack_cv.wait(0.01)
-                ack = self._acks.pop(number, None)
-                self._waiting.discard(number)
-                if self._error and ack is None:
-                    raise DeviceError(self._error)
-            if ack is None:
-                continue
-            if ack.command == sm2.UNKNOWN_COMMAND:
-                raise DeviceError(f"RehaStim2 does not know command {command} "
-                                  "(ScienceMode2 5.2)")
-            if ack.result != 0:
-                raise DeviceError(f"RehaStim2 refused command {command}: "
-                                  f"{sm2.RESULT_TEXT.get(ack.result, ack.result)} "
-                                  "(ScienceMode2 5.1)")
-            return ack
-        raise DeviceError(f"RehaStim2: no response to command {command} within "
-                          f"{10 * sm2.MAX_RESPONSE_S:g} s, twice (ScienceMode2 2.3)")
-
-    def _write(self, command: int, data: bytes = b"", number: int | None = None) -> int:
-        ser = self._ser
-        if ser is None:
-            raise DeviceError("RehaStim2 is not connected")
-        with self._wlock:
-            if number is None or number == self._number:
-                number = self._number
-                self._number = (self._number + 1) & 0xFF
-            ser.write(sm2.encode(number, command, data))
-            self._last_sent = self.clock()
-        return number
-
-    def _read_packets(self) -> list[sm2.Packet]:
-        ser = self._ser
-        if ser is None:
-            return []
-        n = ser.in_waiting
-        return self._decoder.feed(ser.read(n)) if n else []
+    def _reset_trial_counts(self) -> None:
+        self._sent, self._sent_index, self._ack_errors = [], [], []
+        self._delivered, self._update_numbers, self._pending_update = [], {}, None
+        self._skipped = self._busy = self._transfer_errors = self._unanswered = 0
 
     def _check_usable(self, what: str) -> None:
         with self._lock:
@@ -557,27 +521,3 @@ class Rehastim2Stimulator:
                 raise DeviceError(f"RehaStim2: {what}() before connect()")
             if self._error:
                 raise DeviceError(self._error)
-
-    def _close_link(self) -> None:
-        self._link_stop.set()
-        t = self._link
-        if t is not None and t is not threading.current_thread():
-            t.join(timeout=1.0)
-        self._link = None
-        self._close_port()
-
-    def _close_port(self) -> None:
-        ser, self._ser = self._ser, None
-        if ser is not None:
-            try:
-                ser.close()
-            except Exception as exc:  # a port already gone (USB glitch) may not close
-                log.info("RehaStim2 port close: %s", exc)
-
-
-def _open_serial(port: str):
-    """pyserial at the settings of SM2 Table 4 (460800 baud, 8 data bits, even parity,
-    1 stop bit, no flow control)."""
-    serial = _serial_module()
-    return serial.Serial(port, baudrate=sm2.BAUDRATE, bytesize=8, parity="E", stopbits=1,
-                         timeout=0.02, write_timeout=0.5, rtscts=False)

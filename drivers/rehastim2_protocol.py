@@ -61,6 +61,8 @@ MIN_MAIN_INTERVAL_MS = 8.0
 MAX_RATE_HZ = 50.0
 """SM2 Table 1: frequency [1, 50] Hz for 8 channels."""
 
+TRANSFER_ERROR, WRONG_MODE, BUSY = -1, -3, -8
+"""SM2 5.1 result codes the driver acts on (4.3: an ack carrying -1 was not executed)."""
 #: SM2 5.1: error codes of the response commands.
 RESULT_TEXT = {0: "no error", -1: "transfer error (checksum or length)", -2: "parameter error",
                -3: "wrong mode error", -4: "Motomed connection error",

@@ -33,6 +33,14 @@ output is already at zero). Stop: :meth:`~StgStreamingStimulator.stop_now` is th
 ``StopLoop``; a failed ``SendStop`` tells the operator to switch the STG off, as in
 download mode.
 
+Priming: ``StartLoop`` only begins moving the PC queue into the STG's memory (the manual's
+6.3 example waits: "Give StartLoop some time"), and an STG started with nothing in its
+memory runs dry at once and stops (continuous mode disabled, above). :meth:`~StgStreamingStimulator.start`
+therefore sends ``SendStart`` only once ``GetFramesBuffered`` (XML: "the number of frames
+currently buffered in STG Memory") shows the queued updates there, or as many as the STG's
+ring holds; if they do not arrive within :data:`PRIME_TIMEOUT_S` nothing starts
+(DeviceError).
+
 Latency: the STG keeps its ring buffer "about half full", so "latency = (ringbuffersize in
 bytes/4) / output rate" (manual 6.3); :attr:`~StgStreamingStimulator.latency_s` reports it
 for the ring size set with ``SetCapacity``.
@@ -67,6 +75,12 @@ RING_S = 2.5
 """Default PC ring buffer, in seconds of output: room for the deepest queue a controller
 design allows (20 updates at 10 Hz = 2 s) and the update being written."""
 UNDERRUN_SLACK_S = 0.02
+PRIME_TIMEOUT_S = 1.0
+"""How long :meth:`StgStreamingStimulator.start` waits for the queued data to reach the
+STG's memory (``GetFramesBuffered``) before ``SendStart``; generous (a loaded host)."""
+BYTES_PER_FRAME = 4
+"""The STG ring's frames: ``SetCapacity`` bytes / 4, as the manual's latency formula
+(6.3: "ringbuffersize in bytes/4") counts them (ASSUMED; a first-day bench check)."""
 """Allowance on the drain test for USB transfers and clock reads (20 ms: one update at
 50 Hz)."""
 CALLBACK_THRESHOLD_PCT = 50
@@ -416,6 +430,7 @@ class StgStreamingStimulator:
         if self._dev is None or not self._P or self._state is not StimulatorState.ARMED:
             raise DeviceError("no open stream to start; call open_stream() first")
         with self._io:
+            self._wait_primed()
             try:
                 self._dev.SendStart(self._u32(1))
             except Exception as exc:
@@ -425,6 +440,28 @@ class StgStreamingStimulator:
         self._started = True
         self._t_start = self._now()    # after SendStart returned: the test stays conservative
         self._state = StimulatorState.RUNNING
+
+    def _wait_primed(self) -> None:
+        """Return once the STG's memory holds the queued data (or a full ring of it);
+        raise DeviceError, starting nothing, if it does not within PRIME_TIMEOUT_S."""
+        if self._enqueued <= 0:
+            raise DeviceError("STG streaming: nothing queued to start (write_stream first); "
+                              "nothing was started")
+        dev = self._dev
+        assert dev is not None
+        need = min(self._enqueued, self.stg_ring_bytes // BYTES_PER_FRAME)
+        deadline = time.monotonic() + PRIME_TIMEOUT_S
+        while True:
+            got = int(dev.GetFramesBuffered(self._u32(0)))    # trigger 1, 0-based
+            if got >= need:
+                return
+            if time.monotonic() > deadline:
+                raise DeviceError(
+                    f"STG streaming: only {got} of {need} frames reached the STG's memory "
+                    f"within {PRIME_TIMEOUT_S:g} s of StartLoop (McsUsbNet "
+                    "GetFramesBuffered; manual 6.3: \"Give StartLoop some time\"); nothing "
+                    "was started")
+            time.sleep(0.002)
 
     def arm(self) -> None:
         """Nothing to do: :meth:`open_stream` armed trigger 1 (``StartLoop``)."""
@@ -443,21 +480,29 @@ class StgStreamingStimulator:
             return
         try:
             if self._state is StimulatorState.RUNNING:
-                space = self._queue_space()
-                if space < self.ring_samples:   # updates still queued: a zero one after them
+                # updates still queued, on the PC or already in the STG's memory: a zero
+                # one after them, then wait until both have played out (GetFramesBuffered)
+                if self._queue_space() < self.ring_samples or self._frames_buffered() > 0:
                     self.write_stream(np.zeros(1), np.zeros(1))
-                    queued = self.ring_samples - self._queue_space()
+                    queued = self.ring_samples - self._queue_space() + self._frames_buffered()
                     deadline = time.monotonic() + queued / self.output_rate_Hz + 0.2
                     while time.monotonic() < deadline:
-                        if self._queue_space() >= self.ring_samples:
+                        if self._queue_space() >= self.ring_samples and \
+                                self._frames_buffered() == 0:
                             break
                         time.sleep(0.002)
-                time.sleep(self.latency_s)   # the STG's own ring plays out
         except Exception as exc:  # closing must not raise: the stop below still runs
             log.warning("STG stream close: %s", exc)
         self._stop("close_stream")
         self._P = 0
         self._t_start = None
+
+    def _frames_buffered(self) -> int:
+        dev = self._dev
+        if dev is None:
+            return 0
+        with self._io:
+            return int(dev.GetFramesBuffered(self._u32(0)))
 
     def _queue_space(self) -> int:
         dev = self._dev

@@ -8,6 +8,17 @@ recorded resistor current is then compared with what the device was given
 (:mod:`nmsid.drivers.dry_run` holds the comparisons; wiring and limits are described there
 and in docs/hardware.md).
 
+The streamed trial (:func:`run_stream_dry_run`, a stimulator that streams: the closed loop's
+path): one tracking-style trial, its updates written while it runs by the same
+:func:`~nmsid.rig.stimulation.run_block` hook a tracking session uses, at dry-run
+currents. It is checked against what the DEVICE reports (every update answered, each
+delivered current the command rounded down to the device's step, the output stopped and
+confirmed) and, with a monitor input, against the resistor's recorded pulses. With a
+Leptrino (no A/D input) the resistor's current is not recorded: the RehaStim2 itself tests
+the load's resistance before each pulse and stops with an electrode error on an open or
+wrong load (ScienceMode2 1.2, 4.3), and the operator reads the amplitude on an
+oscilloscope across the resistor (the line printed says what to expect).
+
 ``estop_at_s``: the E-stop test. The trial's envelope is a chirp (0.5 .. 10 Hz, the shape of
 a session's trial at dry-run currents) and the interlock's E-stop is pressed that long into
 it (mid-chirp); the block must end by the E-stop, and a short
@@ -18,6 +29,7 @@ output, the sync line low.
 from __future__ import annotations
 
 import logging
+import math
 
 import numpy as np
 
@@ -25,7 +37,8 @@ from nmsid.drivers.dry_run import (CARRIER_HZ, ENVELOPE_FS_HZ, Check, DryRunSett
                                    check_after_stop, check_loopback, check_pulses,
                                    dry_run_chirp_envelope, dry_run_envelope, record_problem)
 from nmsid.drivers.hardware import BenchClock
-from nmsid.drivers.interfaces import CheckedWaveform, DeliveryReporting, SampleTiming
+from nmsid.drivers.interfaces import (CheckedWaveform, DeliveryReporting,
+                                      HostStreamedStimulator, SampleTiming, StimulatorState)
 from nmsid.drivers.registry import stimulator_kind
 from nmsid.protocols.interlock_settings import InterlockConfig
 from nmsid.rig.safety import Interlock
@@ -194,8 +207,143 @@ def dry_run_probe(devices, cfg, args, *, out=print) -> bool:
         ch = devices.extensor_channel if s.channel == "extensor" else devices.flexor_channel
         bench.dummy_load = (ch - 1, s.load_ohm)
     support = stimulator_kind(cfg.stimulator).dry_run
-    ok = run_dry_run(devices, s, support, out=out,
-                     monitor_channel=cfg.acquisition.monitor_channel)
-    stopped = run_dry_run(devices, s, support, out=out, estop_at_s=ESTOP_AT * s.duration_s,
-                          monitor_channel=cfg.acquisition.monitor_channel)
-    return ok and stopped
+    monitor = cfg.calibration is not None and cfg.calibration.monitor_channel is not None
+    ok = stopped = True
+    if not monitor and (support.method != "pulse-amplitude" or
+                        not isinstance(devices.stimulator, HostStreamedStimulator)):
+        out("dry run: FAILED: this acquisition has no A/D input for the resistor and this "
+            "stimulator does not stream (its own delivery reports are the streamed trial's "
+            "checks); use an analog chain with acquisition.monitor_channel, or an "
+            "oscilloscope (docs/hardware.md, section 6)")
+        return False
+    if monitor:
+        ok = run_dry_run(devices, s, support, out=out,
+                         monitor_channel=cfg.acquisition.monitor_channel)
+        stopped = run_dry_run(devices, s, support, out=out,
+                              estop_at_s=ESTOP_AT * s.duration_s,
+                              monitor_channel=cfg.acquisition.monitor_channel)
+    streamed = True
+    if support.method == "pulse-amplitude":   # a device that reports each pulse's current
+        streamed = run_stream_dry_run(devices, s, out=out, fs_Hz=(
+            cfg.acquisition.monitor_fs_Hz if monitor else cfg.acquisition.fs_Hz))
+    else:
+        out("dry run, streamed trial: not run for this stimulator (it reports no per-pulse "
+            "currents; its carrier is checked by the lock-in of the trial above)")
+    return ok and stopped and streamed
+
+
+STREAM_QUEUE_S = 0.5
+"""Updates queued ahead in the streamed trial (a tracking session's queue is similar)."""
+STREAM_UPDATE_HZ = 100.0
+"""The update rate asked of a stimulator that takes one (the RehaStim2 answers its pulse
+rate; the STG needs a divisor of its carrier)."""
+
+
+class DryRunStream:
+    """:func:`~nmsid.rig.stimulation.run_block`'s stream hook (as
+    :class:`~nmsid.rig.tracking.TrackingStream`): a tracking-style envelope, 0 ..
+    ``amplitude_mA`` following a slow sine and a faster one (0.5 and 2 Hz), written update
+    by update as the trial's samples arrive."""
+
+    def __init__(self, s: DryRunSettings, fs_Hz: float):
+        self.s, self.fs_Hz = s, float(fs_Hz)
+        self.rate_Hz = STREAM_UPDATE_HZ
+        self.commands: list[float] = []
+        self.n_updates = 0
+        self.stim: HostStreamedStimulator | None = None
+
+    def envelope(self, i: int) -> float:
+        t = i / self.rate_Hz
+        x = 0.5 + 0.3 * math.sin(2 * math.pi * 0.5 * t) + 0.2 * math.sin(2 * math.pi * 2 * t)
+        return float(min(max(x, 0.0), 1.0) * self.s.amplitude_mA)
+
+    def _write(self, upto: int) -> None:
+        ext, stim = self.s.channel == "extensor", self.stim
+        assert stim is not None    # open() set it
+        while len(self.commands) < min(upto, self.n_updates):
+            a = self.envelope(len(self.commands))
+            stim.write_stream(np.array([a if ext else 0.0]),
+                                   np.array([0.0 if ext else a]))
+            self.commands.append(a)
+
+    def open(self, stim) -> None:
+        a = self.s.amplitude_mA
+        self.rate_Hz = float(stim.open_stream(a, a, STREAM_UPDATE_HZ))
+        self.n_updates = math.floor(self.s.duration_s * self.rate_Hz)
+        self.stim = stim
+        self._write(max(1, round(STREAM_QUEUE_S * self.rate_Hz)))
+
+    def update(self, received: int, force_N) -> None:
+        self._write(math.floor(received / self.fs_Hz * self.rate_Hz)
+                    + round(STREAM_QUEUE_S * self.rate_Hz))
+
+    def close(self, stim) -> None:
+        stim.close_stream()
+
+
+def run_stream_dry_run(devices, s: DryRunSettings, *, fs_Hz: float, out=print) -> bool:
+    """The streamed (tracking-style) trial into the dummy load; see the module docstring."""
+    stim, acq = devices.stimulator, devices.acquisition
+    if not isinstance(stim, HostStreamedStimulator):
+        out("dry run, streamed trial: not run (this stimulator does not stream)")
+        return True
+    ch = devices.extensor_channel if s.channel == "extensor" else devices.flexor_channel
+    out(f"dry run, streamed trial: {s.duration_s:g} s, tracking-style updates up to "
+        f"{s.amplitude_mA:g} mA on the {s.channel} channel ({ch}) into {s.load_ohm:g} Ohm, "
+        "through the interlock")
+    fs = acq.configure(fs_Hz)
+    n = round(s.duration_s * fs)
+    stream = DryRunStream(s, fs)
+    monitor: list = []
+    interlock = Interlock(DRY_RUN_INTERLOCK, stim, estop_input=devices.estop)
+    interlock.start_watcher()
+    try:
+        block = run_block(devices, interlock, None, n, stream=stream,
+                          on_chunk=lambda c: monitor.append(c.monitor) if c.n else None)
+    finally:
+        interlock.stop_watcher()
+    out(f"  record: {block.received} of {n} samples at {fs:g} Hz"
+        + (f"; block ended: {block.abort_reason}" if block.abort_reason else ""))
+    summary = stim.delivery_summary() if isinstance(stim, DeliveryReporting) else None
+    st = stim.status()
+    checks = [Check("stream: ended", not block.abort_reason and st.state is not
+                    StimulatorState.ERROR and not st.output_active,
+                    f"state {st.state.value}{', ' + st.error if st.error else ''}",
+                    "the whole trial, output stopped, no device error")]
+    if summary is None:
+        out("  [INFO] the stimulator reports no delivered updates: only the end is checked")
+        return _report(checks, out)
+    sent, acked = summary.get("updates_sent", 0), summary.get("updates_acknowledged", 0)
+    lost = sum(summary.get(k, 0) for k in ("updates_busy", "updates_transfer_error",
+                                           "updates_unanswered"))
+    due = math.floor(block.received / fs * stream.rate_Hz)
+    checks.append(Check("stream: updates answered", 0 < sent <= len(stream.commands) and
+                        acked + lost == sent and acked >= 0.9 * sent,
+                        f"{acked} of {sent} sent acknowledged ({due} due in the record), "
+                        f"{lost} skipped (busy, transfer error, unanswered)",
+                        ">= 90 % acknowledged, every one answered"))
+    step = float(stim.capabilities().resolution_mA)
+    got = summary["channels"][s.channel]["pulse_current_mA"]
+    cmd = [stream.commands[k] for k in summary.get("pulse_index", [])]
+    err = [c - g for c, g in zip(cmd, got)]
+    checks.append(Check("stream: delivered = command rounded down",
+                        len(cmd) == len(got) and all(-1e-9 <= e < step + 1e-9 for e in err),
+                        f"{len(got)} pulses, command - delivered in "
+                        f"[{min(err, default=0):.3g}, {max(err, default=0):.3g}] mA",
+                        f"0 .. {step:g} mA (the device's step)"))
+    mon = [m for m in monitor if m is not None]
+    if mon:
+        shape = summary["waveshape"]
+        checks += check_pulses(np.concatenate(mon)[:n], s, got,
+                               float(shape.get("pulse_width_us", 0.0)),
+                               float(shape.get("interphase_us", 0.0)),
+                               pulse_index=summary.get("pulse_index"))
+    else:
+        width = summary.get("waveshape", {}).get("pulse_width_us")
+        out(f"  [INFO] the resistor's current is not recorded (no monitor input): "
+            f"look at it on an oscilloscope across the {s.load_ohm:g} Ohm resistor, up to "
+            f"+-{max(got, default=0) * 1e-3 * s.load_ohm:g} V"
+            + (f" pulses of {width:g} us per phase" if width else "")
+            + "; the RehaStim2 checks the load's resistance before each pulse (ScienceMode2 "
+            "1.2: an open or wrong load stops it with an electrode error)")
+    return _report(checks, out)

@@ -30,7 +30,7 @@ import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from nmsid.drivers.hardware import build_devices
+from nmsid.drivers.hardware import build_devices, check_session_ceilings
 from nmsid.drivers.hw_config import HardwareConfig, load_hw_config
 from nmsid.drivers.interfaces import RigDevices
 from nmsid.protocols.config import Config
@@ -190,6 +190,8 @@ def prepare_rig(request: RigRequest, config) -> PreparedRig:
         assert request.hw_config is not None   # refused above otherwise
         hw = load_hw_config(request.hw_config)
         check_rates(hw, config)
+        c = config.calibration      # ceilings above the hardware's: refused here, once
+        check_session_ceilings(hw, c.ceiling_ext_mA, c.ceiling_flex_mA)
         devices = build_devices(hw)
     return PreparedRig(devices=devices, config=config, extra_attrs=attrs, sim_seed=sim_seed)
 

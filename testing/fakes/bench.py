@@ -124,17 +124,24 @@ class FakeBench:
 LEPTRINO_OFFSET_V, LEPTRINO_RATED_OUTPUT_V, LEPTRINO_SPAN_V = 1.5, 1.0, (0.0, 3.3)
 """Leptrino CFS manual No.M000104, 4.1: outputs 0 .. 3.3 V, 1.5 V offset at no load, 1 V
 change at rated load."""
+LEPTRINO_REST_V = {"Fx": 1.580, "Fy": 1.532, "Fz": 1.532, "Mx": 1.532, "My": 1.532,
+                   "Mz": 1.532}
+"""Where the fake sensor's outputs REST: off the nominal 1.5 V, as the CFS manual's own
+examples (4.2: no-load voltages of 1.532 and 1.580 V); the driver measures them (tare)."""
 
 
 def leptrino_analog_wiring(bench: FakeBench, channels: dict, rated: dict,
                            direction=(1.0, 0.0, 0.0), sync_channel=None,
-                           noise_V: float = 0.00005, seed: int = 1) -> dict:
+                           noise_V: float = 0.00005, seed: int = 1,
+                           rest_V: dict | None = None) -> dict:
     """The Leptrino analog sensor as its manual describes it, driven by FORCE: each axis
-    outputs ``1.5 V + 1 V x load / rated`` clipped to 0 .. 3.3 V (manual 4.1), whatever
-    calibration the driver was given (``rated`` is the sensor's rating)."""
+    outputs ``rest + 1 V x load / rated`` clipped to 0 .. 3.3 V (manual 4.1), whatever
+    calibration the driver was given (``rated`` is the sensor's rating); ``rest_V``: the
+    no-load voltages (default :data:`LEPTRINO_REST_V`, off the nominal 1.5 V)."""
+    rest = {**LEPTRINO_REST_V, **(rest_V or {})}
     inner = sensor_wiring(bench, channels,
                           {a: LEPTRINO_RATED_OUTPUT_V / rated[a] for a in channels},
-                          offset_V={a: LEPTRINO_OFFSET_V for a in channels},
+                          offset_V={a: rest[a] for a in channels},
                           direction=direction, sync_channel=None, noise_V=noise_V, seed=seed)
     lo, hi = LEPTRINO_SPAN_V
     wiring: dict[int, Callable[..., np.ndarray]] = {

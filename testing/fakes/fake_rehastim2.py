@@ -7,6 +7,15 @@ Each behaviour below cites the section it comes from. The fake is a serial port 
 so the driver's own bytes are parsed here exactly as the device would receive them; time
 runs on a clock (the fake bench's in fake mode), never on the driver's assumptions.
 
+Faults of the link it models (tests inject them): packets lost on the line (no answer, no
+watchdog fed: SM2 5.2 "data transfer physically broken / disturbed"), packets corrupted
+(checksum error: the response carries -1 "transfer error", SM2 4.3 / 5.1 / 5.2), a line
+outage in both directions, and Busy: with ``response_latency_s`` > 0 an update is
+acknowledged that long after it arrived (the README's 10-24 ms command latency), and an
+update that arrives before its predecessor's acknowledgement is answered -8 "busy error"
+and not applied (SM2 5.1: "wait for the response packet"); ``busy_fraction`` answers -8 on
+that fraction of updates at random (a device busy with itself).
+
 What it does not model: the Motomed commands (SM2 4.4), the one shot mode, doublets and
 triplets; the skin-resistance test pulse (SM2 1.2) is modelled only as the electrode error.
 """
@@ -30,6 +39,7 @@ class _SM2:
     INIT, INIT_ACK, UNKNOWN_COMMAND, WATCHDOG = 1, 2, 3, 4             # SM2 3.1
     GET_STIM_MODE = 10                                                 # SM2 3.2
     INIT_CLM, START_CLM, STOP_CLM, SINGLE_PULSE = 30, 32, 34, 36       # SM2 3.3
+    TRANSFER_ERROR, WRONG_MODE, BUSY = -1, -3, -8                      # SM2 5.1
     STIMULATION_ERROR = 38
     MAX_CURRENT_MA, MIN_PULSE_WIDTH_US, MAX_PULSE_WIDTH_US = 130, 20, 500   # SM2 4.3
     MIN_MAIN_INTERVAL_MS = 8.0                                         # SM2 4.3
@@ -172,8 +182,19 @@ class FakeRehastim2:
     """SM2 4.1 Init byte 7: "Current version number of the protocol" (no value is given)."""
 
     def __init__(self, clock: Callable[[], float] = time.monotonic,
-                 sleep: Callable[[float], None] | None = None):
+                 sleep: Callable[[float], None] | None = None, *,
+                 response_latency_s: float = 0.0, busy_fraction: float = 0.0, seed: int = 0):
         self.clock, self._sleep = clock, sleep or (lambda s: time.sleep(min(s, 0.001)))
+        self.response_latency_s = float(response_latency_s)
+        self.busy_fraction = float(busy_fraction)
+        self._rng = np.random.default_rng(seed)
+        self._delayed: list[tuple[float, bytes]] = []   # acknowledgements not yet sent
+        self._update_ack_due = -np.inf       # when the last update's ack goes out
+        self._lose: dict[int, int] = {}      # command -> packets still to lose
+        self._corrupt: dict[int, int] = {}   # command -> packets still to corrupt
+        self._line_down_until = -np.inf
+        self.lost: list[int] = []            # commands of the packets the line lost
+        self.busy_replies = 0
         self.lock = threading.RLock()
         self._decoder = _Receiver()
         self._out = bytearray()
@@ -212,7 +233,18 @@ class FakeRehastim2:
         self._check_plugged()
         with self.lock:
             self._advance()
+            if self.clock() < self._line_down_until:      # the line is out: nothing arrives
+                self.lost.append(-1)
+                return len(data)
             for pkt in self._decoder.feed(bytes(data)):
+                if self._lose.get(pkt.command, 0) > 0:    # lost on the line (SM2 5.2)
+                    self._lose[pkt.command] -= 1
+                    self.lost.append(pkt.command)
+                    continue
+                if self._corrupt.get(pkt.command, 0) > 0:  # a flipped bit: checksum error
+                    self._corrupt[pkt.command] -= 1
+                    self._decoder.transfer_errors.append((pkt.number, pkt.command))
+                    continue
                 self._handle(pkt)
             for number, command in self._decoder.transfer_errors:
                 # SM2 5.2 checksum / data length error: the Ack with the transfer error
@@ -254,6 +286,23 @@ class FakeRehastim2:
             self._stop_output("unplugged")
             self.mode, self.connected = 0, False
 
+    def lose_next(self, command: int, count: int = 1) -> None:
+        """The next ``count`` packets of ``command`` are lost on the line: the device never
+        sees them, answers nothing and its watchdog is not fed (SM2 5.2)."""
+        with self.lock:
+            self._lose[command] = self._lose.get(command, 0) + count
+
+    def corrupt_next(self, command: int, count: int = 1) -> None:
+        """The next ``count`` packets of ``command`` arrive with a bad checksum: the device
+        answers with the transfer error -1 and does not execute them (SM2 4.3, 5.1, 5.2)."""
+        with self.lock:
+            self._corrupt[command] = self._corrupt.get(command, 0) + count
+
+    def line_down(self, duration_s: float) -> None:
+        """Both directions of the line lose everything for ``duration_s`` from now."""
+        with self.lock:
+            self._line_down_until = self.clock() + duration_s
+
     def replug(self) -> None:
         with self.lock:
             self.plugged = True
@@ -287,12 +336,19 @@ class FakeRehastim2:
         if number is None:                   # information packets: own counter (SM2 2.2)
             number = self._number
             self._number = (self._number + 1) & 0xFF
-        self._out += sm2.encode(number, command, data)
+        frame = sm2.encode(number, command, data)
+        if self.clock() < self._line_down_until:
+            return                           # lost on the way back
+        self._out += frame
 
     def _advance(self) -> None:
         now = self.clock()
         if not self.plugged:
             return
+        while self._delayed and self._delayed[0][0] <= now:   # acknowledgements now due
+            _due, frame = self._delayed.pop(0)
+            if now >= self._line_down_until:
+                self._out += frame
         if self.connected and now - self._last_valid > sm2.WATCHDOG_TIMEOUT_S:
             # SM2 5.2 "Data transfer physically broken / disturbed": stimulation stopped,
             # all modes reset, RehaStim2 sends the Init command
@@ -376,11 +432,23 @@ class FakeRehastim2:
         # SM2 4.3: "if (pw < 20) then pw = 20"
         values = {ch: (max(pw, sm2.MIN_PULSE_WIDTH_US), cur)
                   for ch, (_m, pw, cur) in zip(self.active, params)}
+        if now < self._update_ack_due or (self.busy_fraction > 0 and
+                                           self._rng.random() < self.busy_fraction):
+            # SM2 5.1 -8 busy error: "wait for the response packet" of the predecessor
+            # before sending the next command; the update is not applied
+            self.busy_replies += 1
+            self._ack(pkt, sm2.BUSY)
+            return
         if self.mode == 1:
             self.starts.append(now)
         self.mode = 2
         self.updates.append((now, values))
-        self._ack(pkt, 0)
+        if self.response_latency_s > 0:      # acknowledged after the command latency
+            self._update_ack_due = now + self.response_latency_s
+            self._delayed.append((self._update_ack_due, sm2.encode(
+                pkt.number, pkt.command + 1, bytes((0,)))))
+        else:
+            self._ack(pkt, 0)
         bad = [ch for ch in self.active if ch in self.electrode_error_channels
                and values[ch][1] > 0]
         if bad:                              # SM2 1.2: no pulse on a bad resistance

@@ -18,11 +18,18 @@ Modelled (each with its source):
   trigger, "must not exceed the total memory" (manual 6.3), ``SetupTrigger(channelmap,
   syncoutmap, digoutmap, autostart, callback_threshold)`` one entry per trigger (XML),
   ``StartLoop`` / ``StopLoop``, ``SendStart`` / ``SendStop``.
-* Playback: after ``StartLoop`` and ``SendStart(1)`` the queued samples play at the output
-  rate on the bench clock; "When DisableContinousMode is used, the STG stops when it runs
-  out of data" (manual 6.3); with continuous mode (the default, ASSUMED) it outputs zero.
-  The STG-side ring buffer's latency is not modelled (the samples leave the PC queue as
-  they play).
+* The STG's own memory: after ``StartLoop`` the library moves the PC queue into the STG's
+  ring (the manual's 6.3 example: "Give StartLoop some time" before ``SendStart``);
+  ``GetFramesBuffered(trigger)`` "Queries the number of frames currently buffered in STG
+  Memory" (XML). ASSUMED, to check on the bench (docs/hardware.md): the transfer begins
+  :attr:`transfer_delay_s` (10 ms) after ``StartLoop`` and runs at
+  :attr:`transfer_speedup` (4) times the output rate; the ring holds ``SetCapacity``
+  bytes / 4 frames (the manual's latency formula, "ringbuffersize in bytes/4"); a frame is
+  one output sample of the trigger's channels; ``trigger`` is 0-based.
+* Playback: after ``SendStart(1)`` samples play at the output rate on the bench clock FROM
+  THE STG'S MEMORY; "When DisableContinousMode is used, the STG stops when it runs out of
+  data" (manual 6.3), so a ``SendStart`` before any data reached the STG stops at once;
+  with continuous mode (the default, ASSUMED) it outputs zero.
 """
 
 from __future__ import annotations
@@ -60,6 +67,11 @@ class CStg200xStreamingNet:
         self.start_t: float | None = None
         self.stop_t: float | None = None
         self._done = 0
+        self.queued_t: dict[int, list[float]] = {}   # when each queued frame was enqueued
+        self.loop_t: float | None = None
+        self._head = 0                             # frames played since StartLoop
+        self.transfer_delay_s = 0.010
+        self.transfer_speedup = 4.0
         self.fail_next: dict[str, Exception] = {}
         self.disposed = False
         self._generation = -1
@@ -172,31 +184,66 @@ class CStg200xStreamingNet:
 
     def StartLoop(self):
         self._log("StartLoop")
-        self._need()
+        self.loop_t = self._need().now()
         self.loop = True
+        self._head = 0
+
+    def GetFramesBuffered(self, trigger):
+        self._log("GetFramesBuffered", trigger)
+        _require(trigger, UInt32, "trigger")
+        self._advance()
+        hw = self._need()
+        return UInt32(self._buffered(self._first_channel(), hw.now()))
+
+    def _ring_frames(self) -> int:
+        return (self.capacity[0] // 4) if self.capacity else 4000
+
+    def _chans(self) -> list[int]:
+        n = self.hw.n_channels if self.hw is not None else 0
+        return [ch for ch in range(n) if self.trigger and self.trigger[0][0] >> ch & 1]
+
+    def _arrival(self, ch: int) -> np.ndarray:
+        """When each queued frame of ``ch`` is (or will be) in the STG's memory: not before
+        it was enqueued, nor before the transfer that began transfer_delay_s after
+        StartLoop reaches it at transfer_speedup x the output rate."""
+        enq = np.asarray(self.queued_t.get(ch, []), dtype=np.float64)
+        if self.loop_t is None or not self.loop:
+            return np.full(len(enq), np.inf)
+        g = self._head + np.arange(len(enq))
+        return np.maximum(self.loop_t + self.transfer_delay_s
+                          + g / (self.rate_Hz * self.transfer_speedup), enq)
+
+    def _buffered(self, ch: int, now: float) -> int:
+        """Frames of ``ch`` in the STG's memory at ``now`` (at most its ring)."""
+        return min(self._ring_frames(), int(np.count_nonzero(self._arrival(ch) <= now)))
 
     def StopLoop(self):
         self._log("StopLoop")
         self.loop = False
 
     # -- data ---------------------------------------------------------------------------------
-    def _advance(self):
-        """Move the samples due on the bench clock from the queues to ``played``."""
-        if self.start_t is None or self.hw is None:
+    def _advance(self, now: float | None = None):
+        """Play the samples due on the bench clock (at ``now``), each only if its frame had
+        reached the STG's memory by its time (else, without continuous mode, the STG stops
+        there)."""
+        if self.start_t is None or self.hw is None or self.stop_t is not None:
             return
-        now = self.hw.now() if self.stop_t is None else self.stop_t
+        now = self.hw.now() if now is None else now
         due = int(np.floor((now - self.start_t) * self.rate_Hz))
         new = due - self._done
         if new <= 0:
             return
-        chans = [ch for ch in range(self.hw.n_channels)
-                 if self.trigger and self.trigger[0][0] >> ch & 1]
-        avail = min((len(self.queued.get(ch, [])) for ch in chans), default=0)
-        take = min(new, avail)
-        for ch in chans:
-            q = self.queued.setdefault(ch, [])
+        take = new
+        for ch in self._chans():
+            arr = self._arrival(ch)[:new]
+            play = self.start_t + (self._done + np.arange(len(arr))) / self.rate_Hz
+            late = np.flatnonzero(arr > play + 1e-12)
+            take = min(take, int(late[0]) if len(late) else len(arr))
+        for ch in self._chans():
+            q, qt = self.queued.setdefault(ch, []), self.queued_t.setdefault(ch, [])
             self.played.setdefault(ch, []).extend(q[:take])
-            del q[:take]
+            del q[:take], qt[:take]
+        self._head += take
         for q in self.sync_queued.values():
             del q[:take]
         self._done += take
@@ -208,7 +255,8 @@ class CStg200xStreamingNet:
         self._log("GetDataQueueSpace", channel)
         ch = _require(channel, UInt32, "channel")
         self._advance()
-        return UInt32(max(self.ring - len(self.queued.get(ch, [])), 0))
+        on_pc = len(self.queued.get(ch, [])) - self._buffered(ch, self._need().now())
+        return UInt32(max(self.ring - on_pc, 0))
 
     def GetSyncoutQueueSpace(self, channel):
         self._log("GetSyncoutQueueSpace", channel)
@@ -227,11 +275,13 @@ class CStg200xStreamingNet:
         ch = _require(channel, UInt32, "channel")
         values = _require_array(data, Int16, "data").astype(np.int64)
         self._advance()
-        space = self.ring - len(self.queued.get(ch, []))
+        now = self._need().now()
+        space = self.ring - (len(self.queued.get(ch, [])) - self._buffered(ch, now))
         take = values[:max(space, 0)]
         step = self._step()
         truncated = take & ~(step - 1)     # manual 6.3: lower bits truncated
         self.queued.setdefault(ch, []).extend(truncated.tolist())
+        self.queued_t.setdefault(ch, []).extend([now] * len(take))
         return UInt32(len(take) * 2)
 
     def EnqueueSyncout(self, channel, data):
@@ -254,10 +304,10 @@ class CStg200xStreamingNet:
     def SendStop(self, triggermap):
         self._log("SendStop", triggermap)
         _require(triggermap, UInt32, "triggermap")
-        self._need()
-        self._advance()
+        now = self._need().now()
+        self._advance(now)     # one instant for both: no thread switch between them counts
         if self.start_t is not None and self.stop_t is None:
-            self.stop_t = self.hw.now()
+            self.stop_t = now
 
     # -- what the bench sees -------------------------------------------------------------------
     def output_at(self, channel: int) -> np.ndarray:

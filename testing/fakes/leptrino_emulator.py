@@ -40,10 +40,11 @@ of ``hiveground-ros-package/leptrino_force_torque``; section numbers below are i
   and 3 reserved bytes.
 * Data, 6: "-32000 .. +32000", rated = +-10000, "a force above 3.2 times the rating is also
   +-32000": raw values are clipped at +-32000.
-* Status byte (``ucStatus``): bits 0, 1, 2 and 5 are documented; bits 3, 4, 6, 7 are
-  reserved and indeterminate, so with ``reserved_bits_random`` each record carries random
-  values there. Bit 5 (external input) exists only on models with the input:
-  ``has_external_input=False`` makes it random too.
+* Data record, 6.1: six int16 values, two reserved bytes, the status byte, one reserved
+  byte. Status bits 0, 1, 2 are documented; bits 3-7 are reserved and undefined, so with
+  ``reserved_bits_random`` each record carries random values there and in the two bytes
+  after Mz (which an earlier reading took as a temperature and bit 5 as an external
+  input; 6.1 defines neither). ``status_fn`` may set any bit, reserved ones included.
 """
 
 from __future__ import annotations
@@ -166,7 +167,7 @@ class LeptrinoEmulator:
     def __init__(self, *, rate_Hz: float = 1200.0, rated=(500.0, 500.0, 1000.0, 10.0, 10.0, 10.0),
                  wrench_fn=None, model: str = "PFS080YA501G6", serial: str = "LT000042",
                  firmware: str = "1.07", seed: int = 0, rate_text: str | None = None,
-                 reserved_bits_random: bool = False, has_external_input: bool = True,
+                 reserved_bits_random: bool = False,
                  filter_code: int = 0x02, transport: str | None = None):
         self.rate_Hz = rate_Hz
         self.rated = tuple(float(r) for r in rated)
@@ -176,7 +177,6 @@ class LeptrinoEmulator:
         self.rate_text = rate_text
         self.filter_code = filter_code
         self.reserved_bits_random = reserved_bits_random
-        self.has_external_input = has_external_input
         self.rng = random.Random(seed)
         self.nak_next = 0
         self.nak_start = 0
@@ -384,11 +384,11 @@ class LeptrinoEmulator:
         raw = [max(-FULL_SCALE, min(FULL_SCALE, int(round(w / r * 10000.0))))
                for w, r in zip(wrench, self.rated)]
         status = int(self.status_fn(t)) & 0xFF
-        if self.reserved_bits_random:  # bits 3, 4, 6, 7: reserved, indeterminate
-            status = (status & ~0xD8) | (self.rng.randrange(256) & 0xD8)
-        if not self.has_external_input:  # bit 5 undefined on a model without the input
-            status = (status & ~0x20) | (self.rng.randrange(2) << 5)
-        data = struct.pack("<6hhBB", *raw, 2500, status, 0)
+        reserved = 0x09C4
+        if self.reserved_bits_random:  # 6.1: bits 3-7 and the 2 bytes after Mz reserved
+            status = (status & 0x07) | (self.rng.randrange(256) & 0xF8)
+            reserved = self.rng.randrange(65536)
+        data = struct.pack("<6hHBB", *raw, reserved, status, 0)
         return _frame(bytes([4 + len(data), 0xFF, cmd, self.data_result]) + data)
 
     def _stream(self):

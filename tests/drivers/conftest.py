@@ -112,7 +112,7 @@ def _write_hw_config(path, *, kind="caio", speed=10.0, fake=True, estop="serial"
              "[acquisition]", f'kind = "{kind}"', f"fs_Hz = {fs_Hz}",
              *([f"monitor_channel = {monitor}"] if monitor is not None else []), *extra]
     if kind == "leptrino":
-        lines += ["[acquisition.leptrino]", 'port = "COM5"', "sync_on_external_input = true"]
+        lines += ["[acquisition.leptrino]", 'port = "COM5"']
     else:
         lines += ["[sensor]", "sync_channel = 6", "[sensor.channels]",
                   *[f"{a} = {i}" for i, a in enumerate(("Fx", "Fy", "Fz", "Mx", "My", "Mz"))],

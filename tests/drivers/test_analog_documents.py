@@ -41,7 +41,7 @@ def test_the_example_hardware_file_follows_the_vendor_scaling(tmp_path):
     # a 25 N push on Fx, as the sensor puts it out (manual 4.1): 1.5 V + 1 V x 25 / rated
     bench_mod = load_fake("bench")
     wiring = bench_mod.leptrino_analog_wiring(bench_mod.FakeBench(), {"Fx": 0}, cal.rated,
-                                              noise_V=0.0)
+                                              noise_V=0.0, rest_V={"Fx": 1.5})
     v = wiring[0](np.zeros(1), np.array([25.0]))
     volts = np.zeros((1, cal.n_channels))
     volts[:, list(cal.channels.values())] = 1.5
@@ -108,3 +108,88 @@ def test_the_fake_caio_refuses_undocumented_trigger_codes():
     assert lib.AioSetAiStartTrigger(aio_id, ctypes.c_short(7)) != 0
     assert lib.AioSetAiStopTrigger(aio_id, ctypes.c_short(4)) == 0
     assert lib.AioSetAiStopTrigger(aio_id, ctypes.c_short(9)) != 0
+
+
+# -- the automatic tare (issue 37 item 5; CFS manual 4.2) ----------------------------------
+def _resting_rig(fake_mcs, force_fn):
+    """A 500 N Fx axis resting at 1.580 V (the manual's example), configured at the
+    nominal 1.5 V, on the fake Contec; ``force_fn(t)`` is the load (N) at bench time t."""
+    bench_mod = load_fake("bench")
+    bench = bench_mod.FakeBench(speed=20.0)
+    inner = bench_mod.leptrino_analog_wiring(bench, {"Fx": 0}, {"Fx": 500.0},
+                                             rest_V={"Fx": 1.580})
+    wiring = {0: lambda t, f: inner[0](t, force_fn(t))}
+    lib = load_fake("fake_caio").FakeCaioLibrary(bench, wiring=wiring)
+    return bench, lib, CaioAcquisition(CAL, lib=declare(lib))
+
+
+def _read(acq, n):
+    out = []
+    while sum(len(c.force_N) for c in out) < n:
+        c = acq.read(1.0)
+        assert c is not None, "no samples"
+        out.append(c)
+    return np.concatenate([c.force_N for c in out])[:n]
+
+
+def test_a_sensor_resting_off_nominal_reads_zero_after_the_automatic_tare(fake_mcs):
+    bench, _lib, acq = _resting_rig(fake_mcs, lambda t: np.zeros_like(t))
+    try:
+        acq.configure(2000.0)
+        acq.start(400, triggered=False)
+        force = _read(acq, 400)
+        # untared, (1.580 - 1.5) V x 500 N/V = 40 N at rest; tared, within 1 N of zero
+        assert np.abs(force).max() < 1.0
+        assert acq._tare.no_load_V["Fx"] == pytest.approx(1.580, abs=1e-3)
+    finally:
+        acq.close()
+
+
+def test_the_force_limit_trips_at_its_configured_force_on_the_tared_force(fake_mcs):
+    from nmsid.rig.safety import ForceLimitRule, Observation
+    limit_N, fs = 25.0, 2000.0
+    t_ramp = [np.inf]                                # the load rises 20 N/s from t_ramp
+
+    def load(t):
+        return np.where(t < t_ramp[0], 0.0, 20.0 * (t - t_ramp[0]))
+    bench, lib, acq = _resting_rig(fake_mcs, load)
+    rule = ForceLimitRule(limit_N)
+    try:
+        acq.configure(fs)
+        acq.start(None, triggered=False)         # the tare window first, at rest
+        tripped = None
+        while lib._t_first is None:              # bench time of the block's sample 0
+            c = acq.read(1.0)
+            assert c is None or not rule.check(Observation(0.0, chunk=c))
+        t_first = lib._t_first
+        t_ramp[0] = bench.now() + 0.2            # later than any sample generated so far
+        while tripped is None and bench.now() - t_first < 10.0:
+            c = acq.read(1.0)
+            if c is not None and len(c.force_N) and rule.check(Observation(0.0, chunk=c)):
+                tripped = c.start_index + int(np.argmax(np.abs(c.force_N) > limit_N))
+        assert tripped is not None
+        true_N = float(load(np.array([t_first + tripped / fs]))[0])
+        # untared it would trip at rest (40 N > 25 N); tared, at the limit within 1 N
+        assert abs(true_N - limit_N) < 1.0, true_N
+    finally:
+        acq.close()
+
+
+def test_the_tare_is_due_before_the_first_block_and_after_each_rest():
+    from nmsid.drivers.analog_force import REST_BEFORE_TARE_S, NoLoadTare
+    now = [0.0]
+    tare = NoLoadTare(clock=lambda: now[0])
+    assert tare.due()                                   # before the session's first block
+    tare.update(np.full((10, 1), 1.58), CAL, "test")
+    assert not tare.due() and tare.wrench[0] == pytest.approx(40.0)
+    tare.stopped()
+    now[0] += 0.5 * REST_BEFORE_TARE_S                  # back-to-back blocks: keep it
+    assert not tare.due()
+    now[0] += REST_BEFORE_TARE_S                        # a rest: measure again
+    assert tare.due()
+    tare.update(np.full((10, 1), 1.55), CAL, "test")
+    assert not tare.due()
+    tare.forget()                                       # a reconnect
+    assert tare.due()
+    with pytest.raises(DeviceError, match="edge of its"):   # a sensor clipped at rest
+        tare.update(np.full((10, 1), 3.3), CAL, "test")

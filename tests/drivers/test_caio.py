@@ -9,7 +9,8 @@ import pytest
 
 from nmsid.drivers.analog_force import AnalogCalibration
 from nmsid.drivers.caio import CaioAcquisition, declare, load_caio
-from nmsid.drivers.errors import DeviceNotFound, HardwareConfigError, VendorLibraryMissing
+from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
+                                  VendorLibraryMissing)
 from nmsid.drivers.fake_hardware import load_fake
 from nmsid.drivers.interfaces import CheckedWaveform
 from nmsid.drivers.stg4002 import Stg4002Stimulator
@@ -84,6 +85,7 @@ def test_volts_to_newtons_by_hand(fake_mcs):
               6: lambda t, f: np.zeros(len(t))}
     bench, lib = rig(fake_mcs, wiring=wiring)
     acq = CaioAcquisition(CAL, lib=lib)
+    acq._tare.measured = True   # the configured offsets: scaling by hand, no tare
     acq.configure(2000.0)
     acq.start(20, triggered=False)
     c = read_all(acq, 20, bench)[0]
@@ -98,6 +100,7 @@ def test_fifo_overflow_is_overrun(fake_mcs):
     bench, lib = rig(fake_mcs, speed=10.0, fifo_samples=200)
     acq = CaioAcquisition(CAL, lib=lib)
     acq.configure(2000.0)
+    acq._tare.measured = True   # a 200-sample FIFO at 10x overflows in a tare window too
     acq.start(None, triggered=False)
     bench.sleep(0.3)  # 600 samples due, FIFO holds 200
     c = acq.read(0.05)
@@ -124,6 +127,9 @@ def test_saturation_is_over_range(fake_mcs):
     bench, lib = rig(fake_mcs, wiring=wiring)
     acq = CaioAcquisition(CAL, lib=lib)
     acq.configure(2000.0)
+    with pytest.raises(DeviceError, match="no-load voltages"):   # no tare at saturation
+        acq.start(10, triggered=False)
+    acq._tare.measured = True   # the configured offsets: the flag itself, no tare
     acq.start(10, triggered=False)
     c = read_all(acq, 10, bench)[0]
     assert c.flags.over_range and "edge" in c.flags.detail
@@ -178,17 +184,21 @@ def test_monitor_channel_rides_in_the_same_scan_and_channels_are_converted_in_tu
     channel of a scan is converted ``conversion_us`` after the previous one (Contec's
     10 us/channel; the driver's ``sample_delay_s`` says the same)."""
     ramp_V_per_s = 1000.0                                   # 1 V per ms: 10 us = 10 mV
-    wiring = {ch: (lambda t, f: ramp_V_per_s * (t - t[0] // 1)) for ch in range(8)}
+    # a sawtooth of 8 V per 8 ms: inside the +-10 V range whenever the scan happens (it
+    # used to be a ramp from the last whole second, clipped 10 ms into any second: the test
+    # then depended on when a loaded machine got to sample); compared modulo 8 V below
+    wiring = {ch: (lambda t, f: np.mod(ramp_V_per_s * t, 8.0)) for ch in range(8)}
     bench, lib = rig(fake_mcs, wiring=wiring)
     cal = AnalogCalibration(**{**CAL.__dict__, "monitor_channel": 7})
     assert cal.n_channels == 8
     acq = CaioAcquisition(cal, lib=lib)
+    acq._tare.measured = True   # the configured offsets: scaling by hand, no tare
     acq.configure(1000.0)
     acq.start(5, triggered=False)
     c = read_all(acq, 5, bench)[0]
     assert c.monitor is not None and c.monitor.shape == (c.n,)
-    np.testing.assert_allclose(c.monitor - c.sync, (7 - 6) * 10e-6 * ramp_V_per_s,
-                               atol=2 * 20 / 65536)
+    np.testing.assert_allclose(np.mod(c.monitor - c.sync + 4.0, 8.0) - 4.0,
+                               (7 - 6) * 10e-6 * ramp_V_per_s, atol=2 * 20 / 65536)
     assert acq.sample_delay_s(7) - acq.sample_delay_s(6) == pytest.approx(10e-6)
     acq.close()
 

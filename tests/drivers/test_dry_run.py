@@ -80,12 +80,12 @@ def test_a_conversion_time_set_too_short_meets_the_devices_clock_error(tmp_path,
                                                                       write_hw_config):
     """With acquisition.caio.conversion_us = 5 the driver lets 12.5 kHz x 8 channels
     through; the (fake) AI-1608AY-USB, at 10 us per channel, sets AIS_SCERR and stops
-    (Contec: "Sampling clock period error"): the dry run fails on the flagged record."""
+    (Contec: "Sampling clock period error"): the dry run fails, already on the no-load
+    window (the automatic tare) that precedes the record."""
     ok, text = _run(tmp_path, write_hw_config, monitor_fs_Hz=16_000.0,
                     extra=("[acquisition.caio]", "conversion_us = 5.0"))
     assert not ok
-    assert "[FAIL] record: the A/D flagged the record: sampling clock error (AIS_SCERR)" \
-        in text
+    assert "could not be measured: sampling clock error (AIS_SCERR)" in text, text
     assert "[PASS]" not in text
 
 

@@ -71,7 +71,10 @@ def test_stream_values_indices_and_stop(leptrino_emulator):
     assert [c.start_index for c in chunks] == list(np.cumsum([0] + [c.n for c in chunks[:-1]]))
     t = np.arange(300) / 1200.0
     raw = np.round((205.6 + 10 * t) / 500 * 10000)
-    np.testing.assert_allclose(force, raw * 500 / 10000, atol=1e-9)
+    # records are resampled from the rate MEASURED at connect, which a loaded machine
+    # measures up to ~1 % off (issue 39): over 0.25 s of a 10 N/s ramp that moves a sample
+    # by < 0.03 N; a framing or stuffing error (4112 = 0x1010) would be off by far more
+    np.testing.assert_allclose(force, raw * 500 / 10000, atol=0.1)
     wrench = np.concatenate([c.wrench for c in chunks])
     np.testing.assert_allclose(wrench[:, 1], -20.0)
     assert not any(c.flags.any for c in chunks)
@@ -165,20 +168,6 @@ def test_status_bits_become_flags(leptrino_emulator, status, flag):
     chunks = collect(acq, 120)
     assert any(getattr(c.flags, flag) for c in chunks)
     assert not chunks[0].flags.any or chunks[0].n > 24
-    acq.close()
-
-
-def test_triggered_start_waits_for_external_input_bit(leptrino_emulator):
-    emu = leptrino_emulator(rated=RATED, wrench_fn=lambda t: (100.0 * t, 0, 0, 0, 0, 0))
-    emu.status_fn = lambda t: 0x20 if t >= 0.05 else 0
-    sensor, acq = make_acq(emu, sync_on_external_input=True)
-    acq.connect()
-    acq.start(50, triggered=True)
-    chunks = collect(acq, 50)
-    force = np.concatenate([c.force_N for c in chunks])
-    assert len(force) == 50 and chunks[0].start_index == 0
-    k0 = int(np.ceil(0.05 * 1200))  # first record with the bit
-    np.testing.assert_allclose(force[0], round(100.0 * k0 / 1200 / 500 * 10000) / 20)
     acq.close()
 
 

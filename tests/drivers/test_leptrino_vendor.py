@@ -12,7 +12,8 @@ import logging
 import numpy as np
 import pytest
 
-from nmsid.drivers.errors import ProtocolError
+from nmsid.drivers.errors import HardwareConfigError, ProtocolError
+from nmsid.drivers.hw_config import load_hw_config
 from nmsid.drivers.leptrino import NOMINAL_RATE_HZ, LeptrinoAcquisition, LeptrinoSensor
 from nmsid.drivers.leptrino_protocol import (Frame, Status, parse_data_record, parse_product_info,
                                              parse_rate_text, parse_rated_values)
@@ -61,9 +62,9 @@ def test_parse_errors_are_the_drivers_protocol_error_not_value_error():
 def test_reserved_status_bits_are_masked_off():
     data = bytes(12) + bytes([0, 0]) + bytes([0xFF, 0])  # every status bit set
     rec = parse_data_record(Frame(bytes([4 + len(data), 0xFF, 0x32, 0]) + data))
-    assert int(rec.status) == 0x27
-    assert rec.status == (Status.ROM_ERROR | Status.SENSOR_FAULT | Status.OVER_RATED
-                          | Status.EXTERNAL_INPUT)
+    assert int(rec.status) == 0x07               # specification 6.1: bits 3-7 reserved
+    assert rec.status == (Status.ROM_ERROR | Status.SENSOR_FAULT | Status.OVER_RATED)
+    assert not hasattr(rec, "temperature_raw")   # the two bytes after Mz are reserved
 
 
 @pytest.mark.full_rate_measurement
@@ -90,22 +91,36 @@ def test_old_firmware_sensor_with_random_reserved_bits_connects_and_reads_force(
         acq.close()
 
 
-def test_external_input_sync_starts_at_the_rising_edge_not_a_high_level(leptrino_emulator):
-    # line high at arming (0 .. 0.15 s), low, then the real sync edge at 0.3 s
-    def status(t):
-        return 0x20 if t < 0.15 or t >= 0.3 else 0
+def test_sync_on_an_undefined_bit_is_refused(leptrino_emulator, tmp_path):
+    # specification v1.13, 6.1: status bits 3-7 are reserved; no bit is an external input
+    emu = leptrino_emulator(rated=RATED)
+    with pytest.raises(HardwareConfigError, match="6.1"):
+        LeptrinoAcquisition(LeptrinoSensor(emu.port), sync_on_external_input=True)
+    cfg = tmp_path / "hw.toml"
+    cfg.write_text("[rig]\nfake = true\n[acquisition]\nkind = \"leptrino\"\n"
+                   "[acquisition.leptrino]\nport = \"COM5\"\nsync_on_external_input = true\n",
+                   encoding="utf-8")
+    with pytest.raises(HardwareConfigError) as err:     # one line, naming the setting
+        load_hw_config(cfg)
+    line = str(err.value)
+    assert "sync_on_external_input" in line and "6.1" in line and "\n" not in line
 
+
+def test_reserved_bits_and_bytes_start_nothing_and_flag_nothing(leptrino_emulator):
+    # every reserved status bit (3-7) set and random reserved bytes after Mz: the trial
+    # streams from the first record and no flag is raised
     emu = leptrino_emulator(rated=RATED, reserved_bits_random=True,
-                            wrench_fn=lambda t: (100.0 * t, 0.0, 0.0, 0.0, 0.0, 0.0))
-    emu.status_fn = status
-    acq = LeptrinoAcquisition(LeptrinoSensor(emu.port, reply_timeout_s=0.3),
-                              sync_on_external_input=True)
+                            wrench_fn=lambda t: (12.5, 0.0, 0.0, 0.0, 0.0, 0.0))
+    emu.status_fn = lambda t: 0xF8
+    acq = LeptrinoAcquisition(LeptrinoSensor(emu.port, reply_timeout_s=0.3))
     try:
         acq.configure(1200.0)
-        acq.start(50, triggered=True)
+        acq.start(50, triggered=False)
         chunks = collect(acq, 50)
-        first = chunks[0].force_N[0]
-        assert first == pytest.approx(30.0, abs=0.2)  # t = 0.3 s, not t = 0
+        assert chunks[0].start_index == 0
+        assert [c.flags.detail for c in chunks if c.flags.any] == []
+        np.testing.assert_allclose(np.concatenate([c.force_N for c in chunks]), 12.5,
+                                   atol=0.05)
     finally:
         acq.close()
 

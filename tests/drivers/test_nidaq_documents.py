@@ -49,6 +49,7 @@ def test_the_fake_honours_the_trigger_source(fake_mcs, fake_nidaqmx, terminal, s
     acq = NidaqAcquisition(CAL, device="Dev1", start_trigger=terminal)
     try:
         acq.configure(2000.0)
+        acq._tare.measured = True   # the sync edge is 50 ms away: no tare window first
         acq.start(100, triggered=True)
         got = collect(acq, 100, timeout_s=0.6)
         assert (sum(c.n for c in got) == 100) is starts

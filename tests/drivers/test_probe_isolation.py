@@ -90,3 +90,41 @@ def test_old_firmware_leptrino_with_random_reserved_bits_probes_clean(
     assert "200 samples: force mean" in out
     assert "flag:" not in out and "FAILED" not in out
     assert out.rstrip().splitlines()[-1] == "probe: OK"
+
+
+# -- a vendor library that aborts in native code (issue 37 item 8) ------------------------
+def test_a_native_abort_is_that_devices_failure_and_the_others_still_print(
+        write_hw_config, tmp_path):
+    """Real devices (no fakes): pythonnet's ``clr`` aborts the process when imported, as
+    McsUsbNet does under mono. The probe itself runs in a child here, so today's
+    single-process probe shows what it would do: die, printing nothing of the others."""
+    import os
+    import subprocess
+    import sys
+    lib = tmp_path / "abortlib"
+    lib.mkdir()
+    for name in ("clr.py", "pythonnet.py"):
+        (lib / name).write_text("import os\nos.abort()\n", encoding="utf-8")
+    path = write_hw_config(tmp_path / "hw.toml", kind="caio", fs_Hz=2000.0, fake=False)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(lib), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    proc = subprocess.run([sys.executable, "-m", "nmsid", "probe", "--hw-config", str(path)],
+                          capture_output=True, text=True, timeout=600, env=env,
+                          cwd=str(tmp_path))
+    out = proc.stdout
+    failed = {line.split(": FAILED: ")[0]: line for line in out.splitlines()
+              if ": FAILED: " in line}
+    assert "ended abnormally" in failed.get("stimulator", ""), out + proc.stderr
+    assert "SIGABRT" in failed["stimulator"] or "exit status" in failed["stimulator"]
+    # the others were still checked, each its own line (no hardware here: each fails too)
+    assert set(failed) == {"stimulator", "acquisition", "E-stop switch"}, out
+    assert out.rstrip().splitlines()[-1].startswith("probe: 3 device(s) failed")
+    assert proc.returncode == 1
+
+
+def test_run_isolated_reports_a_check_that_aborts(capsys):
+    from nmsid.cli.probe_command import run_isolated
+    problem = run_isolated("test device", [], target="os:abort", timeout_s=120)
+    assert problem.startswith("its check ended abnormally")
+    ok = run_isolated("test device", ["x"], target="os.path:basename", timeout_s=120)
+    assert ok == "x"      # a check's own problem text comes back as it is

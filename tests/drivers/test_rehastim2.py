@@ -87,6 +87,7 @@ def test_capabilities_and_protocols(rig):
     caps = stim.capabilities()
     assert caps.waveshape.kind == BIPHASIC_PULSES and not caps.hardware_trigger
     assert caps.max_current_mA == 130 and caps.output_rate_Hz == 40.0
+    assert caps.resolution_mA == 2.0          # user manual 2.5c, 4.1: 0-130 mA in 65 steps
     for proto in (Stimulator, HostStreamedStimulator, DeliveryReporting, Describable):
         assert isinstance(stim, proto)
     assert dev.connected     # the InitAck answered the device's Init (SM2 4.1)
@@ -102,12 +103,13 @@ def test_trial_delivers_the_envelope_as_pulses(rig):
     assert wait_state(stim, StimulatorState.STOPPED) is StimulatorState.STOPPED
     s = stim.delivery_summary()
     assert s["updates_acknowledged"] == s["updates_planned"] == 20
-    # whole mA, floor: the device's resolution, never above the envelope
+    # 2 mA steps, rounded down: the device's resolution (user manual 4.1), never above
+    # the envelope
     assert s["channels"]["extensor"]["pulse_current_mA"] == \
-        [int(np.floor(5 + 10 * k / 40)) for k in range(20)]
-    assert set(s["channels"]["flexor"]["pulse_current_mA"]) == {3}
+        [2 * int(np.floor((5 + 10 * k / 40) / 2)) for k in range(20)]
+    assert set(s["channels"]["flexor"]["pulse_current_mA"]) == {2}
     got = [v for _t, v in dev.updates if v]
-    assert all(v[2] == (300, e) and v[6] == (300, 3) for v, e in
+    assert all(v[2] == (300, e) and v[6] == (300, 2) for v, e in
                zip(got, s["channels"]["extensor"]["pulse_current_mA"]))
     assert dev.mode == 0 and dev.stops              # StopChannelListMode at the end
 
@@ -130,7 +132,8 @@ def test_no_pulse_above_its_ceiling_or_envelope_by_construction(ext, flex, fs):
     for k, (e, f) in enumerate(stim._trial_pulses):
         i = min(int(k / 40.0 * fs + 1e-9), n - 1)     # the envelope sample at pulse k
         assert 0 <= e <= w.I_ext_mA[i] <= 19.5 and 0 <= f <= w.I_flex_mA[i] <= 11.7
-        assert e > w.I_ext_mA[i] - 1 and f > w.I_flex_mA[i] - 1   # whole mA, floor
+        assert e > w.I_ext_mA[i] - 2 and f > w.I_flex_mA[i] - 2   # 2 mA steps, floor
+        assert e % 2 == 0 and f % 2 == 0                 # user manual 4.1: 65 steps
         data = stim._pulse_data(e, f)
         assert data[3] == e and data[7] == f
 
@@ -258,9 +261,12 @@ def test_host_stream(rig):
     assert stim.open_stream(10.0, 5.0, 40.0) == 40.0
     assert stim.stream_space() == 40
     stim.write_stream(np.array([1.0, 2.0, 3.0]), np.array([0.0, 0.0, 4.9]))
+    assert not dev.updates                      # nothing plays before start()
+    stim.arm()                                  # armed already by open_stream
+    stim.start()
     stim.close_stream()
     got = [v for _t, v in dev.updates if v]
-    assert [(v[2][1], v[6][1]) for v in got] == [(1, 0), (2, 0), (3, 4)]
+    assert [(v[2][1], v[6][1]) for v in got] == [(0, 0), (2, 0), (2, 4)]   # 2 mA steps
     with pytest.raises(CurrentLimitError):
         stim.open_stream(21.0, 5.0, 40.0)
 
@@ -288,6 +294,6 @@ def test_a_host_falling_behind_skips_late_updates_and_says_so():
         idx = s["pulse_index"]
         assert idx == sorted(idx) and len(set(idx)) == len(idx)
         # each delivered update is the envelope at its own slot
-        assert s["channels"]["extensor"]["pulse_current_mA"] == [int(k / 40 * 10) for k in idx]
+        assert s["channels"]["extensor"]["pulse_current_mA"] == [2 * int(k / 40 * 10 / 2) for k in idx]
     finally:
         stim.disconnect()

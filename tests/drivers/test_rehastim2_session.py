@@ -74,12 +74,43 @@ def test_rehastim2_session_end_to_end(tmp_path):
         amps = np.asarray(ext["pulse_current_mA"])
         assert len(amps) == ext["pulses_acknowledged"] == len(stim["pulse_index"])
         k = k_all[np.asarray(stim["pulse_index"], dtype=int)]
-        # whole mA, never above the envelope the file records (floor), never above ceiling
+        # 2 mA steps (user manual 4.1), never above the envelope the file records (floor),
+        # never above the ceiling
+        assert np.all(amps % 2 == 0)
         assert np.all(amps <= np.asarray(t.I_ext_mA)[k] + 1e-9)
-        assert np.all(amps >= np.asarray(t.I_ext_mA)[k] - 1.0)
+        assert np.all(amps >= np.asarray(t.I_ext_mA)[k] - 2.0)
         assert amps.max() <= 15.0
         # the force follows the stimulation (extension at high sE)
         assert np.isfinite(t.force_N).all()
+
+
+def test_a_session_with_busy_replies_on_a_tenth_of_updates_completes(tmp_path, monkeypatch):
+    # SM2 5.1 -8 busy on 10 % of updates, acks 15 ms late: skipped updates, not faults
+    from nmsid.testing.fakes import fake_rehastim2
+
+    class BusyRehastim2(fake_rehastim2.FakeRehastim2):
+        def __init__(self, clock, sleep):
+            super().__init__(clock, sleep, response_latency_s=0.015, busy_fraction=0.1,
+                             seed=9)
+    monkeypatch.setattr(fake_rehastim2, "FakeRehastim2", BusyRehastim2)
+    devices = make_hw_rig(write_rs2_config(tmp_path / "rs2.toml", speed=4.0))
+    fake = devices.acquisition._stack.stimulator_fake
+    assert isinstance(fake, BusyRehastim2)
+    path = tmp_path / "s.h5"
+    try:
+        summary = Engine(small_config(), devices, path,
+                         trip_policy=TripPolicy.END_SESSION).run()
+    finally:
+        devices.close()
+    assert summary.n_completed == 2, summary
+    assert fake.busy_replies > 0
+    busy = 0
+    for t in read_session(path).trials:
+        stim = t.extra_attrs["stimulation_json"]
+        stim = json.loads(stim) if isinstance(stim, str) else stim
+        busy += stim["updates_busy"]
+        assert not stim["update_errors"]
+    assert busy > 0
 
 
 def test_usb_glitch_and_estop_on_rehastim2(tmp_path):
@@ -194,3 +225,67 @@ def test_nmsid_stimulation_for_rehastim2(tmp_path, capsys):
             assert len(amps) == ch["pulses"] == 600          # 15 s at 40 Hz
             assert amps.max() == ch["peak_current_mA"] <= 10  # whole mA, within calibration
             assert ch["max_charge_per_phase_nC"] == ch["peak_current_mA"] * 300
+
+
+def test_a_hardware_ceiling_below_the_protocols_is_refused_before_the_session(tmp_path,
+                                                                             capsys):
+    # the RehaStim2's hardware ceilings at 9 mA, the protocol's default 16 mA: one line
+    # naming both settings, exit 2, nothing written (it used to trip every trial)
+    hw = write_rs2_config(tmp_path / "rs2.toml", speed=5.0)
+    hw.write_text(hw.read_text(encoding="utf-8").replace("ceiling_ext_mA = 16.0",
+                                                         "ceiling_ext_mA = 9.0"),
+                  encoding="utf-8")
+    proto = tmp_path / "p.toml"
+    proto.write_text('participant = "RS04"\nseed = 5\n[protocol]\nsE_levels = [0.7]\n'
+                     'repeats = 1\nsteady_s = 0.5\nchirp_s = 1.0\nrest_s = 0.0\n',
+                     encoding="utf-8")
+    out = tmp_path / "run.h5"
+    rc = main(["run", "--backend", "hw", "--hw-config", str(hw), "--config", str(proto),
+               "--out", str(out), "--no-identify", "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert "calibration.ceiling_ext_mA = 16 mA" in err[0]
+    assert "stimulator.ceiling_ext_mA = 9 mA" in err[0] and "at most 9" in err[0]
+    assert not out.exists()
+
+
+def _rs2_leptrino_config(path):
+    path.write_text("\n".join([
+        "[rig]", "fake = true", "fake_speed = 1.0",   # real time: 25 ms per update
+        "[stimulator]", 'kind = "rehastim2"', 'port = "COM5"', "extensor_channel = 1",
+        "flexor_channel = 5", "ceiling_ext_mA = 16.0", "ceiling_flex_mA = 16.0",
+        "[acquisition]", 'kind = "leptrino"', "fs_Hz = 1200.0",
+        "[acquisition.leptrino]", 'port = "COM6"',
+        "[estop]", 'kind = "serial"', 'port = "COM7"', 'line = "CTS"']) + "\n",
+        encoding="utf-8")
+    return path
+
+
+def test_dry_run_streams_a_tracking_trial_on_a_rehastim2_leptrino_rig(tmp_path, capsys):
+    # no A/D input for the resistor: the streamed trial is checked by the device's own
+    # reports, and the operator is told how to look at the current (issue 37 item 8)
+    hw = _rs2_leptrino_config(tmp_path / "rs2l.toml")
+    rc = main(["probe", "--hw-config", str(hw), "--dry-run", "--dry-run-mA", "4"])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert "dry run, streamed trial:" in out
+    for name in ("stream: ended", "stream: updates answered",
+                 "stream: delivered = command rounded down"):
+        assert f"[PASS] {name}:" in out, out
+    assert "[INFO] the resistor's current is not recorded" in out
+    assert "oscilloscope" in out and "electrode error" in out
+
+
+def test_dry_run_on_rehastim2_leptrino_fails_on_an_open_load(tmp_path, capsys, monkeypatch):
+    from nmsid.testing.fakes import fake_rehastim2
+
+    class OpenLoad(fake_rehastim2.FakeRehastim2):      # SM2 1.2: the resistance check
+        def __init__(self, *a, **kw):
+            super().__init__(*a, **kw)
+            self.electrode_error(1)
+    monkeypatch.setattr(fake_rehastim2, "FakeRehastim2", OpenLoad)
+    hw = _rs2_leptrino_config(tmp_path / "rs2l.toml")
+    rc = main(["probe", "--hw-config", str(hw), "--dry-run", "--dry-run-mA", "4"])
+    out = capsys.readouterr().out
+    assert rc == 1, out
+    assert "[FAIL] stream: ended" in out and "electrode error" in out

@@ -215,3 +215,46 @@ def test_every_streaming_call_is_in_the_declared_surface(streaming):
     assert off == []
     offered = {n for n in vars(fake.CStg200xStreamingNet) if n[:1].isupper()}
     assert offered - mcs_surface.members_of("CStg200xStreamingNet") == set()
+
+
+# -- the STG's own memory (issue 37 item 4; McsUsbNet manual 6.3, XML GetFramesBuffered) --
+def test_the_fake_stg_started_before_its_memory_holds_data_runs_dry_at_once(streaming):
+    # the manual's example waits after StartLoop ("Give StartLoop some time"); with
+    # continuous mode disabled an STG started with nothing in its memory stops at once
+    stim, fake, bench = streaming
+    stim.open_stream(8.0, 6.0, 1000.0)
+    stim.write_stream(np.full(40, 2.0), np.full(40, 2.0))
+    dev = _device(fake)
+    dev.StartLoop()                                # (again: this instant, whatever the
+    dev.SendStart(fake.UInt32(1))                  # host's speed) and at once SendStart
+    bench.sleep(0.1)
+    assert not dev.running and len(dev.output_at(0)) == 0
+
+
+def test_start_waits_until_the_stg_holds_the_queued_data(streaming):
+    stim, fake, bench = streaming
+    stim.open_stream(8.0, 6.0, 1000.0)
+    stim.write_stream(np.full(40, 2.0), np.full(40, 2.0))     # 40 ms: 2000 frames
+    stim.start()
+    dev = _device(fake)
+    names = [c[0] for c in dev.calls]
+    assert "GetFramesBuffered" in names[:names.index("SendStart")]
+    # the whole queue plays (then the STG runs dry, as asked, manual 6.3)
+    t0 = time.monotonic()
+    while dev.running and time.monotonic() - t0 < 10.0:     # generous: a loaded host
+        bench.sleep(0.01)
+    assert len(dev.output_at(0)) == 2000
+
+
+def test_start_refuses_when_the_data_never_reaches_the_stg(streaming, monkeypatch):
+    from nmsid.drivers import stg_streaming
+    from nmsid.drivers.errors import DeviceError
+    stim, fake, bench = streaming
+    stim.open_stream(8.0, 6.0, 1000.0)
+    stim.write_stream(np.full(10, 2.0), np.full(10, 2.0))
+    dev = _device(fake)
+    dev.transfer_delay_s = 1e9                               # a transfer that never begins
+    monkeypatch.setattr(stg_streaming, "PRIME_TIMEOUT_S", 0.05)
+    with pytest.raises(DeviceError, match="GetFramesBuffered"):
+        stim.start()
+    assert not dev.running and "SendStart" not in [c[0] for c in dev.calls]
