@@ -9,9 +9,11 @@ What ends a command (:mod:`nmsid.errors`):
 * a user error (bad file, setting or value; a missing optional package; a file-system error
   on a path the user gave): one line, exit status 2;
 * a device fault: one line, exit status 3; a safety refusal: one line, exit status 4;
-* anything else is a bug: its traceback, one line saying so, exit status 1.
+* anything else is a bug: its traceback, one line saying so, exit status 1;
+* a closed pipe (``nmsid ... | head``): nothing more is printed, exit status
+  :data:`EXIT_CLOSED_PIPE` (as a shell reports a command ended by SIGPIPE).
 
-``--debug`` shows the traceback of every error.
+``--debug`` shows the traceback of every error; ``--version`` prints the version.
 """
 
 from __future__ import annotations
@@ -82,6 +84,11 @@ def limit_blas_threads(environ=None) -> list[str]:
     return chosen
 
 
+#: Exit status when the reader of stdout went away (``nmsid ... | head``): 128 + SIGPIPE (13),
+#: what a shell reports for a command the signal ended, on every platform.
+EXIT_CLOSED_PIPE = 141
+
+
 #: errno values of file-system errors that are the user's to fix (a path that does not
 #: exist, is not allowed, is full, is read-only, ...), not bugs.
 _USER_ERRNOS = frozenset({errno.EPERM, errno.ENOENT, errno.EACCES, errno.EEXIST, errno.ENOTDIR,
@@ -111,6 +118,20 @@ def _escaped_output():
         yield
     finally:
         sys.stdout, sys.stderr = out, err
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: print ``nmsid <version>`` and exit 0. The version is looked up only
+    when asked for (:data:`nmsid.__version__` reads the installed package's metadata)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS,
+                 help="print nmsid's version and exit"):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        import nmsid
+        print(f"nmsid {nmsid.__version__}")  # on stdout, as argparse's own "version"
+        parser.exit(0)
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -150,6 +171,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
                         help="show full tracebacks instead of one-line error messages")
     parser.add_argument("-v", "--verbose", action="count", default=0,
                         help="more log output (-v info, -vv debug)")
+    parser.add_argument("--version", action=_VersionAction)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in modules:
         try:
@@ -204,6 +226,29 @@ def report(exc: BaseException, command: str) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the ``nmsid`` command line; returns the exit status."""
+    try:
+        status = _main(argv)
+        sys.stdout.flush()  # here, not at exit: a closed pipe is met inside the try
+        return status
+    except BrokenPipeError:
+        _silence_stdout()
+        return EXIT_CLOSED_PIPE
+
+
+def _silence_stdout() -> None:
+    """Point stdout at the null device: the reader is gone, and Python's own flush at exit
+    would otherwise report the broken pipe again (the recipe of Python's ``signal``
+    documentation, "Note on SIGPIPE")."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):  # no file descriptor (a test's captured stream)
+        pass
+
+
+def _main(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(argv)
     args = parser.parse_args(argv)
@@ -224,6 +269,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("nmsid: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader of stdout went away: not a bug, nothing to say
+        raise
     except Exception as exc:  # noqa: BLE001 - sorted into user errors and bugs below
         if args.debug:
             raise

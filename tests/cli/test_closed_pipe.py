@@ -1,0 +1,54 @@
+"""``nmsid ... | head``: a reader that goes away ends the command quietly, and
+``nmsid --version``. Real processes: the broken pipe is met by the interpreter's own stdout."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from nmsid.cli import EXIT_CLOSED_PIPE, main
+
+
+def _run_into_closed_pipe(args: list[str], timeout_s: float = 120.0):
+    """Run ``python -m nmsid ARGS`` with stdout a pipe whose read end is already closed
+    (what ``| head`` leaves once head has exited): every write fails with EPIPE."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        return subprocess.run([sys.executable, "-m", "nmsid", *args], stdout=write_end,
+                              stderr=subprocess.PIPE, timeout=timeout_s)
+    finally:
+        os.close(write_end)
+
+
+def test_a_handler_printing_into_a_closed_pipe_ends_quietly():
+    # `nmsid twin` (no sub-command) prints its usage from the handler
+    done = _run_into_closed_pipe(["twin"])
+    assert done.stderr == b""
+    assert done.returncode == EXIT_CLOSED_PIPE
+
+
+def test_a_long_output_into_a_closed_pipe_ends_quietly(demo_session, tmp_path):
+    # identify prints its tables (several kB) after writing the outputs
+    done = _run_into_closed_pipe(["identify", str(demo_session), "--no-figures",
+                                  "--out", str(tmp_path / "out")])
+    assert b"internal error" not in done.stderr and b"Traceback" not in done.stderr
+    assert done.stderr == b""
+    assert done.returncode == EXIT_CLOSED_PIPE
+    assert (tmp_path / "out" / "parameters.csv").exists()  # the work itself was done
+
+
+def test_help_into_a_closed_pipe_ends_quietly():
+    done = _run_into_closed_pipe(["--help"])
+    assert done.stderr == b"" and done.returncode == 0
+
+
+def test_version_prints_the_installed_version(capsys):
+    import nmsid
+    with pytest.raises(SystemExit) as ended:
+        main(["--version"])
+    assert ended.value.code == 0
+    assert capsys.readouterr().out == f"nmsid {nmsid.__version__}\n"
