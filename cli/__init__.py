@@ -129,7 +129,7 @@ class _VersionAction(argparse.Action):
         super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
 
     def __call__(self, parser, namespace, values, option_string=None):
-        import nmsid
+        import nmsid  # the root package's lazy __version__ (package metadata)
         print(f"nmsid {nmsid.__version__}")  # on stdout, as argparse's own "version"
         parser.exit(0)
 
