@@ -137,12 +137,6 @@ class SessionQC:
         return MappingProxyType({v.trial: "; ".join(v.reasons) for v in self.trials
                                  if v.decision == EXCLUDED})
 
-    def kept_trials(self, sE: float) -> list:
-        for lv in self.levels:
-            if abs(lv.sE - sE) < 1e-9:
-                return lv.kept
-        return []
-
     def counts(self) -> DecisionCounts:
         """How many judged trials were used, repaired and excluded."""
         d = [v.decision for v in self.trials]
