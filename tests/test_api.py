@@ -98,6 +98,32 @@ def test_every_repr_is_short_and_says_what_it_is(example):
             assert html().startswith("<pre>&lt;") and len(html()) < 2 * REPR_MAX_CHARS
 
 
+def _inside(obj, depth=0, seen=None):
+    """``obj`` and every dataclass reachable through its fields (first items of lists and
+    dicts), to ``depth`` 4."""
+    seen = set() if seen is None else seen
+    if id(obj) in seen or depth > 4:
+        return
+    seen.add(id(obj))
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        yield obj
+        for f in dataclasses.fields(obj):
+            yield from _inside(getattr(obj, f.name), depth + 1, seen)
+    elif isinstance(obj, (list, tuple)):
+        for item in obj[:3]:
+            yield from _inside(item, depth, seen)
+    elif isinstance(obj, dict):
+        for item in list(obj.values())[:5]:
+            yield from _inside(item, depth, seen)
+
+
+def test_no_object_inside_a_result_has_a_long_repr(example):
+    long = [(type(o).__name__, len(repr(o))) for top in ("result", "session", "gap",
+                                                         "controller", "twin", "run")
+            for o in _inside(example[top]) if len(repr(o)) > REPR_MAX_CHARS]
+    assert long == []
+
+
 def test_the_session_repr_reads_like_mne(example):
     assert repr(example["session"]).startswith(
         "<Session | P01, 10 trials, 5 sE levels 0.2-1, 2000 Hz, sim, ")
