@@ -118,12 +118,12 @@ class SessionResult:
         return to_dataframe(self.rows())
 
     def __repr__(self) -> str:
-        ok = [lv for lv in self.levels if lv.fit is not None]
+        fits = [lv.fit.fit_pct for lv in self.levels if lv.fit is not None]
         return short_repr(
             "SessionResult", self.participant,
-            f"{len(ok)}/{len(self.levels)} sE levels identified "
+            f"{len(fits)}/{len(self.levels)} sE levels identified "
             f"{number_span(lv.sE for lv in self.levels)}".rstrip(),
-            f"fit {number_span((lv.fit.fit_pct for lv in ok), '.1f')} %" if ok else "",
+            f"fit {number_span(fits, '.1f')} %" if fits else "",
             counted(len(self.problems), "problem") if self.problems else "", str(self.source))
 
     _repr_html_ = html_repr
