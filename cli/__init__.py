@@ -10,8 +10,9 @@ What ends a command (:mod:`nmsid.errors`):
   on a path the user gave): one line, exit status 2;
 * a device fault: one line, exit status 3; a safety refusal: one line, exit status 4;
 * anything else is a bug: its traceback, one line saying so, exit status 1;
-* a closed pipe (``nmsid ... | head``): nothing more is printed, exit status
-  :data:`EXIT_CLOSED_PIPE` (as a shell reports a command ended by SIGPIPE).
+* a closed pipe (``nmsid ... | head``): nothing more is printed, the command goes on to
+  its end, exit status :data:`EXIT_CLOSED_PIPE` (as a shell reports a command ended by
+  SIGPIPE) unless the command failed on its own.
 
 ``--debug`` shows the traceback of every error; ``--version`` prints the version.
 """
@@ -98,13 +99,35 @@ _USER_ERRNOS = frozenset({errno.EPERM, errno.ENOENT, errno.EACCES, errno.EEXIST,
 
 class _EscapingStream:
     """A text stream that writes control characters as visible escapes: names and notes
-    read from files never reach the terminal raw (:mod:`nmsid.protocols.printable`)."""
+    read from files never reach the terminal raw (:mod:`nmsid.protocols.printable`).
+
+    When its reader goes away (``nmsid run ... | head``) it says so in ``closed_pipe`` and
+    drops what follows: the command goes on (a session is not ended by a closed pipe, and
+    the engine thread's progress lines raise nothing) and ends with
+    :data:`EXIT_CLOSED_PIPE`."""
 
     def __init__(self, stream):
         self._stream = stream
+        self.closed_pipe = False
 
     def write(self, text: str) -> int:
-        return self._stream.write(escape_controls(text))
+        if not self.closed_pipe:
+            try:
+                return self._stream.write(escape_controls(text))
+            except BrokenPipeError:
+                self._reader_gone()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.closed_pipe:
+            try:
+                self._stream.flush()
+            except BrokenPipeError:
+                self._reader_gone()
+
+    def _reader_gone(self) -> None:
+        self.closed_pipe = True
+        _to_null_device(self._stream)
 
     def __getattr__(self, name):
         return getattr(self._stream, name)
@@ -113,9 +136,10 @@ class _EscapingStream:
 @contextlib.contextmanager
 def _escaped_output():
     out, err = sys.stdout, sys.stderr
-    sys.stdout, sys.stderr = _EscapingStream(out), _EscapingStream(err)
+    streams = (_EscapingStream(out), _EscapingStream(err))
+    sys.stdout, sys.stderr = streams
     try:
-        yield
+        yield streams
     finally:
         sys.stdout, sys.stderr = out, err
 
@@ -232,19 +256,21 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.flush()  # here, not at exit: a closed pipe is met inside the try
         return status
     except BrokenPipeError:
-        _silence_stdout()
+        _to_null_device(sys.stdout)
         return EXIT_CLOSED_PIPE
 
 
-def _silence_stdout() -> None:
-    """Point stdout at the null device: the reader is gone, and Python's own flush at exit
-    would otherwise report the broken pipe again (the recipe of Python's ``signal``
-    documentation, "Note on SIGPIPE")."""
+def _to_null_device(stream) -> None:
+    """Point a stream's file descriptor at the null device: its reader is gone, and
+    Python's own flush at exit would otherwise report the broken pipe again (the recipe of
+    Python's ``signal`` documentation, "Note on SIGPIPE")."""
     try:
         devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-        os.close(devnull)
-    except (OSError, ValueError):  # no file descriptor (a test's captured stream)
+        try:
+            os.dup2(devnull, stream.fileno())
+        finally:
+            os.close(devnull)
+    except (OSError, ValueError, AttributeError):  # no descriptor (a test's captured stream)
         pass
 
 
@@ -264,7 +290,7 @@ def _main(argv: list[str] | None) -> int:
         limit_blas_threads()      # before the handler imports numpy
     try:
         func = getattr(importlib.import_module(module_name), func_name)
-        with _escaped_output():
+        with _escaped_output() as streams:
             result = func(args)
     except KeyboardInterrupt:
         print("nmsid: interrupted", file=sys.stderr)
@@ -280,7 +306,10 @@ def _main(argv: list[str] | None) -> int:
             print(f"nmsid: internal error in `nmsid {args.command}` (a bug, not your "
                   "input): please report it with the traceback above", file=sys.stderr)
         return status
-    return int(result or 0)
+    status = int(result or 0)
+    if status == 0 and any(s.closed_pipe for s in streams):
+        return EXIT_CLOSED_PIPE  # the work is done; part of what it printed was not read
+    return status
 
 
 if __name__ == "__main__":  # pragma: no cover

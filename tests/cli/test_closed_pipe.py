@@ -10,6 +10,7 @@ import sys
 import pytest
 
 from nmsid.cli import EXIT_CLOSED_PIPE, main
+from nmsid.protocols.session_file import read_session
 
 
 def _run_into_closed_pipe(args: list[str], timeout_s: float = 120.0):
@@ -25,10 +26,11 @@ def _run_into_closed_pipe(args: list[str], timeout_s: float = 120.0):
 
 
 def test_a_handler_printing_into_a_closed_pipe_ends_quietly():
-    # `nmsid twin` (no sub-command) prints its usage from the handler
+    # `nmsid twin` (no sub-command) prints its usage from the handler, and keeps its own
+    # status (2: a usage error) over the closed pipe's
     done = _run_into_closed_pipe(["twin"])
     assert done.stderr == b""
-    assert done.returncode == EXIT_CLOSED_PIPE
+    assert done.returncode == 2
 
 
 def test_a_long_output_into_a_closed_pipe_ends_quietly(demo_session, tmp_path):
@@ -39,6 +41,34 @@ def test_a_long_output_into_a_closed_pipe_ends_quietly(demo_session, tmp_path):
     assert done.stderr == b""
     assert done.returncode == EXIT_CLOSED_PIPE
     assert (tmp_path / "out" / "parameters.csv").exists()  # the work itself was done
+
+
+SHORT = """
+participant = "C01"
+[protocol]
+sE_levels = [0.4, 0.8]
+repeats = 1
+steady_s = 0.5
+chirp_s = 1.0
+[calibration]
+hold_s = 0.3
+baseline_s = 0.2
+rest_s = 0.2
+"""
+
+
+def test_a_session_whose_output_is_not_read_runs_to_its_end(tmp_path):
+    # the progress lines come from the engine's thread: a closed pipe must not end the
+    # session nor fill stderr with a traceback per trial
+    config = tmp_path / "short.toml"
+    config.write_text(SHORT)
+    out = tmp_path / "s.h5"
+    done = _run_into_closed_pipe(["run", "--backend", "sim", "--config", str(config),
+                                  "--out", str(out), "--seed", "3", "--no-identify"])
+    assert b"Traceback" not in done.stderr and b"Broken pipe" not in done.stderr
+    assert done.returncode == EXIT_CLOSED_PIPE
+    session = read_session(out)
+    assert [t.status for t in session.trials] == ["completed", "completed"]
 
 
 def test_help_into_a_closed_pipe_ends_quietly():
