@@ -147,7 +147,8 @@ def diagnose_gap(sessions, out_dir: PathLike | None = None, *,
     with output_dir(out, force=force, option="out_dir") as tmp:
         result = run_gap(items, tmp, settings=settings, twin=twin, sim_session=sim_session,
                          plots=figures)
-    return replace(result, report=_moved(result.report, tmp, out))
+    report = result.report
+    return replace(result, report=None if report is None else _moved(report, tmp, out))
 
 
 def load_twin(path: PathLike) -> Twin:
