@@ -114,23 +114,33 @@ class _EscapingStream:
         if not self.closed_pipe:
             try:
                 return self._stream.write(escape_controls(text))
-            except BrokenPipeError:
-                self._reader_gone()
+            except OSError as exc:
+                if not _reader_gone(exc):
+                    raise
+                self._drop_output()
         return len(text)
 
     def flush(self) -> None:
         if not self.closed_pipe:
             try:
                 self._stream.flush()
-            except BrokenPipeError:
-                self._reader_gone()
+            except OSError as exc:
+                if not _reader_gone(exc):
+                    raise
+                self._drop_output()
 
-    def _reader_gone(self) -> None:
+    def _drop_output(self) -> None:
         self.closed_pipe = True
         _to_null_device(self._stream)
 
     def __getattr__(self, name):
         return getattr(self._stream, name)
+
+
+def _reader_gone(exc: OSError) -> bool:
+    """A write failed because the pipe's reader went away: EPIPE (BrokenPipeError), or
+    EINVAL, which is how Windows' C runtime reports a write into a closed pipe."""
+    return isinstance(exc, BrokenPipeError) or exc.errno == errno.EINVAL
 
 
 @contextlib.contextmanager

@@ -82,3 +82,27 @@ def test_version_prints_the_installed_version(capsys):
         main(["--version"])
     assert ended.value.code == 0
     assert capsys.readouterr().out == f"nmsid {nmsid.__version__}\n"
+
+
+class _Failing:
+    def __init__(self, err: int):
+        self.err = err
+
+    def write(self, text):
+        raise OSError(self.err, os.strerror(self.err))
+
+    def flush(self):
+        raise OSError(self.err, os.strerror(self.err))
+
+
+def test_windows_closed_pipe_einval_counts_as_a_gone_reader_and_other_errors_do_not():
+    import errno
+
+    from nmsid.cli import _EscapingStream
+    gone = _EscapingStream(_Failing(errno.EINVAL))   # Windows' C runtime: a closed pipe
+    assert gone.write("x") == 1 and gone.closed_pipe
+    gone.flush()
+    full = _EscapingStream(_Failing(errno.ENOSPC))   # a full disk is not a gone reader
+    with pytest.raises(OSError):
+        full.write("x")
+    assert not full.closed_pipe
