@@ -144,8 +144,10 @@ def save_trial_npz(target: Path, trial: Trial) -> None:
     members (``np.savez``) take 8 ms but 1.36 MB, and the peak disk of a session then
     grows to 2.9x the file (``bench_store.py --small``; target 2x). The zip writer of our
     own this replaced (a run-length deflate strategy numpy cannot ask for) took 18 ms for
-    0.69 MB: about 24 ms more per trial end, a second of a 45-trial session, buys no
-    container to maintain. Its entries read as these do.
+    0.69 MB. A 45-trial fast-clock session (``bench/bench_session.py --seeds 1``, the
+    same busy machine) took 6.0-6.7 s of CPU against 5.35 s with that writer: on the rig,
+    where a trial lasts 15 s, 24 ms per trial end is nothing, and no container of our own
+    is left to maintain. Its entries read as these do.
     """
     members: dict[str, Any] = trial_members(trial)  # Any: numpy's stubs type **kwds apart
     write_durable(target, lambda fh: np.savez_compressed(fh, **members))
