@@ -31,6 +31,7 @@ from nmsid.analysis.qc.decide import EXCLUDED, REPAIRED, LevelQC
 from nmsid.analysis.scatter import ScatterResult, fit_trials, summarise
 from nmsid.analysis.second_order import SecondOrderFit
 from nmsid.analysis.settings import IdentificationSettings
+from nmsid.protocols.reprs import counted, html_repr, number_span, short_repr, to_dataframe
 from nmsid.protocols.session_file import read_session
 
 logger = logging.getLogger(__name__)
@@ -77,6 +78,17 @@ class LevelResult:
             "baseline_N": self.data.baseline_N if self.data else nan,
         }
 
+    def __repr__(self) -> str:
+        f = self.fit
+        fitted = ("not identified" if f is None else
+                  f"Kp {f.Kp:.4g}, wn {f.wn_rad_s:.4g} rad/s, zeta {f.zeta:.4g}, "
+                  f"fit {f.fit_pct:.1f} %" + ("" if f.converged else " (not converged)"))
+        return short_repr("LevelResult", f"sE {self.sE:g}", counted(self.n_trials, "trial"),
+                          fitted, f"QC {self.qc.flag}" if self.qc and self.qc.flag else "",
+                          counted(len(self.problems), "problem") if self.problems else "")
+
+    _repr_html_ = html_repr
+
 
 @dataclass
 class SessionResult:
@@ -98,7 +110,23 @@ class SessionResult:
     (:mod:`nmsid.analysis.fatigue`; None when not computed)."""
 
     def rows(self) -> list[dict]:
+        """One dict per sE level: the ``parameters.csv`` row (:meth:`LevelResult.to_dict`)."""
         return [lv.to_dict(self.participant) for lv in self.levels]
+
+    def to_dataframe(self):
+        """:meth:`rows` as a ``pandas.DataFrame`` (needs pandas)."""
+        return to_dataframe(self.rows())
+
+    def __repr__(self) -> str:
+        fits = [lv.fit.fit_pct for lv in self.levels if lv.fit is not None]
+        return short_repr(
+            "SessionResult", self.participant,
+            f"{len(fits)}/{len(self.levels)} sE levels identified "
+            f"{number_span(lv.sE for lv in self.levels)}".rstrip(),
+            f"fit {number_span(fits, '.1f')} %" if fits else "",
+            counted(len(self.problems), "problem") if self.problems else "", str(self.source))
+
+    _repr_html_ = html_repr
 
     def parameter(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """(sE, values) of one parameter over the levels that were identified."""

@@ -18,6 +18,7 @@ import numpy as np
 from nmsid.analysis.curves import CurveFit, Trend, fit_curve, trend_of
 from nmsid.analysis.outliers import iqr_fences, iqr_inliers
 from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
+from nmsid.protocols.reprs import counted, html_repr, names, short_repr, to_dataframe
 
 AVERAGE_LABEL = "average"
 
@@ -47,6 +48,15 @@ class ModelComparison:
     @property
     def selected_fit(self) -> CurveFit | None:
         return self.fits.get(self.selected) if self.selected else None
+
+    def __repr__(self) -> str:
+        return short_repr("ModelComparison", f"{self.parameter} of {self.label}",
+                          f"selected {self.selected or 'none'}",
+                          f"{sum(p.used for p in self.points)}/{len(self.points)} points used",
+                          f"candidates {', '.join(self.fits)}",
+                          counted(len(self.problems), "problem") if self.problems else "")
+
+    _repr_html_ = html_repr
 
     def used_points(self) -> tuple[np.ndarray, np.ndarray]:
         pts = [(p.sE, p.value) for p in self.points if p.used]
@@ -169,6 +179,32 @@ class SelectionResult:
     aicc_sum_counts: dict[str, dict[str, int]]
     problems: list[str]
     settings: IdentificationSettings
+
+    def rows(self) -> list[dict]:
+        """One dict per comparison: parameter, participant (or the average), the model
+        selected and its AICc."""
+        out = []
+        for c in self.comparisons:
+            fit = c.selected_fit
+            out.append({"parameter": c.parameter, "label": c.label, "selected": c.selected,
+                        "aicc": fit.aicc if fit is not None else float("nan"),
+                        "points_used": sum(p.used for p in c.points),
+                        "points": len(c.points)})
+        return out
+
+    def to_dataframe(self):
+        """:meth:`rows` as a ``pandas.DataFrame`` (needs pandas)."""
+        return to_dataframe(self.rows())
+
+    def __repr__(self) -> str:
+        chosen = [f"{c.parameter}: {c.selected or 'none'}" for c in self.comparisons
+                  if c.label == (self.participants[0] if len(self.participants) == 1
+                                 else AVERAGE_LABEL)]
+        return short_repr("SelectionResult", names(self.participants),
+                          counted(len(self.comparisons), "comparison"), "; ".join(chosen),
+                          counted(len(self.problems), "problem") if self.problems else "")
+
+    _repr_html_ = html_repr
 
     def comparison(self, parameter: str, label: str) -> ModelComparison | None:
         for c in self.comparisons:

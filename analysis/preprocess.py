@@ -30,6 +30,7 @@ from nmsid.analysis.signal_kernels import (butter, convolve1d, savgol_coeffs, so
                                            sosfiltfilt)
 from nmsid.analysis.thin_lstsq import dot
 from nmsid.analysis.settings import IdentificationSettings, InputTiming
+from nmsid.protocols.reprs import html_repr, names, short_repr
 
 
 @dataclass
@@ -57,6 +58,16 @@ class LevelData:
     baseline_N: float = float("nan")
     """Mean raw force (not detrended) over the second half of the lead-in, where
     rE = 0.5 and the force has settled: the force at rE = 0.5 for this sE."""
+
+    def __repr__(self) -> str:
+        return short_repr("LevelData", f"sE {self.sE:g}",
+                          f"{self.n_trials} trial(s) {names(self.trial_names)}".rstrip(),
+                          f"{len(self.y_N)} samples at {self.fs_Hz:g} Hz "
+                          f"(from {self.raw_fs_Hz:g} Hz)",
+                          f"band {self.band_Hz[0]:g}-{self.band_Hz[1]:g} Hz",
+                          f"baseline {self.baseline_N:.3g} N")
+
+    _repr_html_ = html_repr
 
 
 def linear_detrend(x: np.ndarray, start: int = 0) -> np.ndarray:

@@ -24,6 +24,8 @@ from statistics import NormalDist
 
 import numpy as np
 
+from nmsid.protocols.reprs import html_repr, short_repr
+
 #: standard normal quantile (as scipy.special.ndtri; the stdlib's spares scipy.special's
 #: 0.3 s import on every ``nmsid identify``)
 ndtri = NormalDist().inv_cdf
@@ -52,6 +54,11 @@ class ResidualTests:
     """Family-wise bound used for ``whiteness_pass``."""
     cross_correlation_verdict_bound: float = float("nan")
     """Family-wise bound used for ``independence_pass``."""
+
+    def __repr__(self) -> str:
+        return short_repr("ResidualTests", self.summary())
+
+    _repr_html_ = html_repr
 
     def summary(self) -> str:
         """One line: both verdicts and the worst excursion of each."""

@@ -22,14 +22,31 @@ from nmsid.analysis.report import (parameter_table, selection_tables, write_mode
 from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
 from nmsid.analysis.twin import Twin, source_entry, twin_from_selection
 from nmsid.errors import UserError
+from nmsid.protocols.reprs import counted, html_repr, names, short_repr, to_dataframe
 from nmsid.protocols.session_file import Session
 
 logger = logging.getLogger(__name__)
 
 
-@dataclass
-class RunOutputs:
-    """What a run produced."""
+@dataclass(frozen=True)
+class Identification:
+    """What an identification run produced (:func:`run_identification`, ``nmsid.identify``).
+
+    Attributes
+    ----------
+    sessions : list of SessionResult
+        Each session's parameters per sE level, in the order given.
+    selection : SelectionResult
+        The model of each parameter as a function of sE, per participant and averaged.
+    files : list of pathlib.Path
+        The files written (empty when nothing was kept).
+    problems : list of str
+        What could not be identified, and why.
+    twins : dict of str to Twin
+        The twin of each participant (and of ``"average"`` for several).
+    tables_text : str
+        The tables ``nmsid identify`` prints.
+    """
 
     sessions: list[SessionResult]
     selection: SelectionResult
@@ -37,6 +54,29 @@ class RunOutputs:
     problems: list[str] = field(default_factory=list)
     twins: dict[str, Twin] = field(default_factory=dict)
     tables_text: str = ""
+
+    @property
+    def twin(self) -> Twin | None:
+        """The run's twin (``twin.json``): the participant's, or the group average's."""
+        label = AVERAGE_LABEL if len(self.sessions) > 1 else \
+            (self.selection.participants[0] if self.selection.participants else "")
+        return self.twins.get(label)
+
+    def rows(self) -> list[dict]:
+        """The ``parameters.csv`` table: one dict per session and sE level."""
+        return [row for r in self.sessions for row in r.rows()]
+
+    def to_dataframe(self):
+        """:meth:`rows` as a ``pandas.DataFrame`` (needs pandas)."""
+        return to_dataframe(self.rows())
+
+    def __repr__(self) -> str:
+        return short_repr("Identification", names(self.selection.participants),
+                          summary_line(self),
+                          f"twins {names(list(self.twins))}" if self.twins else "no twin",
+                          counted(len(self.files), "file") if self.files else "")
+
+    _repr_html_ = html_repr
 
 
 def _label(src) -> str:
@@ -74,7 +114,7 @@ class _SourceEntries:
 
 def run_identification(sessions, out_dir: str | os.PathLike,
                        settings: IdentificationSettings | None = None, *,
-                       figures: bool = True) -> RunOutputs:
+                       figures: bool = True) -> Identification:
     """Identify one or several sessions and write every output into ``out_dir``.
 
     Parameters
@@ -93,7 +133,7 @@ def run_identification(sessions, out_dir: str | os.PathLike,
 
     Returns
     -------
-    RunOutputs
+    Identification
 
     Raises
     ------
@@ -179,7 +219,7 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         for name in PARAMETER_NAMES:
             files.append(plot_parameter_curves(selection, name, out / f"figure_{name}.png",
                                                AVERAGE_LABEL))
-    return RunOutputs(results, selection, files, problems, twins, text)
+    return Identification(results, selection, files, problems, twins, text)
 
 
 def _save_twin(twin: Twin, path: Path, problems: list[str]) -> bool:
@@ -192,7 +232,8 @@ def _save_twin(twin: Twin, path: Path, problems: list[str]) -> bool:
     return True
 
 
-def summary_line(outputs: RunOutputs) -> str:
+def summary_line(outputs: Identification) -> str:
+    """One line: sessions, levels identified, the lowest fit, problems."""
     n_levels = sum(len(r.levels) for r in outputs.sessions)
     n_ok = sum(1 for r in outputs.sessions for lv in r.levels if lv.fit is not None)
     worst = min((lv.fit.fit_pct for r in outputs.sessions for lv in r.levels

@@ -37,6 +37,7 @@ from nmsid.analysis.fatigue import FatigueResult, chi2_ppf
 from nmsid.analysis.preprocess import TrialSignals, preprocess_trials
 from nmsid.analysis.second_order import fit_second_order
 from nmsid.analysis.settings import IdentificationSettings
+from nmsid.protocols.reprs import counted, html_repr, short_repr, to_dataframe
 
 #: The three parameters, as named in ``parameters.csv``.
 PARAMETERS = ("Kp", "wn_rad_s", "zeta")
@@ -125,6 +126,23 @@ class ScatterResult:
     zeta: ParameterScatter
     fatigue_corrected: bool = False
     problems: tuple[str, ...] = ()
+
+    def rows(self) -> list[dict]:
+        """One dict per trial fitted on its own (:class:`TrialFit`)."""
+        return [asdict(t) for t in self.trials]
+
+    def to_dataframe(self):
+        """:meth:`rows` as a ``pandas.DataFrame`` (needs pandas)."""
+        return to_dataframe(self.rows())
+
+    def __repr__(self) -> str:
+        return short_repr("ScatterResult", counted(len(self.trials), "trial fit"),
+                          ", ".join(f"{p.parameter} CV {p.cv_pct:.3g} %"
+                                    for p in (self.Kp, self.wn_rad_s, self.zeta)),
+                          "fatigue-corrected Kp" if self.fatigue_corrected else "",
+                          counted(len(self.problems), "problem") if self.problems else "")
+
+    _repr_html_ = html_repr
 
     def pooled(self, parameter: str) -> ParameterScatter:
         """The pooled scatter of ``Kp``, ``wn_rad_s`` or ``zeta``."""

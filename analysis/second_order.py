@@ -38,6 +38,7 @@ from nmsid.analysis.residual_tests import ResidualTests, residual_tests
 from nmsid.analysis.settings import IdentificationSettings, InputHold, NoiseLevel
 from nmsid.analysis.signal_kernels import lfilter
 from nmsid.analysis.thin_lstsq import cross, dot, gram, lstsq_rows, orthonormalise
+from nmsid.protocols.reprs import html_repr, short_repr
 
 logger = logging.getLogger(__name__)
 
@@ -97,6 +98,16 @@ class SecondOrderFit:
             resid, u, lags, confidence = self._tests_of
             self._tests = residual_tests(resid, u, lags, confidence)
         return self._tests
+
+    def __repr__(self) -> str:
+        return short_repr(
+            "SecondOrderFit", f"Kp {self.Kp:.4g} +- {self.Kp_se:.2g} N",
+            f"wn {self.wn_rad_s:.4g} +- {self.wn_se:.2g} rad/s",
+            f"zeta {self.zeta:.4g} +- {self.zeta_se:.2g}", f"fit {self.fit_pct:.1f} %",
+            "converged" if self.converged else f"not converged ({self.message})",
+            f"{len(self.y_N)} samples at {self.fs_Hz:g} Hz")
+
+    _repr_html_ = html_repr
 
     @property
     def residual_N(self) -> np.ndarray:

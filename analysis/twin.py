@@ -22,6 +22,7 @@ from nmsid.analysis.curves import evaluate_curve
 from nmsid.analysis.discretize import foh_coefficients, foh_state_matrices
 from nmsid.analysis.errors import IdentificationError, TwinFileError, TwinInputError
 from nmsid.analysis.signal_kernels import lfilter
+from nmsid.protocols.reprs import html_repr, short_repr
 from nmsid.sim_backends.twin_file import TwinReadError, read_twin_file, write_twin_file
 
 FORMAT = "nmsid-twin"
@@ -124,6 +125,16 @@ class Twin:
     # -- muscle form (issue 20): optional physiological twin, analysis.muscle.twin_form --
     muscle_model: dict | None = None
     """The ``muscle_model`` item when the file has one; :meth:`simulate` then runs it."""
+
+    def __repr__(self) -> str:
+        curves = ", ".join(f"{name} {curve.model}" for name, curve in self.parameters.items())
+        kinds = [str(e.get("name", "?")) for e in self.effects]
+        return short_repr("Twin", self.participant or "no participant",
+                          f"sE {self.sE_range[0]:g}-{self.sE_range[1]:g}", curves,
+                          f"effects {', '.join(kinds)}" if kinds else "",
+                          "muscle model" if self.muscle_model is not None else "")
+
+    _repr_html_ = html_repr
 
     # -- parameters -----------------------------------------------------------------
     def parameters_at(self, sE, clip: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

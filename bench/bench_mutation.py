@@ -105,7 +105,7 @@ NAMED: list[tuple[str, str, str, str]] = [
     ("rig/journal.py", "write_durable", "delete", "os.fsync("),
     ("rig/journal.py", "write_durable", "call", "with_name("),
     # an A/D wrench / sync journaled as counts
-    ("rig/journal.py", "save_trial_npz", "compare", 'if k in ("wrench", "sync")'),
+    ("rig/journal.py", "trial_members", "compare", 'if k in ("wrench", "sync")'),
     # a torn or foreign partial.json not streamed into
     ("rig/journal.py", "read_journal", "delete", "if pmeta is not None and not"),
     ("rig/journal.py", "read_journal", "boolop#2", "if pmeta is not None and not"),

@@ -9,9 +9,12 @@ What ends a command (:mod:`nmsid.errors`):
 * a user error (bad file, setting or value; a missing optional package; a file-system error
   on a path the user gave): one line, exit status 2;
 * a device fault: one line, exit status 3; a safety refusal: one line, exit status 4;
-* anything else is a bug: its traceback, one line saying so, exit status 1.
+* anything else is a bug: its traceback, one line saying so, exit status 1;
+* a closed pipe (``nmsid ... | head``): nothing more is printed, the command goes on to
+  its end, exit status :data:`EXIT_CLOSED_PIPE` (as a shell reports a command ended by
+  SIGPIPE) unless the command failed on its own.
 
-``--debug`` shows the traceback of every error.
+``--debug`` shows the traceback of every error; ``--version`` prints the version.
 """
 
 from __future__ import annotations
@@ -82,6 +85,11 @@ def limit_blas_threads(environ=None) -> list[str]:
     return chosen
 
 
+#: Exit status when the reader of stdout went away (``nmsid ... | head``): 128 + SIGPIPE (13),
+#: what a shell reports for a command the signal ended, on every platform.
+EXIT_CLOSED_PIPE = 141
+
+
 #: errno values of file-system errors that are the user's to fix (a path that does not
 #: exist, is not allowed, is full, is read-only, ...), not bugs.
 _USER_ERRNOS = frozenset({errno.EPERM, errno.ENOENT, errno.EACCES, errno.EEXIST, errno.ENOTDIR,
@@ -91,26 +99,73 @@ _USER_ERRNOS = frozenset({errno.EPERM, errno.ENOENT, errno.EACCES, errno.EEXIST,
 
 class _EscapingStream:
     """A text stream that writes control characters as visible escapes: names and notes
-    read from files never reach the terminal raw (:mod:`nmsid.protocols.printable`)."""
+    read from files never reach the terminal raw (:mod:`nmsid.protocols.printable`).
+
+    When its reader goes away (``nmsid run ... | head``) it says so in ``closed_pipe`` and
+    drops what follows: the command goes on (a session is not ended by a closed pipe, and
+    the engine thread's progress lines raise nothing) and ends with
+    :data:`EXIT_CLOSED_PIPE`."""
 
     def __init__(self, stream):
         self._stream = stream
+        self.closed_pipe = False
 
     def write(self, text: str) -> int:
-        return self._stream.write(escape_controls(text))
+        if not self.closed_pipe:
+            try:
+                return self._stream.write(escape_controls(text))
+            except OSError as exc:
+                if not _reader_gone(exc):
+                    raise
+                self._drop_output()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.closed_pipe:
+            try:
+                self._stream.flush()
+            except OSError as exc:
+                if not _reader_gone(exc):
+                    raise
+                self._drop_output()
+
+    def _drop_output(self) -> None:
+        self.closed_pipe = True
+        _to_null_device(self._stream)
 
     def __getattr__(self, name):
         return getattr(self._stream, name)
 
 
+def _reader_gone(exc: OSError) -> bool:
+    """A write failed because the pipe's reader went away: EPIPE (BrokenPipeError), or
+    EINVAL, which is how Windows' C runtime reports a write into a closed pipe."""
+    return isinstance(exc, BrokenPipeError) or exc.errno == errno.EINVAL
+
+
 @contextlib.contextmanager
 def _escaped_output():
     out, err = sys.stdout, sys.stderr
-    sys.stdout, sys.stderr = _EscapingStream(out), _EscapingStream(err)
+    streams = (_EscapingStream(out), _EscapingStream(err))
+    sys.stdout, sys.stderr = streams
     try:
-        yield
+        yield streams
     finally:
         sys.stdout, sys.stderr = out, err
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: print ``nmsid <version>`` and exit 0. The version is looked up only
+    when asked for (:data:`nmsid.__version__` reads the installed package's metadata)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS,
+                 help="print nmsid's version and exit"):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        import nmsid  # the root package's lazy __version__ (package metadata)
+        print(f"nmsid {nmsid.__version__}")  # on stdout, as argparse's own "version"
+        parser.exit(0)
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -150,6 +205,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
                         help="show full tracebacks instead of one-line error messages")
     parser.add_argument("-v", "--verbose", action="count", default=0,
                         help="more log output (-v info, -vv debug)")
+    parser.add_argument("--version", action=_VersionAction)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in modules:
         try:
@@ -204,6 +260,31 @@ def report(exc: BaseException, command: str) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the ``nmsid`` command line; returns the exit status."""
+    try:
+        status = _main(argv)
+        sys.stdout.flush()  # here, not at exit: a closed pipe is met inside the try
+        return status
+    except BrokenPipeError:
+        _to_null_device(sys.stdout)
+        return EXIT_CLOSED_PIPE
+
+
+def _to_null_device(stream) -> None:
+    """Point a stream's file descriptor at the null device: its reader is gone, and
+    Python's own flush at exit would otherwise report the broken pipe again (the recipe of
+    Python's ``signal`` documentation, "Note on SIGPIPE")."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(devnull, stream.fileno())
+        finally:
+            os.close(devnull)
+    except (OSError, ValueError, AttributeError):  # no descriptor (a test's captured stream)
+        pass
+
+
+def _main(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(argv)
     args = parser.parse_args(argv)
@@ -219,11 +300,13 @@ def main(argv: list[str] | None = None) -> int:
         limit_blas_threads()      # before the handler imports numpy
     try:
         func = getattr(importlib.import_module(module_name), func_name)
-        with _escaped_output():
+        with _escaped_output() as streams:
             result = func(args)
     except KeyboardInterrupt:
         print("nmsid: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader of stdout went away: not a bug, nothing to say
+        raise
     except Exception as exc:  # noqa: BLE001 - sorted into user errors and bugs below
         if args.debug:
             raise
@@ -233,7 +316,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"nmsid: internal error in `nmsid {args.command}` (a bug, not your "
                   "input): please report it with the traceback above", file=sys.stderr)
         return status
-    return int(result or 0)
+    status = int(result or 0)
+    if status == 0 and any(s.closed_pipe for s in streams):
+        return EXIT_CLOSED_PIPE  # the work is done; part of what it printed was not read
+    return status
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -30,8 +30,7 @@ from nmsid.rig.engine import Engine, TripPolicy
 from nmsid.rig.glitch_prompt import glitch_confirmation
 from nmsid.rig.recovery import check_stored_header
 from nmsid.rig.session_log import journal_dir, recover
-from nmsid.rig.session_service import (RigRequest, is_plugin_spec, prepare_rig,
-                                       seed_from_code)
+from nmsid.rig.session_service import (RigRequest, is_plugin_spec, prepare_rig)
 from nmsid.rig.observer import EngineObserver
 from nmsid.rig.trials import session_kind_from_stored
 from nmsid.rig.session_signals import SessionSignals, exit_code, signal_name
@@ -204,10 +203,6 @@ def _free_path(outdir, participant: str):
         if not p.exists() and not journal_dir(p).exists():
             return p
     raise UsageError(f"{outdir}: no free session file name for {participant}-{stamp}")
-
-
-def _seed_from_code(code: str) -> int:
-    return seed_from_code(code)
 
 
 def _identify(path) -> None:

@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from nmsid.drivers.hw_config import StimulatorConfig, load_hw_config
+from nmsid.drivers.hw_config import load_hw_config
+from nmsid.drivers.stg4002_settings import Stg4002Config
 from nmsid.drivers.interfaces import CheckedWaveform, CurrentLimitError
 from nmsid.drivers.registry import stimulator_kind
 from nmsid.drivers.stg_download import (STG4002_OUTPUT_RATE_HZ, STG4002_RANGE_NA,
@@ -62,7 +63,7 @@ def level_key(sE: float, muscle: str) -> str:
 
 
 def render_protocol(config_path, calibration: tuple[float, float, float, float],
-                    stim: StimulatorConfig, output_rate_Hz: float = STG4002_OUTPUT_RATE_HZ):
+                    stim: Stg4002Config, output_rate_Hz: float = STG4002_OUTPUT_RATE_HZ):
     """Every level's download summary and samples.
 
     Returns
@@ -128,8 +129,8 @@ def run(args) -> int:
         raise OutputExistsError(f"--out {out} is a file, not a folder")
     calibration = parse_calibration(args.calibration)
     stim = (load_hw_config(args.hw_config).stimulator if args.hw_config
-            else StimulatorConfig())
-    if not isinstance(stim, StimulatorConfig):   # another kind: its registry entry's report
+            else Stg4002Config())
+    if not isinstance(stim, Stg4002Config):   # another kind: its registry entry's report
         return _run_registry(args, out, calibration, stim)
     report, samples = render_protocol(args.config, calibration, stim, stim.output_rate_Hz)
     out.mkdir(parents=True, exist_ok=True)

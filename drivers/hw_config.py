@@ -16,19 +16,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Annotated, Literal
 
-from pydantic import (Discriminator, Field, StrictBool, StrictFloat, StrictInt, StrictStr, Tag,
-                      model_validator)
+from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, model_validator
 
 from nmsid.drivers.analog_force import AXES, SENSOR_SPAN_V, AnalogCalibration
 from nmsid.drivers.errors import HardwareConfigError, hw_config_error
+from nmsid.drivers.registry import (ACQUISITIONS, DEFAULT_STIMULATOR, ESTOPS, STIMULATORS,
+                                    acquisition_entry)
 from nmsid.drivers.rehastim2_settings import Rehastim2Config
+from nmsid.drivers.stg4002_settings import Stg4002Config
 from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
                                            validate_settings)
-
-LEPTRINO_MAX_RATE_HZ = 1200.0
-"""What the Leptrino USB interface streams at (vendor sample: "maximum 1.2 kHz")."""
-MAX_CEILING_MA = 100.0
-"""No stimulator of this rig delivers more; the device's own range is checked on connect."""
 
 Axis = Literal["Fx", "Fy", "Fz", "Mx", "My", "Mz"]
 """``drivers.analog_force.AXES``; the choices of caio/nidaq below are the drivers' tables
@@ -37,8 +34,6 @@ checks they agree."""
 Channel = Annotated[StrictInt, Field(ge=0, le=63, description="an A/D channel 0 .. 63")]
 Positive = Annotated[StrictFloat, Field(gt=0.0, le=1e6, description="a positive rating")]
 Volts = Annotated[StrictFloat, Field(ge=-100.0, le=100.0, description="a voltage within 100 V")]
-StimChannel = Annotated[StrictInt, Field(ge=1, le=8, description=(
-    "channels are numbered from 1 (1 .. 8)"))]
 
 
 @settings_dataclass(hw_config_error, prefix="rig")
@@ -49,55 +44,6 @@ class RigSettings:
     fake: StrictBool = False
     fake_speed: StrictFloat = bounded(1.0, ge=0.1, le=100.0, why=(
         "the fakes' clock runs 0.1 .. 100 x real time"))
-
-
-@settings_dataclass(hw_config_error, prefix="stimulator")
-class StimulatorConfig:
-    """``[stimulator]``: the MCS STG4002 and its channels."""
-
-    kind: Literal["stg4002"] = "stg4002"
-    dll_path: StrictStr = ""
-    serial: StrictStr = ""
-    extensor_channel: StimChannel = 1
-    flexor_channel: StimChannel = 2
-    sync_out: StimChannel = 1
-    ceiling_ext_mA: StrictFloat = bounded(16.0, gt=0.0, le=MAX_CEILING_MA, why=(
-        "expected > 0 and <= 100 mA (the device's own range is checked when it is connected)"))
-    ceiling_flex_mA: StrictFloat = bounded(16.0, gt=0.0, le=MAX_CEILING_MA, why=(
-        "expected > 0 and <= 100 mA (the device's own range is checked when it is connected)"))
-    output_rate_Hz: StrictFloat = bounded(50_000.0, ge=1000.0, le=50_000.0, why=(
-        "the STG4002's output rate, 1000 .. 50000 Hz (McsUsbNet SetOutputRate; read back "
-        "at connect)"))
-    """Set with McsUsbNet ``SetOutputRate`` and read back at connect (1000 .. 50000 Hz)."""
-
-    @model_validator(mode="after")
-    def _distinct(self):
-        if self.extensor_channel == self.flexor_channel:
-            raise SettingProblem("flexor_channel", self.flexor_channel,
-                                 "must differ from extensor_channel")
-        tick_us = 1e6 / self.output_rate_Hz
-        if abs(tick_us - round(tick_us)) > 1e-9:
-            raise SettingProblem("output_rate_Hz", self.output_rate_Hz,
-                                 "a whole number of microseconds per sample (50000, 25000, "
-                                 "20000, 10000 ... Hz; McsUsbNet SetOutputRate)")
-        return self
-
-
-def _stimulator_kind(value) -> str:
-    """The ``kind`` of a ``[stimulator]`` table (absent: the STG4002, as before kinds)."""
-    if isinstance(value, dict):
-        return str(value.get("kind", "stg4002"))
-    return str(getattr(value, "kind", "stg4002"))
-
-
-StimulatorSettings = Annotated[
-    Annotated[StimulatorConfig, Tag("stg4002")] | Annotated[Rehastim2Config, Tag("rehastim2")],
-    Discriminator(_stimulator_kind)]
-"""``[stimulator]``: one settings model per device kind, chosen by ``kind`` (one member per
-entry of :data:`nmsid.drivers.registry.STIMULATORS`; a test checks they agree)."""
-STIMULATOR_MODELS = {"stg4002": StimulatorConfig, "rehastim2": Rehastim2Config}
-"""The settings model of each ``[stimulator] kind`` (the members of the union above)."""
-STIMULATOR_TITLES = {"stg4002": "MCS STG4002", "rehastim2": "Hasomed RehaStim2"}
 
 
 @settings_dataclass(hw_config_error, prefix="acquisition.caio")
@@ -169,22 +115,13 @@ class AcquisitionSettings:
         if abs(per - round(per)) > 1e-9:
             raise SettingProblem("monitor_fs_Hz", self.monitor_fs_Hz,
                                  "a whole multiple of the 1000 Hz carrier (10000, 20000, ...)")
-        problem = _acquisition_entry(self.kind).check(self)
+        problem = acquisition_entry(self.kind).check(self)
         if problem:
             raise SettingProblem(*problem)
         return self
 
 
-def _acquisition_entry(kind: str):
-    """The registry entry of an ``[acquisition] kind`` (:data:`nmsid.drivers.registry.
-    ACQUISITIONS`: its title, analog support and per-kind rules)."""
-    # imported here: the registry imports this module (its settings models)
-    from nmsid.drivers.registry import acquisition_entry  # noqa: PLC0415
-    return acquisition_entry(kind)
-
-
 def _analog_kinds() -> list[str]:
-    from nmsid.drivers.registry import ACQUISITIONS  # noqa: PLC0415 (as above)
     return [k for k, e in ACQUISITIONS.items() if e.analog]
 
 
@@ -230,7 +167,6 @@ class EStopConfig:
 
     @model_validator(mode="after")
     def _wired(self):
-        from nmsid.drivers.registry import ESTOPS  # noqa: PLC0415 (it imports this module)
         problem = ESTOPS[self.kind].check(self)
         if problem:
             raise SettingProblem(*problem)
@@ -242,16 +178,16 @@ class HardwareFile:
     """The whole hardware file; cross-table rules (analog wiring) live here."""
 
     rig: RigSettings = Field(default_factory=RigSettings)
-    stimulator: StimulatorConfig = Field(default_factory=StimulatorConfig)
+    stimulator: Stg4002Config = Field(default_factory=Stg4002Config)
     """The default kind's table, for docs/settings.md; a file's ``[stimulator]`` is
-    validated on its own by the model of its ``kind`` (:data:`StimulatorSettings`)."""
+    validated on its own by the settings model of its ``kind`` (the registry's entry)."""
     acquisition: AcquisitionSettings = Field(default_factory=AcquisitionSettings)
     sensor: SensorSettings = Field(default_factory=SensorSettings)
     estop: EStopConfig = Field(default_factory=EStopConfig)
 
     @model_validator(mode="after")
     def _estop_pin(self):
-        problem = _acquisition_entry(self.acquisition.kind).check_file(self.acquisition,
+        problem = acquisition_entry(self.acquisition.kind).check_file(self.acquisition,
                                                                        self.estop)
         if problem:
             raise SettingProblem(*problem)
@@ -260,7 +196,7 @@ class HardwareFile:
     @model_validator(mode="after")
     def _wiring(self):
         se = self.sensor
-        entry = _acquisition_entry(self.acquisition.kind)
+        entry = acquisition_entry(self.acquisition.kind)
         if not entry.analog:
             analog = " or ".join(_analog_kinds())
             if self.acquisition.monitor_channel >= 0:
@@ -338,7 +274,7 @@ class HardwareConfig:
     name: str
     fake: bool
     fake_speed: float
-    stimulator: StimulatorConfig | Rehastim2Config
+    stimulator: Stg4002Config | Rehastim2Config
     """Typed by ``kind``; :mod:`nmsid.drivers.registry` knows what each kind needs."""
     acquisition: AcquisitionConfig
     calibration: AnalogCalibration | None
@@ -348,8 +284,8 @@ class HardwareConfig:
     estop: EStopConfig
 
     def describe(self) -> str:
-        acq = _acquisition_entry(self.acquisition.kind).title
-        text = f"hw: {STIMULATOR_TITLES[self.stimulator.kind]} + {acq} ({self.sensor_model})"
+        acq = acquisition_entry(self.acquisition.kind).title
+        text = f"hw: {STIMULATORS[self.stimulator.kind].title} + {acq} ({self.sensor_model})"
         return text + (" [FAKE devices]" if self.fake else "")
 
 
@@ -369,7 +305,7 @@ def load_hw_config(path) -> HardwareConfig:
 
 def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
     """Validate a hardware file's tables (``load_hw_config`` without the reading)."""
-    stimulator: StimulatorConfig | Rehastim2Config = StimulatorConfig()
+    stimulator: Stg4002Config | Rehastim2Config = Stg4002Config()
     if isinstance(data, dict) and "stimulator" in data:
         # the [stimulator] table on its own, by its kind: messages name "stimulator.<key>"
         stimulator = _stimulator_settings(data["stimulator"], source)
@@ -389,7 +325,7 @@ def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
         leptrino=dict(port=a.leptrino.port, baudrate=a.leptrino.baudrate,
                       sync_on_external_input=a.leptrino.sync_on_external_input))
     cal = None
-    if _acquisition_entry(a.kind).analog:
+    if acquisition_entry(a.kind).analog:
         try:
             cal = AnalogCalibration(
                 channels=dict(se.channels), rated=dict(se.rated),
@@ -405,15 +341,16 @@ def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
                           estop=f.estop)
 
 
-def _stimulator_settings(table, source: str) -> StimulatorConfig | Rehastim2Config:
-    """``[stimulator]`` validated by the settings model of its ``kind`` (default stg4002):
-    the discriminated union :data:`StimulatorSettings`, one model per kind."""
+def _stimulator_settings(table, source: str) -> Stg4002Config | Rehastim2Config:
+    """``[stimulator]`` validated by the settings model of its ``kind`` (absent: the
+    registry's default kind), the ``settings`` of its entry in
+    :data:`nmsid.drivers.registry.STIMULATORS`."""
     if not isinstance(table, dict):
         raise hw_config_error(source, "stimulator", table, "a table of settings")
-    kind = table.get("kind", "stg4002")
-    model = STIMULATOR_MODELS.get(kind) if isinstance(kind, str) else None
-    if model is None:
+    kind = table.get("kind", DEFAULT_STIMULATOR)
+    entry = STIMULATORS.get(kind) if isinstance(kind, str) else None
+    if entry is None:
         raise hw_config_error(source, "stimulator.kind", kind,
-                              "one of " + ", ".join(repr(k) for k in STIMULATOR_MODELS))
-    return validate_settings(model, table, source=source, make_error=hw_config_error,
+                              "one of " + ", ".join(repr(k) for k in STIMULATORS))
+    return validate_settings(entry.settings, table, source=source, make_error=hw_config_error,
                              prefix="stimulator")

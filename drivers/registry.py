@@ -1,11 +1,13 @@
 """One entry per stimulator kind: everything the rest of nmsid needs to know about it.
 
-The hardware file's ``[stimulator] kind`` picks an entry of :data:`STIMULATORS`; nothing
-else in nmsid branches on a device kind (``tests/drivers/test_registry.py`` checks that no
-kind name appears outside this module, the settings union of :mod:`nmsid.drivers.hw_config`
-and the kind's own driver and fake modules). An entry holds:
+The hardware file's ``[stimulator] kind`` picks an entry of :data:`STIMULATORS`, the one
+table of stimulator kinds; nothing else in nmsid branches on a device kind
+(``tests/drivers/test_registry.py`` checks that no kind name appears outside this module
+and the kind's own driver, settings and fake modules). An entry holds:
 
-* ``settings``: the settings model of its ``[stimulator]`` table;
+* ``title``: the device's name as people say it (``nmsid probe``, the GUI);
+* ``settings``: the settings model of its ``[stimulator]`` table (its own module,
+  ``drivers.<kind>_settings``), by which :mod:`nmsid.drivers.hw_config` validates it;
 * ``make``: the driver, not connected, from those settings (and the fake bench's clock);
 * ``install_fake``: the faithful fake put in place for ``fake = true`` (wired to the bench);
 * ``load_library``: the vendor library loaded now, so a missing one is one line before any
@@ -16,6 +18,9 @@ and the kind's own driver and fake modules). An entry holds:
 The acquisition and E-stop kinds are dispatched here too: :data:`ACQUISITIONS` (settings
 rules, driver, fake and its bench wiring, title, analog support) and :data:`ESTOPS`.
 
+This module sits below :mod:`nmsid.drivers.hw_config` (which reads the file and validates
+each table through these entries) and never imports it.
+
 Adding a kind: docs/architecture.md, "Adding a stimulator kind" (and an acquisition kind).
 """
 
@@ -23,7 +28,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -33,17 +38,23 @@ from nmsid.drivers.dry_run import commanded_current_A
 from nmsid.drivers.errors import HardwareConfigError
 from nmsid.drivers.estop_switch import NidaqEStop, SerialEStop
 from nmsid.drivers.fake_hardware import analog_wiring, load_fake
-from nmsid.drivers.hw_config import LEPTRINO_MAX_RATE_HZ, HardwareConfig, StimulatorConfig
 from nmsid.drivers.interfaces import CheckedWaveform
 from nmsid.drivers.leptrino import LeptrinoAcquisition, LeptrinoSensor, _serial_module
 from nmsid.drivers.nidaq import NidaqAcquisition, shared_pin
 from nmsid.drivers.rehastim2 import Rehastim2Stimulator
 from nmsid.drivers.rehastim2_settings import Rehastim2Config
 from nmsid.drivers.stg4002 import DEFAULT_DLL, Stg4002Stimulator
+from nmsid.drivers.stg4002_settings import Stg4002Config
 from nmsid.drivers.stg_download import (STG4002_RANGE_NA, STG4002_RESOLUTION_NA, ChannelPlan,
                                         prepare_download)
 from nmsid.drivers.stg_streaming import Stg4002WithStreaming, StgStreamingStimulator
 from nmsid.drivers.stimulation_report import download_summary
+
+if TYPE_CHECKING:  # annotations only: hw_config imports this module
+    from nmsid.drivers.hw_config import HardwareConfig
+
+LEPTRINO_MAX_RATE_HZ = 1200.0
+"""What the Leptrino USB interface streams at (vendor sample: "maximum 1.2 kHz")."""
 
 
 @dataclass(frozen=True)
@@ -79,7 +90,7 @@ class StimulatorKind:
 
 
 # -- MCS STG4002 -----------------------------------------------------------------------------
-def _make_stg(s: StimulatorConfig, clock, stack):
+def _make_stg(s: Stg4002Config, clock, stack):
     # download mode for calibration and identification trials; streaming mode (handed the
     # device by open_stream) for tracking trials: docs/hardware.md, "Streaming"
     common: dict[str, Any] = dict(ceiling_ext_mA=s.ceiling_ext_mA,
@@ -91,7 +102,7 @@ def _make_stg(s: StimulatorConfig, clock, stack):
                                 output_rate_Hz=s.output_rate_Hz, clock=clock, **common)
 
 
-def _fake_stg(s: StimulatorConfig, bench):
+def _fake_stg(s: Stg4002Config, bench):
     bench.sync_out = s.sync_out - 1
     mcs = load_fake("fake_mcs_usb")
     hw = mcs.FakeStgHardware(serial=s.serial or "4002-0001")
@@ -111,7 +122,7 @@ def _stg_command_A(stim: Stg4002Stimulator, channel: int, n: int, fs_Hz: float) 
     return commanded_current_A(dl.channels[channel].expand(), dl.output_rate_Hz, n, fs_Hz)
 
 
-def _stg_report(s: StimulatorConfig, checked: CheckedWaveform) -> dict:
+def _stg_report(s: Stg4002Config, checked: CheckedWaveform) -> dict:
     ext = ChannelPlan(s.extensor_channel, "extensor", s.ceiling_ext_mA, STG4002_RANGE_NA,
                       STG4002_RESOLUTION_NA)
     flex = ChannelPlan(s.flexor_channel, "flexor", s.ceiling_flex_mA, STG4002_RANGE_NA,
@@ -163,7 +174,7 @@ def _rs2_report(s: Rehastim2Config, checked: CheckedWaveform) -> dict:
 
 STIMULATORS: dict[str, StimulatorKind] = {
     "stg4002": StimulatorKind(
-        kind="stg4002", title="MCS STG4002", settings=StimulatorConfig, make=_make_stg,
+        kind="stg4002", title="MCS STG4002", settings=Stg4002Config, make=_make_stg,
         install_fake=_fake_stg, load_library=_stg_library, report=_stg_report,
         dry_run=DryRunSupport(method="lock-in", hardware_sync=True,
                               command_A=_stg_command_A)),
@@ -173,6 +184,8 @@ STIMULATORS: dict[str, StimulatorKind] = {
         dry_run=DryRunSupport(method="pulse-amplitude", hardware_sync=False)),
 }
 """Every stimulator kind nmsid drives, by ``[stimulator] kind``."""
+DEFAULT_STIMULATOR = "stg4002"
+"""The kind of a ``[stimulator]`` table without ``kind`` (files written before kinds)."""
 
 
 def stimulator_kind(settings) -> StimulatorKind:

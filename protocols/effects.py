@@ -167,11 +167,6 @@ class EffectSpec:
         raise KeyError(f"effect {self.name} has no parameter {name!r}; valid: "
                        f"{', '.join(p.name for p in self.params)}")
 
-    @property
-    def param_names(self) -> tuple[str, ...]:
-        return tuple(p.name for p in self.params)
-
-
 @dataclass(frozen=True)
 class _Snapshot:
     specs: tuple[EffectSpec, ...]

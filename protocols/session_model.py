@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from nmsid.protocols.errors import SessionExistsError, SessionFileError  # noqa: F401 (re-export)
+from nmsid.protocols.reprs import counted, html_repr, number_span, short_repr
 
 FORMAT = "nmsid-session"
 FORMAT_VERSION = 1
@@ -122,6 +123,15 @@ class Calibration:
         from nmsid.protocols.session_checks import calibration_findings
         return calibration_findings({k: getattr(self, k) for k in CALIBRATION_ATTRS}).problems
 
+    def __repr__(self) -> str:
+        return short_repr("Calibration",
+                          f"extensor {self.Iemin_mA:g}-{self.Iemax_mA:g} mA",
+                          f"flexor {self.Ifmin_mA:g}-{self.Ifmax_mA:g} mA",
+                          f"force {self.Fmin_N:g}-{self.Fmax_N:g} N",
+                          f"ramps {', '.join(self.ramps)}" if self.ramps else "")
+
+    _repr_html_ = html_repr
+
 
 @dataclass
 class Trial:
@@ -162,6 +172,17 @@ class Trial:
         """Sample times in s after stimulation onset."""
         return np.arange(self.n_samples) / self.fs_Hz
 
+    def __repr__(self) -> str:
+        status = self.status if self.completed else f"{self.status} ({self.abort_reason})"
+        duration = self.n_samples / self.fs_Hz if self.fs_Hz > 0 else float("nan")
+        return short_repr(f"Trial {self.name}".rstrip(), f"sE {self.sE:g}",
+                          f"repeat {self.repeat}", status,
+                          f"{self.n_samples} samples at {self.fs_Hz:g} Hz ({duration:.3g} s)",
+                          "wrench" if self.wrench is not None else "",
+                          "sync" if self.sync is not None else "")
+
+    _repr_html_ = html_repr
+
 
 @dataclass
 class Event:
@@ -170,6 +191,10 @@ class Event:
     utc: str
     kind: str
     detail: str = ""
+
+    def __repr__(self) -> str:
+        detail = self.detail if len(self.detail) <= 200 else self.detail[:197] + "..."
+        return short_repr("Event", self.utc, self.kind, repr(detail) if detail else "")
 
 
 @dataclass
@@ -207,6 +232,21 @@ class Session:
     def sE_levels(self) -> list[float]:
         """The distinct sE values of completed trials, ascending."""
         return sorted({round(float(t.sE), 10) for t in self.completed_trials()})
+
+    def __repr__(self) -> str:
+        n_done = len(self.completed_trials())
+        levels = self.sE_levels()
+        rates = number_span(t.fs_Hz for t in self.trials)
+        return short_repr(
+            "Session", self.participant or "no participant",
+            counted(len(self.trials), "trial")
+            + ("" if n_done == len(self.trials) else f" ({n_done} completed)"),
+            f"{counted(len(levels), 'sE level')} {number_span(levels)}" if levels else "",
+            f"{rates} Hz" if rates else "", self.backend, self.created_utc,
+            counted(len(self.warnings), "warning") if self.warnings else "",
+            str(self.path))
+
+    _repr_html_ = html_repr
 
 
 def _h5py():

@@ -137,13 +137,6 @@ class SessionWriter:
         return cls(path, gzip_level=gzip_level, store_counts=store_counts)
 
     # -- the in-memory image --------------------------------------------------------
-    @property
-    def image_bytes(self) -> int:
-        """Size of the file as it would be published now (bytes)."""
-        if self._held is not None:
-            self._held[1].flush()
-            return self._held[0].getbuffer().nbytes
-        return len(self._load())
 
     def _load(self) -> bytes:
         """The published image (read once from the file)."""
@@ -226,15 +219,6 @@ class SessionWriter:
                     del g[name]
                 self._create_dataset(g, name, np.asarray(data, dtype=float))
             _add_events(f, events)
-
-    def next_trial_name(self) -> str:
-        if self._held is not None:
-            f = self._held[1]
-            n = len([k for k in f.get("trials", {}) if TRIAL_NAME_PATTERN.match(k)])
-            return f"t{n + 1:03d}"
-        with _h5py().File(io.BytesIO(self._load()), "r") as f:
-            n = len([k for k in f.get("trials", {}) if TRIAL_NAME_PATTERN.match(k)])
-        return f"t{n + 1:03d}"
 
     def append_trial(self, trial: Trial, events: Sequence[Event] = ()) -> str:
         """Append one trial as the next ``tNNN`` group (and ``events``, in the same new

@@ -51,12 +51,6 @@ def chirp_frequency_Hz(t_s, f0_Hz: float, f1_Hz: float, T_s: float) -> np.ndarra
     return f0_Hz * np.power(f1_Hz / f0_Hz, t / T_s)
 
 
-def chirp_time_s(f_Hz, f0_Hz: float, f1_Hz: float, T_s: float) -> np.ndarray:
-    """Time after the chirp start at which the instantaneous frequency is ``f_Hz``."""
-    f = np.asarray(f_Hz, dtype=float)
-    return T_s * np.log(f / f0_Hz) / math.log(f1_Hz / f0_Hz)
-
-
 def multisine_frequencies_Hz(f0_Hz: float, f1_Hz: float, period_s: float,
                              n_tones: int) -> np.ndarray:
     """``n_tones`` distinct harmonics of 1/period_s in [f0, f1], spread log-evenly.
@@ -205,17 +199,6 @@ def currents_mA(rE, sE: float, Iemin_mA: float, Iemax_mA: float, Ifmin_mA: float
     If = (1.0 - rE) * sE
     return (Iemin_mA + Ie * (Iemax_mA - Iemin_mA),
             Ifmin_mA + If * (Ifmax_mA - Ifmin_mA))
-
-
-def normalised_from_currents(I_ext_mA, I_flex_mA, Iemin_mA: float, Iemax_mA: float,
-                             Ifmin_mA: float, Ifmax_mA: float):
-    """The paper's equations (1)-(4) forward: (Ie, If, rE, sE) from the applied currents."""
-    Ie = (np.asarray(I_ext_mA, dtype=float) - Iemin_mA) / (Iemax_mA - Iemin_mA)
-    If = (np.asarray(I_flex_mA, dtype=float) - Ifmin_mA) / (Ifmax_mA - Ifmin_mA)
-    sE = Ie + If
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rE = np.where(sE != 0, Ie / np.where(sE != 0, sE, 1.0), np.nan)
-    return Ie, If, rE, sE
 
 
 @dataclass(frozen=True, eq=False)

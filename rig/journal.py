@@ -10,12 +10,9 @@ from __future__ import annotations
 import dataclasses
 import datetime as _dt
 import errno
-import io
 import json
 import os
 import re
-import struct as _struct
-import time as _time
 import zipfile
 import zlib
 from dataclasses import dataclass
@@ -26,7 +23,6 @@ import numpy as np
 from nmsid.protocols.errors import DiskFullError, SessionWriteError
 from nmsid.protocols.session_codec import counts_to_values
 from nmsid.protocols.session_file import Calibration, Event, SessionFileError, Trial
-from nmsid.protocols.session_model import GZIP_LEVEL
 from nmsid.protocols.session_publish import (
     FileHeldError,
     free_bytes,
@@ -132,15 +128,34 @@ _SIGNALS = ("rE", "I_ext_mA", "I_flex_mA", "force_N", "wrench", "sync")
 
 
 def save_trial_npz(target: Path, trial: Trial) -> None:
-    """Write a trial (arrays + metadata as JSON) durably: temp file, fsync, rename.
+    """Write a trial (arrays + metadata as JSON) durably with :func:`numpy.savez_compressed`:
+    temp file, flush, fsync, rename, fsync of the folder (:func:`write_durable`).
 
-    The entry is a ``.npz`` (zip) whose arrays are encoded the way the session file
-    stores them, so the journal takes about as much disk as the file: an optional signal
-    on an exact A/D grid (``wrench``, ``sync``) as integer counts with its scale (bit-exact,
-    :func:`nmsid.protocols.session_codec._as_counts`), every array byte-shuffled and
-    deflated (HDF5's shuffle + deflate). ``__enc__`` (JSON) says how to decode each one;
+    The arrays are encoded the way the session file stores them, so the journal takes
+    about as much disk as the file (``bench/bench_store.py``: peak disk of a session at
+    most 2x the final file): an optional signal on an exact A/D grid (``wrench``,
+    ``sync``) as integer counts with its scale (bit-exact,
+    :func:`nmsid.protocols.session_codec._as_counts`), every array byte-shuffled (HDF5's
+    shuffle) before numpy deflates it. ``__enc__`` (JSON) says how to decode each one;
     :func:`load_trial_npz` also reads plain entries (no ``__enc__``).
+
+    Measured on a simulated 15 s trial at 2 kHz with wrench and sync, 2 busy cores
+    (``bench/bench_journal_entry.py``, encoding included): 42 ms of CPU, 0.66 MB. Stored
+    members (``np.savez``) take 8 ms but 1.36 MB, and the peak disk of a session then
+    grows to 2.9x the file (``bench_store.py --small``; target 2x). The zip writer of our
+    own this replaced (a run-length deflate strategy numpy cannot ask for) took 18 ms for
+    0.69 MB. A 45-trial fast-clock session (``bench/bench_session.py --seeds 1``, the
+    same busy machine) took 6.0-6.7 s of CPU against 5.35 s with that writer: on the rig,
+    where a trial lasts 15 s, 24 ms per trial end is nothing, and no container of our own
+    is left to maintain. Its entries read as these do.
     """
+    members: dict[str, Any] = trial_members(trial)  # Any: numpy's stubs type **kwds apart
+    write_durable(target, lambda fh: np.savez_compressed(fh, **members))
+
+
+def trial_members(trial: Trial) -> dict[str, np.ndarray]:
+    """The members of a trial's journal entry (:func:`save_trial_npz`): each signal's
+    shuffled bytes, ``__enc__`` (how to decode them) and ``__meta__`` (the attributes)."""
     meta = np.array(json.dumps(trial_meta(trial)))
     enc: dict[str, dict[str, Any]] = {}
     members: dict[str, np.ndarray] = {}
@@ -161,103 +176,7 @@ def save_trial_npz(target: Path, trial: Trial) -> None:
         members[k] = arr.reshape(-1).view(np.uint8).reshape(-1, arr.dtype.itemsize).T.copy()
     members["__enc__"] = np.array(json.dumps(enc))
     members["__meta__"] = meta
-    entries = []
-    for name, arr in members.items():
-        buf = io.BytesIO()
-        np.lib.format.write_array(buf, arr, allow_pickle=False)
-        entries.append((name + ".npy", buf.getbuffer(),
-                        _deflate_mode(arr) if _deflates_well(arr) else None))
-    write_durable(target, lambda fh: write_zip(fh, entries))
-
-
-JOURNAL_DEFLATE_LEVEL = GZIP_LEVEL
-"""zlib level of the journal's float64 signals (the file's). Their strategy is
-:data:`JOURNAL_DEFLATE_STRATEGY`, for which zlib has one speed whatever the level."""
-
-JOURNAL_DEFLATE_STRATEGY = zlib.Z_RLE
-"""zlib strategy of the journal's float64 signals: run-length matches only. Their low
-mantissa bytes are noise where string matching finds nothing, and their high bytes are
-runs: on a simulated session's signals it deflates about 2.5x faster than the default
-strategy for entries about 3 % larger (the journal was a quarter of a fast-clock session's
-CPU, bench/bench_session.py). The entries stay ordinary deflated zip members."""
-
-JOURNAL_COUNTS_LEVEL = 1
-"""zlib level of integer A/D counts (``wrench``, ``sync``), default strategy: as fast as
-run-length on them and 20 % smaller (their bytes repeat as strings, not runs); level 4
-would be 10 % smaller again for twice the time."""
-
-
-def _deflate_mode(arr: np.ndarray) -> tuple[int, int]:
-    """(level, strategy) of one shuffled member (see :data:`JOURNAL_DEFLATE_STRATEGY`)."""
-    if arr.dtype.kind == "u" and arr.ndim == 2 and arr.shape[0] == 8:
-        return JOURNAL_DEFLATE_LEVEL, JOURNAL_DEFLATE_STRATEGY  # a float64's byte planes
-    return JOURNAL_COUNTS_LEVEL, zlib.Z_DEFAULT_STRATEGY
-
-
-_ZIP_STORED, _ZIP_DEFLATED = 0, 8
-_ZIP_MAX = 0x7FFFFFFF
-"""Above this size a member needs ZIP64: :func:`write_zip` leaves such entries to
-:mod:`zipfile`."""
-
-
-def _dos_time(t: float) -> tuple[int, int]:
-    lt = _time.localtime(t)
-    date = max(0, lt.tm_year - 1980) << 9 | lt.tm_mon << 5 | lt.tm_mday
-    return lt.tm_hour << 11 | lt.tm_min << 5 | lt.tm_sec // 2, date
-
-
-def write_zip(fh, entries) -> None:
-    """Write a zip archive of ``entries`` to ``fh``: (name, bytes-like, mode), ``mode``
-    (zlib level, strategy) to deflate the member or None to store it.
-
-    The same archive :class:`zipfile.ZipFile` writes (local headers, central directory,
-    deflate method 8 with a raw stream, or stored; CRC-32 of each member), with the deflate
-    strategy chosen per member (:mod:`zipfile` has no way to ask for one). An archive with
-    a member too large for a plain zip goes through :mod:`zipfile` (ZIP64, its default
-    strategy).
-    """
-    if any(len(data) > _ZIP_MAX for _, data, _ in entries):
-        with zipfile.ZipFile(fh, "w", allowZip64=True) as zf:
-            for name, data, mode in entries:
-                zf.writestr(name, data, compresslevel=None if mode is None else mode[0],
-                            compress_type=zipfile.ZIP_STORED if mode is None
-                            else zipfile.ZIP_DEFLATED)
-        return
-    dos_t, dos_d = _dos_time(_time.time())
-    central = []
-    offset = 0
-    for name, data, mode in entries:
-        raw = memoryview(data).cast("B")
-        crc = zlib.crc32(raw)
-        if mode is not None:
-            co = zlib.compressobj(mode[0], zlib.DEFLATED, -15, 8, mode[1])
-            packed: bytes | memoryview = co.compress(raw) + co.flush()
-            method = _ZIP_DEFLATED
-        else:
-            packed, method = raw, _ZIP_STORED
-        fname = name.encode("ascii")
-        head = _struct.pack("<4s5H3L2H", b"PK\x03\x04", 20, 0, method, dos_t, dos_d, crc,
-                            len(packed), len(raw), len(fname), 0)
-        fh.write(head + fname)
-        fh.write(packed)
-        central.append(_struct.pack("<4s6H3L5H2L", b"PK\x01\x02", 20, 20, 0, method, dos_t,
-                                    dos_d, crc, len(packed), len(raw), len(fname), 0, 0, 0,
-                                    0, 0o600 << 16, offset) + fname)
-        offset += len(head) + len(fname) + len(packed)
-    cd = b"".join(central)
-    fh.write(cd)
-    fh.write(_struct.pack("<4s4H2LH", b"PK\x05\x06", 0, 0, len(central), len(central),
-                          len(cd), offset, 0))
-
-
-def _deflates_well(arr: np.ndarray, probe_bytes: int = 1 << 16) -> bool:
-    """True if deflating ``arr`` (shuffled bytes) saves at least 3 %, judged on a sample
-    of each byte plane (random-noise planes are stored as they are: no time spent)."""
-    if arr.ndim != 2 or arr.size == 0:
-        return True
-    per_plane = max(1, probe_bytes // arr.shape[0])
-    probe = np.ascontiguousarray(arr[:, :per_plane]).tobytes()
-    return len(zlib.compress(probe, 1)) <= 0.97 * len(probe)
+    return members
 
 
 def _decode(z, enc: dict[str, Any]) -> dict[str, np.ndarray]:
@@ -291,7 +210,8 @@ def _open_npz(path: Path, read):
 
 
 def load_trial_npz(path: Path) -> Trial:
-    """Read a trial written by :func:`save_trial_npz`.
+    """Read a trial written by :func:`save_trial_npz` (or by the zip writer before it: the
+    same members).
 
     Raises
     ------

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nmsid.protocols.reprs import html_repr, short_repr
 from nmsid.protocols.schedule import PlannedTrial
 from nmsid.rig.safety import Trip
 from nmsid.protocols.session_file import Calibration, Event, Trial
@@ -107,3 +108,12 @@ class RunSummary:
     def complete(self) -> bool:
         """Every planned trial completed."""
         return self.n_pending == 0 and self.n_aborted == 0
+
+    def __repr__(self) -> str:
+        return short_repr("RunSummary", str(self.path),
+                          f"{self.n_completed} completed, {self.n_aborted} aborted, "
+                          f"{self.n_pending} not run", self.ended_by,
+                          f"state {getattr(self.final_state, 'name', self.final_state)}",
+                          f"engine {self.engine_time_s:.3g} s")
+
+    _repr_html_ = html_repr

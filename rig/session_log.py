@@ -355,12 +355,6 @@ class SessionLog:
         self._events_in_h5 += len(pending)
         return name
 
-    def discard_partial(self) -> None:
-        """Drop the in-progress stream (a trial that never started output)."""
-        self._close_partial()
-        for name in ("partial.json", "partial.f64"):
-            (self.jdir / name).unlink(missing_ok=True)
-
     def set_root_attrs(self, **attrs) -> None:
         if self._writer is not None:
             self._writer.set_root_attrs(**attrs)

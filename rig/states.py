@@ -82,12 +82,6 @@ class StateMachine:
     def state(self) -> State:
         return self._state
 
-    def add_listener(self, fn: Callable[[State, State, str], None]) -> None:
-        self._listeners.append(fn)
-
-    def can_go(self, new: State) -> bool:
-        return new in TRANSITIONS[self._state]
-
     def to(self, new: State, reason: str = "") -> State:
         """Change state; a no-op if already there. Returns the old state.
 

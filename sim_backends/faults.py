@@ -139,8 +139,4 @@ class FaultScript:
         self.faults.append(fault)
         return self
 
-    def fired_kinds(self) -> list[FaultKind]:
-        return [f.fault.kind for f in self.fired]
-
-
 __all__ = ["FaultKind", "Fault", "FaultScript", "FiredFault", "SENSOR_KINDS", "STIM_KINDS"]

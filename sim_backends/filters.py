@@ -113,11 +113,6 @@ class StatefulFilter:
         self._b, self._a, xh, yh = state
         self._x_hist, self._y_hist = xh.copy(), yh.copy()
 
-    @property
-    def is_quiet(self) -> bool:
-        """True when the recent input and output are (numerically) zero."""
-        return bool(np.all(np.abs(self._x_hist) < 1e-12) and np.all(np.abs(self._y_hist) < 1e-9))
-
     def reset(self) -> None:
         self._x_hist[:] = 0.0
         self._y_hist[:] = 0.0

@@ -154,9 +154,6 @@ class MskParticipant:
         (their size is :attr:`SecondOrderTruth.fit_pct`)."""
         return []
 
-    def with_changes(self, **changes) -> MskParticipant:
-        return replace(self, **changes)
-
     def trial_variant(self, gain: float = 1.0, speed: float = 1.0,
                       damping: float = 1.0) -> MskParticipant:
         """The same participant on another trial: the physiology that varies between

@@ -268,17 +268,9 @@ class VirtualParticipant:
         Kp = op.k_N * sE * (spans["ext"] + spans["flex"])
         return TrueParameters(Kp, op.wn_rad_s, op.zeta)
 
-    def true_offset_N(self, sE: float) -> float:
-        """The participant's static endpoint offset at sE (sensor offset not included)."""
-        return self.operating_point(sE).offset_N
-
     def effect_truth(self) -> list[dict]:
         """The enabled effects in twin-file form ``[{"name": ..., "params": {...}}]``."""
         return effects_to_list(self.effects)
-
-    def fatigue_gain(self, cumulative_stim_s):
-        """g(c) of the effects acting on the gain, e.g. fatigue (1 when none is on)."""
-        return chain_of(self.effects).gain(cumulative_stim_s)
 
     # -- static recruitment ------------------------------------------------------------
     def ramp_force_at_imin_N(self, muscle: str) -> float:

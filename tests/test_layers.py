@@ -21,6 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 LAYERS = {"nmsid": -1, "protocols": 0, "testing": 0, "drivers": 1, "sim_backends": 2,
           "analysis": 3, "export": 3, "study": 4, "rig": 5, "cli": 6}
 NOT_PACKAGES = {"tests", "bench", "docs", "build", "dist"}
+TOP_LAYER_MODULES = {"nmsid/__main__.py", "nmsid/api.py"}
 
 
 def project_packages() -> list[str]:
@@ -32,8 +33,9 @@ def project_packages() -> list[str]:
 def modules():
     for pkg in project_packages():
         for path in sorted((ROOT / pkg).rglob("*.py")):
-            # ``python -m nmsid`` is the command line: it sits on the top layer
-            yield ("cli" if path.relative_to(ROOT).as_posix() == "nmsid/__main__.py"
+            # ``python -m nmsid`` is the command line and ``nmsid.api`` the Python API
+            # (what ``import nmsid`` exports): both sit on the top layer
+            yield ("cli" if path.relative_to(ROOT).as_posix() in TOP_LAYER_MODULES
                    else pkg), path
 
 

@@ -34,6 +34,7 @@ from nmsid.analysis.control.errors import ControlDesignError, ControllerFileErro
 from nmsid.analysis.control.margins import Margins, stability_margins
 from nmsid.analysis.control.plant import SecondOrderPlant
 from nmsid.analysis.control.targets import RANGE_FRACTION, Target, default_targets
+from nmsid.protocols.reprs import html_repr, number_span, short_repr, to_dataframe
 
 FORMAT = "nmsid-controller"
 FORMAT_VERSION = 1
@@ -67,6 +68,18 @@ class LevelDesign:
     """``C G0`` (the loop the Smith predictor leaves when the model is exact)."""
     predicted_rmse_pct: dict
     """Per default target: RMSE in % of its range, twin simulated in closed loop."""
+
+    def __repr__(self) -> str:
+        gm = self.margins.get("gain_margin")
+        pm = self.margins.get("phase_margin_deg")
+        return short_repr("LevelDesign", f"sE {self.sE:g}", f"Kc {self.Kc:.4g} rE/N",
+                          f"Ti {1000 * self.Ti_s:.1f} ms",
+                          f"GM {'inf' if gm is None else format(gm, '.2f')}",
+                          f"PM {'n/a' if pm is None else format(pm, '.1f')} deg",
+                          f"RMSE {number_span(self.predicted_rmse_pct.values(), '.2g')} % "
+                          "of range" if self.predicted_rmse_pct else "")
+
+    _repr_html_ = html_repr
 
 
 @dataclass
@@ -102,6 +115,30 @@ class ControllerDesign:
 
     def targets(self) -> list[Target]:
         return default_targets(*self.force_range_N)
+
+    def rows(self) -> list[dict]:
+        """One dict per evaluated sE: the plant, the PI and its margins, and the predicted
+        RMSE (% of range) on each default target."""
+        return [{"sE": lv.sE, "Kp": lv.Kp, "wn_rad_s": lv.wn_rad_s, "zeta": lv.zeta,
+                 "Kc": lv.Kc, "Ti_s": lv.Ti_s, "gain_margin": lv.margins.get("gain_margin"),
+                 "phase_margin_deg": lv.margins.get("phase_margin_deg"),
+                 **{f"rmse_pct_{k}": v for k, v in lv.predicted_rmse_pct.items()}}
+                for lv in self.levels]
+
+    def to_dataframe(self):
+        """:meth:`rows` as a ``pandas.DataFrame`` (needs pandas)."""
+        return to_dataframe(self.rows())
+
+    def __repr__(self) -> str:
+        return short_repr("ControllerDesign", self.participant or "participant",
+                          f"sE {self.sE:g}", f"Kc {self.Kc:.4g} rE/N",
+                          f"Ti {1000 * self.Ti_s:.1f} ms", f"update {self.update_Hz:g} Hz",
+                          f"targets {self.force_range_N[0]:.2f}-{self.force_range_N[1]:.2f} N",
+                          f"{len(self.levels)} sE levels evaluated" if self.levels else "",
+                          "unmodelled effects " + ", ".join(map(str, self.unmodelled_effects))
+                          if self.unmodelled_effects else "")
+
+    _repr_html_ = html_repr
 
     def current_limits_mA(self, calibration) -> tuple[float, float]:
         """Largest current per channel at rE in [0, 1] and this sE, for ``calibration``

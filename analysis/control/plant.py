@@ -26,13 +26,6 @@ class SecondOrderPlant:
     L_s: float = 0.0
     """Dead time of the force response (the twin's ``dead_time`` effect), s."""
 
-    def frequency_response(self, w_rad_s: np.ndarray, delay: bool = True) -> np.ndarray:
-        """G(jw) from v to y (with the dead time unless ``delay`` is False)."""
-        s = 1j * np.asarray(w_rad_s, dtype=float)
-        g = self.Kp * self.wn_rad_s ** 2 / (s ** 2 + 2 * self.zeta * self.wn_rad_s * s
-                                            + self.wn_rad_s ** 2)
-        return g * np.exp(-s * self.L_s) if delay else g
-
     def zoh(self, Ts_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(Ad, Bd, C) of the undelayed model sampled with a zero-order hold at ``Ts_s``;
         state (y, y')."""

@@ -29,14 +29,14 @@ Examples
 'dead_time'
 """
 
-from nmsid.analysis.gap.effects import CANDIDATES, Effect
+from nmsid.protocols.effects import CANDIDATES, Effect
 
 __all__ = ["Effect", "CANDIDATES", "run_gap", "diagnose", "load_session", "GapSettings"]
 
 
 def __getattr__(name):
-    # lazy re-exports: `import analysis.gap.effects` (the sim and the twin writer need only
-    # the effect names) must not load the whole fitting stack and scipy.signal with it
+    # lazy re-exports: `from nmsid.analysis.gap import Effect` (the effect names only) must
+    # not load the whole fitting stack and scipy.signal with it
     if name == "run_gap":
         from nmsid.analysis.gap.api import run_gap  # lazy, see above
         return run_gap

@@ -31,6 +31,7 @@ from nmsid.analysis.gap.localize import by_location, frequency_view
 from nmsid.analysis.gap.models import NOMINAL, nuisance_basis
 from nmsid.analysis.gap.report import json_safe, write_outputs
 from nmsid.analysis.qc import assess_session
+from nmsid.protocols.reprs import counted, html_repr, short_repr, to_dataframe
 from nmsid.protocols.session_file import Session, read_session
 from nmsid.protocols.waveforms import currents_mA
 
@@ -126,7 +127,7 @@ def _under_test(diag: Diagnosis, pred: np.ndarray, label: str) -> dict:
     return out
 
 
-@dataclass
+@dataclass(frozen=True)
 class GapRun:
     """What :func:`run_gap` wrote.
 
@@ -134,12 +135,42 @@ class GapRun:
     ----------
     sessions : list of dict
         Each session's ``gap_report.json`` document, in the order given.
-    report : pathlib.Path
-        The top-level ``gap_report.json`` (a group summary for several sessions).
+    report : pathlib.Path or None
+        The top-level ``gap_report.json`` (a group summary for several sessions); None
+        when nothing was kept (``nmsid.diagnose_gap`` without a folder).
     """
 
     sessions: list[dict]
-    report: Path
+    report: Path | None
+
+    def rows(self) -> list[dict]:
+        """One dict per session: its verdict, the effect it points to and the held-out
+        NRMSE before and after adding it (from its ``gap_report.json``)."""
+        out = []
+        for s in self.sessions:
+            h = s.get("heldout") or {}
+            out.append({"session": s.get("session"), "participant": s.get("participant"),
+                        "verdict": s.get("verdict"), "best_effect": s.get("best_effect"),
+                        "best_pair": " + ".join(s.get("best_pair") or []),
+                        "nominal_nrmse_pct": h.get("nominal_nrmse_pct"),
+                        "augmented_nrmse_pct": h.get("augmented_nrmse_pct"),
+                        "shrink_pct": h.get("shrink_pct"),
+                        "noise_floor_nrmse_pct": h.get("noise_floor_nrmse_pct")})
+        return out
+
+    def to_dataframe(self):
+        """:meth:`rows` as a ``pandas.DataFrame`` (needs pandas)."""
+        return to_dataframe(self.rows())
+
+    def __repr__(self) -> str:
+        verdicts = "; ".join(f"{r['participant'] or r['session']}: {r['verdict']} "
+                             f"({r['best_effect']})" for r in self.rows()[:4])
+        more = len(self.sessions) - 4
+        return short_repr("GapRun", counted(len(self.sessions), "session"),
+                          verdicts + (f"; {more} more" if more > 0 else ""),
+                          str(self.report) if self.report else "")
+
+    _repr_html_ = html_repr
 
 
 def run_gap(sessions, out_dir, *, settings: GapSettings | None = None, twin=None,

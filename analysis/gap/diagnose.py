@@ -32,7 +32,7 @@ import numpy as np
 
 from nmsid.analysis.gap.crossval import Fold, repeat_folds
 from nmsid.analysis.gap.data import GapData
-from nmsid.analysis.gap.effects import CANDIDATES, Effect
+from nmsid.protocols.effects import CANDIDATES, Effect
 from nmsid.analysis.gap.errors import GapInputError
 from nmsid.analysis.gap.fit import ModelFit, fit_model, predict
 from nmsid.analysis.gap.models import NOMINAL, Candidate, candidate, n_drift_columns, nuisance_basis

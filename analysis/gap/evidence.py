@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from nmsid.analysis.gap.diagnose import Diagnosis
-from nmsid.analysis.gap.effects import Effect
+from nmsid.protocols.effects import Effect
 from nmsid.analysis.gap.fit import Problem
 from nmsid.analysis.gap.harmonics import local_harmonics
 from nmsid.analysis.gap.localize import Localization

@@ -19,7 +19,7 @@ from nmsid.analysis import signal_kernels as signal
 
 from nmsid.analysis.damped_lstsq import Damping, levenberg_marquardt
 from nmsid.analysis.gap.data import GapData
-from nmsid.analysis.gap.effects import Effect
+from nmsid.protocols.effects import Effect
 from nmsid.analysis.gap.harmonics import levy_second_order, local_harmonics
 from nmsid.protocols.lti_kernels import lfilter
 from nmsid.analysis.gap.models import Candidate, nuisance_basis

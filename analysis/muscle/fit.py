@@ -460,20 +460,3 @@ def residual_matrix(theta_rows: np.ndarray, data: GapData,
     with np.errstate(over="ignore", invalid="ignore"):
         return prob.residuals(np.atleast_2d(theta_rows))
 
-
-def predict_muscle(theta: np.ndarray, data: GapData,
-                   settings: MuscleFitSettings | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Residual (offset and trend removed) and prediction of the twin on ``data``.
-
-    Returns
-    -------
-    resid, yhat : ndarray, (n_trials, n_eval)
-    """
-    prob = _Problem(data, settings or MuscleFitSettings())
-    yhat = prob.predict(theta)[0]
-    resid = prob._project(prob.y - yhat)
-    if resid.shape[1] < data.y_N.shape[1]:   # the last evaluation samples past the fit grid
-        pad = data.y_N.shape[1] - resid.shape[1]
-        resid = np.pad(resid, ((0, 0), (0, pad)), constant_values=0.0)
-        yhat = np.pad(yhat, ((0, 0), (0, pad)), mode="edge")
-    return resid, yhat

@@ -32,6 +32,7 @@ from nmsid.analysis.qc import checks
 from nmsid.analysis.qc.repeats import Deviation, attribute_pair, deviations, fit_jump, smoothed, unshared
 from nmsid.analysis.qc.settings import QCSettings
 from nmsid.analysis.signal_kernels import sosfiltfilt
+from nmsid.protocols.reprs import html_repr, short_repr
 from nmsid.protocols.session_file import Trial, read_session
 
 USED, REPAIRED, EXCLUDED = "used", "repaired", "excluded"
@@ -126,6 +127,14 @@ class SessionQC:
     def trials(self) -> list[TrialQC]:
         return [v for lv in self.levels for v in lv.verdicts]
 
+    def __repr__(self) -> str:
+        c = self.counts()
+        return short_repr("SessionQC", self.participant,
+                          f"{c.used} used, {c.repaired} repaired, {c.excluded} excluded",
+                          f"{len(self.levels)} sE levels", str(self.source))
+
+    _repr_html_ = html_repr
+
     def excluded(self) -> Mapping[str, str]:
         """Trial name -> reasons, for every excluded trial.
 
@@ -136,12 +145,6 @@ class SessionQC:
         """
         return MappingProxyType({v.trial: "; ".join(v.reasons) for v in self.trials
                                  if v.decision == EXCLUDED})
-
-    def kept_trials(self, sE: float) -> list:
-        for lv in self.levels:
-            if abs(lv.sE - sE) < 1e-9:
-                return lv.kept
-        return []
 
     def counts(self) -> DecisionCounts:
         """How many judged trials were used, repaired and excluded."""

@@ -89,12 +89,6 @@ class ParamSpec:
     required: bool = True
     default: float | None = None
 
-    def default_value(self) -> float:
-        """The default of an optional numeric parameter (KeyError if it has none)."""
-        if self.default is None:
-            raise KeyError(f"parameter {self.name} has no default")
-        return float(self.default)
-
     def bounds_text(self) -> str:
         """The valid range in words (``'> 0 and <= 10'``)."""
         if self.choices:

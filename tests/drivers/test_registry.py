@@ -1,9 +1,12 @@
-"""The device registry: one entry per kind, the hardware file's union agrees with it, and no
-code outside the registry, the settings union and a kind's own modules names a kind."""
+"""The device registry: the one table of stimulator kinds (each entry's settings model is its
+kind's), no import cycle with the hardware file's reader, and no code outside the registry
+and a kind's own modules names a kind."""
 
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 import typing
 from pathlib import Path
 
@@ -14,19 +17,19 @@ from nmsid.drivers.errors import HardwareConfigError
 from nmsid.drivers.caio import CaioAcquisition
 from nmsid.drivers.estop_switch import NidaqEStop
 from nmsid.drivers.hardware import make_acquisition, make_estop, make_stimulator, prepare
-from nmsid.drivers.hw_config import (STIMULATOR_MODELS, STIMULATOR_TITLES, AcquisitionSettings,
-                                     EStopConfig, StimulatorConfig, parse_hw_config)
+from nmsid.drivers.hw_config import AcquisitionSettings, EStopConfig, parse_hw_config
 from nmsid.drivers.interfaces import Stimulator
 from nmsid.drivers.leptrino import LeptrinoAcquisition
 from nmsid.drivers.nidaq import NidaqAcquisition
 from nmsid.drivers.rehastim2 import Rehastim2Stimulator
 from nmsid.drivers.rehastim2_settings import Rehastim2Config
+from nmsid.drivers.stg4002_settings import Stg4002Config
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("analysis", "cli", "drivers", "export", "nmsid", "protocols", "rig",
             "sim_backends", "study", "testing")
-#: where a kind may be named: the registry, the settings union, each kind's own modules
-ALLOWED = {"drivers/registry.py", "drivers/hw_config.py"}
+#: where a kind may be named: the registry and each kind's own modules
+ALLOWED = {"drivers/registry.py"}
 OWN_PREFIXES = {"stg4002": ("drivers/stg", "drivers/mcs_usb", "testing/fakes/fake_mcs_usb",
                             "testing/fakes/fake_stg"),
                 "rehastim2": ("drivers/rehastim2", "testing/fakes/fake_rehastim2")}
@@ -37,10 +40,23 @@ ACQ_OWN_PREFIXES = {"caio": ("drivers/caio", "testing/fakes/fake_caio"),
                     "leptrino": ("drivers/leptrino", "testing/fakes/leptrino")}
 
 
-def test_union_and_registry_agree():
-    assert set(registry.STIMULATORS) == set(STIMULATOR_MODELS) == set(STIMULATOR_TITLES)
+def test_each_entry_is_its_kinds_and_validates_its_table():
+    assert registry.DEFAULT_STIMULATOR in registry.STIMULATORS
     for kind, entry in registry.STIMULATORS.items():
-        assert entry.kind == kind and entry.settings is STIMULATOR_MODELS[kind]
+        assert entry.kind == kind and entry.title
+        assert entry.settings.__pydantic_fields__["kind"].default == kind  # its own model
+        assert entry.settings.__module__ == f"nmsid.drivers.{kind}_settings"
+
+
+def test_the_registry_never_imports_the_hardware_file_reader():
+    # hw_config validates through the registry; the registry names hw_config's types only
+    # for the type checker, so either may be imported first
+    tree = ast.parse((ROOT / "drivers" / "registry.py").read_text(encoding="utf-8"))
+    runtime = [node for node in tree.body if isinstance(node, (ast.Import, ast.ImportFrom))]
+    assert not [n for n in runtime if "hw_config" in ast.unparse(n)]
+    for first, second in (("registry", "hw_config"), ("hw_config", "registry")):
+        subprocess.run([sys.executable, "-c", f"import nmsid.drivers.{first}, "
+                        f"nmsid.drivers.{second}"], check=True, timeout=120)
 
 
 def test_no_kind_named_outside_the_registry():
@@ -180,7 +196,7 @@ def test_fake_nidaq_estop_beside_a_caio_chain_gets_its_line():
 def test_kind_defaults_to_the_stg4002_and_rehastim2_is_typed():
     base = {"acquisition": {"kind": "leptrino", "fs_Hz": 1200.0,
                             "leptrino": {"port": "COM5"}}}
-    assert isinstance(parse_hw_config(base, "x").stimulator, StimulatorConfig)
+    assert isinstance(parse_hw_config(base, "x").stimulator, Stg4002Config)
     cfg = parse_hw_config({**base, "stimulator": {"kind": "rehastim2", "port": "COM4"}}, "x")
     assert isinstance(cfg.stimulator, Rehastim2Config)
     assert cfg.stimulator.pulse_rate_Hz == 40.0 and cfg.stimulator.pulse_width_us == 300

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from nmsid.analysis.gap.effects import CANDIDATES as GAP_CANDIDATES
-from nmsid.analysis.gap.effects import Effect as GapEffect
+from nmsid.protocols.effects import CANDIDATES as GAP_CANDIDATES
+from nmsid.protocols.effects import Effect as GapEffect
 from nmsid.analysis.gap.models import FORMS, FinalContext, candidate
 from nmsid.analysis.twin import Twin
 from nmsid.export.fmu.reference import TwinStepper
@@ -37,7 +37,7 @@ def test_every_name_is_declared_once_and_used_everywhere():
 def test_the_simulators_dataclass_has_the_registry_parameters(s):
     cls = EFFECT_TYPES[s.name]
     assert cls.name == s.name
-    assert {f.name for f in dataclasses.fields(cls)} == set(s.param_names)
+    assert {f.name for f in dataclasses.fields(cls)} == {p.name for p in s.params}
     shapes = {"fatigue": FatigueShape, "recruitment_nonlinearity": RecruitmentShape}
     if s.name in shapes:
         assert s.param("shape").choices == tuple(m.value for m in shapes[s.name])
@@ -101,7 +101,7 @@ def test_each_form_fits_its_declared_parameters_and_writes_the_registry_names(e)
     form.final(p, FinalContext(q=q, sE_levels=np.array([0.3, 0.6, 0.9]),
                                drift_amplitude=lambda: (0.04, 0.05)))
     entry = {"name": e.value, "params": form.twin_params(p, np.array([0.3, 0.6, 0.9]))}
-    assert set(entry["params"]) <= set(spec(e).param_names)
+    assert set(entry["params"]) <= {p.name for p in spec(e).params}
     effect_from_dict(entry)          # the simulator accepts what the diagnosis writes
 
 

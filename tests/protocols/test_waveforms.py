@@ -5,9 +5,8 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from nmsid.protocols.config import ProtocolConfig
-from nmsid.protocols.waveforms import (chirp_frequency_Hz, chirp_phase_rad, chirp_time_s,
-                                       currents_mA, normalised_from_currents, rE_signal,
-                                       trial_waveform)
+from nmsid.protocols.waveforms import (chirp_frequency_Hz, chirp_phase_rad, currents_mA,
+                                       rE_signal, trial_waveform)
 from nmsid.protocols.session_file import Calibration
 
 
@@ -25,8 +24,21 @@ def test_chirp_frequency_is_the_phase_derivative():
 
 
 def test_time_at_frequency_inverts_frequency():
+    # the exponential chirp's time at frequency f: T ln(f / f0) / ln(f1 / f0)
     t = np.linspace(0, 10, 11)
-    assert np.allclose(chirp_time_s(chirp_frequency_Hz(t, 1, 10, 10), 1, 10, 10), t)
+    f = chirp_frequency_Hz(t, 1, 10, 10)
+    assert np.allclose(10 * np.log(f / 1) / np.log(10 / 1), t)
+
+
+def normalised_from_currents(I_ext_mA, I_flex_mA, Iemin_mA, Iemax_mA, Ifmin_mA, Ifmax_mA):
+    """The paper's equations (1)-(4) forward, the oracle of ``currents_mA``: (Ie, If, rE,
+    sE) from the applied currents."""
+    Ie = (np.asarray(I_ext_mA, dtype=float) - Iemin_mA) / (Iemax_mA - Iemin_mA)
+    If = (np.asarray(I_flex_mA, dtype=float) - Ifmin_mA) / (Ifmax_mA - Ifmin_mA)
+    sE = Ie + If
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rE = np.where(sE != 0, Ie / np.where(sE != 0, sE, 1.0), np.nan)
+    return Ie, If, rE, sE
 
 
 def test_rE_is_steady_then_chirp():

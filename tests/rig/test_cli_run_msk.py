@@ -9,11 +9,11 @@ import pytest
 pytest.importorskip("mujoco")
 pytest.importorskip("myo_sim")
 
-from nmsid.analysis.gap.effects import Effect  # noqa: E402
+from nmsid.protocols.effects import Effect  # noqa: E402
 from nmsid.analysis.identify import identify_session  # noqa: E402
 from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
 from nmsid.cli import main  # noqa: E402
-from nmsid.cli.run_command import _seed_from_code  # noqa: E402
+from nmsid.rig.session_service import seed_from_code  # noqa: E402
 from nmsid.sim_backends.msk_participant import default_msk_participant  # noqa: E402
 
 TOML = """
@@ -38,7 +38,7 @@ def test_short_session_end_to_end(tmp_path, capsys):
     assert len(s.trials) == 9 and all(t.completed for t in s.trials)
     # the participant the CLI put on the rig, and its truth for the session's calibration
     p = default_msk_participant(seed=int(s.attrs["sim_seed"]))
-    assert int(s.attrs["sim_seed"]) == _seed_from_code("MSK1")
+    assert int(s.attrs["sim_seed"]) == seed_from_code("MSK1")
     res = identify_session(s)
     assert len(res.levels) == 3
     for lv in res.levels:

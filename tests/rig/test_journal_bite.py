@@ -95,22 +95,6 @@ def test_numpy_values_in_an_entrys_metadata_are_written_as_json_lists():
         json.dumps({"x": object()}, default=json_default)
 
 
-def test_a_journal_entrys_members_carry_the_local_time_they_were_written(tmp_path):
-    # zip's DOS date and time (APPNOTE 4.4.6: year - 1980 << 9 | month << 5 | day;
-    # hour << 11 | minute << 5 | second / 2), as zipfile reads them back
-    import time as _time
-    from nmsid.rig.journal import write_zip
-    p = tmp_path / "e.zip"
-    before = _time.localtime()
-    with open(p, "wb") as fh:
-        write_zip(fh, [("a.npy", b"x" * 100, None)])
-    after = _time.localtime()
-    with zipfile.ZipFile(p) as z:
-        got = z.getinfo("a.npy").date_time
-    stamps = {tuple(lt[:5]) + (lt.tm_sec // 2 * 2,) for lt in (before, after)}
-    assert got in stamps, (got, stamps)
-
-
 def test_a_journal_header_that_is_not_a_json_object_is_refused_by_name(tmp_path):
     from nmsid.protocols.session_file import SessionFileError
     jdir = tmp_path / "S.h5.journal"

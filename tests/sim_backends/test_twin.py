@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from nmsid.protocols.effects import chain_of
 from nmsid.sim_backends import make_sim_rig, participant_from_twin
 from nmsid.sim_backends.direct_drive import chirp_rE, currents_for, run_waveform, waveform
 from nmsid.sim_backends.errors import SimConfigError
@@ -55,7 +56,7 @@ def test_twin_participant_reproduces_the_twin_model_exactly(tmp_path):
 def test_twin_round_trip_and_effects(tmp_path):
     p = participant_from_twin(TWIN)
     assert p.effect_truth() == TWIN["effects"]
-    assert p.fatigue_gain(675.0) == pytest.approx(0.9)
+    assert chain_of(p.effects).gain(675.0) == pytest.approx(0.9)
     q = make_population(1, seed=4)[0]
     write_twin(q, tmp_path / "q.json")
     back = participant_from_twin(tmp_path / "q.json", sensor=q.sensor, seed=q.seed)

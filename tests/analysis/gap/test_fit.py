@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nmsid.analysis.gap.data import load_session
-from nmsid.analysis.gap.effects import Effect
+from nmsid.protocols.effects import Effect
 from nmsid.analysis.gap.fit import fit_model, predict
 from nmsid.analysis.gap.models import NOMINAL, candidate, kumaraswamy
 

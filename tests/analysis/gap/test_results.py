@@ -8,7 +8,7 @@ import pytest
 
 from nmsid.analysis.gap.data import load_session
 from nmsid.analysis.gap.diagnose import GapSettings, diagnose
-from nmsid.analysis.gap.effects import Effect
+from nmsid.protocols.effects import Effect
 from nmsid.analysis.gap.evidence import PhaseShape, phase_shape
 from nmsid.analysis.gap.localize import (FrequencyView, LocationTable, ResidualSpectrum,
                                          by_location, frequency_view, residual_spectrum)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nmsid.analysis.gap.diagnose import GapSettings, diagnose
-from nmsid.analysis.gap.effects import Effect
+from nmsid.protocols.effects import Effect
 from nmsid.analysis.muscle.dynamics import PARAM_NAMES
 from nmsid.analysis.muscle.errors import MuscleFitError
 from nmsid.analysis.muscle.fit import MuscleFitSettings, fit_muscle
