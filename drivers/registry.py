@@ -276,14 +276,13 @@ def _fake_leptrino(cfg: HardwareConfig, stack) -> None:
     state = {"rate": 1200.0}
 
     def wrench(t):
-        f = float(bench.force_N(np.array([bench.now()]), state["rate"])[0])
+        # the force at the record's own time (t s after the stream's start, by count), not
+        # when a loaded host got round to writing it (a staircase of stale values)
+        t_bench = (emu._t0 + t - bench._t0) * bench.speed
+        f = float(bench.force_N(np.array([t_bench]), state["rate"])[0])
         return (*(f * d), 0.0, 0.0, 0.0)
 
-    def status(t):
-        return 0x20 if float(bench.sync_V(np.array([bench.now()]))[0]) > 1.0 else 0
-
     emu = load_fake("leptrino_emulator").LeptrinoEmulator(wrench_fn=wrench)
-    emu.status_fn = status
     emu.__enter__()
     stack.emulator = emu
 

@@ -234,6 +234,9 @@ def dry_run_probe(devices, cfg, args, *, out=print) -> bool:
 
 STREAM_QUEUE_S = 0.5
 """Updates queued ahead in the streamed trial (a tracking session's queue is similar)."""
+STREAM_LEVELS = (1.0, 0.5, 1.0, 0.25, 1.0, 0.75)
+"""The streamed trial's staircase target, fractions of ``--dry-run-mA`` (each held 1/6 of
+the trial)."""
 STREAM_UPDATE_HZ = 100.0
 """The update rate asked of a stimulator that takes one (the RehaStim2 answers its pulse
 rate; the STG needs a divisor of its carrier)."""
@@ -241,9 +244,10 @@ rate; the STG needs a divisor of its carrier)."""
 
 class DryRunStream:
     """:func:`~nmsid.rig.stimulation.run_block`'s stream hook (as
-    :class:`~nmsid.rig.tracking.TrackingStream`): a tracking-style envelope, 0 ..
-    ``amplitude_mA`` following a slow sine and a faster one (0.5 and 2 Hz), written update
-    by update as the trial's samples arrive."""
+    :class:`~nmsid.rig.tracking.TrackingStream`): a tracking-style envelope, a staircase
+    target held at :data:`STREAM_LEVELS` of ``amplitude_mA`` in turn (whole device steps at
+    the default 2 mA, so a 2 mA-step device delivers non-zero pulses), written update by
+    update as the trial's samples arrive."""
 
     def __init__(self, s: DryRunSettings, fs_Hz: float):
         self.s, self.fs_Hz = s, float(fs_Hz)
@@ -253,9 +257,8 @@ class DryRunStream:
         self.stim: HostStreamedStimulator | None = None
 
     def envelope(self, i: int) -> float:
-        t = i / self.rate_Hz
-        x = 0.5 + 0.3 * math.sin(2 * math.pi * 0.5 * t) + 0.2 * math.sin(2 * math.pi * 2 * t)
-        return float(min(max(x, 0.0), 1.0) * self.s.amplitude_mA)
+        k = int(i / self.rate_Hz / self.s.duration_s * len(STREAM_LEVELS))
+        return float(STREAM_LEVELS[min(k, len(STREAM_LEVELS) - 1)] * self.s.amplitude_mA)
 
     def _write(self, upto: int) -> None:
         ext, stim = self.s.channel == "extensor", self.stim

@@ -127,3 +127,26 @@ def _write_hw_config(path, *, kind="caio", speed=10.0, fake=True, estop="serial"
         lines += ["[estop]", 'kind = "nidaq"', 'line = "Dev1/port0/line0"']
     path.write_text("\n".join(lines) + "\n")
     return path
+
+
+@pytest.fixture
+def child_modules(tmp_path, monkeypatch):
+    """``nmsid probe`` checks real devices in child processes (one per device), which an
+    in-process ``monkeypatch`` of ``sys.modules`` does not reach: ``add(name, source)``
+    puts a module on the children's PYTHONPATH instead (``sitecustomize`` runs in each
+    child at start-up)."""
+    import os
+    lib = tmp_path / "child_modules"
+    lib.mkdir()
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(
+        [str(lib), *filter(None, [os.environ.get("PYTHONPATH")])]))
+
+    def add(name: str, source: str) -> None:
+        (lib / f"{name}.py").write_text(source, encoding="utf-8")
+    return add
+
+
+FAKE_MCS_IN_CHILD = ("import sys\n"
+                     "from nmsid.drivers.fake_hardware import load_fake\n"
+                     "load_fake('fake_mcs_usb').install(modules=sys.modules)\n")
+"""A child's ``sitecustomize``: the fake pythonnet + McsUsbNet, as ``fake_mcs`` in-process."""

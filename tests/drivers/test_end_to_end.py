@@ -36,7 +36,22 @@ def small_config(**calibration):
         "calibration": cal})
 
 
-def check_session(path, n_trials, fs=2000.0):
+def aligned_rms(force, expected, k, max_lag):
+    """RMS of force - expected from sample k, after the best constant lag of at most
+    ``max_lag`` samples: a host-timed onset (the Leptrino has no trigger input,
+    specification 6.1) shifts the record by a record plus USB latency, more on a loaded
+    host; a wrong time axis cannot be taken out so, its error grows along the trial."""
+    f, e = np.asarray(force), np.asarray(expected)
+    end = len(f) - max_lag
+
+    def rms(lag):
+        return float(np.sqrt(np.mean((f[k + lag:end + lag] - e[k:end]) ** 2)))
+    best = min(range(-max_lag, max_lag + 1), key=rms)
+    corr = float(np.corrcoef(f[k + best:end + best], e[k:end])[0, 1])
+    return rms(best), corr
+
+
+def check_session(path, n_trials, fs=2000.0, max_lag_s=0.0, rms_limit_N=0.25):
     assert validate_session(path) == []
     s = read_session(path)
     assert "[FAKE devices]" in s.backend
@@ -51,9 +66,9 @@ def check_session(path, n_trials, fs=2000.0):
         model = bench.ForceModel(fs, noise_N=0.0)
         expected = model.step(np.asarray(t.I_ext_mA), np.asarray(t.I_flex_mA))
         k = int(0.4 * fs)  # the previous stimulation's force has decayed by then
-        err = np.asarray(t.force_N)[k:] - expected[k:]
-        assert np.sqrt(np.mean(err ** 2)) < 0.25, np.sqrt(np.mean(err ** 2))
-        assert np.corrcoef(expected[k:], t.force_N[k:])[0, 1] > 0.95
+        rms, corr = aligned_rms(t.force_N, expected, k, round(max_lag_s * fs))
+        assert rms < rms_limit_N, rms
+        assert corr > 0.95, corr
         # optional stimulation_json: the STG's charge summary of the trial's download
         stim = t.extra_attrs["stimulation_json"]
         stim = json.loads(stim) if isinstance(stim, str) else stim
@@ -118,7 +133,11 @@ def test_session_on_fake_leptrino_usb(tmp_path, write_hw_config):
     finally:
         devices.close()
     assert summary.n_completed == 1
-    check_session(path, 1, fs=1200.0)
+    # host-timed onset (aligned_rms): 10-12 ms measured at load 13, far more at load 18
+    # on 2 cores (the acquisition starts before the stimulator, by the host); 0.3 s is a
+    # generous bound. 0.5 N: the emulator evaluates the force when it writes a burst of
+    # records
+    check_session(path, 1, fs=1200.0, max_lag_s=0.3, rms_limit_N=0.5)
 
 
 def test_estop_switch_pressed_mid_session_stops_output(tmp_path, write_hw_config):
@@ -242,6 +261,7 @@ def test_session_time_axis_follows_a_leptrino_streaming_at_1000_hz(tmp_path, wri
     model = load_fake("bench").ForceModel(1200.0, noise_N=0.0)
     expected = model.step(np.asarray(t.I_ext_mA), np.asarray(t.I_flex_mA))
     k = int(0.4 * 1200.0)
-    err = np.asarray(t.force_N)[k:] - expected[k:]
-    assert np.sqrt(np.mean(err ** 2)) < 0.5, np.sqrt(np.mean(err ** 2))
-    assert np.corrcoef(expected[k:], t.force_N[k:])[0, 1] > 0.95
+    f = np.asarray(t.force_N)
+    rms, corr = aligned_rms(f, expected, k, 360)    # host-timed onset: at most 0.3 s
+    assert rms < 0.5, rms       # as test_session_on_fake_leptrino_usb
+    assert corr > 0.95, corr

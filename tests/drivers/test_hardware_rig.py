@@ -74,14 +74,17 @@ def test_probe_never_stimulates(write_hw_config, tmp_path, capsys):
     ("caio", "clr", "pythonnet"),
     ("nidaq", "nidaqmx", "nidaqmx")])
 def test_missing_vendor_library_is_one_line_exit_2(write_hw_config, tmp_path, capsys, monkeypatch, kind,
-                                                    missing, text):
+                                                    missing, text, child_modules):
     from nmsid.drivers.fake_hardware import load_fake
+    from tests.drivers.conftest import FAKE_MCS_IN_CHILD
     if kind == "nidaq":  # pythonnet present (fake), nidaqmx absent
         mods = {}
         load_fake("fake_mcs_usb").install(modules=mods)
         for name, m in mods.items():
             monkeypatch.setitem(sys.modules, name, m)
-    monkeypatch.setitem(sys.modules, missing, None)
+        child_modules("sitecustomize", FAKE_MCS_IN_CHILD)
+    monkeypatch.setitem(sys.modules, missing, None)      # this process (nmsid run)
+    child_modules(missing, f'raise ImportError("No module named {missing} (test)")\n')
     path = write_hw_config(tmp_path / "hw.toml", kind=kind, fake=False, estop="none")
     # probe: each device on its own; the missing library is one line, exit status 1
     assert main(["probe", "--hw-config", str(path)]) == 1
@@ -95,12 +98,10 @@ def test_missing_vendor_library_is_one_line_exit_2(write_hw_config, tmp_path, ca
     assert err.count("\n") == 0 and text in err
 
 
-def test_missing_caio_library_is_one_line(write_hw_config, tmp_path, capsys, monkeypatch):
-    from nmsid.drivers.fake_hardware import load_fake
-    mods = {}
-    load_fake("fake_mcs_usb").install(modules=mods)
-    for name, m in mods.items():
-        monkeypatch.setitem(sys.modules, name, m)
+def test_missing_caio_library_is_one_line(write_hw_config, tmp_path, capsys, monkeypatch,
+                                          child_modules):
+    from tests.drivers.conftest import FAKE_MCS_IN_CHILD
+    child_modules("sitecustomize", FAKE_MCS_IN_CHILD)    # probe's per-device processes
     path = write_hw_config(tmp_path / "hw.toml", fake=False, estop="none")
     assert main(["probe", "--hw-config", str(path)]) == 1
     out = capsys.readouterr().out
