@@ -113,7 +113,7 @@ def run_session() -> dict:
         w.press_estop()
         _spin(app, 0.5)
         n_after = len(read_session(out, load_data=False).events)
-        refused = w.safety.banner.isVisible() and "E-STOP" in w.safety.banner.text()
+        refused = w.safety.notice.isVisible() and "E-STOP" in w.safety.notice.text()
         latched = w.safety.light_states().get("Interlock latch") is False
         state_shown = w.safety.state_label.text()
         w.close()

@@ -116,6 +116,8 @@ class MainWindow(QMainWindow):
         self._rearm_hold = False
         """RE-ARM pressed: the engine holds in ``paused`` until Continue."""
         self._last_drain = 0.0
+        self.n_batches = 0
+        """Batches of engine notifications shown (each: one schedule refresh)."""
 
         self.buffer = LiveBuffer(window_s=live_window_s)
         self.signals = EngineSignals()
@@ -185,7 +187,7 @@ class MainWindow(QMainWindow):
         self.shortcuts = install_estop_shortcuts(self, self.press_estop)
 
         q = Qt.ConnectionType.QueuedConnection
-        self._handlers = {
+        self._handlers: dict[str, Callable[..., None]] = {
             "state": self._on_state, "event": self._on_event,
             "calibration_step": self._on_calibration_step,
             "calibration_result": self._on_calibration_result,
@@ -193,6 +195,7 @@ class MainWindow(QMainWindow):
             "level_completed": self._on_level_completed, "finished": self._on_finished}
         self._drain_timer = QTimer(self)
         self._drain_timer.setSingleShot(True)
+        self._drain_timer.setTimerType(Qt.TimerType.PreciseTimer)
         self._drain_timer.timeout.connect(self._drain)
         self.signals.notified.connect(self._schedule_drain, q)
         self.signals.run_ended.connect(self._on_run_ended, q)
@@ -374,6 +377,7 @@ class MainWindow(QMainWindow):
             except Exception:  # a display problem must never stop the GUI
                 log.exception("showing the engine's %s notification", name)
         if items:
+            self.n_batches += 1
             self._refresh_schedule()
             self._poll_engine()
 

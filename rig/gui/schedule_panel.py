@@ -168,6 +168,9 @@ class SchedulePanel(QWidget):
         self.current_index = -1
         self.statuses: list[str] = []
         self.names = TrialNames()
+        self._rows_shown: dict[int, tuple] = {}
+        """Row -> what it shows now (rows whose content did not change are not touched)."""
+        self._scrolled_to = -1
         self.in_trial_s = 0.0
         self.realtime = True
         self._clock: collections.deque[tuple[float, float]] = collections.deque()
@@ -183,8 +186,9 @@ class SchedulePanel(QWidget):
         self.table.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
         self.table.setFocusPolicy(Qt.FocusPolicy.NoFocus)
         hdr = self.table.horizontalHeader()
-        for col in range(len(COLUMNS)):
-            hdr.setSectionResizeMode(col, QHeaderView.ResizeMode.ResizeToContents)
+        for col in range(len(COLUMNS)):  # fitted when a column's text changes (set_schedule):
+            # ResizeToContents re-measured every row on each change, ~30 ms a refresh
+            hdr.setSectionResizeMode(col, QHeaderView.ResizeMode.Interactive)
         hdr.setSectionResizeMode(COLUMNS.index("reason"), QHeaderView.ResizeMode.Stretch)
         self.table.itemSelectionChanged.connect(self._selection_changed)
 
@@ -245,9 +249,11 @@ class SchedulePanel(QWidget):
         attempts = [planned_attempts(p) for p in schedule]
         if self.table.rowCount() != len(rows):
             self.table.setRowCount(len(rows))
+            self._rows_shown = {}
         bold = QFont()
         bold.setBold(True)
         normal = QFont()
+        changed_cols: set[int] = set()
         self.statuses = []
         for i, (sE, repeat, status, reason) in enumerate(rows):
             if i == self.current_index and status == "running":
@@ -259,6 +265,10 @@ class SchedulePanel(QWidget):
             decision, why = self.qc.get(i, ("", ""))
             values = (self.names.text(i), f"{sE:.2f}", str(repeat), shown, runs, reason,
                       decision if shown in ("done", "completed") else "")
+            key = (values, why, i == self.current_index)
+            if self._rows_shown.get(i) == key:
+                continue  # a row costs ~1 ms to restyle: only the changed ones
+            self._rows_shown[i] = key
             colour = QColor(Colour.STATUS.get(shown, "#ffffff"))
             for col, text in enumerate(values):
                 item = self.table.item(i, col)
@@ -267,6 +277,7 @@ class SchedulePanel(QWidget):
                     self.table.setItem(i, col, item)
                 if item.text() != text:
                     item.setText(text)
+                    changed_cols.add(col)
                 qc_col = col == COLUMNS.index("QC")
                 item.setBackground(QBrush(QColor(QC_COLOURS.get(text, colour.name()))
                                           if qc_col else colour))
@@ -275,13 +286,16 @@ class SchedulePanel(QWidget):
                     item.setToolTip(reason)
                 elif qc_col:
                     item.setToolTip(why)
+        for col in sorted(changed_cols - {COLUMNS.index("reason")}):
+            self.table.resizeColumnToContents(col)
         done = sum(s in ("done", "completed", "skipped") for s in self.statuses)
         self.progress.setMaximum(max(1, len(rows)))
         self.progress.setValue(done)
         self._show_time_left()
         item = self.table.item(self.current_index, 0) if 0 <= self.current_index < len(rows) \
             else None
-        if item is not None:
+        if item is not None and self._scrolled_to != self.current_index:
+            self._scrolled_to = self.current_index
             self.table.scrollToItem(item, QAbstractItemView.ScrollHint.EnsureVisible)
         self._selection_changed()
 
@@ -289,6 +303,8 @@ class SchedulePanel(QWidget):
         """A new session: no verdicts, names (``trials``: those already in its file), clock."""
         self.qc.clear()
         self.names.reset(trials)
+        self._rows_shown = {}
+        self._scrolled_to = -1
         self._clock.clear()
         self.in_trial_s, self.realtime = 0.0, True
 

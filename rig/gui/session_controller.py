@@ -214,10 +214,11 @@ class SessionController(QObject):
             file is closed or there is none: nothing can record it, and nothing latches;
             the stimulator is told to stop anyway if its devices are still open).
         """
-        running = self.engine is not None and self.running
-        if running:
+        engine = self.engine
+        running = engine is not None and self.running
+        if engine is not None and running:
             try:
-                self.engine.estop(reason)
+                engine.estop(reason)
                 return True
             except Exception:
                 log.exception("engine.estop failed; stopping the stimulator directly")
