@@ -25,6 +25,7 @@ import nmsid.rig.gui.qt_compat  # noqa: F401  (before any signal is emitted)
 from PySide6.QtWidgets import (QLabel, QMainWindow, QSplitter, QTabWidget, QVBoxLayout,
                                QWidget)
 
+from nmsid.protocols.session_file import read_session, utc_now
 from nmsid.rig.errors import RequestError
 from nmsid.rig.gui import analysis_hooks
 from nmsid.rig.gui.calibration_panel import CalibrationPanel
@@ -58,7 +59,6 @@ ESTOP_REASON = "operator E-stop (GUI)"
 def trials_in_file(path) -> list[tuple[int, str]]:
     """(schedule index, name) of each trial already in a session file (resume); empty if
     it cannot be read (a damaged file: the engine recovers it, the names follow)."""
-    from nmsid.protocols.session_file import read_session
     try:
         trials = read_session(path, load_data=False).trials
     except (ValueError, OSError):
@@ -277,7 +277,6 @@ class MainWindow(QMainWindow):
         session running (before the start, after the end) nothing can record it and
         nothing latches, and the window says so. An E-stop the engine took as the session
         was ending, and never wrote, is named in the window when the run ends."""
-        from nmsid.protocols.session_file import utc_now
         latched = not self.controller.interlock_status().get("latch", (True, ""))[0] \
             if self.controller.running else False
         if self.controller.estop(ESTOP_REASON):
