@@ -120,6 +120,9 @@ def run_session() -> dict:
     finally:
         QtEngineObserver.on_event, EventLog.append = orig_emit, orig_append  # type: ignore[method-assign]
     lags = np.array([shown[k] - t for k, (t, _) in emitted.items() if k in shown])
+    t_first = min(t for t, _ in emitted.values())
+    worst = sorted(((shown[k] - t, t - t_first, ev) for k, (t, ev) in emitted.items()
+                    if k in shown), key=lambda x: -x[0])[:3]
     return {"wall_s": wall_s, "virtual_s": virtual_s, "cpu_pct": cpu_pct,
             "n_emitted": len(emitted), "n_shown": len(shown),
             "lag_max_s": float(lags.max()) if lags.size else float("nan"),
@@ -127,7 +130,9 @@ def run_session() -> dict:
             "lag_p50_s": float(np.median(lags)) if lags.size else float("nan"),
             "estop_recorded": n_after > n_events, "estop_refused_visibly": refused,
             "silent_latch": latched and not refused, "state_shown": state_shown,
-            "error": w.run_error}
+            "error": w.run_error,
+            "worst": [f"{lag * 1e3:.0f} ms at {at:.1f} s: {ev.kind} {ev.detail[:50]}"
+                      for lag, at, ev in worst]}
 
 
 def main() -> None:
@@ -145,6 +150,7 @@ def main() -> None:
     print(f"display lag behind the engine: median {r['lag_p50_s'] * 1e3:.0f} ms, p99 "
           f"{r['lag_p99_s'] * 1e3:.0f} ms, max {r['lag_max_s'] * 1e3:.0f} ms; goal max <= "
           f"{GOAL_S:g} s: {'met' if ok else 'missed'}")
+    print("worst: " + " | ".join(r["worst"]))
     print(f"state shown at the end: {r['state_shown']}; E-STOP after the end: "
           + ("recorded in the file" if r["estop_recorded"] else
              "refused in the window" if r["estop_refused_visibly"] else

@@ -28,6 +28,8 @@ from nmsid.rig.gui.theme import Colour
 MAX_FPS = 30.0
 #: Frames a late redraw may catch up on the absolute schedule.
 MAX_LAG_FRAMES = 3
+#: After a frame that took d seconds, the next waits at least this many times d.
+DRAW_SHARE_WAIT = 1.0
 
 
 class Readouts(QWidget):
@@ -183,6 +185,11 @@ class LivePlots(QWidget):
                 self._next_due += self.period_s
                 if self._next_due < now - MAX_LAG_FRAMES * self.period_s:
                     self._next_due = now  # after a long stall: do not burst
+                # drawing takes at most half the GUI thread's time: on a starved machine
+                # (a frame takes long) frames are dropped so that the engine's
+                # notifications are still shown at once
+                end = time.perf_counter()
+                self._next_due = max(self._next_due, end + DRAW_SHARE_WAIT * (end - now))
         delay_ms = max(0, math.ceil((self._next_due - time.perf_counter()) * 1000.0))
         self.timer.start(delay_ms)
 

@@ -266,8 +266,11 @@ class SchedulePanel(QWidget):
             values = (self.names.text(i), f"{sE:.2f}", str(repeat), shown, runs, reason,
                       decision if shown in ("done", "completed") else "")
             key = (values, why, i == self.current_index)
-            if self._rows_shown.get(i) == key:
+            before = self._rows_shown.get(i)
+            if before == key:
                 continue  # a row costs ~1 ms to restyle: only the changed ones
+            if before is None or before[2] != key[2]:  # bold or not: widths change
+                changed_cols.update(range(len(COLUMNS)))
             self._rows_shown[i] = key
             colour = QColor(Colour.STATUS.get(shown, "#ffffff"))
             for col, text in enumerate(values):
