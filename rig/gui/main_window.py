@@ -15,6 +15,7 @@ script or a test uses to drive the window as an operator would.
 from __future__ import annotations
 
 import logging
+import sys
 import time
 from pathlib import Path
 from typing import Callable
@@ -52,6 +53,12 @@ LIVE_WINDOW_S = 10.0
 #: The window takes the engine's notifications at most this often (s): one batch, one
 #: schedule refresh, however fast the engine runs.
 DRAIN_INTERVAL_S = 0.05
+#: Python's GIL switch interval in the GUI process, s (default 0.005). The GUI thread
+#: enters Python many times a frame (each slot, each pyqtgraph paint); with the engine,
+#: the QC and the identification threads busy, each entry waited up to the interval for
+#: the GIL: on a loaded machine the display fell ~2 s behind the fast clock, with 0.5 ms
+#: ~0.7 s (bench/bench_gui_lag.py).
+GUI_SWITCH_INTERVAL_S = 0.0005
 #: The reason the window gives the engine's E-stop (and how it finds it in the events).
 ESTOP_REASON = "operator E-stop (GUI)"
 
@@ -100,6 +107,8 @@ class MainWindow(QMainWindow):
                  identify: Callable | None = None, select_models: Callable | None = None,
                  auto_tabs: bool = True, live_window_s: float = LIVE_WINDOW_S):
         super().__init__()
+        if sys.getswitchinterval() > GUI_SWITCH_INTERVAL_S:
+            sys.setswitchinterval(GUI_SWITCH_INTERVAL_S)
         self.setWindowTitle("nmsid - FES identification session")
         self.auto_tabs = auto_tabs
         self.config_transform = config_transform
