@@ -149,7 +149,8 @@ class MainWindow(QMainWindow):
                                             on_skip=self.skip, on_rerun=self.rerun,
                                             on_end=self.end_session,
                                             on_repeat=self.repeat_excluded)
-        self.qc = TrialQC(analysis_hooks.trial_verdicts, self._on_verdicts)
+        self.qc = TrialQC(analysis_hooks.trial_verdicts, self._on_verdicts,
+                          executor=self.identification.executor)
         self.event_log = EventLog(on_note=self.add_note)
 
         self.tabs = QTabWidget()

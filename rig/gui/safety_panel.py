@@ -185,9 +185,10 @@ class SafetyPanel(QFrame):
         the engine holds in ``paused`` after a re-arm (CONTINUE starts the next trial)."""
         colour = Colour.STATE.get(state, Colour.UNKNOWN)
         self.state_label.setText("RE-ARMED" if held else state.upper())
-        self.state_label.setStyleSheet(
-            f"background: {colour}; color: white; font-size: 18px; font-weight: bold;"
-            " padding: 6px; border-radius: 6px;")
+        style = (f"background: {colour}; color: white; font-size: 18px; font-weight: bold;"
+                 " padding: 6px; border-radius: 6px;")
+        if self.state_label.styleSheet() != style:  # a restyle costs; states repeat colours
+            self.state_label.setStyleSheet(style)
         tripped = state == "tripped"
         self.rearm_button.setEnabled(tripped)
         self.continue_button.setEnabled(state == "paused" and not is_rerun_wait(state, reason))

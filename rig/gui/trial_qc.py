@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from typing import Callable
 
 from PySide6.QtCore import QObject, Qt, Signal
@@ -33,10 +33,14 @@ class TrialQC(QObject):
         ``judge({schedule index: Trial}) -> {schedule index: (decision, reasons)}``.
     on_verdicts : callable
         Called in the GUI thread with each level's verdicts.
+    executor : concurrent.futures.Executor, optional
+        Where the jobs run (the window passes the identification's one-thread pool: one
+        analysis thread competes with the engine and the GUI for the GIL, not two);
+        default: a one-thread pool of its own.
     """
 
     def __init__(self, judge: Callable[[dict], dict], on_verdicts: Callable[[dict], None],
-                 parent: QObject | None = None):
+                 executor: Executor | None = None, parent: QObject | None = None):
         super().__init__(parent)
         self.judge = judge
         self._on_verdicts = on_verdicts
@@ -47,7 +51,9 @@ class TrialQC(QObject):
         self._token = 0
         self.pending = 0
         """Jobs submitted and not finished (tests wait for 0)."""
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="nmsid-qc")
+        self._own_pool = executor is None
+        self._pool = executor if executor is not None else \
+            ThreadPoolExecutor(max_workers=1, thread_name_prefix="nmsid-qc")
         self._relay = _Relay()
         self._relay.done.connect(self._done, Qt.ConnectionType.QueuedConnection)
 
@@ -92,4 +98,5 @@ class TrialQC(QObject):
             self._on_verdicts(verdicts)
 
     def shutdown(self, wait: bool = False) -> None:
-        self._pool.shutdown(wait=wait, cancel_futures=True)
+        if self._own_pool:
+            self._pool.shutdown(wait=wait, cancel_futures=True)
