@@ -2,7 +2,7 @@
 
 ``EngineSignals.event`` (a Signal) hid ``QObject.event()``, the handler Qt calls for every
 event, and ``SessionController.thread`` (the engine's worker) hid ``QObject.thread()``;
-they are ``event_logged`` and ``worker``.
+they were renamed ``event_logged`` (now a mailbox behind ``notified``) and ``worker``.
 """
 
 from __future__ import annotations
