@@ -26,6 +26,7 @@ import os
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 
@@ -73,7 +74,7 @@ def run_session() -> dict:
     from nmsid.sim_backends.rig import make_sim_rig
 
     app = QApplication.instance() or QApplication([])
-    emitted: dict[int, tuple[float, object]] = {}
+    emitted: dict[int, tuple[float, Any]] = {}
     shown: dict[int, float] = {}
     orig_emit, orig_append = QtEngineObserver.on_event, EventLog.append
 
