@@ -99,6 +99,5 @@ def select_models(session_path: Path) -> SelectionView:
             trend=comp.trend.text if comp.trend is not None else "",
             excluded_sE=np.array([a for a, _ in excluded]),
             excluded_values=np.array([b for _, b in excluded])))
-    note = (f"{len(outputs.problems)} problem(s): see problems.txt. "
-            if outputs.problems else "")
-    return SelectionView(params, saved=[out], note=note, tables_text=outputs.tables_text)
+    return SelectionView(params, saved=[out], tables_text=outputs.tables_text,
+                         problems=list(outputs.problems))

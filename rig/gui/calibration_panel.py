@@ -2,8 +2,9 @@
 
 While the engine ramps each muscle's current, force vs current is drawn per muscle. When
 the engine reports the detected currents (Iemin/Iemax/Ifmin/Ifmax), they are marked on the
-plot (dashed vertical lines; Fmin/Fmax are horizontal lines) and copied into four editable
-fields. The operator confirms them as they are or after editing (or types all four by
+plot (dashed vertical lines) with each muscle's force thresholds (horizontal lines in the
+muscle's colour: the extensor pushes, at +Fmin/+Fmax; the flexor pulls, at -Fmin/-Fmax)
+and copied into four editable fields. The operator confirms them as they are or after editing (or types all four by
 hand); nothing else runs before that.
 """
 
@@ -50,8 +51,10 @@ class CalibrationPanel(QWidget):
         self.plot = pg.PlotWidget(title="Calibration ramp: force vs current")
         self.plot.setBackground("w")
         self.plot.showGrid(x=True, y=True, alpha=0.3)
-        self.plot.setLabel("bottom", "current", units="mA")
-        self.plot.setLabel("left", "force (muscle alone)", units="N")
+        self.plot.setLabel("bottom", "current (mA)")
+        self.plot.setLabel("left", "force, muscle alone (N)")
+        for axis in ("bottom", "left"):  # one unit: no N/mN flipping with the range
+            self.plot.getAxis(axis).enableAutoSIPrefix(False)
         self.plot.addLegend(offset=(10, 10))
         self.curves = {}
         self.lines = {}
@@ -67,12 +70,19 @@ class CalibrationPanel(QWidget):
                 line.setVisible(False)
                 self.plot.addItem(line)
                 self.lines[attr] = line
-        self.fmin_line = pg.InfiniteLine(pos=0.5, angle=0, pen=pg.mkPen("#888", width=1),
-                                         label="Fmin", labelOpts={"position": 0.05})
-        self.fmax_line = pg.InfiniteLine(pos=5.0, angle=0, pen=pg.mkPen("#888", width=1),
-                                         label="Fmax", labelOpts={"position": 0.05})
-        self.plot.addItem(self.fmin_line)
-        self.plot.addItem(self.fmax_line)
+        self.force_lines: dict[str, pg.InfiniteLine] = {}
+        """``ext_Fmin``, ``ext_Fmax``, ``flex_Fmin``, ``flex_Fmax``: the thresholds each
+        muscle's ramp is judged by (the flexor's force is negative)."""
+        for key, label, colour, _, _ in MUSCLES:
+            sign = -1.0 if key == "flex" else 1.0
+            for name, value in (("Fmin", 0.5), ("Fmax", 5.0)):
+                line = pg.InfiniteLine(pos=sign * value, angle=0,
+                                       pen=pg.mkPen(colour, width=1,
+                                                    style=pg.QtCore.Qt.PenStyle.DotLine),
+                                       label=f"{key} {name}",
+                                       labelOpts={"color": colour, "position": 0.05})
+                self.plot.addItem(line)
+                self.force_lines[f"{key}_{name}"] = line
 
         self.fields: dict[str, QDoubleSpinBox] = {}
         form_box = QGroupBox("Currents (edit if needed, then confirm)")
@@ -137,8 +147,7 @@ class CalibrationPanel(QWidget):
             spin.setValue(float(getattr(calibration, attr)))
             spin.blockSignals(False)
             self._field_changed(attr, float(getattr(calibration, attr)))
-        self.fmin_line.setValue(calibration.Fmin_N)
-        self.fmax_line.setValue(calibration.Fmax_N)
+        self.set_thresholds(calibration.Fmin_N, calibration.Fmax_N)
         for key in ("ext", "flex"):  # ramps stored with the calibration, if any
             I = calibration.ramps.get(f"{key}_I_mA") if calibration.ramps else None
             F = calibration.ramps.get(f"{key}_force_N") if calibration.ramps else None
@@ -148,6 +157,13 @@ class CalibrationPanel(QWidget):
         self.status.setText("Detected currents are marked. Check them against the ramp, "
                             "edit if needed, then press Confirm calibration.")
         self.set_awaiting(True)
+
+    def set_thresholds(self, Fmin_N: float, Fmax_N: float) -> None:
+        """Move both muscles' Fmin/Fmax lines (the flexor's at the negative forces)."""
+        for key in ("ext", "flex"):
+            sign = -1.0 if key == "flex" else 1.0
+            self.force_lines[f"{key}_Fmin"].setValue(sign * float(Fmin_N))
+            self.force_lines[f"{key}_Fmax"].setValue(sign * float(Fmax_N))
 
     def refused(self, reason: str) -> None:
         """The engine refused the confirmed values (e.g. above a ceiling); ask again."""

@@ -87,6 +87,8 @@ class IdentificationPanel(QWidget):
         self.errors: list[str] = []
         self.pending = 0
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="nmsid-identify")
+        self.executor = self._pool
+        """The panel's one analysis thread (the trial QC runs its jobs there too)."""
         self._relay = _Relay()
         self._relay.done.connect(self._on_done, Qt.ConnectionType.QueuedConnection)
         self.status = QLabel("Parameters appear here as each sE level completes.")

@@ -169,6 +169,16 @@ class LiveBuffer:
     def generation(self) -> int:
         return self._generation
 
+    @property
+    def trial_index(self) -> int:
+        """Schedule index of the trial being buffered (-1: none)."""
+        return self._trial_index
+
+    @property
+    def samples_in_trial(self) -> int:
+        """Samples appended since that trial started (its elapsed time x ``fs_Hz``)."""
+        return self._n_total
+
     def snapshot(self) -> LiveSnapshot:
         """A copy of the window (called from the GUI thread)."""
         with self._lock:

@@ -4,7 +4,12 @@ The plots never receive data from the engine directly. A ``QTimer`` in the GUI t
 (at most ``max_fps`` per second, 30 by default) takes a snapshot of the
 :class:`~nmsid.rig.gui.live_buffer.LiveBuffer` and redraws only if the buffer changed; the
 engine thread meanwhile only copies chunks into the buffer. pyqtgraph's clip-to-view and
-peak downsampling keep each redraw cheap at 2 kHz.
+peak downsampling keep each redraw cheap at 2 kHz. Frames (and the samples between them)
+are dropped when the engine runs faster than the window draws; nothing else is.
+
+Units are fixed for the session: force in N, currents in mA (pyqtgraph's automatic SI
+prefix is off, so an axis never flips between N and mN from one trial to the next).
+The large readouts (:class:`Readouts`) show the latest commanded currents and force.
 """
 
 from __future__ import annotations
@@ -15,7 +20,7 @@ import time
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import Qt, QTimer
-from PySide6.QtWidgets import QLabel, QVBoxLayout, QWidget
+from PySide6.QtWidgets import QGridLayout, QLabel, QVBoxLayout, QWidget
 
 from nmsid.rig.gui.live_buffer import LiveBuffer, LiveSnapshot
 from nmsid.rig.gui.theme import Colour
@@ -23,6 +28,78 @@ from nmsid.rig.gui.theme import Colour
 MAX_FPS = 30.0
 #: Frames a late redraw may catch up on the absolute schedule.
 MAX_LAG_FRAMES = 3
+#: After a frame that took d seconds, the next waits at least this many times d.
+DRAW_SHARE_WAIT = 1.0
+
+
+class Readouts(QWidget):
+    """Large numbers: the commanded extensor and flexor currents (mA) and the force (N).
+
+    Fed by :class:`LivePlots` from each frame's latest sample, by the calibration steps,
+    and set to 0 mA when the engine leaves stimulation (output off).
+    """
+
+    #: (key, label, unit, colour, format)
+    FIELDS = (("I_ext", "extensor", "mA", Colour.I_EXT, "{:.1f}"),
+              ("I_flex", "flexor", "mA", Colour.I_FLEX, "{:.1f}"),
+              ("force", "force", "N", Colour.FORCE, "{:+.2f}"))
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        lay = QGridLayout(self)
+        lay.setContentsMargins(6, 0, 6, 0)
+        lay.setHorizontalSpacing(14)
+        self.values: dict[str, QLabel] = {}
+        self.numbers: dict[str, float | None] = {}
+        for col, (key, label, unit, colour, _) in enumerate(self.FIELDS):
+            name = QLabel(f"{label} ({unit})")
+            name.setStyleSheet("color: #555; font-size: 12px;")
+            value = QLabel("-")
+            value.setObjectName(f"readout_{key}")
+            value.setMinimumWidth(110)
+            value.setStyleSheet(f"color: {colour}; font-size: 30px; font-weight: bold;")
+            lay.addWidget(name, 0, col)
+            lay.addWidget(value, 1, col)
+            self.values[key] = value
+        self.reset()
+
+    def _set(self, key: str, number: float | None) -> None:
+        self.numbers[key] = number
+        fmt = next(f for k, _, _, _, f in self.FIELDS if k == key)
+        self.values[key].setText("-" if number is None or not math.isfinite(number)
+                                 else fmt.format(number))
+
+    def set_values(self, I_ext_mA: float, I_flex_mA: float, force_N: float) -> None:
+        """Show these numbers (mA, mA, N)."""
+        self._set("I_ext", I_ext_mA)
+        self._set("I_flex", I_flex_mA)
+        self._set("force", force_N)
+
+    def calibration_step(self, muscle: str, current_mA: float, force_N: float) -> None:
+        """A ramp step: that muscle's current (the other at 0) and its force."""
+        flex = str(muscle).lower().startswith("f")
+        self.set_values(0.0 if flex else current_mA, current_mA if flex else 0.0, force_N)
+
+    def output_on(self) -> None:
+        """A trial stimulates: the frames' samples are shown."""
+        self.live = True
+
+    def output_off(self) -> None:
+        """Stimulation stopped: both currents are 0 mA (the force keeps its last value);
+        frames drawn late show no current until the next trial."""
+        self.live = False
+        self._set("I_ext", 0.0)
+        self._set("I_flex", 0.0)
+
+    def from_frame(self, I_ext_mA: float, I_flex_mA: float, force_N: float) -> None:
+        """A frame's latest sample (ignored while the output is off)."""
+        if self.live:
+            self.set_values(I_ext_mA, I_flex_mA, force_N)
+
+    def reset(self) -> None:
+        self.live = False
+        for key, *_ in self.FIELDS:
+            self._set(key, None)
 
 
 class LivePlots(QWidget):
@@ -51,10 +128,11 @@ class LivePlots(QWidget):
         self.force_plot = self.graphics.addPlot(row=0, col=0)
         self.re_plot = self.graphics.addPlot(row=1, col=0)
         self.i_plot = self.graphics.addPlot(row=2, col=0)
-        self.force_plot.setLabel("left", "force", units="N")
+        self.force_plot.setLabel("left", "force (N)")
         self.re_plot.setLabel("left", "rE")
-        self.i_plot.setLabel("left", "current", units="A")
-        self.i_plot.setLabel("bottom", "time after onset", units="s")
+        self.i_plot.setLabel("left", "current (mA)")
+        self.i_plot.setLabel("bottom", "time after onset (s)")
+        self.readouts = Readouts()
         self.re_plot.setYRange(-0.05, 1.05)
         self.i_plot.addLegend(offset=(10, 5))
         for p in (self.force_plot, self.re_plot, self.i_plot):
@@ -65,6 +143,7 @@ class LivePlots(QWidget):
             p.enableAutoRange(x=False, y=False)
             p.hideButtons()
             for name in ("left", "bottom"):
+                p.getAxis(name).enableAutoSIPrefix(False)  # one unit for the session
                 # axes (with their grid) are redrawn only when their range changes
                 p.getAxis(name).setCacheMode(
                     pg.QtWidgets.QGraphicsItem.CacheMode.DeviceCoordinateCache)
@@ -106,6 +185,11 @@ class LivePlots(QWidget):
                 self._next_due += self.period_s
                 if self._next_due < now - MAX_LAG_FRAMES * self.period_s:
                     self._next_due = now  # after a long stall: do not burst
+                # drawing takes at most half the GUI thread's time: on a starved machine
+                # (a frame takes long) frames are dropped so that the engine's
+                # notifications are still shown at once
+                end = time.perf_counter()
+                self._next_due = max(self._next_due, end + DRAW_SHARE_WAIT * (end - now))
         delay_ms = max(0, math.ceil((self._next_due - time.perf_counter()) * 1000.0))
         self.timer.start(delay_ms)
 
@@ -142,15 +226,17 @@ class LivePlots(QWidget):
         else:
             self.target_curve.setData(t, snap.target_N)
         self.re_curve.setData(t, snap.rE)
-        self.iext_curve.setData(t, snap.I_ext_mA * 1e-3)
-        self.iflex_curve.setData(t, snap.I_flex_mA * 1e-3)
+        self.iext_curve.setData(t, snap.I_ext_mA)
+        self.iflex_curve.setData(t, snap.I_flex_mA)
         if snap.n:
+            self.readouts.from_frame(float(snap.I_ext_mA[-1]), float(snap.I_flex_mA[-1]),
+                               float(snap.force_N[-1]))
             self._update_elapsed(float(t[-1]))
             self._follow_x(float(t[0]), float(t[-1]))
             self._fit_y(self.force_plot, snap.force_N if snap.target_N is None else
                         np.concatenate((snap.force_N,
                                         snap.target_N[np.isfinite(snap.target_N)])))
-            self._fit_y(self.i_plot, np.concatenate((snap.I_ext_mA, snap.I_flex_mA)) * 1e-3)
+            self._fit_y(self.i_plot, np.concatenate((snap.I_ext_mA, snap.I_flex_mA)))
         self.frames_drawn += 1
 
     def _follow_x(self, t_first: float, t_last: float) -> None:

@@ -15,6 +15,8 @@ script or a test uses to drive the window as an operator would.
 from __future__ import annotations
 
 import logging
+import sys
+import time
 from pathlib import Path
 from typing import Callable
 
@@ -24,6 +26,7 @@ import nmsid.rig.gui.qt_compat  # noqa: F401  (before any signal is emitted)
 from PySide6.QtWidgets import (QLabel, QMainWindow, QSplitter, QTabWidget, QVBoxLayout,
                                QWidget)
 
+from nmsid.protocols.session_file import read_session, utc_now
 from nmsid.rig.errors import RequestError
 from nmsid.rig.gui import analysis_hooks
 from nmsid.rig.gui.calibration_panel import CalibrationPanel
@@ -39,12 +42,35 @@ from nmsid.rig.gui.schedule_panel import SchedulePanel, planned_fields, status_n
 from nmsid.rig.gui.session_controller import (DevicesFactory, SessionController,
                                               load_session_config)
 from nmsid.rig.gui.setup_panel import SessionRequest, SetupPanel
+from nmsid.rig.gui.trial_qc import TrialQC
+from nmsid.rig.observer import is_rerun_wait
 from nmsid.rig.states import State
 
 log = logging.getLogger(__name__)
 
 INTERLOCK_POLL_MS = 200
 LIVE_WINDOW_S = 10.0
+#: The window takes the engine's notifications at most this often (s): one batch, one
+#: schedule refresh, however fast the engine runs.
+DRAIN_INTERVAL_S = 0.05
+#: Python's GIL switch interval in the GUI process, s (default 0.005). The GUI thread
+#: enters Python many times a frame (each slot, each pyqtgraph paint); with the engine,
+#: the QC and the identification threads busy, each entry waited up to the interval for
+#: the GIL: on a loaded machine the display fell ~2 s behind the fast clock, with 0.5 ms
+#: ~0.7 s (bench/bench_gui_lag.py).
+GUI_SWITCH_INTERVAL_S = 0.0005
+#: The reason the window gives the engine's E-stop (and how it finds it in the events).
+ESTOP_REASON = "operator E-stop (GUI)"
+
+
+def trials_in_file(path) -> list[tuple[int, str]]:
+    """(schedule index, name) of each trial already in a session file (resume); empty if
+    it cannot be read (a damaged file: the engine recovers it, the names follow)."""
+    try:
+        trials = read_session(path, load_data=False).trials
+    except (ValueError, OSError):
+        return []
+    return [(int((t.extra_attrs or {}).get("schedule_index", -1)), t.name) for t in trials]
 
 
 class Tab:
@@ -81,6 +107,8 @@ class MainWindow(QMainWindow):
                  identify: Callable | None = None, select_models: Callable | None = None,
                  auto_tabs: bool = True, live_window_s: float = LIVE_WINDOW_S):
         super().__init__()
+        if sys.getswitchinterval() > GUI_SWITCH_INTERVAL_S:
+            sys.setswitchinterval(GUI_SWITCH_INTERVAL_S)
         self.setWindowTitle("nmsid - FES identification session")
         self.auto_tabs = auto_tabs
         self.config_transform = config_transform
@@ -91,6 +119,14 @@ class MainWindow(QMainWindow):
         self.run_error: BaseException | None = None
         self.session_finished = False
         self._calibration_known = False
+        self._estop_unrecorded = ""
+        """UTC time of an E-stop a running engine took and has not yet written to the
+        file (cleared by its event; shown as not recorded if the run ends first)."""
+        self._rearm_hold = False
+        """RE-ARM pressed: the engine holds in ``paused`` until Continue."""
+        self._last_drain = 0.0
+        self.n_batches = 0
+        """Batches of engine notifications shown (each: one schedule refresh)."""
 
         self.buffer = LiveBuffer(window_s=live_window_s)
         self.signals = EngineSignals()
@@ -98,10 +134,12 @@ class MainWindow(QMainWindow):
                                             devices_factory=devices_factory,
                                             engine_factory=engine_factory)
 
-        self.safety = SafetyPanel(on_estop=self.press_estop, on_rearm=self.rearm)
+        self.safety = SafetyPanel(on_estop=self.press_estop, on_rearm=self.rearm,
+                                  on_continue=self.continue_session)
         self.setup_panel = SetupPanel(on_start=self._start_request)
         self.calibration_panel = CalibrationPanel(on_confirm=self._confirm_calibration)
         self.live = LivePlots(self.buffer)
+        self.safety.add_readouts(self.live.readouts)
         self.identification = IdentificationPanel(
             identify=identify if identify is not None else analysis_hooks.identify_level)
         self.results = ResultsPanel(
@@ -111,8 +149,8 @@ class MainWindow(QMainWindow):
                                             on_skip=self.skip, on_rerun=self.rerun,
                                             on_end=self.end_session,
                                             on_repeat=self.repeat_excluded)
-        self._qc_trials: dict[float, dict] = {}
-        """sE -> {schedule index: the latest completed trial}, for the quality control."""
+        self.qc = TrialQC(analysis_hooks.trial_verdicts, self._on_verdicts,
+                          executor=self.identification.executor)
         self.event_log = EventLog(on_note=self.add_note)
 
         self.tabs = QTabWidget()
@@ -159,16 +197,18 @@ class MainWindow(QMainWindow):
         self.shortcuts = install_estop_shortcuts(self, self.press_estop)
 
         q = Qt.ConnectionType.QueuedConnection
-        s = self.signals
-        s.state_changed.connect(self._on_state, q)
-        s.event_logged.connect(self._on_event, q)
-        s.calibration_step.connect(self.calibration_panel.add_step, q)
-        s.calibration_result.connect(self._on_calibration_result, q)
-        s.trial_started.connect(self._on_trial_started, q)
-        s.trial_finished.connect(self._on_trial_finished, q)
-        s.level_completed.connect(self._on_level_completed, q)
-        s.finished.connect(self._on_finished, q)
-        s.run_ended.connect(self._on_run_ended, q)
+        self._handlers: dict[str, Callable[..., None]] = {
+            "state": self._on_state, "event": self._on_event,
+            "calibration_step": self._on_calibration_step,
+            "calibration_result": self._on_calibration_result,
+            "trial_started": self._on_trial_started, "trial_finished": self._on_trial_finished,
+            "level_completed": self._on_level_completed, "finished": self._on_finished}
+        self._drain_timer = QTimer(self)
+        self._drain_timer.setSingleShot(True)
+        self._drain_timer.setTimerType(Qt.TimerType.PreciseTimer)
+        self._drain_timer.timeout.connect(self._drain)
+        self.signals.notified.connect(self._schedule_drain, q)
+        self.signals.run_ended.connect(self._on_run_ended, q)
 
         self.interlock_timer = QTimer(self)
         self.interlock_timer.setInterval(INTERLOCK_POLL_MS)
@@ -187,14 +227,21 @@ class MainWindow(QMainWindow):
         if self.config_transform is not None and not request.resume:
             config = self.config_transform(config)
         self._reset_for_session()
+        in_file = trials_in_file(request.output_path) if request.resume else []
         self.controller.start(request, config=config)
         engine = self.controller.engine
+        if request.resume:  # the engine may have recovered one more trial into the file
+            self.schedule_panel.reset_session(in_file)
+            names = self.schedule_panel.names
+            names.count = max(names.count, sum(getattr(p, "attempts", 0) or 0
+                                               for p in self.controller.schedule()))
         self._calibration_known = bool(request.resume and
                                        getattr(engine, "calibration", None) is not None)
         used = getattr(engine, "config", config)
         self.safety.set_weakened(used.weakened_safety())
         p = used.protocol
         self.schedule_panel.set_timing(p.trial_s, p.rest_s)
+        self.calibration_panel.set_thresholds(used.calibration.Fmin_N, used.calibration.Fmax_N)
         self.setup_panel.setEnabled(False)
         self.event_log.append(f"session {request.participant}: "
                               f"{'resuming' if request.resume else 'writing'} "
@@ -209,8 +256,13 @@ class MainWindow(QMainWindow):
         self.current_index = -1
         self.run_result = self.run_error = None
         self.session_finished = False
-        self._qc_trials = {}
-        self.schedule_panel.qc.clear()
+        self._estop_unrecorded = ""
+        self._rearm_hold = False
+        self.controller.mailbox.take()  # nothing of an earlier session is shown
+        self.qc.reset()
+        self.schedule_panel.reset_session()
+        self.safety.clear_notice()
+        self.live.readouts.reset()
         self.calibration_panel.reset()
         self.identification.reset()
         self.results.reset()
@@ -228,18 +280,48 @@ class MainWindow(QMainWindow):
         self.controller.confirm_calibration(calibration)
 
     def press_estop(self) -> None:
-        """The E-STOP button, Space or Escape: stop output now and latch the interlock."""
-        engaged = self.controller.estop("operator E-stop (GUI)")
-        if not engaged:
-            self.event_log.append("E-STOP pressed (no session running; output is off)")
+        """The E-STOP button, Space or Escape: stop output now and latch the interlock.
+
+        Never silent: a running engine writes it to the session file (an
+        ``interlock_trip`` event; if the interlock was latched already, a ``note``); with no
+        session running (before the start, after the end) nothing can record it and
+        nothing latches, and the window says so. An E-stop the engine took as the session
+        was ending, and never wrote, is named in the window when the run ends."""
+        latched = not self.controller.interlock_status().get("latch", (True, ""))[0] \
+            if self.controller.running else False
+        if self.controller.estop(ESTOP_REASON):
+            self._estop_unrecorded = utc_now()
+            if latched:  # the interlock writes only the first trip: record this press
+                try:
+                    self.controller.add_note(f"E-STOP pressed ({ESTOP_REASON}) while the "
+                                             "interlock was latched")
+                except RuntimeError:
+                    pass
+            return
+        ended = self.run_result is not None or self.run_error is not None
+        text = ("E-STOP: the session has ended, its file is closed: this press is not "
+                "recorded and nothing latches. Output is off." if ended else
+                "E-STOP: no session is running: nothing to record, nothing latches. "
+                "Output is off.")
+        self.event_log.append(text)
+        self.safety.show_notice(text)
 
     def rearm(self) -> None:
+        """RE-ARM: clear the latch only; the engine then holds (PAUSED, output off)
+        until :meth:`continue_session`."""
+        self._rearm_hold = True
         self.controller.rearm()
+
+    def continue_session(self) -> None:
+        """CONTINUE after a re-arm (or a pause): the next trial starts."""
+        self._rearm_hold = False
+        self.controller.continue_session()
 
     def pause(self) -> None:
         self.controller.pause()
 
     def resume(self) -> None:
+        self._rearm_hold = False
         self.controller.resume()
 
     def skip(self) -> None:
@@ -285,15 +367,43 @@ class MainWindow(QMainWindow):
         return path
 
     # -- engine notifications (GUI thread) -------------------------------------------
+    def _schedule_drain(self) -> None:
+        """The mailbox has news: take it now, or when ``DRAIN_INTERVAL_S`` has passed
+        since the last batch (a flood of notifications costs one batch per interval)."""
+        if self._drain_timer.isActive():
+            return
+        wait_s = self._last_drain + DRAIN_INTERVAL_S - time.perf_counter()
+        self._drain_timer.start(max(0, int(wait_s * 1000)))
+
+    def _drain(self) -> None:
+        """Show every notification the engine posted so far, in order; the schedule, the
+        lights and the time left once per batch."""
+        self._last_drain = time.perf_counter()
+        items = self.controller.mailbox.take()
+        for name, args in items:
+            try:
+                self._handlers[name](*args)
+            except Exception:  # a display problem must never stop the GUI
+                log.exception("showing the engine's %s notification", name)
+        if items:
+            self.n_batches += 1
+            self._refresh_schedule()
+            self._poll_engine()
+
     def _on_state(self, old, new, reason: str) -> None:
         self.state = new
         name = getattr(new, "value", str(new))
         if new is State.TRIPPED:
             self.trip_reason = reason
-        self.safety.set_state(name, reason)
+        if new in (State.TRIPPED, State.STIMULATING, State.RESTING, State.FINISHED):
+            self._rearm_hold = False  # (re-armed -> armed -> paused keeps it)
+        self.safety.set_state(name, reason, held=self._rearm_hold and
+                              new is State.PAUSED and not is_rerun_wait(new, reason))
         self.schedule_panel.set_state(name, reason)
-        self._refresh_schedule()
-        self._poll_engine()
+        if new is State.STIMULATING:
+            self.live.readouts.output_on()
+        elif new is not State.CALIBRATING:
+            self.live.readouts.output_off()
         if new is State.CALIBRATING:
             self._switch(Tab.CALIBRATION)
         elif new is State.STIMULATING:
@@ -301,6 +411,9 @@ class MainWindow(QMainWindow):
 
     def _on_event(self, event) -> None:
         self.event_log.append(event)
+        kind, detail = getattr(event, "kind", ""), str(getattr(event, "detail", ""))
+        if (kind == "interlock_trip" or kind == "note") and ESTOP_REASON in detail:
+            self._estop_unrecorded = ""
         if getattr(event, "kind", "") == "calibration_refused":
             # the engine still waits: let the operator correct the values
             self.calibration_panel.refused(str(getattr(event, "detail", "")))
@@ -316,46 +429,42 @@ class MainWindow(QMainWindow):
         self.calibration_panel.set_awaiting(bool(confirm))
         self._switch(Tab.CALIBRATION)
 
+    def _on_calibration_step(self, muscle: str, current_mA: float, force_N: float) -> None:
+        self.calibration_panel.add_step(muscle, current_mA, force_N)
+        self.live.readouts.calibration_step(muscle, current_mA, force_N)
+
     def _on_trial_started(self, index: int, planned) -> None:
         self.current_index = index
         sE, repeat, _, _ = planned_fields(planned)
+        name = self.schedule_panel.names.started(index)
         cfg = getattr(self.controller.engine, "config", None) or self.controller.config
-        self.live.set_title(f"Trial {index + 1}: sE = {sE:.2f}, repeat {repeat}",
+        self.live.set_title(f"{name}: sE = {sE:.2f}, repeat {repeat}",
                             duration_s=cfg.protocol.trial_s if cfg is not None else None)
-        self._refresh_schedule()
 
     def _on_trial_finished(self, index: int, trial) -> None:
         status = getattr(trial, "status", "")
         reason = getattr(trial, "abort_reason", "")
         sE, repeat = getattr(trial, "sE", float("nan")), getattr(trial, "repeat", 0)
-        verdict = self._judge(index, trial) if status == "completed" else None
-        self.live.set_title(f"Trial {index + 1}: sE = {sE:.2f}, repeat {repeat}: {status}"
-                            + (f" ({reason})" if reason else "")
-                            + (f"  |  QC: {verdict[0]}" + (f" ({verdict[1]})" if verdict[1]
-                                                           else "") if verdict else ""))
-        self._refresh_schedule()
+        name = self.schedule_panel.names.finished(index, str(getattr(trial, "name", "")))
+        if status == "completed":  # judged in a worker: the verdict follows (_on_verdicts)
+            self.qc.submit(index, trial)
+        self.live.set_title(f"{name}: sE = {sE:.2f}, repeat {repeat}: {status}"
+                            + (f" ({reason})" if reason else ""))
 
-    def _judge(self, index: int, trial) -> tuple[str, str] | None:
-        """QC of a completed trial against the completed repeats of its level so far; the
-        verdicts of the level's earlier trials are updated too (a third repeat can decide
-        what two could not)."""
-        if getattr(trial, "force_N", None) is None:
-            return None
-        level = self._qc_trials.setdefault(round(float(trial.sE), 9), {})
-        level[index] = trial
-        try:
-            verdicts = analysis_hooks.trial_verdicts(level)
-        except (ValueError, ArithmeticError) as exc:
-            log.warning("quality control of trial %d failed: %s", index + 1, exc)
-            return None
+    def _on_verdicts(self, verdicts: dict) -> None:
+        """The quality control's verdicts on one level's completed trials (the earlier
+        trials' verdicts may change: a third repeat can decide what two could not)."""
         for i, (decision, why) in verdicts.items():
+            before = self.schedule_panel.qc.get(i, ("", ""))[0]
             self.schedule_panel.set_qc(i, decision, why)
-        decision, why = verdicts.get(index, ("", ""))
-        if decision == "excluded":
-            self.event_log.append(f"QC: trial {index + 1} (sE {trial.sE:.2f}, repeat "
-                                  f"{trial.repeat}) excluded: {why}. 'Repeat excluded' runs "
-                                  "it again.")
-        return verdicts.get(index)
+            if decision == "excluded" and before != "excluded":
+                planned = self.controller.schedule()
+                sE, repeat = ((planned[i].sE, planned[i].repeat) if i < len(planned)
+                              else (float("nan"), 0))
+                self.event_log.append(
+                    f"QC: {self.schedule_panel.names.latest(i)} (sE {sE:.2f}, repeat "
+                    f"{repeat}) excluded: {why}. 'Repeat excluded' runs it again.")
+        self._refresh_schedule()
 
     def _on_level_completed(self, sE: float, trials: list) -> None:
         self.identification.submit_level(sE, trials)
@@ -365,10 +474,18 @@ class MainWindow(QMainWindow):
         self._refresh_schedule()
 
     def _on_run_ended(self, summary, error) -> None:
+        self._drain()  # everything the engine posted before it ended, first
         self.run_result, self.run_error = summary, error
-        self._poll_engine()
         self._refresh_schedule()
+        self.safety.set_interlock({})  # no session: the lights are not known
+        self.live.readouts.output_off()
         self.setup_panel.new_session()
+        if self._estop_unrecorded:
+            text = (f"E-STOP at {self._estop_unrecorded[11:19]} UTC came as the session was "
+                    "ending: output is off, but the session file does not record it.")
+            self.event_log.append(text)
+            self.safety.show_notice(text)
+            self._estop_unrecorded = ""
         if error is not None:
             self.event_log.append(f"ENGINE STOPPED WITH AN ERROR: {error}")
             self.safety.banner.setText(f"Engine error: {error}. Output is off.")
@@ -386,10 +503,17 @@ class MainWindow(QMainWindow):
             self._switch(Tab.RESULTS)
 
     def _poll_engine(self) -> None:
-        if self.controller.engine is None:
+        """Lights and time left from the engine as it is now (not as notified)."""
+        if self.controller.engine is None or not self.controller.running:
             return
         try:
             self.safety.set_interlock(self.controller.interlock_status())
+            clock = getattr(self.controller.devices, "clock", None)
+            rig_s = float(clock.monotonic_s()) if clock is not None else None
+            in_trial_s = (self.buffer.samples_in_trial / self.buffer.fs_Hz
+                          if self.buffer.trial_index == self.current_index else 0.0)
+            self.schedule_panel.set_clock(rig_s, time.perf_counter(), in_trial_s,
+                                          realtime=bool(getattr(clock, "realtime", True)))
         except Exception:  # a display problem must never stop the GUI
             log.exception("reading the interlock status")
 
@@ -408,6 +532,7 @@ class MainWindow(QMainWindow):
 
     def closeEvent(self, event) -> None:  # noqa: N802
         self.controller.shutdown()
+        self.qc.shutdown()
         self.identification.shutdown()
         self.results.shutdown()
         super().closeEvent(event)

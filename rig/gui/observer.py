@@ -2,14 +2,19 @@
 
 :class:`QtEngineObserver` is the engine's observer. Its methods run in the ENGINE thread,
 so they only (a) copy acquisition chunks into a :class:`~nmsid.rig.gui.live_buffer.LiveBuffer`
-and (b) emit Qt signals of :class:`EngineSignals`, which live in the GUI thread and are
-connected with ``Qt.QueuedConnection``: the slots run later in the GUI thread. Nothing
-here touches a widget or waits for the GUI.
+and (b) post the other notifications, in order, to a :class:`Mailbox`. When the mailbox
+goes from empty to not empty it emits :attr:`EngineSignals.notified` (a queued
+connection); the window then takes everything posted so far in one step and shows the
+latest state. However fast the engine runs (the simulator's fast clock), the GUI thread
+handles one batch per wake-up instead of one queued call per notification, so the display
+never falls behind: plot frames and samples are dropped, notifications never are.
+Nothing here touches a widget or waits for the GUI.
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 
 from PySide6.QtCore import QObject, Signal
 
@@ -24,19 +29,49 @@ log = logging.getLogger(__name__)
 class EngineSignals(QObject):
     """Qt signals carrying engine notifications into the GUI thread."""
 
-    state_changed = Signal(object, object, str)      # old, new, reason
-    event_logged = Signal(object)   # protocols.session_file.Event-like (not `event`: QObject's)
-    calibration_step = Signal(str, float, float)     # muscle, current_mA, force_N
-    calibration_result = Signal(object)              # Calibration
-    trial_started = Signal(int, object)              # schedule index, PlannedTrial
-    trial_finished = Signal(int, object)             # schedule index, Trial
-    level_completed = Signal(float, object)          # sE, list[Trial]
-    finished = Signal(str)                           # session file path
+    notified = Signal()                              # the mailbox has something new
     run_ended = Signal(object, object)               # RunSummary or None, exception or None
 
 
+class Mailbox:
+    """The engine's notifications in order, for the GUI thread to take in batches.
+
+    Each item is ``(name, args)``, ``name`` one of ``state``, ``event``,
+    ``calibration_step``, ``calibration_result``, ``trial_started``, ``trial_finished``,
+    ``level_completed``, ``finished``.
+
+    Examples
+    --------
+    >>> box = Mailbox()
+    >>> box.put("state", ("armed", "stimulating", "")), box.put("event", ("e",))
+    (True, False)
+    >>> [name for name, _ in box.take()], box.take()
+    (['state', 'event'], [])
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._items: list[tuple[str, tuple]] = []
+        self.n_posted = 0
+        """Notifications posted since construction."""
+
+    def put(self, name: str, args: tuple) -> bool:
+        """Post one notification (any thread); True if the mailbox was empty."""
+        with self._lock:
+            was_empty = not self._items
+            self._items.append((name, args))
+            self.n_posted += 1
+        return was_empty
+
+    def take(self) -> list[tuple[str, tuple]]:
+        """Everything posted so far, oldest first (GUI thread)."""
+        with self._lock:
+            items, self._items = self._items, []
+        return items
+
+
 class QtEngineObserver(EngineObserver):
-    """Engine observer that only enqueues: chunk data to a buffer, the rest as signals.
+    """Engine observer that only enqueues: chunk data to a buffer, the rest to a mailbox.
 
     Parameters
     ----------
@@ -44,28 +79,36 @@ class QtEngineObserver(EngineObserver):
         Created in the GUI thread; its receivers use queued connections.
     buffer : LiveBuffer
         Filled with every chunk of the running trial.
+    mailbox : Mailbox, optional
+        Where the notifications go (default: a new one, ``self.mailbox``).
     """
 
-    def __init__(self, signals: EngineSignals, buffer: LiveBuffer):
+    def __init__(self, signals: EngineSignals, buffer: LiveBuffer,
+                 mailbox: Mailbox | None = None):
         self.signals = signals
         self.buffer = buffer
+        self.mailbox = mailbox if mailbox is not None else Mailbox()
+
+    def _post(self, name: str, *args) -> None:
+        if self.mailbox.put(name, args):
+            self.signals.notified.emit()
 
     def on_state(self, old, new, reason="") -> None:
-        self.signals.state_changed.emit(old, new, str(reason or ""))
+        self._post("state", old, new, str(reason or ""))
 
     def on_event(self, event) -> None:
-        self.signals.event_logged.emit(event)
+        self._post("event", event)
 
     def on_calibration_step(self, muscle, current_mA, force_N) -> None:
-        self.signals.calibration_step.emit(str(getattr(muscle, "value", muscle)),
-                                           float(current_mA), float(force_N))
+        self._post("calibration_step", str(getattr(muscle, "value", muscle)),
+                   float(current_mA), float(force_N))
 
     def on_calibration_result(self, calibration) -> None:
-        self.signals.calibration_result.emit(calibration)
+        self._post("calibration_result", calibration)
 
     def on_trial_started(self, index, planned) -> None:
         self.buffer.start_trial(index)
-        self.signals.trial_started.emit(int(index), planned)
+        self._post("trial_started", int(index), planned)
 
     def on_chunk(self, index, start_index, force_N, rE, I_ext_mA, I_flex_mA) -> None:
         self.buffer.append(index, start_index, force_N, rE, I_ext_mA, I_flex_mA)
@@ -74,10 +117,10 @@ class QtEngineObserver(EngineObserver):
         self.buffer.set_target(index, start_index, target_N)
 
     def on_trial_finished(self, index, trial) -> None:
-        self.signals.trial_finished.emit(int(index), trial)
+        self._post("trial_finished", int(index), trial)
 
     def on_level_completed(self, sE, trials) -> None:
-        self.signals.level_completed.emit(float(sE), list(trials))
+        self._post("level_completed", float(sE), list(trials))
 
     def on_finished(self, path) -> None:
-        self.signals.finished.emit(str(path))
+        self._post("finished", str(path))

@@ -91,6 +91,8 @@ class SelectionView:
     note: str = ""
     tables_text: str = ""
     """The analysis' tables as text (the paper's Tables 1-9 for this session)."""
+    problems: list[str] = field(default_factory=list)
+    """What the analysis could not do or explain (also in ``problems.txt``), shown in full."""
 
 
 class _Relay(QObject):
@@ -128,6 +130,12 @@ class ResultsPanel(QWidget):
         self.table.setFocusPolicy(Qt.FocusPolicy.NoFocus)
         self.table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.Stretch)
         self.table.setMaximumHeight(130)
+        self.problems = QPlainTextEdit()
+        self.problems.setObjectName("problems")
+        self.problems.setReadOnly(True)
+        self.problems.setMaximumHeight(110)
+        self.problems.setStyleSheet(f"color: {Colour.FAULT}; font-size: 11px;")
+        self.problems.setVisible(False)
         self.graphics = pg.GraphicsLayoutWidget()
         self.graphics.setBackground("w")
         self.plots: dict[str, pg.PlotItem] = {}
@@ -141,6 +149,7 @@ class ResultsPanel(QWidget):
         lay = QVBoxLayout(self)
         lay.setContentsMargins(0, 0, 0, 0)
         lay.addWidget(self.status)
+        lay.addWidget(self.problems)
         lay.addWidget(self.table)
         lay.addWidget(self.views, 1)
 
@@ -150,6 +159,8 @@ class ResultsPanel(QWidget):
         self.error = ""
         self.saved = []
         self.table.setRowCount(0)
+        self.problems.setPlainText("")
+        self.problems.setVisible(False)
         self.tables_text.setPlainText("")
         self.graphics.clear()
         self.plots = {}
@@ -194,14 +205,18 @@ class ResultsPanel(QWidget):
                 self.error = f"could not save the results: {exc}"
                 log.error(self.error)
         names = ", ".join(p.name for p in self.saved)
+        n = len(view.problems)
         self.status.setText(
             (view.note + "  " if view.note else "")
+            + (f"{n} problem(s), listed below (also in problems.txt).  " if n else "")
             + (f"Saved beside the session file: {names}" if names else ""))
 
     def show_view(self, view: SelectionView) -> None:
         """Fill the table and draw the figures."""
         self.view = view
         self.tables_text.setPlainText(view.tables_text)
+        self.problems.setPlainText("\n".join(f"- {p}" for p in view.problems))
+        self.problems.setVisible(bool(view.problems))
         self.table.setRowCount(len(view.parameters))
         self.graphics.clear()
         self.plots = {}

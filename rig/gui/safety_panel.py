@@ -3,7 +3,11 @@
 The E-STOP button is never disabled and calls its handler directly (the engine's
 ``estop`` is thread-safe and returns at once); Space and Escape are bound to it by
 :func:`install_estop_shortcuts`. After a trip, the banner shows the reason and the
-interlock stays latched until the operator presses RE-ARM.
+interlock stays latched until the operator presses RE-ARM. RE-ARM clears the latch only
+(LabVIEW's "clear latch"); the engine then holds, output off, until CONTINUE starts the
+next trial. The strip also carries the large readouts of the commanded currents and the
+force (:class:`nmsid.rig.gui.live_plots.Readouts`) and a notice line for an E-stop that
+nothing could record.
 """
 
 from __future__ import annotations
@@ -89,21 +93,37 @@ class SafetyPanel(QFrame):
     ----------
     on_estop, on_rearm : callable
         Called (in the GUI thread) when the operator presses the button.
+    on_continue : callable, optional
+        Called when the operator presses CONTINUE (after a re-arm or a pause).
     """
 
     def __init__(self, on_estop: Callable[[], None], on_rearm: Callable[[], None],
+                 on_continue: Callable[[], None] | None = None,
                  parent: QWidget | None = None):
         super().__init__(parent)
         self.setFrameShape(QFrame.Shape.StyledPanel)
         self.estop_button = EStopButton()
         self.estop_button.clicked.connect(on_estop)
         self.rearm_button = QPushButton("RE-ARM")
-        self.rearm_button.setToolTip("Release the latched interlock after a trip; "
-                                     "stimulation stays off until you press this.")
+        self.rearm_button.setToolTip("Clear the latched interlock after a trip (only "
+                                     "that: stimulation stays off until CONTINUE).")
         self.rearm_button.setMinimumHeight(40)
         self.rearm_button.setFocusPolicy(Qt.FocusPolicy.NoFocus)
         self.rearm_button.setEnabled(False)
         self.rearm_button.clicked.connect(on_rearm)
+        self.continue_button = QPushButton("CONTINUE")
+        self.continue_button.setToolTip("Start the next trial (after a re-arm or a pause)")
+        self.continue_button.setMinimumHeight(40)
+        self.continue_button.setFocusPolicy(Qt.FocusPolicy.NoFocus)
+        self.continue_button.setEnabled(False)
+        if on_continue is not None:
+            self.continue_button.clicked.connect(on_continue)
+        self.notice = QLabel("")
+        self.notice.setWordWrap(True)
+        self.notice.setObjectName("notice")
+        self.notice.setStyleSheet(f"background: {Colour.WARN}; color: white; "
+                                  "font-weight: bold; padding: 6px;")
+        self.notice.setVisible(False)
         self.state_label = QLabel("IDLE")
         self.state_label.setObjectName("state")
         self.state_label.setAlignment(Qt.AlignmentFlag.AlignCenter)
@@ -130,10 +150,13 @@ class SafetyPanel(QFrame):
         top.addLayout(self._lights_box)
         top.addStretch(1)
         top.addWidget(self.rearm_button)
+        top.addWidget(self.continue_button)
         left.addLayout(top)
         left.addWidget(self.banner)
+        left.addWidget(self.notice)
         left.addWidget(self.weakened)
         lay = QHBoxLayout(self)
+        self._body = lay
         lay.addLayout(left, 1)
         lay.addWidget(self.estop_button)
         self.set_state("idle")
@@ -144,20 +167,42 @@ class SafetyPanel(QFrame):
         self._lights_box.addWidget(light)
         return light
 
-    def set_state(self, state: str, reason: str = "") -> None:
-        """Show the engine state; a trip shows the banner and enables RE-ARM."""
+    def add_readouts(self, widget: QWidget) -> None:
+        """Put the large numeric readouts between the lights and the E-STOP button."""
+        self._body.insertWidget(1, widget)
+
+    def show_notice(self, text: str) -> None:
+        """A message that stays until the next session (e.g. an E-stop nothing recorded)."""
+        self.notice.setText(text)
+        self.notice.setVisible(True)
+
+    def clear_notice(self) -> None:
+        self.notice.setText("")
+        self.notice.setVisible(False)
+
+    def set_state(self, state: str, reason: str = "", held: bool = False) -> None:
+        """Show the engine state; a trip shows the banner and enables RE-ARM. ``held``:
+        the engine holds in ``paused`` after a re-arm (CONTINUE starts the next trial)."""
         colour = Colour.STATE.get(state, Colour.UNKNOWN)
-        self.state_label.setText(state.upper())
-        self.state_label.setStyleSheet(
-            f"background: {colour}; color: white; font-size: 18px; font-weight: bold;"
-            " padding: 6px; border-radius: 6px;")
+        self.state_label.setText("RE-ARMED" if held else state.upper())
+        style = (f"background: {colour}; color: white; font-size: 18px; font-weight: bold;"
+                 " padding: 6px; border-radius: 6px;")
+        if self.state_label.styleSheet() != style:  # a restyle costs; states repeat colours
+            self.state_label.setStyleSheet(style)
         tripped = state == "tripped"
         self.rearm_button.setEnabled(tripped)
+        self.continue_button.setEnabled(state == "paused" and not is_rerun_wait(state, reason))
         if tripped:
             self.banner.setText(f"INTERLOCK TRIPPED: {reason or 'no reason given'}. "
                                 "Stimulation is off. Check the participant and the rig, "
-                                "then press RE-ARM.")
+                                "then press RE-ARM (clears the latch only).")
             self.banner.setStyleSheet(f"background: {Colour.FAULT}; color: white; "
+                                      "font-weight: bold; padding: 6px;")
+            self.banner.setVisible(True)
+        elif held:
+            self.banner.setText("Latch cleared. Stimulation stays off: press CONTINUE to "
+                                "start the next trial.")
+            self.banner.setStyleSheet(f"background: {Colour.OK}; color: white; "
                                       "font-weight: bold; padding: 6px;")
             self.banner.setVisible(True)
         elif is_rerun_wait(state, reason):
@@ -167,7 +212,8 @@ class SafetyPanel(QFrame):
             self.banner.setStyleSheet(f"background: {Colour.WARN}; color: white; "
                                       "font-weight: bold; padding: 6px;")
             self.banner.setVisible(True)
-        elif state in ("armed", "stimulating", "resting", "calibrating", "finished"):
+        elif state in ("armed", "stimulating", "resting", "calibrating", "finished",
+                       "paused"):
             self.banner.setVisible(False)
 
     def set_weakened(self, settings: list[str]) -> None:
@@ -177,7 +223,12 @@ class SafetyPanel(QFrame):
         self.weakened.setVisible(bool(settings))
 
     def set_interlock(self, status: dict) -> None:
-        """Update the lights from ``engine.interlock_status()`` (rule -> (ok, detail))."""
+        """Update the lights from ``engine.interlock_status()`` (rule -> (ok, detail));
+        an empty ``status`` (no session running) greys them all."""
+        if not status:
+            for light in self.lights.values():
+                light.set_state(None, "no session running")
+            return
         seen = set()
         for rule, value in status.items():
             try:

@@ -1,13 +1,17 @@
 """Schedule panel: every planned trial with its status, progress and time left.
 
-The table shows one row per planned trial (order of the schedule): sE, repeat, status
+The table shows one row per planned trial (order of the schedule): the trial's name in
+the session file (``t001``, ...; a re-run row shows each attempt), sE, repeat, status
 (pending / running / done / aborted) and the abort reason. The running trial is
 highlighted and kept in view. Under the table: a progress bar (trials done / total), the
-estimated time left, and the Pause / Resume / Skip / Re-run controls.
+time left on the rig's own clock (the simulator's virtual clock in fast mode), and the
+Pause / Resume / Skip / Re-run controls.
 """
 
 from __future__ import annotations
 
+import collections
+import re
 from typing import Callable, Sequence
 
 from PySide6.QtCore import Qt, QTimer
@@ -19,7 +23,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLab
 from nmsid.rig.gui.theme import Colour
 from nmsid.rig.observer import is_rerun_wait
 
-COLUMNS = ("#", "sE", "repeat", "status", "runs", "reason", "QC")
+COLUMNS = ("trial", "sE", "repeat", "status", "runs", "reason", "QC")
 QC_COLOURS = {"used": "#d8f3dc", "repaired": "#fff3b0", "excluded": "#ffb3b3"}
 END_TEXT = "End session"
 #: The second click of End session must come within this time, ms.
@@ -43,6 +47,85 @@ def planned_fields(planned) -> tuple[float, int, str, str]:
 def planned_attempts(planned) -> int:
     """How many times the trial was started (re-runs count)."""
     return int(getattr(planned, "attempts", 0) or 0)
+
+
+class TrialNames:
+    """The session file's names of the trials (``t001``, ...), per schedule row.
+
+    The engine writes every trial it starts (completed or aborted) as the next ``tNNN``;
+    the name is predicted when a trial starts and taken from the written trial when it
+    ends.
+
+    Examples
+    --------
+    >>> names = TrialNames()
+    >>> names.started(4), names.started(0), names.finished(0, "t002"), names.text(0)
+    ('t001', 't002', 't002', 't002')
+    """
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self, trials: Sequence[tuple[int, str]] = ()) -> None:
+        """Start a session; ``trials``: (schedule index, name) of those already in its file."""
+        self.by_index: dict[int, list[str]] = {}
+        self.count = 0
+        for index, name in trials:
+            self.by_index.setdefault(int(index), []).append(name)
+            self._seen(name)
+
+    def _seen(self, name: str) -> None:
+        m = re.fullmatch(r"t(\d+)", name)
+        if m:
+            self.count = max(self.count, int(m.group(1)))
+
+    def started(self, index: int) -> str:
+        """The name the trial starting now gets in the file."""
+        self.count += 1
+        name = f"t{self.count:03d}"
+        self.by_index.setdefault(int(index), []).append(name)
+        return name
+
+    def finished(self, index: int, name: str) -> str:
+        """The written trial's name (``name`` from the file; '' keeps the prediction)."""
+        names = self.by_index.setdefault(int(index), [])
+        if re.fullmatch(r"t\d+", name or ""):
+            if names:
+                names[-1] = name
+            else:
+                names.append(name)
+            self._seen(name)
+        return self.latest(index)
+
+    def latest(self, index: int) -> str:
+        """The row's last attempt's name (``#<row>`` if it never ran)."""
+        names = self.by_index.get(int(index))
+        return names[-1] if names else f"#{int(index) + 1}"
+
+    def text(self, index: int) -> str:
+        """Every attempt's name, oldest first (``t003, t007``)."""
+        return ", ".join(self.by_index.get(int(index), []))
+
+
+def time_left_s(statuses: Sequence[str], trial_s: float, rest_s: float,
+                in_trial_s: float = 0.0) -> float:
+    """Seconds left on the rig's clock: the rest of the running trial, each pending trial
+    and the rests between them.
+
+    Examples
+    --------
+    >>> time_left_s(["done", "running", "pending"], trial_s=15.0, rest_s=60.0, in_trial_s=5.0)
+    80.0
+    """
+    running = sum(st == "running" for st in statuses)
+    pending = sum(st == "pending" for st in statuses)
+    rests = pending if running else max(0, pending - 1)
+    return (pending * trial_s + running * max(0.0, trial_s - in_trial_s)
+            + rests * rest_s)
+
+
+#: The rig clock's pace is measured over this much wall time, s.
+PACE_WINDOW_S = 5.0
 
 
 def format_duration(seconds: float) -> str:
@@ -84,6 +167,14 @@ class SchedulePanel(QWidget):
         self.rest_s = 60.0
         self.current_index = -1
         self.statuses: list[str] = []
+        self.names = TrialNames()
+        self._rows_shown: dict[int, tuple] = {}
+        """Row -> what it shows now (rows whose content did not change are not touched)."""
+        self._scrolled_to = -1
+        self.in_trial_s = 0.0
+        self.realtime = True
+        self._clock: collections.deque[tuple[float, float]] = collections.deque()
+        """(wall s, rig clock s) readings of the last ``PACE_WINDOW_S``."""
         self.waiting_for_rerun = False
         """The engine waits, after the schedule, for a re-run or the end of the session."""
 
@@ -95,8 +186,9 @@ class SchedulePanel(QWidget):
         self.table.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
         self.table.setFocusPolicy(Qt.FocusPolicy.NoFocus)
         hdr = self.table.horizontalHeader()
-        for col in range(len(COLUMNS)):
-            hdr.setSectionResizeMode(col, QHeaderView.ResizeMode.ResizeToContents)
+        for col in range(len(COLUMNS)):  # fitted when a column's text changes (set_schedule):
+            # ResizeToContents re-measured every row on each change, ~30 ms a refresh
+            hdr.setSectionResizeMode(col, QHeaderView.ResizeMode.Interactive)
         hdr.setSectionResizeMode(COLUMNS.index("reason"), QHeaderView.ResizeMode.Stretch)
         self.table.itemSelectionChanged.connect(self._selection_changed)
 
@@ -157,9 +249,11 @@ class SchedulePanel(QWidget):
         attempts = [planned_attempts(p) for p in schedule]
         if self.table.rowCount() != len(rows):
             self.table.setRowCount(len(rows))
+            self._rows_shown = {}
         bold = QFont()
         bold.setBold(True)
         normal = QFont()
+        changed_cols: set[int] = set()
         self.statuses = []
         for i, (sE, repeat, status, reason) in enumerate(rows):
             if i == self.current_index and status == "running":
@@ -169,8 +263,15 @@ class SchedulePanel(QWidget):
             self.statuses.append(shown)
             runs = str(attempts[i]) if attempts[i] else ""
             decision, why = self.qc.get(i, ("", ""))
-            values = (str(i + 1), f"{sE:.2f}", str(repeat), shown, runs, reason,
+            values = (self.names.text(i), f"{sE:.2f}", str(repeat), shown, runs, reason,
                       decision if shown in ("done", "completed") else "")
+            key = (values, why, i == self.current_index)
+            before = self._rows_shown.get(i)
+            if before == key:
+                continue  # a row costs ~1 ms to restyle: only the changed ones
+            if before is None or before[2] != key[2]:  # bold or not: widths change
+                changed_cols.update(range(len(COLUMNS)))
+            self._rows_shown[i] = key
             colour = QColor(Colour.STATUS.get(shown, "#ffffff"))
             for col, text in enumerate(values):
                 item = self.table.item(i, col)
@@ -179,6 +280,7 @@ class SchedulePanel(QWidget):
                     self.table.setItem(i, col, item)
                 if item.text() != text:
                     item.setText(text)
+                    changed_cols.add(col)
                 qc_col = col == COLUMNS.index("QC")
                 item.setBackground(QBrush(QColor(QC_COLOURS.get(text, colour.name()))
                                           if qc_col else colour))
@@ -187,18 +289,59 @@ class SchedulePanel(QWidget):
                     item.setToolTip(reason)
                 elif qc_col:
                     item.setToolTip(why)
+        for col in sorted(changed_cols - {COLUMNS.index("reason")}):
+            self.table.resizeColumnToContents(col)
         done = sum(s in ("done", "completed", "skipped") for s in self.statuses)
         self.progress.setMaximum(max(1, len(rows)))
         self.progress.setValue(done)
-        left = sum(s in ("pending", "running") for s in self.statuses)
-        if rows:
-            self.time_left.setText(
-                f"time left: ~{format_duration(left * self.trial_s + max(0, left - 1) * self.rest_s)}")
+        self._show_time_left()
         item = self.table.item(self.current_index, 0) if 0 <= self.current_index < len(rows) \
             else None
-        if item is not None:
+        if item is not None and self._scrolled_to != self.current_index:
+            self._scrolled_to = self.current_index
             self.table.scrollToItem(item, QAbstractItemView.ScrollHint.EnsureVisible)
         self._selection_changed()
+
+    def reset_session(self, trials: Sequence[tuple[int, str]] = ()) -> None:
+        """A new session: no verdicts, names (``trials``: those already in its file), clock."""
+        self.qc.clear()
+        self.names.reset(trials)
+        self._rows_shown = {}
+        self._scrolled_to = -1
+        self._clock.clear()
+        self.in_trial_s, self.realtime = 0.0, True
+
+    def set_clock(self, rig_s: float | None, wall_s: float, in_trial_s: float,
+                  realtime: bool = True) -> None:
+        """The rig clock read now (``rig_s``, s; None: no clock) at wall time ``wall_s``,
+        and how far the running trial is (s on the rig's clock). With a clock that is not
+        real time (the simulator's fast clock) the label also gives the wall time left at
+        the pace measured over the last ``PACE_WINDOW_S``."""
+        self.in_trial_s, self.realtime = float(in_trial_s), bool(realtime)
+        if rig_s is not None:
+            self._clock.append((float(wall_s), float(rig_s)))
+            while len(self._clock) > 2 and self._clock[0][0] < wall_s - PACE_WINDOW_S:
+                self._clock.popleft()
+        self._show_time_left()
+
+    def pace(self) -> float | None:
+        """Rig-clock seconds per wall second lately (None: not measured yet)."""
+        if len(self._clock) < 2:
+            return None
+        (w0, r0), (w1, r1) = self._clock[0], self._clock[-1]
+        return (r1 - r0) / (w1 - w0) if w1 - w0 > 0.2 else None
+
+    def _show_time_left(self) -> None:
+        if not self.statuses:
+            return
+        left = time_left_s(self.statuses, self.trial_s, self.rest_s, self.in_trial_s)
+        text = f"time left: ~{format_duration(left)}"
+        if not self.realtime:
+            pace = self.pace()
+            text += " on the rig's clock (fast clock" + (
+                f", {pace:.0f}x real time: ~{format_duration(left / pace)} wall)"
+                if pace is not None and pace > 0 else ")")
+        self.time_left.setText(text)
 
     def set_state(self, state: str, reason: str = "") -> None:
         """Enable the controls that make sense in the engine state. In the engine's wait

@@ -10,7 +10,8 @@ A script is one command per line (``#`` starts a comment; arguments are shell-qu
     wait tripped                       # engine state
     wait-aborted                       # some trial is recorded as aborted
     rerun                              # the first aborted trial, if any (or: rerun 1)
-    rearm
+    rearm                              # clear the latch only (the engine holds)
+    continue                           # start the next trial
     end-session                        # end early (the file can be resumed later)
     note "electrode re-taped"
     wait-finished                      # session over and results shown
@@ -57,6 +58,7 @@ class Command(enum.Enum):
     SLEEP = "sleep"
     ESTOP = "estop"
     REARM = "rearm"
+    CONTINUE = "continue"
     PAUSE = "pause"
     RESUME = "resume"
     SKIP = "skip"
@@ -84,6 +86,8 @@ sleep 0.5
 note "demo: E-stop pressed; participant fine; re-running the aborted trial and re-arming"
 rerun
 rearm
+wait paused
+continue
 wait-finished
 tab live
 """
@@ -356,6 +360,8 @@ class ScriptRunner(QObject):
             w.press_estop()
         elif c is Command.REARM:
             w.rearm()
+        elif c is Command.CONTINUE:
+            w.continue_session()
         elif c is Command.PAUSE:
             w.pause()
         elif c is Command.RESUME:

@@ -24,7 +24,7 @@ from nmsid.protocols.user_values import one_line
 from nmsid.rig.engine import Engine
 from nmsid.rig.observer import RunSummary
 from nmsid.rig.gui.live_buffer import LiveBuffer
-from nmsid.rig.gui.observer import EngineSignals, QtEngineObserver
+from nmsid.rig.gui.observer import EngineSignals, Mailbox, QtEngineObserver
 from nmsid.rig.gui.setup_panel import Backend, SessionRequest
 from nmsid.rig.session_service import PreparedRig, RigRequest, prepare_rig, stored_session
 
@@ -111,6 +111,8 @@ class SessionController(QObject):
         """The thread running ``engine.run()`` (not ``thread``: QObject.thread() is Qt's)."""
         self.summary: RunSummary | None = None
         self.error: BaseException | None = None
+        self.mailbox = Mailbox()
+        """The engine's notifications (the window takes them in batches)."""
         self._relay = _RunRelay()
         self._relay.run_ended.connect(self.signals.run_ended,
                                       Qt.ConnectionType.QueuedConnection)
@@ -135,7 +137,7 @@ class SessionController(QObject):
         cfg = config if config is not None else load_session_config(request)
         self.config = cfg
         self.buffer.fs_Hz = float(cfg.protocol.fs_Hz)
-        self.observer = QtEngineObserver(self.signals, self.buffer)
+        self.observer = QtEngineObserver(self.signals, self.buffer, self.mailbox)
         extra: dict = {}
         if self.devices_factory is default_devices:   # the session service, as the CLI
             rig = self.prepare(request, cfg)
@@ -201,12 +203,22 @@ class SessionController(QObject):
 
     # -- operator commands (GUI thread; each returns at once) --------------------------
     def estop(self, reason: str = "operator E-stop (GUI)") -> bool:
-        """E-stop the engine (output to zero in this thread, latch); with no engine,
-        make sure the stimulator is off. Never raises: if the engine's E-stop failed,
-        the stimulator is stopped directly."""
-        if self.engine is not None:
+        """E-stop the running engine (output to zero in this thread, latch; the engine
+        writes the trip to the file at its next check). Never raises: if the engine's
+        E-stop failed, the stimulator is stopped directly.
+
+        Returns
+        -------
+        bool
+            True if a running engine took the E-stop; False if no session is running (its
+            file is closed or there is none: nothing can record it, and nothing latches;
+            the stimulator is told to stop anyway if its devices are still open).
+        """
+        engine = self.engine
+        running = engine is not None and self.running
+        if engine is not None and running:
             try:
-                self.engine.estop(reason)
+                engine.estop(reason)
                 return True
             except Exception:
                 log.exception("engine.estop failed; stopping the stimulator directly")
@@ -215,7 +227,7 @@ class SessionController(QObject):
                 self.devices.stimulator.stop_now()
             except Exception:
                 log.exception("stimulator.stop_now failed")
-        return self.engine is not None
+        return running
 
     def _call(self, name: str, *args) -> None:
         if self.engine is None:
@@ -223,7 +235,16 @@ class SessionController(QObject):
         getattr(self.engine, name)(*args)
 
     def rearm(self) -> None:
+        """Clear the latch only (LabVIEW's "clear latch"): the engine is asked to hold
+        (``pause``) before it re-arms, so after the re-arm it waits in ``paused``, output
+        off, until :meth:`continue_session` (the engine's own ``rearm`` would go on with
+        the next trial at once)."""
+        self._call("pause")
         self._call("rearm")
+
+    def continue_session(self) -> None:
+        """Go on after a re-arm (or a pause): the next trial starts."""
+        self._call("resume")
 
     def pause(self) -> None:
         self._call("pause")

@@ -2,7 +2,7 @@
 
 ``EngineSignals.event`` (a Signal) hid ``QObject.event()``, the handler Qt calls for every
 event, and ``SessionController.thread`` (the engine's worker) hid ``QObject.thread()``;
-they are ``event_logged`` and ``worker``.
+they were renamed ``event_logged`` (now a mailbox behind ``notified``) and ``worker``.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ QOBJECT_NAMES = {n for n in dir(QObject) if not n.startswith("__")} - QT_COPIES
 
 def test_engine_signals_do_not_shadow_qobject_methods():
     own = {n for n in vars(EngineSignals) if not n.startswith("__")}
-    assert "event_logged" in own
+    assert "notified" in own
     assert not own & QOBJECT_NAMES
 
 

@@ -55,11 +55,19 @@ def test_complete_session_with_estop_rearm_rerun(sim_window, qtbot, tmp_path):
     assert len(rig.run_records) == n_runs and w.state is State.TRIPPED
     w.add_note("E-stop test: participant fine")
 
-    # -- re-arm, re-run the aborted trial, finish
+    # -- re-arm clears the latch only; re-run the aborted trial; CONTINUE goes on
+    assert not w.safety.continue_button.isEnabled()
     w.safety.rearm_button.click()
-    qtbot.waitUntil(lambda: w.state is not State.TRIPPED, timeout=5000)
+    qtbot.waitUntil(lambda: w.state is State.PAUSED, timeout=5000)
+    assert not engine.interlock.latched
+    assert w.safety.state_label.text() == "RE-ARMED"
+    assert "CONTINUE" in w.safety.banner.text() and w.safety.continue_button.isEnabled()
+    qtbot.waitUntil(lambda: w.safety.lights["Interlock latch"].ok is True, timeout=5000)
+    qtbot.wait(400)  # re-armed, not continued: nothing is stimulated
+    assert len(rig.run_records) == n_runs and w.state is State.PAUSED
     qtbot.waitUntil(lambda: w.schedule_panel.rerun_button.isEnabled(), timeout=5000)
     w.schedule_panel.rerun_button.click()
+    w.safety.continue_button.click()
     qtbot.waitUntil(lambda: w.run_result is not None or w.run_error is not None,
                     timeout=60000)
     assert w.run_error is None
@@ -164,8 +172,10 @@ def test_fault_trip_then_model_selection_on_the_fast_clock(fast_sim_window, qtbo
     assert not w.rigs[0].stimulator.status().output_active
     qtbot.wait(200)
     assert w.state is State.TRIPPED  # latched: the fast clock does not run on
-    w.rerun(1)  # queue the re-run, then re-arm
+    w.rerun(1)  # queue the re-run, then re-arm and continue
     w.rearm()
+    qtbot.waitUntil(lambda: w.safety.continue_button.isEnabled(), timeout=30000)
+    w.continue_session()
     qtbot.waitUntil(lambda: w.run_result is not None, timeout=60000)
     assert w.run_error is None and w.run_result.complete
     qtbot.waitUntil(lambda: w.identification.pending == 0 and not w.results.busy,
