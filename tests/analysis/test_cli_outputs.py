@@ -87,8 +87,14 @@ def test_identify_out_refused_then_forced_and_a_repeated_file_counts_once(
     (out / "mine.txt").write_text("user's")
     assert main(["identify", str(path), "--out", str(out), "--no-figures"]) == 2
     assert "give --force" in _one_line(capsys) and (out / "mine.txt").exists()
+    # issue 39: --force replaces only what nmsid wrote; the user's file stays
+    assert main(["identify", str(path), "--out", str(out), "--no-figures", "--force"]) == 2
+    assert "mine.txt, which nmsid did not write" in _one_line(capsys)
+    assert (out / "mine.txt").read_text() == "user's"
+    (out / "mine.txt").unlink()
+    (out / "parameters.csv").write_text("old")
     assert main(["identify", str(path), "--out", str(out), "--no-figures", "--force"]) == 0
-    assert not (out / "mine.txt").exists() and (out / "parameters.csv").exists()
+    assert (out / "parameters.csv").read_text() != "old"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".nmsid-tmp")]
     # an output folder holding a session file is never replaced
     assert main(["identify", str(path), "--out", str(path.parent), "--force"]) == 2
