@@ -133,18 +133,21 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         extra={"sources": [r.source for r in results]}))
 
     twins: dict[str, Twin] = {}
-    group = len(results) > 1
+    by_code = sessions_by_participant(results)
+    group = len(by_code) > 1
     baselines = {}
-    for label, res in zip(selection.participants, results):
-        vals = [lv.data.baseline_N for lv in res.levels if lv.data is not None]
-        baselines[label] = float(np.nanmean(vals)) if vals and np.any(np.isfinite(vals)) \
+    for code, own in by_code.items():
+        vals = [lv.data.baseline_N for r in own for lv in r.levels if lv.data is not None]
+        baselines[code] = float(np.nanmean(vals)) if vals and np.any(np.isfinite(vals)) \
             else 0.0
-    targets = [(label, res) for label, res in zip(selection.participants, results)]
-    for label, res in targets:
+    for code, own in by_code.items():
+        calibration, note = _participant_calibration(code, own)
+        if note:
+            problems.append(note)
         try:
-            twins[label] = twin_from_selection(selection, label, baseline_N=baselines[label],
-                                               calibration=res.calibration,
-                                               source=[sources(res.source)])
+            twins[code] = twin_from_selection(selection, code, baseline_N=baselines[code],
+                                              calibration=calibration,
+                                              source=[sources(r.source) for r in own])
         except IdentificationError as exc:
             problems.append(f"twin not written: {exc}")
     if group:
@@ -174,12 +177,34 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         # imported here: a run without figures (`nmsid identify --no-figures`) never
         # loads the drawing code
         from nmsid.analysis.figures import plot_level_fits, plot_parameter_curves
-        for label, res in zip(selection.participants, results):
-            files.append(plot_level_fits(res, out / f"fit_{_safe_name(label)}.png"))
+        for code, own in by_code.items():
+            for res in own:
+                name = code if len(own) == 1 else f"{code}_{Path(_label(res.source)).stem}"
+                files.append(plot_level_fits(res, out / f"fit_{_safe_name(name)}.png"))
         for name in PARAMETER_NAMES:
             files.append(plot_parameter_curves(selection, name, out / f"figure_{name}.png",
                                                AVERAGE_LABEL))
     return RunOutputs(results, selection, files, problems, twins, text)
+
+
+def sessions_by_participant(results: list[SessionResult]) -> dict[str, list[SessionResult]]:
+    """The identified sessions of each participant code, codes in order of first
+    appearance (the order of ``select_models``' participants: one participant per code)."""
+    by_code: dict[str, list[SessionResult]] = {}
+    for r in results:
+        by_code.setdefault(r.participant, []).append(r)
+    return by_code
+
+
+def _participant_calibration(code: str, own: list[SessionResult]) -> tuple[dict, str]:
+    """The calibration a participant's twin carries: its last session's (the sessions in
+    the order given), with a note when its sessions were calibrated differently."""
+    calibration = dict(own[-1].calibration or {})
+    others = [r for r in own[:-1] if dict(r.calibration or {}) != calibration]
+    if not others:
+        return calibration, ""
+    return calibration, (f"{code}: {len(own)} sessions with different calibrations; the twin "
+                         f"carries the last one's ({Path(_label(own[-1].source)).name})")
 
 
 def _save_twin(twin: Twin, path: Path, problems: list[str]) -> bool:

@@ -66,6 +66,9 @@ def run(args) -> int:
             "confirm_weakened_safety": getattr(args, "allow_weakened_safety", False)})
         if args.participant_model:
             config = config.replace(participant_model=args.participant_model)
+            if args.participant_model == "musculoskeletal" and not args.participant \
+                    and not args.config:  # issue 39: not the template's P01 under its name
+                config = config.replace(participant="MSK01")
         outdir = Path(args.outdir) if args.outdir else default_sessions_dir()
         path = Path(args.out) if args.out else _free_path(outdir, config.participant)
         # a taken, dangling or unwritable --out is refused before any device is touched

@@ -20,9 +20,18 @@ from nmsid.analysis.design.report import write_outputs
 from nmsid.analysis.design.search import DEFAULT_TOLERANCE, design, parse_target
 from nmsid.analysis.design.validate import (ProtocolOutcome, ValidatedRatio,
                                            alternative_scatter, run_protocol, validated_ratio)
+from nmsid.sim_backends.participant import ReferenceCalibration
 from nmsid.sim_backends.population import make_population
 from nmsid.sim_backends.sensor import SensorModel
-from nmsid.sim_backends.twin import participant_from_twin
+from nmsid.sim_backends.twin import load_twin, participant_from_twin
+
+#: Calibration currents of a twin's simulated participant when the twin carries none (a
+#: group average of ``nmsid identify``: its participants' calibrations differ): those of
+#: the default virtual participant. The validation simulates force from rE and sE, the
+#: coordinates the twin is written in; with the twin's linear recruitment the currents
+#: change no force, only the labels of the stimulation summary.
+STAND_IN_CALIBRATION = ReferenceCalibration(2.0, 9.5, 1.5, 8.0)
+_CURRENTS = ("Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA")
 
 #: Seed offset between the prior population and the population the design is validated
 #: on: the protocol is not scored on the participants it was designed for.
@@ -33,10 +42,15 @@ def validation_participants(prior: Prior, n: int, *, twin_path=None, population_
     """Virtual participants to validate on: a fresh population draw, or ``n`` copies of
     the twin's participant (different noise and scatter seeds)."""
     if twin_path is not None:
-        base = participant_from_twin(twin_path, sensor=SensorModel(
+        twin, note = load_twin(twin_path), ""
+        if not all(twin.get("calibration", {}).get(k) is not None for k in _CURRENTS):
+            twin = dict(twin, calibration={k: getattr(STAND_IN_CALIBRATION, k)
+                                           for k in _CURRENTS})
+            note = " (the twin has no calibration, a group average: stand-in currents)"
+        base = participant_from_twin(twin, sensor=SensorModel(
             noise_N=prior.participants[0].noise_N))
         return [dataclasses.replace(base, code=f"{base.code[:58]}-v{k + 1:02d}", seed=k + 1)
-                for k in range(n)], f"twin {twin_path} x {n} seeds"
+                for k in range(n)], f"twin {twin_path} x {n} seeds{note}"
     seed = population_seed + VALIDATION_SEED_OFFSET
     return make_population(n, seed), f"simulator population seed {seed}, n={n}"
 
