@@ -4,6 +4,7 @@ tables and figures in one output folder (what ``nmsid identify`` does).
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import os
@@ -215,6 +216,26 @@ def _save_twin(twin: Twin, path: Path, problems: list[str]) -> bool:
         problems.append(f"twin not written: {exc}")
         return False
     return True
+
+
+def analysis_of(session_path) -> Path | None:
+    """The latest existing ``<stem>-analysis`` (``-analysis-2``, ...) folder beside the
+    session that identified this session alone (the sources its ``model_selection.json``
+    names, by file name: the caller knows no trial was added since), else None."""
+    path = Path(session_path)
+    found = None
+    for k in range(1, 10_000):
+        folder = path.with_name(path.stem + "-analysis" + (f"-{k}" if k > 1 else ""))
+        if not folder.exists():
+            break
+        try:
+            doc = json.loads((folder / "model_selection.json").read_text(encoding="utf-8"))
+            names = [Path(str(src)).name for src in doc["sources"]]
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+        if names == [path.name]:
+            found = folder
+    return found
 
 
 def summary_line(outputs: RunOutputs) -> str:

@@ -123,6 +123,11 @@ def run(args) -> int:
             box["engine"] = engine
             progress.total = len(engine.schedule)
             progress.done = sum(1 for t in engine.schedule if t.status.value == "done")
+            done_before = progress.done
+            if not args.quiet:  # issue 39: a real-time run said nothing for 25 s
+                _print_quietly(f"{path}: {'resuming' if args.resume else 'starting'}: "
+                               f"{progress.done} of {progress.total} trials done; "
+                               f"Ctrl+C stops the session (E-stop)")
             if engine.recovery is not None and engine.recovery.action != "none":
                 print(engine.recovery.summary(), flush=True)
 
@@ -146,7 +151,9 @@ def run(args) -> int:
         # one line on stderr; stdout (maybe a closed terminal after SIGHUP) may fail
         _print_quietly(f"{s.path}: {s.n_completed} completed, {s.n_aborted} aborted, "
                        f"{s.n_pending} not run ({s.ended_by})")
-        print(signals.stderr_line(s.path), file=sys.stderr, flush=True)
+        print(signals.stderr_line(s.path, complete=s.complete,
+                                  file_written=Path(s.path).exists()),
+              file=sys.stderr, flush=True)
         return signals.exit_code
     print(f"{s.path}: {s.n_completed} completed, {s.n_aborted} aborted, {s.n_pending} not run "
           f"({s.ended_by})", flush=True)
@@ -154,7 +161,8 @@ def run(args) -> int:
         print(f"  continue with: nmsid run --backend {args.backend} --resume {s.path}",
               flush=True)
     if not args.no_identify and s.n_completed and track is None:
-        _identify(s.path)
+        # a resume that ran no trial (the session was complete) names the earlier analysis
+        _identify(s.path, reuse=bool(args.resume) and s.n_completed == done_before)
     return run_exit_status(s)
 
 
@@ -215,12 +223,17 @@ def _seed_from_code(code: str) -> int:
     return seed_from_code(code)
 
 
-def _identify(path) -> None:
+def _identify(path, reuse: bool = False) -> None:
     """Run the identification on the new file into ``<file stem>-analysis/`` (or
-    ``-analysis-2``, ... if that exists: an earlier result is never replaced)."""
+    ``-analysis-2``, ... if that exists: an earlier result is never replaced). ``reuse``
+    (a resume that ran no trial): an existing analysis of this file is named instead of
+    repeated (issue 39: each resume of a complete session re-identified)."""
     # lazy: the identification's modules (figures, QC, model selection) cost ~0.4 s of
     # start-up, which a --no-identify or tracking session never uses
-    from nmsid.analysis.run import run_identification, summary_line
+    from nmsid.analysis.run import analysis_of, run_identification, summary_line
+    if reuse and (done := analysis_of(path)) is not None:
+        print(f"identification of this file already in {done}; not repeated", flush=True)
+        return
     out = next(p for k in range(1, 10_000) if not (p := path.with_name(
         path.stem + "-analysis" + (f"-{k}" if k > 1 else ""))).exists())
     with output_dir(out) as tmp:
