@@ -116,3 +116,20 @@ def test_identify_exits_3_when_nothing_was_identified(small_session, tmp_path, c
                  "--no-figures"])
     assert code == EXIT_NOTHING_IDENTIFIED == 3
     assert "no sE level could be identified" in capsys.readouterr().err
+
+
+def test_vv_shows_nmsid_debug_but_not_the_libraries(small_session, tmp_path):
+    """Issue 39: -vv mostly added h5py's DEBUG lines; now only -vvv lets libraries log."""
+    import re
+    import subprocess
+    import sys
+
+    def debug_loggers(flag, out):
+        err = subprocess.run([sys.executable, "-m", "nmsid", flag, "identify",
+                              str(small_session[0]), "--out", str(tmp_path / out),
+                              "--no-figures"], capture_output=True, text=True,
+                             timeout=600).stderr
+        return {m.group(1).split(".")[0] for m in re.finditer(r" DEBUG (\S+):", err)}
+
+    assert "h5py" in debug_loggers("-vvv", "a")      # the libraries do log when asked
+    assert debug_loggers("-vv", "b") <= {"nmsid"}
