@@ -23,6 +23,7 @@ from nmsid.analysis.report import (parameter_table, selection_tables, write_mode
 from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
 from nmsid.analysis.twin import Twin, source_entry, twin_from_selection
 from nmsid.errors import UserError
+from nmsid.progress import Progress
 from nmsid.protocols.session_file import Session
 
 logger = logging.getLogger(__name__)
@@ -75,7 +76,7 @@ class _SourceEntries:
 
 def run_identification(sessions, out_dir: str | os.PathLike,
                        settings: IdentificationSettings | None = None, *,
-                       figures: bool = True) -> RunOutputs:
+                       figures: bool = True, progress: bool = False) -> RunOutputs:
     """Identify one or several sessions and write every output into ``out_dir``.
 
     Parameters
@@ -91,6 +92,9 @@ def run_identification(sessions, out_dir: str | os.PathLike,
     settings : IdentificationSettings, optional
     figures : bool
         Draw the figures (needs matplotlib).
+    progress : bool
+        With several sessions, say on stderr how far the identification is
+        (:mod:`nmsid.progress`).
 
     Returns
     -------
@@ -108,6 +112,8 @@ def run_identification(sessions, out_dir: str | os.PathLike,
     out.mkdir(parents=True, exist_ok=True)
     results: list[SessionResult] = []
     problems: list[str] = []
+    bar = Progress(len(sessions), f"identify: {len(sessions)} sessions", unit="session") \
+        if progress and len(sessions) > 1 else None
     for src in sessions:
         try:
             res = identify_session(src, s)
@@ -117,8 +123,13 @@ def run_identification(sessions, out_dir: str | os.PathLike,
             problems.append((text if text.startswith(name) else f"{name}: {text}")
                             + "; session skipped")
             continue
+        finally:
+            if bar is not None:
+                bar.update()
         results.append(res)
         problems.extend(f"{res.participant}: {p}" for p in res.problems)
+    if bar is not None:
+        bar.close()
     if not results:
         raise IdentificationError("no session could be analysed: " + " | ".join(problems))
     files = [write_parameters_csv(results, out / "parameters.csv")]

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from nmsid.cli.errors import UsageError
 from nmsid.export.nwb import export_nwb, inspect_nwb
+from nmsid.progress import Progress
 from nmsid.protocols.output_paths import check_output, output_dir, output_file
 
 
@@ -35,9 +36,12 @@ def run_nwb(args) -> int:
                              "export them one at a time with their own --out")
         check_output(args.out, force=args.force, kind="folder")
         results = []
-        with output_dir(args.out, force=args.force, command="export nwb") as tmp:
+        with output_dir(args.out, force=args.force, command="export nwb") as tmp, \
+                Progress(len(sessions), f"export nwb: {len(sessions)} sessions",
+                         unit="session") as bar:
             for s, stem in zip(sessions, stems):
                 results.append(_export(args, s, Path(tmp) / f"{stem}.nwb"))
+                bar.update()
         results = [dataclasses.replace(r, path=Path(args.out) / f"{stem}.nwb")
                    for r, stem in zip(results, stems)]
     for result in results:

@@ -62,7 +62,8 @@ def run_identify(args) -> int:
     settings = settings_from_args(args)
     sessions = unique_sessions(args.sessions)
     with output_dir(args.out, force=args.force) as tmp:
-        out = run_identification(sessions, tmp, settings, figures=not args.no_figures)
+        out = run_identification(sessions, tmp, settings, figures=not args.no_figures,
+                                 progress=True)
     print(out.tables_text)
     if out.problems:
         print(f"\n{len(out.problems)} problem(s) (also in {args.out}/problems.txt):")
