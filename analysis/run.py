@@ -145,7 +145,7 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         extra={"sources": [r.source for r in results]}))
 
     twins: dict[str, Twin] = {}
-    by_code = sessions_by_participant(results)
+    by_code = _sessions_by_participant(results)
     group = len(by_code) > 1
     baselines = {}
     for code, own in by_code.items():
@@ -199,7 +199,7 @@ def run_identification(sessions, out_dir: str | os.PathLike,
     return RunOutputs(results, selection, files, problems, twins, text)
 
 
-def sessions_by_participant(results: list[SessionResult]) -> dict[str, list[SessionResult]]:
+def _sessions_by_participant(results: list[SessionResult]) -> dict[str, list[SessionResult]]:
     """The identified sessions of each participant code, codes in order of first
     appearance (the order of ``select_models``' participants: one participant per code)."""
     by_code: dict[str, list[SessionResult]] = {}
