@@ -254,5 +254,7 @@ def summary_line(outputs: RunOutputs) -> str:
     n_ok = sum(1 for r in outputs.sessions for lv in r.levels if lv.fit is not None)
     worst = min((lv.fit.fit_pct for r in outputs.sessions for lv in r.levels
                  if lv.fit is not None and math.isfinite(lv.fit.fit_pct)), default=float("nan"))
-    return (f"{len(outputs.sessions)} session(s), {n_ok}/{n_levels} levels identified, "
+    n_people = len(outputs.selection.participants)
+    return (f"{len(outputs.sessions)} session(s) of {n_people} participant(s), "
+            f"{n_ok}/{n_levels} levels identified, "
             f"lowest fit {worst:.1f} %, {len(outputs.problems)} problem(s)")

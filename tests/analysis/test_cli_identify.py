@@ -117,6 +117,7 @@ def test_two_sessions_of_one_participant_are_one_participant(small_session, seco
                                       sE_levels=[0.3, 0.5, 0.7, 0.9], repeats=2)
     out = tmp_path / "one"
     assert main(["identify", str(path), str(again), "--out", str(out), "--no-figures"]) == 0
+    assert "2 session(s) of 1 participant(s)" in capsys.readouterr().out
     sel = json.loads((out / "model_selection.json").read_text())
     assert sel["participants"] == [truth.participant]
     twin = json.loads((out / "twin.json").read_text())
