@@ -19,7 +19,7 @@ def design(args: argparse.Namespace) -> int:
     twin = Twin.load(args.twin)
     d = design_controller(twin, sE=args.sE, update_Hz=args.update_hz,
                           lambda_s=args.lambda_s, learning_gain=args.learning_gain)
-    with output_dir(args.out, force=args.force) as tmp:
+    with output_dir(args.out, force=args.force, command="control design") as tmp:
         d.save(tmp / "controller.json")
         (tmp / "design.md").write_text(design_report(d), encoding="utf-8")
     lv = min(d.levels, key=lambda x: abs(x.sE - d.sE))
