@@ -224,6 +224,36 @@ class SelectionResult:
         }
 
 
+def merge_sessions(people: list[ParticipantParameters]) -> list[ParticipantParameters]:
+    """One entry per participant code, in order of first appearance.
+
+    Several sessions of one participant (the same code) are one participant: at each sE
+    the parameter is the mean of that participant's sessions that identified it (a level
+    one session lacks is taken from the others), so the person counts once in the group
+    average and in the AICc sums (issue 39: ``P01`` and ``P01#2`` were two people).
+    """
+    by_code: dict[str, list[ParticipantParameters]] = {}
+    for p in people:
+        by_code.setdefault(p.participant, []).append(p)
+    merged = []
+    for code, group in by_code.items():
+        if len(group) == 1:
+            merged.append(group[0])
+            continue
+        grid = sorted({round(float(x), 6) for p in group for x in p.sE})
+        values = {}
+        for name in PARAMETER_NAMES:
+            table = np.full((len(group), len(grid)), np.nan)
+            for i, p in enumerate(group):
+                for x, v in zip(p.sE, p.values[name]):
+                    table[i, grid.index(round(float(x), 6))] = v
+            n = np.sum(np.isfinite(table), axis=0)
+            values[name] = np.where(n > 0, np.nansum(table, axis=0) / np.maximum(n, 1),
+                                    np.nan)
+        merged.append(ParticipantParameters(code, np.array(grid), values))
+    return merged
+
+
 def select_models(participants, settings: IdentificationSettings | None = None
                   ) -> SelectionResult:
     """Model selection for each participant and for the participant average.
@@ -231,7 +261,8 @@ def select_models(participants, settings: IdentificationSettings | None = None
     Parameters
     ----------
     participants : sequence of ParticipantParameters or SessionResult
-        One entry per session (duplicate participant codes get ``#2``, ``#3``...).
+        One entry per session; the sessions of one participant code are one participant
+        (:func:`merge_sessions`).
     settings : IdentificationSettings, optional
 
     Returns
@@ -239,14 +270,9 @@ def select_models(participants, settings: IdentificationSettings | None = None
     SelectionResult
     """
     s = settings or IdentificationSettings()
-    people = [p if isinstance(p, ParticipantParameters) else participant_parameters(p)
-              for p in participants]
-    labels: list[str] = []
-    seen: dict[str, int] = {}
-    for p in people:
-        seen[p.participant] = seen.get(p.participant, 0) + 1
-        labels.append(p.participant if seen[p.participant] == 1
-                      else f"{p.participant}#{seen[p.participant]}")
+    people = merge_sessions([p if isinstance(p, ParticipantParameters)
+                             else participant_parameters(p) for p in participants])
+    labels = [p.participant for p in people]
     comparisons: list[ModelComparison] = []
     problems: list[str] = []
     grid = sorted({round(float(x), 6) for p in people for x in p.sE})

@@ -4,6 +4,7 @@ tables and figures in one output folder (what ``nmsid identify`` does).
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import os
@@ -23,6 +24,7 @@ from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
 from nmsid.analysis.twin import Twin, source_entry, twin_from_selection
 from nmsid.errors import UserError
 from nmsid.protocols.reprs import counted, html_repr, names, short_repr, to_dataframe
+from nmsid.progress import Progress
 from nmsid.protocols.session_file import Session
 
 logger = logging.getLogger(__name__)
@@ -114,7 +116,7 @@ class _SourceEntries:
 
 def run_identification(sessions, out_dir: str | os.PathLike,
                        settings: IdentificationSettings | None = None, *,
-                       figures: bool = True) -> Identification:
+                       figures: bool = True, progress: bool = False) -> Identification:
     """Identify one or several sessions and write every output into ``out_dir``.
 
     Parameters
@@ -130,6 +132,9 @@ def run_identification(sessions, out_dir: str | os.PathLike,
     settings : IdentificationSettings, optional
     figures : bool
         Draw the figures (needs matplotlib).
+    progress : bool
+        With several sessions, say on stderr how far the identification is
+        (:mod:`nmsid.progress`).
 
     Returns
     -------
@@ -147,6 +152,8 @@ def run_identification(sessions, out_dir: str | os.PathLike,
     out.mkdir(parents=True, exist_ok=True)
     results: list[SessionResult] = []
     problems: list[str] = []
+    bar = Progress(len(sessions), f"identify: {len(sessions)} sessions", unit="session") \
+        if progress and len(sessions) > 1 else None
     for src in sessions:
         try:
             res = identify_session(src, s)
@@ -156,8 +163,13 @@ def run_identification(sessions, out_dir: str | os.PathLike,
             problems.append((text if text.startswith(name) else f"{name}: {text}")
                             + "; session skipped")
             continue
+        finally:
+            if bar is not None:
+                bar.update()
         results.append(res)
         problems.extend(f"{res.participant}: {p}" for p in res.problems)
+    if bar is not None:
+        bar.close()
     if not results:
         raise IdentificationError("no session could be analysed: " + " | ".join(problems))
     files = [write_parameters_csv(results, out / "parameters.csv")]
@@ -173,18 +185,21 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         extra={"sources": [r.source for r in results]}))
 
     twins: dict[str, Twin] = {}
-    group = len(results) > 1
+    by_code = _sessions_by_participant(results)
+    group = len(by_code) > 1
     baselines = {}
-    for label, res in zip(selection.participants, results):
-        vals = [lv.data.baseline_N for lv in res.levels if lv.data is not None]
-        baselines[label] = float(np.nanmean(vals)) if vals and np.any(np.isfinite(vals)) \
+    for code, own in by_code.items():
+        vals = [lv.data.baseline_N for r in own for lv in r.levels if lv.data is not None]
+        baselines[code] = float(np.nanmean(vals)) if vals and np.any(np.isfinite(vals)) \
             else 0.0
-    targets = [(label, res) for label, res in zip(selection.participants, results)]
-    for label, res in targets:
+    for code, own in by_code.items():
+        calibration, note = _participant_calibration(code, own)
+        if note:
+            problems.append(note)
         try:
-            twins[label] = twin_from_selection(selection, label, baseline_N=baselines[label],
-                                               calibration=res.calibration,
-                                               source=[sources(res.source)])
+            twins[code] = twin_from_selection(selection, code, baseline_N=baselines[code],
+                                              calibration=calibration,
+                                              source=[sources(r.source) for r in own])
         except IdentificationError as exc:
             problems.append(f"twin not written: {exc}")
     if group:
@@ -214,12 +229,34 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         # imported here: a run without figures (`nmsid identify --no-figures`) never
         # loads the drawing code
         from nmsid.analysis.figures import plot_level_fits, plot_parameter_curves
-        for label, res in zip(selection.participants, results):
-            files.append(plot_level_fits(res, out / f"fit_{_safe_name(label)}.png"))
+        for code, own in by_code.items():
+            for res in own:
+                name = code if len(own) == 1 else f"{code}_{Path(_label(res.source)).stem}"
+                files.append(plot_level_fits(res, out / f"fit_{_safe_name(name)}.png"))
         for name in PARAMETER_NAMES:
             files.append(plot_parameter_curves(selection, name, out / f"figure_{name}.png",
                                                AVERAGE_LABEL))
     return Identification(results, selection, files, problems, twins, text)
+
+
+def _sessions_by_participant(results: list[SessionResult]) -> dict[str, list[SessionResult]]:
+    """The identified sessions of each participant code, codes in order of first
+    appearance (the order of ``select_models``' participants: one participant per code)."""
+    by_code: dict[str, list[SessionResult]] = {}
+    for r in results:
+        by_code.setdefault(r.participant, []).append(r)
+    return by_code
+
+
+def _participant_calibration(code: str, own: list[SessionResult]) -> tuple[dict, str]:
+    """The calibration a participant's twin carries: its last session's (the sessions in
+    the order given), with a note when its sessions were calibrated differently."""
+    calibration = dict(own[-1].calibration or {})
+    others = [r for r in own[:-1] if dict(r.calibration or {}) != calibration]
+    if not others:
+        return calibration, ""
+    return calibration, (f"{code}: {len(own)} sessions with different calibrations; the twin "
+                         f"carries the last one's ({Path(_label(own[-1].source)).name})")
 
 
 def _save_twin(twin: Twin, path: Path, problems: list[str]) -> bool:
@@ -232,11 +269,33 @@ def _save_twin(twin: Twin, path: Path, problems: list[str]) -> bool:
     return True
 
 
+def analysis_of(session_path) -> Path | None:
+    """The latest existing ``<stem>-analysis`` (``-analysis-2``, ...) folder beside the
+    session that identified this session alone (the sources its ``model_selection.json``
+    names, by file name: the caller knows no trial was added since), else None."""
+    path = Path(session_path)
+    found = None
+    for k in range(1, 10_000):
+        folder = path.with_name(path.stem + "-analysis" + (f"-{k}" if k > 1 else ""))
+        if not folder.exists():
+            break
+        try:
+            doc = json.loads((folder / "model_selection.json").read_text(encoding="utf-8"))
+            names = [Path(str(src)).name for src in doc["sources"]]
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+        if names == [path.name]:
+            found = folder
+    return found
+
+
 def summary_line(outputs: Identification) -> str:
     """One line: sessions, levels identified, the lowest fit, problems."""
     n_levels = sum(len(r.levels) for r in outputs.sessions)
     n_ok = sum(1 for r in outputs.sessions for lv in r.levels if lv.fit is not None)
     worst = min((lv.fit.fit_pct for r in outputs.sessions for lv in r.levels
                  if lv.fit is not None and math.isfinite(lv.fit.fit_pct)), default=float("nan"))
-    return (f"{len(outputs.sessions)} session(s), {n_ok}/{n_levels} levels identified, "
+    n_people = len(outputs.selection.participants)
+    return (f"{len(outputs.sessions)} session(s) of {n_people} participant(s), "
+            f"{n_ok}/{n_levels} levels identified, "
             f"lowest fit {worst:.1f} %, {len(outputs.problems)} problem(s)")

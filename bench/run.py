@@ -214,7 +214,23 @@ def write_results(out: Path, sections: list[Section], started: _dt.datetime, loa
     body = []
     for s in sections:
         body += [f"## {s.name}", "", "```", s.text.strip("\n"), "```", ""]
-    out.write_text("\n".join(head + body), encoding="utf-8")
+    out.write_text("\n".join(head + body) + _kept_part(out), encoding="utf-8")
+
+
+#: The results file's hand-written part (the one-line summary moved from the README) starts
+#: at this line; a rewrite keeps it.
+KEPT_MARKER = ("<!-- bench/run.py keeps everything below this line when it rewrites the file "
+               "above -->")
+
+
+def _kept_part(out: Path) -> str:
+    """The part of an existing results file from :data:`KEPT_MARKER` on, else ""."""
+    try:
+        old = out.read_text(encoding="utf-8")
+    except OSError:
+        return ""
+    at = old.find(KEPT_MARKER)
+    return "" if at < 0 else "\n" + old[at:]
 
 
 def run(names: list[str], out: Path | None, budget_min: float = BUDGET_MIN,

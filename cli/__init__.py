@@ -204,7 +204,8 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true",
                         help="show full tracebacks instead of one-line error messages")
     parser.add_argument("-v", "--verbose", action="count", default=0,
-                        help="more log output (-v info, -vv debug)")
+                        help="more log output: -v info, -vv debug of nmsid's own modules; "
+                             "-vvv also debug of the libraries (h5py, matplotlib, ...)")
     parser.add_argument("--version", action=_VersionAction)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in modules:
@@ -288,9 +289,13 @@ def _main(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(argv)
     args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
+    # third-party loggers (h5py's DEBUG lines flooded -vv, issue 39) stay at WARNING
+    # unless -vvv asks for them: only nmsid's own logger follows -v / -vv
+    logging.basicConfig(level=level if args.verbose >= 3 else logging.WARNING,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    if args.verbose:
+        logging.getLogger("nmsid").setLevel(level)
     handler = getattr(args, "handler", None)
     if handler is None:
         parser.print_help()

@@ -40,8 +40,10 @@ def register(sub) -> None:
                            description="Write DIR/tracking.json, DIR/report.md and "
                                        "DIR/figures/: RMSE in % of the target range, "
                                        "overshoot and settling time per trial and per "
-                                       "controller (twin vs baseline).")
-    r.add_argument("session", metavar="SESSION.h5", help="a session of nmsid run --track")
+                                       "controller (twin vs baseline). Several sessions: "
+                                       "one such folder per session, DIR/<session name>/.")
+    r.add_argument("session", metavar="SESSION.h5", nargs="+",
+                   help="one or more sessions of nmsid run --track")
     r.add_argument("--out", required=True, metavar="DIR", help="folder to write (must not "
                    "exist unless --force)")
     r.add_argument("--force", action="store_true", help="replace an existing --out folder")

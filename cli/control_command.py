@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
+from nmsid.analysis.control.errors import TrackingReportError
 from nmsid.analysis.control.design import design_controller, design_report
 from nmsid.analysis.control.report import report_markdown, write_report
 from nmsid.analysis.twin import Twin
+from nmsid.cli.errors import UsageError
 from nmsid.protocols.output_paths import check_output, output_dir
 from nmsid.protocols.session_file import read_session
 
@@ -16,7 +19,7 @@ def design(args: argparse.Namespace) -> int:
     twin = Twin.load(args.twin)
     d = design_controller(twin, sE=args.sE, update_Hz=args.update_hz,
                           lambda_s=args.lambda_s, learning_gain=args.learning_gain)
-    with output_dir(args.out, force=args.force) as tmp:
+    with output_dir(args.out, force=args.force, command="control design") as tmp:
         d.save(tmp / "controller.json")
         (tmp / "design.md").write_text(design_report(d), encoding="utf-8")
     lv = min(d.levels, key=lambda x: abs(x.sE - d.sE))
@@ -31,10 +34,35 @@ def design(args: argparse.Namespace) -> int:
 
 
 def report(args: argparse.Namespace) -> int:
+    """One session: its report in ``--out``. Several: one sub-folder per session name."""
+    paths = list(dict.fromkeys(args.session))  # a file named twice is reported once
+    stems = [Path(p).stem for p in paths]
+    twice = next((s for s in stems if stems.count(s) > 1), None)
+    if twice:
+        raise UsageError(f"two sessions are named {twice}.h5 (in different folders); report "
+                         "them one at a time with their own --out")
     check_output(args.out, force=args.force, kind="folder")
-    session = read_session(args.session)
-    with output_dir(args.out, force=args.force) as tmp:
-        rep = write_report(session, tmp)
-    print(report_markdown(rep).split("\n\n")[1], flush=True)
-    print(f"written to {args.out} (tracking.json, report.md, figures/)", flush=True)
+    sessions = [read_session(p) for p in paths]  # every file read before anything is written
+    if len(sessions) > 1:  # a glob: the sessions without tracking trials are named, skipped
+        tracking = [any(t.extra_attrs.get("trial_kind") == "tracking" for t in s.trials)
+                    for s in sessions]
+        for p, ok in zip(paths, tracking):
+            if not ok:
+                print(f"{p}: skipped: no tracking trials (not a session of nmsid run "
+                      "--track)", flush=True)
+        if not any(tracking):
+            raise TrackingReportError(f"none of the {len(paths)} sessions has tracking "
+                                      "trials (sessions of nmsid run --track)")
+        sessions = [s for s, ok in zip(sessions, tracking) if ok]
+        stems = [st for st, ok in zip(stems, tracking) if ok]
+    with output_dir(args.out, force=args.force, command="control report") as tmp:
+        reps = []
+        for session, stem in zip(sessions, stems):
+            where = Path(tmp) if len(sessions) == 1 else Path(tmp) / stem
+            where.mkdir(exist_ok=True)
+            reps.append(write_report(session, where))
+    for rep, stem in zip(reps, stems):
+        print(report_markdown(rep).split("\n\n")[1], flush=True)
+        where = Path(args.out) if len(reps) == 1 else Path(args.out) / stem
+        print(f"written to {where} (tracking.json, report.md, figures/)", flush=True)
     return 0

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
+from pathlib import Path
 
 from nmsid.analysis.design.api import run_design
 from nmsid.analysis.design.errors import DesignError
@@ -54,14 +56,16 @@ def run(args: argparse.Namespace) -> int:
         print(note)
     elif args.excitation == "free":
         note = "searched as asked (--excitation free)"
-    with output_dir(args.out, force=args.force) as tmp:
-        doc = run_design(prior, args.target, tmp, validate_n=args.validate,
-                         scatter=scatter, tolerance=args.tolerance,
-                         min_steady_s=args.min_steady_s, seed=args.seed, twin_path=args.twin,
-                         population_seed=args.seed, keep_paper_excitation=keep,
-                         excitation_note=note)
+    with output_dir(args.out, force=args.force, command="design") as tmp:
+        outcome = run_design(prior, args.target, tmp, validate_n=args.validate,
+                             scatter=scatter, tolerance=args.tolerance,
+                             min_steady_s=args.min_steady_s, seed=args.seed,
+                             twin_path=args.twin, population_seed=args.seed,
+                             keep_paper_excitation=keep, excitation_note=note, progress=True)
+    outcome = dataclasses.replace(outcome, out_dir=Path(args.out))
+    doc = outcome.to_dict()
     v = doc["validated_sd_ratio"]
-    print(f"{args.out}/protocol.toml: {doc['protocol_description']}")
+    print(f"{Path(args.out) / 'protocol.toml'}: {doc['protocol_description']}")
     print(f"stimulation {doc['stimulation_s']:g} s = {100 * doc['stimulation_fraction']:.0f} % "
           f"of the paper's {doc['paper_stimulation_s']:g} s; session "
           f"{doc['session_s'] / 60:.1f} min vs {doc['paper_session_s'] / 60:.1f} min")
@@ -71,4 +75,5 @@ def run(args: argparse.Namespace) -> int:
           f"vs paper {doc['selection_accuracy']['paper']:.3f}")
     if not doc["found"]:
         print("no candidate met the target; this is the closest (see report.txt)")
+    print(outcome.verdict_line())
     return 0

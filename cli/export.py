@@ -11,13 +11,16 @@ def register(sub) -> None:
     fmt = p.add_subparsers(dest="export_format", metavar="FORMAT")
     n = fmt.add_parser("nwb", help="write the session as an NWB file (Neurodata Without "
                        "Borders); needs the extra 'nwb'",
-                       description="Write one session as NWB: subject, devices, stimulus "
+                       description="Write each session as NWB: subject, devices, stimulus "
                                    "and acquisition series per trial, trials table, events, "
-                                   "calibration and configuration. See README 'Sharing'.")
-    n.add_argument("session", metavar="SESSION.h5", type=input_file)
-    n.add_argument("--out", required=True, metavar="SESSION.nwb", type=output_path)
+                                   "calibration and configuration. One session: --out is "
+                                   "the .nwb file; several: --out is a folder receiving "
+                                   "<session name>.nwb each. See docs/study.md.")
+    n.add_argument("session", metavar="SESSION.h5", type=input_file, nargs="+")
+    n.add_argument("--out", required=True, metavar="SESSION.nwb|DIR", type=output_path)
     n.add_argument("--force", action="store_true",
-                   help="replace an existing --out file (never a session file)")
+                   help="replace an existing --out (never a session file; a folder only "
+                        "if nmsid wrote it)")
     n.add_argument("--subject-age", default="P18Y/", metavar="ISO8601", type=iso_age,
                    help="participant age as an ISO 8601 duration or range (default P18Y/: "
                         "adult, exact age unknown; nmsid does not record age)")

@@ -52,25 +52,46 @@ def register(sub) -> None:
                    help="average every completed repeat as the paper does (default: only "
                         "the trials the quality control keeps; see `nmsid qc`)")
     g = p.add_argument_group("settings (defaults follow the paper; see docs/identification.md)")
-    g.add_argument("--lowpass-Hz", type=_float_or_none, default=25.0, metavar="F|none")
-    g.add_argument("--butter-order", type=int, default=4, metavar="N")
-    g.add_argument("--savgol-window", type=_int_or_none, default=41, metavar="N|none")
-    g.add_argument("--savgol-order", type=int, default=3, metavar="N")
+    g.add_argument("--lowpass-Hz", type=_float_or_none, default=25.0, metavar="F|none",
+                   help="Butterworth low-pass cut-off of force (and rE), none to skip "
+                        "(default %(default)s Hz, the paper's)")
+    g.add_argument("--butter-order", type=int, default=4, metavar="N",
+                   help="order of that low-pass, 1-12 (default %(default)s)")
+    g.add_argument("--savgol-window", type=_int_or_none, default=41, metavar="N|none",
+                   help="Savitzky-Golay window in samples, odd, none to skip (default "
+                        "%(default)s, the paper's)")
+    g.add_argument("--savgol-order", type=int, default=3, metavar="N",
+                   help="Savitzky-Golay polynomial order (default %(default)s, the paper's)")
     g.add_argument("--causal", action="store_true",
-                   help="causal (one-pass) low-pass instead of zero-phase (adds delay)")
+                   help="causal (one-pass) low-pass instead of zero-phase (adds delay; "
+                        "default zero-phase)")
     g.add_argument("--no-input-prefilter", action="store_true",
-                   help="do not apply the force filters to rE")
-    g.add_argument("--no-detrend", action="store_true", help="skip the linear detrend")
+                   help="do not apply the force filters to rE (default: applied, so both "
+                        "sides of the fit see the same filter)")
+    g.add_argument("--no-detrend", action="store_true",
+                   help="skip the linear detrend of each raw trial (default: detrended, as "
+                        "the paper)")
     g.add_argument("--no-trend-term", action="store_true",
-                   help="do not estimate an output ramp along with the offset")
+                   help="do not estimate an output ramp along with the offset (default: "
+                        "estimated)")
     g.add_argument("--fit-fs-Hz", type=_float_or_none, default=200.0, metavar="F|none",
-                   help="rate of the fit after decimation (default 200; none = raw rate)")
-    g.add_argument("--window-start-s", type=float, default=None, metavar="S")
-    g.add_argument("--window-end-s", type=float, default=None, metavar="S")
-    g.add_argument("--input-hold", choices=("smooth", "linear"), default="smooth")
-    g.add_argument("--iqr-k", type=float, default=1.5, metavar="K")
+                   help="rate of the fit after decimation, at least 4x the low-pass "
+                        "(default %(default)s Hz; none = the raw rate)")
+    g.add_argument("--window-start-s", type=float, default=None, metavar="S",
+                   help="start of the analysed window, s after stimulation onset (default: "
+                        "the trial's steady_s, 5 s in the paper)")
+    g.add_argument("--window-end-s", type=float, default=None, metavar="S",
+                   help="end of the analysed window (default: steady_s + chirp_s, or the "
+                        "end of the data)")
+    g.add_argument("--input-hold", choices=("smooth", "linear"), default="smooth",
+                   help="how the model sees rE between samples at the fit rate (default "
+                        "%(default)s)")
+    g.add_argument("--iqr-k", type=float, default=1.5, metavar="K",
+                   help="outlier fence of the model selection, [Q1 - k IQR, Q3 + k IQR] "
+                        "(default %(default)s, the paper's)")
     g.add_argument("--aicc-count-noise", action="store_true",
-                   help="count the noise variance as a parameter in AICc")
+                   help="count the noise variance as a parameter in AICc (default: not "
+                        "counted)")
     p.set_defaults(handler="nmsid.cli.identify_command:run_identify")
 
     t = sub.add_parser("twin", help="use a twin file (twin.json)",

@@ -61,8 +61,9 @@ def run_identify(args) -> int:
     sE level of any session could be identified (the outputs are still written)."""
     settings = settings_from_args(args)
     sessions = unique_sessions(args.sessions)
-    with output_dir(args.out, force=args.force) as tmp:
-        out = run_identification(sessions, tmp, settings, figures=not args.no_figures)
+    with output_dir(args.out, force=args.force, command="identify") as tmp:
+        out = run_identification(sessions, tmp, settings, figures=not args.no_figures,
+                                 progress=True)
     print(out.tables_text)
     if out.problems:
         print(f"\n{len(out.problems)} problem(s) (also in {args.out}/problems.txt):")

@@ -67,6 +67,9 @@ def run(args) -> int:
             "confirm_weakened_safety": getattr(args, "allow_weakened_safety", False)})
         if args.participant_model:
             config = config.replace(participant_model=args.participant_model)
+            if args.participant_model == "musculoskeletal" and not args.participant \
+                    and not args.config:  # issue 39: not the template's P01 under its name
+                config = config.replace(participant="MSK01")
         outdir = Path(args.outdir) if args.outdir else default_sessions_dir()
         path = Path(args.out) if args.out else _free_path(outdir, config.participant)
         # a taken, dangling or unwritable --out is refused before any device is touched
@@ -122,6 +125,11 @@ def run(args) -> int:
             box["engine"] = engine
             progress.total = len(engine.schedule)
             progress.done = sum(1 for t in engine.schedule if t.status.value == "done")
+            done_before = progress.done
+            if not args.quiet:  # issue 39: a real-time run said nothing for 25 s
+                _print_quietly(f"{path}: {'resuming' if args.resume else 'starting'}: "
+                               f"{progress.done} of {progress.total} trials done; "
+                               f"Ctrl+C stops the session (E-stop)")
             if engine.recovery is not None and engine.recovery.action != "none":
                 print(engine.recovery.summary(), flush=True)
 
@@ -145,7 +153,9 @@ def run(args) -> int:
         # one line on stderr; stdout (maybe a closed terminal after SIGHUP) may fail
         _print_quietly(f"{s.path}: {s.n_completed} completed, {s.n_aborted} aborted, "
                        f"{s.n_pending} not run ({s.ended_by})")
-        print(signals.stderr_line(s.path), file=sys.stderr, flush=True)
+        print(signals.stderr_line(s.path, complete=s.complete,
+                                  file_written=Path(s.path).exists()),
+              file=sys.stderr, flush=True)
         return signals.exit_code
     print(f"{s.path}: {s.n_completed} completed, {s.n_aborted} aborted, {s.n_pending} not run "
           f"({s.ended_by})", flush=True)
@@ -155,7 +165,8 @@ def run(args) -> int:
         print(f"  continue with: nmsid run --backend {args.backend} --resume {s.path}"
               + (f" --participant-model {plugin}" if plugin else ""), flush=True)
     if not args.no_identify and s.n_completed and track is None:
-        _identify(s.path)
+        # a resume that ran no trial (the session was complete) names the earlier analysis
+        _identify(s.path, reuse=bool(args.resume) and s.n_completed == done_before)
     return run_exit_status(s)
 
 
@@ -205,12 +216,17 @@ def _free_path(outdir, participant: str):
     raise UsageError(f"{outdir}: no free session file name for {participant}-{stamp}")
 
 
-def _identify(path) -> None:
+def _identify(path, reuse: bool = False) -> None:
     """Run the identification on the new file into ``<file stem>-analysis/`` (or
-    ``-analysis-2``, ... if that exists: an earlier result is never replaced)."""
+    ``-analysis-2``, ... if that exists: an earlier result is never replaced). ``reuse``
+    (a resume that ran no trial): an existing analysis of this file is named instead of
+    repeated (issue 39: each resume of a complete session re-identified)."""
     # lazy: the identification's modules (figures, QC, model selection) cost ~0.4 s of
     # start-up, which a --no-identify or tracking session never uses
-    from nmsid.analysis.run import run_identification, summary_line
+    from nmsid.analysis.run import analysis_of, run_identification, summary_line
+    if reuse and (done := analysis_of(path)) is not None:
+        print(f"identification of this file already in {done}; not repeated", flush=True)
+        return
     out = next(p for k in range(1, 10_000) if not (p := path.with_name(
         path.stem + "-analysis" + (f"-{k}" if k > 1 else ""))).exists())
     with output_dir(out) as tmp:

@@ -18,7 +18,7 @@ def run(args) -> int:
             raise UsageError(f"{args.study}: session {problem}")
     if args.no_gap:
         cfg.gap = False
-    with output_dir(args.out, force=args.force) as tmp:
+    with output_dir(args.out, force=args.force, command="study") as tmp:
         out = run_study(cfg, tmp, workers=args.workers, scheduler=args.scheduler)
     report = str(out.report).replace(str(tmp.resolve()), str(args.out))
     n_bad = sum(1 for r in out.results if not r.get("ok"))

@@ -14,6 +14,12 @@ copy per command):
   aside, the new one renamed in, then the old one deleted (two renames: atomic per rename,
   which is as far as POSIX goes for a non-empty folder).
 
+Every folder :func:`output_dir` writes holds a manifest, :data:`MANIFEST_NAME`, listing
+each file and folder nmsid put there (issue 39). ``--force`` replaces a folder only when
+everything in it is listed there: a folder nmsid did not write (a source folder, a data
+folder, ``~``) or one the user has added a file to is refused in one line and left
+intact, with or without ``--force``.
+
 Windows (issue 24): a file another program holds open (a CSV in Excel, a figure in a
 viewer) cannot be replaced or deleted there (MoveFileExW / DeleteFileW fail with
 ERROR_ACCESS_DENIED or ERROR_SHARING_VIOLATION). Then the fresh result is kept beside the
@@ -27,6 +33,7 @@ folder (a shortcut's working directory is often ``C:\\Windows\\System32``).
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import tempfile
@@ -45,6 +52,9 @@ from nmsid.protocols.user_values import (  # noqa: F401 (re-exported: the name l
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 #: Temporary names start with this (beside the target, so a rename never crosses devices).
 TMP_PREFIX = ".nmsid-tmp-"
+#: The manifest :func:`output_dir` writes into every output folder: what nmsid wrote there.
+MANIFEST_NAME = ".nmsid-output.json"
+MANIFEST_FORMAT = "nmsid-output-manifest"
 
 
 def is_session_file(path) -> bool:
@@ -130,9 +140,17 @@ def check_output(path, *, force: bool = False, kind: str = "file",
                 raise OutputPathError(f"{option} {p}: holds the session file {inside[0]}; "
                                       f"nmsid never replaces a folder holding session "
                                       f"files, even with --force; give another folder")
-            if not force and any(p.iterdir()):
-                raise OutputPathError(f"{option} {p}: the folder exists and is not empty; "
-                                      "give --force to replace it, or another folder")
+            if any(p.iterdir()):
+                if not force:
+                    raise OutputPathError(f"{option} {p}: the folder exists and is not "
+                                          "empty; give --force to replace it, or another "
+                                          "folder")
+                foreign = foreign_entry(p)
+                if foreign is not None:
+                    raise OutputPathError(f"{option} {p}: {foreign}; --force replaces only a "
+                                          f"folder nmsid wrote (listed in its "
+                                          f"{MANIFEST_NAME}); nothing was changed; give "
+                                          f"another folder")
         elif not force:
             raise OutputPathError(f"{option} {p}: the file exists; give --force to replace "
                                   "it, or another file name")
@@ -144,6 +162,50 @@ def check_output(path, *, force: bool = False, kind: str = "file",
         raise OutputPathError(f"{option} {p}: cannot write in {parent} (permission denied); "
                               f"give a {kind} in a writable folder")
     return p
+
+
+def _walk(folder: Path) -> list[str]:
+    """Every file and folder under ``folder``, as POSIX paths relative to it (links are
+    listed, never followed)."""
+    found: list[str] = []
+    for dirpath, dirnames, filenames in os.walk(folder, followlinks=False):
+        rel = Path(dirpath).relative_to(folder)
+        for name in dirnames + filenames:
+            found.append((rel / name).as_posix())
+    return sorted(found)
+
+
+def write_manifest(folder, command: str = "") -> Path:
+    """Write :data:`MANIFEST_NAME` into ``folder``: everything in it now, as nmsid's."""
+    folder = Path(folder)
+    entries = [e for e in _walk(folder) if e != MANIFEST_NAME]
+    path = folder / MANIFEST_NAME
+    path.write_text(json.dumps({"format": MANIFEST_FORMAT, "format_version": 1,
+                                "command": command, "entries": entries}, indent=1) + "\n",
+                    encoding="utf-8")
+    return path
+
+
+def foreign_entry(folder) -> str | None:
+    """Why ``folder`` is not entirely nmsid's output (one phrase), or None if it is.
+
+    It is nmsid's when it holds a readable :data:`MANIFEST_NAME` and nothing that the
+    manifest does not list.
+    """
+    folder = Path(folder)
+    manifest = folder / MANIFEST_NAME
+    try:
+        data = json.loads(manifest.read_text(encoding="utf-8"))
+        listed = set(data["entries"]) if data.get("format") == MANIFEST_FORMAT else None
+    except (OSError, ValueError, KeyError, TypeError):
+        listed = None
+    if listed is None:
+        first = next((e for e in _walk(folder)), "?")
+        return f"nmsid did not write this folder (no {MANIFEST_NAME}; it holds {first})"
+    for entry in _walk(folder):
+        if entry != MANIFEST_NAME and entry not in listed:
+            return f"holds {entry}, which nmsid did not write"
+    return None
 
 
 def _can_write_in(folder: Path) -> bool:
@@ -275,10 +337,12 @@ def output_file(path, *, force: bool = False, option: str = "--out"):
 
 
 @contextlib.contextmanager
-def output_dir(path, *, force: bool = False, option: str = "--out"):
-    """Yield a temporary folder beside ``path``; on success it is renamed to ``path``
-    (an existing one, allowed by ``force``, is renamed aside first and then deleted). On
-    any error the temporary folder is deleted and ``path`` is untouched."""
+def output_dir(path, *, force: bool = False, option: str = "--out", command: str = ""):
+    """Yield a temporary folder beside ``path``; on success its manifest
+    (:func:`write_manifest`) is written and it is renamed to ``path`` (an existing one,
+    allowed by ``force`` only when nmsid wrote all of it, is renamed aside first and then
+    deleted). On any error the temporary folder is deleted and ``path`` is untouched.
+    ``command`` is recorded in the manifest."""
     p = check_output(path, force=force, kind="folder", option=option)
     p.absolute().parent.mkdir(parents=True, exist_ok=True)
     tmp = _tmp_beside(p)
@@ -287,6 +351,7 @@ def output_dir(path, *, force: bool = False, option: str = "--out"):
     tmp.mkdir()
     try:
         yield tmp
+        write_manifest(tmp, command)
         old = None
         if p.exists():
             check_output(p, force=force, kind="folder", option=option)  # still allowed?

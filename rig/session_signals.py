@@ -230,11 +230,31 @@ class SessionSignals:
         """128 + the first signal received, or None."""
         return None if self.received is None else exit_code(self.received)
 
-    def stderr_line(self, path=None) -> str:
-        """The one line a signalled command prints on stderr (``path``: the session file,
-        None if no session was running)."""
+    def stderr_line(self, path=None, *, complete: bool = False,
+                    file_written: bool = True) -> str:
+        """The one line a signalled command prints on stderr: what was saved and what to
+        run next, only when something applies (issue 39).
+
+        Parameters
+        ----------
+        path : path-like, optional
+            The session file; None if no session was running.
+        complete : bool
+            Every planned trial completed (the signal came after the last one): no resume
+            is offered, since a resume would have nothing to run.
+        file_written : bool
+            Whether the session file exists (a signal during the calibration leaves none:
+            no trial was run, so nothing is named as closed).
+        """
         head = f"nmsid: {signal_name(self.received or 0)} received: E-stop, output off"
         if path is None:
             return head + "; no session was running"
+        if not file_written:
+            return (f"{head}; stopped before the calibration was complete: no trial was "
+                    f"run and no session file was written ({path}); start a new session "
+                    f"with nmsid run")
+        if complete:
+            return (f"{head}; session complete and closed: {path} (every trial ran); "
+                    f"identify it with nmsid identify {path} --out <folder>")
         return (f"{head}; session ended and closed: {path} (continue with nmsid run "
                 f"--resume {path})")

@@ -95,11 +95,19 @@ def participant_from_twin(path_or_dict, *, sensor: SensorModel | None = None, se
     twin = load_twin(path_or_dict)
     where = "twin" if isinstance(path_or_dict, dict) else os.fspath(path_or_dict)
     cal = twin["calibration"]
+    names = ("Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA")
+    if isinstance(cal, dict) and not any(k in cal for k in names):
+        raise SimConfigError(f"{where}: the twin has no calibration (a group average of nmsid "
+                             f"identify has none: its participants' currents differ); give "
+                             f"one participant's twin (twin_<participant>.json beside it)")
     try:
-        currents = {k: float(cal[k]) for k in ("Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA")}
-    except (KeyError, TypeError, ValueError) as exc:
-        raise SimConfigError(f"{where}: calibration needs numeric Iemin_mA, Iemax_mA, "
-                             f"Ifmin_mA, Ifmax_mA ({exc!r})") from None
+        currents = {k: float(cal[k]) for k in names}
+    except (KeyError, TypeError, ValueError):
+        bad = next((k for k in names if not isinstance(cal, dict) or not isinstance(
+            cal.get(k), (int, float)) or isinstance(cal.get(k), bool)), names[0])
+        got = cal.get(bad) if isinstance(cal, dict) else cal
+        raise SimConfigError(f"{where}: calibration.{bad} is {got!r}; the twin's calibration "
+                             f"needs a number (mA) for each of {', '.join(names)}") from None
     if snap_calibration:
         snapped = {k: _snap_up(v, step_mA) for k, v in currents.items()}
         if snapped != currents:

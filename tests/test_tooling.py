@@ -149,7 +149,6 @@ JSON_DICT_METHODS = {"to_dict", "as_dict"}
 
 #: Functions whose job IS producing a JSON-ready document, with what it is.
 JSON_DOCUMENTS = {
-    "analysis/design/api.py: run_design": "design.json as written (returned to the CLI)",
     "analysis/design/report.py: write_outputs": "design.json as written",
     "analysis/design/candidates.py: Candidate.protocol_dict":
         "a configuration's [protocol] table (config_from_dict, design.json's protocol)",

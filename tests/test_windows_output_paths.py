@@ -17,6 +17,7 @@ from nmsid.protocols.output_paths import (
     default_sessions_dir,
     output_dir,
     output_file,
+    write_manifest,
 )
 from nmsid.testing.windows_emulation import emulate_windows
 
@@ -59,6 +60,7 @@ def test_forced_folder_output_with_a_file_open_inside_keeps_both(tmp_path):
     target = tmp_path / "gap"
     target.mkdir()
     (target / "report.csv").write_text("old\n", encoding="utf-8")
+    write_manifest(target)  # an earlier nmsid result
     (tmp_path / "gap-new").mkdir()  # taken: the next free name is used
     with emulate_windows(), _OpenElsewhere(target / "report.csv"), \
             pytest.raises(OutputPathError, match="gap-new-2"), \
@@ -109,6 +111,7 @@ def test_a_failed_rename_in_puts_the_old_folder_back_and_keeps_the_new(tmp_path,
     target = tmp_path / "gap"
     target.mkdir()
     (target / "report.csv").write_text("old\n", encoding="utf-8")
+    write_manifest(target)  # an earlier nmsid result
     real_rename = os.rename
 
     def rename(src, dst, *a, **k):

@@ -132,7 +132,7 @@ def evaluate(predictor: Predictor, c: Candidate, paper: Prediction, target: Targ
 
 def design(predictor: Predictor, target: Target, candidates: list[Candidate] | None = None,
            *, draws: int = 100, seed: int = 0, max_stimulation_s: float | None = None,
-           paper: Candidate | None = None) -> DesignResult:
+           paper: Candidate | None = None, on_candidate=None) -> DesignResult:
     """Search ``candidates`` (default :func:`search_space`) for the least stimulation.
 
     Parameters
@@ -148,6 +148,8 @@ def design(predictor: Predictor, target: Target, candidates: list[Candidate] | N
         Candidates above this are not tried.
     paper : Candidate, optional
         The reference protocol (default the paper's).
+    on_candidate : callable, optional
+        Called with no argument after each candidate evaluated (progress).
     """
     ref = paper or paper_candidate()
     paper_pred = predictor.predict(ref)
@@ -167,6 +169,8 @@ def design(predictor: Predictor, target: Target, candidates: list[Candidate] | N
         except ValueError:
             continue      # a candidate the configuration refuses is never proposed
         n += 1
+        if on_candidate is not None:
+            on_candidate()
         ev = evaluate(predictor, c, paper_pred, target)
         if best_miss is None or ev.ratio.max < best_miss.ratio.max:
             best_miss = ev

@@ -329,8 +329,18 @@ def export_fmu(twin_path: str | os.PathLike, out: str | os.PathLike, *, force: b
             for p in sorted(root.rglob("*")):
                 if p.is_file():
                     z.write(p, p.relative_to(root).as_posix())
+        # mkstemp creates the file 0600; the FMU gets a new file's usual mode (0666 less
+        # the umask: 0644 typically), like every other output (issue 39)
+        os.chmod(tmp_out, 0o666 & ~_umask())
         os.replace(tmp_out, out)
     return FmuResult(out, ident, guid, plat, time.perf_counter() - t0)
+
+
+def _umask() -> int:
+    """The process's umask (read by setting it and putting it back at once)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def _doc_html(ident: str) -> str:

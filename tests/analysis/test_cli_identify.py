@@ -102,3 +102,34 @@ def test_twin_simulate_chirp_and_csv(tmp_path, capsys):
     assert main(["twin", "simulate", str(tp), "--input", str(tmp_path / "bad.csv"),
                  "--sE", "0.5", "--out", str(tmp_path / "force3.csv")]) == 2
     assert "no 'rE' column" in capsys.readouterr().err
+
+
+def test_two_sessions_of_one_participant_are_one_participant(small_session, second_session,
+                                                             synthetic, tmp_path, capsys):
+    """Issue 39: two sessions of P01 became the participants "P01" and "P01#2" and a group
+    twin with no calibration, which `nmsid design --twin` then refused with a KeyError."""
+    from nmsid.analysis.design.api import validation_participants
+    from nmsid.analysis.design.prior import twin_prior
+
+    path, truth = small_session
+    again = tmp_path / "again.h5"
+    synthetic.write_synthetic_session(again, seed=9, participant=truth.participant,
+                                      sE_levels=[0.3, 0.5, 0.7, 0.9], repeats=2)
+    out = tmp_path / "one"
+    assert main(["identify", str(path), str(again), "--out", str(out), "--no-figures"]) == 0
+    assert "2 session(s) of 1 participant(s)" in capsys.readouterr().out
+    sel = json.loads((out / "model_selection.json").read_text())
+    assert sel["participants"] == [truth.participant]
+    twin = json.loads((out / "twin.json").read_text())
+    assert twin["participant"] == truth.participant
+    assert twin["calibration"]["Iemin_mA"] > 0       # the participant's own, not empty
+    assert [s["file"] for s in twin["source"]] == [path.name, again.name]
+    assert not list(out.glob("twin_*.json"))         # no group: one participant
+    # a group-average twin (no calibration) is accepted by design's validation
+    group = tmp_path / "group"
+    assert main(["identify", str(path), str(second_session[0]), "--out", str(group),
+                 "--no-figures"]) == 0
+    average = group / "twin.json"
+    assert json.loads(average.read_text())["calibration"] == {}
+    people, label = validation_participants(twin_prior(average), 2, twin_path=average)
+    assert len(people) == 2 and "no calibration" in label

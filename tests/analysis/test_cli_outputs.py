@@ -87,8 +87,14 @@ def test_identify_out_refused_then_forced_and_a_repeated_file_counts_once(
     (out / "mine.txt").write_text("user's")
     assert main(["identify", str(path), "--out", str(out), "--no-figures"]) == 2
     assert "give --force" in _one_line(capsys) and (out / "mine.txt").exists()
+    # issue 39: --force replaces only what nmsid wrote; the user's file stays
+    assert main(["identify", str(path), "--out", str(out), "--no-figures", "--force"]) == 2
+    assert "mine.txt, which nmsid did not write" in _one_line(capsys)
+    assert (out / "mine.txt").read_text() == "user's"
+    (out / "mine.txt").unlink()
+    (out / "parameters.csv").write_text("old")
     assert main(["identify", str(path), "--out", str(out), "--no-figures", "--force"]) == 0
-    assert not (out / "mine.txt").exists() and (out / "parameters.csv").exists()
+    assert (out / "parameters.csv").read_text() != "old"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".nmsid-tmp")]
     # an output folder holding a session file is never replaced
     assert main(["identify", str(path), "--out", str(path.parent), "--force"]) == 2
@@ -110,3 +116,20 @@ def test_identify_exits_3_when_nothing_was_identified(small_session, tmp_path, c
                  "--no-figures"])
     assert code == EXIT_NOTHING_IDENTIFIED == 3
     assert "no sE level could be identified" in capsys.readouterr().err
+
+
+def test_vv_shows_nmsid_debug_but_not_the_libraries(small_session, tmp_path):
+    """Issue 39: -vv mostly added h5py's DEBUG lines; now only -vvv lets libraries log."""
+    import re
+    import subprocess
+    import sys
+
+    def debug_loggers(flag, out):
+        err = subprocess.run([sys.executable, "-m", "nmsid", flag, "identify",
+                              str(small_session[0]), "--out", str(tmp_path / out),
+                              "--no-figures"], capture_output=True, text=True,
+                             timeout=600).stderr
+        return {m.group(1).split(".")[0] for m in re.finditer(r" DEBUG (\S+):", err)}
+
+    assert "h5py" in debug_loggers("-vvv", "a")      # the libraries do log when asked
+    assert debug_loggers("-vv", "b") <= {"nmsid"}

@@ -87,7 +87,16 @@ def test_group_average_and_aicc_sums():
     assert d["format"] == "nmsid-model-selection" and len(d["comparisons"]) == 12
 
 
-def test_duplicate_participant_codes_are_kept_apart():
+def test_sessions_of_one_participant_are_one_participant():
+    """Issue 39: two sessions of P1 were the two participants "P1" and "P1#2"."""
     x = np.linspace(0.3, 1.0, 6)
     p = ParticipantParameters("P1", x, {n: 1 + x for n in ("Kp", "wn_rad_s", "zeta")})
-    assert select_models([p, p]).participants == ["P1", "P1#2"]
+    q = ParticipantParameters("P1", x[:4], {n: 3 + x[:4] for n in ("Kp", "wn_rad_s", "zeta")})
+    r = ParticipantParameters("P2", x, {n: 2 + x for n in ("Kp", "wn_rad_s", "zeta")})
+    sel = select_models([p, r, q])
+    assert sel.participants == ["P1", "P2"]
+    kp = sel.comparison("Kp", "P1")
+    values = {round(pt.sE, 6): pt.value for pt in kp.points}
+    # the mean of the two sessions where both have the level, the one session elsewhere
+    assert values[round(x[0], 6)] == pytest.approx(2 + x[0])
+    assert values[round(x[5], 6)] == pytest.approx(1 + x[5])

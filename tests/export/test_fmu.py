@@ -4,6 +4,8 @@ exchange against ``nmsid twin simulate``, refusals (docs/fmu.md)."""
 from __future__ import annotations
 
 import json
+import stat
+import os
 import shutil
 import zipfile
 from types import SimpleNamespace
@@ -302,3 +304,14 @@ def test_sources_only_has_no_binary(demo, tmp_path):
     assert "sources/nmsid_model.c" in names
     assert not [n for n in names if n.startswith("binaries/")]
     assert [p.name for p in tmp_path.iterdir()] == ["src.fmu"]      # no temporary left
+
+
+@pytest.mark.skipif(os.name == "nt", reason="POSIX permission bits")
+def test_the_fmu_has_a_new_files_usual_mode(demo, tmp_path):
+    """Issue 39: the .fmu was written 0600 (mkstemp's mode): 0666 less the umask now."""
+    old = os.umask(0o027)
+    try:
+        result = export_fmu(demo.twin_path, tmp_path / "m.fmu", binary=False)
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(result.path.stat().st_mode) == 0o640

@@ -135,3 +135,20 @@ def test_cli_export_and_bad_file(tmp_path, capsys):
     assert main(["export", "nwb", str(bad), "--out", str(tmp_path / "b.nwb")]) == 2
     err = capsys.readouterr().err
     assert "bad.h5" in err and err.count("\n") == 1
+
+
+def test_cli_several_sessions_give_one_file_each_in_a_folder(tmp_path, capsys):
+    """Issue 39: `export nwb sessions/P01-*.h5` refused more than one file."""
+    from nmsid.cli import main
+    a, b = tmp_path / "a.h5", tmp_path / "b.h5"
+    _session(a, np.random.default_rng(3), fs_Hz=1000.0, n=100)
+    _session(b, np.random.default_rng(4), fs_Hz=1000.0, n=100)
+    assert main(["export", "nwb", str(a), str(b), "--out", str(tmp_path / "o.nwb")]) == 2
+    assert "give a folder" in capsys.readouterr().err
+    assert not (tmp_path / "o.nwb").exists()
+    assert main(["export", "nwb", str(a), str(b), "--out", str(tmp_path / "nwb")]) == 0
+    out = capsys.readouterr().out
+    assert out.count("3 trial(s)") == 2
+    for name in ("a.nwb", "b.nwb"):
+        with pynwb.NWBHDF5IO(str(tmp_path / "nwb" / name), "r") as io:
+            assert len(io.read().trials) == 3

@@ -6,8 +6,9 @@ import h5py
 import pytest
 
 from nmsid.protocols.errors import OutputPathError
-from nmsid.protocols.output_paths import (TMP_PREFIX, check_output, is_session_file, output_dir,
-                                          output_file)
+from nmsid.protocols.output_paths import (MANIFEST_NAME, TMP_PREFIX, check_output,
+                                          is_session_file, output_dir, output_file,
+                                          write_manifest)
 
 
 def _session(path):
@@ -73,6 +74,7 @@ def test_output_dir_never_mixes_old_and_new(tmp_path):
     d = tmp_path / "out"
     d.mkdir()
     (d / "old.txt").write_text("old")
+    write_manifest(d)  # as if an earlier nmsid command had written it
     with pytest.raises(OutputPathError, match="not empty; give --force"):
         with output_dir(d):
             pass
@@ -80,12 +82,51 @@ def test_output_dir_never_mixes_old_and_new(tmp_path):
         with output_dir(d, force=True) as tmp:
             (tmp / "new.txt").write_text("new")
             raise RuntimeError("killed")
-    assert sorted(p.name for p in d.iterdir()) == ["old.txt"]
+    assert sorted(p.name for p in d.iterdir()) == [MANIFEST_NAME, "old.txt"]
     with output_dir(d, force=True) as tmp:
         (tmp / "new.txt").write_text("new")
-    assert sorted(p.name for p in d.iterdir()) == ["new.txt"]
+    assert sorted(p.name for p in d.iterdir()) == [MANIFEST_NAME, "new.txt"]
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(TMP_PREFIX)]
     # a folder holding a session file is never replaced
     _session(d / "keep.h5")
     with pytest.raises(OutputPathError, match="holds the session file"):
         check_output(d, force=True, kind="folder")
+
+
+def test_force_replaces_only_a_folder_nmsid_wrote(tmp_path):
+    """Issue 39: `--out study/ --force` run from the repository root replaced the package's
+    own source folder. A folder without nmsid's manifest, or with a file the manifest does
+    not list, is refused with --force and left byte for byte as it was."""
+    src = tmp_path / "study"
+    src.mkdir()
+    (src / "__init__.py").write_text("x = 1\n")
+    (src / "sub").mkdir()
+    (src / "sub" / "runner.py").write_text("y = 2\n")
+    with pytest.raises(OutputPathError, match="nmsid did not write this folder") as err:
+        with output_dir(src, force=True) as tmp:
+            (tmp / "report.html").write_text("new")
+    assert "\n" not in str(err.value)
+    assert (src / "__init__.py").read_text() == "x = 1\n"
+    assert (src / "sub" / "runner.py").read_text() == "y = 2\n"
+    assert sorted(p.name for p in src.iterdir()) == ["__init__.py", "sub"]
+    # nmsid's own output, written twice: the second --force replaces it
+    out = tmp_path / "results"
+    with output_dir(out, command="identify") as tmp:
+        (tmp / "twin.json").write_text("{}")
+        (tmp / "figs").mkdir()
+        (tmp / "figs" / "a.png").write_text("png")
+    with output_dir(out, force=True) as tmp:
+        (tmp / "twin.json").write_text("{2}")
+    assert (out / "twin.json").read_text() == "{2}" and not (out / "figs").exists()
+    # ... but not once the user has put a file of theirs in it, even deep inside
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(OutputPathError, match="holds notes.txt, which nmsid did not write"):
+        with output_dir(out, force=True) as tmp:
+            (tmp / "twin.json").write_text("{3}")
+    assert (out / "notes.txt").read_text() == "mine"
+    assert (out / "twin.json").read_text() == "{2}"
+    # a damaged manifest is no manifest
+    (out / "notes.txt").unlink()
+    (out / MANIFEST_NAME).write_text("not json")
+    with pytest.raises(OutputPathError, match="nmsid did not write"):
+        check_output(out, force=True, kind="folder")

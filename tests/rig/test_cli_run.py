@@ -95,6 +95,11 @@ def test_run_then_identify(tmp_path, capsys):
     rows = (analysis / "parameters.csv").read_text().splitlines()
     assert len(rows) == 4
     assert np.isfinite(float(rows[1].split(",")[2]))
+    # issue 39: a resume of the complete session runs no trial and names the analysis
+    # instead of writing I-analysis-2, -3, ...
+    assert main(["run", "--backend", "sim", "--resume", str(out), "--quiet"]) == 0
+    assert f"already in {analysis}; not repeated" in capsys.readouterr().out
+    assert not (tmp_path / "I-analysis-2").exists()
 
 
 def test_ctrl_c_is_an_estop_and_leaves_a_valid_file(tmp_path):

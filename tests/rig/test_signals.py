@@ -17,7 +17,7 @@ import pytest
 
 from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.rig.session_log import journal_dir
-from nmsid.rig.session_signals import exit_code, signal_reason
+from nmsid.rig.session_signals import SessionSignals, exit_code, signal_reason
 
 ROOT = Path(__file__).resolve().parents[2]
 TRIAL = ('participant = "SG"\n[protocol]\nsE_levels = [0.5, 0.7]\nrepeats = 1\n'
@@ -89,12 +89,29 @@ def test_sigterm_during_calibration_stops_output_and_writes_nothing_half(tmp_pat
     time.sleep(0.3)
     assert not (jdir / "calibration.npz").exists()
     os.kill(proc.pid, signal.SIGTERM)
-    _ended(proc, signal.SIGTERM)
+    stdout, line = _ended(proc, signal.SIGTERM)
     # no calibration, so no session file; the journal records the E-stop and the end
     assert not out.exists()
+    # issue 39: the line named a closed file that did not exist; the first line of a run
+    # comes before its calibration ends (a real-time run said nothing for 25 s)
+    assert "no session file was written" in line and "--resume" not in line
+    assert "starting: 0 of 1 trials done" in stdout
     events = (jdir / "events.jsonl").read_text()
     assert "SIGTERM received" in events and "session_end" in events
     assert events.index("interlock_trip") < events.index("session_end")
+
+
+def test_the_line_says_what_was_saved_and_offers_a_resume_only_when_it_applies():
+    """Issue 39: SIGINT after 45 of 45 trials said "continue with nmsid run --resume"."""
+    sig = SessionSignals(lambda *a: None)
+    sig.received = signal.SIGINT
+    assert "--resume s.h5" in sig.stderr_line("s.h5")
+    done = sig.stderr_line("s.h5", complete=True)
+    assert "session complete and closed: s.h5" in done and "--resume" not in done
+    assert "nmsid identify s.h5" in done
+    none = sig.stderr_line("s.h5", file_written=False)
+    assert "no session file was written" in none and "closed" not in none
+    assert sig.stderr_line().endswith("no session was running")
 
 
 def test_no_signal_handlers_left_behind_in_process(tmp_path):

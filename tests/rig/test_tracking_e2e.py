@@ -94,6 +94,13 @@ def test_plugin_participant_end_to_end(lab, capsys):
     assert (lab / "rep" / "figures" / "tracking-target.png").is_file()
     # nothing replaced without --force
     assert main(["control", "report", "track.h5", "--out", "rep"]) == 2
+    # a glob (issue 39): the session without tracking trials is named and skipped
+    capsys.readouterr()
+    assert main(["control", "report", "id.h5", "track.h5", "--out", "rep2"]) == 0
+    assert "id.h5: skipped: no tracking trials" in capsys.readouterr().out
+    assert (lab / "rep2" / "tracking.json").is_file()
+    assert main(["control", "report", "id.h5", "id.h5", "--out", "rep3"]) == 2
+    assert not (lab / "rep3").exists()
     # a resume imports no plug-in its command does not name (issue 36)
     assert main(["run", "--backend", "sim", "--resume", "track.h5", "--quiet"]) == 2
     assert "--participant-model mylab_elbow:make" in capsys.readouterr().err

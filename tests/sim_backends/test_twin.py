@@ -86,3 +86,20 @@ def test_bad_twins_are_refused_with_a_message_naming_the_problem(change, match):
     twin = dict(TWIN, **change)
     with pytest.raises(SimConfigError, match=match):
         participant_from_twin(twin)
+
+
+def test_a_twin_without_calibration_is_refused_naming_what_it_lacks():
+    """Issue 39: a group-average twin (no calibration) gave `calibration needs numeric
+    Iemin_mA, ... (KeyError('Iemin_mA'))`."""
+    import pytest
+
+    from nmsid.sim_backends.errors import SimConfigError
+    from nmsid.sim_backends.participant import default_participant
+    from nmsid.sim_backends.twin import participant_from_twin
+
+    data = default_participant().to_twin()
+    with pytest.raises(SimConfigError, match="has no calibration .*twin_<participant>.json"):
+        participant_from_twin(dict(data, calibration={}))
+    bad = dict(data, calibration=dict(data["calibration"], Ifmax_mA="eight"))
+    with pytest.raises(SimConfigError, match=r"calibration.Ifmax_mA is 'eight'; .* a number"):
+        participant_from_twin(bad)

@@ -1,6 +1,7 @@
 """``nmsid design`` end to end: outputs, the proposed protocol run, validated, identified,
 diagnosed; user mistakes in one line."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -27,9 +28,34 @@ SMALL_CHIRP = Candidate(sE_levels=(0.3, 0.45, 0.6, 0.8, 1.0), repeats=2, steady_
 @pytest.fixture(scope="module")
 def designed(tmp_path_factory):
     out = tmp_path_factory.mktemp("design")
-    doc = run_design(population_prior(2, seed=3), "paper", out, validate_n=1,
-                     candidates=[SMALL_CHIRP, SMALL_MULTISINE], draws=10)
-    return out, doc
+    outcome = run_design(population_prior(2, seed=3), "paper", out, validate_n=1,
+                         candidates=[SMALL_CHIRP, SMALL_MULTISINE], draws=10)
+    _OUTCOME.append(outcome)
+    return out, outcome.to_dict()
+
+
+_OUTCOME: list = []
+
+
+def test_run_design_returns_an_object_with_a_verdict(designed):
+    """Issue 39: run_design returns a result object; design says pass or fail in one line."""
+    out, doc = designed
+    outcome = _OUTCOME[-1]
+    assert outcome.to_dict() is doc and outcome.found is False
+    assert outcome.verdict == "FAIL"
+    assert outcome.verdict_line().startswith("verdict: FAIL: no candidate met the target")
+    assert "FAIL" in repr(outcome) and "\n" not in repr(outcome)
+    # the verdict of a found proposal follows the validated ratio and its Monte-Carlo SE
+    found = dict(doc, found=True)
+    for ratio, se, verdict in ((1.01, 0.05, "PASS"), (1.05, 0.02, "UNDECIDED"),
+                               (1.25, 0.05, "FAIL"), (None, None, "NOT VALIDATED")):
+        o = dataclasses.replace(outcome, document=dict(found, validated_sd_ratio=ratio,
+                                                       validated_sd_ratio_se=se))
+        assert o.verdict == verdict
+        assert o.verdict_line().startswith(f"verdict: {verdict}:")
+    o = dataclasses.replace(outcome, document=dict(found, validated_sd_ratio=1.25,
+                                                   validated_sd_ratio_se=0.05))
+    assert "1.250 +- 0.050 > 1.02" in o.verdict_line()
 
 
 def test_outputs_have_the_promised_fields(designed):
