@@ -308,7 +308,7 @@ def run_stream_dry_run(devices, s: DryRunSettings, *, fs_Hz: float, out=print) -
     out(f"  record: {block.received} of {n} samples at {fs:g} Hz"
         + (f"; block ended: {block.abort_reason}" if block.abort_reason else ""))
     summary = stim.delivery_summary() if isinstance(stim, DeliveryReporting) else None
-    st = stim.status()
+    st = devices.stimulator.status()   # the Stimulator's (isinstance narrowed stim)
     checks = [Check("stream: ended", not block.abort_reason and st.state is not
                     StimulatorState.ERROR and not st.output_active,
                     f"state {st.state.value}{', ' + st.error if st.error else ''}",
@@ -325,7 +325,7 @@ def run_stream_dry_run(devices, s: DryRunSettings, *, fs_Hz: float, out=print) -
                         f"{acked} of {sent} sent acknowledged ({due} due in the record), "
                         f"{lost} skipped (busy, transfer error, unanswered)",
                         ">= 90 % acknowledged, every one answered"))
-    step = float(stim.capabilities().resolution_mA)
+    step = float(devices.stimulator.capabilities().resolution_mA)
     got = summary["channels"][s.channel]["pulse_current_mA"]
     cmd = [stream.commands[k] for k in summary.get("pulse_index", [])]
     err = [c - g for c, g in zip(cmd, got)]

@@ -51,6 +51,7 @@ from nmsid.analysis.control.controllers import (
     PIDGains,
     RelayExperiment,
     RelayResult,
+    TwinController,
     relay_analysis,
     ziegler_nichols_pid,
 )
@@ -321,7 +322,7 @@ class TrackingSession(SessionKind):
                                    target_source=target_source)
         self.pid_gains: PIDGains | None = None
         self.relay_result: RelayResult | None = None
-        self._twin_ctrl = None
+        self._twin_ctrl: TwinController | None = None
 
     @classmethod
     def from_stored(cls, attrs: dict, where: str) -> TrackingSession:
