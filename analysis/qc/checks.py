@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from nmsid.analysis.signal_kernels import butter, sosfiltfilt
+from scipy.signal import butter, sosfiltfilt
 
 
 @dataclass

@@ -29,7 +29,7 @@ import numpy as np
 
 from nmsid.analysis.qc.checks import median_of_finite, runs
 from nmsid.analysis.qc.settings import QCSettings
-from nmsid.analysis.signal_kernels import butter, sosfiltfilt
+from scipy.signal import butter, sosfiltfilt
 
 
 @dataclass
