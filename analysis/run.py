@@ -175,10 +175,12 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         # loads the drawing code
         from nmsid.analysis.figures import plot_level_fits, plot_parameter_curves
         for label, res in zip(selection.participants, results):
-            files.append(plot_level_fits(res, out / f"fit_{_safe_name(label)}.png"))
+            png = plot_level_fits(res, out / f"fit_{_safe_name(label)}.png")
+            files += [png, png.with_suffix(".pdf")]
         for name in PARAMETER_NAMES:
-            files.append(plot_parameter_curves(selection, name, out / f"figure_{name}.png",
-                                               AVERAGE_LABEL))
+            png = plot_parameter_curves(selection, name, out / f"figure_{name}.png",
+                                        AVERAGE_LABEL)
+            files += [png, png.with_suffix(".pdf")]
     return RunOutputs(results, selection, files, problems, twins, text)
 
 
