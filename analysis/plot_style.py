@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DPI", "SYMBOLS", "COLOURS", "pyplot", "save", "legend_outside", "finite",
-           "group_title", "mark_missing"]
+__all__ = ["DPI", "SYMBOLS", "COLOURS", "pyplot", "save", "legend_outside", "legend_above",
+           "finite", "group_title", "mark_missing", "effect_title"]
 
 #: dots per inch of every PNG (the PDF beside it is vector)
 DPI = 160
@@ -92,6 +92,19 @@ def legend_outside(ax, where: str = "right", **kwargs: Any):
                      **kwargs)
 
 
+def legend_above(fig, *axes, ncol: int = 4):
+    """One legend for the whole figure above its axes (call after ``tight_layout``): the
+    labelled artists of ``axes``, each label once."""
+    seen: dict[str, Any] = {}
+    for ax in axes:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            seen.setdefault(lab, h)
+    if not seen:
+        return None
+    return fig.legend(list(seen.values()), list(seen), loc="lower center",
+                      bbox_to_anchor=(0.5, 1.0), ncol=min(ncol, len(seen)))
+
+
 def finite(values) -> np.ndarray:
     """Floats with ``None`` (a JSON report's "not computed") as NaN.
 
@@ -110,6 +123,17 @@ def mark_missing(ax, x, values, text: str = "not converged") -> None:
         if not math.isfinite(v):
             ax.text(xi, 0.0, text, rotation=90, ha="center", va="bottom", fontsize=7,
                     color="0.35", transform=ax.get_xaxis_transform())
+
+
+def effect_title(label: str) -> str:
+    """An effect's or a pair's report name as words.
+
+    Examples
+    --------
+    >>> effect_title("dead_time+fatigue")
+    'dead time + fatigue'
+    """
+    return " + ".join(part.replace("_", " ") for part in label.split("+"))
 
 
 def group_title(participants, label: str) -> str:

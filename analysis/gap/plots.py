@@ -29,7 +29,7 @@ def _bars(ax, labels, nominal, augmented, ylabel, augmented_label="augmented"):
 
 def _augmented_label(loc: dict) -> str:
     effect = loc.get("augmented_effect")
-    return f"augmented ({effect})" if effect else "augmented"
+    return f"augmented ({style.effect_title(effect)})" if effect else "augmented"
 
 
 def plot_where(loc: dict, path: Path, noise_floor_pct: float) -> None:
@@ -68,8 +68,8 @@ def plot_where(loc: dict, path: Path, noise_floor_pct: float) -> None:
     ax.set_xlabel("cumulative stimulation at the trial (s)")
     ax.set_ylabel(_NRMSE)
     ax.set_title("by position in the session")
-    style.legend_outside(axes[0, 0], "right")
     fig.tight_layout()
+    style.legend_above(fig, axes[0, 0], axes[1, 1])
     style.save(fig, path)
 
 
@@ -193,7 +193,7 @@ def plot_ranking(ranking: list[dict], nominal_pct: float, noise_pct: float, path
         colours.append(style.COLOURS["winner"] if won
                        else style.COLOURS["augmented"] if supported
                        else style.COLOURS["unsupported"])
-        names.append(f"{name}  (verdict)" if won else name)
+        names.append(style.effect_title(name) + ("  (verdict)" if won else ""))
     ax.barh(y, np.nan_to_num(vals, nan=0.0), color=colours)
     for yi, v in zip(y, vals):
         ax.text(v if np.isfinite(v) else 0.0, yi, f" {v:.3g} %" if np.isfinite(v)
