@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["DPI", "SYMBOLS", "COLOURS", "pyplot", "save", "legend_outside", "legend_above",
-           "finite", "group_title", "mark_missing", "effect_title"]
+           "finite", "group_title", "mark_missing", "effect_title", "plain_log_ticks"]
 
 #: dots per inch of every PNG (the PDF beside it is vector)
 DPI = 160
@@ -103,6 +103,16 @@ def legend_above(fig, *axes, ncol: int = 4):
         return None
     return fig.legend(list(seen.values()), list(seen), loc="lower center",
                       bbox_to_anchor=(0.5, 1.0), ncol=min(ncol, len(seen)))
+
+
+def plain_log_ticks(ax, axis: str = "x") -> None:
+    """Tick labels of a logarithmic axis as plain numbers (2, 5, 10), not powers of ten."""
+    from matplotlib.ticker import FuncFormatter, LogLocator
+    fmt = FuncFormatter(lambda v, _pos: f"{v:g}")
+    target = ax.xaxis if axis == "x" else ax.yaxis
+    target.set_major_formatter(fmt)
+    target.set_minor_locator(LogLocator(subs=(2.0, 5.0)))
+    target.set_minor_formatter(fmt)
 
 
 def finite(values) -> np.ndarray:

@@ -215,9 +215,10 @@ def write_figures(session, out_dir: Path) -> list[str]:
         ts = np.arange(n) / trials[0].fs_Hz
         ax.plot(ts, tg.force_at(ts), "--", color="k", lw=1.4, label="target", zorder=3)
         for t in trials:
-            line, = ax.plot(t.t_s, t.force_N, lw=1.0,
+            line, = ax.plot(t.t_s, t.force_N, lw=0.7, alpha=0.85,
                             label=f"{t.extra_attrs.get('controller')} ({t.name}, {t.status})")
-            ax_e.plot(t.t_s, np.asarray(t.force_N) - tg.force_at(np.asarray(t.t_s)), lw=0.8,
+            ax_e.plot(t.t_s, np.asarray(t.force_N) - tg.force_at(np.asarray(t.t_s)), lw=0.6,
+                      alpha=0.85,
                       color=line.get_color())
         ax_e.axhline(0.0, color="k", lw=0.5)
         ax_e.set_xlabel("time from onset (s)")

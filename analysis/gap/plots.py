@@ -99,6 +99,7 @@ def plot_frequency(loc: dict, path: Path) -> None:
     ax2.set_ylabel("coherence (-)", color="tab:green")
     ax2.set_ylim(0, 1.05)
     ax2.grid(False)
+    ax2.spines["right"].set_visible(True)
     for ax in axes[:2]:
         ax.axhline(0, color="k", lw=0.5)
     h1, l1 = axes[0].get_legend_handles_labels()
@@ -116,6 +117,7 @@ def plot_frequency(loc: dict, path: Path) -> None:
                          "--", color="tab:blue", label="augmented residual at 3f")
     axes[2].set_ylabel("% of the measured\nfundamental")
     axes[2].set_xlabel("instantaneous chirp frequency (Hz)")
+    style.plain_log_ticks(axes[2])
     style.legend_outside(axes[2], "right")
     fig.tight_layout()
     style.save(fig, path)
@@ -134,6 +136,7 @@ def plot_spectrum_and_gain(loc: dict, path: Path, f0_Hz: float) -> None:
             axes[0].loglog(f[m], style.finite(s["power"])[m], color=color, label=key)
     axes[0].axvspan(f0_Hz, 10.0, color="0.9", label="chirp band")
     axes[0].set_xlabel("frequency (Hz)")
+    style.plain_log_ticks(axes[0])
     axes[0].set_ylabel("held-out residual power (a.u.)")
     axes[0].set_title("residual spectrum")
     axes[0].legend(loc="lower left")

@@ -130,8 +130,9 @@ def plot_muscle(section: dict, path: Path) -> None:
         t = style.finite([r.get("nrmse_pct") for r in rows_t])
         m = style.finite([r.get("nrmse_pct") for r in rows_m])
         x = np.arange(len(rows_t))
+        template = style.effect_title(str(section["heldout"].get("template")))
         ax.bar(x - 0.2, t, 0.4, color=style.COLOURS["reference"],
-               label=f"template ({section['heldout'].get('template')})")
+               label=f"template ({template})")
         ax.bar(np.arange(len(m)) + 0.2, m, 0.4, color=style.COLOURS["winner"],
                label="muscle twin")
         style.mark_missing(ax, x - 0.2, t)
