@@ -92,8 +92,8 @@ def plot_level_fits(session_result, path: str | Path) -> Path:
             ax.text(0.5, 0.5, f"sE = {lv.sE:.2f}: not identified", ha="center",
                     va="center", transform=ax.transAxes)
             continue
-        _trace(ax, f.t_s, f.y_N, color=c["reference"], lw=2.4, label="measured")
-        _trace(ax, f.t_s, f.y_fit_N, color=c["fit"], lw=0.8, label="fitted")
+        _trace(ax, f.t_s, f.y_N, color=c["reference"], lw=3.0, label="measured")
+        _trace(ax, f.t_s, f.y_fit_N, color=c["fit"], lw=0.6, label="fitted")
         _trace(ax_r, f.t_s, f.residual_N, color=c["residual"], lw=0.6,
                label="residual (measured - fitted)")
         ax_r.axhline(0.0, color="k", lw=0.5)
@@ -108,7 +108,7 @@ def plot_level_fits(session_result, path: str | Path) -> Path:
             ax_r.set_xlabel("time after onset (s)")
     fig.suptitle(f"{style.group_title([session_result.participant], '')}: measured and "
                  "fitted force per sE level", y=1.0)
-    handles = [plt.Line2D([], [], color=c["reference"], lw=2.4, label="measured"),
+    handles = [plt.Line2D([], [], color=c["reference"], lw=3.0, label="measured"),
                plt.Line2D([], [], color=c["fit"], lw=0.8, label="fitted"),
                plt.Line2D([], [], color=c["residual"], lw=0.8,
                           label="residual (measured - fitted), own panel")]

@@ -28,8 +28,8 @@ DPI = 160
 #: axis labels of the model's parameters, with units (mathtext symbols)
 SYMBOLS = {"Kp": r"$K_p$ (N)", "wn_rad_s": r"$\omega_n$ (rad/s)", "zeta": r"$\zeta$ (-)"}
 #: the one palette: measurement, fit, residual, reference, the augmented / winning model
-COLOURS = {"measured": "0.15", "fit": "tab:red", "residual": "tab:blue",
-           "reference": "0.55", "augmented": "tab:blue", "winner": "tab:green",
+COLOURS = {"measured": "0.15", "fit": "#b2182b", "residual": "tab:blue",
+           "reference": "0.62", "augmented": "tab:blue", "winner": "tab:green",
            "unsupported": "0.75", "noise": "k"}
 
 _RC = {

@@ -19,6 +19,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from nmsid.analysis import plot_style as style
 from nmsid.analysis.control.design import rmse_pct_of_range
 from nmsid.analysis.control.errors import TrackingReportError
 from nmsid.analysis.control.targets import Target
@@ -196,7 +198,6 @@ def write_figures(session, out_dir: Path) -> list[str]:
     force, and the tracking error (force - target) in its own panel beneath. Returns the
     PNG names ([] and nothing written without matplotlib)."""
     try:
-        from nmsid.analysis import plot_style as style
         plt = style.pyplot()
     except ImportError:
         return []

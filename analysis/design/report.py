@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nmsid.analysis import plot_style as style
 from nmsid.analysis.design.candidates import PAPER_LEVELS, Candidate
 from nmsid.analysis.design.predict import DerivedQuantities, SelectionAccuracy
 from nmsid.analysis.design.prior import PARAMETERS
@@ -262,7 +263,6 @@ def _figure(path: Path, rel_prop, rel_paper, c, paper, rel0=None) -> str | None:
     """Predicted SE of each parameter's curve at the paper's levels, proposal against the
     paper's protocol (PNG and PDF); None without matplotlib."""
     try:
-        from nmsid.analysis import plot_style as style
         plt = style.pyplot()
     except ImportError:
         return None

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nmsid.analysis import plot_style as style
 from nmsid.analysis.muscle.twin_form import muscle_entry
 
 #: Bins of the commanded deviation's size |rE - 0.5|.
@@ -115,7 +116,6 @@ def plot_muscle(section: dict, path: Path) -> None:
     """Held-out NRMSE of the template's answer and of the muscle twin by sE, by chirp band
     and by |rE - 0.5|, with the noise floor; a value the fit did not give (None or NaN:
     not converged) is left out and named."""
-    from nmsid.analysis import plot_style as style
     plt = style.pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.8))
     w = section["where"]
