@@ -271,7 +271,8 @@ def plot_remaining(report: dict, path: Path) -> None:
         ax.set_title(title)
         ax.set_xlabel(xlabel)
     axes[0].set_ylabel("residual power / noise power (-)")
-    label = report.get("best_pair") and "+".join(report["best_pair"]) or report["best_effect"]
+    label = style.effect_title(report.get("best_pair") and "+".join(report["best_pair"])
+                               or report["best_effect"])
     fig.suptitle(f"verdict: {report['verdict']} ({label}); remaining beyond noise "
                  f"{rem['beyond_noise_pct_typical'] or 0:.2f} % of the response, "
                  + ("significant" if rem["significant"] else "not significant"))
