@@ -32,13 +32,13 @@ COLOURS = {"measured": "0.15", "fit": "#b2182b", "residual": "tab:blue",
            "reference": "0.62", "augmented": "tab:blue", "winner": "tab:green",
            "unsupported": "0.75", "noise": "k"}
 
+_PAD_IN = 0.05                 # white margin around the tight box, inches
 _RC = {
     "font.size": 9.0, "axes.titlesize": 9.5, "axes.labelsize": 9.0,
     "xtick.labelsize": 8.0, "ytick.labelsize": 8.0, "legend.fontsize": 8.0,
     "figure.titlesize": 10.5, "axes.spines.top": False, "axes.spines.right": False,
     "axes.grid": True, "grid.color": "0.9", "grid.linewidth": 0.6,
     "lines.linewidth": 1.0, "legend.frameon": False,
-    "savefig.bbox": "tight", "savefig.pad_inches": 0.05,
     "pdf.fonttype": 42,            # TrueType in the PDF: text stays text in an editor
     "mathtext.default": "regular",
 }
@@ -72,8 +72,11 @@ def save(fig, png_path: str | Path) -> list[Path]:
     png = Path(png_path)
     pdf = png.with_suffix(".pdf")
     try:
-        fig.savefig(png, dpi=DPI)
-        fig.savefig(pdf)
+        # the tight box once for both files (savefig's bbox_inches="tight" lays the figure
+        # out again for each): legends placed outside the axes stay inside the image
+        box = fig.get_tightbbox(fig.canvas.get_renderer()).padded(_PAD_IN)
+        fig.savefig(png, dpi=DPI, bbox_inches=box)
+        fig.savefig(pdf, bbox_inches=box)
     finally:
         plt.close(fig)
     return [png, pdf]
