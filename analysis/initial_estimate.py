@@ -21,7 +21,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from nmsid.analysis.signal_kernels import lfilter
+from scipy.signal import lfilter
 from nmsid.analysis.thin_lstsq import cross, lstsq_rows
 
 logger = logging.getLogger(__name__)

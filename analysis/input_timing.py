@@ -32,7 +32,7 @@ from nmsid.analysis.errors import IdentificationError
 from nmsid.analysis.preprocess import LevelData, TrialSignals, preprocess_trials
 from nmsid.analysis.second_order import SecondOrderFit, fit_second_order
 from nmsid.analysis.settings import IdentificationSettings, InputTiming
-from nmsid.analysis.signal_kernels import lfilter
+from scipy.signal import lfilter
 
 #: A delay must exceed this many standard errors to be used (the standard error assumes
 #: white noise at the fit rate: a margin against its optimism on low-passed data) ...

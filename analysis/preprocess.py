@@ -23,11 +23,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.ndimage import convolve1d
+from scipy.signal import butter, savgol_coeffs, sosfilt, sosfilt_zi, sosfiltfilt
 
 from nmsid.analysis.discretize import fractional_delay
 from nmsid.analysis.errors import IdentificationError
-from nmsid.analysis.signal_kernels import (butter, convolve1d, savgol_coeffs, sosfilt, sosfilt_zi,
-                                           sosfiltfilt)
 from nmsid.analysis.thin_lstsq import dot
 from nmsid.analysis.settings import IdentificationSettings, InputTiming
 from nmsid.protocols.reprs import html_repr, names, short_repr

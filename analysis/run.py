@@ -232,10 +232,12 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         for code, own in by_code.items():
             for res in own:
                 name = code if len(own) == 1 else f"{code}_{Path(_label(res.source)).stem}"
-                files.append(plot_level_fits(res, out / f"fit_{_safe_name(name)}.png"))
+                png = plot_level_fits(res, out / f"fit_{_safe_name(name)}.png")
+                files += [png, png.with_suffix(".pdf")]
         for name in PARAMETER_NAMES:
-            files.append(plot_parameter_curves(selection, name, out / f"figure_{name}.png",
-                                               AVERAGE_LABEL))
+            png = plot_parameter_curves(selection, name, out / f"figure_{name}.png",
+                                        AVERAGE_LABEL)
+            files += [png, png.with_suffix(".pdf")]
     return Identification(results, selection, files, problems, twins, text)
 
 

@@ -36,7 +36,7 @@ from nmsid.analysis.errors import IdentificationError
 from nmsid.analysis.initial_estimate import StartEstimate, srivc_start
 from nmsid.analysis.residual_tests import ResidualTests, residual_tests
 from nmsid.analysis.settings import IdentificationSettings, InputHold, NoiseLevel
-from nmsid.analysis.signal_kernels import lfilter
+from scipy.signal import lfilter
 from nmsid.analysis.thin_lstsq import cross, dot, gram, lstsq_rows, orthonormalise
 from nmsid.protocols.reprs import html_repr, short_repr
 

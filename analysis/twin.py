@@ -21,7 +21,7 @@ import numpy as np
 from nmsid.analysis.curves import evaluate_curve
 from nmsid.analysis.discretize import foh_coefficients, foh_state_matrices
 from nmsid.analysis.errors import IdentificationError, TwinFileError, TwinInputError
-from nmsid.analysis.signal_kernels import lfilter
+from scipy.signal import lfilter
 from nmsid.protocols.reprs import html_repr, short_repr
 from nmsid.sim_backends.twin_file import TwinReadError, read_twin_file, write_twin_file
 

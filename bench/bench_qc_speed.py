@@ -16,8 +16,6 @@ The baseline is the same QC with its former computations put back for the steps 
 were replaced (like for like; the steps that only stopped repeating work stay):
 
 * ``np.median`` and ``np.quantile`` instead of the one-partition medians and quantile;
-* the zero-phase filters' sections one after the other through the compiled ``lfilter``
-  instead of scipy's compiled ``_sosfilt`` (the rounding differs in the last digits);
 * every regression building its own normal matrix to start from.
 
 The stages are timed in the fast run: the two zero-phase filters over all trials, the
@@ -50,7 +48,6 @@ import numpy as np  # noqa: E402
 from workers import child_env  # noqa: E402
 from cpu_time import cpu_median, load_1min  # noqa: E402
 from nmsid.analysis.qc import checks, decide, repeats  # noqa: E402
-from nmsid.protocols import lti_kernels as lti  # noqa: E402
 from nmsid.protocols.session_file import read_session  # noqa: E402
 
 TARGET_S = 0.08
@@ -65,8 +62,7 @@ def _arg(name: str, default: str) -> str:
 @contextlib.contextmanager
 def _former_computations():
     """The replaced computations back in place (see the module's docstring)."""
-    saved = (checks.median_of_finite, checks.quantile_of_finite, lti._sos_kernel,
-             lti.sos_source, repeats._Reference.start)
+    saved = (checks.median_of_finite, checks.quantile_of_finite, repeats._Reference.start)
 
     def start(self, inside):
         X = self.regressors[inside]
@@ -75,13 +71,12 @@ def _former_computations():
 
     checks.median_of_finite = lambda x, scratch=False: float(np.median(x))
     checks.quantile_of_finite = lambda x, q, scratch=False: float(np.quantile(x, q))
-    lti._sos_kernel, lti.sos_source = None, "unavailable"
     repeats._Reference.start = start
     try:
         yield
     finally:
-        (checks.median_of_finite, checks.quantile_of_finite, lti._sos_kernel,
-         lti.sos_source, repeats._Reference.start) = saved
+        (checks.median_of_finite, checks.quantile_of_finite,
+         repeats._Reference.start) = saved
 
 
 def _stages(session, runs: int) -> dict[str, float]:

@@ -167,8 +167,8 @@ def whole_process(tmp: Path, runs: int = 3) -> None:
 
 
 def filters_vs_scipy(trials: int = 20) -> None:
-    """The simulator's filters (protocols/lti_kernels.py) against the scipy.signal path
-    they replaced, on the participants' range at 2000 Hz: a 15 s trial (30000 samples) of
+    """The simulator's filters (protocols/lti_kernels.py, public scipy.signal since issue
+    38) against plain scipy.signal calls, on the participants' range at 2000 Hz: a 15 s trial (30000 samples) of
     the 2nd-order model and of the 3rd-order cascade with an activation lag, each continued
     from a past (``lfilter`` from ``lfiltic``'s states); time per trial and the largest
     difference, relative to the trial's largest output. Plus the import of each."""
@@ -178,8 +178,8 @@ def filters_vs_scipy(trials: int = 20) -> None:
     from nmsid.protocols.lti_kernels import lfilter_history
     from nmsid.sim_backends.filters import dynamics_zoh
     rng = np.random.default_rng(30)
-    print("\nSimulator filters, lfilter_history (protocols/lti_kernels.py: scipy's compiled "
-          "kernel loaded alone) vs scipy.signal (lfilter + lfiltic), "
+    print("\nSimulator filters, lfilter_history (protocols/lti_kernels.py, on public "
+          "scipy.signal) vs plain scipy.signal calls (lfilter + lfiltic), "
           f"{trials} random participants per order, 30000-sample trials at 2000 Hz")
     print(f"{'order':>5s} {'ours ms':>9s} {'scipy ms':>9s} {'ratio':>6s} "
           f"{'max |diff| / max |y|':>21s} {'goal':>8s}")

@@ -3,9 +3,9 @@ must do, run as its own process.
 
     python bench/identify_floor_process.py SESSION.h5
 
-Start Python; import numpy and h5py; read ``rE`` and ``force_N`` of every trial with
+Start Python; import numpy, h5py and ``scipy.signal``; read ``rE`` and ``force_N`` of every trial with
 h5py's low-level call into preallocated arrays (no attribute, no contract check); one
-zero-phase 4th-order low-pass of every trial at once (scipy's compiled filter kernel,
+zero-phase 4th-order low-pass of every trial at once (``scipy.signal.lfilter``,
 forward and backward), decimation by 10; one *linear* least-squares fit per trial (a
 second-order ARX model: no nonlinear search, no confidence intervals). Nothing is
 validated, no trial is judged, nothing is written.
@@ -26,10 +26,10 @@ T0 = time.perf_counter()
 import h5py  # noqa: E402
 import numpy as np  # noqa: E402
 
-from nmsid.protocols.lti_kernels import lfilter  # noqa: E402
+from scipy.signal import lfilter  # noqa: E402
 
 #: 4th-order Butterworth low-pass at 20 Hz for 2000 Hz as two biquads (scipy.signal.butter(
-#: 4, 20, fs=2000, output="sos"), written out so that scipy.signal is not imported)
+#: 4, 20, fs=2000, output="sos"), written out: the floor designs no filter)
 SOS = np.array([[8.984861463970648e-07, 1.7969722927941296e-06, 8.984861463970648e-07,
                  1.0, -1.8866095826215064, 0.8903397362840242],
                 [1.0, 2.0, 1.0, 1.0, -1.9492159580258417, 0.9530698953278909]])

@@ -7,11 +7,9 @@ the same trial in one block) and its recent input / output history, so that when
 coefficients change (a new sE) the difference equation continues from the physical
 history instead of restarting.
 
-The kernels come from the lowest layer (:mod:`nmsid.protocols.lti_kernels`): the same steps
-as ``scipy.signal.cont2discrete`` in numpy, and the product's one recursive filter,
-``scipy.signal``'s compiled ``lfilter`` started by ``lfiltic`` from the past inputs and
-outputs, loaded without ``import scipy.signal`` (0.5-1 s of start-up); the same numbers
-as the simulator's former ``scipy.signal`` calls (tests/protocols/test_lti_kernels.py).
+The helpers come from the lowest layer (:mod:`nmsid.protocols.lti_kernels`): public
+``scipy.signal.cont2discrete`` and ``scipy.signal.lfilter`` started by ``lfiltic`` from the
+past inputs and outputs (tests/protocols/test_lti_kernels.py).
 """
 
 from __future__ import annotations

@@ -98,7 +98,8 @@ def write_report(path: Path, results: list[dict], group: GroupResult, figures: l
 
 
 def draw_figures(group: GroupResult, out: Path) -> list[Path]:
-    """Figures 4-6 (Kp, wn, zeta against sE with the fitted curves) as PNG files."""
+    """Figures 4-6 (Kp, wn, zeta against sE with the fitted curves): the PNG files (a PDF of
+    each is written beside it)."""
     if group.selection is None:
         return []
     from nmsid.analysis.figures import plot_parameter_curves  # matplotlib: loaded only to draw

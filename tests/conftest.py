@@ -60,19 +60,3 @@ def load_bench_script():
         spec.loader.exec_module(module)
         return module
     return load
-
-
-@pytest.fixture(params=["kernel", "numpy"])
-def filter_path(request, monkeypatch):
-    """Run a filter test on each of the product's two filter paths: scipy's compiled kernels
-    (``nmsid.protocols.lti_kernels``: ``lfilter``'s and ``sosfilt``'s) and the numpy
-    fallback, forced by hiding both kernels."""
-    from nmsid.protocols import lti_kernels
-    if request.param == "numpy":
-        monkeypatch.setattr(lti_kernels, "_kernel", None)
-        monkeypatch.setattr(lti_kernels, "source", "unavailable")
-        monkeypatch.setattr(lti_kernels, "_sos_kernel", None)
-        monkeypatch.setattr(lti_kernels, "sos_source", "unavailable")
-    assert lti_kernels.kernel_available() == (request.param == "kernel")
-    assert lti_kernels.sos_kernel_available() == (request.param == "kernel")
-    return request.param

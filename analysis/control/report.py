@@ -19,6 +19,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from nmsid.analysis import plot_style as style
 from nmsid.analysis.control.design import rmse_pct_of_range
 from nmsid.analysis.control.errors import TrackingReportError
 from nmsid.analysis.control.targets import Target
@@ -192,12 +194,11 @@ def report_markdown(rep: TrackingReport) -> str:
 
 
 def write_figures(session, out_dir: Path) -> list[str]:
-    """One PNG per target: target and achieved force of each controller. Returns the
-    file names ([] and nothing written without matplotlib)."""
+    """One figure per target (PNG and PDF): the target and each controller's achieved
+    force, and the tracking error (force - target) in its own panel beneath. Returns the
+    PNG names ([] and nothing written without matplotlib)."""
     try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        plt = style.pyplot()
     except ImportError:
         return []
     by_target: dict[str, list] = {}
@@ -208,23 +209,29 @@ def write_figures(session, out_dir: Path) -> list[str]:
     out_dir.mkdir(exist_ok=True)
     names = []
     for name, trials in by_target.items():
-        fig, ax = plt.subplots(figsize=(8, 3.2))
+        fig, (ax, ax_e) = plt.subplots(2, 1, figsize=(9, 4.6), sharex=True,
+                                       gridspec_kw={"height_ratios": [2.4, 1.0]})
         tg = Target.from_json(trials[0].extra_attrs["target_json"])
         n = max(t.n_samples for t in trials)
         ts = np.arange(n) / trials[0].fs_Hz
-        ax.plot(ts, tg.force_at(ts), "k--", lw=1.2, label="target")
+        ax.plot(ts, tg.force_at(ts), "--", color="k", lw=1.4, label="target", zorder=3)
         for t in trials:
-            ax.plot(t.t_s, t.force_N, lw=0.8,
-                    label=f"{t.extra_attrs.get('controller')} ({t.name}, {t.status})")
-        ax.set_xlabel("time from onset (s)")
+            line, = ax.plot(t.t_s, t.force_N, lw=0.7, alpha=0.85,
+                            label=f"{t.extra_attrs.get('controller')} ({t.name}, {t.status})")
+            ax_e.plot(t.t_s, np.asarray(t.force_N) - tg.force_at(np.asarray(t.t_s)), lw=0.6,
+                      alpha=0.85,
+                      color=line.get_color())
+        ax_e.axhline(0.0, color="k", lw=0.5)
+        ax_e.set_xlabel("time from onset (s)")
         ax.set_ylabel("force (N)")
-        ax.set_title(f"tracking: {name}")
-        ax.legend(fontsize=7, loc="best")
+        ax_e.set_ylabel("error (N)\nforce - target")
+        who = session.participant or "unknown participant"
+        ax.set_title(f"participant {who}: tracking the target {name!r}")
+        style.legend_outside(ax, "right")
         fig.tight_layout()
         safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
         fname = f"tracking-{safe}.png"
-        fig.savefig(out_dir / fname, dpi=90)
-        plt.close(fig)
+        style.save(fig, out_dir / fname)
         names.append(fname)
     return names
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nmsid.analysis import plot_style as style
 from nmsid.analysis.design.candidates import PAPER_LEVELS, Candidate
 from nmsid.analysis.design.predict import DerivedQuantities, SelectionAccuracy
 from nmsid.analysis.design.prior import PARAMETERS
@@ -259,37 +260,36 @@ def report_text(doc: dict, result) -> str:
 
 
 def _figure(path: Path, rel_prop, rel_paper, c, paper, rel0=None) -> str | None:
+    """Predicted SE of each parameter's curve at the paper's levels, proposal against the
+    paper's protocol (PNG and PDF); None without matplotlib."""
     try:
-        import matplotlib          # lazy: plotting is an optional extra
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        plt = style.pyplot()
     except ImportError:
         return None
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.8))
     x = np.asarray(PAPER_LEVELS)
     for j, (ax, name) in enumerate(zip(axes, PARAMETERS)):
         ax.plot(x, 100 * np.median(rel_paper[:, :, j], axis=0), "-", color="0.5", lw=4,
-                alpha=0.6, label=f"paper ({paper.stimulation_s:g} s)")
+                alpha=0.6, label=f"paper's protocol ({paper.stimulation_s:g} s)")
         ax.plot(x, 100 * np.median(rel_prop[:, :, j], axis=0), "s-", color="C0", ms=4,
                 label=f"proposal ({c.stimulation_s:g} s)")
         if rel0 is not None:
             ax.plot(x, 100 * np.median(rel0[1][:, :, j], axis=0), "--", color="0.5",
-                    label="paper, sensor noise only")
+                    label="paper's, sensor noise only")
             ax.plot(x, 100 * np.median(rel0[0][:, :, j], axis=0), "--", color="C0",
                     label="proposal, sensor noise only")
             ax.set_yscale("log")
-        for s in c.sE_levels:
-            ax.axvline(s, color="C0", alpha=0.15)
-        ax.set_title(name)
-        ax.set_xlabel("sE")
-        ax.set_ylabel("predicted SE of the curve (%)")
-    axes[0].legend(fontsize=7)
+        for i, s in enumerate(c.sE_levels):
+            ax.axvline(s, color="C0", alpha=0.15,
+                       label="proposal's levels" if i == 0 else None)
+        ax.set_title(style.SYMBOLS.get(name, name).split(" (")[0])
+        ax.set_xlabel(r"stimulation level $s_E$")
+        ax.set_ylabel("predicted relative SE of the curve (%)")
+    style.legend_outside(axes[-1], "right")
     fig.suptitle("predicted standard error of each curve at the paper's levels (median over "
-                 "the prior's participants); vertical lines: the proposal's levels",
-                 fontsize=9)
+                 "the prior's participants)")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    style.save(fig, path)
     return path.name
 
 

@@ -15,13 +15,13 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from nmsid.analysis import signal_kernels as signal
+from scipy import signal
+from scipy.signal import lfilter
 
 from nmsid.analysis.damped_lstsq import Damping, levenberg_marquardt
 from nmsid.analysis.gap.data import GapData
 from nmsid.protocols.effects import Effect
 from nmsid.analysis.gap.harmonics import levy_second_order, local_harmonics
-from nmsid.protocols.lti_kernels import lfilter
 from nmsid.analysis.gap.models import Candidate, nuisance_basis
 from nmsid.analysis.gap.samples import effective_fraction
 from nmsid.analysis.parameters import Parameters

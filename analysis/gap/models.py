@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import Callable, ClassVar
 
 import numpy as np
-from nmsid.analysis import signal_kernels as signal
+from scipy import signal
 
 from nmsid.analysis.discretize import (fractional_delay, lagged_second_order_tf, parallel_tf,
                                        second_order_tf, smooth_hold_input)

@@ -305,7 +305,9 @@ def _figures(diag: Diagnosis, report: dict, localized: Localization, out: Path) 
         names.append("muscle.png")
     if report["ranking"]:         # none when no candidate was needed (candidates_not_fitted)
         plots.plot_ranking(report["ranking"], diag.nominal.heldout_nrmse_pct,
-                           diag.noise_floor_nrmse_pct, out / "ranking.png")
+                           diag.noise_floor_nrmse_pct, out / "ranking.png",
+                           muscle=report.get("muscle_twin"),
+                           winner=plots.winner_label(report))
         names.append("ranking.png")
     ok = np.flatnonzero(diag.tested)
     if len(ok):

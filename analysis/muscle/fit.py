@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import fft, optimize
 
-from nmsid.analysis.signal_kernels import savgol_coeffs
+from scipy.signal import savgol_coeffs
 
 from nmsid.analysis.gap.data import GapData
 from nmsid.analysis.gap.fit import initial_levels

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nmsid.analysis import plot_style as style
 from nmsid.analysis.muscle.twin_form import muscle_entry
 
 #: Bins of the commanded deviation's size |rE - 0.5|.
@@ -113,29 +114,36 @@ def twin_item(diag) -> dict | None:
 
 def plot_muscle(section: dict, path: Path) -> None:
     """Held-out NRMSE of the template's answer and of the muscle twin by sE, by chirp band
-    and by |rE - 0.5|, with the noise floor."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
+    and by |rE - 0.5|, with the noise floor; a value the fit did not give (None or NaN:
+    not converged) is left out and named."""
+    plt = style.pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.8))
     w = section["where"]
-    floor = section["heldout"]["noise_floor_nrmse_pct"]
-    specs = [("sE", lambda r: f"{r['sE']:g}", "sE"),
-             ("band", lambda r: f"{r['f_lo_Hz']:g}-{r['f_hi_Hz']:g}", "chirp band, Hz"),
-             ("abs_deviation", lambda r: f"{r['d_lo']:g}-{r['d_hi']:g}", "|rE - 0.5|")]
+    floor = section["heldout"].get("noise_floor_nrmse_pct")
+    specs = [("sE", lambda r: f"{r['sE']:g}", r"stimulation level $s_E$"),
+             ("band", lambda r: f"{r['f_lo_Hz']:g}-{r['f_hi_Hz']:g}",
+              "chirp frequency band (Hz)"),
+             ("abs_deviation", lambda r: f"{r['d_lo']:g}-{r['d_hi']:g}",
+              r"commanded deviation $|r_E - 0.5|$")]
     for ax, (key, lab, xlabel) in zip(axes, specs):
-        rows_t, rows_m = w["template"][key], w["muscle"][key]
+        rows_t, rows_m = w["template"].get(key, []), w["muscle"].get(key, [])
+        t = style.finite([r.get("nrmse_pct") for r in rows_t])
+        m = style.finite([r.get("nrmse_pct") for r in rows_m])
         x = np.arange(len(rows_t))
-        ax.bar(x - 0.2, [r["nrmse_pct"] for r in rows_t], 0.4, color="0.6",
-               label=section["heldout"]["template"])
-        ax.bar(x + 0.2, [r["nrmse_pct"] for r in rows_m], 0.4, color="tab:green",
+        template = style.effect_title(str(section["heldout"].get("template")))
+        ax.bar(x - 0.2, t, 0.4, color=style.COLOURS["reference"],
+               label=f"template ({template})")
+        ax.bar(np.arange(len(m)) + 0.2, m, 0.4, color=style.COLOURS["winner"],
                label="muscle twin")
-        ax.axhline(floor, ls=":", color="k", label="noise floor")
+        style.mark_missing(ax, x - 0.2, t)
+        style.mark_missing(ax, np.arange(len(m)) + 0.2, m)
+        if floor is not None and np.isfinite(floor):
+            ax.axhline(floor, ls=":", color=style.COLOURS["noise"], label="noise floor")
         ax.set_xticks(x)
-        ax.set_xticklabels([lab(r) for r in rows_t], rotation=45, fontsize=7)
+        ax.set_xticklabels([lab(r) for r in rows_t], rotation=45, ha="right")
         ax.set_xlabel(xlabel)
-        ax.set_ylabel("held-out NRMSE, %")
-    axes[0].legend(fontsize=7)
+        ax.set_ylabel("held-out NRMSE (%)")
+    style.legend_outside(axes[-1], "right")
+    fig.suptitle("where the muscle twin helps: template against muscle twin")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    style.save(fig, path)

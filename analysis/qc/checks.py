@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from nmsid.analysis.signal_kernels import butter, sosfiltfilt
+from scipy.signal import butter, sosfiltfilt
 
 
 @dataclass
@@ -188,7 +188,7 @@ def flat_runs(x: np.ndarray, fs_Hz: float, stall_min_s: float, clip_min_s: float
 def spike_lowpass_sos(fs_Hz: float, highpass_Hz: float) -> np.ndarray:
     """The low-pass whose remainder :func:`spikes` searches (order 4 at ``highpass_Hz``,
     at most 0.4 ``fs_Hz``)."""
-    return butter(4, min(highpass_Hz, 0.4 * fs_Hz), fs=fs_Hz)
+    return butter(4, min(highpass_Hz, 0.4 * fs_Hz), fs=fs_Hz, output="sos")
 
 
 def spikes(x: np.ndarray, fs_Hz: float, highpass_Hz: float, k: float,

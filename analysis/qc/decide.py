@@ -31,7 +31,7 @@ from nmsid.analysis.fatigue import FatigueResult, cumulative_stimulation_s, fit_
 from nmsid.analysis.qc import checks
 from nmsid.analysis.qc.repeats import Deviation, attribute_pair, deviations, fit_jump, smoothed, unshared
 from nmsid.analysis.qc.settings import QCSettings
-from nmsid.analysis.signal_kernels import sosfiltfilt
+from scipy.signal import sosfiltfilt
 from nmsid.protocols.reprs import html_repr, short_repr
 from nmsid.protocols.session_file import Trial, read_session
 

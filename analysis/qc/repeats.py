@@ -29,7 +29,7 @@ import numpy as np
 
 from nmsid.analysis.qc.checks import median_of_finite, runs
 from nmsid.analysis.qc.settings import QCSettings
-from nmsid.analysis.signal_kernels import butter, sosfiltfilt
+from scipy.signal import butter, sosfiltfilt
 
 
 @dataclass
@@ -69,7 +69,7 @@ def smoothed(force_N: np.ndarray, fs_Hz: float, settings: QCSettings) -> tuple[n
     ``force_N`` may hold several signals (rows, one length): each is filtered on its own,
     in one call."""
     x = np.asarray(force_N, float)
-    sos = butter(4, min(settings.lowpass_Hz, 0.4 * fs_Hz), fs=fs_Hz)
+    sos = butter(4, min(settings.lowpass_Hz, 0.4 * fs_Hz), fs=fs_Hz, output="sos")
     y = sosfiltfilt(sos, x)
     step = max(1, int(fs_Hz // (5 * settings.lowpass_Hz)))
     return y[..., ::step].copy(), fs_Hz / step

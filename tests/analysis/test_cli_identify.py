@@ -59,6 +59,7 @@ def test_identify_group_with_figures_and_a_bad_file(small_session, second_sessio
                                                      second_session[0].name]
     for name in ("figure_Kp.png", "figure_wn_rad_s.png", "figure_zeta.png", "fit_P02.png"):
         assert (out / name).stat().st_size > 1000
+        assert (out / name).with_suffix(".pdf").read_bytes()[:5] == b"%PDF-"
     sel = json.loads((out / "model_selection.json").read_text())
     assert sel["settings"]["butter_order"] == 2
 

@@ -92,6 +92,7 @@ def test_plugin_participant_end_to_end(lab, capsys):
     base = rep["controllers"]["baseline"]["rmse_pct_of_range"]
     assert twin is not None and base is not None and twin < base
     assert (lab / "rep" / "figures" / "tracking-target.png").is_file()
+    assert (lab / "rep" / "figures" / "tracking-target.pdf").read_bytes()[:5] == b"%PDF-"
     # nothing replaced without --force
     assert main(["control", "report", "track.h5", "--out", "rep"]) == 2
     # a glob (issue 39): the session without tracking trials is named and skipped

@@ -66,7 +66,7 @@ def test_two_workers_report_and_failing_session(folder, dask_run):
     sel = json.loads((out / "model_selection.json").read_text())
     assert sorted(sel["participants"]) == sorted(t.participant for t in truths.values())
     for name in ("aicc.csv", "selected_models.csv", "aicc_sums.csv", "gap_summary.json",
-                 "study.json", "figure_Kp.png", "figure_zeta.png"):
+                 "study.json", "figure_Kp.png", "figure_zeta.png", "figure_Kp.pdf"):
         assert (out / name).is_file()
     assert len(list((out / "sessions").glob("*/identify/parameters.csv"))) == 3
     assert len(list((out / "sessions").glob("*/gap/gap_report.json"))) == 3

@@ -132,6 +132,8 @@ def test_cli_design_writes_outputs_and_prints_the_ratio(tmp_path, capsys, monkey
     assert code == 0 and "predicted_sd_ratio" in text and "validated_sd_ratio not run" in text
     d = json.loads((tmp_path / "d" / "design.json").read_text())
     assert d["validated_sd_ratio"] is None
+    assert (tmp_path / "d" / "design.png").stat().st_size > 1000
+    assert (tmp_path / "d" / "design.pdf").read_bytes()[:5] == b"%PDF-"
     monkeypatch.setattr(api, "search_space", real)
 
 

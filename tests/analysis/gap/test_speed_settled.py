@@ -1,75 +1,19 @@
-"""``nmsid gap`` at the speed of its data (issue 30, speed item): the filter kernel loaded
-without ``import scipy.signal`` is scipy's own, bit for bit; a session whose nominal gap is
-within noise skips the candidates without changing any answer; the knot slopes are PCHIP's."""
+"""``nmsid gap`` at the speed of its data (issue 30, speed item): a session whose nominal gap
+is within noise skips the candidates without changing any answer; the knot slopes are
+PCHIP's."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 
 import numpy as np
 import pytest
-import scipy.signal as ss
 from scipy.interpolate import PchipInterpolator
 
-from nmsid.analysis.discretize import lagged_second_order_tf, parallel_tf, second_order_tf
-from nmsid.analysis.gap import fit, verdict
+from nmsid.analysis.gap import verdict
 from nmsid.analysis.gap.data import load_session
 from nmsid.analysis.gap.diagnose import GapSettings, diagnose
 from nmsid.analysis.gap.models import pchip_slopes
-from nmsid.protocols import lti_kernels
 from nmsid.protocols.effects import CANDIDATES
-
-
-def _filters():
-    wn, zeta = np.array([8.0, 25.0, 60.0]), np.array([0.2, 0.7, 1.3])
-    b2, a2 = second_order_tf(wn, zeta, 0.005)
-    b3, a3 = lagged_second_order_tf(wn, zeta, 0.03, 0.005)
-    b4, a4 = parallel_tf(b2, a2, *second_order_tf(wn * 1.3, zeta * 0.8, 0.005))
-    for b, a in ((b2, a2), (b3, a3), (b4, a4)):
-        yield from zip(b, a)
-
-
-def test_kernel_is_scipys_lfilter_bit_for_bit():
-    rng = np.random.default_rng(3)
-    x = rng.standard_normal((3, 2140)).cumsum(axis=1)
-    for b, a in _filters():
-        np.testing.assert_array_equal(lti_kernels.lfilter(b, a, x),
-                                      ss.lfilter(b, a, x, axis=-1))
-        np.testing.assert_array_equal(lti_kernels.lfilter(b, a, x[0]),
-                                      ss.lfilter(b, a, x[0]))
-    # the fast path itself ran (not the fallback): scipy's layout is the one expected
-    assert lti_kernels.source == "compiled kernel"
-    # the gap fits filter through the product's one kernel (the former module re-exports it)
-    assert fit.lfilter is lti_kernels.lfilter
-
-
-def test_kernel_falls_back_to_the_public_lfilter(monkeypatch):
-    monkeypatch.setattr(lti_kernels, "_kernel", None)
-    monkeypatch.setattr(lti_kernels, "source", None)
-    monkeypatch.setattr(lti_kernels, "_load_kernel", lambda: None)
-    b, a = next(_filters())
-    x = np.linspace(0.0, 1.0, 500)
-    np.testing.assert_array_equal(lti_kernels.lfilter(b, a, x), ss.lfilter(b, a, x))
-    assert lti_kernels.source == "unavailable"
-
-
-@pytest.mark.parametrize("b,a", [([1.0], [0.0, 1.0]), ([[1.0]], [1.0, 0.5]),
-                                 ([], [1.0, 0.5])])
-def test_kernel_refuses_what_it_does_not_filter(b, a):
-    with pytest.raises(ValueError, match="lfilter"):
-        lti_kernels.lfilter(np.array(b), np.array(a), np.ones(10))
-
-
-def test_a_template_diagnosis_never_imports_scipy_signal(nominal_session):
-    code = ("import sys\n"
-            "from nmsid.analysis.gap.data import load_session\n"
-            "from nmsid.analysis.gap.diagnose import diagnose\n"
-            f"d = diagnose(load_session({str(nominal_session)!r}))\n"
-            "print(d.assessment['verdict'], 'scipy.signal' in sys.modules)\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True).stdout.split()
-    assert out == ["none", "False"]
 
 
 @pytest.fixture(scope="module")
