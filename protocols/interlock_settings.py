@@ -9,6 +9,7 @@ from __future__ import annotations
 from pydantic import StrictBool, StrictFloat, model_validator
 
 from nmsid.protocols.errors import ConfigError
+from nmsid.protocols.joints import JOINTS
 from nmsid.protocols.settings_base import SettingProblem, bounded, settings_dataclass
 
 FORCE_SENSOR_RANGE_N = 500.0
@@ -29,8 +30,10 @@ class InterlockConfig:
     (``nmsid run --allow-weakened-safety`` sets it); see :meth:`weakened`.
     """
 
-    force_limit_N: StrictFloat = bounded(25.0, gt=0.0, le=10_000.0, why=(
-        "no elbow pushes 10 kN: a larger limit is a typo"))
+    force_limit_N: StrictFloat = bounded(JOINTS["elbow"].limit, gt=0.0, le=10_000.0, why=(
+        "no joint pushes 10 kN or 10 kN m: a larger limit is a typo"))
+    """The limit on |measured|, in the session joint's unit (N at the elbow's strap, N m
+    for a torque joint); its default is the joint's (``protocols/joints.py``)."""
     stall_timeout_s: StrictFloat = bounded(0.1, gt=0.0, le=10.0, why=(
         "a stalled sensor must stop stimulation quickly"))
     trip_on_overrun: StrictBool = True

@@ -36,6 +36,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 from nmsid.errors import UserError
+from nmsid.protocols.joints import DEFAULT_JOINT, JOINTS, Joint
 from nmsid.protocols.session_model import Calibration
 
 __all__ = ["ITEM_KINDS", "MAX_ITEM_S", "Plan", "PlanItem", "PlanRefused", "RigLimits",
@@ -153,20 +154,25 @@ class RigLimits:
         The interlock's force limit: a target beyond it would trip it.
     device_max_mA : float or None
         The stimulator's range, once connected.
+    joint : Joint
+        The session's joint: ``force_limit_N`` and targets are in its unit (N m for a
+        torque joint), refusals name its quantity, unit and channel roles.
     """
 
     ceiling_ext_mA: float
     ceiling_flex_mA: float
     force_limit_N: float
     device_max_mA: float | None = None
+    joint: Joint = JOINTS[DEFAULT_JOINT]
 
     @classmethod
     def of(cls, config, device_max_mA: float | None = None) -> RigLimits:
-        """The limits of a :class:`~nmsid.protocols.config.Config`."""
+        """The limits of a :class:`~nmsid.protocols.config.Config` (its joint's unit)."""
         c = config.calibration
         return cls(float(c.ceiling_ext_mA), float(c.ceiling_flex_mA),
                    float(config.interlock.force_limit_N),
-                   None if device_max_mA is None else float(device_max_mA))
+                   None if device_max_mA is None else float(device_max_mA),
+                   joint=config.joint_def)
 
 
 def _finite(*xs) -> bool:
@@ -191,18 +197,18 @@ def item_problem(item: PlanItem, limits: RigLimits,
         return f"duration {item.duration_s!r} s is outside (0, {MAX_ITEM_S:g}] s"
     if item.target_range_N is not None:
         tlo, thi = item.target_range_N
-        lim = limits.force_limit_N
+        lim, q, u = limits.force_limit_N, limits.joint.quantity, limits.joint.unit
         if not (_finite(tlo, thi) and -lim <= tlo <= thi <= lim):
-            return (f"force target range [{tlo!r}, {thi!r}] N is not finite within the "
-                    f"interlock's force limit [-{lim:g}, {lim:g}] N")
+            return (f"{q} target range [{tlo!r}, {thi!r}] {u} is not finite within the "
+                    f"interlock's {q} limit [-{lim:g}, {lim:g}] {u}")
     if calibration is not None:
         Ie, If = item.max_current_mA(calibration)
         ce, cf = limits.ceiling_ext_mA, limits.ceiling_flex_mA
         if limits.device_max_mA is not None:
             ce, cf = min(ce, limits.device_max_mA), min(cf, limits.device_max_mA)
         for name, value, cal_max, ceiling in (
-                ("extensor", Ie, calibration.Iemax_mA, ce),
-                ("flexor", If, calibration.Ifmax_mA, cf)):
+                (limits.joint.extensor_role, Ie, calibration.Iemax_mA, ce),
+                (limits.joint.flexor_role, If, calibration.Ifmax_mA, cf)):
             allowed = min(cal_max, ceiling)
             if not (_finite(value) and value <= allowed + _TOL_MA):
                 return (f"{name} current up to {value:.4g} mA is above {allowed:g} mA (the "
