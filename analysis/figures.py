@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nmsid.analysis.report import MODEL_TITLES, PARAMETER_TITLES
+from nmsid.analysis.report import MODEL_TITLES, measured_title, parameter_titles
 
 _WHITE = (255, 255, 255)
 _BLACK = (0, 0, 0)
@@ -188,8 +188,10 @@ def plot_level_fits(session_result, path: str | Path) -> Path:
     image = Image.new("RGB", (width, height), _WHITE)
     draw = ImageDraw.Draw(image)
     font = ImageFont.load_default()
-    draw.text((left, 8), f"{session_result.participant}: measured vs fitted force (N) "
-                         "against time after stimulation onset (s)", fill=_BLACK, font=font)
+    unit = getattr(session_result, "unit", "N")
+    draw.text((left, 8), f"{session_result.participant}: measured vs fitted "
+                         f"{measured_title(session_result)} against time after stimulation "
+                         "onset (s)", fill=_BLACK, font=font)
     for j, entry in enumerate([("measured", _GREY, "line"), ("fitted", _RED, "line"),
                                ("residual (measured - fitted)", _BLUE, "line")]):
         _legend(draw, font, left + 110 * j, 22, [entry])
@@ -205,7 +207,7 @@ def plot_level_fits(session_result, path: str | Path) -> Path:
                       fill=_BLACK, font=font, anchor="mm")
             continue
         ax = _Axes(draw, font, box, _limits(f.t_s), _limits(f.y_N, f.y_fit_N, f.residual_N))
-        ax.frame(title=f"sE {lv.sE:.2f}: Kp {f.Kp:.3g} N, wn {f.wn_rad_s:.3g} rad/s, "
+        ax.frame(title=f"sE {lv.sE:.2f}: Kp {f.Kp:.3g} {unit}, wn {f.wn_rad_s:.3g} rad/s, "
                        f"zeta {f.zeta:.3g}, fit {f.fit_pct:.1f} %")
         ax.line(f.t_s, f.y_N, _GREY)
         ax.line(f.t_s, f.y_fit_N, _RED)
@@ -214,8 +216,9 @@ def plot_level_fits(session_result, path: str | Path) -> Path:
 
 
 def plot_parameter_curves(selection, parameter: str, path: str | Path,
-                          label: str = "average") -> Path:
-    """A parameter against sE with the three fitted curves (Figures 4-6 of the paper)."""
+                          label: str = "average", unit: str = "N") -> Path:
+    """A parameter against sE with the three fitted curves (Figures 4-6 of the paper); Kp
+    in ``unit`` (the session joint's)."""
     Image, ImageDraw, ImageFont = _pil()
     width, height = 620, 440
     image = Image.new("RGB", (width, height), _WHITE)
@@ -238,7 +241,7 @@ def plot_parameter_curves(selection, parameter: str, path: str | Path,
     xs = [p[0] for p in used + removed] or [0.0, 1.0]
     ys = [p[1] for p in used + removed] + [v for *_, v in curves]
     ax = _Axes(draw, font, box, _limits(xs), _limits(*ys) if ys else (0.0, 1.0))
-    ax.frame(xlabel="sE", ylabel=PARAMETER_TITLES.get(parameter, parameter))
+    ax.frame(xlabel="sE", ylabel=parameter_titles(unit).get(parameter, parameter))
     legend = []
     for m, fit, grid, values in curves:
         bold = m == comp.selected

@@ -31,6 +31,7 @@ from nmsid.analysis.qc.decide import EXCLUDED, REPAIRED, LevelQC
 from nmsid.analysis.scatter import ScatterResult, fit_trials, summarise
 from nmsid.analysis.second_order import SecondOrderFit
 from nmsid.analysis.settings import IdentificationSettings
+from nmsid.protocols.joints import recorded_quantity
 from nmsid.protocols.session_file import read_session
 
 logger = logging.getLogger(__name__)
@@ -96,6 +97,12 @@ class SessionResult:
     fatigue: FatigueResult | None = None
     """The gain lost with accumulated stimulation over the session
     (:mod:`nmsid.analysis.fatigue`; None when not computed)."""
+    joint: str = "elbow"
+    """The joint the session recorded (root attribute ``joint``; none: the elbow)."""
+    quantity: str = "force"
+    """What ``force_N`` holds: ``force`` (N) or ``torque`` (N m) (``docs/joints.md``)."""
+    unit: str = "N"
+    """The unit of the measured quantity, of Kp (per unit rE) and of the baseline."""
 
     def rows(self) -> list[dict]:
         return [lv.to_dict(self.participant) for lv in self.levels]
@@ -328,9 +335,11 @@ def identify_session(session, settings: IdentificationSettings | None = None,
     cal = session.calibration
     cal_dict = {k: float(getattr(cal, k)) for k in
                 ("Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA", "Fmin_N", "Fmax_N")}
+    joint, quantity, unit = recorded_quantity(getattr(session, "attrs", {}) or {})
     return SessionResult(participant=session.participant, source=str(session.path),
                          levels=levels, problems=problems, settings=s, calibration=cal_dict,
-                         qc=session_qc, scatter=scatter, fatigue=fatigue)
+                         qc=session_qc, scatter=scatter, fatigue=fatigue, joint=joint,
+                         quantity=quantity, unit=unit)
 
 
 def session_scatter(all_trials, levels: list[LevelResult],

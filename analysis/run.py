@@ -120,6 +120,13 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         problems.extend(f"{res.participant}: {p}" for p in res.problems)
     if not results:
         raise IdentificationError("no session could be analysed: " + " | ".join(problems))
+    measured = sorted({(r.joint, r.quantity, r.unit) for r in results})
+    if len(measured) > 1:   # AICc sums over an elbow and a knee mean nothing
+        raise IdentificationError(
+            "the sessions are of different joints or quantities ("
+            + ", ".join(f"{j} {q} in {u}" for j, q, u in measured) + "): a group analysis "
+            "pools one joint; identify each joint's sessions on their own (docs/joints.md)")
+    joint, quantity, unit = measured[0]
     files = [write_parameters_csv(results, out / "parameters.csv")]
     if any(r.qc is not None for r in results):
         files.append(write_qc_csv([r.qc for r in results if r.qc is not None],
@@ -130,7 +137,8 @@ def run_identification(sessions, out_dir: str | os.PathLike,
     problems.extend(selection.problems)
     files.append(write_model_selection_json(
         selection, out / "model_selection.json",
-        extra={"sources": [r.source for r in results]}))
+        extra={"sources": [r.source for r in results], "joint": joint,
+               "measured_quantity": quantity, "measured_unit": unit}))
 
     twins: dict[str, Twin] = {}
     group = len(results) > 1
@@ -166,7 +174,7 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         files.append(out / "twin.json")
 
     text = "\n\n".join(parameter_table(r) for r in results) + "\n\n" + \
-        selection_tables(selection)
+        selection_tables(selection, unit)
     files.append(write_text(text, out / "tables.txt"))
     files.append(write_text("\n".join(problems) if problems else "no problems",
                             out / "problems.txt"))
@@ -178,7 +186,7 @@ def run_identification(sessions, out_dir: str | os.PathLike,
             files.append(plot_level_fits(res, out / f"fit_{_safe_name(label)}.png"))
         for name in PARAMETER_NAMES:
             files.append(plot_parameter_curves(selection, name, out / f"figure_{name}.png",
-                                               AVERAGE_LABEL))
+                                               AVERAGE_LABEL, unit))
     return RunOutputs(results, selection, files, problems, twins, text)
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 
+from nmsid.protocols.joints import JOINTS
 from nmsid.cli.arguments import (
     folder_to_write,
     input_file,
@@ -49,6 +50,10 @@ def register(sub) -> None:
                    help="participant code [A-Za-z0-9_-]{1,64} (overrides the config)")
     p.add_argument("--config", metavar="FILE", type=input_file,
                    help="protocol configuration (TOML)")
+    p.add_argument("--joint", choices=tuple(JOINTS), metavar="JOINT",
+                   help="the joint the session drives: " + ", ".join(JOINTS) + " (its "
+                        "labels, unit and default limits, docs/joints.md; overrides the "
+                        "config's joint; default elbow)")
     p.add_argument("--seed", type=_seed, metavar="N",
                    help="schedule randomisation seed (overrides the config; default: drawn "
                         "and recorded)")

@@ -51,9 +51,10 @@ def recover_cmd(args) -> int:
 
 def run(args) -> int:
     log = logging.getLogger("nmsid.cli.run_command")
-    if args.resume and (args.config or args.participant or args.seed is not None):
+    if args.resume and (args.config or args.participant or args.seed is not None
+                        or getattr(args, "joint", None)):
         raise UsageError("--resume continues a session with the configuration stored in its "
-                         "file; do not give --config, --participant or --seed with it "
+                         "file; do not give --config, --participant, --seed or --joint with it "
                          "(--participant-model only names its plug-in again)")
     if args.realtime and args.backend != "sim":
         raise UsageError("--realtime applies to --backend sim (hardware is always real time)")
@@ -65,6 +66,7 @@ def run(args) -> int:
     else:
         config = load_config(args.config, overrides={
             "participant": args.participant, "seed": args.seed,
+            "joint": getattr(args, "joint", None),
             "confirm_weakened_safety": getattr(args, "allow_weakened_safety", False)})
         if args.participant_model:
             config = config.replace(participant_model=args.participant_model)
