@@ -15,7 +15,8 @@ allowed (:class:`PlanRefused`).
 
 Item kinds (:data:`ITEM_KINDS`): ``identification`` and ``reference`` trials (a waveform
 at one sE), ``tracking`` and ``relay`` trials (closed loop: rE streamed by a controller,
-clamped into the item's envelope by the engine), ``dry_run`` trials. Calibration is the
+clamped into the item's envelope by the engine), ``dry_run`` trials, ``cocontraction``
+steps (one sE held at a fixed rE: :func:`cocontraction_plan`). Calibration is the
 session's first step (its ramps are bounded by the rig's ceilings, checked here too); a
 re-run is an item run again (its attempt counted by the engine), not a new item.
 
@@ -40,9 +41,9 @@ from nmsid.protocols.joints import DEFAULT_JOINT, JOINTS, Joint
 from nmsid.protocols.session_model import Calibration
 
 __all__ = ["ITEM_KINDS", "MAX_ITEM_S", "Plan", "PlanItem", "PlanRefused", "RigLimits",
-           "identification_plan", "preflight"]
+           "cocontraction_plan", "identification_plan", "preflight"]
 
-ITEM_KINDS = ("identification", "reference", "tracking", "relay", "dry_run")
+ITEM_KINDS = ("identification", "reference", "tracking", "relay", "dry_run", "cocontraction")
 """The kinds of plan item."""
 
 MAX_ITEM_S = 3600.0
@@ -249,3 +250,29 @@ def identification_plan(schedule, protocol, source: str = "") -> Plan:
                  label=f"sE {pt.sE:g} repeat {pt.repeat}")
         for pt in schedule)
     return Plan("identification", items, source=source)
+
+
+def cocontraction_plan(sE_steps, rE: float, step_s: float, *, repeats: int = 1,
+                       source: str = "") -> Plan:
+    """A co-contraction sweep: each sE of ``sE_steps`` held for ``step_s`` at the fixed
+    ``rE`` (both muscles on, their balance fixed, their sum stepped), in the given order,
+    the whole sweep ``repeats`` times. Each step is one ``cocontraction`` item whose rE
+    range is ``(rE, rE)``: the preflight holds its most current per channel to the
+    calibration like any trial's. Nothing is checked here; :func:`preflight` refuses a bad
+    value with its item.
+
+    Examples
+    --------
+    >>> plan = cocontraction_plan([0.3, 0.6], 0.7, 5.0, repeats=2)
+    >>> [(it.sE, it.repeat) for it in plan], plan[0].rE_range
+    ([(0.3, 1), (0.6, 1), (0.3, 2), (0.6, 2)], (0.7, 0.7))
+    >>> plan[1].max_current_mA(Calibration(2.0, 9.5, 1.5, 8.0))
+    (5.15, 2.67)
+    """
+    steps = [float(v) for v in sE_steps]
+    items = tuple(
+        PlanItem(r * len(steps) + k, "cocontraction", sE, float(step_s), repeat=r + 1,
+                 rE_range=(float(rE), float(rE)), label=f"sE {sE:g} at rE {float(rE):g}",
+                 source=source)
+        for r in range(int(repeats)) for k, sE in enumerate(steps))
+    return Plan("cocontraction", items, source=source)
