@@ -152,14 +152,15 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         try:
             twins[label] = twin_from_selection(selection, label, baseline_N=baselines[label],
                                                calibration=res.calibration,
-                                               source=[sources(res.source)])
+                                               source=[sources(res.source)],
+                                               measured=measured[0])
         except IdentificationError as exc:
             problems.append(f"twin not written: {exc}")
     if group:
         try:
             twins[AVERAGE_LABEL] = twin_from_selection(
                 selection, AVERAGE_LABEL, baseline_N=float(np.mean(list(baselines.values()))),
-                source=[sources(r.source) for r in results])
+                source=[sources(r.source) for r in results], measured=measured[0])
         except IdentificationError as exc:
             problems.append(f"twin not written: {exc}")
         for label in selection.participants:

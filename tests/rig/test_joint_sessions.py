@@ -19,7 +19,7 @@ from nmsid.sim_backends.rig import make_sim_rig
 SHORT = """
 participant = "J01"
 [protocol]
-sE_levels = [0.4, 0.6, 0.8]
+sE_levels = [0.3, 0.4, 0.5, 0.6, 0.7, 0.8]
 repeats = 1
 steady_s = 1.0
 chirp_s = 3.0
@@ -56,6 +56,8 @@ def test_run_joint_end_to_end(tmp_path, joint, capsys):
     assert f"{joint} torque (N m)" in tables and "Kp (N m)" in tables
     sel = json.loads((analysis / "model_selection.json").read_text())
     assert sel["measured_unit"] == "N m" and sel["joint"] == joint
+    twin = json.loads((analysis / "twin.json").read_text())
+    assert (twin["joint"], twin["measured_unit"]) == (joint, "N m")
 
 
 def test_msk_participant_is_refused_for_a_knee(tmp_path, capsys):
