@@ -2,6 +2,7 @@
 simulated rig (fast clock) records the joint, calibrates in the joint's unit, holds the
 interlock at the joint's limit and labels the identification with its quantity."""
 
+import contextlib
 import json
 
 import numpy as np
@@ -93,3 +94,31 @@ def test_the_interlock_trips_at_the_knees_limit_in_n_m(tmp_path):
     assert trips and "beyond the limit +/-30 N m" in trips[0].detail
     assert s.trials[0].status == "aborted"
     assert rig.output_zero_events
+
+
+def test_cocontraction_sweep_from_the_command_line(tmp_path, capsys):
+    cfg = tmp_path / "short.toml"
+    cfg.write_text(SHORT)
+    out = tmp_path / "c.h5"
+    code = main(["run", "--backend", "sim", "--joint", "ankle", "--config", str(cfg),
+                 "--out", str(out), "--seed", "4", "--cocontraction", "0.3", "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    s = read_session(out)
+    assert s.attrs["session_kind"] == "cocontraction" and s.attrs["joint"] == "ankle"
+    assert [t.sE for t in s.trials] == [0.3, 0.4, 0.5, 0.6, 0.7, 0.8]   # listed order
+    assert all(np.all(t.rE == 0.3) and t.n_samples == 8000 for t in s.trials)
+    assert not (tmp_path / "c-analysis").exists()       # a sweep is not identified
+
+
+@pytest.mark.parametrize("extra", [["--cocontraction", "1.5"], ["--cocontraction", "nan"],
+                                   ["--cocontraction", "0.5", "--track", "x.json"]])
+def test_cocontraction_option_refusals(tmp_path, extra, capsys):
+    x = tmp_path / "x.json"
+    x.write_text("{}")
+    extra = [str(x) if a == "x.json" else a for a in extra]
+    bad_value = extra[1] in ("1.5", "nan")     # argparse refuses it (exit 2)
+    with pytest.raises(SystemExit) if bad_value else contextlib.nullcontext():
+        code = main(["run", "--backend", "sim", "--out", str(tmp_path / "c.h5"), "--quiet",
+                     *extra])
+        assert code == 2
+    assert not (tmp_path / "c.h5").exists()
