@@ -284,6 +284,10 @@ def identify_session(session, settings: IdentificationSettings | None = None,
     if isinstance(session, (str, os.PathLike)):
         session = _read_for_identification(session, read_session)
     check_session_data(session)
+    if (getattr(session, "attrs", None) or {}).get("session_kind") == "cocontraction":
+        raise IdentificationError(f"{session.path}: a co-contraction sweep (sE steps at a "
+                                  "fixed rE, no chirp): there is no dynamics to identify "
+                                  "(docs/joints.md)")
     problems: list[str] = []
     groups: dict[float, list] = {}
     outside = []

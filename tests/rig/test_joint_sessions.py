@@ -122,3 +122,14 @@ def test_cocontraction_option_refusals(tmp_path, extra, capsys):
                      *extra])
         assert code == 2
     assert not (tmp_path / "c.h5").exists()
+
+
+def test_a_sweep_is_not_identified(tmp_path, capsys):
+    cfg = tmp_path / "short.toml"
+    cfg.write_text(SHORT)
+    out = tmp_path / "c.h5"
+    assert main(["run", "--backend", "sim", "--config", str(cfg), "--out", str(out),
+                 "--cocontraction", "0.5", "--quiet"]) == 0
+    code = main(["identify", str(out), "--out", str(tmp_path / "id"), "--no-figures"])
+    err = capsys.readouterr()
+    assert code != 0 and "co-contraction sweep" in err.out + err.err
