@@ -79,7 +79,8 @@ from pydantic import AfterValidator, Field, StrictFloat, StrictInt, model_valida
 
 from nmsid.protocols.calibration_settings import MAX_RAMP_STEPS, CalibrationConfig, ManualCurrents
 from nmsid.protocols.errors import ConfigError
-from nmsid.protocols.interlock_settings import FORCE_SENSOR_RANGE_N, TRIP_SWITCHES, InterlockConfig
+from nmsid.protocols.interlock_settings import (CONFIRM_WORDS, FORCE_SENSOR_RANGE_N, TRIP_SWITCHES,
+                                                InterlockConfig)
 from nmsid.protocols.joints import DEFAULT_JOINT, JOINTS, Joint
 from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, replace_settings,
                                            settings_dataclass, validate_settings)
@@ -372,6 +373,17 @@ class Config:
                                  + " or a plug-in 'package.module:factory'")
         return self
 
+    @model_validator(mode="after")
+    def _limit_within_joint_sensor(self):
+        # a lab's joint may have a sensor below the 6-axis sensor's 500 N the interlock's
+        # own rule knows: a limit above the joint's sensor range can never trip either
+        j, lim = JOINTS[self.joint], self.interlock.force_limit_N
+        if lim > j.sensor_range and not self.interlock.confirm_weakened_safety:
+            raise SettingProblem("interlock.force_limit_N", lim,
+                                 f"at most the {j.name} sensor's range ({j.sensor_range:g} "
+                                 f"{j.unit}), or {CONFIRM_WORDS}")
+        return self
+
     # -- conversion ---------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         """A JSON-able dict with the TOML layout (``source`` left out)."""
@@ -424,7 +436,12 @@ class Config:
 
     def weakened_safety(self) -> list[str]:
         """The settings that weaken the interlock (each needs the confirmation)."""
-        return self.interlock.weakened()
+        out = self.interlock.weakened()
+        j, lim = JOINTS[self.joint], self.interlock.force_limit_N
+        if j.sensor_range < lim <= FORCE_SENSOR_RANGE_N:   # above 500 N: said just above
+            out.append(f"interlock.force_limit_N = {lim:g} (above the {j.name} sensor's "
+                       f"range, {j.sensor_range:g} {j.unit}: it can never trip)")
+        return out
 
     def check_device(self, max_current_mA: float, device_name: str = "stimulator") -> None:
         """Refuse current ceilings above what the device can deliver.

@@ -58,14 +58,14 @@ class InterlockConfig:
             return self
         for name in TRIP_SWITCHES:
             if not getattr(self, name):
-                raise SettingProblem(name, False, _CONFIRM_WORDS)
+                raise SettingProblem(name, False, CONFIRM_WORDS)
         if self.force_limit_N > FORCE_SENSOR_RANGE_N:
             raise SettingProblem("force_limit_N", self.force_limit_N,
                                  f"at most the force sensor's range "
-                                 f"({FORCE_SENSOR_RANGE_N:g} N), or {_CONFIRM_WORDS}")
+                                 f"({FORCE_SENSOR_RANGE_N:g} N), or {CONFIRM_WORDS}")
         return self
 
 
-_CONFIRM_WORDS = ("this weakens the safety interlock; to run anyway set interlock."
+CONFIRM_WORDS = ("this weakens the safety interlock; to run anyway set interlock."
                   "confirm_weakened_safety = true in the file or pass --allow-weakened-safety "
                   "(recorded in the session)")

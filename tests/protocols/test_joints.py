@@ -120,3 +120,15 @@ def test_preflight_names_the_joints_channel_roles():
     plan = Plan("identification", (PlanItem(0, "identification", 1.0, 15.0),))
     with pytest.raises(PlanRefused, match="plantarflexor current"):
         preflight(plan, limits, Calibration(2.0, 9.5, 1.5, 8.0))
+
+
+def test_a_limit_above_the_joints_sensor_needs_the_confirmation(monkeypatch):
+    # the wrist's dynamometer reads 50 N m: a 60 N m limit could never trip
+    monkeypatch.setitem(JOINTS, "wrist", WRIST)
+    with pytest.raises(ConfigError, match=r"interlock.force_limit_N = 60.*wrist sensor's "
+                                          r"range \(50 N m\)"):
+        config_from_dict({"joint": "wrist", "interlock": {"force_limit_N": 60.0}})
+    c = config_from_dict({"joint": "wrist", "interlock": {
+        "force_limit_N": 60.0, "confirm_weakened_safety": True}})
+    assert any("wrist sensor's range" in w for w in c.weakened_safety())
+    assert config_from_dict({"joint": "wrist"}).weakened_safety() == []
