@@ -17,6 +17,10 @@ with linear, exponential or quadratic best fits. The generator draws:
 * calibration currents on the 0.5 mA grid (Imin 1-4 mA, span 4.5-9 mA);
 * sensor noise 0.02-0.06 N RMS, offset, slow drift and mains pick-up of different sizes.
 
+These are the elbow's ranges; ``make_population(n, seed, joint="knee")`` draws the same
+families with the knee's or the ankle's ranges and units
+(:data:`nmsid.sim_backends.joint_participants.TEMPLATES`, ``docs/joints.md``).
+
 Examples
 --------
 >>> pop = make_population(3, seed=1)
