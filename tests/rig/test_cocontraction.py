@@ -2,6 +2,8 @@
 plan blocks and run by the one engine (docs/joints.md, docs/rig.md)."""
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import pytest
 
 from nmsid.protocols.config import config_from_dict
@@ -103,3 +105,22 @@ def test_the_recorded_sweep_is_rebuilt_for_resume():
         [(i.sE, i.rE_range, i.duration_s, i.repeat) for i in kind.plan(None)]
     with pytest.raises(Exception, match="cannot be read"):
         session_kind_from_stored({"session_kind": "cocontraction"}, "c.h5")
+
+
+@settings(max_examples=200, deadline=None)
+@given(sE=st.floats(1e-6, 1.0), rE=st.floats(0.0, 1.0),
+       lo=st.tuples(st.floats(0.0, 20.0), st.floats(0.0, 20.0)),
+       span=st.tuples(st.floats(0.01, 60.0), st.floats(0.01, 60.0)))
+def test_a_step_never_commands_above_the_calibrated_maxima(sE, rE, lo, span):
+    # the plan's envelope is the step's currents exactly, and the preflight passes it
+    # against the calibration: a step is within (Imin, Imax] per channel by construction
+    from nmsid.protocols.plan import RigLimits, preflight
+    from nmsid.protocols.session_model import Calibration
+    from nmsid.protocols.waveforms import currents_mA
+    cal = Calibration(lo[0], lo[0] + span[0], lo[1], lo[1] + span[1])
+    item = cocontraction_plan([sE], rE, 1.0)[0]
+    Ie, If = currents_mA(np.array([rE]), sE, cal.Iemin_mA, cal.Iemax_mA, cal.Ifmin_mA,
+                         cal.Ifmax_mA)
+    assert (float(Ie[0]), float(If[0])) == pytest.approx(item.max_current_mA(cal))
+    assert Ie[0] <= cal.Iemax_mA + 1e-9 and If[0] <= cal.Ifmax_mA + 1e-9
+    preflight(cocontraction_plan([sE], rE, 1.0), RigLimits(100.0, 100.0, 25.0), cal)
