@@ -124,3 +124,22 @@ def test_a_step_never_commands_above_the_calibrated_maxima(sE, rE, lo, span):
     assert (float(Ie[0]), float(If[0])) == pytest.approx(item.max_current_mA(cal))
     assert Ie[0] <= cal.Iemax_mA + 1e-9 and If[0] <= cal.Ifmax_mA + 1e-9
     preflight(cocontraction_plan([sE], rE, 1.0), RigLimits(100.0, 100.0, 25.0), cal)
+
+
+def test_an_interrupted_sweep_resumes_as_recorded(tmp_path):
+    # E-stop in the second step, then --resume's path: the kind is rebuilt from the file
+    # (a file names a kind, never code), the aborted step is run again, the rest follow
+    kind = CoContractionSession(STEPS, 0.6, 1.5)
+    rig, path, summary = _session(tmp_path, kind, [Fault(FaultKind.ESTOP, trial=1,
+                                                         at_s=0.5)])
+    assert summary.trip is not None
+    attrs = read_session(path).attrs
+    again = session_kind_from_stored(attrs, str(path))
+    eng = Engine(None, make_sim_rig(template_participant("knee", seed=3)), path,
+                 resume=True, session=again, trip_policy=TripPolicy.END_SESSION)
+    eng.run()
+    s = read_session(path)
+    done = [t for t in s.trials if t.status == "completed"]
+    assert sorted(t.sE for t in done) == sorted(STEPS)
+    assert all(np.all(t.rE == 0.6) for t in s.trials)
+    assert validate_session(path) == []
