@@ -318,7 +318,9 @@ class Config:
     joint: str = DEFAULT_JOINT
     """The joint the session drives (:data:`nmsid.protocols.joints.JOINTS`): a file that
     names one and leaves ``[interlock] force_limit_N`` or ``[calibration] Fmin_N`` /
-    ``Fmax_N`` / ``force_ceiling_N`` out gets that joint's defaults, in its unit."""
+    ``Fmax_N`` / ``force_ceiling_N`` out gets that joint's defaults, in its unit.
+    :meth:`replace` (``joint=...``) keeps the tables as they are: build a configuration
+    of another joint with :func:`load_config` / :func:`config_from_dict` instead."""
     participant_model: str = "template"
     """Which simulated participant ``--backend sim`` puts on the rig
     (:data:`PARTICIPANT_MODELS`); TOML ``[participant] model``."""
