@@ -22,7 +22,7 @@ import numpy as np
 
 from nmsid.analysis import plot_style as style
 from nmsid.analysis.model_selection import AVERAGE_LABEL
-from nmsid.analysis.report import MODEL_TITLES
+from nmsid.analysis.report import MODEL_TITLES, measured_title
 
 #: columns of a trace's min/max envelope (about the panel's width in PNG pixels)
 TRACE_COLUMNS = 600
@@ -75,6 +75,8 @@ def plot_level_fits(session_result, path: str | Path) -> Path:
     """
     plt = style.pyplot()
     levels = session_result.levels
+    unit = getattr(session_result, "unit", "N")       # the joint's (docs/joints.md)
+    measured = measured_title(session_result)          # "force (N)", "knee torque (N m)"
     cols = 3 if len(levels) > 4 else max(1, min(len(levels), 2))
     rows = max(1, math.ceil(len(levels) / cols))
     fig = plt.figure(figsize=(4.0 * cols, 2.9 * rows + 0.6))
@@ -98,16 +100,16 @@ def plot_level_fits(session_result, path: str | Path) -> Path:
                label="residual (measured - fitted)")
         ax_r.axhline(0.0, color="k", lw=0.5)
         ax.set_title(f"sE {lv.sE:.2f}: fit {f.fit_pct:.1f} %\n"
-                     rf"$K_p$ {f.Kp:.3g} N, $\omega_n$ {f.wn_rad_s:.3g} rad/s, "
+                     rf"$K_p$ {f.Kp:.3g} {unit}, $\omega_n$ {f.wn_rad_s:.3g} rad/s, "
                      rf"$\zeta$ {f.zeta:.3g}", fontsize=8.5)
         ax.tick_params(labelbottom=False)
         if i % cols == 0:
-            ax.set_ylabel("force (N)")
-            ax_r.set_ylabel("resid. (N)")
+            ax.set_ylabel(measured)
+            ax_r.set_ylabel(f"resid. ({unit})")
         if i >= len(levels) - cols:
             ax_r.set_xlabel("time after onset (s)")
     fig.suptitle(f"{style.group_title([session_result.participant], '')}: measured and "
-                 "fitted force per sE level", y=1.0)
+                 f"fitted {measured.rsplit(' (', 1)[0]} per sE level", y=1.0)
     handles = [plt.Line2D([], [], color=c["reference"], lw=3.0, label="measured"),
                plt.Line2D([], [], color=c["fit"], lw=0.8, label="fitted"),
                plt.Line2D([], [], color=c["residual"], lw=0.8,
@@ -118,8 +120,9 @@ def plot_level_fits(session_result, path: str | Path) -> Path:
 
 
 def plot_parameter_curves(selection, parameter: str, path: str | Path,
-                          label: str = AVERAGE_LABEL) -> Path:
-    """A parameter against sE with the three fitted curves (Figures 4-6 of the paper).
+                          label: str = AVERAGE_LABEL, unit: str = "N") -> Path:
+    """A parameter against sE with the three fitted curves (Figures 4-6 of the paper); Kp
+    in ``unit`` (the session joint's, docs/joints.md).
 
     With one participant the figure shows that participant's own comparison (the one its
     twin uses) and names the participant; with several, the comparison of ``label`` (the
@@ -173,7 +176,10 @@ def plot_parameter_curves(selection, parameter: str, path: str | Path,
         if comp.trend is not None:
             caption = f"trend of the selected curve: {comp.trend.text}"
     ax.set_xlabel(r"stimulation level $s_E$ (-)")
-    ax.set_ylabel(style.SYMBOLS.get(parameter, parameter))
+    symbol = style.SYMBOLS.get(parameter, parameter)
+    if parameter == "Kp":
+        symbol = symbol.replace("(N)", f"({unit})")
+    ax.set_ylabel(symbol)
     who = style.group_title(people, label)
     ax.set_title(f"{who}: {style.SYMBOLS.get(parameter, parameter).split(' (')[0]} "
                  "against sE")

@@ -32,6 +32,7 @@ from nmsid.analysis.scatter import ScatterResult, fit_trials, summarise
 from nmsid.analysis.second_order import SecondOrderFit
 from nmsid.analysis.settings import IdentificationSettings
 from nmsid.protocols.reprs import counted, html_repr, number_span, short_repr, to_dataframe
+from nmsid.protocols.joints import recorded_quantity
 from nmsid.protocols.session_file import read_session
 
 logger = logging.getLogger(__name__)
@@ -108,6 +109,12 @@ class SessionResult:
     fatigue: FatigueResult | None = None
     """The gain lost with accumulated stimulation over the session
     (:mod:`nmsid.analysis.fatigue`; None when not computed)."""
+    joint: str = "elbow"
+    """The joint the session recorded (root attribute ``joint``; none: the elbow)."""
+    quantity: str = "force"
+    """What ``force_N`` holds: ``force`` (N) or ``torque`` (N m) (``docs/joints.md``)."""
+    unit: str = "N"
+    """The unit of the measured quantity, of Kp (per unit rE) and of the baseline."""
 
     def rows(self) -> list[dict]:
         """One dict per sE level: the ``parameters.csv`` row (:meth:`LevelResult.to_dict`)."""
@@ -305,6 +312,10 @@ def identify_session(session, settings: IdentificationSettings | None = None,
     if isinstance(session, (str, os.PathLike)):
         session = _read_for_identification(session, read_session)
     check_session_data(session)
+    if (getattr(session, "attrs", None) or {}).get("session_kind") == "cocontraction":
+        raise IdentificationError(f"{session.path}: a co-contraction sweep (sE steps at a "
+                                  "fixed rE, no chirp): there is no dynamics to identify "
+                                  "(docs/joints.md)")
     problems: list[str] = []
     groups: dict[float, list] = {}
     outside = []
@@ -356,9 +367,11 @@ def identify_session(session, settings: IdentificationSettings | None = None,
     cal = session.calibration
     cal_dict = {k: float(getattr(cal, k)) for k in
                 ("Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA", "Fmin_N", "Fmax_N")}
+    joint, quantity, unit = recorded_quantity(getattr(session, "attrs", {}) or {})
     return SessionResult(participant=session.participant, source=str(session.path),
                          levels=levels, problems=problems, settings=s, calibration=cal_dict,
-                         qc=session_qc, scatter=scatter, fatigue=fatigue)
+                         qc=session_qc, scatter=scatter, fatigue=fatigue, joint=joint,
+                         quantity=quantity, unit=unit)
 
 
 def session_scatter(all_trials, levels: list[LevelResult],

@@ -19,6 +19,22 @@ PARAMETER_COLUMNS = ("participant", "sE", "Kp", "wn_rad_s", "zeta", "fit_pct", "
                      "n_repeats_excluded", "qc_flag")
 MODEL_TITLES = {"linear": "Linear", "quadratic": "Quadratic", "exponential": "Exponential"}
 PARAMETER_TITLES = {"Kp": "Kp (N)", "wn_rad_s": "wn (rad/s)", "zeta": "zeta"}
+"""Titles of an elbow force session; :func:`parameter_titles` gives a joint's."""
+
+
+def parameter_titles(unit: str = "N") -> dict[str, str]:
+    """Each parameter's title with the session joint's unit (``Kp (N m)`` for a torque
+    joint, ``docs/joints.md``): the one place reports and figures take it from."""
+    return {**PARAMETER_TITLES, "Kp": f"Kp ({unit})"}
+
+
+def measured_title(session_result) -> str:
+    """What a session measured, for titles: ``force (N)``, ``knee torque (N m)`` (the
+    elbow's stays ``force (N)`` as before joints)."""
+    quantity = getattr(session_result, "quantity", "force")
+    unit = getattr(session_result, "unit", "N")
+    joint = getattr(session_result, "joint", "elbow")
+    return f"{quantity} ({unit})" if joint == "elbow" else f"{joint} {quantity} ({unit})"
 
 
 def _fmt(value, digits: int = 6) -> str:
@@ -66,9 +82,12 @@ def write_model_selection_json(selection: SelectionResult, path: str | Path,
 
 def parameter_table(session_result) -> str:
     """The identified parameters of one session as aligned text."""
-    head = (f"{'sE':>5} {'Kp (N)':>9} {'+-':>7} {'wn (rad/s)':>10} {'+-':>7} {'zeta':>7} "
+    kp_title = parameter_titles(getattr(session_result, "unit", "N"))["Kp"]
+    head = (f"{'sE':>5} {kp_title:>9} {'+-':>7} {'wn (rad/s)':>10} {'+-':>7} {'zeta':>7} "
             f"{'+-':>7} {'fit %':>6} {'n':>2}  flags")
-    lines = [f"participant {session_result.participant}  ({session_result.source})", head]
+    measured = measured_title(session_result)
+    lines = [f"participant {session_result.participant}  ({session_result.source})"
+             + ("" if measured == "force (N)" else f"  {measured}"), head]
     for lv in session_result.levels:
         f = lv.fit
         if f is None:
@@ -117,14 +136,15 @@ def write_scatter_csv(session_results, path: str | Path) -> Path:
     return path
 
 
-def selection_tables(selection: SelectionResult) -> str:
+def selection_tables(selection: SelectionResult, unit: str = "N") -> str:
     """The paper's Tables 1-9 for this run: per parameter, AICc per participant x model,
-    the selected model with its trend, and the AICc sums."""
+    the selected model with its trend, and the AICc sums (Kp in ``unit``, the joint's)."""
     models = selection.settings.models
     labels = [AVERAGE_LABEL] + selection.participants
+    titles = parameter_titles(unit)
     out = []
     for name in PARAMETER_NAMES:
-        title = PARAMETER_TITLES[name]
+        title = titles[name]
         out.append(f"== {title}: AICc per participant and model ==")
         out.append(f"{'participant':<14}" + "".join(f"{MODEL_TITLES[m]:>13}" for m in models))
         for label in labels:

@@ -172,6 +172,13 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         bar.close()
     if not results:
         raise IdentificationError("no session could be analysed: " + " | ".join(problems))
+    measured = sorted({(r.joint, r.quantity, r.unit) for r in results})
+    if len(measured) > 1:   # AICc sums over an elbow and a knee mean nothing
+        raise IdentificationError(
+            "the sessions are of different joints or quantities ("
+            + ", ".join(f"{j} {q} in {u}" for j, q, u in measured) + "): a group analysis "
+            "pools one joint; identify each joint's sessions on their own (docs/joints.md)")
+    joint, quantity, unit = measured[0]
     files = [write_parameters_csv(results, out / "parameters.csv")]
     if any(r.qc is not None for r in results):
         files.append(write_qc_csv([r.qc for r in results if r.qc is not None],
@@ -182,7 +189,8 @@ def run_identification(sessions, out_dir: str | os.PathLike,
     problems.extend(selection.problems)
     files.append(write_model_selection_json(
         selection, out / "model_selection.json",
-        extra={"sources": [r.source for r in results]}))
+        extra={"sources": [r.source for r in results], "joint": joint,
+               "measured_quantity": quantity, "measured_unit": unit}))
 
     twins: dict[str, Twin] = {}
     by_code = _sessions_by_participant(results)
@@ -199,14 +207,15 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         try:
             twins[code] = twin_from_selection(selection, code, baseline_N=baselines[code],
                                               calibration=calibration,
-                                              source=[sources(r.source) for r in own])
+                                              source=[sources(r.source) for r in own],
+                                              measured=measured[0])
         except IdentificationError as exc:
             problems.append(f"twin not written: {exc}")
     if group:
         try:
             twins[AVERAGE_LABEL] = twin_from_selection(
                 selection, AVERAGE_LABEL, baseline_N=float(np.mean(list(baselines.values()))),
-                source=[sources(r.source) for r in results])
+                source=[sources(r.source) for r in results], measured=measured[0])
         except IdentificationError as exc:
             problems.append(f"twin not written: {exc}")
         for label in selection.participants:
@@ -221,7 +230,7 @@ def run_identification(sessions, out_dir: str | os.PathLike,
         files.append(out / "twin.json")
 
     text = "\n\n".join(parameter_table(r) for r in results) + "\n\n" + \
-        selection_tables(selection)
+        selection_tables(selection, unit)
     files.append(write_text(text, out / "tables.txt"))
     files.append(write_text("\n".join(problems) if problems else "no problems",
                             out / "problems.txt"))
@@ -236,7 +245,7 @@ def run_identification(sessions, out_dir: str | os.PathLike,
                 files += [png, png.with_suffix(".pdf")]
         for name in PARAMETER_NAMES:
             png = plot_parameter_curves(selection, name, out / f"figure_{name}.png",
-                                        AVERAGE_LABEL)
+                                        AVERAGE_LABEL, unit)
             files += [png, png.with_suffix(".pdf")]
     return Identification(results, selection, files, problems, twins, text)
 

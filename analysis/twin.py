@@ -23,6 +23,7 @@ from nmsid.analysis.discretize import foh_coefficients, foh_state_matrices
 from nmsid.analysis.errors import IdentificationError, TwinFileError, TwinInputError
 from scipy.signal import lfilter
 from nmsid.protocols.reprs import html_repr, short_repr
+from nmsid.protocols.joints import QUANTITY_UNITS
 from nmsid.sim_backends.twin_file import TwinReadError, read_twin_file, write_twin_file
 
 FORMAT = "nmsid-twin"
@@ -125,6 +126,12 @@ class Twin:
     # -- muscle form (issue 20): optional physiological twin, analysis.muscle.twin_form --
     muscle_model: dict | None = None
     """The ``muscle_model`` item when the file has one; :meth:`simulate` then runs it."""
+    joint: str = "elbow"
+    """The joint it was identified on (``docs/joints.md``); the file's optional ``joint``."""
+    measured_quantity: str = "force"
+    """``force`` or ``torque``: what :meth:`simulate` returns (in :attr:`measured_unit`)."""
+    measured_unit: str = "N"
+    """``N`` or ``N m``: the unit of Kp (per unit rE), ``offset_N`` and the output."""
 
     def __repr__(self) -> str:
         curves = ", ".join(f"{name} {curve.model}" for name, curve in self.parameters.items())
@@ -262,6 +269,10 @@ class Twin:
             "offset_N": self.offset_N.to_dict(),
             "effects": list(self.effects),
             **({"muscle_model": dict(self.muscle_model)} if self.muscle_model else {}),
+            # optional (docs/joints.md): absent, the twin is an elbow's force twin
+            **({"joint": self.joint, "measured_quantity": self.measured_quantity,
+                "measured_unit": self.measured_unit}
+               if (self.joint, self.measured_quantity) != ("elbow", "force") else {}),
         }
 
     def save(self, path: str | os.PathLike) -> None:
@@ -323,8 +334,15 @@ class Twin:
         if data.get("muscle_model") is not None:     # muscle form (issue 20), optional
             from nmsid.analysis.muscle.twin_form import parse_muscle_model  # lazy: muscle form only
             muscle = parse_muscle_model(data["muscle_model"], path)
+        joint = data.get("joint", "elbow")
+        quantity = data.get("measured_quantity", "force")
+        if not isinstance(joint, str) or not joint or quantity not in QUANTITY_UNITS:
+            raise TwinFileError(path, f"joint {joint!r} / measured_quantity {quantity!r}: "
+                                      "expected a joint name and one of "
+                                      + ", ".join(QUANTITY_UNITS))
         return cls(participant=str(data.get("participant", "")), parameters=curves,
-                   muscle_model=muscle,
+                   muscle_model=muscle, joint=joint, measured_quantity=quantity,
+                   measured_unit=QUANTITY_UNITS[quantity],
                    sE_range=(float(rng[0]), float(rng[1])), offset_N=offset,
                    calibration=dict(data.get("calibration") or {}),
                    source=source,
@@ -342,11 +360,14 @@ class Twin:
 
 
 def twin_from_selection(selection, label: str, *, baseline_N: float = 0.0,
-                        calibration: dict | None = None, source=()) -> Twin:
+                        calibration: dict | None = None, source=(),
+                        measured: tuple[str, str, str] = ("elbow", "force", "N")) -> Twin:
     """A twin from the selected curves of one participant (or ``average``).
 
     ``source`` lists the session files (paths) the twin comes from; the twin keeps each
     one's file name and content hash (:func:`source_entry`), never its path.
+    ``measured``: the sessions' ``(joint, quantity, unit)``
+    (:func:`nmsid.protocols.joints.recorded_quantity`).
 
     Raises
     ------
@@ -366,4 +387,5 @@ def twin_from_selection(selection, label: str, *, baseline_N: float = 0.0,
     offset = Curve("constant", [float(baseline_N) if math.isfinite(baseline_N) else 0.0])
     return Twin(participant=label, parameters=curves, sE_range=(lo, hi), offset_N=offset,
                 calibration=dict(calibration or {}),
-                source=[source_entry(s) for s in source])
+                source=[source_entry(s) for s in source], joint=measured[0],
+                measured_quantity=measured[1], measured_unit=measured[2])

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 
+from nmsid.protocols.joints import JOINTS
 from nmsid.cli.arguments import (
     folder_to_write,
     input_file,
@@ -37,6 +38,18 @@ def _seed(text: str) -> int:
     return value
 
 
+def _fraction(text: str) -> float:
+    """argparse type of rE: a number in [0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number; give rE in [0, 1]") \
+            from None
+    if not 0.0 <= value <= 1.0:    # also refuses nan
+        raise argparse.ArgumentTypeError(f"{text} is outside [0, 1] (rE = Ie / sE)")
+    return value
+
+
 def register(sub) -> None:
     p = sub.add_parser("run", help="run a whole session (calibration + schedule) headless, "
                        "then identify it",
@@ -49,6 +62,10 @@ def register(sub) -> None:
                    help="participant code [A-Za-z0-9_-]{1,64} (overrides the config)")
     p.add_argument("--config", metavar="FILE", type=input_file,
                    help="protocol configuration (TOML)")
+    p.add_argument("--joint", choices=tuple(JOINTS), metavar="JOINT",
+                   help="the joint the session drives: " + ", ".join(JOINTS) + " (its "
+                        "labels, unit and default limits, docs/joints.md; overrides the "
+                        "config's joint; default elbow)")
     p.add_argument("--seed", type=_seed, metavar="N",
                    help="schedule randomisation seed (overrides the config; default: drawn "
                         "and recorded)")
@@ -91,6 +108,11 @@ def register(sub) -> None:
     p.add_argument("--target", metavar="FILE.csv", type=input_file,
                    help="with --track: track this target (columns t_s,force_N) instead of "
                         "the default steps, ramp and sines")
+    p.add_argument("--cocontraction", type=_fraction, metavar="RE",
+                   help="run a co-contraction sweep instead of the identification "
+                        "schedule: the protocol's sE levels in their listed order, each "
+                        "held for steady_s + chirp_s at this fixed rE, the sweep repeated "
+                        "'repeats' times (docs/joints.md); not identified")
     p.add_argument("--no-identify", action="store_true",
                    help="do not run the identification after the schedule")
     p.add_argument("--quiet", action="store_true", help="no progress output")

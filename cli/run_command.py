@@ -26,6 +26,7 @@ from nmsid.protocols.config import config_from_json, load_config
 from nmsid.protocols.errors import OutputPathError
 from nmsid.protocols.output_paths import check_output, default_sessions_dir, output_dir
 from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.cocontraction import CoContractionSession
 from nmsid.rig.engine import Engine, TripPolicy
 from nmsid.rig.glitch_prompt import glitch_confirmation
 from nmsid.rig.recovery import check_stored_header
@@ -50,13 +51,18 @@ def recover_cmd(args) -> int:
 
 def run(args) -> int:
     log = logging.getLogger("nmsid.cli.run_command")
-    if args.resume and (args.config or args.participant or args.seed is not None):
+    if args.resume and (args.config or args.participant or args.seed is not None
+                        or getattr(args, "joint", None)):
         raise UsageError("--resume continues a session with the configuration stored in its "
-                         "file; do not give --config, --participant or --seed with it "
+                         "file; do not give --config, --participant, --seed or --joint with it "
                          "(--participant-model only names its plug-in again)")
     if args.realtime and args.backend != "sim":
         raise UsageError("--realtime applies to --backend sim (hardware is always real time)")
     track = _tracking_engine(args)   # --track / --target: checked before any device
+    sweep_rE = getattr(args, "cocontraction", None)
+    if sweep_rE is not None and (track is not None or args.resume):
+        raise UsageError("--cocontraction runs a new co-contraction sweep: not with --track, "
+                         "--target or --resume (a resumed sweep continues as recorded)")
     if args.resume:
         path = Path(args.resume)
         check_stored_header(path)  # a damaged journal header: rebuilt, or one line
@@ -64,6 +70,7 @@ def run(args) -> int:
     else:
         config = load_config(args.config, overrides={
             "participant": args.participant, "seed": args.seed,
+            "joint": getattr(args, "joint", None),
             "confirm_weakened_safety": getattr(args, "allow_weakened_safety", False)})
         if args.participant_model:
             config = config.replace(participant_model=args.participant_model)
@@ -78,6 +85,11 @@ def run(args) -> int:
             raise OutputPathError(f"{path}: a journal of an unfinished session "
                                   f"({journal_dir(path)}) is here; continue it with "
                                   f"--resume {path}, or give another --out")
+        if sweep_rE is not None:   # sE steps at a fixed rE, on the one engine
+            p = config.protocol
+            track = functools.partial(Engine, session=CoContractionSession(
+                p.sE_levels, sweep_rE, p.trial_s, repeats=p.repeats,
+                source=f"--cocontraction {sweep_rE:g} with {config.source}"))
     stored, stored_backend = _stored_attrs(path) if args.resume else ({}, "")
     kind = session_kind_from_stored(stored, str(path)) if args.resume else None
     if kind is not None:   # e.g. tracking: its recorded controller and targets, no code

@@ -9,10 +9,16 @@ from __future__ import annotations
 from pydantic import StrictBool, StrictFloat, model_validator
 
 from nmsid.protocols.errors import ConfigError
+from nmsid.protocols.joints import JOINTS
 from nmsid.protocols.settings_base import SettingProblem, bounded, settings_dataclass
 
 MAX_RAMP_STEPS = 2000
 """Calibration steps per ramp at most (ceiling / step_mA); the paper's: 32."""
+
+_ELBOW = JOINTS["elbow"]
+"""The defaults below are the elbow's; a session on another joint takes that joint's
+(``Config``'s ``joint``). Fmin_N, Fmax_N and force_ceiling_N are in the joint's unit (N m
+for a torque joint)."""
 
 _CURRENT_WHY = ("no transcutaneous stimulator of this rig delivers more than 100 mA; the "
                 "device's own range is checked when it is connected")
@@ -54,14 +60,14 @@ class CalibrationConfig:
         "a zero-current recording of at most a minute tares the force"))
     rest_s: StrictFloat = bounded(2.0, ge=0.0, le=600.0, why=(
         "output off before each ramp for at most 10 min"))
-    Fmin_N: StrictFloat = bounded(0.5, gt=0.0, le=1000.0, why=(
-        "a force an elbow can produce (at most 1 kN)"))
-    Fmax_N: StrictFloat = bounded(5.0, gt=0.0, le=1000.0, why=(
-        "a force an elbow can produce (at most 1 kN)"))
+    Fmin_N: StrictFloat = bounded(_ELBOW.Fmin, gt=0.0, le=1000.0, why=(
+        "a force or torque a joint can produce (at most 1 kN or 1 kN m)"))
+    Fmax_N: StrictFloat = bounded(_ELBOW.Fmax, gt=0.0, le=1000.0, why=(
+        "a force or torque a joint can produce (at most 1 kN or 1 kN m)"))
     ceiling_ext_mA: StrictFloat = bounded(16.0, gt=0.0, le=100.0, why=_CURRENT_WHY)
     ceiling_flex_mA: StrictFloat = bounded(16.0, gt=0.0, le=100.0, why=_CURRENT_WHY)
-    force_ceiling_N: StrictFloat = bounded(10.0, gt=0.0, le=1000.0, why=(
-        "a force an elbow can produce (at most 1 kN)"))
+    force_ceiling_N: StrictFloat = bounded(_ELBOW.ceiling, gt=0.0, le=1000.0, why=(
+        "a force or torque a joint can produce (at most 1 kN or 1 kN m)"))
     confirm: StrictBool = False
     manual: ManualCurrents | None = None
 

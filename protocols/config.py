@@ -3,6 +3,8 @@
 Layout of the TOML file (every key optional; unknown keys are refused)::
 
     participant = "P01"
+    joint = "elbow"                # "elbow" | "knee" | "ankle" (protocols/joints.py): its
+                                   # labels, unit and default limits (docs/joints.md)
     seed = 1234                    # schedule randomisation seed (omitted: drawn and recorded)
 
     # or, to choose the simulated participant as well (instead of participant = "P01"):
@@ -77,7 +79,9 @@ from pydantic import AfterValidator, Field, StrictFloat, StrictInt, model_valida
 
 from nmsid.protocols.calibration_settings import MAX_RAMP_STEPS, CalibrationConfig, ManualCurrents
 from nmsid.protocols.errors import ConfigError
-from nmsid.protocols.interlock_settings import FORCE_SENSOR_RANGE_N, TRIP_SWITCHES, InterlockConfig
+from nmsid.protocols.interlock_settings import (CONFIRM_WORDS, FORCE_SENSOR_RANGE_N, TRIP_SWITCHES,
+                                                InterlockConfig)
+from nmsid.protocols.joints import DEFAULT_JOINT, JOINTS, Joint
 from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, replace_settings,
                                            settings_dataclass, validate_settings)
 
@@ -311,6 +315,12 @@ class Config:
     participant: Annotated[str, AfterValidator(_participant_code)] = "P01"
     seed: StrictInt | None = bounded(None, ge=0, le=SEED_MAX, why=(
         "the session file stores the seed as a 64-bit signed integer"))
+    joint: str = DEFAULT_JOINT
+    """The joint the session drives (:data:`nmsid.protocols.joints.JOINTS`): a file that
+    names one and leaves ``[interlock] force_limit_N`` or ``[calibration] Fmin_N`` /
+    ``Fmax_N`` / ``force_ceiling_N`` out gets that joint's defaults, in its unit.
+    :meth:`replace` (``joint=...``) keeps the tables as they are: build a configuration
+    of another joint with :func:`load_config` / :func:`config_from_dict` instead."""
     participant_model: str = "template"
     """Which simulated participant ``--backend sim`` puts on the rig
     (:data:`PARTICIPANT_MODELS`); TOML ``[participant] model``."""
@@ -337,6 +347,25 @@ class Config:
                 data["participant_model"] = table["model"]
         return data
 
+    @model_validator(mode="before")
+    @classmethod
+    def _joint_defaults(cls, data):
+        if not isinstance(data, dict) or "joint" not in data:
+            return data
+        name = data["joint"]
+        if not isinstance(name, str) or name not in JOINTS:
+            raise SettingProblem("joint", name, "one of " + ", ".join(
+                repr(j) for j in JOINTS) + " (protocols/joints.py; docs/joints.md)")
+        joint = JOINTS[name]
+        data = dict(data)
+        for table, defaults in (("interlock", {"force_limit_N": joint.limit}),
+                                ("calibration", {"Fmin_N": joint.Fmin, "Fmax_N": joint.Fmax,
+                                                 "force_ceiling_N": joint.ceiling})):
+            given = data.get(table, {})
+            if isinstance(given, dict):     # an object built in code is kept as it is
+                data[table] = {**defaults, **given}
+        return data
+
     @model_validator(mode="after")
     def _model_known(self):
         if self.participant_model not in PARTICIPANT_MODELS and not re.fullmatch(
@@ -344,6 +373,17 @@ class Config:
             raise SettingProblem("participant.model", self.participant_model,
                                  "one of " + ", ".join(repr(m) for m in PARTICIPANT_MODELS)
                                  + " or a plug-in 'package.module:factory'")
+        return self
+
+    @model_validator(mode="after")
+    def _limit_within_joint_sensor(self):
+        # a lab's joint may have a sensor below the 6-axis sensor's 500 N the interlock's
+        # own rule knows: a limit above the joint's sensor range can never trip either
+        j, lim = JOINTS[self.joint], self.interlock.force_limit_N
+        if lim > j.sensor_range and not self.interlock.confirm_weakened_safety:
+            raise SettingProblem("interlock.force_limit_N", lim,
+                                 f"at most the {j.name} sensor's range ({j.sensor_range:g} "
+                                 f"{j.unit}), or {CONFIRM_WORDS}")
         return self
 
     # -- conversion ---------------------------------------------------------------
@@ -365,6 +405,8 @@ class Config:
             del d["interlock"]["confirm_weakened_safety"]
         if d["seed"] is None:
             del d["seed"]
+        if d["joint"] == DEFAULT_JOINT:    # older readers lack the key
+            del d["joint"]
         model = d.pop("participant_model")
         if model != "template":     # the plain string form otherwise (older readers)
             d["participant"] = {"code": d["participant"], "model": model}
@@ -389,9 +431,19 @@ class Config:
                                     self.source, **changes)
         return self.replace(protocol=protocol)
 
+    @property
+    def joint_def(self) -> Joint:
+        """The session's :class:`~nmsid.protocols.joints.Joint`."""
+        return JOINTS[self.joint]
+
     def weakened_safety(self) -> list[str]:
         """The settings that weaken the interlock (each needs the confirmation)."""
-        return self.interlock.weakened()
+        out = self.interlock.weakened()
+        j, lim = JOINTS[self.joint], self.interlock.force_limit_N
+        if j.sensor_range < lim <= FORCE_SENSOR_RANGE_N:   # above 500 N: said just above
+            out.append(f"interlock.force_limit_N = {lim:g} (above the {j.name} sensor's "
+                       f"range, {j.sensor_range:g} {j.unit}: it can never trip)")
+        return out
 
     def check_device(self, max_current_mA: float, device_name: str = "stimulator") -> None:
         """Refuse current ceilings above what the device can deliver.

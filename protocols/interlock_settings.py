@@ -9,6 +9,7 @@ from __future__ import annotations
 from pydantic import StrictBool, StrictFloat, model_validator
 
 from nmsid.protocols.errors import ConfigError
+from nmsid.protocols.joints import JOINTS
 from nmsid.protocols.settings_base import SettingProblem, bounded, settings_dataclass
 
 FORCE_SENSOR_RANGE_N = 500.0
@@ -29,8 +30,10 @@ class InterlockConfig:
     (``nmsid run --allow-weakened-safety`` sets it); see :meth:`weakened`.
     """
 
-    force_limit_N: StrictFloat = bounded(25.0, gt=0.0, le=10_000.0, why=(
-        "no elbow pushes 10 kN: a larger limit is a typo"))
+    force_limit_N: StrictFloat = bounded(JOINTS["elbow"].limit, gt=0.0, le=10_000.0, why=(
+        "no joint pushes 10 kN or 10 kN m: a larger limit is a typo"))
+    """The limit on |measured|, in the session joint's unit (N at the elbow's strap, N m
+    for a torque joint); its default is the joint's (``protocols/joints.py``)."""
     stall_timeout_s: StrictFloat = bounded(0.1, gt=0.0, le=10.0, why=(
         "a stalled sensor must stop stimulation quickly"))
     trip_on_overrun: StrictBool = True
@@ -55,14 +58,14 @@ class InterlockConfig:
             return self
         for name in TRIP_SWITCHES:
             if not getattr(self, name):
-                raise SettingProblem(name, False, _CONFIRM_WORDS)
+                raise SettingProblem(name, False, CONFIRM_WORDS)
         if self.force_limit_N > FORCE_SENSOR_RANGE_N:
             raise SettingProblem("force_limit_N", self.force_limit_N,
                                  f"at most the force sensor's range "
-                                 f"({FORCE_SENSOR_RANGE_N:g} N), or {_CONFIRM_WORDS}")
+                                 f"({FORCE_SENSOR_RANGE_N:g} N), or {CONFIRM_WORDS}")
         return self
 
 
-_CONFIRM_WORDS = ("this weakens the safety interlock; to run anyway set interlock."
+CONFIRM_WORDS = ("this weakens the safety interlock; to run anyway set interlock."
                   "confirm_weakened_safety = true in the file or pass --allow-weakened-safety "
                   "(recorded in the session)")

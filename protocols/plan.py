@@ -15,7 +15,8 @@ allowed (:class:`PlanRefused`).
 
 Item kinds (:data:`ITEM_KINDS`): ``identification`` and ``reference`` trials (a waveform
 at one sE), ``tracking`` and ``relay`` trials (closed loop: rE streamed by a controller,
-clamped into the item's envelope by the engine), ``dry_run`` trials. Calibration is the
+clamped into the item's envelope by the engine), ``dry_run`` trials, ``cocontraction``
+steps (one sE held at a fixed rE: :func:`cocontraction_plan`). Calibration is the
 session's first step (its ramps are bounded by the rig's ceilings, checked here too); a
 re-run is an item run again (its attempt counted by the engine), not a new item.
 
@@ -36,12 +37,13 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 from nmsid.errors import UserError
+from nmsid.protocols.joints import DEFAULT_JOINT, JOINTS, Joint
 from nmsid.protocols.session_model import Calibration
 
 __all__ = ["ITEM_KINDS", "MAX_ITEM_S", "Plan", "PlanItem", "PlanRefused", "RigLimits",
-           "identification_plan", "preflight"]
+           "cocontraction_plan", "identification_plan", "preflight"]
 
-ITEM_KINDS = ("identification", "reference", "tracking", "relay", "dry_run")
+ITEM_KINDS = ("identification", "reference", "tracking", "relay", "dry_run", "cocontraction")
 """The kinds of plan item."""
 
 MAX_ITEM_S = 3600.0
@@ -153,20 +155,25 @@ class RigLimits:
         The interlock's force limit: a target beyond it would trip it.
     device_max_mA : float or None
         The stimulator's range, once connected.
+    joint : Joint
+        The session's joint: ``force_limit_N`` and targets are in its unit (N m for a
+        torque joint), refusals name its quantity, unit and channel roles.
     """
 
     ceiling_ext_mA: float
     ceiling_flex_mA: float
     force_limit_N: float
     device_max_mA: float | None = None
+    joint: Joint = JOINTS[DEFAULT_JOINT]
 
     @classmethod
     def of(cls, config, device_max_mA: float | None = None) -> RigLimits:
-        """The limits of a :class:`~nmsid.protocols.config.Config`."""
+        """The limits of a :class:`~nmsid.protocols.config.Config` (its joint's unit)."""
         c = config.calibration
         return cls(float(c.ceiling_ext_mA), float(c.ceiling_flex_mA),
                    float(config.interlock.force_limit_N),
-                   None if device_max_mA is None else float(device_max_mA))
+                   None if device_max_mA is None else float(device_max_mA),
+                   joint=config.joint_def)
 
 
 def _finite(*xs) -> bool:
@@ -191,18 +198,18 @@ def item_problem(item: PlanItem, limits: RigLimits,
         return f"duration {item.duration_s!r} s is outside (0, {MAX_ITEM_S:g}] s"
     if item.target_range_N is not None:
         tlo, thi = item.target_range_N
-        lim = limits.force_limit_N
+        lim, q, u = limits.force_limit_N, limits.joint.quantity, limits.joint.unit
         if not (_finite(tlo, thi) and -lim <= tlo <= thi <= lim):
-            return (f"force target range [{tlo!r}, {thi!r}] N is not finite within the "
-                    f"interlock's force limit [-{lim:g}, {lim:g}] N")
+            return (f"{q} target range [{tlo!r}, {thi!r}] {u} is not finite within the "
+                    f"interlock's {q} limit [-{lim:g}, {lim:g}] {u}")
     if calibration is not None:
         Ie, If = item.max_current_mA(calibration)
         ce, cf = limits.ceiling_ext_mA, limits.ceiling_flex_mA
         if limits.device_max_mA is not None:
             ce, cf = min(ce, limits.device_max_mA), min(cf, limits.device_max_mA)
         for name, value, cal_max, ceiling in (
-                ("extensor", Ie, calibration.Iemax_mA, ce),
-                ("flexor", If, calibration.Ifmax_mA, cf)):
+                (limits.joint.extensor_role, Ie, calibration.Iemax_mA, ce),
+                (limits.joint.flexor_role, If, calibration.Ifmax_mA, cf)):
             allowed = min(cal_max, ceiling)
             if not (_finite(value) and value <= allowed + _TOL_MA):
                 return (f"{name} current up to {value:.4g} mA is above {allowed:g} mA (the "
@@ -243,3 +250,29 @@ def identification_plan(schedule, protocol, source: str = "") -> Plan:
                  label=f"sE {pt.sE:g} repeat {pt.repeat}")
         for pt in schedule)
     return Plan("identification", items, source=source)
+
+
+def cocontraction_plan(sE_steps, rE: float, step_s: float, *, repeats: int = 1,
+                       source: str = "") -> Plan:
+    """A co-contraction sweep: each sE of ``sE_steps`` held for ``step_s`` at the fixed
+    ``rE`` (both muscles on, their balance fixed, their sum stepped), in the given order,
+    the whole sweep ``repeats`` times. Each step is one ``cocontraction`` item whose rE
+    range is ``(rE, rE)``: the preflight holds its most current per channel to the
+    calibration like any trial's. Nothing is checked here; :func:`preflight` refuses a bad
+    value with its item.
+
+    Examples
+    --------
+    >>> plan = cocontraction_plan([0.3, 0.6], 0.7, 5.0, repeats=2)
+    >>> [(it.sE, it.repeat) for it in plan], plan[0].rE_range
+    ([(0.3, 1), (0.6, 1), (0.3, 2), (0.6, 2)], (0.7, 0.7))
+    >>> plan[1].max_current_mA(Calibration(2.0, 9.5, 1.5, 8.0))
+    (5.15, 2.67)
+    """
+    steps = [float(v) for v in sE_steps]
+    items = tuple(
+        PlanItem(r * len(steps) + k, "cocontraction", sE, float(step_s), repeat=r + 1,
+                 rE_range=(float(rE), float(rE)), label=f"sE {sE:g} at rE {float(rE):g}",
+                 source=source)
+        for r in range(int(repeats)) for k, sE in enumerate(steps))
+    return Plan("cocontraction", items, source=source)

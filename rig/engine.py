@@ -29,6 +29,7 @@ import numpy as np
 from nmsid.drivers.interfaces import (SINE_CARRIER, DeliveryReporting, Describable,
                                       RigDevices, check_deliverable)
 from nmsid.protocols.config import Config, ConfigError, PausePolicy, config_from_json
+from nmsid.protocols.joints import joint_attrs
 from nmsid.protocols.plan import Plan, RigLimits, preflight
 from nmsid.protocols.schedule import (PlannedTrial, TrialStatus, make_schedule, schedule_from_json,
                                       schedule_to_json)
@@ -143,12 +144,15 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
             seed = config.seed if config.seed is not None else secrets.randbelow(2 ** 31)
             self.config = config.replace(seed=seed) if config.seed is None else config
             self.seed = seed
+            # the joint and what is measured (optional root attributes; docs/joints.md)
+            self.extra_attrs = {**joint_attrs(self.config.joint_def), **self.extra_attrs}
             p = self.config.protocol
             self.schedule = self.session.schedule(self) or make_schedule(
                 p.sE_levels, p.repeats, p.randomisation, seed, reference_sE=p.reference_sE,
                 reference_every=p.reference_every)
         self.interlock = Interlock(self.config.interlock, devices.stimulator,
-                                   estop_input=devices.estop, on_trip=self._on_trip)
+                                   estop_input=devices.estop, on_trip=self._on_trip,
+                                   joint=self.config.joint_def)
         self._preflight()   # a bad plan is refused now, before the caller runs anything
 
     # -- the run -----------------------------------------------------------------------

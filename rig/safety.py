@@ -148,12 +148,14 @@ class ForceLimitRule(Rule):
 
     name = "force_limit"
 
-    def __init__(self, limit_N: float):
+    def __init__(self, limit_N: float, quantity: str = "force", unit: str = "N"):
         super().__init__()
         if not (math.isfinite(limit_N) and limit_N > 0):
             raise ValueError(f"force limit must be a finite number > 0 N, got {limit_N!r}")
         self.limit_N = float(limit_N)
-        self.detail = f"ok (limit {self.limit_N:g} N)"
+        """The limit in the session joint's unit (N, or N m for a torque joint)."""
+        self.quantity, self.unit = quantity, unit
+        self.detail = f"ok (limit {self.limit_N:g} {self.unit})"
 
     def check(self, obs: Observation) -> str | None:
         chunk = obs.chunk
@@ -165,17 +167,18 @@ class ForceLimitRule(Rule):
         bad = ~np.isfinite(f)
         if bad.any():
             k = int(np.argmax(bad))
-            return self._verdict(f"force sample {chunk.start_index + k} is not finite "
+            return self._verdict(f"{self.quantity} sample {chunk.start_index + k} is not finite "
                                  f"({f[k]!r}): sensor fault")
         a = np.abs(f)
         k = int(np.argmax(a))
         if a[k] > self.limit_N:
-            return self._verdict(f"force {f[k]:.2f} N at sample {chunk.start_index + k} is "
-                                 f"beyond the limit +/-{self.limit_N:g} N")
+            return self._verdict(f"{self.quantity} {f[k]:.2f} {self.unit} at sample "
+                                 f"{chunk.start_index + k} is beyond the limit "
+                                 f"+/-{self.limit_N:g} {self.unit}")
         return None
 
     def reset(self) -> None:
-        self.ok, self.detail = True, f"ok (limit {self.limit_N:g} N)"
+        self.ok, self.detail = True, f"ok (limit {self.limit_N:g} {self.unit})"
 
 
 class StallRule(Rule):
@@ -340,15 +343,20 @@ class Interlock:
         The hardware switch; polled by :meth:`start_watcher` at ``cfg.estop_poll_Hz``.
     on_trip : callable(Trip), optional
         Called once per latching trip, in the tripping thread, after output is zero.
+    joint : protocols.joints.Joint, optional
+        The session's joint: its quantity and unit in the force rule's messages (the
+        limit ``cfg.force_limit_N`` is in that unit). None: force in N.
     """
 
     def __init__(self, cfg, stimulator, *, estop_input=None,
-                 on_trip: Callable[[Trip], None] | None = None):
+                 on_trip: Callable[[Trip], None] | None = None, joint=None):
         self.cfg = cfg
         self.stimulator = stimulator
         self.estop_input = estop_input
         self.on_trip = on_trip
-        self.force = ForceLimitRule(cfg.force_limit_N)
+        # the limit is in the joint's unit (protocols/joints.py); None: the elbow's force
+        self.force = ForceLimitRule(cfg.force_limit_N,
+                                    *((joint.quantity, joint.unit) if joint else ()))
         self.stall = StallRule(cfg.stall_timeout_s)
         self.flags = AcquisitionFlagsRule(cfg.trip_on_overrun, cfg.trip_on_over_range,
                                           cfg.trip_on_sensor_fault)

@@ -184,7 +184,8 @@ def prepare_rig(request: RigRequest, config) -> PreparedRig:
     if request.backend == "sim":
         assert sim_seed is not None   # set above for a simulated rig
         devices = make_sim_rig(participant_for_model(config.participant_model, sim_seed,
-                                                     fs_Hz=config.protocol.fs_Hz),
+                                                     fs_Hz=config.protocol.fs_Hz,
+                                                     joint=config.joint),
                                realtime=request.realtime, fs_Hz=config.protocol.fs_Hz)
     else:
         assert request.hw_config is not None   # refused above otherwise

@@ -142,7 +142,8 @@ class IdentificationSession(SessionKind):
                         text=f"sE {planned.sE:g}, repeat {planned.repeat}")
 
 
-SESSION_KINDS = {"tracking": ("nmsid.rig.tracking", "TrackingSession")}
+SESSION_KINDS = {"tracking": ("nmsid.rig.tracking", "TrackingSession"),
+                 "cocontraction": ("nmsid.rig.cocontraction", "CoContractionSession")}
 """The kinds of session besides identification, by their recorded ``session_kind``: the
 module and class whose ``from_stored(attrs, where)`` rebuilds it on ``--resume``. A fixed
 table of nmsid's own modules (a session file names a kind, never code), each imported only

@@ -189,9 +189,11 @@ class VirtualParticipant:
         object.__setattr__(self, "sE_range", (lo, hi))
         object.__setattr__(self, "effects", tuple(effects_from_list(list(self.effects))))
         grid = np.linspace(lo, hi, 29)
-        checks = (("Kp", self.Kp(grid), 0.0, 100.0), ("wn_rad_s", self.wn_rad_s(grid), 0.5, 500.0),
+        # Kp and the offset in N, or N m for a torque joint (a knee's Kp reaches ~100 N m)
+        checks = (("Kp", self.Kp(grid), 0.0, 1000.0),
+                  ("wn_rad_s", self.wn_rad_s(grid), 0.5, 500.0),
                   ("zeta", self.zeta(grid), 0.01, 10.0),
-                  ("offset_N", self.offset_N(grid), -100.0, 100.0))
+                  ("offset_N", self.offset_N(grid), -1000.0, 1000.0))
         for name, vals, vmin, vmax in checks:
             vals = np.atleast_1d(vals)
             if not (np.all(np.isfinite(vals)) and vals.min() > vmin and vals.max() < vmax):

@@ -12,22 +12,27 @@ from __future__ import annotations
 from nmsid.protocols.config import PARTICIPANT_MODELS
 from nmsid.sim_backends.errors import SimConfigError
 from nmsid.sim_backends.msk_participant import default_msk_participant
-from nmsid.sim_backends.participant import default_participant
+from nmsid.sim_backends.joint_participants import template_participant
 from nmsid.sim_backends.plugin import plugin_participant
 
 
-def participant_for_model(model: str, seed: int = 0, fs_Hz: float = 2000.0):
-    """The default participant of that model with ``seed`` (a plug-in is checked at the
-    session's ``fs_Hz``).
+def participant_for_model(model: str, seed: int = 0, fs_Hz: float = 2000.0,
+                          joint: str = "elbow"):
+    """The default participant of that model with ``seed`` at ``joint`` (a plug-in is
+    checked at the session's ``fs_Hz``).
 
     Raises
     ------
     SimConfigError
-        If ``model`` is not one of :data:`nmsid.protocols.config.PARTICIPANT_MODELS`.
+        If ``model`` is not one of :data:`nmsid.protocols.config.PARTICIPANT_MODELS`, or
+        has no participant of that joint (the musculoskeletal one is an elbow).
     """
     if model == "template":
-        return default_participant(seed=int(seed))
+        return template_participant(joint, seed=int(seed))
     if model == "musculoskeletal":
+        if joint != "elbow":
+            raise SimConfigError(f"participant model 'musculoskeletal' is MyoSuite's elbow; "
+                                 f"for joint {joint!r} use model 'template' (docs/joints.md)")
         return default_msk_participant(seed=int(seed))
     if ":" in str(model):   # a lab's plug-in, package.module:factory
         return plugin_participant(model, seed=int(seed), fs_Hz=float(fs_Hz))

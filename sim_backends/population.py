@@ -17,6 +17,10 @@ with linear, exponential or quadratic best fits. The generator draws:
 * calibration currents on the 0.5 mA grid (Imin 1-4 mA, span 4.5-9 mA);
 * sensor noise 0.02-0.06 N RMS, offset, slow drift and mains pick-up of different sizes.
 
+These are the elbow's ranges; ``make_population(n, seed, joint="knee")`` draws the same
+families with the knee's or the ankle's ranges and units
+(:data:`nmsid.sim_backends.joint_participants.TEMPLATES`, ``docs/joints.md``).
+
 Examples
 --------
 >>> pop = make_population(3, seed=1)
@@ -29,10 +33,13 @@ True
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
+from nmsid.protocols.joints import JOINTS
 from nmsid.sim_backends.curves import CurveModel, ParameterCurve
+from nmsid.sim_backends.joint_participants import joint_sensor, template_for
 from nmsid.sim_backends.errors import SimConfigError
 from nmsid.sim_backends.participant import ReferenceCalibration, VirtualParticipant
 from nmsid.sim_backends.sensor import SensorModel
@@ -48,9 +55,11 @@ WN_FAMILIES = ("linear",) * 2 + ("exponential",) * 3 + ("quadratic",) * 5
 ZETA_FAMILIES = ("quadratic",) * 2 + ("exponential",) * 4 + ("linear",) * 4
 
 
-def _kp_curve(rng: np.random.Generator, family: str) -> ParameterCurve:
-    k_lo = rng.uniform(2.0, 4.0)
-    k_hi = rng.uniform(6.0, 14.0)
+def _kp_curve(rng: np.random.Generator, family: str,
+              lo: tuple[float, float] = (2.0, 4.0), hi: tuple[float, float] = (6.0, 14.0)
+              ) -> ParameterCurve:
+    k_lo = rng.uniform(*lo)
+    k_hi = rng.uniform(*hi)
     if family == "exponential":
         b = math.log(k_hi / k_lo) / (SE_HI - SE_LO)
         return ParameterCurve(CurveModel.EXPONENTIAL, (k_hi * math.exp(-b * SE_HI), b))
@@ -121,25 +130,35 @@ musculoskeletal population (:mod:`nmsid.sim_backends.msk_population`)."""
 
 def make_participant(rng: np.random.Generator, code: str, seed: int,
                      families: tuple[str, str, str] = ("exponential", "quadratic",
-                                                       "quadratic")) -> VirtualParticipant:
+                                                       "quadratic"),
+                     joint: str = "elbow") -> VirtualParticipant:
     """One random participant with curve families (Kp, wn, zeta), resampled until its
-    curves meet the population's ranges."""
+    curves meet the population's ranges (the joint's:
+    :data:`nmsid.sim_backends.joint_participants.TEMPLATES`)."""
+    t = template_for(joint)
+    j = JOINTS[t.joint]
+    (w_lo, w_hi), (z_lo, z_hi) = t.wn_range, t.zeta_range
     for _ in range(500):
-        Kp = _kp_curve(rng, families[0])
-        wn = _trend_curve(rng, 10.0, 50.0, families[1])
-        zeta = _trend_curve(rng, 0.3, 1.0, families[2])
+        Kp = _kp_curve(rng, families[0], t.Kp_lo, t.Kp_hi)
+        wn = _trend_curve(rng, w_lo, w_hi, families[1])
+        zeta = _trend_curve(rng, z_lo, z_hi, families[2])
         kp, w, z = Kp(_GRID), wn(_GRID), zeta(_GRID)
-        if not (np.all(np.diff(kp) > 0) and w.min() >= 10 and w.max() <= 50
-                and z.min() >= 0.3 and z.max() <= 1.0 and (w * z).min() >= 8.0):
+        if not (np.all(np.diff(kp) > 0) and w.min() >= w_lo and w.max() <= w_hi
+                and z.min() >= z_lo and z.max() <= z_hi
+                and (w * z).min() >= t.min_decay_1_s):
             continue
+        cal = _calibration(rng)
+        if j.name != "elbow":
+            cal = replace(cal, Fmin_N=j.Fmin, Fmax_N=j.Fmax)
         return VirtualParticipant(code=code, Kp=Kp, wn_rad_s=wn, zeta=zeta,
-                                  calibration=_calibration(rng), sE_range=(SE_LO, SE_HI),
-                                  sensor=_sensor(rng), seed=seed)
+                                  calibration=cal, sE_range=(SE_LO, SE_HI),
+                                  sensor=joint_sensor(j, _sensor(rng)), seed=seed)
     raise SimConfigError("could not draw a participant within the population's ranges")
 
 
-def make_population(n: int, seed: int = 0) -> list[VirtualParticipant]:
-    """``n`` participants, reproducible from ``seed``; codes ``S01``, ``S02``, ...
+def make_population(n: int, seed: int = 0, joint: str = "elbow") -> list[VirtualParticipant]:
+    """``n`` participants of ``joint`` (its gains, unit and dynamics), reproducible from
+    ``seed``; codes ``S01``, ``S02``, ...
 
     Participant i depends only on (seed, i), so ``make_population(5, s)[:3] ==
     make_population(3, s)``.
@@ -155,5 +174,5 @@ def make_population(n: int, seed: int = 0) -> list[VirtualParticipant]:
         kp, wn, zeta = (table[order[i % 10]] for table, order in
                         zip((KP_FAMILIES, WN_FAMILIES, ZETA_FAMILIES), orders))
         families = (kp, wn, zeta)
-        out.append(make_participant(rng, f"S{i + 1:02d}", p_seed, families))
+        out.append(make_participant(rng, f"S{i + 1:02d}", p_seed, families, joint))
     return out

@@ -36,7 +36,9 @@ C_HEADERS = ("nmsid_model.h", "fmi2Functions.h", "fmi2FunctionTypes.h",
 #: items of a version-1 twin file (docs/twin-file.md); any other item is a twin form the
 #: FMU does not model (such as the muscle form), and the export refuses it
 KNOWN_ITEMS = frozenset({"format", "format_version", "participant", "source", "calibration",
-                         "sE_range", "parameters", "offset_N", "effects"})
+                         "sE_range", "parameters", "offset_N", "effects",
+                         # a torque joint's twin: its units in N m (variables._in_joint_unit)
+                         "joint", "measured_quantity", "measured_unit"})
 #: the effects whose step c/nmsid_model.c implements (held to the Python reference step,
 #: export/fmu/reference.py, by tests/export/test_fmu.py); any other effect is refused
 SUPPORTED_EFFECTS = ("recruitment_nonlinearity", "activation_dynamics",
@@ -297,7 +299,8 @@ def export_fmu(twin_path: str | os.PathLike, out: str | os.PathLike, *, force: b
     ident = _identifier(twin.participant)
     vs = variables(twin, extrapolate=extrapolate)
     names = ", ".join(e["name"] for e in twin.effects) or "none"
-    desc = (f"nmsid digital twin of {twin.participant or 'an unnamed participant'}: force "
+    what = "force" if twin.measured_unit == "N" else f"{twin.joint} torque (N m)"
+    desc = (f"nmsid digital twin of {twin.participant or 'an unnamed participant'}: {what} "
             f"from rE and sE, second-order dynamics with parameter curves of sE; effects: "
             f"{names}")
     compiler = find_compiler() if binary else None

@@ -17,6 +17,9 @@ _UNITS: dict[str, dict[str, float]] = {  # name -> SI base unit exponents (FMI 2
     "N": {"kg": 1, "m": 1, "s": -2}, "N/s": {"kg": 1, "m": 1, "s": -3},
     "N/s2": {"kg": 1, "m": 1, "s": -4}, "rad/s": {"rad": 1, "s": -1}, "s": {"s": 1},
     "1": {}, "%": {"factor": 0.01},
+    # a torque joint's twin (docs/joints.md): N m = kg m2 s-2
+    "N.m": {"kg": 1, "m": 2, "s": -2}, "N.m/s": {"kg": 1, "m": 2, "s": -3},
+    "N.m/s2": {"kg": 1, "m": 2, "s": -4},
 }
 
 

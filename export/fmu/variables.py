@@ -7,7 +7,7 @@ Variables"): causality, variability, initial; value references are per base type
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from nmsid.analysis.twin import Twin
@@ -139,7 +139,26 @@ def variables(twin: Twin, *, extrapolate: bool = False) -> list[Var]:
                  bool(extrapolate), "evaluate the curves at sE outside the tested range "
                  "(false: clamp sE to [sE_min, sE_max], as `nmsid twin simulate` does by "
                  "default)", None, "exact")]
-    return reals + ints + bools
+    return _in_joint_unit(reals, twin) + ints + bools
+
+
+_TORQUE_UNITS = {"N": "N.m", "N/s": "N.m/s", "N/s2": "N.m/s2"}
+"""A torque twin's units for a force twin's (FMI unit names, ``description._UNITS``)."""
+
+
+def _in_joint_unit(reals: list[Var], twin: Twin) -> list[Var]:
+    """A torque joint's twin (``docs/joints.md``): every force unit in N m and the output
+    described as the joint's torque; the variables' names (the FMU's interface) stay."""
+    if getattr(twin, "measured_unit", "N") != "N m":
+        return reals
+    joint = getattr(twin, "joint", "")
+    out = []
+    for v in reals:
+        desc = v.description.replace("endpoint force", f"{joint} joint torque".strip()) \
+            .replace("(N per unit rE)", "(N m per unit rE)").replace("(N)", "(N m)")
+        out.append(replace(v, unit=_TORQUE_UNITS.get(v.unit, v.unit) if v.unit else v.unit,
+                           description=desc))
+    return out
 
 
 def _rec_params(rec) -> tuple[float, float]:

@@ -206,3 +206,17 @@ def test_the_block_level_faults_trip_the_named_rule_with_output_zero_first():
     il.rearm()
     il.unwatch_stream()
     assert il.check_stall(9.0) is None
+
+
+def test_force_rule_speaks_the_joints_quantity_and_unit():
+    # a knee session's limit is in N m (protocols/joints.py): the trip says so
+    from nmsid.protocols.joints import JOINTS
+    from nmsid.rig.safety import ForceLimitRule
+    knee = JOINTS["knee"]
+    rule = ForceLimitRule(knee.limit, knee.quantity, knee.unit)
+    assert rule.detail == "ok (limit 150 N m)"
+    verdict = rule.check(Observation(0.0, chunk=ForceChunk(7, np.array([10.0, 151.0]))))
+    assert verdict == ("torque 151.00 N m at sample 8 is beyond the limit +/-150 N m")
+    assert rule.check(Observation(0.0, chunk=ForceChunk(0, np.array([149.0, -149.0])))) is None
+    interlock = Interlock(InterlockConfig(force_limit_N=150.0), None, joint=knee)
+    assert interlock.force.unit == "N m"
