@@ -155,6 +155,10 @@ JSON_DOCUMENTS = {
     "analysis/gap/report.py: FinalParams.for_twin":
         "the twin file's effect parameters as its JSON writes them (twin_params' input)",
     "analysis/gap/report.py: json_safe": "any value made JSON-safe (NaN -> null), as written",
+    "analysis/joint_twins.py: joint_twins_to_dict": "the multi-joint twin file as written",
+    "analysis/joint_twins.py: load_joint_twins":
+        "the file's `joints` mapping, joint name -> Twin (each a result object)",
+    "analysis/report.py: parameter_titles": "axis and table titles by parameter name (labels)",
     "analysis/gap/report.py: write_outputs": "gap_report.json as written (returned to the CLI)",
     "analysis/gap/twin_out.py: twin_dict": "a twin file's JSON document (docs/twin-file.md)",
     "analysis/muscle/report.py: muscle_section":
