@@ -1,0 +1,652 @@
+"""Hasomed P24 and RehaMove3 over ScienceMode4, low level: one command per biphasic pulse.
+
+Both devices speak the same protocol (:mod:`nmsid.drivers.sciencemode4_protocol`, its
+sources and the choice of an own codec); they differ in channels and ranges
+(:class:`Sm4Model`: :data:`P24`, :data:`REHAMOVE3`). The driver uses the low-level mode
+(IFU "Low-Level commands", RM3 4): ``arm`` sends Ll_init; ``start`` streams one
+Ll_channel_config per channel and pulse, host-timed at ``pulse_rate_Hz``, each a
+charge-balanced biphasic pulse by construction
+(:func:`~nmsid.drivers.sciencemode4_protocol.biphasic_points`: +I, pause, -I, equal
+widths); the trial ends with Ll_stop.
+
+The stop is nmsid's E-stop for devices that have none (issue 43; neither device describes an
+emergency switch). :meth:`Sm4Stimulator.stop_now` stops the stream, writes Ll_stop at once,
+then asks Get_stim_status (IFU Table 7) until the device answers "no level initialised",
+resending Ll_stop while it does not (a lost packet, a transfer error: IFU Table 27). If the
+device has not confirmed within :data:`STOP_CONFIRM_S`, nothing more is written: in low
+level every pulse is a command, so no command means no pulse; the operator is told in one
+line to switch the device off. At most one pulse command is ever outstanding (the next goes
+out only after the last one's acknowledgement, which the device sends "after the
+stimulation has been executed", IFU "Ll_channel_config_ack"), so the device's 10-command
+buffer (IFU "Low-Level channel configuration") never holds pulses beyond the stop: the last
+pulse begins at most one pulse period after the stop is asked for.
+
+Safety by construction: each pulse's current is the envelope rounded down to the 0.5 mA step
+(IFU Table 15), the envelope was checked against its ceilings
+(:class:`~nmsid.drivers.interfaces.CheckedWaveform`), :meth:`Sm4Stimulator._points` refuses
+any current above the driver's ceilings, and the codec refuses anything above 130 mA before
+encoding.
+
+Time base: no trigger output is described, so ``hardware_trigger`` is False (the engine
+starts the acquisition from the host just before ``start``).
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from nmsid.drivers import sciencemode4_protocol as sm4
+from nmsid.drivers.errors import DeviceError, DeviceNotFound, StimulatorSettingError
+from nmsid.drivers.interfaces import (BIPHASIC_PULSES, CheckedWaveform, CurrentLimitError,
+                                      StimulatorCapabilities, StimulatorState,
+                                      StimulatorStatus, Waveshape)
+from nmsid.drivers.leptrino import _serial_module
+from nmsid.protocols.settings_base import SettingProblem
+
+log = logging.getLogger(__name__)
+
+RESPONSE_WAIT_S = 0.1
+"""A request unanswered this long is sent again (the P24 answers in 5-15 ms, issue 43; x 6
+for a host thread scheduled late). A reply with a bad checksum is resent at once."""
+REQUEST_TRIES = 3
+STOP_CONFIRM_S = 1.0
+"""How long :meth:`Sm4Stimulator.stop_now` resends the stop and asks Get_stim_status."""
+PULSE_ACK_WAIT_S = 0.1
+"""A pulse unacknowledged this long is counted as unanswered; the next one goes out."""
+MAX_HOST_RATE_HZ = 100.0
+"""Low level is host-timed, one command per channel and pulse from a Python thread: nmsid
+streams at most 100 pulses per second per channel (the devices allow more: P24 0.5 ms
+period, IFU Technical Specification; RehaMove3 500 Hz, RM3 1.2)."""
+SUMMARY_FORMAT = "nmsid-stimulation-1"
+
+
+@dataclass(frozen=True)
+class Sm4Model:
+    """What differs between the ScienceMode4 devices nmsid drives."""
+
+    title: str
+    n_channels: int
+    """P24: 4 channels x 2 connectors (IFU Table 14); RehaMove3: 4 (RM3 1.5)."""
+    min_width_us: int
+    max_width_us: int
+    """Per phase; a phase is one low-level point, at most 4095 us (IFU Table 15)."""
+    source: str
+
+
+P24 = Sm4Model("Hasomed P24", 8, 10, sm4.MAX_POINT_US,
+               "IFU Technical Specification: pulse width 10 - 65520 us; Table 15: a point "
+               "<= 4095 us")
+REHAMOVE3 = Sm4Model("Hasomed RehaMove3", 4, 20, sm4.MAX_POINT_US,
+                     "RM3 1.2: pulse width 20 - 16000 us; 4.2: a point <= 4095 us")
+
+
+def to_steps_mA(current_mA) -> np.ndarray:
+    """Currents rounded DOWN to the 0.5 mA step (IFU Table 15), never up past a ceiling."""
+    c = np.asarray(current_mA, dtype=float)
+    return sm4.STEP_MA * np.floor(c / sm4.STEP_MA + 1e-9)
+
+
+def settings_issue(model: Sm4Model, *, ceiling_ext_mA: float, ceiling_flex_mA: float,
+                   extensor_channel: int, flexor_channel: int, pulse_rate_Hz: float,
+                   pulse_width_us: int, interphase_us: int) -> tuple[str, object, str] | None:
+    """``(key, value, what is valid)`` of the first setting outside the device's documented
+    ranges, or None."""
+    for key, ch in (("extensor_channel", extensor_channel), ("flexor_channel", flexor_channel)):
+        if not 1 <= ch <= model.n_channels:
+            return key, ch, f"valid 1 .. {model.n_channels}"
+    if extensor_channel == flexor_channel:
+        return "flexor_channel", flexor_channel, "must differ from extensor_channel"
+    for key, c in (("ceiling_ext_mA", ceiling_ext_mA), ("ceiling_flex_mA", ceiling_flex_mA)):
+        if not (math.isfinite(c) and 0 < c <= sm4.MAX_CURRENT_MA):
+            return key, c, "valid > 0 and <= 130 mA (IFU Technical Specification, RM3 1.2)"
+    if not 1.0 <= pulse_rate_Hz <= MAX_HOST_RATE_HZ:
+        return ("pulse_rate_Hz", pulse_rate_Hz,
+                f"valid 1 .. {MAX_HOST_RATE_HZ:g} Hz (host-timed low level)")
+    if not model.min_width_us <= pulse_width_us <= model.max_width_us:
+        return ("pulse_width_us", pulse_width_us,
+                f"valid {model.min_width_us} .. {model.max_width_us} us ({model.source})")
+    if not 0 <= interphase_us <= sm4.MAX_POINT_US:
+        return "interphase_us", interphase_us, "valid 0 .. 4095 us (IFU Table 15)"
+    if (2 * pulse_width_us + interphase_us) * 1e-6 * 2 >= 1.0 / pulse_rate_Hz:
+        return ("pulse_width_us", pulse_width_us,
+                f"two pulses of 2 x width + {interphase_us} us must fit in one period at "
+                f"{pulse_rate_Hz:g} Hz")
+    return None
+
+
+def check_settings(model: Sm4Model, **settings) -> None:
+    """Refuse settings outside the device's documented ranges (one line)."""
+    issue = settings_issue(model, **settings)
+    if issue is not None:
+        key, value, valid = issue
+        raise StimulatorSettingError(f"{model.title}: {key} = {value!r}: {valid}")
+
+
+def settings_problem(model: Sm4Model, cfg) -> SettingProblem | None:
+    """The settings models' cross-key rules (``drivers/<kind>_settings.py``)."""
+    if not cfg.port:
+        return SettingProblem("port", "", f"the {model.title}'s serial port (COM5, "
+                              "/dev/ttyACM0; the Device Manager)")
+    issue = settings_issue(model, ceiling_ext_mA=cfg.ceiling_ext_mA,
+                           ceiling_flex_mA=cfg.ceiling_flex_mA,
+                           extensor_channel=cfg.extensor_channel,
+                           flexor_channel=cfg.flexor_channel, pulse_rate_Hz=cfg.pulse_rate_Hz,
+                           pulse_width_us=cfg.pulse_width_us, interphase_us=cfg.interphase_us)
+    return None if issue is None else SettingProblem(*issue)
+
+
+def open_serial(port: str):
+    """pyserial at IFU Table 1 / RM3 Table 1: 3 000 000 baud, 8N2, RTS/CTS."""
+    serial = _serial_module()
+    return serial.Serial(port, baudrate=sm4.BAUDRATE, bytesize=8, parity="N", stopbits=2,
+                         rtscts=True, timeout=0.02, write_timeout=0.5)
+
+
+class Sm4Stimulator:
+    """A P24 or RehaMove3 as a :class:`~nmsid.drivers.interfaces.Stimulator` and a
+    :class:`~nmsid.drivers.interfaces.HostStreamedStimulator` (low level).
+
+    Parameters
+    ----------
+    port : str
+        The device's virtual serial port (``COM5``, ``/dev/ttyACM0``).
+    model : Sm4Model
+        :data:`P24` or :data:`REHAMOVE3`.
+    ceiling_ext_mA, ceiling_flex_mA : float
+        The session's ceilings; no pulse above them is ever written.
+    extensor_channel, flexor_channel : int
+        1-based; on the P24 channels 5 .. 8 are connector 2 (IFU Table 14).
+    pulse_rate_Hz, pulse_width_us, interphase_us : float, int, int
+        Pulses per second per channel, width of each phase, pause between the phases.
+    open_port, clock, sleep : callables, optional
+        The port opener (the fake in fake mode), the time source and wait (the bench's).
+    """
+
+    def __init__(self, port: str, model: Sm4Model, *, ceiling_ext_mA: float,
+                 ceiling_flex_mA: float, extensor_channel: int = 1, flexor_channel: int = 2,
+                 pulse_rate_Hz: float = 40.0, pulse_width_us: int = 300,
+                 interphase_us: int = 100, open_port: Callable | None = None,
+                 clock: Callable[[], float] | None = None,
+                 sleep: Callable[[float], None] | None = None):
+        check_settings(model, ceiling_ext_mA=ceiling_ext_mA, ceiling_flex_mA=ceiling_flex_mA,
+                       extensor_channel=extensor_channel, flexor_channel=flexor_channel,
+                       pulse_rate_Hz=pulse_rate_Hz, pulse_width_us=pulse_width_us,
+                       interphase_us=interphase_us)
+        self.port, self.model = port, model
+        self.extensor_channel, self.flexor_channel = extensor_channel, flexor_channel
+        self.ceilings = {extensor_channel: float(ceiling_ext_mA),
+                         flexor_channel: float(ceiling_flex_mA)}
+        self._stream_ceilings = dict(self.ceilings)
+        self.pulse_rate_Hz = float(pulse_rate_Hz)
+        self.pulse_width_us, self.interphase_us = int(pulse_width_us), int(interphase_us)
+        self._open_port = open_port or open_serial
+        self.clock = clock or time.monotonic
+        self._sleep = sleep or time.sleep
+        self._ser: Any = None
+        self._decoder = sm4.Decoder()
+        self._wlock = threading.Lock()
+        self._lock = threading.RLock()
+        self._cv = threading.Condition(self._lock)
+        self._number = 0
+        self._replies: dict[int, sm4.Packet | sm4.BadPacket] = {}
+        self._pulse_acks: dict[int, tuple[int, int]] = {}   # number -> (update, channel)
+        self._silent = False
+        self._error = ""
+        self._state = StimulatorState.DISCONNECTED
+        self._link: threading.Thread | None = None
+        self._link_stop = threading.Event()
+        self._stream: threading.Thread | None = None
+        self._stream_stop = threading.Event()
+        self._queue: collections.deque[tuple[float, float]] = collections.deque()
+        self._streaming_open = False
+        self._trial: list[tuple[float, float]] = []
+        self._loaded: CheckedWaveform | None = None
+        self._reset_counts()
+        self.stop_log: list[tuple[float, str]] = []
+        """(clock time, what) of each stop: asked, confirmed or unconfirmed (tests, bench)."""
+
+    # -- connection ---------------------------------------------------------------------------
+    def connect(self) -> None:
+        """Open the port, start the reader, ask Get_stim_status; a level left initialised by
+        a previous program is stopped (confirmed) first."""
+        self._close_link()
+        try:
+            self._ser = self._open_port(self.port)
+        except Exception as exc:
+            raise DeviceNotFound(f"{self.model.title}: cannot open serial port {self.port!r} "
+                                 f"({type(exc).__name__}: {exc}); check the USB cable and "
+                                 "the port name in the Device Manager") from None
+        self._decoder, self._silent = sm4.Decoder(), False
+        with self._lock:
+            self._error, self._replies = "", {}
+            self._state = StimulatorState.IDLE
+        self._link_stop.clear()
+        self._link = threading.Thread(target=self._link_loop, name="sm4-link", daemon=True)
+        self._link.start()
+        try:
+            level = self.stim_level()
+        except DeviceError as exc:
+            self._close_link()
+            raise DeviceNotFound(f"{self.model.title} on {self.port}: {exc}") from None
+        if level != sm4.STIM_NONE and not self._confirm_stop(level):
+            raise DeviceError(self._error)
+
+    def stim_level(self) -> int:
+        """Get_stim_status (IFU Table 7): 0 none, 1 low level, 2 mid level, 3 running."""
+        ack = self._request(sm4.GET_STIM_STATUS)
+        return ack.data[1] if len(ack.data) > 1 else 0
+
+    def capabilities(self) -> StimulatorCapabilities:
+        return StimulatorCapabilities(
+            n_channels=self.model.n_channels, max_current_mA=sm4.MAX_CURRENT_MA,
+            resolution_mA=sm4.STEP_MA, output_rate_Hz=self.pulse_rate_Hz,
+            model=self.model.title, waveshape=self.waveshape(), hardware_trigger=False)
+
+    def waveshape(self) -> Waveshape:
+        return Waveshape(kind=BIPHASIC_PULSES, pulse_rate_Hz=self.pulse_rate_Hz,
+                         pulse_width_us=float(self.pulse_width_us),
+                         interphase_us=float(self.interphase_us), modulation="amplitude")
+
+    def disconnect(self) -> None:
+        self.stop_now()
+        self._close_link()
+        with self._lock:
+            self._state = StimulatorState.DISCONNECTED
+
+    # -- one trial --------------------------------------------------------------------------------
+    def load(self, waveform: CheckedWaveform) -> None:
+        """Each pulse's current: the envelope at the pulse, rounded down to 0.5 mA."""
+        self._check_usable("load")
+        for ch, ceiling in ((self.extensor_channel, waveform.ceiling_ext_mA),
+                            (self.flexor_channel, waveform.ceiling_flex_mA)):
+            if ceiling > self.ceilings[ch] + 1e-9:
+                raise CurrentLimitError(f"waveform ceiling {ceiling:g} mA on {self.model.title}"
+                                        f" channel {ch} is above the driver's "
+                                        f"{self.ceilings[ch]:g} mA; nothing was sent")
+        n = math.floor(waveform.duration_s * self.pulse_rate_Hz + 1e-9)
+        k = np.minimum((np.arange(n) / self.pulse_rate_Hz * waveform.fs_Hz + 1e-9)
+                       .astype(np.int64), waveform.n_samples - 1)
+        pulses = list(zip(to_steps_mA(np.asarray(waveform.I_ext_mA)[k]).tolist(),
+                          to_steps_mA(np.asarray(waveform.I_flex_mA)[k]).tolist()))
+        for e, f in pulses:                   # by construction; checked once more
+            self._points(self.extensor_channel, e)
+            self._points(self.flexor_channel, f)
+        with self._lock:
+            self._trial, self._loaded = pulses, waveform
+            self._state = StimulatorState.LOADED
+
+    def arm(self) -> None:
+        """Ll_init (IFU Table 12: standard 150 V, no measurement); a stream is armed already."""
+        self._check_usable("arm")
+        with self._lock:
+            if self._streaming_open and self._state is StimulatorState.ARMED:
+                return
+        level = self.stim_level()
+        if level != sm4.STIM_NONE and not self._confirm_stop(level):
+            raise DeviceError(self._error)
+        ack = self._request(sm4.LL_INIT, sm4.ll_init_data())
+        if ack.result == sm4.NOT_INITIALIZED and self.stim_level() == sm4.STIM_LL:
+            pass     # a resent Ll_init after a late answer: the first one initialised it
+        elif ack.result != sm4.OK:
+            raise DeviceError(f"{self.model.title} refused Ll_init: "
+                              f"{sm4.RESULT_TEXT.get(ack.result, ack.result)} (IFU Table 27)")
+        with self._lock:
+            self._state = StimulatorState.ARMED
+
+    def start(self) -> None:
+        with self._lock:
+            if self._state is not StimulatorState.ARMED:
+                raise DeviceError(f"{self.model.title}: start() in state "
+                                  f"{self._state.value}; load() and arm() first")
+            if not self._streaming_open:
+                self._queue = collections.deque(self._trial)
+            self._reset_counts()
+            self._streaming_open = False
+            self._state = StimulatorState.RUNNING
+        self._stream_stop.clear()
+        self._stream = threading.Thread(target=self._stream_loop, name="sm4-stream",
+                                        daemon=True)
+        self._stream.start()
+
+    def stop_now(self) -> None:
+        """Ll_stop now, confirmed by the device (module docstring). Thread-safe, idempotent,
+        never raises."""
+        self._stream_stop.set()
+        with self._lock:
+            self._queue.clear()
+            if not self._ended_by and self._state is StimulatorState.RUNNING:
+                self._ended_by = "stop_now"
+            if self._state in (StimulatorState.RUNNING, StimulatorState.ARMED,
+                               StimulatorState.LOADED):
+                self._state = StimulatorState.STOPPED
+        if self._ser is None or self._silent:
+            return
+        self.stop_log.append((self.clock(), "asked"))
+        try:
+            with self._wlock:                 # after any pulse being written: none follows
+                self._write_locked(sm4.LL_STOP)
+        except Exception as exc:
+            self._unconfirmed(f"the stop could not be sent ({type(exc).__name__}: {exc})")
+            return
+        t = self._stream
+        if t is not None and t is not threading.current_thread():
+            t.join(timeout=1.0)
+        self._confirm_stop(sm4.STIM_LL, resend=False)
+
+    def status(self) -> StimulatorStatus:
+        with self._lock:
+            st = self._state
+            running = st is StimulatorState.RUNNING
+            return StimulatorStatus(state=st, output_active=running, error=self._error,
+                                    sample_index=len(self._sent) if running else -1)
+
+    # -- host-streamed capability -------------------------------------------------------------
+    def open_stream(self, ceiling_ext_mA: float, ceiling_flex_mA: float,
+                    update_Hz: float) -> float:
+        for ch, c in ((self.extensor_channel, ceiling_ext_mA),
+                      (self.flexor_channel, ceiling_flex_mA)):
+            if c > self.ceilings[ch] + 1e-9:
+                raise CurrentLimitError(f"stream ceiling {c:g} mA on channel {ch} is above "
+                                        f"the driver's {self.ceilings[ch]:g} mA")
+        self._stream_ceilings.update({self.extensor_channel: float(ceiling_ext_mA),
+                                      self.flexor_channel: float(ceiling_flex_mA)})
+        with self._lock:
+            self._streaming_open = False
+        self.arm()
+        with self._lock:
+            self._queue.clear()
+            self._reset_counts()
+            self._streaming_open = True
+        return self.pulse_rate_Hz
+
+    def write_stream(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> None:
+        lim = self._stream_ceilings
+        for name, arr, ch in (("I_ext_mA", I_ext_mA, self.extensor_channel),
+                              ("I_flex_mA", I_flex_mA, self.flexor_channel)):
+            a = np.asarray(arr, float)
+            if a.size and (not np.all(np.isfinite(a)) or a.min() < 0 or a.max() > lim[ch]):
+                raise CurrentLimitError(f"{name} outside 0 .. {lim[ch]:g} mA (or not "
+                                        "finite); nothing was sent")
+        ext, flex = to_steps_mA(I_ext_mA), to_steps_mA(I_flex_mA)
+        if len(ext) != len(flex):
+            raise CurrentLimitError("I_ext_mA and I_flex_mA must have the same length")
+        with self._lock:
+            self._queue.extend(zip(ext.tolist(), flex.tolist()))
+
+    def stream_space(self) -> int:
+        with self._lock:
+            return max(0, int(self.pulse_rate_Hz) - len(self._queue))
+
+    def close_stream(self) -> None:
+        with self._lock:
+            self._streaming_open = False
+        t = self._stream
+        if t is not None:
+            t.join(timeout=2.0 + len(self._queue) / self.pulse_rate_Hz)
+        self.stop_now()
+
+    # -- what was delivered -----------------------------------------------------------------------
+    def delivery_summary(self) -> dict | None:
+        with self._lock:
+            sent, got = list(self._sent), dict(self._delivered)
+            counts = dict(self._counts)
+            ended = self._ended_by
+        if self._loaded is None and not sent:
+            return None
+        channels = {}
+        for name, idx, ch in (("extensor", 0, self.extensor_channel),
+                              ("flexor", 1, self.flexor_channel)):
+            amps = [sent[i][idx] for i in sorted(got) if ch in got[i]]
+            peak = max(amps, default=0.0)
+            channels[name] = {"name": name, "channel": ch, "pulses_acknowledged": len(amps),
+                              "pulses_sent": len(sent), "pulse_current_mA": amps,
+                              "peak_current_mA": float(peak),
+                              "max_charge_per_phase_nC": float(peak * self.pulse_width_us),
+                              "net_charge_per_trial_uC": 0.0,
+                              "ceiling_mA": self.ceilings[ch]}
+        return {"format": SUMMARY_FORMAT, "device": self.model.title,
+                "mode": "low level (ScienceMode4)", "waveshape": self.waveshape().to_json(),
+                "pulse_rate_Hz": self.pulse_rate_Hz, "pulse_width_us": self.pulse_width_us,
+                "interphase_us": self.interphase_us,
+                "charge_balanced": "by construction: +I, pause, -I of equal width per pulse",
+                "updates_planned": len(self._trial), "updates_sent": len(sent), **counts,
+                "ended_by": ended or "completed", "channels": channels}
+
+    def describe(self) -> dict:
+        return {"device": f"{self.model.title} (ScienceMode4, low level)", "port": self.port,
+                "extensor_channel": self.extensor_channel,
+                "flexor_channel": self.flexor_channel,
+                "ceiling_ext_mA": self.ceilings[self.extensor_channel],
+                "ceiling_flex_mA": self.ceilings[self.flexor_channel],
+                "pulse_rate_Hz": self.pulse_rate_Hz, "pulse_width_us": self.pulse_width_us,
+                "interphase_us": self.interphase_us,
+                "trigger_output": "none described: acquisition host-started",
+                "emergency_stop": "none on the device: nmsid's stop (confirmed Ll_stop)",
+                "state": self.status().state.value, "error": self._error}
+
+    # -- internals ---------------------------------------------------------------------------------
+    def _points(self, channel: int, current_mA: float) -> list[tuple[int, float]]:
+        lim = self.ceilings[channel]
+        if not 0 <= current_mA <= lim + 1e-9:
+            raise CurrentLimitError(f"{self.model.title} channel {channel}: {current_mA} mA "
+                                    f"outside 0 .. {lim:g} mA; nothing was sent")
+        return sm4.biphasic_points(current_mA, self.pulse_width_us, self.interphase_us)
+
+    def _pulse_data(self, channel: int, current_mA: float) -> bytes:
+        c = channel - 1                                   # IFU Table 14: channel, connector
+        return sm4.ll_channel_config_data(c % 4, c // 4, self._points(channel, current_mA))
+
+    def _reset_counts(self) -> None:
+        self._sent: list[tuple[float, float]] = []
+        self._delivered: dict[int, set[int]] = {}
+        self._counts = {"pulses_transfer_error": 0, "pulses_unanswered": 0,
+                        "updates_skipped_late": 0}
+        self._ended_by = ""
+
+    def _stream_loop(self) -> None:
+        period = 1.0 / self.pulse_rate_Hz
+        t0, k = self.clock(), 0
+        try:
+            while not self._stream_stop.is_set():
+                with self._lock:
+                    if self._queue:
+                        e, f = self._queue.popleft()
+                    elif self._streaming_open:
+                        e = f = -1.0
+                    else:
+                        break
+                if e < 0:
+                    self._sleep(period / 4)
+                    continue
+                wait = t0 + k * period - self.clock()
+                if wait > 0:
+                    self._sleep(wait)
+                elif not self._streaming_open and -wait > period:   # behind: keep time axis
+                    late = min(int(-wait / period), len(self._queue))
+                    with self._lock:
+                        for _ in range(late):
+                            e, f = self._queue.popleft()
+                        self._counts["updates_skipped_late"] += late
+                    k += late
+                numbers = []
+                with self._wlock:             # never after the stop (stop_now holds it)
+                    if self._stream_stop.is_set() or self._error:
+                        break
+                    index = len(self._sent)
+                    self._sent.append((e, f))
+                    for ch, cur in ((self.extensor_channel, e), (self.flexor_channel, f)):
+                        if cur > 0:
+                            n = self._write_locked(sm4.LL_CHANNEL_CONFIG,
+                                                   self._pulse_data(ch, cur))
+                            with self._lock:
+                                self._pulse_acks[n] = (index, ch)
+                            numbers.append(n)
+                self._await_pulse_acks(numbers)
+                k += 1
+        except Exception as exc:
+            with self._lock:
+                self._error = self._error or (f"{self.model.title} link lost while "
+                                              f"stimulating ({type(exc).__name__}: {exc})")
+                self._state = StimulatorState.ERROR
+            return
+        if not self._stream_stop.is_set():
+            with self._lock:
+                self._ended_by = self._ended_by or "completed"
+            self.stop_now()
+
+    def _await_pulse_acks(self, numbers: list[int]) -> None:
+        """The next pulse goes out after these were acknowledged (at most one pulse command
+        outstanding per channel: module docstring), or after :data:`PULSE_ACK_WAIT_S`."""
+        deadline = time.monotonic() + PULSE_ACK_WAIT_S
+        with self._lock:
+            while any(n in self._pulse_acks for n in numbers) and not self._error \
+                    and not self._stream_stop.is_set():
+                if time.monotonic() > deadline:
+                    for n in numbers:
+                        if self._pulse_acks.pop(n, None) is not None:
+                            self._counts["pulses_unanswered"] += 1
+                    return
+                self._cv.wait(0.002)
+
+    def _link_loop(self) -> None:
+        while not self._link_stop.is_set():
+            try:
+                ser = self._ser
+                n = ser.in_waiting if ser is not None else 0
+                packets = self._decoder.feed(ser.read(n)) if n else []
+            except Exception as exc:
+                with self._lock:
+                    self._error = self._error or (f"{self.model.title} USB link lost "
+                                                  f"({type(exc).__name__}: {exc})")
+                    self._state = StimulatorState.ERROR
+                    self._cv.notify_all()
+                return
+            for pkt in packets:
+                self._on_packet(pkt)
+            time.sleep(0.001)
+
+    def _on_packet(self, pkt: sm4.Packet | sm4.BadPacket) -> None:
+        with self._lock:
+            if pkt.command == sm4.LL_CHANNEL_CONFIG_ACK and pkt.number in self._pulse_acks:
+                index, ch = self._pulse_acks.pop(pkt.number)
+                result = pkt.result if isinstance(pkt, sm4.Packet) else sm4.TRANSFER_ERROR
+                if result == sm4.OK:
+                    self._delivered.setdefault(index, set()).add(ch)
+                elif result == sm4.TRANSFER_ERROR:     # IFU Table 27 01: not executed;
+                    self._counts["pulses_transfer_error"] += 1   # the next pulse follows
+                elif result == sm4.NOT_INITIALIZED and self._stream_stop.is_set():
+                    pass                               # crossed the stop: not executed
+                else:
+                    text = sm4.RESULT_TEXT.get(result, f"code {result}")
+                    self._error = self._error or (f"{self.model.title} channel {ch}: {text} "
+                                                  "(IFU Table 27); stimulation stopped")
+                    self._state = StimulatorState.ERROR
+            else:
+                self._replies[pkt.number] = pkt
+            self._cv.notify_all()
+
+    def _ask(self, command: int, data: bytes = b"") -> sm4.Packet | sm4.BadPacket | None:
+        """One request and its reply (None after :data:`RESPONSE_WAIT_S`)."""
+        with self._wlock:
+            number = self._write_locked(command, data)
+        deadline = time.monotonic() + RESPONSE_WAIT_S
+        with self._lock:
+            while number not in self._replies and time.monotonic() < deadline and \
+                    self._link is not None and self._link.is_alive():
+                self._cv.wait(0.002)
+            return self._replies.pop(number, None)
+
+    def _request(self, command: int, data: bytes = b"") -> sm4.Packet:
+        """A request answered, resent when lost or answered corrupted (at once, never a 5 s
+        timeout) or with a transfer error, up to :data:`REQUEST_TRIES` times."""
+        for _ in range(REQUEST_TRIES):
+            reply = self._ask(command, data)
+            if isinstance(reply, sm4.Packet) and reply.command == sm4.UNKNOWN_CMD:
+                raise DeviceError(f"{self.model.title} does not know command {command} "
+                                  "(IFU Table 10)")
+            if isinstance(reply, sm4.Packet) and reply.result != sm4.TRANSFER_ERROR:
+                return reply
+        raise DeviceError(f"{self.model.title}: no valid answer to command {command} in "
+                          f"{REQUEST_TRIES} tries of {RESPONSE_WAIT_S:g} s")
+
+    def _confirm_stop(self, level: int, resend: bool = True) -> bool:
+        """Get_stim_status until "no level" (IFU Table 7), resending the stop of ``level``
+        while it is not; unconfirmed: silent, one line (module docstring)."""
+        stop = sm4.ML_STOP if level in (sm4.STIM_ML, sm4.STIM_ML_RUNNING) else sm4.LL_STOP
+        deadline = time.monotonic() + STOP_CONFIRM_S
+        while time.monotonic() < deadline:
+            try:
+                if resend:
+                    self._ask(stop)
+                reply = self._ask(sm4.GET_STIM_STATUS)
+            except Exception as exc:
+                log.warning("%s stop: %s", self.model.title, exc)
+                break
+            if isinstance(reply, sm4.Packet) and reply.result == sm4.OK and \
+                    len(reply.data) > 1 and reply.data[1] == sm4.STIM_NONE:
+                self.stop_log.append((self.clock(), "confirmed"))
+                if resend:
+                    log.warning("%s: the stop was confirmed after a resend (a packet lost "
+                                "or corrupted)", self.model.title)
+                return True
+            resend = True
+        self._unconfirmed(f"the device did not confirm the stop within {STOP_CONFIRM_S:g} s "
+                          "(Get_stim_status, IFU Table 7)")
+        return False
+
+    def _unconfirmed(self, why: str) -> None:
+        self._silent = True                 # no more commands: no more low-level pulses
+        self.stop_log.append((self.clock(), "unconfirmed"))
+        message = (f"{self.model.title}: {why}; nmsid sends nothing more, so no further "
+                   f"pulse is commanded: SWITCH THE {self.model.title.split()[-1]} OFF, then "
+                   "reconnect before the next trial")
+        with self._lock:
+            if self._error != message:
+                log.error(message)
+            self._error = message
+            self._state = StimulatorState.ERROR
+            self._cv.notify_all()
+
+    def _write_locked(self, command: int, data: bytes = b"") -> int:
+        """Write one packet (the caller holds ``_wlock``); its packet number."""
+        ser = self._ser
+        if ser is None:
+            raise DeviceError(f"{self.model.title} is not connected")
+        if self._silent:
+            raise DeviceError(self._error or f"{self.model.title} is silent after an "
+                              "unconfirmed stop")
+        number = self._number
+        self._number = (self._number + 1) & 0x3F        # IFU: packet number 0 .. 63
+        with self._lock:
+            self._replies.pop(number, None)
+        ser.write(sm4.encode(number, command, data))
+        return number
+
+    def _check_usable(self, what: str) -> None:
+        with self._lock:
+            if self._state is StimulatorState.DISCONNECTED:
+                raise DeviceError(f"{self.model.title}: {what}() before connect()")
+            if self._error:
+                raise DeviceError(self._error)
+
+    def _close_link(self) -> None:
+        self._link_stop.set()
+        t = self._link
+        if t is not None and t is not threading.current_thread():
+            t.join(timeout=1.0)
+        self._link = None
+        ser, self._ser = self._ser, None
+        if ser is not None:
+            try:
+                ser.close()
+            except Exception as exc:
+                log.info("%s port close: %s", self.model.title, exc)
