@@ -17,9 +17,11 @@ Names, types, channel labels and units follow LSL's conventions (the XDF meta-da
 beside EMG, motion capture or PsychoPy's markers.
 
 Time stamps: a trial's samples are stamped on LSL's clock (``pylsl.local_clock``) from its
-onset, estimated at the trial's first chunk as the arrival time minus the samples it holds
-(``onset = now - (start_index + n) / fs``), then ``onset + k / fs`` for sample ``k``: one
-estimate per trial, no jitter between chunks. The ``trial_start`` marker carries the same
+onset, ``onset + k / fs`` for sample ``k``: one estimate per trial, no jitter between chunks.
+Each chunk's arrival minus the samples it holds (``now - (start_index + n) / fs``) bounds
+the onset from above (a chunk delivered late gives a later estimate, never an earlier one);
+the onset is the earliest of these over the trial's first :data:`ONSET_WINDOW_S`, whose
+chunks are held until then. The ``trial_start`` marker carries the same
 onset, so a recording lines the marker up with the samples it marks; its error against the
 stimulator's real start is what ``bench/bench_lsl.py`` measures.
 
@@ -48,6 +50,10 @@ log = logging.getLogger(__name__)
 
 MACHINE_ONLY_CFG = "[multicast]\nResolveScope = machine\n[ports]\nIPv6 = disable\n"
 """An ``lsl_api.cfg`` that keeps discovery and data on this machine (127.0.0.1)."""
+
+
+ONSET_WINDOW_S = 0.2
+"""A trial's first chunks are held this long; its onset is the earliest estimate among them."""
 
 
 def machine_only_config(directory: Path) -> Path:
@@ -107,6 +113,7 @@ class LslObserver(EngineObserver):
         self._onset: dict[int, float] = {}
         self._sE: dict[int, float] = {}
         self._start_detail = ""
+        self._held: dict[int, list] = {}
         pl, sid = self._pl, f"{name}-{participant or 'session'}"
         self.force = pl.StreamOutlet(self._info(
             f"{name} Force", "Force", [("force", "N", "Force")], self.fs_Hz,
@@ -178,19 +185,35 @@ class LslObserver(EngineObserver):
         n = len(force_N)
         if n == 0 or self.failed:
             return
-        first = index not in self._onset
-        if first:
-            self._onset[index] = self._pl.local_clock() - (start_index + n) / self.fs_Hz
-        t0 = self._onset[index]
-        if first:
-            self.marker("trial_start", t0, trial=int(index), sE=self._sE.get(index),
-                        detail=self._start_detail)
-            self._start_detail = ""
-        ts = (t0 + (start_index + np.arange(n)) / self.fs_Hz).tolist()
+        if index in self._onset:
+            self._push(index, start_index, force_N, rE, I_ext_mA, I_flex_mA)
+            return
+        # the onset: arrival minus the samples held, the earliest of the first chunks
+        # (a chunk delivered late only makes its estimate later)
+        estimate = self._pl.local_clock() - (start_index + n) / self.fs_Hz
+        held = self._held.setdefault(index, [])
+        held.append((estimate, (start_index, force_N, rE, I_ext_mA, I_flex_mA)))
+        if start_index + n >= ONSET_WINDOW_S * self.fs_Hz:
+            self._release(index)
+
+    def _release(self, index) -> None:
+        """Fix the trial's onset from its held chunks, mark it, push them."""
+        held = self._held.pop(index, [])
+        if not held:
+            return
+        self._onset[index] = t0 = min(e for e, _ in held)
+        self.marker("trial_start", t0, trial=int(index), sE=self._sE.get(index),
+                    detail=self._start_detail)
+        self._start_detail = ""
+        for _, chunk in held:
+            self._push(index, *chunk)
+
+    def _push(self, index, start_index, force_N, rE, I_ext_mA, I_flex_mA) -> None:
+        n = len(force_N)
+        ts = (self._onset[index] + (start_index + np.arange(n)) / self.fs_Hz).tolist()
         f = np.asarray(force_N, np.float32).reshape(-1, 1)
-        s = np.column_stack([np.asarray(I_ext_mA, np.float32), np.asarray(I_flex_mA,
-                                                                          np.float32),
-                             np.asarray(rE, np.float32)])
+        s = np.column_stack([np.asarray(I_ext_mA, np.float32),
+                             np.asarray(I_flex_mA, np.float32), np.asarray(rE, np.float32)])
         self._guard("force", lambda: self.force.push_chunk(f.tolist(), ts))
         self._guard("stimulation", lambda: self.stim.push_chunk(s.tolist(), ts))
 
@@ -199,6 +222,7 @@ class LslObserver(EngineObserver):
 
     def on_trial_finished(self, index, trial):
         self.inner.on_trial_finished(index, trial)
+        self._release(index)                 # a trial shorter than the onset window
         t0 = self._onset.get(index)
         ts = None if t0 is None else t0 + trial.n_samples / self.fs_Hz
         rE = np.asarray(trial.rE, float)
