@@ -14,7 +14,7 @@ the table's class below, and read it where the device is made (``drivers.hardwar
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Annotated, Literal
+from typing import Annotated, Literal, TypeAlias
 
 from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, model_validator
 
@@ -29,7 +29,7 @@ from nmsid.drivers.stg4002_settings import Stg4002Config
 from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
                                            validate_settings)
 
-StimulatorSettings = Stg4002Config | Rehastim2Config | P24Config | Rehamove3Config
+StimulatorSettings: TypeAlias = Stg4002Config | Rehastim2Config | P24Config | Rehamove3Config
 """A validated ``[stimulator]`` table, typed by its kind (the registry's settings models)."""
 
 Axis = Literal["Fx", "Fy", "Fz", "Mx", "My", "Mz"]
