@@ -37,6 +37,9 @@ class P24Config:
         "pulses per second per channel, 1 .. 100 Hz (host-timed low level)"))
     pulse_width_us: StrictInt = bounded(300, ge=10, le=4095, why=(
         "width of each phase, 10 .. 4095 us (IFU Technical Specification, Table 15)"))
+    mode: Literal["low", "mid"] = Field("low", description=(
+        "low: one command per pulse, host-timed; mid: the device times the pulses, kept "
+        "alive every 0.5 s (IFU Low-Level and Mid-Level commands)"))
     interphase_us: StrictInt = bounded(100, ge=0, le=4095, why=(
         "pause between the two phases, 0 .. 4095 us (IFU Table 15)"))
 

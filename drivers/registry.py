@@ -46,6 +46,7 @@ from nmsid.drivers.p24_settings import P24Config
 from nmsid.drivers.rehamove3_settings import Rehamove3Config
 from nmsid.drivers.rehastim2_settings import Rehastim2Config
 from nmsid.drivers.sciencemode4 import P24, REHAMOVE3, Sm4Model, Sm4Stimulator, to_steps_mA
+from nmsid.drivers.sciencemode4_mid import Sm4MidLevelStimulator
 from nmsid.drivers.stg4002 import DEFAULT_DLL, Stg4002Stimulator
 from nmsid.drivers.stg4002_settings import Stg4002Config
 from nmsid.drivers.stg_download import (STG4002_RANGE_NA, STG4002_RESOLUTION_NA, ChannelPlan,
@@ -179,7 +180,8 @@ def _rs2_report(s: Rehastim2Config, checked: CheckedWaveform) -> dict:
 def _sm4(model: Sm4Model):
     def make(s, clock, stack):
         fake = None if stack is None else stack.stimulator_fake
-        return Sm4Stimulator(
+        driver = Sm4MidLevelStimulator if s.mode == "mid" else Sm4Stimulator
+        return driver(
             s.port, model, ceiling_ext_mA=s.ceiling_ext_mA, ceiling_flex_mA=s.ceiling_flex_mA,
             extensor_channel=s.extensor_channel, flexor_channel=s.flexor_channel,
             pulse_rate_Hz=s.pulse_rate_Hz, pulse_width_us=s.pulse_width_us,

@@ -38,6 +38,9 @@ class Rehamove3Config:
         "pulses per second per channel, 1 .. 100 Hz (host-timed low level)"))
     pulse_width_us: StrictInt = bounded(300, ge=20, le=4095, why=(
         "width of each phase, 20 .. 4095 us (RM3 1.2; one point, RM3 4.2)"))
+    mode: Literal["low", "mid"] = Field("low", description=(
+        "low: one command per pulse, host-timed; mid: the device times the pulses, kept "
+        "alive every 0.5 s (RM3 1.4, 4, 5)"))
     interphase_us: StrictInt = bounded(100, ge=0, le=4095, why=(
         "pause between the two phases, 0 .. 4095 us (RM3 4.2)"))
 

@@ -136,7 +136,14 @@ def settings_problem(model: Sm4Model, cfg) -> SettingProblem | None:
                            extensor_channel=cfg.extensor_channel,
                            flexor_channel=cfg.flexor_channel, pulse_rate_Hz=cfg.pulse_rate_Hz,
                            pulse_width_us=cfg.pulse_width_us, interphase_us=cfg.interphase_us)
-    return None if issue is None else SettingProblem(*issue)
+    if issue is not None:
+        return SettingProblem(*issue)
+    period2 = 2000.0 / cfg.pulse_rate_Hz
+    if cfg.mode == "mid" and abs(period2 - round(period2)) > 1e-9:
+        return SettingProblem("pulse_rate_Hz", cfg.pulse_rate_Hz, "with mode = \"mid\" the "
+                              "period 1000 / rate ms must be on the 0.5 ms grid (IFU Table "
+                              "22): e.g. 50, 40, 25, 20 Hz")
+    return None
 
 
 def open_serial(port: str):
@@ -193,7 +200,11 @@ class Sm4Stimulator(Sm4Link):
         self._cv = threading.Condition(self._lock)
         self._number = 0
         self._replies: dict[int, sm4.Packet | sm4.BadPacket] = {}
-        self._pulse_acks: dict[int, tuple[int, int]] = {}   # number -> (update, channel)
+        self._pulse_acks: dict[int, tuple[int, tuple[int, ...]]] = {}
+        """Packet number -> (update index, channels) of each pulse command unanswered."""
+        self._init = (sm4.LL_INIT, sm4.ll_init_data(), sm4.STIM_LL)
+        """The level's init command, its data and the level it enters (IFU Table 7)."""
+        self._stop_command, self._update_ack = sm4.LL_STOP, sm4.LL_CHANNEL_CONFIG_ACK
         self._silent = False
         self._error = ""
         self._state = StimulatorState.DISCONNECTED
@@ -290,11 +301,12 @@ class Sm4Stimulator(Sm4Link):
         level = self.stim_level()
         if level != sm4.STIM_NONE and not self._confirm_stop(level):
             raise DeviceError(self._error)
-        ack = self._request(sm4.LL_INIT, sm4.ll_init_data())
-        if ack.result == sm4.NOT_INITIALIZED and self.stim_level() == sm4.STIM_LL:
-            pass     # a resent Ll_init after a late answer: the first one initialised it
+        command, data, level = self._init
+        ack = self._request(command, data)
+        if ack.result == sm4.NOT_INITIALIZED and self.stim_level() == level:
+            pass     # a resent init after a late answer: the first one initialised it
         elif ack.result != sm4.OK:
-            raise DeviceError(f"{self.model.title} refused Ll_init: "
+            raise DeviceError(f"{self.model.title} refused its init (command {command}): "
                               f"{sm4.RESULT_TEXT.get(ack.result, ack.result)} (IFU Table 27)")
         with self._lock:
             self._state = StimulatorState.ARMED
@@ -306,8 +318,7 @@ class Sm4Stimulator(Sm4Link):
                                   f"{self._state.value}; load() and arm() first")
             if not self._streaming_open:
                 self._queue = collections.deque(self._trial)
-            self._reset_counts()
-            self._streaming_open = False
+            self._reset_counts()          # a stream runs until close_stream (or a stop)
             self._state = StimulatorState.RUNNING
         self._stream_stop.clear()
         self._stream = threading.Thread(target=self._stream_loop, name="sm4-stream",
@@ -330,14 +341,14 @@ class Sm4Stimulator(Sm4Link):
         self.stop_log.append((self.clock(), "asked"))
         try:
             with self._wlock:                 # after any pulse being written: none follows
-                self._write_locked(sm4.LL_STOP)
+                self._write_locked(self._stop_command)
         except Exception as exc:
             self._unconfirmed(f"the stop could not be sent ({type(exc).__name__}: {exc})")
             return
         t = self._stream
         if t is not None and t is not threading.current_thread():
             t.join(timeout=1.0)
-        self._confirm_stop(sm4.STIM_LL, resend=False)
+        self._confirm_stop(self._init[2], resend=False)
 
     def status(self) -> StimulatorStatus:
         with self._lock:
@@ -463,6 +474,7 @@ class Sm4Stimulator(Sm4Link):
                         break
                 if e < 0:
                     self._sleep(period / 4)
+                    self._after_update()
                     continue
                 wait = t0 + k * period - self.clock()
                 if wait > 0:
@@ -474,20 +486,14 @@ class Sm4Stimulator(Sm4Link):
                             e, f = self._queue.popleft()
                         self._counts["updates_skipped_late"] += late
                     k += late
-                numbers = []
                 with self._wlock:             # never after the stop (stop_now holds it)
                     if self._stream_stop.is_set() or self._error:
                         break
                     index = len(self._sent)
                     self._sent.append((e, f))
-                    for ch, cur in ((self.extensor_channel, e), (self.flexor_channel, f)):
-                        if cur > 0:
-                            n = self._write_locked(sm4.LL_CHANNEL_CONFIG,
-                                                   self._pulse_data(ch, cur))
-                            with self._lock:
-                                self._pulse_acks[n] = (index, ch)
-                            numbers.append(n)
+                    numbers = self._send_update(index, e, f)
                 self._await_pulse_acks(numbers)
+                self._after_update()
                 k += 1
         except Exception as exc:
             with self._lock:
@@ -499,6 +505,20 @@ class Sm4Stimulator(Sm4Link):
             with self._lock:
                 self._ended_by = self._ended_by or "completed"
             self.stop_now()
+
+    def _send_update(self, index: int, e: float, f: float) -> list[int]:
+        """One Ll_channel_config per channel with current (the caller holds ``_wlock``)."""
+        numbers = []
+        for ch, cur in ((self.extensor_channel, e), (self.flexor_channel, f)):
+            if cur > 0:
+                n = self._write_locked(sm4.LL_CHANNEL_CONFIG, self._pulse_data(ch, cur))
+                with self._lock:
+                    self._pulse_acks[n] = (index, (ch,))
+                numbers.append(n)
+        return numbers
+
+    def _after_update(self) -> None:
+        """Between updates (the mid level's keep-alive and error poll); nothing in low level."""
 
     def _await_pulse_acks(self, numbers: list[int]) -> None:
         """The next pulse goes out after these were acknowledged (at most one pulse command

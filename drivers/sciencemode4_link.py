@@ -38,7 +38,8 @@ class Sm4Link:
     _cv: threading.Condition
     _number: int
     _replies: dict[int, sm4.Packet | sm4.BadPacket]
-    _pulse_acks: dict[int, tuple[int, int]]
+    _pulse_acks: dict[int, tuple[int, tuple[int, ...]]]
+    _update_ack: int
     _silent: bool
     _error: str
     _state: StimulatorState
@@ -71,11 +72,12 @@ class Sm4Link:
 
     def _on_packet(self, pkt: sm4.Packet | sm4.BadPacket) -> None:
         with self._lock:
-            if pkt.command == sm4.LL_CHANNEL_CONFIG_ACK and pkt.number in self._pulse_acks:
-                index, ch = self._pulse_acks.pop(pkt.number)
+            if pkt.command == self._update_ack and pkt.number in self._pulse_acks:
+                index, chans = self._pulse_acks.pop(pkt.number)
+                ch = chans[0]
                 result = pkt.result if isinstance(pkt, sm4.Packet) else sm4.TRANSFER_ERROR
                 if result == sm4.OK:
-                    self._delivered.setdefault(index, set()).add(ch)
+                    self._delivered.setdefault(index, set()).update(chans)
                 elif result == sm4.TRANSFER_ERROR:     # IFU Table 27 01: not executed;
                     self._counts["pulses_transfer_error"] += 1   # the next pulse follows
                 elif result == sm4.NOT_INITIALIZED and self._stream_stop.is_set():

@@ -212,3 +212,90 @@ def test_the_fake_mid_level_stops_two_seconds_after_the_last_keep_alive():
     assert fake.amplitude_mA_at(1, [5.05])[0] == 0.0
     replies = sm4.Decoder().feed(port.read(4096))
     assert [p.command for p in replies] == [31, 33, 37, 37, 37]
+
+
+def _mid_rig(model=P24):
+    from nmsid.drivers.sciencemode4_mid import Sm4MidLevelStimulator
+    fake = FakeSm4(model.title.split()[-1])
+    stim = Sm4MidLevelStimulator("COM9", model, ceiling_ext_mA=20.0, ceiling_flex_mA=20.0,
+                                 extensor_channel=1, flexor_channel=2, pulse_rate_Hz=RATE_HZ,
+                                 open_port=fake.open, clock=fake.clock)
+    stim.connect()
+    return fake, stim
+
+
+@pytest.mark.parametrize("model", [P24, REHAMOVE3])
+def test_mid_level_trial_runs_and_its_stop_is_confirmed(model):
+    fake, stim = _mid_rig(model)
+    try:
+        stim.load(_waveform(stim, 1.0))
+        stim.arm()
+        assert fake.level == sm4.STIM_ML
+        stim.start()
+        time.sleep(0.3)
+        t_stop = fake.clock()
+        stim.stop_now()
+        assert fake.level == sm4.STIM_NONE and [w for _, w in stim.stop_log][-1] == "confirmed"
+        start, end, chans = fake.ml_spans[-1]
+        assert chans == {1: (25.0, 10.0), 2: (25.0, 5.0)}     # 40 Hz: 25 ms periods
+        assert end - t_stop <= 1.0 / RATE_HZ                  # the device's last pulse
+        assert stim.delivery_summary()["channels"]["extensor"]["pulses_acknowledged"] > 0
+    finally:
+        stim.disconnect()
+
+
+def test_mid_level_stream_is_kept_alive_while_it_waits():
+    fake, stim = _mid_rig()
+    try:
+        stim.open_stream(20.0, 20.0, RATE_HZ)
+        stim.write_stream(np.array([8.0]), np.array([4.0]))
+        stim.start()
+        time.sleep(2.6)          # the queue ran dry 2.5 s ago: only the keep-alive remains
+        assert fake.level == 3 and fake.keepalive_expiries == 0
+        assert sum(c == sm4.ML_GET_CURRENT_DATA for _, c in fake.received) >= 3
+        stim.close_stream()
+        assert fake.level == sm4.STIM_NONE
+    finally:
+        stim.disconnect()
+
+
+def test_mid_level_unconfirmed_stop_withholds_the_keep_alive_so_the_device_stops():
+    fake, stim = _mid_rig()
+    try:
+        stim.open_stream(20.0, 20.0, RATE_HZ)
+        stim.write_stream(np.array([8.0]), np.array([4.0]))
+        stim.start()
+        time.sleep(0.2)
+        fake.line_down(1.5)                   # the stop and its resends are all lost
+        stim.stop_now()
+        assert "SWITCH THE P24 OFF" in stim.status().error and "no keep-alive" in \
+            stim.status().error
+        time.sleep(2.3)                       # nothing written since: the device's timeout
+        _ = fake.in_waiting
+        assert fake.keepalive_expiries == 1 and fake.level == sm4.STIM_ML
+        assert fake.amplitude_mA_at(1, [fake.clock()])[0] == 0.0
+    finally:
+        stim.disconnect()
+
+
+def test_mid_level_electrode_error_ends_the_trial():
+    fake, stim = _mid_rig(REHAMOVE3)
+    try:
+        stim.load(_waveform(stim, 2.0))
+        stim.arm()
+        stim.start()
+        time.sleep(0.2)
+        fake.electrode_error(2)
+        time.sleep(0.9)                       # the next Ml_get_current_data tells
+        assert stim.status().state is StimulatorState.ERROR
+        assert "electrode error" in stim.status().error
+        assert fake.level == sm4.STIM_NONE    # stopped, confirmed
+    finally:
+        stim.disconnect()
+
+
+def test_mid_level_refuses_a_rate_off_the_half_millisecond_grid():
+    from nmsid.drivers.sciencemode4_mid import Sm4MidLevelStimulator
+    with pytest.raises(StimulatorSettingError, match="0.5 ms"):
+        Sm4MidLevelStimulator("COM9", P24, ceiling_ext_mA=20.0, ceiling_flex_mA=20.0,
+                              pulse_rate_Hz=30.0)

@@ -23,12 +23,12 @@ RELAXED_INTERLOCK = {"stall_timeout_s": 2.0}
 KINDS = {"p24": ("Hasomed P24", 5), "rehamove3": ("Hasomed RehaMove3", 3)}
 
 
-def write_sm4_config(path, kind, *, speed=4.0):
+def write_sm4_config(path, kind, *, speed=4.0, extra=()):
     flexor = KINDS[kind][1]
     lines = ["[rig]", "fake = true", f"fake_speed = {speed}",
              "[stimulator]", f'kind = "{kind}"', 'port = "COM5"', "extensor_channel = 1",
              f"flexor_channel = {flexor}", "ceiling_ext_mA = 16.0", "ceiling_flex_mA = 16.0",
-             "[acquisition]", 'kind = "caio"', "fs_Hz = 2000.0",
+             *extra, "[acquisition]", 'kind = "caio"', "fs_Hz = 2000.0",
              "[sensor]", "sync_channel = 6", "[sensor.channels]", "Fx = 0",
              "[sensor.rated]", "Fx = 500.0", "[sensor.rated_output_V]", "Fx = 1.0",
              "[sensor.offset_V]", "Fx = 1.5",
@@ -89,6 +89,44 @@ def test_session_with_a_lost_packet_and_an_estop_press(tmp_path, kind):
     assert last - pressed["t"] <= 1 / 40.0 + 0.05, last - pressed["t"]
     assert fake.level == sm4.STIM_NONE and fake.stops[-1] >= pressed["t"]
     assert max(p[2] for p in fake.pulses) <= 15.0
+
+
+def test_mid_level_session_with_a_lost_update_and_an_estop(tmp_path):
+    devices = make_hw_rig(write_sm4_config(tmp_path / "mid.toml", "rehamove3",
+                                           extra=('mode = "mid"',)))
+    fake = devices.acquisition._stack.stimulator_fake
+    pressed: dict = {}
+
+    class Faults(EngineObserver):
+        def on_trial_finished(self, index, trial):
+            if index == 0:
+                fake.lose_next(sm4.ML_UPDATE, 2)
+
+        def on_chunk(self, index, start_index, force_N, *rest):
+            if index == 1 and start_index + len(force_N) >= 1200 and not pressed:
+                pressed["t"] = fake.clock()
+                devices.estop._ser.rts = False
+
+    cfg = config_from_dict({
+        "participant": "SM03", "seed": 4, "interlock": RELAXED_INTERLOCK,
+        "protocol": {"sE_levels": [0.5, 0.9], "repeats": 1, "steady_s": 0.4,
+                     "chirp_s": 0.8, "rest_s": 0.0},
+        "calibration": {"manual": {"Iemin_mA": 2.5, "Iemax_mA": 7.0, "Ifmin_mA": 2.5,
+                                   "Ifmax_mA": 7.0}}})
+    path = tmp_path / "s.h5"
+    try:
+        summary = Engine(cfg, devices, path, observer=Faults(),
+                         trip_policy=TripPolicy.END_SESSION).run()
+    finally:
+        devices.close()
+    assert summary.n_completed == 1 and validate_session(path) == []
+    assert fake.lost == [sm4.ML_UPDATE] * 2
+    aborted = [t for t in read_session(path).trials if t.status == "aborted"]
+    assert aborted and "estop" in aborted[0].abort_reason.lower()
+    # the device's own pulses end with the confirmed Ml_stop, within one period (25 ms)
+    assert fake.ml_spans[-1][1] - pressed["t"] <= 1 / 40.0 + 0.05
+    assert fake.level == sm4.STIM_NONE and fake.keepalive_expiries == 0
+    assert all(c <= 7.0 for _, _, chans in fake.ml_spans for _, c in chans.values())
 
 
 @pytest.mark.parametrize("kind", list(KINDS))
