@@ -13,13 +13,14 @@ The stop is nmsid's E-stop for devices that have none (issue 43; neither device 
 emergency switch). :meth:`Sm4Stimulator.stop_now` stops the stream, writes Ll_stop at once,
 then asks Get_stim_status (IFU Table 7) until the device answers "no level initialised",
 resending Ll_stop while it does not (a lost packet, a transfer error: IFU Table 27). If the
-device has not confirmed within :data:`~nmsid.drivers.sciencemode4_link.STOP_CONFIRM_S`, nothing more is written: in low
-level every pulse is a command, so no command means no pulse; the operator is told in one
-line to switch the device off. At most one pulse command is ever outstanding (the next goes
-out only after the last one's acknowledgement, which the device sends "after the
-stimulation has been executed", IFU "Ll_channel_config_ack"), so the device's 10-command
-buffer (IFU "Low-Level channel configuration") never holds pulses beyond the stop: the last
-pulse begins at most one pulse period after the stop is asked for.
+device has not confirmed within :data:`~nmsid.drivers.sciencemode4_link.STOP_CONFIRM_S`,
+nothing more is written: in low level every pulse is a command, so no command means no
+pulse; the operator is told in one line to switch the device off. A pulse command goes out
+only after the last one's acknowledgement, which the device sends "after the stimulation
+has been executed" (IFU "Ll_channel_config_ack"), or when the next pulse is due if that
+acknowledgement was lost; so the device's 10-command buffer (IFU "Low-Level channel
+configuration") holds no pulse beyond the stop (at most one more after a late answer): the
+last pulse begins at most one pulse period after the stop is asked for.
 
 Safety by construction: each pulse's current is the envelope rounded down to the 0.5 mA step
 (IFU Table 15), the envelope was checked against its ceilings
@@ -55,8 +56,10 @@ from nmsid.protocols.settings_base import SettingProblem
 
 log = logging.getLogger(__name__)
 
-PULSE_ACK_WAIT_S = 0.1
-"""A pulse unacknowledged this long is counted as unanswered; the next one goes out."""
+PULSE_ACK_WAIT_S = 0.2
+"""A pulse unacknowledged when the next is due (or after this long) is counted as
+unanswered and the next goes out: the device answers after the pulse, within a few ms. Only
+then can a command be outstanding with the next (a late answer): at most two."""
 MAX_HOST_RATE_HZ = 100.0
 """Low level is host-timed, one command per channel and pulse from a Python thread: nmsid
 streams at most 100 pulses per second per channel (the devices allow more: P24 0.5 ms
@@ -404,29 +407,37 @@ class Sm4Stimulator(Sm4Link):
 
     # -- what was delivered -----------------------------------------------------------------------
     def delivery_summary(self) -> dict | None:
+        """The last trial's updates as the device acknowledged them (the schema of
+        ``docs/stimulators.md``): an update is acknowledged when every pulse command of it
+        was (an update of 0 mA on both channels commands nothing); per channel the current
+        of each acknowledged update (0: no pulse), ``pulse_index`` its slot."""
         with self._lock:
             sent, got = list(self._sent), dict(self._delivered)
+            slots, commanded = list(self._sent_index), dict(self._commanded)
             counts = dict(self._counts)
             ended = self._ended_by
         if self._loaded is None and not sent:
             return None
+        acked = [i for i in range(len(sent)) if commanded.get(i, set()) <= got.get(i, set())]
         channels = {}
         for name, idx, ch in (("extensor", 0, self.extensor_channel),
                               ("flexor", 1, self.flexor_channel)):
-            amps = [sent[i][idx] for i in sorted(got) if ch in got[i]]
+            amps = [sent[i][idx] for i in acked]
             peak = max(amps, default=0.0)
-            channels[name] = {"name": name, "channel": ch, "pulses_acknowledged": len(amps),
-                              "pulses_sent": len(sent), "pulse_current_mA": amps,
-                              "peak_current_mA": float(peak),
+            channels[name] = {"name": name, "channel": ch, "pulses_acknowledged":
+                              sum(1 for a in amps if a > 0), "pulses_sent": len(sent),
+                              "pulse_current_mA": amps, "peak_current_mA": float(peak),
                               "max_charge_per_phase_nC": float(peak * self.pulse_width_us),
                               "net_charge_per_trial_uC": 0.0,
                               "ceiling_mA": self.ceilings[ch]}
         return {"format": SUMMARY_FORMAT, "device": self.model.title,
-                "mode": "low level (ScienceMode4)", "waveshape": self.waveshape().to_json(),
+                "mode": type(self).__name__, "waveshape": self.waveshape().to_json(),
                 "pulse_rate_Hz": self.pulse_rate_Hz, "pulse_width_us": self.pulse_width_us,
                 "interphase_us": self.interphase_us,
                 "charge_balanced": "by construction: +I, pause, -I of equal width per pulse",
-                "updates_planned": len(self._trial), "updates_sent": len(sent), **counts,
+                "updates_planned": len(self._trial), "updates_sent": len(sent),
+                "updates_acknowledged": len(acked), "updates_busy": 0, **counts,
+                "pulse_index": [slots[i] for i in acked],
                 "ended_by": ended or "completed", "channels": channels}
 
     def describe(self) -> dict:
@@ -455,8 +466,10 @@ class Sm4Stimulator(Sm4Link):
 
     def _reset_counts(self) -> None:
         self._sent: list[tuple[float, float]] = []
+        self._sent_index: list[int] = []       # each update's slot k (k / rate after onset)
         self._delivered: dict[int, set[int]] = {}
-        self._counts = {"pulses_transfer_error": 0, "pulses_unanswered": 0,
+        self._commanded: dict[int, set[int]] = {}
+        self._counts = {"updates_transfer_error": 0, "updates_unanswered": 0,
                         "updates_skipped_late": 0}
         self._ended_by = ""
 
@@ -491,8 +504,10 @@ class Sm4Stimulator(Sm4Link):
                         break
                     index = len(self._sent)
                     self._sent.append((e, f))
+                    self._sent_index.append(k)
                     numbers = self._send_update(index, e, f)
-                self._await_pulse_acks(numbers)
+                self._await_pulse_acks(numbers, due=max(t0 + (k + 1) * period,
+                                                        self.clock() + period))
                 self._after_update()
                 k += 1
         except Exception as exc:
@@ -511,26 +526,29 @@ class Sm4Stimulator(Sm4Link):
         numbers = []
         for ch, cur in ((self.extensor_channel, e), (self.flexor_channel, f)):
             if cur > 0:
-                n = self._write_locked(sm4.LL_CHANNEL_CONFIG, self._pulse_data(ch, cur))
-                with self._lock:
+                data = self._pulse_data(ch, cur)
+                with self._lock:              # registered before its ack can be handled
+                    n = self._write_locked(sm4.LL_CHANNEL_CONFIG, data)
                     self._pulse_acks[n] = (index, (ch,))
+                    self._commanded.setdefault(index, set()).add(ch)
                 numbers.append(n)
         return numbers
 
     def _after_update(self) -> None:
         """Between updates (the mid level's keep-alive and error poll); nothing in low level."""
 
-    def _await_pulse_acks(self, numbers: list[int]) -> None:
+    def _await_pulse_acks(self, numbers: list[int], due: float) -> None:
         """The next pulse goes out after these were acknowledged (at most one pulse command
-        outstanding per channel: module docstring), or after :data:`PULSE_ACK_WAIT_S`."""
+        outstanding per channel: module docstring), or when it is due (``due``, the driver's
+        clock: a lost packet costs its own slot only), at most :data:`PULSE_ACK_WAIT_S`."""
         deadline = time.monotonic() + PULSE_ACK_WAIT_S
         with self._lock:
             while any(n in self._pulse_acks for n in numbers) and not self._error \
                     and not self._stream_stop.is_set():
-                if time.monotonic() > deadline:
+                if time.monotonic() > deadline or self.clock() >= due:
                     for n in numbers:
                         if self._pulse_acks.pop(n, None) is not None:
-                            self._counts["pulses_unanswered"] += 1
+                            self._counts["updates_unanswered"] += 1
                     return
                 self._cv.wait(0.002)
 

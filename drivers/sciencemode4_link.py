@@ -79,7 +79,7 @@ class Sm4Link:
                 if result == sm4.OK:
                     self._delivered.setdefault(index, set()).update(chans)
                 elif result == sm4.TRANSFER_ERROR:     # IFU Table 27 01: not executed;
-                    self._counts["pulses_transfer_error"] += 1   # the next pulse follows
+                    self._counts["updates_transfer_error"] += 1   # the next one follows
                 elif result == sm4.NOT_INITIALIZED and self._stream_stop.is_set():
                     pass                               # crossed the stop: not executed
                 else:

@@ -52,9 +52,11 @@ class Sm4MidLevelStimulator(Sm4Stimulator):
         channels = {}
         for ch, cur in ((self.extensor_channel, e), (self.flexor_channel, f)):
             channels[ch - 1] = (self.period_ms, self._points(ch, cur))
-        n = self._write_locked(sm4.ML_UPDATE, sm4.ml_update_data(channels))
-        with self._lock:
+        data = sm4.ml_update_data(channels)
+        with self._lock:                      # registered before its ack can be handled
+            n = self._write_locked(sm4.ML_UPDATE, data)
             self._pulse_acks[n] = (index, (self.extensor_channel, self.flexor_channel))
+            self._commanded[index] = {self.extensor_channel, self.flexor_channel}
         return [n]
 
     def _after_update(self) -> None:

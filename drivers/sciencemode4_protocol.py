@@ -174,18 +174,33 @@ class Decoder:
                 self.buf.clear()
                 return out
             del self.buf[:self.buf.index(START)]
-            end = self.buf.find(bytes((STOP,)), 1)
-            nxt = self.buf.find(bytes((START,)), 1)
-            if nxt != -1 and (end == -1 or nxt < end):
-                del self.buf[:nxt]       # a new start before the stop: the first is broken
-                continue
-            if end == -1:
+            end = _find_special(self.buf)
+            if end is None:
                 return out
+            if self.buf[end] == START:   # a new start before the stop: the first is broken
+                del self.buf[:end]
+                continue
             frame = bytes(self.buf[:end + 1])
             del self.buf[:end + 1]
             pkt = _frame(frame)
             if pkt is not None:
                 out.append(pkt)
+
+
+def _find_special(buf: bytearray) -> int | None:
+    """Index of the first start or stop byte after ``buf[0]`` that is not the byte after a
+    stuffing byte (smpt ``smpt_find_packet``: "ignore_next_byte"; a stuffed length or
+    checksum byte may equal 0x0F or 0xF0)."""
+    i = 1
+    while i < len(buf):
+        b = buf[i]
+        if b == STUFFING_BYTE:
+            i += 2
+            continue
+        if b in (START, STOP):
+            return i
+        i += 1
+    return None
 
 
 def _frame(frame: bytes) -> Packet | BadPacket | None:

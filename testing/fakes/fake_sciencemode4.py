@@ -64,9 +64,20 @@ def _frames(buf: bytearray) -> list[tuple[bytes, bool]]:
     out = []
     while START in buf:
         del buf[:buf.index(START)]
-        end = buf.find(bytes((STOP,)))
+        end, i = -1, 1
+        while i < len(buf):               # IFU "Packet Structure": after a stuffing byte
+            if buf[i] == STUFF:           # comes a value, never a start or stop byte
+                i += 2
+                continue
+            if buf[i] in (START, STOP):
+                end = i
+                break
+            i += 1
         if end == -1:
             break
+        if buf[end] == START:             # a packet cut short: the new one counts
+            del buf[:end]
+            continue
         frame = bytes(buf[:end + 1])
         del buf[:end + 1]
         if len(frame) < 12:
@@ -145,6 +156,8 @@ class FakeSm4:
         self.electrode_error_channels: set[int] = set()
         self.pulses: list[tuple[float, int, float, int]] = []
         """(time, channel 1-based, current mA, phase width us) of each low-level pulse."""
+        self.pulse_points: list[list[tuple[int, float]]] = []
+        """The points of each pulse as executed (IFU Table 15: duration us, current mA)."""
         self.ml_spans: list[tuple[float, float, dict]] = []
         """(start, end or inf, channels) of each mid-level run."""
         self.received: list[tuple[int, int]] = []      # (number, command) executed
@@ -345,6 +358,7 @@ class FakeSm4:
             return
         if data[0] & 0x80:                        # IFU Table 14 bit 7: execute
             self.pulses.append((now, ch1, float(max(c for _, c in pts)), int(pts[0][0])))
+            self.pulse_points.append(pts)
         # IFU "Ll_channel_config_ack ... sent after the stimulation has been executed";
         # smpt_extract_ll_channel_config_ack: channel low nibble, connector high nibble
         done = now + sum(t for t, _ in pts) * 1e-6
@@ -414,19 +428,19 @@ class FakeSm4:
         return self.amplitude_mA_at(channel + 1, t) * 1e6
 
     def current_at(self, channel: int, t) -> np.ndarray:
-        """Low-level pulses as output: +I for the width, -I after it (nA)."""
+        """Low-level pulses as output, point by point (IFU Table 15), nA."""
         t = np.atleast_1d(np.asarray(t, dtype=np.float64))
+        out = np.zeros(len(t))
         with self.lock:
-            ps = [p for p in self.pulses if p[1] == channel + 1]
-        if not ps:
-            return np.zeros(len(t))
-        times = np.array([p[0] for p in ps])
-        k = np.searchsorted(times, t, side="right") - 1
-        kk = np.clip(k, 0, None)
-        amp = np.array([p[2] for p in ps])[kk] * 1e6
-        w = np.array([p[3] for p in ps])[kk] * 1e-6
-        ph = t - times[kk]
-        return np.where(k < 0, 0.0, np.where(ph < w, amp, np.where(ph < 2 * w, -amp, 0.0)))
+            ps = [(p[0], pts) for p, pts in zip(self.pulses, self.pulse_points)
+                  if p[1] == channel + 1]
+        for t0, pts in ps:
+            edge = t0
+            for dur_us, cur in pts:
+                end = edge + dur_us * 1e-6
+                out[(t >= edge) & (t < end)] = cur * 1e6
+                edge = end
+        return out
 
     def sync_at(self, sync: int, t) -> np.ndarray:
         """No sync output is described (IFU, RM3): always low."""

@@ -100,7 +100,7 @@ def test_a_corrupted_pulse_is_counted_not_delivered_and_the_trial_goes_on():
         stim.start()
         time.sleep(0.8)
         s = stim.delivery_summary()
-        assert s["ended_by"] == "completed" and s["pulses_transfer_error"] == 2
+        assert s["ended_by"] == "completed" and s["updates_transfer_error"] == 2
         assert fake.transfer_errors == 2 and stim.status().state is StimulatorState.STOPPED
     finally:
         stim.disconnect()

@@ -86,3 +86,16 @@ def test_biphasic_pulses_are_charge_balanced_and_within_range(current, width, ga
     data = p.ll_channel_config_data(3, 1, pts)
     assert len(data) == 1 + 4 * len(pts)
     assert max(abs(c) for _, c in pts) <= p.MAX_CURRENT_MA
+
+
+def test_a_stuffed_checksum_byte_equal_to_the_stop_byte_does_not_end_the_packet():
+    # find a packet whose stuffed checksum or length carries 0x0F or 0xF0 after a 0x81
+    for number in range(64):
+        for c in range(0, 261):
+            pkt = p.encode(number, p.LL_CHANNEL_CONFIG,
+                           p.ll_channel_config_data(0, 0, p.biphasic_points(c / 2, 300, 100)))
+            if p.STOP in pkt[1:9] or p.START in pkt[1:9]:
+                (got,) = p.Decoder().feed(pkt)
+                assert isinstance(got, p.Packet) and got.number == number
+                return
+    raise AssertionError("no such packet found")
