@@ -156,3 +156,18 @@ def test_a_hardware_file_outside_the_rehamove3_range_is_one_line(tmp_path, capsy
     rc = main(["probe", "--hw-config", str(hw)])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "stimulator.flexor_channel" in err[0], err
+
+
+def test_nmsid_stimulation_and_probe_on_a_p24(tmp_path, capsys):
+    hw = write_sm4_config(tmp_path / "p24.toml", "p24")
+    out = tmp_path / "stim"
+    assert main(["stimulation", "--hw-config", str(hw), "--calibration", "2,10,2,10",
+                 "--out", str(out)]) == 0
+    assert "as Hasomed P24 delivers them (biphasic_pulses)" in capsys.readouterr().out
+    report = json.loads((out / "stimulation.json").read_text(encoding="utf-8"))
+    for lv in report["levels"]:
+        for ch in lv["channels"].values():
+            assert ch["peak_current_mA"] <= 10.0 and ch["pulses"] == 600   # 15 s at 40 Hz
+            assert ch["max_charge_per_phase_nC"] == ch["peak_current_mA"] * 300
+    assert main(["probe", "--hw-config", str(hw)]) == 0
+    assert "Hasomed P24 (ScienceMode4, low level)" in capsys.readouterr().out
