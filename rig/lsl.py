@@ -236,3 +236,135 @@ class LslObserver(EngineObserver):
     def on_finished(self, path):
         self.inner.on_finished(path)
         self.marker("session_finished", path=str(path))
+
+
+# -- recording other streams into the session file --------------------------------------------
+class LslRecorder:
+    """Records the LSL streams the operator names (``nmsid run --lsl-record EMG``) for the
+    length of the session and appends them to the session file as optional items.
+
+    Each stream whose name or type matches one of ``wanted`` is read by its own inlet from
+    :meth:`start` to :meth:`stop` (a background thread; nothing here can stop the session).
+    :meth:`write` appends ``/lsl/<run>/<stream name>`` with ``time_series``, ``time_stamps``
+    (the stream's own LSL clock) and attributes ``name``, ``type``, ``source_id``,
+    ``nominal_srate``, ``clock_offset_s`` (mean of ``clock_offsets_s``, liblsl's
+    ``time_correction``: add it to ``time_stamps`` for this machine's LSL clock, on which
+    nmsid's own outlets and trial onsets are stamped), and the group's
+    ``trial_onsets_lsl_json`` (trial index -> onset on this machine's LSL clock).
+    """
+
+    def __init__(self, wanted: list[str], *, wait_s: float = 2.0):
+        import threading
+        self._pl = require_pylsl()
+        self.wanted = [w for w in wanted if w]
+        self.inlets: list[Any] = []
+        self.data: list[dict] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="lsl-recorder", daemon=True)
+        found = self._pl.resolve_streams(wait_s)
+        for info in found:
+            if info.name() in self.wanted or info.type() in self.wanted:
+                if info.source_id().startswith("nmsid"):
+                    continue                 # nmsid's own outlets: the session has them
+                inlet = self._pl.StreamInlet(info, max_buflen=360)
+                self.inlets.append(inlet)
+                self.data.append({"info": info, "x": [], "t": [], "offsets": []})
+        missing = [w for w in self.wanted
+                   if not any(w in (d["info"].name(), d["info"].type()) for d in self.data)]
+        if missing:
+            log.warning("LSL: no stream named or typed %s on the network; not recorded",
+                        ", ".join(missing))
+
+    def start(self) -> LslRecorder:
+        for inlet, d in zip(self.inlets, self.data):
+            try:
+                inlet.open_stream(2.0)
+                d["offsets"].append(inlet.time_correction(2.0))
+            except Exception as exc:
+                log.warning("LSL: stream %s not opened (%s)", d["info"].name(), exc)
+        self._thread.start()
+        return self
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            for inlet, d in zip(self.inlets, self.data):
+                try:
+                    x, t = inlet.pull_chunk(timeout=0.0)
+                except Exception as exc:
+                    log.warning("LSL: stream %s lost (%s)", d["info"].name(), exc)
+                    continue
+                d["x"] += x
+                d["t"] += t
+            self._stop.wait(0.02)
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+        for inlet, d in zip(self.inlets, self.data):
+            try:
+                x, t = inlet.pull_chunk(timeout=0.2)
+                d["x"] += x
+                d["t"] += t
+                d["offsets"].append(inlet.time_correction(1.0))
+            except Exception as exc:
+                log.warning("LSL: stream %s at the end: %s", d["info"].name(), exc)
+
+    def write(self, path: Path, onsets: dict[int, float]) -> str:
+        """Append the recorded streams to ``path`` (a sidecar ``<path>.lsl.h5`` if the
+        session file is not there); returns the group written."""
+        import datetime
+
+        import h5py
+        target = Path(path) if Path(path).exists() else Path(str(path) + ".lsl.h5")
+        run = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+        with h5py.File(target, "a") as f:
+            g = f.require_group("lsl").create_group(run)
+            g.attrs["trial_onsets_lsl_json"] = json.dumps({str(k): v for k, v in
+                                                           onsets.items()})
+            for d in self.data:
+                info = d["info"]
+                name = "".join(c if c.isalnum() or c in "-_ " else "_" for c in info.name())
+                s = g.create_group(name or "stream")
+                if info.channel_format() == self._pl.cf_string:
+                    s.create_dataset("time_series", data=np.asarray(d["x"], dtype=object),
+                                     dtype=h5py.string_dtype())
+                else:
+                    s.create_dataset("time_series", data=np.asarray(d["x"], float))
+                s.create_dataset("time_stamps", data=np.asarray(d["t"], float))
+                offs = np.asarray(d["offsets"], float)
+                s.create_dataset("clock_offsets_s", data=offs)
+                s.attrs.update({"name": info.name(), "type": info.type(),
+                                "source_id": info.source_id(),
+                                "nominal_srate": info.nominal_srate(),
+                                "clock_offset_s": float(offs.mean()) if offs.size else 0.0})
+        return f"{target}:/lsl/{run}"
+
+
+def start_recording(wanted: list[str] | None) -> LslRecorder | None:
+    """An :class:`LslRecorder` started for ``wanted``, or None (nothing asked, or one
+    warning if it could not start: LSL never keeps a session from running)."""
+    if not wanted:
+        return None
+    try:
+        return LslRecorder(list(wanted)).start()
+    except UserError:
+        raise
+    except Exception as exc:
+        log.warning("LSL recording not started (%s: %s); the session runs without it",
+                    type(exc).__name__, exc)
+        return None
+
+
+def finish_recording(recorder: LslRecorder | None, path: Path, observer: Any) -> None:
+    """Stop ``recorder`` and append what it recorded to the session file (never raises)."""
+    if recorder is None:
+        return
+    try:
+        recorder.stop()
+        onsets = dict(observer._onset) if isinstance(observer, LslObserver) else {}
+        where = recorder.write(path, onsets)
+        log.info("LSL streams recorded into %s", where)
+    except Exception as exc:
+        log.warning("LSL streams could not be written (%s: %s); the session file is "
+                    "unchanged", type(exc).__name__, exc)

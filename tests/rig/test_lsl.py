@@ -139,3 +139,49 @@ def test_nmsid_run_with_lsl_publishes_each_trial_start(tmp_path, monkeypatch, ca
     assert all("schedule index" in e["detail"] for e in decoded if e["event"] == "trial_start")
     assert events.count("trial_start") == 2 and events.count("trial_end") == 2
     assert events[-1] == "session_finished"
+
+
+def test_a_simulated_emg_stream_is_recorded_into_the_session_with_its_clock_offset(
+        tmp_path, capsys):
+    import threading
+
+    import h5py
+    info = pylsl.StreamInfo("SimEMG", "EMG", 2, 500.0, pylsl.cf_float32, "simemg-test-1")
+    outlet = pylsl.StreamOutlet(info)
+    stop = threading.Event()
+    pushed = {"n": 0}
+
+    def emg():                                # 500 Hz in chunks of 10, real time
+        k = 0
+        while not stop.is_set():
+            outlet.push_chunk([[float(k + i), -float(k + i)] for i in range(10)])
+            k += 10
+            pushed["n"] = k
+            stop.wait(0.02)
+    t = threading.Thread(target=emg, daemon=True)
+    t.start()
+    cfg = tmp_path / "p.toml"
+    cfg.write_text('participant = "LSL04"\n[protocol]\nsE_levels = [0.4]\nrepeats = 1\n'
+                   'steady_s = 0.5\nchirp_s = 1.0\n[calibration]\nhold_s = 0.3\n'
+                   'baseline_s = 0.2\n', encoding="utf-8")
+    out = tmp_path / "s.h5"
+    try:
+        assert main(["run", "--backend", "sim", "--config", str(cfg), "--out", str(out),
+                     "--no-identify", "--quiet", "--lsl", "--lsl-record", "EMG"]) == 0, \
+            capsys.readouterr()
+    finally:
+        stop.set()
+        t.join(2.0)
+    assert validate_session(out) == []        # the contract's items untouched
+    with h5py.File(out, "r") as f:
+        (run,) = f["lsl"].values()
+        assert set(run) == {"SimEMG"}         # nmsid's own outlets are not re-recorded
+        s = run["SimEMG"]
+        x = s["time_series"][()]
+        assert s.attrs["type"] == "EMG" and s.attrs["nominal_srate"] == 500.0
+        assert x.shape[1] == 2 and len(x) >= 10 and np.all(x[:, 1] == -x[:, 0])
+        assert np.all(np.diff(x[:, 0]) == 1)          # nothing lost between chunks
+        assert len(s["time_stamps"]) == len(x)
+        assert np.isfinite(s.attrs["clock_offset_s"]) and abs(s.attrs["clock_offset_s"]) < 0.1
+        onsets = json.loads(run.attrs["trial_onsets_lsl_json"])
+        assert list(onsets) == ["0"]
