@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parent
 VENV = ROOT / ".venv"
 # mcs (pythonnet): the STG driver on Windows, and the check of its .NET surface against the
 # real McsUsbNet assembly under mono in the tests
-EXTRAS = "gui,plot,serial,test,mujoco,nwb,study,mcs"
+EXTRAS = "gui,plot,serial,test,mujoco,nwb,study,mcs,lsl"
 MIN_PYTHON = (3, 11)
 #: One BLAS thread per process: the suite runs on two pytest workers over two cores, and
 #: small matrix operations get slower, not faster, with threads competing for them.

@@ -97,6 +97,14 @@ def register(sub) -> None:
                    help="hw: after a USB glitch between trials, resume as soon as the device "
                         "is reconnected (default: ask on a terminal, else end the session "
                         "for --resume)")
+    p.add_argument("--lsl", action="store_true",
+                   help="publish force, commanded currents and event markers as Lab "
+                        "Streaming Layer streams (needs pylsl: the 'lsl' extra; "
+                        "docs/lsl.md); a failing stream never stops the session")
+    p.add_argument("--lsl-record", action="append", metavar="NAME_OR_TYPE",
+                   help="record this LSL stream (by name or type: EMG, Markers, MoCap; "
+                        "repeatable) into the session file under /lsl with its clock "
+                        "offset (docs/lsl.md)")
     p.add_argument("--allow-weakened-safety", action="store_true",
                    help="confirm settings that weaken the interlock (a trip_on_* = false, a "
                         "force_limit_N above the sensor's range); recorded in the session")

@@ -32,6 +32,7 @@ from nmsid.rig.glitch_prompt import glitch_confirmation
 from nmsid.rig.recovery import check_stored_header
 from nmsid.rig.session_log import journal_dir, recover
 from nmsid.rig.session_service import (RigRequest, is_plugin_spec, prepare_rig)
+from nmsid.rig.lsl import finish_recording, lsl_observer, require_pylsl, start_recording
 from nmsid.rig.observer import EngineObserver
 from nmsid.rig.trials import session_kind_from_stored
 from nmsid.rig.session_signals import SessionSignals, exit_code, signal_name
@@ -117,15 +118,22 @@ def run(args) -> int:
         if engine is not None:
             engine.estop(reason)
 
+    if getattr(args, "lsl", False) or getattr(args, "lsl_record", None):
+        require_pylsl()                      # one line before any device is opened
+    recorder = start_recording(getattr(args, "lsl_record", None))   # issue 43
+    observer: EngineObserver = EngineObserver()
     with SessionSignals(on_signal, stop_output) as signals:
         rig = prepare_rig(request, config)   # a resume on another rig is refused here
         devices, config = rig.devices, rig.config
         if config.protocol.rest_s == 0 and rig.extra_attrs.get("configured_rest_s"):
             log.info("fast clock: rest_s %g -> 0", rig.extra_attrs["configured_rest_s"])
         progress = _Progress(quiet=args.quiet)
+        observer = progress
+        if getattr(args, "lsl", False):      # issue 43: LSL outlets, off by default
+            observer = lsl_observer(progress, config.protocol.fs_Hz, config.participant)
         try:
             engine = (track or Engine)(config, devices, path, resume=bool(args.resume),
-                            observer=progress, trip_policy=TripPolicy.END_SESSION,
+                            observer=observer, trip_policy=TripPolicy.END_SESSION,
                             on_device_glitch=glitch_confirmation(
                                 getattr(args, "resume_after_reconnect", False)),
                             extra_attrs=rig.extra_attrs)
@@ -157,6 +165,7 @@ def run(args) -> int:
                 worker.join(0.1)
         finally:
             devices.close()
+            finish_recording(recorder, path, observer)
     if "error" in box:
         raise box["error"]
     s = box["summary"]

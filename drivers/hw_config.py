@@ -14,7 +14,7 @@ the table's class below, and read it where the device is made (``drivers.hardwar
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Annotated, Literal
+from typing import Annotated, Literal, TypeAlias
 
 from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, model_validator
 
@@ -22,10 +22,15 @@ from nmsid.drivers.analog_force import AXES, SENSOR_SPAN_V, AnalogCalibration
 from nmsid.drivers.errors import HardwareConfigError, hw_config_error
 from nmsid.drivers.registry import (ACQUISITIONS, DEFAULT_STIMULATOR, ESTOPS, STIMULATORS,
                                     acquisition_entry)
+from nmsid.drivers.p24_settings import P24Config
+from nmsid.drivers.rehamove3_settings import Rehamove3Config
 from nmsid.drivers.rehastim2_settings import Rehastim2Config
 from nmsid.drivers.stg4002_settings import Stg4002Config
 from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
                                            validate_settings)
+
+StimulatorSettings: TypeAlias = Stg4002Config | Rehastim2Config | P24Config | Rehamove3Config
+"""A validated ``[stimulator]`` table, typed by its kind (the registry's settings models)."""
 
 Axis = Literal["Fx", "Fy", "Fz", "Mx", "My", "Mz"]
 """``drivers.analog_force.AXES``; the choices of caio/nidaq below are the drivers' tables
@@ -274,7 +279,7 @@ class HardwareConfig:
     name: str
     fake: bool
     fake_speed: float
-    stimulator: Stg4002Config | Rehastim2Config
+    stimulator: StimulatorSettings
     """Typed by ``kind``; :mod:`nmsid.drivers.registry` knows what each kind needs."""
     acquisition: AcquisitionConfig
     calibration: AnalogCalibration | None
@@ -305,7 +310,7 @@ def load_hw_config(path) -> HardwareConfig:
 
 def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
     """Validate a hardware file's tables (``load_hw_config`` without the reading)."""
-    stimulator: Stg4002Config | Rehastim2Config = Stg4002Config()
+    stimulator: StimulatorSettings = Stg4002Config()
     if isinstance(data, dict) and "stimulator" in data:
         # the [stimulator] table on its own, by its kind: messages name "stimulator.<key>"
         stimulator = _stimulator_settings(data["stimulator"], source)
@@ -341,7 +346,7 @@ def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
                           estop=f.estop)
 
 
-def _stimulator_settings(table, source: str) -> Stg4002Config | Rehastim2Config:
+def _stimulator_settings(table, source: str) -> StimulatorSettings:
     """``[stimulator]`` validated by the settings model of its ``kind`` (absent: the
     registry's default kind), the ``settings`` of its entry in
     :data:`nmsid.drivers.registry.STIMULATORS`."""

@@ -42,7 +42,11 @@ from nmsid.drivers.interfaces import CheckedWaveform
 from nmsid.drivers.leptrino import LeptrinoAcquisition, LeptrinoSensor, _serial_module
 from nmsid.drivers.nidaq import NidaqAcquisition, shared_pin
 from nmsid.drivers.rehastim2 import Rehastim2Stimulator
+from nmsid.drivers.p24_settings import P24Config
+from nmsid.drivers.rehamove3_settings import Rehamove3Config
 from nmsid.drivers.rehastim2_settings import Rehastim2Config
+from nmsid.drivers.sciencemode4 import P24, REHAMOVE3, Sm4Model, Sm4Stimulator, to_steps_mA
+from nmsid.drivers.sciencemode4_mid import Sm4MidLevelStimulator
 from nmsid.drivers.stg4002 import DEFAULT_DLL, Stg4002Stimulator
 from nmsid.drivers.stg4002_settings import Stg4002Config
 from nmsid.drivers.stg_download import (STG4002_RANGE_NA, STG4002_RESOLUTION_NA, ChannelPlan,
@@ -172,6 +176,51 @@ def _rs2_report(s: Rehastim2Config, checked: CheckedWaveform) -> dict:
             "duration_s": float(checked.duration_s), "channels": channels}
 
 
+# -- Hasomed P24 and RehaMove3 (ScienceMode4, low level) ---------------------------------------
+def _sm4(model: Sm4Model):
+    def make(s, clock, stack):
+        fake = None if stack is None else stack.stimulator_fake
+        driver = Sm4MidLevelStimulator if s.mode == "mid" else Sm4Stimulator
+        return driver(
+            s.port, model, ceiling_ext_mA=s.ceiling_ext_mA, ceiling_flex_mA=s.ceiling_flex_mA,
+            extensor_channel=s.extensor_channel, flexor_channel=s.flexor_channel,
+            pulse_rate_Hz=s.pulse_rate_Hz, pulse_width_us=s.pulse_width_us,
+            interphase_us=s.interphase_us, open_port=None if fake is None else fake.open,
+            clock=clock, sleep=None if stack is None else stack.bench.sleep)
+
+    def install_fake(s, bench):
+        dev = load_fake("fake_sciencemode4").FakeSm4(model.title.split()[-1], clock=bench.now)
+        bench.stimulator = dev
+        return dev
+
+    def report(s, checked: CheckedWaveform) -> dict:
+        """The pulses of one level as the driver would send them (no device needed)."""
+        n = int(np.floor(checked.duration_s * s.pulse_rate_Hz + 1e-9))
+        k = np.minimum((np.arange(n) / s.pulse_rate_Hz * checked.fs_Hz + 1e-9)
+                       .astype(np.int64), checked.n_samples - 1)
+        channels = {}
+        for name, env, ch in (("extensor", checked.I_ext_mA, s.extensor_channel),
+                              ("flexor", checked.I_flex_mA, s.flexor_channel)):
+            amps = to_steps_mA(np.asarray(env)[k])
+            peak = float(amps.max(initial=0.0))
+            channels[name] = {"name": name, "channel": ch, "pulses": int(n),
+                              "peak_current_mA": peak,
+                              "max_charge_per_phase_nC": peak * s.pulse_width_us,
+                              "net_charge_per_trial_uC": 0.0,
+                              "pulse_current_mA": amps.tolist()}
+        return {"format": "nmsid-stimulation-1", "device": s.kind,
+                "waveshape": {"kind": "biphasic_pulses", "pulse_rate_Hz": s.pulse_rate_Hz,
+                              "pulse_width_us": s.pulse_width_us,
+                              "interphase_us": s.interphase_us, "modulation": "amplitude"},
+                "duration_s": float(checked.duration_s), "channels": channels}
+
+    return make, install_fake, report
+
+
+_make_p24, _fake_p24, _p24_report = _sm4(P24)
+_make_rm3, _fake_rm3, _rm3_report = _sm4(REHAMOVE3)
+
+
 STIMULATORS: dict[str, StimulatorKind] = {
     "stg4002": StimulatorKind(
         kind="stg4002", title="MCS STG4002", settings=Stg4002Config, make=_make_stg,
@@ -181,6 +230,14 @@ STIMULATORS: dict[str, StimulatorKind] = {
     "rehastim2": StimulatorKind(
         kind="rehastim2", title="Hasomed RehaStim2", settings=Rehastim2Config, make=_make_rs2,
         install_fake=_fake_rs2, load_library=_rs2_library, report=_rs2_report,
+        dry_run=DryRunSupport(method="pulse-amplitude", hardware_sync=False)),
+    "p24": StimulatorKind(
+        kind="p24", title=P24.title, settings=P24Config, make=_make_p24,
+        install_fake=_fake_p24, load_library=_rs2_library, report=_p24_report,
+        dry_run=DryRunSupport(method="pulse-amplitude", hardware_sync=False)),
+    "rehamove3": StimulatorKind(
+        kind="rehamove3", title=REHAMOVE3.title, settings=Rehamove3Config, make=_make_rm3,
+        install_fake=_fake_rm3, load_library=_rs2_library, report=_rm3_report,
         dry_run=DryRunSupport(method="pulse-amplitude", hardware_sync=False)),
 }
 """Every stimulator kind nmsid drives, by ``[stimulator] kind``."""

@@ -19,6 +19,18 @@ from nmsid.testing.windows_emulation import (  # noqa: F401
 )
 
 
+@pytest.fixture(autouse=True, scope="session")
+def lsl_on_this_machine_only(tmp_path_factory):
+    """Lab Streaming Layer stays on this machine in every test (issue 43): ``LSLAPICFG``
+    names an ``lsl_api.cfg`` with ``ResolveScope = machine`` and IPv6 off, set before any
+    test imports pylsl; no test sends LSL's default multicast or broadcast."""
+    import os
+    if "LSLAPICFG" not in os.environ:
+        from nmsid.rig.lsl import machine_only_config
+        machine_only_config(tmp_path_factory.mktemp("lsl"))
+    yield
+
+
 @pytest.fixture
 def session_reads(monkeypatch):
     """Count how often each HDF5 file is opened for reading (``h5py.File`` in mode "r").

@@ -32,7 +32,8 @@ PACKAGES = ("analysis", "cli", "drivers", "export", "nmsid", "protocols", "rig",
 ALLOWED = {"drivers/registry.py"}
 OWN_PREFIXES = {"stg4002": ("drivers/stg", "drivers/mcs_usb", "testing/fakes/fake_mcs_usb",
                             "testing/fakes/fake_stg"),
-                "rehastim2": ("drivers/rehastim2", "testing/fakes/fake_rehastim2")}
+                "rehastim2": ("drivers/rehastim2", "testing/fakes/fake_rehastim2"),
+                "p24": ("drivers/p24",), "rehamove3": ("drivers/rehamove3",)}
 #: an acquisition kind's own modules (driver, vendor surface, fake); the E-stop on a DAQmx
 #: line is the nidaq driver's too
 ACQ_OWN_PREFIXES = {"caio": ("drivers/caio", "testing/fakes/fake_caio"),
