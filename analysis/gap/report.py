@@ -288,36 +288,68 @@ def write_outputs(diag: Diagnosis, out_dir, calibration=None, *, plots: bool = T
     return report
 
 
+#: Keys of figures the plots draw as numbers (None in the JSON when not computed).
+_NUMERIC_KEYS = ("_pct", "_N", "_N2", "_dB", "_deg", "ratio_to_noise", "to_noise_floor")
+
+
+def _nan_for_none(obj, key: str = ""):
+    """The report's form with its numeric figures that could not be computed (None) back
+    as NaN: what the figures draw (matplotlib leaves a NaN bar or point out; None would
+    fail). Other None values (no pair, no note) stay None."""
+    if isinstance(obj, dict):
+        return {k: _nan_for_none(v, k) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_nan_for_none(v, key) for v in obj]
+    if obj is None and key.endswith(_NUMERIC_KEYS):
+        return float("nan")
+    return obj
+
+
 def _figures(diag: Diagnosis, report: dict, localized: Localization, out: Path) -> list[str]:
+    """Draw every figure; one that fails is listed in ``report["figures_failed"]`` with
+    its reason (and logged) and the report is written all the same."""
     loc = localized.to_dict()    # the figures draw the report's form
-    names = []
-    plots.plot_where(loc, out / "where.png", diag.noise_floor_nrmse_pct)
-    names.append("where.png")
-    plots.plot_frequency(loc, out / "frequency.png")
-    names.append("frequency.png")
-    plots.plot_spectrum_and_gain(loc, out / "drift_fatigue.png", diag.data.chirp_f0_Hz)
-    names.append("drift_fatigue.png")
+    names: list[str] = []
+    failed: list[dict] = []
+
+    def draw(name: str, fn) -> None:
+        try:
+            fn(out / name)
+        except Exception as exc:   # noqa: BLE001 - a figure never costs the report
+            log.warning("figure %s not drawn: %s: %s", name, type(exc).__name__, exc)
+            failed.append({"figure": name, "reason": f"{type(exc).__name__}: {exc}"})
+        else:
+            names.append(name)
+
+    floor = diag.noise_floor_nrmse_pct
+    draw("where.png", lambda p: plots.plot_where(loc, p, floor))
+    draw("frequency.png", lambda p: plots.plot_frequency(loc, p))
+    draw("drift_fatigue.png",
+         lambda p: plots.plot_spectrum_and_gain(loc, p, diag.data.chirp_f0_Hz))
     if report.get("remaining") and report["remaining"]["where"].get("sE"):
-        plots.plot_remaining(report, out / "remaining.png")
-        names.append("remaining.png")
-    if report.get("muscle_twin"):
-        plot_muscle(report["muscle_twin"], out / "muscle.png")
-        names.append("muscle.png")
+        rep = _nan_for_none(report)
+        draw("remaining.png", lambda p: plots.plot_remaining(rep, p))
+    m = report.get("muscle_twin")
+    if m and m.get("converged", True):    # a fit that did not converge has nothing to draw
+        ms = _nan_for_none(m)
+        draw("muscle.png", lambda p: plot_muscle(ms, p))
     if report["ranking"]:         # none when no candidate was needed (candidates_not_fitted)
-        plots.plot_ranking(report["ranking"], diag.nominal.heldout_nrmse_pct,
-                           diag.noise_floor_nrmse_pct, out / "ranking.png")
-        names.append("ranking.png")
+        rk = _nan_for_none(report["ranking"])
+        draw("ranking.png", lambda p: plots.plot_ranking(rk, diag.nominal.heldout_nrmse_pct,
+                                                         floor, p))
     ok = np.flatnonzero(diag.tested)
     if len(ok):
         r_nom = diag.nominal.heldout_resid[ok]
-        i = ok[int(np.argmax(np.sum(r_nom ** 2, axis=1)))]
+        i = ok[int(np.argmax(np.nan_to_num(np.sum(r_nom ** 2, axis=1), nan=-1.0)))]
         final = diag.best_pair or diag.best
         ref = diag.reference[i]
-        plots.plot_example(diag.data.t_eval_s, ref, ref - diag.nominal.heldout_resid[i],
-                           ref - final.heldout_resid[i] if final else None,
-                           f"held-out trial {diag.data.trials[i].name} (sE "
-                           f"{diag.data.trials[i].sE:g}): worst nominal fit", out / "example.png")
-        names.append("example.png")
+        title = (f"held-out trial {diag.data.trials[i].name} (sE "
+                 f"{diag.data.trials[i].sE:g}): worst nominal fit")
+        draw("example.png", lambda p: plots.plot_example(
+            diag.data.t_eval_s, ref, ref - diag.nominal.heldout_resid[i],
+            ref - final.heldout_resid[i] if final else None, title, p))
+    if failed:
+        report["figures_failed"] = failed
     return names
 
 
@@ -366,13 +398,14 @@ def _html(report: dict, figures: list[str]) -> str:
     parts += [f"<li>{html.escape(line)}</li>" for line in report["evidence"]["summary"]]
     parts.append("</ul>")
     parts.append(
-        f"<p>Held-out NRMSE: nominal {h['nominal_nrmse_pct']:.3g} %, augmented "
-        f"{h['augmented_nrmse_pct']:.3g} % (shrink {h['shrink_pct']:.0f} %); repeat-to-repeat "
-        f"noise floor {h['noise_floor_nrmse_pct']:.3g} %, sensor noise in the steady lead-in "
+        f"<p>Held-out NRMSE: nominal {_fmt(h['nominal_nrmse_pct'])} %, augmented "
+        f"{_fmt(h['augmented_nrmse_pct'])} % (shrink {_fmt(h['shrink_pct'], '.0f')} %); "
+        f"repeat-to-repeat noise floor {_fmt(h['noise_floor_nrmse_pct'])} %, sensor noise in "
+        "the steady lead-in "
         f"{_fmt(h['sensor_floor_nrmse_pct'])} %; the gap beyond sensor noise shrinks "
         f"{_fmt(h['excess_shrink_pct'], '.0f')} %. In-sample: nominal "
-        f"{report['insample']['nominal_nrmse_pct']:.3g} %, augmented "
-        f"{report['insample']['augmented_nrmse_pct']:.3g} %.</p>")
+        f"{_fmt(report['insample']['nominal_nrmse_pct'])} %, augmented "
+        f"{_fmt(report['insample']['augmented_nrmse_pct'])} %.</p>")
     parts.append("<h2>Which: ranking</h2>")
     if report.get("candidates_not_fitted"):
         parts.append(f"<p>{html.escape(report['candidates_not_fitted'])} "
