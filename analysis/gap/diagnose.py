@@ -79,6 +79,9 @@ class GapSettings:
     try_muscle: bool = True
     """When the template's answer leaves a significant gap, also try the physiological
     twin (:mod:`nmsid.analysis.muscle.candidate`)."""
+    muscle_floor_multiple: float = 3.0
+    """The verdict says "the remainder is muscle physics" only when the muscle twin's
+    held-out NRMSE is within this multiple of the noise floor between repeats."""
     muscle_fs_Hz: float = 100.0
     """Simulation rate of the muscle twin's fit (reduced from the 200 Hz fit rate)."""
     progress: bool = False
@@ -384,7 +387,8 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
                      sensor_floor_nrmse_pct=sensor, candidates_skipped=skipped)
     # the nominal's tests made for the early stop are the ones assess would make
     diag.assessment = assess(diag, nominal_tests=nominal_tests)
-    if s.try_muscle and diag.assessment["verdict"] in ("effect", "pair", "unexplained") \
+    if s.try_muscle and diag.assessment["verdict"] in ("effect", "pair", "unexplained",
+                                                       "likely") \
             and diag.assessment["remaining"]["significant"]:
         # lazy: the muscle twin's modules are needed only when the template falls short
         from nmsid.analysis.muscle.candidate import score_muscle

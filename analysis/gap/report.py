@@ -224,6 +224,7 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
         "verdict": a.get("verdict"), "verdict_sentence": a.get("sentence"),
         "remaining": a.get("remaining"), "nominal_gap": a.get("nominal_gap"),
         "not_named": a.get("not_named"),
+        "likely": a.get("likely"),
         "candidates_not_fitted": diag.candidates_skipped,
         "fatigue": _fatigue_entry(a),
         "n_trials": diag.data.n_trials, "skipped_trials": diag.data.skipped,
