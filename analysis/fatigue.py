@@ -38,8 +38,11 @@ at every ``D``): ``RSS(D) <= RSS_min (1 + t^2 / dof)``, ``dof = n - L - 2``, so 
 whether the loss is linear, exponential or saturating, and widens when the data cannot
 tell the shapes apart.
 
-The effect is *significant* when ``|lambda|`` exceeds ``z_crit`` standard errors and the
-loss (or gain) over the session is at least ``min_effect_pct`` percent.
+The effect is *significant* when ``|lambda|`` exceeds ``z_crit`` standard errors, or the
+shape-free fit beats the levels alone by a likelihood ratio ``n ln(RSS_0 / RSS_min)``
+beyond the 2-dof chi-square quantile at ``z_crit``'s level plus ``SHAPE_LR_MARGIN`` (a
+fast-then-flat loss the constant-rate slope misses), and the loss (or gain) over the
+session is at least ``min_effect_pct`` percent.
 """
 
 from __future__ import annotations
@@ -325,17 +328,27 @@ def fit_fatigue(gain, level, cum_stim_s, *, total_stim_s: float | None = None,
     est, lo, hi = loss(lam), loss(lam - t * se), loss(lam + t * se)
     se_pct = 100.0 * total * math.exp(-lam * total) * se
     shape, r = "exponential", float("nan")
+    shape_sig = False
     if dof >= 2 and s2 > 0:
         sh = shape_fit(y, lev, c / total, float(resid @ resid), est / 100.0)
         if sh is not None:
-            shape, r, est, lo, hi = sh
-    significant = bool(abs(z) >= z_crit and abs(est) >= min_effect_pct)
+            shape, r, est, lo, hi, lr = sh
+            # a loss the constant-rate slope misses (fast, then flat) is significant on
+            # the shape-free likelihood ratio at the same level as z_crit (2 dof)
+            shape_sig = lr >= -2.0 * math.log(2.0 * _normal_sf(z_crit)) + SHAPE_LR_MARGIN
+    significant = bool((abs(z) >= z_crit or shape_sig) and abs(est) >= min_effect_pct)
     return FatigueResult(loss_pct=est, ci_low_pct=lo, ci_high_pct=hi, se_pct=se_pct,
                          rate_per_100s=100.0 * lam, z=float(z), significant=significant,
                          total_stim_s=total, n_trials=n, n_levels=n_levels, dof=dof,
                          residual_sd_pct=100.0 * math.sqrt(s2), source=source,
                          shape=shape, shape_r=r)
 
+
+#: Added to the shape-free likelihood ratio's threshold: the shape ``r`` is not defined
+#: without fatigue, and the maximum over it makes the 2-dof chi-square anti-conservative
+#: (without a margin, 9 false reports in 600 simulated fatigue-free sessions of 2-10 %
+#: scatter at z_crit = 3; with 8, 4, against 3 of the slope test alone).
+SHAPE_LR_MARGIN = 8.0
 
 #: Shapes tried (``r``, see module): accelerating (< 0), linear (0), saturating (> 0) down
 #: to a time constant of 1/20 of the session's stimulation.
@@ -353,6 +366,11 @@ def _shape(r, x):
     rs = np.where(small, 1.0, r)
     out = -np.expm1(-rs * x) / -np.expm1(-rs)
     return np.where(small, x, out)
+
+
+def _normal_sf(z: float) -> float:
+    """P(Z > z) of the standard normal."""
+    return 0.5 * math.erfc(z / math.sqrt(2.0))
 
 
 def _aicc(rss: float, n: int, k: int) -> float:
@@ -424,7 +442,9 @@ def shape_fit(y: np.ndarray, lev: np.ndarray, x: np.ndarray, rss_exponential: fl
     lo_pct = -math.inf if ks[0] == 0 else 100.0 * lo
     hi_pct = 100.0 if ks[-1] == len(D) - 1 else 100.0 * hi
     est_pct = 100.0 * est
-    return shape, float(r), est_pct, min(lo_pct, est_pct), max(hi_pct, est_pct)
+    rss0 = float(rss[0, int(np.argmin(np.abs(D)))]) if np.any(D == 0.0) else math.inf
+    lr = n * math.log(rss0 / best) if math.isfinite(rss0) else 0.0
+    return (shape, float(r), est_pct, min(lo_pct, est_pct), max(hi_pct, est_pct), lr)
 
 
 def cumulative_stimulation_s(trials) -> tuple[np.ndarray, float]:

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.signal import cont2discrete, lfilter
+from scipy.signal import butter, cont2discrete, lfilter, sosfiltfilt
 
 from nmsid.protocols.session_file import Calibration, SessionWriter, Trial
 
@@ -369,7 +369,8 @@ def write_physiology_session(path, *, seed: int = 0, levels=PHYS_LEVELS, repeats
     fatigue : (str, float) or (str, float, float), optional
         ``(shape, loss, tau_frac)``: :func:`fatigue_gain` at each trial's centre.
     drift : (float, float), optional
-        ``(rms_N, corner_Hz)``: a slow baseline wander (filtered noise) in every trial.
+        ``(rms_N, corner_Hz)``: a slow baseline wander in every trial (white noise through
+        a zero-phase 4th-order Butterworth low-pass at ``corner_Hz``).
     step : (int, float, float), optional
         ``(k, t_s, height_N)``: a baseline step in the k-th trial written.
 
@@ -433,9 +434,9 @@ def write_physiology_session(path, *, seed: int = 0, levels=PHYS_LEVELS, repeats
             sh = int(round(dead_time_s * fs_Hz * up))
             yf = np.concatenate([np.zeros(sh), yf[:-sh]])
         y = yf[::up]
-        if drift is not None:
-            a = np.exp(-2 * np.pi * drift[1] / fs_Hz)
-            wander = lfilter([1 - a], [1, -a], rng.standard_normal(n + 5000))[5000:]
+        if drift is not None:        # white noise through a 4th-order low-pass
+            sos = butter(2, drift[1], fs=fs_Hz, output="sos")
+            wander = sosfiltfilt(sos, rng.standard_normal(n + 20000))[10000:-10000]
             y = y + drift[0] * wander / max(float(np.std(wander)), 1e-12)
         if step is not None and step[0] == k:
             y = y + step[2] * (t >= step[1])

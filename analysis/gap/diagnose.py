@@ -79,6 +79,9 @@ class GapSettings:
     try_muscle: bool = True
     """When the template's answer leaves a significant gap, also try the physiological
     twin (:mod:`nmsid.analysis.muscle.candidate`)."""
+    min_trial_share: float = 0.75
+    """A verdict on fewer than this share of the completed trials (quality control
+    excluded the rest) is marked partial in its sentence and the report's ``qc``."""
     muscle_floor_multiple: float = 3.0
     """The verdict says "the remainder is muscle physics" only when the muscle twin's
     held-out NRMSE is within this multiple of the noise floor between repeats."""

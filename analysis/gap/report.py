@@ -25,6 +25,7 @@ from nmsid.analysis.gap.models import FORMS, FinalContext, fatigue_loss_pct, nui
 from nmsid.analysis.gap.models import canonical_asymmetry  # noqa: F401 (re-exported)
 from nmsid.analysis.gap.twin_out import effect_entries, twin_dict, write_twin
 from nmsid.analysis.twin import source_entry
+from nmsid.protocols.effects import EFFECT_NAMES
 from nmsid.protocols.printable import escape_controls
 
 log = logging.getLogger(__name__)
@@ -180,6 +181,49 @@ def _fatigue_entry(assessment) -> dict | None:
     return None if fatigue is None else fatigue.as_dict()
 
 
+def fatigue_for_twin(diag: Diagnosis, effects: list[dict]) -> dict:
+    """The session's fatigue (the verdict's, from each trial's gain) as a twin-file effect
+    when it is significant and the final model does not carry fatigue already.
+
+    The twin file's fatigue (and the FMU's) has two shapes, ``linear`` and
+    ``exponential``: a linear loss is written as such, an exponential or saturating one as
+    ``exponential`` with the same loss over the session's stimulation
+    (``reference_stim_s``), which ``nmsid twin simulate`` and the FMU reproduce at the
+    session's end (a saturating loss is reached earlier in the session than the file's
+    shape says: ``note``). The level gains of the nominal fit are the session's average
+    gains: they are divided by the mean fitted gain over the trials, so that the twin
+    starts unfatigued. Potentiation (a gain that grows) has no twin effect (``note``).
+
+    Returns
+    -------
+    dict
+        ``entry`` (the effect, or None), ``kp_scale`` and ``note``.
+    """
+    fat = getattr(diag.assessment, "fatigue", None)
+    if fat is None or not fat.significant or not fat.estimated:
+        return {"entry": None, "kp_scale": 1.0, "note": "no significant fatigue"}
+    if any(e["name"] == "fatigue" for e in effects):
+        return {"entry": None, "kp_scale": 1.0,
+                "note": "fatigue is part of the final model (the candidate's fit)"}
+    if fat.loss_pct <= 0:
+        return {"entry": None, "kp_scale": 1.0,
+                "note": "potentiation: the twin file has no effect for a growing gain"}
+    shape = "linear" if fat.shape == "linear" else "exponential"
+    d = diag.data
+    c = d.cum_stim_s + 0.5 * d.chirp_s
+    mean_gain = float(np.mean(fat.gain_at(c)))
+    entry = {"name": "fatigue", "params": {"shape": shape,
+                                           "gain_loss_pct": min(float(fat.loss_pct), 99.0),
+                                           "reference_stim_s": float(fat.total_stim_s)}}
+    note = (f"the session's {fat.shape} fatigue: {fat.loss_pct:.1f} % lost over "
+            f"{fat.total_stim_s:.0f} s of stimulation")
+    if fat.shape == "saturating":
+        note += (" (written as exponential with the same loss at the session's end: the "
+                 "twin file and the FMU have no saturating shape yet)")
+    return {"entry": entry, "kp_scale": 1.0 / mean_gain if mean_gain > 0 else 1.0,
+            "note": note}
+
+
 def build_report(diag: Diagnosis, calibration=None) -> GapReport:
     """The report, the localization and (with a calibration) the augmented twin of one
     diagnosis.
@@ -207,10 +251,16 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
     nom = diag.nominal
     aug_pct = final.heldout_nrmse_pct if final else nom.heldout_nrmse_pct
     twin = None
+    fatigue_twin = None
     if calibration is not None:
         Kp, wn, zeta = _level_params(diag)
         effects = effect_entries(fparams.for_twin(), diag.full_fit.candidate.effects,
                                  diag.data.sE_levels) if final else []
+        fatigue_twin = fatigue_for_twin(diag, effects)
+        if fatigue_twin.get("entry") is not None:
+            effects = sorted(effects + [fatigue_twin["entry"]],
+                             key=lambda e: EFFECT_NAMES.index(e["name"]))
+            Kp = Kp * fatigue_twin["kp_scale"]
         twin = twin_dict(participant=diag.data.participant or "unknown",
                          source=[source_entry(diag.data.path)], calibration=calibration,
                          sE_levels=diag.data.sE_levels, Kp=Kp, wn_rad_s=wn, zeta=zeta,
@@ -225,8 +275,10 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
         "remaining": a.get("remaining"), "nominal_gap": a.get("nominal_gap"),
         "not_named": a.get("not_named"),
         "likely": a.get("likely"),
+        "qc": a.get("qc"),
         "candidates_not_fitted": diag.candidates_skipped,
         "fatigue": _fatigue_entry(a),
+        "fatigue_in_twin": fatigue_twin,
         "n_trials": diag.data.n_trials, "skipped_trials": diag.data.skipped,
         "excluded_trials": [{"trial": k, "reason": v} for k, v in diag.data.excluded.items()],
         "input_timing": diag.data.timing.as_dict() if diag.data.timing else None,

@@ -873,7 +873,60 @@ def assess(diag, muscle=None, nominal_tests: tuple[dict, list] | None = None) ->
                      else float("nan"), fatigue=fatigue)
     if likely is not None:
         out.extra["likely"] = likely.to_dict()
+    qc = qc_basis(diag)
+    out.extra["qc"] = qc
+    if qc["n_excluded"]:
+        out.sentence = qc_words(qc) + out.sentence
     return out
+
+
+def _reason_head(reason: str) -> str:
+    """A QC reason's kind: its text up to the first ':', ';' or '(' (what groups them)."""
+    for sep in (":", ";", "("):
+        reason = reason.split(sep)[0]
+    return reason.strip() or "excluded"
+
+
+def qc_basis(diag) -> dict:
+    """What the verdict rests on after quality control: trials used, excluded and why.
+
+    Returns
+    -------
+    dict
+        ``n_used``, ``n_excluded``, ``n_completed`` (used + excluded), ``share_used``,
+        ``min_share`` (``GapSettings.min_trial_share``), ``partial`` (the verdict rests on
+        fewer than that share of the completed trials) and ``reasons`` (count per kind).
+    """
+    d = diag.data
+    excluded = dict(getattr(d, "excluded", {}) or {})
+    n_used = int(d.n_trials)
+    n_ex = len(excluded)
+    total = n_used + n_ex
+    share = n_used / total if total else float("nan")
+    min_share = float(getattr(diag.settings, "min_trial_share", 0.75))
+    reasons: dict[str, int] = {}
+    for r in excluded.values():
+        head = _reason_head(str(r))
+        reasons[head] = reasons.get(head, 0) + 1
+    return {"n_used": n_used, "n_excluded": n_ex, "n_completed": total,
+            "share_used": share, "min_share": min_share,
+            "partial": bool(total and share < min_share), "reasons": reasons,
+            "excluded": sorted(excluded)}
+
+
+def qc_words(qc: dict) -> str:
+    """The sentence's opening when quality control excluded trials."""
+    kinds = sorted(qc["reasons"].items(), key=lambda kv: -kv[1])
+    why = "; ".join(f"{n} {k}" for k, n in kinds[:3]) + ("; ..." if len(kinds) > 3 else "")
+    names = ", ".join(qc["excluded"][:4]) + (", ..." if len(qc["excluded"]) > 4 else "")
+    if qc["partial"]:
+        return (f"[Partial verdict: quality control excluded {qc['n_excluded']} of "
+                f"{qc['n_completed']} trials ({why}: {names}); the verdict rests on only "
+                f"{qc['n_used']} ({100 * qc['share_used']:.0f} %, below the "
+                f"{100 * qc['min_share']:.0f} % a full verdict needs) and may change "
+                "with them.] ")
+    return (f"[Quality control excluded {qc['n_excluded']} of {qc['n_completed']} trials "
+            f"({why}: {names}); the verdict rests on the other {qc['n_used']}.] ")
 
 
 @dataclass(frozen=True)
