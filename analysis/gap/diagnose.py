@@ -396,9 +396,11 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
         # lazy: the muscle twin's modules are needed only when the template falls short
         from nmsid.analysis.muscle.candidate import score_muscle
         from nmsid.analysis.muscle.fit import MuscleFitSettings  # lazy, as the line above
+        gains = _fatigue_gains(diag)
         mres = score_muscle(run, nominal, final if final is not None else nominal, s,
                             fit_settings=MuscleFitSettings(fs_fit_Hz=s.muscle_fs_Hz,
-                                                           progress=s.progress))
+                                                           progress=s.progress,
+                                                           trial_gain=gains))
         diag.muscle_tried = mres
         if mres.supported:
             diag.muscle = mres
@@ -409,6 +411,22 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
         diag.best, diag.best_pair, diag.full_fit = None, None, nominal_full
     diag.elapsed_s = time.perf_counter() - t0
     return diag
+
+
+def _fatigue_gains(diag: Diagnosis) -> tuple[float, ...] | None:
+    """Each trial's gain from the session's significant fatigue (mean 1), for the muscle
+    twin's fit; None without significant fatigue (or when the final model fits it)."""
+    fat = getattr(diag.assessment, "fatigue", None)
+    final = diag.best_pair or diag.best
+    if final is not None and "fatigue" in final.label:
+        return None
+    if fat is None or not fat.significant or not fat.estimated:
+        return None
+    d = diag.data
+    g = np.asarray(fat.gain_at(d.cum_stim_s + 0.5 * d.chirp_s), float)
+    if not (np.all(np.isfinite(g)) and np.all(g > 0)):
+        return None
+    return tuple(float(v) for v in g / np.mean(g))
 
 
 @dataclass

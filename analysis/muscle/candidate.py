@@ -68,6 +68,8 @@ class MuscleResult:
     is False and :attr:`note` says why; the report gives it a row that says so."""
     note: str = ""
     """Why the fit was not scored (empty when it was)."""
+    with_fatigue: bool = False
+    """Fitted with the session's fatigue (``MuscleFitSettings.trial_gain``)."""
 
 
 def not_converged(note: str, full: MuscleFit | None, shape: tuple[int, int],
@@ -161,7 +163,8 @@ def _score(run, nominal, final, settings, fs: MuscleFitSettings, t0: float, c0: 
                        insample_nrmse_pct=100.0 * np.sqrt(ins_num / ins_den),
                        params=full.params)
     n_levels = len(d.sE_levels)
-    dk = len(full.theta) - (3 * n_levels + 1)
+    # the session's fatigue, when the fit carries it, counts as its two parameters
+    dk = len(full.theta) - (3 * n_levels + 1) + (2 if fs.trial_gain is not None else 0)
     dic = [run.nu * f.n_samples * np.log(f.rss / nf.rss) + 2 * dk
            for f, nf in zip(fits, nominal.fold_fits)]
     res.delta_ic = float(np.mean(dic))
@@ -173,6 +176,7 @@ def _score(run, nominal, final, settings, fs: MuscleFitSettings, t0: float, c0: 
                          and res.shrink_pct >= settings.min_shrink_pct
                          and res.shrink_vs_template_pct >= settings.min_shrink_pct
                          and res.delta_ic < final_dic - settings.ic_margin)
+    res.with_fatigue = fs.trial_gain is not None
     res.fit_s = time.perf_counter() - t0
     res.cpu_s = time.process_time() - c0
     log.info("muscle twin: held-out NRMSE %.3f %% (nominal %.3f %%, template %.3f %%), "

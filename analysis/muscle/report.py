@@ -68,6 +68,7 @@ def muscle_section(diag) -> dict | None:
     where_m = _where(diag, m.heldout_resid)
     return {
         "supported": bool(m.supported), "converged": True, "note": "",
+        "with_fatigue": bool(getattr(m, "with_fatigue", False)),
         "heldout": {"nominal_nrmse_pct": diag.nominal.heldout_nrmse_pct,
                     "template": tmpl.label, "template_nrmse_pct": tmpl.heldout_nrmse_pct,
                     "muscle_nrmse_pct": m.heldout_nrmse_pct,
