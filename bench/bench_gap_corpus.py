@@ -37,6 +37,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import as_completed
 from pathlib import Path
 
 import numpy as np
@@ -170,18 +171,24 @@ def main(argv: list[str] | None = None) -> None:
         tmp = a.keep or tmp_
         os.makedirs(tmp, exist_ok=True)
         cases = [(i, k, tmp) for i, k in enumerate(kinds(a.sessions))]
+        rows = []
         if a.jobs > 1:
             with process_pool(a.jobs) as ex:
-                rows = list(ex.map(importable(run_case), cases))
+                futures = [ex.submit(importable(run_case), c) for c in cases]
+                for fut in as_completed(futures):
+                    rows.append(fut.result())
+                    _progress(rows[-1])
         else:
-            rows = []
             for c in cases:
                 rows.append(run_case(c))
-                r = rows[-1]
-                print(f"{r['i']:3d} {r['kind']:<19} exit {r['exit']} "
-                      f"{r.get('verdict', '-'):<12} {r.get('best', '-'):<26} "
-                      f"{r.get('likely') or '':<26} {r['elapsed_s']:6.0f} s", flush=True)
-    report(rows, time.perf_counter() - t0)
+                _progress(rows[-1])
+    report(sorted(rows, key=lambda r: r["i"]), time.perf_counter() - t0)
+
+
+def _progress(r: dict) -> None:
+    print(f"{r['i']:3d} {r['kind']:<19} exit {r['exit']} {r.get('verdict', '-'):<12} "
+          f"{r.get('best', '-'):<26} {r.get('likely') or '':<26} {r['elapsed_s']:6.0f} s",
+          flush=True)
 
 
 def report(rows: list[dict], wall_s: float) -> None:
