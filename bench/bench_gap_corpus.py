@@ -23,9 +23,12 @@ and blocks or full randomisation):
   ``tremor`` (template sessions): must not crash; verdicts are printed.
 
     python bench/bench_gap_corpus.py [--sessions 60] [--jobs 1] [--keep DIR]
+        [--only KIND,KIND] [--start I]
 
-The session count is a parameter (the machine is shared): kinds are dealt round-robin,
-fatigue shapes twice as often as the others, so 60 sessions give 20 of each shape.
+The session count is a parameter (the machine is shared): kinds are dealt round-robin from
+a round of 18 with each fatigue shape 4 times, so 60 sessions give 14 of each shape;
+``--only fatigue_linear,fatigue_saturating --start 60 --sessions 12`` adds 6 of each on
+other seeds (session ``i`` has seed ``1000 + i``).
 """
 
 from __future__ import annotations
@@ -62,9 +65,10 @@ LEVELS_15 = tuple(round(0.30 + 0.05 * i, 2) for i in range(15))
 LEVELS_10 = tuple(float(v) for v in np.round(np.linspace(0.3, 1.0, 10), 3))
 
 
-def kinds(n: int) -> list[str]:
-    """The first ``n`` kinds of the deal."""
-    return [ROUND[i % len(ROUND)] for i in range(n)]
+def kinds(n: int, only: tuple[str, ...] = ()) -> list[str]:
+    """The first ``n`` kinds of the deal (of ``only``'s kinds, in their order, if given)."""
+    deal = tuple(only) or ROUND
+    return [deal[i % len(deal)] for i in range(n)]
 
 
 def write(kind: str, seed: int, path: str) -> dict:
@@ -165,12 +169,18 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--jobs", type=int, default=1,
                     help="worker processes (default 1: the machine is shared)")
     ap.add_argument("--keep", default=None, help="keep sessions and reports in this folder")
+    ap.add_argument("--only", default="", help="comma-separated kinds to deal (default all)")
+    ap.add_argument("--start", type=int, default=0, help="index (and seed) of the first")
     a = ap.parse_args(argv if argv is not None else sys.argv[1:])
+    only = tuple(k for k in a.only.split(",") if k)
+    bad = [k for k in only if k not in ROUND]
+    if bad:
+        ap.error(f"--only {','.join(bad)}: kinds are {', '.join(sorted(set(ROUND)))}")
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp_:
         tmp = a.keep or tmp_
         os.makedirs(tmp, exist_ok=True)
-        cases = [(i, k, tmp) for i, k in enumerate(kinds(a.sessions))]
+        cases = [(a.start + i, k, tmp) for i, k in enumerate(kinds(a.sessions, only))]
         rows = []
         if a.jobs > 1:
             with process_pool(a.jobs) as ex:
