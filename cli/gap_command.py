@@ -28,30 +28,47 @@ def run(args: argparse.Namespace) -> int:
                           sim_session=args.sim_session, plots=not args.no_figures)
     report_path = str(summary.report).replace(str(tmp), str(args.out))
     for s in summary.sessions:
-        h = s["heldout"]
-        print(f"{s['session']}: verdict = {s['verdict']}, best_effect = {s['best_effect']}"
-              + (f" (pair {' + '.join(s['best_pair'])})" if s.get("best_pair") else "")
-              + f"; held-out NRMSE {h['nominal_nrmse_pct']:.3g} % -> "
-              f"{h['augmented_nrmse_pct']:.3g} % (shrink {h['shrink_pct']:.0f} %); noise floor "
-              f"{h['noise_floor_nrmse_pct']:.3g} % between repeats, "
-              + (f"{h['sensor_floor_nrmse_pct']:.3g} %" if h.get("sensor_floor_nrmse_pct")
-                 is not None else "n/a")
-              + f" in the steady lead-in  [{s['elapsed_s']:.1f} s]")
-        print(f"  {s['verdict_sentence']}")
-        m = s.get("muscle_twin")
-        if m:
-            mh = m["heldout"]
-            print(f"  muscle twin ({'supported' if m['supported'] else 'not supported'}): "
-                  f"held-out NRMSE {mh['nominal_nrmse_pct']:.3g} % nominal, "
-                  f"{mh['template_nrmse_pct']:.3g} % {mh['template']} -> "
-                  f"{mh['muscle_nrmse_pct']:.3g} % (noise floor "
-                  f"{mh['noise_floor_nrmse_pct']:.3g} %); fitted in {m['fit_s']:.0f} s; not "
-                  f"determined by the data: {', '.join(m['not_determined']) or 'none'}")
-        for line in s["evidence"]["summary"]:
-            print(f"  {line}")
-        if s.get("simulation_under_test"):
-            u = s["simulation_under_test"]
-            print(f"  simulation under test {u['source']}: NRMSE {u['nrmse_pct']:.3g} % on all "
-                  "trials (nothing of it fitted here)")
+        for line in session_lines(s):
+            print(line)
     print(f"report: {report_path}")
     return 0
+
+
+def _g(v, spec: str = ".3g") -> str:
+    """A figure of the report, or ``n/a`` when it could not be computed (None in JSON)."""
+    return "n/a" if v is None else format(v, spec)
+
+
+def session_lines(s: dict) -> list[str]:
+    """What ``nmsid gap`` prints of one session's report: every figure that could not be
+    computed (a fit that did not converge) shows as ``n/a``, never a crash."""
+    h = s["heldout"]
+    out = [f"{s['session']}: verdict = {s['verdict']}, best_effect = {s['best_effect']}"
+           + (f" (pair {' + '.join(s['best_pair'])})" if s.get("best_pair") else "")
+           + f"; held-out NRMSE {_g(h['nominal_nrmse_pct'])} % -> "
+           f"{_g(h['augmented_nrmse_pct'])} % (shrink {_g(h['shrink_pct'], '.0f')} %); noise "
+           f"floor {_g(h['noise_floor_nrmse_pct'])} % between repeats, "
+           f"{_g(h.get('sensor_floor_nrmse_pct'))} % in the steady lead-in  "
+           f"[{_g(s.get('elapsed_s'), '.1f')} s]",
+           f"  {s['verdict_sentence']}"]
+    m = s.get("muscle_twin")
+    if m and not m.get("converged", True):
+        out.append(f"  muscle twin: not scored - {m.get('note') or 'the fit did not converge'}"
+                   f"; fitted for {_g(m.get('fit_s'), '.0f')} s")
+    elif m:
+        mh = m["heldout"]
+        out.append(f"  muscle twin ({'supported' if m['supported'] else 'not supported'}): "
+                   f"held-out NRMSE {_g(mh['nominal_nrmse_pct'])} % nominal, "
+                   f"{_g(mh['template_nrmse_pct'])} % {mh['template']} -> "
+                   f"{_g(mh['muscle_nrmse_pct'])} % (noise floor "
+                   f"{_g(mh['noise_floor_nrmse_pct'])} %); fitted in "
+                   f"{_g(m.get('fit_s'), '.0f')} s; not determined by the data: "
+                   f"{', '.join(m.get('not_determined') or []) or 'none'}")
+    out += [f"  {line}" for line in s["evidence"]["summary"]]
+    for f in s.get("figures_failed") or []:
+        out.append(f"  figure {f['figure']} not drawn: {f['reason']}")
+    u = s.get("simulation_under_test")
+    if u:
+        out.append(f"  simulation under test {u['source']}: NRMSE {_g(u['nrmse_pct'])} % on "
+                   "all trials (nothing of it fitted here)")
+    return out

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.signal import cont2discrete, lfilter
+from scipy.signal import butter, cont2discrete, lfilter, sosfiltfilt
 
 from nmsid.protocols.session_file import Calibration, SessionWriter, Trial
 
@@ -283,3 +283,172 @@ def _resonant_noise(rng, n, f_Hz, width_Hz, rms, fs_Hz):
     th = 2 * np.pi * f_Hz / fs_Hz
     x = lfilter([1.0], [1.0, -2 * r * np.cos(th), r * r], rng.standard_normal(n + 4000))[4000:]
     return rms * x / np.std(x)
+
+
+# -- sessions with trial-to-trial physiology and library effects -----------------------
+
+PHYS_LEVELS = tuple(round(0.30 + 0.05 * i, 2) for i in range(15))
+
+
+def _unit_sigmoid(slope: float, mid: float):
+    return lambda u: 1.0 / (1.0 + np.exp(-slope * (np.asarray(u, float) - mid)))
+
+
+def recruitment_curve(spec):
+    """``h(u)`` of a recruitment spec: None (linear), ``("sigmoid", slope, midpoint)``,
+    ``("power", gamma)`` or ``("threshold", threshold, saturation)`` (linear between)."""
+    if spec is None:
+        return lambda u: np.asarray(u, float)
+    kind = spec[0]
+    if kind == "sigmoid":
+        return _unit_sigmoid(float(spec[1]), float(spec[2]))
+    if kind == "power":
+        g = float(spec[1])
+        return lambda u: np.clip(np.asarray(u, float), 0.0, None) ** g
+    if kind == "threshold":
+        lo, hi = float(spec[1]), float(spec[2])
+        return lambda u: np.clip((np.asarray(u, float) - lo) / (hi - lo), 0.0, 1.0)
+    raise ValueError(f"recruitment {spec!r}: sigmoid, power or threshold")
+
+
+def fatigue_gain(shape: str, loss: float, x, tau_frac: float = 0.2):
+    """Gain left after the fraction ``x`` of the session's stimulation: ``linear``
+    ``1 - p x``, ``exponential`` ``(1 - p)^x``, ``saturating``
+    ``1 - p (1 - exp(-x / tau)) / (1 - exp(-1 / tau))`` (``tau`` a fraction of the
+    session): all lose ``p`` by the session's end."""
+    x = np.asarray(x, float)
+    if shape == "linear":
+        return 1.0 - loss * x
+    if shape == "exponential":
+        return (1.0 - loss) ** x
+    if shape == "saturating":
+        return 1.0 - loss * -np.expm1(-x / tau_frac) / -np.expm1(-1.0 / tau_frac)
+    raise ValueError(f"fatigue shape {shape!r}: linear, exponential or saturating")
+
+
+def _second_order(K, wn, zeta, dt):
+    b, a, _ = cont2discrete(([K * wn ** 2], [1.0, 2 * zeta * wn, wn ** 2]), dt, method="foh")
+    return np.ravel(b), np.ravel(a)
+
+
+def write_physiology_session(path, *, seed: int = 0, levels=PHYS_LEVELS, repeats: int = 3,
+                             cv=(0.10, 0.05, 0.05), noise_N: float = 0.03,
+                             randomisation: str = "blocks", recruitment=None,
+                             asymmetry=None, dead_time_s: float = 0.0,
+                             activation_tau_s: float = 0.0, fatigue=None, drift=None,
+                             step=None, steady_s: float = 5.0, chirp_s: float = 10.0,
+                             fs_Hz: float = 1000.0, participant: str = "P01") -> dict:
+    """A session of two antagonist muscles with trial-to-trial scatter and library effects,
+    written independently of nmsid's simulator and analysis.
+
+    The extensor is driven by ``u_e = sE rE``, the flexor by ``u_f = sE (1 - rE)``; each
+    passes its recruitment curve ``h`` (deviation from its lead-in value) and its own
+    second-order dynamics (scipy's first-order-hold discretisation on a 4x finer grid,
+    the chirp analytic); the force is their difference, normalised so that the small-signal
+    gain at each sE is the level's ``Kp``. Level curves are drawn from the seed
+    (Kp 2-14 N, wn 15-50 rad/s, zeta 0.4-0.9); every trial's Kp, wn and zeta are the
+    level's times ``exp(N(0, cv))``.
+
+    Parameters
+    ----------
+    path : path-like
+        New file.
+    seed : int
+    levels, repeats : sequence of float, int
+    cv : (float, float, float)
+        Trial-to-trial scatter of Kp, wn, zeta (SD of the log).
+    noise_N : float
+        White sensor noise; 50 Hz pick-up, an offset and a linear drift per trial too.
+    randomisation : {"blocks", "full"}
+    recruitment : tuple, optional
+        :func:`recruitment_curve`'s spec (a library effect: recruitment non-linearity).
+    asymmetry : (float, float), optional
+        ``(wn_ratio, zeta_ratio)`` of the flexor against the extensor.
+    dead_time_s, activation_tau_s : float
+        A dead time; a first-order activation lag before each muscle's dynamics.
+    fatigue : (str, float) or (str, float, float), optional
+        ``(shape, loss, tau_frac)``: :func:`fatigue_gain` at each trial's centre.
+    drift : (float, float), optional
+        ``(rms_N, corner_Hz)``: a slow baseline wander in every trial (white noise through
+        a zero-phase 4th-order Butterworth low-pass at ``corner_Hz``).
+    step : (int, float, float), optional
+        ``(k, t_s, height_N)``: a baseline step in the k-th trial written.
+
+    Returns
+    -------
+    dict
+        The truth: per-trial parameters, fatigue gains, total stimulation and loss.
+    """
+    rng = np.random.default_rng([seed, 4040])
+    lv = np.asarray(levels, float)
+    x = (lv - lv.min()) / max(float(np.ptp(lv)), 1e-9)
+    kp = rng.uniform(2.0, 4.0) + rng.uniform(4.0, 10.0) * x ** rng.uniform(0.7, 1.5)
+    wn = rng.uniform(15.0, 28.0) + rng.uniform(5.0, 20.0) * x
+    zeta = rng.uniform(0.4, 0.6) + rng.uniform(-0.1, 0.25) * x
+    order = [(j, r) for r in range(1, repeats + 1) for j in range(len(lv))]
+    if randomisation == "blocks":
+        order = [(int(j), r) for r in range(1, repeats + 1)
+                 for j in rng.permutation(len(lv))]
+    else:
+        order = [order[i] for i in rng.permutation(len(order))]
+    n = int(round((steady_s + chirp_s) * fs_Hz))
+    up = 4
+    t = np.arange(n) / fs_Hz
+    tf = np.arange(n * up) / (fs_Hz * up)
+
+    def chirp(tt):
+        tc = np.clip(tt - steady_s, 0.0, None)
+        phi = 2 * np.pi * chirp_s / np.log(10.0) * (10.0 ** (tc / chirp_s) - 1)
+        return np.where(tt < steady_s, 0.5, 0.5 + 0.5 * np.sin(phi))
+
+    rE, rEf = chirp(t), chirp(tf)
+    h = recruitment_curve(recruitment)
+    dt = 1.0 / (fs_Hz * up)
+    total = n / fs_Hz * len(order)
+    w = SessionWriter.create(path, participant=participant, seed=seed, backend="synthetic")
+    cal = Calibration(Iemin_mA=2.0, Iemax_mA=9.5, Ifmin_mA=1.5, Ifmax_mA=8.0)
+    w.write_calibration(cal)
+    truth: list[dict] = []
+    for k, (j, rep) in enumerate(order):
+        sE = float(lv[j])
+        d = np.exp(rng.normal(0.0, cv))
+        K, W, Z = kp[j] * d[0], wn[j] * d[1], zeta[j] * d[2]
+        centre = (k * n / fs_Hz + steady_s + 0.5 * chirp_s) / total
+        g = 1.0
+        if fatigue is not None:
+            g = float(fatigue_gain(fatigue[0], fatigue[1], centre,
+                                   *(fatigue[2:3] if len(fatigue) > 2 else ())))
+        half = h(0.5 * sE)
+        eps = 1e-4
+        slope = float(h(0.5 * sE + eps) - h(0.5 * sE - eps)) / (2 * eps)
+        norm = 2.0 * sE * slope if slope > 0 else 1.0
+        xe, xf = h(sE * rEf) - half, h(sE * (1 - rEf)) - half
+        if activation_tau_s > 0:
+            a = np.exp(-dt / activation_tau_s)
+            xe, xf = (lfilter([1 - a], [1, -a], v) for v in (xe, xf))
+        be, ae = _second_order(1.0, W, Z, dt)
+        wr, zr = asymmetry if asymmetry is not None else (1.0, 1.0)
+        bf, af = _second_order(1.0, W * wr, Z * zr, dt)
+        yf = K * g * (lfilter(be, ae, xe) - lfilter(bf, af, xf)) / norm
+        if dead_time_s > 0:
+            sh = int(round(dead_time_s * fs_Hz * up))
+            yf = np.concatenate([np.zeros(sh), yf[:-sh]])
+        y = yf[::up]
+        if drift is not None:        # white noise through a 4th-order low-pass
+            sos = butter(2, drift[1], fs=fs_Hz, output="sos")
+            wander = sosfiltfilt(sos, rng.standard_normal(n + 20000))[10000:-10000]
+            y = y + drift[0] * wander / max(float(np.std(wander)), 1e-12)
+        if step is not None and step[0] == k:
+            y = y + step[2] * (t >= step[1])
+        force = (y + rng.normal(0.0, noise_N, n)
+                 + 0.02 * np.sin(2 * np.pi * 50 * t + rng.uniform(0, 2 * np.pi))
+                 + rng.uniform(-1.0, 1.0) + rng.uniform(-0.02, 0.02) * t)
+        w.append_trial(Trial(sE=sE, repeat=int(rep), fs_Hz=fs_Hz, rE=rE,
+                             I_ext_mA=cal.Iemin_mA + rE * sE * (cal.Iemax_mA - cal.Iemin_mA),
+                             I_flex_mA=cal.Ifmin_mA + (1 - rE) * sE * (cal.Ifmax_mA
+                                                                       - cal.Ifmin_mA),
+                             force_N=force, steady_s=steady_s, chirp_s=chirp_s,
+                             started_utc="2026-11-22T01:30:00Z"))
+        truth.append({"sE": sE, "repeat": rep, "Kp": K, "wn": W, "zeta": Z, "gain": g})
+    return {"trials": truth, "total_stim_s": total,
+            "loss_pct": 100.0 * fatigue[1] if fatigue is not None else 0.0}

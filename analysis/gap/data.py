@@ -25,6 +25,8 @@ aborted: an aborted trial stimulated too), in file order ``t001, t002, ...``.
 
 from __future__ import annotations
 
+import functools
+
 from collections.abc import Mapping
 
 import logging
@@ -222,6 +224,44 @@ def load_session(session, settings: PreprocessSettings | None = None, *,
                           participant=session.participant, settings=s, excluded=excluded)
 
 
+#: The lead-in noise is measured above this frequency (a baseline drift lies below; the
+#: chirp starts at 1 Hz), by subtracting a centred moving average of 1 / (2 f) s.
+NOISE_HIGHPASS_HZ = 1.0
+
+
+def _highpass(x: np.ndarray, fs_Hz: float) -> np.ndarray:
+    """``x`` minus its centred moving average over ``1 / (2 NOISE_HIGHPASS_HZ)`` s (the
+    'valid' part only): what a drift below ~1 Hz leaves of a lead-in is a few percent."""
+    w = max(3, int(round(fs_Hz / (2 * NOISE_HIGHPASS_HZ))) | 1)
+    if len(x) <= w:
+        return x - np.mean(x)
+    ma = np.convolve(x, np.ones(w) / w, mode="valid")
+    h = w // 2
+    return x[h:len(x) - h] - ma
+
+
+@functools.lru_cache(maxsize=32)
+def _kept_by_drift_filter(fs_Hz: float, s: PreprocessSettings, step_raw: int) -> float:
+    """Share of white sensor noise's power, after the force's filter chain, that
+    :func:`_highpass` keeps (60 s of seeded white noise at the raw rate: deterministic)."""
+    rng = np.random.default_rng(20261128)
+    x = _filter_chain(rng.standard_normal(int(60 * fs_Hz)), fs_Hz, s)[::step_raw]
+    x = x[len(x) // 20: -len(x) // 20]                  # the filter's edges aside
+    return float(np.mean(_highpass(x, fs_Hz / step_raw) ** 2) / np.mean(x ** 2))
+
+
+def _drift_robust_power(seg: np.ndarray, fs_Hz: float, kept: float) -> float:
+    """The lead-in's noise power robust to a baseline drift: the power above
+    :data:`NOISE_HIGHPASS_HZ`, scaled back by the share of filtered white noise kept there.
+    A linear detrend alone left a wandering baseline in the estimate (issue 40: a drift
+    inflated the noise to 15.6 % of the response and hid a significant gap)."""
+    if not (math.isfinite(kept) and kept > 0):
+        tt = np.arange(len(seg), dtype=float)
+        res = seg - np.polyval(np.polyfit(tt, seg, 1), tt)
+        return float(np.mean(res ** 2))
+    return float(np.mean(_highpass(seg, fs_Hz) ** 2)) / kept
+
+
 def _cumulative_stim(trials) -> list[float]:
     out, total = [], 0.0
     for t in trials:
@@ -294,6 +334,7 @@ def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
     rows_y, rows_draw, steady, steady_rows = [], [], [], []
     a_st = int(round(max(0.5, first.steady_s - 3.3) * fs))
     b_st = int(round((first.steady_s - 0.3) * fs))
+    kept = _kept_by_drift_filter(fs, s, step_raw) if b_st - a_st >= fs else float("nan")
     for _, t in usable:
         force = _filter_chain(np.asarray(t.force_N, float)[:n_min], fs, s)
         rows_y.append(force[i_win: i_win + n_eval * step_raw: step_raw])
@@ -301,7 +342,7 @@ def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
             seg = force[a_st:b_st:step_raw]
             tt = np.arange(len(seg), dtype=float)
             res = seg - np.polyval(np.polyfit(tt, seg, 1), tt)
-            steady.append(float(np.mean(res ** 2)))
+            steady.append(_drift_robust_power(seg, fs / step_raw, kept))
             steady_rows.append(res)
         else:
             steady.append(float("nan"))

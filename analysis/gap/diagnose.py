@@ -79,6 +79,12 @@ class GapSettings:
     try_muscle: bool = True
     """When the template's answer leaves a significant gap, also try the physiological
     twin (:mod:`nmsid.analysis.muscle.candidate`)."""
+    min_trial_share: float = 0.75
+    """A verdict on fewer than this share of the completed trials (quality control
+    excluded the rest) is marked partial in its sentence and the report's ``qc``."""
+    muscle_floor_multiple: float = 3.0
+    """The verdict says "the remainder is muscle physics" only when the muscle twin's
+    held-out NRMSE is within this multiple of the noise floor between repeats."""
     muscle_fs_Hz: float = 100.0
     """Simulation rate of the muscle twin's fit (reduced from the 200 Hz fit rate)."""
     progress: bool = False
@@ -384,14 +390,17 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
                      sensor_floor_nrmse_pct=sensor, candidates_skipped=skipped)
     # the nominal's tests made for the early stop are the ones assess would make
     diag.assessment = assess(diag, nominal_tests=nominal_tests)
-    if s.try_muscle and diag.assessment["verdict"] in ("effect", "pair", "unexplained") \
+    if s.try_muscle and diag.assessment["verdict"] in ("effect", "pair", "unexplained",
+                                                       "likely") \
             and diag.assessment["remaining"]["significant"]:
         # lazy: the muscle twin's modules are needed only when the template falls short
         from nmsid.analysis.muscle.candidate import score_muscle
         from nmsid.analysis.muscle.fit import MuscleFitSettings  # lazy, as the line above
+        gains = _fatigue_gains(diag)
         mres = score_muscle(run, nominal, final if final is not None else nominal, s,
                             fit_settings=MuscleFitSettings(fs_fit_Hz=s.muscle_fs_Hz,
-                                                           progress=s.progress))
+                                                           progress=s.progress,
+                                                           trial_gain=gains))
         diag.muscle_tried = mres
         if mres.supported:
             diag.muscle = mres
@@ -402,6 +411,22 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
         diag.best, diag.best_pair, diag.full_fit = None, None, nominal_full
     diag.elapsed_s = time.perf_counter() - t0
     return diag
+
+
+def _fatigue_gains(diag: Diagnosis) -> tuple[float, ...] | None:
+    """Each trial's gain from the session's significant fatigue (mean 1), for the muscle
+    twin's fit; None without significant fatigue (or when the final model fits it)."""
+    fat = getattr(diag.assessment, "fatigue", None)
+    final = diag.best_pair or diag.best
+    if final is not None and "fatigue" in final.label:
+        return None
+    if fat is None or not fat.significant or not fat.estimated:
+        return None
+    d = diag.data
+    g = np.asarray(fat.gain_at(d.cum_stim_s + 0.5 * d.chirp_s), float)
+    if not (np.all(np.isfinite(g)) and np.all(g > 0)):
+        return None
+    return tuple(float(v) for v in g / np.mean(g))
 
 
 @dataclass

@@ -267,6 +267,9 @@ def explain(diag: Diagnosis, sig: Signatures) -> list[str]:
             f"-{diag.settings.ic_margin:g}"
             + ("; the nominal model is as good as the data allow."
                if diag.assessment.get("verdict", "none") == "none" else
+               f"; {diag.assessment.get('label')} has the best evidence but trial-to-trial "
+               "scatter hides it from the held-out test (likely, not separable)."
+               if diag.assessment.get("verdict") == "likely" else
                "; what the nominal model misses is not one of the candidate effects."))
         return lines
     lines.append(f"{final.label}: held-out NRMSE {nom.heldout_nrmse_pct:.3g} % -> "

@@ -162,6 +162,8 @@ def winner_label(report: dict) -> str | None:
     'dead_time'
     >>> winner_label({"verdict": "pair", "best_pair": ["fatigue", "dead_time"]})
     'fatigue+dead_time'
+    >>> winner_label({"verdict": "likely", "likely": {"label": "recruitment"}})
+    'recruitment'
     >>> winner_label({"verdict": "none"}) is None
     True
     """
@@ -172,6 +174,8 @@ def winner_label(report: dict) -> str | None:
         return "+".join(report["best_pair"])
     if verdict == "effect":
         return report.get("best_effect")
+    if verdict == "likely":           # wins on evidence, not separable from scatter
+        return (report.get("likely") or {}).get("label")
     return None
 
 

@@ -25,6 +25,7 @@ from nmsid.analysis.gap.models import FORMS, FinalContext, fatigue_loss_pct, nui
 from nmsid.analysis.gap.models import canonical_asymmetry  # noqa: F401 (re-exported)
 from nmsid.analysis.gap.twin_out import effect_entries, twin_dict, write_twin
 from nmsid.analysis.twin import source_entry
+from nmsid.protocols.effects import EFFECT_NAMES
 from nmsid.protocols.printable import escape_controls
 
 log = logging.getLogger(__name__)
@@ -180,6 +181,49 @@ def _fatigue_entry(assessment) -> dict | None:
     return None if fatigue is None else fatigue.as_dict()
 
 
+def fatigue_for_twin(diag: Diagnosis, effects: list[dict]) -> dict:
+    """The session's fatigue (the verdict's, from each trial's gain) as a twin-file effect
+    when it is significant and the final model does not carry fatigue already.
+
+    The twin file's fatigue (and the FMU's) has two shapes, ``linear`` and
+    ``exponential``: a linear loss is written as such, an exponential or saturating one as
+    ``exponential`` with the same loss over the session's stimulation
+    (``reference_stim_s``), which ``nmsid twin simulate`` and the FMU reproduce at the
+    session's end (a saturating loss is reached earlier in the session than the file's
+    shape says: ``note``). The level gains of the nominal fit are the session's average
+    gains: they are divided by the mean fitted gain over the trials, so that the twin
+    starts unfatigued. Potentiation (a gain that grows) has no twin effect (``note``).
+
+    Returns
+    -------
+    dict
+        ``entry`` (the effect, or None), ``kp_scale`` and ``note``.
+    """
+    fat = getattr(diag.assessment, "fatigue", None)
+    if fat is None or not fat.significant or not fat.estimated:
+        return {"entry": None, "kp_scale": 1.0, "note": "no significant fatigue"}
+    if any(e["name"] == "fatigue" for e in effects):
+        return {"entry": None, "kp_scale": 1.0,
+                "note": "fatigue is part of the final model (the candidate's fit)"}
+    if fat.loss_pct <= 0:
+        return {"entry": None, "kp_scale": 1.0,
+                "note": "potentiation: the twin file has no effect for a growing gain"}
+    shape = "linear" if fat.shape == "linear" else "exponential"
+    d = diag.data
+    c = d.cum_stim_s + 0.5 * d.chirp_s
+    mean_gain = float(np.mean(fat.gain_at(c)))
+    entry = {"name": "fatigue", "params": {"shape": shape,
+                                           "gain_loss_pct": min(float(fat.loss_pct), 99.0),
+                                           "reference_stim_s": float(fat.total_stim_s)}}
+    note = (f"the session's {fat.shape} fatigue: {fat.loss_pct:.1f} % lost over "
+            f"{fat.total_stim_s:.0f} s of stimulation")
+    if fat.shape == "saturating":
+        note += (" (written as exponential with the same loss at the session's end: the "
+                 "twin file and the FMU have no saturating shape yet)")
+    return {"entry": entry, "kp_scale": 1.0 / mean_gain if mean_gain > 0 else 1.0,
+            "note": note}
+
+
 def build_report(diag: Diagnosis, calibration=None) -> GapReport:
     """The report, the localization and (with a calibration) the augmented twin of one
     diagnosis.
@@ -207,10 +251,16 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
     nom = diag.nominal
     aug_pct = final.heldout_nrmse_pct if final else nom.heldout_nrmse_pct
     twin = None
+    fatigue_twin = None
     if calibration is not None:
         Kp, wn, zeta = _level_params(diag)
         effects = effect_entries(fparams.for_twin(), diag.full_fit.candidate.effects,
                                  diag.data.sE_levels) if final else []
+        fatigue_twin = fatigue_for_twin(diag, effects)
+        if fatigue_twin.get("entry") is not None:
+            effects = sorted(effects + [fatigue_twin["entry"]],
+                             key=lambda e: EFFECT_NAMES.index(e["name"]))
+            Kp = Kp * fatigue_twin["kp_scale"]
         twin = twin_dict(participant=diag.data.participant or "unknown",
                          source=[source_entry(diag.data.path)], calibration=calibration,
                          sE_levels=diag.data.sE_levels, Kp=Kp, wn_rad_s=wn, zeta=zeta,
@@ -224,8 +274,11 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
         "verdict": a.get("verdict"), "verdict_sentence": a.get("sentence"),
         "remaining": a.get("remaining"), "nominal_gap": a.get("nominal_gap"),
         "not_named": a.get("not_named"),
+        "likely": a.get("likely"),
+        "qc": a.get("qc"),
         "candidates_not_fitted": diag.candidates_skipped,
         "fatigue": _fatigue_entry(a),
+        "fatigue_in_twin": fatigue_twin,
         "n_trials": diag.data.n_trials, "skipped_trials": diag.data.skipped,
         "excluded_trials": [{"trial": k, "reason": v} for k, v in diag.data.excluded.items()],
         "input_timing": diag.data.timing.as_dict() if diag.data.timing else None,
@@ -288,38 +341,71 @@ def write_outputs(diag: Diagnosis, out_dir, calibration=None, *, plots: bool = T
     return report
 
 
+#: Keys of figures the plots draw as numbers (None in the JSON when not computed).
+_NUMERIC_KEYS = ("_pct", "_N", "_N2", "_dB", "_deg", "ratio_to_noise", "to_noise_floor")
+
+
+def _nan_for_none(obj, key: str = ""):
+    """The report's form with its numeric figures that could not be computed (None) back
+    as NaN: what the figures draw (matplotlib leaves a NaN bar or point out; None would
+    fail). Other None values (no pair, no note) stay None."""
+    if isinstance(obj, dict):
+        return {k: _nan_for_none(v, k) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_nan_for_none(v, key) for v in obj]
+    if obj is None and key.endswith(_NUMERIC_KEYS):
+        return float("nan")
+    return obj
+
+
 def _figures(diag: Diagnosis, report: dict, localized: Localization, out: Path) -> list[str]:
+    """Draw every figure; one that fails is listed in ``report["figures_failed"]`` with
+    its reason (and logged) and the report is written all the same."""
     loc = localized.to_dict()    # the figures draw the report's form
-    names = []
-    plots.plot_where(loc, out / "where.png", diag.noise_floor_nrmse_pct)
-    names.append("where.png")
-    plots.plot_frequency(loc, out / "frequency.png")
-    names.append("frequency.png")
-    plots.plot_spectrum_and_gain(loc, out / "drift_fatigue.png", diag.data.chirp_f0_Hz)
-    names.append("drift_fatigue.png")
+    names: list[str] = []
+    failed: list[dict] = []
+
+    def draw(name: str, fn) -> None:
+        try:
+            fn(out / name)
+        except Exception as exc:   # noqa: BLE001 - a figure never costs the report
+            log.warning("figure %s not drawn: %s: %s", name, type(exc).__name__, exc)
+            failed.append({"figure": name, "reason": f"{type(exc).__name__}: {exc}"})
+        else:
+            names.append(name)
+
+    floor = diag.noise_floor_nrmse_pct
+    draw("where.png", lambda p: plots.plot_where(loc, p, floor))
+    draw("frequency.png", lambda p: plots.plot_frequency(loc, p))
+    draw("drift_fatigue.png",
+         lambda p: plots.plot_spectrum_and_gain(loc, p, diag.data.chirp_f0_Hz))
     if report.get("remaining") and report["remaining"]["where"].get("sE"):
-        plots.plot_remaining(report, out / "remaining.png")
-        names.append("remaining.png")
-    if report.get("muscle_twin"):
-        plot_muscle(report["muscle_twin"], out / "muscle.png")
-        names.append("muscle.png")
+        rep = _nan_for_none(report)
+        draw("remaining.png", lambda p: plots.plot_remaining(rep, p))
+    m = report.get("muscle_twin")
+    if m and m.get("converged", True):    # a fit that did not converge has nothing to draw
+        ms = _nan_for_none(m)
+        draw("muscle.png", lambda p: plot_muscle(ms, p))
     if report["ranking"]:         # none when no candidate was needed (candidates_not_fitted)
-        plots.plot_ranking(report["ranking"], diag.nominal.heldout_nrmse_pct,
-                           diag.noise_floor_nrmse_pct, out / "ranking.png",
-                           muscle=report.get("muscle_twin"),
-                           winner=plots.winner_label(report))
-        names.append("ranking.png")
+        rk = _nan_for_none(report["ranking"])
+        muscle = _nan_for_none(m) if m else None
+        winner = plots.winner_label(report)
+        draw("ranking.png", lambda p: plots.plot_ranking(rk, diag.nominal.heldout_nrmse_pct,
+                                                         floor, p, muscle=muscle,
+                                                         winner=winner))
     ok = np.flatnonzero(diag.tested)
     if len(ok):
         r_nom = diag.nominal.heldout_resid[ok]
-        i = ok[int(np.argmax(np.sum(r_nom ** 2, axis=1)))]
+        i = ok[int(np.argmax(np.nan_to_num(np.sum(r_nom ** 2, axis=1), nan=-1.0)))]
         final = diag.best_pair or diag.best
         ref = diag.reference[i]
-        plots.plot_example(diag.data.t_eval_s, ref, ref - diag.nominal.heldout_resid[i],
-                           ref - final.heldout_resid[i] if final else None,
-                           f"held-out trial {diag.data.trials[i].name} (sE "
-                           f"{diag.data.trials[i].sE:g}): worst nominal fit", out / "example.png")
-        names.append("example.png")
+        title = (f"held-out trial {diag.data.trials[i].name} (sE "
+                 f"{diag.data.trials[i].sE:g}): worst nominal fit")
+        draw("example.png", lambda p: plots.plot_example(
+            diag.data.t_eval_s, ref, ref - diag.nominal.heldout_resid[i],
+            ref - final.heldout_resid[i] if final else None, title, p))
+    if failed:
+        report["figures_failed"] = failed
     return names
 
 
@@ -368,13 +454,14 @@ def _html(report: dict, figures: list[str]) -> str:
     parts += [f"<li>{html.escape(line)}</li>" for line in report["evidence"]["summary"]]
     parts.append("</ul>")
     parts.append(
-        f"<p>Held-out NRMSE: nominal {h['nominal_nrmse_pct']:.3g} %, augmented "
-        f"{h['augmented_nrmse_pct']:.3g} % (shrink {h['shrink_pct']:.0f} %); repeat-to-repeat "
-        f"noise floor {h['noise_floor_nrmse_pct']:.3g} %, sensor noise in the steady lead-in "
+        f"<p>Held-out NRMSE: nominal {_fmt(h['nominal_nrmse_pct'])} %, augmented "
+        f"{_fmt(h['augmented_nrmse_pct'])} % (shrink {_fmt(h['shrink_pct'], '.0f')} %); "
+        f"repeat-to-repeat noise floor {_fmt(h['noise_floor_nrmse_pct'])} %, sensor noise in "
+        "the steady lead-in "
         f"{_fmt(h['sensor_floor_nrmse_pct'])} %; the gap beyond sensor noise shrinks "
         f"{_fmt(h['excess_shrink_pct'], '.0f')} %. In-sample: nominal "
-        f"{report['insample']['nominal_nrmse_pct']:.3g} %, augmented "
-        f"{report['insample']['augmented_nrmse_pct']:.3g} %.</p>")
+        f"{_fmt(report['insample']['nominal_nrmse_pct'])} %, augmented "
+        f"{_fmt(report['insample']['augmented_nrmse_pct'])} %.</p>")
     parts.append("<h2>Which: ranking</h2>")
     if report.get("candidates_not_fitted"):
         parts.append(f"<p>{html.escape(report['candidates_not_fitted'])} "

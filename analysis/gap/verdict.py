@@ -49,7 +49,11 @@ Verdict. ``none``: the nominal gap is not significant (a candidate that would fi
 within noise is reported as such, not named). ``effect`` / ``pair``: a candidate (pair) is
 supported and the nominal gap is significant; ``remaining`` then says whether what it
 leaves is still significant. ``unexplained``: the nominal gap is significant and no
-candidate or pair is supported. ``muscle_twin``: the template's answer still leaves a
+candidate or pair is supported. ``likely``: the same, but one candidate wins on evidence
+(``dIC < -ic_margin``) and shrinks the held-out NRMSE by less than ``min_shrink_pct`` while
+trial-to-trial scatter dominates the held-out error (:func:`likely_candidate`): the
+held-out test cannot separate it from scatter, so the verdict names it as *likely*, with
+its evidence and the repeats of each sE that would decide - never "something else". ``muscle_twin``: the template's answer still leaves a
 significant gap and the physiological twin (:mod:`nmsid.analysis.muscle`) predicts the held-out
 repeats better (see :mod:`nmsid.analysis.muscle.candidate`); ``remaining`` is then its own.
 Narrow-band components: :mod:`nmsid.analysis.gap.narrowband`.
@@ -403,9 +407,10 @@ class GapVerdict:
     Attributes
     ----------
     verdict : str
-        ``none``, ``effect``, ``pair``, ``unexplained`` or ``muscle_twin``.
+        ``none``, ``effect``, ``pair``, ``likely``, ``unexplained`` or ``muscle_twin``.
     label : str or None
-        The effect (pair) named.
+        The effect (pair) named (for ``likely`` the candidate of best evidence: its
+        evidence in ``verdict["likely"]``).
     remaining, nominal_gap : dict
         The final and the nominal model's gap: beyond noise (``beyond_noise_pct_typical``),
         its common part (``systematic_pct``) and trial-to-trial part
@@ -492,9 +497,40 @@ def _scatter_words(fig: dict, scatter_pct: float | None) -> str:
             f"between repeats {fig.get('trial_to_trial_pct') or 0.0:.2f} %{between}")
 
 
+def _likely_sentence(lk: Likely, nom: float, min_shrink_pct: float = 10.0) -> str:
+    words = effect_words(lk.label)
+    parts = (f"{lk.trial_to_trial_pct:.2f} % of the response differs between repeats, "
+             f"{lk.systematic_pct or 0.0:.2f} % is common to them"
+             if lk.trial_to_trial_pct is not None else "the repeats differ by more than "
+             "the gap")
+    if lk.more_repeats is None:
+        decide_ = ("the held-out repeats do not yet favour it trial by trial: more repeats "
+                   "of each sE are needed to decide")
+    elif lk.more_repeats == 0:
+        decide_ = (f"its held-out improvement is already consistent trial by trial (z = "
+                   f"{lk.z_heldout:.1f}), only small beside the scatter")
+    else:
+        decide_ = (f"about {lk.more_repeats} more repeat{'s' if lk.more_repeats > 1 else ''} "
+                   f"of each sE would decide (the held-out improvement is at z = "
+                   f"{lk.z_heldout:.1f} trial by trial)")
+    return (f"Likely {words}, not separable from scatter: the nominal model misses "
+            f"{nom:.2f} % of the response beyond noise (significant), and {lk.label} has the "
+            f"best evidence of the candidates (dIC {lk.delta_ic:.0f} against the nominal "
+            f"model), but it shrinks the held-out NRMSE by only {lk.shrink_pct:.1f} % "
+            f"({lk.nominal_nrmse_pct:.3g} -> {lk.heldout_nrmse_pct:.3g} %, short of "
+            f"{min_shrink_pct:g} %) because trial-to-trial scatter dominates the held-out "
+            f"error ({parts}); {decide_}.")
+
+
 def sentence(verdict: str, label: str | None, nominal: dict, remaining: dict,
-             scatter_pct: float | None = None) -> str:
-    """The verdict in one or two sentences a physiologist understands."""
+             scatter_pct: float | None = None, *, likely: Likely | None = None,
+             muscle_floor_multiple: float = 3.0, muscle_to_floor: float | None = None,
+             min_shrink_pct: float = 10.0) -> str:
+    """The verdict in one or two sentences a physiologist understands.
+
+    ``likely``: the candidate of :func:`likely_candidate` (verdict ``likely``).
+    ``muscle_to_floor``: the muscle twin's held-out NRMSE over the noise floor; "the
+    remainder is muscle physics" only within ``muscle_floor_multiple`` of it."""
     rem = remaining.get("beyond_noise_pct_typical") or 0.0
     nom = nominal.get("beyond_noise_pct_typical") or 0.0
     where = remaining.get("where_summary") or ""
@@ -522,6 +558,8 @@ def sentence(verdict: str, label: str | None, nominal: dict, remaining: dict,
         return ("The nominal second-order model predicts held-out repeats as well as the "
                 f"measurement noise allows (what it misses beyond noise, {nom:.2f} % of the "
                 "response, is not significant): no unmodelled effect is needed." + tail)
+    if verdict == "likely" and likely is not None:
+        return _likely_sentence(likely, nom, min_shrink_pct) + tail
     if verdict == "unexplained":
         common = nominal.get("systematic_pct")
         split = (f"; {common:.2f} % common to the repeats of each sE, "
@@ -533,7 +571,12 @@ def sentence(verdict: str, label: str | None, nominal: dict, remaining: dict,
                 "it: something else is at "
                 f"work{(' - ' + where) if where else ''}." + tail)
     if verdict == "muscle_twin":
-        text = ("The remainder is muscle physics: the second-order template (with the best "
+        close = muscle_to_floor is None or muscle_to_floor <= muscle_floor_multiple
+        lead = ("The remainder is muscle physics" if close else
+                f"The muscle twin is the best model here but not the whole story: it leaves "
+                f"{muscle_to_floor:.1f}x the noise floor between repeats (muscle physics is "
+                f"claimed only within {muscle_floor_multiple:g}x)")
+        text = (lead + ": the second-order template (with the best "
                 "library effects) leaves a significant gap, and the physiological twin (two "
                 "Hill-type muscles with recruitment, activation dynamics and force-dependent "
                 "stiffness and damping, one parameter set for every sE) predicts held-out "
@@ -766,6 +809,9 @@ def assess(diag, muscle=None, nominal_tests: tuple[dict, list] | None = None) ->
     nominal_sig = nom["significant_total"] if kind == "none" else \
         bool(nom["significant"] or nom["narrow_band_significant"])
     verdict = decide(nominal_sig, kind, rem["significant_total"])
+    likely = likely_candidate(diag, nom) if verdict == "unexplained" else None
+    if likely is not None:
+        verdict = "likely"
     if verdict == "none":      # nothing named: what remains is the nominal model's gap
         rem, comps, res = nom, nom_comps, diag.nominal
     w = where(diag, res.heldout_resid, comps, _harmonics(diag, res)).to_dict()
@@ -802,21 +848,214 @@ def assess(diag, muscle=None, nominal_tests: tuple[dict, list] | None = None) ->
     else:
         note = None
     scatter_pct = getattr(diag, "noise_floor_nrmse_pct", None)
+    if likely is not None:
+        label = likely.label
     text = sentence(verdict, label, nom, dict(rem, where_summary=w["summary"], where=w,
                                               significant=rem["significant_total"]),
-                    scatter_pct)
+                    scatter_pct, likely=likely,
+                    muscle_floor_multiple=getattr(diag.settings, "muscle_floor_multiple", 3.0),
+                    muscle_to_floor=_muscle_to_floor(diag, muscle),
+                    min_shrink_pct=diag.settings.min_shrink_pct)
     try:
         fatigue = gap_fatigue(diag)
     except (ValueError, FloatingPointError):
         fatigue = None
-    named = verdict in ("effect", "pair", "muscle_twin")
+    named = verdict in ("effect", "pair", "muscle_twin", "likely")
+    fatigue_first = False
     if fatigue is not None and fatigue.significant:
+        fatigue_first = fatigue_is_largest(diag, label if named else None)
         if named and "fatigue" in (label or ""):
             text += f" Measured from each trial's gain: {fatigue.sentence()}."
+        elif fatigue_first:
+            text = (f"Fatigue is the largest single effect here: {fatigue.sentence()} "
+                    "(each trial's gain against the stimulation given before it, the "
+                    "levels' own gains aside; its candidate shrinks the held-out NRMSE "
+                    "most of all). " + text)
         else:
             text += (f" Beside it, the session shows {fatigue.sentence()}: each trial's gain "
                      "against the stimulation given before it, the levels' own gains aside.")
-    return GapVerdict(verdict=verdict, label=label if named else None, remaining=remaining,
-                      nominal_gap=nominal, sentence=text, not_named=note,
-                      repeat_scatter_pct=float(scatter_pct) if scatter_pct is not None
-                      else float("nan"), fatigue=fatigue)
+    out = GapVerdict(verdict=verdict, label=label if named else None, remaining=remaining,
+                     nominal_gap=nominal, sentence=text, not_named=note,
+                     repeat_scatter_pct=float(scatter_pct) if scatter_pct is not None
+                     else float("nan"), fatigue=fatigue)
+    if likely is not None:
+        out.extra["likely"] = likely.to_dict()
+    out.extra["fatigue_named"] = bool(fatigue_first)
+    qc = qc_basis(diag)
+    out.extra["qc"] = qc
+    if qc["n_excluded"]:
+        out.sentence = qc_words(qc) + out.sentence
+    return out
+
+
+def fatigue_is_largest(diag, named_label: str | None) -> bool:
+    """Fatigue is named first when the verdict does not name it, yet its candidate
+    shrinks the held-out NRMSE more than any other single candidate (and at all): on a
+    physics participant the muscle's own non-linearity keeps every candidate short of
+    support, but the gain lost through the session is still the largest thing found."""
+    if named_label and "fatigue" in named_label:
+        return False
+    cands = [r for r in getattr(diag, "candidates", []) or []
+             if math.isfinite(r.shrink_pct)]
+    if not cands:
+        return False
+    top = max(cands, key=lambda r: r.shrink_pct)
+    return bool(top.label == "fatigue" and top.shrink_pct > 0)
+
+
+def _reason_head(reason: str) -> str:
+    """A QC reason's kind: its text up to the first ':', ';' or '(' (what groups them)."""
+    for sep in (":", ";", "("):
+        reason = reason.split(sep)[0]
+    return reason.strip() or "excluded"
+
+
+def qc_basis(diag) -> dict:
+    """What the verdict rests on after quality control: trials used, excluded and why.
+
+    Returns
+    -------
+    dict
+        ``n_used``, ``n_excluded``, ``n_completed`` (used + excluded), ``share_used``,
+        ``min_share`` (``GapSettings.min_trial_share``), ``partial`` (the verdict rests on
+        fewer than that share of the completed trials) and ``reasons`` (count per kind).
+    """
+    d = diag.data
+    excluded = dict(getattr(d, "excluded", {}) or {})
+    n_used = int(d.n_trials)
+    n_ex = len(excluded)
+    total = n_used + n_ex
+    share = n_used / total if total else float("nan")
+    min_share = float(getattr(diag.settings, "min_trial_share", 0.75))
+    reasons: dict[str, int] = {}
+    for r in excluded.values():
+        head = _reason_head(str(r))
+        reasons[head] = reasons.get(head, 0) + 1
+    return {"n_used": n_used, "n_excluded": n_ex, "n_completed": total,
+            "share_used": share, "min_share": min_share,
+            "partial": bool(total and share < min_share), "reasons": reasons,
+            "excluded": sorted(excluded)}
+
+
+def qc_words(qc: dict) -> str:
+    """The sentence's opening when quality control excluded trials."""
+    kinds = sorted(qc["reasons"].items(), key=lambda kv: -kv[1])
+    why = "; ".join(f"{n} {k}" for k, n in kinds[:3]) + ("; ..." if len(kinds) > 3 else "")
+    names = ", ".join(qc["excluded"][:4]) + (", ..." if len(qc["excluded"]) > 4 else "")
+    if qc["partial"]:
+        return (f"[Partial verdict: quality control excluded {qc['n_excluded']} of "
+                f"{qc['n_completed']} trials ({why}: {names}); the verdict rests on only "
+                f"{qc['n_used']} ({100 * qc['share_used']:.0f} %, below the "
+                f"{100 * qc['min_share']:.0f} % a full verdict needs) and may change "
+                "with them.] ")
+    return (f"[Quality control excluded {qc['n_excluded']} of {qc['n_completed']} trials "
+            f"({why}: {names}); the verdict rests on the other {qc['n_used']}.] ")
+
+
+@dataclass(frozen=True)
+class Likely:
+    """A candidate that wins on evidence but that the held-out test cannot separate from
+    trial-to-trial scatter (:func:`likely_candidate`).
+
+    Attributes
+    ----------
+    label : str
+        The candidate (effect name).
+    delta_ic : float
+        Its information criterion against the nominal model (training trials).
+    shrink_pct : float
+        Its held-out NRMSE's relative shrink (below ``min_shrink_pct``).
+    heldout_nrmse_pct, nominal_nrmse_pct : float
+    z_heldout : float
+        The paired held-out improvement (residual power per trial, nominal minus
+        candidate) in standard errors.
+    more_repeats : int or None
+        Repeats of each sE to add for that improvement to reach ``significance_z``
+        standard errors (0: it has; None: it does not improve on the held-out trials).
+    trial_to_trial_pct, systematic_pct : float or None
+        The nominal misfit's parts (:class:`MisfitSplit`).
+    """
+
+    label: str
+    delta_ic: float
+    shrink_pct: float
+    heldout_nrmse_pct: float
+    nominal_nrmse_pct: float
+    z_heldout: float
+    more_repeats: int | None
+    trial_to_trial_pct: float | None
+    systematic_pct: float | None
+
+    def to_dict(self) -> dict:
+        """Plain form (the report's ``verdict.likely``)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+#: The paired held-out improvement (in standard errors) a candidate needs to be "likely".
+LIKELY_MIN_Z = 1.5
+
+
+def likely_candidate(diag, nominal_tests: dict) -> Likely | None:
+    """The candidate of best evidence when nothing is supported and scatter hides it.
+
+    Conditions: some single candidate has ``dIC < -ic_margin`` (it wins on evidence, on
+    the training trials) and predicts the held-out repeats better than the nominal
+    model (shrink > 0), but less than ``min_shrink_pct``, and consistently so trial by
+    trial (paired ``z >= LIKELY_MIN_Z``: a fatigue trend fitted to random gain scatter
+    gains dIC, since the criterion counts samples, not trials, but no held-out trial);
+    ``baseline_drift`` is not eligible (it fits each held-out trial's own baseline, so
+    its held-out improvement is not a test); and trial-to-trial scatter
+    dominates the nominal model's held-out error (its part differing between repeats is
+    larger than the part common to them, or the repeats differ by at least half the
+    nominal NRMSE without any model). Then the held-out test cannot separate it from
+    scatter: the answer is "likely X", never "something else".
+
+    The repeats that would decide: the paired held-out improvement ``d_i`` (residual
+    power of the nominal minus the candidate on held-out trial ``i``) is at
+    ``z = mean(d) / (sd(d) / sqrt(n))``; ``n (z_crit / z)^2`` trials reach ``z_crit``.
+    Among the eligible, the lowest dIC is named.
+    """
+    s = diag.settings
+    cands = [r for r in getattr(diag, "candidates", []) or []
+             if r.delta_ic < -s.ic_margin and 0.0 < r.shrink_pct < s.min_shrink_pct
+             and math.isfinite(r.heldout_nrmse_pct)
+             and not getattr(r.candidate, "fits_baseline", False)]
+    if not cands:
+        return None
+    nom_pct = diag.nominal.heldout_nrmse_pct
+    t2t = nominal_tests.get("trial_to_trial_pct")
+    sysm = nominal_tests.get("systematic_pct")
+    floor = getattr(diag, "noise_floor_nrmse_pct", float("nan"))
+    scatter_dominates = bool((t2t is not None and sysm is not None and t2t > sysm)
+                             or (math.isfinite(floor) and floor >= 0.5 * nom_pct))
+    if not scatter_dominates:
+        return None
+    ok = diag.tested
+    p_nom = np.mean(diag.nominal.heldout_resid[ok] ** 2, axis=1)
+    scored = []
+    for r in cands:
+        d = p_nom - np.mean(r.heldout_resid[ok] ** 2, axis=1)
+        n = len(d)
+        sd = float(np.std(d, ddof=1)) if n > 1 else float("nan")
+        z = float(np.mean(d)) / (sd / math.sqrt(n)) if n > 1 and sd > 0 else float("nan")
+        if math.isfinite(z) and z >= LIKELY_MIN_Z:
+            scored.append((r, z, n))
+    if not scored:
+        return None
+    best, z, n = min(scored, key=lambda item: item[0].delta_ic)
+    n_levels = max(len(np.unique(diag.data.level[ok])), 1)
+    need = n * (s.significance_z / z) ** 2
+    more: int | None = max(0, math.ceil(need / n_levels - n / n_levels))
+    return Likely(label=best.label, delta_ic=float(best.delta_ic),
+                  shrink_pct=float(best.shrink_pct),
+                  heldout_nrmse_pct=float(best.heldout_nrmse_pct),
+                  nominal_nrmse_pct=float(nom_pct), z_heldout=z, more_repeats=more,
+                  trial_to_trial_pct=t2t, systematic_pct=sysm)
+
+
+def _muscle_to_floor(diag, muscle) -> float | None:
+    """The muscle twin's held-out NRMSE over the repeat-to-repeat noise floor."""
+    floor = getattr(diag, "noise_floor_nrmse_pct", float("nan"))
+    if muscle is None or not (math.isfinite(floor) and floor > 0):
+        return None
+    return float(muscle.heldout_nrmse_pct) / floor

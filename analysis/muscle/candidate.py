@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nmsid.analysis.gap.models import nuisance_basis
+from nmsid.analysis.muscle.errors import MuscleFitError
 from nmsid.analysis.muscle.fit import (
     FoldStep,
     MuscleFit,
@@ -61,6 +62,27 @@ class MuscleResult:
     params: Mapping[str, float] = field(default_factory=dict)
     """The fitted parameters by name (:attr:`MuscleFit.params`)."""
     label: str = LABEL
+    converged: bool = True
+    """False when the fit or a fold's prediction did not give a finite residual (the
+    simulation overflowed, the solver failed): then nothing of it is scored, ``supported``
+    is False and :attr:`note` says why; the report gives it a row that says so."""
+    note: str = ""
+    """Why the fit was not scored (empty when it was)."""
+    with_fatigue: bool = False
+    """Fitted with the session's fatigue (``MuscleFitSettings.trial_gain``)."""
+
+
+def not_converged(note: str, full: MuscleFit | None, shape: tuple[int, int],
+                  fit_s: float, cpu_s: float) -> MuscleResult:
+    """The result of a muscle-twin fit that did not converge: every figure NaN, not
+    supported, ``note`` saying what failed."""
+    nan = float("nan")
+    return MuscleResult(fold_fits=[], full=full,  # type: ignore[arg-type]
+                        heldout_resid=np.full(shape, np.nan), heldout_nrmse_pct=nan,
+                        insample_nrmse_pct=nan, delta_ic=nan, shrink_pct=nan,
+                        shrink_vs_template_pct=nan, supported=False, fit_s=fit_s,
+                        cpu_s=cpu_s, params=full.params if full is not None else {},
+                        converged=False, note=note)
 
 
 def _nrmse(r, ref):
@@ -89,7 +111,29 @@ def score_muscle(run, nominal, final, settings, *, fit_settings: MuscleFitSettin
     c0 = time.process_time()
     fs = fit_settings or MuscleFitSettings()
     d = run.data
+    try:
+        return _score(run, nominal, final, settings, fs, t0, c0)
+    except (FloatingPointError, OverflowError, ArithmeticError, np.linalg.LinAlgError,
+            ValueError) as exc:
+        # a model that overflows or a solver that fails on this session: a row that says
+        # so, never a crash (MuscleFitError, a setting that does not suit, is a
+        # GapInputError and not caught here)
+        if isinstance(exc, MuscleFitError):
+            raise
+        log.warning("muscle twin not fitted: %s", exc)
+        return not_converged(f"the fit did not converge ({type(exc).__name__}: {exc})",
+                             None, d.y_N.shape, time.perf_counter() - t0,
+                             time.process_time() - c0)
+
+
+def _score(run, nominal, final, settings, fs: MuscleFitSettings, t0: float, c0: float
+           ) -> MuscleResult:
+    d = run.data
     full = fit_muscle(d, fs, label="all trials")
+    if not (np.isfinite(full.rss) and np.all(np.isfinite(full.theta))):
+        return not_converged("the fit on all trials did not converge (its residual is not "
+                             "finite: the simulation overflowed)", full, d.y_N.shape,
+                             time.perf_counter() - t0, time.process_time() - c0)
     # each fold's twin: one damped Gauss-Newton step from the fit on every trial towards the
     # optimum of its training trials (fit.subset_refit: one batched simulation of
     # every candidate step on every trial gives the held-out and training residuals)
@@ -110,12 +154,17 @@ def score_muscle(run, nominal, final, settings, *, fit_settings: MuscleFitSettin
         tr = run.train[k]
         ins_den += float(np.sum(((tr.y_N - (tr.y_N @ _Q(tr)) @ _Q(tr).T)) ** 2))
     tested = ~np.isnan(resid[:, 0])
+    if not np.all(np.isfinite(resid[tested])) or not np.isfinite(ins_num):
+        return not_converged("the held-out predictions did not converge (a fold's twin "
+                             "overflowed)", full, d.y_N.shape, time.perf_counter() - t0,
+                             time.process_time() - c0)
     res = MuscleResult(fold_fits=fits, full=full, heldout_resid=resid,
                        heldout_nrmse_pct=_nrmse(resid[tested], run.reference[tested]),
                        insample_nrmse_pct=100.0 * np.sqrt(ins_num / ins_den),
                        params=full.params)
     n_levels = len(d.sE_levels)
-    dk = len(full.theta) - (3 * n_levels + 1)
+    # the session's fatigue, when the fit carries it, counts as its two parameters
+    dk = len(full.theta) - (3 * n_levels + 1) + (2 if fs.trial_gain is not None else 0)
     dic = [run.nu * f.n_samples * np.log(f.rss / nf.rss) + 2 * dk
            for f, nf in zip(fits, nominal.fold_fits)]
     res.delta_ic = float(np.mean(dic))
@@ -127,6 +176,7 @@ def score_muscle(run, nominal, final, settings, *, fit_settings: MuscleFitSettin
                          and res.shrink_pct >= settings.min_shrink_pct
                          and res.shrink_vs_template_pct >= settings.min_shrink_pct
                          and res.delta_ic < final_dic - settings.ic_margin)
+    res.with_fatigue = fs.trial_gain is not None
     res.fit_s = time.perf_counter() - t0
     res.cpu_s = time.process_time() - c0
     log.info("muscle twin: held-out NRMSE %.3f %% (nominal %.3f %%, template %.3f %%), "

@@ -111,6 +111,12 @@ class MuscleFitSettings:
 
     fs_fit_Hz: float = 100.0
     """Simulation rate of the fit; must divide the gap data's simulation rate."""
+    trial_gain: tuple[float, ...] | None = None
+    """Each trial's gain relative to the session's mean (the session's fatigue,
+    :meth:`nmsid.analysis.fatigue.FatigueResult.gain_at` at the trial): the model's force
+    of trial ``i`` is multiplied by it, so that one muscle parameter set is fitted to a
+    fatiguing session. None (or a length other than the data's trials): 1 for every
+    trial."""
     max_iter: int = 40
     """At most this many Jacobians (least_squares' ``max_nfev`` is twice it)."""
     rtol: float = 1e-3
@@ -198,6 +204,9 @@ class _Problem:
         if self.idx[-1] >= self.rE.shape[1]:
             self.idx = self.idx[self.idx < self.rE.shape[1]]
         self.y = data.y_N[:, : len(self.idx)]
+        g = s.trial_gain
+        self.gain = np.asarray(g, float) if g is not None and len(g) == data.y_N.shape[0] \
+            else None
         self.Q = nuisance_basis(data.t_eval_s[: len(self.idx)], 0.0)
         # the measured force's filter chain (Savitzky-Golay and low-pass at the raw rate),
         # applied to the model's force by its exact frequency response at the fit rate:
@@ -217,7 +226,8 @@ class _Problem:
         th = np.atleast_2d(theta)
         x = simulate_batch(th, self.rE_u, self.sE_u, self.dt_s)
         x = self.filter(x, th[:, PARAM_NAMES.index("delay_s")])
-        return x[:, self.inverse][..., self.idx]
+        x = x[:, self.inverse][..., self.idx]
+        return x * self.gain[None, :, None] if self.gain is not None else x
 
     def filter(self, x: np.ndarray, delay_s: np.ndarray) -> np.ndarray:
         """The measured force's filter chain (``self.H``) and each parameter set's delay

@@ -55,9 +55,21 @@ def muscle_section(diag) -> dict | None:
     final = diag.best_pair or diag.best
     tmpl = final if final is not None else diag.nominal
     floor = diag.noise_floor_nrmse_pct
+    if not getattr(m, "converged", True):
+        # a row that says so: the template's figures, nothing of the muscle twin's
+        return {"supported": False, "converged": False, "note": m.note,
+                "heldout": {"nominal_nrmse_pct": diag.nominal.heldout_nrmse_pct,
+                            "template": tmpl.label,
+                            "template_nrmse_pct": tmpl.heldout_nrmse_pct,
+                            "muscle_nrmse_pct": None, "noise_floor_nrmse_pct": floor,
+                            "sensor_floor_nrmse_pct": diag.sensor_floor_nrmse_pct,
+                            "muscle_to_noise_floor": None},
+                "parameters": [], "not_determined": [], "fit_s": m.fit_s,
+                "remainder": {"sentence": f"the muscle twin was not scored: {m.note}"}}
     where_m = _where(diag, m.heldout_resid)
     return {
-        "supported": bool(m.supported),
+        "supported": bool(m.supported), "converged": True, "note": "",
+        "with_fatigue": bool(getattr(m, "with_fatigue", False)),
         "heldout": {"nominal_nrmse_pct": diag.nominal.heldout_nrmse_pct,
                     "template": tmpl.label, "template_nrmse_pct": tmpl.heldout_nrmse_pct,
                     "muscle_nrmse_pct": m.heldout_nrmse_pct,

@@ -33,7 +33,8 @@ def test_exact_exponential_gains_give_the_loss_in_closed_form():
     r = fit_fatigue(g, level, c, total_stim_s=total)
     assert r.loss_pct == pytest.approx(20.0, abs=1e-9)
     assert r.significant and r.n_levels == 8 and r.dof == 24 - 8 - 1
-    assert r.ci_low_pct == pytest.approx(20.0, abs=1e-6)
+    assert r.shape == "exponential"
+    assert r.ci_low_pct <= 20.0 <= r.ci_high_pct and r.ci_high_pct - r.ci_low_pct < 0.5
 
 
 def test_slope_and_standard_error_match_ordinary_least_squares_with_level_dummies():
@@ -47,10 +48,12 @@ def test_slope_and_standard_error_match_ordinary_least_squares_with_level_dummie
     r = fit_fatigue(np.exp(y), level, c, total_stim_s=total)
     assert r.rate_per_100s == pytest.approx(-100 * beta[-1], rel=1e-9)
     assert r.z == pytest.approx(-beta[-1] / math.sqrt(cov[-1, -1]), rel=1e-9)
+    assert r.dof == dof
+    # the interval frees the shape: at least as wide as the constant-rate t interval
     t = stats.t.ppf(0.975, dof)
     hi = 100 * -math.expm1(-(-beta[-1] + t * math.sqrt(cov[-1, -1])) * total)
-    assert r.ci_high_pct == pytest.approx(hi, rel=1e-9)
-    assert r.dof == dof
+    lo = 100 * -math.expm1(-(-beta[-1] - t * math.sqrt(cov[-1, -1])) * total)
+    assert r.ci_low_pct <= lo + 0.3 and r.ci_high_pct >= hi - 0.3
 
 
 def test_potentiation_is_a_negative_loss_and_named_so():
@@ -60,6 +63,66 @@ def test_potentiation_is_a_negative_loss_and_named_so():
     r = fit_fatigue(g, level, c, total_stim_s=total)
     assert r.loss_pct < -10 and r.significant
     assert r.sentence().startswith("potentiation: the gain gained")
+
+
+def _gains(rng, shape: str, loss: float, scatter: float = 0.05):
+    """45 trials (15 sE x 3, shuffled) with the loss over the session in that shape."""
+    level = np.repeat(np.arange(15), 3)
+    c = rng.permutation(45) * 15.0 + 12.5
+    x = c / 675.0
+    if shape == "linear":
+        g = 1 - loss * x
+    elif shape == "exponential":
+        g = (1 - loss) ** x
+    else:                                 # saturating: time constant 7-25 % of the session
+        tau = rng.uniform(0.07, 0.25)
+        g = 1 - loss * -np.expm1(-x / tau) / -np.expm1(-1 / tau)
+    g = g * np.exp(rng.normal(0, scatter, 45)) * np.exp(rng.uniform(0, 2, 15))[level]
+    return g, level, c
+
+
+@pytest.mark.parametrize("shape", ["linear", "exponential", "saturating"])
+def test_the_interval_covers_the_loss_whatever_its_shape(shape):
+    """Issue 40: a constant-rate interval missed saturating losses (18.7 [16.9, 20.5]
+    against 21.7 %). 60 sessions per shape, 5 % scatter, 12-40 % lost: the interval holds
+    the truth in >= 90 % (95 % nominal; seeded, so deterministic)."""
+    rng = np.random.default_rng([40, len(shape)])
+    hits, shapes = 0, []
+    for _ in range(60):
+        loss = rng.uniform(0.12, 0.40)
+        g, level, c = _gains(rng, shape, loss)
+        r = fit_fatigue(g, level, c, total_stim_s=675.0)
+        hits += r.ci_low_pct <= 100 * loss <= r.ci_high_pct
+        shapes.append(r.shape)
+    assert hits >= 54, hits
+    if shape == "saturating":      # the shape is told apart when it matters most
+        assert shapes.count("saturating") >= 40, shapes
+
+
+def test_a_saturating_loss_is_not_reported_short():
+    """The former constant-rate fit reported a fast-then-flat 30 % loss as about 20 %."""
+    rng = np.random.default_rng(7)
+    level = np.repeat(np.arange(15), 3)
+    c = rng.permutation(45) * 15.0 + 12.5
+    g = (1 - 0.30 * -np.expm1(-c / 100.0) / -np.expm1(-6.75)) \
+        * np.exp(rng.normal(0, 0.02, 45)) * np.exp(rng.uniform(0, 2, 15))[level]
+    r = fit_fatigue(g, level, c, total_stim_s=675.0)
+    assert r.shape == "saturating" and abs(r.loss_pct - 30.0) < 3.0
+    assert r.ci_low_pct < 30.0 < r.ci_high_pct
+    assert float(r.gain_at(675.0)) == pytest.approx(1 - r.loss_pct / 100, abs=1e-9)
+    assert float(r.gain_at(0.0)) == pytest.approx(1.0)
+
+
+def test_the_sentence_gives_figure_and_interval_in_one_sign_convention():
+    """Issue 39: 'the gain gained 0.2 % (95 % CI -0.7 to 0.3 %)' mixed an absolute figure
+    with a signed interval of the loss."""
+    base = dict(se_pct=0.3, rate_per_100s=-0.03, z=-0.5, significant=False,
+                total_stim_s=675.0, n_trials=45, n_levels=15, dof=29, residual_sd_pct=5.0)
+    up = FatigueResult(loss_pct=-0.2, ci_low_pct=-0.7, ci_high_pct=0.3, **base)
+    assert "gained 0.2 % (95 % CI -0.3 to 0.7 % gained)" in up.sentence()
+    down = FatigueResult(loss_pct=12.0, ci_low_pct=9.0, ci_high_pct=15.5,
+                         **dict(base, significant=True, z=6.0))
+    assert "lost 12.0 % (95 % CI 9.0 to 15.5 % lost)" in down.sentence()
 
 
 def test_small_or_uncertain_changes_are_not_significant():
