@@ -155,6 +155,8 @@ JSON_DOCUMENTS = {
     "analysis/gap/report.py: FinalParams.for_twin":
         "the twin file's effect parameters as its JSON writes them (twin_params' input)",
     "analysis/gap/report.py: json_safe": "any value made JSON-safe (NaN -> null), as written",
+    "analysis/gap/report.py: fatigue_for_twin": "the twin file's fatigue effect as written",
+    "analysis/gap/verdict.py: qc_basis": "the gap report's `qc` item as written",
     "analysis/joint_twins.py: joint_twins_to_dict": "the multi-joint twin file as written",
     "analysis/joint_twins.py: load_joint_twins":
         "the file's `joints` mapping, joint name -> Twin (each a result object)",

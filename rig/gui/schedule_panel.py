@@ -115,7 +115,7 @@ def time_left_s(statuses: Sequence[str], trial_s: float, rest_s: float,
     Examples
     --------
     >>> time_left_s(["done", "running", "pending"], trial_s=15.0, rest_s=60.0, in_trial_s=5.0)
-    80.0
+    85.0
     """
     running = sum(st == "running" for st in statuses)
     pending = sum(st == "pending" for st in statuses)
