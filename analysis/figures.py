@@ -99,9 +99,10 @@ def plot_level_fits(session_result, path: str | Path) -> Path:
         _trace(ax_r, f.t_s, f.residual_N, color=c["residual"], lw=0.6,
                label="residual (measured - fitted)")
         ax_r.axhline(0.0, color="k", lw=0.5)
+        # plain Unicode symbols: mathtext's parser cost ~1 s over 15 panel titles
         ax.set_title(f"sE {lv.sE:.2f}: fit {f.fit_pct:.1f} %\n"
-                     rf"$K_p$ {f.Kp:.3g} {unit}, $\omega_n$ {f.wn_rad_s:.3g} rad/s, "
-                     rf"$\zeta$ {f.zeta:.3g}", fontsize=8.5)
+                     f"Kp {f.Kp:.3g} {unit}, \u03c9n {f.wn_rad_s:.3g} rad/s, "
+                     f"\u03b6 {f.zeta:.3g}", fontsize=8.5)
         ax.tick_params(labelbottom=False)
         if i % cols == 0:
             ax.set_ylabel(measured)
@@ -115,8 +116,9 @@ def plot_level_fits(session_result, path: str | Path) -> Path:
                plt.Line2D([], [], color=c["residual"], lw=0.8,
                           label="residual (measured - fitted), own panel")]
     fig.legend(handles=handles, loc="upper center", ncol=3, bbox_to_anchor=(0.5, 0.985))
-    fig.subplots_adjust(top=1.0 - 0.95 / (2.9 * rows + 0.6))
-    return style.save(fig, path)[0]
+    fig.subplots_adjust(top=1.0 - 0.95 / (2.9 * rows + 0.6), left=0.07, right=0.98,
+                        bottom=0.5 / (2.9 * rows + 0.6))
+    return style.save(fig, path, tight=False)[0]
 
 
 def plot_parameter_curves(selection, parameter: str, path: str | Path,

@@ -59,9 +59,13 @@ def pyplot():
     return plt
 
 
-def save(fig, png_path: str | Path) -> list[Path]:
+def save(fig, png_path: str | Path, *, tight: bool = True) -> list[Path]:
     """Write ``fig`` as ``png_path`` (:data:`DPI`) and as the PDF of the same name beside
     it, then close it.
+
+    ``tight``: crop to everything drawn (legends placed outside the axes included); a
+    figure laid out in full by its own ``subplots_adjust`` passes False and saves the
+    page as it is (measuring every text of a 30-axes figure for the box cost ~1 s).
 
     Returns
     -------
@@ -74,7 +78,8 @@ def save(fig, png_path: str | Path) -> list[Path]:
     try:
         # the tight box once for both files (savefig's bbox_inches="tight" lays the figure
         # out again for each): legends placed outside the axes stay inside the image
-        box = fig.get_tightbbox(fig.canvas.get_renderer()).padded(_PAD_IN)
+        box = fig.get_tightbbox(fig.canvas.get_renderer()).padded(_PAD_IN) if tight \
+            else None
         fig.savefig(png, dpi=DPI, bbox_inches=box)
         fig.savefig(pdf, bbox_inches=box)
     finally:
