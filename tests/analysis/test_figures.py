@@ -23,9 +23,9 @@ def drawn(monkeypatch):
     figures = []
     real = style.save
 
-    def keep(fig, path):
+    def keep(fig, path, **kwargs):
         figures.append({"texts": _texts(fig), "axes": fig.axes})
-        return real(fig, path)
+        return real(fig, path, **kwargs)
 
     monkeypatch.setattr(style, "save", keep)
     return figures
