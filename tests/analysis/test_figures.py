@@ -101,7 +101,7 @@ def test_level_fits_draw_measurement_fit_and_residual_panels(tmp_path, drawn):
     (fig,) = drawn
     text = " ".join(fig["texts"])
     assert "participant P01" in text and "average" not in text
-    assert "not identified" in text and r"$\omega_n$" in text and "rad/s" in text
+    assert "not identified" in text and "\u03c9n" in text and "rad/s" in text
     assert "residual" in text and "measured" in text and "fitted" in text
     # per identified level: the measured and fitted traces in one axes, the residual in
     # the axes beneath (its own panel), the one-sample spike kept by the envelope
