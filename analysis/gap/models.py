@@ -61,12 +61,6 @@ def n_drift_columns(t_s: np.ndarray, corner_Hz: float) -> int:
     return nuisance_basis(t_s, corner_Hz).shape[1] - 2
 
 
-def kumaraswamy(I: np.ndarray, a: float, b: float) -> np.ndarray:
-    """``1 - (1 - I^a)^b`` on ``I`` clipped to [0, 1]."""
-    Ic = np.clip(I, 0.0, 1.0)
-    return 1.0 - np.power(1.0 - np.power(Ic, a), b)
-
-
 @dataclass(frozen=True)
 class Candidate:
     """A model family: the nominal second-order model (no effects), one augmentation, or

@@ -7,7 +7,7 @@ import pytest
 from nmsid.analysis.gap.data import load_session
 from nmsid.protocols.effects import Effect
 from nmsid.analysis.gap.fit import fit_model, predict
-from nmsid.analysis.gap.models import NOMINAL, candidate, kumaraswamy
+from nmsid.analysis.gap.models import NOMINAL, candidate
 
 
 def test_nominal_fit_recovers_parameters(nominal_session, true_params):
@@ -35,14 +35,6 @@ def test_fatigue_gain_is_anchored_at_session_start(nominal_session):
     full = cand.gain(data, p)
     part = cand.gain(data.subset([3, 7]), p)
     np.testing.assert_allclose(part, full[[3, 7]])
-
-
-def test_kumaraswamy_identity_and_ends():
-    I = np.linspace(0, 1, 11)
-    np.testing.assert_allclose(kumaraswamy(I, 1.0, 1.0), I)
-    for a, b in ((0.5, 2.0), (2.5, 3.0)):
-        h = kumaraswamy(I, a, b)
-        assert h[0] == 0 and h[-1] == pytest.approx(1.0) and np.all(np.diff(h) >= 0)
 
 
 def test_predict_uses_only_the_trials_given(nominal_session):
