@@ -255,3 +255,35 @@ def make_with_lock(seed, fs_Hz):
                                                                       for t in trials)
     finally:
         sys.modules.pop("lab_noncopy", None)
+
+
+@pytest.mark.skipif(shutil.which("cc") is None, reason="exporting an FMU needs a C compiler")
+def test_the_twin_fmu_plugin_runs_identify_design_and_tracking(tmp_path, monkeypatch):
+    """The same chain with the shipped FMPy participant (a twin's exported FMU, which
+    cannot be copied): an identification session (manual calibration: the FMU maps rE and
+    sE to force, it has no recruitment threshold for the ramps to find), identify, control
+    design and a tracking session, forward only."""
+    pytest.importorskip("fmpy")
+    from nmsid.export.fmu import export_fmu
+    from nmsid.sim_backends.participant import default_participant
+    from tests.rig.test_tracking_e2e import CONFIG as E2E_CONFIG
+    data = default_participant().to_twin()
+    data.update(participant="DEMO", source=[{"file": "DEMO.h5", "sha256": "ab" * 32}])
+    (tmp_path / "twin.json").write_text(json.dumps(data), encoding="utf-8")
+    export_fmu(tmp_path / "twin.json", tmp_path / "DEMO.fmu")
+    monkeypatch.setenv("NMSID_TWIN_FMU", str(tmp_path / "DEMO.fmu"))
+    manual = "\n[calibration.manual]\nIemin_mA = 2.0\nIemax_mA = 9.5\nIfmin_mA = 1.5\n" \
+             "Ifmax_mA = 8.0\n"
+    config = E2E_CONFIG.split("[calibration]")[0] + manual
+    (tmp_path / "short.toml").write_text(config, encoding="utf-8")
+    monkeypatch.chdir(tmp_path)
+    sim = ["--backend", "sim", "--participant-model", "nmsid.sim_backends.fmu_participant:make",
+           "--config", "short.toml", "--quiet"]
+    assert main(["run", *sim, "--out", "id.h5", "--no-identify"]) == 0
+    assert validate_session("id.h5") == [] and len(read_session("id.h5").trials) == 5
+    assert main(["identify", "id.h5", "--out", "ana", "--no-figures"]) == 0
+    assert main(["control", "design", "ana/twin.json", "--out", "ctl"]) == 0
+    assert main(["run", *sim, "--track", "ctl/controller.json", "--out", "track.h5"]) == 0
+    assert validate_session("track.h5") == []
+    trials = read_session("track.h5").trials
+    assert trials[0].extra_attrs["controller"] == "relay" and all(t.completed for t in trials)
