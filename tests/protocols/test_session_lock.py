@@ -3,6 +3,7 @@ locks (msvcrt.locking, run here against nmsid.testing.fake_windows_api)."""
 
 from __future__ import annotations
 
+import errno
 import os
 import socket
 import subprocess
@@ -124,3 +125,38 @@ def test_writer_kind_names_the_gui_and_recover(monkeypatch):
     assert session_lock.writer_kind("nmsid recover") == "nmsid recover"
     monkeypatch.setattr(sys, "argv", ["nmsid", "run", "--resume", "x.h5"])
     assert session_lock.writer_kind("nmsid run --resume") == "nmsid run --resume"
+
+
+class _RefusingMsvcrt:
+    """``msvcrt`` whose ``locking`` fails with one errno, as the CRT's ``_locking`` does."""
+
+    LK_UNLCK, LK_LOCK, LK_NBLCK, LK_RLCK, LK_NBRLCK = 0, 1, 2, 3, 4
+
+    def __init__(self, err: int):
+        self.err = err
+
+    def locking(self, fd, mode, nbytes):
+        raise OSError(self.err, os.strerror(self.err))
+
+
+@pytest.mark.parametrize("err", [errno.EACCES, errno.EDEADLOCK])
+def test_a_windows_locking_violation_in_any_oserror_form_refuses_the_writer(tmp_path, err):
+    """msvcrt.locking "Raises OSError on failure": EACCES (already locked) or EDEADLOCK
+    (the CRT's retries ran out) both mean another writer, not a crash."""
+    from nmsid.protocols import os_platform
+
+    with os_platform.forced("windows"), \
+            os_platform.fake_windows_api(msvcrt=_RefusingMsvcrt(err)):
+        with pytest.raises(SessionLockedError):
+            SessionLock.acquire(tmp_path / "P01.h5", "nmsid run")
+
+
+def test_a_windows_locking_error_that_is_not_a_violation_is_not_called_a_writer(tmp_path):
+    """EBADF / EINVAL from msvcrt.locking are faults of the caller: raised as they are."""
+    from nmsid.protocols import os_platform
+
+    with os_platform.forced("windows"), \
+            os_platform.fake_windows_api(msvcrt=_RefusingMsvcrt(errno.EBADF)):
+        with pytest.raises(OSError) as err:
+            SessionLock.acquire(tmp_path / "P01.h5", "nmsid run")
+    assert not isinstance(err.value, SessionLockedError) and err.value.errno == errno.EBADF
