@@ -3,8 +3,8 @@
 The suite runs three ways (docs/testing.md, "Windows"): on Linux, on Linux under the
 Windows emulation (:mod:`nmsid.testing.windows_emulation`), and on the Windows CPython
 itself, which CI runs under Wine (``.ci/windows.sh``). A test that fails under Wine for a
-gap of Wine's, not a behaviour of Windows, is skipped there with
-``@pytest.mark.skipif(under_wine(), reason="Wine 8.0: <the gap>")``.
+gap of Wine's, not a behaviour of Windows, is marked ``@pytest.mark.wine_gap("<the gap>")``
+and skipped there with that reason (the gaps met so far: ``WINE_*`` below).
 """
 
 from __future__ import annotations
@@ -59,6 +59,13 @@ def under_wine() -> bool:
     return wine_version() is not None
 
 
+#: The gaps of Wine 8.0 that tests meet (each checked under Wine; a Windows PC has none).
+WINE_LOCKING = ("msvcrt.locking refuses a locked region with errno 0 (Wine's _locking sets "
+                "no EACCES) and ReadFile / WriteFile ignore locked regions (Windows' locks "
+                "are mandatory)")
+WINE_SYMLINK = "CreateSymbolicLinkW reports success and creates nothing"
+
+
 # -- pytest plugin: tests/conftest.py re-exports these names ---------------------------------
 _session_emulation: Any = None
 """The run-wide :class:`~nmsid.testing.windows_emulation.WindowsEmulation`
@@ -89,6 +96,9 @@ def pytest_configure(config: Any) -> None:
     config.addinivalue_line("markers", "emulation_only(reason): tests the Linux emulation "
                                        "of Windows or drives its fakes; skipped on the "
                                        "Windows interpreter with the reason")
+    config.addinivalue_line("markers", "wine_gap(reason): fails under Wine for a gap of "
+                                       "Wine's, not a behaviour of Windows; skipped under "
+                                       "Wine with the reason")
     if config.getoption("--windows-emulation", default=False) and _session_emulation is None:
         if real_windows():
             raise ValueError("--windows-emulation: this is the Windows interpreter; run "
@@ -134,8 +144,9 @@ def _reason(mark: Any, default: str) -> str:
 
 
 def pytest_collection_modifyitems(config: Any, items: list[Any]) -> None:
-    """Skip ``posix_only`` tests on Windows (interpreter or emulation), and
-    ``emulation_only`` tests on the Windows interpreter, each with its reason."""
+    """Skip ``posix_only`` tests on Windows (interpreter or emulation), ``emulation_only``
+    tests on the Windows interpreter and ``wine_gap`` tests under Wine, each with its
+    reason."""
     label = _windows_label()
     if label is None:
         return
@@ -149,6 +160,10 @@ def pytest_collection_modifyitems(config: Any, items: list[Any]) -> None:
         if mark is not None and real_windows():
             item.add_marker(pytest.mark.skip(
                 reason=f"Windows: needs the Linux emulation: {_reason(mark, 'its fakes')}"))
+        mark = item.get_closest_marker("wine_gap")
+        if mark is not None and under_wine():
+            item.add_marker(pytest.mark.skip(
+                reason=f"Wine {wine_version()}: {_reason(mark, 'a gap of Wine')}"))
 
 
 try:  # the fixture needs pytest, which users of the functions above may not have
