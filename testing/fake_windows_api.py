@@ -46,10 +46,16 @@ from __future__ import annotations
 import errno
 import os
 import struct
+import sys
 import threading
 import time
 from collections.abc import Callable
 from typing import Any
+
+if sys.platform == "win32":  # the fake's locks are Linux's; Windows has its own
+    _fcntl: Any = None
+else:  # imported with the module, before an emulation hides it
+    import fcntl as _fcntl
 
 ERROR_LOCK_VIOLATION = 33
 
@@ -73,9 +79,10 @@ class FakeMsvcrt:
     LK_UNLCK, LK_LOCK, LK_NBLCK, LK_RLCK, LK_NBRLCK = 0, 1, 2, 3, 4
 
     def __init__(self, retry_s: float = 1.0) -> None:
-        import fcntl  # the fake runs on Linux; imported before the emulation hides it
-
-        self._fcntl = fcntl
+        if _fcntl is None:
+            raise RuntimeError("FakeMsvcrt stands in for msvcrt on Linux; on Windows use "
+                               "msvcrt itself (msvcrt_here())")
+        self._fcntl = _fcntl
         self._retry_s = retry_s
         self._mine: set[tuple[int, int, int]] = set()
         self._lock = threading.Lock()
@@ -172,6 +179,16 @@ class FakeMsvcrt:
         for name, fn in self._saved.items():
             setattr(os, name, fn)
         self._saved = {}
+
+
+def msvcrt_here() -> Any:
+    """The ``msvcrt`` for a test that plugs in Windows APIs: :class:`FakeMsvcrt` on Linux,
+    Python's ``msvcrt`` itself on the Windows interpreter."""
+    if _fcntl is None:
+        import msvcrt  # noqa: PLC0415 (Windows only)
+
+        return msvcrt
+    return FakeMsvcrt()
 
 
 def _lock_violation() -> PermissionError:
