@@ -134,12 +134,20 @@ log "8. pytest on the Windows interpreter (offscreen Qt, one BLAS thread: as dev
 OUT="$WORK/out"
 rm -rf "$OUT" && mkdir -p "$OUT"
 ARGS=("$@"); [ ${#ARGS[@]} -eq 0 ] && ARGS=(-n 2)
+run_pytest() {
+    cd "$REPO" || return 2
+    # Wine does not pass QT_* variables to Windows programs, but passes WINEQT_* as QT_*
+    WINEQT_QPA_PLATFORM=offscreen OPENBLAS_NUM_THREADS=1 \
+        timeout -k 60 "$RUN_TIMEOUT_S" wine "$PY_DIR/python.exe" -m pytest -q -rfEs \
+        -p no:randomly --timeout "$TEST_TIMEOUT_S" \
+        --junitxml="$(winepath -w "$OUT/junit.xml")" "${ARGS[@]}" 2>&1 </dev/null
+    local status=$?
+    # whatever is left (a worker's spawned child, ...) would hold this pipe, and CI, open
+    wineserver -k >/dev/null 2>&1
+    return "$status"
+}
 set +e
-# Wine does not pass QT_* variables to Windows programs, but passes WINEQT_* as QT_*
-( cd "$REPO" && WINEQT_QPA_PLATFORM=offscreen OPENBLAS_NUM_THREADS=1 \
-    timeout -k 60 "$RUN_TIMEOUT_S" wine "$PY_DIR/python.exe" -m pytest -q -rfEs \
-    -p no:randomly --timeout "$TEST_TIMEOUT_S" --junitxml="$(winepath -w "$OUT/junit.xml")" \
-    "${ARGS[@]}" 2>&1 </dev/null | cat ) | tee "$OUT/pytest.log" | grep -vE '^\s*$' | tail -n 400
+run_pytest | tee "$OUT/pytest.log" | tail -n 400
 rc=${PIPESTATUS[0]}
 set -e
 [ "$rc" = 124 ] && echo "windows job: the Wine run passed its ${RUN_TIMEOUT_S}s limit and was killed"

@@ -64,6 +64,8 @@ WINE_LOCKING = ("msvcrt.locking refuses a locked region with errno 0 (Wine's _lo
                 "no EACCES) and ReadFile / WriteFile ignore locked regions (Windows' locks "
                 "are mandatory)")
 WINE_SYMLINK = "CreateSymbolicLinkW reports success and creates nothing"
+WINE_PROCESS_POOL = ("concurrent.futures.ProcessPoolExecutor never shuts down (its workers "
+                     "started by spawn; multiprocessing.Pool and Process work)")
 
 
 # -- pytest plugin: tests/conftest.py re-exports these names ---------------------------------
