@@ -28,7 +28,7 @@ for case in root.iter("testcase"):
     message = (outcome.get("message") or "").strip()
     if outcome.tag == "skipped":
         if message == "collection skipped":  # a whole module: the reason is in the text
-            message = (outcome.text or "").rsplit("Skipped: ", 1)[-1].rstrip("')\"")
+            message = (outcome.text or "").rsplit("Skipped: ", 1)[-1].removesuffix("')")
         skips[message[:160] or "(no reason)"] += 1
         continue
     first = message.splitlines()[0][:160] if message else outcome.tag
