@@ -46,16 +46,15 @@ from __future__ import annotations
 import errno
 import os
 import struct
-import sys
 import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
-if sys.platform == "win32":  # the fake's locks are Linux's; Windows has its own
-    _fcntl: Any = None
-else:  # imported with the module, before an emulation hides it
+try:  # imported with the module, before an emulation hides it
     import fcntl as _fcntl
+except ImportError:  # Windows: it has msvcrt's own locks (msvcrt_here)
+    _fcntl = None
 
 ERROR_LOCK_VIOLATION = 33
 
