@@ -54,7 +54,7 @@ from typing import Any
 try:  # imported with the module, before an emulation hides it
     import fcntl as _fcntl
 except ImportError:  # Windows: it has msvcrt's own locks (msvcrt_here)
-    _fcntl = None
+    _fcntl = None  # type: ignore[assignment]
 
 ERROR_LOCK_VIOLATION = 33
 
