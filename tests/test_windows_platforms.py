@@ -54,7 +54,8 @@ def test_under_wine_a_wine_gap_is_skipped_naming_wine_and_the_gap(monkeypatch):
     assert _skips(monkeypatch, windows=True, wine="8.0")[2] == ["Wine 8.0: no symbolic links"]
 
 
-@pytest.mark.skipif(sys.platform == "win32", reason="Linux's answer")
+@pytest.mark.skipif(sys.platform == "win32", reason="Windows: the answer on Linux; "
+                    "here real_windows() is True")
 def test_linux_is_neither_windows_nor_wine():
     assert not platforms.real_windows() and platforms.wine_version() is None
     assert not platforms.under_wine()
