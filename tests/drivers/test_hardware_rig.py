@@ -82,6 +82,8 @@ def test_missing_vendor_library_is_one_line_exit_2(write_hw_config, tmp_path, ca
         for name, m in mods.items():
             monkeypatch.setitem(sys.modules, name, m)
     monkeypatch.setitem(sys.modules, missing, None)
+    if missing == "clr":  # pythonnet absent: both its modules (Windows imports pythonnet)
+        monkeypatch.setitem(sys.modules, "pythonnet", None)
     path = write_hw_config(tmp_path / "hw.toml", kind=kind, fake=False, estop="none")
     # probe: each device on its own; the missing library is one line, exit status 1
     assert main(["probe", "--hw-config", str(path)]) == 1
