@@ -16,7 +16,7 @@ set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 HERE="$REPO/.ci/wine"
 WORK="${NMSID_WINE_WORK:-$HOME/.cache/nmsid-ci-wine}"
-RUN_TIMEOUT_S="${NMSID_WINE_TIMEOUT_S:-2400}"   # the whole pytest run under Wine
+RUN_TIMEOUT_S="${NMSID_WINE_TIMEOUT_S:-3000}"   # the whole pytest run under Wine
 TEST_TIMEOUT_S="${NMSID_WINE_TEST_TIMEOUT_S:-300}"   # one test
 PY_DIR="$WORK/py"
 export WINEPREFIX="$WORK/prefix" WINEARCH=win64 WINEDEBUG=-all
