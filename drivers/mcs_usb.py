@@ -33,19 +33,19 @@ def load_mcs_usb(dll_path: str) -> SimpleNamespace:
         Mark-of-the-Web) or unloadable for want of the VC++ 2015-2022 x64 runtime: one line
         saying which and what to do (:func:`diagnose_load_failure`).
     """
-    try:
-        if os_platform.is_windows():
+    missing = VendorLibraryMissing(
+        "the Python package pythonnet", "the MCS STG4002 stimulator",
+        "install it with: pip install 'nmsid[mcs]' (Windows, .NET Framework 4.x)")
+    if os_platform.is_windows():
+        try:
             import pythonnet  # noqa: PLC0415 (lazy: Windows vendor library)
-            try:
-                pythonnet.load("netfx")
-            except RuntimeError:  # already loaded (a second driver in this process)
-                pass
+        except ImportError:
+            raise missing from None
+        _start_net_framework(pythonnet)
+    try:
         import clr  # noqa: PLC0415 (pythonnet; lazy: Windows vendor library)
     except ImportError:
-        raise VendorLibraryMissing(
-            "the Python package pythonnet", "the MCS STG4002 stimulator",
-            "install it with: pip install 'nmsid[mcs]' (Windows, .NET Framework 4.x)"
-        ) from None
+        raise missing from None
     try:
         clr.AddReference(str(dll_path))
         from Mcs.Usb import (CMcsUsbListNet, CStg200xDownloadNet,  # noqa: PLC0415
@@ -60,6 +60,26 @@ def load_mcs_usb(dll_path: str) -> SimpleNamespace:
                            RetriggerActionEnumNet=RetriggerActionEnumNet,
                            Stg200xSegmentFlagsEnumNet=Stg200xSegmentFlagsEnumNet,
                            Array=Array, Int32=Int32, UInt32=UInt32, UInt64=UInt64)
+
+
+def _start_net_framework(pythonnet) -> None:
+    """``pythonnet.load("netfx")``, tolerating only a runtime already loaded.
+
+    pythonnet 3 returns at once when a runtime is loaded ("further invocations will return
+    immediately", ``pythonnet.load``); its "has already been loaded" ``RuntimeError`` (from
+    ``set_runtime``) is tolerated too. Any other failure (no .NET Framework 4.x, a broken
+    install) is one clear line, not swallowed to fail later at ``import clr``.
+    """
+    try:
+        pythonnet.load("netfx")
+    except RuntimeError as exc:
+        if "already been loaded" in str(exc):
+            return
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise VendorLibraryMissing(
+            ".NET Framework 4.7.2 or later", "the MCS STG4002 stimulator (McsUsbNet)",
+            f"pythonnet could not start it ({first}); install .NET Framework 4.8 from "
+            "Microsoft (Windows Update or dotnet.microsoft.com)") from None
 
 
 def is_blocked_download(dll_path: str | Path) -> bool:

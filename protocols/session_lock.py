@@ -55,6 +55,10 @@ _RETRY_S = 0.05
 INFO_BYTES = 4096
 #: The byte locked on Windows: beyond the information, which stays readable.
 LOCK_OFFSET = INFO_BYTES
+#: What the CRT's ``_locking`` sets errno to when the region is locked by another handle:
+#: EACCES "Locking violation (file already locked or unlocked)", EDEADLOCK "Locking
+#: violation" after its retries (learn.microsoft.com/cpp/c-runtime-library/reference/locking).
+_LOCKED_ERRNOS = frozenset({errno.EACCES, errno.EDEADLOCK})
 
 
 def _binary() -> int:
@@ -113,8 +117,10 @@ def _try_lock(fd: int) -> bool:
         os.lseek(fd, LOCK_OFFSET, os.SEEK_SET)
         try:
             msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
-        except PermissionError:  # EACCES: "locking violation" (CRT _locking)
-            return False
+        except OSError as exc:  # msvcrt.locking: "Raises OSError on failure"
+            if exc.errno in _LOCKED_ERRNOS:
+                return False
+            raise  # EBADF, EINVAL: not another writer
         return True
     import fcntl  # POSIX only, behind the switch
 

@@ -51,6 +51,11 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+try:  # imported with the module, before an emulation hides it
+    import fcntl as _fcntl
+except ImportError:  # Windows: it has msvcrt's own locks (msvcrt_here)
+    _fcntl = None  # type: ignore[assignment]
+
 ERROR_LOCK_VIOLATION = 33
 
 CTRL_C_EVENT = 0
@@ -73,9 +78,10 @@ class FakeMsvcrt:
     LK_UNLCK, LK_LOCK, LK_NBLCK, LK_RLCK, LK_NBRLCK = 0, 1, 2, 3, 4
 
     def __init__(self, retry_s: float = 1.0) -> None:
-        import fcntl  # the fake runs on Linux; imported before the emulation hides it
-
-        self._fcntl = fcntl
+        if _fcntl is None:
+            raise RuntimeError("FakeMsvcrt stands in for msvcrt on Linux; on Windows use "
+                               "msvcrt itself (msvcrt_here())")
+        self._fcntl = _fcntl
         self._retry_s = retry_s
         self._mine: set[tuple[int, int, int]] = set()
         self._lock = threading.Lock()
@@ -172,6 +178,16 @@ class FakeMsvcrt:
         for name, fn in self._saved.items():
             setattr(os, name, fn)
         self._saved = {}
+
+
+def msvcrt_here() -> Any:
+    """The ``msvcrt`` for a test that plugs in Windows APIs: :class:`FakeMsvcrt` on Linux,
+    Python's ``msvcrt`` itself on the Windows interpreter."""
+    if _fcntl is None:
+        import msvcrt  # noqa: PLC0415 (Windows only)
+
+        return msvcrt
+    return FakeMsvcrt()
 
 
 def _lock_violation() -> PermissionError:

@@ -58,9 +58,11 @@ It also forces :mod:`nmsid.protocols.os_platform` to ``"windows"`` and answers i
 ``sys.platform`` are left alone (the standard library depends on them).
 
 Use it as a context manager (``with emulate_windows(): ...``), as the ``windows_emulation``
-fixture, or for a whole run with pytest's ``--windows-emulation`` option (the hooks below,
-re-exported by ``tests/conftest.py``); tests that cannot apply under it are marked
-``@pytest.mark.posix_only("reason")`` and skipped with that reason.
+fixture, or for a whole run with pytest's ``--windows-emulation`` option (the hooks of
+:mod:`nmsid.testing.platforms`, re-exported by ``tests/conftest.py``); tests that cannot
+apply under it are marked ``@pytest.mark.posix_only("reason")`` and skipped with that reason.
+On the Windows interpreter itself installing it changes nothing (:attr:`WindowsEmulation.real`):
+the Windows tests meet Windows' own behaviour there.
 """
 
 from __future__ import annotations
@@ -231,6 +233,9 @@ class WindowsEmulation:
         self.kernel32: Any = None
         self.installed = False
         self._nested = False
+        #: True on the Windows interpreter, where nothing is emulated: ``msvcrt`` and
+        #: ``kernel32`` stay None (tests of the fakes are marked ``emulation_only``)
+        self.real = False
 
     def is_text(self, fd: int) -> bool:
         """True if ``fd`` is a text-mode descriptor opened under the emulation (a number
@@ -260,6 +265,9 @@ class WindowsEmulation:
     def install(self) -> WindowsEmulation:
         """Switch the emulated behaviours on (idempotent per instance)."""
         if self.installed:
+            return self
+        if sys.platform == "win32":  # the Windows interpreter: its own behaviour applies
+            self.installed = self.real = True
             return self
         global _active
         if _active is not None:  # nested inside another emulation: it already applies
@@ -466,7 +474,8 @@ class WindowsEmulation:
         """Restore everything :meth:`install` changed, in reverse order."""
         if not self.installed:
             return
-        if self._nested:
+        if self.real or self._nested:
+            self.installed = self.real = False
             self.installed = self._nested = False
             return
         global _active
@@ -526,35 +535,6 @@ def emulate_windows(**options: Any) -> Iterator[WindowsEmulation]:
         emulation.uninstall()
 
 
-# -- pytest plugin: re-export these names from a conftest.py to use them -------------------
-_session_emulation: WindowsEmulation | None = None
-
-
-def pytest_addoption(parser: Any) -> None:
-    """Add ``--windows-emulation``: run the tests under :class:`WindowsEmulation`."""
-    parser.addoption("--windows-emulation", action="store_true", default=False,
-                     help="run the tests under an emulation of Windows' documented file, "
-                          "descriptor, clock and module behaviours "
-                          "(nmsid.testing.windows_emulation)")
-
-
-def pytest_configure(config: Any) -> None:
-    """Register the ``posix_only`` marker; install the emulation if asked."""
-    global _session_emulation
-    config.addinivalue_line("markers", "posix_only(reason): cannot apply under the "
-                                       "Windows emulation; skipped there with the reason")
-    if config.getoption("--windows-emulation", default=False) and _session_emulation is None:
-        _session_emulation = WindowsEmulation().install()
-
-
-def pytest_unconfigure(config: Any) -> None:
-    """Remove the run-wide emulation."""
-    global _session_emulation
-    if _session_emulation is not None:
-        _session_emulation.uninstall()
-        _session_emulation = None
-
-
 #: Uses that make a test module unable to run under the emulation (it has no fork, ...).
 _POSIX_ATTRIBUTES = {("os", n) for n in POSIX_ONLY_OS_FUNCTIONS} | {("signal", "SIGHUP")}
 
@@ -587,52 +567,3 @@ def posix_only_uses(path: Any) -> list[str]:
             if node.module.split(".")[-1] == "forked_cli":
                 found.add("forked_cli (os.fork)")
     return sorted(found)
-
-
-def pytest_pycollect_makemodule(module_path: Any, parent: Any) -> Any:
-    """Under ``--windows-emulation``, a test module that uses ``os.fork``,
-    ``signal.SIGHUP``, ``pty``, ... is skipped as a whole, naming what it uses (it could not
-    even be imported: such names are evaluated at import)."""
-    if _session_emulation is None or not Path(str(module_path)).name.startswith("test"):
-        return None
-    uses = posix_only_uses(module_path)
-    if not uses:
-        return None
-    import pytest
-
-    reason = (f"Windows emulation: {Path(str(module_path)).name} uses {', '.join(uses)} "
-              "(POSIX only)")
-
-    class PosixOnlyModule(pytest.Module):
-        def collect(self) -> Any:
-            raise pytest.skip.Exception(reason, allow_module_level=True)
-
-    return PosixOnlyModule.from_parent(parent, path=Path(str(module_path)))
-
-
-def pytest_collection_modifyitems(config: Any, items: list[Any]) -> None:
-    """Under ``--windows-emulation``, skip tests marked ``posix_only`` with their reason."""
-    if _session_emulation is None:
-        return
-    import pytest
-
-    for item in items:
-        mark = item.get_closest_marker("posix_only")
-        if mark is not None:
-            reason = mark.args[0] if mark.args else mark.kwargs.get("reason", "POSIX only")
-            item.add_marker(pytest.mark.skip(reason=f"Windows emulation: {reason}"))
-
-
-try:  # the fixture needs pytest, which users of the context manager may not have
-    import pytest as _pytest
-except ImportError:  # pragma: no cover
-    pass
-else:
-    @_pytest.fixture
-    def windows_emulation() -> Iterator[WindowsEmulation]:
-        """The test runs under :class:`WindowsEmulation` (a no-op re-install if run-wide)."""
-        if _session_emulation is not None:
-            yield _session_emulation
-            return
-        with emulate_windows() as emulation:
-            yield emulation

@@ -6,17 +6,21 @@ from pathlib import Path
 
 import pytest
 
-# the Windows emulation (nmsid.testing.windows_emulation): --windows-emulation runs the
-# tests under it, @pytest.mark.posix_only("why") skips a test there, and the
-# windows_emulation fixture installs it for one test
-from nmsid.testing.windows_emulation import (  # noqa: F401
+# Windows (nmsid.testing.platforms): --windows-emulation runs the tests under the Linux
+# emulation of Windows; @pytest.mark.posix_only("why") skips a test there and on the Windows
+# interpreter, @pytest.mark.emulation_only("why") on the Windows interpreter only; the
+# windows_emulation fixture installs the emulation for one test (a no-op on Windows)
+from nmsid.testing import platforms
+from nmsid.testing.platforms import (  # noqa: F401
     pytest_addoption,
-    pytest_collection_modifyitems,
     pytest_configure,
     pytest_pycollect_makemodule,
     pytest_unconfigure,
     windows_emulation,
 )
+
+def pytest_collection_modifyitems(config, items):
+    platforms.pytest_collection_modifyitems(config, items)
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -13,6 +13,7 @@ import multiprocessing
 import sys
 
 import pytest
+from nmsid.testing.platforms import WINE_PROCESS_POOL
 
 
 @pytest.fixture
@@ -23,6 +24,7 @@ def spawn_workers(load_bench_script, monkeypatch):
     return b, workers
 
 
+@pytest.mark.wine_gap(WINE_PROCESS_POOL)
 def test_a_bench_pool_runs_its_workers_by_spawn(spawn_workers, tmp_path):
     b, workers = spawn_workers
     assert b.__name__ != "bench_control"          # loaded under a test-only name

@@ -120,7 +120,7 @@ import os, sys, threading, time
 from pathlib import Path
 from nmsid.protocols import os_platform
 from nmsid.rig.session_log import journal_dir
-from nmsid.testing.fake_windows_api import FakeKernel32, FakeMsvcrt
+from nmsid.testing.fake_windows_api import FakeKernel32, msvcrt_here
 event, args = int(sys.argv[1]), sys.argv[2:]
 k = FakeKernel32(terminate=lambda code: os._exit(code & 0xFF))
 stream = journal_dir(Path(args[args.index("--out") + 1])) / "partial.f64"
@@ -130,7 +130,7 @@ def watch():
     k.deliver(event)
 threading.Thread(target=watch, daemon=True).start()
 with os_platform.forced("windows"), os_platform.fake_windows_api(kernel32=k,
-                                                                msvcrt=FakeMsvcrt()):
+                                                                msvcrt=msvcrt_here()):
     from nmsid.cli import main
     code = main(args)
 sys.exit(code)

@@ -50,3 +50,16 @@ def test_an_unknown_command_is_one_line_of_usage():
     proc = subprocess.run([sys.executable, str(ROOT / "dev.py"), "deploy"], check=False,
                           capture_output=True, text=True)
     assert proc.returncode == 2 and "invalid choice: 'deploy'" in proc.stderr
+
+
+def test_the_build_requires_a_setuptools_that_reads_an_spdx_license():
+    """``license = "BSD-3-Clause"`` (PEP 639) is read from setuptools 77 on; an older one
+    (75.6 on the Windows interpreter without build isolation) rejects the project."""
+    import re
+    import tomllib
+
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    assert isinstance(pyproject["project"]["license"], str)
+    [req] = [r for r in pyproject["build-system"]["requires"] if r.startswith("setuptools")]
+    floor = re.fullmatch(r"setuptools>=(\d+)(\.\d+)*", req)
+    assert floor is not None and int(floor.group(1)) >= 77

@@ -4,28 +4,25 @@ on the engine's thread (the state belongs to the thread)."""
 
 from __future__ import annotations
 
-import pytest
-
 import logging
 import threading
 
 from nmsid.cli import main
 from nmsid.protocols import os_platform
 from nmsid.rig.keep_awake import ES_CONTINUOUS, ES_SYSTEM_REQUIRED, SystemAwake
-from nmsid.testing.fake_windows_api import FakeKernel32, FakeMsvcrt
+from nmsid.testing.fake_windows_api import FakeKernel32, msvcrt_here
 
 CONFIG = ('participant = "KA"\n[protocol]\nsE_levels = [0.5]\nrepeats = 1\n'
           'steady_s = 0.2\nchirp_s = 0.3\n[calibration]\nmanual = {Iemin_mA = 2.0, '
           'Iemax_mA = 9.5, Ifmin_mA = 1.5, Ifmax_mA = 8.0}\n')
 
 
-@pytest.mark.posix_only('stands in for Windows itself with FakeKernel32 (built on fcntl, which the emulation blocks)')
 def test_a_session_keeps_the_system_awake_on_the_engine_thread(tmp_path):
     cfg = tmp_path / "c.toml"
     cfg.write_text(CONFIG, encoding="utf-8")
     k = FakeKernel32()
     with os_platform.forced("windows"), os_platform.fake_windows_api(
-            kernel32=k, msvcrt=FakeMsvcrt()):
+            kernel32=k, msvcrt=msvcrt_here()):
         code = main(["run", "--backend", "sim", "--config", str(cfg), "--out",
                      str(tmp_path / "s.h5"), "--no-identify", "--quiet"])
     assert code == 0

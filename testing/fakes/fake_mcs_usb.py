@@ -1,4 +1,5 @@
-"""A fake of pythonnet + McsUsbNet: the modules ``clr``, ``System`` and ``Mcs.Usb``.
+"""A fake of pythonnet + McsUsbNet: the modules ``pythonnet``, ``clr``, ``System`` and
+``Mcs.Usb``.
 
 Built from the vendor's documented behaviour, not from ``drivers.stg4002``. Sources:
 McsUsbNet 5.3.15 (``github.com/multichannelsystems/McsUsbNet``): the XML documentation
@@ -46,6 +47,12 @@ Modelled (each with its source):
   device opened exclusively; ``Connect`` returns a non-zero status).
 * Vendor exceptions (``Mcs.Usb.CUsbExceptionNet``) on an unplugged device, a handle from
   before a replug, and calls after ``Dispose`` (``System.ObjectDisposedException``).
+* ``pythonnet.load(runtime)`` (pythonnet 3.x, ``pythonnet/__init__.py``): "After a
+  successful call, further invocations will return immediately"; ``set_runtime`` once
+  loaded raises ``RuntimeError("The runtime ... has already been loaded")``; a runtime that
+  cannot be created raises ``RuntimeError("Failed to create a .NET runtime (netfx) ...")``
+  (:attr:`_Registry.runtime_failure`). Faked so that no test starts a real CLR (on Windows
+  the real pythonnet would start .NET Framework).
 * Concurrency: McsUsbNet does not document its objects as thread-safe; the fake records
   every overlap of two vendor calls on one device in :attr:`FakeStgHardware.overlaps`.
 
@@ -99,6 +106,11 @@ class _Registry:
     bench = None
     references: list[str] = []
     devices: list["CStg200xDownloadNet"] = []
+    #: runtimes pythonnet.load was asked for, and the one loaded (None: not yet)
+    runtime_loads: list[str | None] = []
+    runtime_loaded: str | None = None
+    #: set to make the runtime fail to start (no .NET Framework on the machine)
+    runtime_failure: str | None = None
 
 
 class CMcsUsbListNet:
@@ -466,8 +478,24 @@ def _module(name: str, **attrs: object) -> types.ModuleType:
     return module
 
 
+def _pythonnet_load(runtime=None, **params) -> None:
+    """``pythonnet.load``: a no-op once loaded; else start ``runtime`` or fail."""
+    _Registry.runtime_loads.append(runtime)
+    if _Registry.runtime_loaded is not None:
+        return
+    if _Registry.runtime_failure is not None:
+        raise RuntimeError(f"Failed to create a .NET runtime ({runtime}) using the "
+                           f"parameters {params}.\n{_Registry.runtime_failure}")
+    _Registry.runtime_loaded = runtime or "netfx"
+
+
+def _pythonnet_set_runtime(runtime, **params) -> None:
+    if _Registry.runtime_loaded is not None:
+        raise RuntimeError(f"The runtime {_Registry.runtime_loaded} has already been loaded")
+
+
 def install(bench=None, hardware=None, modules=None) -> dict:
-    """Build the fake ``clr``, ``System``, ``Mcs``, ``Mcs.Usb`` modules.
+    """Build the fake ``pythonnet``, ``clr``, ``System``, ``Mcs``, ``Mcs.Usb`` modules.
 
     Returns the ``{name: module}`` dict; it is also put into ``sys.modules`` unless
     ``modules`` (a dict to fill instead, e.g. for ``monkeypatch.setitem``) is given.
@@ -479,6 +507,9 @@ def install(bench=None, hardware=None, modules=None) -> dict:
             hw.clock = bench.now
     _Registry.references = []
     _Registry.devices = []
+    _Registry.runtime_loads, _Registry.runtime_loaded = [], None
+    _Registry.runtime_failure = None
+    pythonnet = _module("pythonnet", load=_pythonnet_load, set_runtime=_pythonnet_set_runtime)
     clr = _module("clr", AddReference=lambda path: _Registry.references.append(str(path)))
     system = _module("System", Array=_ArrayFactory(), Int32=Int32, UInt32=UInt32,
                      UInt64=UInt64, ObjectDisposedException=ObjectDisposedException)
@@ -488,7 +519,7 @@ def install(bench=None, hardware=None, modules=None) -> dict:
         Stg5OvercurrentStatusEnumNet, CUsbExceptionNet, RetriggerActionEnumNet,
         Stg200xSegmentFlagsEnumNet)})
     mcs = _module("Mcs", Usb=usb)
-    mods = {"clr": clr, "System": system, "Mcs": mcs, "Mcs.Usb": usb}
+    mods = {"pythonnet": pythonnet, "clr": clr, "System": system, "Mcs": mcs, "Mcs.Usb": usb}
     target = sys.modules if modules is None else modules
     target.update(mods)
     return mods

@@ -85,6 +85,9 @@ def test_missing_vendor_library_is_one_line_exit_2(write_hw_config, tmp_path, ca
         child_modules("sitecustomize", FAKE_MCS_IN_CHILD)
     monkeypatch.setitem(sys.modules, missing, None)      # this process (nmsid run)
     child_modules(missing, f'raise ImportError("No module named {missing} (test)")\n')
+    if missing == "clr":  # pythonnet absent: both its modules (Windows imports pythonnet)
+        monkeypatch.setitem(sys.modules, "pythonnet", None)
+        child_modules("pythonnet", 'raise ImportError("No module named pythonnet (test)")\n')
     path = write_hw_config(tmp_path / "hw.toml", kind=kind, fake=False, estop="none")
     # probe: each device on its own; the missing library is one line, exit status 1
     assert main(["probe", "--hw-config", str(path)]) == 1

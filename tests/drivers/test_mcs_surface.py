@@ -19,6 +19,7 @@ import pytest
 
 from nmsid.drivers import mcs_surface
 from nmsid.drivers.mcs_surface import SURFACE, Member, compare
+from nmsid.testing.platforms import under_wine, wine_version
 
 # the shared folder beside the checkout (as CI clones it); NMSID_MCSUSBNET_DLL names another
 REAL_DLL = Path(os.environ.get("NMSID_MCSUSBNET_DLL") or (
@@ -26,6 +27,8 @@ REAL_DLL = Path(os.environ.get("NMSID_MCSUSBNET_DLL") or (
     / "McsUsbNet.dll"))
 
 _why_not = ("" if REAL_DLL.is_file() else f"the vendor assembly {REAL_DLL} is not here")
+if not _why_not and under_wine():  # pythonnet would start .NET Framework: Wine aborts
+    _why_not = f"Wine {wine_version()}: no .NET Framework (nor Mono) in the prefix"
 if not _why_not and importlib.util.find_spec("pythonnet") is None:
     _why_not = "pythonnet is not installed (pip install 'nmsid[mcs]')"
 if not _why_not and shutil.which("mono") is None:

@@ -207,6 +207,7 @@ def test_bad_channel_numbers(fake_mcs):
 def test_missing_pythonnet_is_one_clear_line(monkeypatch):
     import sys
     monkeypatch.setitem(sys.modules, "clr", None)
+    monkeypatch.setitem(sys.modules, "pythonnet", None)  # imported first on Windows
     with pytest.raises(VendorLibraryMissing) as info:
         load_mcs_usb("x.dll")
     msg = str(info.value)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import logging
 import sys
-import types
 
 import numpy as np
 import pytest
@@ -200,18 +199,38 @@ def test_a_downloaded_dll_with_a_zone_identifier_stream_is_reported_blocked(tmp_
         assert "BLOCKED" in str(diagnose_load_failure(dll, err))
 
 
-def test_pythonnet_is_pinned_to_net_framework_on_windows(fake_mcs, monkeypatch):
-    loads = []
-    fake_pythonnet = types.ModuleType("pythonnet")
-    fake_pythonnet.load = loads.append
-    monkeypatch.setitem(sys.modules, "pythonnet", fake_pythonnet)
+def test_pythonnet_is_pinned_to_net_framework_on_windows(fake_mcs):
+    registry = fake_mcs()  # its pythonnet too: no test starts a real CLR on Windows
     with os_platform.forced("windows"):
         load_mcs_usb("C:/mcs/McsUsbNet.dll")
-    assert loads == ["netfx"]
-    loads.clear()
+        load_mcs_usb("C:/mcs/McsUsbNet.dll")  # a second driver: the runtime is loaded
+    assert registry.runtime_loads == ["netfx", "netfx"] and registry.runtime_loaded == "netfx"
+    registry.runtime_loads.clear()
     with os_platform.forced("posix"):
         load_mcs_usb("C:/mcs/McsUsbNet.dll")
-    assert loads == []
+    assert registry.runtime_loads == []
+
+
+def test_a_net_framework_that_cannot_start_is_one_clear_line_not_swallowed(fake_mcs):
+    registry = fake_mcs()
+    registry.runtime_failure = "clr_loader: no .NET Framework found"
+    with os_platform.forced("windows"), pytest.raises(VendorLibraryMissing) as err:
+        load_mcs_usb("C:/mcs/McsUsbNet.dll")
+    message = str(err.value)
+    assert "\n" not in message and ".NET Framework 4.7.2" in message
+    assert "Failed to create a .NET runtime (netfx)" in message
+    assert registry.references == []  # nothing loaded into a runtime that did not start
+
+
+def test_only_an_already_loaded_runtime_is_tolerated(fake_mcs, monkeypatch):
+    registry = fake_mcs()
+
+    def already(runtime=None, **params):
+        raise RuntimeError("The runtime <netfx> has already been loaded")
+    monkeypatch.setattr(sys.modules["pythonnet"], "load", already)
+    with os_platform.forced("windows"):
+        load_mcs_usb("C:/mcs/McsUsbNet.dll")
+    assert registry.references == ["C:/mcs/McsUsbNet.dll"]
 
 
 def test_a_missing_dll_file_is_reported_as_missing(fake_mcs, monkeypatch, tmp_path):

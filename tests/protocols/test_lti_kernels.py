@@ -116,7 +116,10 @@ class _ScipyFilter:
 def test_the_simulators_filter_equals_scipys_across_chunks_and_coefficient_changes(tau_s):
     """A trial-like sequence: chunks of random lengths (1 to 4000 samples), a new sE (new
     coefficients) every few chunks; the simulator's filter stays within rounding of
-    plain scipy calls (1e-9 N: a few ulps of the 2000 Hz coefficients times the gain)."""
+    plain scipy calls. Bound 1e-8 (outputs of order 1): the two discretisations take
+    different routes to the same coefficients (agreeing to ~1e-13 relative), and a filter
+    with poles at 1 - p amplifies a coefficient error by ~1/p**2 (~1e5 for wn = 5 rad/s at
+    2000 Hz); scipy's Windows build, another compiler, gave 1.1e-9 at tau 0.02 s."""
     rng = np.random.default_rng(7)
     order = 3 if tau_s > 0 else 2
     mine, ref = filters.StatefulFilter(order), _ScipyFilter(order)
@@ -133,4 +136,4 @@ def test_the_simulators_filter_equals_scipys_across_chunks_and_coefficient_chang
             ref.set(b_ref, np.asarray(a_ref))
         x = rng.uniform(0.0, 1.0, int(rng.integers(1, 4000)))
         worst = max(worst, float(np.max(np.abs(mine(x) - ref(x)))))
-    assert worst < 1e-9
+    assert worst < 1e-8

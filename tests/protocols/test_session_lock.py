@@ -3,6 +3,7 @@ locks (msvcrt.locking, run here against nmsid.testing.fake_windows_api)."""
 
 from __future__ import annotations
 
+import errno
 import os
 import socket
 import subprocess
@@ -13,6 +14,7 @@ import pytest
 from nmsid.protocols import session_lock
 from nmsid.protocols.errors import SessionLockedError
 from nmsid.protocols.session_lock import SessionLock, live_writer, lock_path
+from nmsid.testing.platforms import WINE_LOCKING
 from nmsid.testing.windows_emulation import emulate_windows
 
 _HOLDER = """
@@ -40,7 +42,8 @@ def _holder(path: Path, platform: str, argv: list[str]) -> subprocess.Popen:
 
 @pytest.mark.parametrize("platform", [
     pytest.param("posix", marks=pytest.mark.posix_only(
-        "the POSIX lock: under the emulation this process follows Windows")), "windows"])
+        "the POSIX lock: under the emulation this process follows Windows")),
+    pytest.param("windows", marks=pytest.mark.wine_gap(WINE_LOCKING))])
 @pytest.mark.parametrize("argv, kind", [(["nmsid", "gui", "--backend", "sim"], "nmsid gui"),
                                         (["nmsid", "run", "--backend", "sim"], "nmsid run")])
 def test_a_second_writer_is_refused_naming_pid_host_start_and_kind(tmp_path, platform, argv,
@@ -74,16 +77,19 @@ class _nothing:
         return None
 
 
+@pytest.mark.wine_gap(WINE_LOCKING)
 def test_windows_lock_leaves_the_writer_information_readable(tmp_path):
-    """Windows' locks are mandatory: the locked byte lies beyond the information."""
+    """Windows' locks are mandatory: the locked byte lies beyond the information (on Linux
+    against the fake's locks, on the Windows interpreter against Windows')."""
     path = tmp_path / "P01.h5"
     with emulate_windows() as emu:
         lock = SessionLock.acquire(path, "nmsid run")
         fd = os.open(lock_path(path), os.O_RDONLY | os.O_BINARY)
         try:
-            assert emu.msvcrt.conflicts(fd, session_lock.LOCK_OFFSET, 1)
-            assert not emu.msvcrt.conflicts(fd, 0, session_lock.INFO_BYTES)
-            with pytest.raises(PermissionError):  # the fake's locks are mandatory
+            if not emu.real:
+                assert emu.msvcrt.conflicts(fd, session_lock.LOCK_OFFSET, 1)
+                assert not emu.msvcrt.conflicts(fd, 0, session_lock.INFO_BYTES)
+            with pytest.raises(PermissionError):  # ERROR_LOCK_VIOLATION: mandatory
                 os.lseek(fd, session_lock.LOCK_OFFSET, os.SEEK_SET)
                 os.read(fd, 1)
             assert session_lock._read_info(fd).pid == os.getpid()
@@ -124,3 +130,38 @@ def test_writer_kind_names_the_gui_and_recover(monkeypatch):
     assert session_lock.writer_kind("nmsid recover") == "nmsid recover"
     monkeypatch.setattr(sys, "argv", ["nmsid", "run", "--resume", "x.h5"])
     assert session_lock.writer_kind("nmsid run --resume") == "nmsid run --resume"
+
+
+class _RefusingMsvcrt:
+    """``msvcrt`` whose ``locking`` fails with one errno, as the CRT's ``_locking`` does."""
+
+    LK_UNLCK, LK_LOCK, LK_NBLCK, LK_RLCK, LK_NBRLCK = 0, 1, 2, 3, 4
+
+    def __init__(self, err: int):
+        self.err = err
+
+    def locking(self, fd, mode, nbytes):
+        raise OSError(self.err, os.strerror(self.err))
+
+
+@pytest.mark.parametrize("err", [errno.EACCES, errno.EDEADLOCK])
+def test_a_windows_locking_violation_in_any_oserror_form_refuses_the_writer(tmp_path, err):
+    """msvcrt.locking "Raises OSError on failure": EACCES (already locked) or EDEADLOCK
+    (the CRT's retries ran out) both mean another writer, not a crash."""
+    from nmsid.protocols import os_platform
+
+    with os_platform.forced("windows"), \
+            os_platform.fake_windows_api(msvcrt=_RefusingMsvcrt(err)):
+        with pytest.raises(SessionLockedError):
+            SessionLock.acquire(tmp_path / "P01.h5", "nmsid run")
+
+
+def test_a_windows_locking_error_that_is_not_a_violation_is_not_called_a_writer(tmp_path):
+    """EBADF / EINVAL from msvcrt.locking are faults of the caller: raised as they are."""
+    from nmsid.protocols import os_platform
+
+    with os_platform.forced("windows"), \
+            os_platform.fake_windows_api(msvcrt=_RefusingMsvcrt(errno.EBADF)):
+        with pytest.raises(OSError) as err:
+            SessionLock.acquire(tmp_path / "P01.h5", "nmsid run")
+    assert not isinstance(err.value, SessionLockedError) and err.value.errno == errno.EBADF

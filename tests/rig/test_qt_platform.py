@@ -79,6 +79,8 @@ def test_nmsid_gui_prints_one_line_and_exits_2(monkeypatch, capsys):
     assert "libxcb-icccm.so.4" in err and "apt-get install libxcb-icccm4)" in err
 
 
+@pytest.mark.skipif(sys.platform == "win32", reason="Windows: the loader is asked for "
+                    "Linux's shared libraries (xcb's); there is no libc.so.6 to find")
 def test_the_real_loader_finds_what_is_installed():
     assert qt_platform._loads("libc.so.6") is True
     assert qt_platform._loads("libnmsid-surely-absent.so.9") is False

@@ -27,7 +27,12 @@ CALIBRATION = ('participant = "SC"\n[protocol]\nsE_levels = [0.5]\nrepeats = 1\n
                'steady_s = 1.0\nchirp_s = 2.0\n[calibration]\nhold_s = 0.5\n'
                'baseline_s = 0.3\nrest_s = 0.3\n')
 
-pytestmark = pytest.mark.skipif(not hasattr(signal, "SIGHUP"), reason="POSIX signals")
+#: Sending a signal to a process: POSIX only. On Windows os.kill(pid, SIGTERM) is
+#: TerminateProcess (uncatchable) and Ctrl-C / Ctrl-Break / close are console events
+#: (tests/test_windows_console_events.py).
+posix_signals = pytest.mark.skipif(
+    not hasattr(signal, "SIGHUP"), reason="POSIX signals: on Windows os.kill is "
+    "TerminateProcess and Ctrl-C a console event (test_windows_console_events.py)")
 
 
 def _start(tmp_path, config_text, out):
@@ -56,8 +61,10 @@ def _ended(proc, signum):
     return out.decode(), lines[0]
 
 
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
-def test_signal_during_a_trial_is_an_estop(tmp_path, signum):
+@posix_signals
+@pytest.mark.parametrize("name", ["SIGTERM", "SIGHUP", "SIGINT"])
+def test_signal_during_a_trial_is_an_estop(tmp_path, name):
+    signum = getattr(signal, name)  # SIGHUP: POSIX only, not looked up at import
     out = tmp_path / "s.h5"
     proc = _start(tmp_path, TRIAL, out)
     stream = journal_dir(out) / "partial.f64"
@@ -80,6 +87,7 @@ def test_signal_during_a_trial_is_an_estop(tmp_path, signum):
     assert reason in s.events[kinds.index("session_end")].detail
 
 
+@posix_signals
 def test_sigterm_during_calibration_stops_output_and_writes_nothing_half(tmp_path):
     out = tmp_path / "c.h5"
     proc = _start(tmp_path, CALIBRATION, out)
@@ -120,12 +128,15 @@ def test_no_signal_handlers_left_behind_in_process(tmp_path):
     cfg = tmp_path / "c.toml"
     cfg.write_text(TRIAL.replace("chirp_s = 3.0", "chirp_s = 0.5"))
 
-    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    names = ("SIGINT", "SIGTERM", "SIGHUP", "SIGBREAK")  # those this system has
+    before = {getattr(signal, n): signal.getsignal(getattr(signal, n)) for n in names
+              if hasattr(signal, n)}
     assert main(["run", "--backend", "sim", "--config", str(cfg), "--out",
                  str(tmp_path / "x.h5"), "--no-identify", "--quiet"]) == 0
     assert {s: signal.getsignal(s) for s in before} == before
 
 
+@posix_signals
 def test_sigterm_ends_a_gui_session_like_the_estop(tmp_path):
     pytest.importorskip("PySide6")
     cfg = tmp_path / "c.toml"

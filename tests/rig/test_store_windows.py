@@ -1,7 +1,8 @@
-"""The session store under Windows' documented file semantics (issue 24, 2 and 5), run on
-Linux through :mod:`nmsid.testing.windows_emulation`: a file another process holds open
-cannot be replaced or renamed (sharing violation), descriptors are text-mode without
-``O_BINARY``, ``os.statvfs`` does not exist."""
+"""The session store under Windows' file semantics (issue 24, 2 and 5): a file another
+process holds open cannot be replaced or renamed (sharing violation), descriptors are
+text-mode without ``O_BINARY``, ``os.statvfs`` does not exist. On Linux through
+:mod:`nmsid.testing.windows_emulation`; on the Windows interpreter against Windows itself
+(the emulation installs nothing there)."""
 
 import os
 import subprocess
@@ -24,42 +25,6 @@ from nmsid.rig.session_log import SessionLog, journal_dir, recover
 from nmsid.testing.windows_emulation import emulate_windows
 
 FAST = (0.01, 0.02, 0.04)  # the retry's backoff, shortened for the tests
-
-
-@pytest.fixture(autouse=True)
-def _stand_ins(monkeypatch):
-    """What this branch's emulated Windows lacks, stood in for so the store is what is
-    tested: (1) the single-writer lock of this branch uses ``os.pwrite`` (the ``windows``
-    branch makes it portable; then this stand-in is moot); (2) on Linux
-    ``shutil.disk_usage`` is built on ``os.statvfs``, which the emulation removes, while
-    on Windows it calls ``GetDiskFreeSpaceExW`` (Python docs, shutil.disk_usage)."""
-    import shutil
-
-    import nmsid.protocols.session_lock as lock_mod
-    statvfs = os.statvfs
-    real_pwrite = getattr(os, "pwrite", None)
-
-    def disk_usage(path):
-        st = statvfs(path)
-        total = st.f_blocks * st.f_frsize
-        free = st.f_bavail * st.f_frsize
-        return shutil._ntuple_diskusage(total, total - st.f_bfree * st.f_frsize, free)
-    monkeypatch.setattr(shutil, "disk_usage", disk_usage)
-
-    def pwrite(fd, data, offset):
-        os.lseek(fd, offset, os.SEEK_SET)
-        return os.write(fd, data)
-    monkeypatch.setattr(lock_mod, "os", _OsWithPwrite(real_pwrite or pwrite))
-
-
-class _OsWithPwrite:
-    """``os`` for session_lock.py, with a ``pwrite`` the emulation cannot remove."""
-
-    def __init__(self, pwrite):
-        self.pwrite = pwrite
-
-    def __getattr__(self, name):
-        return getattr(os, name)
 
 
 def _trial(i, n=500):

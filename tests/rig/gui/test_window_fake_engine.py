@@ -106,8 +106,10 @@ def test_refuses_existing_finished_file_and_offers_resume(fake_window, tmp_path)
 def test_script_runner_drives_a_session_and_saves_a_screenshot(fake_window, qtbot, tmp_path):
     from nmsid.rig.gui.script import ScriptRunner, parse_script
     out, shot = tmp_path / "S01.h5", tmp_path / "shots" / "end.png"
+    # forward slashes: the script is split like a POSIX shell line, where an unquoted
+    # backslash (a Windows path's) escapes the next character
     steps = parse_script(f"""
-        start participant=S01 output={out}
+        start participant=S01 output={out.as_posix()}
         confirm-calibration Iemin_mA=2.5
         wait-trial 1 running 20
         wait-trial-time 0.3 20
@@ -118,7 +120,7 @@ def test_script_runner_drives_a_session_and_saves_a_screenshot(fake_window, qtbo
         rearm
         wait-finished 30
         tab results
-        screenshot {tmp_path / 'mid.png'}
+        screenshot {(tmp_path / 'mid.png').as_posix()}
     """, "test-script")
     runner = ScriptRunner(fake_window, steps, screenshot=shot)
     with qtbot.waitSignal(runner.finished, timeout=60000) as sig:
