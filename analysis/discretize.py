@@ -26,7 +26,6 @@ import math
 
 import numpy as np
 
-
 #: Relative step of the central differences used for coefficient derivatives.
 _FD_STEP = 1e-6
 

@@ -31,8 +31,8 @@ from nmsid.analysis.qc.decide import EXCLUDED, REPAIRED, LevelQC
 from nmsid.analysis.scatter import ScatterResult, fit_trials, summarise
 from nmsid.analysis.second_order import SecondOrderFit
 from nmsid.analysis.settings import IdentificationSettings
-from nmsid.protocols.reprs import counted, html_repr, number_span, short_repr, to_dataframe
 from nmsid.protocols.joints import recorded_quantity
+from nmsid.protocols.reprs import counted, html_repr, number_span, short_repr, to_dataframe
 from nmsid.protocols.session_file import read_session
 
 logger = logging.getLogger(__name__)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.signal import lfilter
+
 from nmsid.analysis.thin_lstsq import cross, lstsq_rows
 
 logger = logging.getLogger(__name__)

@@ -276,9 +276,9 @@ def select_models(participants, settings: IdentificationSettings | None = None
     comparisons: list[ModelComparison] = []
     problems: list[str] = []
     grid = sorted({round(float(x), 6) for p in people for x in p.sE})
-    sums: dict[str, dict[str, float]] = {name: {m: 0.0 for m in s.models}
+    sums: dict[str, dict[str, float]] = {name: dict.fromkeys(s.models, 0.0)
                                          for name in PARAMETER_NAMES}
-    counts: dict[str, dict[str, int]] = {name: {m: 0 for m in s.models}
+    counts: dict[str, dict[str, int]] = {name: dict.fromkeys(s.models, 0)
                                          for name in PARAMETER_NAMES}
     for name in PARAMETER_NAMES:
         cleaned = np.full((len(people), len(grid)), np.nan)

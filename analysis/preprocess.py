@@ -28,8 +28,8 @@ from scipy.signal import butter, savgol_coeffs, sosfilt, sosfilt_zi, sosfiltfilt
 
 from nmsid.analysis.discretize import fractional_delay
 from nmsid.analysis.errors import IdentificationError
-from nmsid.analysis.thin_lstsq import dot
 from nmsid.analysis.settings import IdentificationSettings, InputTiming
+from nmsid.analysis.thin_lstsq import dot
 from nmsid.protocols.reprs import html_repr, names, short_repr
 
 

@@ -43,8 +43,8 @@ def hw_file(kind: str, monitor: int) -> dict:
             "acquisition": acquisition,
             "sensor": {"channels": {a: i for i, a in enumerate(AXES)}, "sync_channel": 6,
                        "rated": dict(zip(AXES, (500.0, 500.0, 1000.0, 10.0, 10.0, 10.0))),
-                       "rated_output_V": {a: 1.0 for a in AXES},   # manual 4.1
-                       "offset_V": {a: 1.5 for a in AXES}}}
+                       "rated_output_V": dict.fromkeys(AXES, 1.0),   # manual 4.1
+                       "offset_V": dict.fromkeys(AXES, 1.5)}}
 
 
 def dry_run(kind: str, monitor: int, fs_Hz: float, *, wired=0, ohm=1000.0):

@@ -273,6 +273,7 @@ def run_extra(args) -> dict:
     """One session of the classes the diagnosis was not written for (``gap_sessions``)."""
     kind, seed, workdir = args
     import gap_sessions
+
     from nmsid.analysis.gap.data import load_session
     from nmsid.analysis.gap.diagnose import diagnose
     from nmsid.sim_backends import make_population

@@ -27,8 +27,8 @@ import os
 import tempfile
 import threading
 import time
-from typing import NamedTuple
 from pathlib import Path
+from typing import NamedTuple
 
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 
@@ -187,6 +187,7 @@ def bench_synthetic() -> Row:
 
 def _short_config(cfg):
     import dataclasses
+
     from nmsid.protocols.config import ManualCurrents
     p = dataclasses.replace(cfg.protocol, sE_levels=SIM_LEVELS, repeats=1,
                             steady_s=SIM_STEADY_S, chirp_s=SIM_CHIRP_S, rest_s=0.5)

@@ -48,10 +48,11 @@ sys.path.insert(0, str(HERE))
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+from workers import importable, process_pool  # noqa: E402
+
 from nmsid.analysis.gap.data import prepare_trials  # noqa: E402
 from nmsid.analysis.gap.diagnose import GapSettings, diagnose  # noqa: E402
 from nmsid.protocols.effects import Effect  # noqa: E402
-from workers import importable, process_pool  # noqa: E402
 
 #: The library effects that matter on muscle physics (the others never come near on these
 #: sessions; bench_gap runs all six): fewer template fits keep the bench short.

@@ -40,6 +40,7 @@ from nmsid.protocols.config import config_from_dict  # noqa: E402
 from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
 from nmsid.rig.engine import Engine, TripPolicy  # noqa: E402
 from nmsid.sim_backends import make_sim_rig  # noqa: E402
+
 if str(Path(__file__).resolve().parent) not in sys.path:   # bench/: workers
     sys.path.insert(0, str(Path(__file__).resolve().parent))
 from workers import importable, process_pool  # noqa: E402

@@ -31,13 +31,13 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
-from nmsid.analysis.identify import identify_session  # noqa: E402
-from nmsid.analysis.settings import IdentificationSettings  # noqa: E402
-from nmsid.protocols.session_file import (Calibration, SessionWriter, Trial,  # noqa: E402
-                                          read_session)
-from nmsid.testing.sessions import SE_LEVELS, chirp_rE, write_synthetic_session  # noqa: E402
 from rates import rate  # noqa: E402
 from workers import importable, process_pool  # noqa: E402
+
+from nmsid.analysis.identify import identify_session  # noqa: E402
+from nmsid.analysis.settings import IdentificationSettings  # noqa: E402
+from nmsid.protocols.session_file import Calibration, SessionWriter, Trial, read_session  # noqa: E402
+from nmsid.testing.sessions import SE_LEVELS, chirp_rE, write_synthetic_session  # noqa: E402
 
 FS = 2000.0
 STEADY, CHIRP = 5.0, 10.0

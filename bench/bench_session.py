@@ -38,11 +38,12 @@ for _p in (ROOT, Path(__file__).resolve().parent):   # nmsid; bench/ (workers)
         sys.path.insert(0, str(_p))
 
 from workers import child_env  # noqa: E402
+
 from nmsid.protocols.config import config_from_dict  # noqa: E402
-from nmsid.rig.engine import Engine, TripPolicy  # noqa: E402
-from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
-from nmsid.sim_backends import make_sim_rig  # noqa: E402
 from nmsid.protocols.os_platform import is_windows  # noqa: E402
+from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
+from nmsid.rig.engine import Engine, TripPolicy  # noqa: E402
+from nmsid.sim_backends import make_sim_rig  # noqa: E402
 
 
 def _one(seed: int, tmp: Path) -> dict:

@@ -31,10 +31,21 @@ def _best_of(fn, n=5):
 
 def main() -> None:
     from nmsid.sim_backends import make_sim_rig
-    from nmsid.sim_backends.direct_drive import (chirp_rE, currents_for, ramp_thresholds,
-                                                 run_waveform, waveform)
-    from nmsid.sim_backends.effects import (ActivationDynamics, BaselineDrift, DeadTime, Fatigue,
-                                            FlexorExtensorAsymmetry, RecruitmentNonlinearity)
+    from nmsid.sim_backends.direct_drive import (
+        chirp_rE,
+        currents_for,
+        ramp_thresholds,
+        run_waveform,
+        waveform,
+    )
+    from nmsid.sim_backends.effects import (
+        ActivationDynamics,
+        BaselineDrift,
+        DeadTime,
+        Fatigue,
+        FlexorExtensorAsymmetry,
+        RecruitmentNonlinearity,
+    )
     from nmsid.sim_backends.participant import default_participant
     from nmsid.sim_backends.simulation import ParticipantSimulator
 

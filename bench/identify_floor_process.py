@@ -25,7 +25,6 @@ T0 = time.perf_counter()
 
 import h5py  # noqa: E402
 import numpy as np  # noqa: E402
-
 from scipy.signal import lfilter  # noqa: E402
 
 #: 4th-order Butterworth low-pass at 20 Hz for 2000 Hz as two biquads (scipy.signal.butter(

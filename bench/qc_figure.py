@@ -23,8 +23,9 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
-from nmsid.analysis.qc import assess_session  # noqa: E402
 from bench_qc import contaminate  # noqa: E402
+
+from nmsid.analysis.qc import assess_session  # noqa: E402
 from nmsid.protocols.session_file import read_session  # noqa: E402
 from nmsid.testing.sessions import write_synthetic_session  # noqa: E402
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from nmsid.analysis.control.errors import TrackingReportError
 from nmsid.analysis.control.design import design_controller, design_report
+from nmsid.analysis.control.errors import TrackingReportError
 from nmsid.analysis.control.report import report_markdown, write_report
 from nmsid.analysis.twin import Twin
 from nmsid.cli.errors import UsageError

@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import argparse
 
-from nmsid.protocols.joints import JOINTS
 from nmsid.cli.arguments import (
     folder_to_write,
     input_file,
     output_path,
     session_to_continue,
 )
+from nmsid.protocols.joints import JOINTS
 
 #: Seeds are stored as 64-bit signed integers in the session file.
 SEED_MAX = 2 ** 63 - 1

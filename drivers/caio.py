@@ -59,10 +59,13 @@ from ctypes import POINTER, c_char_p, c_float, c_long, c_short
 
 import numpy as np
 
-from nmsid.drivers.analog_force import (AnalogCalibration, NoLoadTare, convert_block,
-                                        measure_no_load)
-from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
-                                  VendorLibraryMissing)
+from nmsid.drivers.analog_force import AnalogCalibration, NoLoadTare, convert_block, measure_no_load
+from nmsid.drivers.errors import (
+    DeviceError,
+    DeviceNotFound,
+    HardwareConfigError,
+    VendorLibraryMissing,
+)
 from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
 from nmsid.protocols import os_platform
 

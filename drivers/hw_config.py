@@ -20,14 +20,24 @@ from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, model
 
 from nmsid.drivers.analog_force import AXES, SENSOR_SPAN_V, AnalogCalibration
 from nmsid.drivers.errors import HardwareConfigError, hw_config_error
-from nmsid.drivers.registry import (ACQUISITIONS, DEFAULT_STIMULATOR, ESTOPS, STIMULATORS,
-                                    acquisition_entry)
 from nmsid.drivers.p24_settings import P24Config
+from nmsid.drivers.registry import (
+    ACQUISITIONS,
+    DEFAULT_STIMULATOR,
+    ESTOPS,
+    STIMULATORS,
+    acquisition_entry,
+)
 from nmsid.drivers.rehamove3_settings import Rehamove3Config
 from nmsid.drivers.rehastim2_settings import Rehastim2Config
 from nmsid.drivers.stg4002_settings import Stg4002Config
-from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
-                                           validate_settings)
+from nmsid.protocols.settings_base import (
+    SettingProblem,
+    bounded,
+    read_toml,
+    settings_dataclass,
+    validate_settings,
+)
 
 StimulatorSettings: TypeAlias = Stg4002Config | Rehastim2Config | P24Config | Rehamove3Config
 """A validated ``[stimulator]`` table, typed by its kind (the registry's settings models)."""

@@ -45,17 +45,38 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
-from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
-                                  ProtocolError, VendorLibraryMissing)
+from nmsid.drivers.errors import (
+    DeviceError,
+    DeviceNotFound,
+    HardwareConfigError,
+    ProtocolError,
+    VendorLibraryMissing,
+)
 from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
 from nmsid.drivers.leptrino_protocol import (
-    DATA_RECORD_LEN, FULL_SCALE_RAW, RAW_AT_RATED, Command, Corrupt, DataRecord, FilterSetting,
-    Frame, FrameDecoder, Nak, ProductInfo, Result, Status, encode_command, parse_data_record,
-    parse_filter, parse_product_info, parse_rated_values)
+    DATA_RECORD_LEN,
+    FULL_SCALE_RAW,
+    RAW_AT_RATED,
+    Command,
+    Corrupt,
+    DataRecord,
+    FilterSetting,
+    Frame,
+    FrameDecoder,
+    Nak,
+    ProductInfo,
+    Result,
+    Status,
+    encode_command,
+    parse_data_record,
+    parse_filter,
+    parse_product_info,
+    parse_rated_values,
+)
 from nmsid.protocols import os_platform
 
 log = logging.getLogger(__name__)

@@ -55,10 +55,13 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from nmsid.drivers.analog_force import (AnalogCalibration, NoLoadTare, convert_block,
-                                        measure_no_load)
-from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
-                                  VendorLibraryMissing)
+from nmsid.drivers.analog_force import AnalogCalibration, NoLoadTare, convert_block, measure_no_load
+from nmsid.drivers.errors import (
+    DeviceError,
+    DeviceNotFound,
+    HardwareConfigError,
+    VendorLibraryMissing,
+)
 from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
 
 log = logging.getLogger(__name__)

@@ -26,8 +26,8 @@ Adding a kind: docs/architecture.md, "Adding a stimulator kind" (and an acquisit
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -41,16 +41,20 @@ from nmsid.drivers.fake_hardware import analog_wiring, load_fake
 from nmsid.drivers.interfaces import CheckedWaveform
 from nmsid.drivers.leptrino import LeptrinoAcquisition, LeptrinoSensor, _serial_module
 from nmsid.drivers.nidaq import NidaqAcquisition, shared_pin
-from nmsid.drivers.rehastim2 import Rehastim2Stimulator
 from nmsid.drivers.p24_settings import P24Config
 from nmsid.drivers.rehamove3_settings import Rehamove3Config
+from nmsid.drivers.rehastim2 import Rehastim2Stimulator
 from nmsid.drivers.rehastim2_settings import Rehastim2Config
 from nmsid.drivers.sciencemode4 import P24, REHAMOVE3, Sm4Model, Sm4Stimulator, to_steps_mA
 from nmsid.drivers.sciencemode4_mid import Sm4MidLevelStimulator
 from nmsid.drivers.stg4002 import DEFAULT_DLL, Stg4002Stimulator
 from nmsid.drivers.stg4002_settings import Stg4002Config
-from nmsid.drivers.stg_download import (STG4002_RANGE_NA, STG4002_RESOLUTION_NA, ChannelPlan,
-                                        prepare_download)
+from nmsid.drivers.stg_download import (
+    STG4002_RANGE_NA,
+    STG4002_RESOLUTION_NA,
+    ChannelPlan,
+    prepare_download,
+)
 from nmsid.drivers.stg_streaming import Stg4002WithStreaming, StgStreamingStimulator
 from nmsid.drivers.stimulation_report import download_summary
 

@@ -45,9 +45,15 @@ import numpy as np
 
 from nmsid.drivers import rehastim2_protocol as sm2
 from nmsid.drivers.errors import DeviceError, DeviceNotFound, StimulatorSettingError
-from nmsid.drivers.interfaces import (BIPHASIC_PULSES, CheckedWaveform, CurrentLimitError,
-                                      StimulatorCapabilities, StimulatorState,
-                                      StimulatorStatus, Waveshape)
+from nmsid.drivers.interfaces import (
+    BIPHASIC_PULSES,
+    CheckedWaveform,
+    CurrentLimitError,
+    StimulatorCapabilities,
+    StimulatorState,
+    StimulatorStatus,
+    Waveshape,
+)
 from nmsid.drivers.rehastim2_link import Sm2Link, _open_serial
 
 log = logging.getLogger(__name__)

@@ -47,9 +47,15 @@ import numpy as np
 
 from nmsid.drivers import sciencemode4_protocol as sm4
 from nmsid.drivers.errors import DeviceError, DeviceNotFound, StimulatorSettingError
-from nmsid.drivers.interfaces import (BIPHASIC_PULSES, CheckedWaveform, CurrentLimitError,
-                                      StimulatorCapabilities, StimulatorState,
-                                      StimulatorStatus, Waveshape)
+from nmsid.drivers.interfaces import (
+    BIPHASIC_PULSES,
+    CheckedWaveform,
+    CurrentLimitError,
+    StimulatorCapabilities,
+    StimulatorState,
+    StimulatorStatus,
+    Waveshape,
+)
 from nmsid.drivers.leptrino import _serial_module
 from nmsid.drivers.sciencemode4_link import Sm4Link
 from nmsid.protocols.settings_base import SettingProblem

@@ -23,8 +23,15 @@ import numpy as np
 
 from nmsid.drivers.errors import DeviceRangeError, StimulatorSettingError
 from nmsid.drivers.interfaces import CheckedWaveform, CurrentLimitError
-from nmsid.drivers.stg_waveform import (NA_PER_MA, RenderedChannel, check_charge_balance,
-                                        check_rendered, compress, output_tick_us, render_channel)
+from nmsid.drivers.stg_waveform import (
+    NA_PER_MA,
+    RenderedChannel,
+    check_charge_balance,
+    check_rendered,
+    compress,
+    output_tick_us,
+    render_channel,
+)
 
 BYTES_PER_POINT = 8
 """Conservative device-memory estimate per (value, duration) point (not documented)."""

@@ -60,8 +60,12 @@ from collections.abc import Callable
 import numpy as np
 
 from nmsid.drivers.errors import DeviceError, DeviceRangeError, StimulatorSettingError
-from nmsid.drivers.interfaces import (CurrentLimitError, StimulatorCapabilities,
-                                      StimulatorState, StimulatorStatus)
+from nmsid.drivers.interfaces import (
+    CurrentLimitError,
+    StimulatorCapabilities,
+    StimulatorState,
+    StimulatorStatus,
+)
 from nmsid.drivers.mcs_usb import DEFAULT_DLL, find_stg, load_mcs_usb
 from nmsid.drivers.stg4002 import Stg4002Stimulator
 from nmsid.drivers.stg_waveform import NA_PER_MA

@@ -16,8 +16,15 @@ from collections.abc import Callable
 from typing import Any
 
 from nmsid.drivers.interfaces import StimulatorState, StimulatorStatus
-from nmsid.drivers.stg_status import (DeviceStatus, OvercurrentStatus, TrialProgress,
-                                      TriggerStatus, UnknownStatus, decode_status, judge_trial)
+from nmsid.drivers.stg_status import (
+    DeviceStatus,
+    OvercurrentStatus,
+    TrialProgress,
+    TriggerStatus,
+    UnknownStatus,
+    decode_status,
+    judge_trial,
+)
 
 log = logging.getLogger("nmsid.drivers.stg4002")
 

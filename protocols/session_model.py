@@ -99,7 +99,7 @@ def software_id() -> str:
 
 def utc_now() -> str:
     """The current time as ISO 8601 UTC with a ``Z`` suffix (second resolution)."""
-    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 @dataclass

@@ -25,13 +25,12 @@ Examples
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-
-import json
 
 from nmsid.protocols.config import InputKind, ProtocolConfig
 

@@ -33,12 +33,26 @@ import math
 
 import numpy as np
 
-from nmsid.drivers.dry_run import (CARRIER_HZ, ENVELOPE_FS_HZ, Check, DryRunSettings,
-                                   check_after_stop, check_loopback, check_pulses,
-                                   dry_run_chirp_envelope, dry_run_envelope, record_problem)
+from nmsid.drivers.dry_run import (
+    CARRIER_HZ,
+    ENVELOPE_FS_HZ,
+    Check,
+    DryRunSettings,
+    check_after_stop,
+    check_loopback,
+    check_pulses,
+    dry_run_chirp_envelope,
+    dry_run_envelope,
+    record_problem,
+)
 from nmsid.drivers.hardware import BenchClock
-from nmsid.drivers.interfaces import (CheckedWaveform, DeliveryReporting,
-                                      HostStreamedStimulator, SampleTiming, StimulatorState)
+from nmsid.drivers.interfaces import (
+    CheckedWaveform,
+    DeliveryReporting,
+    HostStreamedStimulator,
+    SampleTiming,
+    StimulatorState,
+)
 from nmsid.drivers.registry import stimulator_kind
 from nmsid.protocols.interlock_settings import InterlockConfig
 from nmsid.rig.safety import Interlock

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from nmsid.protocols.errors import DiskFullError, SessionWriteError
 from nmsid.protocols.session_codec import counts_to_values
 from nmsid.protocols.session_file import Calibration, Event, SessionFileError, Trial

@@ -317,7 +317,7 @@ class LslRecorder:
 
         import h5py
         target = Path(path) if Path(path).exists() else Path(str(path) + ".lsl.h5")
-        run = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+        run = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%SZ")
         with h5py.File(target, "a") as f:
             g = f.require_group("lsl").create_group(run)
             g.attrs["trial_onsets_lsl_json"] = json.dumps({str(k): v for k, v in

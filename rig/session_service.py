@@ -35,8 +35,8 @@ from nmsid.drivers.hw_config import HardwareConfig, load_hw_config
 from nmsid.drivers.interfaces import RigDevices
 from nmsid.protocols.config import Config
 from nmsid.protocols.session_file import read_session
-from nmsid.rig.journal import journal_dir
 from nmsid.rig.errors import RequestError
+from nmsid.rig.journal import journal_dir
 from nmsid.sim_backends.participant_models import participant_for_model
 from nmsid.sim_backends.rig import make_sim_rig
 

@@ -39,8 +39,8 @@ import numpy as np
 
 from nmsid.protocols.joints import JOINTS
 from nmsid.sim_backends.curves import CurveModel, ParameterCurve
-from nmsid.sim_backends.joint_participants import joint_sensor, template_for
 from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.joint_participants import joint_sensor, template_for
 from nmsid.sim_backends.participant import ReferenceCalibration, VirtualParticipant
 from nmsid.sim_backends.sensor import SensorModel
 

@@ -21,10 +21,13 @@ import numpy as np
 
 from nmsid.protocols.effects import chain_of
 from nmsid.sim_backends.filters import DelayLine, StatefulFilter, dynamics_zoh
-from nmsid.sim_backends.participant import (SE_RESOLUTION, OperatingPoint, VirtualParticipant,
-                                            sensed_sE)
+from nmsid.sim_backends.participant import (
+    SE_RESOLUTION,
+    OperatingPoint,
+    VirtualParticipant,
+    sensed_sE,
+)
 from nmsid.sim_backends.sensor import SensorState
-
 
 QUIET_SKIP_SAMPLES = 20000
 """In a gap without stimulation, after this many samples (10 s at 2 kHz) the dynamics have

@@ -13,9 +13,9 @@ import json
 import logging
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 from nmsid.study.config import StudyConfig
 from nmsid.study.group import GroupResult, write_group

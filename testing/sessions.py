@@ -146,7 +146,7 @@ def write_synthetic_session(path: str | Path, seed: int = 0, *, participant: str
                                       f0_Hz, f1_Hz)
     order = [(i, r) for r in range(1, repeats + 1) for i in range(len(sE))]
     order = [order[j] for j in rng.permutation(len(order))]
-    done = {i: 0 for i in range(len(sE))}
+    done = dict.fromkeys(range(len(sE)), 0)
     for i, _ in order:
         done[i] += 1
         rE, y = responses[i]

@@ -12,6 +12,7 @@ import sys
 import time
 
 import pytest
+
 from nmsid.protocols import os_platform
 from nmsid.testing.windows_emulation import (
     ERROR_ACCESS_DENIED,

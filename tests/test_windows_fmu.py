@@ -9,6 +9,7 @@ import stat
 from pathlib import Path
 
 import pytest
+
 from nmsid.export.errors import FmuExportError
 from nmsid.export.fmu.build import (
     Compiler,

@@ -4,10 +4,10 @@ on the engine's thread (the state belongs to the thread)."""
 
 from __future__ import annotations
 
-import pytest
-
 import logging
 import threading
+
+import pytest
 
 from nmsid.cli import main
 from nmsid.protocols import os_platform

@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+
 from nmsid.analysis.control.controllers import (
     V_MAX,
     V_MIN,

@@ -26,14 +26,13 @@ aborted: an aborted trial stimulated too), in file order ``t001, t002, ...``.
 from __future__ import annotations
 
 import functools
-
-from collections.abc import Mapping
-
 import logging
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from nmsid.analysis.discretize import smooth_hold_input
 from nmsid.analysis.gap.errors import GapInputError
 from nmsid.analysis.input_timing import TimingEstimate, estimate_session_timing

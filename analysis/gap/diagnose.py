@@ -32,12 +32,12 @@ import numpy as np
 
 from nmsid.analysis.gap.crossval import Fold, repeat_folds
 from nmsid.analysis.gap.data import GapData
-from nmsid.protocols.effects import CANDIDATES, Effect
 from nmsid.analysis.gap.errors import GapInputError
 from nmsid.analysis.gap.fit import ModelFit, fit_model, predict
 from nmsid.analysis.gap.models import NOMINAL, Candidate, candidate, n_drift_columns, nuisance_basis
 from nmsid.analysis.gap.samples import effective_fraction
 from nmsid.analysis.gap.verdict import GapVerdict, assess, nominal_settles
+from nmsid.protocols.effects import CANDIDATES, Effect
 
 log = logging.getLogger(__name__)
 

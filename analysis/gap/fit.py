@@ -20,11 +20,11 @@ from scipy.signal import lfilter
 
 from nmsid.analysis.damped_lstsq import Damping, levenberg_marquardt
 from nmsid.analysis.gap.data import GapData
-from nmsid.protocols.effects import Effect
 from nmsid.analysis.gap.harmonics import levy_second_order, local_harmonics
 from nmsid.analysis.gap.models import Candidate, nuisance_basis
 from nmsid.analysis.gap.samples import effective_fraction
 from nmsid.analysis.parameters import Parameters
+from nmsid.protocols.effects import Effect
 
 log = logging.getLogger(__name__)
 

@@ -62,13 +62,12 @@ Narrow-band components: :mod:`nmsid.analysis.gap.narrowband`.
 from __future__ import annotations
 
 import math
-from typing import Any
 from dataclasses import dataclass, field, fields
+from typing import Any
 
 import numpy as np
 
 from nmsid.analysis.fatigue import FatigueResult, fit_fatigue
-
 from nmsid.analysis.gap.fit import find_steps, predict
 from nmsid.analysis.gap.harmonics import local_harmonics
 from nmsid.analysis.gap.models import nuisance_basis

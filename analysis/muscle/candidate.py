@@ -19,10 +19,9 @@ first order, at the cost of one batched simulation for all folds.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
 import logging
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np

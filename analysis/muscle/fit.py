@@ -31,7 +31,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import fft, optimize
-
 from scipy.signal import savgol_coeffs
 
 from nmsid.analysis.gap.data import GapData
@@ -40,8 +39,8 @@ from nmsid.analysis.gap.models import nuisance_basis
 from nmsid.analysis.gap.samples import effective_fraction
 from nmsid.analysis.muscle import literature as lit
 from nmsid.analysis.muscle.dynamics import PARAM_NAMES, simulate_batch
-from nmsid.analysis.parameters import Parameters
 from nmsid.analysis.muscle.errors import MuscleFitError
+from nmsid.analysis.parameters import Parameters
 from nmsid.analysis.preprocess import lowpass_sos
 
 

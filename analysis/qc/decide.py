@@ -25,13 +25,24 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 
 import numpy as np
-
-from nmsid.analysis.fatigue import FatigueResult, cumulative_stimulation_s, fit_fatigue, \
-    gains_between_repeats
-from nmsid.analysis.qc import checks
-from nmsid.analysis.qc.repeats import Deviation, attribute_pair, deviations, fit_jump, smoothed, unshared
-from nmsid.analysis.qc.settings import QCSettings
 from scipy.signal import sosfiltfilt
+
+from nmsid.analysis.fatigue import (
+    FatigueResult,
+    cumulative_stimulation_s,
+    fit_fatigue,
+    gains_between_repeats,
+)
+from nmsid.analysis.qc import checks
+from nmsid.analysis.qc.repeats import (
+    Deviation,
+    attribute_pair,
+    deviations,
+    fit_jump,
+    smoothed,
+    unshared,
+)
+from nmsid.analysis.qc.settings import QCSettings
 from nmsid.protocols.reprs import html_repr, short_repr
 from nmsid.protocols.session_file import Trial, read_session
 

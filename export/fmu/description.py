@@ -37,7 +37,7 @@ def model_description(vs: list[Var], *, model_name: str, model_identifier: str, 
     """The model description as text (UTF-8 XML)."""
     index = {v.name: i + 1 for i, v in enumerate(vs)}
     vr = value_references(vs)
-    when = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    when = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
     units = sorted({v.unit for v in vs if v.unit})
     out = ['<?xml version="1.0" encoding="UTF-8"?>',
            f'<fmiModelDescription fmiVersion="2.0" modelName={quoteattr(model_name)} '

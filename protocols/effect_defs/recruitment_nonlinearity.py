@@ -17,8 +17,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from nmsid.protocols.effect_defs.base import (EffectDefinition, EffectParamError, EffectParams,
-                                              FittedForm, param)
+from nmsid.protocols.effect_defs.base import (
+    EffectDefinition,
+    EffectParamError,
+    EffectParams,
+    FittedForm,
+    param,
+)
 
 
 class RecruitmentShape(enum.Enum):

@@ -11,15 +11,24 @@ hand); nothing else runs before that.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtWidgets import (QDoubleSpinBox, QFormLayout, QGroupBox, QHBoxLayout,
-                               QLabel, QPushButton, QVBoxLayout, QWidget)
+from PySide6.QtWidgets import (
+    QDoubleSpinBox,
+    QFormLayout,
+    QGroupBox,
+    QHBoxLayout,
+    QLabel,
+    QPushButton,
+    QVBoxLayout,
+    QWidget,
+)
 
-from nmsid.rig.gui.theme import Colour
 from nmsid.protocols.session_file import Calibration
+from nmsid.rig.gui.theme import Colour
 
 #: (muscle key, label, colour, Imin attribute, Imax attribute)
 MUSCLES = (("ext", "Extensor (triceps)", Colour.I_EXT, "Iemin_mA", "Iemax_mA"),

@@ -130,7 +130,7 @@ class InProcessTransport:
             self.cond.notify_all()
 
 
-_INPROCESS: dict[str, "LeptrinoEmulator"] = {}
+_INPROCESS: dict[str, LeptrinoEmulator] = {}
 """In-process emulators by name (``leptrinoemu://<name>``)."""
 _names = itertools.count(1)
 

@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 from scipy.signal import cont2discrete, lfilter
 
-from nmsid.analysis.discretize import (foh_coefficients, foh_state_matrices,
-                                       smooth_hold_input)
+from nmsid.analysis.discretize import foh_coefficients, foh_state_matrices, smooth_hold_input
 
 CASES = [(8.0, 0.2, 5e-4), (30.0, 0.7, 5e-3), (60.0, 1.0, 5e-3), (45.0, 1.2, 5e-4),
          (500.0, 0.1, 5e-3), (20.0, 1.0 + 1e-9, 1e-3), (3000.0, 3.0, 5e-3)]

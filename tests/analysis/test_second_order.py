@@ -37,7 +37,7 @@ def test_step_closed_form(Kp, wn, zeta):
     h = 1 / fs
     # piecewise-linear input: ramp from t[k0-1] to t[k0]
     y = (ramp_response(t - t[k0 - 1], Kp, wn, zeta) - ramp_response(t - t[k0], Kp, wn, zeta)) / h
-    from scipy.signal import lsim                        # the closed form is right
+    from scipy.signal import lsim  # the closed form is right
     assert np.max(np.abs(y - lsim(([Kp * wn * wn], [1, 2 * zeta * wn, wn * wn]), u, t)[1])) \
         < 1e-9 * Kp
     f = fit_second_order(u - u.mean(), y + 0.7, fs, LINEAR)

@@ -6,6 +6,7 @@ import sys
 
 import pytest
 
+from nmsid.cli import main
 from nmsid.drivers.caio import CaioAcquisition
 from nmsid.drivers.estop_switch import NidaqEStop, SerialEStop
 from nmsid.drivers.hardware import make_hw_rig
@@ -13,7 +14,6 @@ from nmsid.drivers.interfaces import ForceAcquisition, RigDevices, Stimulator
 from nmsid.drivers.leptrino import LeptrinoAcquisition
 from nmsid.drivers.nidaq import NidaqAcquisition
 from nmsid.drivers.stg4002 import Stg4002Stimulator
-from nmsid.cli import main
 
 
 @pytest.mark.parametrize("kind, estop, inner, estop_cls", [

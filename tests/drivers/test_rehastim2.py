@@ -12,9 +12,16 @@ from hypothesis import strategies as st
 
 from nmsid.drivers import rehastim2_protocol as sm2
 from nmsid.drivers.errors import DeviceError, DeviceNotFound, StimulatorSettingError
-from nmsid.drivers.interfaces import (BIPHASIC_PULSES, CheckedWaveform, CurrentLimitError,
-                                      DeliveryReporting, Describable, HostStreamedStimulator,
-                                      Stimulator, StimulatorState)
+from nmsid.drivers.interfaces import (
+    BIPHASIC_PULSES,
+    CheckedWaveform,
+    CurrentLimitError,
+    DeliveryReporting,
+    Describable,
+    HostStreamedStimulator,
+    Stimulator,
+    StimulatorState,
+)
 from nmsid.drivers.rehastim2 import Rehastim2Stimulator
 from nmsid.testing.fakes.fake_rehastim2 import FakeRehastim2
 

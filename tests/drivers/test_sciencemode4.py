@@ -9,7 +9,8 @@ import time
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from nmsid.drivers import sciencemode4_protocol as sm4
 from nmsid.drivers.errors import StimulatorSettingError

@@ -6,10 +6,16 @@ import threading
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from nmsid.drivers.errors import (DeviceError, DeviceMemoryError, DeviceNotFound, DeviceRangeError,
-                                  VendorLibraryMissing)
+from nmsid.drivers.errors import (
+    DeviceError,
+    DeviceMemoryError,
+    DeviceNotFound,
+    DeviceRangeError,
+    VendorLibraryMissing,
+)
 from nmsid.drivers.interfaces import CheckedWaveform, CurrentLimitError, StimulatorState
 from nmsid.drivers.stg4002 import Stg4002Stimulator, load_mcs_usb
 from nmsid.drivers.stg_waveform import render_channel

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from nmsid.protocols.session_file import (Calibration, Event, SessionWriter, Trial, read_session)
+from nmsid.protocols.session_file import Calibration, Event, SessionWriter, Trial, read_session
 
 pynwb = pytest.importorskip("pynwb")
 pytest.importorskip("nwbinspector")

@@ -4,8 +4,15 @@ import json
 
 import pytest
 
-from nmsid.protocols.config import (Config, ConfigError, PausePolicy, Randomisation, config_from_dict,
-                                    config_from_json, load_config)
+from nmsid.protocols.config import (
+    Config,
+    ConfigError,
+    PausePolicy,
+    Randomisation,
+    config_from_dict,
+    config_from_json,
+    load_config,
+)
 
 
 def test_defaults_are_the_papers_protocol():

@@ -11,15 +11,26 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from nmsid.protocols.effects import CANDIDATES as GAP_CANDIDATES
-from nmsid.protocols.effects import Effect as GapEffect
 from nmsid.analysis.gap.models import FORMS, FinalContext, candidate
 from nmsid.analysis.twin import Twin
 from nmsid.export.fmu.reference import TwinStepper
-from nmsid.protocols.effects import (CANDIDATES, EFFECT_NAMES, EFFECTS, Effect, EffectParamError,
-                                     check_param, spec)
-from nmsid.sim_backends.effects import (EFFECT_TYPES, FatigueShape, RecruitmentShape,
-                                        effect_from_dict)
+from nmsid.protocols.effects import (
+    CANDIDATES,
+    EFFECT_NAMES,
+    EFFECTS,
+    Effect,
+    EffectParamError,
+    check_param,
+    spec,
+)
+from nmsid.protocols.effects import CANDIDATES as GAP_CANDIDATES
+from nmsid.protocols.effects import Effect as GapEffect
+from nmsid.sim_backends.effects import (
+    EFFECT_TYPES,
+    FatigueShape,
+    RecruitmentShape,
+    effect_from_dict,
+)
 from nmsid.sim_backends.errors import SimConfigError
 from nmsid.sim_backends.participant import default_participant
 
@@ -221,8 +232,7 @@ def _toy_module():
     transport delay given in ms, fitted on a linear scale), acting at the ``delay`` slot."""
     from dataclasses import dataclass
 
-    from nmsid.protocols.effect_defs.base import (EffectDefinition, EffectParams, FittedForm,
-                                                  param)
+    from nmsid.protocols.effect_defs.base import EffectDefinition, EffectParams, FittedForm, param
 
     @dataclass(frozen=True)
     class TransportDelay(EffectParams):

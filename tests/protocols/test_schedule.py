@@ -3,12 +3,17 @@
 from collections import Counter
 
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from nmsid.protocols.config import Randomisation
 from nmsid.protocols.errors import ScheduleError
-from nmsid.protocols.schedule import (TrialStatus, make_schedule, schedule_from_json,
-                                      schedule_to_json)
+from nmsid.protocols.schedule import (
+    TrialStatus,
+    make_schedule,
+    schedule_from_json,
+    schedule_to_json,
+)
 
 LEVELS = [round(0.30 + 0.05 * k, 2) for k in range(15)]
 

@@ -10,8 +10,14 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from nmsid.protocols.session_file import (Calibration, SessionFileError, SessionWriter, Trial,
-                                          read_session, validate_session)
+from nmsid.protocols.session_file import (
+    Calibration,
+    SessionFileError,
+    SessionWriter,
+    Trial,
+    read_session,
+    validate_session,
+)
 
 
 def _good(path, n=2000):

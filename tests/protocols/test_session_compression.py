@@ -5,8 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nmsid.protocols.session_file import (Calibration, SessionWriter, Trial, read_session,
-                                          validate_session)
+from nmsid.protocols.session_file import (
+    Calibration,
+    SessionWriter,
+    Trial,
+    read_session,
+    validate_session,
+)
 
 
 def _trial(rng, n, *, scale, wrench_f32):

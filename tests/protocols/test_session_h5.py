@@ -9,8 +9,14 @@ import h5py
 import numpy as np
 import pytest
 
-from nmsid.protocols.session_h5 import (float64_buffers, has_attr, open_group, open_member,
-                                       read_attrs, read_float64)
+from nmsid.protocols.session_h5 import (
+    float64_buffers,
+    has_attr,
+    open_group,
+    open_member,
+    read_attrs,
+    read_float64,
+)
 
 ATTRS = {
     "f64": np.float64(2000.0),

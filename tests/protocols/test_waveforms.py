@@ -2,12 +2,18 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from nmsid.protocols.config import ProtocolConfig
-from nmsid.protocols.waveforms import (chirp_frequency_Hz, chirp_phase_rad, currents_mA,
-                                       rE_signal, trial_waveform)
 from nmsid.protocols.session_file import Calibration
+from nmsid.protocols.waveforms import (
+    chirp_frequency_Hz,
+    chirp_phase_rad,
+    currents_mA,
+    rE_signal,
+    trial_waveform,
+)
 
 
 def test_chirp_frequency_is_the_phase_derivative():

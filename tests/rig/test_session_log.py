@@ -6,7 +6,15 @@ import os
 import numpy as np
 import pytest
 
-from nmsid.protocols.session_file import Calibration, SessionExistsError, SessionFileError, SessionWriter, Trial, read_session, validate_session
+from nmsid.protocols.session_file import (
+    Calibration,
+    SessionExistsError,
+    SessionFileError,
+    SessionWriter,
+    Trial,
+    read_session,
+    validate_session,
+)
 from nmsid.rig.session_log import PARTIAL_ABORT_REASON, SessionLog, journal_dir, recover
 
 

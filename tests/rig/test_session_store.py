@@ -12,8 +12,13 @@ import numpy as np
 import pytest
 
 from nmsid.protocols.errors import DiskFullError, SessionLockedError
-from nmsid.protocols.session_file import Calibration, SessionFileError, Trial, read_session, \
-    validate_session
+from nmsid.protocols.session_file import (
+    Calibration,
+    SessionFileError,
+    Trial,
+    read_session,
+    validate_session,
+)
 from nmsid.protocols.session_lock import SessionLock, live_writer
 from nmsid.rig.session_log import SessionLog, journal_dir, recover
 

@@ -7,11 +7,12 @@ import threading
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from nmsid.protocols.config import config_from_dict
-from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
 from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
 from nmsid.rig.states import State
 from nmsid.sim_backends import Fault, FaultKind, make_sim_rig
 

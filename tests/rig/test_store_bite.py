@@ -18,6 +18,7 @@ import stat
 import h5py
 import numpy as np
 import pytest
+
 from nmsid.protocols.session_file import (
     Calibration,
     SessionExistsError,

@@ -8,6 +8,7 @@ import os
 import h5py
 import numpy as np
 import pytest
+
 from nmsid.protocols.session_file import (
     Calibration,
     SessionFileError,
@@ -15,12 +16,12 @@ from nmsid.protocols.session_file import (
     read_session,
     validate_session,
 )
+from nmsid.protocols.session_state import session_state
 from nmsid.protocols.user_values import (
     DERIVED_SUFFIXES,
     MAX_SESSION_NAME_BYTES,
     name_length_problem,
 )
-from nmsid.protocols.session_state import session_state
 from nmsid.rig.journal import load_trial_npz, save_trial_npz, trial_digest
 from nmsid.rig.session_log import SessionLog, journal_dir, recover
 

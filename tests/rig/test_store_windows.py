@@ -8,9 +8,10 @@ import subprocess
 import sys
 
 import h5py
-import nmsid.protocols.session_publish as pub
 import numpy as np
 import pytest
+
+import nmsid.protocols.session_publish as pub
 from nmsid.protocols import os_platform
 from nmsid.protocols.session_file import (
     Calibration,

@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from nmsid.analysis.control.design import design_controller
 from nmsid.analysis.twin import Twin
 from nmsid.cli import main
 from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.rig.session_log import PARTIAL_ABORT_REASON, journal_dir, recover
 from nmsid.sim_backends.participant import default_participant
-
 from tests.rig.forked_cli import fork_main, wait_child
 
 CONFIG = """

@@ -10,8 +10,13 @@ from nmsid.analysis.design.candidates import Candidate
 from nmsid.analysis.design.errors import DesignError
 from nmsid.analysis.design.predict import DEFAULT_SCATTER
 from nmsid.analysis.design.prior import PARAMETERS
-from nmsid.analysis.design.validate import (ProtocolOutcome, ScatterModel, alternative_scatter,
-                                            simulate_session, validated_ratio)
+from nmsid.analysis.design.validate import (
+    ProtocolOutcome,
+    ScatterModel,
+    alternative_scatter,
+    simulate_session,
+    validated_ratio,
+)
 
 SHORT = Candidate(sE_levels=(0.5, 0.9), repeats=2, steady_s=1.0, chirp_s=3.0, rest_s=10.0)
 

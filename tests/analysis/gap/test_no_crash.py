@@ -54,9 +54,7 @@ def test_a_muscle_fit_that_overflows_is_a_row_not_a_crash(unexplained_session, t
 def test_printed_lines_survive_every_figure_missing():
     """A report whose figures are all None (JSON of NaN) prints n/a, not a TypeError."""
     rep = {"session": "s.h5", "verdict": "unexplained", "best_effect": "none",
-           "heldout": {k: None for k in ("nominal_nrmse_pct", "augmented_nrmse_pct",
-                                         "shrink_pct", "noise_floor_nrmse_pct",
-                                         "sensor_floor_nrmse_pct")},
+           "heldout": dict.fromkeys(("nominal_nrmse_pct", "augmented_nrmse_pct", "shrink_pct", "noise_floor_nrmse_pct", "sensor_floor_nrmse_pct")),
            "verdict_sentence": "x", "elapsed_s": None, "evidence": {"summary": []},
            "muscle_twin": {"supported": False, "converged": True, "fit_s": None,
                            "not_determined": [],

@@ -14,8 +14,8 @@ from nmsid.analysis import identify as identify_module
 from nmsid.analysis.identify import identify_session
 from nmsid.analysis.qc import QCSettings, assess_level, assess_session
 from nmsid.analysis.settings import IdentificationSettings
-from nmsid.protocols.session_file import Calibration, SessionWriter, Trial, read_session
 from nmsid.cli import main
+from nmsid.protocols.session_file import Calibration, SessionWriter, Trial, read_session
 
 FS = 2000.0
 STEADY, CHIRP = 5.0, 10.0

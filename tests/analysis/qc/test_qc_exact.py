@@ -11,7 +11,6 @@ from hypothesis import strategies as st
 
 from nmsid.analysis.qc import QCSettings, checks, repeats
 from nmsid.analysis.qc.decide import _single
-
 from tests.analysis.qc.test_qc import FS, STEADY, bump, make_level
 
 
