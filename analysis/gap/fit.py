@@ -332,7 +332,7 @@ def fit_model(data: GapData, cand: Candidate, *, start: ModelFit | None = None,
     r, Kp = prob.residual(wn, zeta, p)
     L = len(data.sE_levels)
     full = (np.full(L, np.nan), np.full(L, np.nan), np.full(L, np.nan))
-    for arr, val in zip(full, (Kp, wn, zeta)):
+    for arr, val in zip(full, (Kp, wn, zeta), strict=True):
         arr[prob.levels] = val
     return ModelFit(candidate=cand, p_shared=p, Kp=full[0], wn_rad_s=full[1], zeta=full[2],
                     corner_Hz=corner_Hz, rss=float(np.sum(r ** 2)), n_samples=r.size,

@@ -162,15 +162,24 @@ class Candidate:
         out["timing_correction_s"] = self.timing_s(p)
         return Parameters.of(out)
 
-    @functools.cache
     def indices_at(self, slots: tuple[str, ...], timing: bool = False) -> tuple[int, ...]:
         """Indices of ``p`` read by the effects acting at ``slots`` (with ``timing``: and
         the timing correction's)."""
+        known = self._indices.get((slots, timing))
+        if known is not None:
+            return known
         out = {i for slot in slots for _, sl in self._slot_parts.get(slot, ())
                for i in range(sl.start, sl.stop)}
         if timing:
             out.add(self.n_shared())
-        return tuple(sorted(out))
+        self._indices[(slots, timing)] = found = tuple(sorted(out))
+        return found
+
+    @functools.cached_property
+    def _indices(self) -> dict[tuple[tuple[str, ...], bool], tuple[int, ...]]:
+        """:meth:`indices_at`'s answers, kept with the candidate (a cache on the method
+        would keep every candidate alive)."""
+        return {}
 
     # -- the model: the effects' forms composed at the chain's slots -------------------
     def _at(self, slot: str, p: np.ndarray) -> list[tuple[FittedForm, np.ndarray]]:

@@ -159,7 +159,8 @@ class MuscleFit:
     @property
     def params(self) -> Parameters:
         """The fitted parameters by name (``PARAM_NAMES`` order)."""
-        return Parameters(tuple((n, float(v)) for n, v in zip(PARAM_NAMES, self.theta)))
+        return Parameters(tuple((n, float(v))
+                                for n, v in zip(PARAM_NAMES, self.theta, strict=True)))
 
     def table(self) -> list[dict]:
         """Each parameter with its uncertainty (relative for the log-scale ones)."""
@@ -196,7 +197,7 @@ class _Problem:
         # each distinct (sE, rE) is simulated once (a 45-trial session: 15 simulations)
         keys: dict[tuple[float, bytes], int] = {}
         self.inverse = np.array([keys.setdefault((float(sv), r.tobytes()), len(keys))
-                                 for sv, r in zip(self.sE, self.rE)])
+                                 for sv, r in zip(self.sE, self.rE, strict=True)])
         first = np.unique(self.inverse, return_index=True)[1]
         self.rE_u, self.sE_u = self.rE[first], self.sE[first]
         self.idx = (data.n_lead_sim + np.arange(data.y_N.shape[1]) * data.sim_step) // dec
