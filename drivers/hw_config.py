@@ -331,14 +331,14 @@ def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
         kind=a.kind, fs_Hz=a.fs_Hz,
         monitor_channel=a.monitor_channel if a.monitor_channel >= 0 else None,
         monitor_fs_Hz=a.monitor_fs_Hz,
-        caio=dict(device_name=a.caio.device_name, ai_range=a.caio.range,
-                  input_method=a.caio.input_method, library=a.caio.library,
-                  conversion_us=a.caio.conversion_us),
-        nidaq=dict(device=a.nidaq.device, start_trigger=a.nidaq.start_trigger,
-                   terminal_config=a.nidaq.terminal_config, range_V=a.nidaq.range_V,
-                   reads_per_s=a.nidaq.reads_per_s),
-        leptrino=dict(port=a.leptrino.port, baudrate=a.leptrino.baudrate,
-                      sync_on_external_input=a.leptrino.sync_on_external_input))
+        caio={"device_name": a.caio.device_name, "ai_range": a.caio.range,
+              "input_method": a.caio.input_method, "library": a.caio.library,
+              "conversion_us": a.caio.conversion_us},
+        nidaq={"device": a.nidaq.device, "start_trigger": a.nidaq.start_trigger,
+               "terminal_config": a.nidaq.terminal_config, "range_V": a.nidaq.range_V,
+               "reads_per_s": a.nidaq.reads_per_s},
+        leptrino={"port": a.leptrino.port, "baudrate": a.leptrino.baudrate,
+                  "sync_on_external_input": a.leptrino.sync_on_external_input})
     cal = None
     if acquisition_entry(a.kind).analog:
         try:

@@ -665,7 +665,7 @@ class LeptrinoAcquisition:
         if status & Status.OVER_RATED:
             details.append("load above the sensor's rated value")
         if status & (Status.SENSOR_FAULT | Status.ROM_ERROR):
-            details.append("sensor reports a fault (status 0x%02X)" % status)
+            details.append(f"sensor reports a fault (status 0x{int(status):02X})")
         if other_fault:
             details.append(other_fault)
         flags = AcquisitionFlags(

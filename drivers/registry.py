@@ -101,11 +101,11 @@ class StimulatorKind:
 def _make_stg(s: Stg4002Config, clock, stack):
     # download mode for calibration and identification trials; streaming mode (handed the
     # device by open_stream) for tracking trials: docs/hardware.md, "Streaming"
-    common: dict[str, Any] = dict(ceiling_ext_mA=s.ceiling_ext_mA,
-                                  ceiling_flex_mA=s.ceiling_flex_mA,
-                                  extensor_channel=s.extensor_channel,
-                                  flexor_channel=s.flexor_channel, sync_out=s.sync_out,
-                                  serial=s.serial, dll_path=s.dll_path or DEFAULT_DLL)
+    common: dict[str, Any] = {"ceiling_ext_mA": s.ceiling_ext_mA,
+                              "ceiling_flex_mA": s.ceiling_flex_mA,
+                              "extensor_channel": s.extensor_channel,
+                              "flexor_channel": s.flexor_channel, "sync_out": s.sync_out,
+                              "serial": s.serial, "dll_path": s.dll_path or DEFAULT_DLL}
     return Stg4002WithStreaming(streaming=StgStreamingStimulator(clock=clock, **common),
                                 output_rate_Hz=s.output_rate_Hz, clock=clock, **common)
 

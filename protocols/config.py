@@ -245,7 +245,7 @@ class ProtocolConfig:
 
     @model_validator(mode="after")
     def _consistent(self):
-        if len(set(round(v, 9) for v in self.sE_levels)) != len(self.sE_levels):
+        if len({round(v, 9) for v in self.sE_levels}) != len(self.sE_levels):
             raise SettingProblem("sE_levels", list(self.sE_levels),
                                  "each sE level once (use repeats for repetitions)")
         if (self.reference_sE is None) != (self.reference_every == 0):

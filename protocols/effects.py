@@ -193,7 +193,7 @@ def _snapshot() -> _Snapshot:
     effects = tuple(Effect(n) for n in names)
     specs = tuple(EffectSpec(e, d.params_type.summary, d.params_type.definition,
                              d.params_type.param_specs(), d)
-                  for e, d in zip(effects, _REGISTRY))
+                  for e, d in zip(effects, _REGISTRY, strict=True))
     return _Snapshot(specs, {s.name: s for s in specs}, names, effects)
 
 

@@ -1,8 +1,9 @@
 """The session file's data model: the contract's names, and the objects a file holds.
 
 See ``shared/spec/session-file-v1.md``. :mod:`nmsid.protocols.session_writer` writes these
-objects, :mod:`nmsid.protocols.session_reader` reads them and :mod:`nmsid.protocols.session_validator`
-checks a file against the contract; :mod:`nmsid.protocols.session_file` re-exports all of it.
+objects, :mod:`nmsid.protocols.session_reader` reads them and
+:mod:`nmsid.protocols.session_validator` checks a file against the contract;
+:mod:`nmsid.protocols.session_file` re-exports all of it.
 """
 
 from __future__ import annotations

@@ -256,7 +256,7 @@ class SessionWriter:
             for trial in trials:
                 names.append(self._add_trial(f, trial))
             _add_events(f, events)
-        for trial, name in zip(trials, names):
+        for trial, name in zip(trials, names, strict=True):
             trial.name = name
         return names
 

@@ -172,7 +172,7 @@ def make_population(n: int, seed: int = 0, joint: str = "elbow") -> list[Virtual
         rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, i, 4242])
         p_seed = int(rng.integers(0, 2 ** 31 - 1))
         kp, wn, zeta = (table[order[i % 10]] for table, order in
-                        zip((KP_FAMILIES, WN_FAMILIES, ZETA_FAMILIES), orders))
+                        zip((KP_FAMILIES, WN_FAMILIES, ZETA_FAMILIES), orders, strict=True))
         families = (kp, wn, zeta)
         out.append(make_participant(rng, f"S{i + 1:02d}", p_seed, families, joint))
     return out

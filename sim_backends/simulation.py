@@ -198,7 +198,7 @@ class ParticipantSimulator:
     def restore(self, snap: tuple) -> None:
         """Return to a :meth:`snapshot` (the sensor noise depends only on sample indices)."""
         self.cursor, self.stim_samples, self._op, self._s_raw, filt, delay = snap
-        for f, st in zip(self._dyn, filt):
+        for f, st in zip(self._dyn, filt, strict=True):
             f.restore(st)
         if self._delay is not None:
             self._delay.restore(delay)

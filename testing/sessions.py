@@ -141,7 +141,7 @@ def write_synthetic_session(path: str | Path, seed: int = 0, *, participant: str
     cal = Calibration(Iemin_mA=2.0, Iemax_mA=9.5, Ifmin_mA=1.5, Ifmax_mA=8.0)
     w.write_calibration(cal)
     responses = {}
-    for i, s in enumerate(sE):
+    for i in range(len(sE)):
         responses[i] = exact_response(kp[i], wn[i], zeta[i], fs_Hz, n, steady_s, chirp_s,
                                       f0_Hz, f1_Hz)
     order = [(i, r) for r in range(1, repeats + 1) for i in range(len(sE))]

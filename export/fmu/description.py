@@ -13,7 +13,8 @@ from xml.sax.saxutils import quoteattr
 
 from nmsid.export.fmu.variables import STATE_NAMES, Var, value_references
 
-_UNITS: dict[str, dict[str, float]] = {  # name -> SI base unit exponents (FMI 2.0.x section 2.2.2 BaseUnit)
+# name -> SI base unit exponents (FMI 2.0.x section 2.2.2 BaseUnit)
+_UNITS: dict[str, dict[str, float]] = {
     "N": {"kg": 1, "m": 1, "s": -2}, "N/s": {"kg": 1, "m": 1, "s": -3},
     "N/s2": {"kg": 1, "m": 1, "s": -4}, "rad/s": {"rad": 1, "s": -1}, "s": {"s": 1},
     "1": {}, "%": {"factor": 0.01},
