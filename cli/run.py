@@ -70,7 +70,8 @@ def register(sub) -> None:
                    help="schedule randomisation seed (overrides the config; default: drawn "
                         "and recorded)")
     out = p.add_mutually_exclusive_group()
-    out.add_argument("--out", metavar="FILE", type=output_path, help="session file to write (must not exist)")
+    out.add_argument("--out", metavar="FILE", type=output_path,
+                     help="session file to write (must not exist)")
     out.add_argument("--outdir", metavar="DIR", type=folder_to_write,
                      help="folder for <participant>-<UTC time>.h5 (default: sessions)")
     out.add_argument("--resume", metavar="FILE", type=session_to_continue,

@@ -1,8 +1,8 @@
 """The write-ahead journal's file layout: ``<file>.journal/`` beside a session file.
 
 See :mod:`nmsid.rig.session_log` for what each file holds and why. This module only knows how
-to write and read them durably; :mod:`nmsid.rig.recovery` and :class:`nmsid.rig.session_log.SessionLog`
-use it.
+to write and read them durably; :mod:`nmsid.rig.recovery` and
+:class:`nmsid.rig.session_log.SessionLog` use it.
 """
 
 from __future__ import annotations

@@ -459,7 +459,7 @@ def _journal_as(jdir: Path, merged: list[Trial], origin: list[int | None]) -> No
     <time>``, entries the file supplied or that moved are written anew (durably).
     Interrupted, the next recovery merges to the same result."""
     numbers = {_entry_number(p): p for p in _entries(jdir)}
-    for pos, (t, src) in enumerate(zip(merged, origin), start=1):
+    for pos, (t, src) in enumerate(zip(merged, origin, strict=True), start=1):
         if src == pos:
             continue
         target = jdir / f"trial-{pos:04d}.npz"
@@ -646,10 +646,10 @@ def create_from_header(path: Path, header: dict) -> SessionWriter:
 
 
 def _header_kwargs(header: dict) -> dict:
-    return dict(participant=header["participant"], created_utc=header["created_utc"],
-                software=header.get("software"), config_json=header.get("config_json"),
-                seed=header.get("seed"), backend=header.get("backend"),
-                extra_attrs=header.get("extra_attrs") or {})
+    return {"participant": header["participant"], "created_utc": header["created_utc"],
+            "software": header.get("software"), "config_json": header.get("config_json"),
+            "seed": header.get("seed"), "backend": header.get("backend"),
+            "extra_attrs": header.get("extra_attrs") or {}}
 
 
 def _build_from_journal(path: Path, jc: JournalContents, trials: list[Trial],

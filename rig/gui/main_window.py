@@ -8,8 +8,8 @@ Threads: the engine runs in the controller's worker thread; its notifications ar
 queued signals (slots below run in the GUI thread); chunks go to the live buffer that the
 plot timer reads. Identification and model selection run in worker pools. The methods
 ``start_session``, ``confirm_calibration``, ``press_estop``, ``rearm``, ``pause``,
-``resume``, ``skip``, ``rerun``, ``end_session``, ``add_note`` and ``save_screenshot`` are the Python API a
-script or a test uses to drive the window as an operator would.
+``resume``, ``skip``, ``rerun``, ``end_session``, ``add_note`` and ``save_screenshot`` are the
+Python API a script or a test uses to drive the window as an operator would.
 """
 
 from __future__ import annotations

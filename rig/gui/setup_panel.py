@@ -243,7 +243,8 @@ class SetupPanel(QWidget):
         def browse():
             if save:
                 path, _ = QFileDialog.getSaveFileName(self, "Session file", edit.text(),
-                                                      f"*.{ext}", options=QFileDialog.Option.DontConfirmOverwrite)
+                                                      f"*.{ext}",
+                                                      options=QFileDialog.Option.DontConfirmOverwrite)
             else:
                 path, _ = QFileDialog.getOpenFileName(self, "Open", edit.text(), f"*.{ext}")
             if path:
