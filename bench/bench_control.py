@@ -189,7 +189,7 @@ def main(argv=None) -> None:
                 for model in [m for m in args.models.split(",") if m]
                 for seed in range(args.seeds)]
         outcomes = outcomes_of(work, args.jobs)
-        for (model, seed, _, _), (r, failure) in zip(work, outcomes):
+        for (model, seed, _, _), (r, failure) in zip(work, outcomes, strict=True):
             if r is None:
                 print(f"   {model} seed {seed}: FAILED ({failure})")
                 continue

@@ -60,7 +60,7 @@ def _row(label, out, stim):
 def _predicted_row(label, pred, stim):
     """The bound's RMS relative errors for the same participants (what the realised row
     should match if the prediction is calibrated)."""
-    vals = np.array([[pred_vals for pred_vals in who] for who in pred._level_values])
+    vals = np.array([list(who) for who in pred._level_values])
     lv = np.sqrt(np.mean((pred.level_se / vals) ** 2, axis=(0, 1)))
     cv = np.sqrt(np.mean((pred.curve_se / pred.curve_value) ** 2, axis=(0, 1)))
     return (f"   {label:<10}{stim:>7.0f} s" + "".join(f"{100 * v:>9.3f}" for v in cv)
@@ -157,7 +157,7 @@ def _main(t0: float, pool, part3) -> None:
         outcomes = list(pool.map(importable(validation), work))
     else:
         outcomes = [validation(w) for w in work]
-    for (title, scatter), (a, b, took_s) in zip(scenarios, outcomes):
+    for (title, scatter), (a, b, took_s) in zip(scenarios, outcomes, strict=True):
         ratio = validated_ratio(a, b)
         print(f"   {title}: realised RMS relative error, % (curves at the paper's 15 "
               f"levels; identified levels), selection accuracy ({took_s:.0f} s)")

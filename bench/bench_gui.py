@@ -27,6 +27,7 @@ import os
 import tempfile
 import threading
 import time
+from itertools import pairwise
 from pathlib import Path
 from typing import NamedTuple
 
@@ -265,7 +266,7 @@ def _trial_spans(records) -> list[tuple[float, float]]:
 
 def _max_gap_within_trials(records) -> float:
     gaps = []
-    for a, b in zip(records, records[1:]):
+    for a, b in pairwise(records):
         if a[1] == b[1]:
             gaps.append(b[0] - a[0])
     return float(max(gaps) * 1e3) if gaps else float("nan")

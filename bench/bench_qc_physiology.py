@@ -87,7 +87,7 @@ def main(jobs: int = 2) -> None:
         results = [setting(w) for w in work]
     total = [0, 0]
     base_total = []
-    for (kind, sc), (a, b, n) in zip(work, results):
+    for (kind, sc), (a, b, n) in zip(work, results, strict=True):
         total[0] += a
         total[1] += n
         base_total.append(b)

@@ -19,7 +19,8 @@ CONFIG = ('participant = "KA"\n[protocol]\nsE_levels = [0.5]\nrepeats = 1\n'
           'Iemax_mA = 9.5, Ifmin_mA = 1.5, Ifmax_mA = 8.0}\n')
 
 
-@pytest.mark.posix_only('stands in for Windows itself with FakeKernel32 (built on fcntl, which the emulation blocks)')
+@pytest.mark.posix_only('stands in for Windows itself with FakeKernel32 (built on fcntl, which the '
+                        'emulation blocks)')
 def test_a_session_keeps_the_system_awake_on_the_engine_thread(tmp_path):
     cfg = tmp_path / "c.toml"
     cfg.write_text(CONFIG, encoding="utf-8")

@@ -77,6 +77,6 @@ def test_coefficient_derivatives_are_central_differences_of_the_array_form(wn, z
         assert np.array_equal(dnum[j], (n_hi - n_lo) / (2 * step))
         assert np.array_equal(dden[j], (d_hi - d_lo) / (2 * step))
     again = d.foh_coefficients_with_derivatives(lw, lz, dt)
-    assert all(a is b for a, b in zip(again, (num, den, dnum, dden)))
+    assert all(a is b for a, b in zip(again, (num, den, dnum, dden), strict=True))
     with pytest.raises(ValueError):
         num[0] = 0.0

@@ -73,8 +73,8 @@ def test_probe_never_stimulates(write_hw_config, tmp_path, capsys):
 @pytest.mark.parametrize("kind, missing, text", [
     ("caio", "clr", "pythonnet"),
     ("nidaq", "nidaqmx", "nidaqmx")])
-def test_missing_vendor_library_is_one_line_exit_2(write_hw_config, tmp_path, capsys, monkeypatch, kind,
-                                                    missing, text, child_modules):
+def test_missing_vendor_library_is_one_line_exit_2(write_hw_config, tmp_path, capsys, monkeypatch,
+                                                    kind, missing, text, child_modules):
     from nmsid.drivers.fake_hardware import load_fake
     from tests.drivers.conftest import FAKE_MCS_IN_CHILD
     if kind == "nidaq":  # pythonnet present (fake), nidaqmx absent

@@ -35,7 +35,7 @@ def waveform(seconds=0.5, ceiling=12.0, seed=0):
 
 
 def stim(**kw):
-    args = dict(ceiling_ext_mA=12.0, ceiling_flex_mA=12.0, dll_path="C:/mcs/McsUsbNet.dll")
+    args = {"ceiling_ext_mA": 12.0, "ceiling_flex_mA": 12.0, "dll_path": "C:/mcs/McsUsbNet.dll"}
     args.update(kw)
     return Stg4002Stimulator(**args)
 

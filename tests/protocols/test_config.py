@@ -1,5 +1,6 @@
 """Configuration: defaults, TOML loading, and refusal of every kind of bad value."""
 
+import dataclasses
 import json
 
 import pytest
@@ -104,7 +105,8 @@ def test_bad_toml_names_the_file(tmp_path):
 
 
 def test_ceiling_above_device_range_is_refused():
-    cfg = config_from_dict({"calibration": {"ceiling_ext_mA": 10, "ceiling_flex_mA": 40}}, source="c.toml")
+    cfg = config_from_dict({"calibration": {"ceiling_ext_mA": 10, "ceiling_flex_mA": 40}},
+                           source="c.toml")
     cfg.check_device(50.0)
     with pytest.raises(ConfigError, match="calibration.ceiling_flex_mA.*at most 16"):
         cfg.check_device(16.0, "STG4002")
@@ -112,7 +114,7 @@ def test_ceiling_above_device_range_is_refused():
 
 def test_config_is_frozen():
     cfg = Config()
-    with pytest.raises(Exception):
+    with pytest.raises(dataclasses.FrozenInstanceError):
         cfg.participant = "X"  # type: ignore[misc]
 
 

@@ -106,7 +106,7 @@ def test_each_form_fits_its_declared_parameters_and_writes_the_registry_names(e)
     assert all(len(g) == form.n for g in form.grid())
     cand = candidate(e)
     lo, hi = cand.bounds()
-    q = np.array([RNG.uniform(a, b) for a, b in zip(lo[:-1], hi[:-1])])
+    q = np.array([RNG.uniform(a, b) for a, b in zip(lo[:-1], hi[:-1], strict=True)])
     p = cand.params(np.append(q, 0.0)).to_dict()
     p.update({"input_timing_s": 0.0, "corner_Hz": 0.2, "amplitude_N": 0.05})
     form.final(p, FinalContext(q=q, sE_levels=np.array([0.3, 0.6, 0.9]),

@@ -1,6 +1,7 @@
 """Schedule: all trials present, the randomisation rules, reproducible from the seed."""
 
 from collections import Counter
+from itertools import pairwise
 
 import pytest
 from hypothesis import given, settings
@@ -52,7 +53,7 @@ def test_blocks_order_is_actually_random():
 
 def test_full_randomisation_mixes_levels():
     s = make_schedule(LEVELS, 3, Randomisation.FULL, 4)
-    runs = sum(1 for a, b in zip(s, s[1:]) if a.sE == b.sE)
+    runs = sum(1 for a, b in pairwise(s) if a.sE == b.sE)
     assert runs < 10  # blocks would give 30 same-level neighbours
 
 

@@ -1,4 +1,5 @@
-"""Each physical bound and cross-field rule of the protocol settings, and the weakened-safety rule."""
+"""Each physical bound and cross-field rule of the protocol settings, and the weakened-safety
+rule."""
 
 from __future__ import annotations
 

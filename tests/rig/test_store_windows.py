@@ -104,7 +104,7 @@ def _plain_h5py_equals(path, trials):
     with h5py.File(path, "r") as f:
         names = sorted(f["trials"])
         assert len(names) == len(trials)
-        for name, t in zip(names, trials):
+        for name, t in zip(names, trials, strict=True):
             g = f["trials"][name]
             for key in ("rE", "I_ext_mA", "I_flex_mA", "force_N"):
                 assert g[key][()].tobytes() == np.asarray(getattr(t, key)).tobytes(), key

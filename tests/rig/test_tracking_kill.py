@@ -56,7 +56,7 @@ def test_sigkill_a_tracking_session_loses_nothing_completed(tmp_path):
     code, _ = wait_child(pid)
     duration = time.monotonic() - t0
     assert code == 0, (tmp_path / "ref.txt").read_text()[-2000:]
-    ref = {n: c for n, c in _printed(tmp_path / "ref.txt")}
+    ref = dict(_printed(tmp_path / "ref.txt"))
     assert len(ref) == 3
     rng = np.random.default_rng(28)
     hit = resumed = 0

@@ -103,7 +103,8 @@ def test_schedule_panel_in_the_wait_for_a_rerun(qtbot):
                       on_rerun=lambda i: None, on_end=lambda: None)
     qtbot.addWidget(p)
     sched = [PlannedTrial(i, 0.5, i + 1) for i in range(3)]
-    for pt, st in zip(sched, (TrialStatus.DONE, TrialStatus.ABORTED, TrialStatus.DONE)):
+    for pt, st in zip(sched, (TrialStatus.DONE, TrialStatus.ABORTED, TrialStatus.DONE),
+                      strict=True):
         pt.status = st
     p.set_schedule(sched)
     p.set_state("paused", "operator")

@@ -23,7 +23,9 @@ def _panel(qtbot):
     return p, got
 
 
-@pytest.mark.posix_only("a read-only folder is POSIX permission bits; Windows ignores a folder's read-only attribute (Python docs, os.access), so nmsid tries to create a file there instead")
+@pytest.mark.posix_only("a read-only folder is POSIX permission bits; Windows ignores a folder's "
+                        "read-only attribute (Python docs, os.access), so nmsid tries to create a "
+                        "file there instead")
 def test_a_read_only_output_folder_is_refused_before_start(qtbot, tmp_path, monkeypatch):
     folder = tmp_path / "ro"
     folder.mkdir()
