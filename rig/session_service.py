@@ -288,7 +288,7 @@ def _first_difference(old_text: str, new_text: str) -> str:
         return "its text differs"
 
     def flat(d, prefix=""):
-        out = {}
+        out: dict[str, object] = {}
         for k, v in d.items():
             key = f"{prefix}{k}"
             out.update(flat(v, key + ".") if isinstance(v, dict) else {key: v})
