@@ -72,8 +72,10 @@ def trend_of(model: str, coefficients, sE_min: float, sE_max: float) -> Trend:
 
     Examples
     --------
-    >>> trend_of("quadratic", [1.0, -2.0, 2.0], 0.3, 1.0).text
-    'decreasing then increasing: opens up (convex), minimum at sE = 0.5 (inside the tested range 0.3-1)'
+    >>> print(trend_of("quadratic", [1.0, -2.0, 2.0], 0.3, 1.0).text)
+    ... # doctest: +NORMALIZE_WHITESPACE
+    decreasing then increasing: opens up (convex), minimum at sE = 0.5
+    (inside the tested range 0.3-1)
     """
     c = [float(v) for v in coefficients]
     rng = f"{sE_min:g}-{sE_max:g}"

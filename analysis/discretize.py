@@ -26,7 +26,6 @@ import math
 
 import numpy as np
 
-
 #: Relative step of the central differences used for coefficient derivatives.
 _FD_STEP = 1e-6
 
@@ -301,7 +300,7 @@ def fractional_delay(x: np.ndarray, delay_samples: float) -> np.ndarray:
     xp = np.concatenate([np.repeat(x[..., :1], pad, axis=-1), x,
                          np.repeat(x[..., -1:], pad, axis=-1)], axis=-1)
     out = np.zeros_like(x)
-    for tap, shift in zip(c, (k - 1, k, k + 1, k + 2)):
+    for tap, shift in zip(c, (k - 1, k, k + 1, k + 2), strict=True):
         start = pad - shift
         out += tap * xp[..., start:start + n]
     return out

@@ -171,9 +171,9 @@ def plot_parameter_curves(selection, parameter: str, path: str | Path,
         removed = [(p.sE, p.value) for p in comp.points
                    if not p.used and math.isfinite(p.value)]
         if used:
-            ax.plot(*zip(*used), "o", color="k", ms=5, zorder=4, label="points used")
+            ax.plot(*zip(*used, strict=True), "o", color="k", ms=5, zorder=4, label="points used")
         if removed:
-            ax.plot(*zip(*removed), "x", color="0.5", ms=7, mew=1.5, zorder=4,
+            ax.plot(*zip(*removed, strict=True), "x", color="0.5", ms=7, mew=1.5, zorder=4,
                     label="IQR outliers (not used)")
         if comp.trend is not None:
             caption = f"trend of the selected curve: {comp.trend.text}"

@@ -31,8 +31,8 @@ from nmsid.analysis.qc.decide import EXCLUDED, REPAIRED, LevelQC
 from nmsid.analysis.scatter import ScatterResult, fit_trials, summarise
 from nmsid.analysis.second_order import SecondOrderFit
 from nmsid.analysis.settings import IdentificationSettings
-from nmsid.protocols.reprs import counted, html_repr, number_span, short_repr, to_dataframe
 from nmsid.protocols.joints import recorded_quantity
+from nmsid.protocols.reprs import counted, html_repr, number_span, short_repr, to_dataframe
 from nmsid.protocols.session_file import read_session
 
 logger = logging.getLogger(__name__)
@@ -140,7 +140,7 @@ class SessionResult:
         pairs = [(lv.sE, getattr(lv.fit, name)) for lv in self.levels if lv.fit is not None]
         if not pairs:
             return np.empty(0), np.empty(0)
-        x, y = zip(*pairs)
+        x, y = zip(*pairs, strict=True)
         return np.asarray(x, dtype=float), np.asarray(y, dtype=float)
 
 
@@ -399,7 +399,7 @@ def session_scatter(all_trials, levels: list[LevelResult],
         From the per-trial Kp.
     """
     centre, total = cumulative_stimulation_s(all_trials)
-    cum = {id(t): float(c) for t, c in zip(all_trials, centre)}
+    cum = {id(t): float(c) for t, c in zip(all_trials, centre, strict=True)}
     ok = [lv for lv in levels if lv.fit is not None and lv.data is not None]
     fits, notes = fit_trials([lv.used_trials for lv in ok], [(lv.data, lv.fit) for lv in ok],
                              cum, settings, cache=cache)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.signal import lfilter
+
 from nmsid.analysis.thin_lstsq import cross, lstsq_rows
 
 logger = logging.getLogger(__name__)
@@ -112,7 +113,7 @@ def srivc_start(v: np.ndarray, y: np.ndarray, dt_s: float, *, trend: bool = True
     theta = lstsq_rows(phi, target)[0]
     den = np.array([1.0, theta[0], theta[1]])
     done = 0
-    for done in range(1, iterations + 1):
+    for done in range(1, iterations + 1):  # noqa: B007 (the count is returned)
         if poles_to_continuous(den, dt_s) is None:
             break
         num = theta[2:5]

@@ -26,13 +26,13 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.signal import lfilter
 
 from nmsid.analysis.discretize import foh_coefficients, smooth_hold_input
 from nmsid.analysis.errors import IdentificationError
 from nmsid.analysis.preprocess import LevelData, TrialSignals, preprocess_trials
 from nmsid.analysis.second_order import SecondOrderFit, fit_second_order
 from nmsid.analysis.settings import IdentificationSettings, InputTiming
-from scipy.signal import lfilter
 
 #: A delay must exceed this many standard errors to be used (the standard error assumes
 #: white noise at the fit rate: a margin against its optimism on low-passed data) ...

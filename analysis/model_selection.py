@@ -62,7 +62,7 @@ class ModelComparison:
         pts = [(p.sE, p.value) for p in self.points if p.used]
         if not pts:
             return np.empty(0), np.empty(0)
-        x, y = zip(*pts)
+        x, y = zip(*pts, strict=True)
         return np.asarray(x), np.asarray(y)
 
     def to_dict(self) -> dict:
@@ -124,7 +124,8 @@ def compare_models(sE, values, parameter: str, label: str,
             notes[i] = (f"IQR outlier (outside [{fences.low:.4g}, {fences.high:.4g}], "
                         f"k = {s.iqr_k:g})")
         keep = finite & inl
-    points = [Point(float(a), float(b), bool(k), n) for a, b, k, n in zip(x, y, keep, notes)]
+    points = [Point(float(a), float(b), bool(k), n)
+              for a, b, k, n in zip(x, y, keep, notes, strict=True)]
     xs, ys = x[keep], y[keep]
     fits: dict[str, CurveFit] = {m: fit_curve(m, xs, ys, s.aicc_count_noise_variance)
                                  for m in s.models}
@@ -164,7 +165,8 @@ def participant_parameters(session_result) -> ParticipantParameters:
     sE = np.array([lv.sE for lv in session_result.levels], dtype=float)
     usable = [lv.fit is not None and lv.fit.converged for lv in session_result.levels]
     values = {name: np.array([getattr(lv.fit, name) if ok else np.nan
-                              for lv, ok in zip(session_result.levels, usable)], dtype=float)
+                              for lv, ok in zip(session_result.levels, usable, strict=True)],
+                             dtype=float)
               for name in PARAMETER_NAMES}
     return ParticipantParameters(session_result.participant, sE, values)
 
@@ -245,7 +247,7 @@ def merge_sessions(people: list[ParticipantParameters]) -> list[ParticipantParam
         for name in PARAMETER_NAMES:
             table = np.full((len(group), len(grid)), np.nan)
             for i, p in enumerate(group):
-                for x, v in zip(p.sE, p.values[name]):
+                for x, v in zip(p.sE, p.values[name], strict=True):
                     table[i, grid.index(round(float(x), 6))] = v
             n = np.sum(np.isfinite(table), axis=0)
             values[name] = np.where(n > 0, np.nansum(table, axis=0) / np.maximum(n, 1),
@@ -276,13 +278,13 @@ def select_models(participants, settings: IdentificationSettings | None = None
     comparisons: list[ModelComparison] = []
     problems: list[str] = []
     grid = sorted({round(float(x), 6) for p in people for x in p.sE})
-    sums: dict[str, dict[str, float]] = {name: {m: 0.0 for m in s.models}
+    sums: dict[str, dict[str, float]] = {name: dict.fromkeys(s.models, 0.0)
                                          for name in PARAMETER_NAMES}
-    counts: dict[str, dict[str, int]] = {name: {m: 0 for m in s.models}
+    counts: dict[str, dict[str, int]] = {name: dict.fromkeys(s.models, 0)
                                          for name in PARAMETER_NAMES}
     for name in PARAMETER_NAMES:
         cleaned = np.full((len(people), len(grid)), np.nan)
-        for i, (p, label) in enumerate(zip(people, labels)):
+        for i, (p, label) in enumerate(zip(people, labels, strict=True)):
             c = compare_models(p.sE, p.values[name], name, label, s)
             comparisons.append(c)
             problems.extend(c.problems)

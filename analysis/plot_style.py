@@ -33,7 +33,7 @@ COLOURS = {"measured": "0.15", "fit": "#b2182b", "residual": "tab:blue",
            "unsupported": "0.75", "noise": "k"}
 
 _PAD_IN = 0.05                 # white margin around the tight box, inches
-_RC = {
+_RC: dict[str, Any] = {
     "font.size": 9.0, "axes.titlesize": 9.5, "axes.labelsize": 9.0,
     "xtick.labelsize": 8.0, "ytick.labelsize": 8.0, "legend.fontsize": 8.0,
     "figure.titlesize": 10.5, "axes.spines.top": False, "axes.spines.right": False,
@@ -55,7 +55,7 @@ def pyplot():
     import matplotlib
     matplotlib.use("Agg")               # headless: files only, never a window
     import matplotlib.pyplot as plt
-    plt.rcParams.update(_RC)
+    plt.style.use(_RC)                  # a dict of rc settings (matplotlib.style.use)
     return plt
 
 
@@ -105,7 +105,7 @@ def legend_above(fig, *axes, ncol: int = 4):
     labelled artists of ``axes``, each label once."""
     seen: dict[str, Any] = {}
     for ax in axes:
-        for h, lab in zip(*ax.get_legend_handles_labels()):
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
             seen.setdefault(lab, h)
     if not seen:
         return None
@@ -137,7 +137,7 @@ def finite(values) -> np.ndarray:
 def mark_missing(ax, x, values, text: str = "not converged") -> None:
     """Write ``text`` at each position of ``x`` whose value is not finite (a bar that is
     not drawn says why)."""
-    for xi, v in zip(x, values):
+    for xi, v in zip(x, values, strict=True):
         if not math.isfinite(v):
             ax.text(xi, 0.0, text, rotation=90, ha="center", va="bottom", fontsize=7,
                     color="0.35", transform=ax.get_xaxis_transform())

@@ -28,8 +28,8 @@ from scipy.signal import butter, savgol_coeffs, sosfilt, sosfilt_zi, sosfiltfilt
 
 from nmsid.analysis.discretize import fractional_delay
 from nmsid.analysis.errors import IdentificationError
-from nmsid.analysis.thin_lstsq import dot
 from nmsid.analysis.settings import IdentificationSettings, InputTiming
+from nmsid.analysis.thin_lstsq import dot
 from nmsid.protocols.reprs import html_repr, names, short_repr
 
 
@@ -345,8 +345,8 @@ def preprocess_trials(trials, settings: IdentificationSettings | None = None, *,
     if usable_len // q < 60:
         raise IdentificationError(
             f"the window {i0 / fs:g}-{i1 / fs:g} s of sE={first.sE:g} holds "
-            f"{max(usable_len, 0)} usable samples ({max(usable_len, 0) // q} at the fit rate); the trials "
-            f"are {n / fs:g} s long - too short to fit")
+            f"{max(usable_len, 0)} usable samples ({max(usable_len, 0) // q} at the fit rate); "
+            f"the trials are {n / fs:g} s long - too short to fit")
     if cache is not None and cache.applies(trials, s):
         settle = max(0.5, 10.0 / s.lowpass_Hz if s.lowpass_Hz else 0.0)
         j0 = max(0, i0 - int(settle * fs))

@@ -18,13 +18,19 @@ from nmsid.analysis.errors import IdentificationError, TwinFileError
 from nmsid.analysis.identify import SessionResult, identify_session
 from nmsid.analysis.model_selection import AVERAGE_LABEL, SelectionResult, select_models
 from nmsid.analysis.qc.table import write_qc_csv
-from nmsid.analysis.report import (parameter_table, selection_tables, write_model_selection_json,
-                                   write_parameters_csv, write_scatter_csv, write_text)
+from nmsid.analysis.report import (
+    parameter_table,
+    selection_tables,
+    write_model_selection_json,
+    write_parameters_csv,
+    write_scatter_csv,
+    write_text,
+)
 from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
 from nmsid.analysis.twin import Twin, source_entry, twin_from_selection
 from nmsid.errors import UserError
-from nmsid.protocols.reprs import counted, html_repr, names, short_repr, to_dataframe
 from nmsid.progress import Progress
+from nmsid.protocols.reprs import counted, html_repr, names, short_repr, to_dataframe
 from nmsid.protocols.session_file import Session
 
 logger = logging.getLogger(__name__)

@@ -277,7 +277,7 @@ def fit_trials(level_trials, level_fits, cum_stim_s: dict[int, float],
     s = settings or IdentificationSettings()
     out: list[TrialFit] = []
     problems: list[str] = []
-    for trials, (data, fit) in zip(level_trials, level_fits):
+    for trials, (data, fit) in zip(level_trials, level_fits, strict=True):
         if len(trials) < 2:
             continue
         for tr in trials:

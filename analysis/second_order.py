@@ -30,13 +30,14 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.signal import lfilter
+
 from nmsid.analysis.damped_lstsq import Damping, levenberg_marquardt
 from nmsid.analysis.discretize import foh_coefficients_with_derivatives, smooth_hold_input
 from nmsid.analysis.errors import IdentificationError
 from nmsid.analysis.initial_estimate import StartEstimate, srivc_start
 from nmsid.analysis.residual_tests import ResidualTests, residual_tests
 from nmsid.analysis.settings import IdentificationSettings, InputHold, NoiseLevel
-from scipy.signal import lfilter
 from nmsid.analysis.thin_lstsq import cross, dot, gram, lstsq_rows, orthonormalise
 from nmsid.protocols.reprs import html_repr, short_repr
 

@@ -12,10 +12,11 @@ Examples
 >>> s = IdentificationSettings(butter_order=2)
 >>> s.lowpass_Hz
 25.0
->>> IdentificationSettings(iqr_k=-1)
+>>> IdentificationSettings(iqr_k=-1)  # doctest: +NORMALIZE_WHITESPACE
 Traceback (most recent call last):
 ...
-nmsid.analysis.errors.SettingError: (in code): iqr_k = -1 is not valid: a value > 0 (the outlier fence's width in IQRs; 1.5 in the paper)
+nmsid.analysis.errors.SettingError: (in code): iqr_k = -1 is not valid: a value > 0
+(the outlier fence's width in IQRs; 1.5 in the paper)
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from nmsid.analysis.qc.settings import QCSettings
 from nmsid.protocols.settings_base import SettingProblem, bounded, settings_dataclass
 
 
-class InputHold(str, enum.Enum):
+class InputHold(enum.StrEnum):
     """How the simulator interprets the sampled input between samples.
 
     ``SMOOTH``: rE is a sampled smooth (band-limited) signal. Piecewise-linear (first-order
@@ -47,7 +48,7 @@ class InputHold(str, enum.Enum):
     LINEAR = "linear"
 
 
-class InputTiming(str, enum.Enum):
+class InputTiming(enum.StrEnum):
     """How the rig turns the recorded rE samples into stimulation (the input-timing model).
 
     ``ESTIMATE``: no built-in belief; the sub-millisecond delay between the rE record and
@@ -64,7 +65,7 @@ class InputTiming(str, enum.Enum):
     SMOOTH = "smooth"
 
 
-class NoiseLevel(str, enum.Enum):
+class NoiseLevel(enum.StrEnum):
     """How the noise level behind the standard errors is estimated.
 
     ``BAND_PSD``: the residual's power spectral density averaged over the chirp band,

@@ -17,13 +17,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.signal import lfilter
 
 from nmsid.analysis.curves import evaluate_curve
 from nmsid.analysis.discretize import foh_coefficients, foh_state_matrices
 from nmsid.analysis.errors import IdentificationError, TwinFileError, TwinInputError
-from scipy.signal import lfilter
-from nmsid.protocols.reprs import html_repr, short_repr
 from nmsid.protocols.joints import QUANTITY_UNITS
+from nmsid.protocols.reprs import html_repr, short_repr
 from nmsid.sim_backends.twin_file import TwinReadError, read_twin_file, write_twin_file
 
 FORMAT = "nmsid-twin"

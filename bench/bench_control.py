@@ -56,6 +56,7 @@ from nmsid.rig.tracking import TrackingEngine  # noqa: E402
 from nmsid.sim_backends import make_msk_population, make_population, make_sim_rig  # noqa: E402
 from nmsid.sim_backends.participant import default_participant  # noqa: E402
 from nmsid.sim_backends.participant_models import participant_for_model  # noqa: E402
+
 if str(Path(__file__).resolve().parent) not in sys.path:   # bench/: workers
     sys.path.insert(0, str(Path(__file__).resolve().parent))
 from workers import importable, process_pool  # noqa: E402
@@ -188,7 +189,7 @@ def main(argv=None) -> None:
                 for model in [m for m in args.models.split(",") if m]
                 for seed in range(args.seeds)]
         outcomes = outcomes_of(work, args.jobs)
-        for (model, seed, _, _), (r, failure) in zip(work, outcomes):
+        for (model, seed, _, _), (r, failure) in zip(work, outcomes, strict=True):
             if r is None:
                 print(f"   {model} seed {seed}: FAILED ({failure})")
                 continue

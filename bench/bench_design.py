@@ -33,13 +33,14 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from nmsid.analysis.design.api import PAPER_STREAM, PROPOSAL_STREAM  # noqa: E402
 from nmsid.analysis.design.candidates import PAPER_LEVELS, Candidate, paper_candidate, search_space  # noqa: E402,E501
 from nmsid.analysis.design.predict import DEFAULT_SCATTER, Predictor, sd_ratio  # noqa: E402
 from nmsid.analysis.design.prior import PARAMETERS, population_prior  # noqa: E402
 from nmsid.analysis.design.search import design, parse_target  # noqa: E402
-from nmsid.analysis.design.api import PAPER_STREAM, PROPOSAL_STREAM  # noqa: E402
 from nmsid.analysis.design.validate import alternative_scatter, run_protocol, validated_ratio  # noqa: E402,E501
 from nmsid.sim_backends.population import make_population  # noqa: E402
+
 if str(Path(__file__).resolve().parent) not in sys.path:   # bench/: workers
     sys.path.insert(0, str(Path(__file__).resolve().parent))
 from workers import importable, process_pool  # noqa: E402
@@ -59,7 +60,7 @@ def _row(label, out, stim):
 def _predicted_row(label, pred, stim):
     """The bound's RMS relative errors for the same participants (what the realised row
     should match if the prediction is calibrated)."""
-    vals = np.array([[pred_vals for pred_vals in who] for who in pred._level_values])
+    vals = np.array([list(who) for who in pred._level_values])
     lv = np.sqrt(np.mean((pred.level_se / vals) ** 2, axis=(0, 1)))
     cv = np.sqrt(np.mean((pred.curve_se / pred.curve_value) ** 2, axis=(0, 1)))
     return (f"   {label:<10}{stim:>7.0f} s" + "".join(f"{100 * v:>9.3f}" for v in cv)
@@ -88,7 +89,7 @@ def sensor_noise_only() -> tuple:
     length a 15 x 3 protocol needs, sensor noise only: (best (ratio, candidate), needed
     candidate or None, seconds). Depends on nothing else: runs in a worker beside part 1."""
     t2 = time.perf_counter()
-    pz = Predictor(population_prior(N_PRIOR, seed=0), scatter={n: 0.0 for n in PARAMETERS})
+    pz = Predictor(population_prior(N_PRIOR, seed=0), scatter=dict.fromkeys(PARAMETERS, 0.0))
     paper_z = pz.predict(paper_candidate())
     best = None
     for cand in search_space():
@@ -156,13 +157,13 @@ def _main(t0: float, pool, part3) -> None:
         outcomes = list(pool.map(importable(validation), work))
     else:
         outcomes = [validation(w) for w in work]
-    for (title, scatter), (a, b, took_s) in zip(scenarios, outcomes):
+    for (title, scatter), (a, b, took_s) in zip(scenarios, outcomes, strict=True):
         ratio = validated_ratio(a, b)
         print(f"   {title}: realised RMS relative error, % (curves at the paper's 15 "
               f"levels; identified levels), selection accuracy ({took_s:.0f} s)")
         print(head)
         pv = Predictor(valid_prior, scatter=(scatter.sd if scatter is other else scatter)
-                       or {n: 0.0 for n in PARAMETERS})
+                       or dict.fromkeys(PARAMETERS, 0.0))
         print(_row("paper", b, paper.candidate.stimulation_s))
         print(_predicted_row("predicted", _attach_values(pv.predict(paper.candidate),
                                                          valid_prior),
@@ -175,7 +176,7 @@ def _main(t0: float, pool, part3) -> None:
                           for k, v in ratio.per_parameter.items()) + ")")
 
     best, needed, t_part3 = part3.result() if part3 is not None else sensor_noise_only()
-    zero = {n: 0.0 for n in PARAMETERS}
+    zero = dict.fromkeys(PARAMETERS, 0.0)
     pz = Predictor(prior, scatter=zero)
     print(f"\n3. Sensor noise only (no physiological scatter): best candidate within 40 % "
           f"({best[1].describe()}, {best[1].stimulation_s:g} s) has predicted_sd_ratio "

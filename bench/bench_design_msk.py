@@ -40,17 +40,26 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
 from nmsid.analysis.curves import fit_curve  # noqa: E402
-from nmsid.analysis.design.candidates import (Candidate, paper_candidate, search_space,  # noqa: E402
-                                              with_paper_excitation)
+from nmsid.analysis.design.candidates import (  # noqa: E402
+    Candidate,
+    paper_candidate,
+    search_space,
+    with_paper_excitation,
+)
 from nmsid.analysis.design.predict import DEFAULT_SCATTER, Predictor  # noqa: E402
-from nmsid.analysis.design.prior import (PARAMETERS, adequacy_from_parameters,  # noqa: E402
-                                         scatter_from_parameters, twin_prior)
+from nmsid.analysis.design.prior import (  # noqa: E402
+    PARAMETERS,
+    adequacy_from_parameters,
+    scatter_from_parameters,
+    twin_prior,
+)
 from nmsid.analysis.design.search import design, parse_target  # noqa: E402
 from nmsid.analysis.design.validate import simulate_session  # noqa: E402
 from nmsid.analysis.identify import identify_session  # noqa: E402
 from nmsid.analysis.model_selection import compare_models  # noqa: E402
 from nmsid.analysis.run import run_identification  # noqa: E402
 from nmsid.analysis.settings import IdentificationSettings  # noqa: E402
+
 if str(Path(__file__).resolve().parent) not in sys.path:   # bench/: workers
     sys.path.insert(0, str(Path(__file__).resolve().parent))
 from workers import importable, process_pool  # noqa: E402

@@ -34,6 +34,7 @@ if str(Path(__file__).resolve().parent) not in sys.path:   # bench/: cpu_time
     sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from cpu_time import load_1min  # noqa: E402
+
 from nmsid.analysis.design.api import run_design, validation_participants  # noqa: E402
 from nmsid.analysis.design.candidates import paper_candidate  # noqa: E402
 from nmsid.analysis.design.predict import DEFAULT_SCATTER  # noqa: E402

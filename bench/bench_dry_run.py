@@ -42,9 +42,10 @@ def hw_file(kind: str, monitor: int) -> dict:
     return {"rig": {"fake": True, "fake_speed": 2.0},
             "acquisition": acquisition,
             "sensor": {"channels": {a: i for i, a in enumerate(AXES)}, "sync_channel": 6,
-                       "rated": dict(zip(AXES, (500.0, 500.0, 1000.0, 10.0, 10.0, 10.0))),
-                       "rated_output_V": {a: 1.0 for a in AXES},   # manual 4.1
-                       "offset_V": {a: 1.5 for a in AXES}}}
+                       "rated": dict(zip(AXES, (500.0, 500.0, 1000.0, 10.0, 10.0, 10.0),
+                                         strict=True)),
+                       "rated_output_V": dict.fromkeys(AXES, 1.0),   # manual 4.1
+                       "offset_V": dict.fromkeys(AXES, 1.5)}}
 
 
 def dry_run(kind: str, monitor: int, fs_Hz: float, *, wired=0, ohm=1000.0):
@@ -98,8 +99,8 @@ def main() -> None:
           f"(ratio {worst_plain / max(worst_onset, 1e-9):.1f}x; limit 100 us: "
           f"{'met' if worst_onset * 1e3 <= 100 else 'missed'})")
     print()
-    faults = [("1.5 kOhm fitted, 1 kOhm declared", dict(ohm=1500.0), "amplitude"),
-              ("resistor on the other STG channel", dict(wired=1), "amplitude")]
+    faults = [("1.5 kOhm fitted, 1 kOhm declared", {"ohm": 1500.0}, "amplitude"),
+              ("resistor on the other STG channel", {"wired": 1}, "amplitude")]
     caught = 0
     for label, kw, check in faults:
         ok, text, _ = dry_run("caio", 7, 10e3, **kw)

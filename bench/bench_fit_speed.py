@@ -43,6 +43,7 @@ for _p in (HERE.parent, HERE):
         sys.path.insert(0, str(_p))
 
 from cpu_time import cpu_median, load_1min  # noqa: E402
+
 from nmsid.analysis.identify import identify_session  # noqa: E402
 from nmsid.analysis.preprocess import TrialSignals, preprocess_trials  # noqa: E402
 from nmsid.analysis.settings import IdentificationSettings  # noqa: E402

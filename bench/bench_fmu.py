@@ -37,8 +37,7 @@ from nmsid.analysis.design.candidates import PAPER_LEVELS  # noqa: E402
 from nmsid.analysis.gap.twin_out import twin_dict  # noqa: E402
 from nmsid.analysis.twin import Twin  # noqa: E402
 from nmsid.export.fmu import export_fmu  # noqa: E402
-from nmsid.export.fmu.fmpy_support import (fmpy_input, fmpy_input_derivatives_fixed,  # noqa: E402
-                                           on_output_grid)
+from nmsid.export.fmu.fmpy_support import fmpy_input, fmpy_input_derivatives_fixed, on_output_grid  # noqa: E402
 from nmsid.sim_backends.participant import default_participant  # noqa: E402
 
 FS_HZ = 2000.0

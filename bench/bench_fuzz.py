@@ -293,7 +293,8 @@ def main() -> None:
         else:
             ok = [_one_line_exit2(r) for _, r in rs]
         print(f"{kind:<16}{len(rs):>7}{sum(ok):>19}")
-        failures += [(kind, label, r) for (label, r), good_ in zip(rs, ok) if not good_]
+        failures += [(kind, label, r)
+                     for (label, r), good_ in zip(rs, ok, strict=True) if not good_]
     worst_t = max(results, key=lambda x: x[2]["wall_s"])
     worst_m = max(results, key=lambda x: x[2]["rss_MB"])
     base_t = max(b["wall_s"] for b in baselines.values())

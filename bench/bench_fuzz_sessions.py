@@ -27,8 +27,14 @@ if str(ROOT) not in sys.path:
 
 import h5py  # noqa: E402
 
-from nmsid.protocols.session_file import (Calibration, SessionFileError, SessionWriter,  # noqa: E402
-                                          Trial, read_session, validate_session)
+from nmsid.protocols.session_file import (  # noqa: E402
+    Calibration,
+    SessionFileError,
+    SessionWriter,
+    Trial,
+    read_session,
+    validate_session,
+)
 
 N_FILES = 300
 ATTRS = [("/", "format_version"), ("/", "participant"), ("/", "seed"),

@@ -273,6 +273,7 @@ def run_extra(args) -> dict:
     """One session of the classes the diagnosis was not written for (``gap_sessions``)."""
     kind, seed, workdir = args
     import gap_sessions
+
     from nmsid.analysis.gap.data import load_session
     from nmsid.analysis.gap.diagnose import diagnose
     from nmsid.sim_backends import make_population
@@ -436,7 +437,7 @@ def report_honesty(extra: list[dict], lib: list[dict]) -> None:
               + ", ".join(f"{1e3 * t:+.2f} ms" for t in gs.TIMINGS_S)
               + " with +0.25 ms the one-sample hold, 0 no hold): not none "
               + _rate(len(fa), len(clean), "<= 5 %", False, 5.0)
-              + (f"  [{'; '.join(r['class'] + '/' + str(r['seed']) + ': ' + r['found'] for r in fa)}]"
+              + ("  [" + "; ".join(f"{r['class']}/{r['seed']}: {r['found']}" for r in fa) + "]"
                  if fa else ""))
         for tm in gs.TIMINGS_S:
             rs = [r for r in clean if abs(r["rig_timing_s"] - tm) < 1e-9]
@@ -459,7 +460,7 @@ def report_honesty(extra: list[dict], lib: list[dict]) -> None:
         print(f"effects outside the six ({', '.join(gs.OUTSIDE)}): unexplained or remaining "
               f"significant " + _rate(ok, len(out), ">= 90 %", True, 90.0) + "; "
               f"a library name with the remaining gap called insignificant: {len(bad)}"
-              + (f" [{'; '.join(r['class'] + '/' + str(r['seed']) + ': ' + r['found'] for r in bad)}]"
+              + (" [" + "; ".join(f"{r['class']}/{r['seed']}: {r['found']}" for r in bad) + "]"
                  if bad else ""))
     if lib:
         right = [r for r in lib if r["found"] == r["class"] and r.get("shrink_pct", 0) >= 50]

@@ -40,6 +40,7 @@ for _p in (ROOT, Path(__file__).resolve().parent):   # nmsid; bench/ (workers)
         sys.path.insert(0, str(_p))
 
 from workers import child_env  # noqa: E402
+
 from nmsid.protocols.os_platform import is_windows  # noqa: E402
 
 

@@ -165,7 +165,8 @@ def main(argv: list[str] | None = None) -> None:
         rs = [r for r in rows if r["family"] == fam]
         if not rs:
             continue
-        cover = np.array([[lo_ <= 100 * t <= hi_ for (lo_, hi_), t in zip(r["cv_ci"], CV)]
+        cover = np.array([[lo_ <= 100 * t <= hi_
+                           for (lo_, hi_), t in zip(r["cv_ci"], CV, strict=True)]
                           for r in rs])
         med = np.median(np.array([r["cv"] for r in rs]), axis=0)
         err = np.max(np.abs(np.array([r["cv"] for r in rs])

@@ -27,8 +27,9 @@ import os
 import tempfile
 import threading
 import time
-from typing import NamedTuple
+from itertools import pairwise
 from pathlib import Path
+from typing import NamedTuple
 
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 
@@ -187,6 +188,7 @@ def bench_synthetic() -> Row:
 
 def _short_config(cfg):
     import dataclasses
+
     from nmsid.protocols.config import ManualCurrents
     p = dataclasses.replace(cfg.protocol, sE_levels=SIM_LEVELS, repeats=1,
                             steady_s=SIM_STEADY_S, chirp_s=SIM_CHIRP_S, rest_s=0.5)
@@ -264,7 +266,7 @@ def _trial_spans(records) -> list[tuple[float, float]]:
 
 def _max_gap_within_trials(records) -> float:
     gaps = []
-    for a, b in zip(records, records[1:]):
+    for a, b in pairwise(records):
         if a[1] == b[1]:
             gaps.append(b[0] - a[0])
     return float(max(gaps) * 1e3) if gaps else float("nan")

@@ -67,10 +67,10 @@ def run_session() -> dict:
     """One fast-mode session through the window; the lag figures."""
     from PySide6.QtWidgets import QApplication
 
+    from nmsid.protocols.session_file import read_session
     from nmsid.rig.gui.event_log import EventLog
     from nmsid.rig.gui.main_window import MainWindow
     from nmsid.rig.gui.observer import QtEngineObserver
-    from nmsid.protocols.session_file import read_session
     from nmsid.sim_backends.rig import make_sim_rig
 
     app = QApplication.instance() or QApplication([])

@@ -36,13 +36,12 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
 
-from nmsid.testing.sessions import exact_response, write_synthetic_session  # noqa: E402
-
 from nmsid.analysis.identify import identify_level  # noqa: E402
 from nmsid.analysis.preprocess import preprocess_trials  # noqa: E402
 from nmsid.analysis.run import run_identification  # noqa: E402
 from nmsid.analysis.settings import IdentificationSettings  # noqa: E402
 from nmsid.protocols.session_file import Trial, read_session  # noqa: E402
+from nmsid.testing.sessions import exact_response, write_synthetic_session  # noqa: E402
 
 FS = 2000.0
 STEADY, CHIRP, F0, F1 = 5.0, 10.0, 1.0, 10.0

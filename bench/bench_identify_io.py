@@ -42,6 +42,7 @@ for _p in (ROOT, HERE):
         sys.path.insert(0, str(_p))
 
 from workers import child_env  # noqa: E402
+
 from nmsid.cli import limit_blas_threads  # noqa: E402
 from nmsid.protocols.os_platform import is_windows  # noqa: E402
 

@@ -45,6 +45,7 @@ for _p in (ROOT, Path(__file__).resolve().parent):   # nmsid; bench/ (workers)
         sys.path.insert(0, str(_p))
 
 from workers import child_env  # noqa: E402
+
 from nmsid.cli import BLAS_THREAD_VARIABLES, limit_blas_threads  # noqa: E402
 from nmsid.protocols.os_platform import is_windows  # noqa: E402
 
@@ -148,7 +149,8 @@ def main() -> None:
           f"{med_fig - med_nofig:+.2f} s; CPU {statistics.median(without_cpu):.2f} s)   "
           f"target < 0.3 s  {'OK' if med_nofig < 0.3 else 'missed'}")
     print(f"  BLAS threads:    the same --no-figures run with {cores} BLAS thread(s) (OpenBLAS's "
-          f"default) cost CPU {threads_cpu:.2f} s, x{threads_cpu / statistics.median(without_cpu):.1f}"
+          f"default) cost CPU {threads_cpu:.2f} s, "
+          f"x{threads_cpu / statistics.median(without_cpu):.1f}"
           " the single-thread start nmsid identify now chooses (one run)")
     print(f"  CPU ratio:       the plain 2000 Hz fit's CPU over ours (--no-figures) x"
           f"{statistics.median(plain_cpu) / statistics.median(without_cpu):.1f} (a loaded "

@@ -64,7 +64,7 @@ def main() -> int:
         chunk, ts = inlet.pull_chunk(timeout=0.5)
         if not chunk:
             break
-        marks += [(t, json.loads(c[0])) for c, t in zip(chunk, ts)]
+        marks += [(t, json.loads(c[0])) for c, t in zip(chunk, ts, strict=True)]
     stamps = [t for t, m in marks if m["event"] == "trial_start"]
     n = min(len(stamps), len(starts))
     err_ms = (np.asarray(stamps[:n]) - np.asarray(starts[:n])) * 1e3

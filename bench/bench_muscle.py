@@ -40,6 +40,7 @@ from __future__ import annotations
 import os
 import sys
 import time
+from itertools import pairwise
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -48,10 +49,11 @@ sys.path.insert(0, str(HERE))
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+from workers import importable, process_pool  # noqa: E402
+
 from nmsid.analysis.gap.data import prepare_trials  # noqa: E402
 from nmsid.analysis.gap.diagnose import GapSettings, diagnose  # noqa: E402
 from nmsid.protocols.effects import Effect  # noqa: E402
-from workers import importable, process_pool  # noqa: E402
 
 #: The library effects that matter on muscle physics (the others never come near on these
 #: sessions; bench_gap runs all six): fewer template fits keep the bench short.
@@ -62,10 +64,10 @@ CANDIDATES = (Effect.DEAD_TIME, Effect.ACTIVATION_DYNAMICS, Effect.RECRUITMENT_N
 #: The second participant of the independent formulations (``-B`` codes): every field
 #: that the defaults of ``hill_participant.HillParticipant`` set and the formulations read,
 #: moved (the extensor now on the descending limb, the flexor on the ascending one).
-PARTICIPANT_B = dict(F0_e_N=1200.0, F0_f_N=800.0, l_rest_e=1.08, l_rest_f=0.92,
-                     I_th_e=0.03, I_th_f=0.12, gamma_e=1.1, gamma_f=1.9, a_max_e=0.15,
-                     a_max_f=0.08, tau_act_s=0.02, tau_deact_s=0.07, K_fix_Nm_rad=45.0,
-                     zeta_fix=0.22, sensed_damping=0.25)
+PARTICIPANT_B = {"F0_e_N": 1200.0, "F0_f_N": 800.0, "l_rest_e": 1.08, "l_rest_f": 0.92,
+                 "I_th_e": 0.03, "I_th_f": 0.12, "gamma_e": 1.1, "gamma_f": 1.9, "a_max_e": 0.15,
+                 "a_max_f": 0.08, "tau_act_s": 0.02, "tau_deact_s": 0.07, "K_fix_Nm_rad": 45.0,
+                 "zeta_fix": 0.22, "sensed_damping": 0.25}
 
 
 def _session(code: str):
@@ -134,12 +136,12 @@ def _where(data, m) -> str:
     f = data.f_inst_Hz
     edges = np.geomspace(data.chirp_f0_Hz, data.chirp_f1_Hz, 4)
     parts = []
-    for k, name in enumerate(("low", "mid", "high")):
+    for k in range(3):                  # low, mid, high sE
         rows = ok & (lv * 3 // n_lv == k)
         lo_s, hi_s = data.sE_levels[lv[rows]].min(), data.sE_levels[lv[rows]].max()
         parts.append(f"sE {lo_s:.2f}-{hi_s:.2f}: "
                      f"{100 * np.sqrt(np.sum(r[rows] ** 2) / np.sum(y[rows] ** 2)):.2f}")
-    for a, b in zip(edges[:-1], edges[1:]):
+    for a, b in pairwise(edges):
         cols = (f >= a) & (f <= b)
         num = np.sum(r[ok][:, cols] ** 2)
         parts.append(f"{a:.1f}-{b:.1f} Hz: "

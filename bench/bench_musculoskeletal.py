@@ -1,9 +1,9 @@
 """The musculoskeletal participant (MuJoCo elbow under FES) beside the template participant.
 
 1. A whole session (both calibration ramps + 45 trials, fast clock) through the engine, per
-   participant (two at a time, one per core): wall and CPU time, file valid, calibration vs the noise-free ramp, then
-   identification against the participant's truth (the template: its curves; the
-   musculoskeletal one: the best second-order description of its noise-free response,
+   participant (two at a time, one per core): wall and CPU time, file valid, calibration vs the
+   noise-free ramp, then identification against the participant's truth (the template: its curves;
+   the musculoskeletal one: the best second-order description of its noise-free response,
    ``MskParticipant.second_order_truth``), worst error per parameter over the 15 sE and
    the fit % reached vs the fit % a second-order model can reach at all.
 2. ``nmsid run --backend sim --participant-model musculoskeletal`` as a user runs it
@@ -40,6 +40,7 @@ from nmsid.protocols.config import config_from_dict  # noqa: E402
 from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
 from nmsid.rig.engine import Engine, TripPolicy  # noqa: E402
 from nmsid.sim_backends import make_sim_rig  # noqa: E402
+
 if str(Path(__file__).resolve().parent) not in sys.path:   # bench/: workers
     sys.path.insert(0, str(Path(__file__).resolve().parent))
 from workers import importable, process_pool  # noqa: E402
@@ -78,7 +79,7 @@ def _session(participant, code: str, tmp: Path) -> dict:
         got = (lv.fit.Kp, lv.fit.wn_rad_s, lv.fit.zeta)
         rows.append({"sE": lv.sE, "got": got, "truth": truth, "fit": lv.fit.fit_pct,
                      "ceiling": fit_ceiling,
-                     "err": [100.0 * (g / t - 1.0) for g, t in zip(got, truth)]})
+                     "err": [100.0 * (g / t - 1.0) for g, t in zip(got, truth, strict=True)]})
     t_truth = time.perf_counter() - t2
     return {"code": code, "wall": wall, "cpu": cpu, "valid": valid, "cal_ok": cal_ok,
             "cal": tuple(getattr(cal, n) for n in names), "t_ident": t_ident,
@@ -152,7 +153,7 @@ def _realtime() -> None:
     I_e, I_f = currents_for(cal, 0.6, chirp_rE())
     for name, sim in (("musculoskeletal", MskSimulator(p)),
                       ("template", ParticipantSimulator(default_participant()))):
-        best = min(_timed(lambda: sim.simulate(I_e, I_f)) for _ in range(3))
+        best = min(_timed(lambda sim=sim: sim.simulate(I_e, I_f)) for _ in range(3))
         print(f"   {name:<16} simulation of a 15 s trial: {best * 1e3:7.1f} ms = "
               f"{I_e.size / best:>10,.0f} samples/s ({I_e.size / best / 2000:,.0f} x real time)")
     rig = make_sim_rig(p, realtime=True, connect=True)
@@ -236,7 +237,7 @@ def main(jobs: int = 2) -> None:
                 outs = list(ex.map(importable(_session_of), work))
         else:
             outs = [_session_of(w) for w in work]
-        results = [(label, out) for (_, _, label), out in zip(SESSIONS, outs)]
+        results = [(label, out) for (_, _, label), out in zip(SESSIONS, outs, strict=True)]
         _print_sessions(results)
         print(f"({jobs} session(s) at a time)")
         _cli_session(tmp)

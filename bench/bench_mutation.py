@@ -410,10 +410,10 @@ def main(argv: list[str] | None = None) -> None:
 
     # every module's clean run, then every mutant of every module, ``--jobs`` at a time
     with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        base = dict(zip(plan, pool.map(clean_run, plan)))
+        base = dict(zip(plan, pool.map(clean_run, plan), strict=True))
         jobs: list[tuple[str, Mutant, float]] = []
         n_named: dict[str, int] = {}
-        for module, (tests, src, all_mutants) in plan.items():
+        for module, (_tests, _src, all_mutants) in plan.items():
             clean, base_s = base[module]
             if clean != "passed":
                 print(f"{module}: the clean tests do not pass ({clean}); skipped")

@@ -6,8 +6,8 @@ Sessions come from two generators of different structure, so that QC is not tune
   50 Hz mains, offsets and drifts, noise 0.02-0.06 N);
 * ``inline``: written here: a second-order response behind an input delay of 0-2 ms and a
   saturating static nonlinearity, with the physiology's scatter between repeats (uniform,
-  half-widths drawn per session: gain 2-10 %, wn 1-6 %, zeta 0-6 %), 50 or 60 Hz mains, noise 0.005-0.06 N, a 16-bit-like quantisation of
-  0.002-0.01 N, 3 or 4 repeats.
+  half-widths drawn per session: gain 2-10 %, wn 1-6 %, zeta 0-6 %), 50 or 60 Hz mains, noise
+  0.005-0.06 N, a 16-bit-like quantisation of 0.002-0.01 N, 3 or 4 repeats.
 
 Each session gets one contaminated repeat at each of three sE levels, drawn from:
 a voluntary contraction (2-5 N of either sign, 1-2 s, raised-cosine or fast-rise/slow-decay
@@ -31,13 +31,13 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
-from nmsid.analysis.identify import identify_session  # noqa: E402
-from nmsid.analysis.settings import IdentificationSettings  # noqa: E402
-from nmsid.protocols.session_file import (Calibration, SessionWriter, Trial,  # noqa: E402
-                                          read_session)
-from nmsid.testing.sessions import SE_LEVELS, chirp_rE, write_synthetic_session  # noqa: E402
 from rates import rate  # noqa: E402
 from workers import importable, process_pool  # noqa: E402
+
+from nmsid.analysis.identify import identify_session  # noqa: E402
+from nmsid.analysis.settings import IdentificationSettings  # noqa: E402
+from nmsid.protocols.session_file import Calibration, SessionWriter, Trial, read_session  # noqa: E402
+from nmsid.testing.sessions import SE_LEVELS, chirp_rE, write_synthetic_session  # noqa: E402
 
 FS = 2000.0
 STEADY, CHIRP = 5.0, 10.0

@@ -24,12 +24,13 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
+from rates import rate  # noqa: E402
+from workers import importable, process_pool  # noqa: E402
+
 from nmsid.analysis.design.candidates import paper_candidate  # noqa: E402
 from nmsid.analysis.design.validate import simulate_session  # noqa: E402
 from nmsid.analysis.qc import QCSettings, assess_session  # noqa: E402
 from nmsid.sim_backends.population import make_population  # noqa: E402
-from rates import rate  # noqa: E402
-from workers import importable, process_pool  # noqa: E402
 
 SCATTERS = [None, {"Kp": 0.1, "wn_rad_s": 0.05, "zeta": 0.05}, {"wn_rad_s": 0.1},
             {"zeta": 0.1}, {"Kp": 0.2, "wn_rad_s": 0.1, "zeta": 0.1}]
@@ -86,7 +87,7 @@ def main(jobs: int = 2) -> None:
         results = [setting(w) for w in work]
     total = [0, 0]
     base_total = []
-    for (kind, sc), (a, b, n) in zip(work, results):
+    for (kind, sc), (a, b, n) in zip(work, results, strict=True):
         total[0] += a
         total[1] += n
         base_total.append(b)

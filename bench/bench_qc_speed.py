@@ -44,9 +44,9 @@ for _p in (ROOT, HERE):
         sys.path.insert(0, str(_p))
 
 import numpy as np  # noqa: E402
-
-from workers import child_env  # noqa: E402
 from cpu_time import cpu_median, load_1min  # noqa: E402
+from workers import child_env  # noqa: E402
+
 from nmsid.analysis.qc import checks, decide, repeats  # noqa: E402
 from nmsid.protocols.session_file import read_session  # noqa: E402
 

@@ -2,8 +2,8 @@
 
 Each run: a fast-clock simulated session (``nmsid run --backend sim``, a real
 subprocess) is killed with SIGKILL at a random moment (0-0.15 s after a random number of
-trial ends, 0 meaning after the journal appears: from calibration to the end); then one journal entry or the
-journal's ``header.json`` is damaged (overwritten with random bytes, truncated, or
+trial ends, 0 meaning after the journal appears: from calibration to the end); then one journal
+entry or the journal's ``header.json`` is damaged (overwritten with random bytes, truncated, or
 deleted); then ``nmsid recover`` and ``nmsid run --resume`` run to the end. Counted:
 
 * trials completed before the kill (a completed trial in the journal or the file), and

@@ -38,11 +38,12 @@ for _p in (ROOT, Path(__file__).resolve().parent):   # nmsid; bench/ (workers)
         sys.path.insert(0, str(_p))
 
 from workers import child_env  # noqa: E402
+
 from nmsid.protocols.config import config_from_dict  # noqa: E402
-from nmsid.rig.engine import Engine, TripPolicy  # noqa: E402
-from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
-from nmsid.sim_backends import make_sim_rig  # noqa: E402
 from nmsid.protocols.os_platform import is_windows  # noqa: E402
+from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
+from nmsid.rig.engine import Engine, TripPolicy  # noqa: E402
+from nmsid.sim_backends import make_sim_rig  # noqa: E402
 
 
 def _one(seed: int, tmp: Path) -> dict:
@@ -168,9 +169,9 @@ def whole_process(tmp: Path, runs: int = 3) -> None:
 
 def filters_vs_scipy(trials: int = 20) -> None:
     """The simulator's filters (protocols/lti_kernels.py, public scipy.signal since issue
-    38) against plain scipy.signal calls, on the participants' range at 2000 Hz: a 15 s trial (30000 samples) of
-    the 2nd-order model and of the 3rd-order cascade with an activation lag, each continued
-    from a past (``lfilter`` from ``lfiltic``'s states); time per trial and the largest
+    38) against plain scipy.signal calls, on the participants' range at 2000 Hz: a 15 s trial (30000
+    samples) of the 2nd-order model and of the 3rd-order cascade with an activation lag, each
+    continued from a past (``lfilter`` from ``lfiltic``'s states); time per trial and the largest
     difference, relative to the trial's largest output. Plus the import of each."""
     t0 = time.perf_counter()
     import scipy.signal as ss  # the baseline's own import, timed

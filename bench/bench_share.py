@@ -34,8 +34,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from nmsid.protocols.config import config_from_dict  # noqa: E402
-from nmsid.protocols.session_file import (SessionWriter, read_session,  # noqa: E402
-                                          validate_session)
+from nmsid.protocols.session_file import SessionWriter, read_session, validate_session  # noqa: E402
 from nmsid.rig.engine import Engine, TripPolicy  # noqa: E402
 from nmsid.sim_backends import make_sim_rig  # noqa: E402
 from nmsid.sim_backends.participant import default_participant  # noqa: E402
@@ -143,8 +142,9 @@ def files(tmp: Path) -> Path:
 
 def nwb(src: Path, tmp: Path) -> None:
     try:
-        from nmsid.export.nwb import export_nwb, inspect_nwb
         import pynwb  # noqa: F401
+
+        from nmsid.export.nwb import export_nwb, inspect_nwb
     except ImportError as exc:
         print(f"NWB export skipped: {exc}")
         return

@@ -31,10 +31,21 @@ def _best_of(fn, n=5):
 
 def main() -> None:
     from nmsid.sim_backends import make_sim_rig
-    from nmsid.sim_backends.direct_drive import (chirp_rE, currents_for, ramp_thresholds,
-                                                 run_waveform, waveform)
-    from nmsid.sim_backends.effects import (ActivationDynamics, BaselineDrift, DeadTime, Fatigue,
-                                            FlexorExtensorAsymmetry, RecruitmentNonlinearity)
+    from nmsid.sim_backends.direct_drive import (
+        chirp_rE,
+        currents_for,
+        ramp_thresholds,
+        run_waveform,
+        waveform,
+    )
+    from nmsid.sim_backends.effects import (
+        ActivationDynamics,
+        BaselineDrift,
+        DeadTime,
+        Fatigue,
+        FlexorExtensorAsymmetry,
+        RecruitmentNonlinearity,
+    )
     from nmsid.sim_backends.participant import default_participant
     from nmsid.sim_backends.simulation import ParticipantSimulator
 
@@ -48,7 +59,7 @@ def main() -> None:
 
     for name, q in (("nominal", p), ("all six effects", p_all)):
         sim = ParticipantSimulator(q)
-        best, med = _best_of(lambda: sim.simulate(I_e, I_f))
+        best, med = _best_of(lambda sim=sim: sim.simulate(I_e, I_f))
         rows.append((f"participant only, 15 s trial, one block ({name})", f"{best * 1e3:.1f} ms",
                      f"median {med * 1e3:.1f} ms"))
 
@@ -70,7 +81,7 @@ def main() -> None:
         ramp_thresholds(r, "ext")
         ramp_thresholds(r, "flex")
         levels = np.round(np.arange(0.30, 1.001, 0.05), 2)
-        for rep in range(3):
+        for _ in range(3):
             for sE in levels:
                 run_waveform(r, waveform(*currents_for(p.calibration, sE, rE)))
         return r
@@ -104,7 +115,7 @@ def main() -> None:
     for k in range(40):
         done = threading.Event()
 
-        def reader():
+        def reader(done=done):
             run_waveform(rt, short)
             done.set()
         th = threading.Thread(target=reader)
@@ -114,7 +125,7 @@ def main() -> None:
         rt.stimulator.stop_now()
         lat.append(time.perf_counter() - t_a)
         th.join()
-    zero = [e for e in rt.output_zero_events]
+    zero = list(rt.output_zero_events)
     rows.append(("real time: stop_now() call duration (40 trips, reader active)",
                  f"p50 {_pct(lat, 50) * 1e6:.0f} us", f"p99 {_pct(lat, 99) * 1e6:.0f} us, "
                  f"{len(zero)} output-zero records"))

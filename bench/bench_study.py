@@ -55,7 +55,7 @@ def _compare(title: str, cfg: StudyConfig, tmp: Path) -> dict:
     per = statistics.median(r["elapsed_s"] for r in r_serial)
     per_dask = statistics.median(r["elapsed_s"] for r in r_dask)
     ok = sum(1 for r in r_dask if r["ok"])
-    same = all(a["values"] == b["values"] for a, b in zip(r_serial, r_dask) if a["ok"])
+    same = all(a["values"] == b["values"] for a, b in zip(r_serial, r_dask, strict=True) if a["ok"])
     print(f"{title}: {len(cfg.sessions)} sessions, {ok} identified; serial {t_serial:.1f} s, "
           f"{WORKERS} workers {t_dask:.1f} s, speed-up x{t_serial / t_dask:.2f}; median "
           f"per session {per:.2f} s serial, {per_dask:.2f} s in a worker; cluster start "

@@ -127,7 +127,7 @@ class Generator:
             tp = np.arange(rng.uniform(0, 1 / p["pulse_Hz"]), t[-1], 1 / p["pulse_Hz"])
             a = np.zeros_like(f)
             idx = np.searchsorted(t, tp)
-            for ti, i in zip(tp, idx):
+            for ti, i in zip(tp, idx, strict=True):
                 for j in range(max(0, i - 2), min(len(t), i + 3)):
                     a[j] += np.exp(-0.5 * ((t[j] - ti) / 1e-4) ** 2)
             f = f + p["amplitude_N"] * sE * a

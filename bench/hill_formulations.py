@@ -35,8 +35,8 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-
 from hill_participant import HillParticipant
+
 from nmsid.protocols.session_file import Session, Trial
 
 FORMULATIONS = ("thelen2003", "degroote2016", "millard2012")

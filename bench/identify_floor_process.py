@@ -3,8 +3,8 @@ must do, run as its own process.
 
     python bench/identify_floor_process.py SESSION.h5
 
-Start Python; import numpy, h5py and ``scipy.signal``; read ``rE`` and ``force_N`` of every trial with
-h5py's low-level call into preallocated arrays (no attribute, no contract check); one
+Start Python; import numpy, h5py and ``scipy.signal``; read ``rE`` and ``force_N`` of every trial
+with h5py's low-level call into preallocated arrays (no attribute, no contract check); one
 zero-phase 4th-order low-pass of every trial at once (``scipy.signal.lfilter``,
 forward and backward), decimation by 10; one *linear* least-squares fit per trial (a
 second-order ARX model: no nonlinear search, no confidence intervals). Nothing is
@@ -25,7 +25,6 @@ T0 = time.perf_counter()
 
 import h5py  # noqa: E402
 import numpy as np  # noqa: E402
-
 from scipy.signal import lfilter  # noqa: E402
 
 #: 4th-order Butterworth low-pass at 20 Hz for 2000 Hz as two biquads (scipy.signal.butter(

@@ -23,8 +23,9 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
-from nmsid.analysis.qc import assess_session  # noqa: E402
 from bench_qc import contaminate  # noqa: E402
+
+from nmsid.analysis.qc import assess_session  # noqa: E402
 from nmsid.protocols.session_file import read_session  # noqa: E402
 from nmsid.testing.sessions import write_synthetic_session  # noqa: E402
 
@@ -38,11 +39,11 @@ def main(out: str = str(HERE.parent / "docs" / "figures" / "qc_example.png")) ->
     qc = assess_session(ses)
     shown = [lv for lv in qc.levels if any(v.decision != "used" for v in lv.verdicts)][:2]
     fig, axes = plt.subplots(len(shown), 1, figsize=(9, 3.2 * len(shown)), sharex=True)
-    for ax, lv in zip(np.atleast_1d(axes), shown):
+    for ax, lv in zip(np.atleast_1d(axes), shown, strict=True):
         trials = [t for t in ses.trials if round(t.sE, 6) == round(lv.sE, 6)]
         kept = {t.name: t for t in lv.kept}
         for v, tr in zip(sorted(lv.verdicts, key=lambda v: v.trial),
-                         sorted(trials, key=lambda t: t.name)):
+                         sorted(trials, key=lambda t: t.name), strict=True):
             t = tr.t_s
             style = {"used": "-", "repaired": "--", "excluded": "-"}[v.decision]
             colour = {"used": "0.6", "repaired": "tab:orange", "excluded": "tab:red"}[

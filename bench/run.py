@@ -240,7 +240,7 @@ def run(names: list[str], out: Path | None, budget_min: float = BUDGET_MIN,
     if str(directory) not in sys.path:
         sys.path.insert(0, str(directory))
     sections: list[Section] = []
-    started = _dt.datetime.now(_dt.timezone.utc)
+    started = _dt.datetime.now(_dt.UTC)
     load0 = _load_average()
     for path in sorted(directory.glob("bench_*.py")):
         if names and not any(w in path.stem for w in names):

@@ -20,10 +20,11 @@ from __future__ import annotations
 import importlib
 import os
 import sys
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing.context import BaseContext
 from pathlib import Path
-from typing import Callable, TypeVar
+from typing import TypeVar
 
 HERE = Path(__file__).resolve().parent
 

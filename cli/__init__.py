@@ -28,8 +28,15 @@ import os
 import sys
 import traceback
 
-from nmsid.errors import (EXIT_BUG, EXIT_USER_ERROR, DeviceFault, MissingDependency,
-                          NmsidError, SafetyError, UserError)
+from nmsid.errors import (
+    EXIT_BUG,
+    EXIT_USER_ERROR,
+    DeviceFault,
+    MissingDependency,
+    NmsidError,
+    SafetyError,
+    UserError,
+)
 from nmsid.protocols.printable import escape_controls
 
 #: Modules that each add one or more sub-commands.

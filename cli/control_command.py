@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from nmsid.analysis.control.errors import TrackingReportError
 from nmsid.analysis.control.design import design_controller, design_report
+from nmsid.analysis.control.errors import TrackingReportError
 from nmsid.analysis.control.report import report_markdown, write_report
 from nmsid.analysis.twin import Twin
 from nmsid.cli.errors import UsageError
@@ -46,22 +46,22 @@ def report(args: argparse.Namespace) -> int:
     if len(sessions) > 1:  # a glob: the sessions without tracking trials are named, skipped
         tracking = [any(t.extra_attrs.get("trial_kind") == "tracking" for t in s.trials)
                     for s in sessions]
-        for p, ok in zip(paths, tracking):
+        for p, ok in zip(paths, tracking, strict=True):
             if not ok:
                 print(f"{p}: skipped: no tracking trials (not a session of nmsid run "
                       "--track)", flush=True)
         if not any(tracking):
             raise TrackingReportError(f"none of the {len(paths)} sessions has tracking "
                                       "trials (sessions of nmsid run --track)")
-        sessions = [s for s, ok in zip(sessions, tracking) if ok]
-        stems = [st for st, ok in zip(stems, tracking) if ok]
+        sessions = [s for s, ok in zip(sessions, tracking, strict=True) if ok]
+        stems = [st for st, ok in zip(stems, tracking, strict=True) if ok]
     with output_dir(args.out, force=args.force, command="control report") as tmp:
         reps = []
-        for session, stem in zip(sessions, stems):
+        for session, stem in zip(sessions, stems, strict=True):
             where = Path(tmp) if len(sessions) == 1 else Path(tmp) / stem
             where.mkdir(exist_ok=True)
             reps.append(write_report(session, where))
-    for rep, stem in zip(reps, stems):
+    for rep, stem in zip(reps, stems, strict=True):
         print(report_markdown(rep).split("\n\n")[1], flush=True)
         where = Path(args.out) if len(reps) == 1 else Path(args.out) / stem
         print(f"written to {where} (tracking.json, report.md, figures/)", flush=True)

@@ -9,10 +9,13 @@ from pathlib import Path
 
 from nmsid.analysis.design.api import run_design
 from nmsid.analysis.design.errors import DesignError
-from nmsid.analysis.design.prior import (adequacy_from_parameters, population_prior,
-                                         scatter_from_parameters, twin_prior)
+from nmsid.analysis.design.prior import (
+    adequacy_from_parameters,
+    population_prior,
+    scatter_from_parameters,
+    twin_prior,
+)
 from nmsid.protocols.output_paths import check_output, output_dir
-
 
 #: Largest --n-prior / --validate (each simulated participant costs a design evaluation).
 COUNT_MAX = 1000

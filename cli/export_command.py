@@ -39,11 +39,11 @@ def run_nwb(args) -> int:
         with output_dir(args.out, force=args.force, command="export nwb") as tmp, \
                 Progress(len(sessions), f"export nwb: {len(sessions)} sessions",
                          unit="session") as bar:
-            for s, stem in zip(sessions, stems):
+            for s, stem in zip(sessions, stems, strict=True):
                 results.append(_export(args, s, Path(tmp) / f"{stem}.nwb"))
                 bar.update()
         results = [dataclasses.replace(r, path=Path(args.out) / f"{stem}.nwb")
-                   for r, stem in zip(results, stems)]
+                   for r, stem in zip(results, stems, strict=True)]
     for result in results:
         print(f"{result.path}: {result.n_trials} trial(s), {result.n_series} time series, "
               f"{result.n_events} event(s)")

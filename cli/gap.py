@@ -22,7 +22,8 @@ def register(sub) -> None:
                     "effective number of samples, localise the gap, and write "
                     "gap_report.json, report.html with figures, and the augmented twin.json. "
                     "See docs/gap.md.")
-    p.add_argument("sessions", nargs="+", metavar="SESSION.h5", type=input_file, help="session file(s)")
+    p.add_argument("sessions", nargs="+", metavar="SESSION.h5", type=input_file,
+                   help="session file(s)")
     p.add_argument("--out", required=True, metavar="DIR", type=folder_to_write,
                    help="output folder")
     p.add_argument("--force", action="store_true",

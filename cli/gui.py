@@ -14,10 +14,10 @@ def register(sub) -> None:
         "big E-STOP (docs/gui.md)")
     p.add_argument("--backend", choices=("sim", "hw"), default="sim",
                    help="simulated rig (default) or the hardware chain")
-    p.add_argument("--config", metavar="FILE", type=input_file, help="protocol configuration (TOML); "
-                   "default: built-in (15 sE x 3 repeats)")
-    p.add_argument("--hw-config", metavar="FILE", type=input_file, help="hardware chain configuration "
-                   "(with --backend hw)")
+    p.add_argument("--config", metavar="FILE", type=input_file,
+                   help="protocol configuration (TOML); default: built-in (15 sE x 3 repeats)")
+    p.add_argument("--hw-config", metavar="FILE", type=input_file,
+                   help="hardware chain configuration (with --backend hw)")
     p.add_argument("--participant", metavar="P", help="participant code "
                    "([A-Za-z0-9_-]{1,64})")
     p.add_argument("--out", metavar="FILE", type=output_path, help="session file to write (never "

@@ -41,7 +41,8 @@ def register(sub) -> None:
                     "for every sE level of each session, select linear / quadratic / "
                     "exponential curves of each parameter by AICc, write the twin. Several "
                     "sessions give the group analysis. See docs/identification.md.")
-    p.add_argument("sessions", nargs="+", metavar="SESSION.h5", type=input_file, help="session file(s)")
+    p.add_argument("sessions", nargs="+", metavar="SESSION.h5", type=input_file,
+                   help="session file(s)")
     p.add_argument("--out", required=True, metavar="DIR", type=folder_to_write,
                    help="output folder")
     p.add_argument("--force", action="store_true",

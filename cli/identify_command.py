@@ -229,7 +229,7 @@ def run_twin_simulate(args) -> int:
     with output_file(args.out, force=args.force) as tmp:
         with open(tmp, "w", encoding="utf-8") as fh:
             fh.write("t_s,rE,sE,force_N\n")
-            for row in zip(t, rE, sE, force):
+            for row in zip(t, rE, sE, force, strict=True):
                 fh.write(f"{row[0]:.6f},{row[1]:.9g},{row[2]:.9g},{row[3]:.9g}\n")
     print(f"wrote {len(rE)} samples at {fs:g} Hz to {args.out} "
           f"(force {force.min():.3f} to {force.max():.3f} N)")

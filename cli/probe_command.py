@@ -27,12 +27,20 @@ import numpy as np
 
 from nmsid.cli.errors import UsageError
 from nmsid.drivers.dry_run import DryRunSettings
-from nmsid.drivers.hardware import (build_devices, load_acquisition_library, make_acquisition,
-                                    make_estop, make_stimulator, prepare, with_monitor)
-from nmsid.drivers.hardware import FakeStack, load_stimulator_library
+from nmsid.drivers.hardware import (
+    FakeStack,
+    build_devices,
+    load_acquisition_library,
+    load_stimulator_library,
+    make_acquisition,
+    make_estop,
+    make_stimulator,
+    prepare,
+    with_monitor,
+)
 from nmsid.drivers.hw_config import load_hw_config
-from nmsid.drivers.registry import acquisition_kind
 from nmsid.drivers.interfaces import Describable, ReportsSensorInfo
+from nmsid.drivers.registry import acquisition_kind
 from nmsid.rig.dry_run import dry_run_probe
 
 CHECK_TIMEOUT_S = 120.0

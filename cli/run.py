@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import argparse
 
-from nmsid.protocols.joints import JOINTS
 from nmsid.cli.arguments import (
     folder_to_write,
     input_file,
     output_path,
     session_to_continue,
 )
+from nmsid.protocols.joints import JOINTS
 
 #: Seeds are stored as 64-bit signed integers in the session file.
 SEED_MAX = 2 ** 63 - 1
@@ -70,7 +70,8 @@ def register(sub) -> None:
                    help="schedule randomisation seed (overrides the config; default: drawn "
                         "and recorded)")
     out = p.add_mutually_exclusive_group()
-    out.add_argument("--out", metavar="FILE", type=output_path, help="session file to write (must not exist)")
+    out.add_argument("--out", metavar="FILE", type=output_path,
+                     help="session file to write (must not exist)")
     out.add_argument("--outdir", metavar="DIR", type=folder_to_write,
                      help="folder for <participant>-<UTC time>.h5 (default: sessions)")
     out.add_argument("--resume", metavar="FILE", type=session_to_continue,

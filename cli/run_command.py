@@ -29,13 +29,13 @@ from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.rig.cocontraction import CoContractionSession
 from nmsid.rig.engine import Engine, TripPolicy
 from nmsid.rig.glitch_prompt import glitch_confirmation
-from nmsid.rig.recovery import check_stored_header
-from nmsid.rig.session_log import journal_dir, recover
-from nmsid.rig.session_service import (RigRequest, is_plugin_spec, prepare_rig)
 from nmsid.rig.lsl import finish_recording, lsl_observer, require_pylsl, start_recording
 from nmsid.rig.observer import EngineObserver
-from nmsid.rig.trials import session_kind_from_stored
+from nmsid.rig.recovery import check_stored_header
+from nmsid.rig.session_log import journal_dir, recover
+from nmsid.rig.session_service import RigRequest, is_plugin_spec, prepare_rig
 from nmsid.rig.session_signals import SessionSignals, exit_code, signal_name
+from nmsid.rig.trials import session_kind_from_stored
 
 
 def recover_cmd(args) -> int:
@@ -229,7 +229,7 @@ def _stored_config(path):
 
 
 def _free_path(outdir, participant: str):
-    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
     for k in range(1, 1000):
         p = outdir / (f"{participant}-{stamp}" + (f"-{k}" if k > 1 else "") + ".h5")
         if not p.exists() and not journal_dir(p).exists():

@@ -19,11 +19,16 @@ from pathlib import Path
 import numpy as np
 
 from nmsid.drivers.hw_config import load_hw_config
-from nmsid.drivers.stg4002_settings import Stg4002Config
 from nmsid.drivers.interfaces import CheckedWaveform, CurrentLimitError
 from nmsid.drivers.registry import stimulator_kind
-from nmsid.drivers.stg_download import (STG4002_OUTPUT_RATE_HZ, STG4002_RANGE_NA,
-                                        STG4002_RESOLUTION_NA, ChannelPlan, prepare_download)
+from nmsid.drivers.stg4002_settings import Stg4002Config
+from nmsid.drivers.stg_download import (
+    STG4002_OUTPUT_RATE_HZ,
+    STG4002_RANGE_NA,
+    STG4002_RESOLUTION_NA,
+    ChannelPlan,
+    prepare_download,
+)
 from nmsid.drivers.stimulation_report import SUMMARY_FORMAT, download_summary
 from nmsid.errors import OutputExistsError
 from nmsid.protocols.calibration import make_calibration

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 from nmsid.cli.errors import UsageError
+from nmsid.protocols.output_paths import check_output, output_dir
 from nmsid.protocols.user_values import non_utf8_problem
 from nmsid.study.config import load_study
 from nmsid.study.runner import run_study
-from nmsid.protocols.output_paths import check_output, output_dir
 
 
 def run(args) -> int:

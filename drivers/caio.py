@@ -59,10 +59,13 @@ from ctypes import POINTER, c_char_p, c_float, c_long, c_short
 
 import numpy as np
 
-from nmsid.drivers.analog_force import (AnalogCalibration, NoLoadTare, convert_block,
-                                        measure_no_load)
-from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
-                                  VendorLibraryMissing)
+from nmsid.drivers.analog_force import AnalogCalibration, NoLoadTare, convert_block, measure_no_load
+from nmsid.drivers.errors import (
+    DeviceError,
+    DeviceNotFound,
+    HardwareConfigError,
+    VendorLibraryMissing,
+)
 from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
 from nmsid.protocols import os_platform
 
@@ -206,8 +209,8 @@ class CaioAcquisition:
             raise HardwareConfigError(f"acquisition.caio.range {ai_range!r} is not one of "
                              f"{sorted(RANGES_V)}")
         if input_method and input_method not in INPUT_METHODS:
-            raise HardwareConfigError(f"acquisition.caio.input_method {input_method!r} is not one of "
-                             f"{sorted(INPUT_METHODS)} (or empty)")
+            raise HardwareConfigError(f"acquisition.caio.input_method {input_method!r} is not "
+                                      f"one of {sorted(INPUT_METHODS)} (or empty)")
         self.cal = calibration
         for warning in calibration.implausible():
             log.warning("%s", warning)

@@ -20,14 +20,24 @@ from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, model
 
 from nmsid.drivers.analog_force import AXES, SENSOR_SPAN_V, AnalogCalibration
 from nmsid.drivers.errors import HardwareConfigError, hw_config_error
-from nmsid.drivers.registry import (ACQUISITIONS, DEFAULT_STIMULATOR, ESTOPS, STIMULATORS,
-                                    acquisition_entry)
 from nmsid.drivers.p24_settings import P24Config
+from nmsid.drivers.registry import (
+    ACQUISITIONS,
+    DEFAULT_STIMULATOR,
+    ESTOPS,
+    STIMULATORS,
+    acquisition_entry,
+)
 from nmsid.drivers.rehamove3_settings import Rehamove3Config
 from nmsid.drivers.rehastim2_settings import Rehastim2Config
 from nmsid.drivers.stg4002_settings import Stg4002Config
-from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
-                                           validate_settings)
+from nmsid.protocols.settings_base import (
+    SettingProblem,
+    bounded,
+    read_toml,
+    settings_dataclass,
+    validate_settings,
+)
 
 StimulatorSettings: TypeAlias = Stg4002Config | Rehastim2Config | P24Config | Rehamove3Config
 """A validated ``[stimulator]`` table, typed by its kind (the registry's settings models)."""
@@ -321,14 +331,14 @@ def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
         kind=a.kind, fs_Hz=a.fs_Hz,
         monitor_channel=a.monitor_channel if a.monitor_channel >= 0 else None,
         monitor_fs_Hz=a.monitor_fs_Hz,
-        caio=dict(device_name=a.caio.device_name, ai_range=a.caio.range,
-                  input_method=a.caio.input_method, library=a.caio.library,
-                  conversion_us=a.caio.conversion_us),
-        nidaq=dict(device=a.nidaq.device, start_trigger=a.nidaq.start_trigger,
-                   terminal_config=a.nidaq.terminal_config, range_V=a.nidaq.range_V,
-                   reads_per_s=a.nidaq.reads_per_s),
-        leptrino=dict(port=a.leptrino.port, baudrate=a.leptrino.baudrate,
-                      sync_on_external_input=a.leptrino.sync_on_external_input))
+        caio={"device_name": a.caio.device_name, "ai_range": a.caio.range,
+              "input_method": a.caio.input_method, "library": a.caio.library,
+              "conversion_us": a.caio.conversion_us},
+        nidaq={"device": a.nidaq.device, "start_trigger": a.nidaq.start_trigger,
+               "terminal_config": a.nidaq.terminal_config, "range_V": a.nidaq.range_V,
+               "reads_per_s": a.nidaq.reads_per_s},
+        leptrino={"port": a.leptrino.port, "baudrate": a.leptrino.baudrate,
+                  "sync_on_external_input": a.leptrino.sync_on_external_input})
     cal = None
     if acquisition_entry(a.kind).analog:
         try:

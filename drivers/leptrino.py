@@ -45,17 +45,38 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
-from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
-                                  ProtocolError, VendorLibraryMissing)
+from nmsid.drivers.errors import (
+    DeviceError,
+    DeviceNotFound,
+    HardwareConfigError,
+    ProtocolError,
+    VendorLibraryMissing,
+)
 from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
 from nmsid.drivers.leptrino_protocol import (
-    DATA_RECORD_LEN, FULL_SCALE_RAW, RAW_AT_RATED, Command, Corrupt, DataRecord, FilterSetting,
-    Frame, FrameDecoder, Nak, ProductInfo, Result, Status, encode_command, parse_data_record,
-    parse_filter, parse_product_info, parse_rated_values)
+    DATA_RECORD_LEN,
+    FULL_SCALE_RAW,
+    RAW_AT_RATED,
+    Command,
+    Corrupt,
+    DataRecord,
+    FilterSetting,
+    Frame,
+    FrameDecoder,
+    Nak,
+    ProductInfo,
+    Result,
+    Status,
+    encode_command,
+    parse_data_record,
+    parse_filter,
+    parse_product_info,
+    parse_rated_values,
+)
 from nmsid.protocols import os_platform
 
 log = logging.getLogger(__name__)
@@ -644,7 +665,7 @@ class LeptrinoAcquisition:
         if status & Status.OVER_RATED:
             details.append("load above the sensor's rated value")
         if status & (Status.SENSOR_FAULT | Status.ROM_ERROR):
-            details.append("sensor reports a fault (status 0x%02X)" % status)
+            details.append(f"sensor reports a fault (status 0x{int(status):02X})")
         if other_fault:
             details.append(other_fault)
         flags = AcquisitionFlags(

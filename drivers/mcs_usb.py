@@ -48,9 +48,14 @@ def load_mcs_usb(dll_path: str) -> SimpleNamespace:
         raise missing from None
     try:
         clr.AddReference(str(dll_path))
-        from Mcs.Usb import (CMcsUsbListNet, CStg200xDownloadNet,  # noqa: PLC0415
-                             DeviceEnumNet, RetriggerActionEnumNet, STG_DestinationEnumNet,
-                             Stg200xSegmentFlagsEnumNet)
+        from Mcs.Usb import (  # noqa: PLC0415
+            CMcsUsbListNet,
+            CStg200xDownloadNet,
+            DeviceEnumNet,
+            RetriggerActionEnumNet,
+            Stg200xSegmentFlagsEnumNet,
+            STG_DestinationEnumNet,
+        )
         from System import Array, Int32, UInt32, UInt64  # noqa: PLC0415
     except Exception as exc:  # .NET FileNotFoundException is not a Python OSError
         raise diagnose_load_failure(dll_path, exc) from None

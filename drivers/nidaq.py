@@ -52,13 +52,17 @@ import queue
 import re
 import uuid
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 
-from nmsid.drivers.analog_force import (AnalogCalibration, NoLoadTare, convert_block,
-                                        measure_no_load)
-from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
-                                  VendorLibraryMissing)
+from nmsid.drivers.analog_force import AnalogCalibration, NoLoadTare, convert_block, measure_no_load
+from nmsid.drivers.errors import (
+    DeviceError,
+    DeviceNotFound,
+    HardwareConfigError,
+    VendorLibraryMissing,
+)
 from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
 
 log = logging.getLogger(__name__)
@@ -154,8 +158,8 @@ class NidaqAcquisition:
                  range_V: float = 10.0, reads_per_s: float = 10.0, buffer_s: float = 5.0,
                  api=None):
         if terminal_config not in TERMINAL_CONFIGS:
-            raise HardwareConfigError(f"acquisition.nidaq.terminal_config {terminal_config!r} is not "
-                             f"one of {TERMINAL_CONFIGS}")
+            raise HardwareConfigError(f"acquisition.nidaq.terminal_config {terminal_config!r} "
+                                      f"is not one of {TERMINAL_CONFIGS}")
         if not range_V > 0:
             raise HardwareConfigError(f"acquisition.nidaq.range_V must be > 0, got {range_V!r}")
         if not reads_per_s > 0:
@@ -172,7 +176,7 @@ class NidaqAcquisition:
         self.buffer_s = buffer_s
         self._api = api
         self._task = None
-        self._reader = None
+        self._reader: Any = None            # nidaqmx's AnalogMultiChannelReader, once started
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._fs_Hz = 0.0
         self._n_block = 0

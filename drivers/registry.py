@@ -26,8 +26,8 @@ Adding a kind: docs/architecture.md, "Adding a stimulator kind" (and an acquisit
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -41,16 +41,20 @@ from nmsid.drivers.fake_hardware import analog_wiring, load_fake
 from nmsid.drivers.interfaces import CheckedWaveform
 from nmsid.drivers.leptrino import LeptrinoAcquisition, LeptrinoSensor, _serial_module
 from nmsid.drivers.nidaq import NidaqAcquisition, shared_pin
-from nmsid.drivers.rehastim2 import Rehastim2Stimulator
 from nmsid.drivers.p24_settings import P24Config
 from nmsid.drivers.rehamove3_settings import Rehamove3Config
+from nmsid.drivers.rehastim2 import Rehastim2Stimulator
 from nmsid.drivers.rehastim2_settings import Rehastim2Config
 from nmsid.drivers.sciencemode4 import P24, REHAMOVE3, Sm4Model, Sm4Stimulator, to_steps_mA
 from nmsid.drivers.sciencemode4_mid import Sm4MidLevelStimulator
 from nmsid.drivers.stg4002 import DEFAULT_DLL, Stg4002Stimulator
 from nmsid.drivers.stg4002_settings import Stg4002Config
-from nmsid.drivers.stg_download import (STG4002_RANGE_NA, STG4002_RESOLUTION_NA, ChannelPlan,
-                                        prepare_download)
+from nmsid.drivers.stg_download import (
+    STG4002_RANGE_NA,
+    STG4002_RESOLUTION_NA,
+    ChannelPlan,
+    prepare_download,
+)
 from nmsid.drivers.stg_streaming import Stg4002WithStreaming, StgStreamingStimulator
 from nmsid.drivers.stimulation_report import download_summary
 
@@ -97,11 +101,11 @@ class StimulatorKind:
 def _make_stg(s: Stg4002Config, clock, stack):
     # download mode for calibration and identification trials; streaming mode (handed the
     # device by open_stream) for tracking trials: docs/hardware.md, "Streaming"
-    common: dict[str, Any] = dict(ceiling_ext_mA=s.ceiling_ext_mA,
-                                  ceiling_flex_mA=s.ceiling_flex_mA,
-                                  extensor_channel=s.extensor_channel,
-                                  flexor_channel=s.flexor_channel, sync_out=s.sync_out,
-                                  serial=s.serial, dll_path=s.dll_path or DEFAULT_DLL)
+    common: dict[str, Any] = {"ceiling_ext_mA": s.ceiling_ext_mA,
+                              "ceiling_flex_mA": s.ceiling_flex_mA,
+                              "extensor_channel": s.extensor_channel,
+                              "flexor_channel": s.flexor_channel, "sync_out": s.sync_out,
+                              "serial": s.serial, "dll_path": s.dll_path or DEFAULT_DLL}
     return Stg4002WithStreaming(streaming=StgStreamingStimulator(clock=clock, **common),
                                 output_rate_Hz=s.output_rate_Hz, clock=clock, **common)
 

@@ -7,14 +7,14 @@ configured pulse rate; ``start`` streams one StartChannelListMode update per mai
 each carrying the envelope's current at that pulse (amplitude modulation at a fixed width);
 the trial ends with StopChannelListMode. A link thread reads every packet, answers the
 device's Init (SM2 4.1), sends the Watchdog (SM2 4.1) whenever nothing was sent for
-:data:`~nmsid.drivers.rehastim2_link.KEEPALIVE_S` (< the 1.2 s WatchdogTimeout of SM2 2.3), and turns a StimulationError
-(emergency switch, electrode error, module error: SM2 4.3) into the ERROR state the
-interlock trips on.
+:data:`~nmsid.drivers.rehastim2_link.KEEPALIVE_S` (< the 1.2 s WatchdogTimeout of SM2 2.3), and
+turns a StimulationError (emergency switch, electrode error, module error: SM2 4.3) into the ERROR
+state the interlock trips on.
 
 Safety, by construction: each update's current is the envelope rounded down to the device's
-2 mA step (user manual 2.5c, 4.1: "0-130 mA in 65 steps"; :func:`to_steps_mA`), the envelope was already checked against its ceilings
-(:class:`~nmsid.drivers.interfaces.CheckedWaveform`), and :meth:`_pulse_data` refuses any
-current above the driver's own ceilings before a byte is written
+2 mA step (user manual 2.5c, 4.1: "0-130 mA in 65 steps"; :func:`to_steps_mA`), the envelope was
+already checked against its ceilings (:class:`~nmsid.drivers.interfaces.CheckedWaveform`), and
+:meth:`_pulse_data` refuses any current above the driver's own ceilings before a byte is written
 (:class:`~nmsid.drivers.interfaces.CurrentLimitError`). Charge balance is the device's:
 SM2 1.2 (Figure 2) fixes both phases at the same current and width, plus an active
 short-cut at the end of each pulse.
@@ -45,9 +45,15 @@ import numpy as np
 
 from nmsid.drivers import rehastim2_protocol as sm2
 from nmsid.drivers.errors import DeviceError, DeviceNotFound, StimulatorSettingError
-from nmsid.drivers.interfaces import (BIPHASIC_PULSES, CheckedWaveform, CurrentLimitError,
-                                      StimulatorCapabilities, StimulatorState,
-                                      StimulatorStatus, Waveshape)
+from nmsid.drivers.interfaces import (
+    BIPHASIC_PULSES,
+    CheckedWaveform,
+    CurrentLimitError,
+    StimulatorCapabilities,
+    StimulatorState,
+    StimulatorStatus,
+    Waveshape,
+)
 from nmsid.drivers.rehastim2_link import Sm2Link, _open_serial
 
 log = logging.getLogger(__name__)
@@ -208,8 +214,8 @@ class Rehastim2Stimulator(Sm2Link):
     def capabilities(self) -> StimulatorCapabilities:
         return StimulatorCapabilities(
             n_channels=sm2.N_CHANNELS, max_current_mA=float(sm2.MAX_CURRENT_MA),
-            resolution_mA=float(STEP_MA), output_rate_Hz=self.pulse_rate_Hz, model="Hasomed RehaStim2",
-            waveshape=self.waveshape(), hardware_trigger=False)
+            resolution_mA=float(STEP_MA), output_rate_Hz=self.pulse_rate_Hz,
+            model="Hasomed RehaStim2", waveshape=self.waveshape(), hardware_trigger=False)
 
     def waveshape(self) -> Waveshape:
         return Waveshape(kind=BIPHASIC_PULSES, pulse_rate_Hz=self.pulse_rate_Hz,
@@ -243,7 +249,7 @@ class Rehastim2Stimulator(Sm2Link):
                        .astype(np.int64), waveform.n_samples - 1)
         ext = to_steps_mA(np.asarray(waveform.I_ext_mA)[k])
         flex = to_steps_mA(np.asarray(waveform.I_flex_mA)[k])
-        pulses = list(zip(ext.tolist(), flex.tolist()))
+        pulses = list(zip(ext.tolist(), flex.tolist(), strict=True))
         for e, f in pulses:                  # by construction; checked once more
             self._pulse_data(e, f)
         with self._lock:
@@ -286,9 +292,10 @@ class Rehastim2Stimulator(Sm2Link):
         The stop goes out at once; the stream thread is then ended and GetStimulationMode
         asked until the device answers mode 0, resending the stop while it does not (a lost
         packet, a -1 transfer error: SM2 4.3, 5.2). If the device has not confirmed within
-        :data:`~nmsid.drivers.rehastim2_link.STOP_CONFIRM_S`, nothing more is written, the keep-alive included, so the
-        device's watchdog stops it within its 1.2 s WatchdogTimeout of the last packet it
-        received (SM2 2.3, 5.2), and the driver reports that in one line (ERROR)."""
+        :data:`~nmsid.drivers.rehastim2_link.STOP_CONFIRM_S`, nothing more is written, the
+        keep-alive included, so the device's watchdog stops it within its 1.2 s WatchdogTimeout of
+        the last packet it received (SM2 2.3, 5.2), and the driver reports that in one line
+        (ERROR)."""
         self._stream_stop.set()
         with self._lock:
             self._queue.clear()
@@ -362,7 +369,7 @@ class Rehastim2Stimulator(Sm2Link):
                 raise CurrentLimitError(f"{name} outside 0 .. {lim[ch]:g} mA (or not finite); "
                                         "nothing was sent")
         with self._lock:
-            self._queue.extend(zip(ext.tolist(), flex.tolist()))
+            self._queue.extend(zip(ext.tolist(), flex.tolist(), strict=True))
 
     def stream_space(self) -> int:
         with self._lock:

@@ -170,7 +170,7 @@ class Sm2Link:
     def _request(self, command: int, data: bytes = b"") -> sm2.Packet:
         """Send a command and wait for its response (SM2 2.3 MaxResponseTime, 5.3: one
         resend)."""
-        for attempt in range(2):
+        for _ in range(2):                   # the request, then one resend
             with self._wlock:
                 number = self._number
                 self._waiting.add(number)

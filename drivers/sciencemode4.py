@@ -47,9 +47,15 @@ import numpy as np
 
 from nmsid.drivers import sciencemode4_protocol as sm4
 from nmsid.drivers.errors import DeviceError, DeviceNotFound, StimulatorSettingError
-from nmsid.drivers.interfaces import (BIPHASIC_PULSES, CheckedWaveform, CurrentLimitError,
-                                      StimulatorCapabilities, StimulatorState,
-                                      StimulatorStatus, Waveshape)
+from nmsid.drivers.interfaces import (
+    BIPHASIC_PULSES,
+    CheckedWaveform,
+    CurrentLimitError,
+    StimulatorCapabilities,
+    StimulatorState,
+    StimulatorStatus,
+    Waveshape,
+)
 from nmsid.drivers.leptrino import _serial_module
 from nmsid.drivers.sciencemode4_link import Sm4Link
 from nmsid.protocols.settings_base import SettingProblem
@@ -287,7 +293,7 @@ class Sm4Stimulator(Sm4Link):
         k = np.minimum((np.arange(n) / self.pulse_rate_Hz * waveform.fs_Hz + 1e-9)
                        .astype(np.int64), waveform.n_samples - 1)
         pulses = list(zip(to_steps_mA(np.asarray(waveform.I_ext_mA)[k]).tolist(),
-                          to_steps_mA(np.asarray(waveform.I_flex_mA)[k]).tolist()))
+                          to_steps_mA(np.asarray(waveform.I_flex_mA)[k]).tolist(), strict=True))
         for e, f in pulses:                   # by construction; checked once more
             self._points(self.extensor_channel, e)
             self._points(self.flexor_channel, f)
@@ -391,7 +397,7 @@ class Sm4Stimulator(Sm4Link):
         if len(ext) != len(flex):
             raise CurrentLimitError("I_ext_mA and I_flex_mA must have the same length")
         with self._lock:
-            self._queue.extend(zip(ext.tolist(), flex.tolist()))
+            self._queue.extend(zip(ext.tolist(), flex.tolist(), strict=True))
 
     def stream_space(self) -> int:
         with self._lock:

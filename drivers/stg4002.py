@@ -42,19 +42,35 @@ import logging
 import threading
 import time
 
-from nmsid.errors import SafetyError
-from nmsid.drivers.errors import (DeviceError, DeviceMemoryError, DeviceRangeError,
-                                  StimulatorFault, StimulatorSettingError)
+from nmsid.drivers.errors import (
+    DeviceError,
+    DeviceMemoryError,
+    DeviceRangeError,
+    StimulatorFault,
+    StimulatorSettingError,
+)
 from nmsid.drivers.interfaces import CheckedWaveform, StimulatorCapabilities, StimulatorState
-from nmsid.drivers.mcs_usb import (DEFAULT_DLL, StgDeviceInfo, find_stg, list_stg_devices,
-                                   load_mcs_usb)
-from nmsid.drivers.stg_download import (BYTES_PER_POINT, STG4002_OUTPUT_RATE_HZ, ChannelPlan,
-                                        PreparedDownload, check_output_rate, prepare_download)
+from nmsid.drivers.mcs_usb import (
+    DEFAULT_DLL,
+    StgDeviceInfo,
+    find_stg,
+    list_stg_devices,
+    load_mcs_usb,
+)
+from nmsid.drivers.stg_download import (
+    BYTES_PER_POINT,
+    STG4002_OUTPUT_RATE_HZ,
+    ChannelPlan,
+    PreparedDownload,
+    check_output_rate,
+    prepare_download,
+)
 from nmsid.drivers.stg_memory import fit_memory, read_usage
 from nmsid.drivers.stg_status import DeviceStatus, OvercurrentStatus, parse_version_info
 from nmsid.drivers.stg_tracking import StgStatusTracking
 from nmsid.drivers.stg_waveform import NA_PER_MA, RenderedChannel
 from nmsid.drivers.stimulation_report import download_summary
+from nmsid.errors import SafetyError
 
 log = logging.getLogger(__name__)
 

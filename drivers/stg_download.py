@@ -8,8 +8,9 @@ hands its ethics committee is what the device would play.
 
 Checks, in order, each refusing with nothing sent: the waveform's ceilings against the
 rig's and the device's; the envelope peak; rendering (charge-balanced carrier, see
-:mod:`nmsid.drivers.stg_waveform`); the rendered peak (:func:`~nmsid.drivers.stg_waveform.check_rendered`);
-the net charge of every carrier period (:func:`~nmsid.drivers.stg_waveform.check_charge_balance`).
+:mod:`nmsid.drivers.stg_waveform`); the rendered peak
+(:func:`~nmsid.drivers.stg_waveform.check_rendered`); the net charge of every carrier period
+(:func:`~nmsid.drivers.stg_waveform.check_charge_balance`).
 
 Memory: the download format's size on the device is not documented; :data:`BYTES_PER_POINT`
 is a conservative estimate per (value, duration) point.
@@ -23,8 +24,15 @@ import numpy as np
 
 from nmsid.drivers.errors import DeviceRangeError, StimulatorSettingError
 from nmsid.drivers.interfaces import CheckedWaveform, CurrentLimitError
-from nmsid.drivers.stg_waveform import (NA_PER_MA, RenderedChannel, check_charge_balance,
-                                        check_rendered, compress, output_tick_us, render_channel)
+from nmsid.drivers.stg_waveform import (
+    NA_PER_MA,
+    RenderedChannel,
+    check_charge_balance,
+    check_rendered,
+    compress,
+    output_tick_us,
+    render_channel,
+)
 
 BYTES_PER_POINT = 8
 """Conservative device-memory estimate per (value, duration) point (not documented)."""

@@ -29,16 +29,16 @@ value. The driver sees it in the PC queue: a running STG drains the queue at the
 rate (less at most its own ring's latency), so a queue drained by less than that means the
 device has stopped, and the next :meth:`~StgStreamingStimulator.write_stream` raises
 :class:`StreamUnderrunError` naming how far the host fell behind (the interlock trips; the
-output is already at zero). Stop: :meth:`~StgStreamingStimulator.stop_now` is the immediate ``SendStop`` and
-``StopLoop``; a failed ``SendStop`` tells the operator to switch the STG off, as in
+output is already at zero). Stop: :meth:`~StgStreamingStimulator.stop_now` is the immediate
+``SendStop`` and ``StopLoop``; a failed ``SendStop`` tells the operator to switch the STG off, as in
 download mode.
 
 Priming: ``StartLoop`` only begins moving the PC queue into the STG's memory (the manual's
 6.3 example waits: "Give StartLoop some time"), and an STG started with nothing in its
-memory runs dry at once and stops (continuous mode disabled, above). :meth:`~StgStreamingStimulator.start`
-therefore sends ``SendStart`` only once ``GetFramesBuffered`` (XML: "the number of frames
-currently buffered in STG Memory") shows the queued updates there, or as many as the STG's
-ring holds; if they do not arrive within :data:`PRIME_TIMEOUT_S` nothing starts
+memory runs dry at once and stops (continuous mode disabled, above).
+:meth:`~StgStreamingStimulator.start` therefore sends ``SendStart`` only once ``GetFramesBuffered``
+(XML: "the number of frames currently buffered in STG Memory") shows the queued updates there, or as
+many as the STG's ring holds; if they do not arrive within :data:`PRIME_TIMEOUT_S` nothing starts
 (DeviceError).
 
 Latency: the STG keeps its ring buffer "about half full", so "latency = (ringbuffersize in
@@ -60,8 +60,12 @@ from collections.abc import Callable
 import numpy as np
 
 from nmsid.drivers.errors import DeviceError, DeviceRangeError, StimulatorSettingError
-from nmsid.drivers.interfaces import (CurrentLimitError, StimulatorCapabilities,
-                                      StimulatorState, StimulatorStatus)
+from nmsid.drivers.interfaces import (
+    CurrentLimitError,
+    StimulatorCapabilities,
+    StimulatorState,
+    StimulatorStatus,
+)
 from nmsid.drivers.mcs_usb import DEFAULT_DLL, find_stg, load_mcs_usb
 from nmsid.drivers.stg4002 import Stg4002Stimulator
 from nmsid.drivers.stg_waveform import NA_PER_MA

@@ -4,8 +4,9 @@ A mixin of :class:`nmsid.drivers.stg4002.Stg4002Stimulator` (kept apart to keep 
 small): the McsUsbNet poll-status callback, ``QueryTriggerstatus``, and the decision
 whether a started trial still runs, ended, or faulted (:func:`nmsid.drivers.stg_status.judge_trial`:
 trigger status enum Idle 0 / Running 1 / Finished 2 / Armed 3; ``OvercurrentStatus``
-Shutdown a fault; an STG4002 does not report electrode-off, see ``docs/hardware.md``). The attributes it uses (``_dev``, ``_io``,
-``_state``, ``_t_start``, ...) and ``_fault`` / ``_release`` belong to the driver.
+Shutdown a fault; an STG4002 does not report electrode-off, see ``docs/hardware.md``). The
+attributes it uses (``_dev``, ``_io``, ``_state``, ``_t_start``, ...) and ``_fault`` / ``_release``
+belong to the driver.
 """
 
 from __future__ import annotations
@@ -16,8 +17,15 @@ from collections.abc import Callable
 from typing import Any
 
 from nmsid.drivers.interfaces import StimulatorState, StimulatorStatus
-from nmsid.drivers.stg_status import (DeviceStatus, OvercurrentStatus, TrialProgress,
-                                      TriggerStatus, UnknownStatus, decode_status, judge_trial)
+from nmsid.drivers.stg_status import (
+    DeviceStatus,
+    OvercurrentStatus,
+    TrialProgress,
+    TriggerStatus,
+    UnknownStatus,
+    decode_status,
+    judge_trial,
+)
 
 log = logging.getLogger("nmsid.drivers.stg4002")
 

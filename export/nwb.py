@@ -58,7 +58,7 @@ def _parse_utc(text: str) -> _dt.datetime | None:
     except ValueError:
         return None
     if t.tzinfo is None:
-        t = t.replace(tzinfo=_dt.timezone.utc)
+        t = t.replace(tzinfo=_dt.UTC)
     return t
 
 
@@ -157,9 +157,9 @@ def build_nwbfile(session: Session, *, subject_age: str = DEFAULT_SUBJECT_AGE,
 
     starts = trial_start_times_s(session)
     n_series = 0
-    for trial, t0 in zip(session.trials, starts):
+    for trial, t0 in zip(session.trials, starts, strict=True):
         tag = trial.name
-        common = dict(starting_time=float(t0), rate=float(trial.fs_Hz))
+        common = {"starting_time": float(t0), "rate": float(trial.fs_Hz)}
         nwb.add_stimulus(TimeSeries(
             name=f"rE_{tag}", data=_compressed(trial.rE), unit="1",
             description="commanded EAA ratio rE (dimensionless, 0..1)", **common))
@@ -197,7 +197,7 @@ def build_nwbfile(session: Session, *, subject_age: str = DEFAULT_SUBJECT_AGE,
                       ("abort_reason", "why the trial was aborted (empty when completed)"),
                       ("started_utc", "when stimulation began (ISO 8601 UTC)")):
         nwb.add_trial_column(name=col, description=desc)
-    for trial, t0 in zip(session.trials, starts):
+    for trial, t0 in zip(session.trials, starts, strict=True):
         nwb.add_trial(start_time=float(t0), stop_time=float(t0 + trial.n_samples / trial.fs_Hz),
                       trial_name=trial.name, sE=float(trial.sE), repeat=int(trial.repeat),
                       status=trial.status, abort_reason=trial.abort_reason,

@@ -79,11 +79,21 @@ from pydantic import AfterValidator, Field, StrictFloat, StrictInt, model_valida
 
 from nmsid.protocols.calibration_settings import MAX_RAMP_STEPS, CalibrationConfig, ManualCurrents
 from nmsid.protocols.errors import ConfigError
-from nmsid.protocols.interlock_settings import (CONFIRM_WORDS, FORCE_SENSOR_RANGE_N, TRIP_SWITCHES,
-                                                InterlockConfig)
+from nmsid.protocols.interlock_settings import (
+    CONFIRM_WORDS,
+    FORCE_SENSOR_RANGE_N,
+    TRIP_SWITCHES,
+    InterlockConfig,
+)
 from nmsid.protocols.joints import DEFAULT_JOINT, JOINTS, Joint
-from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, replace_settings,
-                                           settings_dataclass, validate_settings)
+from nmsid.protocols.settings_base import (
+    SettingProblem,
+    bounded,
+    read_toml,
+    replace_settings,
+    settings_dataclass,
+    validate_settings,
+)
 
 PARTICIPANT_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,64}")
 """A participant code (used with ``fullmatch``: no trailing newline slips through)."""
@@ -235,7 +245,7 @@ class ProtocolConfig:
 
     @model_validator(mode="after")
     def _consistent(self):
-        if len(set(round(v, 9) for v in self.sE_levels)) != len(self.sE_levels):
+        if len({round(v, 9) for v in self.sE_levels}) != len(self.sE_levels):
             raise SettingProblem("sE_levels", list(self.sE_levels),
                                  "each sE level once (use repeats for repetitions)")
         if (self.reference_sE is None) != (self.reference_every == 0):

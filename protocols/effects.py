@@ -35,16 +35,28 @@ Examples
 from __future__ import annotations
 
 import functools
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from nmsid.protocols.effect_defs import (activation_dynamics, baseline_drift, dead_time, fatigue,
-                                         flexor_extensor_asymmetry, recruitment_nonlinearity)
-from nmsid.protocols.effect_defs.base import (SLOTS, EffectDefinition, EffectParamError,
-                                              EffectParams, FittedForm, ParamSpec)
+from nmsid.protocols.effect_defs import (
+    activation_dynamics,
+    baseline_drift,
+    dead_time,
+    fatigue,
+    flexor_extensor_asymmetry,
+    recruitment_nonlinearity,
+)
+from nmsid.protocols.effect_defs.base import (
+    SLOTS,
+    EffectDefinition,
+    EffectParamError,
+    EffectParams,
+    FittedForm,
+    ParamSpec,
+)
 
 #: THE REGISTRY: every effect's module, in the order of physics (the simulator and the FMU
 #: apply them in this order). Adding an effect = its module + one line here.
@@ -181,7 +193,7 @@ def _snapshot() -> _Snapshot:
     effects = tuple(Effect(n) for n in names)
     specs = tuple(EffectSpec(e, d.params_type.summary, d.params_type.definition,
                              d.params_type.param_specs(), d)
-                  for e, d in zip(effects, _REGISTRY))
+                  for e, d in zip(effects, _REGISTRY, strict=True))
     return _Snapshot(specs, {s.name: s for s in specs}, names, effects)
 
 

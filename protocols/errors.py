@@ -1,4 +1,5 @@
-"""Exceptions of the protocol layer; user errors (:class:`nmsid.errors.UserError`) that name what is wrong."""
+"""Exceptions of the protocol layer; user errors (:class:`nmsid.errors.UserError`) that name
+what is wrong."""
 
 from __future__ import annotations
 

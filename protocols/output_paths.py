@@ -45,8 +45,12 @@ from nmsid.protocols import os_platform
 from nmsid.protocols.errors import OutputPathError
 from nmsid.protocols.session_file import FORMAT as SESSION_FORMAT
 from nmsid.protocols.user_values import (  # noqa: F401 (re-exported: the name limits)
-    DERIVED_SUFFIXES, LONGEST_SUFFIX_BYTES, MAX_SESSION_NAME_BYTES, name_length_problem,
-    non_utf8_problem)
+    DERIVED_SUFFIXES,
+    LONGEST_SUFFIX_BYTES,
+    MAX_SESSION_NAME_BYTES,
+    name_length_problem,
+    non_utf8_problem,
+)
 
 #: HDF5's format signature; it sits at byte 0, 512, 1024, 2048, ... of a file.
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"

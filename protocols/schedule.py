@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import enum
 import json
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Iterable
 
 import numpy as np
 
@@ -141,7 +141,7 @@ def make_schedule(sE_levels: Iterable[float], repeats: int,
         flags.append(True)
         pairs, refs = out, flags
     return [PlannedTrial(index=i, sE=sE, repeat=r, reference=f)
-            for i, ((sE, r), f) in enumerate(zip(pairs, refs))]
+            for i, ((sE, r), f) in enumerate(zip(pairs, refs, strict=True))]
 
 
 def schedule_to_json(schedule: list[PlannedTrial]) -> str:

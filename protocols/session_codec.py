@@ -14,6 +14,7 @@ import numpy as np
 
 from nmsid.protocols.session_model import MIN_SAVING, _h5py
 
+
 def _set_attr(attrs, key: str, value: Any) -> None:
     if isinstance(value, str):
         attrs.create(key, value, dtype=_h5py().string_dtype("utf-8"))

@@ -30,20 +30,35 @@ Examples
 
 from __future__ import annotations
 
-
-from __future__ import annotations
-
-from nmsid.protocols.errors import SessionExistsError, SessionFileError  # noqa: F401
-from nmsid.protocols.session_codec import counts_to_values  # noqa: F401
-from nmsid.protocols.session_model import (CALIBRATION_ATTRS, CHUNK_SAMPLES, FORMAT,  # noqa: F401
-                                           FORMAT_VERSION, GZIP_LEVEL, MIN_SAVING, OPTIONAL_INPUT_ATTRS,
-                                           OPTIONAL_SIGNALS, PARTICIPANT_PATTERN, ROOT_ATTRS,
-                                           STATUSES, TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
-                                           TRIAL_NAME_PATTERN, TRIAL_STR_ATTRS, Calibration, Event,
-                                           Session, Trial, software_id, trial_input, utc_now)
-from nmsid.protocols.session_reader import read_session  # noqa: F401
-from nmsid.protocols.session_validator import validate_session  # noqa: F401
-from nmsid.protocols.session_writer import SessionWriter  # noqa: F401
+from nmsid.protocols.errors import SessionExistsError, SessionFileError
+from nmsid.protocols.session_codec import counts_to_values
+from nmsid.protocols.session_model import (
+    CALIBRATION_ATTRS,
+    CHUNK_SAMPLES,
+    FORMAT,
+    FORMAT_VERSION,
+    GZIP_LEVEL,
+    MIN_SAVING,
+    OPTIONAL_INPUT_ATTRS,
+    OPTIONAL_SIGNALS,
+    PARTICIPANT_PATTERN,
+    ROOT_ATTRS,
+    STATUSES,
+    TRIAL_DATASETS,
+    TRIAL_FLOAT_ATTRS,
+    TRIAL_NAME_PATTERN,
+    TRIAL_STR_ATTRS,
+    Calibration,
+    Event,
+    Session,
+    Trial,
+    software_id,
+    trial_input,
+    utc_now,
+)
+from nmsid.protocols.session_reader import read_session
+from nmsid.protocols.session_validator import validate_session
+from nmsid.protocols.session_writer import SessionWriter
 
 __all__ = ["CALIBRATION_ATTRS", "CHUNK_SAMPLES", "FORMAT", "FORMAT_VERSION", "GZIP_LEVEL",
            "MIN_SAVING", "OPTIONAL_INPUT_ATTRS", "OPTIONAL_SIGNALS", "PARTICIPANT_PATTERN",

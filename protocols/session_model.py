@@ -1,8 +1,9 @@
 """The session file's data model: the contract's names, and the objects a file holds.
 
 See ``shared/spec/session-file-v1.md``. :mod:`nmsid.protocols.session_writer` writes these
-objects, :mod:`nmsid.protocols.session_reader` reads them and :mod:`nmsid.protocols.session_validator`
-checks a file against the contract; :mod:`nmsid.protocols.session_file` re-exports all of it.
+objects, :mod:`nmsid.protocols.session_reader` reads them and
+:mod:`nmsid.protocols.session_validator` checks a file against the contract;
+:mod:`nmsid.protocols.session_file` re-exports all of it.
 """
 
 from __future__ import annotations
@@ -99,7 +100,7 @@ def software_id() -> str:
 
 def utc_now() -> str:
     """The current time as ISO 8601 UTC with a ``Z`` suffix (second resolution)."""
-    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 @dataclass

@@ -11,14 +11,32 @@ import numpy as np
 
 from nmsid.protocols.session_checks import max_current_mA, value_problem, value_warning
 from nmsid.protocols.session_codec import counts_to_values
+from nmsid.protocols.session_h5 import (
+    Member,
+    float64_buffers,
+    open_group,
+    open_member,
+    read_float64,
+)
 from nmsid.protocols.session_lock import live_writer
-from nmsid.protocols.session_model import (CALIBRATION_ATTRS, OPTIONAL_SIGNALS, ROOT_ATTRS,
-                                           TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
-                                           TRIAL_STR_ATTRS, _DAMAGE_ERRORS, Calibration, Event,
-                                           Session, SessionFileError, Trial, _as_float, _as_str,
-                                           _h5py, _trial_names)
-from nmsid.protocols.session_h5 import (Member, float64_buffers, open_group, open_member,
-                                       read_float64)
+from nmsid.protocols.session_model import (
+    _DAMAGE_ERRORS,
+    CALIBRATION_ATTRS,
+    OPTIONAL_SIGNALS,
+    ROOT_ATTRS,
+    TRIAL_DATASETS,
+    TRIAL_FLOAT_ATTRS,
+    TRIAL_STR_ATTRS,
+    Calibration,
+    Event,
+    Session,
+    SessionFileError,
+    Trial,
+    _as_float,
+    _as_str,
+    _h5py,
+    _trial_names,
+)
 from nmsid.protocols.session_validator import EVENT_ATTRS, AttrSnapshot, _problems
 
 log = logging.getLogger(__name__)

@@ -15,15 +15,32 @@ from pathlib import Path
 
 import numpy as np
 
-from nmsid.protocols.session_checks import (FS_RANGE_Hz, MAX_TRIAL_S, _is_str_attr,
-                                            calibration_findings, is_int_attr, link_problems,
-                                            max_current_mA, printable_problem, samples_problems,
-                                            trial_attr_findings)
+from nmsid.protocols.session_checks import (
+    MAX_TRIAL_S,
+    FS_RANGE_Hz,
+    _is_str_attr,
+    calibration_findings,
+    is_int_attr,
+    link_problems,
+    max_current_mA,
+    printable_problem,
+    samples_problems,
+    trial_attr_findings,
+)
 from nmsid.protocols.session_h5 import Member, has_attr, open_group, open_member, read_attrs
-from nmsid.protocols.session_model import (FORMAT, FORMAT_VERSION, OPTIONAL_SIGNALS,
-                                           PARTICIPANT_PATTERN, ROOT_ATTRS, TRIAL_DATASETS,
-                                           _DAMAGE_ERRORS, _as_float, _as_str, _h5py,
-                                           _trial_names)
+from nmsid.protocols.session_model import (
+    _DAMAGE_ERRORS,
+    FORMAT,
+    FORMAT_VERSION,
+    OPTIONAL_SIGNALS,
+    PARTICIPANT_PATTERN,
+    ROOT_ATTRS,
+    TRIAL_DATASETS,
+    _as_float,
+    _as_str,
+    _h5py,
+    _trial_names,
+)
 
 
 def validate_session(path: str | os.PathLike, *, fatal_only: bool = False,

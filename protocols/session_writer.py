@@ -13,14 +13,32 @@ import numpy as np
 
 from nmsid.protocols.session_checks import trial_attr_findings, value_problem
 from nmsid.protocols.session_codec import _as_counts, _deflates, _narrowest_exact, _set_attr
-from nmsid.protocols.session_model import (CALIBRATION_ATTRS, CHUNK_SAMPLES, FORMAT, FORMAT_VERSION,
-                                           GZIP_LEVEL, OPTIONAL_SIGNALS, PARTICIPANT_PATTERN,
-                                           ROOT_ATTRS, TRIAL_DATASETS, TRIAL_FLOAT_ATTRS,
-                                           TRIAL_NAME_PATTERN, TRIAL_STR_ATTRS, Calibration, Event,
-                                           SessionExistsError, SessionFileError, Trial, _as_str,
-                                           _h5py, software_id, utc_now)
+from nmsid.protocols.session_model import (
+    CALIBRATION_ATTRS,
+    CHUNK_SAMPLES,
+    FORMAT,
+    FORMAT_VERSION,
+    GZIP_LEVEL,
+    OPTIONAL_SIGNALS,
+    PARTICIPANT_PATTERN,
+    ROOT_ATTRS,
+    TRIAL_DATASETS,
+    TRIAL_FLOAT_ATTRS,
+    TRIAL_NAME_PATTERN,
+    TRIAL_STR_ATTRS,
+    Calibration,
+    Event,
+    SessionExistsError,
+    SessionFileError,
+    Trial,
+    _as_str,
+    _h5py,
+    software_id,
+    utc_now,
+)
 from nmsid.protocols.session_publish import publish_image
 from nmsid.protocols.session_reader import _open_read
+
 
 class SessionWriter:
     """Write a session file incrementally; every call publishes a complete new version,
@@ -238,7 +256,7 @@ class SessionWriter:
             for trial in trials:
                 names.append(self._add_trial(f, trial))
             _add_events(f, events)
-        for trial, name in zip(trials, names):
+        for trial, name in zip(trials, names, strict=True):
             trial.name = name
         return names
 

@@ -102,7 +102,7 @@ def settings_dataclass(make_error: ErrorFactory, *, frozen: bool = True, prefix:
             except ValidationError as exc:
                 raise convert_error(exc, kwargs, IN_CODE, make_error, model, prefix) from None
 
-        model.__init__ = __init__
+        model.__init__ = __init__  # type: ignore[method-assign]  # (the validated one, wrapped)
         return model
     return wrap
 

@@ -11,8 +11,8 @@ sines (period T = chirp_s, tones log-evenly spread over [f0, f1], low-crest phas
 so that its peak is exactly ``rE_amplitude``: rE stays inside [rE_centre - amplitude,
 rE_centre + amplitude] like the chirp, so the currents stay under Imax of the calibration
 by construction. Each trial records its input as optional attributes (``input_kind``,
-``input_json``: :func:`input_attrs`). The currents follow the paper's equations (1)-(4) inverted: with
-Ie = rE sE and If = (1 - rE) sE,
+``input_json``: :func:`input_attrs`). The currents follow the paper's equations (1)-(4) inverted:
+with Ie = rE sE and If = (1 - rE) sE,
 
     I'_e = Iemin + Ie (Iemax - Iemin),    I'_f = Ifmin + If (Ifmax - Ifmin).
 
@@ -25,13 +25,12 @@ Examples
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-
-import json
 
 from nmsid.protocols.config import InputKind, ProtocolConfig
 
@@ -173,9 +172,9 @@ def input_attrs(p: ProtocolConfig) -> dict[str, str]:
     ``chirp_s``, ``chirp_f0_Hz``, ``chirp_f1_Hz`` keep their meaning for a chirp and are the
     excitation's length and band for any other input.
     """
-    d: dict[str, Any] = {"kind": p.input_kind.value, "steady_s": p.steady_s, "duration_s": p.chirp_s,
-         "f0_Hz": p.chirp_f0_Hz, "f1_Hz": p.chirp_f1_Hz, "rE_centre": p.rE_centre,
-         "rE_amplitude": p.rE_amplitude}
+    d: dict[str, Any] = {"kind": p.input_kind.value, "steady_s": p.steady_s,
+                         "duration_s": p.chirp_s, "f0_Hz": p.chirp_f0_Hz, "f1_Hz": p.chirp_f1_Hz,
+                         "rE_centre": p.rE_centre, "rE_amplitude": p.rE_amplitude}
     if p.input_kind is InputKind.MULTISINE:
         d["phases"] = "low_crest"
         d["tones_Hz"] = [float(v) for v in multisine_frequencies_Hz(

@@ -26,7 +26,8 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import TYPE_CHECKING, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from nmsid.drivers.interfaces import RecoverableAcquisition, StimulatorState
 from nmsid.rig.observer import TripPolicy

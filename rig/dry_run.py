@@ -33,12 +33,26 @@ import math
 
 import numpy as np
 
-from nmsid.drivers.dry_run import (CARRIER_HZ, ENVELOPE_FS_HZ, Check, DryRunSettings,
-                                   check_after_stop, check_loopback, check_pulses,
-                                   dry_run_chirp_envelope, dry_run_envelope, record_problem)
+from nmsid.drivers.dry_run import (
+    CARRIER_HZ,
+    ENVELOPE_FS_HZ,
+    Check,
+    DryRunSettings,
+    check_after_stop,
+    check_loopback,
+    check_pulses,
+    dry_run_chirp_envelope,
+    dry_run_envelope,
+    record_problem,
+)
 from nmsid.drivers.hardware import BenchClock
-from nmsid.drivers.interfaces import (CheckedWaveform, DeliveryReporting,
-                                      HostStreamedStimulator, SampleTiming, StimulatorState)
+from nmsid.drivers.interfaces import (
+    CheckedWaveform,
+    DeliveryReporting,
+    HostStreamedStimulator,
+    SampleTiming,
+    StimulatorState,
+)
 from nmsid.drivers.registry import stimulator_kind
 from nmsid.protocols.interlock_settings import InterlockConfig
 from nmsid.rig.safety import Interlock
@@ -328,7 +342,7 @@ def run_stream_dry_run(devices, s: DryRunSettings, *, fs_Hz: float, out=print) -
     step = float(devices.stimulator.capabilities().resolution_mA)
     got = summary["channels"][s.channel]["pulse_current_mA"]
     cmd = [stream.commands[k] for k in summary.get("pulse_index", [])]
-    err = [c - g for c, g in zip(cmd, got)]
+    err = [c - g for c, g in zip(cmd, got, strict=False)]   # unequal: the check fails below
     checks.append(Check("stream: delivered = command rounded down",
                         len(cmd) == len(got) and all(-1e-9 <= e < step + 1e-9 for e in err),
                         f"{len(got)} pulses, command - delivered in "

@@ -26,23 +26,44 @@ from pathlib import Path
 
 import numpy as np
 
-from nmsid.drivers.interfaces import (SINE_CARRIER, DeliveryReporting, Describable,
-                                      RigDevices, check_deliverable)
+from nmsid.drivers.interfaces import (
+    SINE_CARRIER,
+    DeliveryReporting,
+    Describable,
+    RigDevices,
+    check_deliverable,
+)
 from nmsid.protocols.config import Config, ConfigError, PausePolicy, config_from_json
 from nmsid.protocols.joints import joint_attrs
 from nmsid.protocols.plan import Plan, RigLimits, preflight
-from nmsid.protocols.schedule import (PlannedTrial, TrialStatus, make_schedule, schedule_from_json,
-                                      schedule_to_json)
+from nmsid.protocols.schedule import (
+    PlannedTrial,
+    TrialStatus,
+    make_schedule,
+    schedule_from_json,
+    schedule_to_json,
+)
+from nmsid.protocols.session_file import Calibration, Trial, utc_now
 from nmsid.rig.device_recovery import DeviceGlitchEnd, DeviceRecovery
 from nmsid.rig.engine_calibration import CalibrationSteps
 from nmsid.rig.engine_commands import OperatorCommands, _EndRun
 from nmsid.rig.keep_awake import SystemAwake
-from nmsid.rig.observer import (RERUN_WAIT_PREFIX, EngineObserver, RunSummary, TripPolicy,
-                                is_rerun_wait, rerun_wait_reason)
-from nmsid.protocols.session_file import Calibration, Trial, utc_now
+from nmsid.rig.observer import (
+    RERUN_WAIT_PREFIX,
+    EngineObserver,
+    RunSummary,
+    TripPolicy,
+    is_rerun_wait,
+    rerun_wait_reason,
+)
 from nmsid.rig.safety import Interlock, check_waveform, effective_ceilings
-from nmsid.rig.session_log import (SessionLog, check_new_session_path, expected_session_bytes,
-                                   journal_dir, load_trial_npz)
+from nmsid.rig.session_log import (
+    SessionLog,
+    check_new_session_path,
+    expected_session_bytes,
+    journal_dir,
+    load_trial_npz,
+)
 from nmsid.rig.states import State, StateMachine
 from nmsid.rig.stimulation import BlockResult, run_block
 from nmsid.rig.trials import IdentificationSession, SessionKind, TrialNotRun

@@ -11,9 +11,17 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from nmsid.protocols.calibration import (Muscle, check_calibration, detect_thresholds,
-                                         make_calibration, manual_calibration, ramp_currents_mA,
-                                         require_thresholds, settled_mean_N, step_envelopes)
+from nmsid.protocols.calibration import (
+    Muscle,
+    check_calibration,
+    detect_thresholds,
+    make_calibration,
+    manual_calibration,
+    ramp_currents_mA,
+    require_thresholds,
+    settled_mean_N,
+    step_envelopes,
+)
 from nmsid.protocols.errors import CalibrationError
 from nmsid.protocols.session_file import Calibration
 from nmsid.rig.states import State

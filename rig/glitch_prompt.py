@@ -9,7 +9,7 @@ is "no" and the session ends cleanly, to be continued with ``--resume``.
 from __future__ import annotations
 
 import sys
-from typing import Callable
+from collections.abc import Callable
 
 
 def glitch_confirmation(resume_after_reconnect: bool, *, stdin=None,

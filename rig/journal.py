@@ -1,8 +1,8 @@
 """The write-ahead journal's file layout: ``<file>.journal/`` beside a session file.
 
 See :mod:`nmsid.rig.session_log` for what each file holds and why. This module only knows how
-to write and read them durably; :mod:`nmsid.rig.recovery` and :class:`nmsid.rig.session_log.SessionLog`
-use it.
+to write and read them durably; :mod:`nmsid.rig.recovery` and
+:class:`nmsid.rig.session_log.SessionLog` use it.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from nmsid.protocols.errors import DiskFullError, SessionWriteError
 from nmsid.protocols.session_codec import counts_to_values
 from nmsid.protocols.session_file import Calibration, Event, SessionFileError, Trial

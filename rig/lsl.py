@@ -276,7 +276,7 @@ class LslRecorder:
                         ", ".join(missing))
 
     def start(self) -> LslRecorder:
-        for inlet, d in zip(self.inlets, self.data):
+        for inlet, d in zip(self.inlets, self.data, strict=True):
             try:
                 inlet.open_stream(2.0)
                 d["offsets"].append(inlet.time_correction(2.0))
@@ -287,7 +287,7 @@ class LslRecorder:
 
     def _loop(self) -> None:
         while not self._stop.is_set():
-            for inlet, d in zip(self.inlets, self.data):
+            for inlet, d in zip(self.inlets, self.data, strict=True):
                 try:
                     x, t = inlet.pull_chunk(timeout=0.0)
                 except Exception as exc:
@@ -301,7 +301,7 @@ class LslRecorder:
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=2.0)
-        for inlet, d in zip(self.inlets, self.data):
+        for inlet, d in zip(self.inlets, self.data, strict=True):
             try:
                 x, t = inlet.pull_chunk(timeout=0.2)
                 d["x"] += x
@@ -317,7 +317,7 @@ class LslRecorder:
 
         import h5py
         target = Path(path) if Path(path).exists() else Path(str(path) + ".lsl.h5")
-        run = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+        run = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%SZ")
         with h5py.File(target, "a") as f:
             g = f.require_group("lsl").create_group(run)
             g.attrs["trial_onsets_lsl_json"] = json.dumps({str(k): v for k, v in

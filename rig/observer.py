@@ -11,8 +11,8 @@ import numpy as np
 
 from nmsid.protocols.reprs import html_repr, short_repr
 from nmsid.protocols.schedule import PlannedTrial
-from nmsid.rig.safety import Trip
 from nmsid.protocols.session_file import Calibration, Event, Trial
+from nmsid.rig.safety import Trip
 from nmsid.rig.states import State
 
 

@@ -22,20 +22,51 @@ from pathlib import Path
 import numpy as np
 
 from nmsid.protocols.errors import DiskFullError, SessionLockedError
-from nmsid.protocols.session_file import (Calibration, Event, SessionFileError, SessionWriter,
-                                          Trial, read_session, utc_now, validate_session)
+from nmsid.protocols.session_file import (
+    Calibration,
+    Event,
+    SessionFileError,
+    SessionWriter,
+    Trial,
+    read_session,
+    utc_now,
+    validate_session,
+)
 from nmsid.protocols.session_lock import SessionLock
-from nmsid.protocols.session_model import (_DAMAGE_ERRORS, CALIBRATION_ATTRS,
-                                           OPTIONAL_SIGNALS, TRIAL_DATASETS, _as_str, _h5py,
-                                           _trial_names)
-from nmsid.protocols.session_publish import (SPACE_MARGIN_BYTES, free_bytes, fsync_dir,
-                                             remove_stale_temps, rename_retrying)
+from nmsid.protocols.session_model import (
+    _DAMAGE_ERRORS,
+    CALIBRATION_ATTRS,
+    OPTIONAL_SIGNALS,
+    TRIAL_DATASETS,
+    _as_str,
+    _h5py,
+    _trial_names,
+)
+from nmsid.protocols.session_publish import (
+    SPACE_MARGIN_BYTES,
+    free_bytes,
+    fsync_dir,
+    remove_stale_temps,
+    rename_retrying,
+)
 from nmsid.protocols.session_reader import _read_events, _read_trial
 from nmsid.protocols.session_state import session_state
-from nmsid.rig.journal import (PARTIAL_ABORT_REASON, JournalContents, JournalEntryError,
-                               append_event_line, journal_dir, json_default, load_trial_meta,
-                               load_trial_npz, partial_trial, read_journal, save_trial_npz,
-                               save_calibration, trial_digest, write_durable)
+from nmsid.rig.journal import (
+    PARTIAL_ABORT_REASON,
+    JournalContents,
+    JournalEntryError,
+    append_event_line,
+    journal_dir,
+    json_default,
+    load_trial_meta,
+    load_trial_npz,
+    partial_trial,
+    read_journal,
+    save_calibration,
+    save_trial_npz,
+    trial_digest,
+    write_durable,
+)
 
 log = logging.getLogger(__name__)
 
@@ -143,7 +174,7 @@ def _restore_calibration(jdir: Path, error: str, calibration: Calibration) -> st
 
 def unique_aside(path: Path, tag: str) -> Path:
     """A free name ``<path>.<tag>-<UTC time>[-k]`` to keep a file aside."""
-    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
     for k in range(1000):
         cand = path.with_name(f"{path.name}.{tag}-{stamp}" + (f"-{k}" if k else ""))
         if not os.path.lexists(cand):
@@ -428,7 +459,7 @@ def _journal_as(jdir: Path, merged: list[Trial], origin: list[int | None]) -> No
     <time>``, entries the file supplied or that moved are written anew (durably).
     Interrupted, the next recovery merges to the same result."""
     numbers = {_entry_number(p): p for p in _entries(jdir)}
-    for pos, (t, src) in enumerate(zip(merged, origin), start=1):
+    for pos, (t, src) in enumerate(zip(merged, origin, strict=True), start=1):
         if src == pos:
             continue
         target = jdir / f"trial-{pos:04d}.npz"
@@ -615,10 +646,10 @@ def create_from_header(path: Path, header: dict) -> SessionWriter:
 
 
 def _header_kwargs(header: dict) -> dict:
-    return dict(participant=header["participant"], created_utc=header["created_utc"],
-                software=header.get("software"), config_json=header.get("config_json"),
-                seed=header.get("seed"), backend=header.get("backend"),
-                extra_attrs=header.get("extra_attrs") or {})
+    return {"participant": header["participant"], "created_utc": header["created_utc"],
+            "software": header.get("software"), "config_json": header.get("config_json"),
+            "seed": header.get("seed"), "backend": header.get("backend"),
+            "extra_attrs": header.get("extra_attrs") or {}}
 
 
 def _build_from_journal(path: Path, jc: JournalContents, trials: list[Trial],

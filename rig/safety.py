@@ -20,13 +20,18 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
-from nmsid.drivers.interfaces import (CheckedWaveform, CurrentLimitError, ForceChunk,
-                                      StimulatorState, StimulatorStatus)
+from nmsid.drivers.interfaces import (
+    CheckedWaveform,
+    CurrentLimitError,
+    ForceChunk,
+    StimulatorState,
+    StimulatorStatus,
+)
 from nmsid.errors import SafetyError
 
 log = logging.getLogger(__name__)
@@ -37,7 +42,7 @@ class InterlockTripped(SafetyError):
 
 
 def _utc_ms() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+    return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
 
 
 # -- the only path to the stimulator ---------------------------------------------------

@@ -37,25 +37,61 @@ from pathlib import Path
 import numpy as np
 
 from nmsid.protocols.errors import CalibrationError, DiskFullError, SessionLockedError
-from nmsid.protocols.session_file import (Calibration, Event, SessionExistsError, SessionFileError,
-                                          SessionWriter, Trial, read_session, software_id, utc_now,
-                                          validate_session)
+from nmsid.protocols.session_file import (
+    Calibration,
+    Event,
+    SessionExistsError,
+    SessionFileError,
+    SessionWriter,
+    Trial,
+    read_session,
+    software_id,
+    utc_now,
+    validate_session,
+)
 from nmsid.protocols.session_lock import SessionLock, live_writer
 from nmsid.protocols.session_model import PARTICIPANT_PATTERN, TRIAL_NAME_PATTERN, _h5py
+from nmsid.protocols.session_publish import (
+    SPACE_MARGIN_BYTES,
+    FileHeldError,
+    free_bytes,
+    o_binary,
+    publish_image,
+    rename_retrying,
+    replace_retrying,
+)
 from nmsid.protocols.session_writer import check_seed, counts_memo
-from nmsid.protocols.session_publish import (SPACE_MARGIN_BYTES, FileHeldError, o_binary,
-                                             free_bytes, publish_image, rename_retrying,
-                                             replace_retrying)
+
 # re-exported names (callers import them from here)
-from nmsid.rig.journal import (DIGEST_SIGNALS, PARTIAL_ABORT_REASON, PARTIAL_COLUMNS,  # noqa: F401
-                               JournalContents, arrays_digest,
-                               disk_error, trial_digest, fsync_dir, json_default, save_calibration,
-                               save_trial_npz, write_durable, journal_dir, load_trial_npz,
-                               read_journal, trial_meta, utc_now_ms)
+from nmsid.rig.journal import (  # noqa: F401
+    DIGEST_SIGNALS,
+    PARTIAL_ABORT_REASON,
+    PARTIAL_COLUMNS,
+    JournalContents,
+    arrays_digest,
+    disk_error,
+    fsync_dir,
+    journal_dir,
+    json_default,
+    load_trial_npz,
+    read_journal,
+    save_calibration,
+    save_trial_npz,
+    trial_digest,
+    trial_meta,
+    utc_now_ms,
+    write_durable,
+)
+from nmsid.rig.recovery import (  # noqa: F401
+    RecoveryReport,
+    _header_kwargs,
+    create_from_header,
+    read_fully,  # noqa: F401
+    recover,
+    remove_leftovers,
+    unique_aside,
+)
 from nmsid.rig.session_clock import SessionClock
-from nmsid.rig.recovery import (RecoveryReport, _header_kwargs, create_from_header,  # noqa: F401
-                                read_fully,  # noqa: F401
-                                remove_leftovers, unique_aside, recover)
 
 log = logging.getLogger(__name__)
 

@@ -35,8 +35,8 @@ from nmsid.drivers.hw_config import HardwareConfig, load_hw_config
 from nmsid.drivers.interfaces import RigDevices
 from nmsid.protocols.config import Config
 from nmsid.protocols.session_file import read_session
-from nmsid.rig.journal import journal_dir
 from nmsid.rig.errors import RequestError
+from nmsid.rig.journal import journal_dir
 from nmsid.sim_backends.participant_models import participant_for_model
 from nmsid.sim_backends.rig import make_sim_rig
 
@@ -288,7 +288,7 @@ def _first_difference(old_text: str, new_text: str) -> str:
         return "its text differs"
 
     def flat(d, prefix=""):
-        out = {}
+        out: dict[str, object] = {}
         for k, v in d.items():
             key = f"{prefix}{k}"
             out.update(flat(v, key + ".") if isinstance(v, dict) else {key: v})

@@ -46,6 +46,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+
 from nmsid.analysis.control.controllers import (
     PIDController,
     PIDGains,
@@ -58,13 +59,12 @@ from nmsid.analysis.control.controllers import (
 from nmsid.analysis.control.design import ControllerDesign
 from nmsid.analysis.control.errors import ControlDesignError, ControllerFileError
 from nmsid.analysis.control.targets import Target, load_target_csv
+from nmsid.errors import SafetyError
 from nmsid.protocols.plan import Plan, PlanItem, PlanRefused
 from nmsid.protocols.schedule import PlannedTrial
 from nmsid.protocols.waveforms import currents_mA
 from nmsid.rig.engine import Engine
 from nmsid.rig.trials import SessionKind, TrialNotRun, TrialRun
-
-from nmsid.errors import SafetyError
 
 log = logging.getLogger(__name__)
 

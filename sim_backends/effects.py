@@ -24,13 +24,15 @@ from typing import Any
 
 # the built-in effects' parameter dataclasses, re-exported under their usual names
 from nmsid.protocols.effect_defs.activation_dynamics import ActivationDynamics
-from nmsid.protocols.effect_defs.baseline_drift import BaselineDrift
 from nmsid.protocols.effect_defs.base import EffectParams
+from nmsid.protocols.effect_defs.baseline_drift import BaselineDrift
 from nmsid.protocols.effect_defs.dead_time import DeadTime
 from nmsid.protocols.effect_defs.fatigue import Fatigue, FatigueShape
 from nmsid.protocols.effect_defs.flexor_extensor_asymmetry import FlexorExtensorAsymmetry
-from nmsid.protocols.effect_defs.recruitment_nonlinearity import (RecruitmentNonlinearity,
-                                                                  RecruitmentShape)
+from nmsid.protocols.effect_defs.recruitment_nonlinearity import (
+    RecruitmentNonlinearity,
+    RecruitmentShape,
+)
 from nmsid.protocols.effects import BY_NAME, EFFECT_NAMES, EffectParamError
 from nmsid.sim_backends.errors import SimConfigError
 

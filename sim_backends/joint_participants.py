@@ -41,8 +41,11 @@ from dataclasses import dataclass, replace
 from nmsid.protocols.joints import JOINTS, Joint
 from nmsid.sim_backends.curves import CurveModel, ParameterCurve
 from nmsid.sim_backends.errors import SimConfigError
-from nmsid.sim_backends.participant import (ReferenceCalibration, VirtualParticipant,
-                                            default_participant)
+from nmsid.sim_backends.participant import (
+    ReferenceCalibration,
+    VirtualParticipant,
+    default_participant,
+)
 from nmsid.sim_backends.sensor import SensorModel
 
 __all__ = ["JointTemplate", "TEMPLATES", "template_for", "template_participant"]

@@ -25,8 +25,8 @@ from __future__ import annotations
 import copy
 import math
 import threading
-from typing import Any
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 

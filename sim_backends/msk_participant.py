@@ -37,12 +37,24 @@ from functools import lru_cache
 
 import numpy as np
 
-from nmsid.protocols.calibration import (Muscle, make_calibration, ramp_currents_mA,
-                                         require_thresholds, settled_mean_N, step_envelopes)
+from nmsid.protocols.calibration import (
+    Muscle,
+    make_calibration,
+    ramp_currents_mA,
+    require_thresholds,
+    settled_mean_N,
+    step_envelopes,
+)
 from nmsid.protocols.config import CalibrationConfig, ProtocolConfig
 from nmsid.sim_backends.errors import SimConfigError
-from nmsid.sim_backends.msk_physics import (MUSCLES, CoactivationStiffness, FixtureMount,
-                                            MuscleDrive, MuscleFatigue, default_drives)
+from nmsid.sim_backends.msk_physics import (
+    MUSCLES,
+    CoactivationStiffness,
+    FixtureMount,
+    MuscleDrive,
+    MuscleFatigue,
+    default_drives,
+)
 from nmsid.sim_backends.msk_simulation import MskSimulator
 from nmsid.sim_backends.msk_truth import SecondOrderTruth, second_order_truth
 from nmsid.sim_backends.participant import TrueParameters

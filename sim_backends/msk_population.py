@@ -40,8 +40,15 @@ import numpy as np
 
 from nmsid.sim_backends.errors import SimConfigError
 from nmsid.sim_backends.msk_participant import MskParticipant
-from nmsid.sim_backends.msk_physics import (EXTENSORS, MUSCLES, CoactivationStiffness,
-                                            FixtureMount, MuscleDrive, MuscleFatigue, Recruitment)
+from nmsid.sim_backends.msk_physics import (
+    EXTENSORS,
+    MUSCLES,
+    CoactivationStiffness,
+    FixtureMount,
+    MuscleDrive,
+    MuscleFatigue,
+    Recruitment,
+)
 from nmsid.sim_backends.population import draw_sensor
 
 REACH = {"TRIlong": (0.08, 0.14), "TRIlat": (0.10, 0.16), "TRImed": (0.06, 0.12),

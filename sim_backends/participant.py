@@ -43,12 +43,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from nmsid.sim_backends.curves import CurveModel, ParameterCurve
 from nmsid.protocols.effects import chain_of
+from nmsid.protocols.session_file import Calibration
+from nmsid.sim_backends.curves import CurveModel, ParameterCurve
 from nmsid.sim_backends.effects import EFFECT_TYPES, effects_from_list, effects_to_list
 from nmsid.sim_backends.errors import SimConfigError
 from nmsid.sim_backends.sensor import SensorModel
-from nmsid.protocols.session_file import Calibration
 
 #: A muscle within this much below its Imin still counts as recruited (co-activated
 #: regime): the stimulator's 1 uA quantisation and float rounding in the inversion of

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from nmsid.protocols.config import PARTICIPANT_MODELS
 from nmsid.sim_backends.errors import SimConfigError
-from nmsid.sim_backends.msk_participant import default_msk_participant
 from nmsid.sim_backends.joint_participants import template_participant
+from nmsid.sim_backends.msk_participant import default_msk_participant
 from nmsid.sim_backends.plugin import plugin_participant
 
 

@@ -46,6 +46,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from nmsid.sim_backends.errors import SimConfigError
 from nmsid.sim_backends.msk_participant import default_msk_participant
 from nmsid.sim_backends.participant import default_participant

@@ -39,8 +39,8 @@ import numpy as np
 
 from nmsid.protocols.joints import JOINTS
 from nmsid.sim_backends.curves import CurveModel, ParameterCurve
-from nmsid.sim_backends.joint_participants import joint_sensor, template_for
 from nmsid.sim_backends.errors import SimConfigError
+from nmsid.sim_backends.joint_participants import joint_sensor, template_for
 from nmsid.sim_backends.participant import ReferenceCalibration, VirtualParticipant
 from nmsid.sim_backends.sensor import SensorModel
 
@@ -172,7 +172,7 @@ def make_population(n: int, seed: int = 0, joint: str = "elbow") -> list[Virtual
         rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, i, 4242])
         p_seed = int(rng.integers(0, 2 ** 31 - 1))
         kp, wn, zeta = (table[order[i % 10]] for table, order in
-                        zip((KP_FAMILIES, WN_FAMILIES, ZETA_FAMILIES), orders))
+                        zip((KP_FAMILIES, WN_FAMILIES, ZETA_FAMILIES), orders, strict=True))
         families = (kp, wn, zeta)
         out.append(make_participant(rng, f"S{i + 1:02d}", p_seed, families, joint))
     return out

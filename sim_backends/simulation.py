@@ -21,10 +21,13 @@ import numpy as np
 
 from nmsid.protocols.effects import chain_of
 from nmsid.sim_backends.filters import DelayLine, StatefulFilter, dynamics_zoh
-from nmsid.sim_backends.participant import (SE_RESOLUTION, OperatingPoint, VirtualParticipant,
-                                            sensed_sE)
+from nmsid.sim_backends.participant import (
+    SE_RESOLUTION,
+    OperatingPoint,
+    VirtualParticipant,
+    sensed_sE,
+)
 from nmsid.sim_backends.sensor import SensorState
-
 
 QUIET_SKIP_SAMPLES = 20000
 """In a gap without stimulation, after this many samples (10 s at 2 kHz) the dynamics have
@@ -195,7 +198,7 @@ class ParticipantSimulator:
     def restore(self, snap: tuple) -> None:
         """Return to a :meth:`snapshot` (the sensor noise depends only on sample indices)."""
         self.cursor, self.stim_samples, self._op, self._s_raw, filt, delay = snap
-        for f, st in zip(self._dyn, filt):
+        for f, st in zip(self._dyn, filt, strict=True):
             f.restore(st)
         if self._delay is not None:
             self._delay.restore(delay)

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+
 from nmsid.drivers.interfaces import (
     CurrentLimitError,
     StimulatorCapabilities,

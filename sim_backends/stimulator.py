@@ -7,10 +7,18 @@ import logging
 import numpy as np
 
 from nmsid.drivers.errors import DeviceRangeError
-from nmsid.drivers.interfaces import (CheckedWaveform, StimulatorCapabilities, StimulatorState,
-                                      StimulatorStatus)
-from nmsid.sim_backends.errors import (DeviceStateError, SimConfigError, StimulatorDisconnected,
-                                       StimulatorFault)
+from nmsid.drivers.interfaces import (
+    CheckedWaveform,
+    StimulatorCapabilities,
+    StimulatorState,
+    StimulatorStatus,
+)
+from nmsid.sim_backends.errors import (
+    DeviceStateError,
+    SimConfigError,
+    StimulatorDisconnected,
+    StimulatorFault,
+)
 from nmsid.sim_backends.faults import FaultKind
 from nmsid.sim_backends.stim_stream import StreamingStimulator
 from nmsid.sim_backends.world import SimWorld

@@ -27,9 +27,9 @@ from nmsid.errors import OutputExistsError
 from nmsid.sim_backends.curves import ParameterCurve
 from nmsid.sim_backends.effects import effects_from_list
 from nmsid.sim_backends.errors import SimConfigError
-from nmsid.sim_backends.twin_file import read_twin_file, write_twin_file
 from nmsid.sim_backends.participant import ReferenceCalibration, VirtualParticipant
 from nmsid.sim_backends.sensor import SensorModel
+from nmsid.sim_backends.twin_file import read_twin_file, write_twin_file
 
 log = logging.getLogger(__name__)
 

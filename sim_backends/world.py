@@ -24,10 +24,22 @@ import numpy as np
 
 from nmsid.drivers.interfaces import AcquisitionFlags
 from nmsid.sim_backends.errors import DeviceStateError
-from nmsid.sim_backends.faults import (SENSOR_KINDS, STIM_KINDS, Fault, FaultKind, FaultScript,
-                                       FiredFault)
-from nmsid.sim_backends.run_records import (AcqRun, OutputZero, RunRecord, StimRun, SimBlock,
-                                            SampleFault)
+from nmsid.sim_backends.faults import (
+    SENSOR_KINDS,
+    STIM_KINDS,
+    Fault,
+    FaultKind,
+    FaultScript,
+    FiredFault,
+)
+from nmsid.sim_backends.run_records import (
+    AcqRun,
+    OutputZero,
+    RunRecord,
+    SampleFault,
+    SimBlock,
+    StimRun,
+)
 from nmsid.sim_backends.simulation import simulator_for
 
 log = logging.getLogger(__name__)

@@ -27,8 +27,13 @@ from pydantic import AfterValidator, Field, StrictBool, StrictInt, StrictStr
 
 from nmsid.analysis.settings import IdentificationSettings
 from nmsid.protocols.config import PARTICIPANT_PATTERN
-from nmsid.protocols.settings_base import (SettingProblem, bounded, read_toml, settings_dataclass,
-                                           validate_settings)
+from nmsid.protocols.settings_base import (
+    SettingProblem,
+    bounded,
+    read_toml,
+    settings_dataclass,
+    validate_settings,
+)
 from nmsid.study.errors import StudyConfigError, study_config_error
 
 MAX_SESSION_ENTRIES = 100_000

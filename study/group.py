@@ -14,8 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from nmsid.analysis.model_selection import (AVERAGE_LABEL, ParticipantParameters, SelectionResult,
-                                            select_models)
+from nmsid.analysis.model_selection import (
+    AVERAGE_LABEL,
+    ParticipantParameters,
+    SelectionResult,
+    select_models,
+)
 from nmsid.analysis.report import selection_tables, write_model_selection_json
 from nmsid.analysis.settings import PARAMETER_NAMES, IdentificationSettings
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 from nmsid.analysis.model_selection import AVERAGE_LABEL
 from nmsid.analysis.settings import PARAMETER_NAMES
-from nmsid.study.group import GroupResult
 from nmsid.protocols.printable import escape_controls
+from nmsid.study.group import GroupResult
 
 
 def _fmt(v, digits: int = 4) -> str:

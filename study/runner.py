@@ -13,9 +13,9 @@ import json
 import logging
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 from nmsid.study.config import StudyConfig
 from nmsid.study.group import GroupResult, write_group
@@ -138,14 +138,15 @@ def _run_dask(jobs, settings, workers, scheduler, say):
         for fut in as_completed(futures):
             i = futures[fut]
             try:
-                results[i] = fut.result()
+                res: dict = fut.result()
             except Exception as exc:  # the worker died (memory, kill): report, go on
-                results[i] = {"path": jobs[i][0], "ok": False, "participant": "",
-                              "error": f"task failed: {type(exc).__name__}: {exc}",
-                              "elapsed_s": 0.0, "peak_rss_MB": float("nan"),
-                              "gap": None, "problems": []}
+                res = {"path": jobs[i][0], "ok": False, "participant": "",
+                       "error": f"task failed: {type(exc).__name__}: {exc}",
+                       "elapsed_s": 0.0, "peak_rss_MB": float("nan"),
+                       "gap": None, "problems": []}
+            results[i] = res
             done += 1
-            say(_line(done, len(jobs), results[i]))
+            say(_line(done, len(jobs), res))
         rss = {str(addr): float(v) / 1024.0 for addr, v in
                client.run(lambda: __import__("resource").getrusage(
                    __import__("resource").RUSAGE_SELF).ru_maxrss).items()}

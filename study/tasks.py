@@ -24,7 +24,6 @@ from nmsid.protocols import os_platform
 from nmsid.protocols.session_file import read_session
 from nmsid.protocols.session_state import session_state
 
-
 #: What one task reads of a session file: the datasets of identification (and its QC) and
 #: of the gap diagnosis.
 SESSION_DATASETS = tuple(dict.fromkeys(NEEDED_DATASETS + GAP_DATASETS))

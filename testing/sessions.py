@@ -141,12 +141,12 @@ def write_synthetic_session(path: str | Path, seed: int = 0, *, participant: str
     cal = Calibration(Iemin_mA=2.0, Iemax_mA=9.5, Ifmin_mA=1.5, Ifmax_mA=8.0)
     w.write_calibration(cal)
     responses = {}
-    for i, s in enumerate(sE):
+    for i in range(len(sE)):
         responses[i] = exact_response(kp[i], wn[i], zeta[i], fs_Hz, n, steady_s, chirp_s,
                                       f0_Hz, f1_Hz)
     order = [(i, r) for r in range(1, repeats + 1) for i in range(len(sE))]
     order = [order[j] for j in rng.permutation(len(order))]
-    done = {i: 0 for i in range(len(sE))}
+    done = dict.fromkeys(range(len(sE)), 0)
     for i, _ in order:
         done[i] += 1
         rE, y = responses[i]

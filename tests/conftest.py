@@ -19,6 +19,7 @@ from nmsid.testing.platforms import (  # noqa: F401
     windows_emulation,
 )
 
+
 def pytest_collection_modifyitems(config, items):
     platforms.pytest_collection_modifyitems(config, items)
 

@@ -7,7 +7,6 @@ import math
 import pytest
 
 
-
 @pytest.fixture(scope="module")
 def rates(load_bench_script):
     return load_bench_script("rates")

@@ -11,7 +11,6 @@ from pathlib import Path
 import pytest
 
 
-
 @pytest.fixture(scope="module")
 def bench_run(load_bench_script):
     return load_bench_script("run")

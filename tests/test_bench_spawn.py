@@ -13,6 +13,7 @@ import multiprocessing
 import sys
 
 import pytest
+
 from nmsid.testing.platforms import WINE_PROCESS_POOL
 
 

@@ -54,10 +54,9 @@ def test_pip_install_adds_exactly_one_top_level_name(tmp_path):
                    if not p.name.endswith(".dist-info") and p.name != "bin")
     assert names == ["nmsid"]
     probe = ("import importlib.util, nmsid.analysis.twin, nmsid.cli\n"
-             "print(nmsid.analysis.twin.__file__.startswith(%r))\n"
+             f"print(nmsid.analysis.twin.__file__.startswith({str(target)!r}))\n"
              "print([m for m in ('analysis', 'protocols', 'rig', 'drivers', 'sim_backends',"
-             " 'export', 'study', 'cli', 'testing') if importlib.util.find_spec(m)])\n"
-             % str(target))
+             " 'export', 'study', 'cli', 'testing') if importlib.util.find_spec(m)])\n")
     out = subprocess.run([sys.executable, "-c", probe], cwd=tmp_path, check=True,
                          capture_output=True, text=True, timeout=120,
                          env={"PYTHONPATH": str(target), "PATH": "/usr/bin:/bin"}).stdout

@@ -98,13 +98,15 @@ def run_mypy() -> tuple[int, str]:
     return proc.returncode, _repo_paths(proc.stdout + proc.stderr, mapping)
 
 
-@pytest.mark.skipif(not _installed("ruff"), reason="ruff is not installed (pip install -e '.[test]')")
+@pytest.mark.skipif(not _installed("ruff"),
+                    reason="ruff is not installed (pip install -e '.[test]')")
 def test_ruff_reports_nothing():
     proc = run_ruff()
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 
-@pytest.mark.skipif(not _installed("mypy"), reason="mypy is not installed (pip install -e '.[test]')")
+@pytest.mark.skipif(not _installed("mypy"),
+                    reason="mypy is not installed (pip install -e '.[test]')")
 def test_mypy_reports_nothing():
     code, report = run_mypy()
     assert code == 0, report

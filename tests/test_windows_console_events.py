@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
+
 from nmsid.protocols import os_platform
 from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.rig import session_signals

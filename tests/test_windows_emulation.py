@@ -12,14 +12,15 @@ import sys
 import time
 
 import pytest
+
 from nmsid.protocols import os_platform
+from nmsid.testing.platforms import windows_emulation  # noqa: F401  (the fixture)
 from nmsid.testing.windows_emulation import (
     ERROR_ACCESS_DENIED,
     ERROR_SHARING_VIOLATION,
     emulate_windows,
     posix_only_uses,
 )
-from nmsid.testing.platforms import windows_emulation  # noqa: F401  (the fixture)
 
 # these check that the emulation is installed and then removed again; a run-wide
 # emulation (--windows-emulation) is never removed during the run

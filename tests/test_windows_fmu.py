@@ -9,6 +9,7 @@ import stat
 from pathlib import Path
 
 import pytest
+
 from nmsid.export.errors import FmuExportError
 from nmsid.export.fmu.build import (
     Compiler,
@@ -45,7 +46,8 @@ def test_no_compiler_on_windows_is_one_line_saying_what_to_install(monkeypatch):
     assert "Visual Studio Build Tools" in message and "--sources-only" in message
 
 
-@pytest.mark.posix_only("stands in for Windows itself with stand-in compilers on PATH, which the emulation's empty PATH would hide")
+@pytest.mark.posix_only("stands in for Windows itself with stand-in compilers on PATH, which the "
+                        "emulation's empty PATH would hide")
 def test_msvc_cl_is_found_on_windows_and_gets_cl_flags(tmp_path, monkeypatch):
     _tool(tmp_path, "cl", 'echo "Microsoft (R) C/C++ Optimizing Compiler Version '
                           '19.38.33130 for x64" >&2')
@@ -60,7 +62,8 @@ def test_msvc_cl_is_found_on_windows_and_gets_cl_flags(tmp_path, monkeypatch):
     assert not any(a.startswith("-") for a in cmd[1:])
 
 
-@pytest.mark.posix_only("stands in for Windows itself with stand-in compilers on PATH, which the emulation's empty PATH would hide")
+@pytest.mark.posix_only("stands in for Windows itself with stand-in compilers on PATH, which the "
+                        "emulation's empty PATH would hide")
 def test_mingw_gcc_is_used_without_cl_and_builds_for_win64(tmp_path, monkeypatch):
     _tool(tmp_path, "gcc", "echo x86_64-w64-mingw32")
     monkeypatch.setenv("PATH", str(tmp_path))

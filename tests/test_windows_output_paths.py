@@ -10,6 +10,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
+
 from nmsid.protocols import os_platform
 from nmsid.protocols.errors import OutputPathError
 from nmsid.protocols.output_paths import (

@@ -7,6 +7,7 @@ from __future__ import annotations
 import sys
 
 import pytest
+
 from nmsid.testing import platforms
 
 

@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 import pytest
+
 from nmsid.drivers.interfaces import ForceChunk
 from nmsid.rig.safety import Observation, StallRule
 from nmsid.testing.windows_emulation import TIMER_TICK_S, emulate_windows

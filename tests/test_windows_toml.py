@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import pytest
+
 from nmsid.protocols.errors import ConfigError
 from nmsid.protocols.settings_base import read_toml
 

@@ -27,6 +27,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
 from nmsid.analysis.control.errors import ControlDesignError
 from nmsid.analysis.control.plant import SecondOrderPlant
 

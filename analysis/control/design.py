@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+
 from nmsid.analysis.control.controllers import (
     V_MAX,
     V_MIN,
@@ -192,7 +193,8 @@ class ControllerDesign:
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise ControllerFileError(f"{where}: item {exc} is missing or not a number") from None
         checks = (("sE", out.sE, 0, 2), ("plant.Kp", plant["Kp"], 0, 1e4),
-                  ("plant.wn_rad_s", plant["wn_rad_s"], 0, 1e4), ("plant.zeta", plant["zeta"], 0, 100),
+                  ("plant.wn_rad_s", plant["wn_rad_s"], 0, 1e4),
+                  ("plant.zeta", plant["zeta"], 0, 100),
                   ("Kc", out.Kc, -1e-12, 1e3), ("Ti_s", out.Ti_s, 0, 1e3),
                   ("smoothing_s", out.smoothing_s, 0, 10), ("update_Hz", out.update_Hz, 1, 5000),
                   ("queue", out.queue, 0, 100), ("learning_gain", out.learning_gain, -1e-12, 1))
@@ -378,7 +380,8 @@ def design_controller(twin, *, sE: float | None = None, update_Hz: float = UPDAT
         kc, ti, _ = pi_tuning(p, delay, lambda_s)
         impl, nom = loop_responses(p, kc, ti, delay)
         m_impl, m_nom = stability_margins(impl), stability_margins(nom)
-        ctrl = TwinController(TwinControllerSettings(p, kc, ti, SMOOTHING_WN / p.wn_rad_s), Ts, queue)
+        ctrl = TwinController(TwinControllerSettings(p, kc, ti, SMOOTHING_WN / p.wn_rad_s), Ts,
+                              queue)
         span = p.force_span_N
         mid_s, half_s = 0.5 * (span[0] + span[1]), 0.5 * RANGE_FRACTION * (span[1] - span[0])
         pred = {}

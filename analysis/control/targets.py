@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
 from nmsid.analysis.control.errors import ControllerFileError
 
 LEAD_S = 1.0

@@ -21,8 +21,13 @@ from nmsid.analysis.design.predict import DEFAULT_SCATTER, Predictor
 from nmsid.analysis.design.prior import Prior
 from nmsid.analysis.design.report import write_outputs
 from nmsid.analysis.design.search import DEFAULT_TOLERANCE, design, parse_target
-from nmsid.analysis.design.validate import (ProtocolOutcome, ValidatedRatio,
-                                           alternative_scatter, run_protocol, validated_ratio)
+from nmsid.analysis.design.validate import (
+    ProtocolOutcome,
+    ValidatedRatio,
+    alternative_scatter,
+    run_protocol,
+    validated_ratio,
+)
 from nmsid.progress import Progress, say
 from nmsid.sim_backends.participant import ReferenceCalibration
 from nmsid.sim_backends.population import make_population

@@ -333,7 +333,7 @@ def sd_ratio(proposal: Prediction, paper: Prediction) -> SdRatio:
 def derived_ratio(proposal: Prediction, paper: Prediction) -> float:
     """Largest ratio of the derived quantities' standard errors (extremum, rate, slope)."""
     worst = 0.0
-    for a, b in zip(proposal.derived, paper.derived):
+    for a, b in zip(proposal.derived, paper.derived, strict=True):
         for name in a:
             ref_of = b[name].to_dict()
             for q, (_, se) in a[name].to_dict().items():

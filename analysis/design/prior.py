@@ -182,7 +182,7 @@ def scatter_from_parameters(path, prior: Prior) -> PerParameter:
                               "parameters.csv that nmsid identify wrote)")
         data = [(float(r["sE"]), float(r[name]), float(r[_SE_COLUMNS[name]]),
                  float(r["n_trials"])) for r in rows if r[name] not in ("", "nan")]
-        cols = [np.array(v) for v in zip(*data)] if data else [np.zeros(0)] * 4
+        cols = [np.array(v) for v in zip(*data, strict=True)] if data else [np.zeros(0)] * 4
         x, y, se, nt = cols
         k = len(who.curves[name].coefficients)
         if len(x) < k + 2:

@@ -97,8 +97,9 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
     out.mkdir(parents=True, exist_ok=True)
     prop, paper = result.proposal, result.paper
     c = prop.candidate
+    share_pct = 100 * c.stimulation_s / paper.candidate.stimulation_s
     header = (f"nmsid design: {c.describe()}\n"
-              f"stimulation {c.stimulation_s:g} s ({100 * c.stimulation_s / paper.candidate.stimulation_s:.0f} % "
+              f"stimulation {c.stimulation_s:g} s ({share_pct:.0f} % "
               f"of the paper's {paper.candidate.stimulation_s:g} s), prior: {prior_source}")
     toml_path = out / "protocol.toml"
     tmp = out / ".protocol.toml.tmp"
@@ -204,7 +205,8 @@ def report_text(doc: dict, result) -> str:
           f"{'repeats':<22}{c.repeats:>26}{paper.repeats:>26}",
           f"{'trial':<22}{f'{c.steady_s:g} s + {c.chirp_s:g} s {c.input_kind}':>26}"
           f"{f'{paper.steady_s:g} s + {paper.chirp_s:g} s chirp':>26}",
-          f"{'band, amplitude':<22}{f'{c.chirp_f0_Hz:g}-{c.chirp_f1_Hz:g} Hz, {c.rE_amplitude:g}':>26}"
+          f"{'band, amplitude':<22}"
+          f"{f'{c.chirp_f0_Hz:g}-{c.chirp_f1_Hz:g} Hz, {c.rE_amplitude:g}':>26}"
           f"{f'{paper.chirp_f0_Hz:g}-{paper.chirp_f1_Hz:g} Hz, {paper.rE_amplitude:g}':>26}",
           f"{'rest between trials':<22}{f'{c.rest_s:g} s':>26}{f'{paper.rest_s:g} s':>26}",
           f"{'stimulation':<22}{f'{c.stimulation_s:g} s':>26}{f'{paper.stimulation_s:g} s':>26}",
@@ -216,8 +218,9 @@ def report_text(doc: dict, result) -> str:
     if v:
         L.append(f"{'selection (simulated)':<22}{v['selection_accuracy']['proposal']:>26.3f}"
                  f"{v['selection_accuracy']['paper']:>26.3f}")
+    median_ratio = doc["predicted_sd_ratio_median_participant"]
     L += ["", f"predicted_sd_ratio {doc['predicted_sd_ratio']:.4f} (curves, worst participant, "
-              f"parameter and level; median participant {doc['predicted_sd_ratio_median_participant']:.4f}); "
+              f"parameter and level; median participant {median_ratio:.4f}); "
               f"derived quantities {doc['predicted_derived_sd_ratio']:.4f}"]
     if v:
         L.append(f"validated_sd_ratio {_pm(v)} (Monte-Carlo SE) over "
@@ -268,7 +271,7 @@ def _figure(path: Path, rel_prop, rel_paper, c, paper, rel0=None) -> str | None:
         return None
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.8))
     x = np.asarray(PAPER_LEVELS)
-    for j, (ax, name) in enumerate(zip(axes, PARAMETERS)):
+    for j, (ax, name) in enumerate(zip(axes, PARAMETERS, strict=True)):
         ax.plot(x, 100 * np.median(rel_paper[:, :, j], axis=0), "-", color="0.5", lw=4,
                 alpha=0.6, label=f"paper's protocol ({paper.stimulation_s:g} s)")
         ax.plot(x, 100 * np.median(rel_prop[:, :, j], axis=0), "s-", color="C0", ms=4,

@@ -21,8 +21,15 @@ from dataclasses import dataclass, field
 
 from nmsid.analysis.design.candidates import Candidate, paper_candidate, search_space
 from nmsid.analysis.design.errors import DesignError
-from nmsid.analysis.design.predict import (Prediction, Predictor, SdRatio, SelectionAccuracy,
-                                           derived_ratio, relative_curve_se, sd_ratio)
+from nmsid.analysis.design.predict import (
+    Prediction,
+    Predictor,
+    SdRatio,
+    SelectionAccuracy,
+    derived_ratio,
+    relative_curve_se,
+    sd_ratio,
+)
 from nmsid.analysis.design.prior import PARAMETERS, PerParameter
 
 #: "No worse than the paper" allows this relative excess of a predicted standard error:

@@ -18,8 +18,8 @@ Modules, each with one job:
   beyond noise and where it lies;
 - :mod:`~nmsid.analysis.gap.localize`, :mod:`~nmsid.analysis.gap.harmonics`: where the gap lies;
 - :mod:`~nmsid.analysis.gap.evidence`: the signatures and confusable pairs;
-- :mod:`~nmsid.analysis.gap.twin_out`, :mod:`~nmsid.analysis.gap.report`, :mod:`~nmsid.analysis.gap.plots`:
-  outputs;
+- :mod:`~nmsid.analysis.gap.twin_out`, :mod:`~nmsid.analysis.gap.report`,
+  :mod:`~nmsid.analysis.gap.plots`: outputs;
 - :mod:`~nmsid.analysis.gap.api`: :func:`run_gap`, the whole job in one call.
 
 Examples

@@ -16,15 +16,20 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import dataclass
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from nmsid.analysis.data_bounds import check_session_data
-from nmsid.analysis.gap.data import (GAP_DATASETS, GapData, PreprocessSettings, load_session,
-                                     prepare_trials)
+from nmsid.analysis.gap.data import (
+    GAP_DATASETS,
+    GapData,
+    PreprocessSettings,
+    load_session,
+    prepare_trials,
+)
 from nmsid.analysis.gap.diagnose import CandidateResult, Diagnosis, GapSettings, diagnose
 from nmsid.analysis.gap.errors import GapInputError
 from nmsid.analysis.gap.localize import by_location, frequency_view

@@ -1,15 +1,15 @@
 """Session files -> the arrays the gap diagnosis works on.
 
 One signal path with identification: the force and the drive ``rE - 0.5`` pass through
-the same filters as in :mod:`nmsid.analysis.preprocess` (:func:`nmsid.analysis.preprocess.smooth_and_lowpass`
-with the settings of :class:`nmsid.analysis.settings.IdentificationSettings`: Savitzky-Golay order
-3, window 41, zero-phase Butterworth low-pass at 25 Hz), rE is moved by the same input
-timing (:mod:`nmsid.analysis.input_timing`: estimated per session by default, or fixed by the
-setting ``input_timing``), and the models run at the identification's fit rate
-(``fit_fs_Hz``, 200 Hz) with the same hold correction
-(:func:`nmsid.analysis.discretize.smooth_hold_input`). The analysis window (t >= steady_s) is
-evaluated at every ``eval_step``-th simulation sample (100 Hz: the force has next to
-nothing above 25 Hz left, and 3 x 10 Hz stays below Nyquist). The offset and the linear
+the same filters as in :mod:`nmsid.analysis.preprocess`
+(:func:`nmsid.analysis.preprocess.smooth_and_lowpass` with the settings of
+:class:`nmsid.analysis.settings.IdentificationSettings`: Savitzky-Golay order 3, window 41,
+zero-phase Butterworth low-pass at 25 Hz), rE is moved by the same input timing
+(:mod:`nmsid.analysis.input_timing`: estimated per session by default, or fixed by the setting
+``input_timing``), and the models run at the identification's fit rate (``fit_fs_Hz``, 200 Hz) with
+the same hold correction (:func:`nmsid.analysis.discretize.smooth_hold_input`). The analysis window
+(t >= steady_s) is evaluated at every ``eval_step``-th simulation sample (100 Hz: the force has next
+to nothing above 25 Hz left, and 3 x 10 Hz stays below Nyquist). The offset and the linear
 trend (the paper's detrend) are not subtracted here: every model carries them as
 per-trial nuisance terms, so that the nominal and the augmented models are scored on the
 same footing. The simulation starts ``lead_s`` before the window, so that any transient
@@ -26,14 +26,13 @@ aborted: an aborted trial stimulated too), in file order ``t001, t002, ...``.
 from __future__ import annotations
 
 import functools
-
-from collections.abc import Mapping
-
 import logging
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from nmsid.analysis.discretize import smooth_hold_input
 from nmsid.analysis.gap.errors import GapInputError
 from nmsid.analysis.input_timing import TimingEstimate, estimate_session_timing
@@ -276,9 +275,11 @@ def _cumulative_stim(trials) -> list[float]:
 
 
 def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
-                   settings: PreprocessSettings | None = None, excluded: Mapping[str, str] | None = None,
+                   settings: PreprocessSettings | None = None,
+                   excluded: Mapping[str, str] | None = None,
                    timing: TimingEstimate | None = None) -> GapData:
-    """Pre-process a list of :class:`nmsid.protocols.session_file.Trial` (file order) for the diagnosis.
+    """Pre-process a list of :class:`nmsid.protocols.session_file.Trial` (file order) for the
+    diagnosis.
 
     See :func:`load_session`. ``timing``: use this input timing instead of the settings'
     (e.g. a simulated session compared with a measured one gets the measured timing).
@@ -364,7 +365,8 @@ def prepare_trials(trials, *, path: str = "<memory>", participant: str = "",
     return GapData(
         path=path, participant=participant, settings=s, fs_raw_Hz=fs, sE_levels=levels,
         trials=infos, y_N=np.vstack(rows_y), drive_raw=drive_raw,
-        drive_sim=smooth_hold_input(drive_raw[:, ::raw_per_sim]), rE_sim=rE_raw[:, ::raw_per_sim].copy(),
+        drive_sim=smooth_hold_input(drive_raw[:, ::raw_per_sim]),
+        rE_sim=rE_raw[:, ::raw_per_sim].copy(),
         d_eval=d_eval, t_eval_s=t_eval,
         f_inst_Hz=chirp_frequency_Hz(t_eval, first.chirp_f0_Hz, first.chirp_f1_Hz,
                                      first.chirp_s),

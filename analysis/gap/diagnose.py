@@ -32,12 +32,12 @@ import numpy as np
 
 from nmsid.analysis.gap.crossval import Fold, repeat_folds
 from nmsid.analysis.gap.data import GapData
-from nmsid.protocols.effects import CANDIDATES, Effect
 from nmsid.analysis.gap.errors import GapInputError
 from nmsid.analysis.gap.fit import ModelFit, fit_model, predict
 from nmsid.analysis.gap.models import NOMINAL, Candidate, candidate, n_drift_columns, nuisance_basis
 from nmsid.analysis.gap.samples import effective_fraction
 from nmsid.analysis.gap.verdict import GapVerdict, assess, nominal_settles
+from nmsid.protocols.effects import CANDIDATES, Effect
 
 log = logging.getLogger(__name__)
 
@@ -212,7 +212,7 @@ class _Runner:
         d = self.data
         resid = np.full_like(d.y_N, np.nan)
         ins_num = ins_den = 0.0
-        for fold, tr, te, fit in zip(self.folds, self.train, self.test, fits):
+        for fold, tr, te, fit in zip(self.folds, self.train, self.test, fits, strict=True):
             r, _, _ = predict(fit, te)
             resid[fold.test] = r
             ins_num += fit.rss
@@ -225,7 +225,7 @@ class _Runner:
             params=_mean_params(fits))
         if nominal is not None:
             dic, dk, nus = [], [], []
-            for fit, nom_fit, tr in zip(fits, nominal.fold_fits, self.train):
+            for fit, nom_fit, tr in zip(fits, nominal.fold_fits, self.train, strict=True):
                 nu = self.nu
                 k = cand.n_shared()
                 if cand.fits_baseline:
@@ -247,7 +247,7 @@ class _Runner:
         """Per fold: the baseline bandwidth with the lowest training IC."""
         out = []
         d = self.data
-        for tr, nom in zip(self.train, nominal_fits):
+        for tr, nom in zip(self.train, nominal_fits, strict=True):
             best, best_ic = nom, 0.0
             first: ModelFit | None = None
             for fc in self.s.drift_corners_Hz:
@@ -324,7 +324,7 @@ def diagnose(data: GapData, settings: GapSettings | None = None) -> Diagnosis:
             fits = run.drift_fits(nom_fits, cand)
         else:
             fits = [fit_model(tr, cand, start=nf, max_iter=s.max_iter)
-                    for tr, nf in zip(run.train, nom_fits)]
+                    for tr, nf in zip(run.train, nom_fits, strict=True)]
         res = run.score(cand, fits, nominal)
         res.fit_s = time.perf_counter() - t1
         log.info("%s: held-out NRMSE %.3f %% (nominal %.3f %%), dIC %.1f, %.1f s",

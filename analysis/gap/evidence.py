@@ -25,13 +25,11 @@ from typing import Any
 import numpy as np
 
 from nmsid.analysis.gap.diagnose import Diagnosis
-from nmsid.protocols.effects import Effect
 from nmsid.analysis.gap.fit import Problem
 from nmsid.analysis.gap.harmonics import local_harmonics
 from nmsid.analysis.gap.localize import Localization
 from nmsid.analysis.gap.models import FORMS, NOMINAL
-from nmsid.protocols.effects import EFFECT_NAMES, EFFECTS
-
+from nmsid.protocols.effects import EFFECT_NAMES, EFFECTS, Effect
 
 
 def confusable() -> tuple[tuple[Effect, Effect], ...]:

@@ -20,11 +20,11 @@ from scipy.signal import lfilter
 
 from nmsid.analysis.damped_lstsq import Damping, levenberg_marquardt
 from nmsid.analysis.gap.data import GapData
-from nmsid.protocols.effects import Effect
 from nmsid.analysis.gap.harmonics import levy_second_order, local_harmonics
 from nmsid.analysis.gap.models import Candidate, nuisance_basis
 from nmsid.analysis.gap.samples import effective_fraction
 from nmsid.analysis.parameters import Parameters
+from nmsid.protocols.effects import Effect
 
 log = logging.getLogger(__name__)
 
@@ -332,7 +332,7 @@ def fit_model(data: GapData, cand: Candidate, *, start: ModelFit | None = None,
     r, Kp = prob.residual(wn, zeta, p)
     L = len(data.sE_levels)
     full = (np.full(L, np.nan), np.full(L, np.nan), np.full(L, np.nan))
-    for arr, val in zip(full, (Kp, wn, zeta)):
+    for arr, val in zip(full, (Kp, wn, zeta), strict=True):
         arr[prob.levels] = val
     return ModelFit(candidate=cand, p_shared=p, Kp=full[0], wn_rad_s=full[1], zeta=full[2],
                     corner_Hz=corner_Hz, rss=float(np.sum(r ** 2)), n_samples=r.size,

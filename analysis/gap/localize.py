@@ -14,6 +14,7 @@ chirp band.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -160,7 +161,7 @@ def by_location(diag: Diagnosis, res: CandidateResult) -> LocationTable:
                               "n_trials": int(len(rows))})
     edges = diag.settings.bands_Hz
     f = d.f_inst_Hz
-    for lo, hi in zip(edges[:-1], edges[1:]):
+    for lo, hi in pairwise(edges):
         m = (f >= lo) & (f < hi if hi < edges[-1] else f <= hi)
         if np.any(m):
             out["band"].append({"f_lo_Hz": lo, "f_hi_Hz": hi,
@@ -174,7 +175,7 @@ def by_location(diag: Diagnosis, res: CandidateResult) -> LocationTable:
                                 "residual_power_N2": float(np.mean(r[i] ** 2))})
     dev = d.d_eval
     e = diag.settings.deviation_edges
-    for lo, hi in zip(e[:-1], e[1:]):
+    for lo, hi in pairwise(e):
         m = ok[:, None] & (dev >= lo) & ((dev < hi) if hi < e[-1] else (dev <= hi))
         if np.any(m):
             out["deviation"].append({"d_lo": lo, "d_hi": hi,

@@ -16,27 +16,37 @@ from the registry (:data:`FORMS`); :class:`Candidate` composes them at the chain
 
 from __future__ import annotations
 
-import math
 import functools
-from collections.abc import Iterator, Mapping
+import math
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
-from typing import Callable, ClassVar
+from typing import ClassVar
 
 import numpy as np
 from scipy import signal
 
-from nmsid.analysis.discretize import (fractional_delay, lagged_second_order_tf, parallel_tf,
-                                       second_order_tf, smooth_hold_input)
+from nmsid.analysis.discretize import (
+    fractional_delay,
+    lagged_second_order_tf,
+    parallel_tf,
+    second_order_tf,
+    smooth_hold_input,
+)
 from nmsid.analysis.gap.data import GapData
 from nmsid.analysis.parameters import Parameters
 from nmsid.protocols.effect_defs.base import FittedForm
+
 # re-exported: each effect's own helpers live with its definition
 from nmsid.protocols.effect_defs.fatigue import REFERENCE_STIM_S, fatigue_loss_pct  # noqa: F401
-from nmsid.protocols.effect_defs.flexor_extensor_asymmetry import (  # noqa: F401
-    canonical_asymmetry)
+from nmsid.protocols.effect_defs.flexor_extensor_asymmetry import canonical_asymmetry  # noqa: F401
 from nmsid.protocols.effect_defs.recruitment_nonlinearity import (  # noqa: F401
-    RECRUITMENT_KNOTS, net_static_map, nonlinearity_index_pct, project_recruitment,
-    recruitment_curve, recruitment_knot_values)
+    RECRUITMENT_KNOTS,
+    net_static_map,
+    nonlinearity_index_pct,
+    project_recruitment,
+    recruitment_curve,
+    recruitment_knot_values,
+)
 from nmsid.protocols.effects import CANDIDATES, Effect, EffectParamError, spec
 
 #: Bound of every model's correction of the session's input timing, ms.
@@ -146,15 +156,24 @@ class Candidate:
         out["timing_correction_s"] = self.timing_s(p)
         return Parameters.of(out)
 
-    @functools.lru_cache(maxsize=None)
     def indices_at(self, slots: tuple[str, ...], timing: bool = False) -> tuple[int, ...]:
         """Indices of ``p`` read by the effects acting at ``slots`` (with ``timing``: and
         the timing correction's)."""
+        known = self._indices.get((slots, timing))
+        if known is not None:
+            return known
         out = {i for slot in slots for _, sl in self._slot_parts.get(slot, ())
                for i in range(sl.start, sl.stop)}
         if timing:
             out.add(self.n_shared())
-        return tuple(sorted(out))
+        self._indices[(slots, timing)] = found = tuple(sorted(out))
+        return found
+
+    @functools.cached_property
+    def _indices(self) -> dict[tuple[tuple[str, ...], bool], tuple[int, ...]]:
+        """:meth:`indices_at`'s answers, kept with the candidate (a cache on the method
+        would keep every candidate alive)."""
+        return {}
 
     # -- the model: the effects' forms composed at the chain's slots -------------------
     def _at(self, slot: str, p: np.ndarray) -> list[tuple[FittedForm, np.ndarray]]:

@@ -202,7 +202,7 @@ def plot_ranking(ranking: list[dict], nominal_pct: float, noise_pct: float, path
                        else style.COLOURS["unsupported"])
         names.append(style.effect_title(name) + ("  (verdict)" if won else ""))
     ax.barh(y, np.nan_to_num(vals, nan=0.0), color=colours)
-    for yi, v in zip(y, vals):
+    for yi, v in zip(y, vals, strict=True):
         ax.text(v if np.isfinite(v) else 0.0, yi, f" {v:.3g} %" if np.isfinite(v)
                 else " not converged", va="center", fontsize=7.5)
     ax.set_yticks(y)
@@ -262,7 +262,7 @@ def plot_remaining(report: dict, path: Path) -> None:
         (["first", "middle", "last"],
          w["trial_position"].get("ratio_to_noise_by_third", []), "by session third",
          "part of the session"))
-    for ax, (labels, raw, title, xlabel) in zip(axes, panels):
+    for ax, (labels, raw, title, xlabel) in zip(axes, panels, strict=True):
         vals = style.finite(raw)
         x = np.arange(len(vals))
         ax.bar(x, vals, color="tab:orange" if rem["significant"] else "0.6")

@@ -7,23 +7,27 @@ import html
 import json
 import logging
 import math
-from pathlib import Path
-
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from nmsid.analysis.muscle.report import muscle_section, plot_muscle, twin_item
+from nmsid.analysis.gap import plots
 from nmsid.analysis.gap.diagnose import Diagnosis, ranking
 from nmsid.analysis.gap.evidence import confusable_pairs, explain, signatures
-from nmsid.analysis.parameters import Parameters
-from nmsid.analysis.gap import plots
 from nmsid.analysis.gap.fit import Problem
 from nmsid.analysis.gap.localize import Localization, localization
-from nmsid.analysis.gap.models import FORMS, FinalContext, fatigue_loss_pct, nuisance_basis
-from nmsid.analysis.gap.models import canonical_asymmetry  # noqa: F401 (re-exported)
+from nmsid.analysis.gap.models import (
+    FORMS,
+    FinalContext,
+    canonical_asymmetry,  # noqa: F401 (re-exported)
+    fatigue_loss_pct,
+    nuisance_basis,
+)
 from nmsid.analysis.gap.twin_out import effect_entries, twin_dict, write_twin
+from nmsid.analysis.muscle.report import muscle_section, plot_muscle, twin_item
+from nmsid.analysis.parameters import Parameters
 from nmsid.analysis.twin import source_entry
 from nmsid.protocols.effects import EFFECT_NAMES
 from nmsid.protocols.printable import escape_controls

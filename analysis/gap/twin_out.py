@@ -19,15 +19,19 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-
 import numpy as np
 
 from nmsid.analysis.curves import fit_curve
-from nmsid.analysis.twin import Twin
-from nmsid.analysis.gap.models import FORMS
+
 # re-exported: the translations live with each effect's form (analysis.gap.models)
-from nmsid.analysis.gap.models import (fatigue_loss_pct, net_static_map,  # noqa: F401
-                                       nonlinearity_index_pct, project_recruitment)
+from nmsid.analysis.gap.models import (  # noqa: F401
+    FORMS,
+    fatigue_loss_pct,
+    net_static_map,
+    nonlinearity_index_pct,
+    project_recruitment,
+)
+from nmsid.analysis.twin import Twin
 from nmsid.protocols.effects import EFFECT_NAMES
 
 

@@ -53,22 +53,23 @@ candidate or pair is supported. ``likely``: the same, but one candidate wins on 
 (``dIC < -ic_margin``) and shrinks the held-out NRMSE by less than ``min_shrink_pct`` while
 trial-to-trial scatter dominates the held-out error (:func:`likely_candidate`): the
 held-out test cannot separate it from scatter, so the verdict names it as *likely*, with
-its evidence and the repeats of each sE that would decide - never "something else". ``muscle_twin``: the template's answer still leaves a
-significant gap and the physiological twin (:mod:`nmsid.analysis.muscle`) predicts the held-out
-repeats better (see :mod:`nmsid.analysis.muscle.candidate`); ``remaining`` is then its own.
-Narrow-band components: :mod:`nmsid.analysis.gap.narrowband`.
+its evidence and the repeats of each sE that would decide - never "something else". ``muscle_twin``:
+the template's answer still leaves a significant gap and the physiological twin
+(:mod:`nmsid.analysis.muscle`) predicts the held-out repeats better (see
+:mod:`nmsid.analysis.muscle.candidate`); ``remaining`` is then its own. Narrow-band components:
+:mod:`nmsid.analysis.gap.narrowband`.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
 from dataclasses import dataclass, field, fields
+from itertools import pairwise
+from typing import Any
 
 import numpy as np
 
 from nmsid.analysis.fatigue import FatigueResult, fit_fatigue
-
 from nmsid.analysis.gap.fit import find_steps, predict
 from nmsid.analysis.gap.harmonics import local_harmonics
 from nmsid.analysis.gap.models import nuisance_basis
@@ -636,7 +637,7 @@ def where(diag, resid: np.ndarray, components: list[dict], harmonics: dict | Non
     edges = diag.settings.bands_Hz
     f = d.f_inst_Hz
     mean_N = float(np.mean(N[ok]))
-    for lo, hi in zip(edges[:-1], edges[1:]):
+    for lo, hi in pairwise(edges):
         m = (f >= lo) & (f < hi if hi < edges[-1] else f <= hi)
         if m.any():
             out["chirp_band"].append({"f_lo_Hz": lo, "f_hi_Hz": hi, "ratio_to_noise":

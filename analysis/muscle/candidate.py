@@ -19,10 +19,9 @@ first order, at the cost of one batched simulation for all folds.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
 import logging
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -166,7 +165,7 @@ def _score(run, nominal, final, settings, fs: MuscleFitSettings, t0: float, c0: 
     # the session's fatigue, when the fit carries it, counts as its two parameters
     dk = len(full.theta) - (3 * n_levels + 1) + (2 if fs.trial_gain is not None else 0)
     dic = [run.nu * f.n_samples * np.log(f.rss / nf.rss) + 2 * dk
-           for f, nf in zip(fits, nominal.fold_fits)]
+           for f, nf in zip(fits, nominal.fold_fits, strict=True)]
     res.delta_ic = float(np.mean(dic))
     res.delta_k = int(dk)
     res.shrink_pct = 100.0 * (1 - res.heldout_nrmse_pct / nominal.heldout_nrmse_pct)

@@ -31,8 +31,8 @@ its normalised stimulation intensity (paper eqs. 1-4): ``I_e = rE sE``, ``I_f = 
    muscle adds, per unit activation relative to the mount's (the force-length slope and
    short-range stiffness; Hogan 1984; Cui et al. 2008); signed: a muscle held on the
    descending limb of its force-length curve (longer than optimal) loses force as the
-   joint yields towards its lengthening, a negative stiffness. ``c_s``: the damping active muscle adds per
-   unit activation (the Hill force-velocity slope at zero velocity: a shortening fibre
+   joint yields towards its lengthening, a negative stiffness. ``c_s``: the damping active muscle
+   adds per unit activation (the Hill force-velocity slope at zero velocity: a shortening fibre
    pulls less, a lengthening one more, ``dF/dv = -F (1 + 1/A) / v_max`` with Hill's
    ``A`` about 0.25; Hill 1938; Zajac 1989). Both make the response's ``wn`` and ``zeta``
    depend on sE, as the paper measures.
@@ -50,8 +50,8 @@ the activation exactly over each step for the step's frozen time constant and th
 mechanics by classical Runge-Kutta (4th order), with the input held per step (the
 commanded rE is piecewise constant). Given the activation, the mechanics are linear, so
 each step's Runge-Kutta map is an affine map formed for all steps at once; only the
-activation and that affine recurrence run step by step. Everything is vectorised over a leading batch axis,
-so one call simulates the finite-difference perturbations of every parameter together.
+activation and that affine recurrence run step by step. Everything is vectorised over a leading
+batch axis, so one call simulates the finite-difference perturbations of every parameter together.
 """
 
 from __future__ import annotations

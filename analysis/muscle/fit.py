@@ -31,7 +31,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import fft, optimize
-
 from scipy.signal import savgol_coeffs
 
 from nmsid.analysis.gap.data import GapData
@@ -40,8 +39,8 @@ from nmsid.analysis.gap.models import nuisance_basis
 from nmsid.analysis.gap.samples import effective_fraction
 from nmsid.analysis.muscle import literature as lit
 from nmsid.analysis.muscle.dynamics import PARAM_NAMES, simulate_batch
-from nmsid.analysis.parameters import Parameters
 from nmsid.analysis.muscle.errors import MuscleFitError
+from nmsid.analysis.parameters import Parameters
 from nmsid.analysis.preprocess import lowpass_sos
 
 
@@ -160,7 +159,8 @@ class MuscleFit:
     @property
     def params(self) -> Parameters:
         """The fitted parameters by name (``PARAM_NAMES`` order)."""
-        return Parameters(tuple((n, float(v)) for n, v in zip(PARAM_NAMES, self.theta)))
+        return Parameters(tuple((n, float(v))
+                                for n, v in zip(PARAM_NAMES, self.theta, strict=True)))
 
     def table(self) -> list[dict]:
         """Each parameter with its uncertainty (relative for the log-scale ones)."""
@@ -197,7 +197,7 @@ class _Problem:
         # each distinct (sE, rE) is simulated once (a 45-trial session: 15 simulations)
         keys: dict[tuple[float, bytes], int] = {}
         self.inverse = np.array([keys.setdefault((float(sv), r.tobytes()), len(keys))
-                                 for sv, r in zip(self.sE, self.rE)])
+                                 for sv, r in zip(self.sE, self.rE, strict=True)])
         first = np.unique(self.inverse, return_index=True)[1]
         self.rE_u, self.sE_u = self.rE[first], self.sE[first]
         self.idx = (data.n_lead_sim + np.arange(data.y_N.shape[1]) * data.sim_step) // dec

@@ -4,6 +4,7 @@ muscle twin helps: by sE, by chirp band, by ``|rE - 0.5|``)."""
 
 from __future__ import annotations
 
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -31,14 +32,14 @@ def _where(diag, resid) -> dict:
             out["sE"].append({"sE": float(sE), "nrmse_pct": _nrmse(resid[rows], ref[rows])})
     edges = diag.settings.bands_Hz
     f = d.f_inst_Hz
-    for lo, hi in zip(edges[:-1], edges[1:]):
+    for lo, hi in pairwise(edges):
         m = (f >= lo) & (f <= hi)
         if np.any(m):
             out["band"].append({"f_lo_Hz": lo, "f_hi_Hz": hi,
                                 "nrmse_pct": _nrmse(resid[ok][:, m], ref[ok][:, m])})
     dev = np.abs(d.d_eval)
     e = ABS_DEVIATION_EDGES
-    for lo, hi in zip(e[:-1], e[1:]):
+    for lo, hi in pairwise(e):
         m = ok[:, None] & (dev >= lo) & (dev <= hi if hi == e[-1] else dev < hi)
         if np.any(m):
             out["abs_deviation"].append({"d_lo": lo, "d_hi": hi,
@@ -98,8 +99,9 @@ def _remainder_section(muscle_pct: float, floor_pct: float, where: dict) -> dict
     >>> w = {"sE": [{"sE": 0.3, "nrmse_pct": 3.0}, {"sE": 1.0, "nrmse_pct": 1.0}],
     ...      "band": [{"f_lo_Hz": 1, "f_hi_Hz": 4, "nrmse_pct": 0.5},
     ...               {"f_lo_Hz": 4, "f_hi_Hz": 10, "nrmse_pct": 2.5}]}
-    >>> _remainder_section(1.2, 0.1, w)["sentence"]
-    'the muscle twin leaves 1.20 % held-out, 12.0x the noise floor (0.10 %); most at sE 0.3 (3.00 %) and in the 4-10 Hz band (2.50 %)'
+    >>> print(_remainder_section(1.2, 0.1, w)["sentence"])  # doctest: +NORMALIZE_WHITESPACE
+    the muscle twin leaves 1.20 % held-out, 12.0x the noise floor (0.10 %); most at sE 0.3
+    (3.00 %) and in the 4-10 Hz band (2.50 %)
     """
     ratio = muscle_pct / floor_pct if floor_pct > 0 else float("nan")
     worst_s = max(where.get("sE", []), key=lambda r: r["nrmse_pct"], default=None)
@@ -137,7 +139,7 @@ def plot_muscle(section: dict, path: Path) -> None:
               "chirp frequency band (Hz)"),
              ("abs_deviation", lambda r: f"{r['d_lo']:g}-{r['d_hi']:g}",
               r"commanded deviation $|r_E - 0.5|$")]
-    for ax, (key, lab, xlabel) in zip(axes, specs):
+    for ax, (key, lab, xlabel) in zip(axes, specs, strict=True):
         rows_t, rows_m = w["template"].get(key, []), w["muscle"].get(key, [])
         t = style.finite([r.get("nrmse_pct") for r in rows_t])
         m = style.finite([r.get("nrmse_pct") for r in rows_m])

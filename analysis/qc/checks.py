@@ -42,7 +42,7 @@ def runs(mask: np.ndarray) -> list[tuple[int, int]]:
         return []
     m = np.concatenate([[False], mask, [False]])
     edges = np.flatnonzero(np.diff(m.astype(np.int8)))
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
 def median_of_finite(x: np.ndarray, scratch: bool = False) -> float:
@@ -169,7 +169,7 @@ def flat_runs(x: np.ndarray, fs_Hz: float, stall_min_s: float, clip_min_s: float
     if not long.any():
         return out
     hi, lo = np.nanmax(x), np.nanmin(x)
-    for a, b in zip(a_all[long].tolist(), b_all[long].tolist()):
+    for a, b in zip(a_all[long].tolist(), b_all[long].tolist(), strict=True):
         n = b - a
         value = x[a]
         at_edge = value == hi or value == lo

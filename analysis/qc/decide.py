@@ -25,13 +25,24 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 
 import numpy as np
-
-from nmsid.analysis.fatigue import FatigueResult, cumulative_stimulation_s, fit_fatigue, \
-    gains_between_repeats
-from nmsid.analysis.qc import checks
-from nmsid.analysis.qc.repeats import Deviation, attribute_pair, deviations, fit_jump, smoothed, unshared
-from nmsid.analysis.qc.settings import QCSettings
 from scipy.signal import sosfiltfilt
+
+from nmsid.analysis.fatigue import (
+    FatigueResult,
+    cumulative_stimulation_s,
+    fit_fatigue,
+    gains_between_repeats,
+)
+from nmsid.analysis.qc import checks
+from nmsid.analysis.qc.repeats import (
+    Deviation,
+    attribute_pair,
+    deviations,
+    fit_jump,
+    smoothed,
+    unshared,
+)
+from nmsid.analysis.qc.settings import QCSettings
 from nmsid.protocols.reprs import html_repr, short_repr
 from nmsid.protocols.session_file import Trial, read_session
 
@@ -325,9 +336,9 @@ def _compare(works: list[_Work], s: QCSettings, neighbour: np.ndarray | None) ->
             for w in same:
                 w.verdict.reasons.append(note)
             return note
-        devs = [[d for d, o in zip(devs[0], owners) if o == 0],
-                [d for d, o in zip(devs[0], owners) if o == 1]]
-    for w, ds in zip(same, devs):
+        devs = [[d for d, o in zip(devs[0], owners, strict=True) if o == 0],
+                [d for d, o in zip(devs[0], owners, strict=True) if o == 1]]
+    for w, ds in zip(same, devs, strict=True):
         _apply(w, ds, typical, s)
     return note
 
@@ -475,7 +486,7 @@ def assess_session(session, settings: QCSettings | None = None) -> SessionQC:
 def _session_fatigue(all_trials, levels: list[LevelQC]) -> FatigueResult | None:
     """Fatigue from the trials QC keeps (see :class:`SessionQC`)."""
     centre, total = cumulative_stimulation_s(all_trials)
-    cum = {id(t): float(c) for t, c in zip(all_trials, centre)}
+    cum = {id(t): float(c) for t, c in zip(all_trials, centre, strict=True)}
     kept = [t for lv in levels for t in lv.kept]
     # a repaired trial is a copy with its bridged force: find its place by name
     by_name = {t.name: cum[id(t)] for t in all_trials if t.name}

@@ -26,10 +26,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.signal import butter, sosfiltfilt
 
 from nmsid.analysis.qc.checks import median_of_finite, runs
 from nmsid.analysis.qc.settings import QCSettings
-from scipy.signal import butter, sosfiltfilt
 
 
 @dataclass
@@ -263,7 +263,7 @@ def unshared(signals: list[np.ndarray], fs: float, settings: QCSettings):
         limit = max(settings.deviation_k * typical, settings.deviation_min_frac * response)
         flags = [r > limit for r in rms]
         new_keep = [~f if (~f).sum() > 0.5 * f.size else np.ones_like(f) for f in flags]
-        if all(np.array_equal(a, b) for a, b in zip(new_keep, keep)):
+        if all(np.array_equal(a, b) for a, b in zip(new_keep, keep, strict=True)):
             break
         keep = new_keep
     return u, flags, rms, typical, response, [S[j] for j in partner], limit

@@ -10,7 +10,6 @@ from pydantic import Field, StrictFloat, StrictInt
 from nmsid.analysis.errors import setting_error
 from nmsid.protocols.settings_base import settings_dataclass
 
-
 Seconds = Annotated[StrictFloat, Field(gt=0.0, le=600.0, description=(
     "a time within a trial, at most 10 min"))]
 Hz = Annotated[StrictFloat, Field(gt=0.0, le=100_000.0, description="a frequency below 100 kHz")]
@@ -91,6 +90,6 @@ class QCSettings:
     rE_match_tol: Factor = 1e-6
     """Repeats are compared only when their commanded rE agree to this tolerance."""
 
-    def replace(self, **changes) -> "QCSettings":
+    def replace(self, **changes) -> QCSettings:
         # settings_dataclass hides the dataclass from the type checker
         return cast("QCSettings", dataclasses.replace(cast(Any, self), **changes))

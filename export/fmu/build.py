@@ -352,7 +352,8 @@ def _doc_html(ident: str) -> str:
 variables are in modelDescription.xml; the twin file it came from is resources/twin.json.</p>
 <p>Build the binary for another platform from sources/ (C99, needs only libm), e.g.
 <code>cc -shared -fPIC -O2 -std=c99 -fvisibility=hidden -Isources sources/nmsid_model.c
-sources/nmsid_twin.c -o binaries/linux64/{ident}.so -lm</code>; on macOS <code>binaries/darwin64/{ident}.dylib</code>;
+sources/nmsid_twin.c -o binaries/linux64/{ident}.so -lm</code>; on macOS
+<code>binaries/darwin64/{ident}.dylib</code>;
 on Windows <code>cl /LD /O2 /Isources sources\\nmsid_model.c sources\\nmsid_twin.c
 /Fe:binaries\\win64\\{ident}.dll</code>.
 Or let the importer build it (FMPy: <code>fmpy.build.build_platform_binary</code>, needs CMake).</p>

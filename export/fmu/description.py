@@ -13,7 +13,8 @@ from xml.sax.saxutils import quoteattr
 
 from nmsid.export.fmu.variables import STATE_NAMES, Var, value_references
 
-_UNITS: dict[str, dict[str, float]] = {  # name -> SI base unit exponents (FMI 2.0.x section 2.2.2 BaseUnit)
+# name -> SI base unit exponents (FMI 2.0.x section 2.2.2 BaseUnit)
+_UNITS: dict[str, dict[str, float]] = {
     "N": {"kg": 1, "m": 1, "s": -2}, "N/s": {"kg": 1, "m": 1, "s": -3},
     "N/s2": {"kg": 1, "m": 1, "s": -4}, "rad/s": {"rad": 1, "s": -1}, "s": {"s": 1},
     "1": {}, "%": {"factor": 0.01},
@@ -37,7 +38,7 @@ def model_description(vs: list[Var], *, model_name: str, model_identifier: str, 
     """The model description as text (UTF-8 XML)."""
     index = {v.name: i + 1 for i, v in enumerate(vs)}
     vr = value_references(vs)
-    when = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    when = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
     units = sorted({v.unit for v in vs if v.unit})
     out = ['<?xml version="1.0" encoding="UTF-8"?>',
            f'<fmiModelDescription fmiVersion="2.0" modelName={quoteattr(model_name)} '

@@ -79,13 +79,13 @@ def variables(twin: Twin, *, extrapolate: bool = False) -> list[Var]:
         Var("zeta", "zeta", "Real", "output", "continuous", None,
             "damping ratio at the current sE", "1", "calculated"),
     ]
-    for i, (n, u) in enumerate(zip(STATE_NAMES, STATE_UNITS)):
+    for i, (n, u) in enumerate(zip(STATE_NAMES, STATE_UNITS, strict=True)):
         reals.append(Var(n, f"x{i}", "Real", "local", "continuous", None,
                          "state: " + ("cumulative stimulation time (sE > 0)" if i == 6 else
                                       f"{'extensor' if i < 3 else 'flexor'} path "
                                       f"{['activation', 'force', 'force rate'][i % 3]}"),
                          u, "calculated"))
-    for i, (n, u) in enumerate(zip(STATE_NAMES, STATE_UNITS)):
+    for i, (n, u) in enumerate(zip(STATE_NAMES, STATE_UNITS, strict=True)):
         du = {"N": "N/s", "N/s": "N/s2", "s": "1"}[u]
         reals.append(Var(f"der({n})", f"dx{i}", "Real", "local", "continuous", None,
                          f"time derivative of {n}", du, "calculated", derivative_of=n))

@@ -30,7 +30,8 @@ class DeadTime(EffectParams):
     definition: ClassVar[str] = "F(t) = F_0(t - L_s), i.e. G(s) e^{-L_s s}"
     slots: ClassVar[frozenset[str]] = frozenset({"delay"})
     words: ClassVar[str | None] = "a dead time (the force answers the stimulation late)"
-    confusable_with: ClassVar[tuple[str, ...]] = ("activation_dynamics", "flexor_extensor_asymmetry")
+    confusable_with: ClassVar[tuple[str, ...]] = ("activation_dynamics",
+                                                  "flexor_extensor_asymmetry")
 
     def delay_s(self) -> float:
         return self.L_s

@@ -17,8 +17,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from nmsid.protocols.effect_defs.base import (EffectDefinition, EffectParamError, EffectParams,
-                                              FittedForm, param)
+from nmsid.protocols.effect_defs.base import (
+    EffectDefinition,
+    EffectParamError,
+    EffectParams,
+    FittedForm,
+    param,
+)
 
 
 class RecruitmentShape(enum.Enum):
@@ -193,7 +198,7 @@ def project_recruitment(h, sE_levels) -> dict:
     ]
     for shape, names, starts, bounds in trials:
         def cost(v, shape=shape, names=names):
-            params = {"shape": shape, **dict(zip(names, (float(x) for x in v)))}
+            params = {"shape": shape, **dict(zip(names, (float(x) for x in v), strict=True))}
             try:
                 m = net_static_map(RecruitmentNonlinearity(**params).h, sE_levels)
             except Exception:  # an invalid combination (e.g. threshold >= saturation)
@@ -208,7 +213,7 @@ def project_recruitment(h, sE_levels) -> dict:
             c = cost(v)
             if c < best_cost:
                 best_cost = c
-                best = {"shape": shape, **dict(zip(names, (float(x) for x in v)))}
+                best = {"shape": shape, **dict(zip(names, (float(x) for x in v), strict=True))}
     return best or {}
 
 
@@ -224,7 +229,7 @@ class RecruitmentForm(FittedForm):
 
     def physical(self, q):
         return {f"h_{k:.2f}": float(v) for k, v in
-                zip(RECRUITMENT_KNOTS[1:-1], recruitment_knot_values(q)[1:-1])}
+                zip(RECRUITMENT_KNOTS[1:-1], recruitment_knot_values(q)[1:-1], strict=True)}
 
     def fit_curve(self, q):
         return recruitment_curve(q)

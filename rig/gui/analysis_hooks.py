@@ -6,11 +6,10 @@ objects to what the panels draw, so the panels do not depend on its classes.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
-
-import dataclasses
 
 from nmsid.analysis.identify import identify_level as _identify
 from nmsid.analysis.qc import assess_level

@@ -4,22 +4,31 @@ While the engine ramps each muscle's current, force vs current is drawn per musc
 the engine reports the detected currents (Iemin/Iemax/Ifmin/Ifmax), they are marked on the
 plot (dashed vertical lines) with each muscle's force thresholds (horizontal lines in the
 muscle's colour: the extensor pushes, at +Fmin/+Fmax; the flexor pulls, at -Fmin/-Fmax)
-and copied into four editable fields. The operator confirms them as they are or after editing (or types all four by
-hand); nothing else runs before that.
+and copied into four editable fields. The operator confirms them as they are or after editing (or
+types all four by hand); nothing else runs before that.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtWidgets import (QDoubleSpinBox, QFormLayout, QGroupBox, QHBoxLayout,
-                               QLabel, QPushButton, QVBoxLayout, QWidget)
+from PySide6.QtWidgets import (
+    QDoubleSpinBox,
+    QFormLayout,
+    QGroupBox,
+    QHBoxLayout,
+    QLabel,
+    QPushButton,
+    QVBoxLayout,
+    QWidget,
+)
 
-from nmsid.rig.gui.theme import Colour
 from nmsid.protocols.session_file import Calibration
+from nmsid.rig.gui.theme import Colour
 
 #: (muscle key, label, colour, Imin attribute, Imax attribute)
 MUSCLES = (("ext", "Extensor (triceps)", Colour.I_EXT, "Iemin_mA", "Iemax_mA"),
@@ -64,7 +73,8 @@ class CalibrationPanel(QWidget):
                                               symbolBrush=colour, name=label)
             for attr in (lo, hi):
                 line = pg.InfiniteLine(angle=90, movable=False,
-                                       pen=pg.mkPen(colour, width=1.5, style=pg.QtCore.Qt.PenStyle.DashLine),
+                                       pen=pg.mkPen(colour, width=1.5,
+                                                    style=pg.QtCore.Qt.PenStyle.DashLine),
                                        label=attr.replace("_mA", ""),
                                        labelOpts={"color": colour, "position": 0.9})
                 line.setVisible(False)
@@ -73,7 +83,7 @@ class CalibrationPanel(QWidget):
         self.force_lines: dict[str, pg.InfiniteLine] = {}
         """``ext_Fmin``, ``ext_Fmax``, ``flex_Fmin``, ``flex_Fmax``: the thresholds each
         muscle's ramp is judged by (the flexor's force is negative)."""
-        for key, label, colour, _, _ in MUSCLES:
+        for key, _, colour, _, _ in MUSCLES:
             sign = -1.0 if key == "flex" else 1.0
             for name, value in (("Fmin", 0.5), ("Fmax", 5.0)):
                 line = pg.InfiniteLine(pos=sign * value, angle=0,
@@ -87,7 +97,7 @@ class CalibrationPanel(QWidget):
         self.fields: dict[str, QDoubleSpinBox] = {}
         form_box = QGroupBox("Currents (edit if needed, then confirm)")
         form = QFormLayout(form_box)
-        for key, label, colour, lo, hi in MUSCLES:
+        for *_, lo, hi in MUSCLES:
             for attr in (lo, hi):
                 spin = QDoubleSpinBox()
                 spin.setRange(0.0, 200.0)
@@ -152,7 +162,8 @@ class CalibrationPanel(QWidget):
             I = calibration.ramps.get(f"{key}_I_mA") if calibration.ramps else None
             F = calibration.ramps.get(f"{key}_force_N") if calibration.ramps else None
             if I is not None and F is not None and not self.points[key]:
-                self.points[key] = list(zip(np.asarray(I, float), np.asarray(F, float)))
+                self.points[key] = list(zip(np.asarray(I, float), np.asarray(F, float),
+                                            strict=True))
                 self.curves[key].setData(np.asarray(I, float), np.asarray(F, float))
         self.status.setText("Detected currents are marked. Check them against the ramp, "
                             "edit if needed, then press Confirm calibration.")

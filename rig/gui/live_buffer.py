@@ -117,7 +117,8 @@ class LiveBuffer:
         n = len(arrays[0])
         if any(len(a) != n for a in arrays):
             raise ValueError("live buffer chunk arrays differ in length: "
-                             + ", ".join(f"{s}={len(a)}" for s, a in zip(SIGNALS, arrays)))
+                             + ", ".join(f"{s}={len(a)}"
+                                         for s, a in zip(SIGNALS, arrays, strict=True)))
         if n == 0:
             return
         idx = np.arange(start_index, start_index + n, dtype=np.int64)

@@ -8,8 +8,8 @@ Threads: the engine runs in the controller's worker thread; its notifications ar
 queued signals (slots below run in the GUI thread); chunks go to the live buffer that the
 plot timer reads. Identification and model selection run in worker pools. The methods
 ``start_session``, ``confirm_calibration``, ``press_estop``, ``rearm``, ``pause``,
-``resume``, ``skip``, ``rerun``, ``end_session``, ``add_note`` and ``save_screenshot`` are the Python API a
-script or a test uses to drive the window as an operator would.
+``resume``, ``skip``, ``rerun``, ``end_session``, ``add_note`` and ``save_screenshot`` are the
+Python API a script or a test uses to drive the window as an operator would.
 """
 
 from __future__ import annotations
@@ -17,15 +17,13 @@ from __future__ import annotations
 import logging
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from PySide6.QtCore import Qt, QTimer
+from PySide6.QtWidgets import QLabel, QMainWindow, QSplitter, QTabWidget, QVBoxLayout, QWidget
 
 import nmsid.rig.gui.qt_compat  # noqa: F401  (before any signal is emitted)
-from PySide6.QtWidgets import (QLabel, QMainWindow, QSplitter, QTabWidget, QVBoxLayout,
-                               QWidget)
-
 from nmsid.protocols.session_file import read_session, utc_now
 from nmsid.rig.errors import RequestError
 from nmsid.rig.gui import analysis_hooks
@@ -39,8 +37,7 @@ from nmsid.rig.gui.observer import EngineSignals
 from nmsid.rig.gui.results_panel import ResultsPanel
 from nmsid.rig.gui.safety_panel import SafetyPanel, install_estop_shortcuts
 from nmsid.rig.gui.schedule_panel import SchedulePanel, planned_fields, status_name
-from nmsid.rig.gui.session_controller import (DevicesFactory, SessionController,
-                                              load_session_config)
+from nmsid.rig.gui.session_controller import DevicesFactory, SessionController, load_session_config
 from nmsid.rig.gui.setup_panel import SessionRequest, SetupPanel
 from nmsid.rig.gui.trial_qc import TrialQC
 from nmsid.rig.observer import is_rerun_wait

@@ -19,7 +19,6 @@ import threading
 from PySide6.QtCore import QObject, Signal
 
 import nmsid.rig.gui.qt_compat  # noqa: F401  (before any signal is emitted)
-
 from nmsid.rig.engine import EngineObserver
 from nmsid.rig.gui.live_buffer import LiveBuffer
 

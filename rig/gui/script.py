@@ -249,8 +249,8 @@ def load_script(name_or_path: str) -> list[Step]:
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise InputFileMissing(f"{path}: cannot read the GUI script ({exc.strerror}); give a script "
-                      "file or 'demo'") from None
+        raise InputFileMissing(f"{path}: cannot read the GUI script ({exc.strerror}); give a "
+                               "script file or 'demo'") from None
     return parse_script(text, str(path))
 
 

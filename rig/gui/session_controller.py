@@ -11,21 +11,21 @@ from __future__ import annotations
 import dataclasses
 import logging
 import threading
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from PySide6.QtCore import QObject, Qt, Signal
 
-from nmsid.errors import NmsidError
 from nmsid.drivers.interfaces import RigDevices
+from nmsid.errors import NmsidError
 from nmsid.protocols.config import Config, config_from_json, load_config
 from nmsid.protocols.session_file import read_session
 from nmsid.protocols.user_values import one_line
 from nmsid.rig.engine import Engine
-from nmsid.rig.observer import RunSummary
 from nmsid.rig.gui.live_buffer import LiveBuffer
 from nmsid.rig.gui.observer import EngineSignals, Mailbox, QtEngineObserver
 from nmsid.rig.gui.setup_panel import Backend, SessionRequest
+from nmsid.rig.observer import RunSummary
 from nmsid.rig.session_service import PreparedRig, RigRequest, prepare_rig, stored_session
 
 log = logging.getLogger(__name__)

@@ -11,13 +11,23 @@ import enum
 import json
 import logging
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
-from PySide6.QtWidgets import (QCheckBox, QComboBox, QFileDialog, QFormLayout, QGroupBox,
-                               QHBoxLayout, QLabel, QLineEdit, QPushButton, QVBoxLayout,
-                               QWidget)
+from PySide6.QtWidgets import (
+    QCheckBox,
+    QComboBox,
+    QFileDialog,
+    QFormLayout,
+    QGroupBox,
+    QHBoxLayout,
+    QLabel,
+    QLineEdit,
+    QPushButton,
+    QVBoxLayout,
+    QWidget,
+)
 
 from nmsid.errors import NmsidError
 from nmsid.protocols.config import config_from_json
@@ -25,8 +35,8 @@ from nmsid.protocols.errors import OutputPathError
 from nmsid.protocols.output_paths import check_output as check_output_place
 from nmsid.protocols.output_paths import check_session_name, default_sessions_dir
 from nmsid.protocols.session_file import PARTICIPANT_PATTERN, SessionWriter, read_session
-from nmsid.rig.errors import RequestError
 from nmsid.protocols.user_values import one_line, parse_seed
+from nmsid.rig.errors import RequestError
 from nmsid.rig.gui.theme import Colour
 from nmsid.rig.session_log import journal_dir
 
@@ -157,7 +167,7 @@ def default_output(participant: str, outdir: str | os.PathLike | None = None) ->
     """``sessions/<participant>-<UTC time>.h5`` (the name ``nmsid run`` uses; the folder
     is ``default_sessions_dir()``, never inside the Windows folder)."""
     import datetime as dt
-    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
     return Path(outdir or default_sessions_dir()) / f"{participant}-{stamp}.h5"
 
 
@@ -233,7 +243,8 @@ class SetupPanel(QWidget):
         def browse():
             if save:
                 path, _ = QFileDialog.getSaveFileName(self, "Session file", edit.text(),
-                                                      f"*.{ext}", options=QFileDialog.Option.DontConfirmOverwrite)
+                                                      f"*.{ext}",
+                                                      options=QFileDialog.Option.DontConfirmOverwrite)
             else:
                 path, _ = QFileDialog.getOpenFileName(self, "Open", edit.text(), f"*.{ext}")
             if path:

@@ -170,7 +170,9 @@ def sensor_wiring(bench: FakeBench, channels: dict, volts_per_unit: dict, offset
         i = axes.index(axis)
         comp = d[i] if i < 3 else 0.0
 
-        def fn(t, force, comp=comp, k=volts_per_unit[axis], o=offset_V.get(axis, 0.0)):
+        o = offset_V.get(axis, 0.0)
+
+        def fn(t, force, comp=comp, k=volts_per_unit[axis], o=o):
             return force * comp * k + o + noise_V * rng.standard_normal(len(t))
         wiring[ch] = fn
     if sync_channel is not None:

@@ -99,7 +99,7 @@ class _Func:
         if len(args) != len(self.argtypes):
             raise TypeError(f"{self.__name__}: this function takes {len(self.argtypes)} "
                             f"arguments ({len(args)} given)")
-        for i, (a, t) in enumerate(zip(args, self.argtypes)):
+        for i, (a, t) in enumerate(zip(args, self.argtypes, strict=True)):
             try:
                 t.from_param(a)
             except TypeError as exc:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+
 class _NetInt(int):
     MIN, MAX, NAME = 0, 0, ""
 

@@ -68,14 +68,27 @@ import types
 
 import numpy as np
 
-from nmsid.testing.fakes.fake_dotnet import (Int32, ObjectDisposedException, UInt32,
-                                             UInt64, CUsbExceptionNet, _ArrayFactory, _require)
-from nmsid.testing.fakes.fake_stg_device import (_INF, POINT_BYTES, DeviceEnumNet,
-                                                 FakeStgHardware, RetriggerActionEnumNet,
-                                                 STG_DestinationEnumNet,
-                                                 Stg200xSegmentFlagsEnumNet,
-                                                 Stg200xTriggerStatusEnumNet,
-                                                 Stg5OvercurrentStatusEnumNet, StgStatusNet)
+from nmsid.testing.fakes.fake_dotnet import (
+    CUsbExceptionNet,
+    Int32,
+    ObjectDisposedException,
+    UInt32,
+    UInt64,
+    _ArrayFactory,
+    _require,
+)
+from nmsid.testing.fakes.fake_stg_device import (
+    _INF,
+    POINT_BYTES,
+    DeviceEnumNet,
+    FakeStgHardware,
+    RetriggerActionEnumNet,
+    Stg5OvercurrentStatusEnumNet,
+    Stg200xSegmentFlagsEnumNet,
+    Stg200xTriggerStatusEnumNet,
+    STG_DestinationEnumNet,
+    StgStatusNet,
+)
 
 
 class CMcsUsbListEntryNet:
@@ -105,7 +118,7 @@ class _Registry:
     hardware: list[FakeStgHardware] = []
     bench = None
     references: list[str] = []
-    devices: list["CStg200xDownloadNet"] = []
+    devices: list[CStg200xDownloadNet] = []
     #: runtimes pythonnet.load was asked for, and the one loaded (None: not yet)
     runtime_loads: list[str | None] = []
     runtime_loaded: str | None = None

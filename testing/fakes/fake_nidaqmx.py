@@ -56,6 +56,7 @@ import sys
 import threading
 import types
 import warnings
+from typing import Any
 
 import numpy as np
 
@@ -164,7 +165,7 @@ def sync_terminal(device: str) -> str:
 
 
 class _State:
-    bench = None
+    bench: Any = None          # the FakeBench the fake reads (None until one is wired)
     devices: dict = {}
     wiring: dict = {}
     di_lines: dict = {}
@@ -240,7 +241,8 @@ class _Timing:
         top = float(entry.get("ai_max_multi_chan_rate", 400e3))
         if self.ai_conv_rate > top:
             warnings.warn(DaqWarning(f"{MESSAGES[200012]} (device {dev}: {n} channels x "
-                                     f"{self.samp_clk_rate:g} Hz > {top:g} S/s)", 200012))
+                                     f"{self.samp_clk_rate:g} Hz > {top:g} S/s)", 200012),
+                          stacklevel=2)
 
 
 class _StartTrigger:

@@ -431,7 +431,7 @@ class FakeRehastim2:
             return
         # SM2 4.3: "if (pw < 20) then pw = 20"
         values = {ch: (max(pw, sm2.MIN_PULSE_WIDTH_US), cur)
-                  for ch, (_m, pw, cur) in zip(self.active, params)}
+                  for ch, (_m, pw, cur) in zip(self.active, params, strict=True)}
         if now < self._update_ack_due or (self.busy_fraction > 0 and
                                            self._rng.random() < self.busy_fraction):
             # SM2 5.1 -8 busy error: "wait for the response packet" of the predecessor

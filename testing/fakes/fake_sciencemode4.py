@@ -432,7 +432,7 @@ class FakeSm4:
         t = np.atleast_1d(np.asarray(t, dtype=np.float64))
         out = np.zeros(len(t))
         with self.lock:
-            ps = [(p[0], pts) for p, pts in zip(self.pulses, self.pulse_points)
+            ps = [(p[0], pts) for p, pts in zip(self.pulses, self.pulse_points, strict=True)
                   if p[1] == channel + 1]
         for t0, pts in ps:
             edge = t0

@@ -227,7 +227,7 @@ class FakeStgHardware:
         "bypasses ... while a biphasic stimulation pulse is active") at the first output
         tick whose bit 1 is clear."""
         tr = self.triggers[trigger]
-        if not self.save_stop_marked(trigger, t):
+        if tr.run_t is None or not self.save_stop_marked(trigger, t):
             return t
         k0 = int(np.floor((t - tr.run_t) * self.output_rate_Hz + 1e-9))
         for s in range(self.n_sync):
@@ -284,6 +284,7 @@ class FakeStgHardware:
                 out.append(S.Armed)
                 continue
             end = self._end(tr)
+            assert tr.run_t is not None          # _end refuses a trigger that never ran
             if t < tr.run_t and (tr.stop_t is None or t < tr.stop_t):
                 out.append(self.start_status)
             elif t < end:

@@ -39,8 +39,14 @@ import types
 import numpy as np
 
 from nmsid.testing.fakes import fake_mcs_usb
-from nmsid.testing.fakes.fake_dotnet import (CUsbExceptionNet, Int16, NetArray, UInt16,
-                                             UInt32, _require)
+from nmsid.testing.fakes.fake_dotnet import (
+    CUsbExceptionNet,
+    Int16,
+    NetArray,
+    UInt16,
+    UInt32,
+    _require,
+)
 
 
 def _require_array(value, kind, what):

@@ -6,10 +6,10 @@ and the driver opens the slave side (``emulator.port``, a path) with pyserial ex
 it opens the sensor's virtual COM port; on Windows, which has no ``pty`` / ``tty``
 (imported lazily, only for the POSIX transport), ``emulator.port`` is a pyserial URL
 ``leptrinoemu://<name>`` served in-process by :mod:`nmsid.testing.fakes.protocol_leptrinoemu`
-(registered in pyserial's ``protocol_handler_packages``). Either way it runs in a thread. Its byte codec is written independently of
-``drivers.leptrino_protocol`` (so a shared mistake cannot pass unnoticed): frames are
-``DLE STX LEN TERM CMD RES DATA DLE ETX BCC`` with DLE doubled inside and BCC = XOR of the
-unstuffed payload and ETX; a command with a bad BCC is answered ``DLE NAK``.
+(registered in pyserial's ``protocol_handler_packages``). Either way it runs in a thread. Its byte
+codec is written independently of ``drivers.leptrino_protocol`` (so a shared mistake cannot pass
+unnoticed): frames are ``DLE STX LEN TERM CMD RES DATA DLE ETX BCC`` with DLE doubled inside and
+BCC = XOR of the unstuffed payload and ETX; a command with a bad BCC is answered ``DLE NAK``.
 
 Faults, settable from a test while it runs: ``nak_next`` (answer the next N commands with
 NAK), ``corrupt_every`` (every Nth data frame gets a wrong BCC), ``garbage_every`` (random
@@ -130,7 +130,7 @@ class InProcessTransport:
             self.cond.notify_all()
 
 
-_INPROCESS: dict[str, "LeptrinoEmulator"] = {}
+_INPROCESS: dict[str, LeptrinoEmulator] = {}
 """In-process emulators by name (``leptrinoemu://<name>``)."""
 _names = itertools.count(1)
 
@@ -382,7 +382,7 @@ class LeptrinoEmulator:
     def _record(self, t: float, cmd: int = 0x32) -> bytes:
         wrench = self.wrench_fn(t)
         raw = [max(-FULL_SCALE, min(FULL_SCALE, int(round(w / r * 10000.0))))
-               for w, r in zip(wrench, self.rated)]
+               for w, r in zip(wrench, self.rated, strict=True)]
         status = int(self.status_fn(t)) & 0xFF
         reserved = 0x09C4
         if self.reserved_bits_random:  # 6.1: bits 3-7 and the 2 bytes after Mz reserved
@@ -404,7 +404,8 @@ class LeptrinoEmulator:
                 if self.corrupt_every and self.frames_sent % self.corrupt_every == 0:
                     frame[-1] ^= 0x5A
                 if self.garbage_every and self.frames_sent % self.garbage_every == 0:
-                    self._send(bytes(self.rng.randrange(256) for _ in range(self.rng.randint(1, 9))))
+                    n_garbage = self.rng.randint(1, 9)
+                    self._send(bytes(self.rng.randrange(256) for _ in range(n_garbage)))
                 self._send(bytes(frame))
 
     def _reply(self, frame: bytes):

@@ -30,6 +30,8 @@ def register() -> None:
 class Serial(SerialBase):
     """A pyserial port connected to one in-process emulator transport."""
 
+    is_open: bool                       # SerialBase's (set in its __init__)
+
     def open(self):
         from nmsid.testing.fakes.leptrino_emulator import inprocess_transport  # noqa: PLC0415
         if self._port is None:

@@ -90,7 +90,8 @@ def test_twin_simulate_chirp_and_csv(tmp_path, capsys):
     t = np.arange(2000) / 500.0
     with open(inp, "w") as fh:
         fh.write("t_s,rE,sE\n")
-        for a, b, c in zip(t, 0.5 + 0.2 * np.sin(2 * np.pi * t), np.linspace(0.3, 0.9, 2000)):
+        for a, b, c in zip(t, 0.5 + 0.2 * np.sin(2 * np.pi * t), np.linspace(0.3, 0.9, 2000),
+                           strict=True):
             fh.write(f"{a},{b},{c}\n")
     out2 = tmp_path / "force2.csv"
     assert main(["twin", "simulate", str(tp), "--input", str(inp), "--out", str(out2)]) == 0

@@ -6,9 +6,9 @@ import json
 import h5py
 import pytest
 
-from nmsid.cli.identify_command import EXIT_NOTHING_IDENTIFIED
 from nmsid.analysis.twin import Curve, Twin
 from nmsid.cli import main
+from nmsid.cli.identify_command import EXIT_NOTHING_IDENTIFIED
 
 
 @pytest.fixture

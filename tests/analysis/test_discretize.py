@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 from scipy.signal import cont2discrete, lfilter
 
-from nmsid.analysis.discretize import (foh_coefficients, foh_state_matrices,
-                                       smooth_hold_input)
+from nmsid.analysis.discretize import foh_coefficients, foh_state_matrices, smooth_hold_input
 
 CASES = [(8.0, 0.2, 5e-4), (30.0, 0.7, 5e-3), (60.0, 1.0, 5e-3), (45.0, 1.2, 5e-4),
          (500.0, 0.1, 5e-3), (20.0, 1.0 + 1e-9, 1e-3), (3000.0, 3.0, 5e-3)]
@@ -78,6 +77,6 @@ def test_coefficient_derivatives_are_central_differences_of_the_array_form(wn, z
         assert np.array_equal(dnum[j], (n_hi - n_lo) / (2 * step))
         assert np.array_equal(dden[j], (d_hi - d_lo) / (2 * step))
     again = d.foh_coefficients_with_derivatives(lw, lz, dt)
-    assert all(a is b for a, b in zip(again, (num, den, dnum, dden)))
+    assert all(a is b for a, b in zip(again, (num, den, dnum, dden), strict=True))
     with pytest.raises(ValueError):
         num[0] = 0.0

@@ -4,8 +4,12 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from nmsid.analysis.discretize import (fractional_delay, lagged_second_order_tf, parallel_tf,
-                                       second_order_tf)
+from nmsid.analysis.discretize import (
+    fractional_delay,
+    lagged_second_order_tf,
+    parallel_tf,
+    second_order_tf,
+)
 
 
 def _scipy_foh(num, den, dt):

@@ -116,8 +116,9 @@ def test_a_saturating_loss_is_not_reported_short():
 def test_the_sentence_gives_figure_and_interval_in_one_sign_convention():
     """Issue 39: 'the gain gained 0.2 % (95 % CI -0.7 to 0.3 %)' mixed an absolute figure
     with a signed interval of the loss."""
-    base = dict(se_pct=0.3, rate_per_100s=-0.03, z=-0.5, significant=False,
-                total_stim_s=675.0, n_trials=45, n_levels=15, dof=29, residual_sd_pct=5.0)
+    base = {"se_pct": 0.3, "rate_per_100s": -0.03, "z": -0.5, "significant": False,
+            "total_stim_s": 675.0, "n_trials": 45, "n_levels": 15, "dof": 29,
+            "residual_sd_pct": 5.0}
     up = FatigueResult(loss_pct=-0.2, ci_low_pct=-0.7, ci_high_pct=0.3, **base)
     assert "gained 0.2 % (95 % CI -0.3 to 0.7 % gained)" in up.sentence()
     down = FatigueResult(loss_pct=12.0, ci_low_pct=9.0, ci_high_pct=15.5,

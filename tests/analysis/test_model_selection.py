@@ -5,8 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from nmsid.analysis.model_selection import (AVERAGE_LABEL, ParticipantParameters, compare_models,
-                                            select_models)
+from nmsid.analysis.model_selection import (
+    AVERAGE_LABEL,
+    ParticipantParameters,
+    compare_models,
+    select_models,
+)
 from nmsid.analysis.settings import IdentificationSettings
 
 
@@ -90,9 +94,9 @@ def test_group_average_and_aicc_sums():
 def test_sessions_of_one_participant_are_one_participant():
     """Issue 39: two sessions of P1 were the two participants "P1" and "P1#2"."""
     x = np.linspace(0.3, 1.0, 6)
-    p = ParticipantParameters("P1", x, {n: 1 + x for n in ("Kp", "wn_rad_s", "zeta")})
-    q = ParticipantParameters("P1", x[:4], {n: 3 + x[:4] for n in ("Kp", "wn_rad_s", "zeta")})
-    r = ParticipantParameters("P2", x, {n: 2 + x for n in ("Kp", "wn_rad_s", "zeta")})
+    p = ParticipantParameters("P1", x, dict.fromkeys(("Kp", "wn_rad_s", "zeta"), 1 + x))
+    q = ParticipantParameters("P1", x[:4], dict.fromkeys(("Kp", "wn_rad_s", "zeta"), 3 + x[:4]))
+    r = ParticipantParameters("P2", x, dict.fromkeys(("Kp", "wn_rad_s", "zeta"), 2 + x))
     sel = select_models([p, r, q])
     assert sel.participants == ["P1", "P2"]
     kp = sel.comparison("Kp", "P1")

@@ -6,8 +6,12 @@ import numpy as np
 import pytest
 
 from nmsid.analysis.errors import IdentificationError, SettingError
-from nmsid.analysis.preprocess import (linear_detrend, preprocess_trials, smooth_and_lowpass,
-                                       window_indices)
+from nmsid.analysis.preprocess import (
+    linear_detrend,
+    preprocess_trials,
+    smooth_and_lowpass,
+    window_indices,
+)
 from nmsid.analysis.settings import IdentificationSettings
 from nmsid.protocols.session_file import Trial
 

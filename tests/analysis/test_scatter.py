@@ -83,7 +83,7 @@ def test_identify_recovers_an_independent_generators_scatter(tmp_path):
     res = identify_session(path)
     sc = res.scatter
     assert isinstance(sc, ScatterResult) and len(sc.levels) == 6 and sc.Kp.dof == 18
-    for name, truth in zip(("Kp", "wn_rad_s", "zeta"), cv):
+    for name, truth in zip(("Kp", "wn_rad_s", "zeta"), cv, strict=True):
         p = sc.pooled(name)
         assert p.ci_low_pct < 100 * truth < p.ci_high_pct, (name, p)
         assert p.estimation_cv_pct < 0.3 * p.cv_pct

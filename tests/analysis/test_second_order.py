@@ -37,7 +37,7 @@ def test_step_closed_form(Kp, wn, zeta):
     h = 1 / fs
     # piecewise-linear input: ramp from t[k0-1] to t[k0]
     y = (ramp_response(t - t[k0 - 1], Kp, wn, zeta) - ramp_response(t - t[k0], Kp, wn, zeta)) / h
-    from scipy.signal import lsim                        # the closed form is right
+    from scipy.signal import lsim  # the closed form is right
     assert np.max(np.abs(y - lsim(([Kp * wn * wn], [1, 2 * zeta * wn, wn * wn]), u, t)[1])) \
         < 1e-9 * Kp
     f = fit_second_order(u - u.mean(), y + 0.7, fs, LINEAR)
@@ -65,9 +65,9 @@ def test_sum_of_sines_steady_state_smooth_input(fs, Kp, wn, zeta):
     t = np.arange(int(6 * fs)) / fs
     freqs = [1.0, 2.3, 3.7, 5.1, 7.9]
     phases = [0.1, 1.0, 2.0, 0.5, 3.0]
-    u = sum(0.1 * np.sin(2 * np.pi * f * t + p) for f, p in zip(freqs, phases))
+    u = sum(0.1 * np.sin(2 * np.pi * f * t + p) for f, p in zip(freqs, phases, strict=True))
     y = np.zeros_like(t)
-    for f, p in zip(freqs, phases):
+    for f, p in zip(freqs, phases, strict=True):
         s = 2j * np.pi * f
         g = Kp * wn ** 2 / (s * s + 2 * zeta * wn * s + wn ** 2)
         y += 0.1 * abs(g) * np.sin(2 * np.pi * f * t + p + np.angle(g))

@@ -55,4 +55,4 @@ def test_identify_sets_the_count_before_numpy_is_imported(tmp_path):
 
 def test_other_commands_keep_the_default(tmp_path):
     out = _run(["validate", str(tmp_path / "missing.toml")], tmp_path)
-    assert out["env"] == {k: None for k in BLAS_THREAD_VARIABLES}
+    assert out["env"] == dict.fromkeys(BLAS_THREAD_VARIABLES)

@@ -8,8 +8,17 @@ import pytest
 
 from nmsid.cli import main, report
 from nmsid.drivers.errors import DeviceNotFound
-from nmsid.errors import (EXIT_BUG, EXIT_DEVICE_FAULT, EXIT_SAFETY, EXIT_USER_ERROR,
-                          DeviceFault, MissingDependency, NmsidError, SafetyError, UserError)
+from nmsid.errors import (
+    EXIT_BUG,
+    EXIT_DEVICE_FAULT,
+    EXIT_SAFETY,
+    EXIT_USER_ERROR,
+    DeviceFault,
+    MissingDependency,
+    NmsidError,
+    SafetyError,
+    UserError,
+)
 from nmsid.protocols.errors import ConfigError
 from nmsid.sim_backends.errors import DeviceStateError
 

@@ -6,13 +6,13 @@ from __future__ import annotations
 import argparse
 
 import pytest
+
 from nmsid.cli import main
 from nmsid.cli.arguments import seed
 from nmsid.cli.exit_status import run_exit_status
+from nmsid.errors import EXIT_USER_ERROR, DeviceFault, SafetyError
 from nmsid.protocols.session_file import SessionWriter, read_session
 from nmsid.protocols.user_values import MAX_SESSION_NAME_BYTES, parse_seed
-
-from nmsid.errors import EXIT_USER_ERROR, DeviceFault, SafetyError
 
 TRIP = ("[protocol]\nsE_levels = [0.4, 0.6]\nrepeats = 1\nsteady_s = 1.0\nchirp_s = 2.0\n"
         "[calibration]\nmanual = {Iemin_mA = 2.0, Iemax_mA = 9.5, Ifmin_mA = 1.5, "

@@ -9,15 +9,19 @@ import pytest
 
 from nmsid.drivers.analog_force import AnalogCalibration
 from nmsid.drivers.caio import CaioAcquisition, declare, load_caio
-from nmsid.drivers.errors import (DeviceError, DeviceNotFound, HardwareConfigError,
-                                  VendorLibraryMissing)
+from nmsid.drivers.errors import (
+    DeviceError,
+    DeviceNotFound,
+    HardwareConfigError,
+    VendorLibraryMissing,
+)
 from nmsid.drivers.fake_hardware import load_fake
 from nmsid.drivers.interfaces import CheckedWaveform
 from nmsid.drivers.stg4002 import Stg4002Stimulator
 
 CAL = AnalogCalibration(channels={"Fx": 0, "Fy": 1, "Fz": 2, "Mx": 3, "My": 4, "Mz": 5},
                         rated={"Fx": 500, "Fy": 500, "Fz": 1000, "Mx": 10, "My": 10, "Mz": 10},
-                        rated_output_V={a: 10.0 for a in ("Fx", "Fy", "Fz", "Mx", "My", "Mz")},
+                        rated_output_V=dict.fromkeys(("Fx", "Fy", "Fz", "Mx", "My", "Mz"), 10.0),
                         offset_V={"Fx": 0.1}, sync_channel=6)
 
 

@@ -10,11 +10,11 @@ import pytest
 
 from nmsid.cli import main
 from nmsid.drivers.dry_run import DryRunSettings, check_loopback
-from nmsid.drivers.registry import stimulator_kind
-from nmsid.rig.dry_run import run_dry_run
 from nmsid.drivers.errors import HardwareConfigError, StimulatorSettingError
 from nmsid.drivers.hardware import build_devices, with_monitor
 from nmsid.drivers.hw_config import load_hw_config
+from nmsid.drivers.registry import stimulator_kind
+from nmsid.rig.dry_run import run_dry_run
 
 CHECKS = ("onset", "force record", "amplitude", "carrier", "envelope", "charge balance")
 

@@ -12,13 +12,12 @@ import json
 import numpy as np
 import pytest
 
+from nmsid.cli import main
 from nmsid.drivers.fake_hardware import load_fake
 from nmsid.drivers.hardware import make_hw_rig
 from nmsid.protocols.config import config_from_dict
-from nmsid.cli import main
-from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
 from nmsid.protocols.session_file import read_session, validate_session
-
+from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
 
 #: The fakes run in real time; on a loaded 2-core machine a chunk can come 100+ ms late,
 #: which the default 100 ms stall rule would rightly trip on. These tests are about the

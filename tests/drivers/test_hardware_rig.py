@@ -6,6 +6,7 @@ import sys
 
 import pytest
 
+from nmsid.cli import main
 from nmsid.drivers.caio import CaioAcquisition
 from nmsid.drivers.estop_switch import NidaqEStop, SerialEStop
 from nmsid.drivers.hardware import make_hw_rig
@@ -13,7 +14,6 @@ from nmsid.drivers.interfaces import ForceAcquisition, RigDevices, Stimulator
 from nmsid.drivers.leptrino import LeptrinoAcquisition
 from nmsid.drivers.nidaq import NidaqAcquisition
 from nmsid.drivers.stg4002 import Stg4002Stimulator
-from nmsid.cli import main
 
 
 @pytest.mark.parametrize("kind, estop, inner, estop_cls", [
@@ -73,8 +73,8 @@ def test_probe_never_stimulates(write_hw_config, tmp_path, capsys):
 @pytest.mark.parametrize("kind, missing, text", [
     ("caio", "clr", "pythonnet"),
     ("nidaq", "nidaqmx", "nidaqmx")])
-def test_missing_vendor_library_is_one_line_exit_2(write_hw_config, tmp_path, capsys, monkeypatch, kind,
-                                                    missing, text, child_modules):
+def test_missing_vendor_library_is_one_line_exit_2(write_hw_config, tmp_path, capsys, monkeypatch,
+                                                    kind, missing, text, child_modules):
     from nmsid.drivers.fake_hardware import load_fake
     from tests.drivers.conftest import FAKE_MCS_IN_CHILD
     if kind == "nidaq":  # pythonnet present (fake), nidaqmx absent

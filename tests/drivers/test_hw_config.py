@@ -33,7 +33,8 @@ def test_minimal_config_defaults():
 
 
 @pytest.mark.parametrize("patch, message", [
-    ({"acquisition": {"kind": "labjack"}}, r"acquisition.kind = 'labjack'.*'caio', 'nidaq' or 'leptrino'"),
+    ({"acquisition": {"kind": "labjack"}},
+     r"acquisition.kind = 'labjack'.*'caio', 'nidaq' or 'leptrino'"),
     ({"stimulator": {"ceiling_ext_mA": -1}}, r"stimulator.ceiling_ext_mA = -1"),
     ({"stimulator": {"flexor_channel": 1}}, r"stimulator.flexor_channel.*differ"),
     ({"stimulator": {"sync_out": 0}}, r"stimulator.sync_out = 0"),

@@ -5,9 +5,16 @@ from __future__ import annotations
 
 import pytest
 
-from nmsid.drivers.interfaces import (BIPHASIC_PULSES, DeliveryCheckError, DeliveryReporting,
-                                      Describable, RecoverableAcquisition,
-                                      StimulatorCapabilities, Waveshape, check_deliverable)
+from nmsid.drivers.interfaces import (
+    BIPHASIC_PULSES,
+    DeliveryCheckError,
+    DeliveryReporting,
+    Describable,
+    RecoverableAcquisition,
+    StimulatorCapabilities,
+    Waveshape,
+    check_deliverable,
+)
 
 STG = StimulatorCapabilities(2, 16.0, 0.001, 50_000.0, model="STG")
 RS2 = StimulatorCapabilities(8, 130.0, 1.0, 40.0, model="RehaStim2",

@@ -5,12 +5,26 @@ from __future__ import annotations
 import struct
 
 import numpy as np
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from nmsid.drivers.leptrino_protocol import (
-    DLE, ETX, STX, Command, Corrupt, Frame, FrameDecoder, Nak, Status, bcc,
-    encode_command, encode_frame, parse_data_record, parse_product_info,
-    parse_rated_values)
+    DLE,
+    ETX,
+    STX,
+    Command,
+    Corrupt,
+    Frame,
+    FrameDecoder,
+    Nak,
+    Status,
+    bcc,
+    encode_command,
+    encode_frame,
+    parse_data_record,
+    parse_product_info,
+    parse_rated_values,
+)
 
 
 def test_command_bytes_match_vendor_sample():

@@ -15,8 +15,14 @@ import pytest
 from nmsid.drivers.errors import HardwareConfigError, ProtocolError
 from nmsid.drivers.hw_config import load_hw_config
 from nmsid.drivers.leptrino import NOMINAL_RATE_HZ, LeptrinoAcquisition, LeptrinoSensor
-from nmsid.drivers.leptrino_protocol import (Frame, Status, parse_data_record, parse_product_info,
-                                             parse_rate_text, parse_rated_values)
+from nmsid.drivers.leptrino_protocol import (
+    Frame,
+    Status,
+    parse_data_record,
+    parse_product_info,
+    parse_rate_text,
+    parse_rated_values,
+)
 from tests.drivers.test_leptrino_driver import collect
 
 RATED = (500.0, 500.0, 1000.0, 10.0, 10.0, 10.0)

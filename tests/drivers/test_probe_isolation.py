@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from nmsid.drivers.fake_hardware import load_fake
 from nmsid.cli import main
+from nmsid.drivers.fake_hardware import load_fake
 
 
 def _unplug_stimulator(monkeypatch):

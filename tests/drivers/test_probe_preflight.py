@@ -4,6 +4,7 @@ current or dummy load out of range is one line, exit 2, and no device was probed
 from __future__ import annotations
 
 import pytest
+
 from nmsid.cli import main
 
 

@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 from nmsid.drivers import registry
-from nmsid.drivers.errors import HardwareConfigError
 from nmsid.drivers.caio import CaioAcquisition
+from nmsid.drivers.errors import HardwareConfigError
 from nmsid.drivers.estop_switch import NidaqEStop
 from nmsid.drivers.hardware import make_acquisition, make_estop, make_stimulator, prepare
 from nmsid.drivers.hw_config import AcquisitionSettings, EStopConfig, parse_hw_config

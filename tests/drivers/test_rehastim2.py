@@ -12,9 +12,16 @@ from hypothesis import strategies as st
 
 from nmsid.drivers import rehastim2_protocol as sm2
 from nmsid.drivers.errors import DeviceError, DeviceNotFound, StimulatorSettingError
-from nmsid.drivers.interfaces import (BIPHASIC_PULSES, CheckedWaveform, CurrentLimitError,
-                                      DeliveryReporting, Describable, HostStreamedStimulator,
-                                      Stimulator, StimulatorState)
+from nmsid.drivers.interfaces import (
+    BIPHASIC_PULSES,
+    CheckedWaveform,
+    CurrentLimitError,
+    DeliveryReporting,
+    Describable,
+    HostStreamedStimulator,
+    Stimulator,
+    StimulatorState,
+)
 from nmsid.drivers.rehastim2 import Rehastim2Stimulator
 from nmsid.testing.fakes.fake_rehastim2 import FakeRehastim2
 
@@ -110,7 +117,7 @@ def test_trial_delivers_the_envelope_as_pulses(rig):
     assert set(s["channels"]["flexor"]["pulse_current_mA"]) == {2}
     got = [v for _t, v in dev.updates if v]
     assert all(v[2] == (300, e) and v[6] == (300, 2) for v, e in
-               zip(got, s["channels"]["extensor"]["pulse_current_mA"]))
+               zip(got, s["channels"]["extensor"]["pulse_current_mA"], strict=True))
     assert dev.mode == 0 and dev.stops              # StopChannelListMode at the end
 
 
@@ -238,11 +245,11 @@ def test_no_device_answering_is_one_line():
                             open_port=dev.open, clock=clock, sleep=clock.sleep).connect()
 
 
-@pytest.mark.parametrize("kw", [dict(pulse_rate_Hz=33.0), dict(pulse_width_us=10),
-                                dict(extensor_channel=3, flexor_channel=3),
-                                dict(ceiling_ext_mA=131.0)])
+@pytest.mark.parametrize("kw", [{"pulse_rate_Hz": 33.0}, {"pulse_width_us": 10},
+                                {"extensor_channel": 3, "flexor_channel": 3},
+                                {"ceiling_ext_mA": 131.0}])
 def test_settings_refused(kw):
-    args = dict(ceiling_ext_mA=10.0, ceiling_flex_mA=10.0) | kw
+    args = {"ceiling_ext_mA": 10.0, "ceiling_flex_mA": 10.0} | kw
     with pytest.raises(StimulatorSettingError):
         Rehastim2Stimulator("COM9", **args)
 
@@ -294,6 +301,7 @@ def test_a_host_falling_behind_skips_late_updates_and_says_so():
         idx = s["pulse_index"]
         assert idx == sorted(idx) and len(set(idx)) == len(idx)
         # each delivered update is the envelope at its own slot
-        assert s["channels"]["extensor"]["pulse_current_mA"] == [2 * int(k / 40 * 10 / 2) for k in idx]
+        assert s["channels"]["extensor"]["pulse_current_mA"] == [2 * int(k / 40 * 10 / 2)
+                                                                 for k in idx]
     finally:
         stim.disconnect()

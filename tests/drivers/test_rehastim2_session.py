@@ -10,10 +10,11 @@ from __future__ import annotations
 import json
 
 import numpy as np
+
+from nmsid.cli import main
 from nmsid.drivers.hardware import make_hw_rig
 from nmsid.protocols.config import config_from_dict
 from nmsid.protocols.session_file import read_session, validate_session
-from nmsid.cli import main
 from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
 
 RELAXED_INTERLOCK = {"stall_timeout_s": 2.0}

@@ -9,7 +9,8 @@ import time
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from nmsid.drivers import sciencemode4_protocol as sm4
 from nmsid.drivers.errors import StimulatorSettingError
@@ -154,12 +155,12 @@ def test_a_level_left_running_is_stopped_at_connect():
 
 
 @pytest.mark.parametrize("kw,match", [
-    (dict(flexor_channel=5), "flexor_channel"),                  # RehaMove3 has 4
-    (dict(ceiling_ext_mA=150.0), "130"),
-    (dict(pulse_width_us=10), "pulse_width_us"),                 # RehaMove3 >= 20 us
-    (dict(pulse_rate_Hz=500.0), "pulse_rate_Hz")])
+    ({"flexor_channel": 5}, "flexor_channel"),                  # RehaMove3 has 4
+    ({"ceiling_ext_mA": 150.0}, "130"),
+    ({"pulse_width_us": 10}, "pulse_width_us"),                 # RehaMove3 >= 20 us
+    ({"pulse_rate_Hz": 500.0}, "pulse_rate_Hz")])
 def test_settings_outside_the_rehamove3_ranges_are_refused(kw, match):
-    base = dict(ceiling_ext_mA=20.0, ceiling_flex_mA=20.0)
+    base = {"ceiling_ext_mA": 20.0, "ceiling_flex_mA": 20.0}
     with pytest.raises(StimulatorSettingError, match=match):
         Sm4Stimulator("COM9", REHAMOVE3, **{**base, **kw})
 

@@ -4,7 +4,8 @@ and the refusals that the ``science_mode_4`` package lacks (issue 43)."""
 from __future__ import annotations
 
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from nmsid.drivers import sciencemode4_protocol as p
 from nmsid.drivers.errors import ProtocolError

@@ -6,10 +6,16 @@ import threading
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from nmsid.drivers.errors import (DeviceError, DeviceMemoryError, DeviceNotFound, DeviceRangeError,
-                                  VendorLibraryMissing)
+from nmsid.drivers.errors import (
+    DeviceError,
+    DeviceMemoryError,
+    DeviceNotFound,
+    DeviceRangeError,
+    VendorLibraryMissing,
+)
 from nmsid.drivers.interfaces import CheckedWaveform, CurrentLimitError, StimulatorState
 from nmsid.drivers.stg4002 import Stg4002Stimulator, load_mcs_usb
 from nmsid.drivers.stg_waveform import render_channel
@@ -29,7 +35,7 @@ def waveform(seconds=0.5, ceiling=12.0, seed=0):
 
 
 def stim(**kw):
-    args = dict(ceiling_ext_mA=12.0, ceiling_flex_mA=12.0, dll_path="C:/mcs/McsUsbNet.dll")
+    args = {"ceiling_ext_mA": 12.0, "ceiling_flex_mA": 12.0, "dll_path": "C:/mcs/McsUsbNet.dll"}
     args.update(kw)
     return Stg4002Stimulator(**args)
 

@@ -10,13 +10,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from nmsid.drivers.errors import ChargeBalanceError, StimulatorSettingError
 from nmsid.drivers.interfaces import CheckedWaveform
 from nmsid.drivers.stg_download import ChannelPlan, prepare_download
-from nmsid.drivers.stg_waveform import (RenderedChannel, check_charge_balance, compress,
-                                        render_channel, samples_per_period)
+from nmsid.drivers.stg_waveform import (
+    RenderedChannel,
+    check_charge_balance,
+    compress,
+    render_channel,
+    samples_per_period,
+)
 from nmsid.protocols.config import config_from_dict
 from nmsid.protocols.waveforms import trial_waveform
 

@@ -11,8 +11,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nmsid.drivers.stg_download import (BYTES_PER_POINT, SYNC_HIGH, SYNC_SAVE_STOP,
-                                        check_output_rate, save_stop_marks)
+from nmsid.drivers.stg_download import (
+    BYTES_PER_POINT,
+    SYNC_HIGH,
+    SYNC_SAVE_STOP,
+    check_output_rate,
+    save_stop_marks,
+)
 from nmsid.drivers.stg_waveform import RenderedChannel
 
 
@@ -56,9 +61,12 @@ def test_the_documented_rates_are_taken():
 
 def test_memory_figures_count_the_download_points():
     from nmsid.drivers.interfaces import CheckedWaveform  # noqa: PLC0415
-    from nmsid.drivers.stg_download import (STG4002_RANGE_NA,  # noqa: PLC0415
-                                            STG4002_RESOLUTION_NA, ChannelPlan,
-                                            prepare_download)
+    from nmsid.drivers.stg_download import (  # noqa: PLC0415
+        STG4002_RANGE_NA,
+        STG4002_RESOLUTION_NA,
+        ChannelPlan,
+        prepare_download,
+    )
     env = np.full(200, 2.0)
     dl = prepare_download(CheckedWaveform(env, env, 2000.0, 1000.0, 5.0, 5.0),
                           ChannelPlan(1, "extensor", 5.0, STG4002_RANGE_NA,

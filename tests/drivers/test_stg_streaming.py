@@ -17,10 +17,15 @@ from hypothesis import strategies as st
 
 from nmsid.drivers import mcs_surface
 from nmsid.drivers.fake_hardware import load_fake
-from nmsid.drivers.interfaces import (CurrentLimitError, HostStreamedStimulator,
-                                      StimulatorState)
-from nmsid.drivers.stg_streaming import (INT16_FULL, RING_S, StgStreamingStimulator,
-                                         StreamUnderrunError, quantum, render_periods)
+from nmsid.drivers.interfaces import CurrentLimitError, HostStreamedStimulator, StimulatorState
+from nmsid.drivers.stg_streaming import (
+    INT16_FULL,
+    RING_S,
+    StgStreamingStimulator,
+    StreamUnderrunError,
+    quantum,
+    render_periods,
+)
 
 RANGE_NA, RES_NA = 16_000_000, 500
 

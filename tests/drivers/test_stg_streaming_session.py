@@ -53,8 +53,8 @@ ceiling_flex_mA = 15.0
 @pytest.fixture(scope="module")
 def design():
     # 50 Hz updates, 20 queued (the design's most) = 400 ms ahead on the bench clock, 1 s of
-    # wall time at SPEED 0.4: a load spike on a shared 2-core host (load 8-20 seen) stalled the host for
-    # more than the 200 ms that 10 queued gave at real time, ran the fake STG dry (manual
+    # wall time at SPEED 0.4: a load spike on a shared 2-core host (load 8-20 seen) stalled the host
+    # for more than the 200 ms that 10 queued gave at real time, ran the fake STG dry (manual
     # 6.3's stop) and tripped the trial; the driver says so, the test must not depend on it
     d = design_controller(Twin.from_dict(default_participant().to_twin()), levels=2,
                           update_Hz=50.0, queue=20)
@@ -103,7 +103,7 @@ def test_tracking_session_streams_through_the_stg_driver(rig_files, capsys):
     # one streaming handle per trial, each given the stream's ceilings and the carrier
     streams = _streams()
     assert len(streams) == 3
-    for t, dev in zip(s.trials, streams):
+    for t, dev in zip(s.trials, streams, strict=True):
         sj = json.loads(t.extra_attrs["stream_json"])
         assert sj["n_updates"] > 0
         ceil = (sj["ceiling_ext_mA"], sj["ceiling_flex_mA"])

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from nmsid.drivers import stg_download
 from nmsid.drivers.errors import ChargeBalanceError
 from nmsid.drivers.interfaces import CheckedWaveform, CurrentLimitError

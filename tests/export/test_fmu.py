@@ -4,9 +4,9 @@ exchange against ``nmsid twin simulate``, refusals (docs/fmu.md)."""
 from __future__ import annotations
 
 import json
-import stat
 import os
 import shutil
+import stat
 import zipfile
 from types import SimpleNamespace
 from xml.etree import ElementTree
@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 
 from nmsid.analysis.gap.twin_out import twin_dict
-from nmsid.cli import main
 from nmsid.analysis.twin import Twin, file_sha256
+from nmsid.cli import main
+from nmsid.cli.twin_export_command import run_twin_export
 from nmsid.export.errors import FmuExportError
 from nmsid.export.fmu import export_fmu
-from nmsid.cli.twin_export_command import run_twin_export
 from nmsid.export.fmu.fmpy_support import fmpy_input, fmpy_input_derivatives_fixed, on_output_grid
 from nmsid.export.fmu.reference import TwinStepper
 from nmsid.sim_backends.participant import default_participant

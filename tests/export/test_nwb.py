@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from nmsid.protocols.session_file import (Calibration, Event, SessionWriter, Trial, read_session)
+from nmsid.protocols.session_file import Calibration, Event, SessionWriter, Trial, read_session
 
 pynwb = pytest.importorskip("pynwb")
 pytest.importorskip("nwbinspector")
@@ -56,7 +56,7 @@ def test_round_trip_every_sample(tmp_path, fs_Hz, n, wrench, gzip_level):
         assert nwb.subject.subject_id == "P-07"
         assert nwb.subject.species == "Homo sapiens"
         assert set(nwb.devices) == {"stimulator", "ad_converter", "force_sensor"}
-        for t, t0 in zip(trials, starts):
+        for t, t0 in zip(trials, starts, strict=True):
             rE = nwb.stimulus[f"rE_{t.name}"]
             np.testing.assert_array_equal(rE.data[:], t.rE)
             assert rE.rate == fs_Hz and rE.starting_time == pytest.approx(t0)

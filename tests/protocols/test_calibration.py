@@ -3,9 +3,15 @@
 import numpy as np
 import pytest
 
-from nmsid.protocols.calibration import (Muscle, detect_thresholds, manual_calibration,
-                                         ramp_currents_mA, require_thresholds, settled_mean_N,
-                                         step_envelopes)
+from nmsid.protocols.calibration import (
+    Muscle,
+    detect_thresholds,
+    manual_calibration,
+    ramp_currents_mA,
+    require_thresholds,
+    settled_mean_N,
+    step_envelopes,
+)
 from nmsid.protocols.config import CalibrationConfig, ManualCurrents
 from nmsid.protocols.errors import CalibrationError
 

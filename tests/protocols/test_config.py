@@ -1,11 +1,19 @@
 """Configuration: defaults, TOML loading, and refusal of every kind of bad value."""
 
+import dataclasses
 import json
 
 import pytest
 
-from nmsid.protocols.config import (Config, ConfigError, PausePolicy, Randomisation, config_from_dict,
-                                    config_from_json, load_config)
+from nmsid.protocols.config import (
+    Config,
+    ConfigError,
+    PausePolicy,
+    Randomisation,
+    config_from_dict,
+    config_from_json,
+    load_config,
+)
 
 
 def test_defaults_are_the_papers_protocol():
@@ -97,7 +105,8 @@ def test_bad_toml_names_the_file(tmp_path):
 
 
 def test_ceiling_above_device_range_is_refused():
-    cfg = config_from_dict({"calibration": {"ceiling_ext_mA": 10, "ceiling_flex_mA": 40}}, source="c.toml")
+    cfg = config_from_dict({"calibration": {"ceiling_ext_mA": 10, "ceiling_flex_mA": 40}},
+                           source="c.toml")
     cfg.check_device(50.0)
     with pytest.raises(ConfigError, match="calibration.ceiling_flex_mA.*at most 16"):
         cfg.check_device(16.0, "STG4002")
@@ -105,7 +114,7 @@ def test_ceiling_above_device_range_is_refused():
 
 def test_config_is_frozen():
     cfg = Config()
-    with pytest.raises(Exception):
+    with pytest.raises(dataclasses.FrozenInstanceError):
         cfg.participant = "X"  # type: ignore[misc]
 
 

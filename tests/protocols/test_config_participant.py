@@ -2,8 +2,12 @@
 
 import pytest
 
-from nmsid.protocols.config import (PARTICIPANT_MODELS, config_from_dict, config_from_json,
-                                    load_config)
+from nmsid.protocols.config import (
+    PARTICIPANT_MODELS,
+    config_from_dict,
+    config_from_json,
+    load_config,
+)
 from nmsid.protocols.errors import ConfigError
 
 

@@ -11,15 +11,26 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from nmsid.protocols.effects import CANDIDATES as GAP_CANDIDATES
-from nmsid.protocols.effects import Effect as GapEffect
 from nmsid.analysis.gap.models import FORMS, FinalContext, candidate
 from nmsid.analysis.twin import Twin
 from nmsid.export.fmu.reference import TwinStepper
-from nmsid.protocols.effects import (CANDIDATES, EFFECT_NAMES, EFFECTS, Effect, EffectParamError,
-                                     check_param, spec)
-from nmsid.sim_backends.effects import (EFFECT_TYPES, FatigueShape, RecruitmentShape,
-                                        effect_from_dict)
+from nmsid.protocols.effects import (
+    CANDIDATES,
+    EFFECT_NAMES,
+    EFFECTS,
+    Effect,
+    EffectParamError,
+    check_param,
+    spec,
+)
+from nmsid.protocols.effects import CANDIDATES as GAP_CANDIDATES
+from nmsid.protocols.effects import Effect as GapEffect
+from nmsid.sim_backends.effects import (
+    EFFECT_TYPES,
+    FatigueShape,
+    RecruitmentShape,
+    effect_from_dict,
+)
 from nmsid.sim_backends.errors import SimConfigError
 from nmsid.sim_backends.participant import default_participant
 
@@ -95,7 +106,7 @@ def test_each_form_fits_its_declared_parameters_and_writes_the_registry_names(e)
     assert all(len(g) == form.n for g in form.grid())
     cand = candidate(e)
     lo, hi = cand.bounds()
-    q = np.array([RNG.uniform(a, b) for a, b in zip(lo[:-1], hi[:-1])])
+    q = np.array([RNG.uniform(a, b) for a, b in zip(lo[:-1], hi[:-1], strict=True)])
     p = cand.params(np.append(q, 0.0)).to_dict()
     p.update({"input_timing_s": 0.0, "corner_Hz": 0.2, "amplitude_N": 0.05})
     form.final(p, FinalContext(q=q, sE_levels=np.array([0.3, 0.6, 0.9]),
@@ -221,8 +232,7 @@ def _toy_module():
     transport delay given in ms, fitted on a linear scale), acting at the ``delay`` slot."""
     from dataclasses import dataclass
 
-    from nmsid.protocols.effect_defs.base import (EffectDefinition, EffectParams, FittedForm,
-                                                  param)
+    from nmsid.protocols.effect_defs.base import EffectDefinition, EffectParams, FittedForm, param
 
     @dataclass(frozen=True)
     class TransportDelay(EffectParams):

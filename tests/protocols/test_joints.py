@@ -113,9 +113,10 @@ def test_preflight_holds_targets_to_the_joints_limit_in_its_unit():
 
 
 def test_preflight_names_the_joints_channel_roles():
+    from dataclasses import replace
+
     from nmsid.protocols.plan import Plan, PlanItem, PlanRefused, preflight
     from nmsid.protocols.session_model import Calibration
-    from dataclasses import replace
     limits = replace(RigLimits.of(config_from_dict({"joint": "ankle"})), ceiling_ext_mA=4.0)
     plan = Plan("identification", (PlanItem(0, "identification", 1.0, 15.0),))
     with pytest.raises(PlanRefused, match="plantarflexor current"):

@@ -6,9 +6,15 @@ import h5py
 import pytest
 
 from nmsid.protocols.errors import OutputPathError
-from nmsid.protocols.output_paths import (MANIFEST_NAME, TMP_PREFIX, check_output,
-                                          is_session_file, output_dir, output_file,
-                                          write_manifest)
+from nmsid.protocols.output_paths import (
+    MANIFEST_NAME,
+    TMP_PREFIX,
+    check_output,
+    is_session_file,
+    output_dir,
+    output_file,
+    write_manifest,
+)
 from nmsid.testing.platforms import WINE_SYMLINK
 
 

@@ -1,14 +1,20 @@
 """Schedule: all trials present, the randomisation rules, reproducible from the seed."""
 
 from collections import Counter
+from itertools import pairwise
 
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from nmsid.protocols.config import Randomisation
 from nmsid.protocols.errors import ScheduleError
-from nmsid.protocols.schedule import (TrialStatus, make_schedule, schedule_from_json,
-                                      schedule_to_json)
+from nmsid.protocols.schedule import (
+    TrialStatus,
+    make_schedule,
+    schedule_from_json,
+    schedule_to_json,
+)
 
 LEVELS = [round(0.30 + 0.05 * k, 2) for k in range(15)]
 
@@ -47,7 +53,7 @@ def test_blocks_order_is_actually_random():
 
 def test_full_randomisation_mixes_levels():
     s = make_schedule(LEVELS, 3, Randomisation.FULL, 4)
-    runs = sum(1 for a, b in zip(s, s[1:]) if a.sE == b.sE)
+    runs = sum(1 for a, b in pairwise(s) if a.sE == b.sE)
     assert runs < 10  # blocks would give 30 same-level neighbours
 
 

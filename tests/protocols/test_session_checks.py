@@ -10,8 +10,14 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from nmsid.protocols.session_file import (Calibration, SessionFileError, SessionWriter, Trial,
-                                          read_session, validate_session)
+from nmsid.protocols.session_file import (
+    Calibration,
+    SessionFileError,
+    SessionWriter,
+    Trial,
+    read_session,
+    validate_session,
+)
 
 
 def _good(path, n=2000):
@@ -158,7 +164,7 @@ def test_fuzzed_files_are_refused_in_one_line_or_read_correctly(tmp_path_factory
     assert s is not None
     if mutation[0] in ("flip", "truncate"):
         assert len(s.trials) == len(good.trials)
-        for a, b in zip(s.trials, good.trials):
+        for a, b in zip(s.trials, good.trials, strict=True):
             assert np.array_equal(a.force_N, b.force_N) and a.sE == b.sE
 
 

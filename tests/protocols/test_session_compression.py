@@ -5,8 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nmsid.protocols.session_file import (Calibration, SessionWriter, Trial, read_session,
-                                          validate_session)
+from nmsid.protocols.session_file import (
+    Calibration,
+    SessionWriter,
+    Trial,
+    read_session,
+    validate_session,
+)
 
 
 def _trial(rng, n, *, scale, wrench_f32):
@@ -37,7 +42,7 @@ def test_round_trip_is_bit_exact(tmp_path, level, n, scale, wrench_f32):
     _write(path, trials, level)
     back = read_session(path)
     assert validate_session(path) == []
-    for a, b in zip(trials, back.trials):
+    for a, b in zip(trials, back.trials, strict=True):
         for key in ("rE", "I_ext_mA", "I_flex_mA", "force_N", "wrench", "sync"):
             got, want = getattr(b, key), np.asarray(getattr(a, key), dtype=np.float64)
             assert got.dtype == np.float64
@@ -100,7 +105,7 @@ def test_old_uncompressed_file_reads_and_validates(tmp_path):
         f.attrs["format_version"] = 1
         c = f.create_group("calibration")
         for k, v in zip(("Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA", "Fmin_N", "Fmax_N"),
-                        (1.0, 9.0, 1.5, 10.0, 0.5, 5.0)):
+                        (1.0, 9.0, 1.5, 10.0, 0.5, 5.0), strict=True):
             c.attrs[k] = v
         g = f.create_group("trials/t001")
         for k, v in (("sE", 0.4), ("fs_Hz", 2000.0), ("steady_s", 5.0), ("chirp_s", 10.0),

@@ -8,8 +8,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from nmsid.protocols.session_file import (Calibration, SessionWriter, Trial, counts_to_values,
-                                          read_session, validate_session)
+from nmsid.protocols.session_file import (
+    Calibration,
+    SessionWriter,
+    Trial,
+    counts_to_values,
+    read_session,
+    validate_session,
+)
 
 
 def _bits(a):

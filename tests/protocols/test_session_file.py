@@ -6,8 +6,16 @@ import h5py
 import numpy as np
 import pytest
 
-from nmsid.protocols.session_file import (Calibration, Event, SessionExistsError, SessionFileError,
-                                          SessionWriter, Trial, read_session, validate_session)
+from nmsid.protocols.session_file import (
+    Calibration,
+    Event,
+    SessionExistsError,
+    SessionFileError,
+    SessionWriter,
+    Trial,
+    read_session,
+    validate_session,
+)
 
 
 def make_trial(n=200, sE=0.5, repeat=1, status="completed", reason="", **kw):

@@ -9,8 +9,14 @@ import h5py
 import numpy as np
 import pytest
 
-from nmsid.protocols.session_h5 import (float64_buffers, has_attr, open_group, open_member,
-                                       read_attrs, read_float64)
+from nmsid.protocols.session_h5 import (
+    float64_buffers,
+    has_attr,
+    open_group,
+    open_member,
+    read_attrs,
+    read_float64,
+)
 
 ATTRS = {
     "f64": np.float64(2000.0),
@@ -130,7 +136,7 @@ def test_float64_buffers_give_each_plain_dataset_its_own_view(h5file):
     views = float64_buffers(members)
     assert set(views) == {id(members[0]), id(members[1]), id(members[4])}
     got = [read_float64(m, views.get(id(m))) for m in members]
-    for name, arr in zip(names, got):
+    for name, arr in zip(names, got, strict=True):
         assert np.array_equal(arr, np.asarray(g[name][()], dtype=np.float64))
     assert got[0].base is not None and got[0].base is got[1].base is got[4].base
     assert not np.shares_memory(got[0], got[1]) and not np.shares_memory(got[0], got[4])

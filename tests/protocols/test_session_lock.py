@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+
 from nmsid.protocols import session_lock
 from nmsid.protocols.errors import SessionLockedError
 from nmsid.protocols.session_lock import SessionLock, live_writer, lock_path

@@ -8,9 +8,10 @@ from __future__ import annotations
 import os
 import stat
 
-import nmsid.protocols.session_publish as pub
 import numpy as np
 import pytest
+
+import nmsid.protocols.session_publish as pub
 from nmsid.protocols import os_platform
 from nmsid.protocols.session_file import SessionExistsError, Trial
 from nmsid.rig import journal

@@ -7,8 +7,9 @@ from __future__ import annotations
 import errno
 import os
 
-import nmsid.protocols.session_publish as pub
 import pytest
+
+import nmsid.protocols.session_publish as pub
 from nmsid.protocols.errors import DiskFullError, SessionWriteError
 
 IMAGE = b"new version" * 100

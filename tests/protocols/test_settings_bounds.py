@@ -1,11 +1,19 @@
-"""Each physical bound and cross-field rule of the protocol settings, and the weakened-safety rule."""
+"""Each physical bound and cross-field rule of the protocol settings, and the weakened-safety
+rule."""
 
 from __future__ import annotations
 
 import pytest
 
-from nmsid.protocols.config import (FORCE_SENSOR_RANGE_N, MAX_LEVELS, SEED_MAX, ConfigError,
-                                    ProtocolConfig, config_from_dict, load_config)
+from nmsid.protocols.config import (
+    FORCE_SENSOR_RANGE_N,
+    MAX_LEVELS,
+    SEED_MAX,
+    ConfigError,
+    ProtocolConfig,
+    config_from_dict,
+    load_config,
+)
 
 
 @pytest.mark.parametrize("data, setting, words", [

@@ -172,14 +172,16 @@ def _check(path, data, base, load, error_cls, tmp_path):
     # accepted: only if the value is one the key takes (same type, in range)
 
 
-@settings(max_examples=60, deadline=2000, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=60, deadline=2000,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(case=_mutation(PROTOCOL_FILE))
 def test_protocol_file_fuzz(case, tmp_path):
     path, data = case
     _check(path, data, PROTOCOL_FILE, load_config, ConfigError, tmp_path)
 
 
-@settings(max_examples=60, deadline=2000, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=60, deadline=2000,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(case=_mutation(STUDY_FILE))
 def test_study_file_fuzz(case, tmp_path):
     path, data = case
@@ -190,7 +192,8 @@ def test_study_file_fuzz(case, tmp_path):
     _check(path, data, STUDY_FILE, load, (StudyConfigError, SettingError), tmp_path)
 
 
-@settings(max_examples=60, deadline=2000, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=60, deadline=2000,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(case=_mutation(HW_FILE))
 def test_hw_file_fuzz(case, tmp_path):
     from nmsid.drivers.hw_config import load_hw_config

@@ -2,12 +2,18 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from nmsid.protocols.config import ProtocolConfig
-from nmsid.protocols.waveforms import (chirp_frequency_Hz, chirp_phase_rad, currents_mA,
-                                       rE_signal, trial_waveform)
 from nmsid.protocols.session_file import Calibration
+from nmsid.protocols.waveforms import (
+    chirp_frequency_Hz,
+    chirp_phase_rad,
+    currents_mA,
+    rE_signal,
+    trial_waveform,
+)
 
 
 def test_chirp_frequency_is_the_phase_derivative():
@@ -49,7 +55,8 @@ def test_rE_is_steady_then_chirp():
     assert rE.min() >= 0 and rE.max() <= 1
     k = np.arange(10000, 30000)
     tc = (k / 2000.0) - 5.0
-    assert np.allclose(rE[k], 0.5 + 0.5 * np.sin(2 * np.pi * 10 / np.log(10) * (10 ** (tc / 10) - 1)))
+    phase = 2 * np.pi * 10 / np.log(10) * (10 ** (tc / 10) - 1)
+    assert np.allclose(rE[k], 0.5 + 0.5 * np.sin(phase))
     assert rE.max() > 0.999 and rE.min() < 0.001
 
 

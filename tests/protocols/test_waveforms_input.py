@@ -7,11 +7,23 @@ import numpy as np
 import pytest
 
 from nmsid.protocols.config import ConfigError, InputKind, config_from_dict, load_config
-from nmsid.protocols.session_file import Calibration, SessionWriter, Trial, read_session, \
-    trial_input, validate_session
-from nmsid.protocols.waveforms import (chirp_phase_rad, excitation, input_attrs,
-                                       multisine_frequencies_Hz, multisine_unit, rE_signal,
-                                       trial_waveform)
+from nmsid.protocols.session_file import (
+    Calibration,
+    SessionWriter,
+    Trial,
+    read_session,
+    trial_input,
+    validate_session,
+)
+from nmsid.protocols.waveforms import (
+    chirp_phase_rad,
+    excitation,
+    input_attrs,
+    multisine_frequencies_Hz,
+    multisine_unit,
+    rE_signal,
+    trial_waveform,
+)
 from nmsid.rig.safety import check_waveform
 
 

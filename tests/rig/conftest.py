@@ -8,8 +8,14 @@ import threading
 import numpy as np
 import pytest
 
-from nmsid.drivers.interfaces import (AcquisitionFlags, ForceChunk, RigDevices,
-                                      StimulatorCapabilities, StimulatorState, StimulatorStatus)
+from nmsid.drivers.interfaces import (
+    AcquisitionFlags,
+    ForceChunk,
+    RigDevices,
+    StimulatorCapabilities,
+    StimulatorState,
+    StimulatorStatus,
+)
 from nmsid.protocols.config import config_from_dict
 
 

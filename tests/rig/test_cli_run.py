@@ -138,7 +138,8 @@ def test_ctrl_c_is_an_estop_and_leaves_a_valid_file(tmp_path):
     assert "E-stop" in text and "--resume" in text
     assert validate_session(out) == [] and not journal_dir(out).exists()
     s = read_session(out)
-    assert len(s.trials) == 1 and s.trials[0].abort_reason.startswith("estop: SIGINT received (Ctrl+C")
+    assert len(s.trials) == 1
+    assert s.trials[0].abort_reason.startswith("estop: SIGINT received (Ctrl+C")
     assert 400 <= s.trials[0].n_samples < 6000
     assert any(e.kind == "interlock_trip" for e in s.events)
 

@@ -9,10 +9,10 @@ import pytest
 pytest.importorskip("mujoco")
 pytest.importorskip("myo_sim")
 
-from nmsid.protocols.effects import Effect  # noqa: E402
 from nmsid.analysis.identify import identify_session  # noqa: E402
-from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
 from nmsid.cli import main  # noqa: E402
+from nmsid.protocols.effects import Effect  # noqa: E402
+from nmsid.protocols.session_file import read_session, validate_session  # noqa: E402
 from nmsid.rig.session_service import seed_from_code  # noqa: E402
 from nmsid.sim_backends.msk_participant import default_msk_participant  # noqa: E402
 

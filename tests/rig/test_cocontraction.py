@@ -2,9 +2,9 @@
 plan blocks and run by the one engine (docs/joints.md, docs/rig.md)."""
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-import pytest
 
 from nmsid.protocols.config import config_from_dict
 from nmsid.protocols.plan import PlanRefused, cocontraction_plan

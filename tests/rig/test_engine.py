@@ -7,8 +7,8 @@ import pytest
 
 from nmsid.protocols.config import ConfigError
 from nmsid.protocols.schedule import TrialStatus
-from nmsid.rig.engine import Engine, EngineObserver, TripPolicy, is_rerun_wait
 from nmsid.protocols.session_file import Calibration, read_session, validate_session
+from nmsid.rig.engine import Engine, EngineObserver, TripPolicy, is_rerun_wait
 from nmsid.rig.session_log import journal_dir
 from nmsid.rig.states import State
 

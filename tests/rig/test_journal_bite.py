@@ -10,6 +10,7 @@ import zipfile
 
 import numpy as np
 import pytest
+
 from nmsid.protocols.session_file import Trial
 from nmsid.rig.journal import PARTIAL_COLUMNS, load_trial_npz, read_journal, save_trial_npz
 

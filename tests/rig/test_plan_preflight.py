@@ -8,14 +8,22 @@ import os
 
 import numpy as np
 import pytest
+
 from nmsid.analysis.control.design import design_controller
 from nmsid.analysis.control.errors import ControllerFileError
 from nmsid.analysis.control.targets import Target
 from nmsid.analysis.twin import Twin
 from nmsid.cli import main
 from nmsid.protocols.config import load_config
-from nmsid.protocols.plan import (MAX_ITEM_S, Plan, PlanItem, PlanRefused, RigLimits,
-                                  identification_plan, preflight)
+from nmsid.protocols.plan import (
+    MAX_ITEM_S,
+    Plan,
+    PlanItem,
+    PlanRefused,
+    RigLimits,
+    identification_plan,
+    preflight,
+)
 from nmsid.protocols.schedule import make_schedule
 from nmsid.protocols.session_file import Calibration
 from nmsid.rig.engine import TripPolicy

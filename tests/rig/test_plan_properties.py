@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+
 from nmsid.analysis.control.design import design_controller
 from nmsid.analysis.control.targets import Target
 from nmsid.analysis.twin import Twin

@@ -11,6 +11,7 @@ import textwrap
 
 import numpy as np
 import pytest
+
 from nmsid.cli import main
 from nmsid.protocols.config import load_config
 from nmsid.protocols.session_file import read_session, validate_session

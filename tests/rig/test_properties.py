@@ -3,11 +3,12 @@ the stimulator exceeds its ceiling; after any fault, output is zero."""
 
 import itertools
 
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from nmsid.protocols.config import config_from_dict
-from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
 from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
 from nmsid.rig.states import State
 
 _counter = itertools.count()

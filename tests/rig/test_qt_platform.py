@@ -12,8 +12,12 @@ import pytest
 from nmsid.cli import main
 from nmsid.errors import MissingDependency
 from nmsid.rig import qt_platform
-from nmsid.rig.qt_platform import (XCB_PLUGIN_LIBRARIES, QtPlatformLibrariesMissing, check_xcb,
-                                   xcb_will_be_used)
+from nmsid.rig.qt_platform import (
+    XCB_PLUGIN_LIBRARIES,
+    QtPlatformLibrariesMissing,
+    check_xcb,
+    xcb_will_be_used,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -2,6 +2,7 @@
 it aside and takes the calibration from the published file; the session then resumes."""
 
 import pytest
+
 from nmsid.protocols.config import load_config
 from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.rig.engine import Engine, TripPolicy

@@ -8,6 +8,7 @@ import os
 
 import numpy as np
 import pytest
+
 from nmsid.protocols.session_file import Calibration, Trial, read_session
 from nmsid.rig.session_log import SessionLog, journal_dir, recover
 

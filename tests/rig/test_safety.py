@@ -6,12 +6,25 @@ import time
 import numpy as np
 import pytest
 
-from nmsid.drivers.interfaces import (AcquisitionFlags, CurrentLimitError, ForceChunk,
-                                      StimulatorState, StimulatorStatus)
+from nmsid.drivers.interfaces import (
+    AcquisitionFlags,
+    CurrentLimitError,
+    ForceChunk,
+    StimulatorState,
+    StimulatorStatus,
+)
 from nmsid.protocols.config import InterlockConfig
-from nmsid.rig.safety import (AcquisitionFlagsRule, EStopRule, ForceLimitRule, Interlock,
-                              InterlockTripped, Observation, StallRule, StimulatorRule,
-                              check_waveform)
+from nmsid.rig.safety import (
+    AcquisitionFlagsRule,
+    EStopRule,
+    ForceLimitRule,
+    Interlock,
+    InterlockTripped,
+    Observation,
+    StallRule,
+    StimulatorRule,
+    check_waveform,
+)
 
 
 class Stim:

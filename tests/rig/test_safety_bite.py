@@ -83,6 +83,7 @@ def test_a_trip_stops_again_after_a_start_that_raced_it():
 
 def _chunk(force, **flags):
     import numpy as np
+
     from nmsid.drivers.interfaces import AcquisitionFlags, ForceChunk
     return ForceChunk(0, np.asarray(force, dtype=float), flags=AcquisitionFlags(**flags))
 

@@ -4,6 +4,7 @@ recorded UTC start; steps of the computer's clock recorded as events, never foll
 import datetime as dt
 
 import numpy as np
+
 from nmsid.export.nwb import trial_start_times_s
 from nmsid.protocols.session_file import Calibration, Trial, read_session
 from nmsid.rig.session_clock import SessionClock

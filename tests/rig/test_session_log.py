@@ -6,7 +6,15 @@ import os
 import numpy as np
 import pytest
 
-from nmsid.protocols.session_file import Calibration, SessionExistsError, SessionFileError, SessionWriter, Trial, read_session, validate_session
+from nmsid.protocols.session_file import (
+    Calibration,
+    SessionExistsError,
+    SessionFileError,
+    SessionWriter,
+    Trial,
+    read_session,
+    validate_session,
+)
 from nmsid.rig.session_log import PARTIAL_ABORT_REASON, SessionLog, journal_dir, recover
 
 
@@ -41,7 +49,7 @@ def test_clean_finish_removes_the_journal(tmp_path):
     assert log.finish()
     assert not journal_dir(path).exists()
     s = read_session(path)
-    assert len(s.trials) == 3 and all(_same(a, b) for a, b in zip(s.trials, trials))
+    assert len(s.trials) == 3 and all(_same(a, b) for a, b in zip(s.trials, trials, strict=True))
     assert [e.kind for e in s.events] == ["start"]
     assert s.seed == 3 and s.attrs["schedule_json"] == "[]"
 
@@ -72,7 +80,7 @@ def test_damaged_file_rebuilt_and_kept_aside(tmp_path):
     assert os.path.getsize(rep.damaged_kept_at) == len(good) // 2
     s = read_session(path)
     assert validate_session(path) == [] and len(s.trials) == 3
-    assert all(_same(a, b) for a, b in zip(s.trials, trials))
+    assert all(_same(a, b) for a, b in zip(s.trials, trials, strict=True))
     assert s.calibration.Iemax_mA == 9 and np.array_equal(s.calibration.ramps["ext_I_mA"],
                                                          np.arange(3.0))
     assert [e.kind for e in s.events] == ["start"]
@@ -99,7 +107,7 @@ def test_file_cut_anywhere_is_reported_not_raised_and_rebuilt(tmp_path, fraction
     rep = recover(path)
     s = read_session(path)
     assert validate_session(path) == [] and len(s.trials) == 4
-    assert all(_same(a, b) for a, b in zip(s.trials, trials))
+    assert all(_same(a, b) for a, b in zip(s.trials, trials, strict=True))
     assert rep.action in ("rebuilt", "appended", "none")
 
 
@@ -122,7 +130,7 @@ def test_stale_end_of_file_address_is_reported_and_rebuilt(tmp_path):
     assert rep.action == "rebuilt" and rep.damaged_kept_at
     s = read_session(path)
     assert validate_session(path) == [] and len(s.trials) == 3
-    assert all(_same(a, b) for a, b in zip(s.trials, trials))
+    assert all(_same(a, b) for a, b in zip(s.trials, trials, strict=True))
 
 
 def test_trial_journaled_but_not_in_file_is_appended(tmp_path):

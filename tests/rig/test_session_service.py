@@ -9,8 +9,7 @@ from nmsid.cli import main
 from nmsid.protocols.config import config_from_dict
 from nmsid.protocols.session_file import read_session
 from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
-from nmsid.rig.session_service import (ResumeMismatch, RigRequest, prepare_rig,
-                                       stored_session)
+from nmsid.rig.session_service import ResumeMismatch, RigRequest, prepare_rig, stored_session
 
 SHORT = """
 participant = "C01"

@@ -12,8 +12,13 @@ import numpy as np
 import pytest
 
 from nmsid.protocols.errors import DiskFullError, SessionLockedError
-from nmsid.protocols.session_file import Calibration, SessionFileError, Trial, read_session, \
-    validate_session
+from nmsid.protocols.session_file import (
+    Calibration,
+    SessionFileError,
+    Trial,
+    read_session,
+    validate_session,
+)
 from nmsid.protocols.session_lock import SessionLock, live_writer
 from nmsid.rig.session_log import SessionLog, journal_dir, recover
 
@@ -43,7 +48,9 @@ def leftovers(folder: Path) -> list[str]:
                   or p.name.endswith(".tmp"))
 
 
-@pytest.mark.posix_only('POSIX: a reader keeps its snapshot while the writer renames a new version over it; Windows refuses that rename, and the held file is published later (tests/rig/test_store_windows.py)')
+@pytest.mark.posix_only('POSIX: a reader keeps its snapshot while the writer renames a new version '
+                        'over it; Windows refuses that rename, and the held file is published '
+                        'later (tests/rig/test_store_windows.py)')
 def test_a_reader_holding_the_file_open_never_disturbs_the_writer(tmp_path):
     path = tmp_path / "P01.h5"
     log = _log(path)
@@ -74,7 +81,9 @@ def _hold_lock_in_child(path: Path) -> subprocess.Popen:
     return proc
 
 
-@pytest.mark.posix_only('a child process holds a POSIX flock while the test follows Windows; the Windows lock is tested against FakeMsvcrt (tests/protocols/test_session_lock.py)')
+@pytest.mark.posix_only('a child process holds a POSIX flock while the test follows Windows; the '
+                        'Windows lock is tested against FakeMsvcrt '
+                        '(tests/protocols/test_session_lock.py)')
 def test_recover_and_resume_refuse_a_live_writer_naming_it_and_a_killed_one_leaves_no_lock(
         tmp_path):
     path = tmp_path / "P01.h5"
@@ -255,7 +264,9 @@ def test_a_seed_or_code_the_file_cannot_hold_is_refused_before_anything_is_writt
     assert list(tmp_path.iterdir()) == []  # no journal, no lock file, no session file
 
 
-@pytest.mark.posix_only('a child process holds a POSIX flock while the test follows Windows; the Windows lock is tested against FakeMsvcrt (tests/protocols/test_session_lock.py)')
+@pytest.mark.posix_only('a child process holds a POSIX flock while the test follows Windows; the '
+                        'Windows lock is tested against FakeMsvcrt '
+                        '(tests/protocols/test_session_lock.py)')
 def test_reading_a_live_file_says_so(tmp_path, caplog):
     path = tmp_path / "P01.h5"
     log = _log(path)

@@ -69,7 +69,8 @@ def test_signal_during_a_trial_is_an_estop(tmp_path, name):
     proc = _start(tmp_path, TRIAL, out)
     stream = journal_dir(out) / "partial.f64"
     # the first trial has streamed a few chunks (real time)
-    _wait_for(proc, lambda: stream.exists() and stream.stat().st_size >= 8 * 11 * 400)  # 11 columns of float64
+    # 11 columns of float64
+    _wait_for(proc, lambda: stream.exists() and stream.stat().st_size >= 8 * 11 * 400)
     os.kill(proc.pid, signum)
     _, line = _ended(proc, signum)
     assert str(out) in line and "--resume" in line

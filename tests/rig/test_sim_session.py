@@ -7,11 +7,12 @@ import threading
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from nmsid.protocols.config import config_from_dict
-from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
 from nmsid.protocols.session_file import read_session, validate_session
+from nmsid.rig.engine import Engine, EngineObserver, TripPolicy
 from nmsid.rig.states import State
 from nmsid.sim_backends import Fault, FaultKind, make_sim_rig
 
@@ -178,7 +179,7 @@ def test_sim_stimulator_never_receives_above_ceiling(tmp_path, data):
     assert not rig.world.output_active_at(rig.clock.monotonic_s())
 
 
-@given(kind=st.sampled_from([k for k in FaultKind]), trial=st.integers(0, 2),
+@given(kind=st.sampled_from(list(FaultKind)), trial=st.integers(0, 2),
        at_s=st.floats(0.0, 1.45), seed=st.integers(0, 30))
 @settings(max_examples=15, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture])

@@ -18,6 +18,7 @@ import stat
 import h5py
 import numpy as np
 import pytest
+
 from nmsid.protocols.session_file import (
     Calibration,
     SessionExistsError,
@@ -110,7 +111,8 @@ def _log(path):
     return log
 
 
-@pytest.mark.posix_only('the folder fsync is POSIX (Windows cannot fsync a directory handle); the Windows publish is tested in tests/rig/test_store_windows.py')
+@pytest.mark.posix_only('the folder fsync is POSIX (Windows cannot fsync a directory handle); the '
+                        'Windows publish is tested in tests/rig/test_store_windows.py')
 def test_each_published_session_file_was_fsynced_and_renamed_into_place(tmp_path,
                                                                          monkeypatch):
     spy = DurabilitySpy(monkeypatch)
@@ -124,7 +126,8 @@ def test_each_published_session_file_was_fsynced_and_renamed_into_place(tmp_path
     assert str(path.absolute()) not in spy.opened_for_write   # never written in place
 
 
-@pytest.mark.posix_only('the folder fsync is POSIX (Windows cannot fsync a directory handle); the Windows journal is tested in tests/rig/test_store_windows.py')
+@pytest.mark.posix_only('the folder fsync is POSIX (Windows cannot fsync a directory handle); the '
+                        'Windows journal is tested in tests/rig/test_store_windows.py')
 def test_each_journal_entry_was_fsynced_and_renamed_never_written_in_place(tmp_path,
                                                                            monkeypatch):
     spy = DurabilitySpy(monkeypatch)

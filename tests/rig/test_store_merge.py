@@ -8,6 +8,7 @@ import os
 import h5py
 import numpy as np
 import pytest
+
 from nmsid.protocols.session_file import (
     Calibration,
     SessionFileError,
@@ -15,12 +16,12 @@ from nmsid.protocols.session_file import (
     read_session,
     validate_session,
 )
+from nmsid.protocols.session_state import session_state
 from nmsid.protocols.user_values import (
     DERIVED_SUFFIXES,
     MAX_SESSION_NAME_BYTES,
     name_length_problem,
 )
-from nmsid.protocols.session_state import session_state
 from nmsid.rig.journal import load_trial_npz, save_trial_npz, trial_digest
 from nmsid.rig.session_log import SessionLog, journal_dir, recover
 
@@ -106,7 +107,7 @@ def test_a_killed_session_merges_file_and_journal_and_names_the_lost_trial(tmp_p
     assert "trial-0005.npz (deleted): not in the file" in text and "1 trial(s) lost" in text
     assert _indexes(path) == [0, 1, 2, 3, 5]
     s = read_session(path)
-    assert all(_same(a, trials[i]) for a, i in zip(s.trials, [0, 1, 2, 3, 5]))
+    assert all(_same(a, trials[i]) for a, i in zip(s.trials, [0, 1, 2, 3, 5], strict=True))
     # the journal now equals the file, entry by entry, numbered without a gap
     entries = sorted(jdir.glob("trial-*.npz"))
     assert [p.name for p in entries] == [f"trial-{k:04d}.npz" for k in range(1, 6)]
@@ -136,7 +137,7 @@ def test_a_damaged_file_trial_and_another_damaged_entry_are_both_kept(tmp_path):
     assert rep.action == "rebuilt" and rep.damaged_kept_at and not rep.lost
     s = read_session(path)
     assert validate_session(path) == [] and len(s.trials) == 4
-    assert all(_same(a, b) for a, b in zip(s.trials, trials))
+    assert all(_same(a, b) for a, b in zip(s.trials, trials, strict=True))
 
 
 def test_file_and_journal_holding_different_samples_are_both_kept_and_named(tmp_path):

@@ -9,9 +9,10 @@ import subprocess
 import sys
 
 import h5py
-import nmsid.protocols.session_publish as pub
 import numpy as np
 import pytest
+
+import nmsid.protocols.session_publish as pub
 from nmsid.protocols import os_platform
 from nmsid.protocols.session_file import (
     Calibration,
@@ -68,7 +69,7 @@ def _plain_h5py_equals(path, trials):
     with h5py.File(path, "r") as f:
         names = sorted(f["trials"])
         assert len(names) == len(trials)
-        for name, t in zip(names, trials):
+        for name, t in zip(names, trials, strict=True):
             g = f["trials"][name]
             for key in ("rE", "I_ext_mA", "I_flex_mA", "force_N"):
                 assert g[key][()].tobytes() == np.asarray(getattr(t, key)).tobytes(), key

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
 from nmsid.analysis.control.design import design_controller, rmse_pct_of_range
 from nmsid.analysis.control.targets import Target
 from nmsid.analysis.twin import Twin

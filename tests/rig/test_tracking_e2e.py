@@ -7,6 +7,7 @@ import sys
 import textwrap
 
 import pytest
+
 from nmsid.cli import main
 from nmsid.protocols.session_file import read_session, validate_session
 

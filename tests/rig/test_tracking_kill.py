@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from nmsid.analysis.control.design import design_controller
 from nmsid.analysis.twin import Twin
 from nmsid.cli import main
 from nmsid.protocols.session_file import read_session, validate_session
 from nmsid.rig.session_log import PARTIAL_ABORT_REASON, journal_dir, recover
 from nmsid.sim_backends.participant import default_participant
-
 from tests.rig.forked_cli import fork_main, wait_child
 
 CONFIG = """
@@ -56,7 +56,7 @@ def test_sigkill_a_tracking_session_loses_nothing_completed(tmp_path):
     code, _ = wait_child(pid)
     duration = time.monotonic() - t0
     assert code == 0, (tmp_path / "ref.txt").read_text()[-2000:]
-    ref = {n: c for n, c in _printed(tmp_path / "ref.txt")}
+    ref = dict(_printed(tmp_path / "ref.txt"))
     assert len(ref) == 3
     rng = np.random.default_rng(28)
     hit = resumed = 0

@@ -2,6 +2,7 @@
 ``recover`` and resumed to completion from the controller and targets it recorded."""
 
 import pytest
+
 from nmsid.analysis.control.design import design_controller
 from nmsid.analysis.control.targets import Target
 from nmsid.analysis.twin import Twin

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from nmsid.protocols.session_file import read_session
 from nmsid.cli import main
+from nmsid.protocols.session_file import read_session
 
 WEAK = """
 participant = "C02"

@@ -8,13 +8,22 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import signal
 
-from nmsid.sim_backends import make_sim_rig
-from nmsid.sim_backends.direct_drive import currents_for, ramp_thresholds, run_waveform, waveform
-from nmsid.sim_backends.effects import (EFFECT_NAMES, ActivationDynamics, BaselineDrift, DeadTime,
-                                        Fatigue, FlexorExtensorAsymmetry, RecruitmentNonlinearity,
-                                        effect_from_dict, effects_from_list, effects_to_list)
 from nmsid.errors import UserError
 from nmsid.protocols.effects import EffectParamError
+from nmsid.sim_backends import make_sim_rig
+from nmsid.sim_backends.direct_drive import currents_for, ramp_thresholds, run_waveform, waveform
+from nmsid.sim_backends.effects import (
+    EFFECT_NAMES,
+    ActivationDynamics,
+    BaselineDrift,
+    DeadTime,
+    Fatigue,
+    FlexorExtensorAsymmetry,
+    RecruitmentNonlinearity,
+    effect_from_dict,
+    effects_from_list,
+    effects_to_list,
+)
 from nmsid.sim_backends.errors import SimConfigError
 from nmsid.sim_backends.filters import second_order_zoh
 from nmsid.sim_backends.participant import default_participant

@@ -11,8 +11,8 @@ import pytest
 pytest.importorskip("mujoco")
 pytest.importorskip("myo_sim")
 
-from nmsid.protocols.waveforms import currents_mA, rE_signal  # noqa: E402
 from nmsid.protocols.config import ProtocolConfig  # noqa: E402
+from nmsid.protocols.waveforms import currents_mA, rE_signal  # noqa: E402
 from nmsid.sim_backends import make_sim_rig  # noqa: E402
 from nmsid.sim_backends.msk_participant import MskParticipant, default_msk_participant  # noqa: E402
 from nmsid.sim_backends.msk_physics import MuscleFatigue  # noqa: E402

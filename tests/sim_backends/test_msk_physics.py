@@ -6,8 +6,14 @@ import numpy as np
 import pytest
 
 from nmsid.sim_backends.errors import SimConfigError
-from nmsid.sim_backends.msk_physics import (MUSCLES, FixtureMount, MuscleDrive, MuscleFatigue,
-                                            Recruitment, default_drives)
+from nmsid.sim_backends.msk_physics import (
+    MUSCLES,
+    FixtureMount,
+    MuscleDrive,
+    MuscleFatigue,
+    Recruitment,
+    default_drives,
+)
 
 
 @pytest.mark.parametrize("th, i50, w, a", [(2.0, 8.0, 1.5, 0.1), (0.5, 3.0, 0.4, 1.0),

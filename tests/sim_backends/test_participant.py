@@ -7,8 +7,13 @@ import pytest
 from scipy import signal
 
 from nmsid.sim_backends import make_sim_rig
-from nmsid.sim_backends.direct_drive import (chirp_rE, currents_for, ramp_thresholds,
-                                             run_waveform, waveform)
+from nmsid.sim_backends.direct_drive import (
+    chirp_rE,
+    currents_for,
+    ramp_thresholds,
+    run_waveform,
+    waveform,
+)
 from nmsid.sim_backends.filters import second_order_zoh
 from nmsid.sim_backends.participant import ReferenceCalibration, default_participant
 from nmsid.sim_backends.population import make_population

@@ -5,6 +5,8 @@ import textwrap
 
 import numpy as np
 import pytest
+
+from nmsid.errors import UserError
 from nmsid.sim_backends import make_sim_rig
 from nmsid.sim_backends.direct_drive import run_waveform, waveform
 from nmsid.sim_backends.participant import default_participant
@@ -16,8 +18,6 @@ from nmsid.sim_backends.plugin import (
 )
 from nmsid.sim_backends.sensor import SensorModel
 from nmsid.sim_backends.simulation import ParticipantSimulator
-
-from nmsid.errors import UserError
 
 LAB_MODULE = """
 import numpy as np

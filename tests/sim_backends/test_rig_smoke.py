@@ -1,8 +1,14 @@
 """The simulated rig runs a trial through the device interfaces, aligned to the trigger."""
 
 import numpy as np
-from nmsid.drivers.interfaces import (EStopInput, ForceAcquisition, RigDevices, Stimulator,
-                                      StimulatorState)
+
+from nmsid.drivers.interfaces import (
+    EStopInput,
+    ForceAcquisition,
+    RigDevices,
+    Stimulator,
+    StimulatorState,
+)
 from nmsid.sim_backends import make_sim_rig
 from nmsid.sim_backends.direct_drive import chirp_rE, currents_for, run_waveform, waveform
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 
 import numpy as np
 import pytest
@@ -48,7 +49,7 @@ def test_wrench_is_on_the_count_grid_and_force_is_its_projection(bits, vN):
 
 @pytest.mark.parametrize("noise_N", [0.0, 0.02, 0.06])
 def test_quantisation_error_is_half_an_lsb_at_most(noise_N):
-    kw = dict(noise_N=noise_N, cross_noise_N=noise_N / 2)
+    kw = {"noise_N": noise_N, "cross_noise_N": noise_N / 2}
     fine = SensorModel(adc_bits=None, **kw)
     q = SensorModel(**kw)
     x = _force(20000, seed=4)
@@ -76,7 +77,7 @@ def test_quantised_chain_is_seeded_and_chunk_invariant():
     rng = np.random.default_rng(1)
     cuts = np.unique(np.r_[0, rng.integers(1, x.size, 25), x.size])
     s = SensorState(m, 11, FS)
-    parts = [s.measure(x[a:b], 5000 + a) for a, b in zip(cuts[:-1], cuts[1:])]
+    parts = [s.measure(x[a:b], 5000 + a) for a, b in pairwise(cuts)]
     np.testing.assert_array_equal(np.concatenate([p[0] for p in parts]), f_all)
     np.testing.assert_array_equal(np.concatenate([p[1] for p in parts]), w_all)
     f_other, _, _ = SensorState(m, 12, FS).measure(x, 5000)
@@ -94,9 +95,9 @@ def test_over_range_saturates_at_the_ad_codes():
     np.testing.assert_array_equal(w / m.lsb, np.rint(w / m.lsb))
 
 
-@pytest.mark.parametrize("kw", [dict(adc_bits=0), dict(adc_bits=1.5), dict(adc_bits=True),
-                                dict(adc_bits=40), dict(adc_range_V=0.0),
-                                dict(volts_per_N=-1.0), dict(volts_per_Nm=math.nan)])
+@pytest.mark.parametrize("kw", [{"adc_bits": 0}, {"adc_bits": 1.5}, {"adc_bits": True},
+                                {"adc_bits": 40}, {"adc_range_V": 0.0},
+                                {"volts_per_N": -1.0}, {"volts_per_Nm": math.nan}])
 def test_bad_adc_settings_are_refused(kw):
     name = next(iter(kw))
     with pytest.raises(SimConfigError, match=name):

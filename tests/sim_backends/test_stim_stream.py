@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+
 from nmsid.drivers.interfaces import CurrentLimitError, HostStreamedStimulator
 from nmsid.sim_backends import make_sim_rig
 from nmsid.sim_backends.participant import default_participant

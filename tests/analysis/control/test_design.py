@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+
 from nmsid.analysis.control.controllers import (
     PIDController,
     RelayExperiment,
@@ -26,9 +27,8 @@ from nmsid.analysis.control.margins import stability_margins
 from nmsid.analysis.control.plant import SecondOrderPlant
 from nmsid.analysis.control.targets import Target, default_targets, load_target_csv
 from nmsid.analysis.twin import Twin
-from nmsid.sim_backends.participant import default_participant
-
 from nmsid.errors import UserError
+from nmsid.sim_backends.participant import default_participant
 
 
 @pytest.fixture(scope="module")

@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+
 from nmsid.analysis.control.errors import TrackingReportError
 from nmsid.analysis.control.report import step_metrics, tracking_report, write_report
 from nmsid.analysis.control.targets import Target

@@ -14,9 +14,9 @@ from nmsid.analysis.design.predict import DEFAULT_SCATTER
 from nmsid.analysis.design.prior import PARAMETERS, population_prior
 from nmsid.analysis.design.search import parse_target
 from nmsid.analysis.design.validate import alternative_scatter
+from nmsid.cli import main
 from nmsid.protocols.config import load_config
 from nmsid.protocols.session_file import read_session, trial_input, validate_session
-from nmsid.cli import main
 
 SMALL_MULTISINE = Candidate(sE_levels=(0.3, 0.45, 0.6, 0.8, 1.0), repeats=2, steady_s=1.0,
                             chirp_s=3.0, input_kind="multisine", multisine_tones=10,

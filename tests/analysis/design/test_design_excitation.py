@@ -7,8 +7,12 @@ import json
 
 import pytest
 
-from nmsid.analysis.design.candidates import (Candidate, paper_candidate, search_space,
-                                              with_paper_excitation)
+from nmsid.analysis.design.candidates import (
+    Candidate,
+    paper_candidate,
+    search_space,
+    with_paper_excitation,
+)
 from nmsid.analysis.design.errors import DesignError
 from nmsid.analysis.design.prior import SECOND_ORDER_FIT_PCT, adequacy_from_parameters
 from nmsid.cli import main

@@ -129,7 +129,7 @@ def test_scatter_measured_on_a_first_session_recovers_the_per_trial_scatter(tmp_
         + ses * rng.standard_normal(truth.shape)
     _write_params(tmp_path / "p.csv", x, values, ses)
     got = scatter_from_parameters(tmp_path / "p.csv", prior)
-    for name, want in zip(("Kp", "wn_rad_s", "zeta"), s_trial):
+    for name, want in zip(("Kp", "wn_rad_s", "zeta"), s_trial, strict=True):
         assert getattr(got, name) == pytest.approx(want, rel=0.12)
 
 

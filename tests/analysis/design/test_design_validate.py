@@ -10,8 +10,13 @@ from nmsid.analysis.design.candidates import Candidate
 from nmsid.analysis.design.errors import DesignError
 from nmsid.analysis.design.predict import DEFAULT_SCATTER
 from nmsid.analysis.design.prior import PARAMETERS
-from nmsid.analysis.design.validate import (ProtocolOutcome, ScatterModel, alternative_scatter,
-                                            simulate_session, validated_ratio)
+from nmsid.analysis.design.validate import (
+    ProtocolOutcome,
+    ScatterModel,
+    alternative_scatter,
+    simulate_session,
+    validated_ratio,
+)
 
 SHORT = Candidate(sE_levels=(0.5, 0.9), repeats=2, steady_s=1.0, chirp_s=3.0, rest_s=10.0)
 
@@ -37,9 +42,10 @@ def test_gain_scatter_changes_each_repeat_and_is_reproducible(vp):
     plain = simulate_session(vp, SHORT, seed=3)
     varied = simulate_session(vp, SHORT, scatter={"Kp": 0.15}, seed=3)
     again = simulate_session(vp, SHORT, scatter={"Kp": 0.15}, seed=3)
-    for a, b in zip(varied.trials, again.trials):
+    for a, b in zip(varied.trials, again.trials, strict=True):
         np.testing.assert_array_equal(a.force_N, b.force_N)
-    ratios = np.array([_swing(v) / _swing(p) for v, p in zip(varied.trials, plain.trials)])
+    ratios = np.array([_swing(v) / _swing(p)
+                       for v, p in zip(varied.trials, plain.trials, strict=True)])
     # without scatter the swing is the same within sensor noise; with 15 % gain scatter
     # the four trials (independent draws) move by several percent, not all the same way
     assert np.max(np.abs(ratios - 1)) > 0.03, ratios
@@ -56,7 +62,7 @@ def test_streams_share_or_separate_the_draw_of_a_level_and_repeat():
     a = simulate_session(vp, SHORT, scatter={"Kp": 0.15}, seed=3, stream=1)
     b = simulate_session(vp, longer, scatter={"Kp": 0.15}, seed=3, stream=1)
     c = simulate_session(vp, longer, scatter={"Kp": 0.15}, seed=3, stream=2)
-    for x, y, z in zip(a.trials, b.trials, c.trials):
+    for x, y, z in zip(a.trials, b.trials, c.trials, strict=True):
         np.testing.assert_array_equal(x.force_N, y.force_N)
         assert abs(_swing(z) / _swing(x) - 1) > 1e-3       # other gain draw, other noise
 

@@ -11,7 +11,7 @@ from nmsid.analysis.gap.data import GapData, PreprocessSettings, TrialInfo
 def _fake(levels, repeats):
     trials = [TrialInfo(name=f"t{i + 1:03d}", order=i + 1, sE=0.3 + 0.1 * lv, repeat=r,
                         level=lv, cum_stim_s=15.0 * i)
-              for i, (lv, r) in enumerate(zip(levels, repeats))]
+              for i, (lv, r) in enumerate(zip(levels, repeats, strict=True))]
     n = len(trials)
     z = np.zeros((n, 4))
     return GapData(path="x", participant="P", settings=PreprocessSettings(), fs_raw_Hz=2000.0,

@@ -62,7 +62,7 @@ def test_report_has_the_keys_and_files(dead_report):
         assert len(loc[model]["deviation"]) == len(g.deviation_edges) - 1
         assert len(loc[model]["position"]) == n_tested
     # the named dead time removes most of the gap at every sE
-    for nom, aug in zip(loc["nominal"]["sE"], loc["augmented"]["sE"]):
+    for nom, aug in zip(loc["nominal"]["sE"], loc["augmented"]["sE"], strict=True):
         assert aug["nrmse_pct"] < nom["nrmse_pct"], (nom, aug)
     for name in ("report.html", "twin.json", "where.png", "frequency.png"):
         assert (out / name).stat().st_size > 0
@@ -146,5 +146,5 @@ def test_pair_dead_time_and_fatigue(write_synthetic, tmp_path):
     diag = diagnose(load_session(path))
     assert diag.best_effect.value in ("dead_time", "fatigue")
     assert diag.best_pair is not None
-    assert set(e.value for e in diag.best_pair.candidate.effects) == {"dead_time", "fatigue"}
+    assert {e.value for e in diag.best_pair.candidate.effects} == {"dead_time", "fatigue"}
     assert diag.full_fit.params["L_s"] == pytest.approx(0.02, rel=0.15)

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from nmsid.analysis.gap.data import load_session
-from nmsid.protocols.effects import Effect
 from nmsid.analysis.gap.fit import fit_model, predict
 from nmsid.analysis.gap.models import NOMINAL, candidate
+from nmsid.protocols.effects import Effect
 
 
 def test_nominal_fit_recovers_parameters(nominal_session, true_params):
@@ -46,8 +46,12 @@ def test_predict_uses_only_the_trials_given(nominal_session):
 
 
 def test_recruitment_basis_equals_the_spline_and_filter_it_replaces(nominal_session):
-    from nmsid.analysis.gap.models import (RECRUITMENT_KNOTS, RecruitmentBasis, recruitment_curve,
-                                           recruitment_excess)
+    from nmsid.analysis.gap.models import (
+        RECRUITMENT_KNOTS,
+        RecruitmentBasis,
+        recruitment_curve,
+        recruitment_excess,
+    )
     data = load_session(nominal_session)
     basis = RecruitmentBasis(data)
     rng = np.random.default_rng(5)

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import json
 
-from nmsid.cli import main
 from PIL import Image
+
+from nmsid.cli import main
 
 
 def test_gap_writes_each_figure_as_png_and_pdf(nominal_session, tmp_path):

@@ -15,7 +15,7 @@ from nmsid.cli import main
 from nmsid.cli.gap_command import session_lines
 from nmsid.testing.sessions import write_gap_session
 
-SHORT = dict(levels=(0.3, 0.6, 0.9), repeats=2, steady_s=3.0, chirp_s=8.0, seed=1)
+SHORT = {"levels": (0.3, 0.6, 0.9), "repeats": 2, "steady_s": 3.0, "chirp_s": 8.0, "seed": 1}
 
 
 @pytest.fixture(scope="module")
@@ -54,9 +54,8 @@ def test_a_muscle_fit_that_overflows_is_a_row_not_a_crash(unexplained_session, t
 def test_printed_lines_survive_every_figure_missing():
     """A report whose figures are all None (JSON of NaN) prints n/a, not a TypeError."""
     rep = {"session": "s.h5", "verdict": "unexplained", "best_effect": "none",
-           "heldout": {k: None for k in ("nominal_nrmse_pct", "augmented_nrmse_pct",
-                                         "shrink_pct", "noise_floor_nrmse_pct",
-                                         "sensor_floor_nrmse_pct")},
+           "heldout": dict.fromkeys(("nominal_nrmse_pct", "augmented_nrmse_pct", "shrink_pct",
+                                     "noise_floor_nrmse_pct", "sensor_floor_nrmse_pct")),
            "verdict_sentence": "x", "elapsed_s": None, "evidence": {"summary": []},
            "muscle_twin": {"supported": False, "converged": True, "fit_s": None,
                            "not_determined": [],

@@ -8,11 +8,17 @@ import pytest
 
 from nmsid.analysis.gap.data import load_session
 from nmsid.analysis.gap.diagnose import GapSettings, diagnose
-from nmsid.protocols.effects import Effect
 from nmsid.analysis.gap.evidence import PhaseShape, phase_shape
-from nmsid.analysis.gap.localize import (FrequencyView, LocationTable, ResidualSpectrum,
-                                         by_location, frequency_view, residual_spectrum)
+from nmsid.analysis.gap.localize import (
+    FrequencyView,
+    LocationTable,
+    ResidualSpectrum,
+    by_location,
+    frequency_view,
+    residual_spectrum,
+)
 from nmsid.analysis.gap.report import FinalParams, build_report, final_params
+from nmsid.protocols.effects import Effect
 
 
 @pytest.fixture(scope="module")

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from nmsid.analysis.gap.data import load_session
-from nmsid.protocols.effects import Effect
 from nmsid.analysis.gap.fit import Problem, _normal_equations, initial_levels
 from nmsid.analysis.gap.models import NOMINAL, candidate
+from nmsid.protocols.effects import Effect
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,6 @@ PCHIP's."""
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 from scipy.interpolate import PchipInterpolator

@@ -13,7 +13,7 @@ from nmsid.analysis.gap.api import run_gap
 from nmsid.analysis.gap.data import load_session
 from nmsid.testing.sessions import write_gap_session, write_physiology_session
 
-NINE = dict(levels=(0.3, 0.6, 0.9), repeats=3, steady_s=3.0, chirp_s=8.0, seed=1)
+NINE = {"levels": (0.3, 0.6, 0.9), "repeats": 3, "steady_s": 3.0, "chirp_s": 8.0, "seed": 1}
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +55,7 @@ def test_no_exclusion_leaves_the_sentence_alone(nine, tmp_path):
 def test_the_lead_in_noise_is_robust_to_a_baseline_drift(tmp_path, noise_N):
     """The same noise with and without a slow wander (0.4 N, below 0.1 Hz): the drift
     raises the estimate by at most 25 % (a linear detrend let it in several-fold)."""
-    kw = dict(levels=(0.4, 0.8), repeats=3, noise_N=noise_N, seed=3)
+    kw = {"levels": (0.4, 0.8), "repeats": 3, "noise_N": noise_N, "seed": 3}
     clean = load_session(write_physiology_session(tmp_path / "c.h5", **kw) and
                          tmp_path / "c.h5")
     drift = load_session(write_physiology_session(tmp_path / "d.h5", drift=(0.4, 0.03),

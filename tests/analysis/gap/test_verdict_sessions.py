@@ -20,7 +20,7 @@ import pytest
 from nmsid.analysis.gap.api import run_gap
 from nmsid.testing.sessions import write_gap_session
 
-SHORT = dict(levels=(0.3, 0.6, 0.9), repeats=2, steady_s=3.0, chirp_s=8.0, seed=1)
+SHORT = {"levels": (0.3, 0.6, 0.9), "repeats": 2, "steady_s": 3.0, "chirp_s": 8.0, "seed": 1}
 
 
 def _report(tmp_path, **effects) -> dict:

@@ -63,7 +63,7 @@ def _plain_rk4(th, rE, sE, dt):
     """The twin's equations stepped one by one (the form before the affine map): frozen
     activation time constant per step, classical Runge-Kutta with the activation linear
     over the step."""
-    p = dict(zip(PARAM_NAMES, th))
+    p = dict(zip(PARAM_NAMES, th, strict=True))
     Fm = 0.5 * (p["F_e_N"] + p["F_f_N"])
     u_e = recruitment(rE * sE, p["c_e"], p["w_e"], p["th_e"])
     u_f = recruitment((1 - rE) * sE, p["c_f"], p["w_f"], p["th_f"])

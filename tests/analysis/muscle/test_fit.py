@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from nmsid.analysis.gap.diagnose import GapSettings, diagnose
-from nmsid.protocols.effects import Effect
 from nmsid.analysis.muscle.dynamics import PARAM_NAMES
 from nmsid.analysis.muscle.errors import MuscleFitError
 from nmsid.analysis.muscle.fit import MuscleFitSettings, fit_muscle
+from nmsid.protocols.effects import Effect
 
 from .conftest import TRUE
 

@@ -25,7 +25,7 @@ BASE = {"format": "nmsid-twin", "format_version": 1, "participant": "P",
 
 def _muscle():
     return {"form": "hill2-isometric", "form_version": 2, "fit_fs_Hz": 100.0,
-            "params": dict(zip(PARAM_NAMES, map(float, lit.start_theta())))}
+            "params": dict(zip(PARAM_NAMES, map(float, lit.start_theta()), strict=True))}
 
 
 def test_version_1_items_are_read_as_version_2_with_their_meaning():

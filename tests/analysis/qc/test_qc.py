@@ -14,8 +14,8 @@ from nmsid.analysis import identify as identify_module
 from nmsid.analysis.identify import identify_session
 from nmsid.analysis.qc import QCSettings, assess_level, assess_session
 from nmsid.analysis.settings import IdentificationSettings
-from nmsid.protocols.session_file import Calibration, SessionWriter, Trial, read_session
 from nmsid.cli import main
+from nmsid.protocols.session_file import Calibration, SessionWriter, Trial, read_session
 
 FS = 2000.0
 STEADY, CHIRP = 5.0, 10.0
@@ -57,9 +57,9 @@ def verdicts(level):
 
 
 @pytest.mark.parametrize("kw", [
-    dict(noise=0.005, mains=0.01), dict(noise=0.06, mains=0.05, mains_Hz=60.0),
-    dict(Kp=0.8, noise=0.01), dict(Kp=18.0, wn=55.0, zeta=0.25), dict(wn=8.0, zeta=1.1),
-    dict(hold=True, noise=0.005), dict(n=2), dict(n=5, seed=3)])
+    {"noise": 0.005, "mains": 0.01}, {"noise": 0.06, "mains": 0.05, "mains_Hz": 60.0},
+    {"Kp": 0.8, "noise": 0.01}, {"Kp": 18.0, "wn": 55.0, "zeta": 0.25}, {"wn": 8.0, "zeta": 1.1},
+    {"hold": True, "noise": 0.005}, {"n": 2}, {"n": 5, "seed": 3}])
 def test_clean_repeats_are_all_used(kw):
     trials, _ = make_level(**kw)
     lv = assess_level(trials)
@@ -334,6 +334,6 @@ def test_filtering_all_trials_together_changes_no_verdict(monkeypatch):
     assert [(v.trial, v.decision, v.reasons, v.spans) for v in together.trials] == \
         [(v.trial, v.decision, v.reasons, v.spans) for v in alone.trials]
     assert {v.decision for v in together.trials} == {"used", "repaired", "excluded"}
-    for a, b in zip(together.levels, alone.levels):
-        for ta, tb in zip(a.kept, b.kept):
+    for a, b in zip(together.levels, alone.levels, strict=True):
+        for ta, tb in zip(a.kept, b.kept, strict=True):
             assert np.allclose(ta.force_N, tb.force_N, rtol=0, atol=1e-12)

@@ -11,7 +11,6 @@ from hypothesis import strategies as st
 
 from nmsid.analysis.qc import QCSettings, checks, repeats
 from nmsid.analysis.qc.decide import _single
-
 from tests.analysis.qc.test_qc import FS, STEADY, bump, make_level
 
 
@@ -62,7 +61,7 @@ def _flat_runs_plain(x, fs_Hz, stall_min_s, clip_min_s, noise_sd):
     edges = np.flatnonzero(np.diff(m.astype(np.int8)))
     out = []
     hi, lo = np.nanmax(x), np.nanmin(x)
-    for a, b in zip(edges[::2], edges[1::2]):
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
         a, b = int(a) - 1, int(b)
         n = b - a
         at_edge = x[a] == hi or x[a] == lo
@@ -164,7 +163,7 @@ def _unshared_plain(signals, fs, s, calls):
         limit = max(s.deviation_k * typical, s.deviation_min_frac * response)
         flags = [r > limit for r in rms]
         new_keep = [~f if (~f).sum() > 0.5 * f.size else np.ones_like(f) for f in flags]
-        if all(np.array_equal(a, b) for a, b in zip(new_keep, keep)):
+        if all(np.array_equal(a, b) for a, b in zip(new_keep, keep, strict=True)):
             break
         keep = new_keep
     return u, flags, rms, typical, response, [S[j] for j in partner], limit
@@ -190,10 +189,10 @@ def test_unshared_is_the_plain_comparison_bit_for_bit(artefact, monkeypatch):
     n_fast = len(calls)
     ref = _unshared_plain(sig, fs_s, s, calls)
     n_plain = len(calls) - n_fast
-    for g, r in zip(got, ref):
+    for g, r in zip(got, ref, strict=True):
         if isinstance(g, list):
             assert len(g) == len(r)
-            for a, b in zip(g, r):
+            for a, b in zip(g, r, strict=True):
                 np.testing.assert_array_equal(a, b)
         else:
             assert g == r

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from nmsid.protocols.schedule import PlannedTrial, TrialStatus
-from nmsid.rig.observer import rerun_wait_reason
 from nmsid.protocols.session_file import Calibration, Event, SessionWriter, Trial, utc_now
+from nmsid.rig.observer import rerun_wait_reason
 from nmsid.rig.states import State
 
 

@@ -60,7 +60,7 @@ def test_quality_control_runs_off_the_gui_thread_and_coalesces_per_level(qtbot):
     def judge(trials):
         judged.append((threading.current_thread().name, tuple(sorted(trials))))
         release.wait(10)
-        return {i: ("used", "") for i in trials}
+        return dict.fromkeys(trials, ("used", ""))
 
     qc = TrialQC(judge, got.append)
     z = np.zeros(10)

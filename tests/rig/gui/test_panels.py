@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from nmsid.rig.observer import rerun_wait_reason
 from nmsid.protocols.session_file import Calibration, SessionWriter, Trial
+from nmsid.rig.observer import rerun_wait_reason
 
 
 # -- setup panel: the output file ----------------------------------------------------------
@@ -103,7 +103,8 @@ def test_schedule_panel_in_the_wait_for_a_rerun(qtbot):
                       on_rerun=lambda i: None, on_end=lambda: None)
     qtbot.addWidget(p)
     sched = [PlannedTrial(i, 0.5, i + 1) for i in range(3)]
-    for pt, st in zip(sched, (TrialStatus.DONE, TrialStatus.ABORTED, TrialStatus.DONE)):
+    for pt, st in zip(sched, (TrialStatus.DONE, TrialStatus.ABORTED, TrialStatus.DONE),
+                      strict=True):
         pt.status = st
     p.set_schedule(sched)
     p.set_state("paused", "operator")
@@ -185,8 +186,12 @@ def test_model_curves_match_the_twin_file_definitions():
 
 
 def test_results_panel_shows_tables_and_saves_beside_the_session(qtbot, tmp_path):
-    from nmsid.rig.gui.results_panel import (ModelFit, ParameterSelection, ResultsPanel,
-                                             SelectionView)
+    from nmsid.rig.gui.results_panel import (
+        ModelFit,
+        ParameterSelection,
+        ResultsPanel,
+        SelectionView,
+    )
     sE = np.linspace(0.3, 1.0, 8)
     view = SelectionView([ParameterSelection(
         "Kp", "N", sE, 1 + 2 * sE,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from nmsid.rig.gui.script import (DEMO_SCRIPT, Command, ScriptError, load_script, parse_script)
+from nmsid.rig.gui.script import DEMO_SCRIPT, Command, ScriptError, load_script, parse_script
 
 
 def test_parses_commands_arguments_and_comments():

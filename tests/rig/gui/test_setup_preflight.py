@@ -10,6 +10,7 @@ import os
 import platform
 
 import pytest
+
 from nmsid.protocols.os_platform import forced
 from nmsid.protocols.user_values import MAX_SESSION_NAME_BYTES
 
@@ -22,7 +23,9 @@ def _panel(qtbot):
     return p, got
 
 
-@pytest.mark.posix_only("a read-only folder is POSIX permission bits; Windows ignores a folder's read-only attribute (Python docs, os.access), so nmsid tries to create a file there instead")
+@pytest.mark.posix_only("a read-only folder is POSIX permission bits; Windows ignores a folder's "
+                        "read-only attribute (Python docs, os.access), so nmsid tries to create a "
+                        "file there instead")
 def test_a_read_only_output_folder_is_refused_before_start(qtbot, tmp_path, monkeypatch):
     folder = tmp_path / "ro"
     folder.mkdir()
@@ -80,9 +83,8 @@ def test_the_seed_field_refuses_what_the_cli_refuses(qtbot, tmp_path, text):
 
 
 def test_a_start_refused_by_the_rig_is_one_line_not_a_traceback(qtbot, tmp_path, caplog):
-    from nmsid.rig.gui.setup_panel import SetupPanel
-
     from nmsid.errors import SafetyError
+    from nmsid.rig.gui.setup_panel import SetupPanel
 
     def refuse(request):
         raise SafetyError("ceiling 40 mA is above the stimulator's 16 mA\n(second line)")
