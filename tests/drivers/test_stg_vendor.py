@@ -327,3 +327,30 @@ def test_status_decoding_accepts_enum_objects_and_refuses_unknown_values():
     assert [int(t) for t in ds.triggers] == [2, 3] and int(ds.overcurrent) == 1
     with pytest.raises(UnknownStatus, match="trigger 1 reported status 7"):
         decode_status(SimpleNamespace(TiggerStatus=[7], OvercurrentStatus=0))
+
+
+def test_an_end_reported_after_a_host_stall_before_the_query_is_not_early():
+    """The host reads its clock, stalls (a busy PC), then asks the STG, which has by then
+    ended the trial on time: the end is judged against the time of the reply, not the
+    time read before the query (a false 'ended the pattern early' fault, seen at load 4-8
+    on the 10x fake bench)."""
+    from nmsid.drivers.interfaces import StimulatorState
+    from nmsid.drivers.stg_status import DeviceStatus, OvercurrentStatus, TriggerStatus
+    from nmsid.drivers.stg_tracking import StgStatusTracking
+
+    clock = {"t": 0.95}                      # just before the 1.0 s trial's end
+    faults: list[str] = []
+    tracker = StgStatusTracking()
+    tracker._t_start, tracker._t_sent, tracker._duration_s = 0.0, 0.001, 1.0
+    tracker._state, tracker._seen_running, tracker._poll = StimulatorState.RUNNING, True, None
+    tracker._now = lambda: clock["t"]
+    tracker._fault = faults.append
+
+    def query_after_a_stall():
+        clock["t"] = 1.2                     # the host was descheduled for 250 ms
+        return DeviceStatus((TriggerStatus.FINISHED,), OvercurrentStatus.NORMAL)
+
+    tracker._dev = object()
+    tracker._query_locked = query_after_a_stall
+    tracker._update_running()
+    assert faults == [] and tracker._state is StimulatorState.STOPPED
