@@ -21,10 +21,11 @@ from importlib import metadata
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
+from nmsid.analysis.joint_twins import load_joint_twins
 from nmsid.analysis.twin import Twin, file_sha256
 from nmsid.export.errors import FmuExportError
 from nmsid.export.fmu.description import c_header, model_description
-from nmsid.export.fmu.variables import variables
+from nmsid.export.fmu.variables import joint_variables, variables
 from nmsid.protocols import os_platform
 from nmsid.sim_backends.effects import effects_from_list
 from nmsid.sim_backends.errors import SimConfigError
@@ -59,6 +60,8 @@ class FmuResult:
     guid: str
     platform: str | None
     seconds: float
+    joints: tuple[str, ...] = ()
+    """The joints of an FMU of several joints (a ``joints`` twin file); empty for one."""
 
 
 def nmsid_version() -> str:
@@ -110,12 +113,38 @@ def check_exportable(data: dict, where: str) -> Twin:
     return twin
 
 
+#: the top-level items of a twin file of several joints (analysis/joint_twins.py)
+JOINTS_FILE_ITEMS = frozenset({"format", "format_version", "participant", "joints"})
+
+
+def exportable_twins(data: dict, where: str) -> list[Twin]:
+    """The twins an FMU is built from: the one twin of a one-joint file, or each joint's
+    of a ``joints`` file (``docs/twin-file.md``), each checked by
+    :func:`check_exportable`; :class:`FmuExportError` names the joint and the item."""
+    if not (isinstance(data, dict) and "joints" in data):
+        return [check_exportable(data, where)]
+    extra = sorted(set(data) - JOINTS_FILE_ITEMS)
+    if extra:
+        raise FmuExportError(f"{where}: the twin file has item(s) {extra} beside 'joints'; "
+                             f"a file of several joints has {sorted(JOINTS_FILE_ITEMS)}")
+    twins = []
+    for name, body in data["joints"].items():
+        if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]{0,39}", name):
+            raise FmuExportError(f"{where}: joint name {name!r} cannot name FMU variables "
+                                 "(rE_<joint>, ...): use letters, digits and _, starting "
+                                 "with a letter, at most 40 characters")
+        head = {k: data[k] for k in ("format", "format_version", "participant") if k in data}
+        twins.append(check_exportable({**body, **head, "joint": name},
+                                      f"{where}: joints.{name}"))
+    return twins
+
+
 def _identifier(participant: str) -> str:
     tail = re.sub(r"[^A-Za-z0-9_]", "_", participant)[:40]
     return "nmsid_twin" + (f"_{tail}" if tail else "")
 
 
-def _annotation(twin: Twin, twin_sha256: str, version: str) -> str:
+def _sources_and_effects(twin: Twin) -> str:
     srcs = []
     for s in twin.source:
         if isinstance(s, dict):
@@ -126,8 +155,36 @@ def _annotation(twin: Twin, twin_sha256: str, version: str) -> str:
     effects = "".join(f"<Effect name={quoteattr(e['name'])} params="
                       f"{quoteattr(json.dumps(e.get('params', {}), sort_keys=True))}/>"
                       for e in twin.effects)
-    return (f'<Twin participant={quoteattr(twin.participant)} nmsidVersion="{version}" '
-            f'twinFileSha256="{twin_sha256}">{"".join(srcs)}{effects}</Twin>')
+    return "".join(srcs) + effects
+
+
+def _annotation(twins: list[Twin], twin_sha256: str, version: str, *, joints: bool) -> str:
+    """The ``Tool name="nmsid"`` annotation: a one-joint twin's sources and effects inside
+    ``Twin``; a file of several joints', each inside a ``Joint`` element."""
+    if joints:
+        inner = "".join(f'<Joint name={quoteattr(t.joint)} quantity='
+                        f'{quoteattr(t.measured_quantity)} unit={quoteattr(t.measured_unit)}>'
+                        f'{_sources_and_effects(t)}</Joint>' for t in twins)
+    else:
+        inner = _sources_and_effects(twins[0])
+    return (f'<Twin participant={quoteattr(twins[0].participant)} nmsidVersion="{version}" '
+            f'twinFileSha256="{twin_sha256}">{inner}</Twin>')
+
+
+def _description(twins: list[Twin], *, joints: bool) -> str:
+    """The model description's one-line summary."""
+    who = twins[0].participant or "an unnamed participant"
+    if not joints:
+        twin = twins[0]
+        names = ", ".join(e["name"] for e in twin.effects) or "none"
+        what = "force" if twin.measured_unit == "N" else f"{twin.joint} torque (N m)"
+        return (f"nmsid digital twin of {who}: {what} from rE and sE, second-order dynamics "
+                f"with parameter curves of sE; effects: {names}")
+    each = "; ".join(f"{t.joint}: {t.measured_quantity} ({t.measured_unit}), effects "
+                     f"{', '.join(e['name'] for e in t.effects) or 'none'}" for t in twins)
+    return (f"nmsid digital twin of {who}, {len(twins)} joints: each joint's force or torque "
+            f"from its own rE and sE (rE_<joint>, sE_<joint>), second-order dynamics with "
+            f"parameter curves of sE; {each}")
 
 
 @dataclass(frozen=True)
@@ -262,7 +319,10 @@ def export_fmu(twin_path: str | os.PathLike, out: str | os.PathLike, *, force: b
     Parameters
     ----------
     twin_path : path
-        A twin file (``docs/twin-file.md``).
+        A twin file (``docs/twin-file.md``): one twin (the FMU's variables ``rE``, ``sE``,
+        ``force_N``, ...), or several joints' (``joints``): one FMU with each joint's
+        variables named ``rE_<joint>``, ``sE_<joint>``, ``force_N_<joint>`` or
+        ``torque_Nm_<joint>``, ... (:func:`nmsid.export.fmu.variables.joint_variable_name`).
     out : path
         The ``.fmu`` to write; an existing file is refused unless ``force``.
     force : bool
@@ -289,20 +349,20 @@ def export_fmu(twin_path: str | os.PathLike, out: str | os.PathLike, *, force: b
         raise FmuExportError(f"{out}: already exists; choose another --out or add --force")
     if out.suffix.lower() != ".fmu":
         raise FmuExportError(f"{out}: an FMU's file name ends in .fmu")
-    twin = Twin.load(src)       # errors name the file and item
+    load_joint_twins(src)       # errors name the file and item (a joint's: joints.knee...)
     data = json.loads(src.read_text(encoding="utf-8"))
-    twin = check_exportable(data, str(src))
+    joints = isinstance(data, dict) and "joints" in data
+    twins = exportable_twins(data, str(src))
     twin_sha = file_sha256(src)
     version = nmsid_version()
     guid = "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, f"nmsid-twin:{twin_sha}:{version}:"
                                                    f"{extrapolate}")) + "}"
-    ident = _identifier(twin.participant)
-    vs = variables(twin, extrapolate=extrapolate)
-    names = ", ".join(e["name"] for e in twin.effects) or "none"
-    what = "force" if twin.measured_unit == "N" else f"{twin.joint} torque (N m)"
-    desc = (f"nmsid digital twin of {twin.participant or 'an unnamed participant'}: {what} "
-            f"from rE and sE, second-order dynamics with parameter curves of sE; effects: "
-            f"{names}")
+    ident = _identifier(twins[0].participant)
+    # a one-joint file: the names of every earlier FMU (rE, sE, force_N, ...); a file of
+    # several joints: each joint's with _<joint> after it (variables.joint_variable_name)
+    vs = (joint_variables(twins, extrapolate=extrapolate) if joints
+          else variables(twins[0], extrapolate=extrapolate))
+    desc = _description(twins, joints=joints)
     compiler = find_compiler() if binary else None
     plat = compiler.platform if compiler is not None else None
     with tempfile.TemporaryDirectory(prefix="nmsid-fmu-") as tmp:
@@ -310,12 +370,13 @@ def export_fmu(twin_path: str | os.PathLike, out: str | os.PathLike, *, force: b
         (root / "sources").mkdir()
         for f in C_SOURCES + C_HEADERS:
             shutil.copyfile(C_DIR / f, root / "sources" / f)
-        (root / "sources" / "twin_data.h").write_text(c_header(vs, guid), encoding="utf-8")
+        (root / "sources" / "twin_data.h").write_text(
+            c_header(vs, guid, [t.joint for t in twins]), encoding="utf-8")
         (root / "modelDescription.xml").write_text(model_description(
-            vs, model_name=f"nmsid_twin {twin.participant}".strip(), model_identifier=ident,
+            vs, model_name=f"nmsid_twin {twins[0].participant}".strip(), model_identifier=ident,
             guid=guid, description=desc, version=f"twin sha256 {twin_sha[:12]}",
             generation_tool=f"nmsid {version}",
-            annotation_xml=_annotation(twin, twin_sha, version),
+            annotation_xml=_annotation(twins, twin_sha, version, joints=joints),
             source_files=list(C_SOURCES)), encoding="utf-8")
         (root / "resources").mkdir()
         shutil.copyfile(src, root / "resources" / "twin.json")
@@ -336,7 +397,8 @@ def export_fmu(twin_path: str | os.PathLike, out: str | os.PathLike, *, force: b
         # the umask: 0644 typically), like every other output (issue 39)
         os.chmod(tmp_out, 0o666 & ~_umask())
         os.replace(tmp_out, out)
-    return FmuResult(out, ident, guid, plat, time.perf_counter() - t0)
+    return FmuResult(out, ident, guid, plat, time.perf_counter() - t0,
+                     tuple(t.joint for t in twins) if joints else ())
 
 
 def _umask() -> int:

@@ -42,6 +42,30 @@ def fmpy_input(rE, sE, fs_Hz: float, *, lead: float = 1e-9) -> np.ndarray:
     return sig
 
 
+def fmpy_joint_input(inputs: dict, fs_Hz: float, *, lead: float = 1e-9) -> np.ndarray:
+    """FMPy's input table for an FMU of several joints: ``{joint: (rE, sE)}`` gives the
+    columns ``rE_<joint>``, ``sE_<joint>`` (as :func:`fmpy_input` for each joint; every
+    joint's rE has the same number of samples).
+
+    Examples
+    --------
+    >>> t = fmpy_joint_input({"knee": ([0.5, 0.6], 0.7), "ankle": ([0.5, 0.4], 0.3)}, 1000.0)
+    >>> t.dtype.names, float(t["sE_ankle"][1])
+    (('time', 'rE_knee', 'sE_knee', 'rE_ankle', 'sE_ankle'), 0.3)
+    """
+    n = {len(np.asarray(r, dtype=float)) for r, _ in inputs.values()}
+    if len(n) != 1:
+        raise ValueError(f"every joint's rE needs the same number of samples, got {sorted(n)}")
+    length = n.pop()
+    cols = [("time", float)] + [(f"{q}_{j}", float) for j in inputs for q in ("rE", "sE")]
+    sig = np.zeros(length, dtype=cols)
+    sig["time"] = np.arange(length) / fs_Hz - lead / fs_Hz
+    for j, (rE, sE) in inputs.items():
+        sig[f"rE_{j}"] = np.asarray(rE, dtype=float)
+        sig[f"sE_{j}"] = np.broadcast_to(np.asarray(sE, dtype=float), (length,))
+    return sig
+
+
 @contextlib.contextmanager
 def fmpy_input_derivatives_fixed():
     """Within the block, FMPy's ``Input`` has one derivative slot per input."""

@@ -35,6 +35,15 @@ class Var:
     unit: str | None = None
     initial: str | None = None
     derivative_of: str | None = None
+    key: str = ""
+    """The variable's name in a one-joint FMU (its role; ``name`` when empty)."""
+    joint: int = 0
+    """The joint it belongs to: its position among the FMU's joints."""
+
+    @property
+    def role(self) -> str:
+        """The variable's name in a one-joint FMU (``force_N``, ``sE``, ``a_ext``, ...)."""
+        return self.key or self.name
 
 
 def _curve_vars(key: str, label: str, unit: str, curve) -> list[Var]:
@@ -158,6 +167,45 @@ def _in_joint_unit(reals: list[Var], twin: Twin) -> list[Var]:
             .replace("(N per unit rE)", "(N m per unit rE)").replace("(N)", "(N m)")
         out.append(replace(v, unit=_TORQUE_UNITS.get(v.unit, v.unit) if v.unit else v.unit,
                            description=desc))
+    return out
+
+
+def joint_variable_name(name: str, twin: Twin) -> str:
+    """A variable's name in an FMU of several joints: the one-joint name with ``_<joint>``
+    after it (``rE_knee``, ``Kp_c0_knee``, ``der(a_ext_knee)``), and ``force_N`` named
+    for its quantity: ``force_N_elbow``, ``torque_Nm_knee``.
+
+    Examples
+    --------
+    >>> from nmsid.analysis.twin import Curve
+    >>> c = {"Kp": Curve("constant", [5.0]), "wn_rad_s": Curve("constant", [30.0]),
+    ...      "zeta": Curve("constant", [0.7])}
+    >>> knee = Twin("P01", c, (0.3, 1.0), joint="knee", measured_quantity="torque",
+    ...             measured_unit="N m")
+    >>> [joint_variable_name(n, knee) for n in ("rE", "force_N", "der(y_ext_N)")]
+    ['rE_knee', 'torque_Nm_knee', 'der(y_ext_N_knee)']
+    """
+    j = twin.joint
+    if name.startswith("der(") and name.endswith(")"):
+        return f"der({joint_variable_name(name[4:-1], twin)})"
+    if name == "force_N":
+        return f"torque_Nm_{j}" if twin.measured_unit == "N m" else f"force_N_{j}"
+    return f"{name}_{j}"
+
+
+def joint_variables(twins: list[Twin], *, extrapolate: bool = False) -> list[Var]:
+    """Every scalar variable of an FMU of several joints: each joint's variables of a
+    one-joint FMU (:func:`variables`), named by :func:`joint_variable_name`, one joint
+    after the other, so that joint k's value references are k times a joint's count plus
+    the one-joint ones (``c/nmsid_model.h``)."""
+    out = []
+    for k, twin in enumerate(twins):
+        for v in variables(twin, extrapolate=extrapolate):
+            out.append(replace(
+                v, name=joint_variable_name(v.name, twin), key=v.name, joint=k,
+                derivative_of=(joint_variable_name(v.derivative_of, twin)
+                               if v.derivative_of else None),
+                description=f"{twin.joint}: {v.description}"))
     return out
 
 

@@ -45,6 +45,13 @@ void logmsg(Model *m, fmi2Status st, const char *cat, const char *fmt, ...)
     m->cb->logger(m->cb->componentEnvironment, m->name, st, cat, "%s", buf);
 }
 
+/* the name of a joint of the FMU (twin_data.h), for messages */
+const char *joint_name(const Model *m, const Joint *J)
+{
+    ptrdiff_t k = J - m->j;
+    return k >= 0 && k < N_JOINTS ? JOINT_NAMES[k] : "?";
+}
+
 /* ---- the twin's curves and effects ------------------------------------------------ */
 
 static double curve(int model, const double *c, double x)
@@ -57,32 +64,32 @@ static double curve(int model, const double *c, double x)
     }
 }
 
-static double sE_eval(const Model *m, double sE)
+static double sE_eval(const Joint *J, double sE)
 {
-    if (m->b[VRB_extrapolate]) return sE;
-    if (sE < m->r[VR_sE_min]) return m->r[VR_sE_min];
-    if (sE > m->r[VR_sE_max]) return m->r[VR_sE_max];
+    if (J->b[VRB_extrapolate]) return sE;
+    if (sE < J->r[VR_sE_min]) return J->r[VR_sE_min];
+    if (sE > J->r[VR_sE_max]) return J->r[VR_sE_max];
     return sE;
 }
 
-static double Kp_at(const Model *m, double sE)
-{ return curve(m->i[VRI_Kp_model], &m->r[VR_Kp_c0], sE_eval(m, sE)); }
-static double wn_at(const Model *m, double sE)
-{ return curve(m->i[VRI_wn_model], &m->r[VR_wn_c0], sE_eval(m, sE)); }
-static double zeta_at(const Model *m, double sE)
-{ return curve(m->i[VRI_zeta_model], &m->r[VR_zeta_c0], sE_eval(m, sE)); }
-static double offset_at(const Model *m, double sE)
-{ return curve(m->i[VRI_offset_model], &m->r[VR_offset_c0], sE_eval(m, sE)); }
+static double Kp_at(const Joint *J, double sE)
+{ return curve(J->i[VRI_Kp_model], &J->r[VR_Kp_c0], sE_eval(J, sE)); }
+static double wn_at(const Joint *J, double sE)
+{ return curve(J->i[VRI_wn_model], &J->r[VR_wn_c0], sE_eval(J, sE)); }
+static double zeta_at(const Joint *J, double sE)
+{ return curve(J->i[VRI_zeta_model], &J->r[VR_zeta_c0], sE_eval(J, sE)); }
+static double offset_at(const Joint *J, double sE)
+{ return curve(J->i[VRI_offset_model], &J->r[VR_offset_c0], sE_eval(J, sE)); }
 
 static double logistic(double z) { return 0.5 * (1.0 + tanh(0.5 * z)); }
 
 /* recruitment map h(I): h(0) = 0, h(1) = 1, unit slope outside [0, 1]
    (sim_backends/effects.py RecruitmentNonlinearity.h) */
-static double recruit(const Model *m, double x)
+static double recruit(const Joint *J, double x)
 {
-    double xin = x < 0.0 ? 0.0 : (x > 1.0 ? 1.0 : x), y, p1 = m->r[VR_recruitment_p1],
-           p2 = m->r[VR_recruitment_p2];
-    switch (m->i[VRI_recruitment_shape]) {
+    double xin = x < 0.0 ? 0.0 : (x > 1.0 ? 1.0 : x), y, p1 = J->r[VR_recruitment_p1],
+           p2 = J->r[VR_recruitment_p2];
+    switch (J->i[VRI_recruitment_shape]) {
     case 1: y = pow(xin, p1); break;                                   /* power: gamma */
     case 2: {                                            /* sigmoid: slope, midpoint */
         double lo = logistic(-p1 * p2), hi = logistic(p1 * (1.0 - p2));
@@ -97,32 +104,32 @@ static double recruit(const Model *m, double x)
     return y + (x - xin);
 }
 
-static int two_paths(const Model *m)
-{ return m->r[VR_asym_wn_ratio] != 1.0 || m->r[VR_asym_zeta_ratio] != 1.0; }
+static int two_paths(const Joint *J)
+{ return J->r[VR_asym_wn_ratio] != 1.0 || J->r[VR_asym_zeta_ratio] != 1.0; }
 
 /* drives of the extensor and flexor paths for inputs (rE, sE) */
-static void drives(const Model *m, double rE, double sE, double *we, double *wf)
+static void drives(const Joint *J, double rE, double sE, double *we, double *wf)
 {
-    double kp = Kp_at(m, sE);
-    if (m->i[VRI_recruitment_shape] == 0 && !two_paths(m)) {
+    double kp = Kp_at(J, sE);
+    if (J->i[VRI_recruitment_shape] == 0 && !two_paths(J)) {
         *we = kp * (rE - 0.5);
         *wf = 0.0;
         return;
     }
     if (!(sE > 0.0)) { *we = *wf = 0.0; return; }
     {
-        double k = kp / (2.0 * sE), h0 = recruit(m, 0.5 * sE);
-        *we = k * (recruit(m, rE * sE) - h0);
-        *wf = -k * (recruit(m, (1.0 - rE) * sE) - h0);  /* sign: force = y_e + y_f */
+        double k = kp / (2.0 * sE), h0 = recruit(J, 0.5 * sE);
+        *we = k * (recruit(J, rE * sE) - h0);
+        *wf = -k * (recruit(J, (1.0 - rE) * sE) - h0);  /* sign: force = y_e + y_f */
     }
-    if (!two_paths(m)) { *we += *wf; *wf = 0.0; }
+    if (!two_paths(J)) { *we += *wf; *wf = 0.0; }
 }
 
-static double fatigue_gain(const Model *m, double c)
+static double fatigue_gain(const Joint *J, double c)
 {
-    double p = m->r[VR_fatigue_gain_loss_pct] / 100.0, cref = m->r[VR_fatigue_reference_stim_s];
-    if (m->i[VRI_fatigue_shape] == 1) return pow(1.0 - p, c / cref);
-    if (m->i[VRI_fatigue_shape] == 2) { double g = 1.0 - p * c / cref; return g > 0.05 ? g : 0.05; }
+    double p = J->r[VR_fatigue_gain_loss_pct] / 100.0, cref = J->r[VR_fatigue_reference_stim_s];
+    if (J->i[VRI_fatigue_shape] == 1) return pow(1.0 - p, c / cref);
+    if (J->i[VRI_fatigue_shape] == 2) { double g = 1.0 - p * c / cref; return g > 0.05 ? g : 0.05; }
     return 1.0;
 }
 
@@ -188,30 +195,30 @@ static void path_step(int nx, double *x, double wn, double zeta, double tau, dou
     memcpy(x, xn, sizeof(double) * nx);
 }
 
-int params_ok(Model *m, double sE)
+int params_ok(Model *M, const Joint *J, double sE)
 {
-    double wn = wn_at(m, sE), z = zeta_at(m, sE);
-    if (wn > 0.0 && z > 0.0 && isfinite(Kp_at(m, sE)) && isfinite(offset_at(m, sE))) return 1;
-    logmsg(m, fmi2Error, "logStatusError", "wn_rad_s (%g) or zeta (%g) is not positive at "
-           "sE = %g; keep sE in [%g, %g] or leave extrapolate off", wn, z, sE,
-           m->r[VR_sE_min], m->r[VR_sE_max]);
+    double wn = wn_at(J, sE), z = zeta_at(J, sE);
+    if (wn > 0.0 && z > 0.0 && isfinite(Kp_at(J, sE)) && isfinite(offset_at(J, sE))) return 1;
+    logmsg(M, fmi2Error, "logStatusError", "%s: wn_rad_s (%g) or zeta (%g) is not positive at "
+           "sE = %g; keep sE in [%g, %g] or leave extrapolate off", joint_name(M, J), wn, z, sE,
+           J->r[VR_sE_min], J->r[VR_sE_max]);
     return 0;
 }
 
 /* advance the states by h s with inputs moving in straight lines (r0, s0) -> (r1, s1) */
-static int advance(Model *m, double h, double r0, double s0, double r1, double s1)
+static int advance(Model *M, Joint *J, double h, double r0, double s0, double r1, double s1)
 {
-    double *x = &m->r[VR_x0];
-    double wn = 0.5 * (wn_at(m, s0) + wn_at(m, s1)), z = 0.5 * (zeta_at(m, s0) + zeta_at(m, s1));
-    double tau = m->r[VR_activation_tau_s], we0, wf0, we1, wf1;
+    double *x = &J->r[VR_x0];
+    double wn = 0.5 * (wn_at(J, s0) + wn_at(J, s1)), z = 0.5 * (zeta_at(J, s0) + zeta_at(J, s1));
+    double tau = J->r[VR_activation_tau_s], we0, wf0, we1, wf1;
     int nx = tau > 0.0 ? 3 : 2, off = tau > 0.0 ? 0 : 1;
-    if (!params_ok(m, s0) || !params_ok(m, s1)) return 0;
-    drives(m, r0, s0, &we0, &wf0);
-    drives(m, r1, s1, &we1, &wf1);
+    if (!params_ok(M, J, s0) || !params_ok(M, J, s1)) return 0;
+    drives(J, r0, s0, &we0, &wf0);
+    drives(J, r1, s1, &we1, &wf1);
     if (h > 0.0) {
         path_step(nx, x + off, wn, z, tau, h, we0, we1);
-        if (two_paths(m))
-            path_step(nx, x + 3 + off, wn * m->r[VR_asym_wn_ratio], z * m->r[VR_asym_zeta_ratio],
+        if (two_paths(J))
+            path_step(nx, x + 3 + off, wn * J->r[VR_asym_wn_ratio], z * J->r[VR_asym_zeta_ratio],
                       tau, h, wf0, wf1);
     }
     return 1;
@@ -219,33 +226,33 @@ static int advance(Model *m, double h, double r0, double s0, double r1, double s
 
 /* ---- input history and the dead time --------------------------------------------- */
 
-double *hseg(Model *m, int k) { return m->hist[(m->h0 + k) % HCAP]; }
+double *hseg(Joint *J, int k) { return J->hist[(J->h0 + k) % HCAP]; }
 
-int hist_push(Model *m, double t0, double r0, double s0, double t1, double r1, double s1)
+int hist_push(Model *M, Joint *J, double t0, double r0, double s0, double t1, double r1, double s1)
 {
     double *g;
-    if (m->hn == HCAP) {
-        logmsg(m, fmi2Error, "logStatusError", "dead_time %g s spans more than %d input "
-               "steps; use longer steps", m->r[VR_dead_time_s], HCAP);
+    if (J->hn == HCAP) {
+        logmsg(M, fmi2Error, "logStatusError", "%s: dead_time %g s spans more than %d input "
+               "steps; use longer steps", joint_name(M, J), J->r[VR_dead_time_s], HCAP);
         return 0;
     }
-    g = hseg(m, m->hn++);
+    g = hseg(J, J->hn++);
     g[0] = t0; g[1] = r0; g[2] = s0; g[3] = t1; g[4] = r1; g[5] = s1;
     return 1;
 }
 
 /* forget segments that end before t (never needed again) */
-void hist_prune(Model *m, double t)
+void hist_prune(Joint *J, double t)
 {
-    while (m->hn > 1 && hseg(m, 0)[3] < t) { m->h0 = (m->h0 + 1) % HCAP; m->hn--; }
+    while (J->hn > 1 && hseg(J, 0)[3] < t) { J->h0 = (J->h0 + 1) % HCAP; J->hn--; }
 }
 
 /* inputs at time t on segment k (k < 0: at rest; past the last one: its end held) */
-void seg_eval(Model *m, int k, double t, double *r, double *s)
+void seg_eval(Joint *J, int k, double t, double *r, double *s)
 {
     double *g, a;
-    if (k < 0) { *r = 0.5; *s = m->rest_sE; return; }
-    g = hseg(m, k);
+    if (k < 0) { *r = 0.5; *s = J->rest_sE; return; }
+    g = hseg(J, k);
     if (g[3] <= g[0] || t >= g[3]) { *r = g[4]; *s = g[5]; return; }
     a = (t - g[0]) / (g[3] - g[0]);
     if (a < 0.0) a = 0.0;
@@ -254,48 +261,48 @@ void seg_eval(Model *m, int k, double t, double *r, double *s)
 }
 
 /* the segment that holds the piece starting at t (-1 before the first) */
-int seg_at(Model *m, double t)
+int seg_at(Joint *J, double t)
 {
     int k;
-    for (k = m->hn - 1; k >= 0; k--) if (hseg(m, k)[0] <= t) return k;
+    for (k = J->hn - 1; k >= 0; k--) if (hseg(J, k)[0] <= t) return k;
     return -1;
 }
 
 /* advance the states from a to b (times of the delayed input, i.e. minus the dead time),
    cutting the interval where the input history has a corner */
-int advance_delayed(Model *m, double a, double b)
+int advance_delayed(Model *M, Joint *J, double a, double b)
 {
     while (b - a > 0.0) {
-        int k = seg_at(m, a);
+        int k = seg_at(J, a);
         double q = b, r0, s0, r1, s1;
-        if (k + 1 < m->hn && hseg(m, k + 1)[0] < q) q = hseg(m, k + 1)[0];
-        if (k >= 0 && hseg(m, k)[3] > a && hseg(m, k)[3] < q) q = hseg(m, k)[3];
+        if (k + 1 < J->hn && hseg(J, k + 1)[0] < q) q = hseg(J, k + 1)[0];
+        if (k >= 0 && hseg(J, k)[3] > a && hseg(J, k)[3] < q) q = hseg(J, k)[3];
         if (q - a <= 1e-12 * (fabs(a) + 1.0) && q < b) { a = q; continue; }
-        seg_eval(m, k, a, &r0, &s0);
-        seg_eval(m, k, q, &r1, &s1);
-        if (!advance(m, q - a, r0, s0, r1, s1)) return 0;
+        seg_eval(J, k, a, &r0, &s0);
+        seg_eval(J, k, q, &r1, &s1);
+        if (!advance(M, J, q - a, r0, s0, r1, s1)) return 0;
         a = q;
     }
     return 1;
 }
 
-void derivatives(Model *m, double *dx)
+void derivatives(Joint *J, double time, double *dx)
 {
-    const double *x = &m->r[VR_x0];
-    double rE = m->r[VR_rE], sE = m->r[VR_sE], tau = m->r[VR_activation_tau_s], wn, z;
+    const double *x = &J->r[VR_x0];
+    double rE = J->r[VR_rE], sE = J->r[VR_sE], tau = J->r[VR_activation_tau_s], wn, z;
     double w[2], stim = sE;
     int p;
-    if (m->r[VR_dead_time_s] > 0.0) {
-        double t = m->time - m->r[VR_dead_time_s];
-        seg_eval(m, seg_at(m, t), t, &rE, &sE);
+    if (J->r[VR_dead_time_s] > 0.0) {
+        double t = time - J->r[VR_dead_time_s];
+        seg_eval(J, seg_at(J, t), t, &rE, &sE);
     }
-    wn = wn_at(m, sE);
-    z = zeta_at(m, sE);
-    drives(m, rE, sE, &w[0], &w[1]);
+    wn = wn_at(J, sE);
+    z = zeta_at(J, sE);
+    drives(J, rE, sE, &w[0], &w[1]);
     for (p = 0; p < 2; p++) {
         const double *xp = x + 3 * p;
         double *dp = dx + 3 * p;
-        double wnp = p ? wn * m->r[VR_asym_wn_ratio] : wn, zp = p ? z * m->r[VR_asym_zeta_ratio] : z;
+        double wnp = p ? wn * J->r[VR_asym_wn_ratio] : wn, zp = p ? z * J->r[VR_asym_zeta_ratio] : z;
         double a = tau > 0.0 ? xp[0] : w[p];
         dp[0] = tau > 0.0 ? (w[p] - xp[0]) / tau : 0.0;
         dp[1] = xp[2];
@@ -304,12 +311,12 @@ void derivatives(Model *m, double *dx)
     dx[6] = stim > 0.0 ? 1.0 : 0.0;
 }
 
-void outputs(Model *m)
+void outputs(Joint *J)
 {
-    double sE = m->r[VR_sE], *x = &m->r[VR_x0];
-    m->r[VR_Kp] = Kp_at(m, sE);
-    m->r[VR_wn_rad_s] = wn_at(m, sE);
-    m->r[VR_zeta] = zeta_at(m, sE);
-    m->r[VR_force_N] = offset_at(m, sE) + fatigue_gain(m, x[6]) * (x[1] + x[4]);
+    double sE = J->r[VR_sE], *x = &J->r[VR_x0];
+    J->r[VR_Kp] = Kp_at(J, sE);
+    J->r[VR_wn_rad_s] = wn_at(J, sE);
+    J->r[VR_zeta] = zeta_at(J, sE);
+    J->r[VR_force_N] = offset_at(J, sE) + fatigue_gain(J, x[6]) * (x[1] + x[4]);
 }
 

@@ -1,5 +1,10 @@
 /* nmsid digital twin as an FMI 2.0 FMU (model exchange and co-simulation): the FMI
- * functions. The model and its equations are in nmsid_model.c. */
+ * functions. The model and its equations are in nmsid_model.c.
+ *
+ * The FMU holds N_JOINTS joints' twins side by side (one for a one-joint twin file), each
+ * with the variables of a one-joint FMU: value reference vr is joint vr / N_REAL's local
+ * reference vr % N_REAL (Integer and Boolean likewise), and the continuous states are the
+ * joints' NX states one joint after the other. The joints share only the time. */
 
 #include <math.h>
 #include <stdlib.h>
@@ -17,10 +22,14 @@ fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n, const 
 
 static void set_defaults(Model *m)
 {
-    memcpy(m->r, START_REAL, sizeof m->r);
-    memcpy(m->i, START_INTEGER, sizeof m->i);
-    memcpy(m->b, START_BOOLEAN, sizeof m->b);
-    m->der_rE = m->der_sE = 0.0;
+    int k;
+    for (k = 0; k < N_JOINTS; k++) {
+        Joint *J = &m->j[k];
+        memcpy(J->r, START_REAL[k], sizeof J->r);
+        memcpy(J->i, START_INTEGER[k], sizeof J->i);
+        memcpy(J->b, START_BOOLEAN[k], sizeof J->b);
+        J->der_rE = J->der_sE = 0.0;
+    }
     m->time = 0.0;
 }
 
@@ -60,18 +69,22 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c)
     /* at rest until rest_lead_s before the start, then a straight line to the first input
        (`nmsid twin simulate` assumes one sampling period) */
     Model *m = (Model *)c;
-    double r = m->r[VR_rE], s = m->r[VR_sE], lead = m->r[VR_rest_lead_s], t = m->time;
-    double L = m->r[VR_dead_time_s];
-    memset(&m->r[VR_x0], 0, sizeof(double) * NX);
-    m->h0 = m->hn = 0;
-    m->rest_sE = s;
+    int k;
     m->in_init = 0;
-    if (lead > 0.0 && !hist_push(m, t - lead, 0.5, s, t, r, s)) return fmi2Error;
-    if (!m->is_cs) { if (!hist_push(m, t, r, s, t, r, s)) return fmi2Error; }
-    if (lead > 0.0 && !advance_delayed(m, t - lead - L, t - L)) return fmi2Error;
-    m->last_rE = r;
-    m->last_sE = s;
-    outputs(m);
+    for (k = 0; k < N_JOINTS; k++) {
+        Joint *J = &m->j[k];
+        double r = J->r[VR_rE], s = J->r[VR_sE], lead = J->r[VR_rest_lead_s], t = m->time;
+        double L = J->r[VR_dead_time_s];
+        memset(&J->r[VR_x0], 0, sizeof(double) * NX);
+        J->h0 = J->hn = 0;
+        J->rest_sE = s;
+        if (lead > 0.0 && !hist_push(m, J, t - lead, 0.5, s, t, r, s)) return fmi2Error;
+        if (!m->is_cs) { if (!hist_push(m, J, t, r, s, t, r, s)) return fmi2Error; }
+        if (lead > 0.0 && !advance_delayed(m, J, t - lead - L, t - L)) return fmi2Error;
+        J->last_rE = r;
+        J->last_sE = s;
+        outputs(J);
+    }
     return fmi2OK;
 }
 
@@ -82,14 +95,19 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n,
 {
     Model *m = (Model *)c;
     size_t k;
-    outputs(m);
+    int j;
+    for (j = 0; j < N_JOINTS; j++) outputs(&m->j[j]);
     for (k = 0; k < n; k++) {
-        if (vr[k] >= N_REAL) return fmi2Error;
-        if (vr[k] >= VR_dx0 && vr[k] < VR_dx0 + NX) {
+        Joint *J;
+        fmi2ValueReference u;
+        if (vr[k] >= N_REAL * N_JOINTS) return fmi2Error;
+        J = &m->j[vr[k] / N_REAL];
+        u = vr[k] % N_REAL;
+        if (u >= VR_dx0 && u < VR_dx0 + NX) {
             double dx[NX];
-            derivatives(m, dx);
-            v[k] = dx[vr[k] - VR_dx0];
-        } else v[k] = m->r[vr[k]];
+            derivatives(J, m->time, dx);
+            v[k] = dx[u - VR_dx0];
+        } else v[k] = J->r[u];
     }
     return fmi2OK;
 }
@@ -97,14 +115,20 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n,
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Integer v[])
 {
     size_t k;
-    for (k = 0; k < n; k++) { if (vr[k] >= N_INTEGER) return fmi2Error; v[k] = ((Model *)c)->i[vr[k]]; }
+    for (k = 0; k < n; k++) {
+        if (vr[k] >= N_INTEGER * N_JOINTS) return fmi2Error;
+        v[k] = ((Model *)c)->j[vr[k] / N_INTEGER].i[vr[k] % N_INTEGER];
+    }
     return fmi2OK;
 }
 
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Boolean v[])
 {
     size_t k;
-    for (k = 0; k < n; k++) { if (vr[k] >= N_BOOLEAN) return fmi2Error; v[k] = ((Model *)c)->b[vr[k]]; }
+    for (k = 0; k < n; k++) {
+        if (vr[k] >= N_BOOLEAN * N_JOINTS) return fmi2Error;
+        v[k] = ((Model *)c)->j[vr[k] / N_BOOLEAN].b[vr[k] % N_BOOLEAN];
+    }
     return fmi2OK;
 }
 
@@ -115,26 +139,34 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n,
 {
     Model *m = (Model *)c;
     size_t k;
+    int j;
     for (k = 0; k < n; k++) {
-        if (vr[k] >= N_REAL) return fmi2Error;
+        Joint *J;
+        fmi2ValueReference u;
+        if (vr[k] >= N_REAL * N_JOINTS) return fmi2Error;
         if (!isfinite(v[k])) {
             logmsg(m, fmi2Error, "logStatusError", "value reference %u set to a non-finite "
                    "value", (unsigned)vr[k]);
             return fmi2Error;
         }
-        m->r[vr[k]] = v[k];
-        if (vr[k] == VR_rE) m->der_rE = 0.0;
-        if (vr[k] == VR_sE) m->der_sE = 0.0;
+        J = &m->j[vr[k] / N_REAL];
+        u = vr[k] % N_REAL;
+        J->r[u] = v[k];
+        if (u == VR_rE) J->der_rE = 0.0;
+        if (u == VR_sE) J->der_sE = 0.0;
     }
-    if (!m->is_cs && !m->in_init && m->hn > 0 && m->r[VR_dead_time_s] > 0.0) {
-        /* model exchange: the history joins the values set at successive times by
-           straight lines */
-        double *g = hseg(m, m->hn - 1);
-        if (m->time > g[3]) {
-            if (!hist_push(m, g[3], g[4], g[5], m->time, m->r[VR_rE], m->r[VR_sE]))
-                return fmi2Error;
-            hist_prune(m, m->time - m->r[VR_dead_time_s]);
-        } else { g[4] = m->r[VR_rE]; g[5] = m->r[VR_sE]; }
+    for (j = 0; j < N_JOINTS; j++) {
+        Joint *J = &m->j[j];
+        if (!m->is_cs && !m->in_init && J->hn > 0 && J->r[VR_dead_time_s] > 0.0) {
+            /* model exchange: the history joins the values set at successive times by
+               straight lines */
+            double *g = hseg(J, J->hn - 1);
+            if (m->time > g[3]) {
+                if (!hist_push(m, J, g[3], g[4], g[5], m->time, J->r[VR_rE], J->r[VR_sE]))
+                    return fmi2Error;
+                hist_prune(J, m->time - J->r[VR_dead_time_s]);
+            } else { g[4] = J->r[VR_rE]; g[5] = J->r[VR_sE]; }
+        }
     }
     return fmi2OK;
 }
@@ -142,14 +174,20 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n,
 fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer v[])
 {
     size_t k;
-    for (k = 0; k < n; k++) { if (vr[k] >= N_INTEGER) return fmi2Error; ((Model *)c)->i[vr[k]] = v[k]; }
+    for (k = 0; k < n; k++) {
+        if (vr[k] >= N_INTEGER * N_JOINTS) return fmi2Error;
+        ((Model *)c)->j[vr[k] / N_INTEGER].i[vr[k] % N_INTEGER] = v[k];
+    }
     return fmi2OK;
 }
 
 fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Boolean v[])
 {
     size_t k;
-    for (k = 0; k < n; k++) { if (vr[k] >= N_BOOLEAN) return fmi2Error; ((Model *)c)->b[vr[k]] = v[k]; }
+    for (k = 0; k < n; k++) {
+        if (vr[k] >= N_BOOLEAN * N_JOINTS) return fmi2Error;
+        ((Model *)c)->j[vr[k] / N_BOOLEAN].b[vr[k] % N_BOOLEAN] = v[k];
+    }
     return fmi2OK;
 }
 
@@ -210,27 +248,49 @@ fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSet, fmi2B
                                        fmi2Boolean *term)
 {
     Model *m = (Model *)c;
+    int k;
     (void)noSet;
-    *enter = m->r[VR_rE] != m->last_rE || m->r[VR_sE] != m->last_sE;
-    m->last_rE = m->r[VR_rE];
-    m->last_sE = m->r[VR_sE];
+    *enter = fmi2False;
+    for (k = 0; k < N_JOINTS; k++) {
+        Joint *J = &m->j[k];
+        if (J->r[VR_rE] != J->last_rE || J->r[VR_sE] != J->last_sE) *enter = fmi2True;
+        J->last_rE = J->r[VR_rE];
+        J->last_sE = J->r[VR_sE];
+    }
     *term = fmi2False;
     return fmi2OK;
 }
 fmi2Status fmi2SetTime(fmi2Component c, fmi2Real t) { ((Model *)c)->time = t; return fmi2OK; }
 fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t n)
-{ if (n != NX) return fmi2Error; memcpy(&((Model *)c)->r[VR_x0], x, sizeof(double) * NX); return fmi2OK; }
+{
+    int k;
+    if (n != NX * N_JOINTS) return fmi2Error;
+    for (k = 0; k < N_JOINTS; k++)
+        memcpy(&((Model *)c)->j[k].r[VR_x0], x + k * NX, sizeof(double) * NX);
+    return fmi2OK;
+}
 fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real dx[], size_t n)
 {
     Model *m = (Model *)c;
-    if (n != NX || !params_ok(m, m->r[VR_sE])) return fmi2Error;
-    derivatives(m, dx);
+    int k;
+    if (n != NX * N_JOINTS) return fmi2Error;
+    for (k = 0; k < N_JOINTS; k++) {
+        Joint *J = &m->j[k];
+        if (!params_ok(m, J, J->r[VR_sE])) return fmi2Error;
+        derivatives(J, m->time, dx + k * NX);
+    }
     return fmi2OK;
 }
 fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real e[], size_t n)
 { (void)c; (void)e; return n ? fmi2Error : fmi2OK; }
 fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t n)
-{ if (n != NX) return fmi2Error; memcpy(x, &((Model *)c)->r[VR_x0], sizeof(double) * NX); return fmi2OK; }
+{
+    int k;
+    if (n != NX * N_JOINTS) return fmi2Error;
+    for (k = 0; k < N_JOINTS; k++)
+        memcpy(x + k * NX, &((Model *)c)->j[k].r[VR_x0], sizeof(double) * NX);
+    return fmi2OK;
+}
 fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x[], size_t n)
 { size_t k; (void)c; for (k = 0; k < n; k++) x[k] = 1.0; return fmi2OK; }
 
@@ -241,9 +301,14 @@ fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference
     Model *m = (Model *)c;
     size_t k;
     for (k = 0; k < n; k++) {
+        Joint *J;
+        fmi2ValueReference u;
         if (order[k] != 1) continue;               /* the model is exact for straight lines */
-        if (vr[k] == VR_rE) m->der_rE = v[k];
-        else if (vr[k] == VR_sE) m->der_sE = v[k];
+        if (vr[k] >= N_REAL * N_JOINTS) return fmi2Error;
+        J = &m->j[vr[k] / N_REAL];
+        u = vr[k] % N_REAL;
+        if (u == VR_rE) J->der_rE = v[k];
+        else if (u == VR_sE) J->der_sE = v[k];
         else return fmi2Error;
     }
     return fmi2OK;
@@ -255,18 +320,22 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSetPrior)
 {
     Model *m = (Model *)c;
-    double r0 = m->r[VR_rE], s0 = m->r[VR_sE];
-    double r1 = r0 + m->der_rE * h, s1 = s0 + m->der_sE * h;
-    double L = m->r[VR_dead_time_s];
+    int k;
     if (!(h >= 0.0)) return fmi2Error;
-    if (!hist_push(m, t, r0, s0, t + h, r1, s1)) return fmi2Error;
-    if (!advance_delayed(m, t - L, t + h - L)) return fmi2Error;
-    hist_prune(m, t + h - L);
-    if (s0 > 0.0) m->r[VR_x0 + 6] += h;    /* cumulative stimulation (fatigue) */
-    /* the inputs the model sees at the new time are the extrapolated lines' ends */
-    m->r[VR_rE] = r1;
-    m->r[VR_sE] = s1;
-    m->der_rE = m->der_sE = 0.0;
+    for (k = 0; k < N_JOINTS; k++) {
+        Joint *J = &m->j[k];
+        double r0 = J->r[VR_rE], s0 = J->r[VR_sE];
+        double r1 = r0 + J->der_rE * h, s1 = s0 + J->der_sE * h;
+        double L = J->r[VR_dead_time_s];
+        if (!hist_push(m, J, t, r0, s0, t + h, r1, s1)) return fmi2Error;
+        if (!advance_delayed(m, J, t - L, t + h - L)) return fmi2Error;
+        hist_prune(J, t + h - L);
+        if (s0 > 0.0) J->r[VR_x0 + 6] += h;    /* cumulative stimulation (fatigue) */
+        /* the inputs the model sees at the new time are the extrapolated lines' ends */
+        J->r[VR_rE] = r1;
+        J->r[VR_sE] = s1;
+        J->der_rE = J->der_sE = 0.0;
+    }
     (void)noSetPrior;
     m->time = t + h;
     return fmi2OK;
