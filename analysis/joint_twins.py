@@ -31,11 +31,12 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from nmsid.analysis.errors import TwinFileError
+from nmsid.analysis.errors import TwinFileError, TwinInputError
 from nmsid.analysis.twin import FORMAT, FORMAT_VERSION, Twin
 from nmsid.sim_backends.twin_file import TwinReadError, read_twin_file, write_twin_file
 
-__all__ = ["joint_twins_to_dict", "load_joint_twins", "save_joint_twins"]
+__all__ = ["joint_twin", "joint_twins_to_dict", "load_joint_twins", "pick_joint",
+           "save_joint_twins"]
 
 _HEAD = ("format", "format_version", "participant")
 
@@ -105,3 +106,56 @@ def load_joint_twins(path: str | os.PathLike) -> dict[str, Twin]:
         except TwinFileError as exc:
             raise TwinFileError(p, f"joints.{name}: {exc.problem}") from None
     return out
+
+
+def pick_joint(twins: dict[str, Twin], joint: str | None, where, *,
+               how: str = "--joint NAME") -> Twin:
+    """The twin of ``joint`` among a file's (:func:`load_joint_twins`); ``None``: the one
+    twin of a file that holds one.
+
+    Parameters
+    ----------
+    twins : dict
+        Joint name -> twin, as :func:`load_joint_twins` gives them.
+    joint : str or None
+        The joint wanted.
+    where : path or str
+        The file, for the message.
+    how : str
+        How the user names a joint, for the message (``--joint NAME``, ``joint=``).
+
+    Raises
+    ------
+    TwinInputError
+        One line naming the file, the joint asked and the joints it holds.
+
+    Examples
+    --------
+    >>> from nmsid.analysis.twin import Curve
+    >>> c = {"Kp": Curve("constant", [5.0]), "wn_rad_s": Curve("constant", [30.0]),
+    ...      "zeta": Curve("constant", [0.7])}
+    >>> twins = {"elbow": Twin("P01", c, (0.3, 1.0)),
+    ...          "knee": Twin("P01", c, (0.3, 1.0), joint="knee")}
+    >>> pick_joint(twins, "knee", "P01.json").joint
+    'knee'
+    >>> pick_joint(twins, "hip", "P01.json")
+    Traceback (most recent call last):
+    ...
+    nmsid.analysis.errors.TwinInputError: P01.json has no twin of joint 'hip'; it holds elbow, knee
+    """
+    held = ", ".join(twins)
+    if joint is None:
+        if len(twins) == 1:
+            return next(iter(twins.values()))
+        raise TwinInputError(f"{where} holds the twins of joints {held}: say which one "
+                             f"({how})")
+    if joint not in twins:
+        raise TwinInputError(f"{where} has no twin of joint {joint!r}; it holds {held}")
+    return twins[joint]
+
+
+def joint_twin(path: str | os.PathLike, joint: str | None = None, *,
+               how: str = "--joint NAME") -> Twin:
+    """The twin of one joint in a twin file of one or several joints (:func:`pick_joint`:
+    ``None`` for a file of one twin)."""
+    return pick_joint(load_joint_twins(path), joint, path, how=how)

@@ -1,4 +1,6 @@
-"""``nmsid export nwb SESSION.h5 --out SESSION.nwb``: share a session as NWB."""
+"""``nmsid export nwb SESSION.h5 --out SESSION.nwb``: share a session as NWB;
+``nmsid export fmu TWIN.json --out P01.fmu``: a twin as an FMU (the same as ``nmsid twin
+export TWIN.json --fmu``)."""
 
 from __future__ import annotations
 
@@ -7,7 +9,8 @@ from nmsid.cli.arguments import input_file, iso_age, non_empty_text, output_path
 
 def register(sub) -> None:
     """Add the ``export`` sub-command."""
-    p = sub.add_parser("export", help="export a session file to another format (NWB)")
+    p = sub.add_parser("export", help="export a session file (NWB) or a twin (FMU) to "
+                                      "another format")
     fmt = p.add_subparsers(dest="export_format", metavar="FORMAT")
     n = fmt.add_parser("nwb", help="write the session as an NWB file (Neurodata Without "
                        "Borders); needs the extra 'nwb'",
@@ -31,4 +34,20 @@ def register(sub) -> None:
     n.add_argument("--inspect", action="store_true",
                    help="run nwbinspector on the result and print its findings")
     n.set_defaults(handler="nmsid.cli.export_command:run_nwb")
+    f = fmt.add_parser("fmu", help="write a twin file as an FMI 2.0 FMU (co-simulation + "
+                       "model exchange); the same as `nmsid twin export TWIN.json --fmu`",
+                       description="Write a twin file (one joint, or several: one FMU with "
+                                   "rE_<joint>, sE_<joint> in and each joint's force or "
+                                   "torque out) as a Functional Mock-up Unit, FMI 2.0: C "
+                                   "sources plus a binary for this platform built with the "
+                                   "system's C compiler. See docs/fmu.md.")
+    f.add_argument("twin", metavar="TWIN.json", type=input_file)
+    f.add_argument("--out", required=True, metavar="P01.fmu", type=output_path)
+    f.add_argument("--force", action="store_true", help="replace an existing --out")
+    f.add_argument("--extrapolate", action="store_true",
+                   help="start value of the FMU's extrapolate parameter(s): evaluate the "
+                        "curves outside the tested sE range (default: clamp sE)")
+    f.add_argument("--sources-only", action="store_true",
+                   help="no binary: C sources only (the importer builds them)")
+    f.set_defaults(handler="nmsid.cli.twin_export_command:run_twin_export")
     p.set_defaults(handler="nmsid.cli.export_command:run_missing_format")

@@ -13,7 +13,7 @@ from nmsid.protocols.output_paths import check_output, output_dir, output_file
 
 def run_missing_format(args) -> int:
     raise UsageError("say which format to export to: `nmsid export nwb SESSION.h5 --out "
-                     "SESSION.nwb`")
+                     "SESSION.nwb` or `nmsid export fmu TWIN.json --out P01.fmu`")
 
 
 def run_nwb(args) -> int:

@@ -3,6 +3,7 @@
     nmsid identify SESSION.h5 [SESSION.h5 ...] --out DIR [--no-figures] [settings]
     nmsid twin simulate TWIN.json --sE 0.6 --rE-chirp --out force.csv
     nmsid twin simulate TWIN.json --input input.csv --out force.csv
+    nmsid twin simulate LEG1.json --joint knee --sE 0.6 --rE-chirp --out torque.csv
     nmsid twin export TWIN.json --fmu --out P01.fmu
 
 Registration only (argparse); the handlers are in :mod:`nmsid.cli.identify_command`.
@@ -99,10 +100,15 @@ def register(sub) -> None:
                        description="Use a digital twin written by `nmsid identify`.")
     tsub = t.add_subparsers(dest="twin_command", metavar="ACTION")
     sim = tsub.add_parser(
-        "simulate", help="predict force for an rE(t) and sE",
-        description="Predict the force of the twin for an input rE(t) at a constant sE "
-                    "(--sE) or a per-sample sE (an 'sE' column of --input).")
+        "simulate", help="predict force (or a joint's torque) for an rE(t) and sE",
+        description="Predict the force of the twin (a torque joint's twin: its torque in "
+                    "N m) for an input rE(t) at a constant sE (--sE) or a per-sample sE (an "
+                    "'sE' column of --input). A twin file of several joints: --joint says "
+                    "which joint's twin. See docs/twin-file.md.")
     sim.add_argument("twin", metavar="TWIN.json", type=input_file)
+    sim.add_argument("--joint", default=None, metavar="NAME",
+                     help="the joint whose twin to simulate, in a twin file of several "
+                          "joints (default: the file's one twin)")
     src = sim.add_mutually_exclusive_group(required=True)
     src.add_argument("--rE-chirp", action="store_true",
                      help="the paper's input: steady rE = 0.5, then a 0.5 + 0.5 sin chirp")

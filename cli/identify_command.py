@@ -11,9 +11,9 @@ import sys
 import numpy as np
 
 from nmsid.analysis.errors import SimulateOptionError
+from nmsid.analysis.joint_twins import joint_twin
 from nmsid.analysis.run import run_identification, summary_line
 from nmsid.analysis.settings import IdentificationSettings
-from nmsid.analysis.twin import Twin
 from nmsid.cli.errors import InputFileError, UsageError
 from nmsid.protocols.output_paths import check_output, output_dir, output_file
 
@@ -190,7 +190,7 @@ def _simulate(twin, rE, sE, fs: float, args) -> np.ndarray:
 def run_twin_simulate(args) -> int:
     """Handler of ``nmsid twin simulate``."""
     _check_simulate_options(args)
-    twin = Twin.load(args.twin)
+    twin = joint_twin(args.twin, getattr(args, "joint", None))
     _check_effects(twin, args)
     check_output(args.out, force=args.force, kind="file")
     if args.rE_chirp:
@@ -226,11 +226,14 @@ def run_twin_simulate(args) -> int:
         raise UsageError("give --sE, or an 'sE' column in the --input CSV")
     _check_input_columns(args.input, rE, sE)
     force = _simulate(twin, rE, sE, fs, args)
+    # a torque joint's twin (docs/joints.md) gives its torque in N m: the column says so
+    column, what, unit = (("torque_Nm", f"{twin.joint} torque", "N m")
+                          if twin.measured_unit == "N m" else ("force_N", "force", "N"))
     with output_file(args.out, force=args.force) as tmp:
         with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write("t_s,rE,sE,force_N\n")
+            fh.write(f"t_s,rE,sE,{column}\n")
             for row in zip(t, rE, sE, force, strict=True):
                 fh.write(f"{row[0]:.6f},{row[1]:.9g},{row[2]:.9g},{row[3]:.9g}\n")
     print(f"wrote {len(rE)} samples at {fs:g} Hz to {args.out} "
-          f"(force {force.min():.3f} to {force.max():.3f} N)")
+          f"({what} {force.min():.3f} to {force.max():.3f} {unit})")
     return 0

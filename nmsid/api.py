@@ -151,12 +151,15 @@ def diagnose_gap(sessions, out_dir: PathLike | None = None, *,
     return replace(result, report=None if report is None else _moved(report, tmp, out))
 
 
-def load_twin(path: PathLike) -> Twin:
+def load_twin(path: PathLike, joint: str | None = None) -> Twin:
     """Read a twin file (``twin.json``, written by :func:`identify`).
 
     Parameters
     ----------
     path : path-like
+    joint : str, optional
+        The joint whose twin to read from a file of several joints (``docs/twin-file.md``);
+        default: the file's one twin.
 
     Returns
     -------
@@ -167,28 +170,37 @@ def load_twin(path: PathLike) -> Twin:
     ------
     TwinFileError
         Naming the file and the item that is missing or invalid.
+    TwinInputError
+        A file of several joints without ``joint``, or a ``joint`` it does not hold (the
+        message lists the joints it holds).
     """
     # function-local: the twin module loads the discretisation (numpy, scipy)
-    from nmsid.analysis.twin import Twin
-    return Twin.load(path)
+    from nmsid.analysis.joint_twins import joint_twin
+    return joint_twin(path, joint, how="joint=NAME")
 
 
-def _twin(twin) -> Twin:
-    """A twin given as a Twin or as its file."""
+def _twin(twin, joint: str | None = None) -> Twin:
+    """A twin given as a Twin or as its file (of one joint, or of several: ``joint``)."""
     if twin is None:
         raise UserError("no twin given (an identification that could select no model "
                         "across sE has none: see its .problems)")
-    return load_twin(twin) if isinstance(twin, (str, os.PathLike)) else twin
+    if isinstance(twin, (str, os.PathLike)):
+        return load_twin(twin, joint)
+    if joint is not None and twin.joint != joint:
+        from nmsid.analysis.errors import TwinInputError  # lazy, as in load_twin
+        raise TwinInputError(f"the twin given is the {twin.joint}'s, not the {joint}'s")
+    return twin
 
 
 def simulate_twin(twin: Twin | PathLike, rE, sE, fs_Hz: float = 2000.0, *,
-                  effects: bool = True, extrapolate: bool = False) -> np.ndarray:
+                  effects: bool = True, extrapolate: bool = False,
+                  joint: str | None = None) -> np.ndarray:
     """The force a twin predicts for an input, as ``nmsid twin simulate`` computes it.
 
     Parameters
     ----------
     twin : Twin or path-like
-        A twin, or its file.
+        A twin, or its file (of one joint, or of several: ``joint`` says which).
     rE : array-like
         The extensor share of the stimulation, in [0, 1], one value per sample.
     sE : float or array-like
@@ -200,11 +212,15 @@ def simulate_twin(twin: Twin | PathLike, rE, sE, fs_Hz: float = 2000.0, *,
         the curves alone.
     extrapolate : bool
         Use the curves beyond the tested sE range (default: clip to it).
+    joint : str, optional
+        The joint whose twin to run, in a twin file of several joints (``nmsid twin
+        simulate --joint``); default: the file's one twin.
 
     Returns
     -------
     numpy.ndarray
-        The force in N, one value per sample of ``rE``.
+        The force in N (a torque joint's twin: its torque in N m), one value per sample
+        of ``rE``.
 
     Raises
     ------
@@ -216,7 +232,7 @@ def simulate_twin(twin: Twin | PathLike, rE, sE, fs_Hz: float = 2000.0, *,
     import numpy as np
 
     from nmsid.analysis.errors import TwinInputError  # lazy, as above
-    model = _twin(twin)
+    model = _twin(twin, joint)
     r = np.asarray(rE, dtype=float)
     s = np.broadcast_to(np.asarray(sE, dtype=float), r.shape)
     if r.ndim != 1 or r.size < 2:
