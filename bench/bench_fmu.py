@@ -12,6 +12,13 @@
    output points and holds them in between, so the difference falls with the output
    interval; worst over the five levels and the ramp with the output at the sampling step,
    and for the ramp at a tenth of it (shorter chirp: 0.5 s + 2 s).
+4. One FMU of several joints (issue 41): a participant's twin of the elbow, the knee and the
+   ankle (the template participants' twins, docs/joints.md) in one file, exported as one
+   FMU: its export time (median of 3) beside the fairest baseline, the three joints
+   exported as three one-joint FMUs; co-simulated in FMPy over the paper's chirp with a
+   different sE per joint at once (elbow 0.6, knee a ramp 0.3-1.0, ankle 0.9), the worst
+   difference per joint from `twin simulate --joint` (Twin.simulate of that joint) in % of
+   its peak, and FMPy's time beside the three one-joint FMUs run one after the other.
 
     python bench/bench_fmu.py
 """
@@ -35,9 +42,16 @@ from fmpy import simulate_fmu  # noqa: E402
 
 from nmsid.analysis.design.candidates import PAPER_LEVELS  # noqa: E402
 from nmsid.analysis.gap.twin_out import twin_dict  # noqa: E402
+from nmsid.analysis.joint_twins import load_joint_twins, save_joint_twins  # noqa: E402
 from nmsid.analysis.twin import Twin  # noqa: E402
 from nmsid.export.fmu import export_fmu  # noqa: E402
-from nmsid.export.fmu.fmpy_support import fmpy_input, fmpy_input_derivatives_fixed, on_output_grid  # noqa: E402
+from nmsid.export.fmu.fmpy_support import (  # noqa: E402
+    fmpy_input,
+    fmpy_input_derivatives_fixed,
+    fmpy_joint_input,
+    on_output_grid,
+)
+from nmsid.sim_backends.joint_participants import template_participant  # noqa: E402
 from nmsid.sim_backends.participant import default_participant  # noqa: E402
 
 FS_HZ = 2000.0
@@ -138,6 +152,76 @@ def main() -> None:
               f"(target <= 0.1 % there, docs/fmu.md: "
               f"{'met' if 100 * fine_me <= 0.1 else 'missed'}), x"
               f"{worst_me / max(fine_me, 1e-300):.0f} smaller")
+    joints_part()
+
+
+def leg_twins(d: Path) -> Path:
+    """LEG1's twin of the elbow, knee and ankle in one file (and each joint's alone)."""
+    twins = []
+    for joint in ("elbow", "knee", "ankle"):
+        data = template_participant(joint).to_twin()
+        data.update(participant="LEG1", source=[{"file": f"LEG1-{joint}.h5",
+                                                 "sha256": "0" * 64}])
+        if joint != "elbow":
+            data.update(joint=joint, measured_quantity="torque", measured_unit="N m")
+        twin = Twin.from_dict(data)
+        twin.save(d / f"LEG1-{joint}.json")
+        twins.append(twin)
+    return save_joint_twins(d / "LEG1.json", twins)
+
+
+def joints_part() -> None:
+    """Part 4: one FMU of three joints."""
+    out_names = {"elbow": "force_N_elbow", "knee": "torque_Nm_knee",
+                 "ankle": "torque_Nm_ankle"}
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        path = leg_twins(d)
+        twins = load_joint_twins(path)
+        multi_s, single_s = [], []
+        for i in range(3):
+            t0 = time.perf_counter()
+            res = export_fmu(path, d / f"LEG1_{i}.fmu")
+            multi_s.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            for j in twins:
+                export_fmu(d / f"LEG1-{j}.json", d / f"LEG1-{j}_{i}.fmu")
+            single_s.append(time.perf_counter() - t0)
+        m, b = float(np.median(multi_s)), float(np.median(single_s))
+        print(f"4. one FMU of 3 joints (elbow + knee + ankle): export incl. compilation "
+              f"{m:.2f} s (median of 3; target < 10 s: {'met' if m < 10 else 'missed'}) vs "
+              f"3 one-joint FMUs {b:.2f} s (ratio {m / b:.2f}x)")
+        rE = chirp(FS_HZ, 5.0, 10.0)
+        n = len(rE)
+        sE = {"elbow": np.full(n, 0.6), "knee": np.linspace(0.3, 1.0, n),
+              "ankle": np.full(n, 0.9)}
+        t0 = time.perf_counter()
+        with fmpy_input_derivatives_fixed():
+            out = simulate_fmu(str(res.path), fmi_type="CoSimulation", start_time=0.0,
+                               stop_time=(n - 1) / FS_HZ, output_interval=1 / FS_HZ,
+                               input=fmpy_joint_input({j: (rE, sE[j]) for j in twins}, FS_HZ),
+                               set_input_derivatives=True, output=list(out_names.values()))
+        t_multi = time.perf_counter() - t0
+        t_single = 0.0
+        worst = 0.0
+        for j, twin in twins.items():
+            ref = twin.simulate(rE, sE[j], FS_HZ)
+            err = float(np.max(np.abs(out[out_names[j]] - ref)) / np.max(np.abs(ref)))
+            worst = max(worst, err)
+            unit = twin.measured_unit
+            print(f"   {j}: {out_names[j]} vs twin simulate --joint {j}: max difference "
+                  f"{100 * err:.2e} % of peak ({np.max(np.abs(ref)):.2f} {unit})")
+            t0 = time.perf_counter()
+            with fmpy_input_derivatives_fixed():
+                simulate_fmu(str(d / f"LEG1-{j}_0.fmu"), fmi_type="CoSimulation",
+                             start_time=0.0, stop_time=(n - 1) / FS_HZ,
+                             output_interval=1 / FS_HZ, input=fmpy_input(rE, sE[j], FS_HZ),
+                             set_input_derivatives=True, output=["force_N"])
+            t_single += time.perf_counter() - t0
+        print(f"   co-simulation worst over the 3 joints: {100 * worst:.2e} % of peak (limit "
+              f"1e-4 %: {'met' if 100 * worst <= 1e-4 else 'missed'}); FMPy {t_multi:.2f} s "
+              f"for the 3-joint FMU vs {t_single:.2f} s for the 3 one-joint FMUs one after "
+              f"the other (ratio {t_multi / t_single:.2f}x)")
 
 
 if __name__ == "__main__":
