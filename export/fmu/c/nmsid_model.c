@@ -21,6 +21,8 @@
  * [[hA, hB, 0], [0, 0, 1], [0, 0, 0]] (C. Van Loan, "Computing integrals involving the
  * matrix exponential", IEEE TAC 23(3), 1978), by scaling and squaring of its Taylor series.
  *
+ * Each function steps one joint's twin (Joint, nmsid_model.h); an FMU of several joints
+ * holds N_JOINTS of them side by side, each with its own inputs, states and history.
  * Generated values (value references and the twin's parameters) are in twin_data.h.
  * Needs only the C standard library and libm; no Python at run time.
  */
