@@ -289,7 +289,7 @@ def check_pulses(monitor_V: np.ndarray, s: DryRunSettings, pulses_mA: list[int],
                  pulse_width_us: float, interphase_us: float = 100.0,
                  pulse_index: list[int] | None = None) -> list[Check]:
     """A pulse stimulator on the dummy load: the pulses found in the record (a rising edge
-    above half a milliampere starts one) against the acknowledged updates.
+    above half the smallest commanded pulse starts one) against the acknowledged updates.
 
     In the continuous channel list mode (ScienceMode2 1.3) the device repeats the last
     parameters every main interval until the next update or the stop, so the pulses found
@@ -300,11 +300,15 @@ def check_pulses(monitor_V: np.ndarray, s: DryRunSettings, pulses_mA: list[int],
     """
     fs = s.monitor_fs_Hz
     i_mA = np.asarray(monitor_V, float) / s.load_ohm * 1e3
-    above = i_mA > 0.5
+    cmd = [float(p) for p in pulses_in_force(pulses_mA, pulse_index) if p > 0]
+    # a pulse starts where the current rises above half the smallest pulse commanded: a
+    # fixed 0.5 mA equalled the ScienceMode4 step (0.5 mA pulses), so A/D noise decided
+    # on which of a pulse's samples its window began (cutting its first sample off: a
+    # charge-balanced pulse measured 50 nC unbalanced)
+    above = i_mA > (0.5 * min(cmd) if cmd else 0.5)
     starts = np.flatnonzero(above[1:] & ~above[:-1]) + 1
     span = int(np.ceil((2 * pulse_width_us + interphase_us) * 1e-6 * fs)) + 2
     starts = starts[starts + span <= len(i_mA)]
-    cmd = [float(p) for p in pulses_in_force(pulses_mA, pulse_index) if p > 0]
     count = Check("pulse count", len(cmd) > 0 and abs(len(starts) - len(cmd)) <= 2,
                   f"{len(starts)} pulses found, {len(cmd)} non-zero pulse periods from the "
                   "acknowledged updates", "within 2, > 0")

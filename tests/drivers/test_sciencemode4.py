@@ -300,3 +300,32 @@ def test_mid_level_refuses_a_rate_off_the_half_millisecond_grid():
     with pytest.raises(StimulatorSettingError, match="0.5 ms"):
         Sm4MidLevelStimulator("COM9", P24, ceiling_ext_mA=20.0, ceiling_flex_mA=20.0,
                               pulse_rate_Hz=30.0)
+
+
+def test_the_dry_runs_pulse_check_sees_half_milliampere_pulses_whole():
+    # 0.5 mA pulses (the ScienceMode4 step, IFU Table 15) sent with the driver's codec to
+    # the fake P24, sampled at the dry run's 10 kHz with its 1 mV noise over 1 kOhm, start
+    # at random phases of the sample grid. Each is +I, pause, -I of equal widths (IFU
+    # Table 15, RM3 7.1): the check must find every one and call it balanced. (It found a
+    # pulse where the current rose above a fixed 0.5 mA, so noise on a 0.5 mA pulse cut
+    # its first sample off: "worst net 49.8 nC per pulse", issue 43.)
+    from nmsid.drivers.dry_run import DryRunSettings, check_pulses
+    now = [1.0]
+    fake = FakeSm4("P24", clock=lambda: now[0])
+    port = fake.open()
+    port.write(sm4.encode(0, sm4.LL_INIT, sm4.ll_init_data()))
+    rng = np.random.default_rng(5)
+    amps = [0.5, 0.5, 1.0, 0.5, 2.0, 0.5] * 5
+    for k, a in enumerate(amps):
+        now[0] = 1.0 + k / RATE_HZ + rng.uniform(0, 1e-4)
+        port.write(sm4.encode((k + 1) & 0x3F, sm4.LL_CHANNEL_CONFIG,
+                              sm4.ll_channel_config_data(
+                                  0, 0, sm4.biphasic_points(a, 300, 100))))
+    assert len(fake.pulses) == len(amps)
+    s = DryRunSettings()
+    t = 0.99 + np.arange(int(s.monitor_fs_Hz)) / s.monitor_fs_Hz
+    volts = fake.current_at(0, t) * 1e-9 * s.load_ohm + 1e-3 * rng.standard_normal(len(t))
+    checks = {c.name: c for c in check_pulses(volts, s, amps, 300.0, 100.0)}
+    assert checks["pulse count"].figure.startswith(f"{len(amps)} pulses found"), \
+        checks["pulse count"].line()
+    assert all(c.passed for c in checks.values()), [c.line() for c in checks.values()]
