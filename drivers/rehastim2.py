@@ -416,6 +416,7 @@ class Rehastim2Stimulator(Sm2Link):
                                    "carrier_Hz is the protocol setting, not delivered",
                 "pulse_rate_Hz": self.pulse_rate_Hz, "pulse_width_us": self.pulse_width_us,
                 "charge_balanced": "by the device: equal biphasic phases (ScienceMode2 1.2)",
+                "repeats_update": True,      # SM2 1.3: in force until the next update
                 "updates_planned": len(self._trial_pulses), "updates_sent": len(sent),
                 "updates_acknowledged": len(got), "update_errors": errors,
                 "updates_skipped_late": skipped, "updates_busy": busy,

@@ -211,6 +211,9 @@ class Sm4Stimulator(Sm4Link):
         self._replies: dict[int, sm4.Packet | sm4.BadPacket] = {}
         self._pulse_acks: dict[int, tuple[int, tuple[int, ...]]] = {}
         """Packet number -> (update index, channels) of each pulse command unanswered."""
+        self._late_acks: dict[int, tuple[int, tuple[int, ...]]] = {}
+        """The same, of commands still unanswered when the next pulse was due: an answer
+        that comes later counts them answered (``updates_answered_late``)."""
         self._init = (sm4.LL_INIT, sm4.ll_init_data(), sm4.STIM_LL)
         """The level's init command, its data and the level it enters (IFU Table 7)."""
         self._stop_command, self._update_ack = sm4.LL_STOP, sm4.LL_CHANNEL_CONFIG_ACK
@@ -228,6 +231,9 @@ class Sm4Stimulator(Sm4Link):
         self._ended_by = ""
         self._reset_counts()
         self.fallback = "in low level every pulse is a command: no further pulse"
+        self.repeats_update = False
+        """Low level: one command, one pulse (IFU "Low-Level channel configuration"); a
+        slot the host skipped has no pulse. Mid level: the device repeats the last update."""
         self.stop_log: list[tuple[float, str]] = []
         """(clock time, what) of each stop: asked, confirmed or unconfirmed (tests, bench)."""
 
@@ -420,7 +426,7 @@ class Sm4Stimulator(Sm4Link):
         with self._lock:
             sent, got = list(self._sent), dict(self._delivered)
             slots, commanded = list(self._sent_index), dict(self._commanded)
-            counts = dict(self._counts)
+            counts = {**self._counts, "updates_unanswered": len(self._unanswered)}
             ended = self._ended_by
         if self._loaded is None and not sent:
             return None
@@ -441,6 +447,7 @@ class Sm4Stimulator(Sm4Link):
                 "pulse_rate_Hz": self.pulse_rate_Hz, "pulse_width_us": self.pulse_width_us,
                 "interphase_us": self.interphase_us,
                 "charge_balanced": "by construction: +I, pause, -I of equal width per pulse",
+                "repeats_update": self.repeats_update,
                 "updates_planned": len(self._trial), "updates_sent": len(sent),
                 "updates_acknowledged": len(acked), "updates_busy": 0, **counts,
                 "pulse_index": [slots[i] for i in acked],
@@ -475,8 +482,11 @@ class Sm4Stimulator(Sm4Link):
         self._sent_index: list[int] = []       # each update's slot k (k / rate after onset)
         self._delivered: dict[int, set[int]] = {}
         self._commanded: dict[int, set[int]] = {}
-        self._counts = {"updates_transfer_error": 0, "updates_unanswered": 0,
-                        "updates_skipped_late": 0}
+        self._counts = {"updates_transfer_error": 0, "updates_skipped_late": 0,
+                        "updates_answered_late": 0}
+        self._unanswered: set[int] = set()
+        """Updates with a command unanswered when the next was due, and not since."""
+        self._late_acks = {}
         self._ended_by = ""
 
     def _stream_loop(self) -> None:
@@ -553,8 +563,10 @@ class Sm4Stimulator(Sm4Link):
                     and not self._stream_stop.is_set():
                 if time.monotonic() > deadline or self.clock() >= due:
                     for n in numbers:
-                        if self._pulse_acks.pop(n, None) is not None:
-                            self._counts["updates_unanswered"] += 1
+                        entry = self._pulse_acks.pop(n, None)
+                        if entry is not None:     # lost, or answered late (a busy host)
+                            self._late_acks[n] = entry
+                            self._unanswered.add(entry[0])
                     return
                 self._cv.wait(0.002)
 

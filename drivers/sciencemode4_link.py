@@ -39,6 +39,8 @@ class Sm4Link:
     _number: int
     _replies: dict[int, sm4.Packet | sm4.BadPacket]
     _pulse_acks: dict[int, tuple[int, tuple[int, ...]]]
+    _late_acks: dict[int, tuple[int, tuple[int, ...]]]
+    _unanswered: set[int]
     _update_ack: int
     _silent: bool
     _error: str
@@ -72,8 +74,13 @@ class Sm4Link:
 
     def _on_packet(self, pkt: sm4.Packet | sm4.BadPacket) -> None:
         with self._lock:
-            if pkt.command == self._update_ack and pkt.number in self._pulse_acks:
-                index, chans = self._pulse_acks.pop(pkt.number)
+            late = pkt.command == self._update_ack and pkt.number in self._late_acks
+            if pkt.command == self._update_ack and (pkt.number in self._pulse_acks or late):
+                index, chans = (self._late_acks if late else self._pulse_acks).pop(pkt.number)
+                if late:      # answered after its slot: not lost (the device answers a
+                    self._counts["updates_answered_late"] += 1   # pulse after it)
+                    if all(i != index for i, _ in self._late_acks.values()):
+                        self._unanswered.discard(index)
                 ch = chans[0]
                 result = pkt.result if isinstance(pkt, sm4.Packet) else sm4.TRANSFER_ERROR
                 if result == sm4.OK:
@@ -165,6 +172,7 @@ class Sm4Link:
         self._number = (self._number + 1) & 0x3F        # IFU: packet number 0 .. 63
         with self._lock:
             self._replies.pop(number, None)
+            self._late_acks.pop(number, None)     # its number reused: unanswered for good
         ser.write(sm4.encode(number, command, data))
         return number
 

@@ -46,6 +46,7 @@ class Sm4MidLevelStimulator(Sm4Stimulator):
         self.fallback = ("no keep-alive: the device stops within 2 s of the last one, IFU "
                          "'Mid-Level Update'")
         self._last_poll = 0.0
+        self.repeats_update = True       # IFU "Mid-Level Update": repeated until the next
 
     def _send_update(self, index: int, e: float, f: float) -> list[int]:
         """One Ml_update of both channels (the caller holds ``_wlock``)."""
