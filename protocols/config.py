@@ -114,7 +114,8 @@ PLUGIN_MODEL_PATTERN = r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*"
 DEFAULT_SOURCE = "built-in defaults"
 
 __all__ = ["Config", "ConfigError", "ProtocolConfig", "CalibrationConfig", "InterlockConfig",
-           "ManualCurrents", "LslConfig", "Randomisation", "InputKind", "PausePolicy", "PARTICIPANT_MODELS",
+           "ManualCurrents", "LslConfig", "Randomisation", "InputKind", "PausePolicy",
+           "PARTICIPANT_MODELS",
            "PARTICIPANT_PATTERN", "MAX_LEVELS", "MAX_TRIALS", "MAX_SESSION_S",
            "MAX_TRIAL_SAMPLES", "MAX_RAMP_STEPS", "SEED_MAX", "FORCE_SENSOR_RANGE_N",
            "TRIP_SWITCHES", "load_config", "config_from_json", "config_from_dict", "validate"]
