@@ -101,11 +101,13 @@ def register(sub) -> None:
     p.add_argument("--lsl", action="store_true",
                    help="publish force, commanded currents and event markers as Lab "
                         "Streaming Layer streams (needs pylsl: the 'lsl' extra; "
-                        "docs/lsl.md); a failing stream never stops the session")
+                        "docs/lsl.md); a failing stream never stops the session; "
+                        "the protocol file's [lsl] publish = true is the same")
     p.add_argument("--lsl-record", action="append", metavar="NAME_OR_TYPE",
                    help="record this LSL stream (by name or type: EMG, Markers, MoCap; "
                         "repeatable) into the session file under /lsl with its clock "
-                        "offset (docs/lsl.md)")
+                        "offset (docs/lsl.md); replaces the protocol file's [lsl] "
+                        "record list")
     p.add_argument("--allow-weakened-safety", action="store_true",
                    help="confirm settings that weaken the interlock (a trip_on_* = false, a "
                         "force_limit_N above the sensor's range); recorded in the session")

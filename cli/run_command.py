@@ -91,6 +91,11 @@ def run(args) -> int:
             track = functools.partial(Engine, session=CoContractionSession(
                 p.sE_levels, sweep_rE, p.trial_s, repeats=p.repeats,
                 source=f"--cocontraction {sweep_rE:g} with {config.source}"))
+    # --lsl / --lsl-record: the same settings as the protocol file's [lsl] table
+    lsl = config.lsl.with_command_line(bool(getattr(args, "lsl", False)),
+                                       getattr(args, "lsl_record", None))
+    if lsl is not config.lsl:
+        config = config.replace(lsl=lsl)
     stored, stored_backend = _stored_attrs(path) if args.resume else ({}, "")
     kind = session_kind_from_stored(stored, str(path)) if args.resume else None
     if kind is not None:   # e.g. tracking: its recorded controller and targets, no code
@@ -118,9 +123,9 @@ def run(args) -> int:
         if engine is not None:
             engine.estop(reason)
 
-    if getattr(args, "lsl", False) or getattr(args, "lsl_record", None):
+    if config.lsl.active:
         require_pylsl()                      # one line before any device is opened
-    recorder = start_recording(getattr(args, "lsl_record", None))   # issue 43
+    recorder = start_recording(list(config.lsl.record))   # issue 43
     observer: EngineObserver = EngineObserver()
     with SessionSignals(on_signal, stop_output) as signals:
         rig = prepare_rig(request, config)   # a resume on another rig is refused here
@@ -129,7 +134,7 @@ def run(args) -> int:
             log.info("fast clock: rest_s %g -> 0", rig.extra_attrs["configured_rest_s"])
         progress = _Progress(quiet=args.quiet)
         observer = progress
-        if getattr(args, "lsl", False):      # issue 43: LSL outlets, off by default
+        if config.lsl.publish:               # issue 43: LSL outlets, off by default
             observer = lsl_observer(progress, config.protocol.fs_Hz, config.participant)
         try:
             engine = (track or Engine)(config, devices, path, resume=bool(args.resume),

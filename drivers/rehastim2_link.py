@@ -56,41 +56,22 @@ class Sm2Link:
     _ack_errors: list[str]
     _onset_ack_s: float | None
     _t_start_call: float
+    _confirm_stopped: Callable[..., bool]
+    _link_failed: Callable[..., None]
+    _wait_for: Callable[..., Any]
 
     def _confirm_stop(self) -> bool:
         """Ask GetStimulationMode until it answers 0, resending StopChannelListMode while it
-        does not (SM2 5.3); on failure go silent and say so once (SM2 5.2). True if
-        confirmed."""
-        deadline = time.monotonic() + STOP_CONFIRM_S
-        resend = False
-        while time.monotonic() < deadline:
-            try:
-                if resend:
-                    self._ask(sm2.STOP_CLM)  # its answer (0, or -1: SM2 4.3) is checked
-                ack = self._ask(sm2.GET_STIM_MODE)   # by the mode that follows
-            except Exception as exc:         # the port itself failed
-                log.warning("RehaStim2 stop: %s", exc)
-                break
-            if ack is not None and ack.result == 0 and len(ack.data) > 1 and ack.data[1] == 0:
-                if resend:
-                    log.warning("RehaStim2: the stop was not confirmed at once (a packet lost "
-                                "or corrupted, ScienceMode2 5.2, or an answer later than "
-                                "0.2 s); resent, now confirmed: stimulation mode 0 after "
-                                "%.0f ms",
-                                (time.monotonic() - deadline + STOP_CONFIRM_S) * 1e3)
-                return True
-            resend = True
-        self._silent = True                  # no keep-alive: the device's watchdog acts
-        message = (f"RehaStim2 did not confirm the stop within {STOP_CONFIRM_S:g} s "
-                   "(ScienceMode2 5.3); nmsid stopped feeding its watchdog, which ends the "
-                   f"output within {sm2.WATCHDOG_TIMEOUT_S:g} s (ScienceMode2 2.3, 5.2): "
-                   "check the USB link, reconnect before the next trial")
-        with self._lock:
-            if not self._error.startswith("RehaStim2 did not confirm the stop"):
-                log.error(message)
-            self._error = message
-            self._state = StimulatorState.ERROR
-        return False
+        does not (SM2 5.3); unconfirmed: silent, so the device's watchdog acts (SM2 5.2).
+        True if confirmed."""
+        def stopped() -> bool:
+            ack = self._ask(sm2.GET_STIM_MODE)
+            return ack is not None and ack.result == 0 and len(ack.data) > 1 \
+                and ack.data[1] == 0
+        # the resent stop's answer (0, or -1: SM2 4.3) is checked by the mode that follows
+        return self._confirm_stopped(stopped, lambda: self._ask(sm2.STOP_CLM),
+                                     resend_first=False,
+                                     source="GetStimulationMode, ScienceMode2 5.3")
 
     def _link_loop(self) -> None:
         while not self._link_stop.is_set():
@@ -100,11 +81,7 @@ class Sm2Link:
                 if self.clock() - self._last_sent > KEEPALIVE_S and not self._silent:
                     self._write(sm2.WATCHDOG)     # SM2 4.1 Watchdog, 2.3 WatchdogTimeout
             except Exception as exc:
-                with self._lock:
-                    self._error = self._error or (f"RehaStim2 USB link lost "
-                                                  f"({type(exc).__name__}: {exc})")
-                    self._state = StimulatorState.ERROR
-                    self._ack_cv.notify_all()
+                self._link_failed(exc)
                 return
             time.sleep(0.002)
 
@@ -157,12 +134,8 @@ class Sm2Link:
             self._waiting.add(number)
         try:
             self._write(command, data, number=number)
-            deadline = time.monotonic() + timeout_s
-            with self._lock:
-                while number not in self._acks and time.monotonic() < deadline and \
-                        self._link is not None and self._link.is_alive():
-                    self._ack_cv.wait(0.005)
-                return self._acks.pop(number, None)
+            return self._wait_for(self._acks, number, time.monotonic() + timeout_s,
+                                  self._ack_cv, 0.005)
         finally:
             with self._lock:
                 self._waiting.discard(number)
@@ -217,22 +190,6 @@ class Sm2Link:
             return []
         n = ser.in_waiting
         return self._decoder.feed(ser.read(n)) if n else []
-
-    def _close_link(self) -> None:
-        self._link_stop.set()
-        t = self._link
-        if t is not None and t is not threading.current_thread():
-            t.join(timeout=1.0)
-        self._link = None
-        self._close_port()
-
-    def _close_port(self) -> None:
-        ser, self._ser = self._ser, None
-        if ser is not None:
-            try:
-                ser.close()
-            except Exception as exc:  # a port already gone (USB glitch) may not close
-                log.info("RehaStim2 port close: %s", exc)
 
 
 def _open_serial(port: str):

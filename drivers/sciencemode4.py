@@ -34,30 +34,25 @@ starts the acquisition from the host just before ``start``).
 
 from __future__ import annotations
 
-import collections
 import logging
 import math
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from nmsid.drivers import sciencemode4_protocol as sm4
 from nmsid.drivers.errors import DeviceError, DeviceNotFound, StimulatorSettingError
 from nmsid.drivers.interfaces import (
-    BIPHASIC_PULSES,
-    CheckedWaveform,
     CurrentLimitError,
     StimulatorCapabilities,
     StimulatorState,
-    StimulatorStatus,
-    Waveshape,
 )
 from nmsid.drivers.leptrino import _serial_module
-from nmsid.drivers.sciencemode4_link import Sm4Link
+from nmsid.drivers.pulse_stimulator import SUMMARY_FORMAT, PulseStimulator, steps_down_mA
+from nmsid.drivers.sciencemode4_link import STOP_CONFIRM_S, Sm4Link
 from nmsid.protocols.settings_base import SettingProblem
 
 log = logging.getLogger(__name__)
@@ -70,7 +65,6 @@ MAX_HOST_RATE_HZ = 100.0
 """Low level is host-timed, one command per channel and pulse from a Python thread: nmsid
 streams at most 100 pulses per second per channel (the devices allow more: P24 0.5 ms
 period, IFU Technical Specification; RehaMove3 500 Hz, RM3 1.2)."""
-SUMMARY_FORMAT = "nmsid-stimulation-1"
 
 
 @dataclass(frozen=True)
@@ -95,8 +89,7 @@ REHAMOVE3 = Sm4Model("Hasomed RehaMove3", 4, 20, sm4.MAX_POINT_US,
 
 def to_steps_mA(current_mA) -> np.ndarray:
     """Currents rounded DOWN to the 0.5 mA step (IFU Table 15), never up past a ceiling."""
-    c = np.asarray(current_mA, dtype=float)
-    return sm4.STEP_MA * np.floor(c / sm4.STEP_MA + 1e-9)
+    return steps_down_mA(current_mA, sm4.STEP_MA)
 
 
 def settings_issue(model: Sm4Model, *, ceiling_ext_mA: float, ceiling_flex_mA: float,
@@ -162,9 +155,10 @@ def open_serial(port: str):
                          rtscts=True, timeout=0.02, write_timeout=0.5)
 
 
-class Sm4Stimulator(Sm4Link):
+class Sm4Stimulator(Sm4Link, PulseStimulator):
     """A P24 or RehaMove3 as a :class:`~nmsid.drivers.interfaces.Stimulator` and a
-    :class:`~nmsid.drivers.interfaces.HostStreamedStimulator` (low level).
+    :class:`~nmsid.drivers.interfaces.HostStreamedStimulator` (low level; the shared part:
+    :class:`~nmsid.drivers.pulse_stimulator.PulseStimulator`).
 
     Parameters
     ----------
@@ -182,6 +176,10 @@ class Sm4Stimulator(Sm4Link):
         The port opener (the fake in fake mode), the time source and wait (the bench's).
     """
 
+    log = log
+    step_mA = sm4.STEP_MA
+    stop_confirm_s = STOP_CONFIRM_S
+
     def __init__(self, port: str, model: Sm4Model, *, ceiling_ext_mA: float,
                  ceiling_flex_mA: float, extensor_channel: int = 1, flexor_channel: int = 2,
                  pulse_rate_Hz: float = 40.0, pulse_width_us: int = 300,
@@ -192,56 +190,37 @@ class Sm4Stimulator(Sm4Link):
                        extensor_channel=extensor_channel, flexor_channel=flexor_channel,
                        pulse_rate_Hz=pulse_rate_Hz, pulse_width_us=pulse_width_us,
                        interphase_us=interphase_us)
-        self.port, self.model = port, model
-        self.extensor_channel, self.flexor_channel = extensor_channel, flexor_channel
-        self.ceilings = {extensor_channel: float(ceiling_ext_mA),
-                         flexor_channel: float(ceiling_flex_mA)}
-        self._stream_ceilings = dict(self.ceilings)
-        self.pulse_rate_Hz = float(pulse_rate_Hz)
-        self.pulse_width_us, self.interphase_us = int(pulse_width_us), int(interphase_us)
+        self.model, self.title = model, model.title
+        self.interphase_us = int(interphase_us)
         self._open_port = open_port or open_serial
-        self.clock = clock or time.monotonic
-        self._sleep = sleep or time.sleep
-        self._ser: Any = None
         self._decoder = sm4.Decoder()
-        self._wlock = threading.Lock()
-        self._lock = threading.RLock()
-        self._cv = threading.Condition(self._lock)
         self._number = 0
         self._replies: dict[int, sm4.Packet | sm4.BadPacket] = {}
         self._pulse_acks: dict[int, tuple[int, tuple[int, ...]]] = {}
         """Packet number -> (update index, channels) of each pulse command unanswered."""
+        self._late_acks: dict[int, tuple[int, tuple[int, ...]]] = {}
+        """The same, of commands still unanswered when the next pulse was due: an answer
+        that comes later counts them answered (``updates_answered_late``)."""
         self._init = (sm4.LL_INIT, sm4.ll_init_data(), sm4.STIM_LL)
         """The level's init command, its data and the level it enters (IFU Table 7)."""
         self._stop_command, self._update_ack = sm4.LL_STOP, sm4.LL_CHANNEL_CONFIG_ACK
-        self._silent = False
-        self._error = ""
-        self._state = StimulatorState.DISCONNECTED
-        self._link: threading.Thread | None = None
-        self._link_stop = threading.Event()
-        self._stream: threading.Thread | None = None
-        self._stream_stop = threading.Event()
-        self._queue: collections.deque[tuple[float, float]] = collections.deque()
-        self._streaming_open = False
-        self._trial: list[tuple[float, float]] = []
-        self._loaded: CheckedWaveform | None = None
-        self._ended_by = ""
-        self._reset_counts()
+        self._init_pulses(port, ceiling_ext_mA=ceiling_ext_mA, ceiling_flex_mA=ceiling_flex_mA,
+                          extensor_channel=extensor_channel, flexor_channel=flexor_channel,
+                          pulse_rate_Hz=pulse_rate_Hz, pulse_width_us=pulse_width_us,
+                          clock=clock, sleep=sleep)
+        self._cv = threading.Condition(self._lock)
         self.fallback = "in low level every pulse is a command: no further pulse"
-        self.stop_log: list[tuple[float, str]] = []
-        """(clock time, what) of each stop: asked, confirmed or unconfirmed (tests, bench)."""
+        self.operator_action = (f"SWITCH THE {model.title.split()[-1]} OFF, then reconnect "
+                                "before the next trial")
+        self.repeats_update = False
+        """Low level: one command, one pulse (IFU "Low-Level channel configuration"); a
+        slot the host skipped has no pulse. Mid level: the device repeats the last update."""
 
     # -- connection ---------------------------------------------------------------------------
     def connect(self) -> None:
         """Open the port, start the reader, ask Get_stim_status; a level left initialised by
         a previous program is stopped (confirmed) first."""
-        self._close_link()
-        try:
-            self._ser = self._open_port(self.port)
-        except Exception as exc:
-            raise DeviceNotFound(f"{self.model.title}: cannot open serial port {self.port!r} "
-                                 f"({type(exc).__name__}: {exc}); check the USB cable and "
-                                 "the port name in the Device Manager") from None
+        self._open_link_port("check the USB cable and the port name in the Device Manager")
         self._decoder, self._silent = sm4.Decoder(), False
         with self._lock:
             self._error, self._replies = "", {}
@@ -268,39 +247,7 @@ class Sm4Stimulator(Sm4Link):
             resolution_mA=sm4.STEP_MA, output_rate_Hz=self.pulse_rate_Hz,
             model=self.model.title, waveshape=self.waveshape(), hardware_trigger=False)
 
-    def waveshape(self) -> Waveshape:
-        return Waveshape(kind=BIPHASIC_PULSES, pulse_rate_Hz=self.pulse_rate_Hz,
-                         pulse_width_us=float(self.pulse_width_us),
-                         interphase_us=float(self.interphase_us), modulation="amplitude")
-
-    def disconnect(self) -> None:
-        self.stop_now()
-        self._close_link()
-        with self._lock:
-            self._state = StimulatorState.DISCONNECTED
-
     # -- one trial --------------------------------------------------------------------------------
-    def load(self, waveform: CheckedWaveform) -> None:
-        """Each pulse's current: the envelope at the pulse, rounded down to 0.5 mA."""
-        self._check_usable("load")
-        for ch, ceiling in ((self.extensor_channel, waveform.ceiling_ext_mA),
-                            (self.flexor_channel, waveform.ceiling_flex_mA)):
-            if ceiling > self.ceilings[ch] + 1e-9:
-                raise CurrentLimitError(f"waveform ceiling {ceiling:g} mA on {self.model.title}"
-                                        f" channel {ch} is above the driver's "
-                                        f"{self.ceilings[ch]:g} mA; nothing was sent")
-        n = math.floor(waveform.duration_s * self.pulse_rate_Hz + 1e-9)
-        k = np.minimum((np.arange(n) / self.pulse_rate_Hz * waveform.fs_Hz + 1e-9)
-                       .astype(np.int64), waveform.n_samples - 1)
-        pulses = list(zip(to_steps_mA(np.asarray(waveform.I_ext_mA)[k]).tolist(),
-                          to_steps_mA(np.asarray(waveform.I_flex_mA)[k]).tolist(), strict=True))
-        for e, f in pulses:                   # by construction; checked once more
-            self._points(self.extensor_channel, e)
-            self._points(self.flexor_channel, f)
-        with self._lock:
-            self._trial, self._loaded = pulses, waveform
-            self._state = StimulatorState.LOADED
-
     def arm(self) -> None:
         """Ll_init (IFU Table 12: standard 150 V, no measurement); a stream is armed already."""
         self._check_usable("arm")
@@ -320,96 +267,13 @@ class Sm4Stimulator(Sm4Link):
         with self._lock:
             self._state = StimulatorState.ARMED
 
-    def start(self) -> None:
-        with self._lock:
-            if self._state is not StimulatorState.ARMED:
-                raise DeviceError(f"{self.model.title}: start() in state "
-                                  f"{self._state.value}; load() and arm() first")
-            if not self._streaming_open:
-                self._queue = collections.deque(self._trial)
-            self._reset_counts()          # a stream runs until close_stream (or a stop)
-            self._state = StimulatorState.RUNNING
-        self._stream_stop.clear()
-        self._stream = threading.Thread(target=self._stream_loop, name="sm4-stream",
-                                        daemon=True)
-        self._stream.start()
+    def _write_stop(self) -> None:
+        """Ll_stop (Ml_stop), after any pulse being written and before any other."""
+        with self._wlock:
+            self._write_locked(self._stop_command)
 
-    def stop_now(self) -> None:
-        """Ll_stop now, confirmed by the device (module docstring). Thread-safe, idempotent,
-        never raises."""
-        self._stream_stop.set()
-        with self._lock:
-            self._queue.clear()
-            if not self._ended_by and self._state is StimulatorState.RUNNING:
-                self._ended_by = "stop_now"
-            if self._state in (StimulatorState.RUNNING, StimulatorState.ARMED,
-                               StimulatorState.LOADED):
-                self._state = StimulatorState.STOPPED
-        if self._ser is None or self._silent:
-            return
-        self.stop_log.append((self.clock(), "asked"))
-        try:
-            with self._wlock:                 # after any pulse being written: none follows
-                self._write_locked(self._stop_command)
-        except Exception as exc:
-            self._unconfirmed(f"the stop could not be sent ({type(exc).__name__}: {exc})")
-            return
-        t = self._stream
-        if t is not None and t is not threading.current_thread():
-            t.join(timeout=1.0)
+    def _confirm_stop_now(self) -> None:
         self._confirm_stop(self._init[2], resend=False)
-
-    def status(self) -> StimulatorStatus:
-        with self._lock:
-            st = self._state
-            running = st is StimulatorState.RUNNING
-            return StimulatorStatus(state=st, output_active=running, error=self._error,
-                                    sample_index=len(self._sent) if running else -1)
-
-    # -- host-streamed capability -------------------------------------------------------------
-    def open_stream(self, ceiling_ext_mA: float, ceiling_flex_mA: float,
-                    update_Hz: float) -> float:
-        for ch, c in ((self.extensor_channel, ceiling_ext_mA),
-                      (self.flexor_channel, ceiling_flex_mA)):
-            if c > self.ceilings[ch] + 1e-9:
-                raise CurrentLimitError(f"stream ceiling {c:g} mA on channel {ch} is above "
-                                        f"the driver's {self.ceilings[ch]:g} mA")
-        self._stream_ceilings.update({self.extensor_channel: float(ceiling_ext_mA),
-                                      self.flexor_channel: float(ceiling_flex_mA)})
-        with self._lock:
-            self._streaming_open = False
-        self.arm()
-        with self._lock:
-            self._queue.clear()
-            self._reset_counts()
-            self._streaming_open = True
-        return self.pulse_rate_Hz
-
-    def write_stream(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> None:
-        lim = self._stream_ceilings
-        for name, arr, ch in (("I_ext_mA", I_ext_mA, self.extensor_channel),
-                              ("I_flex_mA", I_flex_mA, self.flexor_channel)):
-            a = np.asarray(arr, float)
-            if a.size and (not np.all(np.isfinite(a)) or a.min() < 0 or a.max() > lim[ch]):
-                raise CurrentLimitError(f"{name} outside 0 .. {lim[ch]:g} mA (or not "
-                                        "finite); nothing was sent")
-        ext, flex = to_steps_mA(I_ext_mA), to_steps_mA(I_flex_mA)
-        if len(ext) != len(flex):
-            raise CurrentLimitError("I_ext_mA and I_flex_mA must have the same length")
-        with self._lock:
-            self._queue.extend(zip(ext.tolist(), flex.tolist(), strict=True))
-
-    def stream_space(self) -> int:
-        with self._lock:
-            return max(0, int(self.pulse_rate_Hz) - len(self._queue))
-
-    def close_stream(self) -> None:
-        with self._lock:
-            self._streaming_open = False
-        t = self._stream
-        if t is not None:
-            t.join(timeout=2.0 + len(self._queue) / self.pulse_rate_Hz)
-        self.stop_now()
 
     # -- what was delivered -----------------------------------------------------------------------
     def delivery_summary(self) -> dict | None:
@@ -420,7 +284,8 @@ class Sm4Stimulator(Sm4Link):
         with self._lock:
             sent, got = list(self._sent), dict(self._delivered)
             slots, commanded = list(self._sent_index), dict(self._commanded)
-            counts = dict(self._counts)
+            counts = {**self._counts, "updates_unanswered": len(self._unanswered),
+                      "updates_skipped_late": self._skipped_late}
             ended = self._ended_by
         if self._loaded is None and not sent:
             return None
@@ -429,30 +294,21 @@ class Sm4Stimulator(Sm4Link):
         for name, idx, ch in (("extensor", 0, self.extensor_channel),
                               ("flexor", 1, self.flexor_channel)):
             amps = [sent[i][idx] for i in acked]
-            peak = max(amps, default=0.0)
-            channels[name] = {"name": name, "channel": ch, "pulses_acknowledged":
-                              sum(1 for a in amps if a > 0), "pulses_sent": len(sent),
-                              "pulse_current_mA": amps, "peak_current_mA": float(peak),
-                              "max_charge_per_phase_nC": float(peak * self.pulse_width_us),
-                              "net_charge_per_trial_uC": 0.0,
-                              "ceiling_mA": self.ceilings[ch]}
+            channels[name] = self._channel_summary(name, ch, amps,
+                                                   sum(1 for a in amps if a > 0), len(sent))
         return {"format": SUMMARY_FORMAT, "device": self.model.title,
                 "mode": type(self).__name__, "waveshape": self.waveshape().to_json(),
                 "pulse_rate_Hz": self.pulse_rate_Hz, "pulse_width_us": self.pulse_width_us,
                 "interphase_us": self.interphase_us,
                 "charge_balanced": "by construction: +I, pause, -I of equal width per pulse",
+                "repeats_update": self.repeats_update,
                 "updates_planned": len(self._trial), "updates_sent": len(sent),
                 "updates_acknowledged": len(acked), "updates_busy": 0, **counts,
                 "pulse_index": [slots[i] for i in acked],
                 "ended_by": ended or "completed", "channels": channels}
 
     def describe(self) -> dict:
-        return {"device": f"{self.model.title} (ScienceMode4, low level)", "port": self.port,
-                "extensor_channel": self.extensor_channel,
-                "flexor_channel": self.flexor_channel,
-                "ceiling_ext_mA": self.ceilings[self.extensor_channel],
-                "ceiling_flex_mA": self.ceilings[self.flexor_channel],
-                "pulse_rate_Hz": self.pulse_rate_Hz, "pulse_width_us": self.pulse_width_us,
+        return {"device": f"{self.model.title} (ScienceMode4, low level)", **self._describe(),
                 "interphase_us": self.interphase_us,
                 "trigger_output": "none described: acquisition host-started",
                 "emergency_stop": "none on the device: nmsid's stop (confirmed Ll_stop)",
@@ -466,68 +322,37 @@ class Sm4Stimulator(Sm4Link):
                                     f"outside 0 .. {lim:g} mA; nothing was sent")
         return sm4.biphasic_points(current_mA, self.pulse_width_us, self.interphase_us)
 
+    def _check_pulse(self, I_ext_mA: float, I_flex_mA: float) -> None:
+        self._points(self.extensor_channel, I_ext_mA)
+        self._points(self.flexor_channel, I_flex_mA)
+
     def _pulse_data(self, channel: int, current_mA: float) -> bytes:
         c = channel - 1                                   # IFU Table 14: channel, connector
         return sm4.ll_channel_config_data(c % 4, c // 4, self._points(channel, current_mA))
 
-    def _reset_counts(self) -> None:
-        self._sent: list[tuple[float, float]] = []
-        self._sent_index: list[int] = []       # each update's slot k (k / rate after onset)
+    def _reset_device_counts(self) -> None:
         self._delivered: dict[int, set[int]] = {}
         self._commanded: dict[int, set[int]] = {}
-        self._counts = {"updates_transfer_error": 0, "updates_unanswered": 0,
-                        "updates_skipped_late": 0}
-        self._ended_by = ""
+        self._counts = {"updates_transfer_error": 0, "updates_answered_late": 0}
+        self._unanswered: set[int] = set()
+        """Updates with a command unanswered when the next was due, and not since."""
+        self._late_acks = {}
 
-    def _stream_loop(self) -> None:
+    def _send_update(self, k: int, I_ext_mA: float, I_flex_mA: float) -> bool:
+        """Write update ``k``, then wait for its answer until the next is due."""
         period = 1.0 / self.pulse_rate_Hz
-        t0, k = self.clock(), 0
-        try:
-            while not self._stream_stop.is_set():
-                with self._lock:
-                    if self._queue:
-                        e, f = self._queue.popleft()
-                    elif self._streaming_open:
-                        e = f = -1.0
-                    else:
-                        break
-                if e < 0:
-                    self._sleep(period / 4)
-                    self._after_update()
-                    continue
-                wait = t0 + k * period - self.clock()
-                if wait > 0:
-                    self._sleep(wait)
-                elif not self._streaming_open and -wait > period:   # behind: keep time axis
-                    late = min(int(-wait / period), len(self._queue))
-                    with self._lock:
-                        for _ in range(late):
-                            e, f = self._queue.popleft()
-                        self._counts["updates_skipped_late"] += late
-                    k += late
-                with self._wlock:             # never after the stop (stop_now holds it)
-                    if self._stream_stop.is_set() or self._error:
-                        break
-                    index = len(self._sent)
-                    self._sent.append((e, f))
-                    self._sent_index.append(k)
-                    numbers = self._send_update(index, e, f)
-                self._await_pulse_acks(numbers, due=max(t0 + (k + 1) * period,
-                                                        self.clock() + period))
-                self._after_update()
-                k += 1
-        except Exception as exc:
-            with self._lock:
-                self._error = self._error or (f"{self.model.title} link lost while "
-                                              f"stimulating ({type(exc).__name__}: {exc})")
-                self._state = StimulatorState.ERROR
-            return
-        if not self._stream_stop.is_set():
-            with self._lock:
-                self._ended_by = self._ended_by or "completed"
-            self.stop_now()
+        with self._wlock:             # never after the stop (stop_now holds it)
+            if self._stream_stop.is_set() or self._error:
+                return False
+            index = len(self._sent)
+            self._sent.append((I_ext_mA, I_flex_mA))
+            self._sent_index.append(k)
+            numbers = self._write_pulses(index, I_ext_mA, I_flex_mA)
+        self._await_pulse_acks(numbers, due=max(self._t0 + (k + 1) * period,
+                                                self.clock() + period))
+        return True
 
-    def _send_update(self, index: int, e: float, f: float) -> list[int]:
+    def _write_pulses(self, index: int, e: float, f: float) -> list[int]:
         """One Ll_channel_config per channel with current (the caller holds ``_wlock``)."""
         numbers = []
         for ch, cur in ((self.extensor_channel, e), (self.flexor_channel, f)):
@@ -540,9 +365,6 @@ class Sm4Stimulator(Sm4Link):
                 numbers.append(n)
         return numbers
 
-    def _after_update(self) -> None:
-        """Between updates (the mid level's keep-alive and error poll); nothing in low level."""
-
     def _await_pulse_acks(self, numbers: list[int], due: float) -> None:
         """The next pulse goes out after these were acknowledged (at most one pulse command
         outstanding per channel: module docstring), or when it is due (``due``, the driver's
@@ -553,14 +375,12 @@ class Sm4Stimulator(Sm4Link):
                     and not self._stream_stop.is_set():
                 if time.monotonic() > deadline or self.clock() >= due:
                     for n in numbers:
-                        if self._pulse_acks.pop(n, None) is not None:
-                            self._counts["updates_unanswered"] += 1
+                        entry = self._pulse_acks.pop(n, None)
+                        if entry is not None:     # lost, or answered late (a busy host)
+                            self._late_acks[n] = entry
+                            self._unanswered.add(entry[0])
                     return
                 self._cv.wait(0.002)
 
-    def _check_usable(self, what: str) -> None:
-        with self._lock:
-            if self._state is StimulatorState.DISCONNECTED:
-                raise DeviceError(f"{self.model.title}: {what}() before connect()")
-            if self._error:
-                raise DeviceError(self._error)
+    def _notify(self) -> None:
+        self._cv.notify_all()

@@ -39,6 +39,8 @@ class Sm4Link:
     _number: int
     _replies: dict[int, sm4.Packet | sm4.BadPacket]
     _pulse_acks: dict[int, tuple[int, tuple[int, ...]]]
+    _late_acks: dict[int, tuple[int, tuple[int, ...]]]
+    _unanswered: set[int]
     _update_ack: int
     _silent: bool
     _error: str
@@ -49,9 +51,9 @@ class Sm4Link:
     _delivered: dict[int, set[int]]
     _counts: dict[str, int]
     stop_log: list[tuple[float, str]]
-    fallback: str
-    """What happens when a stop is not confirmed (low level: no more pulse commands; mid
-    level: no more keep-alive)."""
+    _confirm_stopped: Callable[..., bool]
+    _link_failed: Callable[..., None]
+    _wait_for: Callable[..., Any]
 
     def _link_loop(self) -> None:
         while not self._link_stop.is_set():
@@ -60,11 +62,7 @@ class Sm4Link:
                 n = ser.in_waiting if ser is not None else 0
                 packets = self._decoder.feed(ser.read(n)) if n else []
             except Exception as exc:
-                with self._lock:
-                    self._error = self._error or (f"{self.model.title} USB link lost "
-                                                  f"({type(exc).__name__}: {exc})")
-                    self._state = StimulatorState.ERROR
-                    self._cv.notify_all()
+                self._link_failed(exc)
                 return
             for pkt in packets:
                 self._on_packet(pkt)
@@ -72,8 +70,13 @@ class Sm4Link:
 
     def _on_packet(self, pkt: sm4.Packet | sm4.BadPacket) -> None:
         with self._lock:
-            if pkt.command == self._update_ack and pkt.number in self._pulse_acks:
-                index, chans = self._pulse_acks.pop(pkt.number)
+            late = pkt.command == self._update_ack and pkt.number in self._late_acks
+            if pkt.command == self._update_ack and (pkt.number in self._pulse_acks or late):
+                index, chans = (self._late_acks if late else self._pulse_acks).pop(pkt.number)
+                if late:      # answered after its slot: not lost (the device answers a
+                    self._counts["updates_answered_late"] += 1   # pulse after it)
+                    if all(i != index for i, _ in self._late_acks.values()):
+                        self._unanswered.discard(index)
                 ch = chans[0]
                 result = pkt.result if isinstance(pkt, sm4.Packet) else sm4.TRANSFER_ERROR
                 if result == sm4.OK:
@@ -95,12 +98,8 @@ class Sm4Link:
         """One request and its reply (None after :data:`RESPONSE_WAIT_S`)."""
         with self._wlock:
             number = self._write_locked(command, data)
-        deadline = time.monotonic() + RESPONSE_WAIT_S
-        with self._lock:
-            while number not in self._replies and time.monotonic() < deadline and \
-                    self._link is not None and self._link.is_alive():
-                self._cv.wait(0.002)
-            return self._replies.pop(number, None)
+        return self._wait_for(self._replies, number, time.monotonic() + RESPONSE_WAIT_S,
+                              self._cv, 0.002)
 
     def _request(self, command: int, data: bytes = b"") -> sm4.Packet:
         """A request answered, resent when lost or answered corrupted (at once, never a 5 s
@@ -119,39 +118,13 @@ class Sm4Link:
         """Get_stim_status until "no level" (IFU Table 7), resending the stop of ``level``
         while it is not; unconfirmed: silent, one line (module docstring)."""
         stop = sm4.ML_STOP if level in (sm4.STIM_ML, sm4.STIM_ML_RUNNING) else sm4.LL_STOP
-        deadline = time.monotonic() + STOP_CONFIRM_S
-        while time.monotonic() < deadline:
-            try:
-                if resend:
-                    self._ask(stop)
-                reply = self._ask(sm4.GET_STIM_STATUS)
-            except Exception as exc:
-                log.warning("%s stop: %s", self.model.title, exc)
-                break
-            if isinstance(reply, sm4.Packet) and reply.result == sm4.OK and \
-                    len(reply.data) > 1 and reply.data[1] == sm4.STIM_NONE:
-                self.stop_log.append((self.clock(), "confirmed"))
-                if resend:
-                    log.warning("%s: the stop was confirmed after a resend (a packet lost "
-                                "or corrupted)", self.model.title)
-                return True
-            resend = True
-        self._unconfirmed(f"the device did not confirm the stop within {STOP_CONFIRM_S:g} s "
-                          "(Get_stim_status, IFU Table 7)")
-        return False
 
-    def _unconfirmed(self, why: str) -> None:
-        self._silent = True                 # no more commands: no more low-level pulses
-        self.stop_log.append((self.clock(), "unconfirmed"))
-        message = (f"{self.model.title}: {why}; nmsid sends nothing more ({self.fallback}): "
-                   f"SWITCH THE {self.model.title.split()[-1]} OFF, then reconnect before the "
-                   "next trial")
-        with self._lock:
-            if self._error != message:
-                log.error(message)
-            self._error = message
-            self._state = StimulatorState.ERROR
-            self._cv.notify_all()
+        def stopped() -> bool:
+            reply = self._ask(sm4.GET_STIM_STATUS)
+            return isinstance(reply, sm4.Packet) and reply.result == sm4.OK and \
+                len(reply.data) > 1 and reply.data[1] == sm4.STIM_NONE
+        return self._confirm_stopped(stopped, lambda: self._ask(stop), resend_first=resend,
+                                     source="Get_stim_status, IFU Table 7")
 
     def _write_locked(self, command: int, data: bytes = b"") -> int:
         """Write one packet (the caller holds ``_wlock``); its packet number."""
@@ -165,18 +138,6 @@ class Sm4Link:
         self._number = (self._number + 1) & 0x3F        # IFU: packet number 0 .. 63
         with self._lock:
             self._replies.pop(number, None)
+            self._late_acks.pop(number, None)     # its number reused: unanswered for good
         ser.write(sm4.encode(number, command, data))
         return number
-
-    def _close_link(self) -> None:
-        self._link_stop.set()
-        t = self._link
-        if t is not None and t is not threading.current_thread():
-            t.join(timeout=1.0)
-        self._link = None
-        ser, self._ser = self._ser, None
-        if ser is not None:
-            try:
-                ser.close()
-            except Exception as exc:
-                log.info("%s port close: %s", self.model.title, exc)

@@ -46,8 +46,9 @@ class Sm4MidLevelStimulator(Sm4Stimulator):
         self.fallback = ("no keep-alive: the device stops within 2 s of the last one, IFU "
                          "'Mid-Level Update'")
         self._last_poll = 0.0
+        self.repeats_update = True       # IFU "Mid-Level Update": repeated until the next
 
-    def _send_update(self, index: int, e: float, f: float) -> list[int]:
+    def _write_pulses(self, index: int, e: float, f: float) -> list[int]:
         """One Ml_update of both channels (the caller holds ``_wlock``)."""
         channels = {}
         for ch, cur in ((self.extensor_channel, e), (self.flexor_channel, f)):
@@ -59,7 +60,7 @@ class Sm4MidLevelStimulator(Sm4Stimulator):
             self._commanded[index] = {self.extensor_channel, self.flexor_channel}
         return [n]
 
-    def _after_update(self) -> None:
+    def _idle(self) -> None:
         """The keep-alive and the electrode check, every :data:`KEEPALIVE_S`."""
         now = time.monotonic()
         if now - self._last_poll < KEEPALIVE_S or self._stream_stop.is_set():

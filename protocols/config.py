@@ -61,6 +61,11 @@ Layout of the TOML file (every key optional; unknown keys are refused)::
     confirm_weakened_safety = false  # needed for a trip_on_* = false or a force_limit_N
                                    # above the sensor range (docs/settings.md)
 
+    [lsl]                          # Lab Streaming Layer (docs/lsl.md); off by default
+    publish = false                # outlets for force, currents, markers (= --lsl)
+    record = []                    # streams recorded into the file, e.g. ["EMG"]
+                                   # (= --lsl-record EMG, which replaces this list)
+
 Every key is a field of a pydantic dataclass below, with its bounds and their reason next
 to it (:mod:`nmsid.protocols.settings_base`); ``docs/settings.md`` lists them all.
 """
@@ -86,6 +91,7 @@ from nmsid.protocols.interlock_settings import (
     InterlockConfig,
 )
 from nmsid.protocols.joints import DEFAULT_JOINT, JOINTS, Joint
+from nmsid.protocols.lsl_settings import LslConfig
 from nmsid.protocols.settings_base import (
     SettingProblem,
     bounded,
@@ -108,7 +114,8 @@ PLUGIN_MODEL_PATTERN = r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*"
 DEFAULT_SOURCE = "built-in defaults"
 
 __all__ = ["Config", "ConfigError", "ProtocolConfig", "CalibrationConfig", "InterlockConfig",
-           "ManualCurrents", "Randomisation", "InputKind", "PausePolicy", "PARTICIPANT_MODELS",
+           "ManualCurrents", "LslConfig", "Randomisation", "InputKind", "PausePolicy",
+           "PARTICIPANT_MODELS",
            "PARTICIPANT_PATTERN", "MAX_LEVELS", "MAX_TRIALS", "MAX_SESSION_S",
            "MAX_TRIAL_SAMPLES", "MAX_RAMP_STEPS", "SEED_MAX", "FORCE_SENSOR_RANGE_N",
            "TRIP_SWITCHES", "load_config", "config_from_json", "config_from_dict", "validate"]
@@ -337,6 +344,7 @@ class Config:
     protocol: ProtocolConfig = Field(default_factory=ProtocolConfig)
     calibration: CalibrationConfig = Field(default_factory=CalibrationConfig)
     interlock: InterlockConfig = Field(default_factory=InterlockConfig)
+    lsl: LslConfig = Field(default_factory=LslConfig)
     source: str = DEFAULT_SOURCE
     """Where the values came from (for messages); not stored."""
 
@@ -417,6 +425,8 @@ class Config:
             del d["seed"]
         if d["joint"] == DEFAULT_JOINT:    # older readers lack the key
             del d["joint"]
+        if d["lsl"] == {"publish": False, "record": []}:   # older readers lack the table
+            del d["lsl"]
         model = d.pop("participant_model")
         if model != "template":     # the plain string form otherwise (older readers)
             d["participant"] = {"code": d["participant"], "model": model}

@@ -151,7 +151,8 @@ def run_dry_run(devices, s: DryRunSettings, support, *, out=print,
             shape = summary["waveshape"]
             checks = check_pulses(monitor_V, s, pulses, float(shape["pulse_width_us"]),
                                   float(shape.get("interphase_us", 0.0)),
-                                  pulse_index=summary.get("pulse_index"))
+                                  pulse_index=summary.get("pulse_index"),
+                                  repeats=summary.get("repeats_update", True))
     return _report(checks, out)
 
 
@@ -354,7 +355,8 @@ def run_stream_dry_run(devices, s: DryRunSettings, *, fs_Hz: float, out=print) -
         checks += check_pulses(np.concatenate(mon)[:n], s, got,
                                float(shape.get("pulse_width_us", 0.0)),
                                float(shape.get("interphase_us", 0.0)),
-                               pulse_index=summary.get("pulse_index"))
+                               pulse_index=summary.get("pulse_index"),
+                               repeats=summary.get("repeats_update", True))
     else:
         width = summary.get("waveshape", {}).get("pulse_width_us")
         out(f"  [INFO] the resistor's current is not recorded (no monitor input): "

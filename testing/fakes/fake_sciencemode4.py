@@ -130,15 +130,22 @@ class FakeSm4:
     model : "P24" or "RehaMove3"
     clock : callable() -> float
         Seconds (the bench's clock in fake mode).
-    response_latency_s : float
-        Time from a command's arrival to its answer (IFU: the P24 answers in 5-15 ms).
+    response_latency_s : float or (low, high)
+        Time from a command's arrival to its answer; a pair draws each answer's latency
+        uniformly between the two (issue 43: the P24 answers in 5-15 ms, so an answer may
+        come after the next pulse is due at 100 Hz).
+    seed : int
+        Of the latency draws.
     """
 
     def __init__(self, model: str = "P24", clock: Callable[[], float] = time.monotonic,
-                 response_latency_s: float = 0.002):
+                 response_latency_s: float | tuple[float, float] = 0.002, seed: int = 0):
         self.model, self.spec = model, MODELS[model]
         self.clock = clock
-        self.latency_s = float(response_latency_s)
+        low, high = (response_latency_s if isinstance(response_latency_s, tuple)
+                     else (response_latency_s, response_latency_s))
+        self.latency_s = (float(low), float(high))
+        self._rng = np.random.default_rng(seed)
         self.lock = threading.RLock()
         self._in = bytearray()
         self._out = bytearray()
@@ -259,7 +266,9 @@ class FakeSm4:
         if self._corrupt_reply.get(command - 1, 0) > 0:
             self._corrupt_reply[command - 1] -= 1
             frame[-2] ^= 0x04
-        due = (self.clock() if at is None else at) + self.latency_s
+        low, high = self.latency_s
+        due = (self.clock() if at is None else at) + (
+            low if high <= low else float(self._rng.uniform(low, high)))
         self._delayed.append((due, bytes(frame)))
         self._delayed.sort(key=lambda d: d[0])
 

@@ -135,8 +135,8 @@ def test_no_pulse_above_its_ceiling_or_envelope_by_construction(ext, flex, fs):
     w = CheckedWaveform(np.asarray(ext[:m])[hold], np.asarray(flex[:m])[hold], fs, 1000.0,
                         19.5, 11.7)
     stim.load(w)
-    assert len(stim._trial_pulses) >= m - 1
-    for k, (e, f) in enumerate(stim._trial_pulses):
+    assert len(stim._trial) >= m - 1
+    for k, (e, f) in enumerate(stim._trial):
         i = min(int(k / 40.0 * fs + 1e-9), n - 1)     # the envelope sample at pulse k
         assert 0 <= e <= w.I_ext_mA[i] <= 19.5 and 0 <= f <= w.I_flex_mA[i] <= 11.7
         assert e > w.I_ext_mA[i] - 2 and f > w.I_flex_mA[i] - 2   # 2 mA steps, floor

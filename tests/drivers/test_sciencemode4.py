@@ -300,3 +300,100 @@ def test_mid_level_refuses_a_rate_off_the_half_millisecond_grid():
     with pytest.raises(StimulatorSettingError, match="0.5 ms"):
         Sm4MidLevelStimulator("COM9", P24, ceiling_ext_mA=20.0, ceiling_flex_mA=20.0,
                               pulse_rate_Hz=30.0)
+
+
+def test_the_dry_runs_pulse_check_sees_half_milliampere_pulses_whole():
+    # 0.5 mA pulses (the ScienceMode4 step, IFU Table 15) sent with the driver's codec to
+    # the fake P24, sampled at the dry run's 10 kHz with its 1 mV noise over 1 kOhm, start
+    # at random phases of the sample grid. Each is +I, pause, -I of equal widths (IFU
+    # Table 15, RM3 7.1): the check must find every one and call it balanced. (It found a
+    # pulse where the current rose above a fixed 0.5 mA, so noise on a 0.5 mA pulse cut
+    # its first sample off: "worst net 49.8 nC per pulse", issue 43.)
+    from nmsid.drivers.dry_run import DryRunSettings, check_pulses
+    now = [1.0]
+    fake = FakeSm4("P24", clock=lambda: now[0])
+    port = fake.open()
+    port.write(sm4.encode(0, sm4.LL_INIT, sm4.ll_init_data()))
+    rng = np.random.default_rng(5)
+    amps = [0.5, 0.5, 1.0, 0.5, 2.0, 0.5] * 5
+    for k, a in enumerate(amps):
+        now[0] = 1.0 + k / RATE_HZ + rng.uniform(0, 1e-4)
+        port.write(sm4.encode((k + 1) & 0x3F, sm4.LL_CHANNEL_CONFIG,
+                              sm4.ll_channel_config_data(
+                                  0, 0, sm4.biphasic_points(a, 300, 100))))
+    assert len(fake.pulses) == len(amps)
+    s = DryRunSettings()
+    t = 0.99 + np.arange(int(s.monitor_fs_Hz)) / s.monitor_fs_Hz
+    volts = fake.current_at(0, t) * 1e-9 * s.load_ohm + 1e-3 * rng.standard_normal(len(t))
+    checks = {c.name: c for c in check_pulses(volts, s, amps, 300.0, 100.0)}
+    assert checks["pulse count"].figure.startswith(f"{len(amps)} pulses found"), \
+        checks["pulse count"].line()
+    assert all(c.passed for c in checks.values()), [c.line() for c in checks.values()]
+
+
+def test_answers_later_than_the_next_pulse_count_as_answered_not_lost():
+    # The P24 answers in 5-15 ms (issue 43) and a busy host reads an answer late: at 100 Hz
+    # every answer here comes after the next pulse is due, so the driver sends that pulse
+    # (a lost answer costs its own slot only); the answer that arrives afterwards still
+    # counts the pulse acknowledged (IFU "Ll_channel_config_ack": sent after the pulse).
+    # They were counted unanswered and dropped: "updates answered" failed the dry run.
+    fake = FakeSm4("P24", response_latency_s=(0.012, 0.015), seed=3)
+    stim = Sm4Stimulator("COM9", P24, ceiling_ext_mA=20.0, ceiling_flex_mA=20.0,
+                         extensor_channel=1, flexor_channel=5, pulse_rate_Hz=100.0,
+                         open_port=fake.open, clock=fake.clock)
+    stim.connect()
+    try:
+        n = 500
+        stim.load(CheckedWaveform(np.full(n, 4.0), np.zeros(n), 1000.0, 40.0, 20.0, 20.0))
+        stim.arm()
+        stim.start()
+        deadline = time.monotonic() + 10.0        # generous: a loaded host (not timed)
+        while "confirmed" not in [w for _, w in stim.stop_log] and \
+                time.monotonic() < deadline:      # the last answer comes before the stop's
+            time.sleep(0.02)
+        s = stim.delivery_summary()
+    finally:
+        stim.disconnect()
+    assert s["ended_by"] == "completed" and s["updates_sent"] > 0
+    assert s["updates_unanswered"] == 0, s
+    assert s["updates_acknowledged"] == s["updates_sent"] == len(fake.pulses)
+    assert s["updates_answered_late"] > 0
+
+
+def test_a_slot_the_host_skipped_has_no_low_level_pulse_in_the_dry_runs_count():
+    # Low level is one command per pulse (IFU "Low-Level channel configuration"): a slot
+    # the host skipped to keep the time base has no pulse, unlike the RehaStim2's and the
+    # mid level's repeated update (ScienceMode2 1.3, IFU "Mid-Level Update"). The dry run
+    # filled the gap with the previous current and failed "pulse count" on a busy host
+    # ("32 pulses found, 37 non-zero pulse periods").
+    from nmsid.drivers.dry_run import DryRunSettings, check_pulses
+    from nmsid.drivers.sciencemode4_mid import Sm4MidLevelStimulator
+    now = [1.0]
+    fake = FakeSm4("P24", clock=lambda: now[0])
+    port = fake.open()
+    port.write(sm4.encode(0, sm4.LL_INIT, sm4.ll_init_data()))
+    slots = [0, 1, 2, 8, 9, 10, 11, 12, 18, 19]          # two stalls of 5 slots
+    amps = [1.0, 2.0] * 5
+    for n, (k, a) in enumerate(zip(slots, amps, strict=True)):
+        now[0] = 1.0 + k / RATE_HZ
+        port.write(sm4.encode(n + 1, sm4.LL_CHANNEL_CONFIG, sm4.ll_channel_config_data(
+            0, 0, sm4.biphasic_points(a, 300, 100))))
+    s = DryRunSettings()
+    t = 0.99 + np.arange(int(s.monitor_fs_Hz)) / s.monitor_fs_Hz
+    volts = fake.current_at(0, t) * 1e-9 * s.load_ohm
+    fake2, stim = _rig()
+    try:
+        stim.load(_waveform(stim, 0.1))
+        stim.arm()
+        stim.start()
+        time.sleep(0.3)
+        repeats = stim.delivery_summary()["repeats_update"]
+    finally:
+        stim.disconnect()
+    assert repeats is False
+    checks = {c.name: c.passed for c in check_pulses(volts, s, amps, 300.0, 100.0,
+                                                     pulse_index=slots, repeats=repeats)}
+    assert checks == {"pulse count": True, "pulse amplitude": True, "charge balance": True}
+    mid = Sm4MidLevelStimulator("COM9", P24, ceiling_ext_mA=5.0, ceiling_flex_mA=5.0,
+                                open_port=fake2.open)
+    assert mid.repeats_update is True

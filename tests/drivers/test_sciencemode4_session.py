@@ -81,8 +81,8 @@ def test_session_with_a_lost_packet_and_an_estop_press(tmp_path, kind):
         assert amps.size, json.dumps({k: v for k, v in stim.items() if k != "channels"})
         assert amps.max() <= 15.0 and np.all(amps * 2 == np.round(amps * 2))
         unanswered += stim["updates_unanswered"]
-    assert unanswered >= 3     # counted, not hidden, not a fault (a loaded host may add a
-    #                            late answer: PULSE_ACK_WAIT_S)
+    assert unanswered >= 2     # counted, not hidden, not a fault: 3 commands lost, one per
+    #                            channel and pulse, so at least 2 updates
     aborted = [t for t in s.trials if t.status == "aborted"]
     assert aborted and "estop" in aborted[0].abort_reason.lower()
     # E-stop to last pulse, on the fake's clock: at most one pulse period (40 Hz)

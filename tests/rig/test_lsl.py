@@ -185,3 +185,56 @@ def test_a_simulated_emg_stream_is_recorded_into_the_session_with_its_clock_offs
         assert np.isfinite(s.attrs["clock_offset_s"]) and abs(s.attrs["clock_offset_s"]) < 0.1
         onsets = json.loads(run.attrs["trial_onsets_lsl_json"])
         assert list(onsets) == ["0"]
+
+
+def test_the_protocol_files_lsl_table_publishes_as_the_flag_does(tmp_path, monkeypatch,
+                                                                  capsys):
+    # one definition: [lsl] publish = true in the protocol file is --lsl; the stored
+    # configuration records it
+    from nmsid.cli import run_command
+    from nmsid.protocols.config import config_from_json
+    from nmsid.rig import lsl
+    seen: dict = {}
+
+    def with_inlet(inner, fs_Hz, participant):
+        obs = lsl.lsl_observer(inner, fs_Hz, participant)
+        seen["inlet"], _ = _inlet(f"nmsid-{participant}-markers")
+        return obs
+    monkeypatch.setattr(run_command, "lsl_observer", with_inlet)
+    cfg = tmp_path / "p.toml"
+    cfg.write_text('participant = "LSL05"\n[protocol]\nsE_levels = [0.4]\nrepeats = 1\n'
+                   'steady_s = 0.5\nchirp_s = 1.0\n[calibration]\nhold_s = 0.3\n'
+                   'baseline_s = 0.2\n[lsl]\npublish = true\n', encoding="utf-8")
+    out = tmp_path / "s.h5"
+    assert main(["run", "--backend", "sim", "--config", str(cfg), "--out", str(out),
+                 "--no-identify", "--quiet"]) == 0, capsys.readouterr()
+    marks, _ = _pull(seen["inlet"], 100, timeout_s=3.0)
+    assert [json.loads(m[0])["event"] for m in marks].count("trial_start") == 1
+    stored = config_from_json(read_session(out).config_json)
+    assert stored.lsl.publish is True and stored.lsl.record == ()
+
+
+@pytest.mark.parametrize("table, key", [('publish = "yes"', "lsl.publish"),
+                                        ('record = "EMG"', "lsl.record"),
+                                        ('record = ["EMG", ""]', "lsl.record[1]"),
+                                        ("outlets = true", "lsl.outlets")])
+def test_a_bad_lsl_setting_is_one_line_naming_the_file_and_key(tmp_path, capsys, table,
+                                                               key):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(f'participant = "LSL06"\n[lsl]\n{table}\n', encoding="utf-8")
+    out = tmp_path / "s.h5"
+    rc = main(["run", "--backend", "sim", "--config", str(cfg), "--out", str(out),
+               "--no-identify", "--quiet", "--lsl"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert str(cfg) in err[0] and f"setting {key} = " in err[0], err[0]
+    assert not out.exists()
+
+
+def test_the_command_line_adds_to_the_files_lsl_settings():
+    from nmsid.protocols.config import config_from_dict
+    c = config_from_dict({"lsl": {"record": ["EMG"]}}).lsl
+    assert c.with_command_line(False, None) is c
+    assert c.with_command_line(True, None).publish and \
+        c.with_command_line(True, None).record == ("EMG",)
+    assert c.with_command_line(False, ["MoCap"]).record == ("MoCap",)
