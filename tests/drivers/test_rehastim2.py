@@ -3,6 +3,7 @@ protocol description (ScienceMode2 v1.24, cited as SM2 with its section)."""
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -23,6 +24,7 @@ from nmsid.drivers.interfaces import (
     StimulatorState,
 )
 from nmsid.drivers.rehastim2 import Rehastim2Stimulator
+from nmsid.drivers.rehastim2_link import KEEPALIVE_S
 from nmsid.testing.fakes.fake_rehastim2 import FakeRehastim2
 
 
@@ -201,18 +203,44 @@ class FastClock:
         time.sleep(max(s, 0) / 5.0)
 
 
+class SteppedClock:
+    """Device and driver time that moves only when told: ``sleep`` (the driver's waits)
+    and ``advance`` (the test). The keep-alive test below then holds on a busy machine,
+    where a link thread starved for 0.2 s of wall time would otherwise miss a real-time
+    watchdog without any fault of the driver's."""
+
+    def __init__(self):
+        self.t = 0.0
+        self._lock = threading.Lock()
+
+    def __call__(self) -> float:
+        with self._lock:
+            return self.t
+
+    def advance(self, s: float) -> None:
+        with self._lock:
+            self.t += max(s, 0.0)
+
+    sleep = advance
+
+
 def test_keepalive_holds_the_watchdog_and_silence_trips_it():
-    clock = FastClock()
-    dev = FakeRehastim2(clock=clock, sleep=clock.sleep)
+    clock = SteppedClock()
+    dev = FakeRehastim2(clock=clock)
     stim = Rehastim2Stimulator("FAKE", ceiling_ext_mA=10.0, ceiling_flex_mA=10.0,
                                open_port=dev.open, clock=clock, sleep=clock.sleep)
     stim.connect()
-    time.sleep(0.4)                             # 2 s > WatchdogTimeout, idle: keep-alive
+    for _ in range(20):                         # 2 s > WatchdogTimeout, idle: keep-alive
+        clock.advance(0.1)
+        deadline = time.monotonic() + 30.0      # wall time only bounds a hung link thread
+        while clock() - stim._last_sent > KEEPALIVE_S and time.monotonic() < deadline:
+            time.sleep(0.002)
+        assert clock() - stim._last_sent <= KEEPALIVE_S, "the link sent no keep-alive"
     assert dev.connected and dev.watchdog_expiries == 0
     assert any(p.command == sm2.WATCHDOG for p in dev.received)
     stim._link_stop.set()                       # the host goes silent (a hung program)
     stim._link.join()
-    time.sleep(0.35)
+    clock.advance(1.5)                          # > the 1.2 s WatchdogTimeout of SM2 2.3
     assert dev.in_waiting > 0                   # SM2 5.2: reset; the device sends Init
     assert dev.watchdog_expiries == 1 and not dev.connected
     stim.disconnect()
