@@ -94,7 +94,7 @@ def _measure(n_trips: int, source: str, seed: int = 1) -> np.ndarray:
 def main(n_trips: int = 200) -> None:
     logging.disable(logging.WARNING)
     print(f"E-stop -> stimulator output zero, real-time simulated rig, {n_trips} trips each")
-    print(f"{'source':34s} {'n':>5s} {'p50 ms':>8s} {'p99 ms':>8s} {'max ms':>8s} "
+    print(f"{'source':42s} {'n':>5s} {'p50 ms':>8s} {'p99 ms':>8s} {'max ms':>8s} "
           f"{'goal p99':>9s}")
     p99s = {}
     for source, label in (("estop()", "engine.commands.estop() from another thread"),
@@ -106,7 +106,7 @@ def main(n_trips: int = 200) -> None:
         goal = "-"
         if source == "estop()":
             goal = "< 10: " + ("met" if p99 < 10.0 and lat.size >= n_trips // 2 else "missed")
-        print(f"{label:34s} {lat.size:5d} {p50:8.3f} {p99:8.3f} {mx:8.3f} {goal}",
+        print(f"{label:42s} {lat.size:5d} {p50:8.3f} {p99:8.3f} {mx:8.3f} {goal}",
               flush=True)
     print(f"the switch's p99 is x{p99s['switch'] / max(p99s['estop()'], 1e-9):.0f} "
           "engine.commands.estop()'s (the 1 kHz watcher's poll against a direct call, same run)")
