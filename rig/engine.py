@@ -611,7 +611,7 @@ class Engine:
         """The schedule has nothing pending. With ``WAIT_FOR_REARM`` (an operator is
         present) and aborted trials left, hold in ``paused`` (output off) until the
         operator re-runs one (returns True: the run loop continues) or ends the session
-        (:meth:`abort`: the run ends normally). A trip while waiting is handled (re-arm)
+        (``commands.abort()``: the run ends normally). A trip while waiting is handled (re-arm)
         and the wait starts again. Returns False when there is nothing to wait for
         (``END_SESSION``: headless never waits)."""
         if self.trip_policy is not TripPolicy.WAIT_FOR_REARM:
