@@ -2,7 +2,7 @@
 
 A real-time simulated rig runs a long schedule of short trials in an engine thread, the
 main thread waits as ``nmsid run``'s does (0.1 s joins) inside ``SessionSignals``, and
-``on_signal`` zeroes the output (``engine.estop(reason)``; an operator re-arms after each
+``on_signal`` zeroes the output (``engine.commands.estop(reason)``; an operator re-arms after each
 trip). While a trial stimulates, another thread sends an event at a random moment
 (10-130 ms into the trial: any phase of the 0.1 s chunks; 20-300 ms before, idle waits)
 and records ``perf_counter()`` just before; the simulated stimulator records every
@@ -11,7 +11,7 @@ first one after it (an event that lands just after a trial's natural end meets t
 trial's, which is counted as it comes). Sources, like for like:
 
 * ``CTRL_C_EVENT`` / ``CTRL_CLOSE_EVENT`` through ``FakeKernel32`` (the routine on the
-  system's own thread): with ``stop_output`` (``nmsid run``: ``engine.estop`` on that
+  system's own thread): with ``stop_output`` (``nmsid run``: ``engine.commands.estop`` on that
   thread), and without it (the GUI: handed to the main thread by
   ``_thread.interrupt_main``, which runs it at its next 0.1 s turn); the Windows path,
   emulated on Linux (nmsid.testing.fake_windows_api);
@@ -73,7 +73,7 @@ def _measure(n: int, source: str, seed: int = 1) -> np.ndarray:
             if new is State.STIMULATING:
                 stimulating.set()
             elif new is State.TRIPPED:
-                eng.rearm()
+                eng.commands.rearm()
 
     tmp = tempfile.mkdtemp(prefix="nmsid-bench-console-")
     windows = source != "SIGINT"  # "... now": stop_output on the routine's thread
@@ -97,11 +97,11 @@ def _measure(n: int, source: str, seed: int = 1) -> np.ndarray:
                 else:
                     k32.deliver(CTRL_C_EVENT if source.startswith("CTRL_C_EVENT") else
                                 CTRL_CLOSE_EVENT)
-            eng.abort("bench done")
+            eng.commands.abort("bench done")
 
         worker = threading.Thread(target=eng.run, daemon=True)
-        stop_output = eng.estop if source.endswith("now") else None
-        with SessionSignals(lambda signum, reason: eng.estop(reason), stop_output):
+        stop_output = eng.commands.estop if source.endswith("now") else None
+        with SessionSignals(lambda signum, reason: eng.commands.estop(reason), stop_output):
             worker.start()
             threading.Thread(target=sender, daemon=True).start()
             while worker.is_alive():  # as nmsid run: short joins

@@ -7,7 +7,7 @@ phase of the simulated acquisition's 0.1 s chunks, without the idle waits of the
 before the call; the simulated stimulator records the instant its output went to zero
 (``SimRig.output_zero_events``). An operator thread re-arms after each trip. Two sources:
 
-* ``engine.estop()`` called from another thread (GUI button, Ctrl+C) - goal < 10 ms p99;
+* ``engine.commands.estop()`` called from another thread (GUI button, Ctrl+C) - goal < 10 ms p99;
 * the hardware switch (``SimEStop.press()``), seen by the interlock's 1 kHz watcher.
 
     python bench/bench_estop.py            # 200 trips per source
@@ -54,7 +54,7 @@ def _measure(n_trips: int, source: str, seed: int = 1) -> np.ndarray:
                 stimulating.set()
             elif new is State.TRIPPED:
                 rig.estop.release()
-                eng.rearm()
+                eng.commands.rearm()
 
     tmp = tempfile.mkdtemp(prefix="nmsid-bench-estop-")
     eng = Engine(cfg, rig, Path(tmp) / "estop.h5", observer=Operator())
@@ -69,10 +69,10 @@ def _measure(n_trips: int, source: str, seed: int = 1) -> np.ndarray:
                 continue
             calls.append(time.perf_counter())
             if source == "estop()":
-                eng.estop("bench")
+                eng.commands.estop("bench")
             else:
                 rig.estop.press()
-        eng.abort()
+        eng.commands.abort()
 
     th = threading.Thread(target=presser, daemon=True)
     th.start()
@@ -94,10 +94,10 @@ def _measure(n_trips: int, source: str, seed: int = 1) -> np.ndarray:
 def main(n_trips: int = 200) -> None:
     logging.disable(logging.WARNING)
     print(f"E-stop -> stimulator output zero, real-time simulated rig, {n_trips} trips each")
-    print(f"{'source':34s} {'n':>5s} {'p50 ms':>8s} {'p99 ms':>8s} {'max ms':>8s} "
+    print(f"{'source':42s} {'n':>5s} {'p50 ms':>8s} {'p99 ms':>8s} {'max ms':>8s} "
           f"{'goal p99':>9s}")
     p99s = {}
-    for source, label in (("estop()", "engine.estop() from another thread"),
+    for source, label in (("estop()", "engine.commands.estop() from another thread"),
                           ("switch", "hardware switch (1 kHz watcher)")):
         lat = _measure(n_trips, source)
         p50, p99, mx = (np.percentile(lat, 50), np.percentile(lat, 99), lat.max()) \
@@ -106,10 +106,10 @@ def main(n_trips: int = 200) -> None:
         goal = "-"
         if source == "estop()":
             goal = "< 10: " + ("met" if p99 < 10.0 and lat.size >= n_trips // 2 else "missed")
-        print(f"{label:34s} {lat.size:5d} {p50:8.3f} {p99:8.3f} {mx:8.3f} {goal}",
+        print(f"{label:42s} {lat.size:5d} {p50:8.3f} {p99:8.3f} {mx:8.3f} {goal}",
               flush=True)
     print(f"the switch's p99 is x{p99s['switch'] / max(p99s['estop()'], 1e-9):.0f} "
-          "engine.estop()'s (the 1 kHz watcher's poll against a direct call, same run)")
+          "engine.commands.estop()'s (the 1 kHz watcher's poll against a direct call, same run)")
 
 
 if __name__ == "__main__":

@@ -86,7 +86,7 @@ def _measure(kind: str, n_trips: int, seed: int = 1):
             elif new is State.TRIPPED:
                 if calls and len(pairs) < len(calls):
                     pairs.append((calls[-1], _stop_time(devices, kind)))
-                eng.rearm()
+                eng.commands.rearm()
 
     path = folder / "s.h5"
     eng = Engine(cfg, devices, path, observer=Operator())
@@ -102,8 +102,8 @@ def _measure(kind: str, n_trips: int, seed: int = 1):
             if eng.state is not State.STIMULATING:
                 continue
             calls.append(bench.now())
-            eng.estop("bench")
-        eng.abort()
+            eng.commands.estop("bench")
+        eng.commands.abort()
 
     th = threading.Thread(target=presser, daemon=True)
     th.start()

@@ -114,14 +114,14 @@ def run(args) -> int:
     def on_signal(signum, reason):  # main thread, which holds no engine lock
         engine = box.get("engine")
         if engine is not None:  # output to zero first, then end the session
-            engine.estop(reason)
-            engine.abort(reason)
+            engine.commands.estop(reason)
+            engine.commands.abort(reason)
         # before the engine exists nothing has been stimulated: run() checks `received`
 
     def stop_output(reason):  # Windows console event: its own thread, at once
         engine = box.get("engine")
         if engine is not None:
-            engine.estop(reason)
+            engine.commands.estop(reason)
 
     if config.lsl.active:
         require_pylsl()                      # one line before any device is opened
@@ -280,14 +280,14 @@ class _Progress(EngineObserver):
                           "session_end") and not self.quiet:
             self._clear()
             print(f"[{event.kind}] {event.detail}", flush=True)
+        elif event.kind == "trial_start" and self.tty and not self.quiet:
+            self._bar(event.detail)   # the trial as the file names it (``trial t012 (...)``)
 
     def on_calibration_step(self, muscle, current_mA, force_N): ...
 
     def on_calibration_result(self, calibration): ...
 
-    def on_trial_started(self, index, planned):
-        if self.tty and not self.quiet:
-            self._bar(f"trial {index}: sE {planned.sE:.2f} repeat {planned.repeat}")
+    def on_trial_started(self, index, planned): ...
 
     def on_chunk(self, *a): ...
 
@@ -299,8 +299,8 @@ class _Progress(EngineObserver):
         self._clear()
         crc = zlib.crc32(trial.force_N.astype("<f8").tobytes())
         status = "completed" if trial.completed else f"aborted ({trial.abort_reason})"
-        print(f"{trial.name} {status}: schedule index {index} sE {trial.sE:.2f} repeat "
-              f"{trial.repeat} n {trial.n_samples} crc {crc:08x} "
+        print(f"{trial.name} {status}: sE {trial.sE:.2f} repeat {trial.repeat} attempt "
+              f"{trial.extra_attrs.get('attempt', 1)} n {trial.n_samples} crc {crc:08x} "
               f"[{self.done}/{self.total}]", flush=True)
 
     def on_level_completed(self, sE, trials): ...

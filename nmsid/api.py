@@ -335,8 +335,8 @@ def run_simulated_session(out: PathLike, config: Config | PathLike | None = None
             while worker.is_alive():
                 worker.join(0.1)
         except KeyboardInterrupt:
-            engine.estop("interrupted (KeyboardInterrupt)")
-            engine.abort("interrupted (KeyboardInterrupt)")
+            engine.commands.estop("interrupted (KeyboardInterrupt)")
+            engine.commands.abort("interrupted (KeyboardInterrupt)")
             worker.join()
             raise
     finally:

@@ -6,11 +6,22 @@ every output start passes the :class:`nmsid.rig.safety.Interlock` gate; every tr
 first, in the tripping thread. Every trial is written through
 :class:`nmsid.rig.session_log.SessionLog` (journal first, then HDF5).
 
-Threads: :meth:`Engine.run` blocks (the GUI calls it in a worker thread); the operator
-commands (:mod:`nmsid.rig.engine_commands`: :meth:`estop`, :meth:`pause`, ...) are
-thread-safe and callable from any thread. Calibration steps are in
-:mod:`nmsid.rig.engine_calibration`, the USB-glitch recovery between trials in
-:mod:`nmsid.rig.device_recovery`. Observer callbacks run in the engine thread.
+One class, its state declared once in :meth:`Engine.__init__`; what it runs is a plan
+(:mod:`nmsid.protocols.plan`) of a kind of session (:mod:`nmsid.rig.trials`), every item
+through the one trial path :meth:`Engine._run_trial`. Beside it, small pieces it calls:
+
+* ``engine.commands`` (:class:`nmsid.rig.engine_commands.OperatorCommands`): the operator's
+  commands (E-stop, re-arm, pause / resume, abort, skip, re-run, repeat, confirm the
+  calibration, notes), thread-safe and callable from any thread; the engine thread acts on
+  them at its next check (:meth:`Engine._poll`);
+* :func:`nmsid.rig.engine_calibration.calibrate`: the calibration phase (ramps, manual, the
+  operator's confirmation);
+* :func:`nmsid.rig.device_recovery.check_devices_between_trials`: a USB glitch between
+  trials (output zero, bounded reconnects, the operator's confirmation).
+
+Threads: :meth:`Engine.run` blocks (the GUI calls it in a worker thread). Observer callbacks
+run in the engine thread. Events name a trial as the file does (``trial t012``, the group
+under ``/trials``), from its start on.
 """
 
 from __future__ import annotations
@@ -18,9 +29,7 @@ from __future__ import annotations
 import json
 import logging
 import math
-import queue
 import secrets
-import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +40,7 @@ from nmsid.drivers.interfaces import (
     DeliveryReporting,
     Describable,
     RigDevices,
+    StimulatorCapabilities,
     check_deliverable,
 )
 from nmsid.protocols.config import Config, ConfigError, PausePolicy, config_from_json
@@ -44,9 +54,13 @@ from nmsid.protocols.schedule import (
     schedule_to_json,
 )
 from nmsid.protocols.session_file import Calibration, Trial, utc_now
-from nmsid.rig.device_recovery import DeviceGlitchEnd, DeviceRecovery
-from nmsid.rig.engine_calibration import CalibrationSteps
-from nmsid.rig.engine_commands import OperatorCommands, _EndRun
+from nmsid.rig.device_recovery import (
+    DeviceGlitchEnd,
+    GlitchConfirm,
+    check_devices_between_trials,
+)
+from nmsid.rig.engine_calibration import calibrate
+from nmsid.rig.engine_commands import Cmd, OperatorCommands
 from nmsid.rig.keep_awake import SystemAwake
 from nmsid.rig.observer import (
     RERUN_WAIT_PREFIX,
@@ -56,13 +70,20 @@ from nmsid.rig.observer import (
     is_rerun_wait,
     rerun_wait_reason,
 )
-from nmsid.rig.safety import Interlock, check_waveform, effective_ceilings
+from nmsid.rig.safety import (
+    Interlock,
+    InterlockTripped,
+    Trip,
+    check_waveform,
+    effective_ceilings,
+)
 from nmsid.rig.session_log import (
     SessionLog,
     check_new_session_path,
     expected_session_bytes,
     journal_dir,
     load_trial_npz,
+    utc_now_ms,
 )
 from nmsid.rig.states import State, StateMachine
 from nmsid.rig.stimulation import BlockResult, run_block
@@ -86,8 +107,12 @@ class _Written:
 REST_SLICE_S = 0.05
 
 
-class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
-    """Runs one session.
+class _EndRun(Exception):
+    """Internal: leave the run loop (abort, or trip under END_SESSION)."""
+
+
+class Engine:
+    """Runs one session: any plan, through one trial path.
 
     Parameters
     ----------
@@ -110,13 +135,24 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         Additional root attributes of a new session file (e.g. ``sim_seed``).
     on_device_glitch : callable(description, reconnected) -> bool, optional
         Asked after a device glitch between trials (:mod:`nmsid.rig.device_recovery`); None:
-        wait for :meth:`resume` (the GUI).
+        wait for ``commands.resume()`` (the GUI).
+
+    Attributes
+    ----------
+    commands : rig.engine_commands.OperatorCommands
+        The operator's commands to this engine (any thread).
     """
+
+    interlock: Interlock
+    """The session's interlock: every output start passes it; any trip latches it."""
+    caps: StimulatorCapabilities
+    """The stimulator's capabilities, known from :meth:`run`'s set-up on."""
 
     def __init__(self, config: Config | None, devices: RigDevices, session_path, *,
                  resume: bool = False, observer: EngineObserver | None = None,
                  trip_policy: TripPolicy = TripPolicy.WAIT_FOR_REARM,
-                 extra_attrs: dict | None = None, on_device_glitch=None,
+                 extra_attrs: dict | None = None,
+                 on_device_glitch: GlitchConfirm | None = None,
                  session: SessionKind | None = None):
         self.session = session if session is not None else IdentificationSession()
         self.session.check_devices(devices)
@@ -129,9 +165,8 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         self.resume_mode = resume
         self.extra_attrs = {**(extra_attrs or {}), **self.session.root_attrs()}
         self.recovery = None
+        self.commands = OperatorCommands(lambda reason: self.interlock.estop(reason))
         self._log: SessionLog | None = None
-        self._cmds: queue.SimpleQueue = queue.SimpleQueue()
-        self._wake = threading.Event()
         self._sm = StateMachine(self._on_transition)
         self._pending_events: list[tuple[str, str, str]] = []
         self._trials_this_run: dict[int, Trial | _Written] = {}
@@ -198,7 +233,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         awake = SystemAwake().__enter__()  # Windows: no sleep mid-session (this thread)
         try:
             self._setup()
-            self._calibrate()
+            calibrate(self)
             # again with this participant's calibration, before the first trial
             self._preflight(self.calibration, device_max_mA=self.caps.max_current_mA)
             self._run_schedule()
@@ -340,6 +375,156 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
                                  if all(q.status is TrialStatus.DONE for q in self.schedule
                                         if round(q.sE, 9) == round(pt.sE, 9))}
 
+    # -- public state ------------------------------------------------------------------
+    @property
+    def state(self) -> State:
+        return self._sm.state
+
+    def interlock_status(self) -> dict[str, tuple[bool, str]]:
+        """Rule name -> (ok, detail), plus ``latch``."""
+        return self.interlock.status()
+
+    # -- events, transitions, observers ------------------------------------------------
+    def _event(self, kind: str, detail: str = "") -> None:
+        if self._log is None:
+            self._pending_events.append((utc_now_ms(), kind, detail))
+            return
+        ev = self._log.event(kind, detail)
+        try:
+            self.observer.on_event(ev)
+        except Exception:
+            log.exception("observer.on_event failed")
+
+    def _on_transition(self, old: State, new: State, reason: str) -> None:
+        self._event("state", f"{old.value} -> {new.value}" + (f": {reason}" if reason else ""))
+        self._notify("on_state", old, new, reason)
+
+    def _notify(self, name: str, *args) -> None:
+        try:
+            getattr(self.observer, name)(*args)
+        except Exception:  # a broken observer must not stop the session
+            log.exception("observer.%s failed", name)
+
+    # -- the operator's commands, as the engine thread acts on them --------------------
+    def _on_trip(self, trip: Trip) -> None:
+        self.commands.tripped(trip)   # any thread: handed to the engine thread
+
+    def _poll(self) -> None:
+        """Act on the queued commands (engine thread)."""
+        for cmd, arg in self.commands.take():
+            if cmd is Cmd.TRIPPED:
+                self._event("interlock_trip", f"{arg.rule}: {arg.detail}")
+            elif cmd is Cmd.PAUSE:
+                self._pause_req, self._resume_req = True, False
+                self._event("pause_requested", f"policy: {self.config.protocol.pause_policy.value}")
+            elif cmd is Cmd.RESUME:
+                self._resume_req = True
+            elif cmd is Cmd.ABORT:
+                if not self._abort_req:
+                    self._abort_by = arg or "operator"
+                self._abort_req = True
+                self._event("abort_requested", arg or "operator")
+            elif cmd is Cmd.SKIP:
+                self._skip_req = True
+            elif cmd is Cmd.REARM:
+                self._rearm_req = True
+            elif cmd is Cmd.CONFIRM:
+                self._confirmations.append(arg)
+            elif cmd is Cmd.NOTE:
+                self._event("note", arg)
+            elif cmd is Cmd.RERUN:
+                self._queue_again(arg, TrialStatus.ABORTED, "rerun",
+                                  "only aborted trials are re-run")
+            elif cmd is Cmd.REPEAT:
+                self._queue_again(arg[0], TrialStatus.DONE, "repeat",
+                                  "only completed trials are repeated", arg[1])
+
+    def _queue_again(self, index: int, required: TrialStatus, kind: str, rule: str,
+                     reason: str = "") -> None:
+        """Put a trial back to pending (it runs next) if its status is ``required``;
+        otherwise log ``<kind>_refused``."""
+        if not 0 <= index < len(self.schedule):
+            self._event(f"{kind}_refused", f"no schedule index {index} (the session has "
+                                           f"{len(self.schedule)} planned trials)")
+            return
+        pt = self.schedule[index]
+        if pt.status is not required:
+            self._event(f"{kind}_refused", f"{self._trial_label(pt)} is {pt.status.value}, "
+                                           f"{rule}")
+            return
+        pt.status, pt.reason = TrialStatus.PENDING, ""
+        self._rerun_first.append(index)
+        self._levels_reported.discard(round(pt.sE, 9))
+        self._event(f"{kind}_queued", f"{self._trial_label(pt)} runs next as a new trial"
+                                      + (f": {reason}" if reason else ""))
+
+    def _wait_operator(self, until, what: str) -> None:
+        """Wait (real time, output off) until ``until()`` is true; abort ends the run."""
+        log.info("waiting for the operator: %s", what)
+        while True:
+            self._poll()
+            if self._abort_req:
+                raise _EndRun(f"aborted by {self._abort_by}")
+            if until():
+                return
+            self.commands.wait()
+
+    # -- trips, pauses -------------------------------------------------------------------
+    def _check_interrupts(self, *, calibrating: bool = False) -> bool:
+        """Between steps: handle abort, trip and pause. Returns True if the caller must
+        redo its step (after re-arm / resume)."""
+        self._poll()
+        if self._abort_req:
+            raise _EndRun(f"aborted by {self._abort_by}")
+        redo = False
+        if self.interlock.latched:
+            self._handle_trip(calibrating)
+            redo = True
+        if self._pause_req:
+            self._handle_pause(calibrating)
+            redo = True
+        return redo
+
+    def _handle_trip(self, calibrating: bool) -> None:
+        trip = self.interlock.trip_info
+        reason = f"{trip.rule}: {trip.detail}" if trip else "interlock latched"
+        self._poll()
+        self._sm.to(State.TRIPPED, reason)
+        if self.trip_policy is TripPolicy.END_SESSION:
+            raise _EndRun(f"interlock: {reason}")
+        self._rearm_req = False
+        while True:
+            self._wait_operator(lambda: self._rearm_req, "re-arm after " + reason)
+            self._rearm_req = False
+            try:
+                self.interlock.rearm()
+            except InterlockTripped as exc:
+                self._event("rearm_refused", str(exc))
+                continue
+            break
+        if trip is not None and trip.rule == self.interlock.stim.name:
+            try:  # a stimulator that reported an error or vanished must reconnect
+                self.devices.stimulator.connect()
+                self._event("stimulator_reconnected", "after " + reason)
+            except Exception as exc:
+                self.interlock.trip(self.interlock.stim.name,
+                                    f"reconnect failed ({type(exc).__name__}: {exc})")
+                return self._handle_trip(calibrating)
+        self._event("rearmed", f"operator re-armed after {reason}")
+        self._sm.to(State.CALIBRATING if calibrating else State.ARMED, "re-armed")
+
+    def _handle_pause(self, calibrating: bool) -> None:
+        self._stop_output()
+        self._sm.to(State.PAUSED, "operator")
+        self._resume_req = False
+        self._wait_operator(lambda: self._resume_req or self.interlock.latched, "resume")
+        self._pause_req = self._resume_req = False
+        if self.interlock.latched:
+            self._handle_trip(calibrating)
+            return
+        self._sm.to(State.CALIBRATING if calibrating else State.ARMED, "resumed")
+        self._event("resumed", "operator")
+
     # -- stimulation of one block (a calibration step or a trial) ------------------------
     def _stimulate(self, checked, *, n: int, on_samples=None, watch_commands: bool = False,
                    stream=None) -> BlockResult:
@@ -400,22 +585,22 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
                     pt.status, pt.reason = TrialStatus.PENDING, ""
         while True:
             self._check_interrupts()
-            if self._check_devices_between_trials():
+            if check_devices_between_trials(self):
                 continue  # a USB glitch was recovered: look at commands and trips again
             if self._skip_req:  # skip between trials: the next pending trial is not run
                 self._skip_req = False
                 nxt = self._next_trial()
                 if nxt is not None:
                     nxt.status, nxt.reason = TrialStatus.ABORTED, "skipped by operator (not run)"
-                    self._event("trial_skipped", f"schedule index {nxt.index} (sE "
-                                                 f"{nxt.sE:g}, repeat {nxt.repeat})")
+                    self._event("trial_skipped", f"{self._trial_label(nxt)}: not run, "
+                                                 "skipped by operator")
                 continue
             planned = self._next_trial()
             if planned is None:
                 if self._wait_for_reruns():
                     continue
                 return
-            self._sm.to(State.ARMED, f"next trial {planned.index}")
+            self._sm.to(State.ARMED, f"next trial {self._open_log.next_trial_name}")
             self._run_trial(planned)
             if self.state is State.STIMULATING and not (
                     self.interlock.latched or self._pause_req or self._abort_req):
@@ -426,7 +611,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         """The schedule has nothing pending. With ``WAIT_FOR_REARM`` (an operator is
         present) and aborted trials left, hold in ``paused`` (output off) until the
         operator re-runs one (returns True: the run loop continues) or ends the session
-        (:meth:`abort`: the run ends normally). A trip while waiting is handled (re-arm)
+        (``commands.abort()``: the run ends normally). A trip while waiting is handled (re-arm)
         and the wait starts again. Returns False when there is nothing to wait for
         (``END_SESSION``: headless never waits)."""
         if self.trip_policy is not TripPolicy.WAIT_FOR_REARM:
@@ -437,8 +622,8 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
         self._stop_output()
         reason = rerun_wait_reason(len(aborted))
         self._sm.to(State.PAUSED, reason)
-        self._event("waiting_for_rerun", "aborted schedule indices: " + ", ".join(
-            str(pt.index) for pt in aborted))
+        self._event("waiting_for_rerun", "aborted: " + "; ".join(
+            self._trial_label(pt) for pt in aborted))
         # pause/resume/skip mean nothing here: only re-run or end leave the wait
         self._pause_req = self._resume_req = self._skip_req = False
         try:
@@ -482,7 +667,7 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
             if exc.trip:
                 self.interlock.trip("waveform", exc.trip)
             else:
-                self._event("trial_skipped", f"schedule index {planned.index}: {exc}")
+                self._event("trial_skipped", f"{self._trial_label(planned)}: not run, {exc}")
             return
         planned.status, planned.reason = TrialStatus.RUNNING, ""
         planned.attempts += 1
@@ -497,11 +682,12 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
                          chirp_f1_Hz=p.chirp_f1_Hz, carrier_Hz=p.carrier_Hz,
                          started_utc=started, **kw)
 
+        name = self._open_log.next_trial_name   # the trial's group in the file
+        label = f"trial {name} ({run.text}, attempt {planned.attempts})"
         self._open_log.begin_trial(trial(0, force_N=np.empty(0), extra_attrs=attrs))
-        self._event("trial_start", f"schedule index {planned.index}: {run.text}, attempt "
-                                   f"{planned.attempts}")
+        self._event("trial_start", label)
         self._notify("on_trial_started", planned.index, planned)
-        self._sm.to(State.STIMULATING, f"trial {planned.index}")
+        self._sm.to(State.STIMULATING, f"trial {name}")
         rE, Ie, If = run.rE, run.I_ext_mA, run.I_flex_mA   # a stream fills them as it goes
 
         def on_samples(lo, hi, force_seg, wrench_seg=None, sync_seg=None):
@@ -523,17 +709,28 @@ class Engine(OperatorCommands, CalibrationSteps, DeviceRecovery):
                   abort_reason=reason, wrench=None if blk.wrench is None else blk.wrench[:got],
                   sync=None if blk.sync is None else blk.sync[:got], extra_attrs=attrs)
         self._poll()  # log the trip event (if any) before the trial's own event
-        name = self._open_log.end_trial(t)
+        self._open_log.end_trial(t)   # written as ``name`` (the log names trials in order)
         self.session.trial_written(self, run, blk, not reason)
         planned.status = TrialStatus.ABORTED if reason else TrialStatus.DONE
         planned.reason = reason
         self._trials_this_run[planned.index] = t
         self._event("trial_aborted" if reason else "trial_completed",
-                    f"{name}: schedule index {planned.index}, {run.text}, {got} samples"
-                    + (f"; reason: {reason}" if reason else ""))
+                    f"{label}: {got} samples" + (f"; reason: {reason}" if reason else ""))
         self._notify("on_trial_finished", planned.index, t)
         if not reason and self.session.reports_levels:
             self._maybe_level_completed(planned.sE)
+
+    def _trial_label(self, planned: PlannedTrial) -> str:
+        """How events name a planned trial: as the file names it (``trial t012``, its
+        latest attempt's group under ``/trials``), or, never written, by what it is."""
+        what = self.plan[planned.index].label
+        log_ = self._log
+        names = [] if log_ is None else [
+            str(m.get("name") or "") for m in log_.trials
+            if (m.get("extra_attrs") or {}).get("schedule_index") == planned.index]
+        if not names:
+            return f"the trial {what} (not in the file)"
+        return f"trial {names[-1]} ({what}, attempt {len(names)})"
 
     def _stimulation_attrs(self) -> dict:
         """Optional ``stimulation_json``: the stimulator's charge summary of what it was

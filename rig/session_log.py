@@ -364,6 +364,12 @@ class SessionLog:
             os.close(self._partial_fd)
             self._partial_fd = None
 
+    @property
+    def next_trial_name(self) -> str:
+        """The name the next trial gets in the file (``t001``, ...): how the engine's
+        events name it from its start on."""
+        return f"t{len(self.trials) + 1:03d}"
+
     def end_trial(self, trial: Trial) -> str:
         """Make the trial durable in the journal, then append it to the in-memory file
         (published at the end of the session: a trial end costs the same at the first
@@ -379,7 +385,7 @@ class SessionLog:
             trial.started_utc = self._started_utc
             self._started_utc = None
         seq = len(self.trials) + 1
-        trial.name = f"t{seq:03d}"
+        trial.name = self.next_trial_name
         with counts_memo():  # the journal and the file find the A/D grid once
             save_trial_npz(self.jdir / f"trial-{seq:04d}.npz", trial)
             # partial.json / partial.f64 stay: their seq now names a journaled trial,

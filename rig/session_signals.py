@@ -5,7 +5,7 @@ must never leave the stimulator playing a downloaded trial unwatched. While a se
 :class:`SessionSignals` turns each of them into the same sequence as the E-stop button:
 
 1. output to zero and the interlock latched, in the signal handler (the main thread), by
-   the ``on_signal`` callback (``engine.estop(...)`` then ``engine.abort()``);
+   the ``on_signal`` callback (``engine.commands.estop(...)`` then ``engine.commands.abort()``);
 2. the trial in progress aborted with the reason ``"<SIGNAME> received"`` (the latch's
    reason) and the session closed with its ``session_end`` record by the engine thread;
 3. the command exits with :func:`exit_code` = 128 + the signal number (the shell's
@@ -27,7 +27,7 @@ routine returns, or after a time-out (5 s for a close event)
 :class:`SessionSignals` registers one routine that, for each of the five events:
 
 1. zeroes the output at once on the routine's thread through ``stop_output(reason)`` when
-   the caller gives one (``nmsid run``: ``engine.estop``, which is thread-safe), then hands
+   the caller gives one (``nmsid run``: ``engine.commands.estop``, which is thread-safe), then hands
    the event to the main thread (``_thread.interrupt_main``), where the same ``on_signal``
    callback as for a POSIX signal zeroes the output (again, idempotent) and ends the
    session, with the reason ``"CTRL_CLOSE_EVENT received (console window closed)"`` etc.
@@ -135,11 +135,11 @@ class SessionSignals:
     ----------
     on_signal : callable(int, str)
         Called in the main thread with the signal number and :func:`signal_reason`. It
-        must stop the output first (``engine.estop(reason)``). Called again for a repeated
+        must stop the output first (``engine.commands.estop(reason)``). Called again for a repeated
         signal (a second Ctrl+C): the E-stop is idempotent.
     stop_output : callable(str), optional
         Windows: called with the reason on the console routine's own thread, before the
-        main thread runs ``on_signal``; it must be thread-safe (``engine.estop``).
+        main thread runs ``on_signal``; it must be thread-safe (``engine.commands.estop``).
 
     Attributes
     ----------

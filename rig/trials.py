@@ -59,7 +59,8 @@ class TrialRun:
     """The trial's optional attributes (the engine adds ``schedule_index`` and
     ``attempt``)."""
     text: str
-    """What the trial is, for its events (``sE 0.5, repeat 2``)."""
+    """What the trial is, for its events: its plan item's label (``sE 0.5 repeat 2``,
+    ``twin tracking steps``)."""
     checked: Any = None
     stream: Any = None
     on_chunk: Callable[[int, int], None] | None = None
@@ -139,7 +140,7 @@ class IdentificationSession(SessionKind):
         return TrialRun(n=checked.n_samples, sE=planned.sE, rE=wf.rE,
                         I_ext_mA=checked.I_ext_mA, I_flex_mA=checked.I_flex_mA,
                         attrs=dict(input_attrs(p)), checked=checked,
-                        text=f"sE {planned.sE:g}, repeat {planned.repeat}")
+                        text=item.label)
 
 
 SESSION_KINDS = {"tracking": ("nmsid.rig.tracking", "TrackingSession"),

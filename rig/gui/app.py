@@ -116,7 +116,7 @@ def run_gui(options: GuiOptions) -> int:
         controller = window.controller
         controller.estop(reason)
         if controller.engine is not None:
-            controller.engine.abort(reason)
+            controller.engine.commands.abort(reason)
         QTimer.singleShot(0, lambda: (window.close(), app.quit()))
 
     with SessionSignals(on_signal) as signals:

@@ -1,6 +1,6 @@
 """Event log pane: every engine event as it happens, and the operator's notes.
 
-A note typed here goes to ``engine.add_note`` (written to the session file's events);
+A note typed here goes to ``engine.commands.add_note`` (written to the session file's events);
 the engine echoes it back as an event, so the pane shows exactly what the file holds.
 """
 

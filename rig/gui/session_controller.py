@@ -196,8 +196,8 @@ class SessionController(QObject):
     def shutdown(self, timeout_s: float = 5.0) -> None:
         """E-stop and abort a running session, then wait for its thread (window closing)."""
         if self.engine is not None and self.running:
-            self.engine.estop("operator closed the GUI window")
-            self.engine.abort()
+            self.engine.commands.estop("operator closed the GUI window")
+            self.engine.commands.abort()
         if self.worker is not None:
             self.worker.join(timeout_s)
 
@@ -218,10 +218,10 @@ class SessionController(QObject):
         running = engine is not None and self.running
         if engine is not None and running:
             try:
-                engine.estop(reason)
+                engine.commands.estop(reason)
                 return True
             except Exception:
-                log.exception("engine.estop failed; stopping the stimulator directly")
+                log.exception("engine.commands.estop failed; stopping the stimulator directly")
         if self.devices is not None:
             try:
                 self.devices.stimulator.stop_now()
@@ -232,7 +232,7 @@ class SessionController(QObject):
     def _call(self, name: str, *args) -> None:
         if self.engine is None:
             raise RuntimeError(f"cannot {name.replace('_', ' ')}: no session is running")
-        getattr(self.engine, name)(*args)
+        getattr(self.engine.commands, name)(*args)
 
     def rearm(self) -> None:
         """Clear the latch only (LabVIEW's "clear latch"): the engine is asked to hold

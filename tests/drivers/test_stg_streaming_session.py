@@ -133,7 +133,7 @@ class _EstopMidTwin(EngineObserver):
         if (self.fired_at is None and eng is not None and index == 1
                 and start_index + len(force_N) >= 1500):
             self.fired_at = start_index + len(force_N)
-            eng.estop("test E-stop mid-tracking")
+            eng.commands.estop("test E-stop mid-tracking")
 
 
 def test_estop_mid_tracking_ends_with_the_stg_output_at_zero(tmp_path, write_hw_config,

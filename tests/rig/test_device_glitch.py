@@ -71,7 +71,7 @@ def test_operator_confirms_through_resume_in_the_gui_path(tmp_path):
         def on_state(self, old, new, reason):
             if new is State.PAUSED and "glitch" in reason:
                 self.paused.append(reason)
-                self.engine.resume()
+                self.engine.commands.resume()
 
     op = Operator()
     eng = Engine(_cfg(), rig, tmp_path / "g.h5", observer=op)

@@ -117,13 +117,13 @@ def test_estop_mid_trial_waits_for_rearm_then_rerun(tmp_path, fake_rig, small_co
     def chunk(index, start):
         if index == 1 and start >= 1000 and not fired:
             fired.append(1)
-            threading.Thread(target=eng.estop, args=("button",)).start()
+            threading.Thread(target=eng.commands.estop, args=("button",)).start()
 
     def state(old, new, reason):
         if new is State.TRIPPED:
             assert rig.stimulator.output_active is False
-            eng.rearm()
-            eng.rerun(1)
+            eng.commands.rearm()
+            eng.commands.rerun(1)
 
     obs.hooks = {"chunk": chunk, "state": state}
     s = eng.run()
@@ -149,15 +149,15 @@ def test_pause_policies(tmp_path, fake_rig, small_config, policy, n_first):
 
     def chunk(index, start):
         if index == 0 and start == 1000:
-            eng.pause()
+            eng.commands.pause()
 
     def state(old, new, reason):
         if new is State.PAUSED:
             assert rig.stimulator.output_active is False
             if is_rerun_wait(new, reason):  # "abort": trial 0 is left aborted at the end
-                eng.abort()
+                eng.commands.abort()
             else:
-                eng.resume()
+                eng.commands.resume()
     obs.hooks = {"chunk": chunk, "state": state}
     eng.run()
     sess = read_session(tmp_path / "s.h5")
@@ -178,9 +178,9 @@ def test_abort_and_skip(tmp_path, fake_rig, small_config):
 
     def chunk(index, start):
         if index == 0 and start == 600:
-            eng.skip_trial()
+            eng.commands.skip_trial()
         if index == 2 and start == 400:
-            eng.abort()
+            eng.commands.abort()
     obs.hooks = {"chunk": chunk}
     s = eng.run()
     assert s.ended_by == "aborted by operator" and s.n_completed == 1 and s.n_pending == 1
@@ -225,7 +225,8 @@ def test_resume_skips_completed_and_reruns_aborted(tmp_path, fake_rig, small_con
     rig = fake_rig()
     eng = Engine(small_config(), rig, path, trip_policy=TripPolicy.END_SESSION)
     obs = Recorder()
-    obs.hooks = {"chunk": lambda i, s: eng.estop("stop") if (i == 1 and s == 1000) else None}
+    obs.hooks = {"chunk": lambda i, s: eng.commands.estop("stop") if (i == 1 and s == 1000)
+                 else None}
     eng.observer = obs
     s = eng.run()
     assert s.n_completed == 1 and s.n_aborted == 1 and s.n_pending == 2
@@ -252,8 +253,8 @@ def test_operator_confirms_or_edits_calibration(tmp_path, fake_rig, small_config
     edited = Calibration(2.0, 6.5, 2.0, 7.5)
 
     def cal(c):
-        eng.confirm_calibration(Calibration(2.0, 99.0, 2.0, 7.5))  # above ceiling: refused
-        eng.confirm_calibration(edited)
+        eng.commands.confirm_calibration(Calibration(2.0, 99.0, 2.0, 7.5))  # above ceiling: refused
+        eng.commands.confirm_calibration(edited)
     obs.hooks = {"cal": cal}
     eng.run()
     sess = read_session(tmp_path / "s.h5")
@@ -290,11 +291,11 @@ def test_notes_status_and_commands_from_other_threads(tmp_path, fake_rig, small_
 
     def started(index, planned):
         if index == 0:
-            t = threading.Thread(target=eng.add_note, args=("participant said: tingling",))
+            t = threading.Thread(target=eng.commands.add_note, args=("participant said: tingling",))
             t.start()
             t.join()
-            eng.rerun(99)   # refused: no such trial
-            eng.rerun(3)    # refused: pending, not aborted
+            eng.commands.rerun(99)   # refused: no such trial
+            eng.commands.rerun(3)    # refused: pending, not aborted
     obs.hooks = {"started": started}
     eng.run()
     ev = read_session(tmp_path / "s.h5").events
@@ -312,13 +313,13 @@ def test_estop_while_paused_then_abort_while_tripped(tmp_path, fake_rig, small_c
 
     def chunk(index, start):
         if index == 1 and start == 200:
-            eng.pause()
+            eng.commands.pause()
 
     def state(old, new, reason):
         if new is State.PAUSED:
-            threading.Thread(target=eng.estop, args=("while paused",)).start()
+            threading.Thread(target=eng.commands.estop, args=("while paused",)).start()
         if new is State.TRIPPED:
-            eng.abort()
+            eng.commands.abort()
     obs.hooks = {"chunk": chunk, "state": state}
     s = eng.run()
     assert s.ended_by == "aborted by operator" and eng.state is State.FINISHED
@@ -334,7 +335,7 @@ def test_estop_while_paused_then_abort_while_tripped(tmp_path, fake_rig, small_c
 def test_estop_before_run_blocks_all_output(tmp_path, fake_rig, small_config):
     rig = fake_rig()
     eng = Engine(small_config(), rig, tmp_path / "s.h5", trip_policy=TripPolicy.END_SESSION)
-    eng.estop("before start")
+    eng.commands.estop("before start")
     s = eng.run()
     assert s.ended_by == "interlock: estop: before start"
     assert rig.stimulator.started == 0 and s.n_completed == 0
@@ -348,9 +349,9 @@ def _stop_last_trial(eng, how):
         if index == 3 and start >= 1000 and not fired:
             fired.append(1)
             if how == "estop":
-                threading.Thread(target=eng.estop, args=("last",)).start()
+                threading.Thread(target=eng.commands.estop, args=("last",)).start()
             else:
-                eng.skip_trial()
+                eng.commands.skip_trial()
     return chunk
 
 
@@ -367,14 +368,14 @@ def test_last_trial_aborted_waits_for_rerun_then_completes(tmp_path, fake_rig, s
 
     def state(old, new, reason):
         if new is State.TRIPPED:
-            eng.rearm()  # no re-run queued before the re-arm
+            eng.commands.rearm()  # no re-run queued before the re-arm
         if new is State.PAUSED:
             assert rig.stimulator.output_active is False
             assert is_rerun_wait(new, reason), reason
             assert all(p.status is not TrialStatus.PENDING for p in eng.schedule)
             waits.append(reason)
-            eng.resume()  # means nothing here: ignored, the engine keeps waiting
-            threading.Timer(0.1, eng.rerun, args=(3,)).start()
+            eng.commands.resume()  # means nothing here: ignored, the engine keeps waiting
+            threading.Timer(0.1, eng.commands.rerun, args=(3,)).start()
     obs.hooks = {"chunk": _stop_last_trial(eng, how), "state": state}
     s = eng.run()
     assert waits == ["schedule done; 1 aborted trial(s) can be re-run; re-run or end the "
@@ -404,13 +405,13 @@ def test_ending_the_rerun_wait_finishes_cleanly(tmp_path, fake_rig, small_config
     def state(old, new, reason):
         if new is State.TRIPPED:
             assert rig.stimulator.output_active is False
-            eng.rearm()
+            eng.commands.rearm()
         if is_rerun_wait(new, reason):
             waits.append(old)
             if len(waits) == 1:
-                threading.Thread(target=eng.estop, args=("while waiting",)).start()
+                threading.Thread(target=eng.commands.estop, args=("while waiting",)).start()
             else:
-                eng.abort()
+                eng.commands.abort()
     obs.hooks = {"chunk": _stop_last_trial(eng, "estop"), "state": state}
     s = eng.run()
     assert waits == [State.ARMED, State.ARMED]  # tripped -> armed -> paused, twice
@@ -454,8 +455,8 @@ def test_repeat_a_completed_trial_writes_a_new_attempt(tmp_path, fake_rig, small
     def finished(index, trial):
         if index == 0 and not asked:
             asked.append(1)
-            eng.repeat_trial(3, "not done yet")        # refused: still pending
-            eng.repeat_trial(0, "QC excluded it: contraction at 1.0-1.4 s")
+            eng.commands.repeat_trial(3, "not done yet")        # refused: still pending
+            eng.commands.repeat_trial(0, "QC excluded it: contraction at 1.0-1.4 s")
 
     obs.hooks = {"finished": finished}
     s = eng.run()

@@ -37,7 +37,9 @@ baseline_s = 0.2
 rest_s = 0.2
 """
 N_TRIAL = 3000
-LINE = re.compile(r"^(t\d{3}) completed: schedule index (\d+) .* crc ([0-9a-f]{8})")
+# the progress line names the trial as the file does (issue 39 item 6: one numbering)
+LINE = re.compile(r"^(t\d{3}) completed: sE (\S+) repeat (\d+) attempt (\d+) n \d+ "
+                  r"crc ([0-9a-f]{8})")
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="needs fork / SIGKILL")
 
@@ -49,7 +51,7 @@ def _argv(cfg, out, *extra):
 
 def _printed(log_path):
     text = Path(log_path).read_text(errors="replace") if Path(log_path).exists() else ""
-    return [(m.group(1), int(m.group(2)), m.group(3))
+    return [(m.group(1), (m.group(2), int(m.group(3)), int(m.group(4))), m.group(5))
             for m in map(LINE.match, text.splitlines()) if m]
 
 
@@ -69,10 +71,10 @@ def _check_after_kill(path, printed):
     assert validate_session(path) == [], validate_session(path)
     s = read_session(path)
     by_name = {t.name: t for t in s.trials}
-    for name, index, crc in printed:
-        t = by_name[name]
+    for name, (sE, repeat, attempt), crc in printed:
+        t = by_name[name]   # the printed name is the file's group of that very trial
         assert t.completed and t.n_samples == N_TRIAL
-        assert t.extra_attrs["schedule_index"] == index
+        assert (f"{t.sE:.2f}", t.repeat, t.extra_attrs["attempt"]) == (sE, repeat, attempt)
         assert f"{zlib.crc32(t.force_N.astype('<f8').tobytes()):08x}" == crc
     for t in s.trials:
         if t.completed:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 from pathlib import Path
 
@@ -136,7 +137,8 @@ def test_nmsid_run_with_lsl_publishes_each_trial_start(tmp_path, monkeypatch, ca
     marks, _ = _pull(seen["inlet"], 100, timeout_s=3.0)
     decoded = [json.loads(m[0]) for m in marks]
     events = [e["event"] for e in decoded]
-    assert all("schedule index" in e["detail"] for e in decoded if e["event"] == "trial_start")
+    assert all(re.fullmatch(r"trial t00[12] \(sE 0\.[48] repeat 1, attempt 1\)", e["detail"])
+               for e in decoded if e["event"] == "trial_start")
     assert events.count("trial_start") == 2 and events.count("trial_end") == 2
     assert events[-1] == "session_finished"
 

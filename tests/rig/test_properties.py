@@ -72,7 +72,7 @@ def test_after_any_fault_output_is_zero(tmp_path, fake_rig, small_config, fault,
     rig = fake_rig()
     path = tmp_path / f"f{next(_counter)}.h5"
     eng = Engine(small_config(seed=seed), rig, path, trip_policy=TripPolicy.END_SESSION)
-    rig.acquisition.estop_fn = lambda: eng.estop("injected")
+    rig.acquisition.estop_fn = lambda: eng.commands.estop("injected")
     seen = []
 
     class Obs(EngineObserver):

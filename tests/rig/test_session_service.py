@@ -98,7 +98,7 @@ def _hw_session(tmp_path, *, stop_after_first=True):
 
     class StopAfterFirst(EngineObserver):
         def on_trial_finished(self, index, trial):
-            box["engine"].abort("operator stop")
+            box["engine"].commands.abort("operator stop")
 
     try:
         engine = Engine(rig.config, rig.devices, path, observer=StopAfterFirst(),

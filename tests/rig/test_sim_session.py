@@ -73,9 +73,9 @@ class AutoOperator(EngineObserver):
                 self.rig.clock.monotonic_s()))
             self.rig.estop.release()
             idx = [p.index for p in self.engine.schedule if p.status.value == "aborted"]
-            self.engine.rearm()
+            self.engine.commands.rearm()
             for i in idx:
-                self.engine.rerun(i)
+                self.engine.commands.rerun(i)
 
 
 FAULTS = [
@@ -132,7 +132,7 @@ def test_software_estop_from_another_thread(tmp_path):
         def on_chunk(self, index, start, *a):
             if index == 1 and start >= 1000 and not fired:
                 fired.append(1)
-                t = threading.Thread(target=eng.estop, args=("GUI button",))
+                t = threading.Thread(target=eng.commands.estop, args=("GUI button",))
                 t.start()
                 t.join()
     eng.observer = Obs()

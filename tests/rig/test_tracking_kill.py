@@ -29,14 +29,16 @@ hold_s = 0.3
 baseline_s = 0.2
 rest_s = 0.2
 """
-LINE = re.compile(r"^(t\d{3}) completed: schedule index (\d+) .* crc ([0-9a-f]{8})")
+# the progress line names the trial as the file does (issue 39 item 6: one numbering)
+LINE = re.compile(r"^(t\d{3}) completed: sE (\S+) repeat (\d+) attempt (\d+) n \d+ "
+                  r"crc ([0-9a-f]{8})")
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="needs fork / SIGKILL")
 
 
 def _printed(log_path):
     text = Path(log_path).read_text(errors="replace") if Path(log_path).exists() else ""
-    return [(m.group(1), m.group(3)) for m in map(LINE.match, text.splitlines()) if m]
+    return [(m.group(1), m.group(5)) for m in map(LINE.match, text.splitlines()) if m]
 
 
 def test_sigkill_a_tracking_session_loses_nothing_completed(tmp_path):

@@ -9,7 +9,7 @@ from nmsid.analysis.twin import Twin
 from nmsid.cli import main
 from nmsid.protocols.config import load_config
 from nmsid.protocols.session_file import read_session, validate_session
-from nmsid.rig.engine import Engine, TripPolicy
+from nmsid.rig.engine import TripPolicy
 from nmsid.rig.session_log import journal_dir, recover
 from nmsid.rig.tracking import TrackingEngine
 from nmsid.sim_backends import make_sim_rig
@@ -31,7 +31,7 @@ def test_a_tracking_session_ended_during_calibration_resumes_to_completion(
     path = tmp_path / "t.h5"
     # the sim rig's participant as `nmsid run` makes it, so that the resume's rig matches
     with monkeypatch.context() as m:
-        m.setattr(Engine, "_calibrate", _crash)
+        m.setattr("nmsid.rig.engine.calibrate", _crash)
         eng = TrackingEngine(cfg, make_sim_rig(default_participant(seed=7)), path, design=d,
                              targets=[TARGET], trip_policy=TripPolicy.END_SESSION,
                              extra_attrs={"rig_backend": "sim", "sim_seed": 7,

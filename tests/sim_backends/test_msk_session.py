@@ -64,9 +64,9 @@ class _AutoOperator(EngineObserver):
                 self.rig.clock.monotonic_s()))
             self.rig.estop.release()
             idx = [p.index for p in self.engine.schedule if p.status.value == "aborted"]
-            self.engine.rearm()
+            self.engine.commands.rearm()
             for i in idx:
-                self.engine.rerun(i)
+                self.engine.commands.rerun(i)
 
 
 FAULTS = [

@@ -47,6 +47,7 @@ class FakeEngine:
         self._notes: list[str] = []
         self.latched_reason = ""
         self.output_mA = 0.0
+        self.commands = self   # the operator's commands (the real engine: engine.commands)
 
     # -- commands --------------------------------------------------------------------
     def estop(self, reason="operator E-stop"):
