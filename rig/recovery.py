@@ -322,9 +322,8 @@ def _recover_locked(path: Path) -> RecoveryReport:
             report.partial_samples = trial.n_samples
             try:
                 append_event_line(jdir, Event(utc_now(), "recovered",
-                                              f"trial {seq} (schedule index "
-                                              f"{trial.extra_attrs.get('schedule_index', '?')}"
-                                              f") kept as aborted: {PARTIAL_ABORT_REASON}, "
+                                              f"trial t{seq:03d} kept as aborted: "
+                                              f"{PARTIAL_ABORT_REASON}, "
                                               f"{trial.n_samples} samples"))
             except OSError:
                 pass

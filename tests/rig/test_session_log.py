@@ -168,7 +168,8 @@ def test_partial_trial_becomes_aborted(tmp_path):
     assert last.status == "aborted" and last.abort_reason == PARTIAL_ABORT_REASON
     assert np.array_equal(last.force_N, f) and last.extra_attrs["schedule_index"] == 7
     assert not (journal_dir(path) / "partial.json").exists()
-    assert any(e.kind == "recovered" for e in s.events)
+    recovered = [e.detail for e in s.events if e.kind == "recovered"]
+    assert recovered and recovered[0].startswith(f"trial {last.name} kept as aborted")
     # idempotent
     rep2 = recover(path)
     assert rep2.action == "none" and len(read_session(path).trials) == 2
