@@ -33,8 +33,9 @@ acknowledged); :mod:`nmsid.drivers.dry_run` holds the comparisons (wiring and li
 and in docs/hardware.md). The streamed trial is checked against what the DEVICE reports
 (pulse devices: every update answered, each delivered current the command rounded down to
 the device's step) or, for the STG, by the lock-in: each carrier period's amplitude on the
-resistor against ``stream.commands`` (:func:`check_stream_lockin`). With a Leptrino (no
-A/D input) the resistor's current is not recorded: the RehaStim2 itself tests the load's
+resistor against ``stream.commands``
+(:func:`~nmsid.drivers.dry_run.check_stream_lockin`). With a Leptrino (no A/D input)
+the resistor's current is not recorded: the RehaStim2 itself tests the load's
 resistance before each pulse and stops with an electrode error on an open or wrong load
 (ScienceMode2 1.2, 4.3), and the operator reads the amplitude on an oscilloscope across
 the resistor (the line printed says what to expect).
@@ -58,18 +59,16 @@ from pathlib import Path
 import numpy as np
 
 from nmsid.drivers.dry_run import (
-    AMPLITUDE_LIMIT,
     CARRIER_HZ,
-    ENVELOPE_LIMIT,
     MAX_DRY_RUN_MA,
     Check,
     DryRunSettings,
     check_after_stop,
     check_loopback,
     check_pulses,
+    check_stream_lockin,
     dry_run_chirp_envelope,
     dry_run_envelope,
-    lockin_amplitude_A,
     record_problem,
 )
 from nmsid.drivers.hardware import BenchClock
@@ -483,47 +482,6 @@ def stream_ended(rec: DryRunRecord) -> Check:
               + (f"; the trial ended: {rec.abort_reason}" if rec.abort_reason else ""))
     return Check("stream: ended", ok, detail, "the whole trial, output stopped, no device "
                  "error")
-
-
-def check_stream_lockin(monitor_V: np.ndarray, commands_mA, rate_Hz: float,
-                        s: DryRunSettings, fs_Hz: float) -> list[Check]:
-    """The streamed carrier on the resistor against the commands.
-
-    Each carrier period's amplitude (:func:`~nmsid.drivers.dry_run.lockin_amplitude_A`)
-    against the update in force: one update lasts ``CARRIER_HZ / rate_Hz`` whole carrier
-    periods from the sync edge (sample 0; McsUsbNet manual 6.3: the STG plays the queued
-    samples in order from ``SendStart``, each update rendered as whole charge-balanced
-    periods by the driver). Periods after the last update are commanded zero, so a stream
-    that ran dry (the STG stops when it runs out of data, manual 6.3) fails the amplitude
-    check; so does an amplitude off by more than
-    :data:`~nmsid.drivers.dry_run.AMPLITUDE_LIMIT` of ``amplitude_mA``.
-    """
-    i_A = np.asarray(monitor_V, dtype=float) / s.load_ohm
-    meas = lockin_amplitude_A(i_A, fs_Hz)
-    K = max(1, round(CARRIER_HZ / rate_Hz))
-    j = np.arange(len(meas)) // K
-    cmd_mA = np.asarray(list(commands_mA), dtype=float)
-    cmd = np.where(j < len(cmd_mA), cmd_mA[np.minimum(j, max(len(cmd_mA) - 1, 0))]
-                   if len(cmd_mA) else 0.0, 0.0) * 1e-3
-    on = cmd > 0.1 * s.amplitude_mA * 1e-3
-    out = []
-    if not on.any():
-        return [Check("stream: amplitude", False, "no update above 10 % of "
-                      f"{s.amplitude_mA:g} mA was commanded", ">= 1 carrier period")]
-    err = np.abs(meas - cmd)
-    k = int(np.argmax(np.where(on, err, -1.0)))
-    rel = float(err[k]) / (s.amplitude_mA * 1e-3)
-    out.append(Check("stream: amplitude", rel <= AMPLITUDE_LIMIT,
-                     f"max error {err[k] * 1e3:.3f} mA ({rel * 100:.1f} % of "
-                     f"{s.amplitude_mA:g} mA; {meas[k] * 1e3:.3f} mA delivered, "
-                     f"{cmd[k] * 1e3:.3f} mA commanded, carrier period {k} of {len(meas)}) "
-                     f"over {int(on.sum())} commanded periods of {len(cmd_mA)} updates",
-                     f"{AMPLITUDE_LIMIT * 100:g} %"))
-    r = float(np.corrcoef(meas, cmd)[0, 1]) if len(cmd) > 2 and cmd.std() > 0 and \
-        meas.std() > 0 else 0.0
-    out.append(Check("stream: envelope", r >= ENVELOPE_LIMIT,
-                     f"r = {r:.4f} over {len(cmd)} carrier periods", f">= {ENVELOPE_LIMIT:g}"))
-    return out
 
 
 def stream_checks(rec: DryRunRecord, s: DryRunSettings, support, *, fs_Hz: float,

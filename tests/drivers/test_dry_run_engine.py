@@ -125,7 +125,7 @@ def test_probe_streams_a_tracking_style_trial_into_the_dummy_load_on_the_stg(
     for name in ("stream: ended", "stream: amplitude", "stream: envelope", "amplitude",
                  "E-stop: output zero"):
         assert f"[PASS] {name}:" in out, out
-    assert "over 1000 commanded periods of 100 updates" in out
+    assert "over 1000 carrier periods of 100 updates" in out
     assert "[FAIL]" not in out and "dry run: OK" in out
 
 
@@ -158,3 +158,38 @@ def test_a_stream_that_runs_dry_fails_ends_at_zero_and_is_logged(rig, tmp_path, 
     assert trips and "ran out of streamed data" in trips[0]
     handle = fake_stg_streaming._registry[-1]
     assert handle.stop_t is not None and len(handle.played[0]) <= cut
+
+
+def _streamed_monitor_V(commands_mA, *, gain=1.0, stop_period=None, fs=10_000.0,
+                        ohm=1000.0, K=10):
+    """The resistor's volts for streamed updates of K carrier periods each (sine carrier
+    from sample 0, as the STG renders each period: manual 6.3)."""
+    per = np.repeat(np.asarray(commands_mA, float), K) * 1e-3 * gain
+    if stop_period is not None:
+        per[stop_period:] = 0.0
+    P = int(fs / 1000.0)
+    t = np.arange(len(per) * P) / fs
+    return np.repeat(per, P) * np.sin(2 * np.pi * 1000.0 * t) * ohm
+
+
+@pytest.mark.parametrize("gain, stop, passed", [(1.0, None, True), (0.9, None, False),
+                                                (1.04, None, True), (1.0, 700, False)])
+def test_the_streamed_lockin_check_on_known_records(gain, stop, passed):
+    from nmsid.drivers.dry_run import check_stream_lockin
+    s = DryRunSettings()
+    cmd = [2.0 * (0.5 + 0.4 * np.sin(2 * np.pi * 2.0 * j / 100)) for j in range(100)]
+    checks = check_stream_lockin(_streamed_monitor_V(cmd, gain=gain, stop_period=stop), cmd,
+                                 100.0, s, s.monitor_fs_Hz)
+    amp = checks[0]
+    assert amp.name == "stream: amplitude" and amp.passed is passed, amp.line()
+    assert "over 1000 carrier periods of 100 updates" in amp.line()
+
+
+def test_the_streamed_lockin_check_counts_periods_after_the_last_update_as_zero():
+    # a record longer than the stream: delivered current after the last update is a fault
+    from nmsid.drivers.dry_run import check_stream_lockin
+    s = DryRunSettings()
+    cmd = [1.0] * 50
+    v = _streamed_monitor_V([1.0] * 100)                 # the device went on for 50 more
+    assert not check_stream_lockin(v, cmd, 100.0, s, s.monitor_fs_Hz)[0].passed
+    assert check_stream_lockin(v[:5000], cmd, 100.0, s, s.monitor_fs_Hz)[0].passed
