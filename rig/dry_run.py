@@ -634,6 +634,12 @@ def dry_run_probe(devices, cfg, args, *, out=print, session_dir=None) -> bool:
     st = cfg.stimulator
     ceilings = (float(getattr(st, "ceiling_ext_mA", MAX_DRY_RUN_MA)),
                 float(getattr(st, "ceiling_flex_mA", MAX_DRY_RUN_MA)))
+    name = "ceiling_ext_mA" if s.channel == "extensor" else "ceiling_flex_mA"
+    ceiling = ceilings[0 if s.channel == "extensor" else 1]
+    if s.amplitude_mA > ceiling:
+        raise UserError(f"{cfg.source}: --dry-run-mA {s.amplitude_mA:g} is above "
+                        f"stimulator.{name} = {ceiling:g} mA; use --dry-run-mA {ceiling:g} or "
+                        "less; nothing was stimulated")
     out(f"dry run: {len(roles)} trial(s) into the dummy load as one plan, run by the "
         "engine after its preflight, through the interlock")
     result = run_dry_run_plan(devices, s, support, roles, fs_Hz=fs, ceilings_mA=ceilings,

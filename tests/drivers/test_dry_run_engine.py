@@ -193,3 +193,16 @@ def test_the_streamed_lockin_check_counts_periods_after_the_last_update_as_zero(
     v = _streamed_monitor_V([1.0] * 100)                 # the device went on for 50 more
     assert not check_stream_lockin(v, cmd, 100.0, s, s.monitor_fs_Hz)[0].passed
     assert check_stream_lockin(v[:5000], cmd, 100.0, s, s.monitor_fs_Hz)[0].passed
+
+
+def test_a_dry_run_current_above_the_rigs_ceiling_is_one_line(tmp_path, write_hw_config,
+                                                              capsys):
+    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", speed=1.0, estop="none",
+                         monitor=MONITOR)
+    hw.write_text(hw.read_text().replace("ceiling_ext_mA = 16.0", "ceiling_ext_mA = 1.5"))
+    assert main(["probe", "--hw-config", str(hw), "--dry-run"]) == 2
+    cap = capsys.readouterr()
+    err = cap.err.strip().splitlines()
+    assert len(err) == 1 and "--dry-run-mA 2 is above stimulator.ceiling_ext_mA = 1.5 mA" \
+        in err[0], err
+    assert "record:" not in cap.out
