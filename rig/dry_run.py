@@ -126,8 +126,12 @@ class MonitorTap:
         self.monitor: list[np.ndarray | None] = []
         self.flags: list[str] = []
 
-    def start(self, *args, **kw):
+    def reset(self) -> None:
+        """Forget what was kept (a new trial)."""
         self.monitor, self.flags = [], []
+
+    def start(self, *args, **kw):
+        self.reset()
         return self._acq.start(*args, **kw)
 
     def read(self, timeout_s: float):
@@ -306,6 +310,7 @@ class DryRunSession(SessionKind):
 
     def prepare(self, engine, item: PlanItem, planned: PlannedTrial) -> TrialRun:
         role, s = self.roles[item.index], self.s
+        self.tap.reset()   # a block that fails before it starts the acquisition keeps none
         fs = engine.config.protocol.fs_Hz
         n = int(round(item.duration_s * fs))
         ext = s.channel == "extensor"
