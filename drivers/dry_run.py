@@ -256,11 +256,16 @@ def check_stream_lockin(monitor_V: np.ndarray, commands_mA, rate_Hz: float,
 
     Each carrier period's amplitude (:func:`lockin_amplitude_A`)
     against the update in force: one update lasts ``CARRIER_HZ / rate_Hz`` whole carrier
-    periods from the sync edge (sample 0; McsUsbNet manual 6.3: the STG plays the queued
-    samples in order from ``SendStart``, each update rendered as whole charge-balanced
-    periods by the driver). Every period counts: a stream that ran dry (the STG stops when
-    it runs out of data, manual 6.3) fails the amplitude check, and so does current after
-    the last update (commanded zero) or an amplitude off by more than
+    periods from the sync edge (sample 0). Sources, McsUsbNet manual 5.3.15, 6.3
+    "Streaming mode": the queued data (``EnqueueData``) is sent to the analog output "on
+    the fly" through the PC's and the STG's ring buffers, in order, once the trigger is
+    started ("Start Trigger by pushing the front button or by Software ``SendStart(1)``",
+    6.3.1), the trigger's sync output with it (``SetupTrigger`` syncoutmap); the driver
+    renders each update as whole charge-balanced periods. Every period counts: a stream
+    that ran dry ("When DisableContinousMode is used, the STG stops when it runs out of
+    data", 6.3) or whose ring buffer underflowed ("data jumps of the output signals", 6.3.1)
+    fails the amplitude check, and so does current after the last update (commanded zero)
+    or an amplitude off by more than
     :data:`AMPLITUDE_LIMIT` of ``amplitude_mA``.
     """
     i_A = np.asarray(monitor_V, dtype=float) / s.load_ohm

@@ -21,7 +21,8 @@ The items (:data:`~nmsid.protocols.plan.DRY_RUN_ROLES`, in this order):
   carrier the lock-in checks (the STG4002), a staircase of whole device steps for one that
   reports each pulse (the RehaStim2);
 * ``estop``: the E-stop test: a chirp envelope (0.5 .. 10 Hz, the shape of a session's
-  trial at dry-run currents) stopped by the engine's E-stop :data:`ESTOP_AT` of the way in;
+  trial at dry-run currents) stopped by the interlock's E-stop (what the operator's button
+  does) :data:`ESTOP_AT` of the way in;
   it is last, since the E-stop ends the session. A short record taken after the session
   ended shows the resistor current at zero and, for a device with a sync output, the sync
   line low.
@@ -286,7 +287,11 @@ class DryRunSession(SessionKind):
         self._plan = plan if plan is not None else dry_run_plan(
             roles, s.channel, s.amplitude_mA, s.duration_s, source=SOURCE)
         by_label = {v: k for k, v in DRY_RUN_LABELS.items()}
-        self.roles = [by_label.get(it.label, "download") for it in self._plan]
+        odd = [it for it in self._plan if it.kind != "dry_run" or it.label not in by_label]
+        if odd:
+            raise UserError(f"{SOURCE}: item {odd[0].index} ({odd[0].kind}, "
+                            f"{odd[0].label!r}) is not a dry-run item of dry_run_plan")
+        self.roles = [by_label[it.label] for it in self._plan]
         self.estop_at_s = ESTOP_AT * s.duration_s if estop_at_s is None else estop_at_s
         self.records: dict[int, DryRunRecord] = {}
 
@@ -339,7 +344,9 @@ class DryRunSession(SessionKind):
 
             def on_chunk(lo: int, hi: int) -> None:
                 if hi >= press_at and not engine.interlock.latched:
-                    engine.estop("dry run: E-stop test mid-chirp")   # the operator's button
+                    # what the operator's E-stop does (Engine.estop): output to zero now,
+                    # in this thread, and latch; the engine logs the trip and ends
+                    engine.interlock.estop("dry run: E-stop test mid-chirp")
         return TrialRun(n=checked.n_samples, sE=item.sE, rE=env / s.amplitude_mA,
                         I_ext_mA=checked.I_ext_mA, I_flex_mA=checked.I_flex_mA, attrs=attrs,
                         checked=checked, text=item.label, on_chunk=on_chunk,
