@@ -160,10 +160,10 @@ def _child(argv: list[str]) -> int:
 
 
 def _dry_run(cfg, args) -> bool:
-    """One trial into the dummy load; ``cfg`` scans the monitor input too."""
+    """The dry run's plan into the dummy load, run by the engine (which connects the
+    stimulator; nothing here talks to it); ``cfg`` scans the monitor input too."""
     devices = build_devices(cfg)
     try:
-        devices.stimulator.connect()
         return dry_run_probe(devices, cfg, args)
     finally:
         devices.close()

@@ -1,4 +1,6 @@
-"""``nmsid probe --dry-run``: one short low-current trial into a dummy-load resistor.
+"""``nmsid probe --dry-run``: short low-current trials into a dummy-load resistor, the
+comparisons of what was recorded with what was commanded (the trials themselves are a plan
+run by the engine: :mod:`nmsid.rig.dry_run`).
 
 Wiring (``docs/hardware.md``, "Dry run on a dummy load"): the tested STG output drives a
 resistor of ``load_ohm`` (1 kOhm, >= 0.25 W) instead of electrodes; the voltage over it
@@ -28,6 +30,15 @@ the exact samples), each printed with its figure and limit:
 * ``envelope``: correlation of the per-period amplitudes >= :data:`ENVELOPE_LIMIT`;
 * ``charge balance``: worst net charge of one carrier period, measured, at most
   :data:`CHARGE_LIMIT_NC` or 1 % of the largest phase charge.
+
+The streamed trial on a carrier stimulator (the STG4002; :func:`check_stream_lockin`):
+
+* ``stream: amplitude``: each carrier period's lock-in amplitude on the resistor against
+  the streamed update in force (counted from the sync edge, ``carrier / update rate``
+  periods per update; zero after the last), at most :data:`AMPLITUDE_LIMIT` of
+  ``amplitude_mA``: a gain error, a wrong resistor or a stream that ran dry fails it;
+* ``stream: envelope``: correlation of the measured and commanded per-period amplitudes
+  >= :data:`ENVELOPE_LIMIT`.
 
 Before anything is stimulated the dry run needs an analog chain (caio / nidaq) with
 ``acquisition.monitor_channel`` set; otherwise ``nmsid probe --dry-run`` says so in one line
@@ -236,6 +247,52 @@ def check_loopback(monitor_V: np.ndarray, sync_V: np.ndarray, command_A: np.ndar
     out.append(Check("charge balance", worst <= limit,
                      f"worst net {worst:.3f} nC per carrier period (phase {phase_nC:.0f} nC), "
                      f"{total_nC:+.2f} nC over the trial", f"{limit:.2f} nC per period"))
+    return out
+
+
+def check_stream_lockin(monitor_V: np.ndarray, commands_mA, rate_Hz: float,
+                        s: DryRunSettings, fs_Hz: float) -> list[Check]:
+    """The streamed carrier on the resistor against the commands.
+
+    Each carrier period's amplitude (:func:`lockin_amplitude_A`)
+    against the update in force: one update lasts ``CARRIER_HZ / rate_Hz`` whole carrier
+    periods from the sync edge (sample 0). Sources, McsUsbNet manual 5.3.15, 6.3
+    "Streaming mode": the queued data (``EnqueueData``) is sent to the analog output "on
+    the fly" through the PC's and the STG's ring buffers, in order, once the trigger is
+    started ("Start Trigger by pushing the front button or by Software ``SendStart(1)``",
+    6.3.1), the trigger's sync output with it (``SetupTrigger`` syncoutmap); the driver
+    renders each update as whole charge-balanced periods. Every period counts: a stream
+    that ran dry ("When DisableContinousMode is used, the STG stops when it runs out of
+    data", 6.3) or whose ring buffer underflowed ("data jumps of the output signals", 6.3.1)
+    fails the amplitude check, and so does current after the last update (commanded zero)
+    or an amplitude off by more than
+    :data:`AMPLITUDE_LIMIT` of ``amplitude_mA``.
+    """
+    i_A = np.asarray(monitor_V, dtype=float) / s.load_ohm
+    meas = lockin_amplitude_A(i_A, fs_Hz)
+    K = max(1, round(CARRIER_HZ / rate_Hz))
+    j = np.arange(len(meas)) // K
+    cmd_mA = np.asarray(list(commands_mA), dtype=float)
+    cmd = np.where(j < len(cmd_mA), cmd_mA[np.minimum(j, max(len(cmd_mA) - 1, 0))]
+                   if len(cmd_mA) else 0.0, 0.0) * 1e-3
+    on = cmd > 0.1 * s.amplitude_mA * 1e-3
+    out = []
+    if not on.any():
+        return [Check("stream: amplitude", False, "no update above 10 % of "
+                      f"{s.amplitude_mA:g} mA was commanded", ">= 1 carrier period")]
+    err = np.abs(meas - cmd)      # every period: current where none was commanded too
+    k = int(np.argmax(err))
+    rel = float(err[k]) / (s.amplitude_mA * 1e-3)
+    out.append(Check("stream: amplitude", rel <= AMPLITUDE_LIMIT,
+                     f"max error {err[k] * 1e3:.3f} mA ({rel * 100:.1f} % of "
+                     f"{s.amplitude_mA:g} mA; {meas[k] * 1e3:.3f} mA delivered, "
+                     f"{cmd[k] * 1e3:.3f} mA commanded, carrier period {k}) over {len(meas)} "
+                     f"carrier periods of {len(cmd_mA)} updates",
+                     f"{AMPLITUDE_LIMIT * 100:g} %"))
+    r = float(np.corrcoef(meas, cmd)[0, 1]) if len(cmd) > 2 and cmd.std() > 0 and \
+        meas.std() > 0 else 0.0
+    out.append(Check("stream: envelope", r >= ENVELOPE_LIMIT,
+                     f"r = {r:.4f} over {len(cmd)} carrier periods", f">= {ENVELOPE_LIMIT:g}"))
     return out
 
 

@@ -16,7 +16,10 @@ allowed (:class:`PlanRefused`).
 Item kinds (:data:`ITEM_KINDS`): ``identification`` and ``reference`` trials (a waveform
 at one sE), ``tracking`` and ``relay`` trials (closed loop: rE streamed by a controller,
 clamped into the item's envelope by the engine), ``dry_run`` trials, ``cocontraction``
-steps (one sE held at a fixed rE: :func:`cocontraction_plan`). Calibration is the
+steps (one sE held at a fixed rE: :func:`cocontraction_plan`). A ``dry_run`` item
+(:func:`dry_run_plan`: ``nmsid probe --dry-run`` into a dummy-load resistor, no
+participant) carries its envelope as absolute currents (``max_mA``), held to the rig's
+ceilings before anything connects, and to the dummy load's "calibration" after. Calibration is the
 session's first step (its ramps are bounded by the rig's ceilings, checked here too); a
 re-run is an item run again (its attempt counted by the engine), not a new item.
 
@@ -40,8 +43,9 @@ from nmsid.errors import UserError
 from nmsid.protocols.joints import DEFAULT_JOINT, JOINTS, Joint
 from nmsid.protocols.session_model import Calibration
 
-__all__ = ["ITEM_KINDS", "MAX_ITEM_S", "Plan", "PlanItem", "PlanRefused", "RigLimits",
-           "cocontraction_plan", "identification_plan", "preflight"]
+__all__ = ["DRY_RUN_LABELS", "DRY_RUN_ROLES", "ITEM_KINDS", "MAX_ITEM_S", "Plan", "PlanItem",
+           "PlanRefused", "RigLimits", "cocontraction_plan", "dry_run_plan", "identification_plan",
+           "preflight"]
 
 ITEM_KINDS = ("identification", "reference", "tracking", "relay", "dry_run", "cocontraction")
 """The kinds of plan item."""
@@ -87,6 +91,10 @@ class PlanItem:
         named by refusals.
     target_json : str
         Closed-loop items: the target's definition (recorded with the trial).
+    max_mA : (float, float) or None
+        The most current per channel (extensor, flexor) the item may command, in mA, when
+        it is not given by sE and the rE range through a calibration (``dry_run`` items:
+        a dummy load has none). Held to the rig's ceilings before anything is connected.
     """
 
     index: int
@@ -100,11 +108,14 @@ class PlanItem:
     controller: str = ""
     source: str = ""
     target_json: str = ""
+    max_mA: tuple[float, float] | None = None
 
     def max_current_mA(self, calibration: Calibration) -> tuple[float, float]:
         """The most current per channel (extensor, flexor) this item may command with
         ``calibration``: paper eqs. 1-4 at its sE, extensor at the top of its rE range,
-        flexor at the bottom."""
+        flexor at the bottom; an item's own ``max_mA`` when it carries one."""
+        if self.max_mA is not None:
+            return (float(self.max_mA[0]), float(self.max_mA[1]))
         c = calibration
         lo, hi = self.rE_range
         return (c.Iemin_mA + hi * self.sE * (c.Iemax_mA - c.Iemin_mA),
@@ -202,6 +213,15 @@ def item_problem(item: PlanItem, limits: RigLimits,
         if not (_finite(tlo, thi) and -lim <= tlo <= thi <= lim):
             return (f"{q} target range [{tlo!r}, {thi!r}] {u} is not finite within the "
                     f"interlock's {q} limit [-{lim:g}, {lim:g}] {u}")
+    if item.max_mA is not None:   # absolute currents: the ceilings hold before calibration
+        ce, cf = limits.ceiling_ext_mA, limits.ceiling_flex_mA
+        if limits.device_max_mA is not None:
+            ce, cf = min(ce, limits.device_max_mA), min(cf, limits.device_max_mA)
+        for name, value, ceiling in ((limits.joint.extensor_role, item.max_mA[0], ce),
+                                     (limits.joint.flexor_role, item.max_mA[1], cf)):
+            if not (_finite(value) and 0.0 <= float(value) <= ceiling + _TOL_MA):
+                return (f"{name} current up to {value!r} mA is outside [0, {ceiling:g}] mA "
+                        "(the ceiling)")
     if calibration is not None:
         Ie, If = item.max_current_mA(calibration)
         ce, cf = limits.ceiling_ext_mA, limits.ceiling_flex_mA
@@ -276,3 +296,39 @@ def cocontraction_plan(sE_steps, rE: float, step_s: float, *, repeats: int = 1,
                  source=source)
         for r in range(int(repeats)) for k, sE in enumerate(steps))
     return Plan("cocontraction", items, source=source)
+
+
+DRY_RUN_ROLES = ("download", "streamed", "estop")
+"""The dry run's items: a downloaded trial checked on the resistor, a streamed
+(tracking-style) trial, and the E-stop test (a chirp stopped by the E-stop mid-way; last,
+as the E-stop ends the session)."""
+DRY_RUN_LABELS = {"download": "dry run, downloaded trial",
+                   "streamed": "dry run, streamed trial", "estop": "dry run, E-stop test"}
+"""Each role's item label (what the operator reads; the kind finds an item's role by it)."""
+
+
+def dry_run_plan(roles, channel: str, amplitude_mA: float, duration_s: float, *,
+                 source: str = "") -> Plan:
+    """The plan of ``nmsid probe --dry-run``: one ``dry_run`` item per role of ``roles``
+    (:data:`DRY_RUN_ROLES`, in that order), each ``duration_s`` long with at most
+    ``amplitude_mA`` on the tested ``channel`` (``extensor`` / ``flexor``) and nothing on
+    the other (``max_mA``). Nothing is checked here; :func:`preflight` refuses a bad value
+    with its item.
+
+    Examples
+    --------
+    >>> plan = dry_run_plan(["download", "estop"], "flexor", 2.0, 1.0)
+    >>> [(it.label, it.max_mA) for it in plan]
+    [('dry run, downloaded trial', (0.0, 2.0)), ('dry run, E-stop test', (0.0, 2.0))]
+    """
+    order = [r for r in DRY_RUN_ROLES if r in roles]
+    unknown = [r for r in roles if r not in DRY_RUN_ROLES]
+    if unknown:
+        raise PlanRefused(f"{source or 'dry run'}: role {unknown[0]!r} is unknown; valid: "
+                          f"{', '.join(DRY_RUN_ROLES)}")
+    a = float(amplitude_mA)
+    env = (a, 0.0) if channel == "extensor" else (0.0, a)
+    return Plan("dry_run", tuple(
+        PlanItem(k, "dry_run", 1.0, float(duration_s), repeat=1, label=DRY_RUN_LABELS[r],
+                 source=source, max_mA=env)
+        for k, r in enumerate(order)), source=source)

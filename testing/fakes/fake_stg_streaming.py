@@ -208,11 +208,12 @@ class CStg200xStreamingNet:
         n = self.hw.n_channels if self.hw is not None else 0
         return [ch for ch in range(n) if self.trigger and self.trigger[0][0] >> ch & 1]
 
-    def _arrival(self, ch: int) -> np.ndarray:
+    def _arrival(self, ch: int, limit: int | None = None) -> np.ndarray:
         """When each queued frame of ``ch`` is (or will be) in the STG's memory: not before
         it was enqueued, nor before the transfer that began transfer_delay_s after
-        StartLoop reaches it at transfer_speedup x the output rate."""
-        enq = np.asarray(self.queued_t.get(ch, []), dtype=np.float64)
+        StartLoop reaches it at transfer_speedup x the output rate. ``limit``: only the
+        first so many frames (the times never decrease, so a count needs no more)."""
+        enq = np.asarray(self.queued_t.get(ch, [])[:limit], dtype=np.float64)
         if self.loop_t is None or not self.loop:
             return np.full(len(enq), np.inf)
         g = self._head + np.arange(len(enq))
@@ -221,7 +222,8 @@ class CStg200xStreamingNet:
 
     def _buffered(self, ch: int, now: float) -> int:
         """Frames of ``ch`` in the STG's memory at ``now`` (at most its ring)."""
-        return min(self._ring_frames(), int(np.count_nonzero(self._arrival(ch) <= now)))
+        ring = self._ring_frames()
+        return min(ring, int(np.count_nonzero(self._arrival(ch, ring + 1) <= now)))
 
     def StopLoop(self):
         self._log("StopLoop")
@@ -241,7 +243,7 @@ class CStg200xStreamingNet:
             return
         take = new
         for ch in self._chans():
-            arr = self._arrival(ch)[:new]
+            arr = self._arrival(ch, new)
             play = self.start_t + (self._done + np.arange(len(arr))) / self.rate_Hz
             late = np.flatnonzero(arr > play + 1e-12)
             take = min(take, int(late[0]) if len(late) else len(arr))

@@ -19,10 +19,28 @@ from nmsid.rig.dry_run import run_dry_run
 CHECKS = ("onset", "force record", "amplitude", "carrier", "envelope", "charge balance")
 
 
+@pytest.fixture(autouse=True)
+def _deep_fake_fifo(monkeypatch):
+    """The fake CAIO's FIFO holds 4096 scans: 0.4 s at the dry run's 10 kHz. A loaded test
+    host (2 cores, several suites) can keep this process off the CPU for longer, and the
+    record would then fail as overrun; the FIFO's depth is not what these tests check
+    (``tests/drivers/test_caio.py`` checks the overrun flag), so it holds 6.5 s here."""
+    from nmsid.testing.fakes import fake_caio
+    real = fake_caio.FakeCaioLibrary.__init__
+
+    def init(self, bench, **kw):
+        kw["fifo_samples"] = max(kw.get("fifo_samples", 0), 1 << 16)
+        real(self, bench, **kw)
+    monkeypatch.setattr(fake_caio.FakeCaioLibrary, "__init__", init)
+    # the probe's streamed trial: queued 0.8 s ahead, not 0.5 s, for the same reason (the
+    # stream running dry is tested in test_dry_run_engine.py)
+    monkeypatch.setattr("nmsid.rig.dry_run.STREAM_QUEUE_S", 0.8)
+
+
 @pytest.mark.parametrize("kind, monitor", [("caio", 7), ("caio", 9), ("nidaq", 7)])
 def test_probe_dry_run_passes_every_check_on_the_fake_rig(tmp_path, write_hw_config, capsys,
                                                           kind, monitor):
-    hw = write_hw_config(tmp_path / "hw.toml", kind=kind, speed=2.0, estop="none",
+    hw = write_hw_config(tmp_path / "hw.toml", kind=kind, speed=1.0, estop="none",
                          monitor=monitor)
     assert main(["probe", "--hw-config", str(hw), "--dry-run"]) == 0
     out = capsys.readouterr().out
@@ -39,7 +57,7 @@ def test_probe_dry_run_passes_every_check_on_the_fake_rig(tmp_path, write_hw_con
 
 def _run(tmp_path, write_hw_config, *, wired_channel=0, actual_ohm=1000.0, kind="caio",
          extra=(), monitor=7, estop_at_s=None, **settings):
-    hw = write_hw_config(tmp_path / "hw.toml", kind=kind, speed=2.0, estop="none",
+    hw = write_hw_config(tmp_path / "hw.toml", kind=kind, speed=1.0, estop="none",
                          monitor=monitor, extra=extra)
     cfg = with_monitor(load_hw_config(hw))
     devices = build_devices(cfg)
@@ -134,7 +152,7 @@ def test_onset_is_measured_below_one_sample(delay_us):
 
 
 def test_no_monitor_channel_is_refused_before_any_device(tmp_path, write_hw_config, capsys):
-    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", speed=2.0, estop="none")
+    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", speed=1.0, estop="none")
     assert main(["probe", "--hw-config", str(hw), "--dry-run"]) == 2
     err = capsys.readouterr()
     assert "acquisition.monitor_channel is not set" in err.err
@@ -142,7 +160,7 @@ def test_no_monitor_channel_is_refused_before_any_device(tmp_path, write_hw_conf
 
 
 def test_a_leptrino_chain_has_no_monitor_input(tmp_path, write_hw_config):
-    hw = write_hw_config(tmp_path / "hw.toml", kind="leptrino", speed=2.0, estop="none",
+    hw = write_hw_config(tmp_path / "hw.toml", kind="leptrino", speed=1.0, estop="none",
                          fs_Hz=1200.0)
     with pytest.raises(HardwareConfigError, match="acquisition.kind = 'leptrino' has none"):
         with_monitor(load_hw_config(hw))
@@ -153,7 +171,7 @@ def test_an_analog_chain_without_its_calibration_is_refused_in_one_line(tmp_path
     # load_hw_config always builds one for an analog chain: a configuration built in code
     # without it is refused by name, not with an AttributeError
     import dataclasses
-    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", speed=2.0, estop="none",
+    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", speed=1.0, estop="none",
                          monitor=7)
     cfg = dataclasses.replace(load_hw_config(hw), calibration=None)
     with pytest.raises(HardwareConfigError, match=r"hw\.toml: the analog chain has no"):
@@ -170,13 +188,13 @@ def test_too_many_channels_for_the_rate_is_refused_before_stimulating(tmp_path,
                                                                      write_hw_config, capsys):
     """16 scanned channels at 10 kHz = 160 kS/s; at 10 us per channel the AI-1608AY-USB
     converts 100 kS/s (Contec: "sampling clock period error")."""
-    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", speed=2.0, estop="none",
+    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", speed=1.0, estop="none",
                          monitor=15)
     assert main(["probe", "--hw-config", str(hw), "--dry-run"]) == 2
     captured = capsys.readouterr()
     assert "needs 160 kS/s" in captured.err and "at most 100 kS/s" in captured.err
     assert "6250 Hz for 16 channels" in captured.err
-    assert "dry run: 1 s" in captured.out and "record:" not in captured.out
+    assert "dry run: 3 trial(s)" in captured.out and "record:" not in captured.out
 
 
 @pytest.mark.parametrize("kw, msg", [({"amplitude_mA": 8.0}, "<= 5 mA"),
@@ -193,7 +211,7 @@ def test_nidaq_aggregate_rate_is_refused_before_stimulating(tmp_path, write_hw_c
                                                              capsys):
     """32 scanned channels at 20 kHz = 640 kS/s, above the (fake) USB-6212's 400 kS/s
     multichannel rate (``Device.ai_max_multi_chan_rate``)."""
-    hw = write_hw_config(tmp_path / "hw.toml", kind="nidaq", speed=2.0, estop="none",
+    hw = write_hw_config(tmp_path / "hw.toml", kind="nidaq", speed=1.0, estop="none",
                          monitor=31, extra=("monitor_fs_Hz = 20000.0",))
     assert main(["probe", "--hw-config", str(hw), "--dry-run"]) == 2
     err = capsys.readouterr().err
@@ -220,7 +238,7 @@ def test_the_dry_run_trips_on_the_estop_mid_trial(tmp_path, write_hw_config):
 
 
 def test_probe_dry_run_includes_the_estop_test(tmp_path, write_hw_config, capsys):
-    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", speed=2.0, estop="none",
+    hw = write_hw_config(tmp_path / "hw.toml", kind="caio", speed=1.0, estop="none",
                          monitor=7)
     assert main(["probe", "--hw-config", str(hw), "--dry-run"]) == 0
     out = capsys.readouterr().out
