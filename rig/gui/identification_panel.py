@@ -20,7 +20,7 @@ import pyqtgraph as pg
 from PySide6.QtCore import QObject, Qt, Signal
 from PySide6.QtWidgets import QLabel, QVBoxLayout, QWidget
 
-from nmsid.rig.gui.theme import Colour
+from nmsid.rig.gui.theme import LEFT_AXIS_PX, Colour
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +93,8 @@ class IdentificationPanel(QWidget):
         self._relay.done.connect(self._on_done, Qt.ConnectionType.QueuedConnection)
         self.status = QLabel("Parameters appear here as each sE level completes.")
         self.status.setWordWrap(True)
+        # two lines, fixed: a longer message never re-lays out the plots beside it
+        self.status.setFixedHeight(2 * self.status.fontMetrics().lineSpacing() + 4)
         self.status.setStyleSheet("font-weight: bold;")
         self.graphics = pg.GraphicsLayoutWidget()
         self.graphics.setBackground("w")
@@ -103,6 +105,7 @@ class IdentificationPanel(QWidget):
             p = self.graphics.addPlot(row=0, col=k)
             p.setLabel("left", f"{label}" + (f" ({units})" if units else ""))
             p.getAxis("left").enableAutoSIPrefix(False)
+            p.getAxis("left").setWidth(LEFT_AXIS_PX)  # a new tick label: no re-layout
             p.setLabel("bottom", "sE")
             p.showGrid(x=True, y=True, alpha=0.3)
             p.setXRange(0.25, 1.05)

@@ -50,6 +50,11 @@ LIVE_WINDOW_S = 10.0
 #: The window takes the engine's notifications at most this often (s): one batch, one
 #: schedule refresh, however fast the engine runs.
 DRAIN_INTERVAL_S = 0.05
+#: A batch takes in what the engine posts while it is shown, for at most this long (s);
+#: then the schedule is refreshed once. An engine that writes a trial holds Python's GIL
+#: in h5py for tenths of a second on a busy machine: notifications posted meanwhile were
+#: shown only after the next schedule refresh and interlock poll (~0.7 s later).
+DRAIN_BUDGET_S = 0.25
 #: Python's GIL switch interval in the GUI process, s (default 0.005). The GUI thread
 #: enters Python many times a frame (each slot, each pyqtgraph paint); with the engine,
 #: the QC and the identification threads busy, each entry waited up to the interval for
@@ -135,7 +140,7 @@ class MainWindow(QMainWindow):
                                   on_continue=self.continue_session)
         self.setup_panel = SetupPanel(on_start=self._start_request)
         self.calibration_panel = CalibrationPanel(on_confirm=self._confirm_calibration)
-        self.live = LivePlots(self.buffer)
+        self.live = LivePlots(self.buffer, before_frame=self._drain_before_frame)
         self.safety.add_readouts(self.live.readouts)
         self.identification = IdentificationPanel(
             identify=identify if identify is not None else analysis_hooks.identify_level)
@@ -372,17 +377,30 @@ class MainWindow(QMainWindow):
         wait_s = self._last_drain + DRAIN_INTERVAL_S - time.perf_counter()
         self._drain_timer.start(max(0, int(wait_s * 1000)))
 
+    def _drain_before_frame(self) -> None:
+        """A plot frame is due: what the engine posted is shown first (a frame and its
+        paint never hold a notification back)."""
+        if self.controller.mailbox.pending():
+            self._drain_timer.stop()
+            self._drain()
+
     def _drain(self) -> None:
         """Show every notification the engine posted so far, in order; the schedule, the
         lights and the time left once per batch."""
         self._last_drain = time.perf_counter()
-        items = self.controller.mailbox.take()
-        for name, args in items:
-            try:
-                self._handlers[name](*args)
-            except Exception:  # a display problem must never stop the GUI
-                log.exception("showing the engine's %s notification", name)
-        if items:
+        t_end = self._last_drain + DRAIN_BUDGET_S
+        shown = 0
+        while True:  # what arrives while a batch is shown is shown too (within the budget)
+            items = self.controller.mailbox.take()
+            for name, args in items:
+                try:
+                    self._handlers[name](*args)
+                except Exception:  # a display problem must never stop the GUI
+                    log.exception("showing the engine's %s notification", name)
+            shown += len(items)
+            if not items or time.perf_counter() >= t_end:
+                break
+        if shown:
             self.n_batches += 1
             self._refresh_schedule()
             self._poll_engine()
