@@ -122,6 +122,10 @@ class IdentificationPanel(QWidget):
         lay.addWidget(self.status)
         lay.addWidget(self.graphics, 1)
 
+    def set_joint(self, joint) -> None:
+        """The gain's unit is the joint's measured unit (N, N m)."""
+        self.plots["Kp"].setLabel("left", f"Kp ({joint.unit})")
+
     def reset(self) -> None:
         """Forget the previous session's points."""
         self.points = []

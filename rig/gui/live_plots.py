@@ -24,6 +24,7 @@ import pyqtgraph as pg
 from PySide6.QtCore import Qt, QTimer
 from PySide6.QtWidgets import QGridLayout, QLabel, QVBoxLayout, QWidget
 
+from nmsid.protocols.joints import Joint
 from nmsid.rig.gui.live_buffer import LiveBuffer, LiveSnapshot
 from nmsid.rig.gui.theme import LEFT_AXIS_PX, Colour
 
@@ -71,6 +72,7 @@ class Readouts(QWidget):
         lay.setContentsMargins(6, 0, 6, 0)
         lay.setHorizontalSpacing(14)
         self.values: dict[str, QLabel] = {}
+        self.names: dict[str, QLabel] = {}
         self.numbers: dict[str, float | None] = {}
         for col, (key, label, unit, colour, _) in enumerate(self.FIELDS):
             name = QLabel(f"{label} ({unit})")
@@ -82,7 +84,14 @@ class Readouts(QWidget):
             lay.addWidget(name, 0, col)
             lay.addWidget(value, 1, col)
             self.values[key] = value
+            self.names[key] = name
         self.reset()
+
+    def set_joint(self, joint: Joint) -> None:
+        """Name the channels by the joint's muscle groups and the measured quantity."""
+        self.names["I_ext"].setText(f"{joint.extensor_muscles} (mA)")
+        self.names["I_flex"].setText(f"{joint.flexor_muscles} (mA)")
+        self.names["force"].setText(joint.quantity_label)
 
     def _set(self, key: str, number: float | None) -> None:
         self.numbers[key] = number
@@ -227,6 +236,18 @@ class LivePlots(QWidget):
                 self._next_due = max(self._next_due, end + DRAW_SHARE_WAIT * cost_s)
         delay_ms = max(0, math.ceil((self._next_due - time.perf_counter()) * 1000.0))
         self.timer.start(delay_ms)
+
+    def set_joint(self, joint: Joint) -> None:
+        """The session's joint: the measured quantity and its unit on the axis and the
+        readouts (``torque (N m)`` for a knee), the muscle groups on the readouts."""
+        self.force_plot.setLabel("left", joint.quantity_label)
+        self.readouts.set_joint(joint)
+        legend = self.i_plot.legend
+        for curve, muscles in ((self.iext_curve, joint.extensor_muscles),
+                               (self.iflex_curve, joint.flexor_muscles)):
+            label = legend.getLabel(curve) if legend is not None else None
+            if label is not None:
+                label.setText(muscles)
 
     def set_title(self, text: str, duration_s: float | None = None) -> None:
         """Title of the trial shown; with ``duration_s`` the elapsed time is appended

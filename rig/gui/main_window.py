@@ -24,6 +24,7 @@ from PySide6.QtCore import Qt, QTimer
 from PySide6.QtWidgets import QLabel, QMainWindow, QSplitter, QTabWidget, QVBoxLayout, QWidget
 
 import nmsid.rig.gui.qt_compat  # noqa: F401  (before any signal is emitted)
+from nmsid.protocols.joints import DEFAULT_JOINT, JOINTS, joint_named
 from nmsid.protocols.session_file import read_session, utc_now
 from nmsid.rig.errors import RequestError
 from nmsid.rig.gui import analysis_hooks
@@ -120,6 +121,8 @@ class MainWindow(QMainWindow):
         self.run_result = None
         self.run_error: BaseException | None = None
         self.session_finished = False
+        self.joint = JOINTS[DEFAULT_JOINT]
+        """The running session's joint (its labels and unit)."""
         self._calibration_known = False
         self._estop_unrecorded = ""
         """UTC time of an E-stop a running engine took and has not yet written to the
@@ -240,6 +243,9 @@ class MainWindow(QMainWindow):
         self._calibration_known = bool(request.resume and
                                        getattr(engine, "calibration", None) is not None)
         used = getattr(engine, "config", config)
+        self.joint = joint_named(getattr(used, "joint", DEFAULT_JOINT))
+        for panel in (self.live, self.calibration_panel, self.identification):
+            panel.set_joint(self.joint)
         self.safety.set_weakened(used.weakened_safety())
         p = used.protocol
         self.schedule_panel.set_timing(p.trial_s, p.rest_s)
@@ -264,6 +270,7 @@ class MainWindow(QMainWindow):
         self.qc.reset()
         self.schedule_panel.reset_session()
         self.safety.clear_notice()
+        self.safety.set_trial("")
         self.live.readouts.reset()
         self.calibration_panel.reset()
         self.identification.reset()
@@ -452,6 +459,7 @@ class MainWindow(QMainWindow):
         self.current_index = index
         sE, repeat, _, _ = planned_fields(planned)
         name = self.schedule_panel.names.started(index)
+        self.safety.set_trial(name)
         cfg = getattr(self.controller.engine, "config", None) or self.controller.config
         self.live.set_title(f"{name}: sE = {sE:.2f}, repeat {repeat}",
                             duration_s=cfg.protocol.trial_s if cfg is not None else None)
@@ -461,6 +469,7 @@ class MainWindow(QMainWindow):
         reason = getattr(trial, "abort_reason", "")
         sE, repeat = getattr(trial, "sE", float("nan")), getattr(trial, "repeat", 0)
         name = self.schedule_panel.names.finished(index, str(getattr(trial, "name", "")))
+        self.safety.set_trial(name)
         if status == "completed":  # judged in a worker: the verdict follows (_on_verdicts)
             self.qc.submit(index, trial)
         self.live.set_title(f"{name}: sE = {sE:.2f}, repeat {repeat}: {status}"
