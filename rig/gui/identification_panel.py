@@ -86,6 +86,8 @@ class IdentificationPanel(QWidget):
         self.points: list[LevelPoint] = []
         self.errors: list[str] = []
         self.pending = 0
+        self.unit = "N"
+        """The gain's unit (the session's joint's measured unit)."""
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="nmsid-identify")
         self.executor = self._pool
         """The panel's one analysis thread (the trial QC runs its jobs there too)."""
@@ -124,6 +126,7 @@ class IdentificationPanel(QWidget):
 
     def set_joint(self, joint) -> None:
         """The gain's unit is the joint's measured unit (N, N m)."""
+        self.unit = joint.unit
         self.plots["Kp"].setLabel("left", f"Kp ({joint.unit})")
 
     def reset(self) -> None:
@@ -171,7 +174,7 @@ class IdentificationPanel(QWidget):
             y = np.array([getattr(p, attr) for p in self.points])
             self.scatter[attr].setData(sE, y)
             self.bad_scatter[attr].setData(sE[bad], y[bad])
-        msg = (f"sE = {point.sE:.2f}: Kp = {point.Kp:.3g} N, wn = {point.wn_rad_s:.3g} rad/s, "
+        msg = (f"sE = {point.sE:.2f}: Kp = {point.Kp:.3g} {self.unit}, wn = {point.wn_rad_s:.3g} rad/s, "
                f"zeta = {point.zeta:.3g}, fit = {point.fit_pct:.1f} %")
         if point.fit_pct < self.bad_fit_pct:
             msg += f"  -- POOR FIT (< {self.bad_fit_pct:g} %): consider re-running this level"

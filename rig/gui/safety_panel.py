@@ -139,7 +139,7 @@ class SafetyPanel(QFrame):
         self.state_label = QLabel("IDLE")
         self.state_label.setObjectName("state")
         self.state_label.setAlignment(Qt.AlignmentFlag.AlignCenter)
-        self.state_label.setMinimumWidth(150)
+        self.state_label.setMinimumWidth(240)   # "STIMULATING t045" in full
         self.banner = QLabel("")
         self.banner.setWordWrap(True)
         self.banner.setObjectName("banner")

@@ -86,6 +86,8 @@ def test_knee_session_shows_torque_in_newton_metres_and_the_knees_muscles(qtbot,
         assert w.run_error is None
         s = read_session(out, load_data=False)
         assert s.attrs.get("joint") == "knee"
+        qtbot.waitUntil(lambda: w.identification.pending == 0, timeout=30_000)
+        assert "Kp = 20 N m," in w.identification.status.text()
         # one trial numbering: the file's name in the schedule, the title and the badge
         name = s.trials[0].name
         assert w.schedule_panel.table.item(0, 0).text() == name
