@@ -559,4 +559,5 @@ class MainWindow(QMainWindow):
         self.qc.shutdown()
         self.identification.shutdown()
         self.results.shutdown()
+        self.setup_panel.lsl.shutdown()
         super().closeEvent(event)
