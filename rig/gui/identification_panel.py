@@ -174,8 +174,9 @@ class IdentificationPanel(QWidget):
             y = np.array([getattr(p, attr) for p in self.points])
             self.scatter[attr].setData(sE, y)
             self.bad_scatter[attr].setData(sE[bad], y[bad])
-        msg = (f"sE = {point.sE:.2f}: Kp = {point.Kp:.3g} {self.unit}, wn = {point.wn_rad_s:.3g} rad/s, "
-               f"zeta = {point.zeta:.3g}, fit = {point.fit_pct:.1f} %")
+        msg = (f"sE = {point.sE:.2f}: Kp = {point.Kp:.3g} {self.unit}, "
+               f"wn = {point.wn_rad_s:.3g} rad/s, zeta = {point.zeta:.3g}, "
+               f"fit = {point.fit_pct:.1f} %")
         if point.fit_pct < self.bad_fit_pct:
             msg += f"  -- POOR FIT (< {self.bad_fit_pct:g} %): consider re-running this level"
         self.status.setText(msg)

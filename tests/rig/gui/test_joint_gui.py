@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import pytest
+
 from nmsid.protocols.joints import JOINTS
 from nmsid.protocols.session_file import read_session
 from nmsid.rig.gui.setup_panel import SetupPanel
@@ -109,3 +111,35 @@ def test_state_badge_names_the_running_trial_as_the_file_does(qtbot):
     assert panel.state_label.text() == "RESTING t004"
     panel.set_state("paused")
     assert panel.state_label.text() == "PAUSED"
+
+
+@pytest.mark.parametrize("name", list(JOINTS))
+def test_every_joints_labels_reach_the_panels(qtbot, name):
+    """Each registered joint's muscle groups, quantity and unit (protocols/joints.py) on
+    the live plot, the readouts, the calibration plot and form and Kp's axis."""
+    from nmsid.rig.gui.calibration_panel import CalibrationPanel
+    from nmsid.rig.gui.identification_panel import IdentificationPanel
+    from nmsid.rig.gui.live_buffer import LiveBuffer
+    from nmsid.rig.gui.live_plots import LivePlots
+    j = JOINTS[name]
+    live = LivePlots(LiveBuffer(window_s=1.0, fs_Hz=100.0))
+    cal = CalibrationPanel(on_confirm=lambda c: None)
+    ident = IdentificationPanel(identify=None)
+    for widget in (live, cal, ident):
+        qtbot.addWidget(widget)
+    live.timer.stop()
+    for panel in (live, cal, ident):
+        panel.set_joint(j)
+    assert live.force_plot.getAxis("left").labelText == j.quantity_label
+    assert live.readouts.names["force"].text() == j.quantity_label
+    assert live.readouts.names["I_ext"].text() == f"{j.extensor_muscles} (mA)"
+    assert live.readouts.names["I_flex"].text() == f"{j.flexor_muscles} (mA)"
+    legend = {item.text for _, item in live.i_plot.legend.items}
+    assert legend == {j.extensor_muscles, j.flexor_muscles}
+    assert cal.plot.getAxis("left").labelText == f"{j.quantity}, muscle alone ({j.unit})"
+    assert j.extensor_muscles in cal.field_labels["Iemax_mA"].text()
+    assert j.flexor_muscles in cal.field_labels["Ifmin_mA"].text()
+    cal_legend = {item.text for _, item in cal.plot.getPlotItem().legend.items}
+    assert any(j.flexor_muscles in t for t in cal_legend)
+    assert ident.plots["Kp"].getAxis("left").labelText == f"Kp ({j.unit})"
+    ident.shutdown()
