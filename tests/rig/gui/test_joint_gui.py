@@ -143,3 +143,16 @@ def test_every_joints_labels_reach_the_panels(qtbot, name):
     assert any(j.flexor_muscles in t for t in cal_legend)
     assert ident.plots["Kp"].getAxis("left").labelText == f"Kp ({j.unit})"
     ident.shutdown()
+
+
+def test_nmsid_gui_joint_option_fills_the_form(qtbot, tmp_path):
+    """``nmsid gui --joint knee`` selects the knee on the set-up panel."""
+    from nmsid.cli import build_parser
+    from nmsid.rig.gui.app import GuiOptions, build_window
+    args = build_parser().parse_args(["gui", "--joint", "knee"])
+    assert args.joint == "knee"
+    w = build_window(GuiOptions(joint=args.joint, participant="K02",
+                                out=tmp_path / "K02.h5"))
+    qtbot.addWidget(w)
+    assert w.setup_panel.request().joint == "knee"
+    w.close()
