@@ -105,6 +105,7 @@ def run_session() -> dict:
         w.confirm_calibration()
         _spin(app, 600, until=lambda: w.run_result is not None or w.run_error is not None)
         wall_s = time.perf_counter() - t0
+        protocol = w.controller.config.protocol if w.controller.config is not None else None
         cpu_pct = 100 * (time.process_time() - cpu0) / wall_s
         _spin(app, 0.5)
         virtual_s = float(w.controller.devices.clock.monotonic_s()) \
@@ -125,6 +126,8 @@ def run_session() -> dict:
     worst = sorted(((shown[k] - t, t - t_first, ev) for k, (t, ev) in emitted.items()
                     if k in shown), key=lambda x: -x[0])[:3]
     return {"wall_s": wall_s, "virtual_s": virtual_s, "cpu_pct": cpu_pct,
+            "levels": len(protocol.sE_levels) if protocol is not None else 0,
+            "repeats": protocol.repeats if protocol is not None else 0,
             "n_emitted": len(emitted), "n_shown": len(shown),
             "lag_max_s": float(lags.max()) if lags.size else float("nan"),
             "lag_p99_s": float(np.percentile(lags, 99)) if lags.size else float("nan"),
@@ -141,7 +144,7 @@ def main() -> None:
     logging.basicConfig(level=logging.WARNING)
     load0 = os.getloadavg()[0]
     r = run_session()
-    print(f"fast-mode session through the window: {len(LEVELS)} sE x {REPEATS} repeats of "
+    print(f"fast-mode session through the window: {r['levels']} sE x {r['repeats']} repeats of "
           f"15 s trials, {r['virtual_s']:.0f} s on the rig's clock in {r['wall_s']:.1f} s "
           f"wall ({r['virtual_s'] / r['wall_s']:.0f}x real time), process CPU "
           f"{r['cpu_pct']:.0f} % of one core")

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from nmsid.cli.arguments import input_file, output_path, seed
+from nmsid.protocols.joints import JOINTS
 from nmsid.rig.qt_platform import check_xcb
 
 
@@ -25,6 +26,9 @@ def register(sub) -> None:
                    "sessions/<participant>-<UTC time>.h5")
     p.add_argument("--seed", type=seed, metavar="N", help="schedule randomisation seed, "
                    "0 ... 2**63-1 as in `nmsid run` (default: drawn and recorded)")
+    p.add_argument("--joint", choices=tuple(JOINTS), metavar="JOINT",
+                   help="the joint the session drives: " + ", ".join(JOINTS) + " (as "
+                        "`nmsid run --joint`; the set-up panel's Joint)")
     p.add_argument("--fast", action="store_true", help="run the simulator as fast as "
                    "possible instead of in real time")
     p.add_argument("--script", metavar="SCRIPT", help="drive the window from a script "
@@ -47,6 +51,7 @@ def run(args) -> int:
         participant=args.participant,
         out=Path(args.out) if args.out else None,
         seed=args.seed,
+        joint=args.joint,
         realtime=not args.fast,
         script=args.script,
         screenshot=Path(args.screenshot) if args.screenshot else None)

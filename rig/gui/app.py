@@ -35,6 +35,7 @@ class GuiOptions:
     out: Path | None = None
     seed: int | None = None
     realtime: bool = True
+    joint: str | None = None
     script: str | None = None
     screenshot: Path | None = None
 
@@ -62,6 +63,8 @@ def build_window(options: GuiOptions, **window_kwargs):
         values["output"] = options.out
     if options.seed is not None:
         values["seed"] = options.seed
+    if options.joint:
+        values["joint"] = options.joint
     window.setup_panel.set_values(**values)
     return window
 

@@ -27,6 +27,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from nmsid.protocols.joints import DEFAULT_JOINT, JOINTS, Joint
 from nmsid.protocols.session_file import Calibration
 from nmsid.rig.gui.theme import Colour
 
@@ -95,6 +96,7 @@ class CalibrationPanel(QWidget):
                 self.force_lines[f"{key}_{name}"] = line
 
         self.fields: dict[str, QDoubleSpinBox] = {}
+        self.field_labels: dict[str, QLabel] = {}
         form_box = QGroupBox("Currents (edit if needed, then confirm)")
         form = QFormLayout(form_box)
         for *_, lo, hi in MUSCLES:
@@ -106,7 +108,8 @@ class CalibrationPanel(QWidget):
                 spin.setSuffix(" mA")
                 spin.valueChanged.connect(lambda v, a=attr: self._field_changed(a, v))
                 self.fields[attr] = spin
-                form.addRow(f"{attr.replace('_mA', '')}  ({label.split()[0].lower()})", spin)
+                self.field_labels[attr] = QLabel(attr.replace("_mA", ""))
+                form.addRow(self.field_labels[attr], spin)
         self.status = QLabel("Waiting for the engine to start the calibration ramp.")
         self.status.setWordWrap(True)
         self.confirm_button = QPushButton("Confirm calibration")
@@ -121,6 +124,23 @@ class CalibrationPanel(QWidget):
         lay = QHBoxLayout(self)
         lay.addWidget(self.plot, 3)
         lay.addLayout(side, 1)
+        self.unit = "N"
+        self.set_joint(JOINTS[DEFAULT_JOINT])
+
+    def set_joint(self, joint: Joint) -> None:
+        """The session's joint: its muscle groups, what is measured and its unit."""
+        self.unit = joint.unit
+        self.plot.setLabel("left", f"{joint.quantity}, muscle alone ({joint.unit})")
+        names = {"ext": f"{joint.extensor_role.capitalize()} ({joint.extensor_muscles})",
+                 "flex": f"{joint.flexor_role.capitalize()} ({joint.flexor_muscles})"}
+        legend = self.plot.getPlotItem().legend
+        for key, _, _, lo, hi in MUSCLES:
+            label = legend.getLabel(self.curves[key]) if legend is not None else None
+            if label is not None:
+                label.setText(names[key])
+            muscles = joint.extensor_muscles if key == "ext" else joint.flexor_muscles
+            for attr in (lo, hi):
+                self.field_labels[attr].setText(f"{attr.replace('_mA', '')}  ({muscles})")
 
     # -- engine notifications (GUI thread) -------------------------------------------
     def add_step(self, muscle: str, current_mA: float, force_N: float) -> None:
@@ -129,7 +149,8 @@ class CalibrationPanel(QWidget):
         self.points[key].append((current_mA, force_N))
         xy = np.array(self.points[key])
         self.curves[key].setData(xy[:, 0], xy[:, 1])
-        self.status.setText(f"Ramping {key}: {current_mA:.1f} mA -> {force_N:.2f} N")
+        self.status.setText(f"Ramping {key}: {current_mA:.1f} mA -> {force_N:.2f} "
+                            f"{self.unit}")
 
     def reset(self) -> None:
         """Forget the previous session's ramps and values."""

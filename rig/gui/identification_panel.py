@@ -20,7 +20,7 @@ import pyqtgraph as pg
 from PySide6.QtCore import QObject, Qt, Signal
 from PySide6.QtWidgets import QLabel, QVBoxLayout, QWidget
 
-from nmsid.rig.gui.theme import Colour
+from nmsid.rig.gui.theme import LEFT_AXIS_PX, Colour
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +86,8 @@ class IdentificationPanel(QWidget):
         self.points: list[LevelPoint] = []
         self.errors: list[str] = []
         self.pending = 0
+        self.unit = "N"
+        """The gain's unit (the session's joint's measured unit)."""
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="nmsid-identify")
         self.executor = self._pool
         """The panel's one analysis thread (the trial QC runs its jobs there too)."""
@@ -93,6 +95,8 @@ class IdentificationPanel(QWidget):
         self._relay.done.connect(self._on_done, Qt.ConnectionType.QueuedConnection)
         self.status = QLabel("Parameters appear here as each sE level completes.")
         self.status.setWordWrap(True)
+        # two lines, fixed: a longer message never re-lays out the plots beside it
+        self.status.setFixedHeight(2 * self.status.fontMetrics().lineSpacing() + 4)
         self.status.setStyleSheet("font-weight: bold;")
         self.graphics = pg.GraphicsLayoutWidget()
         self.graphics.setBackground("w")
@@ -103,6 +107,7 @@ class IdentificationPanel(QWidget):
             p = self.graphics.addPlot(row=0, col=k)
             p.setLabel("left", f"{label}" + (f" ({units})" if units else ""))
             p.getAxis("left").enableAutoSIPrefix(False)
+            p.getAxis("left").setWidth(LEFT_AXIS_PX)  # a new tick label: no re-layout
             p.setLabel("bottom", "sE")
             p.showGrid(x=True, y=True, alpha=0.3)
             p.setXRange(0.25, 1.05)
@@ -118,6 +123,11 @@ class IdentificationPanel(QWidget):
         lay.setContentsMargins(0, 0, 0, 0)
         lay.addWidget(self.status)
         lay.addWidget(self.graphics, 1)
+
+    def set_joint(self, joint) -> None:
+        """The gain's unit is the joint's measured unit (N, N m)."""
+        self.unit = joint.unit
+        self.plots["Kp"].setLabel("left", f"Kp ({joint.unit})")
 
     def reset(self) -> None:
         """Forget the previous session's points."""
@@ -164,8 +174,9 @@ class IdentificationPanel(QWidget):
             y = np.array([getattr(p, attr) for p in self.points])
             self.scatter[attr].setData(sE, y)
             self.bad_scatter[attr].setData(sE[bad], y[bad])
-        msg = (f"sE = {point.sE:.2f}: Kp = {point.Kp:.3g} N, wn = {point.wn_rad_s:.3g} rad/s, "
-               f"zeta = {point.zeta:.3g}, fit = {point.fit_pct:.1f} %")
+        msg = (f"sE = {point.sE:.2f}: Kp = {point.Kp:.3g} {self.unit}, "
+               f"wn = {point.wn_rad_s:.3g} rad/s, zeta = {point.zeta:.3g}, "
+               f"fit = {point.fit_pct:.1f} %")
         if point.fit_pct < self.bad_fit_pct:
             msg += f"  -- POOR FIT (< {self.bad_fit_pct:g} %): consider re-running this level"
         self.status.setText(msg)

@@ -14,22 +14,44 @@ The large readouts (:class:`Readouts`) show the latest commanded currents and fo
 
 from __future__ import annotations
 
+import logging
 import math
 import time
+from collections.abc import Callable
 
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import Qt, QTimer
 from PySide6.QtWidgets import QGridLayout, QLabel, QVBoxLayout, QWidget
 
+from nmsid.protocols.joints import Joint
 from nmsid.rig.gui.live_buffer import LiveBuffer, LiveSnapshot
-from nmsid.rig.gui.theme import Colour
+from nmsid.rig.gui.theme import LEFT_AXIS_PX, Colour
+
+log = logging.getLogger(__name__)
 
 MAX_FPS = 30.0
 #: Frames a late redraw may catch up on the absolute schedule.
 MAX_LAG_FRAMES = 3
-#: After a frame that took d seconds, the next waits at least this many times d.
-DRAW_SHARE_WAIT = 1.0
+#: After a frame that took d seconds (its data and its paint), the next waits at least this
+#: many times d: drawing takes at most a third of the GUI thread on a starved machine.
+DRAW_SHARE_WAIT = 2.0
+
+
+class TimedGraphicsLayout(pg.GraphicsLayoutWidget):
+    """A ``GraphicsLayoutWidget`` that notes how long its last paint took (s): Qt paints
+    after the frame's data were set, so the frame budget counts the paint too."""
+
+    last_paint_s = 0.0
+    paints = 0
+
+    def paintEvent(self, event) -> None:  # noqa: N802 (Qt's name)
+        t0 = time.perf_counter()
+        try:
+            super().paintEvent(event)
+        finally:
+            self.last_paint_s = time.perf_counter() - t0
+            self.paints += 1
 
 
 class Readouts(QWidget):
@@ -50,6 +72,7 @@ class Readouts(QWidget):
         lay.setContentsMargins(6, 0, 6, 0)
         lay.setHorizontalSpacing(14)
         self.values: dict[str, QLabel] = {}
+        self.names: dict[str, QLabel] = {}
         self.numbers: dict[str, float | None] = {}
         for col, (key, label, unit, colour, _) in enumerate(self.FIELDS):
             name = QLabel(f"{label} ({unit})")
@@ -61,7 +84,14 @@ class Readouts(QWidget):
             lay.addWidget(name, 0, col)
             lay.addWidget(value, 1, col)
             self.values[key] = value
+            self.names[key] = name
         self.reset()
+
+    def set_joint(self, joint: Joint) -> None:
+        """Name the channels by the joint's muscle groups and the measured quantity."""
+        self.names["I_ext"].setText(f"{joint.extensor_muscles} (mA)")
+        self.names["I_flex"].setText(f"{joint.flexor_muscles} (mA)")
+        self.names["force"].setText(joint.quantity_label)
 
     def _set(self, key: str, number: float | None) -> None:
         self.numbers[key] = number
@@ -111,19 +141,24 @@ class LivePlots(QWidget):
         Filled by the engine observer.
     max_fps : float
         Upper bound of the redraw rate, frames per second (<= 30 by default).
+    before_frame : callable, optional
+        Called at each frame before the plots are drawn (the window shows the engine's
+        pending notifications first: a frame never delays them).
     """
 
     def __init__(self, buffer: LiveBuffer, max_fps: float = MAX_FPS,
-                 parent: QWidget | None = None):
+                 parent: QWidget | None = None,
+                 before_frame: Callable[[], None] | None = None):
         super().__init__(parent)
         if not 0 < max_fps <= 60:
             raise ValueError(f"live plot max_fps must be in (0, 60], got {max_fps!r}")
         self.buffer = buffer
+        self.before_frame = before_frame
         self.frames_drawn = 0
         self._last_generation = -1
         self.title = QLabel("No trial running")
         self.title.setStyleSheet("font-weight: bold; font-size: 14px;")
-        self.graphics = pg.GraphicsLayoutWidget()
+        self.graphics = TimedGraphicsLayout()
         self.graphics.setBackground("w")
         self.force_plot = self.graphics.addPlot(row=0, col=0)
         self.re_plot = self.graphics.addPlot(row=1, col=0)
@@ -135,8 +170,11 @@ class LivePlots(QWidget):
         self.readouts = Readouts()
         self.re_plot.setYRange(-0.05, 1.05)
         self.i_plot.addLegend(offset=(10, 5))
+        # one grid (the force's levels); grids are drawn by the axes, and each costs a
+        # repaint of a whole plot's area whenever a range changes
+        self.force_plot.showGrid(x=False, y=True, alpha=0.25)
         for p in (self.force_plot, self.re_plot, self.i_plot):
-            p.showGrid(x=True, y=True, alpha=0.25)
+            p.getAxis("left").setWidth(LEFT_AXIS_PX)
             p.setClipToView(True)
             p.setDownsampling(auto=True, mode="peak")
             p.setMouseEnabled(x=False, y=False)
@@ -177,6 +215,11 @@ class LivePlots(QWidget):
         """Frames on an absolute schedule (``period_s`` apart): never more than
         ``max_fps`` frames in any second (+1), and a frame delayed by a busy moment is made
         up (up to ``MAX_LAG_FRAMES``) instead of lost."""
+        if self.before_frame is not None:
+            try:
+                self.before_frame()
+            except Exception:  # a display problem must never stop the frames
+                log.exception("before the live plots' frame")
         now = time.perf_counter()
         if now >= self._next_due:
             try:
@@ -185,13 +228,26 @@ class LivePlots(QWidget):
                 self._next_due += self.period_s
                 if self._next_due < now - MAX_LAG_FRAMES * self.period_s:
                     self._next_due = now  # after a long stall: do not burst
-                # drawing takes at most half the GUI thread's time: on a starved machine
-                # (a frame takes long) frames are dropped so that the engine's
-                # notifications are still shown at once
+                # drawing (the data set now, and the last paint) takes at most a third of
+                # the GUI thread's time: on a starved machine (a frame takes long) frames
+                # are dropped so that the engine's notifications are still shown at once
                 end = time.perf_counter()
-                self._next_due = max(self._next_due, end + DRAW_SHARE_WAIT * (end - now))
+                cost_s = end - now + self.graphics.last_paint_s
+                self._next_due = max(self._next_due, end + DRAW_SHARE_WAIT * cost_s)
         delay_ms = max(0, math.ceil((self._next_due - time.perf_counter()) * 1000.0))
         self.timer.start(delay_ms)
+
+    def set_joint(self, joint: Joint) -> None:
+        """The session's joint: the measured quantity and its unit on the axis and the
+        readouts (``torque (N m)`` for a knee), the muscle groups on the readouts."""
+        self.force_plot.setLabel("left", joint.quantity_label)
+        self.readouts.set_joint(joint)
+        legend = self.i_plot.legend
+        for curve, muscles in ((self.iext_curve, joint.extensor_muscles),
+                               (self.iflex_curve, joint.flexor_muscles)):
+            label = legend.getLabel(curve) if legend is not None else None
+            if label is not None:
+                label.setText(muscles)
 
     def set_title(self, text: str, duration_s: float | None = None) -> None:
         """Title of the trial shown; with ``duration_s`` the elapsed time is appended

@@ -24,6 +24,7 @@ from PySide6.QtCore import Qt, QTimer
 from PySide6.QtWidgets import QLabel, QMainWindow, QSplitter, QTabWidget, QVBoxLayout, QWidget
 
 import nmsid.rig.gui.qt_compat  # noqa: F401  (before any signal is emitted)
+from nmsid.protocols.joints import DEFAULT_JOINT, JOINTS, joint_named
 from nmsid.protocols.session_file import read_session, utc_now
 from nmsid.rig.errors import RequestError
 from nmsid.rig.gui import analysis_hooks
@@ -50,6 +51,11 @@ LIVE_WINDOW_S = 10.0
 #: The window takes the engine's notifications at most this often (s): one batch, one
 #: schedule refresh, however fast the engine runs.
 DRAIN_INTERVAL_S = 0.05
+#: A batch takes in what the engine posts while it is shown, for at most this long (s);
+#: then the schedule is refreshed once. An engine that writes a trial holds Python's GIL
+#: in h5py for tenths of a second on a busy machine: notifications posted meanwhile were
+#: shown only after the next schedule refresh and interlock poll (~0.7 s later).
+DRAIN_BUDGET_S = 0.25
 #: Python's GIL switch interval in the GUI process, s (default 0.005). The GUI thread
 #: enters Python many times a frame (each slot, each pyqtgraph paint); with the engine,
 #: the QC and the identification threads busy, each entry waited up to the interval for
@@ -115,6 +121,8 @@ class MainWindow(QMainWindow):
         self.run_result = None
         self.run_error: BaseException | None = None
         self.session_finished = False
+        self.joint = JOINTS[DEFAULT_JOINT]
+        """The running session's joint (its labels and unit)."""
         self._calibration_known = False
         self._estop_unrecorded = ""
         """UTC time of an E-stop a running engine took and has not yet written to the
@@ -135,7 +143,7 @@ class MainWindow(QMainWindow):
                                   on_continue=self.continue_session)
         self.setup_panel = SetupPanel(on_start=self._start_request)
         self.calibration_panel = CalibrationPanel(on_confirm=self._confirm_calibration)
-        self.live = LivePlots(self.buffer)
+        self.live = LivePlots(self.buffer, before_frame=self._drain_before_frame)
         self.safety.add_readouts(self.live.readouts)
         self.identification = IdentificationPanel(
             identify=identify if identify is not None else analysis_hooks.identify_level)
@@ -235,6 +243,9 @@ class MainWindow(QMainWindow):
         self._calibration_known = bool(request.resume and
                                        getattr(engine, "calibration", None) is not None)
         used = getattr(engine, "config", config)
+        self.joint = joint_named(getattr(used, "joint", DEFAULT_JOINT))
+        for panel in (self.live, self.calibration_panel, self.identification):
+            panel.set_joint(self.joint)
         self.safety.set_weakened(used.weakened_safety())
         p = used.protocol
         self.schedule_panel.set_timing(p.trial_s, p.rest_s)
@@ -259,6 +270,7 @@ class MainWindow(QMainWindow):
         self.qc.reset()
         self.schedule_panel.reset_session()
         self.safety.clear_notice()
+        self.safety.set_trial("")
         self.live.readouts.reset()
         self.calibration_panel.reset()
         self.identification.reset()
@@ -372,17 +384,30 @@ class MainWindow(QMainWindow):
         wait_s = self._last_drain + DRAIN_INTERVAL_S - time.perf_counter()
         self._drain_timer.start(max(0, int(wait_s * 1000)))
 
+    def _drain_before_frame(self) -> None:
+        """A plot frame is due: what the engine posted is shown first (a frame and its
+        paint never hold a notification back)."""
+        if self.controller.mailbox.pending():
+            self._drain_timer.stop()
+            self._drain()
+
     def _drain(self) -> None:
         """Show every notification the engine posted so far, in order; the schedule, the
         lights and the time left once per batch."""
         self._last_drain = time.perf_counter()
-        items = self.controller.mailbox.take()
-        for name, args in items:
-            try:
-                self._handlers[name](*args)
-            except Exception:  # a display problem must never stop the GUI
-                log.exception("showing the engine's %s notification", name)
-        if items:
+        t_end = self._last_drain + DRAIN_BUDGET_S
+        shown = 0
+        while True:  # what arrives while a batch is shown is shown too (within the budget)
+            items = self.controller.mailbox.take()
+            for name, args in items:
+                try:
+                    self._handlers[name](*args)
+                except Exception:  # a display problem must never stop the GUI
+                    log.exception("showing the engine's %s notification", name)
+            shown += len(items)
+            if not items or time.perf_counter() >= t_end:
+                break
+        if shown:
             self.n_batches += 1
             self._refresh_schedule()
             self._poll_engine()
@@ -434,6 +459,7 @@ class MainWindow(QMainWindow):
         self.current_index = index
         sE, repeat, _, _ = planned_fields(planned)
         name = self.schedule_panel.names.started(index)
+        self.safety.set_trial(name)
         cfg = getattr(self.controller.engine, "config", None) or self.controller.config
         self.live.set_title(f"{name}: sE = {sE:.2f}, repeat {repeat}",
                             duration_s=cfg.protocol.trial_s if cfg is not None else None)
@@ -443,6 +469,7 @@ class MainWindow(QMainWindow):
         reason = getattr(trial, "abort_reason", "")
         sE, repeat = getattr(trial, "sE", float("nan")), getattr(trial, "repeat", 0)
         name = self.schedule_panel.names.finished(index, str(getattr(trial, "name", "")))
+        self.safety.set_trial(name)
         if status == "completed":  # judged in a worker: the verdict follows (_on_verdicts)
             self.qc.submit(index, trial)
         self.live.set_title(f"{name}: sE = {sE:.2f}, repeat {repeat}: {status}"
@@ -532,4 +559,5 @@ class MainWindow(QMainWindow):
         self.qc.shutdown()
         self.identification.shutdown()
         self.results.shutdown()
+        self.setup_panel.lsl.shutdown()
         super().closeEvent(event)

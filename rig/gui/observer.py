@@ -44,8 +44,8 @@ class Mailbox:
     >>> box = Mailbox()
     >>> box.put("state", ("armed", "stimulating", "")), box.put("event", ("e",))
     (True, False)
-    >>> [name for name, _ in box.take()], box.take()
-    (['state', 'event'], [])
+    >>> box.pending(), [name for name, _ in box.take()], box.take(), box.pending()
+    (2, ['state', 'event'], [], 0)
     """
 
     def __init__(self) -> None:
@@ -61,6 +61,10 @@ class Mailbox:
             self._items.append((name, args))
             self.n_posted += 1
         return was_empty
+
+    def pending(self) -> int:
+        """How many notifications wait (any thread; a glance, no copy)."""
+        return len(self._items)
 
     def take(self) -> list[tuple[str, tuple]]:
         """Everything posted so far, oldest first (GUI thread)."""

@@ -94,6 +94,10 @@ def _match_light(rule: str) -> str | None:
     return None
 
 
+#: The states the state badge shows with the trial's name (``STIMULATING t004``).
+TRIAL_STATES = ("stimulating", "resting")
+
+
 class SafetyPanel(QFrame):
     """E-STOP, interlock lights, engine state, trip banner and the RE-ARM button.
 
@@ -135,7 +139,7 @@ class SafetyPanel(QFrame):
         self.state_label = QLabel("IDLE")
         self.state_label.setObjectName("state")
         self.state_label.setAlignment(Qt.AlignmentFlag.AlignCenter)
-        self.state_label.setMinimumWidth(150)
+        self.state_label.setMinimumWidth(240)   # "STIMULATING t045" in full
         self.banner = QLabel("")
         self.banner.setWordWrap(True)
         self.banner.setObjectName("banner")
@@ -192,7 +196,8 @@ class SafetyPanel(QFrame):
         """Show the engine state; a trip shows the banner and enables RE-ARM. ``held``:
         the engine holds in ``paused`` after a re-arm (CONTINUE starts the next trial)."""
         colour = Colour.STATE.get(state, Colour.UNKNOWN)
-        self.state_label.setText("RE-ARMED" if held else state.upper())
+        self._state = state
+        self.state_label.setText(self._state_text(state, held))
         style = (f"background: {colour}; color: white; font-size: 18px; font-weight: bold;"
                  " padding: 6px; border-radius: 6px;")
         if self.state_label.styleSheet() != style:  # a restyle costs; states repeat colours
@@ -223,6 +228,20 @@ class SafetyPanel(QFrame):
         elif state in ("armed", "stimulating", "resting", "calibrating", "finished",
                        "paused"):
             self.banner.setVisible(False)
+
+    def _state_text(self, state: str, held: bool = False) -> str:
+        """``STIMULATING t004``: a trial's state names it as the session file does."""
+        if held:
+            return "RE-ARMED"
+        name = getattr(self, "trial_name", "")
+        return f"{state.upper()} {name}" if name and state in TRIAL_STATES else state.upper()
+
+    def set_trial(self, name: str) -> None:
+        """The running trial's name in the session file (``t004``; '' for none)."""
+        self.trial_name = str(name)
+        state = getattr(self, "_state", "idle")
+        if state in TRIAL_STATES:
+            self.state_label.setText(self._state_text(state))
 
     def set_weakened(self, settings: list[str]) -> None:
         """Show (or hide, if empty) the confirmed settings that weaken the interlock."""

@@ -25,6 +25,7 @@ from nmsid.rig.engine import Engine
 from nmsid.rig.gui.live_buffer import LiveBuffer
 from nmsid.rig.gui.observer import EngineSignals, Mailbox, QtEngineObserver
 from nmsid.rig.gui.setup_panel import Backend, SessionRequest
+from nmsid.rig.lsl import finish_recording, start_recording
 from nmsid.rig.observer import RunSummary
 from nmsid.rig.session_service import PreparedRig, RigRequest, prepare_rig, stored_session
 
@@ -67,7 +68,8 @@ def load_session_config(request: SessionRequest, *, confirm_calibration: bool = 
         if stored:
             return config_from_json(stored, source=f"{request.output_path} (stored "
                                                    "configuration)")
-    overrides = {"participant": request.participant, "seed": request.seed}
+    overrides = {"participant": request.participant, "seed": request.seed,
+                 "joint": request.joint}
     cfg = load_config(request.config_path, overrides=overrides)
     if confirm_calibration and not cfg.calibration.confirm:
         cfg = cfg.replace(calibration=dataclasses.replace(cfg.calibration, confirm=True))
@@ -177,7 +179,13 @@ class SessionController(QObject):
             if engine is None or devices is None:
                 raise RuntimeError("the session controller's worker started without an "
                                    "engine (start() builds it)")
-            summary = engine.run()
+            recorder = self._start_lsl()
+            try:
+                summary = engine.run()
+            finally:   # the streams recorded go into the file (never raises)
+                if recorder is not None and self.request is not None:
+                    finish_recording(recorder, Path(self.request.output_path),
+                                     self.observer)
         except BaseException as exc:  # reported to the operator; output is already off
             if isinstance(exc, NmsidError):  # a user, device or safety stop: one line
                 log.error("engine run ended: %s", one_line(exc))
@@ -192,6 +200,18 @@ class SessionController(QObject):
                 log.exception("closing devices")
         self.summary, self.error = summary, error
         self._relay.run_ended.emit(summary, error)
+
+    def _start_lsl(self):
+        """The LSL recorder of the streams the operator ticked (``--lsl-record``), or None;
+        a recorder that cannot start is logged and the session runs without it."""
+        wanted = list(getattr(self.request, "lsl_record", ()) or ())
+        if not wanted:
+            return None
+        try:
+            return start_recording(wanted)
+        except NmsidError as exc:   # pylsl missing: the panel offered nothing to record
+            log.warning("LSL recording not started: %s", one_line(exc))
+            return None
 
     def shutdown(self, timeout_s: float = 5.0) -> None:
         """E-stop and abort a running session, then wait for its thread (window closing)."""

@@ -32,11 +32,13 @@ from PySide6.QtWidgets import (
 from nmsid.errors import NmsidError
 from nmsid.protocols.config import config_from_json
 from nmsid.protocols.errors import OutputPathError
+from nmsid.protocols.joints import JOINTS
 from nmsid.protocols.output_paths import check_output as check_output_place
 from nmsid.protocols.output_paths import check_session_name, default_sessions_dir
 from nmsid.protocols.session_file import PARTICIPANT_PATTERN, SessionWriter, read_session
 from nmsid.protocols.user_values import one_line, parse_seed
 from nmsid.rig.errors import RequestError
+from nmsid.rig.gui.lsl_panel import LslPanel
 from nmsid.rig.gui.theme import Colour
 from nmsid.rig.session_log import journal_dir
 
@@ -69,6 +71,10 @@ class SessionRequest:
     seed: int | None = None
     realtime: bool = True
     resume: bool = False
+    joint: str | None = None
+    """The joint the session drives (``--joint``); None: the configuration's (elbow)."""
+    lsl_record: tuple[str, ...] = ()
+    """LSL streams to record into the session file (``--lsl-record``); empty: none."""
 
 
 @dataclass(frozen=True)
@@ -178,10 +184,12 @@ class SetupPanel(QWidget):
     ----------
     on_start : callable
         Called with a :class:`SessionRequest` when the operator presses Start or Resume.
+    lsl_panel : LslPanel, optional
+        The LSL stream list (default: a new one; tests pass one with a fake resolver).
     """
 
     def __init__(self, on_start: Callable[[SessionRequest], None],
-                 parent: QWidget | None = None):
+                 parent: QWidget | None = None, lsl_panel: LslPanel | None = None):
         super().__init__(parent)
         self._on_start = on_start
         self.participant = QLineEdit("P01")
@@ -199,6 +207,14 @@ class SetupPanel(QWidget):
         self.seed.textChanged.connect(lambda _: self.refresh())
         self.realtime = QCheckBox("pace the simulator in real time")
         self.realtime.setChecked(True)
+        self.joint = QComboBox()   # the CLI's --joint (protocols/joints.py)
+        self.joint.addItem("as the configuration says (elbow by default)", None)
+        for name, j in JOINTS.items():
+            self.joint.addItem(f"{name}: {j.extensor_muscles} vs {j.flexor_muscles}, "
+                               f"{j.quantity_label}", name)
+        self.joint.setToolTip("The joint the session drives: its labels, unit and default "
+                              "limits (docs/joints.md); as nmsid run --joint")
+        self.lsl = lsl_panel if lsl_panel is not None else LslPanel()
         self.message = QLabel("")
         self.message.setWordWrap(True)
         self.start_button = QPushButton("Start new session")
@@ -217,6 +233,7 @@ class SetupPanel(QWidget):
         box = QGroupBox("New session")
         form = QFormLayout(box)
         form.addRow("Participant code", self.participant)
+        form.addRow("Joint", self.joint)
         form.addRow("Rig", self.backend)
         form.addRow("Configuration (TOML)", self._with_browse(self.config_path, "toml"))
         form.addRow("Hardware configuration", self._with_browse(self.hw_config_path, "toml"))
@@ -228,6 +245,7 @@ class SetupPanel(QWidget):
         buttons.addWidget(self.resume_button)
         lay = QVBoxLayout(self)
         lay.addWidget(box)
+        lay.addWidget(self.lsl)
         lay.addWidget(self.message)
         lay.addLayout(buttons)
         lay.addStretch(1)
@@ -274,10 +292,21 @@ class SetupPanel(QWidget):
                    config: str | os.PathLike | None = None,
                    hw_config: str | os.PathLike | None = None,
                    output: str | os.PathLike | None = None, seed: int | None = None,
-                   realtime: bool | None = None) -> None:
-        """Fill the form (from the command line, a script or a test)."""
+                   realtime: bool | None = None, joint: str | None = None,
+                   lsl_record=None) -> None:
+        """Fill the form (from the command line, a script or a test); ``joint``: a name of
+        :data:`~nmsid.protocols.joints.JOINTS`; ``lsl_record``: stream names to record
+        (LSL on)."""
         if participant is not None:
             self.participant.setText(participant)
+        if joint is not None:
+            at = self.joint.findData(str(joint))
+            if at < 0:
+                raise RequestError(f"joint {joint!r} is not one of {', '.join(JOINTS)}")
+            self.joint.setCurrentIndex(at)
+        if lsl_record is not None:
+            self.lsl.set_on(bool(lsl_record))
+            self.lsl.set_wanted(lsl_record)
         if backend is not None:
             self.backend.setCurrentIndex(self.backend.findData(Backend(backend)))
         if config is not None:
@@ -340,7 +369,9 @@ class SetupPanel(QWidget):
             participant=code, backend=self.backend.currentData(), output_path=Path(out),
             config_path=Path(cfg) if cfg else None, hw_config_path=Path(hw) if hw else None,
             seed=_seed_of(self.seed.text()),
-            realtime=self.realtime.isChecked(), resume=resume)
+            realtime=self.realtime.isChecked(), resume=resume,
+            joint=None if resume else self.joint.currentData(),
+            lsl_record=tuple(self.lsl.wanted()))
 
     def press_start(self, resume: bool = False) -> None:
         """Press Start (or Resume): check the form, then hand the request on. Problems

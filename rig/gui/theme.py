@@ -34,3 +34,9 @@ class Colour:
         "aborted": "#f8d0d0",
         "skipped": "#eeeeee",
     }
+
+
+#: Width of the plots' left axes, px: fixed, so a new tick label (a new trial's force
+#: range) never re-lays out the plots (a layout change repaints every axis and grid,
+#: ~25 ms each on a busy machine: bench/bench_gui_lag.py).
+LEFT_AXIS_PX = 62

@@ -235,3 +235,72 @@ def test_time_left_counts_on_the_rigs_clock_and_its_pace(qtbot):
     p.set_clock(200.0, 11.0, 5.0, realtime=False)
     assert p.time_left.text() == ("time left: ~2 min 40 s on the rig's clock (fast clock, "
                                   "200x real time: ~1 s wall)")
+
+
+def test_notifications_posted_while_a_batch_is_shown_join_that_batch(fake_window):
+    """An engine that posts while the window shows a batch (its trial end, the next state)
+    has them shown in the same batch, before the one schedule refresh: they do not wait
+    for the next refresh and interlock poll (bench/bench_gui_lag.py: 0.7 s on a busy
+    machine)."""
+    w = fake_window
+    shown: list[str] = []
+    refreshes: list[int] = []
+    box = w.controller.mailbox
+    box.take()
+
+    def on_event(event):
+        shown.append(event)
+        if event == "first":
+            box.put("event", ("posted meanwhile",))
+
+    w._handlers["event"] = on_event
+    w._refresh_schedule = lambda: refreshes.append(len(shown))  # type: ignore[method-assign]
+    box.put("event", ("first",))
+    w._drain()
+    assert shown == ["first", "posted meanwhile"]
+    assert refreshes == [2]  # one refresh, after both
+    assert box.pending() == 0
+
+
+def test_a_plot_frame_shows_the_pending_notifications_first(fake_window):
+    """A frame of the live plots (and its paint) never holds a notification back: the
+    frame takes the mailbox first."""
+    w = fake_window
+    box = w.controller.mailbox
+    box.take()
+    box.put("event", ("before the frame",))
+    w.live._next_due = 0.0
+    w.live._tick()
+    assert box.pending() == 0
+    assert w.event_log.lines[-1] == "before the frame"
+
+
+def test_live_plot_frames_budget_counts_the_paint(qtbot):
+    """After a frame whose paint took long, the next frame waits at least DRAW_SHARE_WAIT
+    times that (frames are dropped on a starved machine, the notifications are not)."""
+    from nmsid.rig.gui.live_buffer import LiveBuffer
+    from nmsid.rig.gui.live_plots import DRAW_SHARE_WAIT, LivePlots
+    plots = LivePlots(LiveBuffer(window_s=1.0, fs_Hz=100.0))
+    qtbot.addWidget(plots)
+    plots.timer.stop()
+    plots.graphics.last_paint_s = 0.5   # a slow paint, as on a busy machine
+    t0 = time.perf_counter()
+    plots._next_due = 0.0
+    plots._tick()
+    plots.timer.stop()
+    assert plots._next_due >= t0 + DRAW_SHARE_WAIT * 0.5
+
+
+def test_live_plots_left_axes_have_a_fixed_width(qtbot):
+    """A new trial's force range (wider tick labels) never re-lays out the plots."""
+    from nmsid.rig.gui.live_buffer import LiveBuffer
+    from nmsid.rig.gui.live_plots import LivePlots
+    from nmsid.rig.gui.theme import LEFT_AXIS_PX
+    plots = LivePlots(LiveBuffer(window_s=1.0, fs_Hz=100.0))
+    qtbot.addWidget(plots)
+    plots.timer.stop()
+    for p in (plots.force_plot, plots.re_plot, plots.i_plot):
+        axis = p.getAxis("left")
+        # pyqtgraph's AxisItem.setWidth: a fixed width (min = max), not the tick text's
+        assert axis.fixedWidth == LEFT_AXIS_PX
+        assert axis.minimumWidth() == axis.maximumWidth() >= LEFT_AXIS_PX
