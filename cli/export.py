@@ -5,6 +5,7 @@ export TWIN.json --fmu``)."""
 from __future__ import annotations
 
 from nmsid.cli.arguments import input_file, iso_age, non_empty_text, output_path
+from nmsid.cli.identify import add_fmu_export_arguments
 
 
 def register(sub) -> None:
@@ -41,13 +42,5 @@ def register(sub) -> None:
                                    "torque out) as a Functional Mock-up Unit, FMI 2.0: C "
                                    "sources plus a binary for this platform built with the "
                                    "system's C compiler. See docs/fmu.md.")
-    f.add_argument("twin", metavar="TWIN.json", type=input_file)
-    f.add_argument("--out", required=True, metavar="P01.fmu", type=output_path)
-    f.add_argument("--force", action="store_true", help="replace an existing --out")
-    f.add_argument("--extrapolate", action="store_true",
-                   help="start value of the FMU's extrapolate parameter(s): evaluate the "
-                        "curves outside the tested sE range (default: clamp sE)")
-    f.add_argument("--sources-only", action="store_true",
-                   help="no binary: C sources only (the importer builds them)")
-    f.set_defaults(handler="nmsid.cli.twin_export_command:run_twin_export")
+    add_fmu_export_arguments(f, fmu_flag=False)
     p.set_defaults(handler="nmsid.cli.export_command:run_missing_format")

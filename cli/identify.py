@@ -137,15 +137,22 @@ def register(sub) -> None:
                     "model exchange): C sources plus a binary for this platform built with "
                     "the system's C compiler (cc, gcc or clang; on Windows cl or MinGW gcc; "
                     "or $CC). See docs/fmu.md.")
-    exp.add_argument("twin", metavar="TWIN.json", type=input_file)
-    exp.add_argument("--fmu", action="store_true", required=True,
-                     help="the format to write (FMI 2.0 FMU; the only one today)")
-    exp.add_argument("--out", required=True, metavar="P01.fmu", type=output_path)
-    exp.add_argument("--force", action="store_true", help="replace an existing --out")
-    exp.add_argument("--extrapolate", action="store_true",
-                     help="start value of the FMU's extrapolate parameter: evaluate the "
-                          "curves outside the tested sE range (default: clamp sE)")
-    exp.add_argument("--sources-only", action="store_true",
-                     help="no binary: C sources only (the importer builds them)")
-    exp.set_defaults(handler="nmsid.cli.twin_export_command:run_twin_export")
+    add_fmu_export_arguments(exp, fmu_flag=True)
     t.set_defaults(handler="nmsid.cli.identify_command:run_twin_help")
+
+
+def add_fmu_export_arguments(parser: argparse.ArgumentParser, *, fmu_flag: bool) -> None:
+    """The FMU export's arguments, for ``nmsid twin export --fmu`` and ``nmsid export fmu``
+    (the same handler)."""
+    parser.add_argument("twin", metavar="TWIN.json", type=input_file)
+    if fmu_flag:
+        parser.add_argument("--fmu", action="store_true", required=True,
+                            help="the format to write (FMI 2.0 FMU; the only one today)")
+    parser.add_argument("--out", required=True, metavar="P01.fmu", type=output_path)
+    parser.add_argument("--force", action="store_true", help="replace an existing --out")
+    parser.add_argument("--extrapolate", action="store_true",
+                        help="start value of the FMU's extrapolate parameter(s): evaluate "
+                             "the curves outside the tested sE range (default: clamp sE)")
+    parser.add_argument("--sources-only", action="store_true",
+                        help="no binary: C sources only (the importer builds them)")
+    parser.set_defaults(handler="nmsid.cli.twin_export_command:run_twin_export")

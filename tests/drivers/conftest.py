@@ -150,3 +150,19 @@ FAKE_MCS_IN_CHILD = ("import sys\n"
                      "from nmsid.drivers.fake_hardware import load_fake\n"
                      "load_fake('fake_mcs_usb').install(modules=sys.modules)\n")
 """A child's ``sitecustomize``: the fake pythonnet + McsUsbNet, as ``fake_mcs`` in-process."""
+
+
+@pytest.fixture
+def deep_fake_fifo(monkeypatch):
+    """The dry-run tests' fake CAIO FIFO. It holds 4096 scans: 0.4 s at the dry run's
+    10 kHz. A loaded test host (2 cores, several suites) can keep this process off the
+    CPU for longer, and the record would then fail as overrun; the FIFO's depth is not
+    what these tests check (``tests/drivers/test_caio.py`` checks the overrun flag), so
+    it holds 6.5 s here."""
+    from nmsid.testing.fakes import fake_caio
+    real = fake_caio.FakeCaioLibrary.__init__
+
+    def init(self, bench, **kw):
+        kw["fifo_samples"] = max(kw.get("fifo_samples", 0), 1 << 16)
+        real(self, bench, **kw)
+    monkeypatch.setattr(fake_caio.FakeCaioLibrary, "__init__", init)
