@@ -280,8 +280,12 @@ class HostStreamedStimulator(Protocol):
     def stream_space(self) -> int:
         """Updates that can be queued now without blocking."""
 
-    def close_stream(self) -> None:
-        """End the stream after the queued updates, output to zero. Idempotent."""
+    def close_stream(self) -> str | None:
+        """End the stream after the queued updates, output to zero. Idempotent.
+
+        Returns a one-line report of a fault found only at close (the STG4002: the device
+        ran out of data and stopped after the host's last write, so part of what was
+        written never played), or "" / None; ``run_block`` aborts the trial with it."""
 
 
 @runtime_checkable

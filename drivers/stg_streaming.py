@@ -29,7 +29,12 @@ value. The driver sees it in the PC queue: a running STG drains the queue at the
 rate (less at most its own ring's latency), so a queue drained by less than that means the
 device has stopped, and the next :meth:`~StgStreamingStimulator.write_stream` raises
 :class:`StreamUnderrunError` naming how far the host fell behind (the interlock trips; the
-output is already at zero). Stop: :meth:`~StgStreamingStimulator.stop_now` is the immediate
+output is already at zero). After the host's last write no write can notice: an STG that
+ran dry then (data that never reached its memory, or a last write a little too late) is
+found by :meth:`~StgStreamingStimulator.close_stream`, which counts what played (written,
+less what ``GetDataQueueSpace`` and ``GetFramesBuffered`` still hold) and returns the
+underrun's line, when the STG stopped and how much was not delivered (``run_block`` aborts
+the trial with it). Stop: :meth:`~StgStreamingStimulator.stop_now` is the immediate
 ``SendStop`` and ``StopLoop``; a failed ``SendStop`` tells the operator to switch the STG off, as in
 download mode.
 
@@ -79,14 +84,17 @@ RING_S = 2.5
 """Default PC ring buffer, in seconds of output: room for the deepest queue a controller
 design allows (20 updates at 10 Hz = 2 s) and the update being written."""
 UNDERRUN_SLACK_S = 0.02
+"""Allowance on the drain test for USB transfers and clock reads (20 ms: one update at
+50 Hz)."""
+CLOSE_BACKSTOP_S = 2.0
+"""Real seconds :meth:`StgStreamingStimulator.close_stream` waits beyond ten times what is
+left to play, should the driver's clock not move (a fake bench's clock always moves)."""
 PRIME_TIMEOUT_S = 1.0
 """How long :meth:`StgStreamingStimulator.start` waits for the queued data to reach the
 STG's memory (``GetFramesBuffered``) before ``SendStart``; generous (a loaded host)."""
 BYTES_PER_FRAME = 4
 """The STG ring's frames: ``SetCapacity`` bytes / 4, as the manual's latency formula
 (6.3: "ringbuffersize in bytes/4") counts them (ASSUMED; a first-day bench check)."""
-"""Allowance on the drain test for USB transfers and clock reads (20 ms: one update at
-50 Hz)."""
 CALLBACK_THRESHOLD_PCT = 50
 """``SetupTrigger`` callback_threshold: "in percent of the buffer level" (XML; the manual's
 example uses 50)."""
@@ -183,6 +191,7 @@ class StgStreamingStimulator:
         self._started = False
         self._error = ""
         self._stop_error = ""
+        self._close_underrun = ""
         self.enqueued_periods = 0
 
     # -- vendor ---------------------------------------------------------------------------
@@ -315,6 +324,7 @@ class StgStreamingStimulator:
         self._started = False
         self._t_start = None
         self._enqueued = 0
+        self._close_underrun = ""
         self._state = StimulatorState.ARMED
         return float(update_Hz)
 
@@ -477,29 +487,75 @@ class StgStreamingStimulator:
         then one at zero) before ``SendStop``; see :meth:`close_stream`. Never raises."""
         self.close_stream()
 
-    def close_stream(self) -> None:
-        """End after the queued updates: one zero period, wait for the PC queue to drain
-        (bounded), then ``SendStop`` and ``StopLoop``. Idempotent, never raises."""
+    def close_stream(self) -> str:
+        """End after the queued updates: one zero period, wait until everything written has
+        played (bounded), then ``SendStop`` and ``StopLoop``. Idempotent, never raises.
+
+        Returns
+        -------
+        str
+            An underrun found at close, in one line ("" when every update written for the
+            trial played). With continuous mode disabled "the STG stops when it runs out of
+            data" (manual 6.3); a stream whose data stopped reaching the STG (or whose last
+            updates were written after it had stopped) after the host's last
+            :meth:`write_stream` is seen only here: what was written less what is still
+            queued on the PC (``GetDataQueueSpace``) or in the STG's memory
+            (``GetFramesBuffered``, XML: "frames currently buffered in STG Memory") is what
+            played, so the line says when the STG stopped and how much was not delivered.
+            A second call returns the same answer (``run_block``'s stream hook asks after
+            :meth:`stop_after_period` closed the stream).
+        """
         if self._dev is None or not self._P:
-            return
+            return self._close_underrun
+        written = self._enqueued          # the trial's own updates (before the zero period)
         try:
             if self._state is StimulatorState.RUNNING:
-                # updates still queued, on the PC or already in the STG's memory: a zero
-                # one after them, then wait until both have played out (GetFramesBuffered)
-                if self._queue_space() < self.ring_samples or self._frames_buffered() > 0:
-                    self.write_stream(np.zeros(1), np.zeros(1))
-                    queued = self.ring_samples - self._queue_space() + self._frames_buffered()
-                    deadline = time.monotonic() + queued / self.output_rate_Hz + 0.2
-                    while time.monotonic() < deadline:
-                        if self._queue_space() >= self.ring_samples and \
-                                self._frames_buffered() == 0:
-                            break
-                        time.sleep(0.002)
+                self._close_underrun = self._play_out(written)
         except Exception as exc:  # closing must not raise: the stop below still runs
             log.warning("STG stream close: %s", exc)
+            self._close_underrun = (f"the STG's stream could not be confirmed played out at "
+                                    f"close ({type(exc).__name__}: {exc}); output stopped")
         self._stop("close_stream")
+        if self._close_underrun:
+            log.error("STG stream close: %s", self._close_underrun)
         self._P = 0
         self._t_start = None
+        return self._close_underrun
+
+    def _play_out(self, written: int) -> str:
+        """Let what is queued play, a zero period after it; return the underrun line ("" if
+        all ``written`` samples played). The wait ends when the PC queue and the STG's
+        memory are empty, or when a running STG must have played everything on the driver's
+        clock (:attr:`latency_s` + :data:`UNDERRUN_SLACK_S` after the last sample's time;
+        a real-time backstop for a clock that does not move)."""
+        if self._queue_space() < self.ring_samples or self._frames_buffered() > 0:
+            try:
+                self.write_stream(np.zeros(1), np.zeros(1))
+            except StreamUnderrunError as exc:   # stopped: nothing more will play
+                log.info("STG stream close: %s", exc)
+            else:
+                t_start = self._t_start if self._t_start is not None else self._now()
+                due_s = (t_start + self._enqueued / self.output_rate_Hz + self.latency_s
+                         + UNDERRUN_SLACK_S)
+                backstop = time.monotonic() + CLOSE_BACKSTOP_S + 10 * max(
+                    0.0, due_s - self._now())
+                while self._unplayed() > 0:
+                    if self._now() > due_s or time.monotonic() > backstop:
+                        break
+                    time.sleep(0.002)
+        played = self._enqueued - self._unplayed()
+        if played >= written:
+            return ""
+        rate = self.output_rate_Hz
+        return (f"the STG ran out of streamed data and stopped {played / rate:.3f} s into "
+                f"the stream of {written / rate:.3f} s (McsUsbNet manual 6.3: with "
+                f"continuous mode disabled it stops when it runs out of data); found at "
+                f"close, no write had noticed it: the last {(written - played) / rate:.3f} s "
+                f"were not delivered; output is at zero")
+
+    def _unplayed(self) -> int:
+        """Samples written and not played: still on the PC queue or in the STG's memory."""
+        return self.ring_samples - self._queue_space() + self._frames_buffered()
 
     def _frames_buffered(self) -> int:
         dev = self._dev
@@ -616,13 +672,16 @@ class Stg4002WithStreaming(Stg4002Stimulator):
     def stream_space(self) -> int:
         return self.streaming.stream_space() if self._streaming_open else 0
 
-    def close_stream(self) -> None:
+    def close_stream(self) -> str:
         """End the stream (output to zero) and release its handle. Idempotent, never
-        raises."""
+        raises. Returns the underrun found at close (see
+        :meth:`StgStreamingStimulator.close_stream`; "" if none), the same answer on every
+        call until the next stream opens."""
         if not self._streaming_open:
-            return
+            return self.streaming.close_stream()
+        underrun = ""
         try:
-            self.streaming.close_stream()
+            underrun = self.streaming.close_stream()
         finally:
             err = str(getattr(self.streaming, "_stop_error", ""))
             self.streaming.disconnect()
@@ -636,6 +695,7 @@ class Stg4002WithStreaming(Stg4002Stimulator):
                 self.connect()
             except Exception as exc:
                 log.error("STG: download connection after the stream failed: %s", exc)
+        return underrun
 
     @property
     def streaming_open(self) -> bool:

@@ -228,8 +228,9 @@ class DryRunStream:
         self._write(math.floor(received / self.fs_Hz * self.rate_Hz)
                     + round(STREAM_QUEUE_S * self.rate_Hz))
 
-    def close(self, stim) -> None:
-        stim.close_stream()
+    def close(self, stim) -> str:
+        """Close the stream; the driver's report of an underrun found at close, or ""."""
+        return str(stim.close_stream() or "")
 
 
 # -- the kind of session -------------------------------------------------------------------

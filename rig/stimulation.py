@@ -79,7 +79,9 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
         is streamed: ``stream.open(stimulator)`` opens and prefills the stream instead
         of loading a waveform, ``stream.update(received, force_N)`` writes the next
         updates after each chunk's samples are stored (same interlock checks, same
-        stop), ``stream.close(stimulator)`` runs after the output went to zero.
+        stop), ``stream.close(stimulator)`` runs after the output went to zero; a
+        non-empty answer (the driver found at close that the device ran out of data and
+        stopped early) trips the interlock and becomes (or is added to) the abort reason.
 
     Returns
     -------
@@ -200,9 +202,17 @@ def run_block(devices, interlock: Interlock, checked, n: int, *,
         interlock.unwatch_stream()
         if stream is not None:
             try:
-                stream.close(stim)
+                underrun = stream.close(stim)
             except Exception:
                 log.exception("closing the stimulation stream failed")
+                underrun = ""
+            if underrun:
+                # found only at close (the STG ran dry after the host's last write): the
+                # trial did not deliver what it recorded; a fault as one found mid-stream
+                # (output to zero, the interlock's trip event, the trial aborted)
+                interlock.stimulator_fault(underrun)
+                found = f"{interlock.stim.name}: {underrun}"
+                reason = found if not reason else f"{reason}; also {found}"
         try:
             acq.stop()
         except Exception:

@@ -280,8 +280,9 @@ class TrackingStream:
             self.loop.latency_s.append(plays - newest)
             self.loop.compute_s.append(time.perf_counter() - t_arrival)
 
-    def close(self, stim) -> None:
-        stim.close_stream()
+    def close(self, stim) -> str:
+        """Close the stream; the driver's report of an underrun found at close, or ""."""
+        return str(stim.close_stream() or "")
 
     def stream_json(self) -> str:
         return json.dumps({"update_Hz": self.update_Hz, "queue": self.queue,

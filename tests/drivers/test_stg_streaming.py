@@ -263,3 +263,126 @@ def test_start_refuses_when_the_data_never_reaches_the_stg(streaming, monkeypatc
     with pytest.raises(DeviceError, match="GetFramesBuffered"):
         stim.start()
     assert not dev.running and "SendStart" not in [c[0] for c in dev.calls]
+
+
+# -- an underrun after the host's last write: found at close (McsUsbNet manual 6.3) --------
+class _SteppedClock:
+    """Device and driver time that move only when the test says (no machine speed)."""
+
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+@pytest.fixture
+def stepped(fake_mcs):
+    fake = load_fake("fake_stg_streaming")
+    clock = _SteppedClock()
+    fake_mcs(hardware=[fake_mcs.module.FakeStgHardware(clock=clock)])
+    fake.install(sys.modules)
+    stim = StgStreamingStimulator(ceiling_ext_mA=12.0, ceiling_flex_mA=12.0,
+                                  ring_samples=20_000, clock=clock)
+    yield stim, fake, clock
+    stim.disconnect()
+
+
+def test_a_stream_that_ran_dry_before_its_last_write_played_is_reported_at_close(stepped):
+    # the STG plays 40 ms and runs dry (continuous mode disabled: it stops, manual 6.3);
+    # the last 60 ms are written 10 ms later, within the write's drain allowance (latency
+    # 80 ms + 20 ms), so no write says so: only the close can
+    stim, fake, clock = stepped
+    stim.open_stream(8.0, 6.0, 1000.0)
+    stim.write_stream(np.full(40, 2.0), np.full(40, 2.0))
+    clock.t = 0.05                           # the data are in the STG's memory
+    stim.start()
+    clock.t = 0.10                           # it ran dry at 0.09 (0.05 + 40 ms)
+    stim.write_stream(np.full(60, 2.0), np.full(60, 2.0))     # no StreamUnderrunError
+    dev = _device(fake)
+    assert not dev.running and dev.stop_t == pytest.approx(0.09)
+    clock.t = 0.50
+    said = stim.close_stream()
+    assert "ran out of streamed data" in said and "manual 6.3" in said
+    assert "0.040 s into the stream of 0.100 s" in said and "last 0.060 s" in said
+    assert stim.close_stream() == said       # idempotent: the hook asks again
+    assert not dev.running and dev.calls[-2][0] == "SendStop"
+    assert len(dev.output_at(0)) == 2000     # what played: the first 40 ms only
+    later = dev.stop_t + np.linspace(0.0, 0.5, 50)
+    assert not dev.current_at(0, later).any() and not dev.current_at(1, later).any()
+
+
+def test_a_stream_whose_data_stopped_reaching_the_stg_is_reported_at_close(stepped,
+                                                                          monkeypatch):
+    # everything written before the start; frames from 120 ms on never reach the STG's
+    # memory (a stalled transfer): it stops there with no write left to notice
+    stim, fake, clock = stepped
+    cut = 6000
+    real = fake.CStg200xStreamingNet._arrival
+
+    def starved(self, ch, limit=None):
+        arr = real(self, ch, limit)
+        return np.where(self._head + np.arange(len(arr)) >= cut, np.inf, arr)
+    monkeypatch.setattr(fake.CStg200xStreamingNet, "_arrival", starved)
+    stim.open_stream(8.0, 6.0, 1000.0)
+    stim.write_stream(np.full(200, 2.0), np.full(200, 2.0))    # 200 ms, 10 000 frames
+    clock.t = 0.05
+    stim.start()
+    clock.t = 0.40
+    said = stim.close_stream()
+    assert "0.120 s into the stream of 0.200 s" in said and "last 0.080 s" in said
+    dev = _device(fake)
+    assert not dev.running and len(dev.output_at(0)) == cut
+
+
+def test_a_stream_that_played_out_is_not_called_an_underrun(stepped):
+    # the negative control: the STG ran out of data at the stream's end (its ordinary end,
+    # manual 6.3), before the close's zero period
+    stim, fake, clock = stepped
+    stim.open_stream(8.0, 6.0, 1000.0)
+    stim.write_stream(np.full(100, 2.0), np.full(100, 2.0))
+    clock.t = 0.05
+    stim.start()
+    clock.t = 0.30
+    assert stim.close_stream() == ""
+    dev = _device(fake)
+    assert len(dev.output_at(0)) == 5000 and not dev.running
+
+
+def test_a_stream_closed_while_it_plays_plays_out_and_is_not_an_underrun(streaming):
+    # closed with 100 ms still queued (an operator's abort): the close waits on the
+    # device's clock until it played, whatever the host's speed
+    stim, fake, bench = streaming
+    stim._now = bench.now
+    stim.open_stream(8.0, 6.0, 1000.0)
+    stim.write_stream(np.full(100, 2.0), np.full(100, 2.0))
+    stim.start()
+    assert stim.close_stream() == ""
+    dev = _device(fake)
+    out = dev.output_at(0)
+    assert len(out) >= 5000 and out[-1] == 0 and not dev.running
+
+
+def test_the_download_driver_hands_on_the_close_report(fake_mcs):
+    from nmsid.drivers.stg_streaming import Stg4002WithStreaming
+    fake = load_fake("fake_stg_streaming")
+    clock = _SteppedClock()
+    fake_mcs(hardware=[fake_mcs.module.FakeStgHardware(clock=clock)])
+    fake.install(sys.modules)
+    common = {"ceiling_ext_mA": 12.0, "ceiling_flex_mA": 12.0}
+    stim = Stg4002WithStreaming(
+        streaming=StgStreamingStimulator(ring_samples=20_000, clock=clock, **common),
+        clock=clock, **common)
+    try:
+        stim.open_stream(8.0, 6.0, 1000.0)
+        stim.write_stream(np.full(40, 2.0), np.full(40, 2.0))
+        clock.t = 0.05
+        stim.start()
+        clock.t = 0.10
+        stim.write_stream(np.full(60, 2.0), np.full(60, 2.0))
+        clock.t = 0.50
+        stim.stop_after_period()            # run_block's ordinary end closes the stream
+        said = stim.close_stream()          # then the stream's hook asks
+        assert "0.040 s into the stream" in said and not stim.streaming_open
+    finally:
+        stim.disconnect()

@@ -176,3 +176,56 @@ def test_estop_mid_tracking_ends_with_the_stg_output_at_zero(tmp_path, write_hw_
     # after the stop the bench's sensor feels nothing: the output is zero from then on
     later = dev.stop_t + np.linspace(0.0, 0.5, 50)
     assert not dev.current_at(0, later).any() and not dev.current_at(1, later).any()
+
+
+def test_a_tracking_trial_whose_stg_ran_dry_after_the_last_write_is_aborted(
+        tmp_path, write_hw_config, design, monkeypatch):
+    # the twin trial's frames from 150 ms before its end never reach the STG's memory (a
+    # stalled transfer): it stops (continuous mode disabled, McsUsbNet manual 6.3) 0.4 s
+    # after the host's last write (20 updates queued at 50 Hz), so no write can notice;
+    # the close does, and the trial is aborted with when, the trip logged, output at zero
+    fake = load_fake("fake_stg_streaming")
+    real = fake.CStg200xStreamingNet._arrival
+    twin_frames = round(2.5 * 50_000)                 # 2 s target + 0.5 s lead-in
+    cut = twin_frames - round(0.15 * 50_000)
+
+    def starved(self, ch, limit=None):
+        arr = real(self, ch, limit)
+        if fake.registry().index(self) != 1:          # the relay trial plays as usual
+            return arr
+        return np.where(self._head + np.arange(len(arr)) >= cut, np.inf, arr)
+    monkeypatch.setattr(fake.CStg200xStreamingNet, "_arrival", starved)
+    cfg = config_from_dict({
+        "participant": "TRK03", "interlock": {"stall_timeout_s": 2.0},
+        "protocol": {"sE_levels": [0.5], "repeats": 1, "steady_s": 0.5, "chirp_s": 1.0,
+                     "rest_s": 0.0},
+        "calibration": {"hold_s": 0.2, "baseline_s": 0.1, "ceiling_ext_mA": 15.0,
+                        "ceiling_flex_mA": 15.0}})
+    devices = make_hw_rig(write_hw_config(tmp_path / "rig.toml", kind="caio", speed=SPEED))
+    target = Target("sine-1Hz", "sine", {"mean_N": 0.0, "amplitude_N": 1.0, "f_Hz": 1.0},
+                    2.0, 0.5)
+    try:
+        eng = TrackingEngine(cfg, devices, tmp_path / "t.h5", design=design,
+                             targets=[target], trip_policy=TripPolicy.END_SESSION)
+        summary = eng.run()
+        assert not devices.stimulator.streaming_open
+    finally:
+        devices.close()
+    assert summary.trip is not None and summary.trip.rule == "stimulator"
+    assert validate_session(tmp_path / "t.h5") == []
+    s = read_session(tmp_path / "t.h5")
+    relay, twin = s.trials
+    assert relay.status == "completed" and relay.extra_attrs["controller"] == "relay"
+    assert twin.status == "aborted" and twin.extra_attrs["controller"] == "twin"
+    assert "ran out of streamed data" in twin.abort_reason
+    assert "found at close" in twin.abort_reason
+    assert "2.350 s into the stream of 2.500 s" in twin.abort_reason
+    assert twin.n_samples == round(2.5 * twin.fs_Hz)   # everything recorded is kept
+    trips = [e.detail for e in s.events if e.kind == "interlock_trip"]
+    assert len(trips) == 1 and "2.350 s into the stream" in trips[0]
+    aborted = [e.detail for e in s.events if e.kind == "trial_aborted"]
+    assert len(aborted) == 1 and "found at close" in aborted[0]
+    dev = _streams()[1]
+    assert not dev.running and len(dev.output_at(0)) == cut
+    later = dev.stop_t + np.linspace(0.0, 0.5, 50)
+    assert not dev.current_at(0, later).any() and not dev.current_at(1, later).any()
