@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from nmsid.drivers.errors import HardwareConfigError
 from nmsid.drivers.dynamometer import DynamometerCalibration
+from nmsid.drivers.errors import HardwareConfigError
 
 if TYPE_CHECKING:
     from nmsid.drivers.hw_config import HardwareConfig
