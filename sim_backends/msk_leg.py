@@ -48,7 +48,11 @@ fit 91-92 %; ankle Kp 8.2 -> 35.3 N m, wn 18.3-20.4 rad/s, zeta 1.47-1.73, fit 9
 
 Examples
 --------
->>> p = default_leg_participant("knee", seed=2)               # doctest: +SKIP
+>>> p = default_leg_participant("knee", seed=2)
+>>> p.joint, p.code, p.mount.lever_m
+('knee', 'MK01', None)
+>>> [q.code for q in make_leg_population(2, seed=1, joint="ankle")]
+['A01', 'A02']
 >>> p.ramp_calibration().Fmax_N                                # doctest: +SKIP
 50.0
 """
