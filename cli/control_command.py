@@ -25,10 +25,10 @@ def design(args: argparse.Namespace) -> int:
     lv = min(d.levels, key=lambda x: abs(x.sE - d.sE))
     gm = lv.margins["gain_margin"]
     print(f"controller for {d.participant or 'participant'} at sE {d.sE:.3f}: Kc {d.Kc:.4g} "
-          f"rE/N, Ti {1000 * d.Ti_s:.1f} ms; margins GM "
+          f"{d.per_unit}, Ti {1000 * d.Ti_s:.1f} ms; margins GM "
           f"{'inf' if gm is None else format(gm, '.2f')}, PM "
           f"{lv.margins['phase_margin_deg']:.1f} deg; targets "
-          f"{d.force_range_N[0]:.2f}..{d.force_range_N[1]:.2f} N", flush=True)
+          f"{d.force_range_N[0]:.2f}..{d.force_range_N[1]:.2f} {d.measured_unit}", flush=True)
     print(f"written to {args.out} (controller.json, design.md)", flush=True)
     return 0
 

@@ -55,8 +55,13 @@ def register(sub) -> None:
     p.add_argument("--force", action="store_true",
                    help="replace an existing --out folder (atomically; never one holding "
                         "a session file)")
-    p.add_argument("--noise-N", type=float, default=0.04, metavar="N",
-                   help="sensor noise RMS for a --twin prior (default 0.04 N)")
+    p.add_argument("--noise-N", type=float, default=None, metavar="N",
+                   help="sensor noise RMS for a --twin prior, in the twin's unit (default "
+                        "0.04 N at the elbow, scaled by the joint's Fmax: 0.4 N m at the "
+                        "knee, 0.16 N m at the ankle)")
+    p.add_argument("--joint", default=None, metavar="JOINT",
+                   help="with --population: the population of this joint (default elbow; "
+                        "docs/joints.md); with --twin the twin's joint is used")
     sc = p.add_mutually_exclusive_group()
     sc.add_argument("--scatter", type=_scatter, default=None, metavar="SPEC",
                     help="per-trial physiological scatter, relative SDs (default "

@@ -15,6 +15,7 @@ from nmsid.analysis.design.prior import (
     scatter_from_parameters,
     twin_prior,
 )
+from nmsid.protocols.joints import JOINTS
 from nmsid.protocols.output_paths import check_output, output_dir
 
 #: Largest --n-prior / --validate (each simulated participant costs a design evaluation).
@@ -30,9 +31,13 @@ def run(args: argparse.Namespace) -> int:
         if not lo <= v <= COUNT_MAX:
             raise DesignError(f"--{name.replace('_', '-')} {v}: give a whole number in "
                               f"[{lo}, {COUNT_MAX}]")
-    if not (math.isfinite(args.noise_N) and 0 < args.noise_N <= NOISE_MAX_N):
+    if args.noise_N is not None and not (math.isfinite(args.noise_N)
+                                         and 0 < args.noise_N <= NOISE_MAX_N):
         raise DesignError(f"--noise-N {args.noise_N:g}: a sensor noise RMS in (0, "
-                          f"{NOISE_MAX_N:g}] N")
+                          f"{NOISE_MAX_N:g}] N (or N m)")
+    joint = getattr(args, "joint", None)
+    if joint is not None and joint not in JOINTS:
+        raise DesignError(f"--joint {joint!r}: valid: {', '.join(JOINTS)}")
     if not 0 <= args.tolerance < 1:
         raise DesignError(f"--tolerance {args.tolerance:g}: a fraction in [0, 1)")
     if not 0 <= args.min_steady_s <= 60:
@@ -40,8 +45,11 @@ def run(args: argparse.Namespace) -> int:
     check_output(args.out, force=args.force, kind="folder")  # before the search
     if args.twin:
         prior = twin_prior(args.twin, args.noise_N)
+        if joint is not None and joint != prior.joint:
+            raise DesignError(f"--joint {joint} with --twin {args.twin}: the twin is of the "
+                              f"{prior.joint}; leave --joint out (the twin's joint is used)")
     else:
-        prior = population_prior(args.n_prior, args.seed)
+        prior = population_prior(args.n_prior, args.seed, joint=joint or "elbow")
     scatter = args.scatter
     if args.scatter_from:
         if not args.twin:

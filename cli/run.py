@@ -87,7 +87,8 @@ def register(sub) -> None:
                         "acquisition.fs_Hz must equal the protocol's fs_Hz)")
     p.add_argument("--participant-model", metavar="MODEL",
                    help="sim: the virtual participant: the paper's second-order model "
-                        "(template, default), MyoSuite's MuJoCo elbow under FES "
+                        "(template, default), MyoSuite's MuJoCo elbow under FES, or with "
+                        "--joint knee|ankle MuJoCo's MyoLeg on a dynamometer "
                         "(musculoskeletal; needs the 'mujoco' extra) or a lab's own model "
                         "package.module:factory (docs/control.md); overrides the "
                         "config's [participant] model")

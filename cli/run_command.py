@@ -77,7 +77,8 @@ def run(args) -> int:
             config = config.replace(participant_model=args.participant_model)
             if args.participant_model == "musculoskeletal" and not args.participant \
                     and not args.config:  # issue 39: not the template's P01 under its name
-                config = config.replace(participant="MSK01")
+                config = config.replace(participant={"knee": "MK01", "ankle": "MA01"}.get(
+                    config.joint, "MSK01"))
         outdir = Path(args.outdir) if args.outdir else default_sessions_dir()
         path = Path(args.out) if args.out else _free_path(outdir, config.participant)
         # a taken, dangling or unwritable --out is refused before any device is touched
@@ -96,6 +97,12 @@ def run(args) -> int:
                                        getattr(args, "lsl_record", None))
     if lsl is not config.lsl:
         config = config.replace(lsl=lsl)
+    design = getattr(track, "keywords", {}).get("design")
+    if design is not None and getattr(design, "joint", "elbow") != config.joint:
+        raise UsageError(f"--track {args.track}: the controller was designed on a "
+                         f"{design.joint} twin ({design.measured_unit}); this session is of "
+                         f"the {config.joint} (give --joint {design.joint}, or design a "
+                         f"controller from a {config.joint} twin)")
     stored, stored_backend = _stored_attrs(path) if args.resume else ({}, "")
     kind = session_kind_from_stored(stored, str(path)) if args.resume else None
     if kind is not None:   # e.g. tracking: its recorded controller and targets, no code

@@ -37,6 +37,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -59,6 +60,28 @@ REST_BEFORE_TARE_S = 1.0
 """A/D idle at least this long between two blocks is a rest: the next block is preceded by
 a new tare (shorter gaps keep the previous one, so a muscle still relaxing after a trial
 is never taken as no load)."""
+
+
+class AnalogSensor(Protocol):
+    """What the A/D drivers, the tare and :func:`convert_block` use of a calibration: the
+    six-axis sensor's analog outputs (:class:`AnalogCalibration`) or a dynamometer's torque
+    output (:class:`nmsid.drivers.dynamometer.DynamometerCalibration`)."""
+
+    @property
+    def channels(self) -> dict[str, int]: ...
+    @property
+    def sync_channel(self) -> int | None: ...
+    @property
+    def monitor_channel(self) -> int | None: ...
+    @property
+    def sensor_span_V(self) -> tuple[float, float] | None: ...
+    @property
+    def n_channels(self) -> int: ...
+    @property
+    def full_wrench(self) -> bool: ...
+    def wrench(self, volts: np.ndarray) -> np.ndarray: ...
+    def force_N(self, wrench: np.ndarray) -> np.ndarray: ...
+    def implausible(self) -> list[str]: ...
 
 
 @dataclass(frozen=True)
@@ -202,7 +225,7 @@ class NoLoadTare:
         """A new connection (reconnect): measure again before the next block."""
         self.measured = False
 
-    def update(self, volts: np.ndarray, cal: AnalogCalibration, device: str) -> None:
+    def update(self, volts: np.ndarray, cal: AnalogSensor, device: str) -> None:
         """Take the mean of an untriggered window of volts (n, n_channels) as no load.
 
         Raises
@@ -264,7 +287,7 @@ def measure_no_load(acq, device: str) -> None:
     tare.update(volts[:n], acq.cal, device)
 
 
-def convert_block(volts: np.ndarray, cal: AnalogCalibration, range_V: float,
+def convert_block(volts: np.ndarray, cal: AnalogSensor, range_V: float,
                   saturation_fraction: float = 0.995,
                   tare_wrench: np.ndarray | None = None) -> ConvertedBlock:
     """Interleaved-and-reshaped A/D volts (n, n_channels) -> force, wrench, sync, flags;

@@ -59,7 +59,7 @@ from ctypes import POINTER, c_char_p, c_float, c_long, c_short
 
 import numpy as np
 
-from nmsid.drivers.analog_force import AnalogCalibration, NoLoadTare, convert_block, measure_no_load
+from nmsid.drivers.analog_force import AnalogSensor, NoLoadTare, convert_block, measure_no_load
 from nmsid.drivers.errors import (
     DeviceError,
     DeviceNotFound,
@@ -181,7 +181,7 @@ class CaioAcquisition:
 
     Parameters
     ----------
-    calibration : AnalogCalibration
+    calibration : AnalogCalibration or DynamometerCalibration
         Channel map and volts-to-newtons calibration.
     device_name : str
         The CAIO device name set in Contec's device manager (e.g. ``AIO000``).
@@ -201,7 +201,7 @@ class CaioAcquisition:
         Conversion time per scanned channel (us); the AI-1608AY-USB's data sheet says 10.
     """
 
-    def __init__(self, calibration: AnalogCalibration, *, device_name: str = "AIO000",
+    def __init__(self, calibration: AnalogSensor, *, device_name: str = "AIO000",
                  ai_range: str = "PM10", input_method: str = "", library: str = "",
                  lib=None, max_chunk: int = 4000, poll_s: float = 0.005,
                  conversion_us: float = 10.0):

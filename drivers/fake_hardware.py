@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from nmsid.drivers.dynamometer import DynamometerCalibration
 from nmsid.drivers.errors import HardwareConfigError
 
 if TYPE_CHECKING:
@@ -49,6 +50,10 @@ def _sensor_wiring(cfg: HardwareConfig, bench) -> dict:
     if cal is None:     # parse_hw_config makes one for every analog chain
         raise HardwareConfigError(f"{cfg.source}: the fake analog wiring needs the [sensor] "
                                   "calibration of an analog chain")
+    if isinstance(cal, DynamometerCalibration):   # the torque output, driven by torque
+        return load_fake("bench").dynamometer_analog_wiring(
+            bench, cal.channel, cal.Nm_per_V, sign=cal.sign, sync_channel=cal.sync_channel,
+            span_V=cal.sensor_span_V or (-10.0, 10.0))
     d = cal.direction
     if cal.matrix is None:
         # the sensor per its manual, driven by force (not by the configured calibration)

@@ -19,6 +19,7 @@ from typing import Annotated, Literal, TypeAlias
 from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, model_validator
 
 from nmsid.drivers.analog_force import AXES, SENSOR_SPAN_V, AnalogCalibration
+from nmsid.drivers.dynamometer import DYNAMOMETER_SPAN_V, DynamometerCalibration
 from nmsid.drivers.errors import HardwareConfigError, hw_config_error
 from nmsid.drivers.p24_settings import P24Config
 from nmsid.drivers.registry import (
@@ -143,10 +144,32 @@ def _analog_kinds() -> list[str]:
 _ANALOG_ONLY = ("channels", "rated", "rated_output_V", "offset_V", "matrix", "sync_channel")
 
 
+@settings_dataclass(hw_config_error, prefix="sensor.dynamometer")
+class DynamometerSettings:
+    """``[sensor.dynamometer]``: a dynamometer's analog torque output (``sensor.kind =
+    "dynamometer"``; :mod:`nmsid.drivers.dynamometer`)."""
+
+    channel: StrictInt = bounded(-1, ge=-1, le=63, why=(
+        "the A/D channel of the dynamometer's torque output (0 .. 63); required with "
+        "sensor.kind = dynamometer"))
+    Nm_per_V: StrictFloat = bounded(0.0, ge=0.0, le=10_000.0, why=(
+        "the torque output's scale as the dynamometer is set (N m per V, > 0); required "
+        "with sensor.kind = dynamometer"))
+    offset_V: Volts = 0.0
+    """Nominal output at no torque; the automatic tare measures the real one at rest."""
+    sign: Literal[1, -1] = 1
+    """+1: the dynamometer's positive torque is the joint's positive direction."""
+    output_span_V: tuple[StrictFloat, StrictFloat] = DYNAMOMETER_SPAN_V
+    """The torque output's span, over-range at its edges (Biodex: -5 .. +5 V)."""
+
+
 @settings_dataclass(hw_config_error, prefix="sensor")
 class SensorSettings:
     """``[sensor]``: the force sensor, and for analog chains its wiring and calibration."""
 
+    kind: Literal["six_axis", "dynamometer"] = "six_axis"
+    """``six_axis``: the Leptrino sensor (its USB port, or its analog outputs on the A/D);
+    ``dynamometer``: a dynamometer's analog torque output on the A/D (knee, ankle)."""
     model: StrictStr = "PFS080YA501G6"
     extension_direction: tuple[StrictFloat, StrictFloat, StrictFloat] = (1.0, 0.0, 0.0)
     channels: dict[Axis, Channel] = Field(default_factory=dict)
@@ -161,6 +184,7 @@ class SensorSettings:
     output_span_V: tuple[StrictFloat, StrictFloat] = SENSOR_SPAN_V
     """The sensor's analog output span, over-range at its edges (Leptrino manual 4.1:
     0 .. 3.3 V); set another span only if an amplifier sits between sensor and A/D."""
+    dynamometer: DynamometerSettings = Field(default_factory=DynamometerSettings)
 
     @model_validator(mode="after")
     def _direction(self):
@@ -212,6 +236,8 @@ class HardwareFile:
     def _wiring(self):
         se = self.sensor
         entry = acquisition_entry(self.acquisition.kind)
+        if se.kind == "dynamometer":
+            return self._dynamometer_wiring(entry)
         if not entry.analog:
             analog = " or ".join(_analog_kinds())
             if self.acquisition.monitor_channel >= 0:
@@ -266,6 +292,47 @@ class HardwareFile:
                                              "both be > 0")
         return self
 
+    def _dynamometer_wiring(self, entry):
+        """``sensor.kind = "dynamometer"``: one torque output and the sync on an analog
+        chain; the six-axis sensor's keys are refused (one sensor per rig)."""
+        se, dy = self.sensor, self.sensor.dynamometer
+        analog = " or ".join(_analog_kinds())
+        if not entry.analog:
+            raise SettingProblem("sensor.kind", se.kind, "a dynamometer's analog torque "
+                                 f"output needs an analog chain (acquisition.kind {analog}); "
+                                 f"the {entry.title} is the six-axis sensor's own port")
+        for key in ("channels", "rated", "rated_output_V", "offset_V", "matrix"):
+            value = getattr(se, key)
+            if value not in ({}, None):
+                raise SettingProblem(f"sensor.{key}", value, "the six-axis sensor's; with "
+                                     "sensor.kind = dynamometer give [sensor.dynamometer] "
+                                     "channel, Nm_per_V, offset_V, sign instead")
+        if dy.channel < 0:
+            raise SettingProblem("sensor.dynamometer.channel", "(missing)", "the A/D channel "
+                                 "of the dynamometer's torque output (0 .. 63)")
+        if not dy.Nm_per_V > 0:
+            raise SettingProblem("sensor.dynamometer.Nm_per_V", "(missing)", "the torque "
+                                 "output's scale in N m per V, as the dynamometer is set "
+                                 "(> 0)")
+        lo, hi = dy.output_span_V
+        if not lo < hi:
+            raise SettingProblem("sensor.dynamometer.output_span_V", list(dy.output_span_V),
+                                 "two volts, low < high")
+        if se.sync_channel < 0:
+            raise SettingProblem("sensor.sync_channel", "(missing)", "sensor.sync_channel is "
+                                 "missing; wire the stimulator's sync output to an A/D "
+                                 "channel and name it (it is recorded with every trial)")
+        seen: dict[int, str] = {}
+        monitor = self.acquisition.monitor_channel
+        for key, ch in [("sensor.dynamometer.channel", dy.channel),
+                        ("sensor.sync_channel", se.sync_channel),
+                        *([("acquisition.monitor_channel", monitor)] if monitor >= 0 else [])]:
+            if ch in seen:
+                raise SettingProblem(key, ch, f"A/D channels must be distinct ({seen[ch]} "
+                                     f"uses {ch})")
+            seen[ch] = key
+        return self
+
 
 @dataclass(frozen=True)
 class AcquisitionConfig:
@@ -292,8 +359,9 @@ class HardwareConfig:
     stimulator: StimulatorSettings
     """Typed by ``kind``; :mod:`nmsid.drivers.registry` knows what each kind needs."""
     acquisition: AcquisitionConfig
-    calibration: AnalogCalibration | None
-    """Analog chains only (``analog`` in the acquisition kind's registry entry)."""
+    calibration: AnalogCalibration | DynamometerCalibration | None
+    """Analog chains only (``analog`` in the acquisition kind's registry entry): the
+    six-axis sensor's analog outputs, or a dynamometer's torque output."""
     extension_direction: tuple[float, float, float]
     sensor_model: str
     estop: EStopConfig
@@ -339,8 +407,14 @@ def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
                "reads_per_s": a.nidaq.reads_per_s},
         leptrino={"port": a.leptrino.port, "baudrate": a.leptrino.baudrate,
                   "sync_on_external_input": a.leptrino.sync_on_external_input})
-    cal = None
-    if acquisition_entry(a.kind).analog:
+    cal: AnalogCalibration | DynamometerCalibration | None = None
+    if se.kind == "dynamometer":
+        dy = se.dynamometer
+        cal = DynamometerCalibration(channel=dy.channel, Nm_per_V=dy.Nm_per_V,
+                                     offset_V=dy.offset_V, sign=float(dy.sign),
+                                     sync_channel=se.sync_channel,
+                                     sensor_span_V=tuple(dy.output_span_V))
+    elif acquisition_entry(a.kind).analog:
         try:
             cal = AnalogCalibration(
                 channels=dict(se.channels), rated=dict(se.rated),
@@ -352,7 +426,9 @@ def parse_hw_config(data: dict, source: str = "<hw config>") -> HardwareConfig:
     return HardwareConfig(source=source, name=f.rig.name, fake=f.rig.fake,
                           fake_speed=f.rig.fake_speed, stimulator=stimulator,
                           acquisition=acq, calibration=cal,
-                          extension_direction=se.extension_direction, sensor_model=se.model,
+                          extension_direction=se.extension_direction,
+                          sensor_model="analog dynamometer" if se.kind == "dynamometer"
+                          and se.model == "PFS080YA501G6" else se.model,
                           estop=f.estop)
 
 

@@ -56,7 +56,7 @@ from typing import Any
 
 import numpy as np
 
-from nmsid.drivers.analog_force import AnalogCalibration, NoLoadTare, convert_block, measure_no_load
+from nmsid.drivers.analog_force import AnalogSensor, NoLoadTare, convert_block, measure_no_load
 from nmsid.drivers.errors import (
     DeviceError,
     DeviceNotFound,
@@ -136,7 +136,7 @@ class NidaqAcquisition:
 
     Parameters
     ----------
-    calibration : AnalogCalibration
+    calibration : AnalogCalibration or DynamometerCalibration
         A/D channel index k is ``<device>/ai<k>``.
     device : str
         DAQmx device name (``Dev1``).
@@ -153,7 +153,7 @@ class NidaqAcquisition:
         The loaded nidaqmx names (tests pass the fake).
     """
 
-    def __init__(self, calibration: AnalogCalibration, *, device: str = "Dev1",
+    def __init__(self, calibration: AnalogSensor, *, device: str = "Dev1",
                  start_trigger: str = "", terminal_config: str = "DIFF",
                  range_V: float = 10.0, reads_per_s: float = 10.0, buffer_s: float = 5.0,
                  api=None):

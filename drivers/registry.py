@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from nmsid.drivers.analog_force import AnalogCalibration
+from nmsid.drivers.analog_force import AnalogSensor
 from nmsid.drivers.caio import CaioAcquisition, declare
 from nmsid.drivers.dry_run import commanded_current_A
 from nmsid.drivers.errors import HardwareConfigError
@@ -268,7 +268,7 @@ def stimulator_kind(settings) -> StimulatorKind:
 # -- acquisition kinds ------------------------------------------------------------------------
 # ``[acquisition] kind`` picks an entry of ACQUISITIONS; its per-kind table
 # ([acquisition.caio], [acquisition.nidaq], [acquisition.leptrino]) is read by its ``make``.
-def _calibration(cfg: HardwareConfig) -> AnalogCalibration:
+def _calibration(cfg: HardwareConfig) -> AnalogSensor:
     """An analog chain's calibration (``parse_hw_config`` makes one for every analog kind)."""
     if cfg.calibration is None:
         raise HardwareConfigError(f"{cfg.source}: acquisition.kind = "

@@ -106,7 +106,8 @@ PARTICIPANT_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,64}")
 PARTICIPANT_MODELS = ("template", "musculoskeletal")
 """Simulated participants ``[participant] model`` can name: the paper's second-order model
 with add-on effects (``sim_backends.participant``), or MyoSuite's MuJoCo elbow under FES
-(``sim_backends.msk_participant``). Hardware sessions ignore it."""
+(``sim_backends.msk_participant``; at the knee and the ankle MuJoCo's MyoLeg,
+``sim_backends.msk_leg``). Hardware sessions ignore it."""
 
 PLUGIN_MODEL_PATTERN = r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*"
 """A lab's own simulated participant, ``package.module:factory`` (``sim_backends.plugin``)."""

@@ -46,14 +46,15 @@ from nmsid.protocols.calibration import (
     step_envelopes,
 )
 from nmsid.protocols.config import CalibrationConfig, ProtocolConfig
+from nmsid.protocols.joints import JOINTS
 from nmsid.sim_backends.errors import SimConfigError
 from nmsid.sim_backends.msk_physics import (
-    MUSCLES,
     CoactivationStiffness,
     FixtureMount,
     MuscleDrive,
     MuscleFatigue,
     default_drives,
+    joint_muscles,
 )
 from nmsid.sim_backends.msk_simulation import MskSimulator
 from nmsid.sim_backends.msk_truth import SecondOrderTruth, second_order_truth
@@ -92,6 +93,9 @@ class MskParticipant:
         The measurement chain (the template participant's).
     seed : int
         Seeds the sensor noise.
+    joint : str
+        ``elbow`` (MyoSuite's elbow, force at the cuff in N) or ``knee`` / ``ankle``
+        (MyoLeg on a dynamometer, torque in N m; :mod:`nmsid.sim_backends.msk_leg`).
     """
 
     code: str = "MSK01"
@@ -103,6 +107,7 @@ class MskParticipant:
     fatigue: MuscleFatigue = field(default_factory=MuscleFatigue)
     sensor: SensorModel = field(default_factory=SensorModel)
     seed: int = 0
+    joint: str = "elbow"
 
     model_kind = MODEL_KIND
 
@@ -111,10 +116,11 @@ class MskParticipant:
             raise SimConfigError(f"participant code {self.code!r} must match "
                                  "[A-Za-z0-9_-]{1,64}")
         drives = tuple(self.drives)
-        if tuple(getattr(d, "muscle", None) for d in drives) != MUSCLES or not all(
+        muscles = joint_muscles(self.joint)
+        if tuple(getattr(d, "muscle", None) for d in drives) != muscles or not all(
                 isinstance(d, MuscleDrive) for d in drives):
             raise SimConfigError(f"drives must be one MuscleDrive per muscle in the order "
-                                 f"{', '.join(MUSCLES)}")
+                                 f"{', '.join(muscles)}")
         object.__setattr__(self, "drives", drives)
         if not (0.001 <= self.tau_act_s <= 0.5 and 0.001 <= self.tau_deact_s <= 0.5):
             raise SimConfigError(f"tau_act_s / tau_deact_s must lie in [0.001, 0.5] s, got "
@@ -142,7 +148,10 @@ class MskParticipant:
         protocols.errors.CalibrationError
             If a ramp never reaches Fmin / Fmax below its ceiling.
         """
-        return _ramp_calibration(self, cfg or CalibrationConfig(), float(fs_Hz))
+        if cfg is None:     # the joint's thresholds (in N m at a knee or an ankle)
+            j = JOINTS[self.joint]
+            cfg = CalibrationConfig(Fmin_N=j.Fmin, Fmax_N=j.Fmax, force_ceiling_N=j.ceiling)
+        return _ramp_calibration(self, cfg, float(fs_Hz))
 
     # -- ground truth --------------------------------------------------------------------
     def second_order_truth(self, sE: float, calibration=None,

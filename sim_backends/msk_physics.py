@@ -51,6 +51,31 @@ FLEXORS = ("BIClong", "BICshort", "BRA")
 MUSCLES = EXTENSORS + FLEXORS
 """Actuator order of ``myoelbow_1dof6muscles``."""
 
+MUSCLE_GROUPS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "elbow": (EXTENSORS, FLEXORS),
+    # MyoLeg (Rajagopal et al. 2016), right leg: quadriceps vs hamstrings
+    "knee": (("recfem_r", "vasint_r", "vaslat_r", "vasmed_r"),
+             ("bflh_r", "bfsh_r", "semimem_r", "semiten_r")),
+    # triceps surae vs tibialis anterior, with the toe extensors beside it under the
+    # dorsiflexor electrode (neighbours it spills onto)
+    "ankle": (("gasmed_r", "gaslat_r", "soleus_r"), ("tibant_r", "edl_r", "ehl_r")),
+}
+"""Per musculoskeletal joint: its extensor-channel and flexor-channel muscles, in the
+model's actuator order (extensors first)."""
+
+_EXTENSOR_SET = frozenset(m for ext, _ in MUSCLE_GROUPS.values() for m in ext)
+_ALL_MUSCLES = frozenset(m for ext, flex in MUSCLE_GROUPS.values() for m in ext + flex)
+
+
+def joint_muscles(joint: str) -> tuple[str, ...]:
+    """The actuator order of the musculoskeletal model of ``joint`` (extensors, flexors)."""
+    try:
+        ext, flex = MUSCLE_GROUPS[joint]
+    except KeyError:
+        raise SimConfigError(f"no musculoskeletal model of joint {joint!r}; valid: "
+                             f"{', '.join(MUSCLE_GROUPS)}") from None
+    return ext + flex
+
 
 def _finite(owner: str, name: str, value, lo: float = -math.inf, hi: float = math.inf,
             *, lo_open: bool = False) -> float:
@@ -125,13 +150,13 @@ class MuscleDrive:
                                      max_activation=0.0)
 
     def __post_init__(self):
-        if self.muscle not in MUSCLES:
-            raise SimConfigError(f"muscle {self.muscle!r} is not in the elbow model; "
-                                 f"valid: {', '.join(MUSCLES)}")
+        if self.muscle not in _ALL_MUSCLES:
+            raise SimConfigError(f"muscle {self.muscle!r} is not in the elbow or leg models; "
+                                 f"valid: {', '.join(sorted(_ALL_MUSCLES))}")
 
     @property
     def is_extensor(self) -> bool:
-        return self.muscle in EXTENSORS
+        return self.muscle in _EXTENSOR_SET
 
     def command(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> np.ndarray:
         """The muscle's excitation (MuJoCo ``ctrl``, 0..1) for delivered currents."""
@@ -179,22 +204,35 @@ class FixtureMount:
         Natural frequency and damping ratio of the relaxed forearm on the mount.
     sensed_damping_fraction : float
         Part of the mount's damping transmitted through the sensor, in [0, 1].
-    lever_m : float
-        Distance elbow -> cuff along the forearm (the force is torque / lever).
+    lever_m : float or None
+        Distance elbow -> cuff along the forearm (the force is torque / lever); None for a
+        dynamometer that measures the joint torque itself (knee, ankle: N m).
+    added_inertia_kgm2 : float
+        Inertia the fixture adds about the joint (a dynamometer's arm or footplate moving
+        with the limb); the elbow's cuff: 0.
+
+    The same mount holds a leg on a dynamometer: the shank (knee) or the foot (ankle)
+    strapped to the dynamometer's arm or footplate, whose compliance (strap, soft tissue,
+    arm) is the spring-damper and whose torque is read directly (``lever_m = None``);
+    ``angle_deg`` is then the knee's flexion or the ankle's dorsiflexion (MyoLeg's
+    ``knee_angle_r`` / ``ankle_angle_r``, checked against the model's range).
     """
 
     angle_deg: float = 90.0
     wn_rad_s: float = 18.0
     zeta: float = 0.45
     sensed_damping_fraction: float = 0.2
-    lever_m: float = 0.22
+    lever_m: float | None = 0.22
+    added_inertia_kgm2: float = 0.0
 
     def __post_init__(self):
-        _finite("mount", "angle_deg", self.angle_deg, 20.0, 120.0)
+        _finite("mount", "angle_deg", self.angle_deg, -60.0, 150.0)
         _finite("mount", "wn_rad_s", self.wn_rad_s, 1.0, 200.0)
         _finite("mount", "zeta", self.zeta, 0.05, 5.0)
         _finite("mount", "sensed_damping_fraction", self.sensed_damping_fraction, 0.0, 1.0)
-        _finite("mount", "lever_m", self.lever_m, 0.05, 0.4)
+        if self.lever_m is not None:
+            _finite("mount", "lever_m", self.lever_m, 0.05, 0.4)
+        _finite("mount", "added_inertia_kgm2", self.added_inertia_kgm2, 0.0, 5.0)
 
     def stiffness_damping(self, inertia_kgm2: float) -> tuple[float, float]:
         """(K in N m/rad, B in N m s/rad) for the forearm's inertia about the elbow."""

@@ -39,7 +39,8 @@ class MskSimulator:
         self.p = participant
         self.fs_Hz = float(fs_Hz)
         self.cm = configure(participant.mount, participant.tau_act_s,
-                            participant.tau_deact_s, self.fs_Hz, participant.stiffening)
+                            participant.tau_deact_s, self.fs_Hz, participant.stiffening,
+                            joint=participant.joint)
         self.stepper = Stepper(self.cm)
         self.cursor = 0
         self.stim_samples = 0
@@ -48,15 +49,20 @@ class MskSimulator:
         self._acc = np.zeros(len(participant.drives))
         """Sum of excitations over the fatigue segment in progress."""
         self._seg_n = max(1, int(round(participant.fatigue.segment_s * self.fs_Hz)))
-        self._reach = np.array([d.own.max_activation + d.spill.max_activation
-                                for d in participant.drives])
+        reach = np.array([d.own.max_activation + d.spill.max_activation
+                          for d in participant.drives])
+        self._order = list(self.cm.drive_ctrl) or list(range(len(participant.drives)))
+        self._reach = np.zeros(len(reach))       # in the model's actuator order
+        self._reach[self._order] = reach
         self.sensor = SensorState(participant.sensor, participant.seed, self.fs_Hz)
 
     # -- inputs --------------------------------------------------------------------------
     def excitation(self, I_ext_mA: np.ndarray, I_flex_mA: np.ndarray) -> np.ndarray:
-        """MuJoCo ``ctrl`` per sample: the six muscles' excitations, then the
-        co-activation stiffness in N m/rad; shape (n, 7)."""
+        """MuJoCo ``ctrl`` per sample: the muscles' excitations (in the model's actuator
+        order), then the co-activation stiffness in N m/rad; shape (n, muscles + 1)."""
         e = np.column_stack([d.command(I_ext_mA, I_flex_mA) for d in self.p.drives])
+        if self.cm.drive_ctrl:
+            e[:, self._order] = e.copy()
         return np.column_stack([e, e @ self.cm.srs_Nm_rad])
 
     # -- simulation ----------------------------------------------------------------------
@@ -98,7 +104,7 @@ class MskSimulator:
         I_f = np.asarray(I_flex_mA, dtype=float)
         n0 = self.cursor
         states = self._run(self.excitation(I_e, I_f))
-        y = self.cm.endpoint_force_N(states[:, 1], states[:, 2])
+        y = self.cm.endpoint_force_N(states[:, self.cm.q_col], states[:, self.cm.v_col])
         on = (I_e > 0) | (I_f > 0)
         self.stim_samples += int(np.count_nonzero(on))
         self.cursor = n0 + I_e.size

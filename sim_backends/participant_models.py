@@ -2,8 +2,10 @@
 
 ``template``: the paper's second-order model (:func:`sim_backends.participant.
 default_participant`); ``musculoskeletal``: MyoSuite's MuJoCo elbow under FES
-(:func:`nmsid.sim_backends.msk_participant.default_msk_participant`, needs the ``mujoco``
-extra). Both take the session's simulation seed for their sensor noise. A lab's own model:
+(:func:`nmsid.sim_backends.msk_participant.default_msk_participant`), or at the knee and
+the ankle MuJoCo's MyoLeg on a dynamometer
+(:func:`nmsid.sim_backends.msk_leg.default_leg_participant`); both need the ``mujoco``
+extra. Both take the session's simulation seed for their sensor noise. A lab's own model:
 ``package.module:factory`` (:mod:`nmsid.sim_backends.plugin`).
 """
 
@@ -12,6 +14,7 @@ from __future__ import annotations
 from nmsid.protocols.config import PARTICIPANT_MODELS
 from nmsid.sim_backends.errors import SimConfigError
 from nmsid.sim_backends.joint_participants import template_participant
+from nmsid.sim_backends.msk_leg import LEG_JOINTS, default_leg_participant
 from nmsid.sim_backends.msk_participant import default_msk_participant
 from nmsid.sim_backends.plugin import plugin_participant
 
@@ -30,9 +33,12 @@ def participant_for_model(model: str, seed: int = 0, fs_Hz: float = 2000.0,
     if model == "template":
         return template_participant(joint, seed=int(seed))
     if model == "musculoskeletal":
+        if joint in LEG_JOINTS:          # MuJoCo's MyoLeg on a dynamometer
+            return default_leg_participant(joint, seed=int(seed))
         if joint != "elbow":
-            raise SimConfigError(f"participant model 'musculoskeletal' is MyoSuite's elbow; "
-                                 f"for joint {joint!r} use model 'template' (docs/joints.md)")
+            raise SimConfigError(f"participant model 'musculoskeletal' has the elbow, the knee "
+                                 f"and the ankle; for joint {joint!r} use model 'template' "
+                                 "(docs/joints.md)")
         return default_msk_participant(seed=int(seed))
     if ":" in str(model):   # a lab's plug-in, package.module:factory
         return plugin_participant(model, seed=int(seed), fs_Hz=float(fs_Hz))

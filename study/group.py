@@ -33,6 +33,13 @@ class GroupResult:
     gap: dict
     tables_text: str
     files: list[Path] = field(default_factory=list)
+    joints: dict[str, GroupResult] = field(default_factory=dict)
+    """Sessions of several joints: the group analysis of each joint on its own (its files
+    in ``group-<joint>/``); empty for a study of one joint (the files at the top)."""
+    note: str = ""
+    """One line when the group analysis was split per joint."""
+    unit: str = "N"
+    """The unit of Kp (per unit rE) in the tables: the joint's."""
 
 
 def _nan(v) -> float:
@@ -117,13 +124,44 @@ def write_group(results: list[dict], out_dir: Path, settings: IdentificationSett
     gap = gap_summary(results)
     (out / "gap_summary.json").write_text(json.dumps(gap, indent=1) + "\n", encoding="utf-8")
     files.append(out / "gap_summary.json")
+    by_joint: dict[tuple[str, str], list[dict]] = {}
+    for r in results:
+        if r.get("ok"):
+            by_joint.setdefault((r.get("joint", "elbow"), r.get("measured_unit", "N")),
+                                []).append(r)
+    if len(by_joint) <= 1:
+        joint, unit = next(iter(by_joint), ("elbow", "N"))
+        g = _selection_files(results, out, settings, overrides, joint, unit)
+        return GroupResult(g.selection, gap, g.tables_text, files + g.files, unit=unit)
+    # AICc sums over an elbow and a knee mean nothing: each joint's group on its own
+    parts = {}
+    for (joint, unit), rs in sorted(by_joint.items()):
+        sub = out / f"group-{joint}"
+        sub.mkdir(exist_ok=True)
+        parts[joint] = _selection_files(rs, sub, settings, overrides, joint, unit)
+        files += parts[joint].files
+    note = (f"sessions of {len(parts)} joints ("
+            + ", ".join(f"{j}: {len(rs)} in {u}" for (j, u), rs in sorted(by_joint.items()))
+            + "): the group analysis is split per joint into "
+            + ", ".join(f"group-{j}/" for j in parts) + " (AICc sums pool one joint; "
+            "docs/joints.md)")
+    text = "\n\n".join(f"=== {j} ===\n{g.tables_text}" for j, g in parts.items())
+    return GroupResult(None, gap, text, files, joints=parts, note=note)
+
+
+def _selection_files(results: list[dict], out: Path, settings: IdentificationSettings,
+                     overrides: dict[str, str], joint: str, unit: str) -> GroupResult:
+    """Model selection of the identified sessions of one joint (the paper's Tables 1-9)
+    and its CSV / JSON / text files in ``out``."""
+    files: list[Path] = []
     people = participants_of(results, overrides)
     if not people:
-        return GroupResult(None, gap, "no session was identified", files)
+        return GroupResult(None, {}, "no session was identified", files, unit=unit)
     selection = select_models(people, settings)
-    files.append(write_model_selection_json(selection, out / "model_selection.json",
-                                            extra={"sources": [r["path"] for r in results
-                                                               if r.get("ok")]}))
+    files.append(write_model_selection_json(
+        selection, out / "model_selection.json",
+        extra={"sources": [r["path"] for r in results if r.get("ok")], "joint": joint,
+               "measured_unit": unit}))
     labels = [AVERAGE_LABEL] + selection.participants
     aicc_rows, sel_rows = [], []
     for name in PARAMETER_NAMES:
@@ -145,7 +183,7 @@ def write_group(results: list[dict], out_dir: Path, settings: IdentificationSett
         out / "aicc_sums.csv", ["parameter", "model", "aicc_sum", "participants_counted"],
         [[name, m, _cell(selection.aicc_sums[name][m]), selection.aicc_sum_counts[name][m]]
          for name in PARAMETER_NAMES for m in settings.models]))
-    text = selection_tables(selection)
+    text = selection_tables(selection, unit)
     (out / "tables.txt").write_text(text + "\n", encoding="utf-8")
     files.append(out / "tables.txt")
-    return GroupResult(selection, gap, text, files)
+    return GroupResult(selection, {}, text, files, unit=unit)

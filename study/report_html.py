@@ -71,6 +71,11 @@ def write_report(path: Path, results: list[dict], group: GroupResult, figures: l
         parts.append("<h3>Effects supported on their own</h3>" + _table(
             ["effect", "sessions", "median shrink %"],
             [[k, v["sessions"], v["median_shrink_pct"]] for k, v in g["supported"].items()]))
+    if group.note:
+        parts.append(f"<p><b>{html.escape(group.note)}</b></p>")
+    for joint, jg in group.joints.items():
+        parts.append(f"<h2>{html.escape(joint)}: Tables 1-9 (Kp in "
+                     f"{html.escape(jg.unit)})</h2><pre>{html.escape(jg.tables_text)}</pre>")
     if group.selection is not None:
         parts.append("<h2>Tables 1-9: AICc per participant and model, selected model and "
                      "trend, AICc sums</h2>")
@@ -100,6 +105,9 @@ def write_report(path: Path, results: list[dict], group: GroupResult, figures: l
 def draw_figures(group: GroupResult, out: Path) -> list[Path]:
     """Figures 4-6 (Kp, wn, zeta against sE with the fitted curves): the PNG files (a PDF of
     each is written beside it)."""
+    if group.joints:     # one set per joint, in its folder
+        return [f for joint, g in group.joints.items()
+                for f in draw_figures(g, out / f"group-{joint}")]
     if group.selection is None:
         return []
     from nmsid.analysis.figures import plot_parameter_curves  # matplotlib: loaded only to draw

@@ -90,6 +90,8 @@ def run_study(config: StudyConfig, out_dir: str | os.PathLike, *, workers: int |
     for r in results:  # the code used in the group tables ([participants] overrides)
         r["label"] = config.participants.get(Path(r["path"]).stem, r.get("participant", ""))
     group = write_group(results, out, settings, config.participants)
+    if group.note:
+        say(group.note)
     figures = draw_figures(group, out) if config.figures else []
     (out / "study.json").write_text(json.dumps({
         "format": "nmsid-study", "format_version": 1, "source": config.source,

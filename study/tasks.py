@@ -107,7 +107,8 @@ def run_session(path: str, out_dir: str, settings: IdentificationSettings, *,
             levels=len(res.levels),
             levels_identified=sum(1 for lv in res.levels if lv.fit is not None),
             lowest_fit_pct=_num(min(fits)) if fits else None,
-            problems=list(ident.problems))
+            problems=list(ident.problems),
+            joint=res.joint, measured_unit=res.unit)
         result["ok"] = True
         if gap:
             stage = "gap diagnosis"

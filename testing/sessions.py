@@ -104,7 +104,8 @@ def write_synthetic_session(path: str | Path, seed: int = 0, *, participant: str
                             steady_s: float = 5.0, chirp_s: float = 10.0, f0_Hz: float = 1.0,
                             f1_Hz: float = 10.0, noise_sd_N: float | None = None,
                             mains_N: float | None = None, params=None,
-                            noise_seed: int | None = None) -> SyntheticTruth:
+                            noise_seed: int | None = None,
+                            extra_attrs: dict | None = None) -> SyntheticTruth:
     """Write a session file with known parameters and return them.
 
     Parameters
@@ -118,6 +119,8 @@ def write_synthetic_session(path: str | Path, seed: int = 0, *, participant: str
     noise_seed : int, optional
         Seed of the noise only (default: ``seed``); lets a benchmark redraw noise on
         fixed parameters.
+    extra_attrs : dict, optional
+        Optional root attributes (e.g. a joint's, ``protocols.joints.joint_attrs``).
     """
     rng = np.random.default_rng(seed)
     sE = np.asarray(sE_levels, dtype=float)
@@ -137,7 +140,8 @@ def write_synthetic_session(path: str | Path, seed: int = 0, *, participant: str
     participant = participant or f"SYN{seed:03d}"
     n = int(round((steady_s + chirp_s) * fs_Hz))
     t = np.arange(n) / fs_Hz
-    w = SessionWriter.create(path, participant=participant, seed=seed, backend="synthetic")
+    w = SessionWriter.create(path, participant=participant, seed=seed, backend="synthetic",
+                             extra_attrs=extra_attrs)
     cal = Calibration(Iemin_mA=2.0, Iemax_mA=9.5, Ifmin_mA=1.5, Ifmax_mA=8.0)
     w.write_calibration(cal)
     responses = {}

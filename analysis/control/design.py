@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -35,6 +36,7 @@ from nmsid.analysis.control.errors import ControlDesignError, ControllerFileErro
 from nmsid.analysis.control.margins import Margins, stability_margins
 from nmsid.analysis.control.plant import SecondOrderPlant
 from nmsid.analysis.control.targets import RANGE_FRACTION, Target, default_targets
+from nmsid.protocols.joints import QUANTITY_UNITS
 from nmsid.protocols.reprs import html_repr, number_span, short_repr, to_dataframe
 
 FORMAT = "nmsid-controller"
@@ -102,6 +104,17 @@ class ControllerDesign:
     unmodelled_effects: list = field(default_factory=list)
     levels: list[LevelDesign] = field(default_factory=list)
     baseline: dict = field(default_factory=dict)
+    joint: str = "elbow"
+    """The twin's joint (``docs/joints.md``); optional in the file (absent: the elbow)."""
+    measured_unit: str = "N"
+    """``N`` or ``N m``: the unit of Kp, the offset, the targets (``force_range_N``) and
+    the error; ``Kc`` is rE per this unit."""
+
+    @property
+    def per_unit(self) -> str:
+        """``rE/N`` or ``rE/(N m)``."""
+        return "rE/" + (self.measured_unit if " " not in self.measured_unit
+                        else f"({self.measured_unit})")
 
     # -- runtime ------------------------------------------------------------------------
     @property
@@ -132,9 +145,10 @@ class ControllerDesign:
 
     def __repr__(self) -> str:
         return short_repr("ControllerDesign", self.participant or "participant",
-                          f"sE {self.sE:g}", f"Kc {self.Kc:.4g} rE/N",
+                          f"sE {self.sE:g}", f"Kc {self.Kc:.4g} {self.per_unit}",
                           f"Ti {1000 * self.Ti_s:.1f} ms", f"update {self.update_Hz:g} Hz",
-                          f"targets {self.force_range_N[0]:.2f}-{self.force_range_N[1]:.2f} N",
+                          f"targets {self.force_range_N[0]:.2f}-{self.force_range_N[1]:.2f} "
+                          f"{self.measured_unit}",
                           f"{len(self.levels)} sE levels evaluated" if self.levels else "",
                           "unmodelled effects " + ", ".join(map(str, self.unmodelled_effects))
                           if self.unmodelled_effects else "")
@@ -152,6 +166,8 @@ class ControllerDesign:
     def to_dict(self) -> dict:
         d = asdict(self)
         d["force_range_N"] = list(self.force_range_N)
+        if (self.joint, self.measured_unit) == ("elbow", "N"):   # optional: the file of before
+            del d["joint"], d["measured_unit"]
         return {"format": FORMAT, "format_version": FORMAT_VERSION, **d}
 
     def save(self, path) -> None:
@@ -189,7 +205,9 @@ class ControllerDesign:
                                      float(d["force_range_N"][1])),
                       twin_source=list(d.get("twin_source") or []),
                       unmodelled_effects=list(d.get("unmodelled_effects") or []),
-                      baseline=dict(d.get("baseline") or {}))
+                      baseline=dict(d.get("baseline") or {}),
+                      joint=str(d.get("joint", "elbow")),
+                      measured_unit=str(d.get("measured_unit", "N")))
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise ControllerFileError(f"{where}: item {exc} is missing or not a number") from None
         checks = (("sE", out.sE, 0, 2), ("plant.Kp", plant["Kp"], 0, 1e4),
@@ -203,6 +221,11 @@ class ControllerDesign:
                 raise ControllerFileError(f"{where}: {name} = {v!r} is outside ({lo:g}, {hi:g}]")
         if not plant["L_s"] >= 0:
             raise ControllerFileError(f"{where}: plant.L_s must be >= 0")
+        if out.measured_unit not in QUANTITY_UNITS.values() or not re.fullmatch(
+                r"[a-z][a-z0-9_]{0,31}", out.joint):
+            raise ControllerFileError(f"{where}: joint {out.joint!r} / measured_unit "
+                                      f"{out.measured_unit!r}: expected a joint name and one of "
+                                      + ", ".join(repr(u) for u in QUANTITY_UNITS.values()))
         return out
 
 
@@ -371,6 +394,8 @@ def design_controller(twin, *, sE: float | None = None, update_Hz: float = UPDAT
         learning_gain=float(learning_gain), calibration=dict(twin.calibration),
         force_range_N=(mid - half, mid + half), twin_source=list(twin.source),
         unmodelled_effects=unmodelled,
+        joint=str(getattr(twin, "joint", "elbow")),
+        measured_unit=str(getattr(twin, "measured_unit", "N")),
         baseline={"rule": "Ziegler-Nichols PID from relay feedback (Astrom-Hagglund), "
                           "tuned in the tracking session without the twin",
                   "relay_amplitude_rE": 0.15, "relay_hysteresis_N": 0.05,
@@ -397,17 +422,19 @@ def design_controller(twin, *, sE: float | None = None, update_Hz: float = UPDAT
 def design_report(design: ControllerDesign) -> str:
     """The design report (Markdown)."""
     p = design.plant
-    lines = [f"# Controller design: {design.participant or 'participant'}", "",
-             (f"Operating sE {design.sE:.3f}: Kp {p['Kp']:.3f} N, wn {p['wn_rad_s']:.2f} rad/s, "
-             f"zeta {p['zeta']:.3f}, offset {p['offset_N']:.3f} N, dead time "
+    u = design.measured_unit
+    lines = [f"# Controller design: {design.participant or 'participant'}"
+             + ("" if design.joint == "elbow" else f" ({design.joint}, {u})"), "",
+             (f"Operating sE {design.sE:.3f}: Kp {p['Kp']:.3f} {u}, wn {p['wn_rad_s']:.2f} "
+             f"rad/s, zeta {p['zeta']:.3f}, offset {p['offset_N']:.3f} {u}, dead time "
              f"{1000 * p['L_s']:.1f} ms."),
              f"Stream: {design.update_Hz:g} Hz updates, {design.queue} queued ahead.",
-             (f"PI (Smith predictor, anti-windup): Kc {design.Kc:.4g} rE/N, Ti "
+             (f"PI (Smith predictor, anti-windup): Kc {design.Kc:.4g} {design.per_unit}, Ti "
              f"{design.Ti_s * 1000:.1f} ms; feedforward: the twin inverted on the target "
              f"smoothed over {design.smoothing_s * 1000:.1f} ms (sigma); trial-to-trial "
              f"learning gain {design.learning_gain:g}."),
              (f"Default targets within {design.force_range_N[0]:.2f} .. "
-             f"{design.force_range_N[1]:.2f} N ({RANGE_FRACTION:.0%} of the twin's range at "
+             f"{design.force_range_N[1]:.2f} {u} ({RANGE_FRACTION:.0%} of the twin's range at "
              "this sE)."),
              (f"Limits: rE in [0, 1] at sE {design.sE:.3f}: at most Imin + "
              f"{design.sE:.3f} (Imax - Imin) per muscle, and the session's ceilings."),

@@ -24,6 +24,7 @@ from nmsid.analysis import plot_style as style
 from nmsid.analysis.control.design import rmse_pct_of_range
 from nmsid.analysis.control.errors import TrackingReportError
 from nmsid.analysis.control.targets import Target
+from nmsid.protocols.joints import recorded_quantity
 
 SETTLE_BAND = 0.05
 """Settling: within this fraction of the step size."""
@@ -56,6 +57,8 @@ class TrackingReport:
     trials: list[TrialMetrics] = field(default_factory=list)
     controllers: dict = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    measured_unit: str = "N"
+    """The session's unit (``N``; ``N m`` at a knee or an ankle): of ``max_error_N``."""
 
     def to_dict(self) -> dict:
         return {"session": self.session, "controllers": self.controllers,
@@ -131,7 +134,8 @@ def tracking_report(session) -> TrackingReport:
     if not trials:
         raise TrackingReportError(f"{session.path}: no tracking trials (a session of "
                                   "nmsid run --track)")
-    rep = TrackingReport(session=Path(session.path).name)
+    rep = TrackingReport(session=Path(session.path).name,
+                         measured_unit=recorded_quantity(session.attrs)[2])
     rep.trials = [trial_metrics(t) for t in trials]
     for name in sorted({m.controller for m in rep.trials}):
         mine = [m for m in rep.trials if m.controller == name]
@@ -179,7 +183,8 @@ def report_markdown(rep: TrackingReport) -> str:
                      f"{c['n_aborted']} |")
     if "twin_over_baseline" in rep.controllers:
         lines += ["", f"Twin / baseline RMSE: {rep.controllers['twin_over_baseline']:.3f}"]
-    lines += ["", ("| trial | controller | target | status | RMSE % | max error N | overshoot % "
+    lines += ["", (f"| trial | controller | target | status | RMSE % | max error "
+              f"{rep.measured_unit} | overshoot % "
               "| settling s | latency ms |"), "|---|---|---|---|---|---|---|---|---|"]
     for m in rep.trials:
         def g(x, spec=".2f", scale=1.0):
@@ -223,8 +228,9 @@ def write_figures(session, out_dir: Path) -> list[str]:
                       color=line.get_color())
         ax_e.axhline(0.0, color="k", lw=0.5)
         ax_e.set_xlabel("time from onset (s)")
-        ax.set_ylabel("force (N)")
-        ax_e.set_ylabel("error (N)\nforce - target")
+        quantity, unit = recorded_quantity(session.attrs)[1:]
+        ax.set_ylabel(f"{quantity} ({unit})")
+        ax_e.set_ylabel(f"error ({unit})\n{quantity} - target")
         who = session.participant or "unknown participant"
         ax.set_title(f"participant {who}: tracking the target {name!r}")
         style.legend_outside(ax, "right")

@@ -29,6 +29,8 @@ from nmsid.analysis.design.validate import (
     validated_ratio,
 )
 from nmsid.progress import Progress, say
+from nmsid.protocols.joints import JOINTS
+from nmsid.sim_backends.joint_participants import joint_sensor
 from nmsid.sim_backends.participant import ReferenceCalibration
 from nmsid.sim_backends.population import make_population
 from nmsid.sim_backends.sensor import SensorModel
@@ -56,12 +58,16 @@ def validation_participants(prior: Prior, n: int, *, twin_path=None, population_
             twin = dict(twin, calibration={k: getattr(STAND_IN_CALIBRATION, k)
                                            for k in _CURRENTS})
             note = " (the twin has no calibration, a group average: stand-in currents)"
-        base = participant_from_twin(twin, sensor=SensorModel(
-            noise_N=prior.participants[0].noise_N))
+        sensor = dataclasses.replace(joint_sensor(prior.joint) if prior.joint in JOINTS
+                                     else SensorModel(),
+                                     noise_N=prior.participants[0].noise_N)
+        base = participant_from_twin(twin, sensor=sensor)
         return [dataclasses.replace(base, code=f"{base.code[:58]}-v{k + 1:02d}", seed=k + 1)
                 for k in range(n)], f"twin {twin_path} x {n} seeds{note}"
     seed = population_seed + VALIDATION_SEED_OFFSET
-    return make_population(n, seed), f"simulator population seed {seed}, n={n}"
+    return (make_population(n, seed, joint=prior.joint),
+            f"simulator population seed {seed}, n={n}"
+            + ("" if prior.joint == "elbow" else f", {prior.joint}"))
 
 
 #: The random streams of the two protocols in a validation: each draws its own physiology
@@ -313,7 +319,8 @@ def run_design(prior: Prior, target: str, out_dir, *, validate_n: int = 10,
     doc = write_outputs(out_dir, result, prior_source=prior.source, scatter=sc,
                         validation=validation, noise_only=noise_only,
                         excitation={"kept_paper_excitation": bool(keep_paper_excitation),
-                                    "why": excitation_note})
+                                    "why": excitation_note},
+                        joint=prior.joint)
     return DesignOutcome(doc, Path(out_dir), tgt.tolerance, tgt.kind)
 
 

@@ -23,6 +23,8 @@ import numpy as np
 from nmsid.analysis.curves import evaluate_curve
 from nmsid.analysis.design.errors import DesignError
 from nmsid.analysis.twin import Twin
+from nmsid.protocols.joints import DEFAULT_JOINT, JOINTS
+from nmsid.sim_backends.joint_participants import joint_sensor
 from nmsid.sim_backends.population import make_population
 
 PARAMETERS = ("Kp", "wn_rad_s", "zeta")
@@ -30,6 +32,16 @@ PARAMETERS = ("Kp", "wn_rad_s", "zeta")
 #: Sensor noise assumed for a twin file (which does not store it): the middle of the
 #: 0.02-0.06 N RMS the paper's rig and the simulator's population have.
 DEFAULT_NOISE_N = 0.04
+
+
+def default_noise(joint: str = DEFAULT_JOINT) -> float:
+    """Sensor noise RMS assumed for a twin of ``joint``, in its unit: the elbow's
+    :data:`DEFAULT_NOISE_N` scaled as the joint's simulated sensor chain is (its Fmax over
+    the elbow's: 0.4 N m at the knee, 0.16 N m at the ankle); a joint nmsid does not know
+    (a twin from another lab's registry): the elbow's."""
+    if joint not in JOINTS:
+        return DEFAULT_NOISE_N
+    return DEFAULT_NOISE_N * joint_sensor(joint).noise_N / joint_sensor(DEFAULT_JOINT).noise_N
 
 
 @dataclass(frozen=True)
@@ -66,6 +78,9 @@ class Prior:
 
     participants: tuple
     source: str
+    joint: str = DEFAULT_JOINT
+    """The joint the prior is of (a twin's, or the population's): its unit is the one of
+    Kp and ``noise_N``; the validation simulates participants of that joint."""
 
 
 def _check(code: str, curves: dict, where: str) -> None:
@@ -81,8 +96,9 @@ def _check(code: str, curves: dict, where: str) -> None:
                               "sE 0.30-1.00; the twin cannot be a prior")
 
 
-def twin_prior(path, noise_N: float = DEFAULT_NOISE_N) -> Prior:
-    """A prior from one participant's ``twin.json``.
+def twin_prior(path, noise_N: float | None = None) -> Prior:
+    """A prior from one participant's ``twin.json``; ``noise_N`` in the twin's unit
+    (default :func:`default_noise` of its joint).
 
     Raises
     ------
@@ -91,9 +107,11 @@ def twin_prior(path, noise_N: float = DEFAULT_NOISE_N) -> Prior:
     DesignError
         If a curve cannot be a prior (constant, or wn/zeta not positive), or noise_N <= 0.
     """
-    if not (noise_N > 0 and math.isfinite(noise_N)):
+    if noise_N is not None and not (noise_N > 0 and math.isfinite(noise_N)):
         raise DesignError(f"--noise-N {noise_N!r}: give the sensor's RMS noise in N (> 0)")
     twin = Twin.load(path)
+    if noise_N is None:
+        noise_N = default_noise(twin.joint)
     if twin.muscle_model is not None:
         raise DesignError(f"{path}: this twin has the muscle form (muscle_model "
                           f"{twin.muscle_model.get('form')!r}); nmsid design plans for the "
@@ -105,20 +123,23 @@ def twin_prior(path, noise_N: float = DEFAULT_NOISE_N) -> Prior:
     _check(twin.participant, curves, str(path))
     lo, hi = twin.sE_range
     return Prior((PriorParticipant(twin.participant, curves, float(noise_N),
-                                   (float(lo), float(hi))),), source=str(path))
+                                   (float(lo), float(hi))),), source=str(path),
+                 joint=twin.joint)
 
 
-def population_prior(n: int = 20, seed: int = 0) -> Prior:
-    """A prior from the simulator's population: ``n`` participants from ``seed``."""
+def population_prior(n: int = 20, seed: int = 0, joint: str = DEFAULT_JOINT) -> Prior:
+    """A prior from the simulator's population of ``joint``: ``n`` participants from
+    ``seed``."""
     out = []
-    for vp in make_population(n, seed):
+    for vp in make_population(n, seed, joint=joint):
         curves = {name: PriorCurve(getattr(vp, name).model.value,
                                    tuple(getattr(vp, name).coefficients))
                   for name in PARAMETERS}
         lo, hi = vp.sE_range
         out.append(PriorParticipant(vp.code, curves, float(vp.sensor.noise_N),
                                     (float(lo), float(hi))))
-    return Prior(tuple(out), source=f"simulator population (n={n}, seed={seed})")
+    return Prior(tuple(out), joint=joint, source=f"simulator population (n={n}, seed={seed}"
+                 + ("" if joint == DEFAULT_JOINT else f", {joint}") + ")")
 
 
 _SE_COLUMNS = {"Kp": "Kp_se", "wn_rad_s": "wn_se", "zeta": "zeta_se"}

@@ -42,9 +42,12 @@ CAVEATS = (
 )
 
 
-def protocol_toml(c: Candidate, header: str = "") -> str:
-    """The ``[protocol]`` table of ``c`` as TOML text."""
+def protocol_toml(c: Candidate, header: str = "", joint: str = "elbow") -> str:
+    """The ``[protocol]`` table of ``c`` as TOML text; for a joint other than the elbow, its
+    top-level ``joint`` first (the session then gets that joint's limits and units)."""
     lines = [f"# {line}" for line in header.splitlines()] if header else []
+    if joint != "elbow":
+        lines.append(f"joint = {json.dumps(joint)}")
     lines.append("[protocol]")
     for key, value in c.protocol_dict().items():
         if isinstance(value, list):
@@ -75,7 +78,7 @@ def _derived_json(derived: list[dict[str, DerivedQuantities]]) -> list[dict]:
 
 def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
                   validation: dict | None, noise_only=None,
-                  excitation: dict | None = None) -> dict:
+                  excitation: dict | None = None, joint: str = "elbow") -> dict:
     """Write every output file; return the ``design.json`` dict.
 
     Parameters
@@ -92,6 +95,8 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
     excitation : dict, optional
         ``{"kept_paper_excitation": bool, "why": str}``: whether the search was limited to
         the paper's excitation and why.
+    joint : str
+        The prior's joint: written into protocol.toml (``joint = "knee"``) and design.json.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -103,7 +108,7 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
               f"of the paper's {paper.candidate.stimulation_s:g} s), prior: {prior_source}")
     toml_path = out / "protocol.toml"
     tmp = out / ".protocol.toml.tmp"
-    tmp.write_text(protocol_toml(c, header), encoding="utf-8")
+    tmp.write_text(protocol_toml(c, header, joint), encoding="utf-8")
     load_config(tmp)             # the file must load exactly as nmsid run will load it
     os.replace(tmp, toml_path)
 
@@ -123,6 +128,7 @@ def write_outputs(out_dir, result, *, prior_source: str, scatter: dict,
         "found": bool(result.found),
         "target": result.target.describe(),
         "prior": prior_source,
+        **({"joint": joint} if joint != "elbow" else {}),
         "scatter_per_trial_rel": scatter,
         "excitation": excitation or {"kept_paper_excitation": False, "why": ""},
         "protocol": c.protocol_dict(), "protocol_description": c.describe(),

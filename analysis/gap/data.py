@@ -38,6 +38,7 @@ from nmsid.analysis.gap.errors import GapInputError
 from nmsid.analysis.input_timing import TimingEstimate, estimate_session_timing
 from nmsid.analysis.preprocess import delay_input, smooth_and_lowpass
 from nmsid.analysis.settings import IdentificationSettings
+from nmsid.protocols.joints import recorded_quantity
 from nmsid.protocols.session_file import Session, read_session
 from nmsid.protocols.waveforms import chirp_frequency_Hz, chirp_phase_rad
 
@@ -136,6 +137,9 @@ class GapData:
     """(n_trials,) mean square of the filtered force in the steady lead-in (rE = 0.5, last
     3 s before the chirp but 0.3 s) after offset and trend: the sensor's noise floor, free
     of any model error (NaN if the lead-in is shorter than 1 s)."""
+    measured: tuple[str, str, str] = ("elbow", "force", "N")
+    """``(joint, quantity, unit)`` the session records (:func:`nmsid.protocols.joints.
+    recorded_quantity`): ``y_N`` and every ``_N`` figure are in that unit."""
 
     @property
     def n_trials(self) -> int:
@@ -184,7 +188,8 @@ class GapData:
             sim_step=self.sim_step, skipped=self.skipped, timing=self.timing,
             excluded=self.excluded,
             steady_N=None if self.steady_N is None else self.steady_N[rows],
-            steady_noise_N2=None if self.steady_noise_N2 is None else self.steady_noise_N2[rows])
+            steady_noise_N2=None if self.steady_noise_N2 is None else self.steady_noise_N2[rows],
+            measured=self.measured)
 
 
 def _filter_chain(x: np.ndarray, fs_Hz: float, s: PreprocessSettings) -> np.ndarray:
@@ -219,8 +224,10 @@ def load_session(session, settings: PreprocessSettings | None = None, *,
     s = settings or PreprocessSettings()
     if not isinstance(session, Session):
         session = read_session(session, datasets=GAP_DATASETS)
-    return prepare_trials(session.trials, path=str(session.path),
+    data = prepare_trials(session.trials, path=str(session.path),
                           participant=session.participant, settings=s, excluded=excluded)
+    data.measured = recorded_quantity(session.attrs)
+    return data
 
 
 #: The lead-in noise is measured above this frequency (a baseline drift lies below; the

@@ -220,9 +220,10 @@ def plot_ranking(ranking: list[dict], nominal_pct: float, noise_pct: float, path
     style.save(fig, path)
 
 
-def plot_example(t_s, measured, nominal, augmented, title: str, path: Path) -> None:
-    """One held-out trial: the measured force under the nominal and augmented
-    predictions, and their residuals in a panel beneath."""
+def plot_example(t_s, measured, nominal, augmented, title: str, path: Path, *,
+                 quantity: str = "force", unit: str = "N") -> None:
+    """One held-out trial: the measured force (or torque, in ``unit``) under the nominal
+    and augmented predictions, and their residuals in a panel beneath."""
     plt = style.pyplot()
     fig, (ax, ax_r) = plt.subplots(2, 1, figsize=(11, 4.8), sharex=True,
                                    gridspec_kw={"height_ratios": [2.4, 1.0]})
@@ -237,8 +238,8 @@ def plot_example(t_s, measured, nominal, augmented, title: str, path: Path) -> N
                   lw=0.6, label="measured - augmented")
     ax_r.axhline(0.0, color="k", lw=0.5)
     ax_r.set_xlabel("time since chirp start (s)")
-    ax.set_ylabel("force (N), offset\nand trend removed")
-    ax_r.set_ylabel("residual (N)")
+    ax.set_ylabel(f"{quantity} ({unit}), offset\nand trend removed")
+    ax_r.set_ylabel(f"residual ({unit})")
     ax.set_title(title)
     style.legend_outside(ax, "right")
     style.legend_outside(ax_r, "right")

@@ -268,13 +268,15 @@ def build_report(diag: Diagnosis, calibration=None) -> GapReport:
         twin = twin_dict(participant=diag.data.participant or "unknown",
                          source=[source_entry(diag.data.path)], calibration=calibration,
                          sE_levels=diag.data.sE_levels, Kp=Kp, wn_rad_s=wn, zeta=zeta,
-                         effects=effects)
+                         effects=effects, measured=diag.data.measured)
     in_aug = final.insample_nrmse_pct if final else nom.insample_nrmse_pct
     a = diag.assessment
     loc_dict = loc.to_dict()
     report: dict[str, Any] = {
         "format": "nmsid-gap-report", "format_version": 1,
         "session": diag.data.path, "participant": diag.data.participant,
+        # optional (docs/joints.md): every _N figure below is in this unit
+        "joint": diag.data.measured[0], "measured_unit": diag.data.measured[2],
         "verdict": a.get("verdict"), "verdict_sentence": a.get("sentence"),
         "remaining": a.get("remaining"), "nominal_gap": a.get("nominal_gap"),
         "not_named": a.get("not_named"),
@@ -407,7 +409,8 @@ def _figures(diag: Diagnosis, report: dict, localized: Localization, out: Path) 
                  f"{diag.data.trials[i].sE:g}): worst nominal fit")
         draw("example.png", lambda p: plots.plot_example(
             diag.data.t_eval_s, ref, ref - diag.nominal.heldout_resid[i],
-            ref - final.heldout_resid[i] if final else None, title, p))
+            ref - final.heldout_resid[i] if final else None, title, p,
+            quantity=diag.data.measured[1], unit=diag.data.measured[2]))
     if failed:
         report["figures_failed"] = failed
     return names
@@ -484,16 +487,20 @@ def _html(report: dict, figures: list[str]) -> str:
                      "style='max-width:100%'>")
     parts.append("<h2>Where: held-out NRMSE by location</h2>")
     loc = report["localization"]
+    unit = str(report.get("measured_unit") or "N")
+    u2 = f"{unit}^2" if unit == "N" else f"({unit})^2"
     for key, label, cols in (
             ("sE", "by sE", [("sE", "sE", "{:.2f}"), ("nrmse_pct", "NRMSE %", "{:.3f}"),
-                             ("residual_power_N2", "residual power N^2", "{:.3g}")]),
+                             ("residual_power_N2", f"residual power {u2}", "{:.3g}")]),
             ("band", "by chirp band", [("f_lo_Hz", "from Hz", "{:g}"),
                                        ("f_hi_Hz", "to Hz", "{:g}"),
                                        ("nrmse_pct", "NRMSE %", "{:.3f}"),
-                                       ("residual_power_N2", "residual power N^2", "{:.3g}")]),
+                                       ("residual_power_N2", f"residual power {u2}",
+                                        "{:.3g}")]),
             ("deviation", "by rE - 0.5", [("d_lo", "from", "{:+.2f}"), ("d_hi", "to", "{:+.2f}"),
                                           ("nrmse_pct", "NRMSE %", "{:.3f}"),
-                                          ("residual_mean_N", "mean residual N", "{:+.4f}")])):
+                                          ("residual_mean_N", f"mean residual {unit}",
+                                           "{:+.4f}")])):
         parts.append(f"<h3>{label}</h3><table><tr><td>nominal"
                      f"{_table(loc['nominal'][key], cols)}</td>")
         if "augmented" in loc:

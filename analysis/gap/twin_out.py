@@ -60,8 +60,11 @@ def _curve(sE: np.ndarray, values: np.ndarray) -> dict:
 
 
 def twin_dict(*, participant: str, source: list[dict | str], calibration, sE_levels, Kp, wn_rad_s,
-              zeta, effects: list[dict]) -> dict:
-    """A twin file's content (``docs/twin-file.md``)."""
+              zeta, effects: list[dict],
+              measured: tuple[str, str, str] = ("elbow", "force", "N")) -> dict:
+    """A twin file's content (``docs/twin-file.md``); ``measured`` the session's
+    ``(joint, quantity, unit)``: recorded for any joint but the elbow's force (optional
+    items, as :meth:`nmsid.analysis.twin.Twin.to_dict` writes them)."""
     sE = np.asarray(sE_levels, float)
     cal = {k: float(getattr(calibration, k)) for k in
            ("Iemin_mA", "Iemax_mA", "Ifmin_mA", "Ifmax_mA", "Fmin_N", "Fmax_N")}
@@ -74,6 +77,9 @@ def twin_dict(*, participant: str, source: list[dict | str], calibration, sE_lev
                        "zeta": _curve(sE, np.asarray(zeta, float))},
         "offset_N": {"model": "constant", "coefficients": [0.0]},
         "effects": effects,
+        **({"joint": measured[0], "measured_quantity": measured[1],
+            "measured_unit": measured[2]} if tuple(measured[:2]) != ("elbow", "force")
+           else {}),
     }
 
 

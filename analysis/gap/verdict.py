@@ -526,8 +526,9 @@ def _likely_sentence(lk: Likely, nom: float, min_shrink_pct: float = 10.0) -> st
 def sentence(verdict: str, label: str | None, nominal: dict, remaining: dict,
              scatter_pct: float | None = None, *, likely: Likely | None = None,
              muscle_floor_multiple: float = 3.0, muscle_to_floor: float | None = None,
-             min_shrink_pct: float = 10.0) -> str:
-    """The verdict in one or two sentences a physiologist understands.
+             min_shrink_pct: float = 10.0, unit: str = "N") -> str:
+    """The verdict in one or two sentences a physiologist understands (``unit``: the
+    session's, N or N m).
 
     ``likely``: the candidate of :func:`likely_candidate` (verdict ``likely``).
     ``muscle_to_floor``: the muscle twin's held-out NRMSE over the noise floor; "the
@@ -545,7 +546,7 @@ def sentence(verdict: str, label: str | None, nominal: dict, remaining: dict,
         explained = [c for c in conc if c in steps]
         if explained:
             tail += "; " + ", ".join(
-                f"{c} has a baseline step of {steps[c]['height_N']:+.2f} N at "
+                f"{c} has a baseline step of {steps[c]['height_N']:+.2f} {unit} at "
                 f"{steps[c]['t_s']:.1f} s into the chirp" for c in explained)
         if len(explained) < len(conc):
             tail += " - check those trials for a voluntary contraction or an artefact"
@@ -856,7 +857,8 @@ def assess(diag, muscle=None, nominal_tests: tuple[dict, list] | None = None) ->
                     scatter_pct, likely=likely,
                     muscle_floor_multiple=getattr(diag.settings, "muscle_floor_multiple", 3.0),
                     muscle_to_floor=_muscle_to_floor(diag, muscle),
-                    min_shrink_pct=diag.settings.min_shrink_pct)
+                    min_shrink_pct=diag.settings.min_shrink_pct,
+                    unit=getattr(diag.data, "measured", ("", "", "N"))[2])
     try:
         fatigue = gap_fatigue(diag)
     except (ValueError, FloatingPointError):

@@ -152,6 +152,42 @@ def leptrino_analog_wiring(bench: FakeBench, channels: dict, rated: dict,
     return wiring
 
 
+DYNAMOMETER_SPAN_V = (-5.0, 5.0)
+"""Noraxon, Biodex integration guide ("Setting up a Protocol and Scaling Analog Torque,
+Velocity, and Position Channels"): "the analog signals for the Biodex range from -5 to +5
+volts for Velocity and Torque"."""
+DYNAMOMETER_REST_V = 0.12
+"""Where the fake dynamometer's torque output RESTS with the limb strapped in: off its
+nominal 0 V (the arm's and the limb's weight, the amplifier's offset); the driver measures
+it (tare)."""
+
+
+def dynamometer_analog_wiring(bench: FakeBench, channel: int, Nm_per_V: float, *,
+                              sign: float = 1.0, sync_channel=None,
+                              rest_V: float = DYNAMOMETER_REST_V,
+                              span_V=DYNAMOMETER_SPAN_V, noise_V: float = 0.0005,
+                              seed: int = 1) -> dict:
+    """A dynamometer's analog torque output, driven by TORQUE (the bench's ``force``, here
+    N m): ``rest_V + sign x torque / Nm_per_V`` plus white noise, clipped to the output's
+    span (-5 .. +5 V, the guide above), whatever offset the driver was configured with.
+    The scale is the dynamometer's own setting (Biodex addendum FN 14-379, chapter 1: its
+    utility "configures the scale factors ... of the analog signal outputs"), so the fake
+    takes it as given. ``{A/D channel: fn(t, torque) -> volts}``."""
+    rng = np.random.default_rng(seed)
+    lo, hi = span_V
+
+    def torque_out(t, torque):
+        v = rest_V + sign * np.asarray(torque, dtype=float) / Nm_per_V
+        if noise_V:
+            v = v + rng.normal(0.0, noise_V, size=np.shape(v))
+        return np.clip(v, lo, hi)
+
+    wiring: dict[int, Callable[..., np.ndarray]] = {channel: torque_out}
+    if sync_channel is not None:
+        wiring[sync_channel] = lambda t, force: bench.sync_V(t)
+    return wiring
+
+
 def sensor_wiring(bench: FakeBench, channels: dict, volts_per_unit: dict, offset_V=None,
                   direction=(1.0, 0.0, 0.0), sync_channel=None, noise_V: float = 0.0,
                   seed: int = 1) -> dict:

@@ -61,14 +61,6 @@ def test_run_joint_end_to_end(tmp_path, joint, capsys):
     assert (twin["joint"], twin["measured_unit"]) == (joint, "N m")
 
 
-def test_msk_participant_is_refused_for_a_knee(tmp_path, capsys):
-    code = main(["run", "--backend", "sim", "--joint", "knee", "--participant-model",
-                 "musculoskeletal", "--out", str(tmp_path / "k.h5"), "--quiet"])
-    err = capsys.readouterr().err
-    assert code == 2 and "musculoskeletal" in err and "template" in err
-    assert not (tmp_path / "k.h5").exists()
-
-
 def test_resume_refuses_a_new_joint(tmp_path, capsys):
     code = main(["run", "--backend", "sim", "--resume", str(tmp_path / "x.h5"),
                  "--joint", "knee"])
