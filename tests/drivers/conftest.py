@@ -154,7 +154,7 @@ FAKE_MCS_IN_CHILD = ("import sys\n"
 
 @pytest.fixture
 def deep_fake_fifo(monkeypatch):
-    """The dry-run tests' fake CAIO FIFO. It holds 4096 scans: 0.4 s at the dry run's
+    """A deep fake CAIO FIFO (dry run, dynamometer). It holds 4096 scans: 0.4 s at the dry run's
     10 kHz. A loaded test host (2 cores, several suites) can keep this process off the
     CPU for longer, and the record would then fail as overrun; the FIFO's depth is not
     what these tests check (``tests/drivers/test_caio.py`` checks the overrun flag), so

@@ -80,7 +80,8 @@ def _dynamometer_rig(fake_mcs, torque_fn):
     """The fake Contec with the fake torque output resting at REST_V; ``torque_fn(t)`` is
     the joint torque (N m) at bench time t."""
     bench_mod = load_fake("bench")
-    bench = bench_mod.FakeBench(speed=20.0)
+    bench = bench_mod.FakeBench(speed=4.0)   # 4x wall; with the deep FIFO (conftest), a
+    # loaded host (2 cores, load ~6) cannot overrun it: at 20x it did, once, in the tare
     inner = bench_mod.dynamometer_analog_wiring(bench, 0, NM_PER_V, rest_V=REST_V)
     wiring = {0: lambda t, f: inner[0](t, torque_fn(t))}
     lib = load_fake("fake_caio").FakeCaioLibrary(bench, wiring=wiring)
@@ -97,7 +98,8 @@ def _read(acq, n):
     return np.concatenate([c.force_N for c in out])[:n]
 
 
-def test_a_dynamometer_resting_off_nominal_reads_zero_after_the_automatic_tare(fake_mcs):
+def test_a_dynamometer_resting_off_nominal_reads_zero_after_the_automatic_tare(
+        fake_mcs, deep_fake_fifo):
     bench, _lib, acq = _dynamometer_rig(fake_mcs, lambda t: np.zeros_like(t))
     try:
         acq.configure(2000.0)
@@ -110,7 +112,8 @@ def test_a_dynamometer_resting_off_nominal_reads_zero_after_the_automatic_tare(f
         acq.close()
 
 
-def test_the_torque_limit_trips_at_its_configured_torque_on_the_tared_torque(fake_mcs):
+def test_the_torque_limit_trips_at_its_configured_torque_on_the_tared_torque(
+        fake_mcs, deep_fake_fifo):
     from nmsid.rig.safety import ForceLimitRule, Observation
     limit_Nm, fs = 10.0, 2000.0
     t_ramp = [np.inf]                                # the torque rises 10 N m/s from t_ramp
