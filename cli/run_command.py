@@ -33,7 +33,12 @@ from nmsid.rig.lsl import finish_recording, lsl_observer, require_pylsl, start_r
 from nmsid.rig.observer import EngineObserver
 from nmsid.rig.recovery import check_stored_header
 from nmsid.rig.session_log import journal_dir, recover
-from nmsid.rig.session_service import RigRequest, is_plugin_spec, prepare_rig
+from nmsid.rig.session_service import (
+    RigRequest,
+    is_plugin_spec,
+    prepare_rig,
+    with_participant_model,
+)
 from nmsid.rig.session_signals import SessionSignals, exit_code, signal_name
 from nmsid.rig.trials import session_kind_from_stored
 
@@ -73,12 +78,9 @@ def run(args) -> int:
             "participant": args.participant, "seed": args.seed,
             "joint": getattr(args, "joint", None),
             "confirm_weakened_safety": getattr(args, "allow_weakened_safety", False)})
-        if args.participant_model:
-            config = config.replace(participant_model=args.participant_model)
-            if args.participant_model == "musculoskeletal" and not args.participant \
-                    and not args.config:  # issue 39: not the template's P01 under its name
-                config = config.replace(participant={"knee": "MK01", "ankle": "MA01"}.get(
-                    config.joint, "MSK01"))
+        config = with_participant_model(  # issue 39: not the template's P01 under its name
+            config, args.participant_model,
+            participant_given=bool(args.participant or args.config))
         outdir = Path(args.outdir) if args.outdir else default_sessions_dir()
         path = Path(args.out) if args.out else _free_path(outdir, config.participant)
         # a taken, dangling or unwritable --out is refused before any device is touched

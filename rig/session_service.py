@@ -120,6 +120,41 @@ def is_plugin_spec(model) -> bool:
     return ":" in str(model)
 
 
+def model_participant_code(model: str | None, joint: str) -> str | None:
+    """The participant code a session on the simulated participant ``model`` at ``joint``
+    gets when the operator names none (issue 39: the musculoskeletal participants are
+    recorded under their own codes, ``MSK01`` / ``MK01`` / ``MA01``, not the template's
+    ``P01``); None: the configuration's code stands."""
+    if model != "musculoskeletal":
+        return None
+    return {"knee": "MK01", "ankle": "MA01"}.get(joint, "MSK01")
+
+
+def with_participant_model(config: Config, model: str | None, *,
+                           participant_given: bool) -> Config:
+    """``config`` on the simulated participant ``model`` (``--participant-model``, the
+    GUI's Simulated participant), as ``nmsid run`` and ``nmsid gui`` both apply it.
+
+    Parameters
+    ----------
+    config : Config
+        The loaded configuration (its joint already chosen).
+    model : str or None
+        A name of :data:`~nmsid.protocols.config.PARTICIPANT_MODELS` or a plug-in spec;
+        None keeps the configuration's ``[participant] model``.
+    participant_given : bool
+        Whether the operator (or the configuration file) named the participant code; if
+        not, the model's own code (:func:`model_participant_code`) is used.
+    """
+    if not model:
+        return config
+    config = config.replace(participant_model=model)
+    code = model_participant_code(model, config.joint)
+    if code is not None and not participant_given:
+        config = config.replace(participant=code)
+    return config
+
+
 def seed_from_code(code: str) -> int:
     """The default simulated participant's seed: CRC-32 of the participant code."""
     return zlib.crc32(code.encode("utf-8"))
