@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from nmsid.cli.arguments import input_file, output_path, seed
+from nmsid.protocols.config import PARTICIPANT_MODELS
 from nmsid.protocols.joints import JOINTS
 from nmsid.rig.qt_platform import check_xcb
 
@@ -29,6 +30,12 @@ def register(sub) -> None:
     p.add_argument("--joint", choices=tuple(JOINTS), metavar="JOINT",
                    help="the joint the session drives: " + ", ".join(JOINTS) + " (as "
                         "`nmsid run --joint`; the set-up panel's Joint)")
+    p.add_argument("--participant-model", choices=PARTICIPANT_MODELS, metavar="MODEL",
+                   help="sim: the simulated participant: " + ", ".join(PARTICIPANT_MODELS)
+                        + " (as `nmsid run --participant-model`; the set-up panel's "
+                        "Simulated participant; with --joint knee|ankle musculoskeletal is "
+                        "MuJoCo's MyoLeg). A lab's plug-in (package.module:factory) runs "
+                        "with `nmsid run` only")
     p.add_argument("--fast", action="store_true", help="run the simulator as fast as "
                    "possible instead of in real time")
     p.add_argument("--script", metavar="SCRIPT", help="drive the window from a script "
@@ -52,6 +59,7 @@ def run(args) -> int:
         out=Path(args.out) if args.out else None,
         seed=args.seed,
         joint=args.joint,
+        participant_model=args.participant_model,
         realtime=not args.fast,
         script=args.script,
         screenshot=Path(args.screenshot) if args.screenshot else None)

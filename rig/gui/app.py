@@ -36,6 +36,7 @@ class GuiOptions:
     seed: int | None = None
     realtime: bool = True
     joint: str | None = None
+    participant_model: str | None = None
     script: str | None = None
     screenshot: Path | None = None
 
@@ -65,6 +66,8 @@ def build_window(options: GuiOptions, **window_kwargs):
         values["seed"] = options.seed
     if options.joint:
         values["joint"] = options.joint
+    if options.participant_model:
+        values["participant_model"] = options.participant_model
     window.setup_panel.set_values(**values)
     return window
 

@@ -27,7 +27,13 @@ from nmsid.rig.gui.observer import EngineSignals, Mailbox, QtEngineObserver
 from nmsid.rig.gui.setup_panel import Backend, SessionRequest
 from nmsid.rig.lsl import finish_recording, start_recording
 from nmsid.rig.observer import RunSummary
-from nmsid.rig.session_service import PreparedRig, RigRequest, prepare_rig, stored_session
+from nmsid.rig.session_service import (
+    PreparedRig,
+    RigRequest,
+    prepare_rig,
+    stored_session,
+    with_participant_model,
+)
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +77,8 @@ def load_session_config(request: SessionRequest, *, confirm_calibration: bool = 
     overrides = {"participant": request.participant, "seed": request.seed,
                  "joint": request.joint}
     cfg = load_config(request.config_path, overrides=overrides)
+    # the form always names the participant code (the model's own one unless typed)
+    cfg = with_participant_model(cfg, request.participant_model, participant_given=True)
     if confirm_calibration and not cfg.calibration.confirm:
         cfg = cfg.replace(calibration=dataclasses.replace(cfg.calibration, confirm=True))
     return cfg

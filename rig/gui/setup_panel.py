@@ -1,4 +1,5 @@
-"""Session setup: participant code, backend, configuration, output file; start or resume.
+"""Session setup: participant code, joint, backend, simulated participant, configuration,
+output file; start or resume.
 
 The output file is never overwritten. If it exists and is an unfinished session, the
 panel offers to resume it (the engine skips completed trials and re-runs aborted ones);
@@ -30,9 +31,9 @@ from PySide6.QtWidgets import (
 )
 
 from nmsid.errors import NmsidError
-from nmsid.protocols.config import config_from_json
+from nmsid.protocols.config import PARTICIPANT_MODELS, config_from_json
 from nmsid.protocols.errors import OutputPathError
-from nmsid.protocols.joints import JOINTS
+from nmsid.protocols.joints import DEFAULT_JOINT, JOINTS
 from nmsid.protocols.output_paths import check_output as check_output_place
 from nmsid.protocols.output_paths import check_session_name, default_sessions_dir
 from nmsid.protocols.session_file import PARTICIPANT_PATTERN, SessionWriter, read_session
@@ -41,6 +42,7 @@ from nmsid.rig.errors import RequestError
 from nmsid.rig.gui.lsl_panel import LslPanel
 from nmsid.rig.gui.theme import Colour
 from nmsid.rig.session_log import journal_dir
+from nmsid.rig.session_service import model_participant_code
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +77,10 @@ class SessionRequest:
     """The joint the session drives (``--joint``); None: the configuration's (elbow)."""
     lsl_record: tuple[str, ...] = ()
     """LSL streams to record into the session file (``--lsl-record``); empty: none."""
+    participant_model: str | None = None
+    """The simulated participant (``--participant-model``, a name of
+    :data:`~nmsid.protocols.config.PARTICIPANT_MODELS`; sim only); None: the
+    configuration's (template by default)."""
 
 
 @dataclass(frozen=True)
@@ -214,6 +220,16 @@ class SetupPanel(QWidget):
                                f"{j.quantity_label}", name)
         self.joint.setToolTip("The joint the session drives: its labels, unit and default "
                               "limits (docs/joints.md); as nmsid run --joint")
+        self.participant_model = QComboBox()   # the CLI's --participant-model (built-ins)
+        self.participant_model.addItem("as the configuration says (template by default)",
+                                       None)
+        for name in PARTICIPANT_MODELS:   # the one registry; plug-ins are never offered
+            self.participant_model.addItem(name, name)
+        self.participant_model.setToolTip(
+            "The simulated participant (sim only), as nmsid run --participant-model: "
+            "template: the paper's second-order model; musculoskeletal: MyoSuite's MuJoCo "
+            "elbow, or at the knee and the ankle MuJoCo's MyoLeg on a dynamometer (needs "
+            "the 'mujoco' extra). A lab's plug-in runs with nmsid run only (docs/gui.md)")
         self.lsl = lsl_panel if lsl_panel is not None else LslPanel()
         self.message = QLabel("")
         self.message.setWordWrap(True)
@@ -225,16 +241,21 @@ class SetupPanel(QWidget):
         self.start_button.clicked.connect(lambda: self.press_start(resume=False))
         self.resume_button.clicked.connect(lambda: self.press_start(resume=True))
         self._out_touched = False
+        self._participant_touched = False   # typed or given: the model's code never replaces it
+        self.participant.textEdited.connect(self._participant_edited)
         self.participant.textChanged.connect(self._participant_changed)
         self.output_path.textEdited.connect(self._output_edited)
         self.output_path.textChanged.connect(lambda _: self.refresh())
-        self.backend.currentIndexChanged.connect(lambda _: self.refresh())
+        self.backend.currentIndexChanged.connect(lambda _: self._model_changed())
+        self.joint.currentIndexChanged.connect(lambda _: self._model_changed())
+        self.participant_model.currentIndexChanged.connect(lambda _: self._model_changed())
 
         box = QGroupBox("New session")
         form = QFormLayout(box)
         form.addRow("Participant code", self.participant)
         form.addRow("Joint", self.joint)
         form.addRow("Rig", self.backend)
+        form.addRow("Simulated participant", self.participant_model)
         form.addRow("Configuration (TOML)", self._with_browse(self.config_path, "toml"))
         form.addRow("Hardware configuration", self._with_browse(self.hw_config_path, "toml"))
         form.addRow("Output file (.h5)", self._with_browse(self.output_path, "h5", save=True))
@@ -287,18 +308,47 @@ class SetupPanel(QWidget):
     def _output_edited(self, _text: str) -> None:
         self._out_touched = True
 
+    def _participant_edited(self, _text: str) -> None:
+        self._participant_touched = True
+
+    def chosen_model(self) -> str | None:
+        """The simulated participant the form asks for (None: the configuration's; always
+        None on the hardware rig)."""
+        if self.backend.currentData() != Backend.SIM:
+            return None
+        return self.participant_model.currentData()
+
+    def _model_changed(self) -> None:
+        """A participant code nobody typed follows the simulated participant, as ``nmsid
+        run --participant-model`` without ``--participant`` does (MK01 on the MyoLeg
+        knee, not the template's P01)."""
+        if not self._participant_touched:
+            code = model_participant_code(self.chosen_model(),
+                                          self.joint.currentData() or DEFAULT_JOINT)
+            self.participant.setText(code or "P01")
+        self.refresh()
+
     # -- state ------------------------------------------------------------------------
     def set_values(self, *, participant: str | None = None, backend: str | None = None,
                    config: str | os.PathLike | None = None,
                    hw_config: str | os.PathLike | None = None,
                    output: str | os.PathLike | None = None, seed: int | None = None,
                    realtime: bool | None = None, joint: str | None = None,
-                   lsl_record=None) -> None:
+                   lsl_record=None, participant_model: str | None = None) -> None:
         """Fill the form (from the command line, a script or a test); ``joint``: a name of
         :data:`~nmsid.protocols.joints.JOINTS`; ``lsl_record``: stream names to record
-        (LSL on)."""
+        (LSL on); ``participant_model``: a name of
+        :data:`~nmsid.protocols.config.PARTICIPANT_MODELS` (a plug-in spec is refused)."""
         if participant is not None:
+            self._participant_touched = True
             self.participant.setText(participant)
+        if participant_model is not None:
+            at = self.participant_model.findData(str(participant_model))
+            if at < 0:
+                raise RequestError(f"participant model {participant_model!r} is not one of "
+                                   f"{', '.join(PARTICIPANT_MODELS)} (a lab's plug-in "
+                                   "runs with nmsid run --participant-model)")
+            self.participant_model.setCurrentIndex(at)
         if joint is not None:
             at = self.joint.findData(str(joint))
             if at < 0:
@@ -326,6 +376,7 @@ class SetupPanel(QWidget):
         """Re-check the participant code and the output file; enable the buttons."""
         code = self.participant.text()
         self.realtime.setEnabled(self.backend.currentData() == Backend.SIM)
+        self.participant_model.setEnabled(self.backend.currentData() == Backend.SIM)
         self.hw_config_path.setEnabled(self.backend.currentData() == Backend.HW)
         if not PARTICIPANT_PATTERN.match(code):
             self._show(f"Participant code {code!r} is not valid: use 1 to 64 letters, digits, "
@@ -371,6 +422,7 @@ class SetupPanel(QWidget):
             seed=_seed_of(self.seed.text()),
             realtime=self.realtime.isChecked(), resume=resume,
             joint=None if resume else self.joint.currentData(),
+            participant_model=None if resume else self.chosen_model(),
             lsl_record=tuple(self.lsl.wanted()))
 
     def press_start(self, resume: bool = False) -> None:

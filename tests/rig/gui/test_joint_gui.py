@@ -156,3 +156,112 @@ def test_nmsid_gui_joint_option_fills_the_form(qtbot, tmp_path):
     qtbot.addWidget(w)
     assert w.setup_panel.request().joint == "knee"
     w.close()
+
+
+def test_setup_panel_lists_the_built_in_participants_for_the_simulator(qtbot, tmp_path):
+    """The Simulated participant selector: the configuration's, then every built-in model
+    of the one registry (no plug-in), sim only; it feeds the request as
+    ``--participant-model`` does, and an untyped code follows it (MK01, not P01)."""
+    from nmsid.protocols.config import PARTICIPANT_MODELS
+    from nmsid.rig.errors import RequestError
+    panel = SetupPanel(on_start=lambda r: None)
+    qtbot.addWidget(panel)
+    box = panel.participant_model
+    assert [box.itemData(i) for i in range(box.count())] == [None, *PARTICIPANT_MODELS]
+    panel.set_values(output=tmp_path / "x.h5")
+    assert panel.request().participant_model is None and panel.request().participant == "P01"
+    panel.set_values(joint="knee", participant_model="musculoskeletal")
+    req = panel.request()
+    assert req.participant_model == "musculoskeletal" and req.joint == "knee"
+    assert req.participant == "MK01"            # as nmsid run without --participant
+    panel.set_values(joint="ankle")
+    assert panel.request().participant == "MA01"
+    panel.set_values(backend="hw")              # a real participant: no simulated one
+    assert not box.isEnabled() and panel.request().participant_model is None
+    assert panel.request().participant == "P01"
+    panel.set_values(backend="sim", participant="S07")   # a code the operator gave stays
+    assert box.isEnabled() and panel.request().participant == "S07"
+    with pytest.raises(RequestError, match="nmsid run --participant-model"):
+        panel.set_values(participant_model="mylab.models:make")
+
+
+def test_participant_model_reaches_the_configuration_as_the_cli_flag_does(tmp_path):
+    from nmsid.rig.gui.session_controller import load_session_config
+    from nmsid.rig.gui.setup_panel import Backend, SessionRequest
+    req = SessionRequest("MK01", Backend.SIM, tmp_path / "MK01.h5", joint="knee",
+                         participant_model="musculoskeletal")
+    cfg = load_session_config(req)
+    assert (cfg.participant_model, cfg.joint, cfg.participant) == \
+        ("musculoskeletal", "knee", "MK01")
+    assert load_session_config(dataclasses.replace(
+        req, participant_model=None)).participant_model == "template"
+
+
+def test_nmsid_gui_participant_model_option_fills_the_form(qtbot, tmp_path):
+    """``nmsid gui --participant-model musculoskeletal --joint knee``; a plug-in spec is
+    refused by the command line (it runs with ``nmsid run`` only)."""
+    from nmsid.cli import build_parser
+    from nmsid.rig.gui.app import GuiOptions, build_window
+    args = build_parser().parse_args(["gui", "--joint", "knee", "--participant-model",
+                                      "musculoskeletal"])
+    w = build_window(GuiOptions(joint=args.joint, participant_model=args.participant_model,
+                                out=tmp_path / "MK01.h5"))
+    qtbot.addWidget(w)
+    req = w.setup_panel.request()
+    assert (req.participant_model, req.joint, req.participant) == \
+        ("musculoskeletal", "knee", "MK01")
+    w.close()
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["gui", "--participant-model", "mylab.models:make"])
+
+
+def test_knee_session_on_the_myoleg_participant_through_the_window(qtbot, tmp_path):
+    """Issue 41: a simulated knee session on the built-in MyoLeg participant runs end to
+    end from the GUI (one short trial, fast clock) and its file records the model."""
+    pytest.importorskip("mujoco")
+    from nmsid.rig.gui.main_window import MainWindow
+    from nmsid.rig.gui.results_panel import SelectionView
+    w = MainWindow(config_transform=_knee_short, identify=_LevelResult,
+                   select_models=lambda path: SelectionView([], note="skipped"))
+    qtbot.addWidget(w)
+    w.show()
+    try:
+        out = tmp_path / "MK01.h5"
+        w.start_session(output=out, backend="sim", seed=3, realtime=False, joint="knee",
+                        participant_model="musculoskeletal")
+        assert w.controller.engine is not None, w.setup_panel.message.text()
+        assert w.controller.config.participant_model == "musculoskeletal"
+        assert w.live.force_plot.getAxis("left").labelText == "torque (N m)"
+        assert w.live.readouts.names["I_ext"].text() == "quadriceps (mA)"
+        assert w.live.readouts.names["I_flex"].text() == "hamstrings (mA)"
+        assert "N m" in w.calibration_panel.plot.getAxis("left").labelText
+        qtbot.waitUntil(lambda: w.calibration_panel.confirm_button.isEnabled()
+                        or w.run_error is not None, timeout=120_000)
+        assert w.run_error is None
+        w.confirm_calibration()
+        qtbot.waitUntil(lambda: w.run_result is not None or w.run_error is not None,
+                        timeout=180_000)
+        assert w.run_error is None
+        s = read_session(out, load_data=False)
+        assert s.attrs.get("participant_model") == "musculoskeletal"
+        assert s.attrs.get("joint") == "knee"
+        assert s.participant == "MK01"
+        assert [t.completed for t in s.trials] == [True]
+    finally:
+        w.controller.shutdown(timeout_s=5.0)
+        w.close()
+
+
+def test_one_function_applies_the_participant_model_for_the_cli_and_the_gui():
+    """``with_participant_model``: ``nmsid run`` and the GUI both call it; an unnamed
+    participant of the MyoLeg knee is MK01 (issue 39), a named one is kept."""
+    from nmsid.protocols.config import load_config
+    from nmsid.rig.session_service import with_participant_model
+    knee = load_config(None, overrides={"joint": "knee"})
+    assert with_participant_model(knee, None, participant_given=False) is knee
+    got = with_participant_model(knee, "musculoskeletal", participant_given=False)
+    assert (got.participant_model, got.participant) == ("musculoskeletal", "MK01")
+    kept = with_participant_model(knee, "musculoskeletal", participant_given=True)
+    assert kept.participant == knee.participant == "P01"
+    assert with_participant_model(knee, "template", participant_given=False).participant \
+        == "P01"
