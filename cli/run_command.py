@@ -114,7 +114,7 @@ def run(args) -> int:
                          sim_seed=args.sim_seed if args.backend == "sim" else None,
                          realtime=bool(args.realtime), stored=stored,
                          stored_backend=stored_backend,
-                         participant_model=args.participant_model if args.resume else None)
+                         participant_model=args.participant_model or None)
     if args.backend == "hw" and args.sim_seed is not None:
         log.warning("--sim-seed %s ignored: it applies to --backend sim (the simulated "
                     "participant)", args.sim_seed)

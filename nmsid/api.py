@@ -315,7 +315,8 @@ def run_simulated_session(out: PathLike, config: Config | PathLike | None = None
         raise OutputPathError(f"out {path}: a journal of an unfinished session "
                               f"({journal_dir(path)}) is here; continue it with `nmsid run "
                               f"--backend sim --resume {path}`, or give another out")
-    rig = prepare_rig(RigRequest(backend="sim", session_path=path, sim_seed=sim_seed), cfg)
+    rig = prepare_rig(RigRequest(backend="sim", session_path=path, sim_seed=sim_seed,
+                                 participant_model=participant_model or None), cfg)
     box: dict[str, Any] = {}
     try:
         engine = Engine(rig.config, rig.devices, path, trip_policy=TripPolicy.END_SESSION,

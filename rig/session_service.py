@@ -75,7 +75,9 @@ class RigRequest:
         The simulated participant the operator named in this command (``--participant-
         model``) or in the GUI. A resume of a session whose participant is a plug-in
         (``package.module:factory``) must name it again, equal to the recorded one: a
-        resume never imports a module its command did not name.
+        resume never imports a module its command did not name; nor does a new session
+        whose settings file names a plug-in (``[participant] model``): the command must
+        name the same plug-in.
     """
 
     backend: str
@@ -202,6 +204,14 @@ def prepare_rig(request: RigRequest, config) -> PreparedRig:
                            f"hardware file never runs a simulated session)")
     if request.resume:
         check_resume(request, config)
+    model = config.participant_model
+    if request.backend == "sim" and is_plugin_spec(model) and request.participant_model != model:
+        # a settings file is data: it never chooses code to run (the card); the operator
+        # names the plug-in in the command (or the Python API's call) that imports it
+        raise RequestError(f"{config.source}: participant.model = {model!r} is a plug-in "
+                           f"(code to import); a settings file never chooses code to run: "
+                           f"name it in the command with --participant-model {model} "
+                           f"(nothing was imported)")
     attrs: dict = {"rig_backend": request.backend}
     sim_seed = None
     if request.backend == "sim":

@@ -201,6 +201,26 @@ def test_a_resume_imports_only_the_plugin_its_command_names(lab, capsys):
     assert sum(t.completed for t in s.trials) == 2 and validate_session("r.h5") == []
 
 
+def test_a_settings_file_naming_a_plugin_imports_nothing_the_command_did_not_name(lab,
+                                                                                 capsys):
+    src = (lab / "noncopy_lab.py").read_text()
+    (lab / "noncopy_lab.py").write_text("open('imported', 'w').close()\n" + src)
+    (lab / "q.toml").write_text(CONFIG.replace('participant = "P01"\n', "")
+                                + '[participant]\ncode = "P01"\n'
+                                  'model = "noncopy_lab:with_lock"\n', encoding="utf-8")
+    assert main(["run", "--backend", "sim", "--config", "q.toml", "--out", "q.h5",
+                 "--no-identify"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "q.toml" in err
+    assert "--participant-model noncopy_lab:with_lock" in err
+    assert not (lab / "imported").exists() and "noncopy_lab" not in sys.modules
+    assert not (lab / "q.h5").exists()
+    # named in the command too: imported and run
+    assert main(["run", "--backend", "sim", "--config", "q.toml", "--participant-model",
+                 "noncopy_lab:with_lock", "--out", "q.h5", "--no-identify", "--quiet"]) == 0
+    assert (lab / "imported").exists() and validate_session("q.h5") == []
+
+
 @pytest.mark.parametrize("factory", ["make_with_module", "make_with_lock"])
 def test_non_copyable_plugins_run_calibration_identify_design_and_tracking(
         tmp_path, monkeypatch, factory):
