@@ -8,10 +8,10 @@ import sys
 import pytest
 
 from nmsid.cli import main
+from nmsid.drivers import interfaces
 from nmsid.drivers.caio import CaioAcquisition
 from nmsid.drivers.estop_switch import NidaqEStop, SerialEStop
 from nmsid.drivers.hardware import make_hw_rig
-from nmsid.drivers import interfaces
 from nmsid.drivers.interfaces import ForceAcquisition, RigDevices, Stimulator
 from nmsid.drivers.leptrino import LeptrinoAcquisition
 from nmsid.drivers.nidaq import NidaqAcquisition
