@@ -170,6 +170,7 @@ def test_gap_summary_counts_and_medians():
     assert s["median_nominal_heldout_nrmse_pct"] == 10.0
 
 
+@pytest.mark.wine_gap(WINE_DASK_CLUSTER)
 def test_existing_scheduler_address(folder, tmp_path):
     """--scheduler: the tasks go to a cluster the study did not start (and leaves up)."""
     from distributed import LocalCluster
