@@ -60,22 +60,17 @@ if [ "$CI_MODE" = 1 ]; then WHEEL_GROUPS="${NMSID_WINE_GROUPS-gui}"
 else WHEEL_GROUPS="${NMSID_WINE_GROUPS-gui mujoco nwb dask}"; fi
 
 # CI's subset: the issue's rig, store, lock, publish, recovery, CLI, drivers and analysis
-# tests, and the GUI's (offscreen), in tiers started in this order while each fits before
+# tests (all of tests/protocols), and the GUI's (offscreen), in tiers started in this order while each fits before
 # NMSID_CI_DEADLINE: "seconds|paths", the seconds measured with one worker on the shared
 # 2-core machine (docs/testing.md), rounded up
 CI_TIERS=(
-  "240|tests/protocols/test_session_lock.py tests/protocols/test_session_publish.py
-       tests/protocols/test_session_publish_bite.py tests/protocols/test_session_file.py
-       tests/protocols/test_session_h5.py tests/protocols/test_output_paths.py tests/cli
+  "300|tests/protocols tests/cli
        tests/test_windows_console_events.py tests/test_windows_output_paths.py
        tests/test_windows_stall.py tests/test_windows_keep_awake.py
        tests/test_windows_platforms.py tests/test_windows_imports.py"
   "480|tests/drivers"
   "180|tests/rig --ignore=tests/rig/gui"
-  "120|tests/analysis/test_identify.py tests/analysis/test_cli_identify.py
-       tests/analysis/test_cli_outputs.py tests/analysis/test_session_read_once.py
-       tests/analysis/test_twin.py tests/analysis/test_preprocess.py
-       tests/analysis/test_second_order.py tests/analysis/qc"
+  "300|tests/analysis"
   "180|tests/rig/gui"
 )
 
