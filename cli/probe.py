@@ -21,8 +21,9 @@ def register(sub) -> None:
                        description="Connect to each device of the hardware configuration, "
                        "print what it reports and a few force samples, then release it. "
                        "Nothing is stimulated.")
-    p.add_argument("--hw-config", metavar="FILE", required=True,
-                   help="the rig's hardware configuration (TOML)")
+    p.add_argument("--hw-config", metavar="FILE",
+                   help="the rig's hardware configuration (TOML); needed except for "
+                   "--check-assembly DLL")
     p.add_argument("--samples", type=bounded_int(1, 10_000, " (the probe reads for at most "
                                                     "5 s)"), default=20, metavar="N",
                    help="force samples to read, 1 ... 10000 (default 20)")
@@ -35,7 +36,8 @@ def register(sub) -> None:
                    help="dry run: the STG channel wired to the resistor (default extensor)")
     p.add_argument("--dry-run-mA", type=float, default=2.0, metavar="MA",
                    help="dry run: peak current, at most 5 mA (default 2)")
-    p.add_argument("--check-assembly", action="store_true",
-                   help="only check that stimulator.dll_path (McsUsbNet.dll) has every "
-                   "member the STG driver uses, with its argument types; touches no device")
+    p.add_argument("--check-assembly", nargs="?", const="", default=None, metavar="DLL",
+                   help="only check that McsUsbNet.dll (DLL, else the hardware file's "
+                   "stimulator.dll_path) has every member the STG driver uses, with its "
+                   "argument types; touches no device and needs no hardware file")
     p.set_defaults(handler="nmsid.cli.probe_command:probe")

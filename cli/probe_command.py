@@ -59,16 +59,20 @@ def probe(args) -> int:
     if not 1 <= args.samples <= MAX_PROBE_SAMPLES:
         raise UsageError(f"--samples {args.samples} is outside [1, {MAX_PROBE_SAMPLES}] (the "
                          "probe reads for at most 5 s: 10000 samples at 2 kHz)")
+    dll = getattr(args, "check_assembly", None)   # None: not asked; "": the file's dll_path
+    if dll:   # the assembly alone: no hardware file, no device
+        return _check_assembly(dll)
+    if not args.hw_config:
+        raise UsageError("probe needs --hw-config FILE (the rig's hardware configuration), "
+                         "or --check-assembly DLL to check McsUsbNet.dll alone")
     cfg = load_hw_config(args.hw_config)
-    if getattr(args, "check_assembly", False):
-        from nmsid.drivers.mcs_surface import assembly_report  # noqa: PLC0415
+    if dll is not None:
         dll_path = getattr(cfg.stimulator, "dll_path", None)
         if dll_path is None:   # a stimulator kind driven without McsUsbNet
             raise UsageError(f"{cfg.source}: --check-assembly checks the McsUsbNet assembly "
-                             "named by stimulator.dll_path; this [stimulator] has none")
-        status, lines = assembly_report(dll_path)
-        print("\n".join(lines))
-        return status
+                             "named by stimulator.dll_path; this [stimulator] has none "
+                             "(or name it: --check-assembly DLL)")
+        return _check_assembly(dll_path)
     dry_cfg = None
     if getattr(args, "dry_run", False):
         # an analog chain records the resistor on its monitor input; a digital one (the
@@ -104,6 +108,13 @@ def probe(args) -> int:
         return 1
     print("probe: OK")
     return 0
+
+
+def _check_assembly(dll_path) -> int:
+    from nmsid.drivers.mcs_surface import assembly_report  # noqa: PLC0415
+    status, lines = assembly_report(dll_path)
+    print("\n".join(lines))
+    return status
 
 
 def _check_here(check, cfg, stack, clock, args) -> str:

@@ -56,7 +56,13 @@ class FakeStack:
 
 
 class _OwningAcquisition:
-    """Delegates to an acquisition and closes the fake stack after it."""
+    """Delegates to an acquisition and closes the fake stack after it.
+
+    Made by :func:`_own` as a subclass naming each public attribute of the acquisition it
+    wraps: Python >= 3.12 checks a runtime protocol (``Describable``, ``SampleTiming``,
+    ``RecoverableAcquisition``, ...) with ``inspect.getattr_static``, which does not see
+    ``__getattr__``, so a wrapper that only had ``__getattr__`` lost every capability.
+    """
 
     def __init__(self, inner, stack: FakeStack):
         self._inner, self._stack = inner, stack
@@ -228,8 +234,18 @@ def _with_fake(cfg: HardwareConfig) -> HardwareConfig:
     return replace(cfg, fake=True)
 
 
+def _forward(name: str) -> property:
+    return property(lambda self: getattr(self._inner, name),
+                    lambda self, value: setattr(self._inner, name, value))
+
+
 def _own(acq, stack):
-    return acq if stack is None else _OwningAcquisition(acq, stack)
+    if stack is None:
+        return acq
+    names = [n for n in dir(acq) if not n.startswith("_") and n not in vars(_OwningAcquisition)]
+    cls = type(f"Owning{type(acq).__name__}", (_OwningAcquisition,),
+               {n: _forward(n) for n in names})
+    return cls(acq, stack)
 
 
 def _estop(cfg: HardwareConfig, stack: FakeStack | None):

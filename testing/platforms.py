@@ -64,6 +64,10 @@ WINE_LOCKING = ("msvcrt.locking refuses a locked region with errno 0 (Wine's _lo
                 "no EACCES) and ReadFile / WriteFile ignore locked regions (Windows' locks "
                 "are mandatory)")
 WINE_SYMLINK = "CreateSymbolicLinkW reports success and creates nothing"
+WINE_FOLDER_RENAME = ("MoveFileEx renames a folder while a file inside it is open in another "
+                      "process (Windows refuses: ERROR_ACCESS_DENIED)")
+WINE_DASK_CLUSTER = ("a study on distributed.LocalCluster's worker processes (started by "
+                     "spawn, as WINE_PROCESS_POOL's) did not end within the 300 s test limit")
 WINE_PROCESS_POOL = ("concurrent.futures.ProcessPoolExecutor never shuts down (its workers "
                      "started by spawn; multiprocessing.Pool and Process work)")
 

@@ -21,6 +21,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from nmsid.cli import main
+from nmsid.testing.platforms import WINE_SYMLINK
 
 ROOT = Path(__file__).resolve().parents[1]
 FUZZ = settings(max_examples=25, deadline=5000, derandomize=True,
@@ -139,6 +140,7 @@ def test_gap_design_study_run_numbers(files, data):
 
 
 @FUZZ
+@pytest.mark.wine_gap(WINE_SYMLINK)   # its first bad path is a dangling link
 @given(data=st.data())
 def test_paths(files, data):
     d = files["dir"]
@@ -168,12 +170,15 @@ def test_paths(files, data):
     assert "\x1b" not in line
 
 
-def test_real_subprocesses_refuse_in_one_line(files):
+@pytest.mark.parametrize("link", [False, pytest.param(True, id="dangling-link", marks=(
+    pytest.mark.wine_gap(WINE_SYMLINK)))])
+def test_real_subprocesses_refuse_in_one_line(files, link):
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    for argv in (["twin", "simulate", str(files["twin"]), "--rE-chirp", "--sE", "0.5",
-                  "--fs-Hz", "1e12", "--out", str(files["dir"] / "f.csv")],
-                 ["run", "--seed", str(2 ** 63), "--out", str(files["dir"] / "r.h5")],
-                 ["run", "--out", str(files["dangling"])]):
+    argvs = ([["run", "--out", str(files["dangling"])]] if link else
+             [["twin", "simulate", str(files["twin"]), "--rE-chirp", "--sE", "0.5",
+               "--fs-Hz", "1e12", "--out", str(files["dir"] / "f.csv")],
+              ["run", "--seed", str(2 ** 63), "--out", str(files["dir"] / "r.h5")]])
+    for argv in argvs:
         p = subprocess.run([sys.executable, "-m", "nmsid.cli", *argv], capture_output=True,
                            text=True, timeout=60, cwd=str(ROOT), env=env)
         assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1, (argv, p.stderr)

@@ -20,6 +20,7 @@ from nmsid.protocols.output_paths import (
     output_file,
     write_manifest,
 )
+from nmsid.testing.platforms import WINE_FOLDER_RENAME
 from nmsid.testing.windows_emulation import emulate_windows
 
 _HOLD = ("import sys; f = open(sys.argv[1], 'rb'); print('open', flush=True); "
@@ -57,6 +58,7 @@ def test_forced_output_over_a_file_open_elsewhere_keeps_the_new_results(tmp_path
                                                           "parameters.csv"]
 
 
+@pytest.mark.wine_gap(WINE_FOLDER_RENAME)
 def test_forced_folder_output_with_a_file_open_inside_keeps_both(tmp_path):
     target = tmp_path / "gap"
     target.mkdir()

@@ -1,6 +1,6 @@
 """Counts, failures and skip reasons from a pytest junit XML file.
 
-    python3 junit_summary.py junit.xml
+    python3 junit_summary.py junit.xml [more.xml ...]
 
 Prints ``N passed, N failed, N error, N skipped``, then the failures and errors grouped by
 the first line of their message, then every skip reason with its count (each skip on the
@@ -14,11 +14,13 @@ import re
 import sys
 import xml.etree.ElementTree as ET
 
-root = ET.parse(sys.argv[1]).getroot()
 counts: collections.Counter[str] = collections.Counter()
 problems: dict[str, list[str]] = collections.defaultdict(list)
 skips: collections.Counter[str] = collections.Counter()
-for case in root.iter("testcase"):
+roots = [ET.parse(path).getroot() for path in sys.argv[1:]]
+cases = [case for root in roots for case in root.iter("testcase")]
+seconds = sum(float(suite.get("time") or 0) for root in roots for suite in root.iter("testsuite"))
+for case in cases:
     name = f"{case.get('classname')}::{case.get('name')}"
     outcome = next((k for k in case if k.tag in ("failure", "error", "skipped")), None)
     if outcome is None:
@@ -33,7 +35,11 @@ for case in root.iter("testcase"):
         continue
     first = message.splitlines()[0][:160] if message else outcome.tag
     problems[re.sub(r"0x[0-9a-fA-F]+|\d+(\.\d+)?", "N", first)].append(name)
-print(", ".join(f"{counts[k]} {k}" for k in ("passed", "failure", "error", "skipped")))
+print(", ".join(f"{counts[k]} {k}" for k in ("passed", "failure", "error", "skipped"))
+      + f" in {seconds / 60:.1f} min")
+wine = sum(n for reason, n in skips.items() if reason.startswith("Wine "))
+print(f"of the skips, {wine} for a gap of Wine's (wine_gap), "
+      f"{counts['skipped'] - wine} for another reason")
 for key, names in sorted(problems.items(), key=lambda kv: -len(kv[1])):
     print(f"\n[{len(names)}] {key}")
     for name in names[:5]:

@@ -1,6 +1,8 @@
 """Scripted runs: drive the window from a text file as an operator would.
 
-A script is one command per line (``#`` starts a comment; arguments are shell-quoted)::
+A script is one command per line (``#`` starts a comment; arguments are quoted as in a
+shell, but a backslash is an ordinary character, so a Windows path such as
+``output=C:\\data\\P07.h5`` is read as typed)::
 
     start participant=DEMO output=sessions/DEMO.h5   # fill the setup form, press Start
     confirm-calibration                # accept the detected currents (or Iemin_mA=2.5 ...)
@@ -155,6 +157,15 @@ def _split_kwargs(words: list[str]) -> tuple[tuple[str, ...], dict[str, str]]:
     return tuple(args), kwargs
 
 
+def _words(raw: str) -> list[str]:
+    """One line's words: quotes and ``#`` comments as in a POSIX shell, backslashes kept
+    (``shlex.split`` reads them as escapes: ``C:\\data\\P07.h5`` became ``C:dataP07.h5``)."""
+    lex = shlex.shlex(raw, posix=True)
+    lex.whitespace_split = True
+    lex.escape = ""
+    return list(lex)
+
+
 def parse_script(text: str, source: str = "script") -> list[Step]:
     """Parse a script into steps.
 
@@ -166,7 +177,7 @@ def parse_script(text: str, source: str = "script") -> list[Step]:
     steps = []
     for n, raw in enumerate(text.splitlines(), start=1):
         try:
-            words = shlex.split(raw, comments=True)
+            words = _words(raw)
         except ValueError as exc:
             raise ScriptError(f"{source}:{n}: cannot parse {raw.strip()!r}: {exc}") from None
         if not words:

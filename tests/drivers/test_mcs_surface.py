@@ -58,6 +58,28 @@ def test_probe_check_assembly_on_the_real_5_3_15_assembly_finds_every_member(tmp
     assert f"all {len(SURFACE)} members" in done.stdout
 
 
+def test_check_assembly_names_the_dll_without_a_hardware_file(tmp_path, monkeypatch, capsys):
+    # issue 42: --check-assembly touches no device, so it needs no hardware file
+    from nmsid.cli import main
+    asked = []
+    monkeypatch.setattr(mcs_surface, "assembly_report",
+                        lambda dll: asked.append(str(dll)) or (1, [f"assembly {dll}: checked"]))
+    dll = str(tmp_path / "McsUsbNet.dll")
+    assert main(["probe", "--check-assembly", dll]) == 1      # the report's status
+    assert asked == [dll] and f"assembly {dll}: checked" in capsys.readouterr().out
+    # the hardware file's dll_path, as before, when no DLL is named
+    assert main(["probe", "--hw-config", str(_hw_config(tmp_path, "C:/x/Mcs.dll")),
+                 "--check-assembly"]) == 1
+    assert asked == [dll, "C:/x/Mcs.dll"]
+    # neither: one line naming both ways, exit 2, nothing checked
+    for argv in (["probe"], ["probe", "--check-assembly"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "--hw-config FILE" in err and "--check-assembly DLL" in err
+        assert "Traceback" not in err
+    assert len(asked) == 2
+
+
 @pytest.fixture(scope="module")
 def real_listing():
     """The real 5.3.15 assembly's members (one reflection subprocess for the module)."""

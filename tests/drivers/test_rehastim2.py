@@ -111,11 +111,15 @@ def test_trial_delivers_the_envelope_as_pulses(rig):
     stim.start()
     assert wait_state(stim, StimulatorState.STOPPED) is StimulatorState.STOPPED
     s = stim.delivery_summary()
-    assert s["updates_acknowledged"] == s["updates_planned"] == 20
+    # every planned update acknowledged, or skipped because the host fell behind the
+    # time base by more than a period (by design; a stall of a loaded host, as the Windows
+    # job under Wine met once): bounded generously, not by this machine's speed
+    assert s["updates_acknowledged"] + s["updates_skipped_late"] == s["updates_planned"] == 20
+    assert s["updates_acknowledged"] >= 10
     # 2 mA steps, rounded down: the device's resolution (user manual 4.1), never above
-    # the envelope
+    # the envelope, each at its slot k / 40 s
     assert s["channels"]["extensor"]["pulse_current_mA"] == \
-        [2 * int(np.floor((5 + 10 * k / 40) / 2)) for k in range(20)]
+        [2 * int(np.floor((5 + 10 * k / 40) / 2)) for k in s["pulse_index"]]
     assert set(s["channels"]["flexor"]["pulse_current_mA"]) == {2}
     got = [v for _t, v in dev.updates if v]
     assert all(v[2] == (300, e) and v[6] == (300, 2) for v, e in

@@ -67,6 +67,10 @@ def test_an_entry_of_the_former_zip_writer_still_reads_back_bit_for_bit():
     back = journal.load_trial_npz(DATA / "journal-entry-shuffled-deflate.npz")
     t = _trial(7, n=400)
     for k in SIGNALS:
+        if k == "rE":   # 0.5 + 0.5 sin: the file's sin is Linux's, this platform's libm
+            # may differ by an ulp of sin (<= 1.1e-16; under Wine up to 16 ulp of rE near 0)
+            np.testing.assert_allclose(back.rE, t.rE, rtol=0, atol=1e-15)
+            continue
         assert np.array_equal(getattr(back, k), getattr(t, k)), k
     assert back.sE == t.sE and back.extra_attrs == t.extra_attrs
 

@@ -18,6 +18,7 @@ from nmsid.study.group import gap_summary  # noqa: E402
 from nmsid.study.runner import run_study  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+from nmsid.testing.platforms import WINE_DASK_CLUSTER  # noqa: E402
 from nmsid.testing.sessions import write_synthetic_session  # noqa: E402
 
 LEVELS = (0.3, 0.4, 0.5, 0.6, 0.7, 0.8)
@@ -49,6 +50,7 @@ def dask_run(folder, tmp_path_factory):
     return result, out, lines
 
 
+@pytest.mark.wine_gap(WINE_DASK_CLUSTER)
 def test_two_workers_report_and_failing_session(folder, dask_run):
     d, truths = folder
     result, out, lines = dask_run
@@ -78,6 +80,7 @@ def test_two_workers_report_and_failing_session(folder, dask_run):
         np.testing.assert_allclose(res["values"]["wn_rad_s"], truth.wn_rad_s, rtol=0.05)
 
 
+@pytest.mark.wine_gap(WINE_DASK_CLUSTER)
 def test_serial_matches_dask_and_aicc_sums_add_up(folder, dask_run, tmp_path):
     d, _ = folder
     result, _, _ = dask_run
@@ -167,6 +170,7 @@ def test_gap_summary_counts_and_medians():
     assert s["median_nominal_heldout_nrmse_pct"] == 10.0
 
 
+@pytest.mark.wine_gap(WINE_DASK_CLUSTER)
 def test_existing_scheduler_address(folder, tmp_path):
     """--scheduler: the tasks go to a cluster the study did not start (and leaves up)."""
     from distributed import LocalCluster

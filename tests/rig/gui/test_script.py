@@ -30,6 +30,20 @@ def test_parses_commands_arguments_and_comments():
     assert steps[2].line == 5
 
 
+def test_windows_paths_keep_their_backslashes():
+    # a script written on Windows: shlex's POSIX mode read each backslash as an escape and
+    # gave output=C:UserslabsessionsP07.h5 (issue 42)
+    steps = parse_script(r"""
+        start participant=P07 output=C:\Users\lab\sessions\P07.h5   # comment
+        screenshot "C:\Program Files\nmsid\shot 1.png"
+        note 'saved to D:\data\'
+    """, "win.txt")
+    assert steps[0].kwargs == {"participant": "P07",
+                               "output": "C:\\Users\\lab\\sessions\\P07.h5"}
+    assert steps[1].args == ("C:\\Program Files\\nmsid\\shot 1.png",)
+    assert steps[2].args == ("saved to D:\\data\\",)
+
+
 @pytest.mark.parametrize("text, message", [
     ("launch", "unknown command 'launch'"),
     ("wait sleeping", "unknown state 'sleeping'"),
