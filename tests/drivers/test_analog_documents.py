@@ -19,6 +19,7 @@ from nmsid.drivers.errors import DeviceError, HardwareConfigError
 from nmsid.drivers.fake_hardware import load_fake
 from nmsid.drivers.hw_config import load_hw_config
 from nmsid.protocols import os_platform
+from tests.drivers.analog_trip import true_load_at_trip
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "docs" / "hw-config.example.toml"
 CAL = AnalogCalibration(channels={"Fx": 0}, rated={"Fx": 500.0}, rated_output_V={"Fx": 1.0},
@@ -146,33 +147,10 @@ def test_a_sensor_resting_off_nominal_reads_zero_after_the_automatic_tare(fake_m
 
 
 def test_the_force_limit_trips_at_its_configured_force_on_the_tared_force(fake_mcs):
-    from nmsid.rig.safety import ForceLimitRule, Observation
-    limit_N, fs = 25.0, 2000.0
-    t_ramp = [np.inf]                                # the load rises 20 N/s from t_ramp
-
-    def load(t):
-        return np.where(t < t_ramp[0], 0.0, 20.0 * (t - t_ramp[0]))
-    bench, lib, acq = _resting_rig(fake_mcs, load)
-    rule = ForceLimitRule(limit_N)
-    try:
-        acq.configure(fs)
-        acq.start(None, triggered=False)         # the tare window first, at rest
-        tripped = None
-        while lib._t_first is None:              # bench time of the block's sample 0
-            c = acq.read(1.0)
-            assert c is None or not rule.check(Observation(0.0, chunk=c))
-        t_first = lib._t_first
-        t_ramp[0] = bench.now() + 0.2            # later than any sample generated so far
-        while tripped is None and bench.now() - t_first < 10.0:
-            c = acq.read(1.0)
-            if c is not None and len(c.force_N) and rule.check(Observation(0.0, chunk=c)):
-                tripped = c.start_index + int(np.argmax(np.abs(c.force_N) > limit_N))
-        assert tripped is not None
-        true_N = float(load(np.array([t_first + tripped / fs]))[0])
-        # untared it would trip at rest (40 N > 25 N); tared, at the limit within 1 N
-        assert abs(true_N - limit_N) < 1.0, true_N
-    finally:
-        acq.close()
+    # the load rises 20 N/s; untared it would trip at rest (40 N > 25 N); tared, at the
+    # limit within 1 N
+    true_N = true_load_at_trip(lambda load: _resting_rig(fake_mcs, load), 20.0, 25.0)
+    assert abs(true_N - 25.0) < 1.0, true_N
 
 
 def test_the_tare_is_due_before_the_first_block_and_after_each_rest():

@@ -15,6 +15,7 @@ from nmsid.drivers.dynamometer import DYNAMOMETER_SPAN_V, DynamometerCalibration
 from nmsid.drivers.errors import HardwareConfigError
 from nmsid.drivers.fake_hardware import analog_wiring, load_fake
 from nmsid.drivers.hw_config import parse_hw_config
+from tests.drivers.analog_trip import true_load_at_trip
 
 NM_PER_V = 50.0
 CAL = DynamometerCalibration(channel=0, Nm_per_V=NM_PER_V, offset_V=0.0, sync_channel=1)
@@ -114,33 +115,10 @@ def test_a_dynamometer_resting_off_nominal_reads_zero_after_the_automatic_tare(
 
 def test_the_torque_limit_trips_at_its_configured_torque_on_the_tared_torque(
         fake_mcs, deep_fake_fifo):
-    from nmsid.rig.safety import ForceLimitRule, Observation
-    limit_Nm, fs = 10.0, 2000.0
-    t_ramp = [np.inf]                                # the torque rises 10 N m/s from t_ramp
-
-    def torque(t):
-        return np.where(t < t_ramp[0], 0.0, 10.0 * (t - t_ramp[0]))
-    bench, lib, acq = _dynamometer_rig(fake_mcs, torque)
-    rule = ForceLimitRule(limit_Nm)
-    try:
-        acq.configure(fs)
-        acq.start(None, triggered=False)         # the tare window first, at rest
-        tripped = None
-        while lib._t_first is None:              # bench time of the block's sample 0
-            c = acq.read(1.0)
-            assert c is None or not rule.check(Observation(0.0, chunk=c))
-        t_first = lib._t_first
-        t_ramp[0] = bench.now() + 0.2
-        while tripped is None and bench.now() - t_first < 10.0:
-            c = acq.read(1.0)
-            if c is not None and len(c.force_N) and rule.check(Observation(0.0, chunk=c)):
-                tripped = c.start_index + int(np.argmax(np.abs(c.force_N) > limit_Nm))
-        assert tripped is not None
-        true_Nm = float(torque(np.array([t_first + tripped / fs]))[0])
-        # untared it would trip at rest (15 N m > 10 N m); tared, at the limit within 0.5
-        assert abs(true_Nm - limit_Nm) < 0.5, true_Nm
-    finally:
-        acq.close()
+    # the torque rises 10 N m/s; untared it would trip at rest (15 N m > 10 N m); tared,
+    # at the limit within 0.5 N m
+    true_Nm = true_load_at_trip(lambda load: _dynamometer_rig(fake_mcs, load), 10.0, 10.0)
+    assert abs(true_Nm - 10.0) < 0.5, true_Nm
 
 
 def test_the_tare_measures_the_torque_outputs_rest():
