@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import doctest
 import importlib
+import linecache
 import pkgutil
 from pathlib import Path
 
@@ -60,5 +61,10 @@ def test_docstring_examples(name):
         if name.startswith(prefix):
             pytest.importorskip(dependency)
     module = importlib.import_module(name)
+    # doctest's runner starts a pdb per docstring, whose reset re-checks every source file
+    # linecache holds (os.stat each): after a few hundred tests in one worker that is
+    # thousands of stats per module, 15-145 s a module under Wine (a stat ~4 ms there).
+    # The cache is only a cache: emptied, the examples run the same.
+    linecache.clearcache()
     result = doctest.testmod(module, optionflags=doctest.ELLIPSIS)
     assert result.attempted > 0 and result.failed == 0
