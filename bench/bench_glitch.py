@@ -52,7 +52,7 @@ def _hw_config(path: Path) -> Path:
     path.write_text("\n".join([
         "[rig]", "fake = true", "fake_speed = 1.0", "[stimulator]", "ceiling_ext_mA = 16.0",
         "ceiling_flex_mA = 16.0", "[acquisition]", 'kind = "leptrino"', "fs_Hz = 1200.0",
-        "[acquisition.leptrino]", 'port = "COM5"', "sync_on_external_input = true",
+        "[acquisition.leptrino]", 'port = "COM5"',
         "[estop]", 'kind = "none"']) + "\n")
     return path
 

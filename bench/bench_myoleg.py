@@ -23,6 +23,7 @@ import logging
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -72,7 +73,7 @@ def run_one(joint: str, participant, tmp: Path) -> dict:
             "unit": "N" if joint == "elbow" else "N m"}
 
 
-def main(argv: list[str]) -> int:
+def main(argv: Sequence[str] = ()) -> int:
     logging.disable(logging.WARNING)
     quick = "--quick" in argv
     who = [("elbow", default_msk_participant(seed=5)),

@@ -1,15 +1,14 @@
 """Worker processes for the benchmarks, the same on Windows as on Linux.
 
-Linux starts a pool's workers by fork: they inherit the parent's modules, whatever name a
-script was loaded under. Windows (and macOS) start them by spawn: each worker is a fresh
+The pools start their workers by spawn on every platform (:data:`MP_CONTEXT`; fork, Linux's
+default, would inherit the parent's modules, and its threads' locks). Each worker is a fresh
 interpreter that unpickles the worker function by ``module.qualname`` and imports that
 module itself. A bench script loaded under another name than its file's (tests/conftest.py's
 ``load_bench_script`` registers ``bench_<stem>_under_test``) then fails in every worker
 with ``ModuleNotFoundError``. :func:`importable` hands the pool the same function as found
 by importing the script under its own file name (``bench/`` on ``sys.path``, which spawned
-workers inherit), and :func:`process_pool` opens the pool with :data:`MP_CONTEXT` (the
-platform's default; tests set ``multiprocessing.get_context("spawn")`` to run the Windows
-path here: tests/test_bench_spawn.py).
+workers inherit), and :func:`process_pool` opens the pool with :data:`MP_CONTEXT`
+(tests/test_bench_spawn.py).
 
     with process_pool(jobs) as ex:
         rows = list(ex.map(importable(run_case), cases))
@@ -18,6 +17,7 @@ path here: tests/test_bench_spawn.py).
 from __future__ import annotations
 
 import importlib
+import multiprocessing
 import os
 import sys
 from collections.abc import Callable
@@ -28,9 +28,13 @@ from typing import TypeVar
 
 HERE = Path(__file__).resolve().parent
 
-#: The start method of the benchmarks' pools: None is the platform's default (fork on
-#: Linux, spawn on Windows and macOS).
-MP_CONTEXT: BaseContext | None = None
+#: The start method of the benchmarks' pools: spawn on every platform, as Windows and
+#: macOS start them. Not fork: ``bench/run.py`` runs every benchmark in one process, which
+#: by then holds other benchmarks' threads (liblsl's, Qt's), and a forked child of a
+#: threaded process may crash (POSIX fork: only async-signal-safe calls are safe in the
+#: child; Python 3.12 warns of it). Seen: after bench_lsl, every forked worker of
+#: bench_muscle and bench_musculoskeletal died at once in libc (SIGSEGV).
+MP_CONTEXT: BaseContext | None = multiprocessing.get_context("spawn")
 
 F = TypeVar("F", bound=Callable)
 

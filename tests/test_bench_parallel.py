@@ -2,21 +2,21 @@
 
 Each bench's per-item work (a participant, a setting, a session) is replaced by a small
 fake, so these tests check the pool, the assembly of the results and the printed rows in
-about a second each, not the figures. Worker processes are forked where the platform
-forks (they then see the fakes); elsewhere the benches run their items in-process.
+about a second each, not the figures. The benches' pools spawn their workers on every
+platform (bench/workers.py), and a spawned worker would not see the fakes: the items run
+in-process here (one job); the pool itself is tested in tests/test_bench_spawn.py.
 """
 
 from __future__ import annotations
 
 import importlib
-import multiprocessing
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 BENCH = Path(__file__).resolve().parents[1] / "bench"
-JOBS = 2 if multiprocessing.get_start_method(allow_none=False) == "fork" else 1
+JOBS = 1
 
 
 @pytest.fixture

@@ -104,3 +104,22 @@ def test_the_dirty_list_keeps_the_first_path_whole(bench_run, monkeypatch):
 
     monkeypatch.setattr(bench_run.subprocess, "run", lambda *a, **k: Done())
     assert bench_run._code_changes() == ["rig/engine.py"]
+
+
+def test_every_benchmark_main_runs_without_arguments():
+    # bench/run.py calls each bench_*.py's main() with no arguments: a main that needs one
+    # fails only in the whole run (bench_myoleg's main(argv) did, round 37)
+    import ast
+
+    bench_dir = Path(__file__).resolve().parents[1] / "bench"
+    scripts = sorted(bench_dir.glob("bench_*.py"))
+    assert len(scripts) > 30
+    needing = []
+    for script in scripts:
+        tree = ast.parse(script.read_text(encoding="utf-8"))
+        (main,) = [n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "main"]
+        args = main.args
+        positional = args.posonlyargs + args.args
+        if len(args.defaults) < len(positional) or None in args.kw_defaults:
+            needing.append(script.name)
+    assert needing == []

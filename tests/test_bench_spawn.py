@@ -44,3 +44,12 @@ def test_importable_resolves_a_script_loaded_under_another_name(spawn_workers):
     assert workers.importable(f) is f               # already importable: unchanged
     # what the pool would send without it: a module a fresh process cannot import
     assert b._one_safe.__module__ not in ("bench_control", "__main__")
+
+
+def test_bench_pools_start_their_workers_by_spawn_everywhere(load_bench_script):
+    # bench/run.py runs every benchmark in one process that by then holds other
+    # benchmarks' threads (liblsl's): forked workers died at once in libc after bench_lsl
+    load_bench_script("bench_control")
+    workers = sys.modules["workers"]
+    assert workers.MP_CONTEXT is not None
+    assert workers.MP_CONTEXT.get_start_method() == "spawn"
