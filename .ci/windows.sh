@@ -263,9 +263,12 @@ if [ "$CI_MODE" = 1 ]; then
             echo "windows job: tier $n ($paths) NOT RUN: it takes ~${need}s, ${left}s are left of the CI budget"
             continue
         fi
-        log "tier $n: $paths (~${need}s, ${left}s left)"
+        # a tier that hangs (a test stuck where pytest-timeout's thread cannot end it) is
+        # cut at three times its estimate, so the tiers after it still run and report
+        limit=$(( 3 * need < left ? 3 * need : left ))
+        log "tier $n: $paths (~${need}s, ${left}s left, cut at ${limit}s)"
         # shellcheck disable=SC2086
-        one_run "$left" "tier$n" -n "${NMSID_WINE_WORKERS:-2}" $paths || rc=$?
+        one_run "$limit" "tier$n" -n "${NMSID_WINE_WORKERS:-2}" $paths || rc=$?
     done
 else
     ARGS=("$@"); [ ${#ARGS[@]} -eq 0 ] && ARGS=(-n 2)
